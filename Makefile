@@ -1,0 +1,43 @@
+# Two commands on a fresh machine:  make run   |   make test
+# Both first run tools/bootstrap.sh, which installs whatever is missing (idempotent).
+SHELL := /bin/bash
+PY := .venv/bin/python
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export PYTHONDONTWRITEBYTECODE :=
+
+SEED ?= 1
+CONFIG ?= config/paper_small_artery.yaml
+PYTEST_ARGS ?=
+
+.PHONY: bootstrap run test test-unit test-integration bench simulate figures clean
+
+bootstrap:
+	@tools/bootstrap.sh
+
+## The main job: the paper's closed-loop scenario over ROS 2, recorded to runs/, then reported.
+run: bootstrap
+	@$(PY) -m vesselbot_ros.cli run --config $(CONFIG) --seed $(SEED) --report
+
+## The whole test suite (unit + integration over real ROS 2 topics).
+test: bootstrap
+	@$(PY) -m pytest test -q $(PYTEST_ARGS)
+
+test-unit: bootstrap
+	@$(PY) -m pytest test/unit -q $(PYTEST_ARGS)
+
+test-integration: bootstrap
+	@$(PY) -m pytest test/integration -q $(PYTEST_ARGS)
+
+## ROS-free closed loop of the same scenario.
+simulate: bootstrap
+	@$(PY) -m vesselbot_ros.cli simulate --config $(CONFIG) --seed $(SEED)
+
+## Paper figures 7 and 8.
+figures: bootstrap
+	@$(PY) -m vesselbot_ros.cli design-map && $(PY) -m vesselbot_ros.cli force-balance && $(PY) -m vesselbot_ros.cli sensitivity
+
+bench: bootstrap
+	@for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf build .venv out

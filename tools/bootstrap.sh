@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# Idempotent setup of everything `make run` and `make test` need, from nothing:
+#   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...)
+#   2. msg_defs/ (vesselbot_msgs) built with rosidl and installed into .venv
+#   3. vesselbot_ros installed in editable mode
+# Each step is skipped when the sha256 of its inputs matches the stamp it left,
+# so a second call does nothing (well under 5 s).  A failing step leaves no stamp.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+venv=$root/.venv
+py=${PYTHON:-python3}
+stamps=$venv/.vesselbot-stamps
+
+hash_files() { cat "$@" | sha256sum | cut -d' ' -f1; }
+fresh() { [ -f "$stamps/$1" ] && [ "$(cat "$stamps/$1")" = "$2" ]; }
+quiet_pip() {  # pip without the local index's noise; fails when pip fails
+  local out rc=0
+  out=$("$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2>&1) || rc=$?
+  grep -v "is ignored: it is neither a file nor a directory" <<<"$out" || true
+  if [ $rc -ne 0 ]; then echo "vesselbot bootstrap: pip $1 failed (exit $rc)" >&2; exit $rc; fi
+}
+mark() { mkdir -p "$stamps"; echo "$2" > "$stamps/$1"; }
+
+for tool in cmake ninja cc; do
+  command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install cmake ninja-build gcc)" >&2; exit 1; }
+done
+
+# 1. virtual environment + pinned requirements
+req=$(hash_files requirements.txt)
+if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
+  echo "vesselbot bootstrap: installing pinned requirements into .venv (about 1 min on a fresh machine)"
+  [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
+  rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/package"
+  quiet_pip install -r requirements.txt
+  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap" \
+    || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
+  mark requirements "$req"
+fi
+
+# 2. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
+ifc=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+      $(find msg_defs -type f | LC_ALL=C sort))
+if ! fresh interfaces "$ifc"; then
+  echo "vesselbot bootstrap: building msg_defs (vesselbot_msgs) into .venv"
+  rm -f "$stamps/interfaces"
+  tools/build_interfaces.sh "$venv" msg_defs build/msg_defs
+  mark interfaces "$ifc"
+fi
+
+# 3. vesselbot_ros itself, editable
+pkg=$(hash_files setup.py setup.cfg package.xml requirements.txt)
+if ! fresh package "$pkg"; then
+  echo "vesselbot bootstrap: installing vesselbot_ros (editable)"
+  quiet_pip install --no-deps --no-build-isolation -e .
+  (cd / && "$venv/bin/python" -c "import vesselbot_ros.cli") || { echo "vesselbot bootstrap: vesselbot_ros does not import" >&2; exit 1; }
+  mark package "$pkg"
+fi

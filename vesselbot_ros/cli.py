@@ -1,0 +1,72 @@
+"""``vesselbot``: the one command-line entry point.
+
+Sub-commands live in their own modules, imported lazily so that ``vesselbot
+design-map`` never pays for importing rclpy.  Each module in ``COMMANDS``
+provides::
+
+    def register(parser: argparse.ArgumentParser) -> None   # add arguments
+    def run(args: argparse.Namespace) -> int                # exit code
+
+A :class:`~vesselbot_ros.config.ConfigError` (or any ``VesselbotError``)
+escaping ``run`` is printed as one clear line and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "design-map": ("vesselbot_ros.analysis.design_map_cli", "Fig. 7: F_m/F_tot maps over (lambda, Delta)"),
+    "force-balance": ("vesselbot_ros.analysis.force_balance_cli", "Fig. 8a: every force term vs Delta"),
+    "sensitivity": ("vesselbot_ros.analysis.sensitivity_cli", "Fig. 8b: +/-10 % on M, eps, q, V_f"),
+    "simulate": ("vesselbot_ros.sim.simulate_cli", "ROS-free closed loop of a scenario"),
+    "run": ("vesselbot_ros.launch.run_cli", "run the ROS 2 node graph (recorded)"),
+    "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
+    "replay": ("vesselbot_ros.bag.replay_cli", "republish a recorded bag"),
+    "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),
+}
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """Build the top-level parser; import only ``only``'s module if given."""
+    parser = argparse.ArgumentParser(
+        prog="vesselbot",
+        description="MRI-guided magnetic microrobot navigation emulator (Arcese et al., IEEE TBME 2012).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if only == name:
+            importlib.import_module(module).register(p)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``vesselbot`` console script."""
+    from vesselbot_ros.config import ConfigError
+    from vesselbot_ros.errors import VesselbotError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(only=command if command in COMMANDS else None)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.run(args) or 0)
+    except (ConfigError, VesselbotError) as exc:
+        print(f"vesselbot {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"vesselbot {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
