@@ -1,0 +1,26 @@
+"""Shared fixtures: every ROS test gets its own domain id and log folder."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def ros(tmp_path):
+    """An isolated rclpy Context on a leased domain (see vesselbot_ros.testing)."""
+    from vesselbot_ros.testing import isolated_ros
+
+    with isolated_ros(tmp_path) as sandbox:
+        yield sandbox
+
+
+@pytest.fixture
+def repo() -> Path:
+    """The repository root."""
+    return REPO

@@ -1,0 +1,36 @@
+"""Regenerate the generated sections of README.md from the code (topic table, lockstep protocol).
+
+Generated sections sit between ``<!-- BEGIN name -->`` and ``<!-- END name -->``
+markers; everything else in README.md is hand-written.  Run:
+``.venv/bin/python tools/gen_readme_sections.py`` (test/unit/test_topics.py fails
+when the README is stale).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from vesselbot_ros import topics
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def sections() -> dict[str, str]:
+    doc = topics.__doc__ or ""
+    protocol = doc.split("Lockstep protocol (the default mode; deterministic)")[1]
+    protocol = re.sub(r"^-+\n", "", protocol.lstrip("\n")).strip()
+    return {"topics": topics.markdown_table(), "lockstep": protocol}
+
+
+def render(text: str) -> str:
+    for name, body in sections().items():
+        pat = re.compile(rf"(<!-- BEGIN {name} -->\n)(?:.*?\n)?(<!-- END {name} -->)", re.S)
+        if not pat.search(text):
+            raise SystemExit(f"README.md lacks the markers for section {name!r}")
+        text = pat.sub(lambda m, b=body: m.group(1) + b + "\n" + m.group(2), text)
+    return text
+
+
+if __name__ == "__main__":
+    README.write_text(render(README.read_text()))

@@ -1,0 +1,104 @@
+"""Network hygiene for every run and test: own domain, localhost discovery, own logs.
+
+Fast DDS multicasts discovery on every interface by default, and every
+process on the machine with the same ROS_DOMAIN_ID joins the same graph.  Our
+entry points and test fixtures therefore:
+
+* set ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``;
+* give every run and every test its own ``ROS_DOMAIN_ID``, allocated with an
+  exclusive lock file so that concurrent runs on one machine never share one;
+* put rcl's log files under the run's own folder (``ROS_LOG_DIR``).
+
+No rclpy import here: the launcher sets this up before any node starts.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+__all__ = ["DomainLease", "allocate_domain", "ros_environment"]
+
+# Linux-safe domain ids are 0..101 (higher ones may collide with ephemeral
+# ports).  0 is the default that other programs use: never take it.
+DOMAIN_MIN = 1
+DOMAIN_MAX = 101
+_LOCK_DIR = Path(tempfile.gettempdir()) / "vesselbot_domains"
+
+
+@dataclass
+class DomainLease:
+    """An exclusively held ROS domain id; release() (or process exit) frees it."""
+
+    domain_id: int
+    _fh: IO[str] | None = field(default=None, repr=False)
+
+    def release(self) -> None:
+        """Free the domain id for other runs (idempotent)."""
+        if self._fh is not None:
+            try:
+                fcntl.flock(self._fh, fcntl.LOCK_UN)
+            finally:
+                self._fh.close()
+                self._fh = None
+
+    def __enter__(self) -> DomainLease:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def allocate_domain(preferred: int | None = None) -> DomainLease:
+    """Lease a ROS domain id in [1, 101] no other vesselbot run on this machine holds.
+
+    Args:
+        preferred: Try this id first (e.g. a user's ``--domain-id``); if it is
+            held by another run, raise instead of silently picking another.
+
+    Raises:
+        RuntimeError: if ``preferred`` is busy or every id is leased.
+    """
+    _LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    if preferred is not None:
+        if not DOMAIN_MIN <= preferred <= DOMAIN_MAX and preferred != 0:
+            raise RuntimeError(f"ROS domain id {preferred} is outside [{DOMAIN_MIN}, {DOMAIN_MAX}]")
+        candidates = [preferred]
+    else:
+        candidates = list(range(DOMAIN_MIN, DOMAIN_MAX + 1))
+        random.SystemRandom().shuffle(candidates)
+    for dom in candidates:
+        fh = open(_LOCK_DIR / f"{dom}.lock", "a+")  # noqa: SIM115 - held for the lease's lifetime
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            continue
+        return DomainLease(dom, fh)
+    if preferred is not None:
+        raise RuntimeError(f"ROS domain id {preferred} is in use by another vesselbot run")
+    raise RuntimeError("every ROS domain id in [1, 101] is in use by other vesselbot runs")
+
+
+def ros_environment(domain_id: int, log_dir: str | os.PathLike[str], base: dict[str, str] | None = None) -> dict[str, str]:
+    """Environment for a node process (or this process) of one isolated run.
+
+    Args:
+        domain_id: The leased ROS domain id.
+        log_dir: Folder for rcl log files (created).
+        base: Environment to start from (default: ``os.environ``).
+    """
+    env = dict(os.environ if base is None else base)
+    Path(log_dir).mkdir(parents=True, exist_ok=True)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; would warn
+    env["ROS_LOG_DIR"] = str(log_dir)
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
