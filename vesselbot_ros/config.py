@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -39,6 +40,7 @@ __all__ = [
     "check_choice",
     "load_dataclass",
     "load_yaml",
+    "parse_yaml_text",
     "to_mapping",
     "flatten",
     "unflatten",
@@ -231,13 +233,40 @@ def to_mapping(obj: Any) -> Any:
     return obj
 
 
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that reads ``1e-6`` and ``1.72e6`` as floats.
+
+    PyYAML implements YAML 1.1, whose float pattern needs a dot and a signed
+    exponent, so ``1e-6`` would silently load as the *string* "1e-6".
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def parse_yaml_text(text: str) -> Any:
+    """Parse YAML text with the project's float-aware loader (see :class:`_Loader`)."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping from ``path`` with a clear error for every failure mode."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"config file {str(p)!r} does not exist")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        data = parse_yaml_text(p.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from None
     if data is None:

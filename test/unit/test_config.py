@@ -88,3 +88,11 @@ def test_load_yaml_errors(tmp_path):
     scalar.write_text("3\n")
     with pytest.raises(ConfigError, match="must hold a mapping"):
         load_yaml(scalar)
+
+
+def test_yaml_exponent_floats_without_a_dot_are_numbers(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("a: 1e-6\nb: 1.72e6\nc: 3\nd: -2E+3\ne: text1e5\n")
+    data = load_yaml(f)
+    assert data == {"a": 1e-6, "b": 1.72e6, "c": 3, "d": -2000.0, "e": "text1e5"}
+    assert isinstance(data["c"], int)

@@ -1,0 +1,73 @@
+"""Tests of the numba kernel: consistency with the numpy API, finiteness, contact bookkeeping."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.physics import kernel
+from vesselbot_ros.physics.force_balance import ContactState, force_terms, update_contact_state
+from vesselbot_ros.physics.params import PhysicsParams
+
+P = PhysicsParams()
+PK = kernel.pack_params(P)
+
+
+def test_packed_values():
+    assert PK[kernel.I_MASS] == pytest.approx(P.robot.mass_kg)
+    assert PK[kernel.I_HERTZ_K] == pytest.approx(1.117e7, rel=1e-3)
+    assert PK[kernel.I_CHARGE] == pytest.approx(7.13e-11, rel=1e-2)
+    assert PK[kernel.I_EL_FACTOR] == 0.25
+    assert PK.size == kernel.N_FIXED
+    bif = kernel.pack_params(P.with_overrides({"vessel.major_bifurcation.enabled": True}))
+    k = int(bif[kernel.I_BIF_NKNOTS])
+    assert bif.size == kernel.N_FIXED + 15 * k
+
+
+def test_accel_is_total_over_mass_and_no_motive_drops_magnetic():
+    c = np.zeros(4)
+    state = (0.37, 0.002, 0.4e-3, 0.01, -0.003)
+    ax, az = kernel.accel(*state, 0.05, -0.02, c, PK)
+    ft = force_terms(state[0], state[1:3], state[3:5], [0.05, -0.02], ContactState(), P)
+    np.testing.assert_allclose([ax, az], ft.total / P.robot.mass_kg, rtol=1e-13)
+    fx, fz = kernel.accel_no_motive(*state, c, PK)
+    np.testing.assert_allclose([fx, fz], (ft.total - ft.magnetic) / P.robot.mass_kg, rtol=1e-12, atol=1e-12)
+
+
+def test_forces_into_rows_follow_term_names():
+    out = np.empty((8, 2))
+    kernel.forces_into(0.1, 0.0, 0.5e-3, 0.0, 0.0, 0.0, 0.08, np.zeros(4), PK, out)
+    assert kernel.TERM_NAMES[0] == "magnetic" and out[0, 1] == pytest.approx(7.2e-6, rel=1e-2)
+    np.testing.assert_allclose(out[7], out[:7].sum(axis=0), rtol=1e-14)
+
+
+@pytest.mark.parametrize("z", [-1.0, -3e-3, -1.26e-3, 0.0, 1.2499e-3, 1.6e-3, 5e-3, 1e3])
+@pytest.mark.parametrize("phase", [0.0, 1.0, 2.0])
+def test_finite_everywhere_including_outside_the_vessel(z, phase):
+    c = np.array([phase, 1e-6 * (phase > 0), 1e-3 * (phase > 0), 1e-7 * (phase > 1)])
+    for p in (PK, kernel.pack_params(P.with_overrides({"interactions.in_contact": "paper_heaviside", "vessel.major_bifurcation.enabled": True}))):
+        out = np.empty((8, 2))
+        kernel.forces_into(0.3, 0.015, z, 1e3, -1e3, 0.08, 0.08, c, p, out)
+        assert np.all(np.isfinite(out))
+
+
+def test_update_contact_matches_pure_state_update():
+    c = np.zeros(4)
+    s = ContactState()
+    for delta in (-1e-6, 5e-8, 1e-7, 8e-8, 1.2e-7, 1e-8, -1e-9):
+        kernel.update_contact(c, delta, PK)
+        s = update_contact_state(s, delta, P)
+        np.testing.assert_allclose(c, s.to_array(), rtol=1e-14)
+
+
+def test_paper_printed_electrostatic_traps_at_upper_wall():
+    pp = kernel.pack_params(P.with_overrides({"interactions.electrostatic_model": "paper_printed"}))
+    t = 0.25  # D(t) = D
+    z = 1.5e-3 - 250e-6  # touching the upper wall
+    out = np.empty((8, 2))
+    kernel.forces_into(t, 0.0, z, 0.0, 0.0, 0.0, 0.0, np.zeros(4), pp, out)
+    q = 1e-6 * 4 * math.pi * 250e-6**2 * 30 * (100 * 250e-6) ** -0.3
+    eps = 70 * 8.8541878128e-12
+    far = q * q / (4 * math.pi * eps * (250e-6 + 2.5e-3) ** 2)  # the lower wall's pull
+    assert out[5, 1] == pytest.approx(q * q / (4 * math.pi * eps * 250e-6**2) - far, rel=1e-9)
+    assert out[5, 1] > 0.8 * 4 / 3 * math.pi * 250e-6**3 * 1.72e6 * 0.08

@@ -1,0 +1,88 @@
+"""``vesselbot design-map``: Fig. 7, F_m / F_tot over (lambda, Delta) for 4 vessels x 3 designs.
+
+Writes ``design_map.png``, ``design_map_summary.csv`` and one matrix CSV per
+map (``map_<vessel>_<design>.csv``: first row xi = Delta/Delta_max, first
+column lambda) to ``--out``, and prints each map's maximum, its (lambda, Delta)
+and the lambda range within 90 % of the maximum.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
+from vesselbot_ros.analysis.design_map import DESIGNS, DesignMap, DesignStudy, all_design_maps, summarize
+
+__all__ = ["register", "run", "plot_maps"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add the command's arguments."""
+    add_config_arguments(parser, "out/design_map", study=True)
+    parser.add_argument("--no-png", action="store_true", help="skip the figure")
+
+
+def plot_maps(maps: list[DesignMap], path: Path) -> None:
+    """Save the maps as a (vessels x 3) grid of log10(F_m/F_tot) images with the F_m = F_tot contour."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    vessels = list(dict.fromkeys(m.vessel for m in maps))
+    fig, axes = plt.subplots(len(vessels), len(DESIGNS), figsize=(12, 3.2 * len(vessels)), squeeze=False)
+    for m in maps:
+        ax = axes[vessels.index(m.vessel), DESIGNS.index(m.design)]
+        data = np.log10(np.maximum(m.ratio, 1e-12)).T
+        im = ax.pcolormesh(m.lam, m.xi, data, shading="auto", cmap="viridis")
+        if data.min() < 0.0 < data.max():
+            ax.contour(m.lam, m.xi, data, levels=[0.0], colors="w", linewidths=1.0)
+        s = summarize(m)
+        ax.plot([s.lam_at_max], [s.xi_at_max], "r*", ms=9)
+        ax.set_title(f"{m.design} in {m.vessel}: max {s.max_ratio:.3g}", fontsize=9)
+        ax.set_xlabel("lambda = 2r/D")
+        ax.set_ylabel("Delta / Delta_max (+1 = upper wall)")
+        fig.colorbar(im, ax=ax, label="log10 F_m/F_tot")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute, print and save the design maps; returns 0."""
+    params = load_physics(args)
+    study = DesignStudy.from_mapping(load_study_mapping(args))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    maps = all_design_maps(params, study)
+    elapsed = time.perf_counter() - t0
+    summaries = [summarize(m) for m in maps]
+    print(f"{len(maps)} maps of {study.grid.n_lambda}x{study.grid.n_delta} in {elapsed:.3f} s")
+    print(f"{'vessel':<13} {'design':<6} {'max Fm/Ftot':>11} {'lambda':>7} {'Delta (m)':>11} {'Delta/Dmax':>10}  lambda range >= 90 % of max")
+    with (out / "design_map_summary.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(("vessel", "design", "max_ratio", "lambda_at_max", "delta_at_max_m", "xi_at_max", "lambda90_lo", "lambda90_hi"))
+        for s in summaries:
+            print(f"{s.vessel:<13} {s.design:<6} {s.max_ratio:11.4g} {s.lam_at_max:7.3f} {s.delta_at_max_m:11.3e} {s.xi_at_max:10.2f}  "
+                  f"[{s.lam_range_90[0]:.3f}, {s.lam_range_90[1]:.3f}]")
+            w.writerow((s.vessel, s.design, f"{s.max_ratio:.6g}", f"{s.lam_at_max:.6g}", f"{s.delta_at_max_m:.6g}",
+                        f"{s.xi_at_max:.6g}", f"{s.lam_range_90[0]:.6g}", f"{s.lam_range_90[1]:.6g}"))
+    for m in maps:
+        mat = np.empty((m.lam.size + 1, m.xi.size + 1))
+        mat[0, 0] = np.nan
+        mat[0, 1:] = m.xi
+        mat[1:, 0] = m.lam
+        mat[1:, 1:] = m.ratio
+        np.savetxt(out / f"map_{m.vessel}_{m.design}.csv", mat, delimiter=",", fmt="%.6g",
+                   header=f"F_m/F_tot for {m.design} in {m.vessel}; row 0: xi = Delta/Delta_max; column 0: lambda")
+    if not args.no_png:
+        plot_maps(maps, out / "design_map.png")
+        print(f"wrote {out / 'design_map.png'}")
+    print(f"wrote {out / 'design_map_summary.csv'} and {len(maps)} map CSVs")
+    return 0

@@ -1,0 +1,284 @@
+"""Fast numba kernel of the force model for the stiff plant integration.
+
+Every formula comes from the jitable functions of the concept modules
+(``drag``, ``blood_flow``, ``bifurcation``, ``wall_contact``,
+``wall_interactions``, ``magnetic_force``); this module only composes them for
+the straight vessel of Table III (see ``blood_flow`` for the geometry).
+
+Flat parameter vector ``p`` (:func:`pack_params`), float64, indices below.  The
+bifurcation table follows at ``I_TABLE``: K knots (deg), then the (K, 7) values
+and the (K, 7) slopes, row-major.
+
+``contact_arr``: float64 (4,) = [phase (0 free, 1 loading, 2 unloading),
+delta_max (m), F_max (N), delta_0 (m)] for the nearest wall, updated in place by
+:func:`update_contact` (the caller decides when: typically once per accepted
+integrator step).  ``forces_into`` fills ``out`` (8, 2) with rows
+``TERM_NAMES`` (N).  The kernel never raises and returns finite numbers for
+every finite input (penetration is clamped to r, the vdW gap to g_min, the
+diameter ratio below 1).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from pathlib import Path
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.physics.bifurcation import load_profile_table
+from vesselbot_ros.physics.blood_flow import (
+    blended_profile,
+    parabolic_profile,
+    pulse_factor,
+    vessel_diameter,
+    wall_deltas,
+)
+from vesselbot_ros.physics.apparent_weight import apparent_weight_z
+from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.drag import drag_gain, wall_factor
+from vesselbot_ros.physics.magnetic_force import bead_pulling_force
+from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
+from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
+from vesselbot_ros.physics.wall_interactions import (
+    contact_heaviside_flag,
+    electrostatic_factor,
+    robot_charge,
+    steric_coefficient,
+    wall_pair_forces_z,
+)
+
+
+
+def _invalidate_stale_cache() -> None:
+    """Drop this module's numba cache when a module it inlines has changed.
+
+    numba's on-disk cache is keyed on this file only, but the kernel inlines
+    the register_jitable formulas of the concept modules: a stamp of their
+    sources, kept beside the cache, detects edits to them.
+    """
+    here = Path(__file__).resolve().parent
+    deps = ("kernel.py", "apparent_weight.py", "drag.py", "blood_flow.py", "bifurcation.py", "wall_contact.py",
+            "wall_interactions.py", "magnetic_force.py")
+    digest = hashlib.sha256(b"".join((here / d).read_bytes() for d in deps)).hexdigest()
+    cache_dir = here / "__pycache__"
+    stamp = cache_dir / "kernel.deps.sha256"
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for f in cache_dir.glob("kernel.*.nb[ic]"):
+            f.unlink()
+        cache_dir.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:  # read-only install: numba then uses its own user cache
+        pass
+
+
+_invalidate_stale_cache()
+
+__all__ = [
+    "TERM_NAMES",
+    "pack_params",
+    "accel",
+    "accel_no_motive",
+    "forces_into",
+    "update_contact",
+    "nearest_wall_delta",
+    "fluid_velocity_x",
+]
+
+TERM_NAMES = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic", "steric", "total")
+
+I_R = 0  # robot radius r (m)
+I_VOLUME = 1  # V = 4/3 pi r^3 (m^3)
+I_MASS = 2  # m = rho V (kg)
+I_TAU = 3  # tau_m (-)
+I_MAGNETIZATION = 4  # M (A/m)
+I_RHO_F = 5  # blood density (kg/m^3)
+I_ETA = 6  # blood viscosity at the nominal diameter (Pa s)
+I_ALPHA0 = 7  # wall factor alpha0 (-)
+I_LAMBDA0 = 8  # wall factor lambda0 (-)
+I_DIAMETER = 9  # nominal D (m)
+I_D_PULSE = 10  # relative diameter pulsation (-)
+I_V_F = 11  # centreline velocity V_f (m/s)
+I_A_F = 12  # pulsatility a_f (-)
+I_OMEGA_F = 13  # omega_f (rad/s)
+I_PHI_F = 14  # phi_f (rad)
+I_WEIGHT_Z = 15  # apparent weight z component -V (rho - rho_f) g (N)
+I_HERTZ_K = 16  # Hertz stiffness k (N/m^1.5)
+I_UNLOAD_EXP = 17  # unloading exponent (-)
+I_D0_RATIO = 18  # delta_0 / delta_max (-)
+I_HAMAKER = 19  # A_h (J)
+I_VDW_GMIN = 20  # vdW minimum separation (m)
+I_CHARGE = 21  # q (C)
+I_EPS_EPS0 = 22  # epsilon * epsilon_0 (F/m)
+I_EL_FACTOR = 23  # 1 (paper printed) or 0.25 (image charge)
+I_STERIC_COEF = 24  # 50 r L0 kB T tau^1.5 (N)
+I_BRUSH_L0 = 25  # L0 (m)
+I_HEAVISIDE = 26  # 1: interactions x H(-delta); 0: hold zero-gap value in contact
+I_BIF_ON = 27  # 1 if a major bifurcation section exists
+I_BIF_X0 = 28  # section start (m)
+I_BIF_X1 = 29  # section end (m)
+I_BIF_TH0 = 30  # theta at start (deg)
+I_BIF_TH1 = 31  # theta at end (deg)
+I_BIF_RAMP = 32  # blend ramp fraction (-)
+I_BIF_NKNOTS = 33  # K
+I_TABLE = 34  # start of the table (3 K + ... entries)
+N_FIXED = 34
+_LAMBDA_MAX = 0.999
+
+
+@functools.lru_cache(maxsize=64)
+def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
+    """Flatten ``params`` into the kernel's float64 vector (layout: ``I_*`` constants).
+
+    Cached per (hashable, frozen) params; treat the result as read-only.
+    """
+    b, f, v, rb, w, it, dg = params.blood, params.flow, params.vessel, params.robot, params.wall, params.interactions, params.drag
+    eta = viscosity_for(b, v.diameter_m)
+    r = rb.radius_m
+    q = robot_charge(r, rb.charge_C, rb.charge_scale)
+    head = np.zeros(N_FIXED)
+    head[I_R] = r
+    head[I_VOLUME] = rb.volume_m3
+    head[I_MASS] = rb.mass_kg
+    head[I_TAU] = rb.magnetic_ratio
+    head[I_MAGNETIZATION] = rb.magnetization_A_per_m
+    head[I_RHO_F] = b.density_kg_per_m3
+    head[I_ETA] = eta
+    head[I_ALPHA0] = dg.alpha0
+    head[I_LAMBDA0] = dg.lambda0
+    head[I_DIAMETER] = v.diameter_m
+    head[I_D_PULSE] = f.diameter_pulsation
+    head[I_V_F] = f.centreline_velocity_m_per_s
+    head[I_A_F] = f.pulsatility
+    head[I_OMEGA_F] = f.angular_frequency_rad_per_s
+    head[I_PHI_F] = f.phase_rad
+    head[I_WEIGHT_Z] = apparent_weight_z(rb.volume_m3, rb.density_kg_per_m3, b.density_kg_per_m3, v.gravity_m_per_s2)
+    head[I_HERTZ_K] = hertz_stiffness(r, rb.young_modulus_Pa, rb.poisson_ratio, w.young_modulus_Pa, w.poisson_ratio)
+    head[I_UNLOAD_EXP] = w.unloading_exponent
+    head[I_D0_RATIO] = w.permanent_deformation_ratio
+    head[I_HAMAKER] = it.hamaker_constant_J
+    head[I_VDW_GMIN] = it.vdw_min_separation_m
+    head[I_CHARGE] = q
+    head[I_EPS_EPS0] = b.relative_permittivity * VACUUM_PERMITTIVITY_F_PER_M
+    head[I_EL_FACTOR] = electrostatic_factor(it.electrostatic_model)
+    head[I_STERIC_COEF] = steric_coefficient(r, it.brush_length_m, BOLTZMANN_J_PER_K * b.temperature_K, it.grafting_density_per_m2)
+    head[I_BRUSH_L0] = it.brush_length_m
+    head[I_HEAVISIDE] = contact_heaviside_flag(it.in_contact)
+    bif = v.major_bifurcation
+    tail = np.zeros(0)
+    if bif.enabled:
+        table = load_profile_table(bif.profile_table)
+        head[I_BIF_ON] = 1.0
+        head[I_BIF_X0], head[I_BIF_X1] = bif.x_start_m, bif.x_end_m
+        head[I_BIF_TH0], head[I_BIF_TH1] = bif.theta_start_deg, bif.theta_end_deg
+        head[I_BIF_RAMP] = bif.ramp_fraction
+        head[I_BIF_NKNOTS] = table.knots_deg.size
+        tail = np.concatenate([table.knots_deg, table.values.ravel(), table.slopes.ravel()])
+    out = np.concatenate([head, tail])
+    out.setflags(write=False)
+    return out
+
+
+@numba.njit(cache=True)
+def _diameter(t, p):  # type: ignore[no-untyped-def]
+    return vessel_diameter(t, p[I_DIAMETER], p[I_D_PULSE], p[I_OMEGA_F], p[I_PHI_F])
+
+
+@numba.njit(cache=True)
+def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
+    """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
+    d_t = _diameter(t, p)
+    if p[I_BIF_ON] > 0.5:
+        nk = int(p[I_BIF_NKNOTS])
+        i0 = I_TABLE
+        knots = p[i0:i0 + nk]
+        values = p[i0 + nk:i0 + 8 * nk]
+        slopes = p[i0 + 8 * nk:i0 + 15 * nk]
+        prof = blended_profile(x, z, d_t, p[I_BIF_X0], p[I_BIF_X1], p[I_BIF_TH0], p[I_BIF_TH1], p[I_BIF_RAMP], knots, values, slopes)
+    else:
+        prof = parabolic_profile(z, d_t)
+    return p[I_V_F] * pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]) * prof
+
+
+@numba.njit(cache=True)
+def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]
+    """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
+    d_up, d_lo = wall_deltas(z, p[I_R], _diameter(t, p))
+    if d_up >= d_lo:
+        return d_up, 1.0
+    return d_lo, -1.0
+
+
+@numba.njit(cache=True)
+def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
+    """Fill ``out`` (8, 2) with the force terms (N) in ``TERM_NAMES`` order.
+
+    Args: t (s); x, z (m); vx, vz (m/s); gx, gz gradient (T/m); contact_arr (4,);
+    p packed params; out (8, 2) float64, overwritten.
+    """
+    r = p[I_R]
+    d_t = _diameter(t, p)
+    # magnetic (2)
+    out[0, 0] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gx)
+    out[0, 1] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gz)
+    # drag (11)
+    ux = vx - fluid_velocity_x(t, x, z, p)
+    uz = vz
+    lam = min(2.0 * r / d_t, _LAMBDA_MAX)
+    c = drag_gain(np.sqrt(ux * ux + uz * uz), r, p[I_ETA], p[I_RHO_F], wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0]))
+    out[1, 0] = -c * ux
+    out[1, 1] = -c * uz
+    # apparent weight (14)
+    out[2, 0] = 0.0
+    out[2, 1] = p[I_WEIGHT_Z]
+    # contact (15)-(16), nearest wall, along -n
+    d_up, d_lo = wall_deltas(z, r, d_t)
+    d_up = min(d_up, r)
+    d_lo = min(d_lo, r)
+    if d_up >= d_lo:
+        delta, wall = d_up, 1.0
+    else:
+        delta, wall = d_lo, -1.0
+    fc = contact_force_magnitude(delta, contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3], p[I_HERTZ_K], p[I_UNLOAD_EXP])
+    out[3, 0] = 0.0
+    out[3, 1] = -wall * fc
+    # interactions (18), (19), (22), both walls
+    vdw, el, st = wall_pair_forces_z(d_up, d_lo, r, p[I_HAMAKER], p[I_VDW_GMIN], p[I_CHARGE], p[I_EPS_EPS0],
+                                     p[I_EL_FACTOR], p[I_STERIC_COEF], p[I_BRUSH_L0], p[I_HEAVISIDE])
+    out[4, 0] = 0.0
+    out[4, 1] = vdw
+    out[5, 0] = 0.0
+    out[5, 1] = el
+    out[6, 0] = 0.0
+    out[6, 1] = st
+    out[7, 0] = out[0, 0] + out[1, 0] + out[2, 0] + out[3, 0] + out[4, 0] + out[5, 0] + out[6, 0]
+    out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
+
+
+@numba.njit(cache=True)
+def accel(t, x, z, vx, vz, gx, gz, contact_arr, p):  # type: ignore[no-untyped-def]
+    """(ax, az) (m/s^2): total force including the magnetic term, divided by m = rho V."""
+    out = np.empty((8, 2))
+    forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
+    return out[7, 0] / p[I_MASS], out[7, 1] / p[I_MASS]
+
+
+@numba.njit(cache=True)
+def accel_no_motive(t, x, z, vx, vz, contact_arr, p):  # type: ignore[no-untyped-def]
+    """F(X, Z) of eq. (23): (total force without the magnetic term) / m (m/s^2)."""
+    return accel(t, x, z, vx, vz, 0.0, 0.0, contact_arr, p)
+
+
+@numba.njit(cache=True)
+def update_contact(contact_arr, delta, p):  # type: ignore[no-untyped-def]
+    """Advance the loading/unloading state in place after observing ``delta`` (m)."""
+    ph, dm, fm, d0 = contact_transition(contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3],
+                                        min(delta, p[I_R]), p[I_HERTZ_K], p[I_D0_RATIO])
+    contact_arr[0] = ph
+    contact_arr[1] = dm
+    contact_arr[2] = fm
+    contact_arr[3] = d0
