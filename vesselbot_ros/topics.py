@@ -19,7 +19,10 @@ Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
    once per tick: the frame delivered at t_k, or, when no new frame is due
    (frame-rate decimation, latency, dropout), the last delivered frame again,
    unchanged (zero-order hold).  ``header.stamp`` is always the frame's
-   *acquisition* time, so consumers detect fresh frames by a newer stamp;
+   *acquisition* time, so consumers detect fresh frames by a newer stamp.
+   Before the first frame is ever delivered (latency, an early dropout) it
+   publishes a placeholder with an empty ``frame_id`` and stamp 0, meaning
+   "no frame yet".  The n-th ``measurement`` message belongs to tick n;
 3. reference, on ``/clock`` k, publishes ``reference`` sample k;
 4. observer, once it has ``measurement`` k and ``coil/applied`` k-1, publishes
    ``estimate`` (stamp t_k);
@@ -27,6 +30,21 @@ Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
    ``gradient_command`` (stamp t_k);
 6. coil driver publishes ``coil/applied`` and ``coil/state`` (stamp t_k);
 7. plant, once it has ``coil/applied`` k, integrates [t_k, t_k+1] and goes to 1.
+
+Tick times are rebuilt as ``k * dt`` from the stamps (never by summing floats),
+which is why a lockstep run reproduces the ROS-free runner bit for bit.
+
+The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused
+yaw-yaw variance ``pose.covariance[35]`` carries the observer's time since the
+last fresh measurement (s), which the controller's stale-estimate safe
+behaviour reads.
+
+Lockstep watchdog: if the command for tick k has not arrived within
+``graph.stall_timeout_s`` of wall time (the controller died or hangs), the coil
+driver answers tick k itself through ``CoilLimiter.watchdog``: it holds the
+output until ``coil.command_timeout_s`` of sim time passed without commands,
+then ramps to zero within the slew limit, so the loop (and the bag) goes on.
+A late command for a tick already answered is rejected as stale.
 
 In real-time mode the plant steps on the wall clock at a real-time factor and
 applies the latest ``coil/applied`` (zero-order hold); the imager publishes only

@@ -1,0 +1,88 @@
+"""A user's own controller for the vesselbot graph (run with ``vesselbot run --without controller``).
+
+It follows the topic contract of the controller slot (docs/graph.md):
+
+* subscribe ``/vesselbot/estimate`` (nav_msgs/Odometry: x_hat in pose.position,
+  z_hat in twist.linear, frame ``vessel``) and ``/vesselbot/reference``
+  (vesselbot_msgs/ReferenceSample);
+* publish ``/vesselbot/gradient_command`` (geometry_msgs/Vector3Stamped, T/m)
+  stamped with the tick time t_k of the estimate it answers.
+
+The law here is a plain PD on the position error, mapped to a gradient with a
+fixed gain: deliberately simple, to show the plumbing.  The coil driver clamps
+whatever we send (saturation, slew), so a bad gain cannot hurt the coils.
+
+    python examples/my_controller.py --ros-args -p use_sim_time:=true
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from geometry_msgs.msg import Vector3Stamped
+from nav_msgs.msg import Odometry
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from vesselbot_msgs.msg import ReferenceSample
+
+QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                 durability=DurabilityPolicy.VOLATILE)
+
+
+class MyController(Node):
+    """PD position controller: gradient = kp * (p_ref - x_hat) + kd * (v_ref - z_hat)."""
+
+    def __init__(self) -> None:
+        super().__init__("my_controller")
+        self.kp = self.declare_parameter("kp_T_per_m2", 20.0).value  # T/m per m of error
+        self.kd = self.declare_parameter("kd_T_s_per_m2", 0.5).value  # T/m per m/s of error
+        self.refs: dict[tuple[int, int], ReferenceSample] = {}
+        self.estimates: dict[tuple[int, int], Odometry] = {}
+        self.pub = self.create_publisher(Vector3Stamped, "/vesselbot/gradient_command", QOS)
+        self.create_subscription(Odometry, "/vesselbot/estimate", self.on_estimate, QOS)
+        self.create_subscription(ReferenceSample, "/vesselbot/reference", self.on_reference, QOS)
+
+    @staticmethod
+    def key(stamp) -> tuple[int, int]:  # noqa: ANN001
+        return (stamp.sec, stamp.nanosec)
+
+    def on_reference(self, msg: ReferenceSample) -> None:
+        self.refs[self.key(msg.header.stamp)] = msg
+        self.try_answer(self.key(msg.header.stamp))
+
+    def on_estimate(self, msg: Odometry) -> None:
+        self.estimates[self.key(msg.header.stamp)] = msg
+        self.try_answer(self.key(msg.header.stamp))
+
+    def try_answer(self, k: tuple[int, int]) -> None:
+        # lockstep: answer tick k once both its estimate and its reference are in
+        if k not in self.refs or k not in self.estimates:
+            return
+        ref, est = self.refs.pop(k), self.estimates.pop(k)
+        p, v = est.pose.pose.position, est.twist.twist.linear
+        cmd = Vector3Stamped()
+        cmd.header.stamp = est.header.stamp  # t_k: the tick we answer
+        cmd.header.frame_id = "vessel"
+        cmd.vector.x = self.kp * (ref.position.x - p.x) + self.kd * (ref.velocity.x - v.x)
+        cmd.vector.z = self.kp * (ref.position.z - p.z) + self.kd * (ref.velocity.z - v.z)
+        self.pub.publish(cmd)
+
+
+def main() -> int:
+    rclpy.init(args=sys.argv)
+    node = MyController()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""`vesselbot bag info|repair`, `replay` and `report` through the real CLI entry point."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from vesselbot_ros.cli import main
+
+
+@pytest.fixture
+def truncated(synthetic_bag, tmp_path):
+    dst = tmp_path / "run1"
+    shutil.copytree(synthetic_bag[0], dst)
+    mcap = dst / "run1.mcap"
+    mcap.write_bytes(mcap.read_bytes()[:30000])
+    return dst
+
+
+def test_bag_info_prints_topics_counts_times_config_and_seed(synthetic_bag, capsys):
+    assert main(["bag", "info", str(synthetic_bag[0])]) == 0
+    out = capsys.readouterr().out
+    assert "seed: 7" in out and "Scenario:   synthetic" in out
+    assert "/vesselbot/truth" in out and "vesselbot_msgs/msg/PlantState" in out and " 1000" in out
+    assert "Metadata:   consistent with the MCAP" in out
+    assert '"magnitude_m": 0.001' in out  # the run's config
+    assert main(["bag", "info", "--json", str(synthetic_bag[0])]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["seed"] == 7 and doc["consistent"] is True
+    assert {t["name"]: t["count"] for t in doc["topics"]}["/clock"] == 1000
+
+
+@pytest.mark.parametrize("argv", [["bag", "info"], ["replay"], ["report"]])
+def test_truncated_bag_is_one_clear_error_line_for_every_command(truncated, capsys, argv):
+    assert main([*argv, str(truncated)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "run1.mcap is truncated" in err[0] and "vesselbot bag repair" in err[0]
+
+
+def test_bag_repair_cli_then_info_succeeds(tmp_path, capsys):
+    from conftest import write_synthetic_bag
+
+    truncated = tmp_path / "run1"
+    bag, _ = write_synthetic_bag(truncated, 300, flush_every=100, finish=False)
+    bag.flush()
+    data = bag.mcap_path.read_bytes()
+    bag.finish()
+    (truncated / "metadata.yaml").unlink()
+    bag.mcap_path.write_bytes(data)  # what a SIGKILL leaves: chunks, no summary, no metadata.yaml
+    assert main(["bag", "repair", str(truncated)]) == 0
+    out = capsys.readouterr().out
+    assert "rebuilt metadata.yaml" in out and "run1.mcap.damaged" in out
+    assert main(["bag", "info", str(truncated)]) == 0
+    assert main(["bag", "repair", str(truncated)]) == 0
+    assert "nothing to do" in capsys.readouterr().out
+
+
+def test_report_cli_writes_into_the_bag_by_default(synthetic_bag, tmp_path, capsys):
+    dst = tmp_path / "r"
+    shutil.copytree(synthetic_bag[0], dst)
+    assert main(["report", str(dst)]) == 0
+    assert (dst / "report" / "metrics.json").is_file()
+    assert "tracking error after 0.6 s" in capsys.readouterr().out

@@ -1,0 +1,128 @@
+"""Tests of the gradient-coil saturation + slew limiter."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vesselbot_ros.config import ConfigError, load_dataclass
+from vesselbot_ros.control.actuator_limits import (
+    CLINICAL_SLEW_RATE_T_PER_M_PER_S,
+    PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S,
+    CoilLimiter,
+    CoilLimits,
+)
+from vesselbot_ros.errors import ModelInputError
+
+
+def test_slew_presets() -> None:
+    assert CoilLimits().slew_rate_T_per_m_per_s == CLINICAL_SLEW_RATE_T_PER_M_PER_S == 100.0
+    assert CoilLimits(slew_rate="paper_printed").slew_rate_T_per_m_per_s == PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S == 0.1
+    assert CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=7.0).slew_rate_T_per_m_per_s == 7.0
+
+
+def test_saturation_keeps_direction_paper_formula() -> None:
+    lim = CoilLimiter(CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=1e9))
+    cmd = np.array([0.3, -0.4])  # |cmd| = 0.5 T/m
+    out = lim.apply(0.001, cmd)
+    k = 0.5 / 0.08  # paper: k = max(1, |U|/U_sat)
+    assert out.k_scale == pytest.approx(k, rel=1e-12)
+    np.testing.assert_allclose(out.applied, cmd / k, rtol=1e-12)
+    assert out.saturated and not out.rejected
+
+
+def test_per_axis_saturation() -> None:
+    lim = CoilLimiter(CoilLimits(saturation_norm="per_axis", slew_rate="custom", custom_slew_rate_T_per_m_per_s=1e9))
+    out = lim.apply(0.001, [0.16, 0.05])
+    np.testing.assert_allclose(out.applied, [0.08, 0.05], rtol=1e-12)
+    assert out.k_scale == pytest.approx(2.0)
+
+
+def test_slew_from_zero_and_first_tick() -> None:
+    lim = CoilLimiter(CoilLimits(slew_rate="paper_printed"))
+    out0 = lim.apply(0.0, [0.08, 0.0])  # dt = 0 at t0: nothing can move
+    np.testing.assert_array_equal(out0.applied, [0.0, 0.0])
+    out1 = lim.apply(0.5, [0.08, 0.0])  # 0.1 T/m/s * 0.5 s = 0.05 T/m
+    np.testing.assert_allclose(out1.applied, [0.05, 0.0], rtol=1e-12)
+    np.testing.assert_array_equal(out1.slew_limited, [True, False])
+
+
+def test_non_finite_command_is_rejected_and_held() -> None:
+    lim = CoilLimiter(CoilLimits())
+    lim.apply(0.001, [0.02, 0.01])
+    out = lim.apply(0.002, [math.nan, 0.0])
+    assert out.rejected
+    np.testing.assert_allclose(out.applied, [0.02, 0.01])
+    assert np.all(np.isfinite(out.applied))
+
+
+def test_non_finite_command_ramp_to_zero() -> None:
+    lim = CoilLimiter(CoilLimits(on_reject="ramp_to_zero", slew_rate="custom", custom_slew_rate_T_per_m_per_s=10.0))
+    lim.apply(0.001, [0.05, 0.0])  # 10 T/m/s * 1 ms = 0.01
+    lim.apply(0.010, [0.05, 0.0])
+    out = lim.apply(0.011, [math.inf, 0.0])
+    np.testing.assert_allclose(out.applied, [0.04, 0.0], atol=1e-15)
+
+
+def test_watchdog_ramps_to_zero_after_timeout() -> None:
+    lim = CoilLimiter(CoilLimits(command_timeout_s=0.05, slew_rate="custom", custom_slew_rate_T_per_m_per_s=1.0))
+    lim.apply(0.1, [0.08, 0.0])
+    assert lim.watchdog(0.12) is None  # within the timeout: nothing
+    out = lim.watchdog(0.16)  # 1 T/m/s * 0.06 s since the last apply
+    assert out is not None
+    np.testing.assert_allclose(out.applied, [0.08 - 0.06, 0.0], rtol=1e-9)
+    out = lim.watchdog(1.0)
+    np.testing.assert_array_equal(out.applied, [0.0, 0.0])
+
+
+def test_time_going_backwards_raises() -> None:
+    lim = CoilLimiter(CoilLimits())
+    lim.apply(0.01, [0.0, 0.0])
+    with pytest.raises(ModelInputError, match="backwards"):
+        lim.apply(0.005, [0.0, 0.0])
+    with pytest.raises(ModelInputError, match=r"shape \(2,\)"):
+        lim.apply(0.02, [0.0, 0.0, 0.0])
+
+
+def test_config_errors_name_field_and_value() -> None:
+    with pytest.raises(ConfigError, match=r"coil.saturation_T_per_m must be > 0, got -0.04"):
+        load_dataclass(CoilLimits, {"saturation_T_per_m": -0.04}, "coil")
+    with pytest.raises(ConfigError, match=r"coil.slew_rate must be one of"):
+        load_dataclass(CoilLimits, {"slew_rate": "fast"}, "coil")
+
+
+commands = st.lists(
+    st.tuples(
+        st.floats(-1.0, 1.0, allow_nan=False),
+        st.floats(-1.0, 1.0, allow_nan=False),
+        st.floats(1e-5, 5e-3),
+        st.booleans(),
+    ),
+    min_size=1,
+    max_size=60,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(commands, st.sampled_from(["euclidean", "per_axis"]), st.floats(0.1, 200.0))
+def test_property_limits_never_exceeded(seq, norm, slew) -> None:  # type: ignore[no-untyped-def]
+    limits = CoilLimits(saturation_norm=norm, slew_rate="custom", custom_slew_rate_T_per_m_per_s=slew)
+    lim = CoilLimiter(limits)
+    t = 0.0
+    prev = np.zeros(2)
+    for gx, gz, dt, poison in seq:
+        t += dt
+        cmd = [math.nan, gz] if poison else [gx, gz]
+        out = lim.apply(t, cmd)
+        a = out.applied
+        assert np.all(np.isfinite(a))
+        if norm == "euclidean":
+            assert math.hypot(a[0], a[1]) <= 0.08 * (1 + 1e-12)
+        else:
+            assert np.all(np.abs(a) <= 0.08 * (1 + 1e-12))
+        assert np.all(np.abs(a - prev) <= slew * dt * (1 + 1e-9) + 1e-15)
+        prev = a

@@ -1,0 +1,109 @@
+"""Tests of the backstepping law (24) and the imager model."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.control.backstepping import BacksteppingController, BacksteppingGains, ControllerParams, backstepping_u
+from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, OutlierBurst
+from vesselbot_ros.control.input_mapping import input_matrix
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.params import PhysicsParams
+
+
+def test_law_24_hand_computed() -> None:
+    k1, k2 = 5.0, 10.0
+    x, z, f = np.array([1.0, 2.0]), np.array([0.5, -0.5]), np.array([0.1, 0.2])
+    pr, vr, ar = np.array([1.5, 1.0]), np.array([0.0, 1.0]), np.array([0.3, 0.0])
+    u = backstepping_u(k1, k2, x, z, f, pr, vr, ar)
+    expected = ar + 15 * vr + 51 * pr - 51 * x - 15 * z - f
+    np.testing.assert_allclose(u, expected, rtol=1e-15)
+
+
+def test_exact_loop_error_decays_with_lyapunov_rate() -> None:
+    # double integrator with F known exactly: e'' + 15 e' + 51 e = 0
+    f = lambda t, x, z: -3.0 * z + 1.0  # noqa: E731
+    ctrl = BacksteppingController(ControllerParams(), f, np.eye(2))
+    x, z = np.array([1e-3, -2e-3]), np.zeros(2)
+    dt = 1e-4
+    e0 = np.linalg.norm(x)
+    for k in range(20000):  # 2 s
+        u = ctrl.command_arrays(k * dt, x, z, 0.0, np.zeros(2), np.zeros(2), np.zeros(2)).u_m_per_s2
+        a = f(0, x, z) + u
+        z = z + dt * a
+        x = x + dt * z
+    # slowest root -7.5 + sqrt(5.25) = -5.21 1/s: e(2 s) ~ e0 exp(-10.4) * O(1)
+    assert np.linalg.norm(x) < 1e-3 * e0
+
+
+def test_input_mapping_tau_m() -> None:
+    phys = PhysicsParams()
+    rho = 0.8 * 7874 + 0.2 * 1500
+    b = input_matrix(phys, "with_tau_m")
+    np.testing.assert_allclose(b, 0.8 * 1.72e6 / rho * np.eye(2), rtol=1e-12)
+    np.testing.assert_allclose(input_matrix(phys, "paper_printed"), 1.72e6 / rho * np.eye(2), rtol=1e-12)
+
+
+def test_stale_estimate_safe_actions() -> None:
+    f = lambda t, x, z: np.zeros(2)  # noqa: E731
+    zero = BacksteppingController(ControllerParams(stale_timeout_s=0.1, stale_action="zero"), f, np.eye(2))
+    cmd = zero.command_arrays(0.0, np.ones(2), np.zeros(2), 0.5, np.zeros(2), np.zeros(2), np.zeros(2))
+    assert cmd.status == "stale"
+    np.testing.assert_array_equal(cmd.gradient_T_per_m, [0.0, 0.0])
+    hold = BacksteppingController(ControllerParams(stale_timeout_s=0.1, stale_action="hold"), f, np.eye(2))
+    ok = hold.command_arrays(0.0, np.ones(2), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    stale = hold.command_arrays(0.1, np.ones(2), np.zeros(2), math.inf, np.zeros(2), np.zeros(2), np.zeros(2))
+    np.testing.assert_array_equal(stale.gradient_T_per_m, ok.gradient_T_per_m)
+
+
+def test_controller_bad_input() -> None:
+    f = lambda t, x, z: np.array([math.nan, 0.0])  # noqa: E731
+    ctrl = BacksteppingController(ControllerParams(), f, np.eye(2))
+    cmd = ctrl.command_arrays(0.0, np.zeros(2), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    assert cmd.status == "nonfinite" and np.all(np.isfinite(cmd.gradient_T_per_m))
+    with pytest.raises(ModelInputError, match="non-finite estimate"):
+        ctrl.command_arrays(0.0, np.array([math.nan, 0.0]), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    with pytest.raises(ModelInputError, match="invertible"):
+        BacksteppingController(ControllerParams(), f, np.zeros((2, 2)))
+    with pytest.raises(Exception, match=r"k1 must be > 0, got -1"):
+        BacksteppingGains(k1=-1.0)
+
+
+def _frames(prm: ImagerParams, seed: int, n: int = 200, dt: float = 1e-3) -> list:
+    im = ImagerModel(prm, np.random.default_rng(seed))
+    return [im.frame(k * dt, np.array([0.0, 1e-3])) for k in range(n)]
+
+
+def test_imager_rate_latency_and_noise_sigma() -> None:
+    frames = _frames(ImagerParams(frame_rate_Hz=50.0, latency_s=0.005), 0)
+    got = [(k, f) for k, f in enumerate(frames) if f is not None]
+    assert [k for k, _ in got] == [5, 25, 45, 65, 85, 105, 125, 145, 165, 185]
+    assert [f.t_acq_s for _, f in got] == pytest.approx([0.0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18])
+    im = ImagerModel(ImagerParams(frame_rate_Hz=1000.0), np.random.default_rng(1))
+    z = np.array([im.frame(k * 1e-3, np.zeros(2)).p for k in range(4000)])
+    assert np.std(z) == pytest.approx(100e-6, rel=0.05)  # sigma, not a bound
+    assert abs(np.mean(z)) < 5e-6
+
+
+def test_imager_outliers_dropouts_and_draw_order() -> None:
+    base = ImagerParams(frame_rate_Hz=1000.0)
+    clean = _frames(base, 7)
+    burst = _frames(ImagerParams(frame_rate_Hz=1000.0, outliers=(OutlierBurst(0.05, 0.01, 1e-3),)), 7)
+    for k, (a, b) in enumerate(zip(clean, burst)):
+        if 50 <= k < 60:
+            assert b.outlier
+            assert np.linalg.norm(b.p - a.p) == pytest.approx(1e-3, rel=1e-9)
+        else:  # outliers do not shift the noise of other frames
+            np.testing.assert_array_equal(a.p, b.p)
+    im = ImagerModel(base, np.random.default_rng(7))
+    im.inject_dropout(0.05, 0.01)
+    im.inject_outliers(0.1, 0.005, 2e-3)
+    out = [im.frame(k * 1e-3, np.array([0.0, 1e-3])) for k in range(200)]
+    assert all(out[k] is None for k in range(50, 60))
+    assert all(out[k].outlier for k in range(100, 105))
+    np.testing.assert_array_equal(out[150].p, clean[150].p)
+    with pytest.raises(ModelInputError, match="true position must be a finite"):
+        im.frame(0.3, np.array([math.nan, 0.0]))

@@ -1,0 +1,126 @@
+"""Tests of the C2 B-spline reference trajectory."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.config import ConfigError, load_dataclass
+from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, propose_anchors
+from vesselbot_ros.errors import ModelInputError
+
+PARAMS = ReferenceParams(
+    anchors_x_m=(0.0, 3e-3, 6e-3, 9e-3, 12e-3),
+    anchors_z_m=(1e-3, 0.8e-3, 1.0e-3, 0.7e-3, 0.9e-3),
+    duration_s=2.0,
+)
+
+
+def test_passes_through_anchors() -> None:
+    ref = ReferenceTrajectory(PARAMS)
+    anchors = np.column_stack([PARAMS.anchors_x_m, PARAMS.anchors_z_m])
+    pts = ref._path(ref.anchor_u_m)  # the path at the anchors' parameters
+    np.testing.assert_allclose(pts, anchors, atol=1e-15)
+    # and in time: constant timing reaches anchor i at t = T u_i / U
+    ts = PARAMS.duration_s * ref.anchor_u_m / ref.length_m
+    p, _, _ = ref.sample_many(ts)
+    np.testing.assert_allclose(p, anchors, atol=1e-12)
+
+
+@pytest.mark.parametrize("timing", ["constant", "rest_to_rest"])
+def test_c2_continuity_across_knots(timing: str) -> None:
+    ref = ReferenceTrajectory(ReferenceParams(**{**PARAMS.__dict__, "timing": timing}))
+    ts = PARAMS.duration_s * ref.anchor_u_m[1:-1] / ref.length_m
+    if timing == "rest_to_rest":  # anchor times differ; check at the interior knots' times via bisection-free grid
+        ts = np.linspace(0.1, 1.9, 7)
+    h = 1e-9
+    for t in ts:
+        lo = ref.sample(t - h)
+        hi = ref.sample(t + h)
+        # position, velocity and acceleration continuous (jumps would be O(1), not O(h))
+        np.testing.assert_allclose(lo.p, hi.p, atol=1e-10)
+        np.testing.assert_allclose(lo.v, hi.v, atol=1e-9)
+        np.testing.assert_allclose(lo.a, hi.a, atol=1e-6)
+
+
+def test_derivatives_match_finite_differences() -> None:
+    ref = ReferenceTrajectory(ReferenceParams(**{**PARAMS.__dict__, "timing": "rest_to_rest"}))
+    h = 1e-5
+    for t in (0.2, 0.77, 1.3):
+        s0, sp, sm = ref.sample(t), ref.sample(t + h), ref.sample(t - h)
+        np.testing.assert_allclose((sp.p - sm.p) / (2 * h), s0.v, rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose((sp.v - sm.v) / (2 * h), s0.a, rtol=1e-5, atol=1e-10)
+
+
+def test_rest_to_rest_starts_and_ends_at_rest_and_holds() -> None:
+    ref = ReferenceTrajectory(ReferenceParams(**{**PARAMS.__dict__, "timing": "rest_to_rest"}))
+    for t in (0.0, 2.0):
+        s = ref.sample(t)
+        np.testing.assert_allclose(s.v, 0.0, atol=1e-15)
+        np.testing.assert_allclose(s.a, 0.0, atol=1e-12)
+    after = ref.sample(5.0)
+    np.testing.assert_allclose(after.p, [12e-3, 0.9e-3], atol=1e-15)
+    np.testing.assert_array_equal(after.v, [0.0, 0.0])
+
+
+def test_sample_equals_sample_many() -> None:
+    ref = ReferenceTrajectory(PARAMS)
+    ts = np.arange(0, 2000) * 1e-3
+    p, v, a = ref.sample_many(ts)
+    for k in (0, 1, 999, 1999):
+        s = ref.sample(float(ts[k]))
+        np.testing.assert_array_equal(s.p, p[k])
+        np.testing.assert_array_equal(s.v, v[k])
+        np.testing.assert_array_equal(s.a, a[k])
+
+
+def test_flow_synchronised_velocity_follows_flow() -> None:
+    def vf(t: float, p: np.ndarray) -> float:
+        return 0.01 * (1.0 + 0.5 * math.sin(2 * math.pi * t))
+
+    prm = ReferenceParams(anchors_x_m=(0.0, 0.02, 0.04, 0.06), anchors_z_m=(0.0, 0.0, 0.0, 0.0),
+                          duration_s=2.0, timing="flow_synchronised", sync_ratio=0.5)
+    ref = ReferenceTrajectory(prm, flow_velocity_x=vf)
+    for t in (0.1, 0.6, 1.4):
+        assert ref.sample(t).v[0] == pytest.approx(0.5 * vf(t, np.zeros(2)), rel=1e-4)
+    # x_ref(t) = 0.005 (t + (1 - cos 2 pi t) / (4 pi))  (hand-integrated)
+    t = 1.3
+    assert ref.sample(t).p[0] == pytest.approx(0.005 * (t + (1 - math.cos(2 * math.pi * t)) / (4 * math.pi)), rel=1e-5)
+
+
+def test_flow_synchronised_needs_flow() -> None:
+    with pytest.raises(ConfigError, match="needs the blood-flow velocity"):
+        ReferenceTrajectory(ReferenceParams(timing="flow_synchronised"))
+
+
+def test_path_and_bad_input() -> None:
+    ref = ReferenceTrajectory(PARAMS)
+    pts = ref.path(50)
+    assert pts.shape == (50, 2)
+    np.testing.assert_allclose(pts[0], [0.0, 1e-3])
+    with pytest.raises(ModelInputError, match="finite"):
+        ref.sample(math.nan)
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ConfigError, match="reference.duration_s must be > 0, got -1"):
+        load_dataclass(ReferenceParams, {"duration_s": -1}, "reference")
+    with pytest.raises(ConfigError, match="anchors_z_m must have as many points"):
+        ReferenceParams(anchors_x_m=(0.0, 1.0), anchors_z_m=(0.0,))
+    with pytest.raises(ConfigError, match="repeated point"):
+        ReferenceParams(anchors_x_m=(0.0, 0.0), anchors_z_m=(0.0, 0.0))
+
+
+def test_propose_anchors_picks_best_delta() -> None:
+    grid = np.linspace(-1e-3, 1e-3, 21)
+    # a map that prefers the upper wall (artery) ...
+    prm = propose_anchors(0.0, 9e-3, 4, grid, lambda d: 1.0 + d * 1e3)
+    assert prm.anchors_z_m == pytest.approx((1e-3,) * 4)
+    assert prm.anchors_x_m == pytest.approx((0.0, 3e-3, 6e-3, 9e-3))
+    # ... and one that prefers the centre (small vessel)
+    prm = propose_anchors(0.0, 9e-3, 4, grid, lambda d: 1.0 - abs(d) * 1e3)
+    assert prm.anchors_z_m == pytest.approx((0.0,) * 4, abs=1e-18)
+    with pytest.raises(ConfigError, match="n_anchors must be >= 2"):
+        propose_anchors(0.0, 1.0, 1, grid, lambda d: 1.0)

@@ -1,0 +1,46 @@
+"""``vesselbot bag info DIR`` and ``vesselbot bag repair DIR``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+__all__ = ["register", "run"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add the ``info`` and ``repair`` sub-commands."""
+    sub = parser.add_subparsers(dest="bag_command", metavar="{info,repair}", required=True)
+    p = sub.add_parser("info", help="topics, counts, times, run config and seed; checks metadata vs MCAP")
+    p.add_argument("bag", help="bag directory")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--no-config", action="store_true", help="do not print the run's config")
+    r = sub.add_parser("repair", help="rebuild metadata.yaml (and a complete MCAP) after a hard kill")
+    r.add_argument("bag", help="bag directory")
+    r.add_argument("--force", action="store_true", help="rebuild even if the bag already validates")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``bag info`` / ``bag repair``; exit 1 if ``info`` finds an inconsistent bag."""
+    from vesselbot_ros.bag.reader import open_bag
+
+    if args.bag_command == "info":
+        from vesselbot_ros.bag.info import format_info, info_dict
+
+        info = open_bag(args.bag)
+        if args.json:
+            print(json.dumps(info_dict(info), indent=2, sort_keys=True))
+        else:
+            print(format_info(info, show_config=not args.no_config))
+        return 0 if info.consistent else 1
+    from vesselbot_ros.bag.repair import repair_bag
+
+    res = repair_bag(args.bag, force=args.force)
+    if not res.repaired:
+        print(f"{res.path}: already a valid bag ({res.message_count} messages); nothing to do (use --force to rebuild)")
+        return 0
+    print(f"{res.path}: rebuilt metadata.yaml and MCAP with {res.message_count} messages; "
+          f"{res.dropped_bytes} trailing bytes were unreadable; original kept as {res.damaged_path.name}")
+    for name, n in sorted(res.counts.items()):
+        print(f"  {name}: {n}")
+    return 0

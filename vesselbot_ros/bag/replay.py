@@ -1,0 +1,182 @@
+"""Republish a recorded bag with its original timing (scaled), like ``ros2 bag play``.
+
+:func:`replay` publishes the recorded CDR bytes unchanged (raw publish: no
+decoding) on publishers with the recorded topic's QoS (the graph's QoS from
+:mod:`vesselbot_ros.topics` for its own topics, transient local for latched
+ones).  Message *i* is published at wall time
+``t0 + (log_time_i - log_time_first) / rate``.
+
+Clock: a lockstep bag holds the plant's ``/clock``, which is republished like
+any topic, so sim-time nodes follow the recorded sim time.  With
+``clock=True``, ``/clock`` is instead published from the bag's log time before
+every message (``ros2 bag play --clock`` semantics) and a recorded ``/clock``
+topic is not replayed (one clock source only).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
+from vesselbot_ros.errors import BagError
+
+__all__ = ["ReplayStats", "replay", "make_publishers"]
+
+CLOCK_TOPIC = "/clock"
+
+
+@dataclass(frozen=True)
+class ReplayStats:
+    """What a replay published.
+
+    Attributes:
+        published: Messages published per topic (all loops).
+        loops: Completed passes over the bag.
+        wall_s: Wall time spent publishing (s).
+        max_lateness_s: Largest delay of a publication behind its schedule (s).
+    """
+
+    published: dict[str, int]
+    loops: int
+    wall_s: float
+    max_lateness_s: float
+
+
+def _import_type(msgtype: str) -> Any:
+    import importlib
+
+    pkg, kind, name = msgtype.split("/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    except (ImportError, AttributeError):
+        raise BagError(f"cannot replay {msgtype}: its Python package {pkg} is not installed") from None
+
+
+def make_publishers(node: Any, info: BagInfo, topics: Sequence[str]) -> dict[str, Any]:
+    """Publishers for ``topics`` of a bag, with the graph's QoS where known."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from vesselbot_ros.topics import TOPICS, qos_profile
+
+    specs = {s.name: s for s in TOPICS}
+    pubs = {}
+    for name in topics:
+        t = info.topic(name)
+        assert t is not None
+        if name in specs:
+            qos = qos_profile(specs[name])
+        else:
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1 if t.latched else 100,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL if t.latched else DurabilityPolicy.VOLATILE)
+        pubs[name] = node.create_publisher(_import_type(t.msgtype), name, qos)
+    return pubs
+
+
+def replay(
+    bag: str | Path | BagInfo,
+    node: Any,
+    *,
+    rate: float = 1.0,
+    topics: Sequence[str] | None = None,
+    start_s: float = 0.0,
+    loop: bool = False,
+    clock: bool = False,
+    wait_subscribers_s: float = 0.0,
+    should_stop: Callable[[], bool] = lambda: False,
+    log: Callable[[str], None] = lambda s: None,
+) -> ReplayStats:
+    """Publish a bag's messages on ``node`` with their recorded timing divided by ``rate``.
+
+    Args:
+        bag: Bag directory or validated :class:`BagInfo`.
+        node: An rclpy node to create the publishers on.
+        rate: Speed factor (> 0): 2 plays twice as fast.
+        topics: Only these topics (default: all recorded topics).
+        start_s: Skip the first ``start_s`` seconds of the bag (log time).
+        loop: Replay again from ``start_s`` until ``should_stop()``.
+        clock: Publish ``/clock`` from the bag's log time (see module doc).
+        wait_subscribers_s: First wait up to this long until every replayed
+            topic has a subscriber (0: do not wait).
+        should_stop: Polled between messages; True ends the replay.
+        log: Receives progress lines.
+
+    Raises:
+        BagError: for an invalid bag, an unknown topic or a bad argument.
+    """
+    if not rate > 0:
+        raise BagError(f"--rate must be > 0, got {rate}")
+    if start_s < 0:
+        raise BagError(f"--start must be >= 0 s, got {start_s}")
+    info = bag if isinstance(bag, BagInfo) else open_bag(bag)
+    names = [t.name for t in info.topics] if topics is None else list(dict.fromkeys(topics))
+    unknown = sorted(set(names) - {t.name for t in info.topics})
+    if unknown:
+        raise BagError(f"bag {info.path} has no topic {', '.join(unknown)}; it has {[t.name for t in info.topics]}")
+    if clock:
+        names = [n for n in names if n != CLOCK_TOPIC]
+    pubs = make_publishers(node, info, names)
+    clock_pub = None
+    if clock:
+        from rosgraph_msgs.msg import Clock
+
+        from vesselbot_ros.topics import qos_profile, topic
+
+        clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, qos_profile(topic("clock")))
+
+    if wait_subscribers_s > 0:
+        deadline = time.monotonic() + wait_subscribers_s
+        while time.monotonic() < deadline and not should_stop():
+            if all(p.get_subscription_count() > 0 for p in pubs.values()):
+                # our side has matched; give the subscribers' side of DDS discovery time to
+                # match too, or the first reliable samples arrive late through repairs
+                time.sleep(0.5)
+                break
+            time.sleep(0.02)
+        else:
+            missing = [n for n, p in pubs.items() if p.get_subscription_count() == 0]
+            if missing:
+                log(f"no subscriber after {wait_subscribers_s} s on {missing}; publishing anyway")
+
+    start_ns = info.start_ns + int(round(start_s * 1e9))
+    published = dict.fromkeys(names, 0)
+    loops = 0
+    max_late = 0.0
+    t_begin = time.monotonic()
+    sleep = time.sleep
+    while True:
+        t0_wall = time.monotonic()
+        first_ns: int | None = None
+        for m in iter_messages(info, topics=names, start_ns=start_ns):
+            if should_stop():
+                return ReplayStats(published, loops, time.monotonic() - t_begin, max_late)
+            if first_ns is None:  # the schedule starts at the first message, after the reader opened
+                first_ns = m.log_time_ns
+                t0_wall = time.monotonic()
+            due = t0_wall + (m.log_time_ns - first_ns) * 1e-9 / rate
+            delay = due - time.monotonic()
+            if delay > 0:
+                sleep(delay)
+            else:
+                max_late = max(max_late, -delay)
+            if clock_pub is not None:
+                from rosgraph_msgs.msg import Clock
+
+                c = Clock()
+                c.clock.sec, c.clock.nanosec = divmod(m.log_time_ns, 1_000_000_000)
+                clock_pub.publish(c)
+            pubs[m.topic].publish(m.data)
+            published[m.topic] += 1
+        loops += 1
+        log(f"pass {loops} done: {sum(published.values())} messages published")
+        if not loop or should_stop() or first_ns is None:
+            break
+    from rclpy.duration import Duration
+
+    for p in pubs.values():  # reliable delivery of the tail before the caller exits
+        p.wait_for_all_acked(Duration(seconds=2))
+    return ReplayStats(published, loops, time.monotonic() - t_begin, max_late)

@@ -1,0 +1,343 @@
+"""Write rosbag2 bags (metadata.yaml version 9 + MCAP) with rosbags, never by hand.
+
+:class:`BagWriter` wraps :class:`rosbags.rosbag2.Writer` as a context manager:
+
+* the storage is MCAP with ``ros2msg`` schemas that embed the full message
+  definitions (custom ``vesselbot_msgs`` types included, registered from the
+  installed ``.msg`` files), ``cdr`` channels and the offered QoS per channel:
+  this is what Foxglove and ``ros2 bag info/play`` read;
+* the run's metadata (scenario, seed, mode, config, versions, command) goes
+  into the rosbag2 ``custom_data`` under :data:`RUN_METADATA_KEY` (so it is in
+  ``metadata.yaml`` and in the MCAP's ``rosbag2`` metadata record), and into
+  the side file ``run_metadata.json`` written at open, so that ``bag repair``
+  can restore it after a hard kill;
+* the bag directory may already exist (the launcher puts ROS logs in
+  ``DIR/logs``), but an existing ``metadata.yaml`` or ``*.mcap`` is never
+  overwritten;
+* log times are integer ns and strictly increasing (ties are broken by +1 ns)
+  so that every reader (rosbags, mcap, Foxglove) orders the messages exactly as
+  they were received;
+* :meth:`BagWriter.flush` closes the pending MCAP chunk and flushes it to the
+  OS: after a hard kill the MCAP is readable up to the last closed chunk.
+  rosbags closes a chunk by itself once it holds 1 MiB; the recorder also
+  flushes on a wall-clock period.
+
+Example::
+
+    with BagWriter(out_dir, run_metadata={"scenario": "small_artery", "seed": 1}) as bag:
+        conn = bag.add_topic("/vesselbot/truth", "vesselbot_msgs/msg/PlantState")
+        bag.write(conn, cdr_bytes, t_ns)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from rosbags.interfaces import Connection, Qos
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2.storage_mcap import McapWriter
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from vesselbot_ros.errors import BagError
+
+__all__ = [
+    "BagWriter",
+    "RUN_METADATA_KEY",
+    "RUN_METADATA_FILE",
+    "MIN_FREE_BYTES",
+    "make_typestore",
+    "check_output_dir",
+    "qos_from_spec",
+]
+
+RUN_METADATA_KEY = "vesselbot.run"
+RUN_METADATA_FILE = "run_metadata.json"
+# A 60 s run at 1 kHz writes about 120 MB; refuse to start below this.
+MIN_FREE_BYTES = 256 * 2**20
+
+_CUSTOM_PACKAGE = "vesselbot_msgs"
+
+
+def _msg_dirs(package: str) -> list[Path]:
+    """Folders where ``package``'s ``.msg`` files may be installed (venv first)."""
+    dirs = [Path(sys.prefix) / "share" / package / "msg"]
+    for entry in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if entry:
+            dirs.append(Path(entry) / "share" / package / "msg")
+    if package == _CUSTOM_PACKAGE:
+        dirs.append(Path(__file__).resolve().parents[2] / "msg_defs" / "msg")
+    return [d for d in dirs if d.is_dir()]
+
+
+def _register_package(ts: Typestore, package: str) -> bool:
+    """Register every ``.msg`` of ``package`` found on disk; True if any was found."""
+    for folder in _msg_dirs(package):
+        types: dict[str, Any] = {}
+        for f in sorted(folder.glob("*.msg")):
+            types.update(get_types_from_msg(f.read_text(encoding="utf-8"), f"{package}/msg/{f.stem}"))
+        if types:
+            ts.register(types)
+            return True
+    return False
+
+
+def make_typestore(extra_types: Sequence[str] = ()) -> Typestore:
+    """A ROS 2 Jazzy typestore with ``vesselbot_msgs`` (and the packages of ``extra_types``).
+
+    Args:
+        extra_types: Message types (``pkg/msg/Name``) that must be known; the
+            ``.msg`` files of their packages are registered when missing.
+
+    Raises:
+        BagError: if a type is neither standard nor installed as a ``.msg`` file.
+    """
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    if not _register_package(ts, _CUSTOM_PACKAGE):
+        raise BagError(f"cannot find the {_CUSTOM_PACKAGE} .msg files under {sys.prefix}/share; run `make bootstrap`")
+    for msgtype in extra_types:
+        if msgtype not in ts.fielddefs:
+            _register_package(ts, msgtype.split("/", 1)[0])
+        if msgtype not in ts.fielddefs:
+            raise BagError(f"unknown message type {msgtype!r}: not a ROS 2 Jazzy type and no .msg file installed")
+    return ts
+
+
+def qos_from_spec(durability_transient_local: bool, depth: int) -> Qos:
+    """The offered QoS (reliable, keep last ``depth``) recorded with a channel.
+
+    Args:
+        durability_transient_local: True for latched topics.
+        depth: History depth.
+    """
+    from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    never = QosTime(0x7FFFFFFF, 0xFFFFFFFF)  # rmw's "infinite" duration, as ros2 bag writes it
+    return Qos(
+        history=QosHistory.KEEP_LAST,
+        depth=depth,
+        reliability=QosReliability.RELIABLE,
+        durability=QosDurability.TRANSIENT_LOCAL if durability_transient_local else QosDurability.VOLATILE,
+        deadline=never,
+        lifespan=never,
+        liveliness=QosLiveliness.AUTOMATIC,
+        liveliness_lease_duration=never,
+        avoid_ros_namespace_conventions=False,
+    )
+
+
+def check_output_dir(path: str | os.PathLike[str], min_free_bytes: int = MIN_FREE_BYTES) -> Path:
+    """Check that a bag can be written at ``path`` before anything is recorded.
+
+    The directory is created if needed (it may exist, e.g. with a ``logs/``
+    folder), must be writable, must not already hold a bag, and its file
+    system must have ``min_free_bytes`` free.
+
+    Returns:
+        The resolved directory.
+
+    Raises:
+        BagError: naming the path and the problem.
+    """
+    out = Path(path).expanduser().resolve()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BagError(f"cannot create bag directory {out}: {exc.strerror or exc}") from None
+    if not out.is_dir():
+        raise BagError(f"bag path {out} exists and is not a directory")
+    existing = [p.name for p in (out / "metadata.yaml", *out.glob("*.mcap")) if p.exists()]
+    if existing:
+        raise BagError(f"{out} already holds a bag ({', '.join(existing)}); not overwriting")
+    probe = out / f".write_probe_{os.getpid()}"
+    try:
+        probe.write_bytes(b"x")
+        probe.unlink()
+    except OSError as exc:
+        raise BagError(f"bag directory {out} is not writable: {exc.strerror or exc}") from None
+    free = shutil.disk_usage(out).free
+    if free < min_free_bytes:
+        raise BagError(
+            f"only {free / 2**20:.0f} MiB free under {out}; recording needs at least {min_free_bytes / 2**20:.0f} MiB"
+        )
+    return out
+
+
+class _DirWriter(Writer):
+    """rosbags' Writer, except that the bag directory may already exist (never the bag files)."""
+
+    def __init__(self, path: Path) -> None:
+        # rosbags refuses existing directories in __init__ and open(); the check
+        # for existing bag files is done here instead, and McapWriter opens 'xb'.
+        super().__init__(path / f".unused-{os.getpid()}-{id(self)}", version=9, storage_plugin=StoragePlugin.MCAP)
+        self.path = path
+        self.metapath = path / "metadata.yaml"
+
+    def open(self) -> None:
+        self.path.mkdir(mode=0o755, parents=True, exist_ok=True)
+        if self.metapath.exists():
+            raise WriterError(f"{self.metapath} exists already, not overwriting.")
+        self.storage = McapWriter(self.path, self.compression_mode)
+
+
+class BagWriter:
+    """A rosbag2 (version 9, MCAP) bag being written; use as a context manager.
+
+    Args:
+        path: The bag directory (created; may exist but must not hold a bag).
+        run_metadata: JSON-serialisable description of the run (scenario,
+            seed, mode, config, versions, command); stored in ``custom_data``.
+        typestore: Typestore used for the embedded definitions and type
+            hashes (default: :func:`make_typestore`).
+
+    Raises:
+        BagError: if the directory cannot hold a new bag.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        run_metadata: Mapping[str, Any] | None = None,
+        typestore: Typestore | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.run_metadata = dict(run_metadata or {})
+        try:
+            self._run_json = json.dumps(self.run_metadata, sort_keys=True)
+        except (TypeError, ValueError) as exc:
+            raise BagError(f"run metadata is not JSON-serialisable: {exc}") from None
+        self.typestore = typestore if typestore is not None else make_typestore()
+        self._writer: _DirWriter | None = None
+        self._finished = False
+        self._last_ns = -1
+        self.connections: dict[str, Connection] = {}
+        self.counts: dict[str, int] = {}
+
+    # -- lifecycle ---------------------------------------------------------
+    def open(self) -> BagWriter:
+        """Create the bag files (idempotent while open)."""
+        if self._writer is not None:
+            return self
+        if self._finished:
+            raise BagError(f"bag {self.path} is already finished")
+        writer = _DirWriter(self.path)
+        writer.set_custom_data(RUN_METADATA_KEY, self._run_json)
+        try:
+            writer.open()
+        except (WriterError, OSError) as exc:
+            raise BagError(f"cannot open bag {self.path}: {exc}") from None
+        (self.path / RUN_METADATA_FILE).write_text(self._run_json + "\n", encoding="utf-8")
+        self._writer = writer
+        return self
+
+    def finish(self) -> None:
+        """Write the MCAP summary and ``metadata.yaml``; safe to call twice."""
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        self._finished = True
+        try:
+            writer.close()
+        except OSError as exc:
+            raise BagError(f"could not finalise bag {self.path}: {exc}") from None
+
+    def __enter__(self) -> BagWriter:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
+
+    @property
+    def is_open(self) -> bool:
+        """True between :meth:`open` and :meth:`finish`."""
+        return self._writer is not None
+
+    @property
+    def mcap_path(self) -> Path:
+        """The MCAP file of the bag."""
+        return self.path / f"{self.path.name}.mcap"
+
+    # -- writing -----------------------------------------------------------
+    def add_topic(
+        self, topic: str, msgtype: str, *, latched: bool = False, depth: int = 100
+    ) -> Connection:
+        """Declare a topic (channel) with its embedded definition and offered QoS.
+
+        Args:
+            topic: Absolute topic name.
+            msgtype: ROS type ``pkg/msg/Name``.
+            latched: Transient-local durability (``vessel_markers``, paths).
+            depth: History depth of the offered QoS.
+
+        Raises:
+            BagError: if the type is unknown or the topic was already added.
+        """
+        writer = self._require_open()
+        if topic in self.connections:
+            raise BagError(f"topic {topic} was already added to bag {self.path}")
+        if msgtype not in self.typestore.fielddefs:
+            self.typestore = _extend(self.typestore, msgtype)
+        conn = writer.add_connection(
+            topic, msgtype, typestore=self.typestore, offered_qos_profiles=[qos_from_spec(latched, depth)]
+        )
+        self.connections[topic] = conn
+        self.counts[topic] = 0
+        return conn
+
+    def write(self, conn: Connection, data: bytes | memoryview, t_ns: int) -> int:
+        """Write one serialized (CDR) message; return the log time actually used (ns).
+
+        Args:
+            conn: A connection from :meth:`add_topic`.
+            data: The CDR bytes exactly as published.
+            t_ns: Receive time (ns); raised by 1 ns over the previous one if
+                needed, so log times are strictly increasing.
+        """
+        writer = self._require_open()
+        t = int(t_ns)
+        if t <= self._last_ns:
+            t = self._last_ns + 1
+        self._last_ns = t
+        writer.write(conn, t, data)
+        self.counts[conn.topic] += 1
+        return t
+
+    def flush(self, fsync: bool = False) -> None:
+        """Close the pending MCAP chunk (if it holds messages) and flush it to the OS.
+
+        Args:
+            fsync: Also ask the OS to put it on disk (survives a power cut).
+        """
+        writer = self._require_open()
+        storage = writer.storage
+        assert isinstance(storage, McapWriter)
+        if storage.chunk.msgs:
+            storage.close_chunk()
+        storage.bio.flush()
+        if fsync:
+            os.fsync(storage.bio.fileno())
+
+    def pending_bytes(self) -> int:
+        """Bytes in the chunk not yet written to the file."""
+        writer = self._require_open()
+        storage = writer.storage
+        assert isinstance(storage, McapWriter)
+        return storage.chunk.bio.tell()
+
+    def _require_open(self) -> _DirWriter:
+        if self._writer is None:
+            raise BagError(f"bag {self.path} is not open")
+        return self._writer
+
+
+def _extend(ts: Typestore, msgtype: str) -> Typestore:
+    pkg = msgtype.split("/", 1)[0]
+    if not _register_package(ts, pkg) or msgtype not in ts.fielddefs:
+        raise BagError(f"unknown message type {msgtype!r}: not a ROS 2 Jazzy type and no .msg file installed")
+    return ts

@@ -1,0 +1,219 @@
+"""Backstepping tracking law, eq. (24) of Arcese et al. (2012).
+
+For the canonical form (23) ``Xd = Z, Zd = F(X, Z) + U`` (per unit mass,
+frame W, axes x and z), with reference ``X_ref`` and its first two
+derivatives, the law is::
+
+    U = Xdd_ref + (k1 + k2) Xd_ref + (1 + k1 k2) X_ref
+        - (1 + k1 k2) X - (k1 + k2) Z - F(X, Z)                        (24)
+
+Assumptions: ``F`` is known (here: the physics core evaluated with the
+controller's own, possibly wrong, parameters and at the *estimated* state),
+``U`` is applied exactly and the state is known.  With ``e = X - X_ref`` and
+exact cancellation the closed loop is ``edd + (k1 + k2) ed + (1 + k1 k2) e = 0``,
+whose characteristic roots are ``-(k1+k2)/2 +/- sqrt((k1-k2)^2/4 - 1)``: both
+real and negative for every ``k1, k2 > 0`` (Table III, ``k1 = 5, k2 = 10``:
+``-5.21`` and ``-9.79`` 1/s).  A constant model error ``dF`` leaves a
+steady-state error ``dF / (1 + k1 k2)``.
+
+The acceleration ``U`` (m/s^2) is mapped to a gradient (T/m) by the model's
+input matrix ``B`` (see :mod:`vesselbot_ros.control.input_mapping`):
+``G = B^-1 U``.
+
+Safe behaviour: when the estimate is older than ``stale_timeout_s`` (no
+measurement for that long) the controller ``hold``\\ s its last command or
+outputs ``zero``; a non-finite ``U`` (e.g. a model evaluated far outside the
+vessel) gives the same safe action and ``status == "nonfinite"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import check_choice, check_positive
+from vesselbot_ros.errors import ModelInputError
+
+__all__ = ["BacksteppingGains", "ControllerParams", "ControlCommand", "BacksteppingController", "backstepping_u"]
+
+ForceFn = Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+
+
+@dataclasses.dataclass(frozen=True)
+class BacksteppingGains:
+    """Gains of eq. (24) (1/s, strictly positive).  Table III: k1 = 5, k2 = 10."""
+
+    k1: float = 5.0
+    k2: float = 10.0
+
+    def __post_init__(self) -> None:
+        check_positive("k1", self.k1)
+        check_positive("k2", self.k2)
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerParams:
+    """Backstepping controller parameters.
+
+    Attributes:
+        gains: ``k1, k2`` of eq. (24).
+        stale_timeout_s: Estimate age (time since the last measurement, s)
+            beyond which the controller goes to its safe action.
+        stale_action: ``hold`` the last command or output ``zero`` gradient.
+    """
+
+    gains: BacksteppingGains = dataclasses.field(default_factory=BacksteppingGains)
+    stale_timeout_s: float = 0.2
+    stale_action: Literal["hold", "zero"] = "zero"
+
+    def __post_init__(self) -> None:
+        check_positive("stale_timeout_s", self.stale_timeout_s)
+        check_choice("stale_action", self.stale_action, ("hold", "zero"))
+
+
+class ControlCommand(NamedTuple):
+    """Output of :meth:`BacksteppingController.command`.
+
+    Attributes:
+        gradient_T_per_m: (2,) commanded gradient, T/m, frame W.
+        u_m_per_s2: (2,) acceleration ``U`` of eq. (24), m/s^2 (zeros when not
+            computed).
+        status: ``ok``, ``stale`` (safe action, estimate too old) or
+            ``nonfinite`` (safe action, the law gave a non-finite value).
+    """
+
+    gradient_T_per_m: npt.NDArray[np.float64]
+    u_m_per_s2: npt.NDArray[np.float64]
+    status: str
+
+
+def backstepping_u(
+    k1: float,
+    k2: float,
+    x: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64],
+    f: npt.NDArray[np.float64],
+    p_ref: npt.NDArray[np.float64],
+    v_ref: npt.NDArray[np.float64],
+    a_ref: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """Eq. (24): the acceleration ``U`` (m/s^2), shape (2,).
+
+    Args:
+        k1: Gain k1 (1/s).
+        k2: Gain k2 (1/s).
+        x: (2,) position X (m).
+        z: (2,) velocity Z (m/s).
+        f: (2,) ``F(X, Z)`` (m/s^2).
+        p_ref: (2,) ``X_ref`` (m).
+        v_ref: (2,) ``Xd_ref`` (m/s).
+        a_ref: (2,) ``Xdd_ref`` (m/s^2).
+    """
+    s = k1 + k2
+    c = 1.0 + k1 * k2
+    return a_ref + s * v_ref + c * p_ref - c * x - s * z - f
+
+
+class BacksteppingController:
+    """Eq. (24) on the observer's estimate, mapped to a coil gradient.
+
+    Ports: inputs ``estimate`` (x_hat, z_hat, time since measurement) and
+    ``ref_sample`` (X_ref, Xd_ref, Xdd_ref); output :class:`ControlCommand`.
+
+    Args:
+        params: Gains and safe-behaviour settings.
+        force_fn: ``F(t_s, X, Z) -> (2,)`` m/s^2, all forces but the motive one
+            divided by the mass, with the controller's own model parameters.
+        input_matrix: (2, 2) ``B`` with ``U = B G`` (m/s^2 per T/m).
+    """
+
+    def __init__(
+        self,
+        params: ControllerParams,
+        force_fn: ForceFn,
+        input_matrix: npt.ArrayLike,
+    ) -> None:
+        b = np.asarray(input_matrix, dtype=np.float64)
+        if b.shape != (2, 2) or not np.all(np.isfinite(b)):
+            raise ModelInputError(f"input_matrix must be a finite (2, 2) array, got {input_matrix!r}")
+        if abs(np.linalg.det(b)) < 1e-12 * max(1.0, float(np.max(np.abs(b))) ** 2):
+            raise ModelInputError(f"input_matrix must be invertible, got {b.tolist()}")
+        self.params = params
+        self._f = force_fn
+        self._b_inv = np.linalg.inv(b)
+        self._k1 = float(params.gains.k1)
+        self._k2 = float(params.gains.k2)
+        self._last = np.zeros(2)
+
+    def reset(self) -> None:
+        """Forget the last command (the ``hold`` action then holds zero)."""
+        self._last = np.zeros(2)
+
+    def _safe(self, status: str) -> ControlCommand:
+        g = self._last.copy() if self.params.stale_action == "hold" else np.zeros(2)
+        self._last = g
+        return ControlCommand(g, np.zeros(2), status)
+
+    def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
+        """Compute the gradient command from an observer estimate and a reference sample.
+
+        Args:
+            t_s: Time (s).
+            estimate: An :class:`~vesselbot_ros.control.high_gain_observer.Estimate`
+                (fields ``x_hat``, ``z_hat``, ``time_since_measurement_s``).
+            ref: A :class:`~vesselbot_ros.control.bspline_reference.RefSample`.
+
+        Returns:
+            The :class:`ControlCommand`; see :meth:`command_arrays`.
+        """
+        return self.command_arrays(
+            t_s, estimate.x_hat, estimate.z_hat, estimate.time_since_measurement_s, ref.p, ref.v, ref.a
+        )
+
+    def command_arrays(
+        self,
+        t_s: float,
+        x_hat: npt.NDArray[np.float64],
+        z_hat: npt.NDArray[np.float64],
+        time_since_measurement_s: float,
+        p_ref: npt.NDArray[np.float64],
+        v_ref: npt.NDArray[np.float64],
+        a_ref: npt.NDArray[np.float64],
+    ) -> ControlCommand:
+        """Compute the gradient command at time ``t_s``.
+
+        Args:
+            t_s: Time (s).
+            x_hat: (2,) estimated position, m.
+            z_hat: (2,) estimated velocity, m/s.
+            time_since_measurement_s: Age of the last correction (s).
+            p_ref: (2,) reference position, m.
+            v_ref: (2,) reference velocity, m/s.
+            a_ref: (2,) reference acceleration, m/s^2.
+
+        Returns:
+            The :class:`ControlCommand`.
+
+        Raises:
+            ModelInputError: if the estimate or the reference is not finite
+                (the observer guarantees a finite estimate, so this is a bug
+                upstream, not a run-time condition to hide).
+        """
+        if not (np.all(np.isfinite(x_hat)) and np.all(np.isfinite(z_hat))):
+            raise ModelInputError(f"controller: non-finite estimate x_hat={x_hat!r}, z_hat={z_hat!r}")
+        if not (np.all(np.isfinite(p_ref)) and np.all(np.isfinite(v_ref)) and np.all(np.isfinite(a_ref))):
+            raise ModelInputError("controller: non-finite reference sample")
+        if not time_since_measurement_s <= self.params.stale_timeout_s:
+            return self._safe("stale")
+        f = self._f(t_s, x_hat, z_hat)
+        u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
+        g = self._b_inv @ u
+        if not (math.isfinite(g[0]) and math.isfinite(g[1])):
+            return self._safe("nonfinite")
+        self._last = g
+        return ControlCommand(g, u, "ok")

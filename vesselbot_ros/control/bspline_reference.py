@@ -1,0 +1,275 @@
+"""C2 cubic B-spline reference trajectory through anchor points (Section III-A2).
+
+The anchor points (frame W: x along the vessel, z vertical) are joined by an
+interpolating cubic B-spline built by :func:`scipy.interpolate.make_interp_spline`
+(``k=3``, natural end conditions), so the path ``P(u)`` is C2 in its
+chord-length parameter ``u`` (m).  The timing ``u(t)`` is a separate C2 map,
+which is how the paper "rescales the reference velocity along this path":
+
+* ``constant``: ``u = U t / T`` (constant parameter speed);
+* ``rest_to_rest``: the quintic smoothstep ``u = U (10 s^3 - 15 s^4 + 6 s^5)``,
+  ``s = t/T``, so the reference starts and ends at rest (C2 at both ends);
+* ``flow_synchronised``: ``dx_ref/dt = c * v_f(t, P(u))`` where ``v_f`` is the
+  axial blood velocity at the reference point and ``c = sync_ratio``: the
+  reference drifts with the blood, which Section III-A2 recommends where
+  ``F_m/F_tot < 1``.  The ODE is integrated once (``solve_ivp``, RK45) and
+  ``u(t)`` is interpolated by a cubic spline, so it is C2 too.
+
+``X_ref = P(u)``, ``Xd_ref = P'(u) u'``, ``Xdd_ref = P''(u) u'^2 + P'(u) u''``.
+Outside ``[t_start, t_start + T]`` the reference holds its end point with zero
+velocity and acceleration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Literal, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+from scipy.integrate import solve_ivp
+from scipy.interpolate import BSpline, make_interp_spline
+
+from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
+from vesselbot_ros.errors import ModelInputError
+
+__all__ = [
+    "ReferenceParams",
+    "RefSample",
+    "ReferenceTrajectory",
+    "propose_anchors",
+]
+
+FlowVelocityFn = Callable[[float, npt.NDArray[np.float64]], float]
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceParams:
+    """Anchor points and timing of the reference trajectory.
+
+    Attributes:
+        anchors_x_m: x of the anchor points along the vessel (m), >= 2 points.
+        anchors_z_m: z of the anchor points (m), same length (0 = centreline).
+        duration_s: Time ``T`` to run along the whole path (s).
+        start_s: Time at which the reference leaves the first anchor (s).
+        timing: ``constant``, ``rest_to_rest`` or ``flow_synchronised``.
+        sync_ratio: ``c`` in ``dx_ref/dt = c v_f`` (flow_synchronised only).
+    """
+
+    anchors_x_m: tuple[float, ...] = (0.0, 3e-3, 6e-3, 9e-3)
+    anchors_z_m: tuple[float, ...] = (1e-3, 0.9e-3, 1e-3, 0.9e-3)
+    duration_s: float = 2.0
+    start_s: float = 0.0
+    timing: Literal["constant", "rest_to_rest", "flow_synchronised"] = "constant"
+    sync_ratio: float = 1.0
+
+    def __post_init__(self) -> None:
+        if len(self.anchors_x_m) < 2:
+            raise ConfigError(f"anchors_x_m needs at least 2 points, got {list(self.anchors_x_m)}")
+        if len(self.anchors_z_m) != len(self.anchors_x_m):
+            raise ConfigError(
+                f"anchors_z_m must have as many points as anchors_x_m ({len(self.anchors_x_m)}), "
+                f"got {len(self.anchors_z_m)}"
+            )
+        for i, v in enumerate(self.anchors_x_m):
+            check_finite(f"anchors_x_m[{i}]", v)
+        for i, v in enumerate(self.anchors_z_m):
+            check_finite(f"anchors_z_m[{i}]", v)
+        pts = np.column_stack([self.anchors_x_m, self.anchors_z_m])
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        if np.any(seg <= 0.0):
+            i = int(np.argmin(seg))
+            raise ConfigError(f"anchors must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
+        check_positive("duration_s", self.duration_s)
+        check_nonnegative("start_s", self.start_s)
+        check_choice("timing", self.timing, ("constant", "rest_to_rest", "flow_synchronised"))
+        check_positive("sync_ratio", self.sync_ratio)
+
+
+class RefSample(NamedTuple):
+    """Reference at one time: ``X_ref``, ``Xd_ref``, ``Xdd_ref`` of eq. (24).
+
+    Attributes:
+        p: (2,) position, m, frame W.
+        v: (2,) velocity, m/s.
+        a: (2,) acceleration, m/s^2.
+    """
+
+    p: npt.NDArray[np.float64]
+    v: npt.NDArray[np.float64]
+    a: npt.NDArray[np.float64]
+
+
+class ReferenceTrajectory:
+    """C2 reference trajectory ``t -> (X_ref, Xd_ref, Xdd_ref)``.
+
+    Args:
+        params: Anchors and timing.
+        flow_velocity_x: ``v_f(t_s, p_W) -> m/s``, axial blood velocity at a
+            point; required for ``timing == "flow_synchronised"``.
+
+    Raises:
+        ConfigError: if ``flow_synchronised`` is asked without a flow function.
+    """
+
+    def __init__(self, params: ReferenceParams, flow_velocity_x: FlowVelocityFn | None = None) -> None:
+        self.params = params
+        pts = np.column_stack([params.anchors_x_m, params.anchors_z_m]).astype(np.float64)
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        self.anchor_u_m = np.concatenate([[0.0], np.cumsum(seg)])
+        self.length_m = float(self.anchor_u_m[-1])
+        k = 3 if len(pts) >= 4 else len(pts) - 1
+        bc = "natural" if k == 3 else None
+        self._path: BSpline = make_interp_spline(self.anchor_u_m, pts, k=k, bc_type=bc)
+        self._d1 = self._path.derivative(1)
+        self._d2 = self._path.derivative(2) if k >= 2 else None
+        self._t0 = float(params.start_s)
+        self._T = float(params.duration_s)
+        self._timing_spline: BSpline | None = None
+        if params.timing == "flow_synchronised":
+            if flow_velocity_x is None:
+                raise ConfigError("reference.timing 'flow_synchronised' needs the blood-flow velocity function")
+            self._timing_spline = self._synchronised_timing(flow_velocity_x)
+
+    def _synchronised_timing(self, vf: FlowVelocityFn) -> BSpline:
+        c = self.params.sync_ratio
+        U = self.length_m
+
+        def rhs(t: float, y: npt.NDArray[np.float64]) -> list[float]:
+            u = min(max(float(y[0]), 0.0), U)
+            p = self._path(u)
+            dx_du = float(self._d1(u)[0])
+            if abs(dx_du) < 1e-9:
+                raise ConfigError("flow_synchronised timing needs a path monotonic in x (dx/du = 0 found)")
+            du = c * vf(self._t0 + t, p) / dx_du
+            if (u <= 0.0 and du < 0.0) or (u >= U and du > 0.0):
+                du = 0.0
+            return [du]
+
+        n = max(201, int(self._T * 500) + 1)
+        ts = np.linspace(0.0, self._T, n)
+        sol = solve_ivp(rhs, (0.0, self._T), [0.0], t_eval=ts, rtol=1e-9, atol=1e-12, max_step=self._T / 200)
+        if not sol.success:  # pragma: no cover - solve_ivp failure is a scipy bug or a NaN flow
+            raise ModelInputError(f"flow-synchronised timing failed: {sol.message}")
+        u = np.clip(sol.y[0], 0.0, U)
+        return make_interp_spline(ts, u, k=3)
+
+    def _timing(self, t: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+        """Return ``(u, du/dt, d2u/dt2)`` for times ``t`` (any shape)."""
+        U, T = self.length_m, self._T
+        tau = t - self._t0
+        inside = (tau >= 0.0) & (tau <= T)
+        tc = np.clip(tau, 0.0, T)
+        timing = self.params.timing
+        if timing == "constant":
+            u = U * tc / T
+            du = np.full_like(tc, U / T)
+            ddu = np.zeros_like(tc)
+        elif timing == "rest_to_rest":
+            s = tc / T
+            u = U * s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+            du = U / T * 30.0 * s**2 * (1.0 - s) ** 2
+            ddu = U / T**2 * 60.0 * s * (1.0 - s) * (1.0 - 2.0 * s)
+        else:
+            assert self._timing_spline is not None
+            u = self._timing_spline(tc)
+            du = self._timing_spline(tc, 1)
+            ddu = self._timing_spline(tc, 2)
+        du = np.where(inside, du, 0.0)
+        ddu = np.where(inside, ddu, 0.0)
+        return u, du, ddu
+
+    def sample_many(self, t_s: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], ...]:
+        """Vectorised :meth:`sample`.
+
+        Args:
+            t_s: (n,) times (s).
+
+        Returns:
+            ``(p, v, a)``, each (n, 2): position (m), velocity (m/s) and
+            acceleration (m/s^2) in frame W.
+        """
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        if not np.all(np.isfinite(t)):
+            raise ModelInputError("reference times must be finite")
+        u, du, ddu = self._timing(t)
+        p = self._path(u)
+        d1 = self._d1(u)
+        d2 = self._d2(u) if self._d2 is not None else np.zeros_like(d1)
+        v = d1 * du[:, None]
+        a = d2 * (du**2)[:, None] + d1 * ddu[:, None]
+        return p, v, a
+
+    def sample(self, t_s: float) -> RefSample:
+        """Reference at time ``t_s`` (s): position, velocity, acceleration.
+
+        Raises:
+            ModelInputError: if ``t_s`` is not finite.
+        """
+        if not math.isfinite(t_s):
+            raise ModelInputError(f"reference time must be finite, got {t_s!r}")
+        p, v, a = self.sample_many(np.array([t_s]))
+        return RefSample(p[0], v[0], a[0])
+
+    def path(self, n: int = 200) -> npt.NDArray[np.float64]:
+        """(n, 2) points evenly spaced in the path parameter, m (for a Path message)."""
+        if n < 2:
+            raise ModelInputError(f"path needs n >= 2 points, got {n}")
+        return np.asarray(self._path(np.linspace(0.0, self.length_m, n)))
+
+    @property
+    def end_time_s(self) -> float:
+        """Time at which the reference reaches its last anchor (s)."""
+        return self._t0 + self._T
+
+
+def propose_anchors(
+    x_start_m: float,
+    x_end_m: float,
+    n_anchors: int,
+    delta_grid_m: npt.ArrayLike,
+    ratio_of_delta: Callable[[float], float],
+) -> ReferenceParams:
+    """Propose anchors from a design-map cut ``F_m/F_tot`` versus ``Delta``.
+
+    Section III-A2: put the path where ``F_m/F_tot`` is largest: near the
+    upper wall in arteries (interaction forces balance the apparent weight
+    and the parabolic flow is slow there), centred in small vessels.  The
+    physics decides which: this helper takes the ratio as a callable (e.g. a
+    cut of the Fig. 7 map at the chosen ``lambda``) and returns anchors at
+    evenly spaced ``x`` and the best ``Delta``.
+
+    Args:
+        x_start_m: x of the first anchor (m).
+        x_end_m: x of the last anchor (m), > ``x_start_m``.
+        n_anchors: Number of anchors, >= 2 (the paper uses four).
+        delta_grid_m: Candidate signed distances ``Delta`` to the centreline (m);
+            restrict it to where the robot fits (``|Delta| <= D/2 - r - margin``).
+        ratio_of_delta: ``Delta -> F_m/F_tot`` (dimensionless).
+
+    Returns:
+        :class:`ReferenceParams` with the proposed anchors (``constant`` timing).
+        If the best ratio is below 1 the caller should switch to
+        ``flow_synchronised`` timing (Section III-A2).
+
+    Raises:
+        ConfigError: on an empty grid, ``n_anchors < 2`` or ``x_end <= x_start``.
+    """
+    grid = np.asarray(delta_grid_m, dtype=np.float64).ravel()
+    if grid.size == 0 or not np.all(np.isfinite(grid)):
+        raise ConfigError("delta_grid_m must be a non-empty array of finite distances")
+    if n_anchors < 2:
+        raise ConfigError(f"n_anchors must be >= 2, got {n_anchors}")
+    if not x_end_m > x_start_m:
+        raise ConfigError(f"x_end_m must be > x_start_m, got {x_end_m!r} <= {x_start_m!r}")
+    ratios = np.array([ratio_of_delta(float(d)) for d in grid])
+    if not np.all(np.isfinite(ratios)):
+        raise ModelInputError("ratio_of_delta returned a non-finite value")
+    best = float(np.max(ratios))
+    # ties: prefer the point closest to the centreline
+    candidates = grid[np.isclose(ratios, best, rtol=1e-9, atol=0.0)]
+    delta = float(candidates[np.argmin(np.abs(candidates))])
+    xs = tuple(float(x) for x in np.linspace(x_start_m, x_end_m, n_anchors))
+    return ReferenceParams(anchors_x_m=xs, anchors_z_m=(delta,) * n_anchors)

@@ -1,0 +1,321 @@
+"""High-gain observer, eq. (25) of Arcese et al. (2012), for sampled measurements.
+
+Continuous form (25), frame W, ``X = (x, z)`` position, ``Z`` velocity::
+
+    Xd_hat = Z_hat + L G_x (X_hat - Y)
+    Zd_hat = F(X_hat, Z_hat) + U + L^2 G_z (X_hat - Y)
+
+Gain layout (the paper prints ``L, g1..g4 = 5, -6, -13, -12, -4`` and says
+only that ``G_x, G_z`` are "conveniently chosen" after Gauthier et al.).  We
+read them as diagonal matrices, one ``(g_x, g_z)`` pair per axis:
+
+* ``per_axis`` (default): ``G_x = diag(g1, g3)``, ``G_z = diag(g2, g4)``,
+  i.e. the x-axis uses ``(g1, g2)`` and the z-axis ``(g3, g4)``;
+* ``per_equation``: ``G_x = diag(g1, g2)``, ``G_z = diag(g3, g4)``.
+
+Each axis decouples (``F`` aside) into ``e1d = e2 + L g_x e1``,
+``e2d = L^2 g_z e1`` with characteristic polynomial
+``s^2 - L g_x s - L^2 g_z``, Hurwitz iff ``g_x < 0`` and ``g_z < 0``.  With
+``per_axis`` and Table III: x-axis ``s^2 + 30 s + 325`` (roots ``-15 +/- 10j``),
+z-axis ``s^2 + 60 s + 100`` (roots ``-1.72`` and ``-58.3``): stable in free
+flow, where the drag only adds damping (``dF/dZ`` negative definite) and
+``dF/dX`` is small.  Near a wall the attractive electrostatic and van der Waals
+forces have a large positive gradient ``dF_z/dz``; the linearised error is
+unstable where ``dF_z/dz > L^2 |g_z| + L |g_x| |dF_z/dv_z|`` (determinant of the
+z block changes sign), see :func:`linearised_error_matrix` and
+``docs/control.md`` for where that happens.
+
+Sampled implementation.  Between measurements the observer *predicts*: it
+integrates ``Xd = Z, Zd = F(X, Z) + B G_applied`` with the model's integrator
+(same adaptive scheme as the plant, so model contact forces do not blow up).
+A fresh measurement ``Y`` taken ``T_m`` after the previous one applies the
+correction of (25) integrated over ``T_m`` with the innovation held
+(``X_hat += T_m L G_x (X_hat - Y)``, ``Z_hat += T_m L^2 G_z (X_hat - Y)``).
+As ``T_m -> 0`` this is (25); for finite ``T_m`` the error map is
+``C(T_m) Phi(T_m)``, whose spectral radius :func:`sampled_error_radius` checks.
+
+Latency.  With ``delay_compensation`` the innovation uses the estimate stored
+at the acquisition tick (``X_hat(t_acq) - Y``) rather than the current one.
+
+Safe handling.  A non-finite measurement is rejected (not used, counted in
+``rejected``): the observer keeps predicting.  An optional innovation gate
+(``innovation_gate_m > 0``) rejects measurements whose innovation norm exceeds
+it; the paper has none (``0``, default).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+from typing import Any, Literal, NamedTuple, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
+from vesselbot_ros.errors import ModelInputError
+
+__all__ = [
+    "ObserverParams",
+    "Estimate",
+    "HighGainObserver",
+    "axis_gains",
+    "linearised_error_matrix",
+    "sampled_error_radius",
+    "ObserverModel",
+]
+
+
+class ObserverModel(Protocol):
+    """What the observer needs from the dynamics model (see :mod:`vesselbot_ros.control.model`)."""
+
+    input_matrix: npt.NDArray[np.float64]
+
+    def new_contact_state(self) -> npt.NDArray[np.float64]: ...
+
+    def propagate(
+        self,
+        t0_s: float,
+        t1_s: float,
+        y: npt.NDArray[np.float64],
+        u_m_per_s2: npt.NDArray[np.float64],
+        contact: npt.NDArray[np.float64],
+    ) -> None: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class ObserverParams:
+    """High-gain observer parameters (Table III: ``L, g1..g4 = 5, -6, -13, -12, -4``).
+
+    Attributes:
+        high_gain: ``L`` (1/s), > 0.
+        g1: Gain g1 (-), < 0.
+        g2: Gain g2 (-), < 0.
+        g3: Gain g3 (-), < 0.
+        g4: Gain g4 (-), < 0.
+        gain_layout: ``per_axis`` or ``per_equation`` (see module docstring).
+        init_from_first_measurement: Set ``X_hat`` to the first measurement
+            (``Z_hat`` stays at its prior) instead of correcting from the prior.
+        delay_compensation: Form the innovation with the estimate stored at
+            the acquisition time of the frame.
+        innovation_gate_m: Reject a measurement whose innovation norm exceeds
+            this (m); 0 disables the gate (paper).
+    """
+
+    high_gain: float = 5.0
+    g1: float = -6.0
+    g2: float = -13.0
+    g3: float = -12.0
+    g4: float = -4.0
+    gain_layout: Literal["per_axis", "per_equation"] = "per_axis"
+    init_from_first_measurement: bool = True
+    delay_compensation: bool = False
+    innovation_gate_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_positive("high_gain", self.high_gain)
+        for name in ("g1", "g2", "g3", "g4"):
+            v = getattr(self, name)
+            check_finite(name, v)
+            if v >= 0.0:
+                raise ConfigError(f"{name} must be < 0 (Hurwitz error dynamics), got {v!r}")
+        check_choice("gain_layout", self.gain_layout, ("per_axis", "per_equation"))
+        check_nonnegative("innovation_gate_m", self.innovation_gate_m)
+
+
+class Estimate(NamedTuple):
+    """Observer output at one tick.
+
+    Attributes:
+        t_s: Time of the estimate (s).
+        x_hat: (2,) estimated position, m, frame W.
+        z_hat: (2,) estimated velocity, m/s, frame W.
+        time_since_measurement_s: Time since the last accepted measurement
+            (s); ``inf`` before the first one.
+        innovation: (2,) last innovation ``X_hat - Y`` used (m); zeros if none.
+        used_measurement: True if a measurement corrected this tick.
+        rejected: True if a measurement was offered and rejected this tick.
+    """
+
+    t_s: float
+    x_hat: npt.NDArray[np.float64]
+    z_hat: npt.NDArray[np.float64]
+    time_since_measurement_s: float
+    innovation: npt.NDArray[np.float64]
+    used_measurement: bool
+    rejected: bool
+
+
+def axis_gains(params: ObserverParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Diagonals of ``G_x`` and ``G_z``: ``(gx, gz)``, each (2,) over axes (x, z)."""
+    if params.gain_layout == "per_axis":
+        return np.array([params.g1, params.g3]), np.array([params.g2, params.g4])
+    return np.array([params.g1, params.g2]), np.array([params.g3, params.g4])
+
+
+def linearised_error_matrix(
+    params: ObserverParams,
+    dF_dX: npt.ArrayLike | None = None,
+    dF_dZ: npt.ArrayLike | None = None,
+) -> npt.NDArray[np.float64]:
+    """(4, 4) matrix ``A`` of the linearised error ``ed = A e``, ``e = (X_hat - X, Z_hat - Z)``.
+
+    ``A = [[L G_x, I], [L^2 G_z + dF/dX, dF/dZ]]``.
+
+    Args:
+        params: Observer gains.
+        dF_dX: (2, 2) Jacobian of ``F`` w.r.t. position (1/s^2); zero if None.
+        dF_dZ: (2, 2) Jacobian of ``F`` w.r.t. velocity (1/s); zero if None.
+    """
+    gx, gz = axis_gains(params)
+    L = params.high_gain
+    jx = np.zeros((2, 2)) if dF_dX is None else np.asarray(dF_dX, dtype=np.float64)
+    jz = np.zeros((2, 2)) if dF_dZ is None else np.asarray(dF_dZ, dtype=np.float64)
+    a = np.zeros((4, 4))
+    a[:2, :2] = L * np.diag(gx)
+    a[:2, 2:] = np.eye(2)
+    a[2:, :2] = L**2 * np.diag(gz) + jx
+    a[2:, 2:] = jz
+    return a
+
+
+def sampled_error_radius(params: ObserverParams, period_s: float) -> float:
+    """Spectral radius of the sampled error map ``C(T) Phi(T)`` (free flow, F = 0).
+
+    ``Phi(T) = [[I, T I], [0, I]]`` is the prediction over one measurement
+    period and ``C(T) = [[I + T L G_x, 0], [T L^2 G_z, I]]`` the correction.
+    The sampled observer converges in free flow iff the radius is < 1.
+    """
+    if not period_s > 0.0:
+        raise ConfigError(f"measurement period must be > 0, got {period_s!r}")
+    gx, gz = axis_gains(params)
+    L = params.high_gain
+    phi = np.block([[np.eye(2), period_s * np.eye(2)], [np.zeros((2, 2)), np.eye(2)]])
+    c = np.block([[np.eye(2) + period_s * L * np.diag(gx), np.zeros((2, 2))], [period_s * L**2 * np.diag(gz), np.eye(2)]])
+    return float(np.max(np.abs(np.linalg.eigvals(c @ phi))))
+
+
+class HighGainObserver:
+    """Sampled high-gain observer (25); call :meth:`update` once per tick.
+
+    Ports: inputs ``measurement`` (or None) and ``applied_gradient_prev`` (the
+    gradient the coil actually applied over the last tick, T/m); output
+    :class:`Estimate`.
+
+    Args:
+        params: Observer gains and options.
+        model: Dynamics model with the controller's (possibly wrong) parameters.
+        x_hat0: (2,) prior position, m.
+        z_hat0: (2,) prior velocity, m/s.
+        t0_s: Time of the prior (s).
+    """
+
+    def __init__(
+        self,
+        params: ObserverParams,
+        model: Any,
+        x_hat0: npt.ArrayLike,
+        z_hat0: npt.ArrayLike = (0.0, 0.0),
+        t0_s: float = 0.0,
+    ) -> None:
+        y = np.concatenate([np.asarray(x_hat0, dtype=np.float64), np.asarray(z_hat0, dtype=np.float64)])
+        if y.shape != (4,) or not np.all(np.isfinite(y)):
+            raise ModelInputError(f"observer prior must be finite (2,) + (2,), got {x_hat0!r}, {z_hat0!r}")
+        self.params = params
+        self.model = model
+        gx, gz = axis_gains(params)
+        self._kx = params.high_gain * gx
+        self._kz = params.high_gain**2 * gz
+        self._b = np.asarray(model.input_matrix, dtype=np.float64)
+        self._y = y
+        self._t = float(t0_s)
+        self._contact = model.new_contact_state()
+        self._t_meas = -math.inf
+        self._initialised = False
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=4096)
+        self.rejected = 0
+
+    @property
+    def state(self) -> npt.NDArray[np.float64]:
+        """(4,) ``(x_hat, z_hat)`` copy: position (m) then velocity (m/s)."""
+        return self._y.copy()
+
+    def update(
+        self,
+        t_s: float,
+        measurement: Any | None,
+        applied_gradient_prev: npt.ArrayLike,
+    ) -> Estimate:
+        """Predict to ``t_s`` under the applied gradient, then correct if a frame arrived.
+
+        Args:
+            t_s: Tick time (s), non-decreasing.
+            measurement: A :class:`~vesselbot_ros.control.imager_model.Measurement`
+                (``t_acq_s``, ``p``) delivered at this tick, or None.
+            applied_gradient_prev: (2,) gradient applied by the coil since the
+                previous tick (T/m).
+
+        Returns:
+            The :class:`Estimate` at ``t_s``.
+
+        Raises:
+            ModelInputError: on a non-finite or backwards time or a non-finite
+                applied gradient (the coil output is always finite).
+        """
+        g = np.asarray(applied_gradient_prev, dtype=np.float64)
+        if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
+            raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
+        if not math.isfinite(t_s) or t_s < self._t - 1e-12:
+            raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
+        if t_s > self._t:
+            self.model.propagate(self._t, t_s, self._y, self._b @ g, self._contact)
+            if not np.all(np.isfinite(self._y)):
+                raise ModelInputError(f"observer: prediction became non-finite at t={t_s!r}")
+        self._t = float(t_s)
+        if self.params.delay_compensation:
+            self._history.append((self._t, self._y[0], self._y[1]))
+        used = False
+        rejected = False
+        innov = np.zeros(2)
+        if measurement is not None:
+            yp = np.asarray(measurement.p, dtype=np.float64)
+            t_acq = float(measurement.t_acq_s)
+            if yp.shape != (2,) or not (math.isfinite(yp[0]) and math.isfinite(yp[1]) and math.isfinite(t_acq)):
+                rejected = True
+            elif not self._initialised and self.params.init_from_first_measurement:
+                self._y[:2] = yp
+                self._t_meas = t_acq
+                self._initialised = True
+                used = True
+            else:
+                x_ref = self._y[:2]
+                if self.params.delay_compensation:
+                    x_ref = self._estimate_at(t_acq)
+                innov = x_ref - yp
+                gate = self.params.innovation_gate_m
+                if gate > 0.0 and math.hypot(innov[0], innov[1]) > gate:
+                    rejected = True
+                    innov = np.zeros(2)
+                else:
+                    tm = t_acq - self._t_meas if math.isfinite(self._t_meas) else 0.0
+                    if tm > 0.0:
+                        self._y[:2] += tm * self._kx * innov
+                        self._y[2:] += tm * self._kz * innov
+                    self._t_meas = t_acq
+                    self._initialised = True
+                    used = True
+            if rejected:
+                self.rejected += 1
+        age = self._t - self._t_meas
+        return Estimate(self._t, self._y[:2].copy(), self._y[2:].copy(), age, innov, used, rejected)
+
+    def _estimate_at(self, t_acq: float) -> npt.NDArray[np.float64]:
+        best = None
+        for t, x, z in reversed(self._history):
+            best = (x, z)
+            if t <= t_acq + 1e-9:
+                break
+        if best is None:
+            return self._y[:2].copy()
+        return np.array(best)

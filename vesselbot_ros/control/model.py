@@ -1,0 +1,93 @@
+"""The controller's and observer's dynamics model: ``F(X, Z)`` and its integrator.
+
+``F`` is eq. (23)'s drift: every force but the motive one, divided by the
+mass, from the physics kernel (:func:`~vesselbot_ros.physics.kernel.accel_no_motive`)
+evaluated with the *model's* parameters, which may differ from the plant's
+(e.g. the 5 % blood-velocity error of Section III-C).
+
+The contact term needs the Hertz loading/unloading history.  :meth:`F` (used
+by the controller) is memoryless: it evaluates the loading branch (15) from a
+free state.  :meth:`propagate` (used by the observer's prediction) carries a
+contact state along the estimated trajectory, exactly as the plant does.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.control.input_mapping import input_matrix
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import accel_no_motive, pack_params
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5, integrate_rk4
+
+__all__ = ["DynamicsModel"]
+
+
+class DynamicsModel:
+    """``F(X, Z)``, the input matrix ``B`` and a propagator, for one parameter set.
+
+    Args:
+        physics: The model's physics parameters.
+        integrator: Integrator settings for :meth:`propagate`.
+        mapping: Input mapping (see :mod:`vesselbot_ros.control.input_mapping`).
+    """
+
+    def __init__(
+        self,
+        physics: PhysicsParams,
+        integrator: IntegratorParams | None = None,
+        mapping: Literal["with_tau_m", "paper_printed"] = "with_tau_m",
+    ) -> None:
+        self.physics = physics
+        self.integrator = integrator if integrator is not None else IntegratorParams()
+        self.p = pack_params(physics)
+        self.input_matrix = input_matrix(physics, mapping)
+        self._free = np.zeros(4)
+        self._h = self.integrator.max_step_s
+        self.stats = np.zeros(4, dtype=np.int64)
+
+    def new_contact_state(self) -> npt.NDArray[np.float64]:
+        """A fresh (free) contact state array (4,)."""
+        return np.zeros(4)
+
+    def F(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """``F(X, Z)`` (m/s^2), shape (2,), at time ``t_s`` (memoryless contact)."""
+        ax, az = accel_no_motive(t_s, x[0], x[1], z[0], z[1], self._free, self.p)
+        return np.array((ax, az))
+
+    def propagate(
+        self,
+        t0_s: float,
+        t1_s: float,
+        y: npt.NDArray[np.float64],
+        u_m_per_s2: npt.NDArray[np.float64],
+        contact: npt.NDArray[np.float64],
+    ) -> None:
+        """Integrate ``Xd = Z, Zd = F + u`` in place over ``[t0_s, t1_s]``.
+
+        Args:
+            t0_s: Start (s).
+            t1_s: End (s).
+            y: (4,) ``(X, Z)`` state, overwritten.
+            u_m_per_s2: (2,) input acceleration held over the interval.
+            contact: (4,) contact state carried along ``y``, updated.
+
+        Raises:
+            ModelInputError: if the integration fails (step below the minimum
+                or a non-finite state).
+        """
+        ig = self.integrator
+        if ig.method == "dopri5":
+            code, self._h = integrate_dopri5(
+                t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p, self._h,
+                ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
+            )
+        else:
+            code = integrate_rk4(t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p,
+                                 ig.fixed_step_s, self.stats)
+        if code != OK:
+            raise ModelInputError(f"model integration failed on [{t0_s!r}, {t1_s!r}] (code {code}), state {y.tolist()}")

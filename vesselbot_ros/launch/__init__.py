@@ -1,0 +1,1 @@
+"""Launching the node graph: processes, composition, the `vesselbot run` command."""

@@ -1,0 +1,1 @@
+"""vesselbot_ros.nodes."""

@@ -1,0 +1,409 @@
+"""Shared plumbing of every vesselbot node: parameters, sim time, diagnostics, input checks.
+
+:class:`VesselbotNode` is the base of the six graph nodes.  It
+
+* declares the whole scenario (:mod:`vesselbot_ros.nodes.params`) plus the
+  graph settings :class:`GraphParams` (``graph.*``) as ROS parameters and
+  builds them through the same frozen dataclasses as the pure core; a bad or
+  unknown parameter raises :class:`~vesselbot_ros.config.ConfigError` naming
+  it, and :func:`run_node` turns that into exit code 2 with one clear line;
+* forces ``use_sim_time = true`` (``/clock`` comes from the plant);
+* publishes ``/diagnostics`` (one ``DiagnosticStatus`` named after the node)
+  every ``graph.diagnostics_period_s`` of *wall* time, on every rejection
+  burst, and once when the run is finished.  Keys: ``published:<topic>``
+  (messages published), ``received:<topic>`` (accepted inputs),
+  ``rejected:<topic>`` (rejected inputs), ``rejected_total``,
+  ``matched_subscribers:<topic>`` / ``matched_publishers:<topic>`` (DDS
+  matches, used by the launcher to know the graph is wired), ``finished``,
+  plus node-specific entries;
+* validates every input message with one helper, :meth:`VesselbotNode.check`:
+  non-finite numbers, a frame_id other than ``vessel``, a non-zero ``y``, a
+  position more than ``graph.position_margin_m`` outside the vessel, and (in
+  real-time mode) stamps older than ``graph.input_max_age_s`` or in the future
+  by more than ``graph.future_tolerance_s`` are rejected: the message is
+  dropped, a warning is logged (at most once per second per topic and
+  reason), and the next diagnostics are WARN with the reason and counts.  In
+  lockstep, tick bookkeeping (stale / future ticks) is each node's own and
+  reported through :meth:`VesselbotNode.reject`.  The node keeps running.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, Literal
+
+from rclpy.node import Node
+
+from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive, load_dataclass
+from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
+from vesselbot_ros.sim.scenario import Scenario
+from vesselbot_ros.topics import FRAME_ID, NODE_NAMES, TopicSpec, qos_profile, topic
+
+__all__ = ["GraphParams", "VesselbotNode", "run_node", "make_executor", "spin_nodes"]
+
+GRAPH_PREFIX = "graph."
+_IGNORED_OVERRIDES = ("use_sim_time", "start_type_description_service")
+
+
+@dataclasses.dataclass(frozen=True)
+class GraphParams:
+    """How the node graph runs (ROS parameters ``graph.*``, same for every node).
+
+    Attributes:
+        mode: ``lockstep`` (deterministic, as fast as the graph allows) or
+            ``realtime`` (the plant steps on the wall clock).
+        real_time_factor: Sim seconds per wall second in real-time mode.
+        autostart: If true the plant starts stepping by itself once its own
+            publishers are matched; otherwise it waits for RunControl START.
+        diagnostics_period_s: Wall-clock period of ``/diagnostics`` (s).
+        stall_timeout_s: Lockstep only: wall time the coil driver waits for the
+            command of the current tick before treating it as missing (its
+            watchdog then runs, so the loop goes on) (s).
+        plant_wait_warn_s: Lockstep only: wall time after which the plant warns
+            that it is still waiting for ``coil/applied`` (s).
+        input_max_age_s: Real-time only: inputs stamped older than this (sim
+            s, on top of the imager latency for measurements) are stale.
+        future_tolerance_s: Real-time only: inputs stamped later than now plus
+            this (sim s) are rejected as future.
+        position_margin_m: Positions farther than this outside the nominal
+            vessel walls are rejected (m); generous, so that scheduled imager
+            outliers still reach the observer as in the paper.
+    """
+
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    real_time_factor: float = 1.0
+    autostart: bool = False
+    diagnostics_period_s: float = 1.0
+    stall_timeout_s: float = 2.0
+    plant_wait_warn_s: float = 5.0
+    input_max_age_s: float = 0.25
+    future_tolerance_s: float = 0.005
+    position_margin_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        check_choice("mode", self.mode, ("lockstep", "realtime"))
+        check_positive("real_time_factor", self.real_time_factor)
+        check_positive("diagnostics_period_s", self.diagnostics_period_s)
+        check_positive("stall_timeout_s", self.stall_timeout_s)
+        check_positive("plant_wait_warn_s", self.plant_wait_warn_s)
+        check_positive("input_max_age_s", self.input_max_age_s)
+        check_nonnegative("future_tolerance_s", self.future_tolerance_s)
+        check_nonnegative("position_margin_m", self.position_margin_m)
+
+
+def _rclpy() -> Any:
+    import rclpy
+
+    return rclpy
+
+
+class VesselbotNode(Node):  # type: ignore[misc]
+    """Base class: parameters, diagnostics and input checks (see module docstring).
+
+    Args:
+        role: Node role (key of :data:`vesselbot_ros.topics.NODE_NAMES`).
+        context: rclpy Context (None: the default one).
+        cli_args: Extra ROS arguments, e.g. ``["--ros-args", "--params-file", F]``.
+        parameter_overrides: Parameter overrides (rclpy ``Parameter`` list).
+
+    Raises:
+        ConfigError: a parameter is unknown or invalid (the message names it).
+    """
+
+    def __init__(
+        self,
+        role: str,
+        *,
+        context: Any = None,
+        cli_args: Sequence[str] | None = None,
+        parameter_overrides: Sequence[Any] | None = None,
+    ) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.parameter import Parameter
+
+        overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, True)]
+        super().__init__(
+            NODE_NAMES[role], context=context, cli_args=list(cli_args) if cli_args else None, parameter_overrides=overrides
+        )
+        self.role = role
+        self.scenario, self.graph = self._load_parameters()
+        self.rate_Hz = float(self.scenario.sim.control_rate_Hz)
+        self.dt = float(self.scenario.sim.dt_control_s)
+        self.n_ticks = int(self.scenario.sim.n_ticks)
+        self.lockstep = self.graph.mode == "lockstep"
+        self.finished = False
+        self._published: Counter[str] = Counter()
+        self._received: Counter[str] = Counter()
+        self._rejected: Counter[str] = Counter()
+        self._reject_reasons: Counter[str] = Counter()
+        self._last_reason = ""
+        self._warn_pending = False
+        self._last_warn: dict[tuple[str, str], float] = {}
+        self._last_diag_wall = 0.0
+        self._pubs: dict[str, Any] = {}
+        self._subs: dict[str, Any] = {}
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos_profile(topic("diagnostics")))
+        from rclpy.clock import Clock, ClockType
+
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        # before the run starts the launcher polls our DDS matches: report fast
+        self._diag_timer = self.create_timer(0.1, self._diag_tick, clock=self._wall)
+
+    # ------------------------------------------------------------------ parameters
+    def _load_parameters(self) -> tuple[Scenario, GraphParams]:
+        from rcl_interfaces.msg import ParameterDescriptor
+
+        dyn = ParameterDescriptor(dynamic_typing=True)
+        values: dict[str, Any] = {}
+        for name, spec in scenario_schema().items():
+            values[name] = self.declare_parameter(name, spec.default, dyn).value
+        graph_values: dict[str, Any] = {}
+        for f in dataclasses.fields(GraphParams):
+            graph_values[f.name] = self.declare_parameter(GRAPH_PREFIX + f.name, f.default, dyn).value
+        for name, value in self.extra_parameters().items():
+            self.declare_parameter(name, value, dyn)
+        declared = set(self._parameters)
+        unknown = sorted(
+            n for n in self._parameter_overrides if n not in declared and n not in _IGNORED_OVERRIDES
+            and not n.startswith("qos_overrides.")
+        )
+        if unknown:
+            raise ConfigError(
+                f"unknown parameter {unknown[0]!r} (value {self._parameter_overrides[unknown[0]].value!r}) "
+                f"for node {self.get_name()}"
+            )
+        scenario = scenario_from_parameters(values)
+        graph = load_dataclass(GraphParams, graph_values, "graph")
+        return scenario, graph
+
+    def extra_parameters(self) -> dict[str, Any]:
+        """Node-specific parameters (name -> default), declared after the scenario's."""
+        return {}
+
+    # ------------------------------------------------------------------ ports
+    def add_publisher(self, key: str, msg_cls: Any) -> Any:
+        """Create the publisher of topic ``key`` with the contract's QoS."""
+        spec = topic(key)
+        pub = self.create_publisher(msg_cls, spec.name, qos_profile(spec))
+        self._pubs[key] = pub
+        return pub
+
+    def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
+        """Subscribe to topic ``key`` with the contract's QoS."""
+        spec = topic(key)
+        sub = self.create_subscription(msg_cls, spec.name, callback, qos_profile(spec))
+        self._subs[key] = sub
+        return sub
+
+    def publish(self, key: str, msg: Any) -> None:
+        """Publish on topic ``key`` and count it for diagnostics."""
+        self._pubs[key].publish(msg)
+        self._published[topic(key).name] += 1
+
+    def count_received(self, key: str) -> None:
+        """Count one accepted input on topic ``key``."""
+        self._received[topic(key).name] += 1
+
+    def wired(self) -> bool:
+        """True once every publisher and subscription of this node is matched."""
+        return all(
+            p.get_subscription_count() > 0 for k, p in self._pubs.items() if topic(k).qos != "reliable_latched"
+        ) and all(
+            s.get_publisher_count() > 0 for s in self._subs.values()
+        )
+
+    # ------------------------------------------------------------------ validation
+    def reject(self, key: str, reason: str, detail: str = "") -> None:
+        """Record a rejected input on topic ``key`` (rate-limited warning + WARN diagnostics)."""
+        name = topic(key).name
+        self._rejected[name] += 1
+        self._reject_reasons[reason] += 1
+        self._last_reason = f"{name}: {reason}" + (f" ({detail})" if detail else "")
+        now = time.monotonic()
+        if now - self._last_warn.get((name, reason), -1e9) >= 1.0:
+            self._last_warn[(name, reason)] = now
+            self.get_logger().warning(f"rejected input on {name}: {reason}" + (f" ({detail})" if detail else ""))
+        self._warn_pending = True
+        if now - self._last_diag_wall >= 0.2:
+            self.publish_diagnostics()
+
+    def check(
+        self,
+        key: str,
+        *,
+        frame_id: str | None = None,
+        stamp_ns: int | None = None,
+        values: Iterable[float] = (),
+        y_values: Iterable[float] = (),
+        z_position: float | None = None,
+        extra_age_s: float = 0.0,
+    ) -> bool:
+        """Validate one input message; on failure call :meth:`reject` and return False.
+
+        Args:
+            key: Topic key of the input.
+            frame_id: The message's ``header.frame_id`` (must be ``vessel``).
+            stamp_ns: The message's stamp (ns); checked against the sim clock
+                in real-time mode only (lockstep checks ticks instead).
+            values: Every float of the message (must be finite).
+            y_values: Components along the unused y axis (must be 0).
+            z_position: A position's z (m): must lie within the vessel walls
+                plus ``graph.position_margin_m``.
+            extra_age_s: Allowed extra age (e.g. the imager latency), s.
+        """
+        vals = list(values)
+        if frame_id is not None and frame_id != FRAME_ID:
+            self.reject(key, "wrong_frame_id", f"got {frame_id!r}, expected {FRAME_ID!r}")
+            return False
+        if not all(v == v and v not in (float("inf"), float("-inf")) for v in vals):
+            self.reject(key, "non_finite", f"values {vals}")
+            return False
+        if any(y != 0.0 for y in y_values):
+            self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
+            return False
+        if z_position is not None:
+            half = 0.5 * self.scenario.physics.vessel.diameter_m * (1.0 + self.scenario.physics.flow.diameter_pulsation)
+            if abs(z_position) > half + self.graph.position_margin_m:
+                self.reject(key, "outside_vessel", f"z = {z_position!r} m, walls at +/-{half!r} m")
+                return False
+        if stamp_ns is not None and not self.lockstep:
+            now_ns = self.get_clock().now().nanoseconds
+            if stamp_ns > now_ns + self.graph.future_tolerance_s * 1e9:
+                self.reject(key, "future_stamp", f"stamp {stamp_ns * 1e-9:.6f} s > now {now_ns * 1e-9:.6f} s")
+                return False
+            if stamp_ns < now_ns - (self.graph.input_max_age_s + extra_age_s) * 1e9:
+                self.reject(key, "stale_stamp", f"stamp {stamp_ns * 1e-9:.6f} s, now {now_ns * 1e-9:.6f} s")
+                return False
+        return True
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostic_values(self) -> dict[str, str]:
+        """Node-specific diagnostic entries (override)."""
+        return {}
+
+    def _diag_tick(self) -> None:
+        now = time.monotonic()
+        period = self.graph.diagnostics_period_s if (self.started() or self.finished) else 0.1
+        if now - self._last_diag_wall >= period - 1e-3:
+            self.publish_diagnostics()
+
+    def started(self) -> bool:
+        """True once this node has handled its first tick (override where relevant)."""
+        return sum(self._published.values()) > 0
+
+    def publish_diagnostics(self) -> None:
+        """Publish this node's DiagnosticStatus now."""
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        self._last_diag_wall = time.monotonic()
+        kv: dict[str, str] = {}
+        for t in sorted(set(self._published) | {topic(k).name for k in self._pubs}):
+            kv[f"published:{t}"] = str(self._published[t])
+        for t in sorted(self._received):
+            kv[f"received:{t}"] = str(self._received[t])
+        for t in sorted(self._rejected):
+            kv[f"rejected:{t}"] = str(self._rejected[t])
+        for reason, n in sorted(self._reject_reasons.items()):
+            kv[f"rejected_reason:{reason}"] = str(n)
+        kv["rejected_total"] = str(sum(self._rejected.values()))
+        for k, p in self._pubs.items():
+            kv[f"matched_subscribers:{topic(k).name}"] = str(p.get_subscription_count())
+        for k, s in self._subs.items():
+            kv[f"matched_publishers:{topic(k).name}"] = str(s.get_publisher_count())
+        kv["wired"] = "true" if self.wired() else "false"
+        kv["finished"] = "true" if self.finished else "false"
+        kv["mode"] = self.graph.mode
+        kv.update(self.diagnostic_values())
+        level = DiagnosticStatus.WARN if self._warn_pending else DiagnosticStatus.OK
+        message = f"rejected input: {self._last_reason}" if self._warn_pending else ("finished" if self.finished else "ok")
+        self._warn_pending = False
+        st = DiagnosticStatus(level=level, name=self.get_name(), message=message, hardware_id="vesselbot")
+        st.values = [KeyValue(key=k, value=v) for k, v in kv.items()]
+        arr = DiagnosticArray(status=[st])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(arr)
+
+    def mark_finished(self) -> None:
+        """The run is over for this node: publish final diagnostics once."""
+        if not self.finished:
+            self.finished = True
+            self.publish_diagnostics()
+
+    @property
+    def done(self) -> bool:
+        """True when the node asks its process to exit (never, by default)."""
+        return False
+
+
+def make_executor(context: Any = None) -> Any:
+    """The executor used by every node process: rclpy's EventsExecutor."""
+    from rclpy.experimental import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
+def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], bool] | None = None) -> None:
+    """Spin ``nodes`` on one EventsExecutor until shutdown (or ``stop()``).
+
+    The EventsExecutor's own ``spin()`` ignores SIGINT/SIGTERM, so we spin in
+    short slices and let rclpy's signal handlers raise between them.
+    """
+    rclpy = _rclpy()
+    ex = make_executor(context)
+    for n in nodes:
+        ex.add_node(n)
+    try:
+        while rclpy.ok(context=context) and not (stop is not None and stop()):
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        for n in nodes:
+            ex.remove_node(n)
+        ex.shutdown()
+
+
+def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None) -> int:
+    """``main()`` of a node process: init, build, spin, clean up.
+
+    Returns:
+        0 on a clean stop (SIGINT, SIGTERM or end of run), 2 on an invalid
+        parameter (one line on stderr naming it), 1 on a runtime error.
+    """
+    rclpy = _rclpy()
+    from rclpy.executors import ExternalShutdownException
+
+    args = list(sys.argv if argv is None else argv)
+    role_name = getattr(node_cls, "ROLE", "node")
+    exe = f"vesselbot_{role_name}"
+    node = None
+    rclpy.init(args=args)
+    try:
+        try:
+            node = node_cls()
+        except ConfigError as exc:
+            print(f"{exe}: invalid parameter: {exc}", file=sys.stderr, flush=True)
+            return 2
+        spin_nodes([node], stop=lambda: node.done)
+        return 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            try:
+                node.destroy_node()
+            except Exception:  # noqa: BLE001 - best effort during shutdown
+                pass
+        rclpy.try_shutdown()
+
+
+def stamp_ns_of(msg: Any) -> int:
+    """Stamp of a message with a header, ns."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def topic_spec(key: str) -> TopicSpec:
+    """Shorthand for :func:`vesselbot_ros.topics.topic`."""
+    return topic(key)

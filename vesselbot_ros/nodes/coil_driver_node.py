@@ -1,0 +1,170 @@
+"""MRI gradient-coil driver node: saturation, slew limit and watchdog on every command.
+
+Thin adapter over :class:`vesselbot_ros.control.actuator_limits.CoilLimiter`
+(Section III-C: ``U_a = U / k``, ``k = max(1, |U| / U_sat)``, then the slew
+limit), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+
+Ports (frame ``vessel``):
+
+=====================================  ================================  ======================  ==========
+port                                   type                              rate                    units
+=====================================  ================================  ======================  ==========
+in  ``/vesselbot/gradient_command``    geometry_msgs/Vector3Stamped      per tick                T/m
+in  ``/clock``                         rosgraph_msgs/Clock               per tick                s
+out ``/vesselbot/coil/applied``        geometry_msgs/Vector3Stamped      per tick (+ watchdog)   T/m
+out ``/vesselbot/coil/state``          vesselbot_msgs/CoilState          per tick (+ watchdog)   T/m, T/m/s
+out ``/diagnostics``                   diagnostic_msgs/DiagnosticArray   1 Hz wall               counts
+=====================================  ================================  ======================  ==========
+
+The output is ALWAYS limited, whatever arrives: every accepted command goes
+through ``CoilLimiter.apply``.  A command that is non-finite or malformed
+(wrong frame_id, non-zero y) is *not dropped*: it is passed to the limiter as
+non-finite, which rejects it (``command_rejected = true``) and holds or ramps
+to zero within the slew limit per ``coil.on_reject``.  Nothing non-finite is
+ever published.
+
+Watchdog ("commands stopped"):
+
+* real-time: a sim-time timer at the control rate calls
+  ``CoilLimiter.watchdog(now)``, which ramps to zero within the slew limit once
+  no command arrived for ``coil.command_timeout_s`` of sim time;
+* lockstep: sim time only advances when the driver answers, so silence is
+  measured on the wall clock: when ``/clock`` announced tick k and no command
+  for k arrived within ``graph.stall_timeout_s`` (wall), the driver answers
+  tick k itself with ``CoilLimiter.watchdog(t_k)``: it holds the applied value
+  until ``coil.command_timeout_s`` of *sim* time passed without commands, then
+  ramps to zero (``watchdog_active = true``).  The loop therefore goes on, and
+  the bag shows the ramp.  A command arriving later for an answered tick is
+  rejected as stale.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import Vector3Stamped
+from rosgraph_msgs.msg import Clock
+
+from vesselbot_msgs.msg import CoilState
+from vesselbot_ros.control.actuator_limits import CoilOutput
+from vesselbot_ros.nodes import conversions as cv
+from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.sim.closed_loop import build_stages
+
+__all__ = ["CoilDriverNode", "main"]
+
+_NAN2 = np.array([np.nan, np.nan])
+
+
+class CoilDriverNode(VesselbotNode):
+    """The gradient-coil driver (see module docstring)."""
+
+    ROLE = "coil_driver"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.ROLE, **kwargs)
+        self.limiter = build_stages(self.scenario).coil
+        self.limits = self.scenario.coil
+        self.k = 0  # next tick to answer
+        self.k_due = -1  # latest tick announced by /clock
+        self._due_wall = 0.0
+        self.watchdog_ticks = 0
+        self.rejected_commands = 0
+        self._t_last = 0.0
+        self.add_publisher("coil_applied", Vector3Stamped)
+        self.add_publisher("coil_state", CoilState)
+        self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
+        self.add_subscription("clock", Clock, self._on_clock)
+        if self.lockstep:
+            self._wd = self.create_timer(0.02, self._lockstep_watchdog, clock=self._wall)
+        else:
+            self._wd = self.create_timer(self.dt, self._realtime_watchdog)
+
+    # ------------------------------------------------------------------ inputs
+    def _on_clock(self, msg: Clock) -> None:
+        k, on_grid = cv.tick_of_ns(cv.ns_of_stamp(msg.clock), self.dt)
+        if on_grid and k > self.k_due:
+            self.k_due = k
+            self._due_wall = time.monotonic()
+
+    def _on_command(self, msg: Vector3Stamped) -> None:
+        v = msg.vector
+        stamp = stamp_ns_of(msg)
+        k, on_grid = cv.tick_of_ns(stamp, self.dt)
+        if not on_grid:
+            self.reject("gradient_command", "off_tick_stamp", f"stamp {stamp} ns")
+            return
+        if self.lockstep and k != self.k:
+            self.reject("gradient_command", "stale_tick" if k < self.k else "future_tick", f"tick {k}, driver at {self.k}")
+            return
+        if not self.lockstep and cv.tick_time(k, self.dt) < self._t_last:
+            self.reject("gradient_command", "stale_stamp", f"stamp {stamp} ns older than the last applied")
+            return
+        ok = self.check("gradient_command", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
+                        y_values=(v.y,))
+        g = cv.xz(v) if ok else _NAN2  # malformed -> the limiter's reject rule, never dropped
+        if ok:
+            self.count_received("gradient_command")
+        t = cv.tick_time(k, self.dt)
+        out = self.limiter.apply(t, g)
+        self.rejected_commands += int(out.rejected)
+        self._emit(k, t, g if ok else np.zeros(2), out, watchdog=False)
+
+    # ------------------------------------------------------------------ outputs
+    def _emit(self, k: int, t: float, commanded: np.ndarray, out: CoilOutput, watchdog: bool) -> None:
+        self._t_last = t
+        self.publish("coil_applied", cv.gradient_msg(t, out.applied))
+        cmd = np.where(np.isfinite(commanded), commanded, 0.0)
+        self.publish("coil_state", cv.coil_state_msg(k, t, cmd, out, self.limits, watchdog))
+        if self.lockstep:
+            self.k = k + 1
+            if self.k >= self.n_ticks:
+                self.mark_finished()
+
+    def _watchdog_output(self, t: float) -> tuple[CoilOutput, bool]:
+        out = self.limiter.watchdog(t)
+        if out is None:  # within command_timeout_s: hold
+            return CoilOutput(self.limiter.applied, 1.0, False, np.zeros(2, dtype=bool), False), False
+        return out, True
+
+    def _lockstep_watchdog(self) -> None:
+        if self.finished or self.k_due != self.k or time.monotonic() - self._due_wall < self.graph.stall_timeout_s:
+            return
+        t = cv.tick_time(self.k, self.dt)
+        out, active = self._watchdog_output(t)
+        self.watchdog_ticks += 1
+        self.get_logger().warning(
+            f"no gradient command for tick {self.k} within {self.graph.stall_timeout_s} s (wall): "
+            + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
+        self._emit(self.k, t, np.zeros(2), out, watchdog=active)
+
+    def _realtime_watchdog(self) -> None:
+        k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
+        t = cv.tick_time(k, self.dt)
+        if t <= self._t_last:
+            return
+        out = self.limiter.watchdog(t)
+        if out is not None:
+            self.watchdog_ticks += 1
+            self._emit(k, t, np.zeros(2), out, watchdog=True)
+
+    def diagnostic_values(self) -> dict[str, str]:
+        return {
+            "tick": str(self.k - 1),
+            "watchdog_ticks": str(self.watchdog_ticks),
+            "rejected_commands": str(self.rejected_commands),
+            "applied_x_T_per_m": repr(float(self.limiter.applied[0])),
+            "applied_z_T_per_m": repr(float(self.limiter.applied[1])),
+        }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``vesselbot_coil_driver``."""
+    return run_node(CoilDriverNode, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,134 @@
+"""Backstepping controller node: gradient command from the estimate and the reference.
+
+Thin adapter over :class:`vesselbot_ros.control.backstepping.BacksteppingController`
+(eq. (24)), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+
+Ports (frame ``vessel``):
+
+=================================  ===================================  =========  =================
+port                               type                                 rate       units
+=================================  ===================================  =========  =================
+in  ``/vesselbot/estimate``        nav_msgs/Odometry                    per tick   m, m/s, age s
+in  ``/vesselbot/reference``       vesselbot_msgs/ReferenceSample       per tick   m, m/s, m/s^2
+out ``/vesselbot/gradient_command`` geometry_msgs/Vector3Stamped        per tick   T/m
+out ``/diagnostics``               diagnostic_msgs/DiagnosticArray      1 Hz wall  status counts
+=================================  ===================================  =========  =================
+
+Lockstep: tick k is computed once ``estimate`` k and ``reference`` k are in;
+the command is stamped t_k.  Real-time: every estimate triggers a command with
+the latest reference sample (stamp = the estimate's).
+
+Input checks: wrong frame_id, non-finite, non-zero y, positions outside the
+vessel (+ margin), off-grid or stale/future ticks (lockstep) or stamps
+(real-time) are rejected (WARN diagnostics).  In lockstep a rejected input
+leaves its tick open; the coil driver's watchdog then keeps the loop going.
+The core's safe actions (``stale``: estimate too old; ``nonfinite``: the law
+diverged) are counted in diagnostics (``status:<name>``).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from typing import Any
+
+from geometry_msgs.msg import Vector3Stamped
+from nav_msgs.msg import Odometry
+
+from vesselbot_msgs.msg import ReferenceSample
+from vesselbot_ros.nodes import conversions as cv
+from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.sim.closed_loop import build_stages
+
+__all__ = ["ControllerNode", "main"]
+
+
+class ControllerNode(VesselbotNode):
+    """The backstepping controller (see module docstring)."""
+
+    ROLE = "controller"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.ROLE, **kwargs)
+        self.controller = build_stages(self.scenario).controller
+        self.k = 0
+        self._est: dict[int, Any] = {}
+        self._ref: dict[int, Any] = {}
+        self._ref_latest: Any = None
+        self.status: Counter[str] = Counter()
+        self.add_publisher("gradient_command", Vector3Stamped)
+        self.add_subscription("estimate", Odometry, self._on_estimate)
+        self.add_subscription("reference", ReferenceSample, self._on_reference)
+
+    def _tick_of(self, key: str, stamp: int, tick: int | None = None) -> int | None:
+        k, on_grid = cv.tick_of_ns(stamp, self.dt)
+        if not on_grid or (tick is not None and tick != k):
+            self.reject(key, "off_tick_stamp", f"stamp {stamp} ns, tick field {tick}")
+            return None
+        if self.lockstep and (k < self.k or k > self.k + 2):
+            self.reject(key, "stale_tick" if k < self.k else "future_tick", f"tick {k}, controller at {self.k}")
+            return None
+        return k
+
+    def _on_estimate(self, msg: Odometry) -> None:
+        x, z, age = cv.estimate_arrays(msg)
+        p = msg.pose.pose.position
+        v = msg.twist.twist.linear
+        stamp = stamp_ns_of(msg)
+        if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z, v.x, v.y, v.z, age),
+                          y_values=(p.y, v.y), z_position=p.z):
+            return
+        k = self._tick_of("estimate", stamp)
+        if k is None:
+            return
+        self.count_received("estimate")
+        if self.lockstep:
+            self._est[k] = (x, z, age)
+            self._drain()
+        elif self._ref_latest is not None:
+            self._command(k, (x, z, age), self._ref_latest)
+
+    def _on_reference(self, msg: ReferenceSample) -> None:
+        p, v, a = cv.reference_arrays(msg)
+        stamp = stamp_ns_of(msg)
+        vals = (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y, msg.velocity.z,
+                msg.acceleration.x, msg.acceleration.y, msg.acceleration.z)
+        if not self.check("reference", frame_id=msg.header.frame_id, stamp_ns=stamp, values=vals,
+                          y_values=(msg.position.y, msg.velocity.y, msg.acceleration.y), z_position=msg.position.z):
+            return
+        k = self._tick_of("reference", stamp, int(msg.tick))
+        if k is None:
+            return
+        self.count_received("reference")
+        if self.lockstep:
+            self._ref[k] = (p, v, a)
+            self._drain()
+        else:
+            self._ref_latest = (p, v, a)
+
+    def _command(self, k: int, est: tuple[Any, Any, float], ref: tuple[Any, Any, Any]) -> None:
+        t = cv.tick_time(k, self.dt)
+        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref)
+        self.status[cmd.status] += 1
+        self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
+
+    def _drain(self) -> None:
+        while self.k in self._est and self.k in self._ref:
+            self._command(self.k, self._est.pop(self.k), self._ref.pop(self.k))
+            self.k += 1
+            if self.k >= self.n_ticks:
+                self.mark_finished()
+
+    def diagnostic_values(self) -> dict[str, str]:
+        out = {"tick": str(self.k - 1)}
+        out.update({f"status:{s}": str(self.status[s]) for s in ("ok", "stale", "nonfinite")})
+        return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``vesselbot_controller``."""
+    return run_node(ControllerNode, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

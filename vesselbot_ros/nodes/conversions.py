@@ -1,0 +1,205 @@
+"""Every message <-> numpy conversion of the node graph, in one place.
+
+Conventions (see :mod:`vesselbot_ros.topics`): frame ``vessel`` with x along
+the vessel axis and z vertical; the pure core works on (2,) arrays ``(x, z)``,
+messages carry 3-D vectors with ``y = 0``.  Times are float seconds in the
+core and integer nanoseconds (``builtin_interfaces/Time``) on the wire.
+
+Tick times.  Tick ``k`` holds at ``t_k = k * dt`` with ``dt = 1 / control_rate_Hz``
+(float, the pure runner's ``np.arange(n) * dt``).  A stamp is ``round(t_k * 1e9)`` ns; receivers do not
+convert the stamp back to float (that could differ from ``t_k`` in the last
+bit) but recover ``k`` with :func:`tick_of_ns` and recompute ``t_k`` with
+:func:`tick_time`: this is what makes a lockstep run over ROS bit-identical to
+the pure runner.
+
+Estimates travel as ``nav_msgs/Odometry``.  The core's estimate also carries
+the age of the last used measurement (the controller's staleness input); it
+is stored in ``pose.covariance[35]`` (the yaw-yaw slot, meaningless in this
+planar x-z problem).  All other covariance entries are 0 (not estimated).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, PointStamped, PoseStamped, Vector3, Vector3Stamped
+from nav_msgs.msg import Odometry, Path
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from vesselbot_msgs.msg import CoilState, ReferenceSample
+from vesselbot_ros.topics import FRAME_ID
+
+__all__ = [
+    "AGE_COVARIANCE_INDEX",
+    "tick_time",
+    "ns_of_time",
+    "tick_of_ns",
+    "stamp_of_ns",
+    "ns_of_stamp",
+    "header",
+    "vector3",
+    "point",
+    "xz",
+    "clock_msg",
+    "measurement_msg",
+    "estimate_msg",
+    "estimate_arrays",
+    "reference_msg",
+    "reference_arrays",
+    "gradient_msg",
+    "coil_state_msg",
+    "path_msg",
+    "vessel_markers",
+    "all_finite",
+]
+
+AGE_COVARIANCE_INDEX = 35
+NS_PER_S = 1_000_000_000
+
+
+def tick_time(k: int, dt_s: float) -> float:
+    """``t_k = k * dt_s`` (s), exactly as the pure runner computes it."""
+    return k * dt_s
+
+
+def ns_of_time(t_s: float) -> int:
+    """Float seconds -> integer nanoseconds (rounded)."""
+    return int(round(t_s * 1e9))
+
+
+def tick_of_ns(ns: int, dt_s: float) -> tuple[int, bool]:
+    """Tick index nearest to a stamp (ns), and whether the stamp lies on that tick (+/- 1 us)."""
+    k = int(round(ns * 1e-9 / dt_s))
+    return k, abs(ns - ns_of_time(tick_time(k, dt_s))) <= 1000
+
+
+def stamp_of_ns(ns: int) -> Time:
+    """Integer ns -> ``builtin_interfaces/Time``."""
+    sec, nsec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nsec)
+
+
+def ns_of_stamp(stamp: Any) -> int:
+    """``builtin_interfaces/Time`` -> integer ns."""
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def header(t_s: float) -> Header:
+    """Header stamped ``t_s`` in frame ``vessel``."""
+    return Header(stamp=stamp_of_ns(ns_of_time(t_s)), frame_id=FRAME_ID)
+
+
+def vector3(a: npt.ArrayLike) -> Vector3:
+    """(2,) ``(x, z)`` -> Vector3 with y = 0."""
+    v = np.asarray(a, dtype=np.float64)
+    return Vector3(x=float(v[0]), y=0.0, z=float(v[1]))
+
+
+def point(a: npt.ArrayLike) -> Point:
+    """(2,) ``(x, z)`` -> Point with y = 0."""
+    v = np.asarray(a, dtype=np.float64)
+    return Point(x=float(v[0]), y=0.0, z=float(v[1]))
+
+
+def xz(v: Any) -> npt.NDArray[np.float64]:
+    """Point or Vector3 -> (2,) ``(x, z)``."""
+    return np.array([v.x, v.z], dtype=np.float64)
+
+
+def all_finite(values: Iterable[float]) -> bool:
+    """True if every value is a finite float."""
+    return all(math.isfinite(v) for v in values)
+
+
+def clock_msg(t_s: float) -> Clock:
+    """``/clock`` message for sim time ``t_s``."""
+    return Clock(clock=stamp_of_ns(ns_of_time(t_s)))
+
+
+def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
+    """An imager frame: stamp = acquisition time, point = measured position (m)."""
+    return PointStamped(header=header(t_acq_s), point=point(p))
+
+
+def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float) -> Odometry:
+    """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s)."""
+    msg = Odometry(header=header(t_s), child_frame_id="robot")
+    msg.pose.pose.position = point(x_hat)
+    msg.pose.pose.orientation.w = 1.0
+    msg.twist.twist.linear = vector3(z_hat)
+    cov = [0.0] * 36
+    # inf age (no measurement yet) cannot travel as a finite number: clamp it
+    cov[AGE_COVARIANCE_INDEX] = float(age_s) if math.isfinite(age_s) else 1e9
+    msg.pose.covariance = cov
+    return msg
+
+
+def estimate_arrays(msg: Odometry) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
+    """Odometry -> ``(x_hat (2,) m, z_hat (2,) m/s, age s)``."""
+    return xz(msg.pose.pose.position), xz(msg.twist.twist.linear), float(msg.pose.covariance[AGE_COVARIANCE_INDEX])
+
+
+def reference_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> ReferenceSample:
+    """Reference sample k: ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
+    return ReferenceSample(header=header(t_s), tick=int(k), position=point(p), velocity=vector3(v), acceleration=vector3(a))
+
+
+def reference_arrays(msg: ReferenceSample) -> tuple[npt.NDArray[np.float64], ...]:
+    """ReferenceSample -> ``(p, v, a)``, each (2,)."""
+    return xz(msg.position), xz(msg.velocity), xz(msg.acceleration)
+
+
+def gradient_msg(t_s: float, g: npt.ArrayLike) -> Vector3Stamped:
+    """A gradient (T/m) stamped ``t_s``."""
+    return Vector3Stamped(header=header(t_s), vector=vector3(g))
+
+
+def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool) -> CoilState:
+    """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput`."""
+    slew = np.asarray(out.slew_limited, dtype=bool)
+    return CoilState(
+        header=header(t_s),
+        tick=int(k),
+        commanded=vector3(commanded),
+        applied=vector3(out.applied),
+        saturation_scale=float(out.k_scale),
+        saturated=bool(out.saturated),
+        slew_limited_x=bool(slew[0]),
+        slew_limited_z=bool(slew[1]),
+        command_rejected=bool(out.rejected),
+        watchdog_active=bool(watchdog),
+        max_gradient=float(limits.saturation_T_per_m),
+        slew_rate=float(limits.slew_rate_T_per_m_per_s),
+    )
+
+
+def path_msg(points_m: npt.ArrayLike, t_s: float = 0.0) -> Path:
+    """(n, 2) points (m) -> nav_msgs/Path in frame vessel."""
+    pts = np.asarray(points_m, dtype=np.float64)
+    msg = Path(header=header(t_s))
+    for x, z in pts:
+        ps = PoseStamped(header=header(t_s))
+        ps.pose.position = point((x, z))
+        ps.pose.orientation.w = 1.0
+        msg.poses.append(ps)
+    return msg
+
+
+def vessel_markers(x_min_m: float, x_max_m: float, diameter_m: float, robot_radius_m: float) -> MarkerArray:
+    """Two LINE_STRIP walls at ``z = +/- D/2`` (nominal diameter), for viewers."""
+    out = MarkerArray()
+    for i, (name, z) in enumerate((("upper_wall", 0.5 * diameter_m), ("lower_wall", -0.5 * diameter_m))):
+        m = Marker(header=header(0.0), ns=name, id=i, type=Marker.LINE_STRIP, action=Marker.ADD)
+        m.scale.x = 0.1 * robot_radius_m
+        m.color.r, m.color.g, m.color.b, m.color.a = 0.8, 0.2, 0.2, 1.0
+        m.pose.orientation.w = 1.0
+        m.points = [point((x_min_m, z)), point((x_max_m, z))]
+        out.markers.append(m)
+    return out

@@ -1,0 +1,131 @@
+"""MRI imager node: noisy position frames at a frame rate, with latency, outliers and dropouts.
+
+Thin adapter over :class:`vesselbot_ros.control.imager_model.ImagerModel`,
+seeded with ``numpy.random.default_rng(seed)`` exactly as the pure runner.
+
+Ports (frame ``vessel``):
+
+=============================  ================================  ===============================  =====
+port                           type                              rate                             units
+=============================  ================================  ===============================  =====
+in  ``/vesselbot/truth``       vesselbot_msgs/PlantState         per tick                         m
+out ``/vesselbot/measurement`` geometry_msgs/PointStamped        per tick (lockstep) / frames     m
+srv ``imager/inject_fault``    vesselbot_msgs/InjectFault        on demand                        s, m
+out ``/diagnostics``           diagnostic_msgs/DiagnosticArray   1 Hz wall                        frames, outliers
+=============================  ================================  ===============================  =====
+
+Measurement stamp = the frame's *acquisition* time (s); ``point`` = measured
+position (y = 0).  Lockstep: exactly one message per truth tick: the frame
+delivered at t_k, else the last delivered frame again (same stamp: consumers
+see it is not fresh).  Before the first frame is ever delivered (latency, or a
+dropout at t = 0) the placeholder has an *empty* ``frame_id`` and stamp 0:
+"no frame yet".  Real-time: only delivered frames are published.
+
+InjectFault: ``OUTLIER_BURST`` / ``DROPOUT`` at ``start_time`` (s, sim; < 0 =
+the next tick) for ``duration`` (s) with ``magnitude`` (m, outliers only);
+invalid values are refused (``accepted = false`` and the reason).
+
+Input checks: a truth message with a wrong frame_id, non-finite numbers,
+non-zero y, a position outside the vessel (+ ``graph.position_margin_m``), a
+stale/future tick (lockstep) or stamp (real-time) is rejected; no frame is
+taken from it.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from geometry_msgs.msg import PointStamped
+
+from vesselbot_msgs.msg import PlantState
+from vesselbot_msgs.srv import InjectFault
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.nodes import conversions as cv
+from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.sim.closed_loop import build_stages
+
+__all__ = ["ImagerNode", "main"]
+
+
+class ImagerNode(VesselbotNode):
+    """The imager (see module docstring)."""
+
+    ROLE = "imager"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.ROLE, **kwargs)
+        self.imager = build_stages(self.scenario).imager
+        self.dt = self.scenario.sim.dt_control_s
+        self.k_next = 0
+        self._last_msg: PointStamped | None = None
+        self.frames = 0
+        self.outlier_frames = 0
+        self.add_publisher("measurement", PointStamped)
+        self.add_subscription("truth", PlantState, self._on_truth)
+        self.create_service(InjectFault, "/vesselbot/imager/inject_fault", self._on_inject)
+
+    def _on_truth(self, msg: PlantState) -> None:
+        p = msg.position
+        stamp = stamp_ns_of(msg)
+        if not self.check("truth", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
+                          y_values=(p.y,), z_position=p.z):
+            return
+        k = int(msg.tick)
+        if cv.ns_of_time(cv.tick_time(k, self.dt)) != stamp:
+            self.reject("truth", "stamp_tick_mismatch", f"tick {k} but stamp {stamp} ns")
+            return
+        if k < self.k_next or (self.lockstep and k != self.k_next):
+            self.reject("truth", "stale_tick" if k < self.k_next else "future_tick", f"tick {k}, expected {self.k_next}")
+            return
+        self.count_received("truth")
+        self.k_next = k + 1
+        t_k = cv.tick_time(k, self.dt)
+        meas = self.imager.frame(t_k, cv.xz(p))
+        if meas is not None:
+            self.frames += 1
+            self.outlier_frames += int(meas.outlier)
+            self._last_msg = cv.measurement_msg(meas.t_acq_s, meas.p)
+            self.publish("measurement", self._last_msg)
+        elif self.lockstep:
+            if self._last_msg is None:
+                self.publish("measurement", PointStamped())  # "no frame yet": empty frame_id, stamp 0
+            else:
+                self.publish("measurement", self._last_msg)
+        if self.lockstep and k + 1 >= self.n_ticks:
+            self.mark_finished()
+
+    def _on_inject(self, req: Any, resp: Any) -> Any:
+        start = float(req.start_time)
+        if start < 0.0:
+            start = self.k_next * self.dt
+        try:
+            if req.kind == InjectFault.Request.OUTLIER_BURST:
+                self.imager.inject_outliers(start, float(req.duration), float(req.magnitude))
+            elif req.kind == InjectFault.Request.DROPOUT:
+                self.imager.inject_dropout(start, float(req.duration))
+            else:
+                raise ConfigError(f"kind must be OUTLIER_BURST (0) or DROPOUT (1), got {req.kind}")
+        except ConfigError as exc:
+            resp.accepted = False
+            resp.message = str(exc)
+            resp.effective_start_time = start
+            return resp
+        resp.accepted = True
+        what = "outlier burst" if req.kind == InjectFault.Request.OUTLIER_BURST else "dropout"
+        resp.message = f"{what} from {start!r} s for {float(req.duration)!r} s"
+        resp.effective_start_time = start
+        self.get_logger().info(f"injected {resp.message}")
+        return resp
+
+    def diagnostic_values(self) -> dict[str, str]:
+        return {"tick": str(self.k_next - 1), "frames": str(self.frames), "outlier_frames": str(self.outlier_frames)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``vesselbot_imager``."""
+    return run_node(ImagerNode, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,182 @@
+"""High-gain observer node: position and velocity from imager frames and the applied gradient.
+
+Thin adapter over :class:`vesselbot_ros.control.high_gain_observer.HighGainObserver`
+(eq. (25)), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+
+Ports (frame ``vessel``):
+
+================================  ================================  ========================  ===============
+port                              type                              rate                      units
+================================  ================================  ========================  ===============
+in  ``/vesselbot/measurement``    geometry_msgs/PointStamped        per tick / frames         m
+in  ``/vesselbot/coil/applied``   geometry_msgs/Vector3Stamped      per tick                  T/m
+out ``/vesselbot/estimate``       nav_msgs/Odometry                 per tick                  m, m/s
+out ``/diagnostics``              diagnostic_msgs/DiagnosticArray   1 Hz wall                 counts
+================================  ================================  ========================  ===============
+
+``estimate``: stamp t_k, ``pose.pose.position`` = x_hat (m), ``twist.twist.linear``
+= z_hat (m/s), ``pose.covariance[35]`` = age of the last used measurement (s)
+(see :mod:`vesselbot_ros.nodes.conversions`).
+
+Lockstep: the n-th ``measurement`` message belongs to tick n (the imager sends
+exactly one per tick).  Tick k is processed once ``measurement`` k and
+``coil/applied`` k-1 are in (k = 0 needs no applied: zero, as the runner): the
+measurement is passed to the core only if its stamp is newer than the last
+one passed (fresh frame), else None (zero-order hold); an empty frame_id is
+the imager's "no frame yet" placeholder.
+
+Real-time: a fresh measurement triggers an update at once (lowest latency);
+a timer on sim time at the control rate predicts in between.  The latest
+``coil/applied`` is the input.
+
+Input checks: wrong frame_id, non-finite, non-zero y, measured position
+farther than ``graph.position_margin_m`` outside the vessel, off-grid or
+stale/future ticks (lockstep) or stamps (real-time): rejected (WARN
+diagnostics).  In lockstep a rejected measurement still closes its tick (as
+"no fresh frame"), so the loop never stalls on bad input.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PointStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
+
+from vesselbot_ros.control.imager_model import Measurement
+from vesselbot_ros.nodes import conversions as cv
+from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.sim.closed_loop import build_stages
+
+__all__ = ["ObserverNode", "main"]
+
+_NO_FRAME = object()
+
+
+class ObserverNode(VesselbotNode):
+    """The high-gain observer (see module docstring)."""
+
+    ROLE = "observer"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.ROLE, **kwargs)
+        st = build_stages(self.scenario)
+        self.observer = st.observer
+        self.model = st.model
+        self.k = 0  # next tick to process
+        self.n_meas = 0  # measurement messages received (lockstep: = ticks)
+        self._meas: dict[int, Any] = {}
+        self._applied: dict[int, np.ndarray] = {}
+        self._last_stamp_ns = -1
+        self._g_prev = np.zeros(2)
+        self.used = 0
+        self.rejected_by_core = 0
+        self._t_last = 0.0
+        self.add_publisher("estimate", Odometry)
+        self.add_subscription("measurement", PointStamped, self._on_measurement)
+        self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
+        if not self.lockstep:
+            self._timer = self.create_timer(self.dt, self._on_timer)
+
+    # ------------------------------------------------------------------ inputs
+    def _parse_measurement(self, msg: PointStamped) -> Any:
+        """A Measurement, _NO_FRAME (placeholder / not fresh) or None (rejected)."""
+        if msg.header.frame_id == "" and msg.header.stamp.sec == 0 and msg.header.stamp.nanosec == 0:
+            return _NO_FRAME
+        p = msg.point
+        stamp = stamp_ns_of(msg)
+        if not self.check("measurement", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
+                          y_values=(p.y,), z_position=p.z, extra_age_s=self.scenario.imager.latency_s):
+            return None
+        j, on_grid = cv.tick_of_ns(stamp, self.dt)
+        if not on_grid:
+            self.reject("measurement", "off_tick_stamp", f"acquisition stamp {stamp} ns is not a tick time")
+            return None
+        if stamp <= self._last_stamp_ns:
+            if self.lockstep and stamp == self._last_stamp_ns:
+                return _NO_FRAME  # zero-order hold: the same frame again
+            self.reject("measurement", "stale_stamp", f"frame stamp {stamp} ns not newer than {self._last_stamp_ns} ns")
+            return None
+        self._last_stamp_ns = stamp
+        return Measurement(cv.tick_time(j, self.dt), cv.xz(p), False)
+
+    def _on_measurement(self, msg: PointStamped) -> None:
+        meas = self._parse_measurement(msg)
+        if meas is not None:
+            self.count_received("measurement")
+        if self.lockstep:
+            self._meas[self.n_meas] = meas if isinstance(meas, Measurement) else None
+            self.n_meas += 1
+            self._drain()
+        elif isinstance(meas, Measurement):
+            self._update_now(meas)
+
+    def _on_applied(self, msg: Vector3Stamped) -> None:
+        v = msg.vector
+        stamp = stamp_ns_of(msg)
+        if not self.check("coil_applied", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
+                          y_values=(v.y,)):
+            return
+        k, on_grid = cv.tick_of_ns(stamp, self.dt)
+        if not on_grid:
+            self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp} ns")
+            return
+        if not self.lockstep:
+            self.count_received("coil_applied")
+            self._g_prev = cv.xz(v)
+            return
+        if k < self.k - 1 or k in self._applied or k > self.k + 2:
+            self.reject("coil_applied", "stale_tick" if k < self.k else "future_tick", f"tick {k}, observer at {self.k}")
+            return
+        self.count_received("coil_applied")
+        self._applied[k] = cv.xz(v)
+        self._drain()
+
+    # ------------------------------------------------------------------ updates
+    def _drain(self) -> None:
+        while self.k in self._meas and (self.k == 0 or (self.k - 1) in self._applied):
+            k = self.k
+            meas = self._meas.pop(k)
+            g_prev = np.zeros(2) if k == 0 else self._applied.pop(k - 1)
+            self._publish(self.observer.update(cv.tick_time(k, self.dt), meas, g_prev))
+            self.k += 1
+            if self.k >= self.n_ticks:
+                self.mark_finished()
+
+    def _publish(self, est: Any) -> None:
+        self._t_last = est.t_s
+        self.used += int(est.used_measurement)
+        self.rejected_by_core += int(est.rejected)
+        self.publish("estimate", cv.estimate_msg(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s))
+
+    def _now_tick_time(self) -> float:
+        k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
+        return cv.tick_time(k, self.dt)
+
+    def _update_now(self, meas: Measurement | None) -> None:
+        t = max(self._now_tick_time(), self._t_last)  # never backwards
+        self._publish(self.observer.update(t, meas, self._g_prev))
+
+    def _on_timer(self) -> None:
+        t = self._now_tick_time()
+        if t > self._t_last:
+            self._update_now(None)
+
+    def diagnostic_values(self) -> dict[str, str]:
+        return {
+            "tick": str(self.k - 1),
+            "measurements_used": str(self.used),
+            "measurements_rejected": str(self.rejected_by_core),
+            "observer_rhs_evals": str(int(self.model.stats[2])),
+        }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``vesselbot_observer``."""
+    return run_node(ObserverNode, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,216 @@
+"""ROS-free closed loop of Section III-C: plant -> imager -> observer -> controller -> coil.
+
+The runner is nothing but the stages' per-tick methods, called in this order
+at ``t_k = k / control_rate_Hz`` (``k = 0 .. n-1``)::
+
+    truth = plant.output()                                   # ground truth at t_k
+    meas  = imager.frame(t_k, truth.p)                       # Measurement | None
+    est   = observer.update(t_k, meas, coil_prev.applied)    # Estimate
+    ref   = reference.sample(t_k)                            # RefSample
+    cmd   = controller.command(t_k, est, ref)                # ControlCommand
+    coil  = coil_limiter.apply(t_k, cmd.gradient_T_per_m)    # CoilOutput
+    plant.step(coil.applied)                                 # integrate [t_k, t_k+1]
+
+A ROS node graph that calls the same methods with the same inputs reproduces
+the same numbers: :func:`build_stages` is the one place where the stages are
+constructed from a :class:`~vesselbot_ros.sim.scenario.Scenario`.  The only
+liberty the runner takes is to evaluate the reference for all ticks at once
+(:meth:`ReferenceTrajectory.sample_many`, bit-identical to ``sample``).
+
+Time-series columns (``SimResult.timeseries``; vectors are (n, 2) over (x, z)):
+
+===================  =======  ==============================================
+key                  unit     meaning
+===================  =======  ==============================================
+t_s                  s        tick time
+p_true, v_true       m, m/s   true position / velocity at t_k
+delta_m              m        signed distance to the nearest wall (>0 contact)
+in_contact           bool     delta_m > 0
+contact_phase        -        0 free, 1 loading, 2 unloading
+p_ref, v_ref, a_ref  m, m/s,  reference and its derivatives
+                     m/s^2
+meas_p               m        measurement delivered at t_k (NaN if none)
+meas_t_acq_s         s        its acquisition time (NaN if none)
+meas_outlier         bool     injected aberrant frame (ground truth flag)
+x_hat, z_hat         m, m/s   observer estimate after the update at t_k
+meas_used            bool     a measurement corrected the estimate
+meas_rejected        bool     a measurement was rejected (non-finite, gate)
+u_cmd                m/s^2    U of eq. (24)
+g_cmd                T/m      commanded gradient
+g_applied            T/m      gradient applied by the coil on [t_k, t_k+1]
+k_scale              -        saturation factor k of Section III-C
+saturated            bool     k > 1
+slew_limited         bool     (n, 2) slew limit active per axis
+cmd_status           -        0 ok, 1 stale (safe action), 2 non-finite law
+forces               N        (n, 8, 2) force terms (only if record_forces)
+===================  =======  ==============================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.control.actuator_limits import CoilLimiter
+from vesselbot_ros.control.backstepping import BacksteppingController
+from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
+from vesselbot_ros.control.high_gain_observer import HighGainObserver
+from vesselbot_ros.control.imager_model import ImagerModel
+from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
+from vesselbot_ros.sim.metrics import compute_metrics
+from vesselbot_ros.sim.plant import PlantSimulator
+from vesselbot_ros.sim.scenario import Scenario
+
+__all__ = ["Stages", "SimResult", "build_stages", "run_closed_loop", "STATUS_CODES"]
+
+STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
+
+
+class Stages(NamedTuple):
+    """The six stages of the loop, each owning its state."""
+
+    plant: PlantSimulator
+    imager: ImagerModel
+    observer: HighGainObserver
+    reference: ReferenceTrajectory
+    controller: BacksteppingController
+    coil: CoilLimiter
+    model: DynamicsModel
+
+
+@dataclasses.dataclass(frozen=True)
+class SimResult:
+    """Output of :func:`run_closed_loop`.
+
+    Attributes:
+        timeseries: Columns documented in the module docstring.
+        metrics: :func:`~vesselbot_ros.sim.metrics.compute_metrics` output
+            plus run statistics (``plant_steps``, ``plant_rejected_steps``,
+            ``plant_rhs_evals``, ``plant_forced_steps``, ``observer_rhs_evals``).
+    """
+
+    timeseries: dict[str, npt.NDArray[Any]]
+    metrics: dict[str, Any]
+
+
+def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
+    """Construct every stage of the loop for ``scenario``.
+
+    Args:
+        scenario: The scenario.
+        seed: Imager seed; ``None`` uses ``scenario.seed``.
+    """
+    s = scenario
+    seed = s.seed if seed is None else int(seed)
+    model_phys = s.model_physics()
+    model = DynamicsModel(model_phys, s.sim.integrator, s.model.input_mapping)
+    p_model = pack_params(model_phys)
+
+    def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
+        return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
+
+    reference = ReferenceTrajectory(s.reference, flow_velocity_x=flow_x)
+    plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
+    imager = ImagerModel(s.imager, np.random.default_rng(seed))
+    observer = HighGainObserver(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, 0.0)
+    controller = BacksteppingController(s.controller, model.F, model.input_matrix)
+    coil = CoilLimiter(s.coil, 0.0)
+    return Stages(plant, imager, observer, reference, controller, coil, model)
+
+
+def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
+    """Run the closed loop of ``scenario`` and compute its metrics.
+
+    Args:
+        scenario: The scenario.
+        seed: Imager seed; ``None`` uses ``scenario.seed``.  The same seed
+            gives bit-identical results.
+
+    Returns:
+        The :class:`SimResult`.
+
+    Raises:
+        ModelInputError: if an integration fails (reported with the state).
+    """
+    st = build_stages(scenario, seed)
+    n = scenario.sim.n_ticks
+    dt = scenario.sim.dt_control_s
+    ts = np.arange(n) * dt
+    p_ref, v_ref, a_ref = st.reference.sample_many(ts)
+    rec_forces = scenario.sim.record_forces
+
+    f2 = {k: np.empty((n, 2)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
+    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale")}
+    b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
+    slew = np.zeros((n, 2), dtype=bool)
+    phase = np.zeros(n, dtype=np.int8)
+    status = np.zeros(n, dtype=np.int8)
+    forces = np.empty((n, 8, 2)) if rec_forces else None
+
+    plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
+    g_prev = np.zeros(2)
+    nan2 = np.array([np.nan, np.nan])
+    for k in range(n):
+        t = float(ts[k])
+        truth = plant.output(rec_forces)
+        meas = imager.frame(t, truth.p)
+        est = observer.update(t, meas, g_prev)
+        ref = (p_ref[k], v_ref[k], a_ref[k])
+        cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref)
+        out = coil.apply(t, cmd.gradient_T_per_m)
+        plant.step(out.applied)
+        g_prev = out.applied
+
+        f2["p_true"][k] = truth.p
+        f2["v_true"][k] = truth.v
+        f1["delta_m"][k] = truth.delta_m
+        b1["in_contact"][k] = truth.in_contact
+        phase[k] = truth.contact_phase
+        if meas is None:
+            f2["meas_p"][k] = nan2
+            f1["meas_t_acq_s"][k] = np.nan
+        else:
+            f2["meas_p"][k] = meas.p
+            f1["meas_t_acq_s"][k] = meas.t_acq_s
+            b1["meas_outlier"][k] = meas.outlier
+        f2["x_hat"][k] = est.x_hat
+        f2["z_hat"][k] = est.z_hat
+        b1["meas_used"][k] = est.used_measurement
+        b1["meas_rejected"][k] = est.rejected
+        f2["u_cmd"][k] = cmd.u_m_per_s2
+        f2["g_cmd"][k] = cmd.gradient_T_per_m
+        status[k] = STATUS_CODES[cmd.status]
+        f2["g_applied"][k] = out.applied
+        f1["k_scale"][k] = out.k_scale
+        b1["saturated"][k] = out.saturated
+        slew[k] = out.slew_limited
+        if forces is not None and truth.forces is not None:
+            forces[k] = truth.forces
+
+    series: dict[str, npt.NDArray[Any]] = {"t_s": ts, "p_ref": p_ref, "v_ref": v_ref, "a_ref": a_ref}
+    series.update(f2)
+    series.update(f1)
+    series.update(b1)
+    series["slew_limited"] = slew
+    series["contact_phase"] = phase
+    series["cmd_status"] = status
+    if forces is not None:
+        series["forces"] = forces
+    metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
+    metrics.update(
+        scenario=scenario.name,
+        seed=scenario.seed if seed is None else int(seed),
+        plant_steps=int(plant.stats[0]),
+        plant_rejected_steps=int(plant.stats[1]),
+        plant_rhs_evals=int(plant.stats[2]),
+        plant_forced_steps=int(plant.stats[3]),
+        observer_rhs_evals=int(st.model.stats[2]),
+        measurements_used=int(np.count_nonzero(b1["meas_used"])),
+        measurements_rejected=int(np.count_nonzero(b1["meas_rejected"])),
+        outlier_frames=int(np.count_nonzero(b1["meas_outlier"])),
+    )
+    return SimResult(series, metrics)

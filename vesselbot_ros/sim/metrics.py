@@ -1,0 +1,126 @@
+"""Closed-loop metrics computed from a time-series dict (runner or recorded bag).
+
+:func:`compute_metrics` needs only these keys (each a 1-D array over ticks, or
+(n, 2) for vectors):
+
+==================  ======  ===================================================
+key                 unit    meaning
+==================  ======  ===================================================
+``t_s``             s       tick time
+``p_true``          m       (n, 2) true position, frame W
+``v_true``          m/s     (n, 2) true velocity
+``p_ref``           m       (n, 2) reference position
+``x_hat``           m       (n, 2) estimated position
+``z_hat``           m/s     (n, 2) estimated velocity
+``g_applied``       T/m     (n, 2) gradient applied by the coil from ``t_s`` on
+``saturated``       bool    saturation active (``k > 1``) at the tick
+``slew_limited``    bool    (n, 2) slew limit active per axis
+``in_contact``      bool    robot touches a wall (``delta > 0``) at the tick
+==================  ======  ===================================================
+
+Returned keys (all floats / ints, SI units in the name):
+
+* ``tracking_error_max_m``, ``tracking_error_rms_m``: ``||p_true - p_ref||``
+  over ``t >= after_s`` (paper: 150 um bound after 0.6 s);
+* ``tracking_error_max_all_m``: same over the whole run;
+* ``estimation_error_max_m``, ``estimation_error_rms_m``: ``||x_hat - p_true||``
+  over ``t >= after_s`` (paper: < 10 um after the transient);
+* ``velocity_estimation_error_max_m_per_s``, ``velocity_estimation_error_rms_m_per_s``;
+* ``saturation_time_s``, ``slew_limited_time_s``: time with saturation / any
+  axis slew-limited (ticks times the tick period), whole run;
+* ``wall_contacts``: number of contact onsets; ``contact_time_s``;
+* ``max_gradient_T_per_m``: largest ``||g_applied||``;
+* ``after_s``, ``duration_s``, ``n_ticks``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.errors import ModelInputError
+
+__all__ = ["REQUIRED_KEYS", "compute_metrics"]
+
+REQUIRED_KEYS = (
+    "t_s",
+    "p_true",
+    "v_true",
+    "p_ref",
+    "x_hat",
+    "z_hat",
+    "g_applied",
+    "saturated",
+    "slew_limited",
+    "in_contact",
+)
+
+
+def _norm_rows(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    return np.sqrt(np.sum(a * a, axis=1))
+
+
+def _max_rms(e: npt.NDArray[np.float64]) -> tuple[float, float]:
+    if e.size == 0:
+        return float("nan"), float("nan")
+    return float(np.max(e)), float(np.sqrt(np.mean(e * e)))
+
+
+def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict[str, float | int]:
+    """Compute the closed-loop metrics (see module docstring for keys and units).
+
+    Args:
+        timeseries: Mapping with at least :data:`REQUIRED_KEYS`.
+        after_s: Start of the steady-state window (s); paper: 0.6.
+
+    Returns:
+        Dict of metrics; window metrics are NaN if no tick lies after ``after_s``.
+
+    Raises:
+        ModelInputError: on a missing key or inconsistent lengths.
+    """
+    missing = [k for k in REQUIRED_KEYS if k not in timeseries]
+    if missing:
+        raise ModelInputError(f"timeseries lacks key(s) {missing}; required: {list(REQUIRED_KEYS)}")
+    t = np.asarray(timeseries["t_s"], dtype=np.float64)
+    n = t.size
+    arrs = {k: np.asarray(timeseries[k]) for k in REQUIRED_KEYS}
+    for k, a in arrs.items():
+        if a.shape[0] != n:
+            raise ModelInputError(f"timeseries[{k!r}] has {a.shape[0]} rows, expected {n} (len of t_s)")
+    if n < 2:
+        raise ModelInputError(f"timeseries needs at least 2 ticks, got {n}")
+    dt = float(np.median(np.diff(t)))
+    win = t >= after_s - 1e-12
+    p = arrs["p_true"].astype(np.float64)
+    e_track = _norm_rows(p - arrs["p_ref"].astype(np.float64))
+    e_est = _norm_rows(arrs["x_hat"].astype(np.float64) - p)
+    e_vel = _norm_rows(arrs["z_hat"].astype(np.float64) - arrs["v_true"].astype(np.float64))
+    tr_max, tr_rms = _max_rms(e_track[win])
+    es_max, es_rms = _max_rms(e_est[win])
+    ev_max, ev_rms = _max_rms(e_vel[win])
+    contact = arrs["in_contact"].astype(bool)
+    onsets = int(contact[0]) + int(np.count_nonzero(contact[1:] & ~contact[:-1]))
+    slew = arrs["slew_limited"].astype(bool)
+    if slew.ndim == 2:
+        slew = np.any(slew, axis=1)
+    return {
+        "after_s": float(after_s),
+        "duration_s": float(t[-1] - t[0] + dt),
+        "n_ticks": int(n),
+        "tracking_error_max_m": tr_max,
+        "tracking_error_rms_m": tr_rms,
+        "tracking_error_max_all_m": float(np.max(e_track)),
+        "estimation_error_max_m": es_max,
+        "estimation_error_rms_m": es_rms,
+        "velocity_estimation_error_max_m_per_s": ev_max,
+        "velocity_estimation_error_rms_m_per_s": ev_rms,
+        "saturation_time_s": float(np.count_nonzero(arrs["saturated"].astype(bool)) * dt),
+        "slew_limited_time_s": float(np.count_nonzero(slew) * dt),
+        "wall_contacts": onsets,
+        "contact_time_s": float(np.count_nonzero(contact) * dt),
+        "max_gradient_T_per_m": float(np.max(_norm_rows(arrs["g_applied"].astype(np.float64)))),
+    }

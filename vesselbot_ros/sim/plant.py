@@ -1,0 +1,143 @@
+"""The plant: the robot's true dynamics (eq. (1)) advanced one control period at a time.
+
+:class:`PlantSimulator` owns the true state ``(X, Z)``, the Hertz contact
+state and the tick counter.  ``output()`` gives the ground truth at ``t_k``;
+``step(G)`` integrates ``[t_k, t_{k+1}]`` under the gradient ``G`` applied by
+the coil (held over the period, zero-order hold), with the compiled adaptive
+integrator of :mod:`vesselbot_ros.sim.integrator` (sub-steps inside the
+period).  Tick times are ``t_k = t0 + k / rate`` (no accumulated drift).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, nearest_wall_delta, pack_params
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5, integrate_rk4
+
+__all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
+
+
+class PlantOutput(NamedTuple):
+    """Ground truth at one tick.
+
+    Attributes:
+        t_s: Tick time (s).
+        p: (2,) true position, m, frame W.
+        v: (2,) true velocity, m/s.
+        delta_m: Signed distance to the nearest wall (m), > 0 = penetration.
+        wall: +1 upper wall, -1 lower wall (the nearest one).
+        in_contact: ``delta_m > 0``.
+        contact_phase: 0 free, 1 loading (15), 2 unloading (16).
+        forces: (8, 2) force terms (N) in ``TERM_NAMES`` order under the
+            gradient currently applied, or None if not asked for.
+    """
+
+    t_s: float
+    p: npt.NDArray[np.float64]
+    v: npt.NDArray[np.float64]
+    delta_m: float
+    wall: float
+    in_contact: bool
+    contact_phase: int
+    forces: npt.NDArray[np.float64] | None
+
+
+class PlantSimulator:
+    """True robot dynamics, advanced one control period per :meth:`step`.
+
+    Args:
+        physics: True physics parameters.
+        integrator: Integrator settings.
+        dt_control_s: Control period (s).
+        p0_m: (2,) initial position (m).
+        v0_m_per_s: (2,) initial velocity (m/s).
+        t0_s: Initial time (s).
+    """
+
+    def __init__(
+        self,
+        physics: PhysicsParams,
+        integrator: IntegratorParams,
+        dt_control_s: float,
+        p0_m: npt.ArrayLike,
+        v0_m_per_s: npt.ArrayLike = (0.0, 0.0),
+        t0_s: float = 0.0,
+    ) -> None:
+        if not (math.isfinite(dt_control_s) and dt_control_s > 0.0):
+            raise ModelInputError(f"dt_control_s must be finite and > 0, got {dt_control_s!r}")
+        y = np.concatenate([np.asarray(p0_m, dtype=np.float64), np.asarray(v0_m_per_s, dtype=np.float64)])
+        if y.shape != (4,) or not np.all(np.isfinite(y)):
+            raise ModelInputError(f"initial state must be finite (2,) + (2,), got {p0_m!r}, {v0_m_per_s!r}")
+        self.physics = physics
+        self.integrator = integrator
+        self.p = pack_params(physics)
+        self._dt = float(dt_control_s)
+        self._t0 = float(t0_s)
+        self._k = 0
+        self._y = y
+        self._contact = np.zeros(4)
+        self._g = np.zeros(2)
+        self._h = integrator.max_step_s
+        self._forces = np.empty((8, 2))
+        self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
+
+    @property
+    def t_s(self) -> float:
+        """Current tick time (s)."""
+        return self._t0 + self._k * self._dt
+
+    @property
+    def state(self) -> npt.NDArray[np.float64]:
+        """(4,) copy of ``(x, z, vx, vz)`` (m, m/s)."""
+        return self._y.copy()
+
+    @property
+    def contact_state(self) -> npt.NDArray[np.float64]:
+        """(4,) copy of the contact state [phase, delta_max, F_max, delta_0]."""
+        return self._contact.copy()
+
+    def output(self, with_forces: bool = False) -> PlantOutput:
+        """Ground truth at the current tick (see :class:`PlantOutput`)."""
+        t = self.t_s
+        y = self._y
+        delta, wall = nearest_wall_delta(t, y[1], self.p)
+        forces = None
+        if with_forces:
+            forces_into(t, y[0], y[1], y[2], y[3], self._g[0], self._g[1], self._contact, self.p, self._forces)
+            forces = self._forces.copy()
+        return PlantOutput(t, y[:2].copy(), y[2:].copy(), float(delta), float(wall), bool(delta > 0.0),
+                           int(self._contact[0]), forces)
+
+    def step(self, applied_gradient_T_per_m: npt.ArrayLike) -> None:
+        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (2,)).
+
+        Raises:
+            ModelInputError: on a non-finite or wrongly shaped gradient, or if
+                the integration fails (step too small, non-finite state).
+        """
+        g = np.asarray(applied_gradient_T_per_m, dtype=np.float64)
+        if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
+            raise ModelInputError(f"plant: applied gradient must be a finite (2,) array, got {applied_gradient_T_per_m!r}")
+        self._g = g
+        t0 = self.t_s
+        t1 = self._t0 + (self._k + 1) * self._dt
+        ig = self.integrator
+        if ig.method == "dopri5":
+            code, self._h = integrate_dopri5(
+                t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, self._h,
+                ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
+            )
+        else:
+            code = integrate_rk4(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s, self.stats)
+        if code != OK:
+            raise ModelInputError(
+                f"plant integration failed on [{t0!r}, {t1!r}] (code {code}): state {self._y.tolist()}"
+            )
+        self._k += 1

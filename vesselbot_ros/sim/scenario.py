@@ -1,0 +1,211 @@
+"""Closed-loop scenario: every parameter of one run, loaded strictly from YAML.
+
+A :class:`Scenario` bundles the true physics, the controller's model of it,
+the coil limits, the imager, the observer, the controller, the reference, the
+initial conditions and the simulation settings.  ``load_scenario(path)`` goes
+through :func:`vesselbot_ros.config.load_dataclass`, so unknown keys, wrong
+types and out-of-range values raise :class:`~vesselbot_ros.config.ConfigError`
+naming the dotted key and the value.  ROS nodes load the same mapping (or its
+flattened parameters, see :func:`vesselbot_ros.config.flatten`) with
+:func:`scenario_from_mapping`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+from vesselbot_ros.config import (
+    ConfigError,
+    check_choice,
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    load_dataclass,
+    load_yaml,
+    to_mapping,
+)
+from vesselbot_ros.control.actuator_limits import CoilLimits
+from vesselbot_ros.control.backstepping import ControllerParams
+from vesselbot_ros.control.bspline_reference import ReferenceParams
+from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
+from vesselbot_ros.control.imager_model import ImagerParams
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.sim.integrator import IntegratorParams
+
+__all__ = [
+    "ModelParams",
+    "InitialConditions",
+    "IntegratorParams",
+    "SimParams",
+    "Scenario",
+    "load_scenario",
+    "scenario_from_mapping",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelParams:
+    """The controller's and observer's model of the plant.
+
+    Attributes:
+        overrides: Physics overrides (nested mapping, same keys as
+            ``physics``) that make the model differ from the truth, e.g.
+            ``{flow: {centreline_velocity_m_per_s: 0.02625}}`` for the paper's
+            5 % blood-velocity error.  Empty = exact model.
+        input_mapping: How ``U`` (m/s^2) maps to the gradient (T/m):
+            ``with_tau_m``: ``U = tau_m M / rho * G`` (force of eq. (2) over the
+            mass ``rho V``, physically consistent);
+            ``paper_printed``: ``U = M / rho * G`` as printed below eq. (23)
+            (omits ``tau_m``: the controller overestimates its authority by
+            ``1 / tau_m = 1.25``).
+    """
+
+    overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+    input_mapping: Literal["with_tau_m", "paper_printed"] = "with_tau_m"
+
+    def __post_init__(self) -> None:
+        check_choice("input_mapping", self.input_mapping, ("with_tau_m", "paper_printed"))
+        if not isinstance(self.overrides, dict):
+            raise ConfigError(f"overrides must be a mapping, got {self.overrides!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class InitialConditions:
+    """Initial state (Table III: ``X0 = (0, 0.001)``, ``Z0 = (0, 0)``).
+
+    Attributes:
+        p0_m: (x, z) initial true position (m).
+        v0_m_per_s: (x, z) initial true velocity (m/s).
+        z_hat0_m_per_s: (x, z) observer's prior velocity (m/s).
+    """
+
+    p0_m: tuple[float, float] = (0.0, 1e-3)
+    v0_m_per_s: tuple[float, float] = (0.0, 0.0)
+    z_hat0_m_per_s: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("p0_m", "v0_m_per_s", "z_hat0_m_per_s"):
+            for i, v in enumerate(getattr(self, name)):
+                check_finite(f"{name}[{i}]", v)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimParams:
+    """Simulation settings.
+
+    Attributes:
+        duration_s: Simulated time (s). Paper (Fig. 9): 2.
+        control_rate_Hz: Control (tick) rate (Hz); the plant sub-steps inside
+            each period.
+        metrics_after_s: Start of the steady-state metric window (s). Paper: 0.6.
+        record_forces: Record the force breakdown at every tick (slower).
+        integrator: Plant integrator settings.
+    """
+
+    duration_s: float = 2.0
+    control_rate_Hz: float = 1000.0
+    metrics_after_s: float = 0.6
+    record_forces: bool = False
+    integrator: IntegratorParams = dataclasses.field(default_factory=IntegratorParams)
+
+    def __post_init__(self) -> None:
+        check_positive("duration_s", self.duration_s)
+        check_positive("control_rate_Hz", self.control_rate_Hz)
+        check_nonnegative("metrics_after_s", self.metrics_after_s)
+
+    @property
+    def dt_control_s(self) -> float:
+        """Control period (s)."""
+        return 1.0 / self.control_rate_Hz
+
+    @property
+    def n_ticks(self) -> int:
+        """Number of control ticks ``k = 0 .. n-1`` (``t_k = k / rate``)."""
+        return int(math.floor(self.duration_s * self.control_rate_Hz + 1e-9))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """Everything one closed-loop run needs (see ``config/*.yaml``).
+
+    Attributes:
+        name: Scenario name (used for output paths).
+        seed: Seed of the imager's ``numpy.random.Generator``.
+        physics: True physics (the plant).
+        model: The controller's and observer's model (overrides, input mapping).
+        coil: Gradient-coil limits.
+        imager: Imager model.
+        observer: High-gain observer.
+        controller: Backstepping controller.
+        reference: Reference trajectory.
+        initial: Initial conditions.
+        sim: Simulation settings.
+    """
+
+    name: str = "scenario"
+    seed: int = 0
+    physics: PhysicsParams = dataclasses.field(default_factory=PhysicsParams)
+    model: ModelParams = dataclasses.field(default_factory=ModelParams)
+    coil: CoilLimits = dataclasses.field(default_factory=CoilLimits)
+    imager: ImagerParams = dataclasses.field(default_factory=ImagerParams)
+    observer: ObserverParams = dataclasses.field(default_factory=ObserverParams)
+    controller: ControllerParams = dataclasses.field(default_factory=ControllerParams)
+    reference: ReferenceParams = dataclasses.field(default_factory=ReferenceParams)
+    initial: InitialConditions = dataclasses.field(default_factory=InitialConditions)
+    sim: SimParams = dataclasses.field(default_factory=SimParams)
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
+            raise ConfigError(f"name must be non-empty and use only letters, digits, '_', '-', '.', got {self.name!r}")
+        if self.seed < 0:
+            raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
+        if self.imager.frame_rate_Hz > self.sim.control_rate_Hz * (1.0 + 1e-9):
+            raise ConfigError(
+                f"imager.frame_rate_Hz must be <= sim.control_rate_Hz ({self.sim.control_rate_Hz!r}), "
+                f"got {self.imager.frame_rate_Hz!r}"
+            )
+        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz)
+        if rho >= 1.0:
+            raise ConfigError(
+                f"observer gains are unstable at imager.frame_rate_Hz={self.imager.frame_rate_Hz!r}: "
+                f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
+            )
+        half_d = 0.5 * self.physics.vessel.diameter_m
+        for i, z in enumerate(self.reference.anchors_z_m):
+            if abs(z) >= half_d:
+                raise ConfigError(f"reference.anchors_z_m[{i}] must lie inside the vessel (|z| < {half_d!r}), got {z!r}")
+        if abs(self.initial.p0_m[1]) >= half_d:
+            raise ConfigError(f"initial.p0_m[1] must lie inside the vessel (|z| < {half_d!r}), got {self.initial.p0_m[1]!r}")
+        try:
+            self.model_physics()
+        except ConfigError as exc:
+            raise ConfigError(f"model.overrides: {exc}") from None
+
+    def model_physics(self) -> PhysicsParams:
+        """The controller's physics: ``physics`` with ``model.overrides`` applied."""
+        if not self.model.overrides:
+            return self.physics
+        return self.physics.with_overrides(self.model.overrides)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Plain YAML-able mapping; ``scenario_from_mapping`` inverts it."""
+        out: dict[str, Any] = to_mapping(self)
+        return out
+
+
+def scenario_from_mapping(mapping: Any) -> Scenario:
+    """Build a :class:`Scenario` from a plain mapping (strict, see module docstring)."""
+    return load_dataclass(Scenario, mapping, "")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load a scenario YAML file.
+
+    Raises:
+        ConfigError: missing file, invalid YAML, unknown key, wrong type or
+            out-of-range value (the message names the dotted key and value).
+    """
+    return scenario_from_mapping(load_yaml(path))
