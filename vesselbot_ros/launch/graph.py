@@ -12,6 +12,15 @@
 4. call RunControl START on the plant, then watch: node processes (a death
    ends the run at once and names the node), progress, the plant's
    ``finished`` flag;
+   a node that dies upstream of the coil driver (imager, observer,
+   controller, reference; one process per node) does not stop the graph at
+   once: the launcher first lets the coil driver's watchdog bring the applied
+   gradient to zero (its ``coil/state`` shows ``applied = 0`` with
+   ``watchdog_active``), bounded by ``wait_timeout_s``, so the bag ends with
+   the coil safe; then it stops everything and raises :class:`NodeDied`
+   naming the node.  A dead plant (the clock: in lockstep no sim time passes
+   without it, so there is no time in which to ramp), coil driver or recorder
+   ends the run at once;
 5. after the run, wait (bounded) until the recorder's ``received:<topic>``
    counts equal the publishers' ``published:<topic>`` counts, then stop the
    nodes with SIGINT and the recorder last;
@@ -204,6 +213,8 @@ class _Monitor:
         self.slew = np.zeros((n, 2), dtype=bool)
         self.got = {"truth": 0, "estimate": 0, "reference": 0, "coil_state": 0}
         self.max_tick = -1
+        # latest coil/state: (tick, applied (2,), watchdog_active)
+        self.last_coil: tuple[int, tuple[float, float], bool] | None = None
         self.diag: dict[str, dict[str, str]] = {}
         self.diag_level: dict[str, tuple[int, str]] = {}
         self.t_first_truth: float | None = None
@@ -257,6 +268,8 @@ class _Monitor:
             self.saturated[k] = m.saturated
             self.slew[k] = (m.slew_limited_x, m.slew_limited_z)
             self.got["coil_state"] += 1
+            if self.last_coil is None or k >= self.last_coil[0]:
+                self.last_coil = (k, (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active))
 
     def _on_diag(self, m: Any) -> None:
         for st in m.status:
@@ -347,6 +360,12 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
                 d = mon.diag.get(NODE_NAMES[r])
                 if d is None or d.get("wired") != "true":
                     return False
+                # every publisher matched every subscription the graph knows of (the recorder's too), so
+                # no reader joins late and misses tick 0
+                for key, val in d.items():
+                    if key.startswith("matched_subscribers:") and int(val) < mon.node.count_subscribers(
+                            key.split(":", 1)[1]):
+                        return False
             return all(mon.publishes(k) for r in options.without for k in CONTRACT[r][1] if k != "reference_path"
                        and k != "vessel_markers")
 
@@ -368,7 +387,14 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         plant_name = NODE_NAMES["plant"]
         while True:
             mon.spin(0.05)
-            _check_alive(procs + ([recorder] if recorder else []), proc_roles)
+            try:
+                _check_alive(procs + ([recorder] if recorder else []), proc_roles)
+            except NodeDied as died:
+                dead = next(p for p in procs + ([recorder] if recorder else []) if p.poll() is not None)
+                if dead.label in SAFE_STOP_ROLES and "coil_driver" in roles and "plant" in roles:
+                    _safe_stop(died, dead, mon, [p for p in procs if p is not dead] + ([recorder] if recorder else []),
+                               proc_roles, options.wait_timeout_s, scenario.sim.dt_control_s)
+                raise
             plant_done = mon.diag.get(plant_name, {}).get("finished") == "true" if "plant" in roles else False
             if plant_done or (mon.got["truth"] >= n and "plant" not in roles):
                 break
@@ -459,6 +485,35 @@ def _recorder_caught_up(mon: _Monitor, roles: Sequence[str]) -> bool:
         for t, c in _counts(d, "published:").items():
             published[t] = published.get(t, 0) + c
     return all(received.get(t, 0) >= c for t, c in published.items() if t != "/diagnostics")
+
+
+#: Roles upstream of the coil driver: when one dies, the driver's watchdog ramps to zero before the stop.
+SAFE_STOP_ROLES = ("imager", "observer", "controller", "reference")
+
+
+def _safe_stop(died: NodeDied, dead: _Proc, mon: _Monitor, others: Sequence[_Proc], proc_roles: dict[str, list[str]],
+               timeout: float, dt: float) -> None:
+    """Keep the graph running until the coil driver's watchdog has brought the gradient to zero, then raise.
+
+    Raises:
+        NodeDied: always; the message names the dead node and says where the coil output ended.
+    """
+    k_death = mon.max_tick
+    print(f"vesselbot run: node {dead.label} died (exit code {dead.poll()}) at tick {k_death} "
+          f"(t = {k_death * dt:.3f} s); letting the coil driver's watchdog ramp the gradient to zero", file=sys.stderr,
+          flush=True)
+    deadline = time.monotonic() + timeout
+    plant_name = NODE_NAMES["plant"]
+    while time.monotonic() < deadline:
+        mon.spin(0.05)
+        _check_alive(others, proc_roles)
+        lc = mon.last_coil
+        if lc is not None and lc[0] > k_death and lc[2] and lc[1] == (0.0, 0.0):
+            raise NodeDied(f"{died}\ncoil output ramped to zero by the driver's watchdog at tick {lc[0]} "
+                           f"(t = {lc[0] * dt:.3f} s)") from None
+        if mon.diag.get(plant_name, {}).get("finished") == "true":
+            raise NodeDied(f"{died}\nthe run reached its end before the coil output was zero") from None
+    raise NodeDied(f"{died}\nthe coil output did not reach zero within {timeout:.0f} s (wall)") from None
 
 
 def _check_alive(procs: Sequence[_Proc], proc_roles: dict[str, list[str]]) -> None:

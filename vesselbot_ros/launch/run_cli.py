@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
             except ImportError:
                 print("vesselbot run: --report needs vesselbot_ros.bag.report, which is not installed", file=sys.stderr)
                 return 1
-            write_report(run_dir)
+            write_report(run_dir, after_s=scenario.sim.metrics_after_s)  # same window as the printed metrics
             print(f"report: {run_dir / 'report'}")
     elif args.report:
         print("vesselbot run: --report needs a recording (drop --no-record)", file=sys.stderr)

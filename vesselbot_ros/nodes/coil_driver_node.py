@@ -35,7 +35,15 @@ Watchdog ("commands stopped"):
   until ``coil.command_timeout_s`` of *sim* time passed without commands, then
   ramps to zero (``watchdog_active = true``).  The loop therefore goes on, and
   the bag shows the ramp.  A command arriving later for an answered tick is
-  rejected as stale.
+  rejected as stale.  Once a tick has been answered by the watchdog the
+  commands are *lost*: the following ticks wait only
+  ``min(graph.stall_timeout_s, LOST_GRACE_S)`` (20 ms wall) for a command, so a
+  dead controller costs one stall timeout, not one per tick, and the ramp to
+  zero runs at graph speed.  A command that arrives in time for its tick ends
+  the lost state.
+
+``/clock`` input checks: an off-grid time or a time not newer than the last
+announced tick is rejected (``off_tick_stamp`` / ``stale_stamp``).
 """
 
 from __future__ import annotations
@@ -57,6 +65,8 @@ from vesselbot_ros.sim.closed_loop import build_stages
 __all__ = ["CoilDriverNode", "main"]
 
 _NAN2 = np.array([np.nan, np.nan])
+#: Lockstep: wall time (s) a tick waits for its command once commands are lost.
+LOST_GRACE_S = 0.02
 
 
 class CoilDriverNode(VesselbotNode):
@@ -74,21 +84,29 @@ class CoilDriverNode(VesselbotNode):
         self.watchdog_ticks = 0
         self.rejected_commands = 0
         self._t_last = 0.0
+        self.commands_lost = False
         self.add_publisher("coil_applied", Vector3Stamped)
         self.add_publisher("coil_state", CoilState)
         self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
         self.add_subscription("clock", Clock, self._on_clock)
         if self.lockstep:
-            self._wd = self.create_timer(0.02, self._lockstep_watchdog, clock=self._wall)
+            self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
         else:
             self._wd = self.create_timer(self.dt, self._realtime_watchdog)
 
     # ------------------------------------------------------------------ inputs
     def _on_clock(self, msg: Clock) -> None:
-        k, on_grid = cv.tick_of_ns(cv.ns_of_stamp(msg.clock), self.dt)
-        if on_grid and k > self.k_due:
-            self.k_due = k
-            self._due_wall = time.monotonic()
+        ns = cv.ns_of_stamp(msg.clock)
+        k, on_grid = cv.tick_of_ns(ns, self.dt)
+        if not on_grid:
+            self.reject("clock", "off_tick_stamp", f"clock {ns} ns is not a tick time")
+            return
+        if k <= self.k_due:
+            self.reject("clock", "stale_stamp", f"clock tick {k} not newer than {self.k_due}")
+            return
+        self.count_received("clock")
+        self.k_due = k
+        self._due_wall = time.monotonic()
 
     def _on_command(self, msg: Vector3Stamped) -> None:
         v = msg.vector
@@ -108,6 +126,7 @@ class CoilDriverNode(VesselbotNode):
         g = cv.xz(v) if ok else _NAN2  # malformed -> the limiter's reject rule, never dropped
         if ok:
             self.count_received("gradient_command")
+        self.commands_lost = False
         t = cv.tick_time(k, self.dt)
         out = self.limiter.apply(t, g)
         self.rejected_commands += int(out.rejected)
@@ -131,8 +150,10 @@ class CoilDriverNode(VesselbotNode):
         return out, True
 
     def _lockstep_watchdog(self) -> None:
-        if self.finished or self.k_due != self.k or time.monotonic() - self._due_wall < self.graph.stall_timeout_s:
+        wait = min(self.graph.stall_timeout_s, LOST_GRACE_S) if self.commands_lost else self.graph.stall_timeout_s
+        if self.finished or self.k_due != self.k or time.monotonic() - self._due_wall < wait:
             return
+        self.commands_lost = True
         t = cv.tick_time(self.k, self.dt)
         out, active = self._watchdog_output(t)
         self.watchdog_ticks += 1
@@ -156,6 +177,7 @@ class CoilDriverNode(VesselbotNode):
             "tick": str(self.k - 1),
             "watchdog_ticks": str(self.watchdog_ticks),
             "rejected_commands": str(self.rejected_commands),
+            "commands_lost": "true" if self.commands_lost else "false",
             "applied_x_T_per_m": repr(float(self.limiter.applied[0])),
             "applied_z_T_per_m": repr(float(self.limiter.applied[1])),
         }

@@ -25,6 +25,16 @@ InjectFault: ``OUTLIER_BURST`` / ``DROPOUT`` at ``start_time`` (s, sim; < 0 =
 the next tick) for ``duration`` (s) with ``magnitude`` (m, outliers only);
 invalid values are refused (``accepted = false`` and the reason).
 
+Fault reporting: every fault, injected through the service or scheduled in the
+scenario (``imager.outliers`` / ``imager.dropouts``), is announced on
+``/diagnostics`` at once when it is accepted (injected) or when its start tick
+is reached (scheduled), with the KeyValues ``fault_kind`` (``outlier_burst`` /
+``dropout``), ``fault_start`` (s, sim), ``fault_duration`` (s),
+``fault_magnitude`` (m, 0 for a dropout), ``fault_source`` (``service`` /
+``schedule``), plus the running counts ``faults_announced``,
+``outlier_frames`` (frames delivered with an outlier) and ``dropout_frames``
+(ticks inside a dropout window).  ``vesselbot report`` shades these intervals.
+
 Input checks: a truth message with a wrong frame_id, non-finite numbers,
 non-zero y, a position outside the vessel (+ ``graph.position_margin_m``), a
 stale/future tick (lockstep) or stamp (real-time) is rejected; no frame is
@@ -61,6 +71,15 @@ class ImagerNode(VesselbotNode):
         self._last_msg: PointStamped | None = None
         self.frames = 0
         self.outlier_frames = 0
+        self.dropout_frames = 0
+        # (kind, start_s, duration_s, magnitude_m, source), in announcement order
+        self._faults: list[tuple[str, float, float, float, str]] = []
+        self._windows: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s)
+                                                    for d in self.scenario.imager.dropouts]
+        self._scheduled = sorted(
+            [("outlier_burst", o.start_s, o.duration_s, o.magnitude_m) for o in self.scenario.imager.outliers]
+            + [("dropout", d.start_s, d.duration_s, 0.0) for d in self.scenario.imager.dropouts],
+            key=lambda f: f[1])
         self.add_publisher("measurement", PointStamped)
         self.add_subscription("truth", PlantState, self._on_truth)
         self.create_service(InjectFault, "/vesselbot/imager/inject_fault", self._on_inject)
@@ -81,6 +100,11 @@ class ImagerNode(VesselbotNode):
         self.count_received("truth")
         self.k_next = k + 1
         t_k = cv.tick_time(k, self.dt)
+        while self._scheduled and self._scheduled[0][1] <= t_k + 0.5 * self.dt:
+            kind, start, duration, magnitude = self._scheduled.pop(0)
+            self._announce(kind, start, duration, magnitude, "schedule")
+        if any(a - 1e-9 <= t_k < b - 1e-9 for a, b in self._windows):
+            self.dropout_frames += 1
         meas = self.imager.frame(t_k, cv.xz(p))
         if meas is not None:
             self.frames += 1
@@ -112,14 +136,30 @@ class ImagerNode(VesselbotNode):
             resp.effective_start_time = start
             return resp
         resp.accepted = True
-        what = "outlier burst" if req.kind == InjectFault.Request.OUTLIER_BURST else "dropout"
+        outlier = req.kind == InjectFault.Request.OUTLIER_BURST
+        what = "outlier burst" if outlier else "dropout"
         resp.message = f"{what} from {start!r} s for {float(req.duration)!r} s"
         resp.effective_start_time = start
         self.get_logger().info(f"injected {resp.message}")
+        if not outlier:
+            self._windows.append((start, start + float(req.duration)))
+        self._announce("outlier_burst" if outlier else "dropout", start, float(req.duration),
+                       float(req.magnitude) if outlier else 0.0, "service")
         return resp
 
+    def _announce(self, kind: str, start: float, duration: float, magnitude: float, source: str) -> None:
+        """Record a fault and publish it on /diagnostics now."""
+        self._faults.append((kind, start, duration, magnitude, source))
+        self.publish_diagnostics()
+
     def diagnostic_values(self) -> dict[str, str]:
-        return {"tick": str(self.k_next - 1), "frames": str(self.frames), "outlier_frames": str(self.outlier_frames)}
+        out = {"tick": str(self.k_next - 1), "frames": str(self.frames), "outlier_frames": str(self.outlier_frames),
+               "dropout_frames": str(self.dropout_frames), "faults_announced": str(len(self._faults))}
+        if self._faults:
+            kind, start, duration, magnitude, source = self._faults[-1]
+            out.update(fault_kind=kind, fault_start=repr(start), fault_duration=repr(duration),
+                       fault_magnitude=repr(magnitude), fault_source=source)
+        return out
 
 
 def main(argv: list[str] | None = None) -> int:

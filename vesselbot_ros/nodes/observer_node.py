@@ -29,6 +29,15 @@ Real-time: a fresh measurement triggers an update at once (lowest latency);
 a timer on sim time at the control rate predicts in between.  The latest
 ``coil/applied`` is the input.
 
+Measurement loss: the observer never stops publishing; without fresh frames
+it predicts with its model (eq. (25) with no correction).  When the time since
+the last used measurement exceeds ``lost_after_s`` = 2 frame periods + the
+imager latency (at least 2 ticks), the loss is flagged at once on
+``/diagnostics`` (``measurement_lost: true``, ``measurement_age_s``,
+``measurement_losses`` = number of loss episodes) and cleared on the next used
+frame.  Downstream, ``pose.covariance[35]`` carries the age, which the
+controller's stale-estimate safe behaviour reads.
+
 Input checks: wrong frame_id, non-finite, non-zero y, measured position
 farther than ``graph.position_margin_m`` outside the vessel, off-grid or
 stale/future ticks (lockstep) or stamps (real-time): rejected (WARN
@@ -73,6 +82,11 @@ class ObserverNode(VesselbotNode):
         self._g_prev = np.zeros(2)
         self.used = 0
         self.rejected_by_core = 0
+        im = self.scenario.imager
+        self.lost_after_s = max(2.0 / im.frame_rate_Hz, 2.0 * self.dt) + im.latency_s
+        self.measurement_age_s = float("inf")
+        self.measurement_lost = False
+        self.measurement_losses = 0
         self._t_last = 0.0
         self.add_publisher("estimate", Odometry)
         self.add_subscription("measurement", PointStamped, self._on_measurement)
@@ -150,6 +164,15 @@ class ObserverNode(VesselbotNode):
         self.used += int(est.used_measurement)
         self.rejected_by_core += int(est.rejected)
         self.publish("estimate", cv.estimate_msg(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s))
+        self.measurement_age_s = float(est.time_since_measurement_s)
+        lost = est.t_s > self.lost_after_s and self.measurement_age_s > self.lost_after_s + 1e-9
+        if lost != self.measurement_lost:
+            self.measurement_lost = lost
+            self.measurement_losses += int(lost)
+            if lost:
+                self.get_logger().warning(f"no measurement for {self.measurement_age_s:.4f} s at t = {est.t_s:.4f} s: "
+                                          "predicting without correction")
+            self.publish_diagnostics()
 
     def _now_tick_time(self) -> float:
         k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
@@ -170,6 +193,9 @@ class ObserverNode(VesselbotNode):
             "measurements_used": str(self.used),
             "measurements_rejected": str(self.rejected_by_core),
             "observer_rhs_evals": str(int(self.model.stats[2])),
+            "measurement_lost": "true" if self.measurement_lost else "false",
+            "measurement_age_s": repr(self.measurement_age_s),
+            "measurement_losses": str(self.measurement_losses),
         }
 
 
