@@ -35,6 +35,7 @@ __all__ = [
     "open_bag",
     "iter_messages",
     "read_timeseries",
+    "final_diagnostics",
     "MCAP_MAGIC",
 ]
 
@@ -266,6 +267,26 @@ def iter_messages(
         raise
     except (Exception, struct.error) as exc:  # noqa: BLE001 - rosbags/mcap raise many types on corrupt data
         raise BagError(f"bag {info.path} is corrupt: {exc!r}") from None
+
+
+def final_diagnostics(bag: str | Path | BagInfo) -> dict[str, dict[str, str]]:
+    """The last recorded ``/diagnostics`` key/values of every status name (node), e.g. final counts.
+
+    Every vesselbot node publishes a last status with ``finished: true`` once
+    its run is over, holding its final ``published:<topic>`` and
+    ``received:<topic>`` counts.  Returns {} if the bag has no ``/diagnostics``.
+
+    Raises:
+        BagError: if the bag is invalid or corrupt.
+    """
+    info = bag if isinstance(bag, BagInfo) else open_bag(bag)
+    if info.topic("/diagnostics") is None:
+        return {}
+    out: dict[str, dict[str, str]] = {}
+    for m in iter_messages(info, topics=["/diagnostics"]):
+        for status in m.decode().status:
+            out[status.name] = {v.key: v.value for v in status.values}
+    return out
 
 
 # --------------------------------------------------------------------------

@@ -1,7 +1,16 @@
-"""``vesselbot replay DIR [--rate R] [--topics ...] [--start S] [--loop] [--clock]``.
+"""``vesselbot replay DIR [--rate R] [--topics ...] [--start S] [--loop] [--clock]``
+and ``vesselbot replay DIR --into {observer,controller} [--node-cmd CMD] [--out OUT]``.
 
-Publishes in the ROS domain of the environment (``ROS_DOMAIN_ID``), with
-localhost-only discovery unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set.
+Plain replay publishes in the ROS domain of the environment
+(``ROS_DOMAIN_ID``), with localhost-only discovery unless
+``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set.
+
+``--into ROLE`` re-runs one node on the bag's inputs instead
+(:mod:`vesselbot_ros.bag.reestimate`): a fresh node in a leased domain, fed
+tick by tick, its outputs recorded next to the originals and compared.  Exit
+codes: 0 every tick answered (and, with ``--tolerance``, every difference
+within it); 1 the node died, a tick went unanswered, or a difference exceeds
+``--tolerance``; 2 a bad bag or argument.
 """
 
 from __future__ import annotations
@@ -24,13 +33,34 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="publish /clock from the bag's log time (and do not replay a recorded /clock)")
     parser.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                         help="first wait up to S seconds until every replayed topic has a subscriber")
+    g = parser.add_argument_group("re-run one node on the bag's inputs (lockstep bags)")
+    g.add_argument("--into", choices=("observer", "controller"), default=None,
+                   help="feed the recorded inputs tick by tick into a fresh ROLE node and compare its outputs "
+                        "with the recorded ones")
+    g.add_argument("--node-cmd", default=None, metavar="CMD",
+                   help="command of the node under test (default: ours); '{params}' is replaced by the "
+                        "scenario's --params-file, else '--ros-args --params-file F' is appended")
+    g.add_argument("--out", default=None, metavar="DIR", help="result bag (default <bag>/reestimate_<ROLE>)")
+    g.add_argument("--answer-timeout", type=float, default=10.0, metavar="S",
+                   help="wall time to wait for the node's answer to each tick (default 10 s)")
+    g.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
+                   help="wall time to wait for the node to start and match (default 60 s)")
+    g.add_argument("--tolerance", type=float, default=None, metavar="X",
+                   help="exit 1 if any |new - recorded| exceeds X (SI units of each field)")
+    g.add_argument("--domain-id", type=int, default=None, help="ROS domain for --into (default: lease a free one)")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay the bag; exit 0 when done (Ctrl-C stops it cleanly)."""
+    """Replay the bag (or re-run one node on it, ``--into``); Ctrl-C stops cleanly."""
     from vesselbot_ros.bag.reader import open_bag
 
     info = open_bag(args.bag)  # fail on a broken bag before starting ROS
+    if args.into is not None:
+        return _run_into(args, info)
+    if args.node_cmd is not None or args.out is not None or args.tolerance is not None:
+        from vesselbot_ros.errors import BagError
+
+        raise BagError("--node-cmd, --out and --tolerance need --into observer|controller")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -52,4 +82,34 @@ def run(args: argparse.Namespace) -> int:
         rclpy.try_shutdown()
     print(f"vesselbot replay: published {sum(stats.published.values())} messages in {stats.wall_s:.2f} s "
           f"({stats.loops} pass(es)); max lateness {stats.max_lateness_s * 1e3:.1f} ms", flush=True)
+    return 0
+
+
+def _run_into(args: argparse.Namespace, info: object) -> int:
+    from vesselbot_ros.bag.reestimate import ROLES, reestimate, replay_topic
+    from vesselbot_ros.errors import BagError
+
+    if args.tolerance is not None and not args.tolerance >= 0:
+        raise BagError(f"--tolerance must be >= 0, got {args.tolerance}")
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    res = reestimate(info, args.into, out_dir=args.out, node_cmd=args.node_cmd,  # type: ignore[arg-type]
+                     answer_timeout_s=args.answer_timeout, wait_timeout_s=args.wait_timeout,
+                     domain_id=args.domain_id,
+                     log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True))
+    c = res.comparison
+    rate = res.fed / res.wall_s if res.wall_s > 0 else float("inf")
+    print(f"vesselbot replay --into {res.role}: fed {res.fed}/{res.planned} ticks, answered {res.answered}, "
+          f"{res.wall_s:.2f} s wall ({rate:.0f} ticks/s)")
+    print(f"  compared {c.compared} ticks with the recording: {c.identical} bit-identical"
+          + (f", first difference at tick {c.first_difference_tick}" if c.first_difference_tick is not None else ""))
+    for name in ROLES[res.role].fields:
+        print(f"  max |new - recorded| {name:22s} {c.max_abs[name]:.6g}")
+    print(f"  bag: {res.out_dir} (new output on {replay_topic(res.role)}; comparison.json)")
+    if res.error:
+        print(f"vesselbot replay: error: {res.error}", file=sys.stderr)
+        return 1
+    if args.tolerance is not None and c.max_abs_overall > args.tolerance:
+        print(f"vesselbot replay: max difference {c.max_abs_overall:.6g} exceeds --tolerance {args.tolerance:g}",
+              file=sys.stderr)
+        return 1
     return 0

@@ -39,7 +39,8 @@ import numpy.typing as npt
 from vesselbot_ros.bag.reader import BagInfo, open_bag, read_timeseries
 from vesselbot_ros.errors import BagError
 
-__all__ = ["write_report", "metrics_timeseries", "bool_intervals", "detect_outlier_frames", "FIGURES"]
+__all__ = ["write_report", "metrics_timeseries", "bool_intervals", "detect_outlier_frames", "diagnostic_counters",
+           "DIAGNOSTIC_COUNTERS", "FIGURES"]
 
 TRACKING_BOUND_M = 150e-6  # paper Fig. 9b: tracking error bound after 0.6 s
 ESTIMATION_BOUND_M = 10e-6  # paper Fig. 9b: estimation error bound
@@ -91,19 +92,29 @@ def _align(ts: Mapping[str, np.ndarray], prefixes: tuple[str, ...]) -> dict[str,
     return out
 
 
-def metrics_timeseries(ts: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None) -> dict[str, np.ndarray]:
     """The per-tick series :func:`vesselbot_ros.sim.metrics.compute_metrics` takes, from bag arrays.
 
     Ticks are the stamps present on ``truth``, ``reference``, ``estimate`` and
     ``coil`` state; vectors keep (x, z).
+
+    Args:
+        ts: Arrays from :func:`~vesselbot_ros.bag.reader.read_timeseries`.
+        dt_s: Control period (s).  Given, tick times are rebuilt as ``k * dt_s``
+            with ``k`` recovered from the stamp (the graph's convention, so the
+            metrics equal the launcher's bit for bit); None: ``stamp * 1e-9``.
 
     Raises:
         BagError: if one of those topics is missing or empty.
     """
     idx = _align(ts, ("truth", "reference", "estimate", "coil"))
     tr, rf, es, co = idx["truth"], idx["reference"], idx["estimate"], idx["coil"]
+    if dt_s is not None:
+        t_s = np.round(idx["_ns"] * 1e-9 / dt_s).astype(np.int64) * dt_s
+    else:
+        t_s = idx["_ns"].astype(np.float64) * 1e-9
     return {
-        "t_s": idx["_ns"].astype(np.float64) * 1e-9,
+        "t_s": t_s,
         "p_true": ts["truth.p_WR"][tr][:, _XZ],
         "v_true": ts["truth.v_WR"][tr][:, _XZ],
         "p_ref": ts["reference.p_ref"][rf][:, _XZ],
@@ -173,14 +184,55 @@ def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
             ax.axvspan(a, b, color=color, alpha=alpha, lw=0, label=label if i == 0 else None)
 
 
+#: Counters the launcher adds to the run's metrics from the nodes' final ``/diagnostics``
+#: (node role -> keys); the plant's are ``plant_node.PLANT_STAT_NAMES`` (tested equal).
+DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = {
+    "plant": ("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
+    "observer": ("observer_rhs_evals", "measurements_used", "measurements_rejected"),
+    "imager": ("outlier_frames",),
+}
+
+
+def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float | None:
+    try:
+        v = float(run["config"][section][key])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def diagnostic_counters(info: BagInfo) -> dict[str, int]:
+    """The launcher's extra metrics (plant/observer/imager counters) from the bag's final diagnostics."""
+    from vesselbot_ros.bag.reader import final_diagnostics
+    from vesselbot_ros.topics import NODE_NAMES
+
+    final = final_diagnostics(info)
+    out: dict[str, int] = {}
+    for role, keys in DIAGNOSTIC_COUNTERS.items():
+        d = final.get(NODE_NAMES[role], {})
+        for key in keys:
+            if key in d:
+                try:
+                    out[key] = int(d[key])
+                except ValueError:
+                    continue
+    return out
+
+
 def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = None,
-                 after_s: float = 0.6) -> dict[str, Any]:
+                 after_s: float | None = None) -> dict[str, Any]:
     """Write the figures and ``metrics.json`` of a recorded run; return the metrics.
+
+    The metrics are those of ``vesselbot run`` for the same run: the same
+    :func:`~vesselbot_ros.sim.metrics.compute_metrics` on the same per-tick
+    values (tick times ``k * dt`` with dt from the run's config), plus the
+    plant, observer and imager counters from the nodes' final diagnostics.
 
     Args:
         bag_dir: The bag directory (or a validated :class:`BagInfo`).
         out_dir: Output folder (default ``<bag_dir>/report``).
-        after_s: Start of the steady-state window of the metrics (s); paper: 0.6.
+        after_s: Start of the steady-state window of the metrics (s); None:
+            the run's ``sim.metrics_after_s``, else 0.6 (paper).
 
     Raises:
         BagError: if the bag is invalid, corrupt or lacks the graph's topics.
@@ -195,8 +247,13 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     info = bag_dir if isinstance(bag_dir, BagInfo) else open_bag(bag_dir)
     out = Path(out_dir) if out_dir is not None else info.path / "report"
     out.mkdir(parents=True, exist_ok=True)
+    run = info.run_metadata
+    rate = _run_config_value(run, "sim", "control_rate_Hz")
+    if after_s is None:
+        after_s = _run_config_value(run, "sim", "metrics_after_s")
+        after_s = 0.6 if after_s is None else after_s
     ts = read_timeseries(info)
-    m = metrics_timeseries(ts)
+    m = metrics_timeseries(ts, dt_s=1.0 / rate if rate else None)
     t = m["t_s"]
     if t.size < 2:
         raise BagError(f"bag {info.path} holds {t.size} complete tick(s); the report needs at least 2")
@@ -207,7 +264,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     faults = _fault_intervals(ts, info.run_metadata, dt)
     spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults]}
     t_out, thr = detect_outlier_frames(ts)
-    run = info.run_metadata
+    metrics.update(diagnostic_counters(info))
     metrics.update({
         "bag": str(info.path),
         "scenario": run.get("scenario"),

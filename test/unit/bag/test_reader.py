@@ -105,3 +105,11 @@ def test_read_timeseries_matches_the_closed_form_stream(synthetic_bag):
     assert ts["coil.saturated"].sum() == np.sum(np.abs(0.1 * np.sin(2 * np.pi * t)) > 0.08)
     assert ts["measurement.fresh"].all()  # every synthetic frame has a new stamp
     assert ts["truth.F_total"].shape == (1000, 3)
+
+
+def test_final_diagnostics_keeps_the_last_status_of_every_name(synthetic_bag):
+    from vesselbot_ros.bag.reader import final_diagnostics
+
+    final = final_diagnostics(synthetic_bag[0])
+    # the synthetic graph publishes a status every 100 ticks over 1000 ticks: the last is tick 900
+    assert final == {"synthetic_graph": {"tick": "900"}}

@@ -64,3 +64,44 @@ def test_report_needs_the_graph_topics(tmp_path):
         bag.write(c, serialize_message(String(data="x")), 1)
     with pytest.raises(BagError, match="no messages for 'truth'"):
         write_report(tmp_path / "b")
+
+
+def test_metrics_timeseries_rebuilds_tick_times_as_k_times_dt(synthetic_bag):
+    from vesselbot_ros.bag.reader import read_timeseries
+    from vesselbot_ros.bag.report import metrics_timeseries
+
+    ts = read_timeseries(synthetic_bag[0])
+    dt = 1e-3
+    m = metrics_timeseries(ts, dt_s=dt)
+    # exactly the launcher's np.arange(n) * dt, never float(stamp)
+    assert np.array_equal(m["t_s"], np.arange(1000) * dt)
+    raw = metrics_timeseries(ts)
+    assert np.allclose(raw["t_s"], m["t_s"], rtol=0, atol=1e-12)
+
+
+def test_report_takes_the_window_from_the_run_config_and_counters_from_final_diagnostics(tmp_path, monkeypatch):
+    from vesselbot_ros.bag.report import DIAGNOSTIC_COUNTERS
+    from vesselbot_ros.nodes.plant_node import PLANT_STAT_NAMES
+
+    assert DIAGNOSTIC_COUNTERS["plant"] == PLANT_STAT_NAMES
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rclpy.serialization import serialize_message
+
+    import conftest
+
+    meta = dict(conftest.RUN_METADATA, config={"sim": {"metrics_after_s": 0.25, "control_rate_Hz": 1000.0}})
+    monkeypatch.setattr(conftest, "RUN_METADATA", meta)
+    bag, _ = conftest.write_synthetic_bag(tmp_path / "b", 400, finish=False)
+    conn = bag.connections["/diagnostics"]
+    for steps in (10, 12345):  # the last status of a node wins
+        st = DiagnosticStatus(name="vesselbot_plant", values=[KeyValue(key="plant_steps", value=str(steps)),
+                                                              KeyValue(key="finished", value="true")])
+        bag.write(conn, serialize_message(DiagnosticArray(status=[st])), 1_800_000_000_000_000_000 + steps)
+    st = DiagnosticStatus(name="vesselbot_observer", values=[KeyValue(key="measurements_used", value="399")])
+    bag.write(conn, serialize_message(DiagnosticArray(status=[st])), 1_800_000_000_000_100_000)
+    bag.finish()
+    metrics = write_report(tmp_path / "b", tmp_path / "rep")
+    assert metrics["after_s"] == 0.25
+    assert metrics["plant_steps"] == 12345 and metrics["measurements_used"] == 399
+    assert "plant_rhs_evals" not in metrics  # not reported by the bag: not invented
+    assert write_report(tmp_path / "b", tmp_path / "rep2", after_s=0.5)["after_s"] == 0.5
