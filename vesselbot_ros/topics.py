@@ -87,7 +87,11 @@ class TopicSpec:
     qos: Literal["reliable", "reliable_latched", "clock", "diagnostics"]
     units: str
     frame: str
-    depth: int = 100
+    # Writers keep this many samples.  Reliable KEEP_LAST overwrites samples not
+    # yet acknowledged once the history is full, and the recorder and the
+    # launcher's monitor are not paced by the lockstep loop, so per-tick topics
+    # keep 1 s at 1 kHz: a reader may fall that far behind without losing data.
+    depth: int = 1000
 
 
 @dataclass(frozen=True)
