@@ -1,4 +1,4 @@
-"""Regenerate the generated sections of README.md from the code (topic table, lockstep protocol).
+"""Regenerate the generated sections of README.md (topic table, lockstep protocol, faults and safety).
 
 Generated sections sit between ``<!-- BEGIN name -->`` and ``<!-- END name -->``
 markers; everything else in README.md is hand-written.  Run:
@@ -20,7 +20,9 @@ def sections() -> dict[str, str]:
     doc = topics.__doc__ or ""
     protocol = doc.split("Lockstep protocol (the default mode; deterministic)")[1]
     protocol = re.sub(r"^-+\n", "", protocol.lstrip("\n")).strip()
-    return {"topics": topics.markdown_table(), "lockstep": protocol}
+    faults = (README.parent / "docs" / "faults_and_safety.md").read_text()
+    faults = faults.split("\n", 1)[1].strip()  # drop the document's own heading
+    return {"topics": topics.markdown_table(), "lockstep": protocol, "faults": faults}
 
 
 def render(text: str) -> str:

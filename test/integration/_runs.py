@@ -102,3 +102,40 @@ def assert_coil_invariants(ts: dict[str, np.ndarray], u_sat: float, slew: float,
     bad = np.argwhere(steps > allowed)
     assert bad.size == 0, (f"slew limit {slew} T/m/s exceeded at t = {t[bad[0][0]]}: step {steps[bad[0][0]]} T/m "
                            f"in {dts[bad[0][0]]} s")
+
+
+def start_node(role: str, env: dict[str, str], log_path: Path, **params: Any) -> Any:
+    """Start the node ``role`` alone (a :class:`vesselbot_ros.testing.NodeProcess`) with ``-p name:=value`` params.
+
+    Keys use ``__`` for dots (``imager__frame_rate_Hz=1000.0``); values are written as YAML scalars.
+    """
+    from vesselbot_ros.testing import NodeProcess
+
+    argv = ["python", "-m", f"vesselbot_ros.nodes.{role}_node", "--ros-args"]
+    for key, value in params.items():
+        argv += ["-p", f"{key.replace('__', '.')}:={yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()}"]
+    env = dict(env)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
+    return NodeProcess(argv, env, log_path)
+
+
+def truth_msg(k: int, dt_s: float, p_xz: tuple[float, float], frame_id: str = "vessel") -> Any:
+    """A ``PlantState`` for tick ``k`` (stamp ``k * dt_s``) at position ``p_xz`` (m)."""
+    from vesselbot_msgs.msg import PlantState
+
+    from vesselbot_ros.nodes import conversions as cv
+
+    msg = PlantState(tick=k, position=cv.point(p_xz), vessel_diameter=3e-3)
+    msg.header = cv.header(cv.tick_time(k, dt_s))
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def status_values(arr: Any, node_name: str) -> list[tuple[dict[str, str], int]]:
+    """(key/values, level) of the statuses of ``node_name`` in one DiagnosticArray."""
+    out = []
+    for st in arr.status:
+        if st.name == node_name:
+            lvl = st.level if isinstance(st.level, int) else int.from_bytes(bytes(st.level), "little")
+            out.append(({kv.key: kv.value for kv in st.values}, lvl))
+    return out

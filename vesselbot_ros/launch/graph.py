@@ -421,6 +421,14 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         diagnostics = dict(mon.diag)
     finally:
         interrupted = sys.exc_info()[0] is KeyboardInterrupt
+        if recorder is not None and not finished_ok and not interrupted and recorder.poll() is None:
+            # a node died (or a wait timed out): before stopping anything, let the recorder catch
+            # up with every per-tick message the launcher itself received, so the bag holds the
+            # run up to that moment (including the watchdog's ramp to zero)
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and not _recorder_has_seen(mon):
+                with contextlib.suppress(Exception):
+                    mon.spin(0.05)
         for p in procs:
             p.signal(signal.SIGINT)
         for p in procs:
@@ -470,6 +478,15 @@ def _series(mon: _Monitor, scenario: Scenario) -> dict[str, np.ndarray]:
         "x_hat": mon.x_hat, "z_hat": mon.z_hat, "g_applied": mon.g_applied,
         "saturated": mon.saturated, "slew_limited": mon.slew, "in_contact": mon.contact,
     }
+
+
+def _recorder_has_seen(mon: _Monitor) -> bool:
+    """True once the recorder reports at least the per-tick messages the launcher's monitor got."""
+    rec = mon.diag.get(NODE_NAMES["recorder"])
+    if rec is None:
+        return False
+    received = _counts(rec, "received:")
+    return all(received.get(topic(key).name, 0) >= n for key, n in mon.got.items())
 
 
 def _recorder_caught_up(mon: _Monitor, roles: Sequence[str]) -> bool:

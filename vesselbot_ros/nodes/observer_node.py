@@ -40,8 +40,9 @@ controller's stale-estimate safe behaviour reads.
 
 Input checks: wrong frame_id, non-finite, non-zero y, measured position
 farther than ``graph.position_margin_m`` outside the vessel, off-grid or
-stale/future ticks (lockstep) or stamps (real-time): rejected (WARN
-diagnostics).  In lockstep a rejected measurement still closes its tick (as
+stale/future ticks (lockstep) or stamps (real-time), and (lockstep) an
+acquisition stamp after the tick the message belongs to (``future_stamp``):
+rejected (WARN diagnostics).  In lockstep a rejected measurement still closes its tick (as
 "no fresh frame"), so the loop never stalls on bad input.
 """
 
@@ -107,6 +108,10 @@ class ObserverNode(VesselbotNode):
         j, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
             self.reject("measurement", "off_tick_stamp", f"acquisition stamp {stamp} ns is not a tick time")
+            return None
+        if self.lockstep and j > self.n_meas:
+            # the n-th measurement belongs to tick n: a frame acquired after that tick comes from the future
+            self.reject("measurement", "future_stamp", f"acquisition tick {j} after the current tick {self.n_meas}")
             return None
         if stamp <= self._last_stamp_ns:
             if self.lockstep and stamp == self._last_stamp_ns:
