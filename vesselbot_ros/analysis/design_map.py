@@ -266,7 +266,7 @@ def load_forces(
     st = steric_coefficient(r, it.brush_length_m, BOLTZMANN_J_PER_K * b.temperature_K, it.grafting_density_per_m2)
     d_up, d_lo = wall_deltas(z, r, diameter_m)
     vdw, el, ster = wall_pair_forces_z(
-        d_up, d_lo, r, it.hamaker_constant_J, it.vdw_min_separation_m, q,
+        d_up, d_lo, r, it.hamaker_constant_J, it.vdw_floor_m, q,
         b.relative_permittivity * VACUUM_PERMITTIVITY_F_PER_M,
         electrostatic_factor(it.electrostatic_model), st, it.brush_length_m,
         contact_heaviside_flag(it.in_contact),

@@ -171,8 +171,9 @@ class CoilLimiter:
     def _slew_to(self, target: npt.NDArray[np.float64], dt: float) -> npt.NDArray[np.bool_]:
         step = target - self._applied
         max_step = self._slew * dt
-        over = np.abs(step) > max_step
-        biggest = float(np.max(np.abs(step)))
+        a0, a1 = abs(step[0]), abs(step[1])
+        over = np.array((a0 > max_step, a1 > max_step))
+        biggest = a0 if a0 >= a1 else a1
         if biggest > max_step:
             # uniform scaling: stays on the segment applied -> target (convexity)
             step = step * (max_step / biggest)

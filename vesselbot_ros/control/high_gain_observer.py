@@ -270,7 +270,8 @@ class HighGainObserver:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
         if t_s > self._t:
             self.model.propagate(self._t, t_s, self._y, self._b @ g, self._contact)
-            if not np.all(np.isfinite(self._y)):
+            y = self._y
+            if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2]) and math.isfinite(y[3])):
                 raise ModelInputError(f"observer: prediction became non-finite at t={t_s!r}")
         self._t = float(t_s)
         if self.params.delay_compensation:

@@ -161,7 +161,7 @@ def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
     head[I_UNLOAD_EXP] = w.unloading_exponent
     head[I_D0_RATIO] = w.permanent_deformation_ratio
     head[I_HAMAKER] = it.hamaker_constant_J
-    head[I_VDW_GMIN] = it.vdw_min_separation_m
+    head[I_VDW_GMIN] = it.vdw_floor_m
     head[I_CHARGE] = q
     head[I_EPS_EPS0] = b.relative_permittivity * VACUUM_PERMITTIVITY_F_PER_M
     head[I_EL_FACTOR] = electrostatic_factor(it.electrostatic_model)

@@ -263,8 +263,18 @@ class InteractionParams:
 
     Attributes:
         hamaker_constant_J: A_h (J). Table III: 4e-19.
-        vdw_min_separation_m: Gap below which the vdW force is held constant (m);
-            0.4 nm is the usual atomic contact distance.  Keeps forces finite.
+        vdw_min_separation: How the gap at which the vdW force (18) is floored
+            (held constant) is chosen.  ``'brush_limited'`` (sound default):
+            ``brush_compressed_fraction * brush_length_m`` (0.2 L0 = 20 nm for
+            Table III): the grafted polymer brush cannot be compressed below
+            about 0.2 L0 (the lower validity bound of eq. (20)), so the robot's
+            core never comes closer to the endothelium than that.
+            ``'explicit'``: ``vdw_min_separation_m`` (the paper does not
+            specify a value; 0.4 nm is the bare atomic contact distance, at
+            which the adhesion, ~1e-4 N, traps the robot on the wall).
+        vdw_min_separation_m: vdW floor used with ``vdw_min_separation: explicit`` (m).
+        brush_compressed_fraction: Thickness of the fully compressed brush over
+            L0 (-), in (0, 1]; 0.2 is the lower validity bound of eq. (20).
         electrostatic_model: ``'image_charge'`` (q^2 / (4 pi eps eps0 (2 s)^2), the
             true image force) or ``'paper_printed'`` (eq. (19), 4x larger).
         brush_length_m: Polymer brush equilibrium length L_0 (m). Table III: 100e-9.
@@ -276,7 +286,9 @@ class InteractionParams:
     """
 
     hamaker_constant_J: float = 4.0e-19
+    vdw_min_separation: Literal["brush_limited", "explicit"] = "brush_limited"
     vdw_min_separation_m: float = 0.4e-9
+    brush_compressed_fraction: float = 0.2
     electrostatic_model: Literal["image_charge", "paper_printed"] = "image_charge"
     brush_length_m: float = 100.0e-9
     grafting_density_per_m2: float = 1.0e15
@@ -284,11 +296,20 @@ class InteractionParams:
 
     def __post_init__(self) -> None:
         check_nonnegative("hamaker_constant_J", self.hamaker_constant_J)
+        check_choice("vdw_min_separation", self.vdw_min_separation, ("brush_limited", "explicit"))
         check_positive("vdw_min_separation_m", self.vdw_min_separation_m)
+        check_range("brush_compressed_fraction", self.brush_compressed_fraction, 0.0, 1.0, lo_open=True)
         check_choice("electrostatic_model", self.electrostatic_model, ("image_charge", "paper_printed"))
         check_positive("brush_length_m", self.brush_length_m)
         check_nonnegative("grafting_density_per_m2", self.grafting_density_per_m2)
         check_choice("in_contact", self.in_contact, ("hold", "paper_heaviside"))
+
+    @property
+    def vdw_floor_m(self) -> float:
+        """Gap (m) below which the vdW force is held constant (see ``vdw_min_separation``)."""
+        if self.vdw_min_separation == "brush_limited":
+            return self.brush_compressed_fraction * self.brush_length_m
+        return self.vdw_min_separation_m
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,9 @@ State machine (``contact_transition``; phases FREE=0, LOADING=1, UNLOADING=2):
 * LOADING -> UNLOADING when delta decreases below delta_max; then
   delta_0 = permanent_deformation_ratio * delta_max (the paper gives no law
   for delta_0, Choi and Lim [30] use a fraction of delta_max);
-* UNLOADING -> LOADING if delta exceeds delta_max again (reloading);
+* UNLOADING -> LOADING if delta exceeds delta_max again (reloading); within
+  an integrator step, before the transition is applied, the force already
+  follows the loading law beyond delta_max (``contact_force_magnitude``);
 * UNLOADING -> FREE when delta <= delta_0 (separation; the wall recovers).
 
 Both laws are 0 at delta = 0 (continuous), and the unloading law equals F_max
@@ -54,13 +56,23 @@ def hertz_stiffness(r, e_c, sigma_c, e_w, sigma_w):  # type: ignore[no-untyped-d
 
 @register_jitable
 def contact_force_magnitude(delta, phase, delta_max, force_max, delta_0, k, p_exp):  # type: ignore[no-untyped-def]
-    """|F_c| (N), repulsive along -n; loading law unless ``phase`` == UNLOADING (arrays ok)."""
+    """|F_c| (N), repulsive along -n (arrays ok).
+
+    Loading law (15) unless ``phase`` == UNLOADING and ``delta <= delta_max``,
+    then the unloading law (16).  Beyond ``delta_max`` an unloading contact
+    re-loads: the loading law applies (continuous at ``delta_max`` because
+    ``force_max = k delta_max^1.5``), never an extrapolation of (16).
+    """
     pen = np.maximum(delta, 0.0)
     loading = k * pen**1.5
     span = np.maximum(delta_max - delta_0, 1e-300)
-    # the ratio is <= 1 in a consistent state; the cap only keeps the unused branch finite
-    unloading = force_max * np.minimum(np.maximum(delta - delta_0, 0.0) / span, 1.0e3) ** p_exp
-    is_unl = (phase == 2) * 1.0
+    # Re-loading: an integrator stage may probe delta > delta_max while the
+    # state still says UNLOADING (the transition is applied after the step).
+    # The wall then re-loads along (15); extrapolating (16) beyond delta_max
+    # would grow as ((delta - delta_0)/(delta_max - delta_0))^p, unbounded.
+    ratio = np.minimum(np.maximum(delta - delta_0, 0.0) / span, 1.0)
+    unloading = force_max * ratio**p_exp
+    is_unl = (phase == 2) * (delta <= delta_max) * 1.0
     return (1.0 - is_unl) * loading + is_unl * unloading
 
 

@@ -8,7 +8,11 @@ are signed along +n (positive = attraction).
 * van der Waals: V = -(A_h/6)(1/h + 1/(2+h) + ln(h/(2+h))), h = g/r.  Its
   derivative simplifies exactly to  F = 2 A_h / (3 r h^2 (h+2)^2)  (-> A_h r/(6 g^2)
   for g << r).  It diverges as g -> 0, so g is floored at ``g_min``
-  (``interactions.vdw_min_separation_m``, 0.4 nm by default).
+  (``InteractionParams.vdw_floor_m``): by default the compressed thickness of
+  the polymer brush, 0.2 L0 = 20 nm (``vdw_min_separation: brush_limited``;
+  the brush keeps the core that far from the endothelium, and eq. (20) is only
+  valid above 0.2 L0), or an explicit value such as the 0.4 nm atomic
+  contact distance (``explicit``).
 * electrostatic: paper (19) prints q^2/(4 pi eps eps0 (r + g)^2).  The image force
   on a charge at distance s = r + g from a conducting plane is
   q^2/(4 pi eps eps0 (2 s)^2), 4x smaller: ``factor`` = 1 (printed) or 1/4 (image).

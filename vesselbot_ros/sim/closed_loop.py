@@ -117,8 +117,12 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
     observer = HighGainObserver(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, 0.0)
-    controller = BacksteppingController(s.controller, model.F, model.input_matrix)
-    coil = CoilLimiter(s.coil, 0.0)
+    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s)
+    # The coil was idle (zero) before t = 0 and ramps during the period before
+    # the first command, exactly as between any two later ticks: the first
+    # command may move S * dt, not 0 (which left the robot unactuated for the
+    # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
+    coil = CoilLimiter(s.coil, -s.sim.dt_control_s)
     return Stages(plant, imager, observer, reference, controller, coil, model)
 
 

@@ -107,3 +107,32 @@ def test_imager_outliers_dropouts_and_draw_order() -> None:
     np.testing.assert_array_equal(out[150].p, clean[150].p)
     with pytest.raises(ModelInputError, match="true position must be a finite"):
         im.frame(0.3, np.array([math.nan, 0.0]))
+
+
+def test_midpoint_sample_hold_evaluates_F_at_mid_hold_state():
+    from vesselbot_ros.control.backstepping import BacksteppingController, ControllerParams
+
+    calls = []
+
+    def f(t, x, z):
+        calls.append((t, x.copy(), z.copy()))
+        return np.array([2.0 * t, -1.0])
+
+    T = 1e-3
+    c = BacksteppingController(ControllerParams(sample_hold="midpoint"), f, np.eye(2), hold_period_s=T)
+    x, z = np.array([1e-3, 2e-3]), np.array([0.01, -0.02])
+    pr, vr, ar = np.array([1.1e-3, 2.0e-3]), np.array([0.012, 0.0]), np.array([0.1, 0.2])
+    cmd = c.command_arrays(0.5, x, z, 0.0, pr, vr, ar)
+    a = ar + 15.0 * vr + 51.0 * pr - 51.0 * x - 15.0 * z  # k1 = 5, k2 = 10
+    h = T / 2
+    t_mid, x_mid, z_mid = calls[-1]
+    assert t_mid == pytest.approx(0.5 + h, abs=1e-15)
+    np.testing.assert_allclose(x_mid, x + h * z + 0.5 * h * h * a, rtol=1e-12)
+    np.testing.assert_allclose(z_mid, z + h * a, rtol=1e-12)
+    np.testing.assert_allclose(cmd.u_m_per_s2, a - np.array([2.0 * (0.5 + h), -1.0]), rtol=1e-12)
+    # 'none' (printed) evaluates F at the tick
+    c0 = BacksteppingController(ControllerParams(), f, np.eye(2), hold_period_s=T)
+    c0.command_arrays(0.5, x, z, 0.0, pr, vr, ar)
+    assert calls[-1][0] == 0.5
+    with pytest.raises(ModelInputError, match="hold_period_s"):
+        BacksteppingController(ControllerParams(), f, np.eye(2), hold_period_s=-1.0)

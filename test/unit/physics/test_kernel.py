@@ -71,3 +71,26 @@ def test_paper_printed_electrostatic_traps_at_upper_wall():
     far = q * q / (4 * math.pi * eps * (250e-6 + 2.5e-3) ** 2)  # the lower wall's pull
     assert out[5, 1] == pytest.approx(q * q / (4 * math.pi * eps * 250e-6**2) - far, rel=1e-9)
     assert out[5, 1] > 0.8 * 4 / 3 * math.pi * 250e-6**3 * 1.72e6 * 0.08
+
+
+def test_brush_limited_vdw_no_longer_traps_but_atomic_floor_does():
+    # robot pressed on the upper wall at t = 0.25 s (D(t) = D): the vdW term is floored
+    t, r, A = 0.25, 250e-6, 4e-19
+    z = 1.5e-3 - r + 1e-9  # 1 nm penetration
+    bp_max = 0.8 * 4 / 3 * math.pi * r**3 * 1.72e6 * 0.08  # largest bead-pulling force, 7.2e-6 N
+    out = np.empty((8, 2))
+
+    def vdw_hand(g):  # 2 A / (3 r h^2 (h+2)^2), h = g / r, minus the far wall's pull
+        h = g / r
+        hf = (3e-3 - 2 * r) / r
+        return 2 * A / (3 * r * h * h * (h + 2) ** 2) - 2 * A / (3 * r * hf * hf * (hf + 2) ** 2)
+
+    kernel.forces_into(t, 0.0, z, 0.0, 0.0, 0.0, 0.0, np.zeros(4), PK, out)
+    assert out[4, 1] == pytest.approx(vdw_hand(20e-9), rel=1e-6)
+    assert out[4, 1] == pytest.approx(A * r / (6 * (20e-9) ** 2), rel=2e-3)  # ~4.2e-8 N
+    assert out[4, 1] < 0.01 * bp_max
+    atomic = kernel.pack_params(P.with_overrides({"interactions.vdw_min_separation": "explicit",
+                                                  "interactions.vdw_min_separation_m": 0.4e-9}))
+    kernel.forces_into(t, 0.0, z, 0.0, 0.0, 0.0, 0.0, np.zeros(4), atomic, out)
+    assert out[4, 1] == pytest.approx(vdw_hand(0.4e-9), rel=1e-6)
+    assert out[4, 1] > 10 * bp_max  # ~1e-4 N: the robot sticks

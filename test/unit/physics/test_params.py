@@ -86,3 +86,16 @@ def test_with_overrides_revalidates_and_is_pure():
 
 def test_params_are_hashable_for_caching():
     assert hash(PhysicsParams()) == hash(PhysicsParams())
+
+
+def test_vdw_floor_brush_limited_default_and_explicit():
+    it = InteractionParams()
+    assert it.vdw_min_separation == "brush_limited"
+    assert it.vdw_floor_m == pytest.approx(0.2 * 100e-9, rel=1e-15)
+    assert InteractionParams(brush_length_m=50e-9, brush_compressed_fraction=0.3).vdw_floor_m == pytest.approx(15e-9)
+    ex = InteractionParams(vdw_min_separation="explicit", vdw_min_separation_m=0.4e-9)
+    assert ex.vdw_floor_m == 0.4e-9
+    with pytest.raises(ConfigError, match="vdw_min_separation must be one of"):
+        InteractionParams(vdw_min_separation="atomic")
+    with pytest.raises(ConfigError, match=r"brush_compressed_fraction must be in \(0.0, 1.0\]"):
+        InteractionParams(brush_compressed_fraction=0.0)

@@ -62,3 +62,31 @@ def test_array_round_trip_and_errors():
     assert ContactState.from_array(s.to_array()) == s
     with pytest.raises(ModelInputError, match="delta_m must be finite"):
         update_contact_state(s, float("nan"), K, 0.1)
+
+
+def test_reloading_beyond_delta_max_follows_loading_law_continuously():
+    # state says UNLOADING (delta_max = 2e-7) but an integrator stage probes deeper:
+    # the force must re-load along (15), continuous at delta_max, never extrapolate (16)
+    dmax, d0, p = 2e-7, 2e-8, 2.0
+    fmax = K * dmax**1.5
+    for d in (2.0000001e-7, 3e-7, 1e-6, 1e-5):
+        f = float(contact_force_magnitude(d, UNLOADING, dmax, fmax, d0, K, p))
+        assert f == pytest.approx(K * d**1.5, rel=1e-12)
+    below = float(contact_force_magnitude(dmax * (1 - 1e-9), UNLOADING, dmax, fmax, d0, K, p))
+    above = float(contact_force_magnitude(dmax * (1 + 1e-9), UNLOADING, dmax, fmax, d0, K, p))
+    assert above == pytest.approx(below, rel=1e-8)
+    # the extrapolated unloading law would have been ((1e-5 - d0)/(dmax - d0))^2 ~ 3e3 x F_max
+    extrapolated = fmax * ((1e-5 - d0) / (dmax - d0)) ** p
+    assert float(contact_force_magnitude(1e-5, UNLOADING, dmax, fmax, d0, K, p)) < extrapolated / 5.0
+
+
+def test_unloading_is_bounded_by_loading_law():
+    import numpy as np
+
+    dmax, d0 = 2e-7, 2e-8
+    fmax = K * dmax**1.5
+    d = np.linspace(-1e-7, 5e-7, 601)
+    for p in (1.5, 2.0, 2.5):
+        f = contact_force_magnitude(d, UNLOADING, dmax, fmax, d0, K, p)
+        assert np.all(f <= K * np.maximum(d, 0.0) ** 1.5 * (1 + 1e-12) + 1e-30)
+        assert np.all(np.isfinite(f)) and np.all(f >= 0.0)
