@@ -124,7 +124,9 @@ def test_plant_killed_run_exits_naming_the_plant_and_bag_is_intact(killed_runs):
     t_truth = ts["truth.t_s"]
     assert len(t_truth) > 10
     np.testing.assert_allclose(np.diff(t_truth), DT_S, atol=1e-9)  # every tick up to the death is there
-    # the driver answered ticks the plant announced, never one beyond: with the clock gone it publishes nothing
-    assert ts["coil.t_s"][-1] <= t_truth[-1] + 1e-12
+    # the driver answered ticks the plant announced, never one beyond: with the clock gone it publishes
+    # nothing.  The plant's very last `truth` may be in flight when it is SIGKILLed: DDS delivers to each
+    # reader separately, so it can reach the imager (and so lead to an answer) but not the recorder.
+    assert ts["coil.t_s"][-1] <= t_truth[-1] + DT_S + 1e-12
     assert_coil_invariants(ts, U_SAT, SLEW, DT_S)
     assert not ts["coil.watchdog"].any()
