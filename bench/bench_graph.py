@@ -1,6 +1,7 @@
 """Benchmark of the ROS 2 node graph against the pure runner (prints figures, asserts nothing).
 
-For the paper's 2 s scenario at 1 kHz control (config/paper_small_artery.yaml):
+For the paper's 2 s scenario at 1 kHz control (default config/sound_small_artery.yaml,
+the one `make run` runs; `--config config/paper_small_artery.yaml` for the printed one):
 
 1. pure runner wall time (same process, after a warm-up for numba);
 2. lockstep over ROS, one process per node (6 nodes + the launcher = 7 processes);
@@ -9,7 +10,7 @@ For the paper's 2 s scenario at 1 kHz control (config/paper_small_artery.yaml):
    probe node that timestamps, on one clock, the arrival of each fresh
    measurement and of the first ``coil/applied`` that answers it.
 
-Usage: .venv/bin/python bench/bench_graph.py [--duration S] [--skip-realtime]
+Usage: .venv/bin/python bench/bench_graph.py [--config F] [--duration S] [--skip-realtime]
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIG = REPO / "config" / "paper_small_artery.yaml"
+CONFIG = REPO / "config" / "sound_small_artery.yaml"  # what `make run` runs; --config to change
 
 
 def pure_wall(duration: float | None) -> tuple[float, float]:
@@ -111,12 +112,18 @@ def realtime_latency(duration: float, rtf: float) -> np.ndarray:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=None, help="sim duration (s), default: the scenario's 2 s")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="scenario (default: config/sound_small_artery.yaml, the one `make run` runs)")
     ap.add_argument("--skip-realtime", action="store_true")
     ap.add_argument("--rt-duration", type=float, default=0.5)
     ap.add_argument("--rt-factor", type=float, default=0.1, help="real-time factor of the latency run")
     a = ap.parse_args()
+    if a.config is not None:
+        global CONFIG
+        CONFIG = a.config.resolve()
+    print(f"scenario: {CONFIG.relative_to(REPO) if CONFIG.is_relative_to(REPO) else CONFIG}")
     pure, sim = pure_wall(a.duration)
-    print(f"paper scenario: {sim:.3f} s sim at 1 kHz = {int(round(sim * 1000))} ticks")
+    print(f"{sim:.3f} s sim at 1 kHz = {int(round(sim * 1000))} ticks")
     print(f"pure runner:                 wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
     rows = []
     for label, extra in (("lockstep, 7 processes", []), ("lockstep, --single-process", ["--single-process"])):

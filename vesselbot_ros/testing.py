@@ -32,7 +32,7 @@ from typing import Any
 
 from vesselbot_ros.ros_env import allocate_domain, ros_environment
 
-__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "fill_message"]
+__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "spin_node", "fill_message"]
 
 
 @dataclass
@@ -130,6 +130,25 @@ def spin_until(executor: Any, predicate: Callable[[], bool], timeout: float, ste
             return True
         executor.spin_once(timeout_sec=step)
     return predicate()
+
+
+def spin_node(node: Any) -> int:
+    """Spin a peer node until SIGINT/SIGTERM, then destroy it and shut rclpy down; return 0.
+
+    For small node scripts (test peers, stand-ins) whose ``main()`` is just
+    "create the node, spin it, exit cleanly when stopped".
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
 
 
 def fill_message(msg: Any, seed: int = 1) -> Any:

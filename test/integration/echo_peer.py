@@ -8,11 +8,11 @@ request, so that the test can compare deserialized content both ways.
 import sys
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy
 
 from vesselbot_msgs import msg as vm
 from vesselbot_msgs import srv as vs
+from vesselbot_ros.testing import spin_node
 
 MESSAGES = ["PlantState", "ForceBreakdown", "ReferenceSample", "CoilState"]
 
@@ -44,17 +44,7 @@ def main() -> int:
     node.create_service(vs.InjectFault, "/echo/inject_fault", inject)
     node.create_service(vs.RunControl, "/echo/run_control", run_control)
     print("echo_peer ready", flush=True)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    try:
-        while rclpy.ok():
-            ex.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(node)
 
 
 if __name__ == "__main__":

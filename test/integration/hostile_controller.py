@@ -17,8 +17,8 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
-from rclpy.executors import ExternalShutdownException
 
+from vesselbot_ros.testing import spin_node
 from vesselbot_ros.topics import qos_profile, topic
 
 
@@ -58,14 +58,7 @@ def main() -> int:
 
     est_spec = topic("estimate")
     node.create_subscription(Odometry, est_spec.name, on_estimate, qos_profile(est_spec))
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(node)
 
 
 if __name__ == "__main__":

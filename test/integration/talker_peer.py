@@ -3,8 +3,9 @@
 import sys
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from std_msgs.msg import String
+
+from vesselbot_ros.testing import spin_node
 
 
 def main() -> int:
@@ -12,14 +13,7 @@ def main() -> int:
     node = rclpy.create_node(f"talker_{sys.argv[1]}")
     pub = node.create_publisher(String, "/vesselbot/isolation", 10)
     node.create_timer(0.02, lambda: pub.publish(String(data=sys.argv[1])))
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(node)
 
 
 if __name__ == "__main__":
