@@ -229,7 +229,11 @@ class CoilLimiter:
             raise ModelInputError(f"watchdog time must be finite, got {t_now_s!r}")
         if t_now_s - self._t_last_command <= self.limits.command_timeout_s:
             return None
-        dt = self._dt(t_now_s)
+        self._dt(t_now_s)  # checks that time does not go backwards
+        # The output did not move while it was held for command_timeout_s, so that
+        # interval is not slew time: the ramp starts when the timeout expires.
+        ramp_start = max(self._t_prev, self._t_last_command + self.limits.command_timeout_s)
+        dt = max(float(t_now_s) - ramp_start, 0.0)
         self._t_prev = float(t_now_s)
         over = self._slew_to(np.zeros(2), dt)
         return CoilOutput(self._applied.copy(), 1.0, False, over, False)

@@ -410,13 +410,15 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         if options.mode == "lockstep":
             _wait(lambda: mon.got["coil_state"] >= n and mon.got["estimate"] >= n and mon.got["reference"] >= n
                   and mon.got["truth"] >= n, 30.0, mon, procs, "the last messages of the run at the launcher")
-        else:  # real time: no per-tick guarantee; give the last messages a moment
-            grace = time.monotonic() + 0.5
+        else:  # real time: no per-tick guarantee, and only the plant marks itself finished.  With
+            # /clock stopped nothing publishes any more; after one full diagnostics period (~1 Hz)
+            # every node's published counts are final.
+            grace = time.monotonic() + (1.5 if recorder is not None else 0.5)
             while time.monotonic() < grace:
                 mon.spin(0.05)
         if recorder is not None:
-            _wait(lambda: _recorder_caught_up(mon, roles), 30.0, mon, procs + [recorder],
-                  "the recorder's received counts to match the published counts")
+            _wait(lambda: _recorder_caught_up(mon, roles, require_finished=options.mode == "lockstep"), 30.0,
+                  mon, procs + [recorder], "the recorder's received counts to match the published counts")
         finished_ok = True
         diagnostics = dict(mon.diag)
     finally:
@@ -489,7 +491,7 @@ def _recorder_has_seen(mon: _Monitor) -> bool:
     return all(received.get(topic(key).name, 0) >= n for key, n in mon.got.items())
 
 
-def _recorder_caught_up(mon: _Monitor, roles: Sequence[str]) -> bool:
+def _recorder_caught_up(mon: _Monitor, roles: Sequence[str], require_finished: bool = True) -> bool:
     rec = mon.diag.get(NODE_NAMES["recorder"])
     if rec is None:
         return False
@@ -497,7 +499,7 @@ def _recorder_caught_up(mon: _Monitor, roles: Sequence[str]) -> bool:
     published: dict[str, int] = {}
     for r in roles:
         d = mon.diag.get(NODE_NAMES[r])
-        if d is None or d.get("finished") != "true":
+        if d is None or (require_finished and d.get("finished") != "true"):
             return False
         for t, c in _counts(d, "published:").items():
             published[t] = published.get(t, 0) + c

@@ -58,6 +58,7 @@ from rosgraph_msgs.msg import Clock
 
 from vesselbot_msgs.msg import CoilState
 from vesselbot_ros.control.actuator_limits import CoilOutput
+from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.sim.closed_loop import build_stages
@@ -128,7 +129,11 @@ class CoilDriverNode(VesselbotNode):
             self.count_received("gradient_command")
         self.commands_lost = False
         t = cv.tick_time(k, self.dt)
-        out = self.limiter.apply(t, g)
+        try:
+            out = self.limiter.apply(t, g)
+        except ModelInputError as exc:  # e.g. a time before the limiter's last output: never crash
+            self.reject("gradient_command", "stale_stamp", str(exc))
+            return
         self.rejected_commands += int(out.rejected)
         self._emit(k, t, g if ok else np.zeros(2), out, watchdog=False)
 
@@ -144,23 +149,10 @@ class CoilDriverNode(VesselbotNode):
                 self.mark_finished()
 
     def _watchdog_output(self, t: float) -> tuple[CoilOutput, bool]:
-        out = self._watchdog(t)
+        out = self.limiter.watchdog(t)
         if out is None:  # within command_timeout_s: hold
             return CoilOutput(self.limiter.applied, 1.0, False, np.zeros(2, dtype=bool), False), False
         return out, True
-
-    def _watchdog(self, t: float) -> CoilOutput | None:
-        """``CoilLimiter.watchdog(t)``, with the held interval not counted as slew time.
-
-        The limiter measures the slew step from its last *applied* time, so after holding for
-        ``command_timeout_s`` its first ramp step would be ``slew * command_timeout_s`` in one
-        tick (a jump).  While the watchdog holds, the output does not move: we advance the
-        limiter's time with it, so the ramp starts at ``slew * dt`` per tick.
-        """
-        out = self.limiter.watchdog(t)
-        if out is None:
-            self.limiter._t_prev = max(self.limiter._t_prev, t)  # noqa: SLF001 - see docstring
-        return out
 
     def _lockstep_watchdog(self) -> None:
         wait = min(self.graph.stall_timeout_s, LOST_GRACE_S) if self.commands_lost else self.graph.stall_timeout_s
@@ -180,7 +172,7 @@ class CoilDriverNode(VesselbotNode):
         t = cv.tick_time(k, self.dt)
         if t <= self._t_last:
             return
-        out = self._watchdog(t)
+        out = self.limiter.watchdog(t)
         if out is not None:
             self.watchdog_ticks += 1
             self._emit(k, t, np.zeros(2), out, watchdog=True)

@@ -72,11 +72,24 @@ def test_watchdog_ramps_to_zero_after_timeout() -> None:
     lim = CoilLimiter(CoilLimits(command_timeout_s=0.05, slew_rate="custom", custom_slew_rate_T_per_m_per_s=1.0))
     lim.apply(0.1, [0.08, 0.0])
     assert lim.watchdog(0.12) is None  # within the timeout: nothing
-    out = lim.watchdog(0.16)  # 1 T/m/s * 0.06 s since the last apply
+    # held until 0.1 + 0.05 = 0.15 s; the ramp runs from there: 1 T/m/s * (0.16 - 0.15) s
+    out = lim.watchdog(0.16)
     assert out is not None
-    np.testing.assert_allclose(out.applied, [0.08 - 0.06, 0.0], rtol=1e-9)
+    np.testing.assert_allclose(out.applied, [0.08 - 0.01, 0.0], rtol=1e-9)
+    out = lim.watchdog(0.17)  # one more 10 ms step
+    np.testing.assert_allclose(out.applied, [0.08 - 0.02, 0.0], rtol=1e-9)
     out = lim.watchdog(1.0)
     np.testing.assert_array_equal(out.applied, [0.0, 0.0])
+
+
+def test_watchdog_polled_while_commands_flow_never_blocks_a_later_command() -> None:
+    # a real-time driver polls the watchdog every tick; commands arrive stamped slightly in the past
+    lim = CoilLimiter(CoilLimits(command_timeout_s=0.05))
+    lim.apply(0.010, [0.01, 0.0])
+    for t in (0.011, 0.012, 0.013):
+        assert lim.watchdog(t) is None
+    out = lim.apply(0.011, [0.02, 0.0])  # the limiter's clock was not advanced by the polls
+    np.testing.assert_allclose(out.applied, [0.02, 0.0])
 
 
 def test_time_going_backwards_raises() -> None:

@@ -46,3 +46,23 @@ def test_missing_key_and_bad_lengths() -> None:
     s["p_ref"] = s["p_ref"][:5]
     with pytest.raises(ModelInputError, match=r"timeseries\['p_ref'\] has 5 rows"):
         compute_metrics(s)
+
+
+def test_missing_samples_are_left_out_not_propagated():
+    from vesselbot_ros.sim.metrics import compute_metrics
+
+    n = 10
+    t = np.arange(n) * 1e-3
+    p = np.zeros((n, 2))
+    ref = np.zeros((n, 2))
+    ref[:, 1] = 1e-4  # 100 um tracking error everywhere
+    g = np.zeros((n, 2))
+    g[:, 0] = 0.05
+    g[3] = np.nan  # a coil sample that never arrived
+    ref[5] = np.nan
+    ts = {"t_s": t, "p_true": p, "v_true": p, "p_ref": ref, "x_hat": p, "z_hat": p, "g_applied": g,
+          "saturated": np.zeros(n, bool), "slew_limited": np.zeros(n, bool), "in_contact": np.zeros(n, bool)}
+    m = compute_metrics(ts, after_s=0.0)
+    assert m["max_gradient_T_per_m"] == pytest.approx(0.05)
+    assert m["tracking_error_max_m"] == pytest.approx(1e-4)
+    assert m["tracking_error_rms_m"] == pytest.approx(1e-4)
