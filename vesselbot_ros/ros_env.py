@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-__all__ = ["DomainLease", "allocate_domain", "ros_environment"]
+__all__ = ["DomainLease", "allocate_domain", "ros_environment", "apply_to_process", "restore_process_env"]
 
 # Linux-safe domain ids are 0..101 (higher ones may collide with ephemeral
 # ports).  0 is the default that other programs use: never take it.
@@ -102,3 +102,27 @@ def ros_environment(domain_id: int, log_dir: str | os.PathLike[str], base: dict[
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
+
+_PROCESS_KEYS = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")
+
+
+def apply_to_process(env: dict[str, str]) -> dict[str, str | None]:
+    """Put a run's ROS settings into this process's ``os.environ``; return what they replaced.
+
+    rcl reads ``ROS_LOG_DIR`` and discovery settings from the process environment, so an
+    in-process Context (launcher, test, re-estimation) needs them too.  Undo with
+    :func:`restore_process_env`.
+    """
+    saved = {k: os.environ.get(k) for k in _PROCESS_KEYS}
+    os.environ.update({k: env[k] for k in _PROCESS_KEYS})
+    return saved
+
+
+def restore_process_env(saved: dict[str, str | None]) -> None:
+    """Undo :func:`apply_to_process`."""
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vesselbot_ros.ros_env import allocate_domain, ros_environment
+from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 
 __all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "spin_node", "fill_message"]
 
@@ -53,19 +53,14 @@ def isolated_ros(workdir: str | os.PathLike[str], domain_id: int | None = None) 
     lease = allocate_domain(domain_id)
     log_dir = Path(workdir) / "ros_log"
     env = ros_environment(lease.domain_id, log_dir)
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
-    os.environ.update({k: env[k] for k in saved})
+    saved = apply_to_process(env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=lease.domain_id)
     try:
         yield RosSandbox(lease.domain_id, env, log_dir, context)
     finally:
         rclpy.try_shutdown(context=context)
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        restore_process_env(saved)
         lease.release()
 
 

@@ -505,7 +505,7 @@ def reestimate(
     from vesselbot_ros.bag.writer import BagWriter, check_output_dir
     from vesselbot_ros.nodes.base import GraphParams
     from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
-    from vesselbot_ros.ros_env import allocate_domain, ros_environment
+    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
     from vesselbot_ros.sim.scenario import scenario_from_mapping
 
     if not answer_timeout_s > 0 or not wait_timeout_s > 0:
@@ -526,8 +526,7 @@ def reestimate(
 
     lease = allocate_domain(domain_id)
     env = ros_environment(lease.domain_id, log_dir)
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
-    os.environ.update({k: env[k] for k in saved})
+    saved = apply_to_process(env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     feeder: _Feeder | None = None
@@ -611,11 +610,7 @@ def reestimate(
         if feeder is not None:
             feeder.close()
         rclpy.try_shutdown(context=context)
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        restore_process_env(saved)
         lease.release()
 
     # ---- compare

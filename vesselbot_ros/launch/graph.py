@@ -49,7 +49,7 @@ import numpy as np
 
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
-from vesselbot_ros.ros_env import allocate_domain, ros_environment
+from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.topics import NODE_NAMES, TOPICS, topic
@@ -322,8 +322,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     params = scenario_to_parameters(scenario)
     params.update({f"graph.{f.name}": getattr(graph, f.name) for f in dataclasses.fields(GraphParams)})
     params_file = write_params_file(log_dir / "params.yaml", params)
-    saved_env = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
-    os.environ.update({k: env[k] for k in saved_env})
+    saved_env = apply_to_process(env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     n = scenario.sim.n_ticks
@@ -447,11 +446,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             recorder.close()
         mon.close()
         rclpy.try_shutdown(context=context)
-        for k, v in saved_env.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        restore_process_env(saved_env)
         lease.release()
         if interrupted:
             print("vesselbot run: interrupted; nodes stopped" + (", bag finalised" if recorder else ""), file=sys.stderr)
