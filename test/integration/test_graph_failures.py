@@ -7,26 +7,12 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 pytest.importorskip("rclpy")
 
-
-def _children(pid: int) -> dict[int, str]:
-    out = {}
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            if ppid == pid:
-                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except (OSError, ValueError, IndexError):
-            continue
-    return out
+from _runs import children, node_pid  # noqa: E402
 
 
 def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
@@ -40,10 +26,9 @@ def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
             line = launcher.stdout.readline()
             assert line or launcher.poll() is None, launcher.stderr.read()
         assert "sim " in line
-        victims = [p for p, c in _children(launcher.pid).items() if "vesselbot_ros.nodes.observer_node" in c]
-        assert len(victims) == 1
+        victim = node_pid(launcher.pid, "observer")  # asserts there is exactly one
         t0 = time.monotonic()
-        os.kill(victims[0], signal.SIGKILL)
+        os.kill(victim, signal.SIGKILL)
         _, err = launcher.communicate(timeout=60)
         assert time.monotonic() - t0 < 30
     finally:
@@ -52,7 +37,7 @@ def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
     assert launcher.returncode == 1
     assert "node observer died (exit code -9)" in err
     # the other nodes were stopped, not orphaned
-    assert not _children(launcher.pid)
+    assert not children(launcher.pid)
 
 
 def test_user_controller_takes_the_controller_slot(repo, tmp_path):
