@@ -228,7 +228,7 @@ def to_mapping(obj: Any) -> Any:
         return {f.name: to_mapping(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, (list, tuple)):
         return [to_mapping(v) for v in obj]
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):
         return {k: to_mapping(v) for k, v in obj.items()}
     return obj
 

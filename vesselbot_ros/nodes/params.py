@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from vesselbot_ros.config import ConfigError, unflatten
+from vesselbot_ros.config import ConfigError, to_mapping, unflatten
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
 __all__ = [
@@ -91,19 +91,9 @@ def _walk(cls: type, prefix: str, value: Any, out: dict[str, ParamSpec]) -> None
             out[name] = ParamSpec(name, _encode(v), True)
 
 
-def _plain(value: Any) -> Any:
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
-
-
 def _encode(value: Any) -> str:
     # JSON is YAML, and it is compact and unambiguous (None -> null, () -> []).
-    return json.dumps(_plain(value), separators=(", ", ": "))
+    return json.dumps(to_mapping(value), separators=(", ", ": "))
 
 
 _SCHEMA: dict[str, ParamSpec] | None = None
