@@ -8,13 +8,16 @@ provides::
     def run(args: argparse.Namespace) -> int                # exit code
 
 A :class:`~vesselbot_ros.config.ConfigError` (or any ``VesselbotError``)
-escaping ``run`` is printed as one clear line and exits with code 2.
+escaping ``run`` is printed as one clear line and exits with code 2; so is an
+``OSError`` (a full disk, a missing permission).  A closed stdout (``vesselbot
+bag info DIR | head -3``) ends the command quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -39,7 +42,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        # argparse %-formats help strings: "+/-10 % on M" would read "% o" as a conversion
+        p = sub.add_parser(name, help=help_text.replace("%", "%%"), description=help_text)
         if only == name:
             importlib.import_module(module).register(p)
     return parser
@@ -47,6 +51,25 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vesselbot`` console script."""
+    try:
+        code = _main(argv)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        # the reader of our stdout went away (``| head``): stop quietly, as cat does
+        _silence_stdout()
+        return 141
+
+
+def _silence_stdout() -> None:
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv: Sequence[str] | None) -> int:
     from vesselbot_ros.config import ConfigError
     from vesselbot_ros.errors import VesselbotError
 
@@ -62,6 +85,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(module.run(args) or 0)
     except (ConfigError, VesselbotError) as exc:
         print(f"vesselbot {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        raise
+    except OSError as exc:  # a full disk, a permission: one line, not a traceback
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"vesselbot {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"vesselbot {args.command}: interrupted", file=sys.stderr)

@@ -41,6 +41,8 @@ __all__ = [
     "load_dataclass",
     "load_yaml",
     "parse_yaml_text",
+    "parse_set_items",
+    "apply_overrides",
     "to_mapping",
     "flatten",
     "unflatten",
@@ -233,12 +235,55 @@ def to_mapping(obj: Any) -> Any:
     return obj
 
 
+# Bounds on what the loaders parse: a scenario is a few kB, a handful of levels
+# deep, and never needs more than a few thousand values.
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_DEPTH = 32
+MAX_CONFIG_NODES = 100_000
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-6`` and ``1.72e6`` as floats.
+    """SafeLoader that reads ``1e-6`` and ``1.72e6`` as floats, refuses duplicate keys and bounds its input.
 
     PyYAML implements YAML 1.1, whose float pattern needs a dot and a signed
-    exponent, so ``1e-6`` would silently load as the *string* "1e-6".
+    exponent, so ``1e-6`` would silently load as the *string* "1e-6".  It also
+    silently keeps the last of two equal keys; here that is an error naming the
+    key and both lines.  Nesting deeper than :data:`MAX_CONFIG_DEPTH` is
+    refused while composing (before Python's recursion limit is reached).
     """
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:  # noqa: D102
+        self._depth += 1
+        try:
+            if self._depth > MAX_CONFIG_DEPTH:
+                mark = self.peek_event().start_mark
+                raise yaml.YAMLError(
+                    f"nesting deeper than {MAX_CONFIG_DEPTH} levels at line {mark.line + 1} column {mark.column + 1}"
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:  # noqa: D102
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.get(key)
+                except TypeError:
+                    continue
+                if first is not None:
+                    raise yaml.YAMLError(
+                        f"duplicate key {key!r} at line {first.start_mark.line + 1} "
+                        f"and line {key_node.start_mark.line + 1}"
+                    )
+                seen[key] = key_node
+        return super().construct_mapping(node, deep=deep)
 
 
 _Loader.add_implicit_resolver(
@@ -255,25 +300,161 @@ _Loader.add_implicit_resolver(
 )
 
 
-def parse_yaml_text(text: str) -> Any:
-    """Parse YAML text with the project's float-aware loader (see :class:`_Loader`)."""
-    return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
+def _expanded_size(node: Any, limit: int) -> int:
+    """Nodes in ``node`` with every alias expanded; raise past ``limit`` or on a cycle."""
+    memo: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(n: Any) -> int:
+        key = id(n)
+        if key in memo:
+            return memo[key]
+        if key in active:
+            mark = n.start_mark
+            raise yaml.YAMLError(f"recursive alias at line {mark.line + 1} column {mark.column + 1}")
+        total = 1
+        if isinstance(n, (yaml.SequenceNode, yaml.MappingNode)):
+            active.add(key)
+            for child in n.value:
+                parts = child if isinstance(child, tuple) else (child,)
+                for part in parts:
+                    total += size(part)
+                    if total > limit:
+                        raise yaml.YAMLError(
+                            f"more than {limit} values once aliases are expanded (a self-expanding document?)"
+                        )
+            active.discard(key)
+        memo[key] = total
+        return total
+
+    return size(node)
+
+
+def _where(exc: yaml.YAMLError) -> str:
+    """``line L column C: problem`` from a PyYAML error (no Python repr, no Mark object)."""
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    problem = getattr(exc, "problem", None) or getattr(exc, "context", None)
+    if isinstance(exc, yaml.reader.ReaderError):
+        return f"character {exc.position}: {exc.reason} (not a text file?)"
+    if problem is None:
+        return str(exc)
+    if mark is None:
+        return str(problem)
+    return f"line {mark.line + 1} column {mark.column + 1}: {problem}"
+
+
+def parse_yaml_text(text: str, source: str = "YAML text") -> Any:
+    """Parse YAML text with the project's one loader (see :class:`_Loader`).
+
+    This is the only YAML reader of configuration values: scenario files,
+    ``--set KEY=VALUE`` values and the YAML-encoded ROS parameters all go
+    through it, so ``1e-6`` is a float everywhere.  Size, nesting depth and
+    alias expansion are bounded (:data:`MAX_CONFIG_BYTES`,
+    :data:`MAX_CONFIG_DEPTH`, :data:`MAX_CONFIG_NODES`).
+
+    Raises:
+        ConfigError: naming ``source``, the line and the column.
+    """
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source} is {len(text)} characters; a configuration is at most {MAX_CONFIG_BYTES}")
+    loader = None
+    try:
+        loader = _Loader(text)
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node, MAX_CONFIG_NODES)
+        return loader.construct_document(node)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source} is not valid YAML: {_where(exc)}") from None
+    except RecursionError:
+        raise ConfigError(f"{source} is nested too deeply") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping from ``path`` with a clear error for every failure mode."""
+    """Read a non-empty YAML mapping from ``path`` with a clear error for every failure mode.
+
+    Refused, each with one line naming the file: a missing file, a file larger
+    than :data:`MAX_CONFIG_BYTES`, one that is not UTF-8 text, invalid YAML
+    (line and column), duplicate keys (both lines), nesting or alias
+    expansion past the bounds of :func:`parse_yaml_text`, an empty document
+    and a document that is not a mapping.
+    """
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"config file {str(p)!r} does not exist")
     try:
-        data = parse_yaml_text(p.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from None
-    if data is None:
-        return {}
+        size = p.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {str(p)!r} is {size} bytes; a configuration is at most {MAX_CONFIG_BYTES}")
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"config file {str(p)!r} cannot be read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"config file {str(p)!r} is not UTF-8 text (byte {exc.start}); is it a YAML file?") from None
+    data = parse_yaml_text(text, source=f"config file {str(p)!r}")
+    if data is None or data == {}:
+        raise ConfigError(f"config file {str(p)!r} is empty; it must hold a mapping of configuration keys")
     if not isinstance(data, dict):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at top level, got {type(data).__name__}")
     return data
+
+
+def parse_set_items(items: typing.Iterable[str], option: str = "--set") -> dict[str, Any]:
+    """Parse ``KEY=VALUE`` strings into ``{dotted key: value}`` (VALUE read by :func:`parse_yaml_text`).
+
+    Raises:
+        ConfigError: on a missing ``=``, an empty key or a value that is not YAML.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key or any(not part for part in key.split(".")):
+            raise ConfigError(f"{option} expects KEY=VALUE with a dotted KEY, got {item!r}")
+        out[key] = parse_yaml_text(value, source=f"{option} {key}")
+    return out
+
+
+def apply_overrides(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Return a copy of ``mapping`` with each dotted key of ``overrides`` set to its value.
+
+    The one override path of every command (``--set``, ``--duration``,
+    ``--seed``): a value *replaces* what is at its key, so ``model.overrides={}``
+    clears a mapping instead of being merged into it.  Missing intermediate
+    mappings are created; the result is validated later by the loader, which
+    rejects unknown keys.
+
+    Raises:
+        ConfigError: if a key runs through a value that is not a mapping.
+    """
+    out = _copy_tree(mapping)
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                where = ".".join(parts[: i + 1])
+                raise ConfigError(f"cannot set {dotted}: {where} is {child!r}, not a mapping")
+            node = child
+        node[parts[-1]] = _copy_tree(value)
+    return out
+
+
+def _copy_tree(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: _copy_tree(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy_tree(v) for v in value]
+    return value
 
 
 def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -8,12 +8,15 @@ from typing import Literal
 import pytest
 
 from vesselbot_ros.config import (
+    MAX_CONFIG_BYTES,
     ConfigError,
+    apply_overrides,
     check_positive,
     check_range,
     flatten,
     load_dataclass,
     load_yaml,
+    parse_set_items,
     to_mapping,
     unflatten,
 )
@@ -96,3 +99,91 @@ def test_yaml_exponent_floats_without_a_dot_are_numbers(tmp_path):
     data = load_yaml(f)
     assert data == {"a": 1e-6, "b": 1.72e6, "c": 3, "d": -2000.0, "e": "text1e5"}
     assert isinstance(data["c"], int)
+
+
+# -- what is not a configuration is refused with one line (issue 14) ---------------------------------------------
+
+
+def _file(tmp_path, content, name="c.yaml"):
+    f = tmp_path / name
+    if isinstance(content, bytes):
+        f.write_bytes(content)
+    else:
+        f.write_text(content)
+    return f
+
+
+@pytest.mark.parametrize("content", ["", "\n# only a comment\n", "---\n", "{}\n"])
+def test_empty_file_is_refused(tmp_path, content):
+    with pytest.raises(ConfigError, match=r"c\.yaml' is empty"):
+        load_yaml(_file(tmp_path, content))
+
+
+def test_binary_file_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"is not UTF-8 text \(byte 0\)"):
+        load_yaml(_file(tmp_path, b"\x89\xff\xfe\x00PNG\x00\x01"))
+    with pytest.raises(ConfigError, match=r"not a text file"):
+        load_yaml(_file(tmp_path, b"a: 1\n\x00\x01\x02"))
+
+
+@pytest.mark.parametrize("text", ["a: " + "[" * 5000 + "]" * 5000, "a:\n" + "".join(" " * i + "- \n" for i in range(200))])
+def test_deeply_nested_file_is_refused_before_recursion(tmp_path, text):
+    with pytest.raises(ConfigError, match=r"nesting deeper than 32 levels at line \d+ column \d+"):
+        load_yaml(_file(tmp_path, text))
+
+
+def test_huge_file_is_refused_without_reading_it(tmp_path):
+    f = tmp_path / "big.yaml"
+    with f.open("w") as fh:
+        fh.write("a: '")
+        fh.seek(MAX_CONFIG_BYTES + 10)
+        fh.write("'\n")
+    with pytest.raises(ConfigError, match=r"big\.yaml' is \d+ bytes; a configuration is at most"):
+        load_yaml(f)
+
+
+def test_self_expanding_yaml_is_refused(tmp_path):
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    for i in range(1, 10):
+        lines.append(f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]")
+    with pytest.raises(ConfigError, match="aliases are expanded"):
+        load_yaml(_file(tmp_path, "\n".join(lines) + "\n"))
+    with pytest.raises(ConfigError, match="recursive alias at line 1"):
+        load_yaml(_file(tmp_path, "a: &x [1, *x]\n"))
+    # a few aliases are fine
+    assert load_yaml(_file(tmp_path, "a: &v [1, 2]\nb: *v\n")) == {"a": [1, 2], "b": [1, 2]}
+
+
+def test_duplicate_key_names_the_key_and_both_lines(tmp_path):
+    with pytest.raises(ConfigError, match=r"duplicate key 'sim' at line 1 and line 4"):
+        load_yaml(_file(tmp_path, "sim:\n  duration_s: 1\nname: x\nsim:\n  duration_s: 2\n"))
+    with pytest.raises(ConfigError, match=r"duplicate key 'duration_s' at line 2 and line 3"):
+        load_yaml(_file(tmp_path, "sim:\n  duration_s: 1\n  duration_s: 2\n"))
+
+
+def test_invalid_yaml_names_line_and_column_not_a_python_repr(tmp_path):
+    with pytest.raises(ConfigError) as info:
+        load_yaml(_file(tmp_path, "a: 1\nb: [1, 2\nc: 3\n"))
+    msg = str(info.value)
+    assert "line " in msg and "column " in msg and "Mark" not in msg and "0x" not in msg
+
+
+def test_yaml_text_bounds_apply_to_set_values():
+    with pytest.raises(ConfigError, match="--set a is not valid YAML: duplicate key 'k'"):
+        parse_set_items(["a={k: 1, k: 2}"])
+    assert parse_set_items(["imager.noise_sigma_m=1e-4", "x.y= [1, 2e3]"]) == {
+        "imager.noise_sigma_m": 1e-4, "x.y": [1, 2000.0]}
+    for bad in ["novalue", "=3", "a..b=1", ".a=1"]:
+        with pytest.raises(ConfigError, match="--set expects KEY=VALUE"):
+            parse_set_items([bad])
+
+
+def test_overrides_replace_mappings_and_never_touch_the_original():
+    base = {"model": {"overrides": {"flow": {"v": 1.0}}, "input_mapping": "with_tau_m"}, "seed": 1}
+    out = apply_overrides(base, {"model.overrides": {}, "seed": 3, "sim.duration_s": 0.5})
+    assert out == {"model": {"overrides": {}, "input_mapping": "with_tau_m"}, "seed": 3, "sim": {"duration_s": 0.5}}
+    assert base["model"]["overrides"] == {"flow": {"v": 1.0}}
+    out = apply_overrides(base, {"model.overrides.flow.v": 2.0})
+    assert out["model"]["overrides"] == {"flow": {"v": 2.0}}
+    with pytest.raises(ConfigError, match=r"cannot set seed\.x: seed is 1, not a mapping"):
+        apply_overrides(base, {"seed.x": 2})

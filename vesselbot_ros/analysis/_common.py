@@ -6,9 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from vesselbot_ros.config import ConfigError, load_dataclass, load_yaml, unflatten
+from vesselbot_ros.config import ConfigError, apply_overrides, load_dataclass, load_yaml, parse_set_items
 from vesselbot_ros.physics.params import PhysicsParams
 
 __all__ = ["add_config_arguments", "load_physics", "load_study_mapping", "parse_sets"]
@@ -30,30 +28,12 @@ def add_config_arguments(parser: argparse.ArgumentParser, out_default: str, stud
 
 
 def parse_sets(items: list[str]) -> dict[str, Any]:
-    """Parse ``KEY=VALUE`` strings (VALUE as YAML) into a nested mapping."""
-    flat: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        try:
-            parsed = yaml.safe_load(value)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {key}: value {value!r} is not valid YAML: {exc}") from None
-        if isinstance(parsed, str):
-            try:  # YAML 1.1 reads 1e-6 (no dot) as a string
-                parsed = float(parsed)
-            except ValueError:
-                pass
-        flat[key.strip()] = parsed
-    return unflatten(flat)
+    """Parse ``KEY=VALUE`` strings (VALUE read by the project's one YAML parser) into dotted overrides."""
+    return parse_set_items(items)
 
 
-def _merge(base: dict[str, Any], upd: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for k, v in upd.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
+def _prefixed(sets: dict[str, Any], name: str) -> dict[str, Any]:
+    return {k[len(name) + 1:]: v for k, v in sets.items() if k.startswith(name + ".")}
 
 
 def _section(path: str, name: str) -> dict[str, Any]:
@@ -67,14 +47,13 @@ def _section(path: str, name: str) -> dict[str, Any]:
 def load_physics(args: argparse.Namespace) -> PhysicsParams:
     """PhysicsParams from --physics-config plus ``physics.*`` --set overrides."""
     sets = parse_sets(args.set)
-    unknown = sorted(set(sets) - {"physics", "design_study"})
+    unknown = sorted(k for k in sets if k.split(".", 1)[0] not in ("physics", "design_study") or "." not in k)
     if unknown:
         raise ConfigError(f"--set key must start with 'physics.' or 'design_study.', got {unknown[0]!r}")
-    mapping = _merge(_section(args.physics_config, "physics"), sets.get("physics", {}))
+    mapping = apply_overrides(_section(args.physics_config, "physics"), _prefixed(sets, "physics"))
     return load_dataclass(PhysicsParams, mapping, "physics")
 
 
 def load_study_mapping(args: argparse.Namespace) -> dict[str, Any]:
     """The ``design_study`` mapping from --study-config plus --set overrides."""
-    sets = parse_sets(args.set)
-    return _merge(_section(args.study_config, "design_study"), sets.get("design_study", {}))
+    return apply_overrides(_section(args.study_config, "design_study"), _prefixed(parse_sets(args.set), "design_study"))

@@ -30,7 +30,10 @@ Returned keys (all floats / ints, SI units in the name):
   axis slew-limited (ticks times the tick period), whole run;
 * ``wall_contacts``: number of contact onsets; ``contact_time_s``;
 * ``max_gradient_T_per_m``: largest ``||g_applied||``;
-* ``after_s``, ``duration_s``, ``n_ticks``.
+* ``after_s``, ``duration_s``, ``n_ticks``: ``after_s`` is the start of the
+  window actually used; a run that ends before the requested window starts
+  is reported over the whole run (``after_s`` = first tick) and
+  ``metrics_window_note`` says so in words.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["REQUIRED_KEYS", "compute_metrics"]
+__all__ = ["REQUIRED_KEYS", "compute_metrics", "metrics_window_note"]
 
 REQUIRED_KEYS = (
     "t_s",
@@ -79,7 +82,9 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
         after_s: Start of the steady-state window (s); paper: 0.6.
 
     Returns:
-        Dict of metrics; window metrics are NaN if no tick lies after ``after_s``.
+        Dict of metrics.  If no tick lies at or after ``after_s`` (a run
+        shorter than the window start) the window metrics cover the whole run
+        and ``after_s`` is the first tick time (see :func:`metrics_window_note`).
         Rows holding NaN (a sample that never arrived, in a real-time run) are
         left out of the error and gradient statistics.
 
@@ -99,6 +104,10 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
         raise ModelInputError(f"timeseries needs at least 2 ticks, got {n}")
     dt = float(np.median(np.diff(t)))
     win = t >= after_s - 1e-12
+    window_start = float(after_s)
+    if not np.any(win):  # the run ends before the window starts: report over the run
+        win = np.ones(n, dtype=bool)
+        window_start = float(t[0])
     p = arrs["p_true"].astype(np.float64)
     e_track = _norm_rows(p - arrs["p_ref"].astype(np.float64))
     e_est = _norm_rows(arrs["x_hat"].astype(np.float64) - p)
@@ -112,7 +121,7 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
     if slew.ndim == 2:
         slew = np.any(slew, axis=1)
     return {
-        "after_s": float(after_s),
+        "after_s": window_start,
         "duration_s": float(t[-1] - t[0] + dt),
         "n_ticks": int(n),
         "tracking_error_max_m": tr_max,
@@ -128,3 +137,16 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
         "contact_time_s": float(np.count_nonzero(contact) * dt),
         "max_gradient_T_per_m": _max_rms(_norm_rows(arrs["g_applied"].astype(np.float64)))[0],
     }
+
+
+def metrics_window_note(metrics: Mapping[str, Any], requested_after_s: float) -> str | None:
+    """One line saying that the metrics window had to change, or None if it did not.
+
+    Args:
+        metrics: The result of :func:`compute_metrics`.
+        requested_after_s: The ``after_s`` that was asked for (``sim.metrics_after_s``).
+    """
+    if abs(float(metrics["after_s"]) - float(requested_after_s)) <= 1e-12:
+        return None
+    return (f"note: the run ({float(metrics['duration_s']):g} s) ends before the metrics window starts "
+            f"(sim.metrics_after_s = {float(requested_after_s):g} s); the window metrics cover the whole run")

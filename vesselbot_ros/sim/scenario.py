@@ -14,17 +14,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import shutil
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal
 
 from vesselbot_ros.config import (
     ConfigError,
+    apply_overrides,
     check_choice,
     check_finite,
     check_nonnegative,
     check_positive,
     load_dataclass,
     load_yaml,
+    parse_set_items,
     to_mapping,
 )
 from vesselbot_ros.control.actuator_limits import CoilLimits
@@ -43,7 +48,20 @@ __all__ = [
     "Scenario",
     "load_scenario",
     "scenario_from_mapping",
+    "scenario_overrides",
+    "estimate_resources",
+    "check_resources",
+    "BYTES_PER_TICK",
+    "BAG_BYTES_PER_TICK",
 ]
+
+# What one control tick costs: the runner's and the launcher's per-tick time
+# series (about 30 float64 columns plus flags) and the temporaries of the
+# metrics, rounded up; with ``sim.record_forces`` the (8, 2) force terms.
+BYTES_PER_TICK = 512
+FORCE_BYTES_PER_TICK = 8 * 2 * 8
+# What one tick adds to a recorded bag (about 120 MB for 60 s at 1 kHz).
+BAG_BYTES_PER_TICK = 2048
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,6 +133,12 @@ class SimParams:
         check_positive("duration_s", self.duration_s)
         check_positive("control_rate_Hz", self.control_rate_Hz)
         check_nonnegative("metrics_after_s", self.metrics_after_s)
+        ticks = self.duration_s * self.control_rate_Hz
+        if ticks < 2:
+            raise ConfigError(
+                f"control_rate_Hz must give at least 2 control ticks in duration_s={self.duration_s!r} s, "
+                f"got {self.control_rate_Hz!r} ({ticks:.3g} ticks)"
+            )
 
     @property
     def dt_control_s(self) -> float:
@@ -201,11 +225,125 @@ def scenario_from_mapping(mapping: Any) -> Scenario:
     return load_dataclass(Scenario, mapping, "")
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Load a scenario YAML file.
+def scenario_overrides(
+    sets: Iterable[str] = (), duration: float | None = None, seed: int | None = None
+) -> dict[str, Any]:
+    """The dotted-key overrides of ``--set KEY=VALUE``, ``--duration S`` and ``--seed N``.
+
+    ``--duration`` is ``sim.duration_s`` and ``--seed`` is ``seed``; they win
+    over a ``--set`` of the same key.  Apply the result with
+    :func:`vesselbot_ros.config.apply_overrides`.
+    """
+    out = parse_set_items(sets)
+    if duration is not None:
+        out["sim.duration_s"] = duration
+    if seed is not None:
+        out["seed"] = seed
+    return out
+
+
+def load_scenario(
+    path: str | Path, *, sets: Iterable[str] = (), duration: float | None = None, seed: int | None = None
+) -> Scenario:
+    """Load a scenario YAML file, with the command line's overrides applied (one path for every command).
+
+    Args:
+        path: The scenario YAML file.
+        sets: ``KEY=VALUE`` strings (``--set``), VALUE read as YAML by the one
+            parser; a mapping value replaces the mapping at KEY.
+        duration: ``--duration`` (``sim.duration_s``), s.
+        seed: ``--seed``.
 
     Raises:
-        ConfigError: missing file, invalid YAML, unknown key, wrong type or
-            out-of-range value (the message names the dotted key and value).
+        ConfigError: missing or unreadable file, not a scenario (empty, binary,
+            too large, too deep, self-expanding), duplicate key, unknown key,
+            wrong type or out-of-range value (the message names the dotted key
+            and value).
     """
-    return scenario_from_mapping(load_yaml(path))
+    mapping = load_yaml(path)
+    return scenario_from_mapping(apply_overrides(mapping, scenario_overrides(sets, duration, seed)))
+
+
+@dataclasses.dataclass(frozen=True)
+class ResourceEstimate:
+    """What a run of a scenario will need.
+
+    Attributes:
+        n_ticks: Control ticks.
+        memory_bytes: Time series held in memory (runner or launcher).
+        bag_bytes: Size of the recorded bag.
+    """
+
+    n_ticks: int
+    memory_bytes: int
+    bag_bytes: int
+
+
+def estimate_resources(scenario: Scenario) -> ResourceEstimate:
+    """Estimate the memory and recording size of one run of ``scenario``."""
+    ticks = scenario.sim.duration_s * scenario.sim.control_rate_Hz
+    per_tick = BYTES_PER_TICK + (FORCE_BYTES_PER_TICK if scenario.sim.record_forces else 0)
+    n = int(min(ticks, 2**62))
+    return ResourceEstimate(n, int(min(ticks * per_tick, 2**62)), int(min(ticks * BAG_BYTES_PER_TICK, 2**62)))
+
+
+def _memory_budget_bytes() -> int:
+    """Half of this machine's physical memory (what one run may hold)."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        total = 8 * 2**30
+    return int(total // 2)
+
+
+def _fmt_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"  # pragma: no cover
+
+
+def check_resources(
+    scenario: Scenario, bag_dir: str | Path | None = None, memory_budget_bytes: int | None = None
+) -> ResourceEstimate:
+    """Refuse, before any work is done, a run that does not fit in memory (or on disk).
+
+    ``vesselbot simulate`` calls it before it runs anything; the launcher
+    (``vesselbot run``) calls it before it makes the run directory.
+
+    Args:
+        scenario: The validated scenario.
+        bag_dir: Where the bag will be recorded (its nearest existing parent
+            is checked for free space), or None for no recording.
+        memory_budget_bytes: Memory one run may hold (default: half of this
+            machine's physical memory).
+
+    Returns:
+        The estimate.
+
+    Raises:
+        ConfigError: one line naming ``sim.duration_s`` and
+            ``sim.control_rate_Hz``, what the run needs and what is available.
+    """
+    est = estimate_resources(scenario)
+    budget = _memory_budget_bytes() if memory_budget_bytes is None else memory_budget_bytes
+    sim = scenario.sim
+    what = f"sim.duration_s={sim.duration_s!r} s at sim.control_rate_Hz={sim.control_rate_Hz!r} Hz is {est.n_ticks:.3g} control ticks"
+    if est.memory_bytes > budget:
+        raise ConfigError(
+            f"{what}; its time series need about {_fmt_bytes(est.memory_bytes)}, more than the "
+            f"{_fmt_bytes(budget)} a run may use (half of this machine's memory): shorten sim.duration_s or lower "
+            f"sim.control_rate_Hz"
+        )
+    if bag_dir is not None:
+        parent = Path(bag_dir).expanduser().absolute()
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        free = shutil.disk_usage(parent).free
+        if est.bag_bytes > free:
+            raise ConfigError(
+                f"{what}; its recording needs about {_fmt_bytes(est.bag_bytes)}, more than the "
+                f"{_fmt_bytes(free)} free under {parent}: shorten sim.duration_s, lower sim.control_rate_Hz or use --no-record"
+            )
+    return est

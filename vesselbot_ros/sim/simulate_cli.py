@@ -16,14 +16,12 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
-
 import numpy as np
 import yaml
 
-from vesselbot_ros.config import ConfigError, load_yaml, unflatten
 from vesselbot_ros.sim.closed_loop import run_closed_loop
-from vesselbot_ros.sim.scenario import scenario_from_mapping
+from vesselbot_ros.sim.metrics import metrics_window_note
+from vesselbot_ros.sim.scenario import check_resources, load_scenario
 
 __all__ = ["register", "run"]
 
@@ -32,6 +30,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` arguments."""
     parser.add_argument("--config", required=True, help="scenario YAML, e.g. config/paper_small_artery.yaml")
     parser.add_argument("--seed", type=int, default=None, help="imager seed (default: the scenario's)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="override sim.duration_s (s)")
     parser.add_argument("--out", default=None, help="output directory (default out/simulate/<scenario>/)")
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE",
@@ -39,35 +38,23 @@ def register(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _merge(base: dict[str, Any], upd: dict[str, Any]) -> None:
-    for k, v in upd.items():
-        if isinstance(v, dict) and isinstance(base.get(k), dict):
-            _merge(base[k], v)
-        else:
-            base[k] = v
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the scenario and write metrics and time series; return 0."""
-    mapping = load_yaml(args.config)
-    overrides: dict[str, Any] = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
-        overrides[key.strip()] = yaml.safe_load(value)
-    _merge(mapping, unflatten(overrides))
-    scenario = scenario_from_mapping(mapping)
+    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
+    check_resources(scenario)  # before any work: one line if the run does not fit in memory
     out = Path(args.out) if args.out else Path("out") / "simulate" / scenario.name
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    result = run_closed_loop(scenario, seed=args.seed)
+    result = run_closed_loop(scenario)
     wall = time.perf_counter() - t0
     metrics = dict(result.metrics, wall_time_s=wall)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     np.savez_compressed(out / "timeseries.npz", **result.timeseries)
     (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_mapping(), sort_keys=False), encoding="utf-8")
     m = metrics
+    note = metrics_window_note(m, scenario.sim.metrics_after_s)
+    if note:
+        print(f"{scenario.name}: {note}")
     print(
         f"{scenario.name}: tracking error after {m['after_s']:g} s max {m['tracking_error_max_m'] * 1e6:.1f} um "
         f"rms {m['tracking_error_rms_m'] * 1e6:.1f} um; estimation error max {m['estimation_error_max_m'] * 1e6:.1f} um; "

@@ -64,3 +64,18 @@ def test_report_cli_writes_into_the_bag_by_default(synthetic_bag, tmp_path, caps
     assert main(["report", str(dst)]) == 0
     assert (dst / "report" / "metrics.json").is_file()
     assert "tracking error after 0.6 s" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["bag", "info"], ["bag", "repair", "--force"]])
+def test_closed_stdout_pipe_ends_without_traceback(synthetic_bag, tmp_path, argv):
+    # `vesselbot bag repair DIR | head -3`: the reader has gone when we write
+    import subprocess
+    import sys
+
+    bag = tmp_path / "run1"
+    shutil.copytree(synthetic_bag[0], bag)
+    proc = subprocess.Popen([sys.executable, "-m", "vesselbot_ros.cli", *argv, str(bag)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # before the child has imported anything, let alone printed
+    _, err = proc.communicate(timeout=120)
+    assert b"Traceback" not in err and b"BrokenPipeError" not in err, err.decode()

@@ -137,3 +137,56 @@ def test_cli_bad_config_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[st
     rc = cli_main(["simulate", "--config", str(SOUND), "--out", str(tmp_path), "--set", "controller.gains.k2=-1"])
     assert rc == 2
     assert "controller.gains.k2 must be > 0, got -1" in capsys.readouterr().err
+
+
+# -- bad input to `simulate`: one line, exit 2, before any work (issue 14) ---------------------------------------
+
+
+def test_control_rate_too_low_is_reported_under_its_own_key() -> None:
+    with pytest.raises(ConfigError, match=r"^sim\.control_rate_Hz must give at least 2 control ticks"):
+        load_scenario(SOUND, sets=["sim.control_rate_Hz=1e-9"])
+
+
+@pytest.mark.parametrize("key_value", ["sim.control_rate_Hz=1e9", "sim.duration_s=1e6"])
+def test_runs_that_do_not_fit_in_memory_are_refused_before_any_work(tmp_path: Path, capsys, key_value) -> None:
+    out = tmp_path / "o"
+    rc = cli_main(["simulate", "--config", str(SOUND), "--out", str(out), "--set", key_value,
+                   "--set", "imager.frame_rate_Hz=1000"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "sim.duration_s=" in err[0] and "sim.control_rate_Hz=" in err[0] and "GiB" in err[0]
+    assert not out.exists()
+
+
+def test_resource_check_is_a_scenario_layer_function(tmp_path: Path) -> None:
+    from vesselbot_ros.sim.scenario import check_resources, estimate_resources
+
+    s = load_scenario(SOUND)
+    est = check_resources(s, bag_dir=tmp_path / "not" / "yet")
+    assert est.n_ticks == s.sim.n_ticks and est == estimate_resources(s)
+    with pytest.raises(ConfigError, match=r"time series need about .* more than the 1\.0 KiB"):
+        check_resources(s, memory_budget_bytes=1024)
+    big = load_scenario(SOUND, sets=["sim.duration_s=1e5", "reference.duration_s=2"])
+    with pytest.raises(ConfigError, match=r"its recording needs about .* free under .*--no-record"):
+        check_resources(big, bag_dir=tmp_path, memory_budget_bytes=2**62)
+
+
+def test_set_takes_exponent_floats_without_a_dot(tmp_path: Path) -> None:
+    out = tmp_path / "o"
+    rc = cli_main(["simulate", "--config", str(SOUND), "--out", str(out), "--set", "imager.noise_sigma_m=1e-4",
+                   "--duration", "0.05", "--set", "reference.duration_s=0.05"])
+    assert rc == 0
+    s = load_scenario(out / "scenario.yaml")
+    assert s.imager.noise_sigma_m == 1e-4 and s.sim.duration_s == 0.05
+
+
+def test_short_run_says_the_metrics_cover_the_whole_run(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "o"
+    rc = cli_main(["simulate", "--config", str(SOUND), "--out", str(out), "--duration", "0.1",
+                   "--set", "reference.duration_s=0.1"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "ends before the metrics window starts (sim.metrics_after_s = 0.6 s)" in text
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["after_s"] == 0.0 and np.isfinite(m["tracking_error_max_m"])
