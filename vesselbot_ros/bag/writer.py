@@ -20,7 +20,14 @@
 * :meth:`BagWriter.flush` closes the pending MCAP chunk and flushes it to the
   OS: after a hard kill the MCAP is readable up to the last closed chunk.
   rosbags closes a chunk by itself once it holds 1 MiB; the recorder also
-  flushes on a wall-clock period.
+  flushes on a wall-clock period;
+* the bag is what ``ros2 bag record -s mcap`` writes on Jazzy (checked against
+  rosbag2's ``mcap_storage.cpp``, ``qos.cpp`` and mcap's writer):
+  ``ros_distro: jazzy``; infinite QoS durations as rmw's
+  ``RMW_DURATION_INFINITE`` (9223372036 s, 854775807 ns); every MCAP channel
+  carries ``offered_qos_profiles`` *and* ``topic_type_hash`` in its metadata,
+  so a bag read from the MCAP alone keeps its type hashes; every chunk carries
+  the CRC32 of its records and the footer the CRC32 of the summary section.
 
 Example::
 
@@ -33,14 +40,19 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
+import struct
 import sys
+from binascii import crc32
 from collections.abc import Mapping, Sequence
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import storage_mcap as _mcap
 from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -61,6 +73,9 @@ RUN_METADATA_KEY = "vesselbot.run"
 RUN_METADATA_FILE = "run_metadata.json"
 # A 60 s run at 1 kHz writes about 120 MB; refuse to start below this.
 MIN_FREE_BYTES = 256 * 2**20
+ROS_DISTRO = "jazzy"
+# rmw's RMW_DURATION_INFINITE (INT64_MAX ns) as (sec, nsec): what Jazzy writes for "infinite"
+RMW_DURATION_INFINITE = (9223372036, 854775807)
 
 _CUSTOM_PACKAGE = "vesselbot_msgs"
 
@@ -118,7 +133,7 @@ def qos_from_spec(durability_transient_local: bool, depth: int) -> Qos:
     """
     from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
-    never = QosTime(0x7FFFFFFF, 0xFFFFFFFF)  # rmw's "infinite" duration, as ros2 bag writes it
+    never = QosTime(*RMW_DURATION_INFINITE)  # as ros2 bag on Jazzy writes an infinite duration
     return Qos(
         history=QosHistory.KEEP_LAST,
         depth=depth,
@@ -169,6 +184,79 @@ def check_output_dir(path: str | os.PathLike[str], min_free_bytes: int = MIN_FRE
     return out
 
 
+class JazzyMcapWriter(McapWriter):
+    """rosbags' MCAP storage, writing what rosbag2's MCAP plugin on Jazzy writes.
+
+    Differences from rosbags (all in rosbag2 Jazzy's ``mcap_storage.cpp`` and
+    mcap's ``McapWriter`` defaults): channel metadata holds ``topic_type_hash``
+    next to ``offered_qos_profiles``; chunks carry the CRC32 of their
+    uncompressed records; the footer carries the summary CRC; the rosbag2
+    metadata record says ``ros_distro: jazzy``.
+    """
+
+    def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:  # noqa: D102
+        super().add_connection(connection, offered_qos_profiles)
+        meta = BytesIO()
+        _mcap.write_string(meta, "offered_qos_profiles")
+        _mcap.write_string(meta, offered_qos_profiles)
+        _mcap.write_string(meta, "topic_type_hash")
+        _mcap.write_string(meta, connection.digest)
+        self.channels[-1] = self.channels[-1]._replace(metadata=meta.getvalue())
+        # super() wrote the channel record into the chunk with the old metadata: rewrite it
+        body = self.chunk.bio.getvalue()
+        old = BytesIO()
+        _mcap.write_channel(old, self.channels[-1]._replace(metadata=_qos_only(offered_qos_profiles)), self.schemas)
+        assert body.endswith(old.getvalue())
+        self.chunk.bio.seek(len(body) - len(old.getvalue()))
+        self.chunk.bio.truncate()
+        _mcap.write_channel(self.chunk.bio, self.channels[-1], self.schemas)
+
+    def close_chunk(self) -> None:  # noqa: D102
+        start = self.bio.tell()
+        crc = crc32(self.chunk.bio.getvalue())
+        super().close_chunk()
+        # the Chunk record: opcode (1), length (8), start, end, uncompressed size (8 each), then the CRC
+        end = self.bio.tell()
+        self.bio.seek(start + 1 + 8 + 24)
+        self.bio.write(struct.pack("<I", crc))
+        self.bio.seek(end)
+
+    def close(self, version: int, metadata: str) -> None:  # noqa: D102
+        metadata = _DISTRO_LINE.sub(f"ros_distro: {ROS_DISTRO}", metadata)
+        super().close(version, metadata)
+        write_summary_crc(self.path)
+
+
+def _qos_only(offered_qos_profiles: str) -> bytes:
+    meta = BytesIO()
+    _mcap.write_string(meta, "offered_qos_profiles")
+    _mcap.write_string(meta, offered_qos_profiles)
+    return meta.getvalue()
+
+
+_DISTRO_LINE = re.compile(r"^ros_distro: rosbags$", re.M)
+_FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, summary_crc
+
+
+def write_summary_crc(path: Path) -> None:
+    """Fill in the footer's summary CRC of a complete MCAP file (0 = no summary)."""
+    with path.open("r+b") as fh:
+        fh.seek(0, os.SEEK_END)
+        size = fh.tell()
+        footer = size - 8 - _FOOTER_LEN
+        fh.seek(footer)
+        rec = fh.read(_FOOTER_LEN)
+        if rec[0] != 0x02:
+            raise BagError(f"{path}: no MCAP footer where one was just written")
+        summary_start = struct.unpack_from("<Q", rec, 9)[0]
+        if summary_start == 0:
+            return
+        fh.seek(summary_start)
+        crc = crc32(fh.read(footer + _FOOTER_LEN - 4 - summary_start))
+        fh.seek(footer + _FOOTER_LEN - 4)
+        fh.write(struct.pack("<I", crc))
+
+
 class _DirWriter(Writer):
     """rosbags' Writer, except that the bag directory may already exist (never the bag files)."""
 
@@ -183,7 +271,13 @@ class _DirWriter(Writer):
         self.path.mkdir(mode=0o755, parents=True, exist_ok=True)
         if self.metapath.exists():
             raise WriterError(f"{self.metapath} exists already, not overwriting.")
-        self.storage = McapWriter(self.path, self.compression_mode)
+        self.storage = JazzyMcapWriter(self.path, self.compression_mode)
+
+    def close(self) -> None:
+        super().close()
+        text = self.metapath.read_text(encoding="utf-8")
+        self.metapath.write_text(re.sub(r"^(\s+)ros_distro: rosbags$", rf"\1ros_distro: {ROS_DISTRO}", text, flags=re.M),
+                                 encoding="utf-8")
 
 
 class BagWriter:

@@ -104,4 +104,4 @@ def test_report_takes_the_window_from_the_run_config_and_counters_from_final_dia
     assert metrics["after_s"] == 0.25
     assert metrics["plant_steps"] == 12345 and metrics["measurements_used"] == 399
     assert "plant_rhs_evals" not in metrics  # not reported by the bag: not invented
-    assert write_report(tmp_path / "b", tmp_path / "rep2", after_s=0.5)["after_s"] == 0.5
+    assert write_report(tmp_path / "b", tmp_path / "rep2", after_s=0.3)["after_s"] == 0.3

@@ -170,3 +170,47 @@ def test_flush_closes_the_chunk_so_a_copy_taken_now_holds_every_message(tmp_path
         pass
     assert n == 50 * 8 + 1 + 2
     bag.finish()
+
+
+def test_bag_is_what_ros2_bag_record_writes_on_jazzy(synthetic_bag):
+    """rosbag2 Jazzy (mcap_storage.cpp, qos.cpp) and mcap's writer defaults, field by field."""
+    from binascii import crc32
+
+    from mcap.reader import make_reader
+    from mcap.records import Footer
+    from mcap.stream_reader import StreamReader
+
+    path, _ = synthetic_bag
+    info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy"
+    for t in info["topics_with_message_count"]:
+        tm = t["topic_metadata"]
+        assert tm["type_description_hash"].startswith("RIHS01_")
+        for q in tm["offered_qos_profiles"]:
+            for key in ("deadline", "lifespan", "liveliness_lease_duration"):
+                assert q[key] == {"sec": 9223372036, "nsec": 854775807}, (tm["name"], key)
+    mcap = path / "run1.mcap"
+    hashes = {t["topic_metadata"]["name"]: t["topic_metadata"]["type_description_hash"]
+              for t in info["topics_with_message_count"]}
+    with mcap.open("rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        summary = reader.get_summary()
+        for ch in summary.channels.values():
+            assert ch.metadata["topic_type_hash"] == hashes[ch.topic]
+            assert "offered_qos_profiles" in ch.metadata
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert "ros_distro: jazzy" in meta["rosbag2"]["serialized_metadata"]
+        assert sum(1 for _ in reader.iter_messages()) == info["message_count"]  # every chunk CRC checked
+    data = mcap.read_bytes()
+    from mcap.records import Chunk
+
+    records = list(StreamReader(str(mcap), emit_chunks=True).records)
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    assert chunks and all(c.uncompressed_crc == crc32(c.data) != 0 for c in chunks)
+    footer = [r for r in records if isinstance(r, Footer)][0]
+    assert footer.summary_crc != 0
+    assert footer.summary_crc == crc32(data[footer.summary_start:len(data) - 8 - 4])
+    # a bag read from the MCAP alone keeps its type hashes (rosbags reads the channel metadata)
+    from vesselbot_ros.bag.reader import open_bag
+
+    assert open_bag(path).consistent
