@@ -39,8 +39,14 @@ def run(args: argparse.Namespace) -> int:
     if not res.repaired:
         print(f"{res.path}: already a valid bag ({res.message_count} messages); nothing to do (use --force to rebuild)")
         return 0
-    print(f"{res.path}: rebuilt metadata.yaml and MCAP with {res.message_count} messages; "
-          f"{res.dropped_bytes} trailing bytes were unreadable; original kept as {res.damaged_path.name}")
+    if res.mcap_rewritten:
+        print(f"{res.path}: rebuilt metadata.yaml and MCAP with {res.message_count} messages; "
+              f"{res.dropped_bytes} trailing bytes were unreadable")
+    else:
+        print(f"{res.path}: the MCAP is intact ({res.message_count} messages); rebuilt metadata.yaml from it")
+    for k in res.kept:
+        print(f"  original kept as {k.name}")
+    print("  run metadata: " + (f"from {res.run_metadata_from}" if res.run_metadata_from else "none found"))
     for name, n in sorted(res.counts.items()):
         print(f"  {name}: {n}")
     return 0

@@ -149,6 +149,25 @@ def _check_mcap(path: Path, bag_dir: Path) -> dict[str, int] | None:
     return counts
 
 
+def read_metadata_yaml(path: Path) -> Any:
+    """Parse a bag's ``metadata.yaml`` with the project's bounded YAML reader.
+
+    Raises:
+        ValueError: naming the file, line and column of the first problem
+            (never a Python repr).
+    """
+    from vesselbot_ros.config import ConfigError, parse_yaml_text
+
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path.name} is not UTF-8 text (byte {exc.start})") from None
+    try:
+        return parse_yaml_text(text, source=path.name)
+    except ConfigError as exc:
+        raise ValueError(str(exc)) from None
+
+
 def open_bag(path: str | Path) -> BagInfo:
     """Validate a bag directory (or its ``metadata.yaml`` / ``.mcap``) and describe it.
 
@@ -165,7 +184,7 @@ def open_bag(path: str | Path) -> BagInfo:
         hint = _REPAIR_HINT.format(path=bag_dir) if any(bag_dir.glob("*.mcap")) else "is this a bag directory?"
         raise BagError(f"bag {bag_dir} has no metadata.yaml; {hint}")
     try:
-        doc = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
+        doc = read_metadata_yaml(meta_path)
         info = doc["rosbag2_bagfile_information"]
         storage = info["storage_identifier"]
         files = list(info["relative_file_paths"])
@@ -173,8 +192,9 @@ def open_bag(path: str | Path) -> BagInfo:
         start_ns = int(info["starting_time"]["nanoseconds_since_epoch"])
         duration_ns = int(info["duration"]["nanoseconds"])
         total = int(info["message_count"])
-    except (yaml.YAMLError, KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:
-        raise BagError(f"bag {bag_dir}: metadata.yaml is corrupt ({exc!r}); " + _REPAIR_HINT.format(path=bag_dir)) from None
+    except (KeyError, TypeError, ValueError) as exc:
+        what = f"lacks {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise BagError(f"bag {bag_dir}: metadata.yaml is corrupt ({what}); " + _REPAIR_HINT.format(path=bag_dir)) from None
     if storage != "mcap":
         raise BagError(f"bag {bag_dir}: storage {storage!r} is not supported (only mcap)")
 

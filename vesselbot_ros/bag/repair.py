@@ -1,19 +1,38 @@
-"""Rebuild a valid bag from the MCAP of a recorder that was killed hard.
+"""Rebuild a valid bag from the MCAP of a recorder that was killed hard, without ever losing the original.
 
-A recorder killed with SIGKILL (or a power cut) leaves an MCAP with no
-summary and no footer, possibly ending in a half-written chunk, and no
+A recorder killed with SIGKILL (or a power cut, or a full disk) leaves an MCAP
+with no summary and no footer, possibly ending in a half-written chunk, and no
 ``metadata.yaml``.  :func:`repair_bag` streams the MCAP with ``mcap``'s
 :class:`~mcap.stream_reader.StreamReader` (which needs no footer), keeps every
 schema, channel and message up to the last complete chunk, and writes them
 into a fresh, complete rosbag2 bag (same topics, types, embedded definitions,
-offered QoS, log times; run metadata from ``run_metadata.json``) with rosbags.
-The damaged file is kept next to it as ``<name>.mcap.damaged``.
+offered QoS, log times) in the Jazzy format of :mod:`vesselbot_ros.bag.writer`.
+
+What is never lost:
+
+* the original MCAP: when it had to be rewritten it is kept beside the new
+  one as ``<name>.mcap.damaged`` (``.damaged.2``, ``.damaged.3``, ... if that
+  name is taken: an earlier repair's original is never overwritten); when
+  it is complete and intact it is not touched at all and only
+  ``metadata.yaml`` is rebuilt;
+* a replaced ``metadata.yaml`` is kept as ``metadata.yaml.orig`` (same
+  numbering);
+* the run's metadata (scenario, seed, config): from ``run_metadata.json``, or
+  from the ``rosbag2`` metadata record of the MCAP, or from the old
+  ``metadata.yaml`` if it can still be read.
+
+The new ``metadata.yaml`` names the MCAP file as it is on disk, so a bag whose
+folder was renamed or copied stays readable.  Nothing is changed until the new
+bag is complete: on any error (a full disk included) the work folder is
+removed and the bag is left as it was.
 """
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from vesselbot_ros.errors import BagError
@@ -31,8 +50,14 @@ class RepairResult:
         message_count: Messages in the repaired bag.
         counts: Messages per topic.
         dropped_bytes: Bytes at the end of the damaged MCAP that could not be
-            read (an incomplete chunk).
-        damaged_path: Where the original MCAP was kept (None if not repaired).
+            read (an incomplete chunk); 0 for an intact MCAP.
+        damaged_path: Where the original MCAP was kept (None if it was not
+            rewritten).
+        mcap_rewritten: False if the MCAP was intact and only
+            ``metadata.yaml`` was rebuilt.
+        kept: Every original file kept under a new name.
+        run_metadata_from: Where the run metadata came from
+            (``run_metadata.json``, ``mcap``, ``metadata.yaml``) or None.
     """
 
     path: Path
@@ -41,6 +66,35 @@ class RepairResult:
     counts: dict[str, int]
     dropped_bytes: int
     damaged_path: Path | None
+    mcap_rewritten: bool = False
+    kept: tuple[Path, ...] = field(default_factory=tuple)
+    run_metadata_from: str | None = None
+
+
+def _unused(path: Path, suffix: str = ".damaged") -> Path:
+    """``path + suffix``, or ``.damaged.2``, ``.damaged.3``, ... : a name that holds nothing yet."""
+    cand = path.with_name(path.name + suffix)
+    n = 2
+    while cand.exists() or cand.is_symlink():
+        cand = path.with_name(f"{path.name}{suffix}.{n}")
+        n += 1
+    return cand
+
+
+def _run_json_from_metadata_text(text: str) -> str | None:
+    """The run metadata in a rosbag2 metadata YAML text (``custom_data``), or None."""
+    from vesselbot_ros.bag.writer import RUN_METADATA_KEY
+    from vesselbot_ros.config import ConfigError, parse_yaml_text
+
+    try:
+        doc = parse_yaml_text(text, source="metadata")
+    except ConfigError:
+        return None
+    if isinstance(doc, dict) and "rosbag2_bagfile_information" in doc:
+        doc = doc["rosbag2_bagfile_information"]
+    custom = doc.get("custom_data") if isinstance(doc, dict) else None
+    raw = custom.get(RUN_METADATA_KEY) if isinstance(custom, dict) else None
+    return raw if isinstance(raw, str) and raw.strip() else None
 
 
 def _qos_list(metadata: dict[str, str]) -> list:
@@ -58,28 +112,28 @@ def _qos_list(metadata: dict[str, str]) -> list:
 
 
 def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
-    """Rebuild ``metadata.yaml`` (and a complete MCAP) of a bag directory.
+    """Rebuild ``metadata.yaml`` (and, if damaged, a complete MCAP) of a bag directory.
 
     Args:
         path: The bag directory.
         force: Rebuild even if the bag already validates.
 
     Raises:
-        BagError: if there is no MCAP, it is not an MCAP, or nothing in it
-            can be recovered.
+        BagError: if there is no MCAP, it is not an MCAP, nothing in it can be
+            recovered, or the disk is full (the bag is then left as it was).
     """
-    from mcap.records import Channel, Chunk, Message, Schema
+    from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader, breakup_chunk
-    from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     from vesselbot_ros.bag.reader import MCAP_MAGIC, open_bag
-    from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY
+    from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY, _DirWriter
 
     bag_dir = Path(path).expanduser().resolve()
     if not bag_dir.is_dir():
         raise BagError(f"bag directory {bag_dir} does not exist")
-    if not force and (bag_dir / "metadata.yaml").exists():
+    meta_path = bag_dir / "metadata.yaml"
+    if not force and meta_path.exists():
         try:
             info = open_bag(bag_dir)
         except BagError:
@@ -97,29 +151,34 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
     with src.open("rb") as fh:
         if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise BagError(f"bag {bag_dir}: {src.name} is not an MCAP file (bad magic); nothing can be recovered")
-
-    run_json = None
-    if (bag_dir / RUN_METADATA_FILE).is_file():
-        run_json = (bag_dir / RUN_METADATA_FILE).read_text(encoding="utf-8").strip()
-
-    work = bag_dir / ".repair"
-    if work.exists():
-        shutil.rmtree(work)
-    tmp_bag = work / bag_dir.name
     size = src.stat().st_size
+    free = shutil.disk_usage(bag_dir).free
+    if free < size + 2**20:
+        raise BagError(f"bag {bag_dir}: repair needs about {(size + 2**20) / 2**20:.0f} MiB free, only "
+                       f"{free / 2**20:.0f} MiB left; nothing was changed: free some space and run "
+                       f"`vesselbot bag repair {bag_dir}` again")
+
+    run_json: str | None = None
+    run_from: str | None = None
+    if (bag_dir / RUN_METADATA_FILE).is_file():
+        run_json = (bag_dir / RUN_METADATA_FILE).read_text(encoding="utf-8").strip() or None
+        run_from = RUN_METADATA_FILE if run_json else None
+
+    kept: list[Path] = []
+    damaged: Path | None = None
+    work = bag_dir / f".repair-{os.getpid()}"
+    shutil.rmtree(work, ignore_errors=True)
+    tmp_bag = work / src.stem  # the new MCAP gets the original's file name
     good_end = len(MCAP_MAGIC)
+    complete = False
     schemas: dict[int, Schema] = {}
     conns: dict[int, object] = {}
     counts: dict[str, int] = {}
+    mcap_run_json: list[str] = []
     ts = get_typestore(Stores.ROS2_JAZZY)
-    writer = Writer(tmp_bag, version=9, storage_plugin=StoragePlugin.MCAP)
-    if run_json:
-        writer.set_custom_data(RUN_METADATA_KEY, run_json)
-    writer.open()
-    last_t = -1
+    writer = _DirWriter(tmp_bag)
 
     def handle(rec: object) -> None:
-        nonlocal last_t
         if isinstance(rec, Schema):
             schemas[rec.id] = rec
         elif isinstance(rec, Channel):
@@ -131,8 +190,9 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
             text = schema.data.decode("utf-8")
             if schema.name not in ts.fielddefs:
                 ts.register(get_types_from_msg(text, schema.name))
+            rihs01 = dict(rec.metadata).get("topic_type_hash") or ts.hash_rihs01(schema.name)
             conns[rec.id] = writer.add_connection(
-                rec.topic, schema.name, msgdef=text, rihs01=ts.hash_rihs01(schema.name),
+                rec.topic, schema.name, msgdef=text, rihs01=rihs01,
                 serialization_format=rec.message_encoding, offered_qos_profiles=_qos_list(dict(rec.metadata)),
             )
             counts.setdefault(rec.topic, 0)
@@ -142,43 +202,83 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
                 return  # a message before its channel is invalid MCAP; nothing to attach it to
             writer.write(conn, rec.log_time, rec.data)  # type: ignore[arg-type]
             counts[conn.topic] += 1  # type: ignore[attr-defined]
+        elif isinstance(rec, Metadata) and rec.name == "rosbag2":
+            found = _run_json_from_metadata_text(rec.metadata.get("serialized_metadata", ""))
+            if found:
+                mcap_run_json.append(found)
 
     try:
-        with src.open("rb") as fh:
-            reader = StreamReader(fh, emit_chunks=True, record_size_limit=size)
-            records = reader.records
-            while True:
-                try:
-                    rec = next(records)
-                except StopIteration:
-                    break
-                except Exception:  # noqa: BLE001 - EndOfFile, struct.error, ... on a cut record
-                    break  # truncated or garbage: keep what was read so far
-                if isinstance(rec, Chunk):
-                    if rec.compression == "" and len(rec.data) != rec.uncompressed_size:
-                        break  # a chunk cut short by the kill
+        try:
+            writer.open()
+            with src.open("rb") as fh:
+                reader = StreamReader(fh, emit_chunks=True, record_size_limit=size)
+                records = reader.records
+                while True:
                     try:
-                        inner = breakup_chunk(rec, validate_crc=True)
-                    except Exception:  # noqa: BLE001 - corrupt chunk: stop at the last good one
+                        rec = next(records)
+                    except StopIteration:
                         break
-                    for r in inner:
-                        handle(r)
-                else:
-                    handle(rec)
-                good_end = reader._stream.count  # bytes consumed up to the end of this record
+                    except Exception:  # noqa: BLE001 - EndOfFile, struct.error, ... on a cut record
+                        break  # truncated or garbage: keep what was read so far
+                    if isinstance(rec, Chunk):
+                        if rec.compression == "" and len(rec.data) != rec.uncompressed_size:
+                            break  # a chunk cut short by the kill
+                        try:
+                            inner = breakup_chunk(rec, validate_crc=True)
+                        except Exception:  # noqa: BLE001 - corrupt chunk: stop at the last good one
+                            break
+                        for r in inner:
+                            handle(r)
+                    else:
+                        handle(rec)
+                    good_end = reader._stream.count  # bytes consumed up to the end of this record
+                    if isinstance(rec, Footer):
+                        fh.seek(size - len(MCAP_MAGIC))
+                        complete = good_end + len(MCAP_MAGIC) == size and fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+                        if complete:
+                            good_end = size
+                        break
+            if not conns:
+                raise BagError(f"bag {bag_dir}: {src.name} holds no complete chunk; nothing can be recovered")
+            if run_json is None and mcap_run_json:
+                run_json, run_from = mcap_run_json[-1], "mcap"
+            if run_json is None and meta_path.is_file():
+                try:
+                    run_json = _run_json_from_metadata_text(meta_path.read_text(encoding="utf-8"))
+                except (OSError, UnicodeDecodeError):
+                    run_json = None
+                run_from = "metadata.yaml" if run_json else None
+            if run_json:
+                writer.set_custom_data(RUN_METADATA_KEY, run_json)
+            writer.close()
+        except BaseException:
+            try:
+                if writer.storage is not None:
+                    writer.storage.abort()
+            except OSError:
+                pass
+            raise
         total = sum(counts.values())
-        if not conns:
-            raise BagError(f"bag {bag_dir}: {src.name} holds no complete chunk; nothing can be recovered")
-        writer.close()
-    except BaseException:
-        writer.abort()
-        shutil.rmtree(work, ignore_errors=True)
-        raise
 
-    damaged = src.with_name(src.name + ".damaged")
-    src.replace(damaged)
-    new_mcap = tmp_bag / f"{bag_dir.name}.mcap"
-    new_mcap.replace(src)
-    (tmp_bag / "metadata.yaml").replace(bag_dir / "metadata.yaml")
-    shutil.rmtree(work, ignore_errors=True)
-    return RepairResult(bag_dir, True, total, counts, max(0, size - good_end), damaged)
+        # Install: renames only (no space needed); every original is kept under a new name.
+        if not complete:
+            damaged = _unused(src)
+            src.replace(damaged)
+            kept.append(damaged)
+            (tmp_bag / src.name).replace(src)
+        if meta_path.exists():
+            old_meta = _unused(meta_path, ".orig")
+            meta_path.replace(old_meta)
+            kept.append(old_meta)
+        (tmp_bag / "metadata.yaml").replace(meta_path)
+    except OSError as exc:
+        state = ("nothing was changed" if not kept
+                 else "the originals are kept as " + ", ".join(k.name for k in kept))
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise BagError(f"bag {bag_dir}: the disk filled up while repairing ({exc.strerror}); {state}: free "
+                           f"some space and run `vesselbot bag repair {bag_dir}` again") from None
+        raise BagError(f"bag {bag_dir}: repair failed ({exc.strerror or exc}); {state}") from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return RepairResult(bag_dir, True, total, counts, max(0, size - good_end), damaged, not complete, tuple(kept),
+                        run_from)
