@@ -153,3 +153,37 @@ def test_unwritable_directory_or_existing_bag_fails_at_start_with_a_clear_error(
     assert rec.wait(timeout=30) == 1
     rec.stop()
     assert "already holds a bag (metadata.yaml)" in rec.log_path.read_text()
+
+
+def test_full_disk_stops_the_recorder_with_one_line_and_a_repairable_bag(ros, tmp_path):
+    """The MCAP may not grow past 600 kB (RLIMIT_FSIZE: writes fail as on a full disk)."""
+    out = tmp_path / "r5"
+    limit = 600_000
+    argv = ["python", "-c", "import os, resource, sys; "
+            f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); os.execvp(sys.argv[1], sys.argv[1:])",
+            *recorder_command(out, META)]
+    rec = NodeProcess(argv, ros.env, tmp_path / "recorder.log")
+    node, ex, client = _probe(ros)
+    pub = None
+    try:
+        assert spin_until(ex, client.service_is_ready, timeout=30), rec.output()
+        pub = NodeProcess(["python", str(PEER), str(tmp_path / "counts.json"), "0", "500"], ros.env,
+                          tmp_path / "peer.log")
+        assert spin_until(ex, lambda: not rec.alive(), timeout=90), rec.output()
+        assert rec.wait(5) == 1
+    finally:
+        if pub is not None:
+            pub.stop()
+        rec.stop()
+        node.destroy_node()
+    log = rec.log_path.read_text()
+    assert "Traceback" not in log and "Error occurred at" not in log and "FATAL" not in log, log
+    errors = [ln for ln in log.splitlines() if ln.startswith("vesselbot recorder: error:")]
+    assert len(errors) == 1, log
+    assert "while recording" in errors[0] and f"vesselbot bag repair {out}" in errors[0]
+    assert (out / f"{out.name}.mcap").stat().st_size <= limit
+    res = repair_bag(out)
+    info = open_bag(out)
+    assert res.repaired and info.consistent and info.run_metadata == META
+    ticks = _contiguous_ticks(info)
+    assert len(ticks) > 50 and ticks == list(range(len(ticks)))

@@ -67,6 +67,7 @@ __all__ = [
     "make_typestore",
     "check_output_dir",
     "qos_from_spec",
+    "write_failed_message",
 ]
 
 RUN_METADATA_KEY = "vesselbot.run"
@@ -182,6 +183,14 @@ def check_output_dir(path: str | os.PathLike[str], min_free_bytes: int = MIN_FRE
             f"only {free / 2**20:.0f} MiB free under {out}; recording needs at least {min_free_bytes / 2**20:.0f} MiB"
         )
     return out
+
+
+def write_failed_message(bag_dir: str | os.PathLike[str], exc: OSError) -> str:
+    """One line for a recording that cannot be written any more (a full disk, a quota, a file size limit)."""
+    full = exc.errno in (28, 122, 27)  # ENOSPC, EDQUOT, EFBIG
+    why = "the disk is full" if full else "a write failed"
+    return (f"{why} ({exc.strerror or exc}) while recording {bag_dir}; recording stopped. Every message "
+            f"flushed before is in its MCAP: free some space, then run `vesselbot bag repair {bag_dir}`")
 
 
 class JazzyMcapWriter(McapWriter):
@@ -340,6 +349,22 @@ class BagWriter:
             writer.close()
         except OSError as exc:
             raise BagError(f"could not finalise bag {self.path}: {exc}") from None
+
+    def abort(self) -> None:
+        """Stop writing without a summary (after a write failed, e.g. on a full disk).
+
+        The MCAP is left as a hard kill leaves it: complete up to the last
+        closed chunk, repairable with ``vesselbot bag repair``.  Safe to call
+        twice and after :meth:`finish`.
+        """
+        writer, self._writer = self._writer, None
+        self._finished = True
+        if writer is None or writer.storage is None:
+            return
+        try:
+            writer.storage.abort()
+        except OSError:
+            pass  # the buffered tail cannot be written either; what is on disk stays
 
     def __enter__(self) -> BagWriter:
         return self.open()

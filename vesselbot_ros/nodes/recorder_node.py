@@ -112,6 +112,7 @@ class RecorderNode:
         n.declare_parameter("min_free_mb", 256)
         self.bag: Any = None
         self._subs: list[Any] = []
+        self.write_error: OSError | None = None  # set when the disk fills; main() stops
         self._diag_pub: Any = None
 
     def _param(self, name: str) -> Any:
@@ -179,7 +180,12 @@ class RecorderNode:
             write = self.bag.write
 
             def cb(data: bytes, conn: Any = conn, write: Any = write) -> None:
-                write(conn, data, now())
+                if self.write_error is not None:
+                    return
+                try:
+                    write(conn, data, now())
+                except OSError as exc:  # a full disk: main() stops with one line (no executor traceback)
+                    self.write_error = exc
 
             self._subs.append(n.create_subscription(cls, name, cb, qos, raw=True))
 
@@ -211,8 +217,11 @@ class RecorderNode:
         self._diag_pub.publish(arr)
 
     def _on_flush_timer(self) -> None:
-        if self.bag is not None and self.bag.is_open:
-            self.bag.flush()
+        if self.bag is not None and self.bag.is_open and self.write_error is None:
+            try:
+                self.bag.flush()
+            except OSError as exc:
+                self.write_error = exc
 
     def _on_flush_service(self, request: Any, response: Any) -> Any:
         try:
@@ -270,10 +279,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         ex = EventsExecutor()
         ex.add_node(rec.node)
         try:
-            while not stop["sig"] and rclpy.ok():
+            while not stop["sig"] and rclpy.ok() and rec.write_error is None:
                 ex.spin_once(timeout_sec=0.1)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
+        except OSError as exc:
+            rec.write_error = exc
+        if rec.write_error is not None:  # a full disk: one line that says what to do, the MCAP left repairable
+            from vesselbot_ros.bag.writer import write_failed_message
+
+            print(f"vesselbot recorder: error: {write_failed_message(rec.bag.path, rec.write_error)}",
+                  file=sys.stderr, flush=True)
+            rec.bag.abort()
+            return 1
         counts = rec.finish()
         print(f"vesselbot recorder: bag {rec.bag.path} finalised: "
               + json.dumps(counts, sort_keys=True), flush=True)
