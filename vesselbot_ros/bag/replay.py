@@ -8,9 +8,14 @@ ones).  Message *i* is published at wall time
 
 Clock: a lockstep bag holds the plant's ``/clock``, which is republished like
 any topic, so sim-time nodes follow the recorded sim time.  With
-``clock=True``, ``/clock`` is instead published from the bag's log time before
-every message (``ros2 bag play --clock`` semantics) and a recorded ``/clock``
-topic is not replayed (one clock source only).
+``clock=True``, ``/clock`` is published by the player before every message
+whose time differs from the last one published: the *sim time* of that
+message, i.e. the last recorded ``/clock`` at or before its log time (the
+stamps in the messages are sim time too, so ``/clock`` and the stamps agree).
+A bag without a recorded ``/clock`` gets the bag time (log time since the
+bag's first message, from 0).  The recorded ``/clock`` is then read, not
+republished (one clock source only).  The wall-clock receive time of the
+recording is never published as ``/clock``.
 """
 
 from __future__ import annotations
@@ -119,6 +124,8 @@ def replay(
         raise BagError(f"bag {info.path} has no topic {', '.join(unknown)}; it has {[t.name for t in info.topics]}")
     if clock:
         names = [n for n in names if n != CLOCK_TOPIC]
+    recorded_clock = clock and info.topic(CLOCK_TOPIC) is not None
+    read = names + [CLOCK_TOPIC] if recorded_clock else names
     pubs = make_publishers(node, info, names)
     clock_pub = None
     if clock:
@@ -143,6 +150,7 @@ def replay(
                 log(f"no subscriber after {wait_subscribers_s} s on {missing}; publishing anyway")
 
     start_ns = info.start_ns + int(round(start_s * 1e9))
+    sim_at_start = _sim_time_before(info, start_ns) if recorded_clock else None
     published = dict.fromkeys(names, 0)
     loops = 0
     max_late = 0.0
@@ -151,7 +159,12 @@ def replay(
     while True:
         t0_wall = time.monotonic()
         first_ns: int | None = None
-        for m in iter_messages(info, topics=names, start_ns=start_ns):
+        sim_ns = sim_at_start
+        last_clock_ns: int | None = None
+        for m in iter_messages(info, topics=read, start_ns=start_ns):
+            if recorded_clock and m.topic == CLOCK_TOPIC:
+                sim_ns = _clock_ns(m.data)
+                continue
             if should_stop():
                 return ReplayStats(published, loops, time.monotonic() - t_begin, max_late)
             if first_ns is None:  # the schedule starts at the first message, after the reader opened
@@ -164,11 +177,14 @@ def replay(
             else:
                 max_late = max(max_late, -delay)
             if clock_pub is not None:
-                from rosgraph_msgs.msg import Clock
+                now_ns = sim_ns if recorded_clock else m.log_time_ns - info.start_ns
+                if now_ns is not None and now_ns != last_clock_ns:
+                    from rosgraph_msgs.msg import Clock
 
-                c = Clock()
-                c.clock.sec, c.clock.nanosec = divmod(m.log_time_ns, 1_000_000_000)
-                clock_pub.publish(c)
+                    c = Clock()
+                    c.clock.sec, c.clock.nanosec = divmod(now_ns, 1_000_000_000)
+                    clock_pub.publish(c)
+                    last_clock_ns = now_ns
             pubs[m.topic].publish(m.data)
             published[m.topic] += 1
         loops += 1
@@ -180,3 +196,22 @@ def replay(
     for p in pubs.values():  # reliable delivery of the tail before the caller exits
         p.wait_for_all_acked(Duration(seconds=2))
     return ReplayStats(published, loops, time.monotonic() - t_begin, max_late)
+
+
+def _clock_ns(data: bytes) -> int:
+    """Sim time (ns) of a serialized ``rosgraph_msgs/Clock``."""
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+
+    c = deserialize_message(bytes(data), Clock)
+    return int(c.clock.sec) * 1_000_000_000 + int(c.clock.nanosec)
+
+
+def _sim_time_before(info: BagInfo, start_ns: int) -> int | None:
+    """The last recorded ``/clock`` before log time ``start_ns`` (None if there is none)."""
+    last = None
+    for m in iter_messages(info, topics=[CLOCK_TOPIC]):
+        if m.log_time_ns >= start_ns:
+            break
+        last = _clock_ns(m.data)
+    return last

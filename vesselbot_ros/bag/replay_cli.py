@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
+from typing import Any
 
 __all__ = ["register", "run"]
 
@@ -91,6 +93,7 @@ def _run_into(args: argparse.Namespace, info: object) -> int:
 
     if args.tolerance is not None and not args.tolerance >= 0:
         raise BagError(f"--tolerance must be >= 0, got {args.tolerance}")
+    _check_into_out(args, info)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     res = reestimate(info, args.into, out_dir=args.out, node_cmd=args.node_cmd,  # type: ignore[arg-type]
                      answer_timeout_s=args.answer_timeout, wait_timeout_s=args.wait_timeout,
@@ -113,3 +116,23 @@ def _run_into(args: argparse.Namespace, info: object) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def _holds_bag(d: Path) -> bool:
+    return (d / "metadata.yaml").exists() or any(d.glob("*.mcap"))
+
+
+def _check_into_out(args: argparse.Namespace, info: Any) -> None:
+    """Refuse an --into result folder that already holds a bag, suggesting a free ``--out``."""
+    from vesselbot_ros.errors import BagError
+
+    default = Path(info.path) / f"reestimate_{args.into}"
+    out = Path(args.out) if args.out is not None else default
+    if not _holds_bag(out):
+        return
+    n = 2
+    while _holds_bag(default.with_name(f"{default.name}_{n}")):
+        n += 1
+    free = default.with_name(f"{default.name}_{n}")
+    raise BagError(f"{out} already holds the result of an earlier `replay --into {args.into}`; it is not "
+                   f"overwritten: pass --out DIR for a new result (e.g. --out {free})")

@@ -79,3 +79,18 @@ def test_closed_stdout_pipe_ends_without_traceback(synthetic_bag, tmp_path, argv
     proc.stdout.close()  # before the child has imported anything, let alone printed
     _, err = proc.communicate(timeout=120)
     assert b"Traceback" not in err and b"BrokenPipeError" not in err, err.decode()
+
+
+@pytest.mark.parametrize("use_out", [False, True])
+def test_replay_into_a_second_time_suggests_out(synthetic_bag, tmp_path, capsys, use_out):
+    bag = tmp_path / "run1"
+    shutil.copytree(synthetic_bag[0], bag)
+    earlier = bag / "reestimate_observer"
+    earlier.mkdir()
+    (earlier / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    argv = ["replay", str(bag), "--into", "observer"] + (["--out", str(earlier)] if use_out else [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "already holds the result of an earlier `replay --into observer`" in err[0]
+    assert f"--out {bag / 'reestimate_observer_2'}" in err[0]
