@@ -118,15 +118,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"force balance: D(t) = {d_t:.4g} m, r = {params.robot.radius_m:.4g} m, "
           f"{'steady mean flow' if args.time is None else f't = {t:g} s'}; |F| in N")
     picks = [0.0, 0.5, 0.9]
-    header = f"{'position':<24}" + "".join(f"{n[:12]:>13}" for n in (*TERMS, "load"))
+    header = f"{'position':<24}{'gap (m)':>11}" + "".join(f"{n[:12]:>13}" for n in (*TERMS, "load"))
     print(header)
     dmax = float(np.max(curve.delta_m))
     rows = [(f"Delta = {f:.1f} Delta_max", f * dmax) for f in (-0.9, *picks)]
     rows += [(f"upper gap {g:.0e} m", dmax + args.min_gap - g) for g in (1e-6, 1e-7, 1e-8, args.min_gap)]
     rows += [(f"lower gap {g:.0e} m", -(dmax + args.min_gap - g)) for g in (1e-7, args.min_gap)]
-    for label, z in rows:
-        i = int(np.argmin(np.abs(curve.delta_m - z)))
-        print(f"{label:<24}" + "".join(f"{np.linalg.norm(curve.forces[n][i]):13.3e}" for n in (*TERMS, "load")))
+    # every row is evaluated at exactly the position its label names (not at the nearest grid point)
+    at = force_balance_curve(p_eval, np.array([z for _, z in rows]), t_s=t)
+    for i, (label, _) in enumerate(rows):
+        print(f"{label:<24}{at.gap_m[i]:11.4g}" + "".join(f"{np.linalg.norm(at.forces[n][i]):13.3e}"
+                                                      for n in (*TERMS, "load")))
     _plot(curve, params, out / "force_balance.png")
     print(f"wrote {out / 'force_balance.csv'} and {out / 'force_balance.png'}")
     return 0

@@ -23,9 +23,13 @@ is an outlier or dropped.  The random stream is therefore a pure function of
 the seed and of the tick sequence, and injecting an outlier burst does not
 shift the noise of later frames.
 
-Outliers ("aberrant values", Section III-C, at t = 0.5 s) add
-``magnitude_m * (cos theta, sin theta)`` with a random ``theta`` to frames
-acquired in ``[start, start + duration)``.  Dropouts drop frames acquired in a
+Outliers ("important aberrant values", Section III-C, at t = 0.5 s) add
+``magnitude_m * (cos theta, sin theta)`` to frames acquired in
+``[start, start + duration)``.  The direction is an option of each burst:
+``direction: fixed`` uses ``theta = angle_rad`` for every frame of the burst
+(a fixed offset, the paper's reading and the default of the paper scenarios in
+``config/``); ``direction: random_per_frame`` draws a new ``theta`` for every
+frame (zero-mean, much milder for the observer).  Dropouts drop frames acquired in a
 window, or at random with ``dropout_probability``.
 """
 
@@ -34,12 +38,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.config import ConfigError, check_nonnegative, check_positive, check_range
+from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive, check_range
 from vesselbot_ros.errors import ModelInputError
 
 __all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel"]
@@ -55,16 +59,25 @@ class OutlierBurst:
         start_s: Start time (s).
         duration_s: Duration (s), > 0.
         magnitude_m: Offset added to the measured position (m), > 0.
+        direction: ``fixed``: the same offset on every frame of the burst, at
+            ``angle_rad``; ``random_per_frame``: a new uniform random angle
+            per frame.
+        angle_rad: Direction of a ``fixed`` offset in the (x, z) plane (rad):
+            0 is +x (downstream, along the vessel axis), pi/2 is +z.
     """
 
     start_s: float = 0.5
     duration_s: float = 0.02
     magnitude_m: float = 1e-3
+    direction: Literal["random_per_frame", "fixed"] = "random_per_frame"
+    angle_rad: float = 0.0
 
     def __post_init__(self) -> None:
         check_nonnegative("start_s", self.start_s)
         check_positive("duration_s", self.duration_s)
         check_positive("magnitude_m", self.magnitude_m)
+        check_choice("direction", self.direction, ("random_per_frame", "fixed"))
+        check_finite("angle_rad", self.angle_rad)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,16 +155,25 @@ class ImagerModel:
         self._period = 1.0 / params.frame_rate_Hz
         self._n_next = 0
         self._queue: deque[Measurement] = deque()
-        self._outliers: list[tuple[float, float, float]] = [
-            (o.start_s, o.start_s + o.duration_s, o.magnitude_m) for o in params.outliers
+        # (start, end, magnitude, fixed angle or None for a random angle per frame)
+        self._outliers: list[tuple[float, float, float, float | None]] = [
+            (o.start_s, o.start_s + o.duration_s, o.magnitude_m, o.angle_rad if o.direction == "fixed" else None)
+            for o in params.outliers
         ]
         self._dropouts: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s) for d in params.dropouts]
         self._t_last = -math.inf
 
-    def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
-        """Add an outlier burst at run time (same effect as a scheduled one)."""
-        burst = OutlierBurst(start_s=start_s, duration_s=duration_s, magnitude_m=magnitude_m)
-        self._outliers.append((burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m))
+    def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float,
+                        angle_rad: float | None = None) -> None:
+        """Add an outlier burst at run time (same effect as a scheduled one).
+
+        ``angle_rad`` None draws a random direction per frame; a number gives a
+        fixed offset in that direction.
+        """
+        burst = OutlierBurst(start_s=start_s, duration_s=duration_s, magnitude_m=magnitude_m,
+                             direction="random_per_frame" if angle_rad is None else "fixed",
+                             angle_rad=0.0 if angle_rad is None else angle_rad)
+        self._outliers.append((burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m, angle_rad))
 
     def inject_dropout(self, start_s: float, duration_s: float) -> None:
         """Add a dropout window at run time (same effect as a scheduled one)."""
@@ -187,9 +209,9 @@ class ImagerModel:
             u_drop = self._rng.random()
             meas = p + prm.noise_sigma_m * noise
             outlier = False
-            for a, b, mag in self._outliers:
+            for a, b, mag, angle in self._outliers:
                 if a - _EPS_S <= t_s < b - _EPS_S:
-                    th = 2.0 * math.pi * u_dir
+                    th = 2.0 * math.pi * u_dir if angle is None else angle
                     meas = meas + mag * np.array([math.cos(th), math.sin(th)])
                     outlier = True
                     break

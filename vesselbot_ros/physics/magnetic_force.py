@@ -17,10 +17,15 @@ Re[(gamma_0 L^2/k) Y(s) e^{i omega t}], s = x/L, Y'''' + i S_p^4 Y = 0 on [0, 1]
 with torque gamma_0 at the base (Y''(0) = -1), a free distal end (Y''(1) =
 Y'''(1) = 0) and either a hinged base (Y(0) = 0, default) or a force-free base
 (Y'''(0) = 0).  Resistive-force theory with zeta_par = zeta_perp / 2 gives the
-time-averaged thrust (zeta_perp - zeta_par) int <y_t y_x> dx, i.e. exactly the
-form (4) with Z = |int_0^1 Re(i Y conj(Y')) / 2 ds|, evaluated in closed form.
-Results: hinged, Z(3.4) = 6.29e-4 and Z S_p^4 -> (2 - sqrt 2)/8 for large S_p
-(decreasing, as the paper states); force-free base, Z = 1/(4 S_p^4) exactly.
+time-averaged thrust (zeta_perp - zeta_par) int <y_t y_x> dx.  The time average
+of a product of two harmonics is <Re(a e^{iwt}) Re(b e^{iwt})> = Re(a conj(b))/2,
+so the thrust is (zeta_perp / 2) omega (gamma_0 L^2/k)^2 int_0^1 Re(i Y conj(Y'))/2 ds,
+i.e. exactly the form (4) with Z = |int_0^1 Re(i Y conj(Y')) ds| (the two halves
+make the 1/4 of (4)), evaluated in closed form.  Results: hinged, Z(3.4) =
+1.257e-3 and Z S_p^4 -> (2 - sqrt 2)/4 for large S_p (decreasing, as the paper
+states); force-free base, Z = 1/(2 S_p^4) exactly.  An independent check (a
+finite-difference filament and a thrust averaged over sampled times) is in
+``test/unit/physics/test_magnetic_force.py``.
 """
 
 from __future__ import annotations
@@ -75,7 +80,7 @@ def sperm_number_function(sperm_number: float, base: Literal["hinged", "free"] =
     small = np.abs(nu) < 1e-12
     integ = np.where(small, 1.0, (np.exp(nu) - 1.0) / np.where(small, 1.0, nu))
     total = np.sum(c[:, None] * np.conj(c * mu)[None, :] * integ)
-    return float(abs(np.real(1j * total) / 2.0))
+    return float(abs(np.real(1j * total)))
 
 
 @register_jitable

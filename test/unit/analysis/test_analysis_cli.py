@@ -31,3 +31,45 @@ def test_bad_override_is_one_line_error(tmp_path, capsys):
     assert main(["force-balance", "--out", str(tmp_path), "--set", "physics.robot.radius_m=-1"]) == 2
     assert "physics.robot.radius_m must be > 0" in capsys.readouterr().err
     assert main(["force-balance", "--out", str(tmp_path), "--set", "bogus"]) == 2
+
+
+# -- the numbers docs/reproduction.md quotes (issue 14) -----------------------------------------------------------
+
+
+def _summary(tmp_path, capsys, *sets):
+    import csv
+
+    argv = ["design-map", "--out", str(tmp_path), "--no-png"]
+    for s in sets:
+        argv += ["--set", s]
+    assert main(argv) == 0
+    capsys.readouterr()
+    with (tmp_path / "design_map_summary.csv").open() as fh:
+        return {(r["vessel"], r["design"]): float(r["max_ratio"]) for r in csv.DictReader(fh)}
+
+
+def test_design_map_numbers_quoted_in_the_docs(tmp_path, capsys):
+    import pytest
+
+    base = _summary(tmp_path / "a", capsys)
+    # EF with Z(3.4) = 1.257e-3 (docs/reproduction.md table); EF < 1 everywhere, largest in the arteriole
+    ef = {v: base[(v, "EF")] for v in ("artery", "small_artery", "arteriole", "capillary")}
+    assert ef == pytest.approx({"artery": 0.032, "small_artery": 0.021, "arteriole": 0.036, "capillary": 0.013},
+                               abs=6e-4)
+    assert max(ef, key=ef.get) == "arteriole" and max(ef.values()) < 1
+    # "Δ limit": 1 µm changes every maximum by < 1 %; 10 µm lowers the artery BP maximum by 6.4 %
+    one = _summary(tmp_path / "b", capsys, "design_study.grid.min_gap_m=1e-6")
+    assert all(abs(one[k] / base[k] - 1) < 0.01 for k in base)
+    ten = _summary(tmp_path / "c", capsys, "design_study.grid.min_gap_m=1e-5")
+    assert ten[("artery", "BP")] / base[("artery", "BP")] - 1 == pytest.approx(-0.064, abs=0.002)
+
+
+def test_force_balance_rows_are_evaluated_at_the_gap_they_name(tmp_path, capsys):
+    import pytest
+
+    assert main(["force-balance", "--out", str(tmp_path)]) == 0
+    rows = {ln[:24].strip(): ln[24:].split() for ln in capsys.readouterr().out.splitlines()
+            if ln.startswith(("upper gap", "lower gap"))}
+    for label, cols in rows.items():
+        assert float(cols[0]) == pytest.approx(float(label.split()[2]), rel=1e-9), label
+    assert float(rows["upper gap 1e-06 m"][5]) == pytest.approx(1.66e-11, rel=0.01)  # van der Waals at 1 um

@@ -136,3 +136,36 @@ def test_midpoint_sample_hold_evaluates_F_at_mid_hold_state():
     assert calls[-1][0] == 0.5
     with pytest.raises(ModelInputError, match="hold_period_s"):
         BacksteppingController(ControllerParams(), f, np.eye(2), hold_period_s=-1.0)
+
+
+def _burst_offsets(burst: OutlierBurst, seed: int = 3) -> tuple[np.ndarray, list[np.ndarray]]:
+    im = ImagerModel(ImagerParams(noise_sigma_m=1e-5, frame_rate_Hz=1000.0, outliers=(burst,)), np.random.default_rng(seed))
+    ref = ImagerModel(ImagerParams(noise_sigma_m=1e-5, frame_rate_Hz=1000.0), np.random.default_rng(seed))
+    offsets, clean = [], []
+    for k in range(40):
+        t = k * 1e-3
+        a, b = im.frame(t, [0.0, 0.0]), ref.frame(t, [0.0, 0.0])
+        (offsets if a.outlier else clean).append(a.p - b.p)
+    return np.array(offsets), clean
+
+
+def test_outlier_direction_is_an_option_fixed_offset_or_random_per_frame() -> None:
+    fixed, clean = _burst_offsets(OutlierBurst(0.01, 0.02, 1e-3, direction="fixed", angle_rad=math.pi / 2))
+    assert fixed.shape == (20, 2)
+    np.testing.assert_allclose(fixed, np.tile([0.0, 1e-3], (20, 1)), rtol=0, atol=1e-15)  # the same offset, +z
+    assert all(np.array_equal(c, [0.0, 0.0]) for c in clean)  # the noise stream is not shifted
+    rnd, _ = _burst_offsets(OutlierBurst(0.01, 0.02, 1e-3, direction="random_per_frame"))
+    np.testing.assert_allclose(np.linalg.norm(rnd, axis=1), 1e-3, rtol=1e-12)
+    assert len({round(math.atan2(z, x), 6) for x, z in rnd}) == 20  # a new direction every frame
+    with pytest.raises(Exception, match="direction must be one of"):
+        OutlierBurst(direction="sideways")  # type: ignore[arg-type]
+
+
+def test_paper_scenarios_default_to_a_fixed_outlier_offset() -> None:
+    from pathlib import Path
+
+    from vesselbot_ros.sim.scenario import load_scenario
+
+    for name in ("paper_small_artery", "sound_small_artery"):
+        sc = load_scenario(Path(__file__).resolve().parents[3] / "config" / f"{name}.yaml")
+        assert [(o.direction, o.angle_rad) for o in sc.imager.outliers] == [("fixed", 0.0)], name
