@@ -12,6 +12,7 @@ import argparse
 import csv
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,15 +28,22 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-png", action="store_true", help="skip the figure")
 
 
-def plot_maps(maps: list[DesignMap], path: Path) -> None:
-    """Save the maps as a (vessels x 3) grid of log10(F_m/F_tot) images with the F_m = F_tot contour."""
+def maps_figure(maps: list[DesignMap]) -> Any:
+    """A (vessels x 3) grid of log10(F_m/F_tot) images.
+
+    In every panel the white line is the contour F_m/F_tot = 1 (F_m = F_tot:
+    inside it the robot can overcome the load; drawn only where the map
+    crosses 1) and the red star is the panel's maximum of F_m/F_tot (its value
+    is in the title).  A legend under the grid says so.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     vessels = list(dict.fromkeys(m.vessel for m in maps))
-    fig, axes = plt.subplots(len(vessels), len(DESIGNS), figsize=(12, 3.2 * len(vessels)), squeeze=False)
+    fig, axes = plt.subplots(len(vessels), len(DESIGNS), figsize=(12, 3.2 * len(vessels) + 0.6), squeeze=False)
     for m in maps:
         ax = axes[vessels.index(m.vessel), DESIGNS.index(m.design)]
         data = np.log10(np.maximum(m.ratio, 1e-12)).T
@@ -48,7 +56,21 @@ def plot_maps(maps: list[DesignMap], path: Path) -> None:
         ax.set_xlabel("lambda = 2r/D")
         ax.set_ylabel("Delta / Delta_max (+1 = upper wall)")
         fig.colorbar(im, ax=ax, label="log10 F_m/F_tot")
-    fig.tight_layout()
+    handles = [Line2D([], [], color="w", lw=1.5, path_effects=None, label="white line: F_m/F_tot = 1 "
+                      "(F_m = F_tot; the robot beats the load where the map is above it)"),
+               Line2D([], [], color="r", marker="*", ls="", ms=9, label="red star: maximum of F_m/F_tot "
+                      "(value in the panel title)")]
+    leg = fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, facecolor="0.6", framealpha=1.0)
+    leg.set_title("Fig. 7: log10 of F_m/F_tot over (lambda, Delta)", prop={"size": 8})
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig
+
+
+def plot_maps(maps: list[DesignMap], path: Path) -> None:
+    """Save :func:`maps_figure` to ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = maps_figure(maps)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -6,18 +6,22 @@ aligns the per-tick topics on their stamps, computes the metrics with the
 (:func:`vesselbot_ros.sim.metrics.compute_metrics`) and writes, into
 ``<bag>/report/`` by default:
 
-* ``fig9a_trajectory.png``: XZ trajectory, reference, estimate, vessel walls;
-* ``fig9b_errors.png``: tracking and estimation error (log scale) with the
-  paper's 150 um and 10 um lines;
-* ``fig10a_gradients.png``: commanded vs applied gradients, +/- saturation;
+* ``fig9a_trajectory.png``: XZ trajectory, reference, estimate, the vessel's
+  wall envelope over the run and its walls at the narrowest moment, time
+  marks every 0.25 s;
+* ``fig9b_errors.png``: tracking and estimation error (um, log scale) with the
+  paper's 150 um and 10 um bounds and the start of the metrics window;
+* ``fig10a_gradients.png``: |U| commanded and applied against U_sat (the
+  limit is on the norm), and |dU/dt| per axis against the slew limit;
 * ``fig10b_velocities.png``: true and estimated velocities;
 * ``fig10c_velocity_error.png``: velocity estimation error;
 * ``forces.png``: the force breakdown of eq. (1) over time;
 * ``metrics.json``: the metrics plus bag facts (scenario, seed, counts,
   intervals of saturation, slew limiting and faults).
 
-Every time plot shades saturated (red), slew-limited (orange) and fault
-(grey) intervals.  Faults are the imager's scheduled outlier bursts and
+Every time plot shades saturated intervals (red, full height), and marks
+slew-limited (orange strip along the bottom) and fault (grey strip along the
+top) intervals, so that no shading hides another.  Faults are the imager's scheduled outlier bursts and
 dropouts from the run's config, those it announced on ``/diagnostics``, and
 outlier frames detected in the bag: fresh measurements farther from the
 true position at their acquisition time than ``max(10 um, median + 10 MAD)``
@@ -40,7 +44,8 @@ from vesselbot_ros.bag.reader import BagInfo, open_bag, read_timeseries
 from vesselbot_ros.errors import BagError
 
 __all__ = ["write_report", "metrics_timeseries", "bool_intervals", "detect_outlier_frames", "diagnostic_counters",
-           "DIAGNOSTIC_COUNTERS", "FIGURES"]
+           "DIAGNOSTIC_COUNTERS", "FIGURES", "fig9a_trajectory", "fig9b_errors", "fig10a_gradients",
+           "fig10b_velocities", "fig10c_velocity_error", "forces_figure"]
 
 TRACKING_BOUND_M = 150e-6  # paper Fig. 9b: tracking error bound after 0.6 s
 ESTIMATION_BOUND_M = 10e-6  # paper Fig. 9b: estimation error bound
@@ -177,11 +182,226 @@ def _fault_intervals(ts: Mapping[str, np.ndarray], run: Mapping[str, Any], dt: f
 
 
 def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
-    colors = {"saturated": ("tab:red", 0.15), "slew limited": ("tab:orange", 0.12), "fault": ("0.5", 0.25)}
+    """Saturation over the full height; slew limiting and faults as strips along the bottom and top edge.
+
+    The strips never cover the saturation shading, even when the coil is
+    slew-limited for the whole run.
+    """
+    style = {"saturated": ("tab:red", 0.15, 0.0, 1.0), "slew limited": ("tab:orange", 0.6, 0.0, 0.05),
+             "fault": ("0.3", 0.6, 0.95, 1.0)}
     for label, ivs in spans.items():
-        color, alpha = colors[label]
+        color, alpha, lo, hi = style[label]
         for i, (a, b) in enumerate(ivs):
-            ax.axvspan(a, b, color=color, alpha=alpha, lw=0, label=label if i == 0 else None)
+            ax.axvspan(a, b, ymin=lo, ymax=hi, color=color, alpha=alpha, lw=0, label=label if i == 0 else None)
+
+
+def _slew_limit(run: Mapping[str, Any]) -> float | None:
+    """The coil's slew limit (T/m/s) from the run's config, or None."""
+    from vesselbot_ros.config import ConfigError, load_dataclass
+    from vesselbot_ros.control.actuator_limits import CoilLimits
+
+    coil = (run.get("config") or {}).get("coil")
+    if not isinstance(coil, Mapping):
+        return None
+    try:
+        return float(load_dataclass(CoilLimits, coil, "coil").slew_rate_T_per_m_per_s)
+    except (ConfigError, TypeError, ValueError):
+        return None
+
+
+def _time_marks(t: npt.NDArray[np.float64], step_s: float = 0.25) -> npt.NDArray[np.intp]:
+    """Indices of the ticks nearest to 0, step, 2 step, ... within the run."""
+    marks = np.arange(math.ceil(t[0] / step_s) * step_s, t[-1] + 1e-12, step_s)
+    return np.unique(np.clip(np.searchsorted(t, marks - 1e-12), 0, t.size - 1))
+
+
+def fig9a_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray]) -> Any:
+    """Fig. 9a: XZ trajectory, reference and estimate in the vessel, with time marks.
+
+    The vessel is a straight tube whose diameter D(t) pulsates in time, the
+    same at every x.  It is drawn as the envelope of its walls over the run
+    (shaded, D_min to D_max) and its walls at the narrowest moment (solid
+    lines, the time is in the legend), across the whole x range of the
+    trajectory and the reference.  Dots on the trajectory and the reference
+    mark every 0.25 s.
+    """
+    import matplotlib.pyplot as plt
+
+    mm = 1e3
+    fig, ax = plt.subplots(figsize=(8, 4))
+    d = np.asarray(m["diameter_m"], dtype=np.float64)
+    xs = np.concatenate([m["p_true"][:, 0], m["p_ref"][:, 0], m["x_hat"][:, 0]]) * mm
+    xs = xs[np.isfinite(xs)]
+    x_lo, x_hi = float(xs.min()), float(xs.max())
+    pad = 0.03 * max(x_hi - x_lo, 1e-6)
+    xe = np.array([x_lo - pad, x_hi + pad])
+    d_min, d_max = float(np.nanmin(d)), float(np.nanmax(d))
+    k_min = int(np.nanargmin(d))
+    outer = d_max / 2 * 1.15 * mm
+    for sgn in (1, -1):
+        ax.fill_between(xe, sgn * d_max / 2 * mm, sgn * outer, color="0.8", lw=0,
+                        label="vessel wall" if sgn > 0 else None)
+        ax.fill_between(xe, sgn * d_min / 2 * mm, sgn * d_max / 2 * mm, color="0.9", lw=0,
+                        label=f"wall motion over the run (D = {d_min * mm:.3g} to {d_max * mm:.3g} mm)"
+                        if sgn > 0 else None)
+        ax.plot(xe, [sgn * d_min / 2 * mm] * 2, color="0.35", lw=1.0,
+                label=f"walls at t = {t[k_min]:.3g} s (narrowest)" if sgn > 0 else None)
+    ax.plot(m["p_ref"][:, 0] * mm, m["p_ref"][:, 1] * mm, "k--", lw=1.2, label="reference")
+    ax.plot(m["p_true"][:, 0] * mm, m["p_true"][:, 1] * mm, "tab:blue", lw=1.2, label="robot (truth)")
+    ax.plot(m["x_hat"][:, 0] * mm, m["x_hat"][:, 1] * mm, "tab:green", lw=0.8, alpha=0.8, label="estimate")
+    idx = _time_marks(t)
+    ax.plot(m["p_true"][idx, 0] * mm, m["p_true"][idx, 1] * mm, "o", color="tab:blue", ms=4,
+            label="every 0.25 s")
+    ax.plot(m["p_ref"][idx, 0] * mm, m["p_ref"][idx, 1] * mm, "o", color="k", ms=3, mfc="none")
+    for k in idx:
+        ax.annotate(f"{t[k]:g} s", (m["p_true"][k, 0] * mm, m["p_true"][k, 1] * mm), textcoords="offset points",
+                    xytext=(3, 5), fontsize=7, color="tab:blue")
+    ax.set_xlim(*xe)
+    ax.set(xlabel="x (mm)", ylabel="z (mm)", title="Fig. 9a: trajectory in the vessel (XZ)")
+    ax.legend(loc="lower right", fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig9b_errors(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
+                 spans: Mapping[str, list[tuple[float, float]]], after_s: float) -> Any:
+    """Fig. 9b: tracking and estimation error (um, log scale), the paper's bounds, the metrics window.
+
+    The axis spans the errors after the first ticks (down to at most 1 um),
+    not the exact zero of t = 0.
+    """
+    import matplotlib.pyplot as plt
+
+    um = 1e6
+    e_tr = np.linalg.norm(m["p_true"] - m["p_ref"], axis=1) * um
+    e_es = np.linalg.norm(m["x_hat"] - m["p_true"], axis=1) * um
+    fig, ax = plt.subplots(figsize=(8, 4))
+    _shade(ax, spans)
+    ax.semilogy(t, np.where(e_tr > 0, e_tr, np.nan), "tab:blue", lw=1, label="tracking error |p - p_ref|")
+    ax.semilogy(t, np.where(e_es > 0, e_es, np.nan), "tab:green", lw=1, label="estimation error |p_hat - p|")
+    ax.axhline(TRACKING_BOUND_M * um, color="tab:blue", ls=":", label="150 um bound (paper, tracking)")
+    ax.axhline(ESTIMATION_BOUND_M * um, color="tab:green", ls=":", label="10 um bound (paper, estimation)")
+    ax.axvline(after_s, color="k", ls="--", lw=0.8, label=f"metrics window starts ({after_s:g} s)")
+    body = t >= t[0] + 0.02 * (t[-1] - t[0])  # leave out the start, where the errors are exactly 0
+    vals = np.concatenate([e_tr[body], e_es[body]])
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    lo = min(1.0, float(np.percentile(vals, 1)) / 2) if vals.size else 1.0
+    hi = max(2 * TRACKING_BOUND_M * um, 2 * float(vals.max())) if vals.size else 2 * TRACKING_BOUND_M * um
+    ax.set_ylim(lo, hi)
+    ax.set(xlabel="t (s)", ylabel="error (um)", title="Fig. 9b: tracking and estimation error")
+    ax.legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig10a_gradients(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
+                     spans: Mapping[str, list[tuple[float, float]]], slew_limit_T_per_m_per_s: float | None) -> Any:
+    """Fig. 10a: |U| against U_sat (the limit is on the Euclidean norm) and dU/dt against the slew limit.
+
+    Top: ``|U|`` commanded and applied, and ``U_sat``.  Bottom: ``|dU_x/dt|``
+    and ``|dU_z/dt|`` of the applied gradient (the slew limit is per axis)
+    and the slew limit from the run's config (if the bag says).
+    """
+    import matplotlib.pyplot as plt
+
+    mm = 1e3
+    fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5.5))
+    a = axs[0]
+    _shade(a, spans)
+    a.plot(t, np.linalg.norm(m["g_cmd"], axis=1) * mm, "tab:gray", lw=0.8, label="|U| commanded")
+    a.plot(t, np.linalg.norm(m["g_applied"], axis=1) * mm, "tab:red", lw=1.0, label="|U| applied")
+    a.plot(t, np.asarray(m["max_gradient"]) * mm, "k:", lw=1.0, label="U_sat (limit on |U|)")
+    a.set_ylabel("|U| (mT/m)")
+    a.set_title("Fig. 10a: gradient norm vs saturation, rate vs slew limit")
+    a.legend(loc="best", fontsize=7)
+    b = axs[1]
+    _shade(b, spans)
+    dt = np.diff(t)
+    rate = np.abs(np.diff(m["g_applied"], axis=0)) / dt[:, None] * mm
+    for i, axis in enumerate("xz"):
+        b.plot(t[1:], rate[:, i], lw=0.8, label=f"|dU_{axis}/dt| applied")
+    if slew_limit_T_per_m_per_s is not None:
+        b.axhline(slew_limit_T_per_m_per_s * mm, color="k", ls=":", lw=1.0,
+                  label=f"slew limit ({slew_limit_T_per_m_per_s:g} T/m/s per axis)")
+    b.set_ylabel("|dU/dt| (mT/m/s)")
+    b.set_xlabel("t (s)")
+    b.legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig10b_velocities(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
+                      spans: Mapping[str, list[tuple[float, float]]]) -> Any:
+    """Fig. 10b: true and estimated velocity per axis (mm/s)."""
+    import matplotlib.pyplot as plt
+
+    mm = 1e3
+    fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
+    for i, axis in enumerate("xz"):
+        a = axs[i]
+        _shade(a, spans)
+        a.plot(t, m["v_true"][:, i] * mm, "tab:blue", lw=1.0, label="true")
+        a.plot(t, m["z_hat"][:, i] * mm, "tab:green", lw=0.8, label="estimated")
+        a.set_ylabel(f"v_{axis} (mm/s)")
+    axs[0].set_title("Fig. 10b: true and estimated velocity")
+    axs[0].legend(loc="best", fontsize=8)
+    axs[1].set_xlabel("t (s)")
+    fig.tight_layout()
+    return fig
+
+
+def fig10c_velocity_error(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
+                          spans: Mapping[str, list[tuple[float, float]]]) -> Any:
+    """Fig. 10c: velocity estimation error per axis (mm/s)."""
+    import matplotlib.pyplot as plt
+
+    mm = 1e3
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    _shade(ax, spans)
+    for i, axis in enumerate("xz"):
+        ax.plot(t, (m["z_hat"][:, i] - m["v_true"][:, i]) * mm, lw=1.0, label=f"v_hat_{axis} - v_{axis}")
+    ax.set(xlabel="t (s)", ylabel="mm/s", title="Fig. 10c: velocity estimation error")
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+FORCE_AXIS_DECADES = 6  # the force plot shows 6 decades below the largest term
+
+
+def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
+                  spans: Mapping[str, list[tuple[float, float]]]) -> Any:
+    """Force breakdown of eq. (1) over time (log axis).
+
+    The axis shows :data:`FORCE_AXIS_DECADES` decades below the largest term;
+    a term that stays below them (e.g. van der Waals at 1e-16 N far from the
+    wall) is named in the legend with its largest value instead of stretching
+    the axis.
+    """
+    import matplotlib.pyplot as plt
+
+    names = ("magnetic", "drag", "apparent weight", "contact", "van der Waals", "electrostatic", "steric", "total")
+    mags = [np.linalg.norm(m["forces"][:, k, :], axis=1) for k in range(len(names))]
+    top = max((float(np.nanmax(f)) for f in mags if f.size and np.any(f > 0)), default=1.0)
+    floor = top * 10.0**-FORCE_AXIS_DECADES
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    _shade(ax, spans)
+    below = []
+    for name, f in zip(names, mags):
+        if not np.any(f > 0):
+            continue
+        if float(np.nanmax(f)) < floor:
+            below.append(f"{name} (max {float(np.nanmax(f)):.1e} N)")
+            continue
+        ax.semilogy(t, np.where(f > 0, f, np.nan), lw=1.6 if name == "total" else 0.9,
+                    ls="--" if name == "total" else "-", label=name)
+    if below:
+        ax.plot([], [], " ", label="below the axis: " + ", ".join(below))
+    ax.set_ylim(floor, top * 3)
+    ax.set(xlabel="t (s)", ylabel="|F| (N)", title="Force breakdown, eq. (1)")
+    ax.legend(loc="best", fontsize=7, ncol=2)
+    fig.tight_layout()
+    return fig
 
 
 #: Counters the launcher adds to the run's metrics from the nodes' final ``/diagnostics``
@@ -281,97 +501,18 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         "tracking_within_bound": bool(metrics["tracking_error_max_m"] <= TRACKING_BOUND_M),
     })
 
-    mm = 1e3
-    # Fig. 9a: XZ trajectory with the walls
-    fig, ax = plt.subplots(figsize=(8, 4))
-    x = m["p_true"][:, 0]
-    order = np.argsort(x, kind="stable")
-    ax.fill_between(x[order] * mm, m["diameter_m"][order] / 2 * mm, (m["diameter_m"].max() / 2 * 1.15) * mm,
-                    color="0.85", label="vessel wall")
-    ax.fill_between(x[order] * mm, -m["diameter_m"][order] / 2 * mm, -(m["diameter_m"].max() / 2 * 1.15) * mm,
-                    color="0.85")
-    ax.plot(m["p_ref"][:, 0] * mm, m["p_ref"][:, 1] * mm, "k--", lw=1.2, label="reference")
-    ax.plot(m["p_true"][:, 0] * mm, m["p_true"][:, 1] * mm, "tab:blue", lw=1.2, label="robot (truth)")
-    ax.plot(m["x_hat"][:, 0] * mm, m["x_hat"][:, 1] * mm, "tab:green", lw=0.8, alpha=0.8, label="estimate")
-    ax.set(xlabel="x (mm)", ylabel="z (mm)", title="Fig. 9a: trajectory in the vessel (XZ)")
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[0], dpi=120)
-    plt.close(fig)
-
-    # Fig. 9b: errors, log scale
-    e_tr = np.linalg.norm(m["p_true"] - m["p_ref"], axis=1)
-    e_es = np.linalg.norm(m["x_hat"] - m["p_true"], axis=1)
-    fig, ax = plt.subplots(figsize=(8, 4))
-    _shade(ax, spans)
-    ax.semilogy(t, np.maximum(e_tr, 1e-12), "tab:blue", lw=1, label="tracking error |p - p_ref|")
-    ax.semilogy(t, np.maximum(e_es, 1e-12), "tab:green", lw=1, label="estimation error |p_hat - p|")
-    ax.axhline(TRACKING_BOUND_M, color="tab:blue", ls=":", label="150 um")
-    ax.axhline(ESTIMATION_BOUND_M, color="tab:green", ls=":", label="10 um")
-    ax.axvline(after_s, color="k", ls="--", lw=0.8)
-    ax.set(xlabel="t (s)", ylabel="error (m)", title="Fig. 9b: tracking and estimation error")
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[1], dpi=120)
-    plt.close(fig)
-
-    # Fig. 10a: gradients
-    fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
-    for i, axis in enumerate("xz"):
-        a = axs[i]
-        _shade(a, spans)
-        a.plot(t, m["g_cmd"][:, i] * mm, "tab:gray", lw=0.8, label="commanded")
-        a.plot(t, m["g_applied"][:, i] * mm, "tab:red", lw=1.0, label="applied")
-        a.plot(t, m["max_gradient"] * mm, "k:", lw=0.8, label="+/- U_sat")
-        a.plot(t, -m["max_gradient"] * mm, "k:", lw=0.8)
-        a.set_ylabel(f"U_{axis} (mT/m)")
-    axs[0].set_title("Fig. 10a: commanded vs applied gradient")
-    axs[0].legend(loc="best", fontsize=8)
-    axs[1].set_xlabel("t (s)")
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[2], dpi=120)
-    plt.close(fig)
-
-    # Fig. 10b: velocities
-    fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
-    for i, axis in enumerate("xz"):
-        a = axs[i]
-        _shade(a, spans)
-        a.plot(t, m["v_true"][:, i] * mm, "tab:blue", lw=1.0, label="true")
-        a.plot(t, m["z_hat"][:, i] * mm, "tab:green", lw=0.8, label="estimated")
-        a.set_ylabel(f"v_{axis} (mm/s)")
-    axs[0].set_title("Fig. 10b: true and estimated velocity")
-    axs[0].legend(loc="best", fontsize=8)
-    axs[1].set_xlabel("t (s)")
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[3], dpi=120)
-    plt.close(fig)
-
-    # Fig. 10c: velocity error
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    _shade(ax, spans)
-    for i, axis in enumerate("xz"):
-        ax.plot(t, (m["z_hat"][:, i] - m["v_true"][:, i]) * mm, lw=1.0, label=f"v_hat_{axis} - v_{axis}")
-    ax.set(xlabel="t (s)", ylabel="mm/s", title="Fig. 10c: velocity estimation error")
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[4], dpi=120)
-    plt.close(fig)
-
-    # Force breakdown
-    names = ("magnetic", "drag", "apparent weight", "contact", "van der Waals", "electrostatic", "steric", "total")
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    _shade(ax, spans)
-    for k, name in enumerate(names):
-        f = np.linalg.norm(m["forces"][:, k, :], axis=1)
-        if np.any(f > 0):
-            ax.semilogy(t, np.where(f > 0, f, np.nan), lw=1.6 if name == "total" else 0.9,
-                        ls="--" if name == "total" else "-", label=name)
-    ax.set(xlabel="t (s)", ylabel="|F| (N)", title="Force breakdown, eq. (1)")
-    ax.legend(loc="best", fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(out / FIGURES[5], dpi=120)
-    plt.close(fig)
+    slew_limit = _slew_limit(run)
+    figures = {
+        FIGURES[0]: fig9a_trajectory(t, m),
+        FIGURES[1]: fig9b_errors(t, m, spans, after_s),
+        FIGURES[2]: fig10a_gradients(t, m, spans, slew_limit),
+        FIGURES[3]: fig10b_velocities(t, m, spans),
+        FIGURES[4]: fig10c_velocity_error(t, m, spans),
+        FIGURES[5]: forces_figure(t, m, spans),
+    }
+    for name, fig in figures.items():
+        fig.savefig(out / name, dpi=120)
+        plt.close(fig)
 
     (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2, sort_keys=True) + "\n",
                                       encoding="utf-8")

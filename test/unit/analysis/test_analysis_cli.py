@@ -73,3 +73,19 @@ def test_force_balance_rows_are_evaluated_at_the_gap_they_name(tmp_path, capsys)
     for label, cols in rows.items():
         assert float(cols[0]) == pytest.approx(float(label.split()[2]), rel=1e-9), label
     assert float(rows["upper gap 1e-06 m"][5]) == pytest.approx(1.66e-11, rel=0.01)  # van der Waals at 1 um
+
+
+def test_design_map_figure_explains_its_contour_and_star():
+    from vesselbot_ros.analysis.design_map import DesignStudy, all_design_maps
+    from vesselbot_ros.analysis.design_map_cli import maps_figure
+    from vesselbot_ros.config import apply_overrides, load_dataclass, load_yaml
+    from vesselbot_ros.physics.params import PhysicsParams
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[3] / "config"
+    params = load_dataclass(PhysicsParams, load_yaml(root / "physics_default.yaml")["physics"], "physics")
+    study = DesignStudy.from_mapping(apply_overrides(load_yaml(root / "design_study.yaml")["design_study"],
+                                                     {"grid.n_lambda": 20, "grid.n_delta": 10}))
+    fig = maps_figure(all_design_maps(params, study))
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any(t.startswith("white line: F_m/F_tot = 1") for t in texts)
+    assert any(t.startswith("red star: maximum of F_m/F_tot") for t in texts)

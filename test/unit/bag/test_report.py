@@ -105,3 +105,97 @@ def test_report_takes_the_window_from_the_run_config_and_counters_from_final_dia
     assert metrics["plant_steps"] == 12345 and metrics["measurements_used"] == 399
     assert "plant_rhs_evals" not in metrics  # not reported by the bag: not invented
     assert write_report(tmp_path / "b", tmp_path / "rep2", after_s=0.3)["after_s"] == 0.3
+
+
+# -- a control engineer is never misled by a figure (issue 14) ----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def series(synthetic_bag):
+    from vesselbot_ros.bag.reader import read_timeseries
+    from vesselbot_ros.bag.report import metrics_timeseries
+
+    m = metrics_timeseries(read_timeseries(synthetic_bag[0]), dt_s=1e-3)
+    return m["t_s"], m
+
+
+def _labels(ax):
+    return [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def test_fig9a_draws_the_vessel_at_a_stated_time_over_the_whole_path_with_time_marks(series):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from vesselbot_ros.bag.report import fig9a_trajectory
+
+    t, m = series
+    m = dict(m, diameter_m=2.5e-3 * (1 + 0.1 * np.sin(2 * np.pi * t)))  # pulsating, as in the paper
+    m["p_true"] = m["p_true"].copy()
+    m["p_true"][500:, 0] = m["p_true"][500:, 0][::-1]  # the robot moves backwards for a while
+    fig = fig9a_trajectory(t, m)
+    ax = fig.axes[0]
+    labels = _labels(ax)
+    assert any(lb.startswith("walls at t = 0.75 s (narrowest)") for lb in labels)  # min of 1 + 0.1 sin(2 pi t)
+    assert any(lb.startswith("wall motion over the run (D = 2.25 to 2.75 mm)") for lb in labels)
+    assert "every 0.25 s" in labels
+    # the walls are straight (a tube whose diameter pulsates in time) and span reference and trajectory
+    walls = [ln for ln in ax.get_lines() if ln.get_label().startswith("walls at") or ln.get_label() == "_child2"]
+    x_lo, x_hi = ax.get_xlim()
+    ref_x = m["p_ref"][:, 0] * 1e3
+    assert x_lo <= ref_x.min() and ref_x.max() <= x_hi
+    for ln in walls:
+        y = ln.get_ydata()
+        assert y[0] == y[-1] and ln.get_xdata()[0] == x_lo and ln.get_xdata()[-1] == x_hi
+    marks = sorted(a.get_text() for a in ax.texts)
+    assert marks == sorted(f"{v:g} s" for v in np.arange(0, 1.0, 0.25))
+
+
+def test_fig9b_axis_is_in_um_spans_the_errors_and_labels_the_window(series):
+    from vesselbot_ros.bag.report import fig9b_errors
+
+    t, m = series
+    fig = fig9b_errors(t, m, {"saturated": [], "slew limited": [], "fault": []}, after_s=0.6)
+    ax = fig.axes[0]
+    assert ax.get_ylabel() == "error (um)"
+    lo, hi = ax.get_ylim()
+    assert 0.1 <= lo <= 1.0 and hi >= 300.0  # not down to the 1e-12 of t = 0
+    labels = _labels(ax)
+    assert "metrics window starts (0.6 s)" in labels
+    assert "150 um bound (paper, tracking)" in labels and "10 um bound (paper, estimation)" in labels
+    bound = next(ln for ln in ax.get_lines() if ln.get_label().startswith("150 um"))
+    assert bound.get_ydata()[0] == pytest.approx(150.0)
+
+
+def test_fig10a_shows_the_norm_against_u_sat_and_the_rate_against_the_slew_limit(series):
+    from vesselbot_ros.bag.report import fig10a_gradients
+
+    t, m = series
+    spans = {"saturated": [(0.2, 0.3)], "slew limited": [(0.0, 1.0)], "fault": []}
+    fig = fig10a_gradients(t, m, spans, slew_limit_T_per_m_per_s=100.0)
+    top, bottom = fig.axes
+    assert top.get_ylabel() == "|U| (mT/m)" and "U_sat (limit on |U|)" in _labels(top)
+    applied = next(ln for ln in top.get_lines() if ln.get_label() == "|U| applied")
+    np.testing.assert_allclose(applied.get_ydata(), np.linalg.norm(m["g_applied"], axis=1) * 1e3, rtol=1e-12)
+    assert bottom.get_ylabel() == "|dU/dt| (mT/m/s)"
+    assert "slew limit (100 T/m/s per axis)" in _labels(bottom)
+    # slew limiting over the whole run does not hide the saturation shading: it is a strip at the bottom
+    patches = {p.get_label(): p for p in top.patches if not p.get_label().startswith("_")}
+    sat, slew = patches["saturated"], patches["slew limited"]
+    assert slew.get_path().get_extents(slew.get_transform()).height < 0.1 * top.bbox.height
+    assert sat.get_path().get_extents(sat.get_transform()).height > 0.9 * top.bbox.height
+
+
+def test_force_plot_axis_is_not_stretched_by_negligible_terms(series):
+    from vesselbot_ros.bag.report import FORCE_AXIS_DECADES, forces_figure
+
+    t, m = series
+    m = dict(m, forces=m["forces"].copy())
+    m["forces"][:, 4, :] = 1e-16  # van der Waals far from the wall
+    fig = forces_figure(t, m, {"saturated": [], "slew limited": [], "fault": []})
+    ax = fig.axes[0]
+    lo, hi = ax.get_ylim()
+    assert lo >= hi / 10 ** (FORCE_AXIS_DECADES + 1)
+    labels = _labels(ax)
+    assert any("below the axis: van der Waals (max 1.4e-16 N)" in lb for lb in labels)
+    assert "van der Waals" not in labels
