@@ -71,7 +71,7 @@ def _silence_stdout() -> None:
 
 def _main(argv: Sequence[str] | None) -> int:
     from vesselbot_ros.config import ConfigError
-    from vesselbot_ros.errors import VesselbotError
+    from vesselbot_ros.errors import ModelInputError, VesselbotError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
@@ -83,7 +83,7 @@ def _main(argv: Sequence[str] | None) -> int:
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return int(module.run(args) or 0)
-    except (ConfigError, VesselbotError) as exc:
+    except (ConfigError, VesselbotError, ModelInputError) as exc:
         print(f"vesselbot {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

@@ -104,6 +104,9 @@ def _table1() -> tuple[VesselCase, ...]:
     )
 
 
+MAX_GRID_POINTS = 1_000_000  # per map: about 100x the default 200 x 200, a few hundred MB of temporaries
+
+
 @dataclasses.dataclass(frozen=True)
 class GridParams:
     """Map grid.
@@ -126,6 +129,9 @@ class GridParams:
     def __post_init__(self) -> None:
         if self.n_lambda < 2 or self.n_delta < 2:
             raise ConfigError(f"n_lambda and n_delta must be >= 2, got {self.n_lambda}, {self.n_delta}")
+        if self.n_lambda * self.n_delta > MAX_GRID_POINTS:  # bounded memory and time before any work
+            raise ConfigError(f"n_lambda x n_delta must be <= {MAX_GRID_POINTS} points per map, got "
+                              f"{self.n_lambda} x {self.n_delta} = {self.n_lambda * self.n_delta:.3g}")
         check_range("lambda_min", self.lambda_min, 0.0, 1.0, lo_open=True, hi_open=True)
         check_range("lambda_max", self.lambda_max, self.lambda_min, 1.0, lo_open=True, hi_open=True)
         check_positive("min_gap_m", self.min_gap_m)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -18,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.force_balance import ContactState, ForceTerms, force_terms
 from vesselbot_ros.physics.params import PhysicsParams
 
@@ -103,9 +105,15 @@ def _plot(curve: BalanceCurve, params: PhysicsParams, path: Path) -> None:
 def run(args: argparse.Namespace) -> int:
     """Compute, print and save the force balance; returns 0."""
     params = load_physics(args)
+    if args.time is not None and not math.isfinite(args.time):
+        raise ConfigError(f"--time must be a finite time (s), got {args.time!r}")
     t = 0.0 if args.time is None else float(args.time)
     p_eval = steady(params) if args.time is None else params
     d_t = p_eval.vessel.diameter_m * (1.0 + p_eval.flow.diameter_pulsation * np.sin(p_eval.flow.angular_frequency_rad_per_s * t + p_eval.flow.phase_rad))
+    room = 0.5 * d_t - p_eval.robot.radius_m  # largest gap to the upper wall (robot on the centreline)
+    if not (math.isfinite(args.min_gap) and 0.0 < args.min_gap < room):
+        raise ConfigError(f"--min-gap must be in (0, {room:.4g}) m (the gap with the robot on the centreline), "
+                          f"got {args.min_gap!r}")
     curve = force_balance_curve(p_eval, delta_grid(p_eval, d_t, min_gap_m=args.min_gap), t_s=t)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -115,8 +115,8 @@ def replay(
     """
     if not rate > 0:
         raise BagError(f"--rate must be > 0, got {rate}")
-    if start_s < 0:
-        raise BagError(f"--start must be >= 0 s, got {start_s}")
+    if not (start_s >= 0 and start_s < float("inf")):
+        raise BagError(f"--start must be a finite time >= 0 s, got {start_s}")
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     names = [t.name for t in info.topics] if topics is None else list(dict.fromkeys(topics))
     unknown = sorted(set(names) - {t.name for t in info.topics})

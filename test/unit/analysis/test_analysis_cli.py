@@ -89,3 +89,19 @@ def test_design_map_figure_explains_its_contour_and_star():
     texts = [t.get_text() for t in fig.legends[0].get_texts()]
     assert any(t.startswith("white line: F_m/F_tot = 1") for t in texts)
     assert any(t.startswith("red star: maximum of F_m/F_tot") for t in texts)
+
+
+import pytest  # noqa: E402
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["design-map", "--no-png", "--set", "design_study.grid.n_lambda=1e9"], "must be <= 1000000 points per map"),
+    (["force-balance", "--min-gap", "nan"], "--min-gap must be in (0, "),
+    (["force-balance", "--min-gap", "-1"], "--min-gap must be in (0, "),
+    (["force-balance", "--min-gap", "1"], "--min-gap must be in (0, "),
+    (["force-balance", "--time", "nan"], "--time must be a finite time"),
+])
+def test_bad_analysis_arguments_are_one_line_before_any_work(tmp_path, capsys, argv, match):
+    assert main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0]

@@ -94,3 +94,10 @@ def test_replay_into_a_second_time_suggests_out(synthetic_bag, tmp_path, capsys,
     assert len(err) == 1
     assert "already holds the result of an earlier `replay --into observer`" in err[0]
     assert f"--out {bag / 'reestimate_observer_2'}" in err[0]
+
+
+@pytest.mark.parametrize("start", ["nan", "inf", "-1"])
+def test_replay_bad_start_is_one_line(synthetic_bag, capsys, start):
+    assert main(["replay", str(synthetic_bag[0]), f"--start={start}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--start must be a finite time >= 0 s" in err[0]
