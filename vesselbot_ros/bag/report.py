@@ -462,7 +462,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vesselbot_ros.sim.metrics import compute_metrics
+    from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
 
     info = bag_dir if isinstance(bag_dir, BagInfo) else open_bag(bag_dir)
     out = Path(out_dir) if out_dir is not None else info.path / "report"
@@ -472,6 +472,8 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if after_s is None:
         after_s = _run_config_value(run, "sim", "metrics_after_s")
         after_s = 0.6 if after_s is None else after_s
+    if not (math.isfinite(after_s) and after_s >= 0):
+        raise BagError(f"--after must be a finite time >= 0 s, got {after_s!r}")
     ts = read_timeseries(info)
     m = metrics_timeseries(ts, dt_s=1.0 / rate if rate else None)
     t = m["t_s"]
@@ -479,6 +481,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         raise BagError(f"bag {info.path} holds {t.size} complete tick(s); the report needs at least 2")
     dt = float(np.median(np.diff(t)))
     metrics: dict[str, Any] = dict(compute_metrics(m, after_s=after_s))
+    note = metrics_window_note(metrics, after_s)
+    if note:
+        metrics["metrics_window_note"] = note
     sat = bool_intervals(t, m["saturated"])
     slew = bool_intervals(t, m["slew_limited"].any(axis=1))
     faults = _fault_intervals(ts, info.run_metadata, dt)

@@ -25,6 +25,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.bag) / "report"
     print(f"report written to {out}: {', '.join(FIGURES)}, metrics.json")
     after = metrics["after_s"]
+    if metrics.get("metrics_window_note"):
+        print(f"  {metrics['metrics_window_note']}")
     print(f"  tracking error after {after} s: max {metrics['tracking_error_max_m'] * 1e6:.1f} um, "
           f"RMS {metrics['tracking_error_rms_m'] * 1e6:.1f} um (bound 150 um)")
     print(f"  estimation error after {after} s: max {metrics['estimation_error_max_m'] * 1e6:.1f} um")

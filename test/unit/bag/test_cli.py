@@ -101,3 +101,11 @@ def test_replay_bad_start_is_one_line(synthetic_bag, capsys, start):
     assert main(["replay", str(synthetic_bag[0]), f"--start={start}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--start must be a finite time >= 0 s" in err[0]
+
+
+def test_report_of_a_run_shorter_than_the_window_says_so(synthetic_bag, tmp_path, capsys):
+    assert main(["report", str(synthetic_bag[0]), "--out", str(tmp_path / "r"), "--after", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "ends before the metrics window starts (sim.metrics_after_s = 5 s)" in out
+    assert main(["report", str(synthetic_bag[0]), "--out", str(tmp_path / "r"), "--after", "nan"]) == 2
+    assert "--after must be a finite time >= 0 s" in capsys.readouterr().err
