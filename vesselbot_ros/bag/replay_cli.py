@@ -134,5 +134,7 @@ def _check_into_out(args: argparse.Namespace, info: Any) -> None:
     while _holds_bag(default.with_name(f"{default.name}_{n}")):
         n += 1
     free = default.with_name(f"{default.name}_{n}")
-    raise BagError(f"{out} already holds the result of an earlier `replay --into {args.into}`; it is not "
-                   f"overwritten: pass --out DIR for a new result (e.g. --out {free})")
+    existing = ", ".join(p.name for p in (out / "metadata.yaml", *sorted(out.glob("*.mcap"))) if p.exists())
+    what = f" from an earlier `replay --into {args.into}`" if out.resolve() == default.resolve() else ""
+    raise BagError(f"{out} already holds a bag ({existing}){what}; it is not overwritten: pass --out DIR for "
+                   f"a new result (e.g. --out {free})")

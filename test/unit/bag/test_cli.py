@@ -92,7 +92,8 @@ def test_replay_into_a_second_time_suggests_out(synthetic_bag, tmp_path, capsys,
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
-    assert "already holds the result of an earlier `replay --into observer`" in err[0]
+    assert "already holds a bag (metadata.yaml) from an earlier `replay --into observer`" in err[0]
+    assert "it is not overwritten: pass --out DIR" in err[0]
     assert f"--out {bag / 'reestimate_observer_2'}" in err[0]
 
 
