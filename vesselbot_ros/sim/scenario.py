@@ -43,6 +43,8 @@ __all__ = [
     "Scenario",
     "load_scenario",
     "scenario_from_mapping",
+    "shipped_scenarios",
+    "SCENARIO_DIR",
 ]
 
 
@@ -209,3 +211,21 @@ def load_scenario(path: str | Path) -> Scenario:
             out-of-range value (the message names the dotted key and value).
     """
     return scenario_from_mapping(load_yaml(path))
+
+
+#: Folder of the scenarios shipped with vesselbot_ros.
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """``{name: path}`` of the shipped scenario files (``config/*.yaml`` with a top-level ``name``).
+
+    Parameter sets that are not scenarios (``physics_default.yaml``,
+    ``design_study.yaml``) carry no ``name`` and are left out.
+    """
+    out: dict[str, Path] = {}
+    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+        data = load_yaml(path)
+        if isinstance(data.get("name"), str):
+            out[data["name"]] = path
+    return out
