@@ -102,3 +102,29 @@ def test_fingerprint_sees_every_bit() -> None:
     res.metrics["plant_steps"] += 1
     assert fingerprint(res) != base
     assert fingerprint_series({"a": [1.0, 2.0]}) != fingerprint_series({"a": [[1.0, 2.0]]})  # shape counts
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not platform.libc_ver()[0] == "glibc",
+                    reason="glibc's x86-64 libm variants")
+def test_sound_scenario_within_1e12_when_libm_takes_its_non_fma_variants() -> None:
+    """What is only close: glibc picks FMA or non-FMA ``exp``/``sin``/``pow`` by CPU.
+
+    Masking FMA and AVX2 (as on a CPU without them) changes some last bits;
+    the sound scenario's metrics stay within 1e-12 relative of the stored
+    reference (the printed scenario's stick/slide on the wall is chaotic and
+    amplifies a last bit, so it is only reproducible on CPUs of one libm
+    variant: README, "Reproducibility").
+    """
+    from vesselbot_ros.sim.reference_metrics import compare, load_reference
+
+    env = dict(os.environ, GLIBC_TUNABLES="glibc.cpu.hwcaps=-AVX2,-FMA,-AVX2_Usable,-FMA_Usable")
+    code = ("import json; from vesselbot_ros.sim.reference_metrics import compute_reference; "
+            "print(json.dumps(compute_reference(['sound_small_artery'])))")
+    proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=REPO, capture_output=True, text=True,
+                          timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    now = json.loads(proc.stdout)
+    stored = load_reference()
+    stored["runs"] = {k: v for k, v in stored["runs"].items() if k.startswith("sound_small_artery/")}
+    diff = compare(stored, now)
+    assert not diff, "\n".join(diff)
