@@ -98,11 +98,10 @@ def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64] | npt.N
     rows = [[conv(v) for v in row] for row in am.tolist()]
     rhs = [[conv(v) for v in (r if isinstance(r, list) else [r])] for r in bm.tolist()]
     m = len(rhs[0])
-    scale = max((abs(v) for row in rows for v in row), default=0.0)
     for col in range(n):
         piv = max(range(col, n), key=lambda r: abs(rows[r][col]))
-        if not abs(rows[piv][col]) > 1e-14 * scale:
-            raise ModelInputError(f"solve: singular matrix (pivot {abs(rows[piv][col])!r} in column {col})")
+        if rows[piv][col] == 0.0:  # as LAPACK's getrf: only an exactly zero pivot is singular
+            raise ModelInputError(f"solve: singular matrix (zero pivot in column {col})")
         if piv != col:
             rows[col], rows[piv] = rows[piv], rows[col]
             rhs[col], rhs[piv] = rhs[piv], rhs[col]

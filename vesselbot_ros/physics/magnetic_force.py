@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.extending import register_jitable
 
+from vesselbot_ros.blas_free import solve
 from vesselbot_ros.config import ConfigError
 
 __all__ = [
@@ -69,7 +70,7 @@ def sperm_number_function(sperm_number: float, base: Literal["hinged", "free"] =
     a[1] = np.ones(4) if base == "hinged" else mu**3
     a[2] = mu**2 * np.exp(mu)
     a[3] = mu**3 * np.exp(mu)
-    c = np.linalg.solve(a, b)
+    c = solve(a, b)  # no LAPACK: the same doubles on every CPU (vesselbot_ros.blas_free)
     # int_0^1 Y conj(Y') ds = sum_jk c_j conj(c_k mu_k) (e^{nu_jk} - 1)/nu_jk, nu_jk = mu_j + conj(mu_k)
     nu = mu[:, None] + np.conj(mu)[None, :]
     small = np.abs(nu) < 1e-12
