@@ -98,8 +98,8 @@ def test_paper_schedule_outliers_reach_the_observer_and_are_announced(paper_bag)
     assert np.all(err[burst] > 1e-3 - 5 * 100e-6)  # 1 mm offset, noise sigma 100 um
     # announced on /diagnostics by the imager (what the report shades)
     assert list(ts["faults.kind"]) == ["outlier_burst"]
-    np.testing.assert_allclose(ts["faults.t_s"], [0.5])
-    np.testing.assert_allclose(ts["faults.duration_s"], [0.02])
+    np.testing.assert_allclose(ts["faults.t_s"], [0.5], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ts["faults.duration_s"], [0.02], rtol=0, atol=1e-9)
     last = diagnostics(bag, "vesselbot_imager")[-1][1]
     assert last["outlier_frames"] == "20" and last["fault_source"] == "schedule"
 

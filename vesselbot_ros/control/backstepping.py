@@ -36,6 +36,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ModelInputError
 
@@ -152,14 +153,14 @@ class BacksteppingController:
     ) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
-        b = np.asarray(input_matrix, dtype=np.float64)
-        if b.shape != (2, 2) or not np.all(np.isfinite(b)):
-            raise ModelInputError(f"input_matrix must be a finite (2, 2) array, got {input_matrix!r}")
-        if abs(np.linalg.det(b)) < 1e-12 * max(1.0, float(np.max(np.abs(b))) ** 2):
-            raise ModelInputError(f"input_matrix must be invertible, got {b.tolist()}")
+        try:
+            b_inv = mat2_inverse(mat2(input_matrix))
+        except ModelInputError as exc:
+            raise ModelInputError(f"input_matrix: {exc}") from None
         self.params = params
         self._f = force_fn
-        self._b_inv = np.linalg.inv(b)
+        # B^-1 as four floats: G = B^-1 U in fixed-order scalar arithmetic, not BLAS (vesselbot_ros.blas_free)
+        self._b_inv = b_inv
         self._k1 = float(params.gains.k1)
         self._k2 = float(params.gains.k2)
         self._last = np.zeros(2)
@@ -235,7 +236,7 @@ class BacksteppingController:
         else:
             f = self._f(t_s, x_hat, z_hat)
             u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
-        g = self._b_inv @ u
+        g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return self._safe("nonfinite")
         self._last = g

@@ -1,9 +1,11 @@
 """C2 cubic B-spline reference trajectory through anchor points (Section III-A2).
 
 The anchor points (frame W: x along the vessel, z vertical) are joined by an
-interpolating cubic B-spline built by :func:`scipy.interpolate.make_interp_spline`
-(``k=3``, natural end conditions), so the path ``P(u)`` is C2 in its
-chord-length parameter ``u`` (m).  The timing ``u(t)`` is a separate C2 map,
+interpolating cubic B-spline (``k=3``, natural end conditions; the spline
+:func:`scipy.interpolate.make_interp_spline` builds, with its collocation system
+solved without BLAS by :func:`vesselbot_ros.blas_free.interp_spline` so the
+path is the same double for double on every CPU), so the path ``P(u)`` is C2 in
+its chord-length parameter ``u`` (m).  The timing ``u(t)`` is a separate C2 map,
 which is how the paper "rescales the reference velocity along this path":
 
 * ``constant``: ``u = U t / T`` (constant parameter speed);
@@ -12,8 +14,10 @@ which is how the paper "rescales the reference velocity along this path":
 * ``flow_synchronised``: ``dx_ref/dt = c * v_f(t, P(u))`` where ``v_f`` is the
   axial blood velocity at the reference point and ``c = sync_ratio``: the
   reference drifts with the blood, which Section III-A2 recommends where
-  ``F_m/F_tot < 1``.  The ODE is integrated once (``solve_ivp``, RK45) and
-  ``u(t)`` is interpolated by a cubic spline, so it is C2 too.
+  ``F_m/F_tot < 1``.  The ODE is integrated once on a 2 ms grid by the
+  classical fourth-order Runge-Kutta method (scipy's RK45 computes its stages
+  with BLAS ``gemv``, whose rounding depends on the CPU's kernel) and ``u(t)``
+  is interpolated by FITPACK's not-a-knot cubic spline, so it is C2 too.
 
 ``X_ref = P(u)``, ``Xd_ref = P'(u) u'``, ``Xdd_ref = P''(u) u'^2 + P'(u) u''``.
 Outside ``[t_start, t_start + T]`` the reference holds its end point with zero
@@ -29,9 +33,9 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from scipy.integrate import solve_ivp
-from scipy.interpolate import BSpline, make_interp_spline
+from scipy.interpolate import BSpline
 
+from vesselbot_ros.blas_free import interp_spline, interp_spline_fitpack
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
 
@@ -121,8 +125,7 @@ class ReferenceTrajectory:
         self.anchor_u_m = np.concatenate([[0.0], np.cumsum(seg)])
         self.length_m = float(self.anchor_u_m[-1])
         k = 3 if len(pts) >= 4 else len(pts) - 1
-        bc = "natural" if k == 3 else None
-        self._path: BSpline = make_interp_spline(self.anchor_u_m, pts, k=k, bc_type=bc)
+        self._path: BSpline = interp_spline(self.anchor_u_m, pts, k=k)
         self._d1 = self._path.derivative(1)
         self._d2 = self._path.derivative(2) if k >= 2 else None
         self._t0 = float(params.start_s)
@@ -137,8 +140,8 @@ class ReferenceTrajectory:
         c = self.params.sync_ratio
         U = self.length_m
 
-        def rhs(t: float, y: npt.NDArray[np.float64]) -> list[float]:
-            u = min(max(float(y[0]), 0.0), U)
+        def rhs(t: float, u: float) -> float:
+            u = min(max(u, 0.0), U)
             p = self._path(u)
             dx_du = float(self._d1(u)[0])
             if abs(dx_du) < 1e-9:
@@ -146,15 +149,22 @@ class ReferenceTrajectory:
             du = c * vf(self._t0 + t, p) / dx_du
             if (u <= 0.0 and du < 0.0) or (u >= U and du > 0.0):
                 du = 0.0
-            return [du]
+            if not math.isfinite(du):
+                raise ModelInputError(f"flow-synchronised timing: non-finite parameter speed at t={t!r}")
+            return du
 
         n = max(201, int(self._T * 500) + 1)
         ts = np.linspace(0.0, self._T, n)
-        sol = solve_ivp(rhs, (0.0, self._T), [0.0], t_eval=ts, rtol=1e-9, atol=1e-12, max_step=self._T / 200)
-        if not sol.success:  # pragma: no cover - solve_ivp failure is a scipy bug or a NaN flow
-            raise ModelInputError(f"flow-synchronised timing failed: {sol.message}")
-        u = np.clip(sol.y[0], 0.0, U)
-        return make_interp_spline(ts, u, k=3)
+        u = np.empty(n)
+        u[0] = 0.0
+        for i in range(n - 1):  # classical RK4, Python floats: the same doubles on every CPU
+            t, h, y = float(ts[i]), float(ts[i + 1] - ts[i]), float(u[i])
+            k1 = rhs(t, y)
+            k2 = rhs(t + 0.5 * h, y + 0.5 * h * k1)
+            k3 = rhs(t + 0.5 * h, y + 0.5 * h * k2)
+            k4 = rhs(t + h, y + h * k3)
+            u[i + 1] = y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        return interp_spline_fitpack(ts, np.clip(u, 0.0, U))
 
     def _timing(self, t: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
         """Return ``(u, du/dt, d2u/dt2)`` for times ``t`` (any shape)."""

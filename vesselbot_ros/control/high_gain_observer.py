@@ -53,6 +53,7 @@ from typing import Any, Literal, NamedTuple, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import mat2, mat2_apply
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
 
@@ -227,7 +228,8 @@ class HighGainObserver:
         gx, gz = axis_gains(params)
         self._kx = params.high_gain * gx
         self._kz = params.high_gain**2 * gz
-        self._b = np.asarray(model.input_matrix, dtype=np.float64)
+        # B as four floats: U = B G in fixed-order scalar arithmetic, not BLAS (vesselbot_ros.blas_free)
+        self._b = mat2(model.input_matrix)
         self._y = y
         self._t = float(t0_s)
         self._contact = model.new_contact_state()
@@ -269,7 +271,7 @@ class HighGainObserver:
         if not math.isfinite(t_s) or t_s < self._t - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
         if t_s > self._t:
-            self.model.propagate(self._t, t_s, self._y, self._b @ g, self._contact)
+            self.model.propagate(self._t, t_s, self._y, np.array(mat2_apply(self._b, g[0], g[1])), self._contact)
             y = self._y
             if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2]) and math.isfinite(y[3])):
                 raise ModelInputError(f"observer: prediction became non-finite at t={t_s!r}")

@@ -26,6 +26,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice
 from vesselbot_ros.physics.kernel import forces_into, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
@@ -58,10 +59,12 @@ def input_matrix(
 
 
 def gradient_from_accel(b: npt.NDArray[np.float64], u_m_per_s2: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """``G = B^-1 U`` (T/m) for ``U`` (m/s^2), shape (2,)."""
-    return np.asarray(np.linalg.solve(b, np.asarray(u_m_per_s2, dtype=np.float64)))
+    """``G = B^-1 U`` (T/m) for ``U`` (m/s^2), shape (2,); no BLAS (:mod:`vesselbot_ros.blas_free`)."""
+    u = np.asarray(u_m_per_s2, dtype=np.float64)
+    return np.array(mat2_apply(mat2_inverse(mat2(b)), float(u[0]), float(u[1])))
 
 
 def accel_from_gradient(b: npt.NDArray[np.float64], g_T_per_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """``U = B G`` (m/s^2) for ``G`` (T/m), shape (2,)."""
-    return np.asarray(b @ np.asarray(g_T_per_m, dtype=np.float64))
+    """``U = B G`` (m/s^2) for ``G`` (T/m), shape (2,); no BLAS (:mod:`vesselbot_ros.blas_free`)."""
+    g = np.asarray(g_T_per_m, dtype=np.float64)
+    return np.array(mat2_apply(mat2(b), float(g[0]), float(g[1])))

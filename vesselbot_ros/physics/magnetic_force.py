@@ -24,7 +24,7 @@ i.e. exactly the form (4) with Z = |int_0^1 Re(i Y conj(Y')) ds| (the two halves
 make the 1/4 of (4)), evaluated in closed form.  Results: hinged, Z(3.4) =
 1.257e-3 and Z S_p^4 -> (2 - sqrt 2)/4 for large S_p (decreasing, as the paper
 states); force-free base, Z = 1/(2 S_p^4) exactly.  An independent check (a
-finite-difference filament and a thrust averaged over sampled times) is in
+collocation solution of the filament and a thrust averaged over sampled times) is in
 ``test/unit/physics/test_magnetic_force.py``.
 """
 
@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.extending import register_jitable
 
+from vesselbot_ros.blas_free import solve
 from vesselbot_ros.config import ConfigError
 
 __all__ = [
@@ -74,7 +75,7 @@ def sperm_number_function(sperm_number: float, base: Literal["hinged", "free"] =
     a[1] = np.ones(4) if base == "hinged" else mu**3
     a[2] = mu**2 * np.exp(mu)
     a[3] = mu**3 * np.exp(mu)
-    c = np.linalg.solve(a, b)
+    c = solve(a, b)  # no LAPACK: the same doubles on every CPU (vesselbot_ros.blas_free)
     # int_0^1 Y conj(Y') ds = sum_jk c_j conj(c_k mu_k) (e^{nu_jk} - 1)/nu_jk, nu_jk = mu_j + conj(mu_k)
     nu = mu[:, None] + np.conj(mu)[None, :]
     small = np.abs(nu) < 1e-12

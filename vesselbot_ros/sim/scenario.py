@@ -53,6 +53,8 @@ __all__ = [
     "check_resources",
     "BYTES_PER_TICK",
     "BAG_BYTES_PER_TICK",
+    "shipped_scenarios",
+    "SCENARIO_DIR",
 ]
 
 # What one control tick costs: the runner's and the launcher's per-tick time
@@ -347,3 +349,21 @@ def check_resources(
                 f"{_fmt_bytes(free)} free under {parent}: shorten sim.duration_s, lower sim.control_rate_Hz or use --no-record"
             )
     return est
+
+
+#: Folder of the scenarios shipped with vesselbot_ros.
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """``{name: path}`` of the shipped scenario files (``config/*.yaml`` with a top-level ``name``).
+
+    Parameter sets that are not scenarios (``physics_default.yaml``,
+    ``design_study.yaml``) carry no ``name`` and are left out.
+    """
+    out: dict[str, Path] = {}
+    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+        data = load_yaml(path)
+        if isinstance(data.get("name"), str):
+            out[data["name"]] = path
+    return out

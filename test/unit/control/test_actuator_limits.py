@@ -31,14 +31,14 @@ def test_saturation_keeps_direction_paper_formula() -> None:
     out = lim.apply(0.001, cmd)
     k = 0.5 / 0.08  # paper: k = max(1, |U|/U_sat)
     assert out.k_scale == pytest.approx(k, rel=1e-12)
-    np.testing.assert_allclose(out.applied, cmd / k, rtol=1e-12)
+    np.testing.assert_allclose(out.applied, cmd / k, rtol=1e-12, atol=1e-12)
     assert out.saturated and not out.rejected
 
 
 def test_per_axis_saturation() -> None:
     lim = CoilLimiter(CoilLimits(saturation_norm="per_axis", slew_rate="custom", custom_slew_rate_T_per_m_per_s=1e9))
     out = lim.apply(0.001, [0.16, 0.05])
-    np.testing.assert_allclose(out.applied, [0.08, 0.05], rtol=1e-12)
+    np.testing.assert_allclose(out.applied, [0.08, 0.05], rtol=1e-12, atol=1e-12)
     assert out.k_scale == pytest.approx(2.0)
 
 
@@ -47,7 +47,7 @@ def test_slew_from_zero_and_first_tick() -> None:
     out0 = lim.apply(0.0, [0.08, 0.0])  # dt = 0 at t0: nothing can move
     np.testing.assert_array_equal(out0.applied, [0.0, 0.0])
     out1 = lim.apply(0.5, [0.08, 0.0])  # 0.1 T/m/s * 0.5 s = 0.05 T/m
-    np.testing.assert_allclose(out1.applied, [0.05, 0.0], rtol=1e-12)
+    np.testing.assert_allclose(out1.applied, [0.05, 0.0], rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(out1.slew_limited, [True, False])
 
 
@@ -56,7 +56,7 @@ def test_non_finite_command_is_rejected_and_held() -> None:
     lim.apply(0.001, [0.02, 0.01])
     out = lim.apply(0.002, [math.nan, 0.0])
     assert out.rejected
-    np.testing.assert_allclose(out.applied, [0.02, 0.01])
+    np.testing.assert_allclose(out.applied, [0.02, 0.01], rtol=1e-12, atol=1e-12)
     assert np.all(np.isfinite(out.applied))
 
 
@@ -75,9 +75,9 @@ def test_watchdog_ramps_to_zero_after_timeout() -> None:
     # held until 0.1 + 0.05 = 0.15 s; the ramp runs from there: 1 T/m/s * (0.16 - 0.15) s
     out = lim.watchdog(0.16)
     assert out is not None
-    np.testing.assert_allclose(out.applied, [0.08 - 0.01, 0.0], rtol=1e-9)
+    np.testing.assert_allclose(out.applied, [0.08 - 0.01, 0.0], rtol=1e-9, atol=1e-12)
     out = lim.watchdog(0.17)  # one more 10 ms step
-    np.testing.assert_allclose(out.applied, [0.08 - 0.02, 0.0], rtol=1e-9)
+    np.testing.assert_allclose(out.applied, [0.08 - 0.02, 0.0], rtol=1e-9, atol=1e-12)
     out = lim.watchdog(1.0)
     np.testing.assert_array_equal(out.applied, [0.0, 0.0])
 
@@ -89,7 +89,7 @@ def test_watchdog_polled_while_commands_flow_never_blocks_a_later_command() -> N
     for t in (0.011, 0.012, 0.013):
         assert lim.watchdog(t) is None
     out = lim.apply(0.011, [0.02, 0.0])  # the limiter's clock was not advanced by the polls
-    np.testing.assert_allclose(out.applied, [0.02, 0.0])
+    np.testing.assert_allclose(out.applied, [0.02, 0.0], rtol=1e-12, atol=1e-12)
 
 
 def test_time_going_backwards_raises() -> None:

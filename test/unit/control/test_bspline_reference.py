@@ -99,7 +99,7 @@ def test_path_and_bad_input() -> None:
     ref = ReferenceTrajectory(PARAMS)
     pts = ref.path(50)
     assert pts.shape == (50, 2)
-    np.testing.assert_allclose(pts[0], [0.0, 1e-3])
+    np.testing.assert_allclose(pts[0], [0.0, 1e-3], rtol=1e-12, atol=1e-15)
     with pytest.raises(ModelInputError, match="finite"):
         ref.sample(math.nan)
 

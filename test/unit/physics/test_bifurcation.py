@@ -56,8 +56,8 @@ def test_csv_round_trip(tmp_path):
     np.testing.assert_allclose(table.profile(y, 20.0), rational_profile(y, *truth[20.0]), atol=2e-3)
     save_profile_table(table, tmp_path / "table.csv", "test")
     back = load_profile_table(str(tmp_path / "table.csv"))
-    np.testing.assert_allclose(back.values, table.values, rtol=1e-15)
-    np.testing.assert_allclose(back.slopes, table.slopes, rtol=1e-12)
+    np.testing.assert_allclose(back.values, table.values, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(back.slopes, table.slopes, rtol=1e-12, atol=1e-12)
 
 
 def test_csv_errors(tmp_path):

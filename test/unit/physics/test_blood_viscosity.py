@@ -53,7 +53,7 @@ def test_printed_form_agrees_for_large_d_and_diverges_for_small_d():
 def test_constant_model_and_array_shape():
     out = blood_viscosity(np.array([1e-3, 2e-3]), model="constant", constant_viscosity_Pa_s=0.01)
     assert out.shape == (2,)
-    np.testing.assert_allclose(out, 0.01)
+    np.testing.assert_allclose(out, 0.01, rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize(

@@ -17,19 +17,19 @@ TERMS = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "ele
 
 def test_total_is_sum_and_weight_value():
     ft = force_terms(T_MEAN, [0.0, 0.3e-3], [0.01, -0.002], [0.03, 0.05], ContactState(), P)
-    np.testing.assert_allclose(ft.total, sum(getattr(ft, n) for n in TERMS), rtol=1e-14)
+    np.testing.assert_allclose(ft.total, sum(getattr(ft, n) for n in TERMS), rtol=1e-14, atol=1e-18)
     w = 4 / 3 * math.pi * (250e-6) ** 3 * (0.8 * 7874 + 0.2 * 1500 - 1060) * 9.81
-    np.testing.assert_allclose(ft.apparent_weight, [0.0, -w], rtol=1e-12)
+    np.testing.assert_allclose(ft.apparent_weight, [0.0, -w], rtol=1e-12, atol=1e-18)
     assert w == pytest.approx(3.55e-6, rel=1e-2)
-    np.testing.assert_allclose(ft.magnetic, 0.8 * 4 / 3 * math.pi * (250e-6) ** 3 * 1.72e6 * np.array([0.03, 0.05]), rtol=1e-12)
-    np.testing.assert_allclose(ft.without_motive(), ft.total - ft.magnetic)
+    np.testing.assert_allclose(ft.magnetic, 0.8 * 4 / 3 * math.pi * (250e-6) ** 3 * 1.72e6 * np.array([0.03, 0.05]), rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(ft.without_motive(), ft.total - ft.magnetic, rtol=1e-12, atol=1e-18)
 
 
 def test_drag_uses_local_flow_and_vanishes_when_comoving():
     z = 0.3e-3
     vf = 0.025 * (1 - (2 * z / 3e-3) ** 2)
     ft = force_terms(T_MEAN, [0.0, z], [vf, 0.0], [0.0, 0.0], ContactState(), P)
-    np.testing.assert_allclose(ft.v_fluid_W, [vf, 0.0], rtol=1e-12)
+    np.testing.assert_allclose(ft.v_fluid_W, [vf, 0.0], rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(ft.drag, 0.0, atol=1e-20)
     still = force_terms(T_MEAN, [0.0, z], [0.0, 0.0], [0.0, 0.0], ContactState(), P)
     assert still.drag[0] > 0  # blood pushes a still robot downstream
@@ -39,7 +39,7 @@ def test_geometry_fields_and_signs_near_upper_wall():
     z = 1.5e-3 - 250e-6 - 50e-9  # 50 nm gap to the upper wall at D(t) = D
     ft = force_terms(T_MEAN, [0.0, z], [0.0, 0.0], [0.0, 0.0], ContactState(), P)
     assert ft.wall == 1 and ft.delta_m == pytest.approx(-50e-9, rel=1e-6)
-    np.testing.assert_allclose(ft.normal_W, [0.0, 1.0])
+    np.testing.assert_allclose(ft.normal_W, [0.0, 1.0], atol=1e-15)
     assert ft.diameter_m == pytest.approx(3e-3)
     assert ft.van_der_waals[1] > 0 and ft.electrostatic[1] > 0  # attraction towards the wall (+n)
     assert ft.steric[1] < 0  # repulsion

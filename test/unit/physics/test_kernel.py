@@ -29,7 +29,7 @@ def test_accel_is_total_over_mass_and_no_motive_drops_magnetic():
     state = (0.37, 0.002, 0.4e-3, 0.01, -0.003)
     ax, az = kernel.accel(*state, 0.05, -0.02, c, PK)
     ft = force_terms(state[0], state[1:3], state[3:5], [0.05, -0.02], ContactState(), P)
-    np.testing.assert_allclose([ax, az], ft.total / P.robot.mass_kg, rtol=1e-13)
+    np.testing.assert_allclose([ax, az], ft.total / P.robot.mass_kg, rtol=1e-13, atol=1e-12)
     fx, fz = kernel.accel_no_motive(*state, c, PK)
     np.testing.assert_allclose([fx, fz], (ft.total - ft.magnetic) / P.robot.mass_kg, rtol=1e-12, atol=1e-12)
 
@@ -38,7 +38,7 @@ def test_forces_into_rows_follow_term_names():
     out = np.empty((8, 2))
     kernel.forces_into(0.1, 0.0, 0.5e-3, 0.0, 0.0, 0.0, 0.08, np.zeros(4), PK, out)
     assert kernel.TERM_NAMES[0] == "magnetic" and out[0, 1] == pytest.approx(7.2e-6, rel=1e-2)
-    np.testing.assert_allclose(out[7], out[:7].sum(axis=0), rtol=1e-14)
+    np.testing.assert_allclose(out[7], out[:7].sum(axis=0), rtol=1e-14, atol=1e-18)
 
 
 @pytest.mark.parametrize("z", [-1.0, -3e-3, -1.26e-3, 0.0, 1.2499e-3, 1.6e-3, 5e-3, 1e3])
@@ -57,7 +57,7 @@ def test_update_contact_matches_pure_state_update():
     for delta in (-1e-6, 5e-8, 1e-7, 8e-8, 1.2e-7, 1e-8, -1e-9):
         kernel.update_contact(c, delta, PK)
         s = update_contact_state(s, delta, P)
-        np.testing.assert_allclose(c, s.to_array(), rtol=1e-14)
+        np.testing.assert_allclose(c, s.to_array(), rtol=1e-14, atol=1e-21)
 
 
 def test_paper_printed_electrostatic_traps_at_upper_wall():

@@ -87,7 +87,7 @@ def test_bp_numpy_entry_validates():
     from vesselbot_ros.physics.magnetic_force import bead_pulling_force_W
 
     f = bead_pulling_force_W(0.8, 250e-6, 1.72e6, [0.0, 0.08])
-    np.testing.assert_allclose(f, [0.0, bp(250e-6)], rtol=1e-12)
+    np.testing.assert_allclose(f, [0.0, bp(250e-6)], rtol=1e-12, atol=1e-18)
     with pytest.raises(ModelInputError, match="gradient_T_per_m must be finite"):
         bead_pulling_force_W(0.8, 250e-6, 1.72e6, [np.nan, 0.0])
     with pytest.raises(CE, match="radius_m must be finite and > 0"):

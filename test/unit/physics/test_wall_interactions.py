@@ -83,6 +83,6 @@ def test_contact_modes_hold_vs_paper_heaviside():
     q = float(max_charge(R))
     hold = interaction_forces_along_n(1e-9, R, A, 0.4e-9, q, EPS, 0.25, 1e-7, 100e-9, 0.0)
     at_zero = interaction_forces_along_n(0.0, R, A, 0.4e-9, q, EPS, 0.25, 1e-7, 100e-9, 0.0)
-    np.testing.assert_allclose(hold, at_zero, rtol=1e-12)  # continuous at delta = 0
+    np.testing.assert_allclose(hold, at_zero, rtol=1e-12, atol=1e-18)  # continuous at delta = 0
     paper = interaction_forces_along_n(1e-9, R, A, 0.4e-9, q, EPS, 0.25, 1e-7, 100e-9, 1.0)
     assert paper == (0.0, 0.0, 0.0) or np.allclose(paper, 0.0)

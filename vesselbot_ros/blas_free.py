@@ -1,0 +1,190 @@
+"""Small linear algebra that never calls BLAS or LAPACK, so a run gives the same doubles on every CPU.
+
+numpy's ``@``/``np.dot``/``np.linalg`` and scipy's spline and ODE solvers hand
+their products and factorisations to OpenBLAS, which picks a kernel for the CPU
+it runs on (``SkylakeX`` with AVX-512, ``Haswell``/``Zen`` with AVX2, ...).
+Those kernels sum in different orders and fuse multiply-adds differently, so
+the same run differed in the 13th digit between an AVX-512 and an AVX2 machine.
+Pinning the kernel (``OPENBLAS_CORETYPE``) would have to happen before numpy
+loads in every process, including Dask workers and users' scripts that we do
+not start; so the per-run numerics avoid BLAS instead (docs/reproduction.md,
+"Reproducibility").  Every operation here is a fixed sequence of IEEE-754
+scalar operations on Python floats: exactly rounded, in a fixed order,
+identical on any x86-64 CPU.
+
+The sizes are tiny (2x2 input matrices, a collocation system of a few tens of
+anchors), so speed is not a concern; ``bench/bench_blas_free.py`` measures it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from scipy.interpolate import BSpline, splrep
+
+from vesselbot_ros.errors import ModelInputError
+
+__all__ = [
+    "Mat2",
+    "mat2",
+    "mat2_inverse",
+    "mat2_apply",
+    "solve",
+    "interp_spline",
+    "interp_spline_fitpack",
+]
+
+#: A 2x2 matrix as four Python floats ``(a, b, c, d)`` = ``[[a, b], [c, d]]``.
+Mat2 = tuple[float, float, float, float]
+
+
+def mat2(m: npt.ArrayLike) -> Mat2:
+    """``[[a, b], [c, d]]`` (any (2, 2) array-like) as a :data:`Mat2`.
+
+    Raises:
+        ModelInputError: if ``m`` is not a finite (2, 2) matrix.
+    """
+    a = np.asarray(m, dtype=np.float64)
+    if a.shape != (2, 2) or not np.all(np.isfinite(a)):
+        raise ModelInputError(f"expected a finite (2, 2) matrix, got {m!r}")
+    return (float(a[0, 0]), float(a[0, 1]), float(a[1, 0]), float(a[1, 1]))
+
+
+def mat2_inverse(m: Mat2) -> Mat2:
+    """Inverse of a 2x2 matrix by the adjugate formula.
+
+    Raises:
+        ModelInputError: if ``m`` is singular (determinant below 1e-12 of its scale squared).
+    """
+    a, b, c, d = m
+    det = a * d - b * c
+    scale = max(1.0, abs(a), abs(b), abs(c), abs(d))
+    if not abs(det) >= 1e-12 * scale * scale:
+        raise ModelInputError(f"matrix must be invertible, got {[[a, b], [c, d]]}")
+    return (d / det, -b / det, -c / det, a / det)
+
+
+def mat2_apply(m: Mat2, x0: float, x1: float) -> tuple[float, float]:
+    """``m @ (x0, x1)`` as two floats, each a product sum in a fixed order."""
+    a, b, c, d = m
+    return (a * x0 + b * x1, c * x0 + d * x1)
+
+
+def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64] | npt.NDArray[np.complex128]:
+    """Solve ``a x = b`` by Gaussian elimination with partial pivoting, in Python scalars.
+
+    Args:
+        a: (n, n) real or complex matrix.
+        b: (n,) or (n, m) right-hand side(s).
+
+    Returns:
+        ``x`` with the shape of ``b``.
+
+    Raises:
+        ModelInputError: on a non-square, non-finite or singular system.
+    """
+    am = np.asarray(a)
+    bm = np.asarray(b)
+    n = am.shape[0] if am.ndim == 2 else -1
+    if am.ndim != 2 or am.shape != (n, n) or bm.shape[:1] != (n,) or bm.ndim > 2:
+        raise ModelInputError(f"solve needs an (n, n) matrix and (n,) or (n, m) right-hand side, got {am.shape}, {bm.shape}")
+    if not (np.all(np.isfinite(am)) and np.all(np.isfinite(bm))):
+        raise ModelInputError("solve needs a finite system")
+    cplx = np.iscomplexobj(am) or np.iscomplexobj(bm)
+    conv = complex if cplx else float
+    rows = [[conv(v) for v in row] for row in am.tolist()]
+    rhs = [[conv(v) for v in (r if isinstance(r, list) else [r])] for r in bm.tolist()]
+    m = len(rhs[0])
+    for col in range(n):
+        piv = max(range(col, n), key=lambda r: abs(rows[r][col]))
+        if rows[piv][col] == 0.0:  # as LAPACK's getrf: only an exactly zero pivot is singular
+            raise ModelInputError(f"solve: singular matrix (zero pivot in column {col})")
+        if piv != col:
+            rows[col], rows[piv] = rows[piv], rows[col]
+            rhs[col], rhs[piv] = rhs[piv], rhs[col]
+        pr, prhs, p = rows[col], rhs[col], rows[col][col]
+        for r in range(col + 1, n):
+            f = rows[r][col] / p
+            if f == 0.0:
+                continue
+            row = rows[r]
+            for j in range(col, n):
+                row[j] = row[j] - f * pr[j]
+            rr = rhs[r]
+            for j in range(m):
+                rr[j] = rr[j] - f * prhs[j]
+    x = [[conv(0.0)] * m for _ in range(n)]
+    for i in range(n - 1, -1, -1):
+        row = rows[i]
+        for j in range(m):
+            s = rhs[i][j]
+            for c in range(i + 1, n):
+                s = s - row[c] * x[c][j]
+            x[i][j] = s / row[i]
+    out = np.array(x, dtype=np.complex128 if cplx else np.float64)
+    return out[:, 0] if bm.ndim == 1 else out
+
+
+def _knots(x: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64]:
+    """The knots :func:`scipy.interpolate.make_interp_spline` uses (natural for k = 3, else its default)."""
+    if k == 3:  # natural end conditions: x itself, ends repeated k + 1 times
+        return np.r_[(x[0],) * 3, x, (x[-1],) * 3]
+    if k == 2:  # scipy's default for even k: knots between the data points
+        mid = (x[1:] + x[:-1]) / 2.0
+        return np.r_[(x[0],) * 3, mid[1:-1], (x[-1],) * 3]
+    if k == 1:
+        return np.r_[x[0], x, x[-1]]
+    raise ModelInputError(f"interp_spline supports k in 1..3, got {k}")
+
+
+def interp_spline(x: Sequence[float] | npt.NDArray[np.float64], y: npt.ArrayLike, k: int = 3) -> BSpline:
+    """Interpolating B-spline through ``(x, y)``; natural end conditions for ``k = 3``.
+
+    The same spline as ``make_interp_spline(x, y, k, bc_type="natural" if k == 3
+    else None)`` (same knots, coefficients equal to rounding), with the
+    collocation system solved by :func:`solve` instead of LAPACK.  The
+    collocation matrix comes from scipy's own B-spline evaluation (no BLAS).
+
+    Args:
+        x: (n,) strictly increasing abscissae; ``n >= k + 1``.
+        y: (n,) or (n, d) values.
+        k: Degree, 1..3.
+
+    Returns:
+        The :class:`scipy.interpolate.BSpline`.
+    """
+    xa = np.asarray(x, dtype=np.float64)
+    ya = np.asarray(y, dtype=np.float64)
+    if xa.ndim != 1 or xa.size < k + 1 or ya.shape[:1] != xa.shape or not np.all(np.diff(xa) > 0.0):
+        raise ModelInputError(f"interp_spline needs >= {k + 1} strictly increasing x and matching y, got {xa!r}")
+    t = _knots(xa, k)
+    nc = t.size - k - 1
+    eye = BSpline.construct_fast(t, np.eye(nc), k)
+    rows = [eye(xa)]
+    rhs = [ya.reshape(xa.size, -1)]
+    if k == 3:  # natural: second derivative zero at both ends
+        rows = [eye(xa[:1], nu=2), *rows, eye(xa[-1:], nu=2)]
+        zero = np.zeros((1, rhs[0].shape[1]))
+        rhs = [zero, *rhs, zero]
+    c = solve(np.vstack(rows), np.vstack(rhs))
+    return BSpline.construct_fast(t, np.asarray(c).reshape((nc, *ya.shape[1:])), k)
+
+
+def interp_spline_fitpack(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]) -> BSpline:
+    """Not-a-knot cubic spline through many points ``(x, y)`` by FITPACK (``splrep``, ``s = 0``).
+
+    FITPACK factorises with Givens rotations in its own Fortran, with no BLAS,
+    so the coefficients are the same on every CPU; it also scales linearly
+    with the number of points, which the dense :func:`solve` does not.
+
+    Args:
+        x: (n,) strictly increasing abscissae, n >= 4.
+        y: (n,) values.
+    """
+    if x.ndim != 1 or x.size < 4 or y.shape != x.shape or not all(math.isfinite(v) for v in y):
+        raise ModelInputError("interp_spline_fitpack needs >= 4 points and finite values")
+    t, c, k = splrep(x, y, k=3, s=0)
+    return BSpline.construct_fast(t, c, k)
