@@ -196,7 +196,7 @@ class CampaignSpec:
         name: Campaign name (output folder ``out/campaigns/<name>``).
         base: Base scenario YAML; a relative path is taken from the spec file's folder.
         overrides: Fixed changes to the base, dotted key -> value.
-        seeds: Imager noise seeds: a list or ``{start, count}``.
+        seeds: Imager noise seeds: a list or ``{start, count}`` (loaded as a tuple or a :class:`SeedRange`).
         grid: Dotted key -> list of values; every combination is run.
         samples: Random draws (:class:`SampleSpec`).
         keep_timeseries: Runs whose time series are kept (:class:`KeepSpec`).
@@ -206,7 +206,7 @@ class CampaignSpec:
     name: str
     base: str
     overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
-    seeds: SeedRange | tuple[int, ...] = (0,)
+    seeds: Any = (0,)
     grid: dict[str, Any] = dataclasses.field(default_factory=dict)
     samples: SampleSpec = dataclasses.field(default_factory=SampleSpec)
     keep_timeseries: KeepSpec = dataclasses.field(default_factory=KeepSpec)
@@ -215,6 +215,12 @@ class CampaignSpec:
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
             raise ConfigError(f"name must be non-empty and use only letters, digits, '_', '-', '.', got {self.name!r}")
+        if isinstance(self.seeds, dict):
+            object.__setattr__(self, "seeds", load_dataclass(SeedRange, self.seeds, "seeds"))
+        elif isinstance(self.seeds, (list, tuple)):
+            object.__setattr__(self, "seeds", tuple(_seed(f"seeds[{i}]", s) for i, s in enumerate(self.seeds)))
+        elif not isinstance(self.seeds, SeedRange):
+            raise ConfigError(f"seeds must be a list of seeds or {{start, count}}, got {self.seeds!r}")
         if isinstance(self.seeds, tuple):
             if not self.seeds:
                 raise ConfigError("seeds must not be empty, got []")
@@ -252,6 +258,12 @@ class CampaignSpec:
     def varied_keys(self) -> tuple[str, ...]:
         """The dotted keys that vary (grid keys, then sampled keys)."""
         return tuple(self.grid) + tuple(self.samples.params)
+
+
+def _seed(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{name} must be an integer, got {value!r}")
+    return value
 
 
 def check_scenario_key(key: str) -> None:
