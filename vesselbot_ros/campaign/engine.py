@@ -94,7 +94,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
 
     if scheduler:
         try:
-            client = Client(scheduler, timeout="15s")
+            client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as exc:
             raise VesselbotError(f"cannot connect to the Dask scheduler {scheduler!r}: {exc}") from None
         try:
@@ -104,7 +104,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
         return
     n = n_workers or local_worker_count()
     try:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=logging.ERROR)
     except (OSError, TimeoutError, RuntimeError) as exc:
         raise VesselbotError(f"cannot start a local Dask cluster of {n} workers: {exc}") from None

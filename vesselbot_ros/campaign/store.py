@@ -171,7 +171,8 @@ class CampaignStore:
             if r is None:
                 continue
             row = {k: v for k, v in m.items() if k != "keep_timeseries"}
-            row.update(r)
+            # the manifest names the run (seed, varied values); the part adds what the run produced
+            row.update({k: v for k, v in r.items() if k not in row})
             rows.append(row)
         meta = self.meta()
         first = ("index", "run_id", "seed", *meta.get("varied_keys", ()), "status", "error")

@@ -54,7 +54,7 @@ def test_prepare_then_execute_then_nothing_pending(tmp_path) -> None:
     store.write_manifest(prep.manifest, {"name": "tiny", "n_runs": 6, "varied_keys": list(spec.varied_keys())}, "")
     todo = pending(prep.tasks, store)
     assert len(todo) == 6
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         out = execute(todo[:4], store, client, prep.code, chunk_size=3)
     assert (out.n_ran, out.n_workers, out.chunk_size) == (4, 1, 3)
