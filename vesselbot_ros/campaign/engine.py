@@ -237,6 +237,11 @@ def execute(
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
+    if todo and not client.nthreads():
+        try:
+            client.wait_for_workers(1, timeout=60)
+        except TimeoutError:
+            raise VesselbotError(f"the Dask scheduler {client.scheduler.address} has no workers (waited 60 s)") from None
     n_workers = max(1, sum(client.nthreads().values()))
     size = chunk_size or auto_chunk_size(len(todo), n_workers)
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
