@@ -67,7 +67,14 @@ def _rows_to_table(rows: Sequence[dict[str, Any]], first: Sequence[str] = ()) ->
     names: dict[str, None] = dict.fromkeys(first)
     for r in rows:
         names.update(dict.fromkeys(r))
-    return pa.table({n: pa.array([r.get(n) for r in rows]) for n in names})
+    cols = {}
+    for n in names:
+        values = [r.get(n) for r in rows]
+        try:
+            cols[n] = pa.array(values)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):  # a grid of mixed types ([1, "a"]): store as text
+            cols[n] = pa.array([None if v is None else str(v) for v in values], pa.string())
+    return pa.table(cols)
 
 
 class CampaignStore:
@@ -91,6 +98,8 @@ class CampaignStore:
         try:
             for d in (self.root, self.parts, self.timeseries):
                 d.mkdir(parents=True, exist_ok=True)
+                for tmp in d.glob(".*.tmp*"):  # left by a campaign killed while writing
+                    tmp.unlink()
             _atomic_write_table(_rows_to_table(rows, ("index", "run_id", "seed")), self.root / "runs.parquet")
             (self.root / "campaign.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
             (self.root / "spec.yaml").write_text(spec_text, encoding="utf-8")

@@ -62,3 +62,13 @@ def test_an_unreadable_part_is_skipped_and_its_runs_run_again(store, capsys) -> 
 def test_not_a_campaign_folder(tmp_path) -> None:
     with pytest.raises(VesselbotError, match="not a campaign folder"):
         CampaignStore(tmp_path).meta()
+
+
+def test_mixed_type_columns_are_stored_as_text_and_stale_temporaries_removed(tmp_path) -> None:
+    s = CampaignStore(tmp_path / "m")
+    s.parts.mkdir(parents=True)
+    (s.parts / ".part-x.parquet.tmp123").write_bytes(b"half")
+    s.write_manifest([{"index": 0, "run_id": "a", "seed": 0, "g": 1.5}, {"index": 1, "run_id": "b", "seed": 0, "g": "x"}],
+                     {"name": "m", "n_runs": 2, "varied_keys": ["g"]}, "")
+    assert not list(s.parts.glob(".*"))
+    assert [r["g"] for r in s.manifest()] == ["1.5", "x"]
