@@ -138,7 +138,9 @@ class CampaignStore:
                       file=sys.stderr)
                 continue
             for r in rows:
-                out[r["run_id"]] = r
+                # a run retried with --retry-failed has two records: a success wins over a failure
+                if out.get(r["run_id"], {}).get("status") != "ok":
+                    out[r["run_id"]] = r
         return out
 
     def write_records(self, records: Iterable[dict[str, Any]]) -> None:

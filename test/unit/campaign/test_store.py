@@ -72,3 +72,15 @@ def test_mixed_type_columns_are_stored_as_text_and_stale_temporaries_removed(tmp
                      {"name": "m", "n_runs": 2, "varied_keys": ["g"]}, "")
     assert not list(s.parts.glob(".*"))
     assert [r["g"] for r in s.manifest()] == ["1.5", "x"]
+
+
+def test_a_retried_run_that_succeeds_wins_over_its_old_failure(store) -> None:
+    store.write_records([_rec("zz", ok=False)])
+    (failed,) = store.parts.glob("part-*.parquet")
+    failed = failed.rename(store.parts / "part-m-failed.parquet")
+    store.write_records([_rec("zz"), _rec("a")])
+    (ok,) = [p for p in store.parts.glob("part-*.parquet") if p != failed]
+    ok = ok.rename(store.parts / "part-a-ok.parquet")  # read before the failure
+    assert store.finished()["zz"]["status"] == "ok"
+    ok.rename(store.parts / "part-z-ok.parquet")  # read after it
+    assert store.finished()["zz"]["status"] == "ok"
