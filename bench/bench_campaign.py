@@ -19,6 +19,10 @@ them alike.  Printed: runs/s of each phase, scaling efficiency
 ``rate(2) / (2 rate(1))`` (target >= 80 %), and the engine's overhead per run
 with one worker, ``(wall - sum of the runs' own times) / sum of the runs' own
 times`` (target < 5 %), next to the same ratio against the in-process loop.
+The scaling is split into what the engine can lose (the share of the wall
+time the two workers spend inside runs) and what the machine takes (how much
+slower one run is with two workers than with one: other users' load, shared
+caches), since on a shared machine only the first is the engine's.
 The machine's load average is printed before and after.
 """
 
@@ -107,6 +111,12 @@ def main() -> None:
     eff = rate["2 workers"] / (2 * rate["1 worker"])
     print(f"scaling 1 -> 2 workers: x{rate['2 workers'] / rate['1 worker']:.2f}, efficiency {eff:.0%} "
           f"(target >= 80 %: {'met' if eff >= 0.8 else 'NOT met'})")
+    w2, busy2 = best["2 workers"]
+    util = busy2 / (2 * w2)
+    slow = (busy2 / args.runs) / (busy1 / args.runs)
+    print(f"  where the scaling goes: the 2 workers were inside runs {util:.0%} of the wall time (what the engine "
+          f"can lose), and one run took x{slow:.2f} the time it took with 1 worker (the CPU share the machine gave: "
+          f"x1.00 on an idle machine)")
     ovh = (w1 - busy1) / busy1
     vs_plain = w1 / best["in-process"][0] - 1
     print(f"engine overhead per run, 1 worker: {ovh:.1%} of the run time (wall {w1:.2f} s vs {busy1:.2f} s inside the runs; "
