@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from vesselbot_ros.campaign.engine import auto_chunk_size, execute, prepare
+from vesselbot_ros.campaign.engine import execute, prepare
 from vesselbot_ros.campaign.runner import run_chunk
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
@@ -91,12 +91,12 @@ def main() -> None:
                     recs = run_chunk(tasks, code)
                     wall = time.perf_counter() - t0
                     busy = sum(x["run_time_s"] for x in recs)
-                    chunks[phase] = args.runs
+                    chunks[phase] = 1
                 else:
                     store = CampaignStore(Path(tmp) / f"{phase}-{r}")
                     out = execute(tasks, store, client, code)
                     wall, busy = out.wall_s, out.busy_s
-                    chunks[phase] = out.chunk_size
+                    chunks[phase] = out.n_tasks
                     assert out.n_failed == 0
                 print(f"  round {r + 1} {phase:<10} {args.runs / wall:6.2f} runs/s  ({wall:.2f} s wall, "
                       f"{busy / args.runs * 1e3:.1f} ms per run on the worker)")
@@ -106,8 +106,7 @@ def main() -> None:
     rate = {p: args.runs / w for p, (w, _) in best.items()}
     w1, busy1 = best["1 worker"]
     print(f"runs/s (best of {args.rounds} rounds): in-process {rate['in-process']:.2f}, 1 worker {rate['1 worker']:.2f} "
-          f"({chunks['1 worker']} runs per task), 2 workers {rate['2 workers']:.2f} ({chunks['2 workers']} runs per task; "
-          f"auto chunk size for {args.runs} runs: {auto_chunk_size(args.runs, 1)} / {auto_chunk_size(args.runs, 2)})")
+          f"({chunks['1 worker']} Dask tasks), 2 workers {rate['2 workers']:.2f} ({chunks['2 workers']} Dask tasks)")
     eff = rate["2 workers"] / (2 * rate["1 worker"])
     print(f"scaling 1 -> 2 workers: x{rate['2 workers'] / rate['1 worker']:.2f}, efficiency {eff:.0%} "
           f"(target >= 80 %: {'met' if eff >= 0.8 else 'NOT met'})")

@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
             return 130
         rate = outcome.n_ran / outcome.wall_s if outcome.wall_s > 0 else float("nan")
         ran = (f"ran {outcome.n_ran} runs ({outcome.n_failed} failed) in {outcome.wall_s:.1f} s on {outcome.n_workers} "
-               f"worker(s): {rate:.2f} runs/s, {outcome.chunk_size} runs per task")
+               f"worker(s): {rate:.2f} runs/s in {outcome.n_tasks} Dask tasks")
     else:
         ran = "nothing to run"
     rows = store.assemble().to_pylist()

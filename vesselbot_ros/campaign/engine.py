@@ -10,11 +10,15 @@
   chunks (one Dask task each, :func:`~vesselbot_ros.campaign.runner.run_chunk`),
   stores each chunk as it completes and draws the progress bar.
 
-Chunk size: 0 (automatic) gives every worker about four chunks, at most 32
-runs each, so a task lasts from a fraction of a second to a few seconds: Dask's
-cost per task (a few ms of scheduling and serialisation) stays below 5 % of
-the runs it carries (``bench/bench_campaign.py`` measures it), and the last
-chunks still spread over the workers.
+Chunk size: 0 (automatic) cuts the runs into shrinking chunks (guided
+self-scheduling): each chunk takes about 1/(2 w) of the runs still unassigned
+(w workers), at most 32 and at least 1.  The first chunks are large, so Dask's
+cost per task (a few ms of scheduling and serialisation, and the client
+writing a part) stays far below 5 % of the runs it carries
+(``bench/bench_campaign.py`` measures it); the last chunks are single runs, so
+a worker that the machine slows down, or a run that lasts longer than the
+others, leaves the other workers idle for one run at most.  A fixed
+``chunk_size`` gives equal chunks.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import VesselbotError
 
-__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "auto_chunk_size", "Outcome", "pending", "execute", "Progress"]
+__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "chunk_sizes", "Outcome", "pending", "execute", "Progress"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,9 +120,22 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
         cluster.close()
 
 
-def auto_chunk_size(n_runs: int, n_workers: int) -> int:
-    """About four chunks per worker, 1 to 32 runs each (see the module docstring)."""
-    return max(1, min(32, math.ceil(n_runs / (4 * max(1, n_workers)))))
+def chunk_sizes(n_runs: int, n_workers: int, fixed: int = 0) -> list[int]:
+    """Sizes of the chunks that ``n_runs`` runs are cut into (see the module docstring).
+
+    Args:
+        n_runs: Runs to cut.
+        n_workers: Worker threads.
+        fixed: Runs per chunk; 0 = guided (shrinking) chunks.
+    """
+    sizes = []
+    left = n_runs
+    while left > 0:
+        size = fixed if fixed > 0 else max(1, min(32, math.ceil(left / (2 * max(1, n_workers)))))
+        size = min(size, left)
+        sizes.append(size)
+        left -= size
+    return sizes
 
 
 class Progress:
@@ -187,7 +204,7 @@ class Outcome:
         wall_s: Wall time of the execution (s), cluster start excluded.
         busy_s: Sum of the runs' own wall times on the workers (s).
         n_workers: Worker threads used.
-        chunk_size: Runs per task.
+        n_tasks: Dask tasks (chunks) used.
     """
 
     n_ran: int
@@ -195,7 +212,7 @@ class Outcome:
     wall_s: float
     busy_s: float
     n_workers: int
-    chunk_size: int
+    n_tasks: int
 
 
 def _chunk_failed(chunk: Sequence[RunTask], exc: BaseException) -> list[dict[str, Any]]:
@@ -227,7 +244,7 @@ def execute(
         store: The campaign folder.
         client: A ``distributed.Client``.
         code: The client's code version (checked by every worker).
-        chunk_size: Runs per task, 0 = :func:`auto_chunk_size`.
+        chunk_size: Runs per task, 0 = shrinking chunks (:func:`chunk_sizes`).
         progress: Progress bar to update.
         chunk_fn: The function a task runs on a chunk (:func:`run_chunk`).
 
@@ -243,8 +260,10 @@ def execute(
         except TimeoutError:
             raise VesselbotError(f"the Dask scheduler {client.scheduler.address} has no workers (waited 60 s)") from None
     n_workers = max(1, sum(client.nthreads().values()))
-    size = chunk_size or auto_chunk_size(len(todo), n_workers)
-    chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+    chunks, i = [], 0
+    for size in chunk_sizes(len(todo), n_workers, chunk_size):
+        chunks.append(todo[i:i + size])
+        i += size
     t0 = time.perf_counter()
     futures = {client.submit(chunk_fn, c, code, key=f"vesselbot-chunk-{c[0].run_id}-{len(c)}", pure=False): c
                for c in chunks}
@@ -273,4 +292,4 @@ def execute(
             client.cancel(list(futures))
         if progress is not None:
             progress.close()
-    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, size)
+    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, len(chunks))

@@ -200,7 +200,8 @@ class CampaignSpec:
         grid: Dotted key -> list of values; every combination is run.
         samples: Random draws (:class:`SampleSpec`).
         keep_timeseries: Runs whose time series are kept (:class:`KeepSpec`).
-        chunk_size: Runs per Dask task; 0 chooses it from the number of runs and workers.
+        chunk_size: Runs per Dask task; 0 = shrinking chunks sized from the runs left and the workers
+            (:func:`vesselbot_ros.campaign.engine.chunk_sizes`).
     """
 
     name: str

@@ -8,18 +8,22 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vesselbot_ros.campaign.engine import Progress, auto_chunk_size, execute, pending, prepare
+from vesselbot_ros.campaign.engine import Progress, chunk_sizes, execute, pending, prepare
 from vesselbot_ros.campaign.spec import load_campaign_spec
 from vesselbot_ros.campaign.store import CampaignStore
 
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def test_auto_chunk_size_gives_each_worker_about_four_chunks() -> None:
-    assert auto_chunk_size(1, 2) == 1
-    assert auto_chunk_size(200, 2) == 25
-    assert auto_chunk_size(10_000, 2) == 32
-    assert auto_chunk_size(0, 4) == 1
+def test_chunks_shrink_towards_the_end() -> None:
+    assert chunk_sizes(0, 2) == []
+    assert chunk_sizes(1, 2) == [1]
+    assert chunk_sizes(40, 2) == [10, 8, 6, 4, 3, 3, 2, 1, 1, 1, 1]
+    big = chunk_sizes(1000, 2)
+    assert sum(big) == 1000 and big[0] == 32 and big[-4:] == [1, 1, 1, 1]
+    assert all(a >= b for a, b in zip(big, big[1:]))
+    assert len(big) < 1000 / 10  # most runs travel in large chunks
+    assert chunk_sizes(10, 2, fixed=4) == [4, 4, 2]
 
 
 def test_progress_line_shows_runs_failures_and_eta() -> None:
@@ -57,7 +61,7 @@ def test_prepare_then_execute_then_nothing_pending(tmp_path) -> None:
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         out = execute(todo[:4], store, client, prep.code, chunk_size=3)
-    assert (out.n_ran, out.n_workers, out.chunk_size) == (4, 1, 3)
+    assert (out.n_ran, out.n_workers, out.n_tasks) == (4, 1, 2)
     assert out.busy_s > 0 and out.wall_s > 0
     assert len(list(store.parts.glob("part-*.parquet"))) == 2  # 3 + 1
     assert [t.index for t in pending(prep.tasks, store)] == [4, 5]
