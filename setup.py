@@ -26,7 +26,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow"],
     zip_safe=False,
     maintainer="vesselbot maintainers",
     maintainer_email="maintainers@vesselbot.example",

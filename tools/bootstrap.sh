@@ -33,7 +33,7 @@ if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/package"
   quiet_pip install -r requirements.txt
-  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap" \
+  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow" \
     || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
   mark requirements "$req"
 fi

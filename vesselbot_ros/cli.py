@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
     "replay": ("vesselbot_ros.bag.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),
+    "campaign": ("vesselbot_ros.campaign.campaign_cli", "Monte-Carlo runs and parameter sweeps on Dask (campaign report DIR: redraw)"),
 }
 
 

@@ -1,0 +1,166 @@
+"""`vesselbot campaign` end to end: local default vs an explicit scheduler, kill and resume, failing runs.
+
+Each campaign is a handful of 0.2-0.3 s runs of the sound scenario so the
+whole file stays well under a minute of run time; every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from _runs import children  # noqa: E402 - test/integration is on sys.path (rootdir conftest)
+
+REPO = Path(__file__).resolve().parents[2]
+NONDETERMINISTIC = {"run_time_s", "worker"}
+
+
+def _spec(tmp: Path, name: str, **doc) -> Path:
+    doc = {"name": name, "base": str(REPO / "config" / "sound_small_artery.yaml"),
+           "overrides": {"sim.duration_s": 0.2, "sim.metrics_after_s": 0.1}, **doc}
+    p = tmp / f"{name}.yaml"
+    p.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def _campaign(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "campaign", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _rows(out: Path) -> list[dict]:
+    return [{k: v for k, v in r.items() if k not in NONDETERMINISTIC}
+            for r in pq.read_table(out / "results.parquet").to_pylist()]
+
+
+def _wait_gone(pids: list[int], timeout: float) -> list[int]:
+    deadline = time.monotonic() + timeout
+    alive = list(pids)
+    while alive and time.monotonic() < deadline:
+        alive = [p for p in alive if Path(f"/proc/{p}").exists()
+                 and Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"]
+        time.sleep(0.1)
+    return alive
+
+
+def test_local_default_and_explicit_scheduler_give_identical_results(tmp_path) -> None:
+    spec = _spec(tmp_path, "same", seeds=[0, 1], grid={"controller.sample_hold": ["none", "midpoint"]},
+                 samples={"count": 2, "rng_seed": 5, "params": {
+                     "physics.blood.relative_permittivity": {"distribution": "uniform", "low": 45.0, "high": 77.0}}},
+                 keep_timeseries={"runs": [0]})
+    local = _campaign(str(spec), "--out", str(tmp_path / "local"))
+    assert local.returncode == 0, local.stderr
+    assert "on a local cluster of" in local.stderr and "8/8 runs, 0 failed" in local.stderr
+    assert "| controller.sample_hold=none | tracking error max (um) | 4 / 0 |" in local.stdout
+
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        remote = _campaign(str(spec), "--out", str(tmp_path / "remote"), "--scheduler", cluster.scheduler_address)
+    assert remote.returncode == 0, remote.stderr
+    assert f"on {cluster.scheduler_address}" in remote.stderr
+
+    a, b = _rows(tmp_path / "local"), _rows(tmp_path / "remote")
+    assert len(a) == 8 and all(r["status"] == "ok" for r in a)
+    assert a == b  # every metric, every sampled value, every run id: bit for bit
+    assert len({r["physics.blood.relative_permittivity"] for r in a}) == 2
+    for out in ("local", "remote"):
+        d = tmp_path / out
+        assert (d / "summary.md").read_text().startswith("campaign same: 8 of 8 runs finished, 8 ok, 0 failed")
+        figs = {p.name for p in (d / "figures").glob("*.png")}
+        assert {"tracking_error_distribution.png", "tracking_error_vs_controller.sample_hold.png",
+                "tracking_error_vs_physics.blood.relative_permittivity.png"} <= figs
+        ts = pq.read_table(d / a[0]["timeseries"])
+        assert ts.num_rows == 200 and "p_true_x" in ts.column_names
+    assert pq.read_table(tmp_path / "local" / a[0]["timeseries"]).equals(pq.read_table(tmp_path / "remote" / a[0]["timeseries"]))
+
+    # the report redraws from the folder alone
+    (tmp_path / "local" / "summary.md").unlink()
+    for p in (tmp_path / "local" / "figures").glob("*.png"):
+        p.unlink()
+    rep = _campaign("report", str(tmp_path / "local"))
+    assert rep.returncode == 0, rep.stderr
+    assert (tmp_path / "local" / "summary.md").read_text() == rep.stdout.split("-> ")[0]
+    assert len(list((tmp_path / "local" / "figures").glob("*.png"))) == len(figs)
+
+
+def test_killed_campaign_resumes_without_rerunning_finished_runs(tmp_path) -> None:
+    spec = _spec(tmp_path, "resume", seeds={"start": 0, "count": 16}, chunk_size=1,
+                 overrides={"sim.duration_s": 0.3, "sim.metrics_after_s": 0.1})
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "vesselbot_ros.cli", "campaign", str(spec), "--out", str(out),
+                             "--workers", "1"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list((out / "parts").glob("part-*.parquet"))) < 3:
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            assert time.monotonic() < deadline, "no run finished within 120 s"
+            time.sleep(0.05)
+        workers = list(children(proc.pid))
+        assert workers, "the local cluster's worker process is a child of the campaign"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    # no worker outlives the killed campaign
+    assert _wait_gone(workers, 20) == []
+    parts_before = {p.name: p.stat().st_mtime_ns for p in (out / "parts").glob("part-*.parquet")}
+    done_before = len(parts_before)
+    assert 3 <= done_before < 16
+    assert not (out / "results.parquet").exists()
+
+    again = _campaign(str(spec), "--out", str(out))
+    assert again.returncode == 0, again.stderr
+    assert f"16 runs, {done_before} already in" in again.stderr
+    assert f"running {16 - done_before} on" in again.stderr
+    assert f"ran {16 - done_before} runs (0 failed)" in again.stdout
+    after = {p.name: p.stat().st_mtime_ns for p in (out / "parts").glob("part-*.parquet")}
+    assert {k: after[k] for k in parts_before} == parts_before  # finished runs untouched
+    rows = _rows(out)
+    assert [r["seed"] for r in rows] == list(range(16)) and all(r["status"] == "ok" for r in rows)
+
+    third = _campaign(str(spec), "--out", str(out))
+    assert third.returncode == 0 and "nothing to run; 16 run(s) were already done" in third.stdout
+    assert _rows(out) == rows
+
+
+def test_failing_runs_are_recorded_and_do_not_stop_the_campaign(tmp_path) -> None:
+    # a normal draw of the robot radius (250 +/- 300 um) goes negative for some runs
+    spec = _spec(tmp_path, "fails", seeds=[0], samples={"count": 6, "rng_seed": 3, "params": {
+        "physics.robot.radius_m": {"distribution": "normal", "mean": 250.0e-6, "std": 300.0e-6}}})
+    res = _campaign(str(spec), "--out", str(tmp_path / "out"), "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    rows = _rows(tmp_path / "out")
+    assert len(rows) == 6
+    bad = [r for r in rows if r["status"] == "error"]
+    good = [r for r in rows if r["status"] == "ok"]
+    assert bad and good
+    for r in bad:
+        assert r["physics.robot.radius_m"] <= 0
+        assert r["error"].startswith("ConfigError: physics.robot.radius_m must be > 0, got -")
+        assert r["tracking_error_max_m"] is None
+    assert all(r["tracking_error_max_m"] > 0 for r in good)
+    assert f"{len(bad)} run(s) failed" in res.stderr
+    assert f"| all | tracking error max (um) | {len(good)} / {len(bad)} |" in res.stdout
+    # failed runs count as finished; --retry-failed runs them again (and they fail again: deterministic)
+    again = _campaign(str(spec), "--out", str(tmp_path / "out"), "--workers", "1", "--retry-failed")
+    assert f"running {len(bad)} on" in again.stderr
+    assert _rows(tmp_path / "out") == rows
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="Linux only")
+def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path) -> None:
+    spec = _spec(tmp_path, "nowhere", seeds=[0])
+    res = _campaign(str(spec), "--out", str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:9", timeout=120)
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "cannot connect to the Dask scheduler 'tcp://127.0.0.1:9'" in lines[0]

@@ -1,0 +1,104 @@
+"""Tests of the campaign's unit of work: content addresses and run_chunk."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.campaign.runner import RunTask, code_version, flatten_timeseries, resolve_mapping, run_chunk, run_id
+from vesselbot_ros.config import load_yaml
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.scenario import scenario_from_mapping
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _mapping(seed: int = 0, duration: float = 0.05) -> dict:
+    m = load_yaml(ROOT / "config" / "sound_small_artery.yaml")
+    m["sim"]["duration_s"] = duration
+    m["sim"]["metrics_after_s"] = 0.0
+    m["seed"] = seed
+    return m
+
+
+def _task(index: int, mapping: dict, keep: bool = False) -> RunTask:
+    return RunTask(index, run_id(mapping, code_version()), mapping["seed"], mapping, keep)
+
+
+def test_run_id_is_a_content_address() -> None:
+    code = code_version()
+    assert len(code) == 16 and int(code, 16) >= 0
+    assert code_version() == code
+    a = resolve_mapping(_mapping(0))
+    assert run_id(a, code) == run_id(copy.deepcopy(a), code)
+    assert run_id(a, code) != run_id(resolve_mapping(_mapping(1)), code)  # seed
+    assert run_id(a, code) != run_id(a, "0" * 16)  # code version
+    b = copy.deepcopy(a)
+    b["imager"]["noise_sigma_m"] *= 1.0 + 1e-15
+    assert run_id(a, code) != run_id(b, code)  # any value, to the last bit
+    # a spelled-out default and an omitted one resolve to the same run
+    sparse = _mapping(0)
+    full = _mapping(0)
+    full["sim"]["record_forces"] = False
+    assert run_id(resolve_mapping(sparse), code) == run_id(resolve_mapping(full), code)
+
+
+def test_run_chunk_reproduces_run_closed_loop_bit_for_bit() -> None:
+    tasks = [_task(0, resolve_mapping(_mapping(3)), keep=True), _task(1, resolve_mapping(_mapping(4)))]
+    recs = run_chunk(tasks, code_version())
+    assert [r["run_id"] for r in recs] == [t.run_id for t in tasks]
+    assert all(r["status"] == "ok" and r["error"] is None and r["run_time_s"] > 0 for r in recs)
+    direct = run_closed_loop(scenario_from_mapping(_mapping(3)))
+    for k, v in direct.metrics.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            assert recs[0]["metrics"][k] == v or (np.isnan(v) and np.isnan(recs[0]["metrics"][k])), k
+    ts = recs[0]["timeseries"]
+    np.testing.assert_array_equal(ts["p_true_x"], direct.timeseries["p_true"][:, 0])
+    np.testing.assert_array_equal(ts["g_applied_z"], direct.timeseries["g_applied"][:, 1])
+    assert recs[1]["timeseries"] is None
+    assert recs[0]["metrics"]["seed"] == 3 and recs[1]["metrics"]["seed"] == 4
+
+
+def test_a_failing_run_is_recorded_and_the_chunk_goes_on(monkeypatch) -> None:
+    bad = _mapping(1)
+    bad["physics"]["robot"]["radius_m"] = -1e-4  # invalid: raises while the run is built
+    tasks = [_task(0, _mapping(0)), _task(1, bad), _task(2, _mapping(2)), _task(3, _mapping(3))]
+    import vesselbot_ros.sim.closed_loop as cl  # run_chunk looks it up there at call time
+
+    orig = cl.run_closed_loop
+
+    def flaky(scenario, seed=None):
+        if scenario.seed == 2:
+            raise RuntimeError("integrator exploded at tick 17")
+        return orig(scenario, seed)
+
+    monkeypatch.setattr(cl, "run_closed_loop", flaky)
+    recs = run_chunk(tasks, code_version())
+    assert [r["status"] for r in recs] == ["ok", "error", "error", "ok"]
+    assert recs[1]["error"] == "ConfigError: physics.robot.radius_m must be > 0, got -0.0001"
+    assert recs[2]["error"] == "RuntimeError: integrator exploded at tick 17"
+    assert recs[1]["metrics"] == {} and recs[3]["metrics"]["seed"] == 3
+
+
+def test_a_worker_with_other_code_refuses_to_run() -> None:
+    recs = run_chunk([_task(0, _mapping(0))], "ffffffffffffffff")
+    assert recs[0]["status"] == "error"
+    assert recs[0]["error"].startswith(f"VersionMismatch: worker code version {code_version()} differs")
+
+
+def test_flatten_timeseries_splits_vectors() -> None:
+    n = 4
+    flat = flatten_timeseries({"t_s": np.arange(n), "p": np.ones((n, 2)), "f": np.zeros((n, 8, 2)),
+                               "b": np.zeros((n, 2), dtype=bool)})
+    assert set(flat) == {"t_s", "p_x", "p_z", "b_x", "b_z"} | {f"f_{i}_{a}" for i in range(8) for a in "xz"}
+    assert all(v.shape == (n,) for v in flat.values())
+    assert flat["b_x"].dtype == bool
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_resolve_mapping_round_trips(seed) -> None:
+    m = resolve_mapping(_mapping(seed))
+    assert resolve_mapping(m) == m and m["seed"] == seed

@@ -1,0 +1,166 @@
+"""The unit of work of a campaign: a chunk of runs of the pure closed loop.
+
+:func:`run_chunk` is the one function a Dask task calls (and the seam where a
+batched ``run_many`` will slot in): it takes a list of :class:`RunTask`, runs
+each with :func:`~vesselbot_ros.sim.closed_loop.run_closed_loop` and returns
+one record per run.  A run that raises is recorded with its error; it never
+stops the chunk.  Nothing here knows about Dask or files.
+
+Runs are content-addressed: :func:`run_id` hashes the resolved scenario
+mapping (every field, defaults filled in, seed included) together with
+:func:`code_version`, a hash of the source of the cores that compute a run
+(physics, control, sim, config) and of the numeric libraries' versions.  The
+same scenario, seed and code give the same id and, the loop being
+deterministic, the same numbers; new code gives new ids, so a resumed campaign
+never mixes results of two versions.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import platform
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["RunTask", "code_version", "run_id", "resolve_mapping", "run_chunk", "flatten_timeseries"]
+
+# Sources whose change can change a run's numbers (relative to the package folder).
+_CODE_GLOBS = ("config.py", "errors.py", "physics/**/*.py", "physics/data/*", "control/**/*.py", "sim/**/*.py")
+
+
+class RunTask(NamedTuple):
+    """One run as shipped to a worker.
+
+    Attributes:
+        index: Position in the campaign's run order.
+        run_id: Content hash (:func:`run_id`).
+        seed: Imager noise seed (also in ``mapping``).
+        mapping: The scenario mapping to build and run.
+        keep_timeseries: Return the time series too.
+    """
+
+    index: int
+    run_id: str
+    seed: int
+    mapping: dict[str, Any]
+    keep_timeseries: bool
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """Hash (16 hex digits) of the run-relevant source files and library versions."""
+    import numba
+    import scipy
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    files = sorted({f for g in _CODE_GLOBS for f in root.glob(g) if f.is_file() and "__pycache__" not in f.parts})
+    for f in files:
+        h.update(f.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(f.read_bytes())
+    h.update(f"numpy {np.__version__} scipy {scipy.__version__} numba {numba.__version__} "
+             f"python {platform.python_version()} {platform.machine()}".encode())
+    return h.hexdigest()[:16]
+
+
+def resolve_mapping(mapping: dict[str, Any]) -> dict[str, Any]:
+    """The full, validated scenario mapping of ``mapping`` (defaults filled in).
+
+    Raises:
+        ConfigError: the mapping is not a valid scenario.
+    """
+    from vesselbot_ros.sim.scenario import scenario_from_mapping
+
+    return scenario_from_mapping(mapping).to_mapping()
+
+
+def run_id(mapping: dict[str, Any], code: str) -> str:
+    """Content address of a run: sha256 of the scenario mapping (seed included) and the code version.
+
+    Args:
+        mapping: The scenario mapping (resolved with :func:`resolve_mapping`
+            when it is valid, so equivalent spellings hash alike).
+        code: :func:`code_version` of the code that runs it.
+    """
+    doc = json.dumps({"scenario": mapping, "code": code}, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:24]
+
+
+def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Time-series columns as 1-D arrays: (n, 2) vectors -> ``<key>_x``, ``<key>_z``.
+
+    Higher ranks (the (n, 8, 2) force breakdown) become ``<key>_<i>_x`` / ``_z``.
+    """
+    out: dict[str, np.ndarray] = {}
+    for key, a in series.items():
+        a = np.asarray(a)
+        if a.ndim == 1:
+            out[key] = a
+        elif a.ndim == 2 and a.shape[1] == 2:
+            out[f"{key}_x"], out[f"{key}_z"] = a[:, 0], a[:, 1]
+        else:
+            flat = a.reshape(a.shape[0], -1, a.shape[-1])
+            axes = "xz" if a.shape[-1] == 2 else [str(j) for j in range(a.shape[-1])]
+            for i in range(flat.shape[1]):
+                for j, ax in enumerate(axes):
+                    out[f"{key}_{i}_{ax}"] = flat[:, i, j]
+    return out
+
+
+def _one(task: RunTask) -> dict[str, Any]:
+    from vesselbot_ros.sim.closed_loop import run_closed_loop
+    from vesselbot_ros.sim.scenario import scenario_from_mapping
+
+    t0 = time.perf_counter()
+    rec: dict[str, Any] = {"run_id": task.run_id, "status": "ok", "error": None, "metrics": {}, "timeseries": None}
+    try:
+        scenario = scenario_from_mapping(task.mapping)
+        result = run_closed_loop(scenario)
+        rec["metrics"] = {k: v for k, v in result.metrics.items()
+                          if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
+        if task.keep_timeseries:
+            rec["timeseries"] = flatten_timeseries(result.timeseries)
+    except Exception as exc:  # noqa: BLE001 - a failing run is a result, not a crash
+        rec["status"] = "error"
+        rec["error"] = f"{type(exc).__name__}: {exc}"
+    rec["run_time_s"] = time.perf_counter() - t0
+    return rec
+
+
+def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[dict[str, Any]]:
+    """Run ``tasks`` one after the other; one record per task, in order.
+
+    Args:
+        tasks: The runs.
+        expected_code: The client's :func:`code_version`.  A worker whose code
+            differs (a remote cluster with another checkout) records every run
+            as an error instead of producing numbers under a wrong address.
+
+    Returns:
+        Per task: ``run_id``, ``status`` (``ok`` / ``error``), ``error``
+        (``"Type: message"`` or None), ``metrics`` (numeric metrics of
+        :func:`run_closed_loop`), ``timeseries`` (flattened columns or None),
+        ``run_time_s`` (wall time of the run on the worker) and ``worker``.
+    """
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    here = code_version()
+    out = []
+    for task in tasks:
+        if expected_code is not None and here != expected_code:
+            rec = {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
+                   "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
+                            f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
+        else:
+            rec = _one(task)
+        rec["worker"] = worker
+        out.append(rec)
+    return out
