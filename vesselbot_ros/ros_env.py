@@ -38,14 +38,21 @@ class DomainLease:
     domain_id: int
     _fh: IO[str] | None = field(default=None, repr=False)
 
+    @property
+    def fds(self) -> tuple[int, ...]:
+        """The lock's file descriptor (for child processes that must hold the lease until they exit)."""
+        return (self._fh.fileno(),) if self._fh is not None else ()
+
     def release(self) -> None:
-        """Free the domain id for other runs (idempotent)."""
+        """Give up this process's hold on the domain id (idempotent).
+
+        The lock is on the open file: it is freed once every process holding
+        its descriptor (this one, and children started with ``hold_fds=lease.fds``)
+        closed it or exited, so a domain whose nodes still run is never leased again.
+        """
         if self._fh is not None:
-            try:
-                fcntl.flock(self._fh, fcntl.LOCK_UN)
-            finally:
-                self._fh.close()
-                self._fh = None
+            self._fh.close()
+            self._fh = None
 
     def __enter__(self) -> DomainLease:
         return self

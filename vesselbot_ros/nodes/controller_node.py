@@ -59,6 +59,7 @@ class ControllerNode(VesselbotNode):
         self.add_publisher("gradient_command", Vector3Stamped)
         self.add_subscription("estimate", Odometry, self._on_estimate)
         self.add_subscription("reference", ReferenceSample, self._on_reference)
+        self.realtime_clock()
 
     def _tick_of(self, key: str, stamp: int, tick: int | None = None) -> int | None:
         k, on_grid = cv.tick_of_ns(stamp, self.dt)
@@ -111,6 +112,7 @@ class ControllerNode(VesselbotNode):
         cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref)
         self.status[cmd.status] += 1
         self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
+        self.period_done(k)
 
     def _drain(self) -> None:
         while self.k in self._est and self.k in self._ref:

@@ -1,6 +1,6 @@
 """Every message <-> numpy conversion of the node graph, in one place.
 
-Conventions (see :mod:`vesselbot_ros.topics`): frame ``vessel`` with x along
+Conventions (see :mod:`vesselbot_ros.graph_spec`): frame ``vessel`` with x along
 the vessel axis and z vertical; the pure core works on (2,) arrays ``(x, z)``,
 messages carry 3-D vectors with ``y = 0``.  Times are float seconds in the
 core and integer nanoseconds (``builtin_interfaces/Time``) on the wire.
@@ -34,7 +34,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, ReferenceSample
-from vesselbot_ros.topics import FRAME_ID
+from vesselbot_ros.graph_spec import FRAME_ID
 
 __all__ = [
     "AGE_COVARIANCE_INDEX",

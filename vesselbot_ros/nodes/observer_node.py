@@ -92,8 +92,7 @@ class ObserverNode(VesselbotNode):
         self.add_publisher("estimate", Odometry)
         self.add_subscription("measurement", PointStamped, self._on_measurement)
         self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
-        if not self.lockstep:
-            self._timer = self.create_timer(self.dt, self._on_timer)
+        self.realtime_clock()
 
     # ------------------------------------------------------------------ inputs
     def _parse_measurement(self, msg: PointStamped) -> Any:
@@ -160,6 +159,7 @@ class ObserverNode(VesselbotNode):
             meas = self._meas.pop(k)
             g_prev = np.zeros(2) if k == 0 else self._applied.pop(k - 1)
             self._publish(self.observer.update(cv.tick_time(k, self.dt), meas, g_prev))
+            self.period_done(k)
             self.k += 1
             if self.k >= self.n_ticks:
                 self.mark_finished()
@@ -179,17 +179,16 @@ class ObserverNode(VesselbotNode):
                                           "predicting without correction")
             self.publish_diagnostics()
 
-    def _now_tick_time(self) -> float:
-        k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
-        return cv.tick_time(k, self.dt)
-
     def _update_now(self, meas: Measurement | None) -> None:
-        t = max(self._now_tick_time(), self._t_last)  # never backwards
+        """Real time: update at the plant's announced tick (never backwards, never beyond it)."""
+        if self.tick_now < 0:
+            return
+        t = max(cv.tick_time(self.tick_now, self.dt), self._t_last)
         self._publish(self.observer.update(t, meas, self._g_prev))
+        self.period_done(self.tick_now)
 
-    def _on_timer(self) -> None:
-        t = self._now_tick_time()
-        if t > self._t_last:
+    def on_realtime_tick(self, k: int) -> None:
+        if cv.tick_time(k, self.dt) > self._t_last:  # no fresh frame answered this tick yet: predict
             self._update_now(None)
 
     def diagnostic_values(self) -> dict[str, str]:
