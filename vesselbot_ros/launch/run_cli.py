@@ -146,7 +146,10 @@ def run(args: argparse.Namespace) -> int:
     from vesselbot_ros.ros_env import allocate_domain
 
     try:  # a busy --domain-id is a bad argument too: lease before anything is created
-        lease = allocate_domain(args.domain_id)
+        from vesselbot_ros.graph_spec import namespace_of
+
+        # a chosen domain may hold graphs in other namespaces; a leased one is ours alone
+        lease = allocate_domain(args.domain_id, namespace_of(args.namespace) if args.domain_id is not None else None)
     except RuntimeError as exc:
         raise ConfigError(f"--domain-id: {exc}") from None
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")

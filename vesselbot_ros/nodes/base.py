@@ -43,7 +43,7 @@ from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, FRAME_ID, NODE_NAMES, TopicSpec, qos_profile, service, topic
 
-__all__ = ["GraphParams", "VesselbotNode", "run_node", "make_executor", "spin_nodes"]
+__all__ = ["GraphParams", "VesselbotNode", "TickJoin", "run_node", "make_executor", "spin_nodes"]
 
 GRAPH_PREFIX = "graph."
 #: Real time: a ``/clock`` more than this many ticks ahead of the announced one is garbage.
@@ -450,6 +450,72 @@ class VesselbotNode(Node):  # type: ignore[misc]
     @property
     def done(self) -> bool:
         """True when the node asks its process to exit (never, by default)."""
+        return False
+
+
+class TickJoin:
+    """The lockstep input join of every node: inputs keyed by the tick they serve.
+
+    Tick k is *ready* once every input it needs is in: an input with lag L
+    serves tick ``k = its own tick + L`` (the observer's ``coil/applied`` k-1
+    serves tick k), and ticks ``k < L`` need no such input (None).  An input
+    for a tick already handled (or a second one for a waiting tick) is
+    rejected as ``stale_tick``, one more than ``window`` ticks ahead as
+    ``future_tick``: the message is dropped and no state moves.  Times are
+    rebuilt as ``k * dt`` from the tick (:func:`~vesselbot_ros.nodes.conversions.tick_of_ns`),
+    never taken from a stamp.
+
+    Args:
+        node: The owning node (its :meth:`VesselbotNode.reject` reports rejections).
+        inputs: Topic key -> lag (ticks).
+        window: How far ahead of the current tick an input may arrive.
+    """
+
+    def __init__(self, node: VesselbotNode, inputs: dict[str, int], window: int = 2) -> None:
+        self.node = node
+        self.lags = dict(inputs)
+        self.window = window
+        self.k = 0  # the next tick to handle
+        self._slots: dict[str, dict[int, Any]] = {key: {} for key in inputs}
+
+    def tick_of(self, key: str, stamp_ns: int, tick_field: int | None = None) -> int | None:
+        """The tick a stamp lies on (and matches ``tick_field`` if given), else None (rejected ``off_tick_stamp``)."""
+        from vesselbot_ros.nodes.conversions import tick_of_ns
+
+        k, on_grid = tick_of_ns(stamp_ns, self.node.dt)
+        if not on_grid or (tick_field is not None and tick_field != k):
+            self.node.reject(key, "off_tick_stamp", f"stamp {stamp_ns} ns, tick field {tick_field}")
+            return None
+        return k
+
+    def put(self, key: str, k: int, value: Any) -> bool:
+        """Store input ``key`` of tick ``k``; False (and rejected) if stale, duplicate or too far ahead."""
+        kk = k + self.lags[key]
+        slot = self._slots[key]
+        if kk < self.k or kk in slot:
+            self.node.reject(key, "stale_tick", f"tick {k}, node at {self.k}")
+            return False
+        if kk > self.k + self.window:
+            self.node.reject(key, "future_tick", f"tick {k}, node at {self.k}")
+            return False
+        slot[kk] = value
+        return True
+
+    def pop_ready(self) -> dict[str, Any] | None:
+        """The inputs of the current tick if all are in (and advance to the next tick), else None."""
+        k = self.k
+        for key, lag in self.lags.items():
+            if k >= lag and k not in self._slots[key]:
+                return None
+        self.k = k + 1
+        return {key: (self._slots[key].pop(k) if k >= lag else None) for key, lag in self.lags.items()}
+
+    def expect(self, key: str, k: int, running: bool = True) -> bool:
+        """Single-input nodes: accept tick ``k`` only if it is the current one (else reject stale / future)."""
+        if running and k == self.k:
+            return True
+        self.node.reject(key, "stale_tick" if k < self.k or not running else "future_tick",
+                         f"tick {k}, node at tick {self.k}")
         return False
 
 

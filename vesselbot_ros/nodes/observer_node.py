@@ -57,7 +57,7 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.sim.closed_loop import build_stages
 
 __all__ = ["ObserverNode", "main"]
@@ -75,10 +75,9 @@ class ObserverNode(VesselbotNode):
         st = build_stages(self.scenario)
         self.observer = st.observer
         self.model = st.model
-        self.k = 0  # next tick to process
+        # lockstep: tick k needs measurement k (the k-th message) and coil/applied k-1
+        self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, window=3)
         self.n_meas = 0  # measurement messages received (lockstep: = ticks)
-        self._meas: dict[int, Any] = {}
-        self._applied: dict[int, np.ndarray] = {}
         self._last_stamp_ns = -1
         self._g_prev = np.zeros(2)
         self.used = 0
@@ -125,7 +124,7 @@ class ObserverNode(VesselbotNode):
         if meas is not None:
             self.count_received("measurement")
         if self.lockstep:
-            self._meas[self.n_meas] = meas if isinstance(meas, Measurement) else None
+            self.join.put("measurement", self.n_meas, meas if isinstance(meas, Measurement) else None)
             self.n_meas += 1
             self._drain()
         elif isinstance(meas, Measurement):
@@ -137,31 +136,25 @@ class ObserverNode(VesselbotNode):
         if not self.check("coil_applied", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
                           y_values=(v.y,)):
             return
-        k, on_grid = cv.tick_of_ns(stamp, self.dt)
-        if not on_grid:
-            self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp} ns")
+        k = self.join.tick_of("coil_applied", stamp)
+        if k is None:
             return
         if not self.lockstep:
             self.count_received("coil_applied")
             self._g_prev = cv.xz(v)
             return
-        if k < self.k - 1 or k in self._applied or k > self.k + 2:
-            self.reject("coil_applied", "stale_tick" if k < self.k else "future_tick", f"tick {k}, observer at {self.k}")
-            return
-        self.count_received("coil_applied")
-        self._applied[k] = cv.xz(v)
-        self._drain()
+        if self.join.put("coil_applied", k, cv.xz(v)):
+            self.count_received("coil_applied")
+            self._drain()
 
     # ------------------------------------------------------------------ updates
     def _drain(self) -> None:
-        while self.k in self._meas and (self.k == 0 or (self.k - 1) in self._applied):
-            k = self.k
-            meas = self._meas.pop(k)
-            g_prev = np.zeros(2) if k == 0 else self._applied.pop(k - 1)
-            self._publish(self.observer.update(cv.tick_time(k, self.dt), meas, g_prev))
+        while (inputs := self.join.pop_ready()) is not None:
+            k = self.join.k - 1
+            g_prev = np.zeros(2) if inputs["coil_applied"] is None else inputs["coil_applied"]
+            self._publish(self.observer.update(cv.tick_time(k, self.dt), inputs["measurement"], g_prev))
             self.period_done(k)
-            self.k += 1
-            if self.k >= self.n_ticks:
+            if self.join.k >= self.n_ticks:
                 self.mark_finished()
 
     def _publish(self, est: Any) -> None:
@@ -193,7 +186,7 @@ class ObserverNode(VesselbotNode):
 
     def diagnostic_values(self) -> dict[str, str]:
         return {
-            "tick": str(self.k - 1),
+            "tick": str(self.join.k - 1),
             "measurements_used": str(self.used),
             "measurements_rejected": str(self.rejected_by_core),
             "observer_rhs_evals": str(int(self.model.stats[2])),
