@@ -105,7 +105,10 @@ def bare_nodes(context, n_ticks: int, names, done):
 
             node.create_subscription(Vector3Stamped, sub, on_d, qos)
             node.start = lambda emit=emit, state=state: (state.__setitem__("t0", time.perf_counter()), emit(0))
-            node.ready = lambda out=out: out["state"].get_subscription_count() > 0
+            # the whole chain is wired: every hop has its publisher and its subscriber (graph-wide)
+            node.ready = lambda node=node: all(node.count_publishers(f"/bare/{t}") > 0 and
+                                               node.count_subscribers(f"/bare/{t}") > 0
+                                               for t in ("state", "a", "b", "c", "d"))
         else:
             pub = out[pubs[0]]
 

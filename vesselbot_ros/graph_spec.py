@@ -78,14 +78,14 @@ real-time factor the machine held.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = [
     "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
-    "role_contract", "faults_table", "diagnostic_counters", "REALTIME_MISSED_LIMIT",
+    "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
 ]
 
 FRAME_ID = "vessel"
@@ -132,11 +132,11 @@ class TopicSpec:
     frame: str
     per_tick: bool = False
     depth: int = 1000
+    #: The canonical absolute name (default namespace): what bags and diagnostics use.
+    name: str = field(init=False, compare=False)
 
-    @property
-    def name(self) -> str:
-        """The canonical absolute name (default namespace): what bags store."""
-        return resolve(self.rel)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", self.rel if self.rel.startswith("/") else f"{DEFAULT_NAMESPACE}/{self.rel}")
 
     @property
     def is_global(self) -> bool:
@@ -267,6 +267,22 @@ NODE_NAMES: dict[str, str] = {r.name: r.node_name for r in ALL_ROLES}
 _TOPIC = {t.key: t for t in TOPICS}
 _SERVICE = {s.key: s for s in SERVICES}
 _ROLE = {r.name: r for r in ALL_ROLES}
+
+
+def tick_time(k: int, dt_s: float) -> float:
+    """``t_k = k * dt_s`` (s), exactly as the pure runner computes it."""
+    return k * dt_s
+
+
+def ns_of_time(t_s: float) -> int:
+    """Float seconds -> integer nanoseconds (rounded): the stamp of a tick time."""
+    return int(round(t_s * 1e9))
+
+
+def tick_of_ns(ns: int, dt_s: float) -> tuple[int, bool]:
+    """The one stamp -> tick helper: nearest tick to a stamp (ns), and whether the stamp lies on it (+/- 1 us)."""
+    k = int(round(ns * 1e-9 / dt_s))
+    return k, abs(ns - ns_of_time(tick_time(k, dt_s))) <= 1000
 
 
 def topic(key: str) -> TopicSpec:

@@ -49,7 +49,7 @@ import numpy as np
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.errors import BagError, VesselbotError
-from vesselbot_ros.graph_spec import REPLAY_PREFIX, resolve, role, topic
+from vesselbot_ros.graph_spec import REPLAY_PREFIX, resolve, role, tick_of_ns, topic
 from vesselbot_ros.launch.processes import ChildProcess
 
 __all__ = [
@@ -225,9 +225,9 @@ class ReestimateResult:
 # planning (no rclpy)
 # --------------------------------------------------------------------------
 def _tick_of_ns(ns: int, dt_s: float) -> int | None:
-    """Tick whose time ``round(k * dt * 1e9)`` is within 1 us of ``ns`` (None if off grid)."""
-    k = int(round(ns * 1e-9 / dt_s))
-    return k if abs(ns - int(round(k * dt_s * 1e9))) <= 1000 else None
+    """Tick of a stamp (:func:`~vesselbot_ros.graph_spec.tick_of_ns`), None if off the grid."""
+    k, on_grid = tick_of_ns(ns, dt_s)
+    return k if on_grid else None
 
 
 def _stamp_ns(msg: Any) -> int:

@@ -7,7 +7,11 @@
   builds them through the same frozen dataclasses as the pure core; a bad or
   unknown parameter raises :class:`~vesselbot_ros.config.ConfigError` naming
   it, and :func:`run_node` turns that into exit code 2 with one clear line;
-* forces ``use_sim_time = true`` (``/clock`` comes from the plant);
+* takes sim time only from ticks: the lockstep inputs' ticks, or (real
+  time) the plant's announced ``/clock`` tick, validated; rclpy's sim clock
+  is not used (``use_sim_time = false``: no hidden ``/clock`` subscription per
+  node on the hot path, and a garbage ``/clock`` cannot move a node's time);
+  ``/diagnostics`` are stamped with the node's latest tick;
 * publishes ``/diagnostics`` (one ``DiagnosticStatus`` named after the node)
   every ``graph.diagnostics_period_s`` of *wall* time, on every rejection
   burst, and once when the run is finished.  Keys: ``published:<topic>``
@@ -41,7 +45,17 @@ from rclpy.node import Node
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive, load_dataclass
 from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.sim.scenario import Scenario
-from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, FRAME_ID, NODE_NAMES, TopicSpec, qos_profile, service, topic
+from vesselbot_ros.graph_spec import (
+    DEFAULT_NAMESPACE,
+    FRAME_ID,
+    NODE_NAMES,
+    TopicSpec,
+    ns_of_time,
+    qos_profile,
+    service,
+    tick_of_ns,
+    topic,
+)
 
 __all__ = ["GraphParams", "VesselbotNode", "TickJoin", "run_node", "make_executor", "spin_nodes"]
 
@@ -131,7 +145,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.parameter import Parameter
 
-        overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, True)]
+        overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, False)]
         super().__init__(
             NODE_NAMES[role], namespace=DEFAULT_NAMESPACE, context=context,
             cli_args=list(cli_args) if cli_args else None, parameter_overrides=overrides,
@@ -199,8 +213,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         clock) is rejected and moves nothing.
         """
         ns = int(msg.clock.sec) * 1_000_000_000 + int(msg.clock.nanosec)
-        k = int(round(ns * 1e-9 / self.dt))
-        if abs(ns - int(round(k * self.dt * 1e9))) > 1000:
+        k, on_grid = tick_of_ns(ns, self.dt)
+        if not on_grid:
             self.reject("clock", "off_tick_stamp", f"clock {ns} ns is not a tick time")
             return None
         if k <= self.tick_now:
@@ -380,7 +394,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
                 self.reject(key, "outside_vessel", f"z = {z_position!r} m, walls at +/-{half!r} m")
                 return False
         if stamp_ns is not None and not self.lockstep:
-            now_ns = int(round(max(self.tick_now, 0) * self.dt * 1e9))  # the plant's announced tick, not the ROS clock
+            now_ns = ns_of_time(max(self.tick_now, 0) * self.dt)  # the plant's announced tick, not the ROS clock
             if stamp_ns > now_ns + self.graph.future_tolerance_s * 1e9:
                 self.reject(key, "future_stamp", f"stamp {stamp_ns * 1e-9:.6f} s > now {now_ns * 1e-9:.6f} s")
                 return False
@@ -438,7 +452,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         st = DiagnosticStatus(level=level, name=self.get_name(), message=message, hardware_id="vesselbot")
         st.values = [KeyValue(key=k, value=v) for k, v in kv.items()]
         arr = DiagnosticArray(status=[st])
-        arr.header.stamp = self.get_clock().now().to_msg()
+        tick = max(self.tick_now, self.period_tick, 0)
+        arr.header.stamp.sec, arr.header.stamp.nanosec = divmod(int(round(tick * self.dt * 1e9)), 1_000_000_000)
         self._diag_pub.publish(arr)
 
     def mark_finished(self) -> None:
@@ -468,20 +483,20 @@ class TickJoin:
     Args:
         node: The owning node (its :meth:`VesselbotNode.reject` reports rejections).
         inputs: Topic key -> lag (ticks).
-        window: How far ahead of the current tick an input may arrive.
+        window: How far ahead of the current tick an input may arrive (per key
+            with ``windows``; None: unbounded, for inputs keyed by arrival order).
     """
 
-    def __init__(self, node: VesselbotNode, inputs: dict[str, int], window: int = 2) -> None:
+    def __init__(self, node: VesselbotNode, inputs: dict[str, int], window: int = 2,
+                 windows: dict[str, int | None] | None = None) -> None:
         self.node = node
         self.lags = dict(inputs)
-        self.window = window
+        self.windows: dict[str, int | None] = {key: window for key in inputs} | dict(windows or {})
         self.k = 0  # the next tick to handle
         self._slots: dict[str, dict[int, Any]] = {key: {} for key in inputs}
 
     def tick_of(self, key: str, stamp_ns: int, tick_field: int | None = None) -> int | None:
         """The tick a stamp lies on (and matches ``tick_field`` if given), else None (rejected ``off_tick_stamp``)."""
-        from vesselbot_ros.nodes.conversions import tick_of_ns
-
         k, on_grid = tick_of_ns(stamp_ns, self.node.dt)
         if not on_grid or (tick_field is not None and tick_field != k):
             self.node.reject(key, "off_tick_stamp", f"stamp {stamp_ns} ns, tick field {tick_field}")
@@ -495,7 +510,8 @@ class TickJoin:
         if kk < self.k or kk in slot:
             self.node.reject(key, "stale_tick", f"tick {k}, node at {self.k}")
             return False
-        if kk > self.k + self.window:
+        w = self.windows[key]
+        if w is not None and kk > self.k + w:
             self.node.reject(key, "future_tick", f"tick {k}, node at {self.k}")
             return False
         slot[kk] = value

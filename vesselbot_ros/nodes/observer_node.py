@@ -76,7 +76,7 @@ class ObserverNode(VesselbotNode):
         self.observer = st.observer
         self.model = st.model
         # lockstep: tick k needs measurement k (the k-th message) and coil/applied k-1
-        self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, window=3)
+        self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, windows={"measurement": None, "coil_applied": 3})
         self.n_meas = 0  # measurement messages received (lockstep: = ticks)
         self._last_stamp_ns = -1
         self._g_prev = np.zeros(2)
