@@ -36,6 +36,42 @@ def _start_and_wait_running(repo: Path, *args: str) -> tuple[subprocess.Popen[st
     return launcher, nodes
 
 
+def _lock_pids(domain_id: int) -> set[int]:
+    """PIDs that took a lock on the lease file of ``domain_id`` still held by some process (from /proc/locks).
+
+    A flock lock lives as long as any process holds its open file, and /proc/locks names the
+    process that took it: a launcher's lock held on by its children still shows the launcher's PID.
+    The machine's other users lease domains from the same pool, so tests look for their own PIDs.
+    """
+    from vesselbot_ros.ros_env import _LOCK_DIR
+
+    inode = os.stat(_LOCK_DIR / f"{domain_id}.lock").st_ino
+    pids = set()
+    for line in Path("/proc/locks").read_text().splitlines():
+        parts = line.split()
+        fields = parts[1:] if parts[1] != "->" else parts[2:]
+        if fields[0] == "FLOCK" and int(fields[4].rsplit(":", 1)[1]) == inode:
+            pids.add(int(fields[3]))
+    return pids
+
+
+def _fd_holders(domain_id: int) -> dict[int, str]:
+    """Processes with the lease file of ``domain_id`` open: pid -> command line (for failure messages)."""
+    from vesselbot_ros.ros_env import _LOCK_DIR
+
+    target = str(_LOCK_DIR / f"{domain_id}.lock")
+    out = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            if any(os.readlink(f) == target for f in (d / "fd").iterdir()):
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()[:200]
+        except OSError:
+            continue
+    return out
+
+
 def _free_domain() -> int:
     from vesselbot_ros.ros_env import allocate_domain
 
@@ -46,13 +82,12 @@ def _free_domain() -> int:
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
 def test_killing_the_launcher_leaves_no_node_and_frees_the_domain_after(repo, tmp_path, sig):
-    from vesselbot_ros.ros_env import allocate_domain
-
     dom = _free_domain()
     bag = tmp_path / "bag"
     launcher, nodes = _start_and_wait_running(repo, "--domain-id", str(dom), "--record-dir", str(bag))
     try:
         assert len(nodes) == 7, nodes  # six nodes + the recorder
+        assert launcher.pid in _lock_pids(dom)  # the run holds its domain
         os.kill(launcher.pid, sig)
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline and any(_alive(p) for p in nodes):
@@ -66,9 +101,12 @@ def test_killing_the_launcher_leaves_no_node_and_frees_the_domain_after(repo, tm
         for p in nodes:
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
-    # the domain is free again once the last node is gone
-    with allocate_domain(dom) as lease:
-        assert lease.domain_id == dom
+    # the run's hold on the domain ended with its last node (the kernel frees a dead process's locks
+    # when it drops its files, which it may do a moment after the process is gone)
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and launcher.pid in _lock_pids(dom):
+        time.sleep(0.05)
+    assert launcher.pid not in _lock_pids(dom), _fd_holders(dom)
     # and the recorder, stopped by the parent-death signal, finalised its bag
     from vesselbot_ros.bag.reader import open_bag
 
@@ -89,9 +127,12 @@ def test_the_domain_stays_leased_while_a_node_runs(repo, tmp_path):
     child = ChildProcess("sleeper", ["sleep", "30"], dict(os.environ), tmp_path / "sleeper.log", hold_fds=lease.fds)
     lease.release()
     try:
+        assert os.getpid() in _lock_pids(dom)  # our lock, held on by the child alone
         with pytest.raises(RuntimeError, match="in use"):
             allocate_domain(dom)
     finally:
         child.stop(5.0, signal.SIGKILL)
-    with allocate_domain(dom) as again:
-        assert again.domain_id == dom
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and os.getpid() in _lock_pids(dom):
+        time.sleep(0.05)
+    assert os.getpid() not in _lock_pids(dom)  # gone with the child

@@ -56,7 +56,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 
 __all__ = ["GraphOptions", "GraphResult", "NodeDied", "RecordingMismatch", "RealtimeStats", "run_graph",
-           "role_contract", "check_recorded_counts", "realtime_report"]
+           "role_contract", "check_recorded_counts", "realtime_report", "held_real_time_factor"]
 
 
 class RecordingMismatch(VesselbotError):
@@ -113,6 +113,7 @@ class RealtimeStats:
         periods: Control periods of the run (ticks).
         input_age_max_s: Largest age of an accepted input (sim s).
         input_age_mean_s: Mean age of its accepted inputs (sim s).
+        lateness_mean_s: Mean wall time by which its periods ended after they were due (s).
     """
 
     role: str
@@ -120,6 +121,7 @@ class RealtimeStats:
     periods: int
     input_age_max_s: float
     input_age_mean_s: float
+    lateness_mean_s: float = 0.0
 
     @property
     def fraction(self) -> float:
@@ -164,14 +166,29 @@ def realtime_report(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...
     for r in roles:
         d = diag.get(NODE_NAMES[r])
         if d is None:
-            out.append(RealtimeStats(r, n_ticks, n_ticks, float("inf"), float("inf")))
+            out.append(RealtimeStats(r, n_ticks, n_ticks, float("inf"), float("inf"), float("inf")))
             continue
         missed = int(d.get("missed_periods", "0"))
         last = int(d.get("period_tick", "-1"))
         missed += max(0, n_ticks - 1 - last)  # periods it never reached
         out.append(RealtimeStats(r, min(missed, n_ticks), n_ticks, float(d.get("input_age_max_s", "0")),
-                                 float(d.get("input_age_mean_s", "0"))))
+                                 float(d.get("input_age_mean_s", "0")), float(d.get("lateness_mean_s", "0"))))
     return out
+
+
+def held_real_time_factor(stats: list[RealtimeStats], asked: float, achieved: float, dt: float) -> float:
+    """The real-time factor the loop held: the asked one, unless a node was late.
+
+    A node whose periods end ``L`` s (wall, on average) after they are due
+    holds a factor up to ``dt / L`` (its period ``dt / factor`` then covers the
+    delay); the loop holds the smallest of these, the factor the plant
+    achieved, and the asked one.
+    """
+    held = min(asked, achieved)
+    for st in stats:
+        if st.fraction > REALTIME_MISSED_LIMIT and st.lateness_mean_s > 0:
+            held = min(held, dt / st.lateness_mean_s)
+    return held
 
 
 def realtime_status(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...] | list[str], dt: float) -> str:
@@ -309,6 +326,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         problems = check_recorded_counts(published, recorded)
         if problems:
             raise RecordingMismatch("the bag does not hold what was published: " + "; ".join(problems))
+    mon.decode_all()
     series = _series(mon, scenario)
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
@@ -322,8 +340,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
     if options.mode == "realtime":
         result.realtime = realtime_report(diagnostics, roles, n)
-        worst = max((s.fraction for s in result.realtime), default=0.0)
-        result.held_real_time_factor = min(rtf, options.real_time_factor) * (1.0 - worst)
+        result.held_real_time_factor = held_real_time_factor(result.realtime, options.real_time_factor, rtf, dt)
     return result
 
 

@@ -70,6 +70,9 @@ class Monitor:
                                       cli_args=["--ros-args", *args] if args else None)
         self.ex = make_executor(context)
         self.ex.add_node(self.node)
+        from rclpy.task import Future
+
+        self._never = Future()  # spin() handles every event of its slice, then returns
         self.p_true = np.full((n, 2), np.nan)
         self.v_true = np.full((n, 2), np.nan)
         self.contact = np.zeros(n, dtype=bool)
@@ -80,9 +83,6 @@ class Monitor:
         self.saturated = np.zeros(n, dtype=bool)
         self.slew = np.zeros((n, 2), dtype=bool)
         self.got = {"truth": 0, "estimate": 0, "reference": 0, "coil_state": 0}
-        self.max_tick = -1
-        # latest coil/state: (tick, applied (2,), watchdog_active)
-        self.last_coil: tuple[int, tuple[float, float], bool] | None = None
         self.diag: dict[str, dict[str, str]] = {}
         self.diag_level: dict[str, tuple[int, str]] = {}
         self.t_first_truth: float | None = None
@@ -90,11 +90,13 @@ class Monitor:
         #: messages received per canonical topic name from the users' nodes
         self.user_counts: dict[str, int] = {}
         sub = self.node.create_subscription
-        for key, msg_cls, cb in (("truth", PlantState, self._on_truth), ("estimate", Odometry, self._on_estimate),
-                                 ("reference", ReferenceSample, self._on_reference),
-                                 ("coil_state", CoilState, self._on_coil),
-                                 ("diagnostics", DiagnosticArray, self._on_diag)):
-            sub(msg_cls, topic(key).rel, cb, qos_profile(topic(key)))
+        # the per-tick topics arrive raw and are decoded after the run (or on demand): the launcher
+        # then costs the loop one bytes copy per message, and never falls behind a fast graph
+        self._types = {"truth": PlantState, "estimate": Odometry, "reference": ReferenceSample, "coil_state": CoilState}
+        self._raw: dict[str, list[bytes]] = {key: [] for key in self._types}
+        for key, msg_cls in self._types.items():
+            sub(msg_cls, topic(key).rel, self._raw_callback(key), qos_profile(topic(key)), raw=True)
+        sub(DiagnosticArray, topic("diagnostics").rel, self._on_diag, qos_profile(topic("diagnostics")))
         for r in user_roles:
             for key in role(r).outputs:
                 t = topic(key)
@@ -102,6 +104,57 @@ class Monitor:
                 sub(import_type(t.msgtype), t.rel, lambda _data, name=t.name: self._count_user(name),
                     qos_profile(t), raw=True)
         self.run_control = self.node.create_client(RunControl, service("run_control").rel)
+        self._decoded = 0
+
+    def _raw_callback(self, key: str) -> Any:
+        store = self._raw[key].append
+        got = self.got
+
+        if key == "truth":
+            def on_truth(data: bytes) -> None:
+                now = time.monotonic()
+                if self.t_first_truth is None:
+                    self.t_first_truth = now
+                self.t_last_truth = now
+                store(data)
+                got["truth"] += 1
+            return on_truth
+
+        def on_message(data: bytes) -> None:
+            store(data)
+            got[key] += 1
+        return on_message
+
+    def _decode(self, key: str, data: bytes) -> Any:
+        from rclpy.serialization import deserialize_message
+
+        return deserialize_message(data, self._types[key])
+
+    @property
+    def max_tick(self) -> int:
+        """The latest tick of the plant's truth so far (-1 before the first)."""
+        raw = self._raw["truth"]
+        return int(self._decode("truth", raw[-1]).tick) if raw else -1
+
+    @property
+    def last_coil(self) -> tuple[int, tuple[float, float], bool] | None:
+        """The latest coil state: (tick, applied (x, z), watchdog_active)."""
+        raw = self._raw["coil_state"]
+        if not raw:
+            return None
+        m = self._decode("coil_state", raw[-1])
+        return int(m.tick), (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active)
+
+    def decode_all(self) -> None:
+        """Fill the per-tick arrays from every message received (after the run)."""
+        for data in self._raw["truth"]:
+            self._on_truth(self._decode("truth", data))
+        for data in self._raw["estimate"]:
+            self._on_estimate(self._decode("estimate", data))
+        for data in self._raw["reference"]:
+            self._on_reference(self._decode("reference", data))
+        for data in self._raw["coil_state"]:
+            self._on_coil(self._decode("coil_state", data))
 
     def _count_user(self, name: str) -> None:
         self.user_counts[name] += 1
@@ -114,30 +167,21 @@ class Monitor:
 
     def _on_truth(self, m: Any) -> None:
         k = int(m.tick)
-        if not 0 <= k < self.n:
-            return
-        now = time.monotonic()
-        if self.t_first_truth is None:
-            self.t_first_truth = now
-        self.t_last_truth = now
-        self.p_true[k] = (m.position.x, m.position.z)
-        self.v_true[k] = (m.velocity.x, m.velocity.z)
-        self.contact[k] = m.in_contact
-        self.got["truth"] += 1
-        self.max_tick = max(self.max_tick, k)
+        if 0 <= k < self.n:
+            self.p_true[k] = (m.position.x, m.position.z)
+            self.v_true[k] = (m.velocity.x, m.velocity.z)
+            self.contact[k] = m.in_contact
 
     def _on_estimate(self, m: Any) -> None:
         k = self._tick(m.header.stamp)
         if k is not None:
             self.x_hat[k] = (m.pose.pose.position.x, m.pose.pose.position.z)
             self.z_hat[k] = (m.twist.twist.linear.x, m.twist.twist.linear.z)
-            self.got["estimate"] += 1
 
     def _on_reference(self, m: Any) -> None:
         k = int(m.tick)
         if 0 <= k < self.n:
             self.p_ref[k] = (m.position.x, m.position.z)
-            self.got["reference"] += 1
 
     def _on_coil(self, m: Any) -> None:
         k = int(m.tick)
@@ -145,9 +189,6 @@ class Monitor:
             self.g_applied[k] = (m.applied.x, m.applied.z)
             self.saturated[k] = m.saturated
             self.slew[k] = (m.slew_limited_x, m.slew_limited_z)
-            self.got["coil_state"] += 1
-            if self.last_coil is None or k >= self.last_coil[0]:
-                self.last_coil = (k, (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active))
 
     def _on_diag(self, m: Any) -> None:
         for st in m.status:
@@ -156,8 +197,8 @@ class Monitor:
             self.diag_level[st.name] = (lvl, st.message)
 
     def spin(self, dt: float = 0.05) -> None:
-        """Handle what arrived, waiting at most ``dt`` s."""
-        self.ex.spin_once(timeout_sec=dt)
+        """Handle everything that arrives during ``dt`` s (one call, not one per message)."""
+        self.ex.spin_until_future_complete(self._never, timeout_sec=dt)
 
     def recorder_subscribed(self) -> bool:
         """True once the recorder subscribes to every topic of the spec."""

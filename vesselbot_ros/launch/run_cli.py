@@ -236,5 +236,6 @@ def _print_summary(result: Any, rtf_asked: float) -> None:
         print(f"real time (asked RTF {rtf_asked:g}, held about {result.held_real_time_factor:.3g}):")
         for st in result.realtime:
             print(f"  {st.role:12s} missed {st.missed:6d} of {st.periods} periods ({100 * st.fraction:5.1f} %)   "
-                  f"input age max {st.input_age_max_s * 1e3:8.2f} ms, mean {st.input_age_mean_s * 1e3:7.2f} ms")
+                  f"input age max {st.input_age_max_s * 1e3:8.2f} ms, mean {st.input_age_mean_s * 1e3:7.2f} ms   "
+                  f"late by {st.lateness_mean_s * 1e3:7.2f} ms (wall, mean)")
 

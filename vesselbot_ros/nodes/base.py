@@ -184,6 +184,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._last_clock_wall = 0.0
         self._period_wall = self.dt / self.graph.real_time_factor
         self._end_wall: float | None = None
+        self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
+        self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
 
     def realtime_clock(self) -> None:
@@ -250,6 +252,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self.period_tick = k
         if not self.lockstep and self._anchor is not None:
             late = time.monotonic() - (self._anchor + k * self._period_wall)
+            self._late_sum += max(late, 0.0)
+            self._late_n += 1
             if late > self._period_wall:
                 self.missed_periods += 1
         if not self.lockstep and k >= self.n_ticks - 1 and self.role != "plant":  # the plant finishes itself
@@ -445,6 +449,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         kv["missed_periods"] = str(self.missed_periods)
         kv["input_age_max_s"] = repr(self._age_max)
         kv["input_age_mean_s"] = repr(self._age_sum / self._age_n if self._age_n else 0.0)
+        kv["lateness_mean_s"] = repr(self._late_sum / self._late_n if self._late_n else 0.0)
         kv.update(self.diagnostic_values())
         level = DiagnosticStatus.WARN if self._warn_pending else DiagnosticStatus.OK
         message = f"rejected input: {self._last_reason}" if self._warn_pending else ("finished" if self.finished else "ok")
@@ -548,13 +553,16 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
     The EventsExecutor's own ``spin()`` ignores SIGINT/SIGTERM, so we spin in
     short slices and let rclpy's signal handlers raise between them.
     """
+    from rclpy.task import Future
+
     rclpy = _rclpy()
     ex = make_executor(context)
     for n in nodes:
         ex.add_node(n)
+    never = Future()
     try:
         while rclpy.ok(context=context) and not (stop is not None and stop()):
-            ex.spin_once(timeout_sec=0.1)
+            ex.spin_until_future_complete(never, timeout_sec=0.1)  # every event of a 0.1 s slice
     finally:
         for n in nodes:
             ex.remove_node(n)

@@ -25,9 +25,11 @@ measurement is passed to the core only if its stamp is newer than the last
 one passed (fresh frame), else None (zero-order hold); an empty frame_id is
 the imager's "no frame yet" placeholder.
 
-Real-time: a fresh measurement triggers an update at once (lowest latency);
-a timer on sim time at the control rate predicts in between.  The latest
-``coil/applied`` is the input.
+Real-time: on each tick the plant announces (its ``/clock``, validated) the
+observer publishes one estimate for that tick; a fresh measurement arriving
+during the tick corrects the state at once, and the correction goes out with
+the next tick's estimate (one estimate per tick: no duplicate traffic
+downstream).  The latest ``coil/applied`` is the input.
 
 Measurement loss: the observer never stops publishing; without fresh frames
 it predicts with its model (eq. (25) with no correction).  When the time since
@@ -173,15 +175,25 @@ class ObserverNode(VesselbotNode):
             self.publish_diagnostics()
 
     def _update_now(self, meas: Measurement | None) -> None:
-        """Real time: update at the plant's announced tick (never backwards, never beyond it)."""
+        """Real time: update at the plant's announced tick (never backwards, never beyond it).
+
+        One estimate per tick: the tick's own estimate is published when the
+        tick is announced; a fresh frame arriving later in the tick corrects the
+        state, and the correction goes out with the next tick's estimate.
+        """
         if self.tick_now < 0:
             return
         t = max(cv.tick_time(self.tick_now, self.dt), self._t_last)
-        self._publish(self.observer.update(t, meas, self._g_prev))
-        self.period_done(self.tick_now)
+        est = self.observer.update(t, meas, self._g_prev)
+        if t > self._t_last or self.period_tick < self.tick_now:
+            self._publish(est)
+            self.period_done(self.tick_now)
+        else:
+            self.used += int(est.used_measurement)
+            self.rejected_by_core += int(est.rejected)
 
     def on_realtime_tick(self, k: int) -> None:
-        if cv.tick_time(k, self.dt) > self._t_last:  # no fresh frame answered this tick yet: predict
+        if cv.tick_time(k, self.dt) > self._t_last:
             self._update_now(None)
 
     def diagnostic_values(self) -> dict[str, str]:

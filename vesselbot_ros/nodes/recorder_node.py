@@ -46,7 +46,7 @@ __all__ = ["RecorderNode", "recorder_command", "main", "FLUSH_SERVICE", "STATUS_
 
 FLUSH_SERVICE = service("recorder_flush").name
 SUBSCRIPTION_DEPTH = 10_000  # messages buffered per topic while the recorder is busy (10 s at 1 kHz)
-STATUS_NAME = "vesselbot_recorder"
+STATUS_NAME = NODE_NAMES["recorder"]
 
 
 def recorder_command(
