@@ -1,20 +1,24 @@
 """ament_python package vesselbot_ros (works with plain pip and with colcon)."""
 
+import importlib.util
+import sys
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "vesselbot_ros"
 
-NODES = {
-    "vesselbot_plant": "plant_node",
-    "vesselbot_imager": "imager_node",
-    "vesselbot_observer": "observer_node",
-    "vesselbot_controller": "controller_node",
-    "vesselbot_coil_driver": "coil_driver_node",
-    "vesselbot_reference": "reference_node",
-    "vesselbot_recorder": "recorder_node",
-}
+
+def _graph_spec():
+    """The graph spec (stdlib only), loaded by path: the console scripts derive from its roles."""
+    path = Path(__file__).resolve().parent / PACKAGE / "graph_spec.py"
+    spec = importlib.util.spec_from_file_location("_vesselbot_graph_spec", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
 
 setup(
     name=PACKAGE,
@@ -33,7 +37,6 @@ setup(
     description="ROS 2 emulator of MRI-guided magnetic microrobot navigation (Arcese et al., IEEE TBME 2012)",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": ["vesselbot = vesselbot_ros.cli:main"]
-        + [f"{exe} = {PACKAGE}.nodes.{mod}:main" for exe, mod in NODES.items()],
+        "console_scripts": _graph_spec().console_scripts(),
     },
 )

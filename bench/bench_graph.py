@@ -1,12 +1,20 @@
-"""Benchmark of the ROS 2 node graph against the pure runner (prints figures, asserts nothing).
+"""Benchmark of the ROS 2 node graph against a bare rclpy chain and the pure runner (prints figures, asserts nothing).
 
 For the paper's 2 s scenario at 1 kHz control (default config/sound_small_artery.yaml,
-the one `make run` runs; `--config config/paper_small_artery.yaml` for the printed one):
+the one `make run` runs; `--config config/paper_small_artery.yaml` for the printed one),
+measured side by side in one run:
 
-1. pure runner wall time (same process, after a warm-up for numba);
-2. lockstep over ROS, one process per node (6 nodes + the launcher = 7 processes);
-3. lockstep over ROS, ``--single-process``;
-4. real-time mode: imager -> coil-driver latency (median, p99), measured by a
+1. the bare chain: plain rclpy, no project code, the shape of our lockstep
+   tick: a plant publishing a clock and a state, four relays, five sequential
+   hops (plant -> r1 -> r2 -> r3 -> r4 -> plant), reliable keep-last 1000,
+   EventsExecutor; one process per node and all in one process;
+2. pure runner wall time (same process, after a warm-up for numba);
+3. lockstep over ROS, one process per node (6 nodes + the launcher = 7 processes);
+4. lockstep over ROS, ``--single-process``;
+5. the ratios: our graph overhead per tick (wall minus the pure runner's, per
+   tick) over the bare chain's time per tick, in both modes (target <= 1.2), and
+   our wall time over the pure runner's;
+6. real-time mode: imager -> coil-driver latency (median, p99), measured by a
    probe node that timestamps, on one clock, the arrival of each fresh
    measurement and of the first ``coil/applied`` that answers it.
 
@@ -57,6 +65,143 @@ def ros_run(extra: list[str], duration: float | None) -> dict:
         return json.loads(out.read_text())
 
 
+# ---------------------------------------------------------------- the bare chain
+#: node -> (topic it waits for, topics it publishes); the plant starts each tick
+BARE = {"plant": ("d", ("clock", "state")), "r1": ("state", ("a",)), "r2": ("a", ("b",)), "r3": ("b", ("c",)),
+        "r4": ("c", ("d",))}
+
+
+def bare_nodes(context, n_ticks: int, names, done):
+    """The bare chain's nodes ``names`` (plain rclpy; Vector3Stamped payloads stamped with the tick)."""
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.VOLATILE)
+    nodes = []
+    for name in names:
+        node = rclpy.create_node(f"bare_{name}", namespace="/bare", context=context)
+        sub, pubs = BARE[name]
+        out = {t: node.create_publisher(Clock if t == "clock" else Vector3Stamped, t, qos) for t in pubs}
+        if name == "plant":
+            state = {"t0": None}
+
+            def emit(k, out=out):
+                c = Clock()
+                c.clock.nanosec = k
+                out["clock"].publish(c)
+                m = Vector3Stamped()
+                m.header.stamp.nanosec = k
+                out["state"].publish(m)
+
+            def on_d(msg, emit=emit, state=state):
+                k = msg.header.stamp.nanosec + 1
+                if k < n_ticks:
+                    emit(k)
+                else:
+                    done(time.perf_counter() - state["t0"])
+
+            node.create_subscription(Vector3Stamped, sub, on_d, qos)
+            node.start = lambda emit=emit, state=state: (state.__setitem__("t0", time.perf_counter()), emit(0))
+            # the whole chain is wired: every hop has its publisher and its subscriber (graph-wide)
+            node.ready = lambda node=node: all(node.count_publishers(f"/bare/{t}") > 0 and
+                                               node.count_subscribers(f"/bare/{t}") > 0
+                                               for t in ("state", "a", "b", "c", "d"))
+        else:
+            pub = out[pubs[0]]
+
+            def relay(msg, pub=pub):
+                m = Vector3Stamped()
+                m.header.stamp = msg.header.stamp
+                m.vector.x = msg.vector.x + 1.0
+                pub.publish(m)
+
+            node.create_subscription(Vector3Stamped, sub, relay, qos)
+            if name == "r4":  # like the coil driver, the last relay also hears the clock
+                node.create_subscription(Clock, "clock", lambda _m: None, qos)
+            node.ready = lambda pub=pub: pub.get_subscription_count() > 0
+        nodes.append(node)
+    return nodes
+
+
+def bare_node_main(name: str, n_ticks: int) -> int:
+    """One bare-chain node as a process (``--bare-node NAME``); the plant prints the wall time."""
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    rclpy.init()
+    result = {}
+    (node,) = bare_nodes(None, n_ticks, [name], lambda wall: result.setdefault("wall", wall))
+    ex = EventsExecutor()
+    ex.add_node(node)
+    if name == "plant":
+        while not node.ready():
+            ex.spin_once(timeout_sec=0.05)
+        time.sleep(1.0)  # every relay's matches settle too
+        node.start()
+        while "wall" not in result:
+            ex.spin_once(timeout_sec=0.1)
+        print(json.dumps(result), flush=True)
+        return 0
+    try:
+        while rclpy.ok():
+            ex.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def bare_chain(n_ticks: int, processes: bool) -> float:
+    """Wall time (s) of ``n_ticks`` lockstep ticks of the bare chain."""
+    import signal as sig
+
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+
+    with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
+        env = ros_environment(lease.domain_id, Path(d) / "log")
+        if processes:
+            relays = [subprocess.Popen([sys.executable, __file__, "--bare-node", r, "--bare-ticks", str(n_ticks)],
+                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                      for r in ("r1", "r2", "r3", "r4")]
+            try:
+                out = subprocess.run([sys.executable, __file__, "--bare-node", "plant", "--bare-ticks", str(n_ticks)],
+                                     env=env, capture_output=True, text=True, timeout=600)
+            finally:
+                for p in relays:
+                    p.send_signal(sig.SIGINT)
+                for p in relays:
+                    p.wait(timeout=20)
+            return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
+        saved = apply_to_process(env)
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=lease.domain_id)
+        result = {}
+        try:
+            nodes = bare_nodes(ctx, n_ticks, list(BARE), lambda wall: result.setdefault("wall", wall))
+            ex = EventsExecutor(context=ctx)
+            for nd in nodes:
+                ex.add_node(nd)
+            deadline = time.monotonic() + 60
+            while not all(nd.ready() for nd in nodes) and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+            nodes[0].start()
+            while "wall" not in result:
+                ex.spin_once(timeout_sec=0.1)
+            for nd in nodes:
+                ex.remove_node(nd)
+                nd.destroy_node()
+            ex.shutdown()
+        finally:
+            rclpy.try_shutdown(context=ctx)
+            restore_process_env(saved)
+        return float(result["wall"])
+
+
 def realtime_latency(duration: float, rtf: float) -> np.ndarray:
     """Imager -> driver latency samples (s) in real-time mode."""
     import rclpy
@@ -64,7 +209,7 @@ def realtime_latency(duration: float, rtf: float) -> np.ndarray:
 
     from vesselbot_ros.nodes.conversions import ns_of_stamp
     from vesselbot_ros.ros_env import allocate_domain, ros_environment
-    from vesselbot_ros.topics import qos_profile, topic
+    from vesselbot_ros.graph_spec import qos_profile, topic
 
     lease = allocate_domain()
     dom = lease.domain_id
@@ -117,21 +262,30 @@ def main() -> int:
     ap.add_argument("--skip-realtime", action="store_true")
     ap.add_argument("--rt-duration", type=float, default=0.5)
     ap.add_argument("--rt-factor", type=float, default=0.1, help="real-time factor of the latency run")
+    ap.add_argument("--bare-node", help=argparse.SUPPRESS)
+    ap.add_argument("--bare-ticks", type=int, default=2000, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.bare_node:
+        return bare_node_main(a.bare_node, a.bare_ticks)
     if a.config is not None:
         global CONFIG
         CONFIG = a.config.resolve()
     print(f"scenario: {CONFIG.relative_to(REPO) if CONFIG.is_relative_to(REPO) else CONFIG}")
     pure, sim = pure_wall(a.duration)
-    print(f"{sim:.3f} s sim at 1 kHz = {int(round(sim * 1000))} ticks")
+    n = int(round(sim * 1000))
+    print(f"{sim:.3f} s sim at 1 kHz = {n} ticks")
+    bare = {"processes": bare_chain(n, True), "single": bare_chain(n, False)}
+    for mode, wall in bare.items():
+        print(f"bare rclpy chain, {mode + ':':11s} wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick")
     print(f"pure runner:                 wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
-    rows = []
-    for label, extra in (("lockstep, 7 processes", []), ("lockstep, --single-process", ["--single-process"])):
+    for label, extra, mode in (("lockstep, 7 processes", [], "processes"),
+                               ("lockstep, --single-process", ["--single-process"], "single")):
         r = ros_run(extra, a.duration)
-        rows.append((label, r))
-        over_us = (r["wall_s"] - pure) / (sim * 1000) * 1e6
+        over_us = (r["wall_s"] - pure) / n * 1e6
+        bare_us = bare[mode] / n * 1e6
         print(f"{label:28s} wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
-              f"ROS/pure wall ratio {r['wall_s'] / pure:5.2f}   graph overhead {over_us:7.0f} us/tick")
+              f"ROS/pure wall ratio {r['wall_s'] / pure:5.2f}   graph overhead {over_us:7.0f} us/tick   "
+              f"ours/bare chain {over_us / bare_us:5.2f} (target <= 1.2)")
     if not a.skip_realtime:
         lat = realtime_latency(a.rt_duration, a.rt_factor)
         if lat.size:

@@ -28,7 +28,9 @@ from vesselbot_ros.bag.reader import open_bag
 from vesselbot_ros.bag.synthetic import tick_messages
 from vesselbot_ros.nodes.recorder_node import FLUSH_SERVICE, recorder_command
 from vesselbot_ros.testing import NodeProcess, isolated_ros, spin_until
-from vesselbot_ros.topics import TOPICS, qos_profile
+from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
+
+DIAGNOSTICS = topic("diagnostics").name
 
 
 def bench_rate(ros, work: Path, rate_hz: float, duration_s: float) -> tuple[int, int, float]:
@@ -59,7 +61,7 @@ def bench_rate(ros, work: Path, rate_hz: float, duration_s: float) -> tuple[int,
                 time.sleep(delay)
             for pub, data in raw[k % 100]:
                 pub.publish(data)
-                published += pub.topic_name != "/diagnostics"  # the recorder publishes there too
+                published += pub.topic_name != DIAGNOSTICS  # the recorder publishes there too
         elapsed = time.monotonic() - t0
         for p in pubs.values():
             from rclpy.duration import Duration
@@ -71,13 +73,13 @@ def bench_rate(ros, work: Path, rate_hz: float, duration_s: float) -> tuple[int,
             fut = client.call_async(Trigger.Request())
             spin_until(ex, fut.done, 10)
             counts = json.loads(fut.result().message)
-            recorded = sum(v for k, v in counts.items() if k in pubs and k != "/diagnostics")
+            recorded = sum(v for k, v in counts.items() if k in pubs and k != DIAGNOSTICS)
             if recorded >= published:
                 break
             time.sleep(0.2)
         rec.stop(timeout=30)
         info = open_bag(out)
-        in_bag = sum(t.count for t in info.topics if t.name in pubs and t.name != "/diagnostics")
+        in_bag = sum(t.count for t in info.topics if t.name in pubs and t.name != DIAGNOSTICS)
         return published, in_bag, published / elapsed
     finally:
         rec.stop()

@@ -1,6 +1,7 @@
 """A user's own controller for the vesselbot graph (run with ``vesselbot run --without controller``).
 
-It follows the topic contract of the controller slot (docs/graph.md):
+It follows the topic contract of the controller slot (``vesselbot run --without controller``
+prints it; names, types and QoS come from :mod:`vesselbot_ros.graph_spec`):
 
 * subscribe ``/vesselbot/estimate`` (nav_msgs/Odometry: x_hat in pose.position,
   z_hat in twist.linear, frame ``vessel``) and ``/vesselbot/reference``
@@ -24,26 +25,25 @@ from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vesselbot_msgs.msg import ReferenceSample
-
-QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                 durability=DurabilityPolicy.VOLATILE)
+from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, qos_profile, topic
 
 
 class MyController(Node):
     """PD position controller: gradient = kp * (p_ref - x_hat) + kd * (v_ref - z_hat)."""
 
     def __init__(self) -> None:
-        super().__init__("my_controller")
+        # in the graph's namespace, so the relative names below resolve like ours (and --namespace remaps them)
+        super().__init__("my_controller", namespace=DEFAULT_NAMESPACE)
         self.kp = self.declare_parameter("kp_T_per_m2", 20.0).value  # T/m per m of error
         self.kd = self.declare_parameter("kd_T_s_per_m2", 0.5).value  # T/m per m/s of error
         self.refs: dict[tuple[int, int], ReferenceSample] = {}
         self.estimates: dict[tuple[int, int], Odometry] = {}
-        self.pub = self.create_publisher(Vector3Stamped, "/vesselbot/gradient_command", QOS)
-        self.create_subscription(Odometry, "/vesselbot/estimate", self.on_estimate, QOS)
-        self.create_subscription(ReferenceSample, "/vesselbot/reference", self.on_reference, QOS)
+        cmd, est, ref = topic("gradient_command"), topic("estimate"), topic("reference")
+        self.pub = self.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
+        self.create_subscription(Odometry, est.rel, self.on_estimate, qos_profile(est))
+        self.create_subscription(ReferenceSample, ref.rel, self.on_reference, qos_profile(ref))
 
     @staticmethod
     def key(stamp) -> tuple[int, int]:  # noqa: ANN001

@@ -49,7 +49,8 @@ if ! fresh interfaces "$ifc"; then
 fi
 
 # 3. vesselbot_ros itself, editable
-pkg=$(hash_files setup.py setup.cfg package.xml requirements.txt)
+# the console scripts derive from the graph spec
+pkg=$(hash_files setup.py setup.cfg package.xml requirements.txt vesselbot_ros/graph_spec.py)
 if ! fresh package "$pkg"; then
   echo "vesselbot bootstrap: installing vesselbot_ros (editable)"
   quiet_pip install --no-deps --no-build-isolation -e .

@@ -1,8 +1,8 @@
-"""Regenerate the generated sections of README.md (topic table, lockstep protocol, faults and safety).
+"""Regenerate the generated sections of README.md from the graph spec (architecture, topics, contract, lockstep, faults).
 
 Generated sections sit between ``<!-- BEGIN name -->`` and ``<!-- END name -->``
 markers; everything else in README.md is hand-written.  Run:
-``.venv/bin/python tools/gen_readme_sections.py`` (test/unit/test_topics.py fails
+``.venv/bin/python tools/gen_readme_sections.py`` (test/unit/test_graph_spec.py fails
 when the README is stale).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from vesselbot_ros import topics
+from vesselbot_ros import graph_spec as topics
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -22,7 +22,9 @@ def sections() -> dict[str, str]:
     protocol = re.sub(r"^-+\n", "", protocol.lstrip("\n")).strip()
     faults = (README.parent / "docs" / "faults_and_safety.md").read_text()
     faults = faults.split("\n", 1)[1].strip()  # drop the document's own heading
-    return {"topics": topics.markdown_table(), "lockstep": protocol, "faults": faults}
+    faults += "\n\nNode loss, per process (from the graph spec):\n\n" + topics.faults_table()
+    return {"architecture": topics.architecture_table(), "topics": topics.markdown_table(),
+            "contract": topics.contract_table(), "lockstep": protocol, "faults": faults}
 
 
 def render(text: str) -> str:

@@ -37,15 +37,24 @@ class DomainLease:
 
     domain_id: int
     _fh: IO[str] | None = field(default=None, repr=False)
+    _ns_fh: IO[str] | None = field(default=None, repr=False)
+
+    @property
+    def fds(self) -> tuple[int, ...]:
+        """The locks' file descriptors (for child processes that must hold the lease until they exit)."""
+        return tuple(f.fileno() for f in (self._fh, self._ns_fh) if f is not None)
 
     def release(self) -> None:
-        """Free the domain id for other runs (idempotent)."""
-        if self._fh is not None:
-            try:
-                fcntl.flock(self._fh, fcntl.LOCK_UN)
-            finally:
-                self._fh.close()
-                self._fh = None
+        """Give up this process's hold on the domain id (idempotent).
+
+        The lock is on the open file: it is freed once every process holding
+        its descriptor (this one, and children started with ``hold_fds=lease.fds``)
+        closed it or exited, so a domain whose nodes still run is never leased again.
+        """
+        for f in (self._fh, self._ns_fh):
+            if f is not None:
+                f.close()
+        self._fh = self._ns_fh = None
 
     def __enter__(self) -> DomainLease:
         return self
@@ -54,20 +63,27 @@ class DomainLease:
         self.release()
 
 
-def allocate_domain(preferred: int | None = None) -> DomainLease:
+def allocate_domain(preferred: int | None = None, namespace: str | None = None) -> DomainLease:
     """Lease a ROS domain id in [1, 101] no other vesselbot run on this machine holds.
 
     Args:
-        preferred: Try this id first (e.g. a user's ``--domain-id``); if it is
-            held by another run, raise instead of silently picking another.
+        preferred: Use this id (e.g. a user's ``--domain-id``); if it is held
+            by another run, raise instead of silently picking another.
+        namespace: With ``preferred``: the graph's namespace.  Graphs in
+            different namespaces may share a chosen domain (``vesselbot run
+            --domain-id D --namespace NAME``): the domain is then held shared,
+            the namespace in it exclusively.  An automatically chosen domain is
+            always held exclusively.
 
     Raises:
-        RuntimeError: if ``preferred`` is busy or every id is leased.
+        RuntimeError: if ``preferred`` (or its namespace) is busy or every id is leased.
     """
     _LOCK_DIR.mkdir(parents=True, exist_ok=True)
     if preferred is not None:
         if not DOMAIN_MIN <= preferred <= DOMAIN_MAX and preferred != 0:
             raise RuntimeError(f"ROS domain id {preferred} is outside [{DOMAIN_MIN}, {DOMAIN_MAX}]")
+        if namespace is not None:
+            return _shared_lease(preferred, namespace)
         candidates = [preferred]
     else:
         candidates = list(range(DOMAIN_MIN, DOMAIN_MAX + 1))
@@ -83,6 +99,24 @@ def allocate_domain(preferred: int | None = None) -> DomainLease:
     if preferred is not None:
         raise RuntimeError(f"ROS domain id {preferred} is in use by another vesselbot run")
     raise RuntimeError("every ROS domain id in [1, 101] is in use by other vesselbot runs")
+
+
+def _shared_lease(domain_id: int, namespace: str) -> DomainLease:
+    fh = open(_LOCK_DIR / f"{domain_id}.lock", "a+")  # noqa: SIM115 - held for the lease's lifetime
+    try:
+        fcntl.flock(fh, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        fh.close()
+        raise RuntimeError(f"ROS domain id {domain_id} is in use by another vesselbot run") from None
+    tag = namespace.strip("/").replace("/", "_") or "_"
+    ns_fh = open(_LOCK_DIR / f"{domain_id}.ns_{tag}.lock", "a+")  # noqa: SIM115
+    try:
+        fcntl.flock(ns_fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        ns_fh.close()
+        fh.close()
+        raise RuntimeError(f"ROS domain id {domain_id} already runs a vesselbot graph in namespace {namespace}") from None
+    return DomainLease(domain_id, fh, ns_fh)
 
 
 def ros_environment(domain_id: int, log_dir: str | os.PathLike[str], base: dict[str, str] | None = None) -> dict[str, str]:

@@ -21,15 +21,13 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from vesselbot_ros.launch.processes import ChildProcess
 from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 
 __all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "spin_node", "fill_message"]
@@ -64,8 +62,11 @@ def isolated_ros(workdir: str | os.PathLike[str], domain_id: int | None = None) 
         lease.release()
 
 
-class NodeProcess:
+class NodeProcess(ChildProcess):
     """A node (or any command) run as a subprocess in a sandbox's domain.
+
+    The project's one child wrapper (:class:`vesselbot_ros.launch.processes.ChildProcess`):
+    the node dies with the test process, whatever ends it.
 
     Args:
         argv: The command; ``python`` as first element means this interpreter.
@@ -74,47 +75,10 @@ class NodeProcess:
     """
 
     def __init__(self, argv: Sequence[str], env: dict[str, str], log_path: str | os.PathLike[str]) -> None:
-        argv = list(argv)
-        if argv and argv[0] == "python":
-            argv[0] = sys.executable
-        self.argv = argv
-        self.log_path = Path(log_path)
-        self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen(argv, env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
-
-    def alive(self) -> bool:
-        """True while the process runs."""
-        return self.proc.poll() is None
-
-    def output(self) -> str:
-        """Everything the process printed so far."""
-        self._log.flush()
-        return self.log_path.read_text(errors="replace")
-
-    def wait(self, timeout: float) -> int:
-        """Wait for the exit code at most ``timeout`` seconds (raises TimeoutExpired)."""
-        return self.proc.wait(timeout=timeout)
-
-    def stop(self, timeout: float = 10.0, sig: int = signal.SIGINT) -> int:
-        """Signal the process, wait up to ``timeout`` s, then SIGKILL; return the exit code."""
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(timeout=timeout)
-        self._log.close()
-        return self.proc.returncode
+        super().__init__(Path(str(argv[0])).name if argv else "node", argv, env, log_path)
 
     def __enter__(self) -> NodeProcess:
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
 def spin_until(executor: Any, predicate: Callable[[], bool], timeout: float, step: float = 0.01) -> bool:

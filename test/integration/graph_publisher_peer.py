@@ -15,7 +15,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 
 from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
-from vesselbot_ros.topics import TOPICS, qos_profile
+from vesselbot_ros.graph_spec import TOPICS, qos_profile
 
 
 def main() -> int:

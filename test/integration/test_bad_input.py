@@ -135,7 +135,7 @@ def probed(request, tmp_path_factory):
     from rclpy.executors import SingleThreadedExecutor
 
     from vesselbot_ros.testing import isolated_ros, spin_until
-    from vesselbot_ros.topics import NODE_NAMES, qos_profile, topic
+    from vesselbot_ros.graph_spec import NODE_NAMES, qos_profile, topic
 
     role = request.param
     name = NODE_NAMES[role]
@@ -208,7 +208,7 @@ def test_every_bad_input_is_rejected_with_its_reason_and_counted(probed):
     for reason in {r for _, r in exp}:
         assert d[f"rejected_reason:{reason}"] == str(sum(n for (_, r), n in exp.items() if r == reason)), (reason, d)
     # every input topic of the node got its share of bad messages
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     assert {t for t, _ in exp} == {topic(k).name for k in INPUTS[probed["role"]]}
     # the first diagnostics after a rejection are WARN (level 1)

@@ -35,7 +35,7 @@ def imager_session(tmp_path_factory):
     from vesselbot_msgs.msg import PlantState
     from vesselbot_msgs.srv import InjectFault
     from vesselbot_ros.testing import isolated_ros, spin_until
-    from vesselbot_ros.topics import qos_profile, topic
+    from vesselbot_ros.graph_spec import qos_profile, topic
 
     tmp = tmp_path_factory.mktemp("imager_srv")
     with isolated_ros(tmp) as ros:

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-ROLES = ["plant", "imager", "observer", "controller", "coil_driver", "reference"]
+from vesselbot_ros.graph_spec import LOOP_ROLES as ROLES  # noqa: E402
 
 # (parameter, value as given on the command line, text the message must contain)
 BAD = {
@@ -51,3 +51,31 @@ def test_bad_config_exits_2_and_creates_no_directory(repo, tmp_path):
     assert p.returncode == 2
     assert "imager.noise_sigma_m must be >= 0, got -1" in p.stderr
     assert not rec.exists()
+
+
+@pytest.mark.timeout(120)
+def test_parameters_are_read_only_after_start(ros, tmp_path):
+    """``ros2 param set`` on a scenario or graph parameter is refused, not silently ignored."""
+    import rclpy
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, NODE_NAMES
+    from vesselbot_ros.testing import NodeProcess, spin_until
+
+    node = rclpy.create_node("param_probe", context=ros.context)
+    ex = rclpy.executors.SingleThreadedExecutor(context=ros.context)
+    ex.add_node(node)
+    with NodeProcess(["python", "-m", "vesselbot_ros.nodes.controller_node"], ros.env, tmp_path / "ctl.log") as ctl:
+        client = node.create_client(SetParameters, f"{DEFAULT_NAMESPACE}/{NODE_NAMES['controller']}/set_parameters")
+        assert spin_until(ex, client.service_is_ready, 60), ctl.output()
+        for name, value in (("controller.gains.k1", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=9.0)),
+                            ("graph.mode", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="realtime"))):
+            fut = client.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
+            assert spin_until(ex, fut.done, 30)
+            result = fut.result().results[0]
+            assert not result.successful, name
+            assert "read-only" in result.reason.lower() or "read only" in result.reason.lower(), result.reason
+    ex.shutdown()
+    node.destroy_node()

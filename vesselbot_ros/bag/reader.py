@@ -299,11 +299,14 @@ def final_diagnostics(bag: str | Path | BagInfo) -> dict[str, dict[str, str]]:
     Raises:
         BagError: if the bag is invalid or corrupt.
     """
+    from vesselbot_ros.graph_spec import topic
+
+    diagnostics = topic("diagnostics").name
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
-    if info.topic("/diagnostics") is None:
+    if info.topic(diagnostics) is None:
         return {}
     out: dict[str, dict[str, str]] = {}
-    for m in iter_messages(info, topics=["/diagnostics"]):
+    for m in iter_messages(info, topics=[diagnostics]):
         for status in m.decode().status:
             out[status.name] = {v.key: v.value for v in status.values}
     return out
@@ -349,7 +352,7 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
     Raises:
         BagError: if the bag is invalid or corrupt.
     """
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     names = {topic(k).name: k for k in

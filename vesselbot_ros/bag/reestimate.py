@@ -49,6 +49,8 @@ import numpy as np
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.errors import BagError, VesselbotError
+from vesselbot_ros.graph_spec import REPLAY_PREFIX, resolve, role, tick_of_ns, topic
+from vesselbot_ros.launch.processes import ChildProcess
 
 __all__ = [
     "ROLES",
@@ -66,12 +68,12 @@ __all__ = [
     "replay_topic",
 ]
 
-CLOCK = "/clock"
+CLOCK = topic("clock").name
 #: A node that publishes the output and subscribes to some inputs but not all
 #: (e.g. an observer ignoring ``coil/applied``) is fed after this wall time (s).
 PARTIAL_WIRING_GRACE_S = 3.0
-DIAGNOSTICS = "/diagnostics"
-REPLAY_NS = "/vesselbot/replay"
+DIAGNOSTICS = topic("diagnostics").name
+REPLAY_NS = resolve(REPLAY_PREFIX)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,18 +91,26 @@ class RoleIO:
     fields: tuple[str, ...]
 
 
-ROLES: dict[str, RoleIO] = {
-    "observer": RoleIO(("coil_applied", "measurement"), "estimate",
-                       ("x_hat_x_m", "x_hat_y_m", "x_hat_z_m", "z_hat_x_m_per_s", "z_hat_y_m_per_s",
-                        "z_hat_z_m_per_s", "measurement_age_s")),
-    "controller": RoleIO(("reference", "estimate"), "gradient_command",
-                         ("u_x_T_per_m", "u_y_T_per_m", "u_z_T_per_m")),
+#: Compared output values of each role ``replay --into`` can re-run (see :func:`output_values`).
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "observer": ("x_hat_x_m", "x_hat_y_m", "x_hat_z_m", "z_hat_x_m_per_s", "z_hat_y_m_per_s", "z_hat_z_m_per_s",
+                 "measurement_age_s"),
+    "controller": ("u_x_T_per_m", "u_y_T_per_m", "u_z_T_per_m"),
 }
+
+
+def _role_io(name: str) -> RoleIO:
+    """A role's lockstep inputs (feed order, ``/clock`` aside) and answer, from the graph spec."""
+    r = role(name)
+    return RoleIO(tuple(k for k in r.inputs if k != "clock"), r.outputs[0], _FIELDS[name])
+
+
+ROLES: dict[str, RoleIO] = {name: _role_io(name) for name in _FIELDS}
 
 
 def replay_topic(role: str) -> str:
     """Topic name of the re-computed output in the result bag, e.g. ``/vesselbot/replay/estimate``."""
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     return f"{REPLAY_NS}/{topic(ROLES[role].output).name.rsplit('/', 1)[-1]}"
 
@@ -215,9 +225,9 @@ class ReestimateResult:
 # planning (no rclpy)
 # --------------------------------------------------------------------------
 def _tick_of_ns(ns: int, dt_s: float) -> int | None:
-    """Tick whose time ``round(k * dt * 1e9)`` is within 1 us of ``ns`` (None if off grid)."""
-    k = int(round(ns * 1e-9 / dt_s))
-    return k if abs(ns - int(round(k * dt_s * 1e9))) <= 1000 else None
+    """Tick of a stamp (:func:`~vesselbot_ros.graph_spec.tick_of_ns`), None if off the grid."""
+    k, on_grid = tick_of_ns(ns, dt_s)
+    return k if on_grid else None
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -238,7 +248,7 @@ def plan_feed(bag: str | Path | BagInfo, role: str) -> FeedPlan:
         ConfigError: the recorded config does not validate.
     """
     from vesselbot_ros.sim.scenario import scenario_from_mapping
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     if role not in ROLES:
         raise BagError(f"cannot re-run {role!r}: --into must be one of {sorted(ROLES)}")
@@ -385,7 +395,7 @@ class _Feeder:
 
         from vesselbot_ros.bag.replay import _import_type
         from vesselbot_ros.nodes.base import make_executor
-        from vesselbot_ros.topics import qos_profile, topic
+        from vesselbot_ros.graph_spec import qos_profile, topic
 
         self.plan = plan
         io = ROLES[plan.role]
@@ -531,18 +541,17 @@ def reestimate(
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     feeder: _Feeder | None = None
     node_log = log_dir / f"{role}.log"
-    proc: subprocess.Popen[bytes] | None = None
+    proc: ChildProcess | None = None
     error = ""
     fed = 0
     exit_code: int | None = None
     t_feed = 0.0
     try:
         feeder = _Feeder(context, plan)
-        with open(node_log, "wb") as fh:
-            try:
-                proc = subprocess.Popen(argv, env=env, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
-            except OSError as exc:
-                raise BagError(f"cannot start the node {shlex.join(argv)}: {exc.strerror or exc}") from None
+        try:
+            proc = ChildProcess(role, argv, env, node_log, hold_fds=lease.fds)
+        except OSError as exc:
+            raise BagError(f"cannot start the node {shlex.join(argv)}: {exc.strerror or exc}") from None
         log(f"started {role}: {shlex.join(argv)} (domain {lease.domain_id})")
 
         def died() -> str:
@@ -596,15 +605,7 @@ def reestimate(
             feeder.spin(0.02)
     finally:
         if proc is not None:
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    proc.send_signal(signal.SIGINT)
-            try:
-                exit_code = proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                exit_code = proc.wait(timeout=10)
+            exit_code = proc.stop(10.0)
         answers = dict(feeder.answers) if feeder is not None else {}
         diags = list(feeder.diagnostics) if feeder is not None else []
         if feeder is not None:
@@ -658,7 +659,7 @@ def reestimate(
     for k, data in diags:
         entries.append((tick_last_ns.get(k, 0) + 2, len(entries), DIAGNOSTICS, data))
     entries.sort()
-    from vesselbot_ros.topics import TOPICS
+    from vesselbot_ros.graph_spec import TOPICS
 
     specs = {s.name: s for s in TOPICS}
     with BagWriter(out, run_metadata=metadata) as writer:
@@ -675,13 +676,13 @@ def reestimate(
 
 
 def _out_name(role: str) -> str:
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     return topic(ROLES[role].output).name
 
 
 def _out_type(role: str) -> str:
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     return topic(ROLES[role].output).msgtype
 

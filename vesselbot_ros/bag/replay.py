@@ -2,7 +2,7 @@
 
 :func:`replay` publishes the recorded CDR bytes unchanged (raw publish: no
 decoding) on publishers with the recorded topic's QoS (the graph's QoS from
-:mod:`vesselbot_ros.topics` for its own topics, transient local for latched
+:mod:`vesselbot_ros.graph_spec` for its own topics, transient local for latched
 ones).  Message *i* is published at wall time
 ``t0 + (log_time_i - log_time_first) / rate``.
 
@@ -28,10 +28,11 @@ from typing import Any
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.errors import BagError
+from vesselbot_ros.graph_spec import topic
 
 __all__ = ["ReplayStats", "replay", "make_publishers"]
 
-CLOCK_TOPIC = "/clock"
+CLOCK_TOPIC = topic("clock").name
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ def make_publishers(node: Any, info: BagInfo, topics: Sequence[str]) -> dict[str
     """Publishers for ``topics`` of a bag, with the graph's QoS where known."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from vesselbot_ros.topics import TOPICS, qos_profile
+    from vesselbot_ros.graph_spec import TOPICS, qos_profile
 
     specs = {s.name: s for s in TOPICS}
     pubs = {}
@@ -131,7 +132,7 @@ def replay(
     if clock:
         from rosgraph_msgs.msg import Clock
 
-        from vesselbot_ros.topics import qos_profile, topic
+        from vesselbot_ros.graph_spec import qos_profile, topic
 
         clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, qos_profile(topic("clock")))
 

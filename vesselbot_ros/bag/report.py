@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros import graph_spec
 from vesselbot_ros.bag.reader import BagInfo, open_bag, read_timeseries
 from vesselbot_ros.errors import BagError
 
@@ -406,11 +407,7 @@ def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 
 #: Counters the launcher adds to the run's metrics from the nodes' final ``/diagnostics``
 #: (node role -> keys); the plant's are ``plant_node.PLANT_STAT_NAMES`` (tested equal).
-DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = {
-    "plant": ("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
-    "observer": ("observer_rhs_evals", "measurements_used", "measurements_rejected"),
-    "imager": ("outlier_frames",),
-}
+DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = graph_spec.diagnostic_counters()
 
 
 def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float | None:
@@ -424,7 +421,7 @@ def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float |
 def diagnostic_counters(info: BagInfo) -> dict[str, int]:
     """The launcher's extra metrics (plant/observer/imager counters) from the bag's final diagnostics."""
     from vesselbot_ros.bag.reader import final_diagnostics
-    from vesselbot_ros.topics import NODE_NAMES
+    from vesselbot_ros.graph_spec import NODE_NAMES
 
     final = final_diagnostics(info)
     out: dict[str, int] = {}

@@ -1,7 +1,7 @@
 """A synthetic, closed-form stream of the graph's messages (for tests and the recorder bench).
 
 :func:`tick_messages` returns, for tick ``k``, one message per per-tick topic
-of :data:`vesselbot_ros.topics.TOPICS`, in the lockstep order, with contents
+of :data:`vesselbot_ros.graph_spec.TOPICS`, in the lockstep order, with contents
 that are closed-form functions of ``t = k * dt_s`` (documented below) so that
 tests can compute expected figures and metrics by hand:
 
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from typing import Any
+from vesselbot_ros.graph_spec import topic
 
 __all__ = ["tick_messages", "latched_messages", "OUTLIER_WINDOW_S", "PARAMS"]
 
@@ -50,7 +51,7 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
     out: list[tuple[str, Any]] = []
     c = Clock()
     c.clock.sec, c.clock.nanosec = divmod(int(round(t * 1e9)), 1_000_000_000)
-    out.append(("/clock", c))
+    out.append((topic("clock").name, c))
 
     decay = math.exp(-t / P["tau"])
     px, pz = P["v_x"] * t + P["e0"] * decay, P["z0"] + P["e_z"]
@@ -73,20 +74,20 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
                               "steric", "total")):
         getattr(tr.forces, term).x = (i + 1) * 1e-9
     _stamp(tr.forces.header, t)
-    out.append(("/vesselbot/truth", tr))
+    out.append((topic("truth").name, tr))
 
     me = PointStamped()
     _stamp(me.header, t)
     me.point.x = px + 2e-6 * math.sin(k) + (1e-3 if OUTLIER_WINDOW_S[0] <= t < OUTLIER_WINDOW_S[1] else 0.0)
     me.point.z = pz + 2e-6 * math.cos(k)
-    out.append(("/vesselbot/measurement", me))
+    out.append((topic("measurement").name, me))
 
     rf = ReferenceSample()
     _stamp(rf.header, t)
     rf.tick = k
     rf.position.x, rf.position.z = P["v_x"] * t, P["z0"]
     rf.velocity.x = P["v_x"]
-    out.append(("/vesselbot/reference", rf))
+    out.append((topic("reference").name, rf))
 
     es = Odometry()
     _stamp(es.header, t)
@@ -94,17 +95,17 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
     es.pose.pose.position.x, es.pose.pose.position.z = px + P["est_dx"], pz
     es.pose.pose.orientation.w = 1.0
     es.twist.twist.linear.x = vx + P["est_dvx"]
-    out.append(("/vesselbot/estimate", es))
+    out.append((topic("estimate").name, es))
 
     cmd = Vector3Stamped()
     _stamp(cmd.header, t)
     cmd.vector.x, cmd.vector.z = u
-    out.append(("/vesselbot/gradient_command", cmd))
+    out.append((topic("gradient_command").name, cmd))
 
     ap = Vector3Stamped()
     _stamp(ap.header, t)
     ap.vector.x, ap.vector.z = applied
-    out.append(("/vesselbot/coil/applied", ap))
+    out.append((topic("coil_applied").name, ap))
 
     cs = CoilState()
     _stamp(cs.header, t)
@@ -115,7 +116,7 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
     cs.saturation_scale = max(1.0, abs(u[0]) / P["u_sat"])
     cs.max_gradient = P["u_sat"]
     cs.slew_rate = 0.1
-    out.append(("/vesselbot/coil/state", cs))
+    out.append((topic("coil_state").name, cs))
 
     if k % 100 == 0:
         d = DiagnosticArray()
@@ -123,7 +124,7 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name="synthetic_graph", message=f"tick {k}")
         st.values = [KeyValue(key="tick", value=str(k))]
         d.status = [st]
-        out.append(("/diagnostics", d))
+        out.append((topic("diagnostics").name, d))
     return out
 
 
@@ -149,4 +150,4 @@ def latched_messages() -> list[tuple[str, Any]]:
         _stamp(ps.header, 0.5 * j)
         ps.pose.position.x, ps.pose.position.z = PARAMS["v_x"] * 0.5 * j, PARAMS["z0"]
         path.poses.append(ps)
-    return [("/vesselbot/vessel_markers", ma), ("/vesselbot/reference/path", path)]
+    return [(topic("vessel_markers").name, ma), (topic("reference_path").name, path)]

@@ -20,23 +20,16 @@ from typing import Any
 
 from vesselbot_ros.config import ConfigError
 
-__all__ = ["NODE_CLASSES", "node_class", "main"]
+from vesselbot_ros.graph_spec import LOOP_ROLES, role
 
-NODE_CLASSES = {
-    "plant": "vesselbot_ros.nodes.plant_node:PlantNode",
-    "imager": "vesselbot_ros.nodes.imager_node:ImagerNode",
-    "observer": "vesselbot_ros.nodes.observer_node:ObserverNode",
-    "controller": "vesselbot_ros.nodes.controller_node:ControllerNode",
-    "coil_driver": "vesselbot_ros.nodes.coil_driver_node:CoilDriverNode",
-    "reference": "vesselbot_ros.nodes.reference_node:ReferenceNode",
-}
+__all__ = ["node_class", "main"]
 
 
-def node_class(role: str) -> Any:
-    """Import and return the node class of ``role``."""
+def node_class(name: str) -> Any:
+    """Import and return the node class of role ``name`` (from the graph spec)."""
     import importlib
 
-    module, _, cls = NODE_CLASSES[role].partition(":")
+    module, _, cls = role(name).node_class.partition(":")
     return getattr(importlib.import_module(module), cls)
 
 
@@ -57,8 +50,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ns = parser.parse_args(argv)
     roles = [r for r in ns.roles.split(",") if r]
     for r in roles:
-        if r not in NODE_CLASSES:
-            print(f"vesselbot-composed: unknown role {r!r}; known: {sorted(NODE_CLASSES)}", file=sys.stderr)
+        if r not in LOOP_ROLES:
+            print(f"vesselbot-composed: unknown role {r!r}; known: {', '.join(LOOP_ROLES)}", file=sys.stderr)
             return 2
     nodes: list[Any] = []
     rclpy.init(args=["vesselbot_composed", *ros_args])

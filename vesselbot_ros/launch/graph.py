@@ -1,68 +1,66 @@
-"""Start, watch and stop the node graph; collect its time series and metrics.
+"""Run the node graph: ``vesselbot run`` as a function (:func:`run_graph`).
 
-:func:`run_graph` is what ``vesselbot run`` does, as a function:
-
-1. lease a ROS domain, write the scenario as a ``--params-file``;
+1. lease a ROS domain (held by every child until the last one exits), write
+   the scenario as a ``--params-file``;
 2. start the recorder first (unless disabled) and wait until it subscribes to
-   every topic of :data:`vesselbot_ros.topics.TOPICS`;
+   every topic of the graph spec;
 3. start the nodes (one process each, or one composed process), wait until
-   every node reports ``wired: true`` in its diagnostics (all its DDS
-   endpoints matched) and, for a role left to the user (``without``), until
-   some node publishes that role's outputs;
-4. call RunControl START on the plant, then watch: node processes (a death
-   ends the run at once and names the node), progress, the plant's
-   ``finished`` flag;
-   a node that dies upstream of the coil driver (imager, observer,
-   controller, reference; one process per node) does not stop the graph at
-   once: the launcher first lets the coil driver's watchdog bring the applied
-   gradient to zero (its ``coil/state`` shows ``applied = 0`` with
-   ``watchdog_active``), bounded by ``wait_timeout_s``, so the bag ends with
-   the coil safe; then it stops everything and raises :class:`NodeDied`
-   naming the node.  A dead plant (the clock: in lockstep no sim time passes
-   without it, so there is no time in which to ramp), coil driver or recorder
-   ends the run at once;
-5. after the run, wait (bounded) until the recorder's ``received:<topic>``
-   counts equal the publishers' ``published:<topic>`` counts, then stop the
-   nodes with SIGINT and the recorder last;
+   every node reports ``wired: true`` (all its DDS endpoints matched) and, for
+   a role left to the user (``without``), until some node publishes that
+   role's outputs;
+4. call RunControl START on the plant, then watch (:mod:`~vesselbot_ros.launch.supervision`):
+   a node process that dies ends the run and is named; a node that dies
+   upstream of the coil driver first lets the driver's watchdog bring the
+   gradient to zero; progress lines show the real-time figures;
+5. after the run, wait (bounded) until the recorder received what every
+   publisher published, stop the nodes, then the recorder (it finalises the
+   bag), and compare the bag's per-topic counts with the published counts
+   (:func:`check_recorded_counts`): any difference fails the run;
 6. rebuild the pure runner's time series from the monitored topics and
-   compute the same metrics (:func:`vesselbot_ros.sim.metrics.compute_metrics`).
+   compute the same metrics (:func:`vesselbot_ros.sim.metrics.compute_metrics`);
+   in real-time mode, collect each loop node's missed periods and input age
+   (:func:`realtime_report`).
 
-The launcher's own node (``vesselbot_launcher``) subscribes to truth,
-estimate, reference, coil state and ``/diagnostics``; it is not part of the
-loop, so it cannot slow it down beyond the DDS fan-out.
+Processes, supervision and monitoring live in :mod:`~vesselbot_ros.launch.processes`,
+:mod:`~vesselbot_ros.launch.supervision` and :mod:`~vesselbot_ros.launch.monitor`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
-import signal
-import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.graph_spec import (
+    LOOP_ROLES,
+    NODE_NAMES,
+    REALTIME_MISSED_LIMIT,
+    diagnostic_counters,
+    remap_args,
+    role,
+    role_contract,
+    topic,
+)
+from vesselbot_ros.launch.monitor import Monitor
+from vesselbot_ros.launch.supervision import NodeDied, Supervisor, wait_for
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
-from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+from vesselbot_ros.ros_env import DomainLease, allocate_domain, apply_to_process, restore_process_env, ros_environment
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
-from vesselbot_ros.topics import NODE_NAMES, TOPICS, topic
 
-__all__ = ["ROLES", "GraphOptions", "GraphResult", "NodeDied", "run_graph", "role_contract"]
-
-#: Node roles of the loop, in start order (the plant last: it owns the clock).
-ROLES = ("reference", "imager", "observer", "controller", "coil_driver", "plant")
-_MODULES = {r: f"vesselbot_ros.nodes.{r}_node" for r in ROLES}
+__all__ = ["GraphOptions", "GraphResult", "NodeDied", "RecordingMismatch", "RealtimeStats", "run_graph",
+           "role_contract", "check_recorded_counts", "realtime_report", "held_real_time_factor"]
 
 
-class NodeDied(VesselbotError):
-    """A node process exited before the run finished."""
+class RecordingMismatch(VesselbotError):
+    """The bag does not hold exactly what the publishers published."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,10 +76,13 @@ class GraphOptions:
         run_metadata: JSON-able run description for the recorder.
         log_dir: Folder for node logs (ROS logs and each process's output).
         domain_id: ROS domain (None: lease a free one).
+        lease: An already held lease (the CLI leases before it creates anything); overrides ``domain_id``.
+        namespace: The graph's namespace (None: ``/vesselbot``).
         wait_timeout_s: Bound on start-up waits (recorder, wiring, user nodes).
         run_timeout_s: Bound on the run itself (wall s; None: from the duration).
         stall_timeout_s: Lockstep coil-driver watchdog (wall s).
-        progress: Called with (sim_time_s, duration_s, wall_s) about once a second.
+        progress: Called with (sim_time_s, duration_s, wall_s, status) about once a second;
+            ``status`` is the real-time figures (empty in lockstep).
         on_contract: Called with the contract text of each role left to the user.
     """
 
@@ -93,11 +94,39 @@ class GraphOptions:
     run_metadata: dict[str, Any] | None = None
     log_dir: Path | None = None
     domain_id: int | None = None
+    lease: DomainLease | None = None
+    namespace: str | None = None
     wait_timeout_s: float = 60.0
     run_timeout_s: float | None = None
     stall_timeout_s: float = 2.0
-    progress: Callable[[float, float, float], None] | None = None
+    progress: Callable[..., None] | None = None
     on_contract: Callable[[str], None] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class RealtimeStats:
+    """Real-time figures of one loop node.
+
+    Attributes:
+        role: The node's role.
+        missed: Control periods it missed (late by more than one period, or skipped).
+        periods: Control periods of the run (ticks).
+        input_age_max_s: Largest age of an accepted input (sim s).
+        input_age_mean_s: Mean age of its accepted inputs (sim s).
+        lateness_mean_s: Mean wall time by which its periods ended after they were due (s).
+    """
+
+    role: str
+    missed: int
+    periods: int
+    input_age_max_s: float
+    input_age_mean_s: float
+    lateness_mean_s: float = 0.0
+
+    @property
+    def fraction(self) -> float:
+        """Missed fraction of the periods."""
+        return self.missed / self.periods if self.periods else 0.0
 
 
 @dataclasses.dataclass
@@ -110,6 +139,9 @@ class GraphResult:
         wall_s: Wall time from START to the last tick (s).
         real_time_factor: ``duration_s / wall_s``.
         diagnostics: Last diagnostics key/values per node name.
+        realtime: Real-time mode: per loop node, missed periods and input age.
+        held_real_time_factor: Real-time mode: the factor the whole loop held.
+        recorded_counts: Recorded runs: messages per topic in the bag.
     """
 
     metrics: dict[str, Any]
@@ -117,205 +149,92 @@ class GraphResult:
     wall_s: float
     real_time_factor: float
     diagnostics: dict[str, dict[str, str]]
+    realtime: list[RealtimeStats] = dataclasses.field(default_factory=list)
+    held_real_time_factor: float | None = None
+    recorded_counts: dict[str, int] = dataclasses.field(default_factory=dict)
+
+    @property
+    def realtime_failed(self) -> bool:
+        """True if a loop node missed more than 1 % of its periods."""
+        return any(s.fraction > REALTIME_MISSED_LIMIT for s in self.realtime)
 
 
-# node role -> (topic keys it subscribes to, topic keys it publishes): the contract of a slot
-CONTRACT = {
-    "plant": (("coil_applied",), ("clock", "truth", "vessel_markers")),
-    "imager": (("truth",), ("measurement",)),
-    "observer": (("measurement", "coil_applied"), ("estimate",)),
-    "controller": (("estimate", "reference"), ("gradient_command",)),
-    "coil_driver": (("gradient_command", "clock"), ("coil_applied", "coil_state")),
-    "reference": (("clock",), ("reference", "reference_path")),
-}
+def realtime_report(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...] | list[str],
+                    n_ticks: int) -> list[RealtimeStats]:
+    """Per loop node: missed periods (incl. the ticks after its last period) and input age, from diagnostics."""
+    out = []
+    for r in roles:
+        d = diag.get(NODE_NAMES[r])
+        if d is None:
+            out.append(RealtimeStats(r, n_ticks, n_ticks, float("inf"), float("inf"), float("inf")))
+            continue
+        missed = int(d.get("missed_periods", "0"))
+        last = int(d.get("period_tick", "-1"))
+        missed += max(0, n_ticks - 1 - last)  # periods it never reached
+        out.append(RealtimeStats(r, min(missed, n_ticks), n_ticks, float(d.get("input_age_max_s", "0")),
+                                 float(d.get("input_age_mean_s", "0")), float(d.get("lateness_mean_s", "0"))))
+    return out
 
 
-def role_contract(role: str) -> str:
-    """Human-readable topic contract of a role (what a user's replacement must do)."""
-    subs, pubs = CONTRACT[role]
-    lines = [f"slot '{role}' is yours: your node must"]
-    for k in subs:
-        t = topic(k)
-        lines.append(f"  subscribe {t.name} [{t.msgtype}] ({t.units}, frame {t.frame})")
-    for k in pubs:
-        t = topic(k)
-        lines.append(f"  publish   {t.name} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
-    lines.append("  with use_sim_time=true; QoS: reliable, keep last 100 (see docs/graph.md).")
-    if role != "plant":
-        lines.append("  Lockstep: answer tick k with header.stamp = t_k of the input that triggered it.")
-    return "\n".join(lines)
+def held_real_time_factor(stats: list[RealtimeStats], asked: float, achieved: float, dt: float) -> float:
+    """The real-time factor the loop held: the asked one, unless a node was late.
+
+    A node whose periods end ``L`` s (wall, on average) after they are due
+    holds a factor up to ``dt / L`` (its period ``dt / factor`` then covers the
+    delay); the loop holds the smallest of these, the factor the plant
+    achieved, and the asked one.
+    """
+    held = min(asked, achieved)
+    for st in stats:
+        if st.fraction > REALTIME_MISSED_LIMIT and st.lateness_mean_s > 0:
+            held = min(held, dt / st.lateness_mean_s)
+    return held
 
 
-class _Proc:
-    """One child process with its log file."""
-
-    def __init__(self, label: str, argv: Sequence[str], env: dict[str, str], log_path: Path) -> None:
-        self.label = label
-        self.log_path = log_path
-        log_path.parent.mkdir(parents=True, exist_ok=True)
-        self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen(list(argv), env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
-
-    def poll(self) -> int | None:
-        return self.proc.poll()
-
-    def tail(self, n: int = 15) -> str:
-        with contextlib.suppress(OSError):
-            self._log.flush()
-            lines = self.log_path.read_text(errors="replace").splitlines()
-            return "\n".join(lines[-n:])
+def realtime_status(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...] | list[str], dt: float) -> str:
+    """One-line real-time figures for the progress line: the worst node's missed periods and input age."""
+    worst: tuple[int, str] | None = None
+    age = 0.0
+    for r in roles:
+        d = diag.get(NODE_NAMES[r], {})
+        m = int(d.get("missed_periods", "0"))
+        age = max(age, float(d.get("input_age_max_s", "0")))
+        if worst is None or m > worst[0]:
+            worst = (m, r)
+    if worst is None:
         return ""
-
-    def signal(self, sig: int) -> None:
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                self.proc.send_signal(sig)
-
-    def wait(self, timeout: float) -> int:
-        try:
-            return self.proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            return self.proc.wait(timeout=10)
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            self._log.close()
+    return f"missed {worst[0]} ({worst[1]})   input age max {age * 1e3:.1f} ms"
 
 
-class _Monitor:
-    """The launcher's own node: collects the time series and the diagnostics."""
-
-    def __init__(self, context: Any, n: int) -> None:
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from nav_msgs.msg import Odometry
-
-        from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample
-        from vesselbot_msgs.srv import RunControl
-        from vesselbot_ros.nodes.base import make_executor
-        from vesselbot_ros.topics import qos_profile
-
-        self.n = n
-        self.node = rclpy.create_node("vesselbot_launcher", context=context)
-        self.ex = make_executor(context)
-        self.ex.add_node(self.node)
-        self.p_true = np.full((n, 2), np.nan)
-        self.v_true = np.full((n, 2), np.nan)
-        self.contact = np.zeros(n, dtype=bool)
-        self.x_hat = np.full((n, 2), np.nan)
-        self.z_hat = np.full((n, 2), np.nan)
-        self.p_ref = np.full((n, 2), np.nan)
-        self.g_applied = np.full((n, 2), np.nan)
-        self.saturated = np.zeros(n, dtype=bool)
-        self.slew = np.zeros((n, 2), dtype=bool)
-        self.got = {"truth": 0, "estimate": 0, "reference": 0, "coil_state": 0}
-        self.max_tick = -1
-        # latest coil/state: (tick, applied (2,), watchdog_active)
-        self.last_coil: tuple[int, tuple[float, float], bool] | None = None
-        self.diag: dict[str, dict[str, str]] = {}
-        self.diag_level: dict[str, tuple[int, str]] = {}
-        self.t_first_truth: float | None = None
-        self.t_last_truth: float | None = None
-        self.dt = 0.0
-        sub = self.node.create_subscription
-        sub(PlantState, topic("truth").name, self._on_truth, qos_profile(topic("truth")))
-        sub(Odometry, topic("estimate").name, self._on_estimate, qos_profile(topic("estimate")))
-        sub(ReferenceSample, topic("reference").name, self._on_reference, qos_profile(topic("reference")))
-        sub(CoilState, topic("coil_state").name, self._on_coil, qos_profile(topic("coil_state")))
-        sub(DiagnosticArray, "/diagnostics", self._on_diag, qos_profile(topic("diagnostics")))
-        self.run_control = self.node.create_client(RunControl, "/vesselbot/run_control")
-
-    def _tick(self, stamp: Any) -> int | None:
-        from vesselbot_ros.nodes.conversions import ns_of_stamp, tick_of_ns
-
-        k, ok = tick_of_ns(ns_of_stamp(stamp), self.dt)
-        return k if ok and 0 <= k < self.n else None
-
-    def _on_truth(self, m: Any) -> None:
-        k = int(m.tick)
-        if not 0 <= k < self.n:
-            return
-        now = time.monotonic()
-        if self.t_first_truth is None:
-            self.t_first_truth = now
-        self.t_last_truth = now
-        self.p_true[k] = (m.position.x, m.position.z)
-        self.v_true[k] = (m.velocity.x, m.velocity.z)
-        self.contact[k] = m.in_contact
-        self.got["truth"] += 1
-        self.max_tick = max(self.max_tick, k)
-
-    def _on_estimate(self, m: Any) -> None:
-        k = self._tick(m.header.stamp)
-        if k is not None:
-            self.x_hat[k] = (m.pose.pose.position.x, m.pose.pose.position.z)
-            self.z_hat[k] = (m.twist.twist.linear.x, m.twist.twist.linear.z)
-            self.got["estimate"] += 1
-
-    def _on_reference(self, m: Any) -> None:
-        k = int(m.tick)
-        if 0 <= k < self.n:
-            self.p_ref[k] = (m.position.x, m.position.z)
-            self.got["reference"] += 1
-
-    def _on_coil(self, m: Any) -> None:
-        k = int(m.tick)
-        if 0 <= k < self.n:
-            self.g_applied[k] = (m.applied.x, m.applied.z)
-            self.saturated[k] = m.saturated
-            self.slew[k] = (m.slew_limited_x, m.slew_limited_z)
-            self.got["coil_state"] += 1
-            if self.last_coil is None or k >= self.last_coil[0]:
-                self.last_coil = (k, (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active))
-
-    def _on_diag(self, m: Any) -> None:
-        for st in m.status:
-            self.diag[st.name] = {kv.key: kv.value for kv in st.values}
-            self.diag_level[st.name] = (int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level), st.message)
-
-    def spin(self, dt: float = 0.05) -> None:
-        self.ex.spin_once(timeout_sec=dt)
-
-    def recorder_subscribed(self) -> bool:
-        name = NODE_NAMES["recorder"]
-        return all(
-            any(i.node_name == name for i in self.node.get_subscriptions_info_by_topic(t.name)) for t in TOPICS
-        )
-
-    def publishes(self, key: str) -> bool:
-        return self.node.count_publishers(topic(key).name) > 0
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.ex.remove_node(self.node)
-            self.ex.shutdown()
-            self.node.destroy_node()
-
-
-def _counts(diag: dict[str, str], prefix: str) -> dict[str, int]:
-    return {k[len(prefix):]: int(v) for k, v in diag.items() if k.startswith(prefix)}
+def check_recorded_counts(published: Mapping[str, int], recorded: Mapping[str, int]) -> list[str]:
+    """Differences between what was published and what the bag holds, one line per topic (empty: equal)."""
+    problems = []
+    for name in sorted(set(published) | set(recorded)):
+        p, r = published.get(name), recorded.get(name, 0)
+        if p is None:
+            continue  # a topic only the bag knows (e.g. an extra topic): nothing to compare against
+        if p != r:
+            problems.append(f"{name}: published {p}, recorded {r}")
+    return problems
 
 
 def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     """Run the node graph on ``scenario`` (see module docstring).
 
     Raises:
-        NodeDied: a node process exited before the end (names it, with its
-            last output lines).
+        NodeDied: a node process exited before the end (names it, with its last output lines).
+        RecordingMismatch: the bag does not hold what was published (names topic and counts).
         VesselbotError: a bounded wait expired (says what was awaited).
-        KeyboardInterrupt: on Ctrl-C, after stopping everything cleanly.
+        KeyboardInterrupt: on Ctrl-C / SIGTERM / SIGHUP, after stopping everything cleanly.
     """
     import rclpy
 
     from vesselbot_ros.nodes.base import GraphParams
 
-    roles = [r for r in ROLES if r not in options.without]
+    roles = [r for r in LOOP_ROLES if r not in options.without]
     graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]
                         stall_timeout_s=options.stall_timeout_s)
-    lease = allocate_domain(options.domain_id)
+    lease = options.lease if options.lease is not None else allocate_domain(options.domain_id)
     log_dir = Path(options.log_dir) if options.log_dir else Path.cwd() / "runs" / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     env = ros_environment(lease.domain_id, log_dir)
@@ -326,148 +245,196 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     n = scenario.sim.n_ticks
-    mon = _Monitor(context, n)
-    mon.dt = scenario.sim.dt_control_s
-    recorder: _Proc | None = None
-    procs: list[_Proc] = []
-    proc_roles: dict[str, list[str]] = {}
+    dt = scenario.sim.dt_control_s
+    mon = Monitor(context, n, dt, options.namespace, options.without)
+    sup = Supervisor(env, log_dir, lease.fds)
     finished_ok = False
+    recorded: dict[str, int] = {}
+    published: dict[str, int] | None = None
     try:
         if options.record_dir is not None:
             from vesselbot_ros.nodes.recorder_node import recorder_command
 
-            recorder = _Proc("recorder", recorder_command(options.record_dir, options.run_metadata), env,
-                             log_dir / "recorder.log")
-            _wait(lambda: mon.recorder_subscribed(), options.wait_timeout_s, mon, [recorder],
-                  "the recorder to subscribe to every topic")
-        ros_args = ["--ros-args", "--params-file", str(params_file)]
-        if options.single_process:
-            p = _Proc("composed", [sys.executable, "-m", "vesselbot_ros.launch.composed", "--roles", ",".join(roles),
-                                   *ros_args], env, log_dir / "composed.log")
-            procs.append(p)
-            proc_roles["composed"] = list(roles)
-        else:
-            for r in roles:
-                procs.append(_Proc(r, [sys.executable, "-m", _MODULES[r], *ros_args], env, log_dir / f"{r}.log"))
-                proc_roles[r] = [r]
+            sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace))
+            wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
+        sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
+                        options.single_process)
         for r in options.without:
             if options.on_contract is not None:
-                options.on_contract(role_contract(r))
-
-        def wired() -> bool:
-            for r in roles:
-                d = mon.diag.get(NODE_NAMES[r])
-                if d is None or d.get("wired") != "true":
-                    return False
-                # every publisher matched every subscription the graph knows of (the recorder's too), so
-                # no reader joins late and misses tick 0
-                for key, val in d.items():
-                    if key.startswith("matched_subscribers:") and int(val) < mon.node.count_subscribers(
-                            key.split(":", 1)[1]):
-                        return False
-            return all(mon.publishes(k) for r in options.without for k in CONTRACT[r][1] if k != "reference_path"
-                       and k != "vessel_markers")
-
-        _wait(wired, options.wait_timeout_s, mon, procs + ([recorder] if recorder else []),
-              "every node to be wired (all publishers and subscriptions matched)" +
-              (f" and a node to take the slot(s) {list(options.without)}" if options.without else ""))
-        _wait(lambda: mon.publishes("truth") and mon.node.count_subscribers(topic("estimate").name) > 0
-              and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, procs, "the plant's RunControl service")
+                options.on_contract(role_contract(r, options.namespace))
+        wait_for(lambda: _wired(mon, roles, options.without), options.wait_timeout_s, mon, sup,
+                 "every node to be wired (all publishers and subscriptions matched)" +
+                 (f" and a node to take the slot(s) {list(options.without)}" if options.without else ""))
+        wait_for(lambda: mon.publishes("truth") and mon.subscribers("estimate") > 0
+                 and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, sup,
+                 "the plant's RunControl service")
         from vesselbot_msgs.srv import RunControl
 
         fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
-        _wait(fut.done, options.wait_timeout_s, mon, procs, "RunControl START")
+        wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
         t_start = time.monotonic()
-        duration = n * scenario.sim.dt_control_s
-        timeout = options.run_timeout_s
-        if timeout is None:
-            timeout = 120.0 + (duration / options.real_time_factor if options.mode == "realtime" else 200.0 * duration)
-        last_progress = t_start
-        plant_name = NODE_NAMES["plant"]
-        while True:
-            mon.spin(0.05)
-            try:
-                _check_alive(procs + ([recorder] if recorder else []), proc_roles)
-            except NodeDied as died:
-                dead = next(p for p in procs + ([recorder] if recorder else []) if p.poll() is not None)
-                if dead.label in SAFE_STOP_ROLES and "coil_driver" in roles and "plant" in roles:
-                    _safe_stop(died, dead, mon, [p for p in procs if p is not dead] + ([recorder] if recorder else []),
-                               proc_roles, options.wait_timeout_s, scenario.sim.dt_control_s)
-                raise
-            plant_done = mon.diag.get(plant_name, {}).get("finished") == "true" if "plant" in roles else False
-            if plant_done or (mon.got["truth"] >= n and "plant" not in roles):
-                break
-            now = time.monotonic()
-            if options.progress is not None and now - last_progress >= 1.0:
-                last_progress = now
-                options.progress((mon.max_tick + 1) * scenario.sim.dt_control_s, duration, now - t_start)
-            if now - t_start > timeout:
-                raise VesselbotError(f"the run did not finish within {timeout:.0f} s (wall); reached tick {mon.max_tick}")
+        _watch(mon, sup, roles, options, scenario, t_start)
         t_end = mon.t_last_truth or time.monotonic()
         wall = t_end - (mon.t_first_truth or t_start)
-        # all per-tick messages at the monitor, and (if recording) at the recorder
+        # every node's final counts, and every per-tick message at the launcher
+        wait_for(lambda: mon.published(roles, require_finished=True) is not None, 30.0, mon, sup,
+                 "every node's final diagnostics")
         if options.mode == "lockstep":
-            _wait(lambda: mon.got["coil_state"] >= n and mon.got["estimate"] >= n and mon.got["reference"] >= n
-                  and mon.got["truth"] >= n, 30.0, mon, procs, "the last messages of the run at the launcher")
-        else:  # real time: no per-tick guarantee, and only the plant marks itself finished.  With
-            # /clock stopped nothing publishes any more; after one full diagnostics period (~1 Hz)
-            # every node's published counts are final.
-            grace = time.monotonic() + (1.5 if recorder is not None else 0.5)
-            while time.monotonic() < grace:
-                mon.spin(0.05)
-        if recorder is not None:
-            _wait(lambda: _recorder_caught_up(mon, roles, require_finished=options.mode == "lockstep"), 30.0,
-                  mon, procs + [recorder], "the recorder's received counts to match the published counts")
+            wait_for(lambda: all(v >= n for v in mon.got.values()), 30.0, mon, sup,
+                     "the last messages of the run at the launcher")
+        if sup.recorder is not None:
+            try:
+                wait_for(lambda: _recorder_caught_up(mon, roles), 30.0, mon, sup,
+                         "the recorder's received counts to match the published counts")
+            except NodeDied:
+                raise
+            except VesselbotError as exc:
+                gaps = check_recorded_counts(mon.published(roles) or {}, mon.recorder_received() or {})
+                raise RecordingMismatch(f"{exc}: " + "; ".join(gaps)) from None
+        published = mon.published(roles, require_finished=True)
         finished_ok = True
         diagnostics = dict(mon.diag)
     finally:
         interrupted = sys.exc_info()[0] is KeyboardInterrupt
-        if recorder is not None and not finished_ok and not interrupted and recorder.poll() is None:
-            # a node died (or a wait timed out): before stopping anything, let the recorder catch
-            # up with every per-tick message the launcher itself received, so the bag holds the
-            # run up to that moment (including the watchdog's ramp to zero)
+        if sup.recorder is not None and not finished_ok and not interrupted and sup.recorder.poll() is None:
+            # a node died (or a wait timed out): before stopping anything, let the recorder catch up with
+            # what the launcher saw, so the bag holds the run up to that moment (incl. the watchdog's ramp)
             deadline = time.monotonic() + 10.0
             while time.monotonic() < deadline and not _recorder_has_seen(mon):
                 with contextlib.suppress(Exception):
                     mon.spin(0.05)
-        for p in procs:
-            p.signal(signal.SIGINT)
-        for p in procs:
-            p.wait(10.0)
-            p.close()
-        if recorder is not None:
+        sup.stop_nodes(10.0)
+        if sup.recorder is not None:
             # let the recorder take the nodes' final diagnostics, then finalise the bag
             deadline = time.monotonic() + 0.5
             while time.monotonic() < deadline:
                 with contextlib.suppress(Exception):
                     mon.spin(0.05)
-            recorder.signal(signal.SIGINT)
-            recorder.wait(30.0)
-            recorder.close()
+            sup.stop_recorder(30.0)
+        sup.kill_all()  # nothing may outlive the launcher
         mon.close()
         rclpy.try_shutdown(context=context)
         restore_process_env(saved_env)
         lease.release()
         if interrupted:
-            print("vesselbot run: interrupted; nodes stopped" + (", bag finalised" if recorder else ""), file=sys.stderr)
+            print("vesselbot run: interrupted; nodes stopped" + (", bag finalised" if sup.recorder else ""),
+                  file=sys.stderr)
     if not finished_ok:  # pragma: no cover - exceptions propagate above
         raise VesselbotError("run aborted")
+    if options.record_dir is not None and published is not None:
+        recorded = _bag_counts(Path(options.record_dir))
+        problems = check_recorded_counts(published, recorded)
+        if problems:
+            raise RecordingMismatch("the bag does not hold what was published: " + "; ".join(problems))
+    mon.decode_all()
     series = _series(mon, scenario)
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
-    pd = diagnostics.get(plant_name, {})
-    od = diagnostics.get(NODE_NAMES["observer"], {})
-    idg = diagnostics.get(NODE_NAMES["imager"], {})
     metrics.update(scenario=scenario.name, seed=scenario.seed)
-    from vesselbot_ros.nodes.plant_node import PLANT_STAT_NAMES
+    for r, keys in diagnostic_counters().items():
+        d = diagnostics.get(NODE_NAMES[r], {})
+        for key in keys:
+            if key in d:
+                metrics[key] = int(d[key])
+    duration = n * dt
+    rtf = duration / wall if wall > 0 else float("inf")
+    result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
+    if options.mode == "realtime":
+        result.realtime = realtime_report(diagnostics, roles, n)
+        result.held_real_time_factor = held_real_time_factor(result.realtime, options.real_time_factor, rtf, dt)
+    return result
 
-    for key, d in (*((name, pd) for name in PLANT_STAT_NAMES), ("observer_rhs_evals", od), ("measurements_used", od), ("measurements_rejected", od),
-                   ("outlier_frames", idg)):
-        if key in d:
-            metrics[key] = int(d[key])
-    return GraphResult(metrics, series, wall, duration / wall if wall > 0 else float("inf"), diagnostics)
+
+def _bag_counts(bag_dir: Path) -> dict[str, int]:
+    """Messages per topic in the finalised bag; raises RecordingMismatch if its metadata and MCAP disagree."""
+    from vesselbot_ros.bag.reader import open_bag
+    from vesselbot_ros.errors import BagError
+
+    try:
+        info = open_bag(bag_dir)
+    except BagError as exc:
+        raise RecordingMismatch(f"the bag {bag_dir} is not readable after the run: {exc}") from None
+    if not info.consistent:
+        raise RecordingMismatch(f"the bag {bag_dir}: metadata and MCAP disagree: " + "; ".join(info.problems))
+    return {t.name: int(t.count) for t in info.topics}
 
 
-def _series(mon: _Monitor, scenario: Scenario) -> dict[str, np.ndarray]:
+def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...]) -> bool:
+    for r in roles:
+        d = mon.diag.get(NODE_NAMES[r])
+        if d is None or d.get("wired") != "true":
+            return False
+        # every publisher matched every subscription the graph knows of (the recorder's too), so
+        # no reader joins late and misses tick 0
+        for key, val in d.items():
+            if key.startswith("matched_subscribers:"):
+                name = key.split(":", 1)[1]
+                t = next((t for t in _topics_by_name() if t.name == name), None)
+                if t is not None and int(val) < mon.subscribers(t.key):
+                    return False
+    return all(mon.publishes(k) for r in without for k in role(r).outputs if topic(k).qos != "reliable_latched")
+
+
+def _topics_by_name() -> tuple[Any, ...]:
+    from vesselbot_ros.graph_spec import TOPICS
+
+    return TOPICS
+
+
+def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOptions, scenario: Scenario,
+           t_start: float) -> None:
+    """Spin until the plant finished; name a dead node; progress lines about once a second."""
+    n = scenario.sim.n_ticks
+    dt = scenario.sim.dt_control_s
+    duration = n * dt
+    timeout = options.run_timeout_s
+    if timeout is None:
+        timeout = 120.0 + (duration / options.real_time_factor if options.mode == "realtime" else 200.0 * duration)
+    last_progress = t_start
+    plant_name = NODE_NAMES["plant"]
+    while True:
+        mon.spin(0.05)
+        try:
+            sup.check_alive()
+        except NodeDied as died:
+            dead = sup.dead()
+            if dead is not None and dead.label in _safe_stop_roles() and "coil_driver" in roles and "plant" in roles:
+                sup.safe_stop(died, dead, mon, options.wait_timeout_s, dt)
+            raise
+        plant_done = mon.diag.get(plant_name, {}).get("finished") == "true" if "plant" in roles else False
+        if plant_done or (mon.got["truth"] >= n and "plant" not in roles):
+            return
+        now = time.monotonic()
+        if options.progress is not None and now - last_progress >= 1.0:
+            last_progress = now
+            status = realtime_status(mon.diag, roles, dt) if options.mode == "realtime" else ""
+            options.progress((mon.max_tick + 1) * dt, duration, now - t_start, status)
+        if now - t_start > timeout:
+            raise VesselbotError(f"the run did not finish within {timeout:.0f} s (wall); reached tick {mon.max_tick}")
+
+
+def _safe_stop_roles() -> tuple[str, ...]:
+    from vesselbot_ros.graph_spec import ROLES
+
+    return tuple(r.name for r in ROLES if r.safe_stop)
+
+
+def _recorder_caught_up(mon: Monitor, roles: list[str]) -> bool:
+    received = mon.recorder_received()
+    published = mon.published(roles, require_finished=True)
+    if received is None or published is None:
+        return False
+    return all(received.get(t, 0) >= c for t, c in published.items())
+
+
+def _recorder_has_seen(mon: Monitor) -> bool:
+    """True once the recorder reports at least the per-tick messages the launcher's monitor got."""
+    received = mon.recorder_received()
+    if received is None:
+        return False
+    return all(received.get(topic(key).name, 0) >= c for key, c in mon.got.items())
+
+
+def _series(mon: Monitor, scenario: Scenario) -> dict[str, np.ndarray]:
     n = mon.n
     return {
         "t_s": np.arange(n) * scenario.sim.dt_control_s,
@@ -477,73 +444,3 @@ def _series(mon: _Monitor, scenario: Scenario) -> dict[str, np.ndarray]:
     }
 
 
-def _recorder_has_seen(mon: _Monitor) -> bool:
-    """True once the recorder reports at least the per-tick messages the launcher's monitor got."""
-    rec = mon.diag.get(NODE_NAMES["recorder"])
-    if rec is None:
-        return False
-    received = _counts(rec, "received:")
-    return all(received.get(topic(key).name, 0) >= n for key, n in mon.got.items())
-
-
-def _recorder_caught_up(mon: _Monitor, roles: Sequence[str], require_finished: bool = True) -> bool:
-    rec = mon.diag.get(NODE_NAMES["recorder"])
-    if rec is None:
-        return False
-    received = _counts(rec, "received:")
-    published: dict[str, int] = {}
-    for r in roles:
-        d = mon.diag.get(NODE_NAMES[r])
-        if d is None or (require_finished and d.get("finished") != "true"):
-            return False
-        for t, c in _counts(d, "published:").items():
-            published[t] = published.get(t, 0) + c
-    return all(received.get(t, 0) >= c for t, c in published.items() if t != "/diagnostics")
-
-
-#: Roles upstream of the coil driver: when one dies, the driver's watchdog ramps to zero before the stop.
-SAFE_STOP_ROLES = ("imager", "observer", "controller", "reference")
-
-
-def _safe_stop(died: NodeDied, dead: _Proc, mon: _Monitor, others: Sequence[_Proc], proc_roles: dict[str, list[str]],
-               timeout: float, dt: float) -> None:
-    """Keep the graph running until the coil driver's watchdog has brought the gradient to zero, then raise.
-
-    Raises:
-        NodeDied: always; the message names the dead node and says where the coil output ended.
-    """
-    k_death = mon.max_tick
-    print(f"vesselbot run: node {dead.label} died (exit code {dead.poll()}) at tick {k_death} "
-          f"(t = {k_death * dt:.3f} s); letting the coil driver's watchdog ramp the gradient to zero", file=sys.stderr,
-          flush=True)
-    deadline = time.monotonic() + timeout
-    plant_name = NODE_NAMES["plant"]
-    while time.monotonic() < deadline:
-        mon.spin(0.05)
-        _check_alive(others, proc_roles)
-        lc = mon.last_coil
-        if lc is not None and lc[0] > k_death and lc[2] and lc[1] == (0.0, 0.0):
-            raise NodeDied(f"{died}\ncoil output ramped to zero by the driver's watchdog at tick {lc[0]} "
-                           f"(t = {lc[0] * dt:.3f} s)") from None
-        if mon.diag.get(plant_name, {}).get("finished") == "true":
-            raise NodeDied(f"{died}\nthe run reached its end before the coil output was zero") from None
-    raise NodeDied(f"{died}\nthe coil output did not reach zero within {timeout:.0f} s (wall)") from None
-
-
-def _check_alive(procs: Sequence[_Proc], proc_roles: dict[str, list[str]]) -> None:
-    for p in procs:
-        code = p.poll()
-        if code is not None:
-            who = p.label if p.label not in proc_roles or proc_roles[p.label] == [p.label] else \
-                f"{p.label} ({', '.join(proc_roles[p.label])})"
-            raise NodeDied(f"node {who} died (exit code {code}) before the run finished; its last output:\n{p.tail()}")
-
-
-def _wait(pred: Callable[[], bool], timeout: float, mon: _Monitor, procs: Sequence[_Proc], what: str) -> None:
-    deadline = time.monotonic() + timeout
-    labels = {p.label: [p.label] for p in procs}
-    while not pred():
-        _check_alive(procs, labels)
-        if time.monotonic() > deadline:
-            raise VesselbotError(f"timed out after {timeout:.0f} s waiting for {what}")
-        mon.spin(0.05)

@@ -7,17 +7,24 @@ Examples::
     vesselbot run --single-process --no-record      # all nodes in one process
     vesselbot run --without controller              # bring your own controller (see docs/graph.md)
 
-Exit codes: 0 run completed; 1 a node died or a wait timed out (the message
-names the node / what was awaited); 2 invalid configuration (nothing is
-started and no directory is created); 130 interrupted (nodes stopped, bag
-finalised).
+    vesselbot run --namespace robot2                # a second graph on the same domain, under /robot2
+
+Exit codes: 0 run completed; 1 a node died, a wait timed out (the message
+names the node / what was awaited), the bag does not hold what was published
+(names topic and counts), or a real-time run missed more than 1 % of its
+control periods (states the real-time factor the machine held); 2 invalid
+arguments or configuration (every argument is checked before anything is
+started or any directory is created: one line naming it); 130 interrupted
+(SIGINT, SIGTERM or SIGHUP: nodes stopped, bag finalised).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
+import re
 import signal
 import sys
 from datetime import datetime, timezone
@@ -26,11 +33,13 @@ from typing import Any
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.graph_spec import LOOP_ROLES
 
 __all__ = ["register", "run", "apply_overrides"]
 
 DEFAULT_CONFIG = "config/paper_small_artery.yaml"
-ROLES_CHOICES = ("plant", "imager", "observer", "controller", "coil_driver", "reference")
+ROLES_CHOICES = LOOP_ROLES
+_NAMESPACE_RE = re.compile(r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +66,43 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="lockstep: wall time before the coil driver's watchdog answers a silent tick")
     parser.add_argument("--metrics-json", type=Path, default=None, metavar="F",
                         help="also write the metrics (and run timing) to this JSON file")
+    parser.add_argument("--namespace", default=None, metavar="NAME",
+                        help="put the graph under /NAME instead of /vesselbot (two graphs can share one domain)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _check_number(flag: str, value: float | None, *, positive: bool = True) -> None:
+    if value is None:
+        return
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise ConfigError(f"{flag} must be a finite number > 0, got {value!r}")
+
+
+def validate_args(args: argparse.Namespace) -> None:
+    """Check every argument of ``vesselbot run`` that the scenario does not (raise ConfigError naming it)."""
+    from vesselbot_ros.ros_env import DOMAIN_MAX
+
+    _check_number("--real-time-factor", args.real_time_factor)
+    _check_number("--duration", args.duration)
+    _check_number("--wait-timeout", args.wait_timeout)
+    _check_number("--run-timeout", args.run_timeout)
+    _check_number("--stall-timeout", args.stall_timeout)
+    dup = sorted({r for r in args.without if args.without.count(r) > 1})
+    if dup:
+        raise ConfigError(f"--without {dup[0]} given more than once")
+    if args.domain_id is not None and not 0 <= args.domain_id <= DOMAIN_MAX:
+        raise ConfigError(f"--domain-id must be in [0, {DOMAIN_MAX}], got {args.domain_id}")
+    if args.namespace is not None and not _NAMESPACE_RE.match(args.namespace):
+        raise ConfigError(f"--namespace must be a ROS name (letters, digits, _; segments separated by /), "
+                          f"got {args.namespace!r}")
+    if args.report and args.no_record:
+        raise ConfigError("--report needs a recording (drop --no-record)")
+    if args.metrics_json is not None:
+        parent = args.metrics_json.resolve().parent
+        if not parent.is_dir():
+            raise ConfigError(f"--metrics-json {args.metrics_json}: folder {parent} does not exist")
+        if args.metrics_json.is_dir():
+            raise ConfigError(f"--metrics-json {args.metrics_json} is a directory")
 
 
 def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int | None) -> dict[str, Any]:
@@ -89,9 +134,8 @@ def run(args: argparse.Namespace) -> int:
     from vesselbot_ros.sim.scenario import scenario_from_mapping
 
     # 1. validate everything before touching the disk or starting anything
+    validate_args(args)
     scenario = scenario_from_mapping(apply_overrides(load_yaml(args.config), args.duration, args.seed))
-    if args.real_time_factor <= 0:
-        raise ConfigError(f"--real-time-factor must be > 0, got {args.real_time_factor!r}")
     record = not args.no_record
     if record:
         import importlib.util
@@ -99,30 +143,45 @@ def run(args: argparse.Namespace) -> int:
         if importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
             raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "
                                  "use --no-record")
+    from vesselbot_ros.ros_env import allocate_domain
+
+    try:  # a busy --domain-id is a bad argument too: lease before anything is created
+        from vesselbot_ros.graph_spec import namespace_of
+
+        # a chosen domain may hold graphs in other namespaces; a leased one is ours alone
+        lease = allocate_domain(args.domain_id, namespace_of(args.namespace) if args.domain_id is not None else None)
+    except RuntimeError as exc:
+        raise ConfigError(f"--domain-id: {exc}") from None
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     run_dir = args.record_dir or Path("runs") / f"{stamp}_{scenario.name}"
     if record:
         from vesselbot_ros.bag.writer import check_output_dir
 
-        run_dir = check_output_dir(run_dir)  # clear error if unwritable or already a bag
+        try:
+            run_dir = check_output_dir(run_dir)  # clear error if unwritable or already a bag
+        except BaseException:
+            lease.release()
+            raise
     log_dir = (run_dir / "logs") if record else Path("runs") / "logs" / f"{stamp}_{scenario.name}"
 
-    from vesselbot_ros.launch.graph import GraphOptions, NodeDied, run_graph
+    from vesselbot_ros.graph_spec import namespace_of
+    from vesselbot_ros.launch.graph import GraphOptions, NodeDied, RecordingMismatch, run_graph
 
     metadata = {"scenario": scenario.name, "seed": scenario.seed, "mode": args.mode, "config": scenario.to_mapping(),
-                "versions": _versions(), "command": list(sys.argv)}
+                "versions": _versions(), "command": list(sys.argv), "namespace": namespace_of(args.namespace)}
 
-    def progress(t_sim: float, duration: float, wall: float) -> None:
+    def progress(t_sim: float, duration: float, wall: float, status: str = "") -> None:
         if not args.quiet:
-            print(f"  sim {t_sim:7.3f} / {duration:.3f} s   wall {wall:6.1f} s   RTF {t_sim / wall if wall else 0:5.2f}",
-                  flush=True)
+            print(f"  sim {t_sim:7.3f} / {duration:.3f} s   wall {wall:6.1f} s   RTF {t_sim / wall if wall else 0:5.2f}"
+                  + (f"   {status}" if status else ""), flush=True)
 
     def contract(text: str) -> None:
         print(text, flush=True)
 
     opts = GraphOptions(mode=args.mode, real_time_factor=args.real_time_factor, without=tuple(args.without),
                         single_process=args.single_process, record_dir=run_dir if record else None,
-                        run_metadata=metadata, log_dir=log_dir, domain_id=args.domain_id,
+                        run_metadata=metadata, log_dir=log_dir, domain_id=args.domain_id, lease=lease,
+                        namespace=args.namespace,
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,
                         stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract)
     procs = "1 process" if args.single_process else "one process per node"
@@ -132,18 +191,16 @@ def run(args: argparse.Namespace) -> int:
     def on_term(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
-    old = signal.signal(signal.SIGTERM, on_term)
+    old = {sig: signal.signal(sig, on_term) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
         result = run_graph(scenario, opts)
-    except NodeDied as exc:
-        print(f"vesselbot run: error: {exc}", file=sys.stderr)
-        return 1
-    except VesselbotError as exc:
+    except (NodeDied, RecordingMismatch, VesselbotError) as exc:
         print(f"vesselbot run: error: {exc}", file=sys.stderr)
         return 1
     finally:
-        signal.signal(signal.SIGTERM, old)
-    _print_summary(result)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    _print_summary(result, args.real_time_factor)
     if args.metrics_json is not None:
         payload = {"metrics": result.metrics, "wall_s": result.wall_s, "real_time_factor": result.real_time_factor,
                    "final": {k: [float(x) for x in result.timeseries[k][-1]] for k in ("p_true", "x_hat", "g_applied")}}
@@ -158,13 +215,16 @@ def run(args: argparse.Namespace) -> int:
                 return 1
             write_report(run_dir, after_s=scenario.sim.metrics_after_s)  # same window as the printed metrics
             print(f"report: {run_dir / 'report'}")
-    elif args.report:
-        print("vesselbot run: --report needs a recording (drop --no-record)", file=sys.stderr)
+    if result.realtime_failed:
+        worst = max(result.realtime, key=lambda st: st.fraction)
+        print(f"vesselbot run: error: real time not held: node {worst.role} missed {worst.missed} of {worst.periods} "
+              f"control periods ({100 * worst.fraction:.1f} % > 1 %); this machine held a real-time factor of "
+              f"about {result.held_real_time_factor:.3g} (asked {args.real_time_factor:g})", file=sys.stderr)
         return 1
     return 0
 
 
-def _print_summary(result: Any) -> None:
+def _print_summary(result: Any, rtf_asked: float) -> None:
     m = result.metrics
     print(f"run finished: {m['n_ticks']} ticks in {result.wall_s:.2f} s wall (RTF {result.real_time_factor:.2f})")
     for k, v in m.items():
@@ -172,4 +232,10 @@ def _print_summary(result: Any) -> None:
             print(f"  {k:40s} {v:.6g}")
         else:
             print(f"  {k:40s} {v}")
+    if result.realtime:
+        print(f"real time (asked RTF {rtf_asked:g}, held about {result.held_real_time_factor:.3g}):")
+        for st in result.realtime:
+            print(f"  {st.role:12s} missed {st.missed:6d} of {st.periods} periods ({100 * st.fraction:5.1f} %)   "
+                  f"input age max {st.input_age_max_s * 1e3:8.2f} ms, mean {st.input_age_mean_s * 1e3:7.2f} ms   "
+                  f"late by {st.lateness_mean_s * 1e3:7.2f} ms (wall, mean)")
 

@@ -7,7 +7,11 @@
   builds them through the same frozen dataclasses as the pure core; a bad or
   unknown parameter raises :class:`~vesselbot_ros.config.ConfigError` naming
   it, and :func:`run_node` turns that into exit code 2 with one clear line;
-* forces ``use_sim_time = true`` (``/clock`` comes from the plant);
+* takes sim time only from ticks: the lockstep inputs' ticks, or (real
+  time) the plant's announced ``/clock`` tick, validated; rclpy's sim clock
+  is not used (``use_sim_time = false``: no hidden ``/clock`` subscription per
+  node on the hot path, and a garbage ``/clock`` cannot move a node's time);
+  ``/diagnostics`` are stamped with the node's latest tick;
 * publishes ``/diagnostics`` (one ``DiagnosticStatus`` named after the node)
   every ``graph.diagnostics_period_s`` of *wall* time, on every rejection
   burst, and once when the run is finished.  Keys: ``published:<topic>``
@@ -41,11 +45,27 @@ from rclpy.node import Node
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive, load_dataclass
 from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.sim.scenario import Scenario
-from vesselbot_ros.topics import FRAME_ID, NODE_NAMES, TopicSpec, qos_profile, topic
+from vesselbot_ros.graph_spec import (
+    DEFAULT_NAMESPACE,
+    FRAME_ID,
+    NODE_NAMES,
+    TopicSpec,
+    ns_of_time,
+    qos_profile,
+    service,
+    tick_of_ns,
+    topic,
+)
 
-__all__ = ["GraphParams", "VesselbotNode", "run_node", "make_executor", "spin_nodes"]
+__all__ = ["GraphParams", "VesselbotNode", "TickJoin", "run_node", "make_executor", "spin_nodes"]
 
 GRAPH_PREFIX = "graph."
+#: Real time: a ``/clock`` more than this many ticks ahead of the announced one is garbage.
+MAX_CLOCK_JUMP_TICKS = 50
+#: Real time: a gap in ``/clock`` longer than this (wall s) is a pause of the plant: re-anchor the schedule.
+PAUSE_GAP_S = 0.5
+#: Real time: after the last tick, a node whose last period never came finishes after this wall time (s).
+REALTIME_END_GRACE_S = 1.0
 _IGNORED_OVERRIDES = ("use_sim_time", "start_type_description_service")
 
 
@@ -105,7 +125,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
     """Base class: parameters, diagnostics and input checks (see module docstring).
 
     Args:
-        role: Node role (key of :data:`vesselbot_ros.topics.NODE_NAMES`).
+        role: Node role (key of :data:`vesselbot_ros.graph_spec.NODE_NAMES`).
         context: rclpy Context (None: the default one).
         cli_args: Extra ROS arguments, e.g. ``["--ros-args", "--params-file", F]``.
         parameter_overrides: Parameter overrides (rclpy ``Parameter`` list).
@@ -125,9 +145,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.parameter import Parameter
 
-        overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, True)]
+        overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, False)]
         super().__init__(
-            NODE_NAMES[role], context=context, cli_args=list(cli_args) if cli_args else None, parameter_overrides=overrides
+            NODE_NAMES[role], namespace=DEFAULT_NAMESPACE, context=context,
+            cli_args=list(cli_args) if cli_args else None, parameter_overrides=overrides,
         )
         self.role = role
         self.scenario, self.graph = self._load_parameters()
@@ -146,18 +167,114 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._last_diag_wall = 0.0
         self._pubs: dict[str, Any] = {}
         self._subs: dict[str, Any] = {}
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos_profile(topic("diagnostics")))
+        self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         from rclpy.clock import Clock, ClockType
 
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         # before the run starts the launcher polls our DDS matches: report fast
         self._diag_timer = self.create_timer(0.1, self._diag_tick, clock=self._wall)
+        # real-time bookkeeping: the plant's announced tick, missed periods, input age
+        self.tick_now = -1
+        self.period_tick = -1
+        self.missed_periods = 0
+        self._age_max = 0.0
+        self._age_sum = 0.0
+        self._age_n = 0
+        self._anchor: float | None = None
+        self._last_clock_wall = 0.0
+        self._period_wall = self.dt / self.graph.real_time_factor
+        self._end_wall: float | None = None
+        self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
+        self._late_n = 0
+        self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
+
+    def realtime_clock(self) -> None:
+        """Real time: follow ``/clock`` for the announced tick (call in a subclass's ``__init__``, after its ports)."""
+        if self.lockstep:
+            return
+        if "clock" not in self._subs:
+            from rosgraph_msgs.msg import Clock
+
+            self.add_subscription("clock", Clock, self._on_realtime_clock)
+        self.create_timer(0.1, self._realtime_end, clock=self._wall)
+
+    def _on_realtime_clock(self, msg: Any) -> None:
+        k = self.accept_clock(msg)
+        if k is not None:
+            self.on_realtime_tick(k)
+
+    def on_realtime_tick(self, k: int) -> None:
+        """Real time: the plant announced tick ``k`` (override: the node's periodic work)."""
+
+    # ------------------------------------------------------------------ real time
+    def accept_clock(self, msg: Any) -> int | None:
+        """Real time: validate a ``/clock`` and make it the announced tick; the tick, or None (rejected).
+
+        A clock off the tick grid, not newer than the announced tick, or more
+        than :data:`MAX_CLOCK_JUMP_TICKS` ahead of it (a hostile or garbage
+        clock) is rejected and moves nothing.
+        """
+        ns = int(msg.clock.sec) * 1_000_000_000 + int(msg.clock.nanosec)
+        k, on_grid = tick_of_ns(ns, self.dt)
+        if not on_grid:
+            self.reject("clock", "off_tick_stamp", f"clock {ns} ns is not a tick time")
+            return None
+        if k <= self.tick_now:
+            self.reject("clock", "stale_stamp", f"clock tick {k} not newer than {self.tick_now}")
+            return None
+        if k > self.tick_now + MAX_CLOCK_JUMP_TICKS or k >= self.n_ticks + MAX_CLOCK_JUMP_TICKS:
+            self.reject("clock", "future_stamp", f"clock tick {k} jumps from {self.tick_now}")
+            return None
+        self.count_received("clock")
+        now = time.monotonic()
+        cand = now - k * self._period_wall
+        # (re)anchor the node's wall schedule: first clock, an earlier arrival, or after a pause of the plant
+        if self._anchor is None or cand < self._anchor or now - self._last_clock_wall > PAUSE_GAP_S:
+            self._anchor = cand
+        self._last_clock_wall = now
+        self.tick_now = k
+        return k
+
+    def note_input_age(self, stamp_ns: int, extra_age_s: float = 0.0) -> None:
+        """Real time: record the age of an accepted input (announced tick time minus its stamp, s)."""
+        if self.lockstep or self.tick_now < 0:
+            return
+        age = max(0.0, self.tick_now * self.dt - stamp_ns * 1e-9 - extra_age_s)
+        self._age_max = max(self._age_max, age)
+        self._age_sum += age
+        self._age_n += 1
+
+    def period_done(self, k: int) -> None:
+        """The node finished its work for tick ``k``: count skipped ticks, and (real time) a late period."""
+        if k <= self.period_tick:
+            return
+        self.missed_periods += k - self.period_tick - 1
+        self.period_tick = k
+        if not self.lockstep and self._anchor is not None:
+            late = time.monotonic() - (self._anchor + k * self._period_wall)
+            self._late_sum += max(late, 0.0)
+            self._late_n += 1
+            if late > self._period_wall:
+                self.missed_periods += 1
+        if not self.lockstep and k >= self.n_ticks - 1 and self.role != "plant":  # the plant finishes itself
+            self.mark_finished()
+
+    def _realtime_end(self) -> None:
+        """Real time: the run ended (last tick announced) and this node's last period never came: finish anyway."""
+        if self.finished or self.tick_now < self.n_ticks - 1:
+            return
+        now = time.monotonic()
+        if self._end_wall is None:
+            self._end_wall = now
+        elif now - self._end_wall > REALTIME_END_GRACE_S:
+            self.mark_finished()
 
     # ------------------------------------------------------------------ parameters
     def _load_parameters(self) -> tuple[Scenario, GraphParams]:
         from rcl_interfaces.msg import ParameterDescriptor
 
-        dyn = ParameterDescriptor(dynamic_typing=True)
+        # read-only: the core is built once from them, so `ros2 param set` is refused instead of ignored
+        dyn = ParameterDescriptor(dynamic_typing=True, read_only=True)
         values: dict[str, Any] = {}
         for name, spec in scenario_schema().items():
             values[name] = self.declare_parameter(name, spec.default, dyn).value
@@ -188,19 +305,29 @@ class VesselbotNode(Node):  # type: ignore[misc]
     def add_publisher(self, key: str, msg_cls: Any) -> Any:
         """Create the publisher of topic ``key`` with the contract's QoS."""
         spec = topic(key)
-        pub = self.create_publisher(msg_cls, spec.name, qos_profile(spec))
+        pub = self.create_publisher(msg_cls, spec.rel, qos_profile(spec))
         self._pubs[key] = pub
         return pub
 
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
         """Subscribe to topic ``key`` with the contract's QoS."""
         spec = topic(key)
-        sub = self.create_subscription(msg_cls, spec.name, callback, qos_profile(spec))
+        sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
         self._subs[key] = sub
         return sub
 
+    def add_service(self, key: str, srv_cls: Any, callback: Callable[[Any, Any], Any]) -> Any:
+        """Serve service ``key`` of the graph spec (name relative to the node namespace)."""
+        return self.create_service(srv_cls, service(key).rel, callback)
+
     def publish(self, key: str, msg: Any) -> None:
-        """Publish on topic ``key`` and count it for diagnostics."""
+        """Publish on topic ``key`` and count it for diagnostics.
+
+        Real time: nothing is published once the node finished (its final
+        diagnostics hold its final counts, which the launcher checks against the bag).
+        """
+        if self.finished and not self.lockstep:
+            return
         self._pubs[key].publish(msg)
         self._published[topic(key).name] += 1
 
@@ -271,13 +398,14 @@ class VesselbotNode(Node):  # type: ignore[misc]
                 self.reject(key, "outside_vessel", f"z = {z_position!r} m, walls at +/-{half!r} m")
                 return False
         if stamp_ns is not None and not self.lockstep:
-            now_ns = self.get_clock().now().nanoseconds
+            now_ns = ns_of_time(max(self.tick_now, 0) * self.dt)  # the plant's announced tick, not the ROS clock
             if stamp_ns > now_ns + self.graph.future_tolerance_s * 1e9:
                 self.reject(key, "future_stamp", f"stamp {stamp_ns * 1e-9:.6f} s > now {now_ns * 1e-9:.6f} s")
                 return False
             if stamp_ns < now_ns - (self.graph.input_max_age_s + extra_age_s) * 1e9:
                 self.reject(key, "stale_stamp", f"stamp {stamp_ns * 1e-9:.6f} s, now {now_ns * 1e-9:.6f} s")
                 return False
+            self.note_input_age(stamp_ns, extra_age_s)
         return True
 
     # ------------------------------------------------------------------ diagnostics
@@ -317,6 +445,11 @@ class VesselbotNode(Node):  # type: ignore[misc]
         kv["wired"] = "true" if self.wired() else "false"
         kv["finished"] = "true" if self.finished else "false"
         kv["mode"] = self.graph.mode
+        kv["period_tick"] = str(self.period_tick)
+        kv["missed_periods"] = str(self.missed_periods)
+        kv["input_age_max_s"] = repr(self._age_max)
+        kv["input_age_mean_s"] = repr(self._age_sum / self._age_n if self._age_n else 0.0)
+        kv["lateness_mean_s"] = repr(self._late_sum / self._late_n if self._late_n else 0.0)
         kv.update(self.diagnostic_values())
         level = DiagnosticStatus.WARN if self._warn_pending else DiagnosticStatus.OK
         message = f"rejected input: {self._last_reason}" if self._warn_pending else ("finished" if self.finished else "ok")
@@ -324,7 +457,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         st = DiagnosticStatus(level=level, name=self.get_name(), message=message, hardware_id="vesselbot")
         st.values = [KeyValue(key=k, value=v) for k, v in kv.items()]
         arr = DiagnosticArray(status=[st])
-        arr.header.stamp = self.get_clock().now().to_msg()
+        tick = max(self.tick_now, self.period_tick, 0)
+        arr.header.stamp.sec, arr.header.stamp.nanosec = divmod(int(round(tick * self.dt * 1e9)), 1_000_000_000)
         self._diag_pub.publish(arr)
 
     def mark_finished(self) -> None:
@@ -336,6 +470,73 @@ class VesselbotNode(Node):  # type: ignore[misc]
     @property
     def done(self) -> bool:
         """True when the node asks its process to exit (never, by default)."""
+        return False
+
+
+class TickJoin:
+    """The lockstep input join of every node: inputs keyed by the tick they serve.
+
+    Tick k is *ready* once every input it needs is in: an input with lag L
+    serves tick ``k = its own tick + L`` (the observer's ``coil/applied`` k-1
+    serves tick k), and ticks ``k < L`` need no such input (None).  An input
+    for a tick already handled (or a second one for a waiting tick) is
+    rejected as ``stale_tick``, one more than ``window`` ticks ahead as
+    ``future_tick``: the message is dropped and no state moves.  Times are
+    rebuilt as ``k * dt`` from the tick (:func:`~vesselbot_ros.nodes.conversions.tick_of_ns`),
+    never taken from a stamp.
+
+    Args:
+        node: The owning node (its :meth:`VesselbotNode.reject` reports rejections).
+        inputs: Topic key -> lag (ticks).
+        window: How far ahead of the current tick an input may arrive (per key
+            with ``windows``; None: unbounded, for inputs keyed by arrival order).
+    """
+
+    def __init__(self, node: VesselbotNode, inputs: dict[str, int], window: int = 2,
+                 windows: dict[str, int | None] | None = None) -> None:
+        self.node = node
+        self.lags = dict(inputs)
+        self.windows: dict[str, int | None] = {key: window for key in inputs} | dict(windows or {})
+        self.k = 0  # the next tick to handle
+        self._slots: dict[str, dict[int, Any]] = {key: {} for key in inputs}
+
+    def tick_of(self, key: str, stamp_ns: int, tick_field: int | None = None) -> int | None:
+        """The tick a stamp lies on (and matches ``tick_field`` if given), else None (rejected ``off_tick_stamp``)."""
+        k, on_grid = tick_of_ns(stamp_ns, self.node.dt)
+        if not on_grid or (tick_field is not None and tick_field != k):
+            self.node.reject(key, "off_tick_stamp", f"stamp {stamp_ns} ns, tick field {tick_field}")
+            return None
+        return k
+
+    def put(self, key: str, k: int, value: Any) -> bool:
+        """Store input ``key`` of tick ``k``; False (and rejected) if stale, duplicate or too far ahead."""
+        kk = k + self.lags[key]
+        slot = self._slots[key]
+        if kk < self.k or kk in slot:
+            self.node.reject(key, "stale_tick", f"tick {k}, node at {self.k}")
+            return False
+        w = self.windows[key]
+        if w is not None and kk > self.k + w:
+            self.node.reject(key, "future_tick", f"tick {k}, node at {self.k}")
+            return False
+        slot[kk] = value
+        return True
+
+    def pop_ready(self) -> dict[str, Any] | None:
+        """The inputs of the current tick if all are in (and advance to the next tick), else None."""
+        k = self.k
+        for key, lag in self.lags.items():
+            if k >= lag and k not in self._slots[key]:
+                return None
+        self.k = k + 1
+        return {key: (self._slots[key].pop(k) if k >= lag else None) for key, lag in self.lags.items()}
+
+    def expect(self, key: str, k: int, running: bool = True) -> bool:
+        """Single-input nodes: accept tick ``k`` only if it is the current one (else reject stale / future)."""
+        if running and k == self.k:
+            return True
+        self.node.reject(key, "stale_tick" if k < self.k or not running else "future_tick",
+                         f"tick {k}, node at tick {self.k}")
         return False
 
 
@@ -352,13 +553,16 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
     The EventsExecutor's own ``spin()`` ignores SIGINT/SIGTERM, so we spin in
     short slices and let rclpy's signal handlers raise between them.
     """
+    from rclpy.task import Future
+
     rclpy = _rclpy()
     ex = make_executor(context)
     for n in nodes:
         ex.add_node(n)
+    never = Future()
     try:
         while rclpy.ok(context=context) and not (stop is not None and stop()):
-            ex.spin_once(timeout_sec=0.1)
+            ex.spin_until_future_complete(never, timeout_sec=0.1)  # every event of a 0.1 s slice
     finally:
         for n in nodes:
             ex.remove_node(n)
@@ -405,5 +609,5 @@ def stamp_ns_of(msg: Any) -> int:
 
 
 def topic_spec(key: str) -> TopicSpec:
-    """Shorthand for :func:`vesselbot_ros.topics.topic`."""
+    """Shorthand for :func:`vesselbot_ros.graph_spec.topic`."""
     return topic(key)

@@ -92,11 +92,16 @@ class CoilDriverNode(VesselbotNode):
         self.add_subscription("clock", Clock, self._on_clock)
         if self.lockstep:
             self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
-        else:
-            self._wd = self.create_timer(self.dt, self._realtime_watchdog)
+        self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
+        self.realtime_clock()
 
     # ------------------------------------------------------------------ inputs
     def _on_clock(self, msg: Clock) -> None:
+        if not self.lockstep:
+            k = self.accept_clock(msg)  # a garbage /clock is rejected and moves nothing
+            if k is not None:
+                self._realtime_tick(k)
+            return
         ns = cv.ns_of_stamp(msg.clock)
         k, on_grid = cv.tick_of_ns(ns, self.dt)
         if not on_grid:
@@ -119,6 +124,17 @@ class CoilDriverNode(VesselbotNode):
         if self.lockstep and k != self.k:
             self.reject("gradient_command", "stale_tick" if k < self.k else "future_tick", f"tick {k}, driver at {self.k}")
             return
+        if not self.lockstep and k > self.tick_now:
+            # never take time from a stamp beyond the plant's announced tick
+            if k > self.tick_now + self._future_ticks:
+                self.reject("gradient_command", "future_stamp", f"tick {k}, plant announced {self.tick_now}")
+            else:  # a little early (the /clock is on its way): apply it when its tick is announced
+                self._pending = (k, msg)
+            return
+        self._apply(k, msg, stamp)
+
+    def _apply(self, k: int, msg: Vector3Stamped, stamp: int) -> None:
+        v = msg.vector
         if not self.lockstep and cv.tick_time(k, self.dt) < self._t_last:
             self.reject("gradient_command", "stale_stamp", f"stamp {stamp} ns older than the last applied")
             return
@@ -143,6 +159,7 @@ class CoilDriverNode(VesselbotNode):
         self.publish("coil_applied", cv.gradient_msg(t, out.applied))
         cmd = np.where(np.isfinite(commanded), commanded, 0.0)
         self.publish("coil_state", cv.coil_state_msg(k, t, cmd, out, self.limits, watchdog))
+        self.period_done(k)
         if self.lockstep:
             self.k = k + 1
             if self.k >= self.n_ticks:
@@ -167,8 +184,12 @@ class CoilDriverNode(VesselbotNode):
             + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
         self._emit(self.k, t, np.zeros(2), out, watchdog=active)
 
-    def _realtime_watchdog(self) -> None:
-        k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
+    def _realtime_tick(self, k: int) -> None:
+        """Real time, tick ``k`` announced: apply an early command now due, else run the watchdog at t_k."""
+        if self._pending is not None and self._pending[0] <= k:
+            kp, msg = self._pending
+            self._pending = None
+            self._apply(kp, msg, stamp_ns_of(msg))
         t = cv.tick_time(k, self.dt)
         if t <= self._t_last:
             return

@@ -37,7 +37,7 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.sim.closed_loop import build_stages
 
 __all__ = ["ControllerNode", "main"]
@@ -51,24 +51,13 @@ class ControllerNode(VesselbotNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
         self.controller = build_stages(self.scenario).controller
-        self.k = 0
-        self._est: dict[int, Any] = {}
-        self._ref: dict[int, Any] = {}
+        self.join = TickJoin(self, {"estimate": 0, "reference": 0})
         self._ref_latest: Any = None
         self.status: Counter[str] = Counter()
         self.add_publisher("gradient_command", Vector3Stamped)
         self.add_subscription("estimate", Odometry, self._on_estimate)
         self.add_subscription("reference", ReferenceSample, self._on_reference)
-
-    def _tick_of(self, key: str, stamp: int, tick: int | None = None) -> int | None:
-        k, on_grid = cv.tick_of_ns(stamp, self.dt)
-        if not on_grid or (tick is not None and tick != k):
-            self.reject(key, "off_tick_stamp", f"stamp {stamp} ns, tick field {tick}")
-            return None
-        if self.lockstep and (k < self.k or k > self.k + 2):
-            self.reject(key, "stale_tick" if k < self.k else "future_tick", f"tick {k}, controller at {self.k}")
-            return None
-        return k
+        self.realtime_clock()
 
     def _on_estimate(self, msg: Odometry) -> None:
         x, z, age = cv.estimate_arrays(msg)
@@ -78,14 +67,16 @@ class ControllerNode(VesselbotNode):
         if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z, v.x, v.y, v.z, age),
                           y_values=(p.y, v.y), z_position=p.z):
             return
-        k = self._tick_of("estimate", stamp)
+        k = self.join.tick_of("estimate", stamp)
         if k is None:
             return
-        self.count_received("estimate")
         if self.lockstep:
-            self._est[k] = (x, z, age)
-            self._drain()
-        elif self._ref_latest is not None:
+            if self.join.put("estimate", k, (x, z, age)):
+                self.count_received("estimate")
+                self._drain()
+            return
+        self.count_received("estimate")
+        if self._ref_latest is not None:
             self._command(k, (x, z, age), self._ref_latest)
 
     def _on_reference(self, msg: ReferenceSample) -> None:
@@ -96,31 +87,32 @@ class ControllerNode(VesselbotNode):
         if not self.check("reference", frame_id=msg.header.frame_id, stamp_ns=stamp, values=vals,
                           y_values=(msg.position.y, msg.velocity.y, msg.acceleration.y), z_position=msg.position.z):
             return
-        k = self._tick_of("reference", stamp, int(msg.tick))
+        k = self.join.tick_of("reference", stamp, int(msg.tick))
         if k is None:
             return
-        self.count_received("reference")
         if self.lockstep:
-            self._ref[k] = (p, v, a)
-            self._drain()
-        else:
-            self._ref_latest = (p, v, a)
+            if self.join.put("reference", k, (p, v, a)):
+                self.count_received("reference")
+                self._drain()
+            return
+        self.count_received("reference")
+        self._ref_latest = (p, v, a)
 
     def _command(self, k: int, est: tuple[Any, Any, float], ref: tuple[Any, Any, Any]) -> None:
         t = cv.tick_time(k, self.dt)
         cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref)
         self.status[cmd.status] += 1
         self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
+        self.period_done(k)
 
     def _drain(self) -> None:
-        while self.k in self._est and self.k in self._ref:
-            self._command(self.k, self._est.pop(self.k), self._ref.pop(self.k))
-            self.k += 1
-            if self.k >= self.n_ticks:
+        while (inputs := self.join.pop_ready()) is not None:
+            self._command(self.join.k - 1, inputs["estimate"], inputs["reference"])
+            if self.join.k >= self.n_ticks:
                 self.mark_finished()
 
     def diagnostic_values(self) -> dict[str, str]:
-        out = {"tick": str(self.k - 1)}
+        out = {"tick": str(self.join.k - 1)}
         out.update({f"status:{s}": str(self.status[s]) for s in ("ok", "stale", "nonfinite")})
         return out
 

@@ -1,6 +1,6 @@
 """Every message <-> numpy conversion of the node graph, in one place.
 
-Conventions (see :mod:`vesselbot_ros.topics`): frame ``vessel`` with x along
+Conventions (see :mod:`vesselbot_ros.graph_spec`): frame ``vessel`` with x along
 the vessel axis and z vertical; the pure core works on (2,) arrays ``(x, z)``,
 messages carry 3-D vectors with ``y = 0``.  Times are float seconds in the
 core and integer nanoseconds (``builtin_interfaces/Time``) on the wire.
@@ -34,7 +34,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, ReferenceSample
-from vesselbot_ros.topics import FRAME_ID
+from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
 
 __all__ = [
     "AGE_COVARIANCE_INDEX",
@@ -62,22 +62,6 @@ __all__ = [
 
 AGE_COVARIANCE_INDEX = 35
 NS_PER_S = 1_000_000_000
-
-
-def tick_time(k: int, dt_s: float) -> float:
-    """``t_k = k * dt_s`` (s), exactly as the pure runner computes it."""
-    return k * dt_s
-
-
-def ns_of_time(t_s: float) -> int:
-    """Float seconds -> integer nanoseconds (rounded)."""
-    return int(round(t_s * 1e9))
-
-
-def tick_of_ns(ns: int, dt_s: float) -> tuple[int, bool]:
-    """Tick index nearest to a stamp (ns), and whether the stamp lies on that tick (+/- 1 us)."""
-    k = int(round(ns * 1e-9 / dt_s))
-    return k, abs(ns - ns_of_time(tick_time(k, dt_s))) <= 1000
 
 
 def stamp_of_ns(ns: int) -> Time:

@@ -82,7 +82,8 @@ class ImagerNode(VesselbotNode):
             key=lambda f: f[1])
         self.add_publisher("measurement", PointStamped)
         self.add_subscription("truth", PlantState, self._on_truth)
-        self.create_service(InjectFault, "/vesselbot/imager/inject_fault", self._on_inject)
+        self.add_service("inject_fault", InjectFault, self._on_inject)
+        self.realtime_clock()
 
     def _on_truth(self, msg: PlantState) -> None:
         p = msg.position
@@ -116,6 +117,7 @@ class ImagerNode(VesselbotNode):
                 self.publish("measurement", PointStamped())  # "no frame yet": empty frame_id, stamp 0
             else:
                 self.publish("measurement", self._last_msg)
+        self.period_done(k)
         if self.lockstep and k + 1 >= self.n_ticks:
             self.mark_finished()
 

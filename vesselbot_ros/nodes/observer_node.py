@@ -25,9 +25,11 @@ measurement is passed to the core only if its stamp is newer than the last
 one passed (fresh frame), else None (zero-order hold); an empty frame_id is
 the imager's "no frame yet" placeholder.
 
-Real-time: a fresh measurement triggers an update at once (lowest latency);
-a timer on sim time at the control rate predicts in between.  The latest
-``coil/applied`` is the input.
+Real-time: on each tick the plant announces (its ``/clock``, validated) the
+observer publishes one estimate for that tick; a fresh measurement arriving
+during the tick corrects the state at once, and the correction goes out with
+the next tick's estimate (one estimate per tick: no duplicate traffic
+downstream).  The latest ``coil/applied`` is the input.
 
 Measurement loss: the observer never stops publishing; without fresh frames
 it predicts with its model (eq. (25) with no correction).  When the time since
@@ -57,7 +59,7 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.sim.closed_loop import build_stages
 
 __all__ = ["ObserverNode", "main"]
@@ -75,10 +77,9 @@ class ObserverNode(VesselbotNode):
         st = build_stages(self.scenario)
         self.observer = st.observer
         self.model = st.model
-        self.k = 0  # next tick to process
+        # lockstep: tick k needs measurement k (the k-th message) and coil/applied k-1
+        self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, windows={"measurement": None, "coil_applied": 3})
         self.n_meas = 0  # measurement messages received (lockstep: = ticks)
-        self._meas: dict[int, Any] = {}
-        self._applied: dict[int, np.ndarray] = {}
         self._last_stamp_ns = -1
         self._g_prev = np.zeros(2)
         self.used = 0
@@ -92,8 +93,7 @@ class ObserverNode(VesselbotNode):
         self.add_publisher("estimate", Odometry)
         self.add_subscription("measurement", PointStamped, self._on_measurement)
         self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
-        if not self.lockstep:
-            self._timer = self.create_timer(self.dt, self._on_timer)
+        self.realtime_clock()
 
     # ------------------------------------------------------------------ inputs
     def _parse_measurement(self, msg: PointStamped) -> Any:
@@ -126,7 +126,7 @@ class ObserverNode(VesselbotNode):
         if meas is not None:
             self.count_received("measurement")
         if self.lockstep:
-            self._meas[self.n_meas] = meas if isinstance(meas, Measurement) else None
+            self.join.put("measurement", self.n_meas, meas if isinstance(meas, Measurement) else None)
             self.n_meas += 1
             self._drain()
         elif isinstance(meas, Measurement):
@@ -138,30 +138,25 @@ class ObserverNode(VesselbotNode):
         if not self.check("coil_applied", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
                           y_values=(v.y,)):
             return
-        k, on_grid = cv.tick_of_ns(stamp, self.dt)
-        if not on_grid:
-            self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp} ns")
+        k = self.join.tick_of("coil_applied", stamp)
+        if k is None:
             return
         if not self.lockstep:
             self.count_received("coil_applied")
             self._g_prev = cv.xz(v)
             return
-        if k < self.k - 1 or k in self._applied or k > self.k + 2:
-            self.reject("coil_applied", "stale_tick" if k < self.k else "future_tick", f"tick {k}, observer at {self.k}")
-            return
-        self.count_received("coil_applied")
-        self._applied[k] = cv.xz(v)
-        self._drain()
+        if self.join.put("coil_applied", k, cv.xz(v)):
+            self.count_received("coil_applied")
+            self._drain()
 
     # ------------------------------------------------------------------ updates
     def _drain(self) -> None:
-        while self.k in self._meas and (self.k == 0 or (self.k - 1) in self._applied):
-            k = self.k
-            meas = self._meas.pop(k)
-            g_prev = np.zeros(2) if k == 0 else self._applied.pop(k - 1)
-            self._publish(self.observer.update(cv.tick_time(k, self.dt), meas, g_prev))
-            self.k += 1
-            if self.k >= self.n_ticks:
+        while (inputs := self.join.pop_ready()) is not None:
+            k = self.join.k - 1
+            g_prev = np.zeros(2) if inputs["coil_applied"] is None else inputs["coil_applied"]
+            self._publish(self.observer.update(cv.tick_time(k, self.dt), inputs["measurement"], g_prev))
+            self.period_done(k)
+            if self.join.k >= self.n_ticks:
                 self.mark_finished()
 
     def _publish(self, est: Any) -> None:
@@ -179,22 +174,31 @@ class ObserverNode(VesselbotNode):
                                           "predicting without correction")
             self.publish_diagnostics()
 
-    def _now_tick_time(self) -> float:
-        k, _ = cv.tick_of_ns(self.get_clock().now().nanoseconds, self.dt)
-        return cv.tick_time(k, self.dt)
-
     def _update_now(self, meas: Measurement | None) -> None:
-        t = max(self._now_tick_time(), self._t_last)  # never backwards
-        self._publish(self.observer.update(t, meas, self._g_prev))
+        """Real time: update at the plant's announced tick (never backwards, never beyond it).
 
-    def _on_timer(self) -> None:
-        t = self._now_tick_time()
-        if t > self._t_last:
+        One estimate per tick: the tick's own estimate is published when the
+        tick is announced; a fresh frame arriving later in the tick corrects the
+        state, and the correction goes out with the next tick's estimate.
+        """
+        if self.tick_now < 0:
+            return
+        t = max(cv.tick_time(self.tick_now, self.dt), self._t_last)
+        est = self.observer.update(t, meas, self._g_prev)
+        if t > self._t_last or self.period_tick < self.tick_now:
+            self._publish(est)
+            self.period_done(self.tick_now)
+        else:
+            self.used += int(est.used_measurement)
+            self.rejected_by_core += int(est.rejected)
+
+    def on_realtime_tick(self, k: int) -> None:
+        if cv.tick_time(k, self.dt) > self._t_last:
             self._update_now(None)
 
     def diagnostic_values(self) -> dict[str, str]:
         return {
-            "tick": str(self.k - 1),
+            "tick": str(self.join.k - 1),
             "measurements_used": str(self.used),
             "measurements_rejected": str(self.rejected_by_core),
             "observer_rhs_evals": str(int(self.model.stats[2])),

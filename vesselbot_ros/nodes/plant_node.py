@@ -45,6 +45,7 @@ from visualization_msgs.msg import MarkerArray
 
 from vesselbot_msgs.msg import ForceBreakdown, PlantState
 from vesselbot_msgs.srv import RunControl
+from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.physics.blood_flow import Vessel
@@ -54,7 +55,7 @@ from vesselbot_ros.sim.closed_loop import build_stages
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES"]
 
 #: Names of ``PlantSimulator.stats`` entries, as the pure runner reports them.
-PLANT_STAT_NAMES = ("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps")
+PLANT_STAT_NAMES = role("plant").counters
 
 
 class PlantNode(VesselbotNode):
@@ -78,7 +79,7 @@ class PlantNode(VesselbotNode):
         self.add_publisher("truth", PlantState)
         self.add_publisher("vessel_markers", MarkerArray)
         self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
-        self.create_service(RunControl, "/vesselbot/run_control", self._on_run_control)
+        self.add_service("run_control", RunControl, self._on_run_control)
         ref = self.scenario.reference
         self.publish(
             "vessel_markers",
@@ -95,6 +96,7 @@ class PlantNode(VesselbotNode):
         self._emit()
         if not self.lockstep:
             self._wall_start = time.monotonic()
+            self._anchor = self._wall_start
             self._rt_timer = self.create_timer(
                 min(self.dt / self.graph.real_time_factor, 0.01), self._realtime_tick, clock=self._wall
             )
@@ -118,6 +120,7 @@ class PlantNode(VesselbotNode):
             if self.paused:
                 self.paused = False
                 self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
+                self._anchor = self._wall_start
             resp.message = "resumed" if resp.success else "not paused"
         elif c == RunControl.Request.STOP:
             self._finish()
@@ -141,9 +144,11 @@ class PlantNode(VesselbotNode):
     # ------------------------------------------------------------------ ticks
     def _emit(self) -> None:
         """Publish /clock and truth for the current tick k."""
+        self.tick_now = self.k
         out = self.plant.output(with_forces=True)
         self.publish("clock", cv.clock_msg(out.t_s))
         self.publish("truth", self._truth_msg(out))
+        self.period_done(self.k)  # real time: tick k is due at wall start + k * dt / real_time_factor
 
     def _truth_msg(self, out: Any) -> PlantState:
         t = out.t_s
@@ -190,7 +195,8 @@ class PlantNode(VesselbotNode):
 
     def _on_applied(self, msg: Vector3Stamped) -> None:
         v = msg.vector
-        if not self.check("coil_applied", frame_id=msg.header.frame_id, values=(v.x, v.y, v.z), y_values=(v.y,)):
+        if not self.check("coil_applied", frame_id=msg.header.frame_id, values=(v.x, v.y, v.z), y_values=(v.y,),
+                          stamp_ns=None if self.lockstep else stamp_ns_of(msg)):
             return
         g = cv.xz(v)
         if not self.lockstep:
@@ -214,9 +220,18 @@ class PlantNode(VesselbotNode):
         target = int((time.monotonic() - self._wall_start) * self.graph.real_time_factor / self.dt)
         # never more than 50 ticks per call: a stalled machine catches up gradually
         for _ in range(min(target - self.k, 50)):
-            self._advance(getattr(self, "_g_latest", self._g))
+            self._advance(self._slewed(getattr(self, "_g_latest", self._g)))
             if self.finished:
                 break
+
+    def _slewed(self, g: np.ndarray) -> np.ndarray:
+        """Real time: the gradient the coils can reach in one tick from the last applied (per-axis slew limit).
+
+        The driver limits slew between its own outputs; under load its outputs
+        skip ticks, so the plant's input is limited again here, tick by tick.
+        """
+        step = self.scenario.coil.slew_rate_T_per_m_per_s * self.dt
+        return self._g + np.clip(g - self._g, -step, step)
 
     def started(self) -> bool:
         return self.running

@@ -1,8 +1,8 @@
 """Recorder node: every topic of the graph into a rosbag2 (MCAP) bag, bytes as published.
 
-Ports (see :mod:`vesselbot_ros.topics`):
+Ports (see :mod:`vesselbot_ros.graph_spec`):
 
-* inputs: every topic of :data:`~vesselbot_ros.topics.TOPICS` (raw, i.e.
+* inputs: every topic of :data:`~vesselbot_ros.graph_spec.TOPICS` (raw, i.e.
   serialized subscriptions: no deserialisation, the CDR bytes are written as
   received), with the topic's QoS (latched topics transient local), plus the
   ``extra_topics`` parameter's ``"name:type"`` entries;
@@ -40,13 +40,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vesselbot_ros.topics import NODE_NAMES, TOPICS, topic
+from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, NODE_NAMES, TOPICS, import_type, remap_args, service, topic
 
 __all__ = ["RecorderNode", "recorder_command", "main", "FLUSH_SERVICE", "STATUS_NAME"]
 
-FLUSH_SERVICE = "/vesselbot/recorder/flush"
+FLUSH_SERVICE = service("recorder_flush").name
 SUBSCRIPTION_DEPTH = 10_000  # messages buffered per topic while the recorder is busy (10 s at 1 kHz)
-STATUS_NAME = "vesselbot_recorder"
+STATUS_NAME = NODE_NAMES["recorder"]
 
 
 def recorder_command(
@@ -54,6 +54,7 @@ def recorder_command(
     run_metadata: Mapping[str, Any] | None = None,
     extra_topics: Sequence[str] = (),
     python: str | None = None,
+    namespace: str | None = None,
 ) -> list[str]:
     """The argv that starts a recorder (the launcher's and replay's way to start one).
 
@@ -63,8 +64,9 @@ def recorder_command(
             that rcl's parameter parser keeps it a string.
         extra_topics: ``"name:type"`` entries recorded besides the graph's topics.
         python: Interpreter (default: this one).
+        namespace: The graph's namespace (None: the default one).
     """
-    argv = [python or sys.executable, "-m", "vesselbot_ros.nodes.recorder_node", "--ros-args",
+    argv = [python or sys.executable, "-m", "vesselbot_ros.nodes.recorder_node", "--ros-args", *remap_args(namespace),
             "-p", f"output_dir:={_yaml_str(str(output_dir))}"]
     if run_metadata is not None:
         argv += ["-p", f"run_metadata:={_yaml_str(json.dumps(dict(run_metadata), sort_keys=True))}"]
@@ -102,7 +104,7 @@ class RecorderNode:
         from rclpy.node import Node
         from rclpy.parameter import Parameter
 
-        self.node = Node(NODE_NAMES["recorder"], context=context)
+        self.node = Node(NODE_NAMES["recorder"], namespace=DEFAULT_NAMESPACE, context=context)
         n = self.node
         n.declare_parameter("output_dir", "")
         n.declare_parameter("run_metadata", "")
@@ -130,7 +132,7 @@ class RecorderNode:
 
         from vesselbot_ros.bag.writer import BagWriter, check_output_dir, make_typestore
         from vesselbot_ros.errors import BagError
-        from vesselbot_ros.topics import qos_profile
+        from vesselbot_ros.graph_spec import qos_profile
 
         out = str(self._param("output_dir") or "")
         if not out:
@@ -158,21 +160,22 @@ class RecorderNode:
         clock = n.get_clock()
         now = (lambda: clock.now().nanoseconds) if use_sim else time.time_ns
 
-        specs: list[tuple[str, str, Any, bool]] = [(s.name, s.msgtype, qos_profile(s), s.qos == "reliable_latched")
-                                                   for s in TOPICS]
+        # (name in the bag: canonical, name subscribed: relative to the node namespace, type, QoS, latched)
+        specs: list[tuple[str, str, str, Any, bool]] = [
+            (s.name, s.rel, s.msgtype, qos_profile(s), s.qos == "reliable_latched") for s in TOPICS]
         known = {s[0] for s in specs}
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         for name, msgtype in extra:
             if name in known:
                 continue
-            specs.append((name, msgtype, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+            specs.append((name, name, msgtype, QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                                     reliability=ReliabilityPolicy.RELIABLE,
                                                     durability=DurabilityPolicy.VOLATILE), False))
             known.add(name)
-        for name, msgtype, qos, latched in specs:
+        for name, sub_name, msgtype, qos, latched in specs:
             conn = self.bag.add_topic(name, msgtype, latched=latched, depth=qos.depth)
-            cls = _import_type(msgtype)
+            cls = import_type(msgtype)
             # Depth is not part of QoS matching: a deep reader history means a recorder that
             # falls behind for a moment (a disk hiccup, a loaded CPU) buffers instead of dropping.
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(qos.depth, SUBSCRIPTION_DEPTH),
@@ -187,15 +190,15 @@ class RecorderNode:
                 except OSError as exc:  # a full disk: main() stops with one line (no executor traceback)
                     self.write_error = exc
 
-            self._subs.append(n.create_subscription(cls, name, cb, qos, raw=True))
+            self._subs.append(n.create_subscription(cls, sub_name, cb, qos, raw=True))
 
         from diagnostic_msgs.msg import DiagnosticArray
 
-        self._diag_pub = n.create_publisher(DiagnosticArray, topic("diagnostics").name, qos_profile(topic("diagnostics")))
+        self._diag_pub = n.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         n.create_timer(float(self._param("flush_period_s")), self._on_flush_timer, clock=steady)
         n.create_timer(1.0, self.publish_counts, clock=steady)
-        n.create_service(Trigger, FLUSH_SERVICE, self._on_flush_service)
+        n.create_service(Trigger, service("recorder_flush").rel, self._on_flush_service)
         n.get_logger().info(f"recording {len(specs)} topics into {path}")
 
     def counts(self) -> dict[str, int]:
@@ -240,13 +243,6 @@ class RecorderNode:
         if self.bag is not None:
             self.bag.finish()
         return counts
-
-
-def _import_type(msgtype: str) -> Any:
-    import importlib
-
-    pkg, kind, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -55,8 +55,16 @@ class ReferenceNode(VesselbotNode):
         self.add_publisher("reference_path", Path)
         self.add_subscription("clock", Clock, self._on_clock)
         self.publish("reference_path", cv.path_msg(self.reference.path(200)))
+        self.realtime_clock()
 
     def _on_clock(self, msg: Clock) -> None:
+        if not self.lockstep:
+            k = self.accept_clock(msg)  # real time: a garbage /clock moves nothing
+            if k is not None and k < self.n_ticks:
+                self.publish("reference", cv.reference_msg(k, cv.tick_time(k, self.dt), self._p[k], self._v[k],
+                                                           self._a[k]))
+                self.period_done(k)
+            return
         ns = cv.ns_of_stamp(msg.clock)
         if ns <= self._last_ns:
             self.reject("clock", "stale_stamp", f"clock {ns} ns not newer than {self._last_ns} ns")
@@ -67,6 +75,7 @@ class ReferenceNode(VesselbotNode):
         if on_grid and 0 <= k < self.n_ticks:
             t = cv.tick_time(k, self.dt)
             self.publish("reference", cv.reference_msg(k, t, self._p[k], self._v[k], self._a[k]))
+            self.period_done(k)
             if k + 1 >= self.n_ticks:
                 self.mark_finished()
         elif on_grid:

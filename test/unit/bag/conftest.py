@@ -25,7 +25,7 @@ def write_synthetic_bag(path: Path, n_ticks: int, dt_s: float = 1e-3, flush_ever
 
     from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
     from vesselbot_ros.bag.writer import BagWriter
-    from vesselbot_ros.topics import TOPICS
+    from vesselbot_ros.graph_spec import TOPICS
 
     bag = BagWriter(path, run_metadata=RUN_METADATA).open()
     conns = {s.name: bag.add_topic(s.name, s.msgtype, latched=s.qos == "reliable_latched", depth=s.depth)

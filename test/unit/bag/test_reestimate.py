@@ -54,7 +54,7 @@ def _write(path: Path, *, mode: str = "lockstep", config: dict | None = None, sk
 
     from vesselbot_msgs.msg import ReferenceSample
     from vesselbot_ros.bag.writer import BagWriter
-    from vesselbot_ros.topics import topic
+    from vesselbot_ros.graph_spec import topic
 
     meta = {"scenario": "unit", "seed": 11, "mode": mode, "config": _config() if config is None else config}
     with BagWriter(path, run_metadata=meta) as bag:

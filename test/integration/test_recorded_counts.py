@@ -1,0 +1,96 @@
+"""Nothing recorded is lost: at the end of every recorded run the bag holds exactly what was published.
+
+The 2000th command of a user's controller could miss the bag: the launcher waited for the recorder
+to catch up with the counts our nodes report in their diagnostics, and a user's node reports none,
+so the recorder could be stopped before the user's last message reached it.  Now the launcher counts
+what a user's node publishes itself, waits for the recorder to have it, and compares every topic of
+the finalised bag with the published counts (exit 1 naming topic and counts on any difference).
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from _runs import REPO, hostile_env, run_cmd  # noqa: E402
+
+EXTRA_PUBLISHER = """
+import sys, time, rclpy
+from vesselbot_msgs.msg import CoilState
+from vesselbot_ros.graph_spec import qos_profile, topic
+rclpy.init()
+node = rclpy.create_node("foreign_publisher")
+spec = topic("coil_state")
+pub = node.create_publisher(CoilState, spec.name, qos_profile(spec))
+print("ready", flush=True)
+try:
+    while rclpy.ok():
+        if pub.get_subscription_count() > 0:
+            pub.publish(CoilState(tick=10**6))  # out of every run's range: only the bag sees it
+        time.sleep(0.05)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+def _lease_free_domain() -> int:
+    from vesselbot_ros.ros_env import allocate_domain
+
+    with allocate_domain() as lease:
+        return lease.domain_id
+
+
+@pytest.mark.timeout(300)
+def test_users_controller_every_command_is_in_the_bag(tmp_path):
+    from vesselbot_ros.bag.reader import open_bag, final_diagnostics
+
+    dom = _lease_free_domain()
+    env = hostile_env(dom, tmp_path / "ros_log")
+    user = subprocess.Popen([sys.executable, str(REPO / "examples" / "my_controller.py"), "--ros-args", "-p",
+                             "use_sim_time:=true"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    bag = tmp_path / "bag"
+    try:
+        p = subprocess.run(run_cmd("--duration", "0.3", "--without", "controller", "--domain-id", str(dom),
+                                   "--record-dir", str(bag), "--quiet"),
+                           cwd=REPO, capture_output=True, text=True, timeout=240)
+    finally:
+        user.send_signal(signal.SIGINT)
+        user.wait(timeout=20)
+    assert p.returncode == 0, p.stdout + p.stderr
+    info = open_bag(bag)
+    assert info.consistent, info.problems
+    n = 300
+    # one command per tick from the user's node, every one of them in the bag
+    assert info.topic("/vesselbot/gradient_command").count == n
+    final = final_diagnostics(info)
+    for node, d in final.items():
+        for key, value in d.items():
+            if key.startswith("published:") and not key.endswith("/diagnostics"):
+                name = key.split(":", 1)[1]
+                assert info.topic(name).count == int(value), (node, name, value)
+
+
+@pytest.mark.timeout(300)
+def test_a_message_the_publishers_did_not_count_fails_the_run_naming_topic_and_counts(tmp_path):
+    dom = _lease_free_domain()
+    env = hostile_env(dom, tmp_path / "ros_log")
+    foreign = subprocess.Popen([sys.executable, "-c", EXTRA_PUBLISHER], env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    try:
+        assert foreign.stdout.readline().strip() == "ready"
+        p = subprocess.run(run_cmd("--duration", "0.3", "--domain-id", str(dom), "--record-dir", str(tmp_path / "bag"),
+                                   "--quiet"), cwd=REPO, capture_output=True, text=True, timeout=240)
+    finally:
+        foreign.send_signal(signal.SIGINT)
+        foreign.wait(timeout=20)
+    assert p.returncode == 1, p.stdout + p.stderr
+    line = [ln for ln in p.stderr.splitlines() if "does not hold what was published" in ln]
+    assert line, p.stderr
+    m = re.search(r"/vesselbot/coil/state: published 300, recorded (\d+)", line[0])
+    assert m and int(m.group(1)) > 300, line[0]  # 300 + the foreign ones

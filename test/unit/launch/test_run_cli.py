@@ -1,0 +1,70 @@
+"""`vesselbot run` checks every argument before it creates anything or starts anything: one line, exit 2."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from vesselbot_ros import cli
+
+REPO = Path(__file__).resolve().parents[3]
+PAPER = REPO / "config" / "paper_small_artery.yaml"
+
+# (extra arguments, substrings of the one-line error)
+BAD = [
+    (["--domain-id", "232"], ["--domain-id", "232"]),
+    (["--domain-id", "-1"], ["--domain-id", "-1"]),
+    (["--real-time-factor", "nan"], ["--real-time-factor", "nan"]),
+    (["--real-time-factor", "inf"], ["--real-time-factor", "inf"]),
+    (["--real-time-factor", "0"], ["--real-time-factor", "0"]),
+    (["--stall-timeout", "-1"], ["--stall-timeout", "-1"]),
+    (["--stall-timeout", "nan"], ["--stall-timeout", "nan"]),
+    (["--wait-timeout", "0"], ["--wait-timeout", "0"]),
+    (["--run-timeout", "-5"], ["--run-timeout", "-5"]),
+    (["--duration", "nan"], ["--duration", "nan"]),
+    (["--duration", "-1"], ["--duration", "-1"]),
+    (["--without", "plant", "--without", "plant"], ["--without plant", "more than once"]),
+    (["--namespace", "1robot"], ["--namespace", "1robot"]),
+    (["--namespace", "a b"], ["--namespace", "a b"]),
+    (["--report", "--no-record"], ["--report", "--no-record"]),
+    (["--metrics-json", "/nonexistent_dir_vb/m.json"], ["--metrics-json", "nonexistent_dir_vb"]),
+]
+
+
+@pytest.mark.parametrize(("extra", "needles"), BAD, ids=[" ".join(b[0]) for b in BAD])
+def test_bad_argument_exits_2_with_one_line_and_creates_nothing(tmp_path, capsys, monkeypatch, extra, needles):
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(["run", "--config", str(PAPER), "--record-dir", str(tmp_path / "bag"), "--quiet", *extra])
+    out, err = capsys.readouterr()
+    assert code == 2, out + err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vesselbot run: error:"), err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    assert os.listdir(tmp_path) == []  # no bag, no runs/, no log directory
+    assert "Traceback" not in err
+
+
+def test_busy_domain_is_a_bad_argument_too(tmp_path, capsys, monkeypatch):
+    from vesselbot_ros.ros_env import allocate_domain
+
+    monkeypatch.chdir(tmp_path)
+    with allocate_domain() as lease:
+        code = cli.main(["run", "--config", str(PAPER), "--domain-id", str(lease.domain_id), "--record-dir",
+                         str(tmp_path / "bag"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"--domain-id: ROS domain id {lease.domain_id} is in use" in err
+    assert os.listdir(tmp_path) == []
+
+
+def test_without_choices_come_from_the_graph_spec(capsys):
+    from vesselbot_ros.graph_spec import LOOP_ROLES
+
+    with pytest.raises(SystemExit):
+        cli.main(["run", "--without", "nonsense"])
+    err = capsys.readouterr().err
+    for r in LOOP_ROLES:
+        assert r in err

@@ -1,0 +1,436 @@
+"""The graph spec: every role, port, service and diagnostic counter of the vesselbot graph, declared once.
+
+Everything that lists roles or topics derives from this module: the nodes'
+publishers, subscriptions and services (:class:`vesselbot_ros.nodes.base.VesselbotNode`
+builds them from :class:`Role`), the launcher (start order, processes, the
+``--without ROLE`` contract it prints), the single-process composition, the
+recorder's topic list, ``replay --into``, the report's counters, the console
+entry points (``setup.py``), and the README / docs tables
+(``tools/gen_readme_sections.py``).  Adding a role or a topic is one edit here;
+``test/unit/test_graph_spec.py`` fails when any other module spells a topic or
+service name.  Importing this module imports nothing but the standard library
+(``setup.py`` loads it by path); :func:`qos_profile` imports rclpy lazily.
+
+Names.  Topic and service names are *relative* (``truth``, ``coil/applied``):
+they resolve in the node namespace, ``/vesselbot`` by default
+(:data:`DEFAULT_NAMESPACE`), so ``vesselbot run --namespace NAME`` puts a whole
+graph under ``/NAME``.  ``/clock`` and ``/diagnostics`` are global by ROS
+convention; a namespaced graph remaps them into its namespace
+(:func:`remap_args`), so two graphs share one domain without crosstalk.  Bags
+always store the canonical names (:attr:`TopicSpec.name`, i.e. the default
+namespace); the namespace a run used is in its run metadata.
+
+Frame ``vessel``: x along the vessel axis (blood flows towards +x), z vertical
+(gravity along -z), centreline at z = 0, walls at z = +/- D(t)/2.  y is unused
+and always 0.
+
+Lockstep protocol (the default mode; deterministic)
+---------------------------------------------------
+Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
+``per tick`` carries exactly one message per tick, in this order:
+
+1. plant publishes ``/clock`` = t_k and ``truth`` (stamp t_k);
+2. imager, on ``truth`` k, publishes ``measurement``.  In lockstep it publishes
+   once per tick: the frame delivered at t_k, or, when no new frame is due
+   (frame-rate decimation, latency, dropout), the last delivered frame again,
+   unchanged (zero-order hold).  ``header.stamp`` is always the frame's
+   *acquisition* time, so consumers detect fresh frames by a newer stamp.
+   Before the first frame is ever delivered (latency, an early dropout) it
+   publishes a placeholder with an empty ``frame_id`` and stamp 0, meaning
+   "no frame yet".  The n-th ``measurement`` message belongs to tick n;
+3. reference, on ``/clock`` k, publishes ``reference`` sample k;
+4. observer, once it has ``measurement`` k and ``coil/applied`` k-1, publishes
+   ``estimate`` (stamp t_k);
+5. controller, once it has ``estimate`` k and ``reference`` k, publishes
+   ``gradient_command`` (stamp t_k);
+6. coil driver publishes ``coil/applied`` and ``coil/state`` (stamp t_k);
+7. plant, once it has ``coil/applied`` k, integrates [t_k, t_k+1] and goes to 1.
+
+Tick times are rebuilt as ``k * dt`` from the stamps (never by summing floats),
+which is why a lockstep run reproduces the ROS-free runner bit for bit.  One
+helper does the stamp <-> tick bookkeeping for every node
+(:class:`vesselbot_ros.nodes.base.TickJoin`): inputs keyed by tick, off-grid,
+stale and future ticks rejected without moving any state.
+
+The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused
+yaw-yaw variance ``pose.covariance[35]`` carries the observer's time since the
+last fresh measurement (s), which the controller's stale-estimate safe
+behaviour reads.
+
+Lockstep watchdog: if the command for tick k has not arrived within
+``graph.stall_timeout_s`` of wall time (the controller died or hangs), the coil
+driver answers tick k itself through ``CoilLimiter.watchdog``: it holds the
+output until ``coil.command_timeout_s`` of sim time passed without commands,
+then ramps to zero within the slew limit, so the loop (and the bag) goes on.
+A late command for a tick already answered is rejected as stale.
+
+In real-time mode the plant steps on the wall clock at a real-time factor and
+applies the latest ``coil/applied`` (zero-order hold); the imager publishes only
+fresh frames at its frame rate; observer and controller run on sim-time timers
+at the control rate.  Nodes never take time from an input's stamp beyond the
+plant's announced tick: a message stamped in the future is rejected without
+moving any state, and the coil driver answers on its own sim-time grid.
+Every node in the loop counts its missed control periods and the age of its
+inputs (``missed_periods``, ``input_age_max_s`` on ``/diagnostics``); a run in
+which any node missed more than 1 % of its periods fails and states the
+real-time factor the machine held.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+__all__ = [
+    "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
+    "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
+    "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
+    "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
+]
+
+FRAME_ID = "vessel"
+#: Namespace of the graph's nodes (and so of its relative topic and service names).
+DEFAULT_NAMESPACE = "/vesselbot"
+#: Where ``replay --into`` puts a re-computed output in its result bag (relative to the namespace).
+REPLAY_PREFIX = "replay"
+#: Real time: a run fails if any loop node missed more than this fraction of its control periods.
+REALTIME_MISSED_LIMIT = 0.01
+
+Qos = Literal["reliable", "reliable_latched", "clock", "diagnostics"]
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One port of the graph (a topic).
+
+    Attributes:
+        key: Short handle used in code, e.g. ``"truth"``.
+        rel: The name as nodes create it: relative (``coil/applied``), or
+            absolute for the ROS-global ``/clock`` and ``/diagnostics``.
+        msgtype: ROS type, ``pkg/msg/Name``.
+        publisher: Publishing role (``all``: every node).
+        subscribers: Subscribing roles (free text for outside readers in parentheses).
+        rate: Human-readable rate.
+        qos: QoS class (see :func:`qos_profile`).
+        units: Units of the payload.
+        frame: ``header.frame_id`` (``-`` if none).
+        per_tick: Lockstep: exactly one message per tick.
+        depth: Writers keep this many samples.  Reliable KEEP_LAST overwrites
+            samples not yet acknowledged once the history is full, and the
+            recorder and the launcher's monitor are not paced by the lockstep
+            loop, so per-tick topics keep 1 s at 1 kHz.
+    """
+
+    key: str
+    rel: str
+    msgtype: str
+    publisher: str
+    subscribers: tuple[str, ...]
+    rate: str
+    qos: Qos
+    units: str
+    frame: str
+    per_tick: bool = False
+    depth: int = 1000
+    #: The canonical absolute name (default namespace): what bags and diagnostics use.
+    name: str = field(init=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", self.rel if self.rel.startswith("/") else f"{DEFAULT_NAMESPACE}/{self.rel}")
+
+    @property
+    def is_global(self) -> bool:
+        """True for ROS-global names (``/clock``, ``/diagnostics``)."""
+        return self.rel.startswith("/")
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    """One service of the graph."""
+
+    key: str
+    rel: str
+    srvtype: str
+    server: str
+    purpose: str
+
+    @property
+    def name(self) -> str:
+        """The canonical absolute name (default namespace)."""
+        return resolve(self.rel)
+
+
+@dataclass(frozen=True)
+class Role:
+    """One node role: what it is, how it starts, its ports.
+
+    Attributes:
+        name: Role name (``--without NAME``).
+        node_name: ROS node name.
+        node_class: ``module:Class`` of our implementation.
+        module: Module with the process's ``main()`` (``python -m`` target).
+        inputs: Topic keys it subscribes to (its contract).
+        outputs: Topic keys it publishes (besides ``/diagnostics``).
+        services: Service keys it serves.
+        counters: Diagnostic keys the launcher adds to the run's metrics.
+        safe_stop: Upstream of the coil driver: when it dies, the driver's
+            watchdog ramps the gradient to zero before the run stops.
+        summary: One line for the architecture table.
+    """
+
+    name: str
+    node_name: str
+    node_class: str
+    module: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    services: tuple[str, ...] = ()
+    counters: tuple[str, ...] = ()
+    safe_stop: bool = False
+    summary: str = ""
+
+    @property
+    def console_script(self) -> str:
+        """Console entry point name (``vesselbot_<role>``)."""
+        return self.node_name
+
+
+TOPICS: tuple[TopicSpec, ...] = (
+    TopicSpec("clock", "/clock", "rosgraph_msgs/msg/Clock", "plant", ("all (use_sim_time)", "reference", "coil_driver"),
+              "per tick", "clock", "s", "-", per_tick=True),
+    TopicSpec("truth", "truth", "vesselbot_msgs/msg/PlantState", "plant", ("imager", "recorder"),
+              "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True),
+    TopicSpec("vessel_markers", "vessel_markers", "visualization_msgs/msg/MarkerArray", "plant", ("(viewers)",),
+              "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
+    TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager", ("observer",),
+              "per tick (lockstep, ZOH) / frame rate (real time)", "reliable", "m", FRAME_ID, per_tick=True),
+    TopicSpec("estimate", "estimate", "nav_msgs/msg/Odometry", "observer", ("controller",),
+              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True),
+    TopicSpec("reference", "reference", "vesselbot_msgs/msg/ReferenceSample", "reference", ("controller",),
+              "per tick", "reliable", "m, m/s, m/s^2", FRAME_ID, per_tick=True),
+    TopicSpec("reference_path", "reference/path", "nav_msgs/msg/Path", "reference", ("(viewers)",),
+              "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
+    TopicSpec("gradient_command", "gradient_command", "geometry_msgs/msg/Vector3Stamped", "controller",
+              ("coil_driver",), "per tick", "reliable", "T/m", FRAME_ID, per_tick=True),
+    TopicSpec("coil_applied", "coil/applied", "geometry_msgs/msg/Vector3Stamped", "coil_driver",
+              ("plant", "observer"), "per tick (+ watchdog)", "reliable", "T/m", FRAME_ID, per_tick=True),
+    TopicSpec("coil_state", "coil/state", "vesselbot_msgs/msg/CoilState", "coil_driver", ("recorder",),
+              "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True),
+    TopicSpec("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "all", ("launcher", "recorder"),
+              "1 Hz wall + on events", "diagnostics", "-", "-"),
+)
+
+SERVICES: tuple[ServiceSpec, ...] = (
+    ServiceSpec("inject_fault", "imager/inject_fault", "vesselbot_msgs/srv/InjectFault", "imager",
+                "inject an outlier burst or a dropout on the imager"),
+    ServiceSpec("run_control", "run_control", "vesselbot_msgs/srv/RunControl", "plant",
+                "start / pause / resume / stop / status of the run"),
+    ServiceSpec("recorder_flush", "recorder/flush", "std_srvs/srv/Trigger", "recorder",
+                "flush and fsync the bag; the per-topic counts as JSON"),
+)
+
+
+def _node(role: str, cls: str, **kw: Any) -> Role:
+    return Role(role, f"vesselbot_{role}", f"vesselbot_ros.nodes.{role}_node:{cls}", f"vesselbot_ros.nodes.{role}_node",
+                **kw)
+
+
+#: The loop's roles in start order (the plant last: it owns the clock).
+ROLES: tuple[Role, ...] = (
+    _node("reference", "ReferenceNode", inputs=("clock",), outputs=("reference", "reference_path"), safe_stop=True,
+          summary="C2 B-spline reference: a path (latched) and one sample per tick"),
+    _node("imager", "ImagerNode", inputs=("truth",), outputs=("measurement",), services=("inject_fault",),
+          counters=("outlier_frames",), safe_stop=True,
+          summary="MRI imager: noisy frames at a frame rate, latency, outliers, dropouts"),
+    _node("observer", "ObserverNode", inputs=("coil_applied", "measurement"), outputs=("estimate",),
+          counters=("observer_rhs_evals", "measurements_used", "measurements_rejected"), safe_stop=True,
+          summary="high-gain observer (eq. 25): position and velocity estimate"),
+    _node("controller", "ControllerNode", inputs=("reference", "estimate"), outputs=("gradient_command",),
+          safe_stop=True, summary="backstepping controller (eq. 24): gradient command"),
+    _node("coil_driver", "CoilDriverNode", inputs=("gradient_command", "clock"), outputs=("coil_applied", "coil_state"),
+          summary="gradient coils: saturation, slew limit, watchdog"),
+    _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers"),
+          services=("run_control",),
+          counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
+          summary="robot dynamics in the vessel; owns /clock"),
+)
+
+#: The recorder: subscribes to every topic, started before the loop and stopped after it.
+RECORDER = Role("recorder", "vesselbot_recorder", "vesselbot_ros.nodes.recorder_node:RecorderNode",
+                "vesselbot_ros.nodes.recorder_node", inputs=tuple(t.key for t in TOPICS), outputs=(),
+                services=("recorder_flush",), summary="writes every topic into a rosbag2 MCAP bag, bytes as published")
+
+LOOP_ROLES: tuple[str, ...] = tuple(r.name for r in ROLES)
+ALL_ROLES: tuple[Role, ...] = (*ROLES, RECORDER)
+NODE_NAMES: dict[str, str] = {r.name: r.node_name for r in ALL_ROLES}
+
+_TOPIC = {t.key: t for t in TOPICS}
+_SERVICE = {s.key: s for s in SERVICES}
+_ROLE = {r.name: r for r in ALL_ROLES}
+
+
+def tick_time(k: int, dt_s: float) -> float:
+    """``t_k = k * dt_s`` (s), exactly as the pure runner computes it."""
+    return k * dt_s
+
+
+def ns_of_time(t_s: float) -> int:
+    """Float seconds -> integer nanoseconds (rounded): the stamp of a tick time."""
+    return int(round(t_s * 1e9))
+
+
+def tick_of_ns(ns: int, dt_s: float) -> tuple[int, bool]:
+    """The one stamp -> tick helper: nearest tick to a stamp (ns), and whether the stamp lies on it (+/- 1 us)."""
+    k = int(round(ns * 1e-9 / dt_s))
+    return k, abs(ns - ns_of_time(tick_time(k, dt_s))) <= 1000
+
+
+def topic(key: str) -> TopicSpec:
+    """Look up a topic by its key (e.g. ``"truth"``)."""
+    try:
+        return _TOPIC[key]
+    except KeyError:
+        raise KeyError(f"unknown topic key {key!r}; known: {sorted(_TOPIC)}") from None
+
+
+def service(key: str) -> ServiceSpec:
+    """Look up a service by its key (e.g. ``"run_control"``)."""
+    try:
+        return _SERVICE[key]
+    except KeyError:
+        raise KeyError(f"unknown service key {key!r}; known: {sorted(_SERVICE)}") from None
+
+
+def role(name: str) -> Role:
+    """Look up a role (loop roles and ``recorder``)."""
+    try:
+        return _ROLE[name]
+    except KeyError:
+        raise KeyError(f"unknown role {name!r}; known: {sorted(_ROLE)}") from None
+
+
+def namespace_of(name: str | None) -> str:
+    """``NAME`` / ``/NAME`` / None -> an absolute namespace (None: the default)."""
+    if not name:
+        return DEFAULT_NAMESPACE
+    return name if name.startswith("/") else "/" + name
+
+
+def resolve(rel: str, namespace: str | None = None) -> str:
+    """Absolute name of ``rel`` in ``namespace`` (globals move into a non-default namespace, see :func:`remap_args`)."""
+    ns = namespace_of(namespace)
+    if rel.startswith("/"):
+        return rel if ns == DEFAULT_NAMESPACE else ns.rstrip("/") + rel
+    return ns.rstrip("/") + "/" + rel
+
+
+def remap_args(namespace: str | None = None) -> list[str]:
+    """ROS arguments (after ``--ros-args``) that put a node of the graph into ``namespace``."""
+    ns = namespace_of(namespace)
+    if ns == DEFAULT_NAMESPACE:
+        return []
+    out = ["-r", f"__ns:={ns}"]
+    for t in TOPICS:
+        if t.is_global:
+            out += ["-r", f"{t.rel}:={resolve(t.rel, ns)}"]
+    return out
+
+
+def qos_profile(spec: TopicSpec) -> Any:
+    """The rclpy QoSProfile of a topic (imports rclpy lazily)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if spec.qos == "reliable_latched" else DurabilityPolicy.VOLATILE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=spec.depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=durability)
+
+
+def qos_text(spec: TopicSpec) -> str:
+    """The QoS of a topic in words."""
+    latched = ", transient local" if spec.qos == "reliable_latched" else ""
+    return f"reliable{latched}, keep last {spec.depth}"
+
+
+def import_type(msgtype: str) -> Any:
+    """The Python class of a ROS type ``pkg/msg/Name`` (or ``pkg/srv/Name``)."""
+    import importlib
+
+    pkg, kind, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def console_scripts() -> list[str]:
+    """``setup.py`` console entry points: ``vesselbot`` and one per node."""
+    return ["vesselbot = vesselbot_ros.cli:main"] + [f"{r.console_script} = {r.module}:main" for r in ALL_ROLES]
+
+
+def diagnostic_counters() -> dict[str, tuple[str, ...]]:
+    """Role -> the diagnostic keys the launcher adds to a run's metrics."""
+    return {r.name: r.counters for r in ROLES if r.counters}
+
+
+def role_contract(name: str, namespace: str | None = None) -> str:
+    """What a user's node in the slot of role ``name`` must do (printed by ``vesselbot run --without``)."""
+    r = role(name)
+    lines = [f"slot '{name}' is yours: your node must"]
+    for k in r.inputs:
+        t = topic(k)
+        lines.append(f"  subscribe {resolve(t.rel, namespace)} [{t.msgtype}] ({t.units}, frame {t.frame})")
+    for k in r.outputs:
+        t = topic(k)
+        lines.append(f"  publish   {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
+    for k in r.services:
+        s = service(k)
+        lines.append(f"  serve     {resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")
+    depth = {qos_text(topic(k)) for k in (*r.inputs, *r.outputs) if topic(k).qos != "reliable_latched"}
+    lines.append(f"  with use_sim_time=true; QoS: {', '.join(sorted(depth))} (see docs/graph.md).")
+    if name != "plant":
+        lines.append("  Lockstep: answer tick k with header.stamp = t_k of the input that triggered it.")
+    return "\n".join(lines)
+
+
+def markdown_table() -> str:
+    """The README's topic and service tables."""
+    head = "| topic | type | publisher | subscribers | rate | QoS | units | frame |\n|---|---|---|---|---|---|---|---|\n"
+    rows = [f"| `{t.name}` | `{t.msgtype}` | {t.publisher} | {', '.join(t.subscribers)} | {t.rate} | "
+            f"{qos_text(t)} | {t.units} | {t.frame} |" for t in TOPICS]
+    srv_head = "\n\n| service | type | server | purpose |\n|---|---|---|---|\n"
+    srv_rows = [f"| `{s.name}` | `{s.srvtype}` | {s.server} | {s.purpose} |" for s in SERVICES]
+    return head + "\n".join(rows) + srv_head + "\n".join(srv_rows)
+
+
+def architecture_table() -> str:
+    """The README's architecture table: one row per role, in start order."""
+    head = "| role | node (console script) | does | in | out | services |\n|---|---|---|---|---|---|\n"
+    rows = []
+    for r in ALL_ROLES:
+        ins = "every topic" if r is RECORDER else ", ".join(f"`{topic(k).name}`" for k in r.inputs)
+        outs = ", ".join(f"`{topic(k).name}`" for k in r.outputs) or "-"
+        srvs = ", ".join(f"`{service(k).name}`" for k in r.services) or "-"
+        rows.append(f"| {r.name} | `{r.node_name}` | {r.summary} | {ins} | {outs} | {srvs} |")
+    return head + "\n".join(rows)
+
+
+def faults_table() -> str:
+    """The README's node-loss table: what the launcher does when each process dies (from :attr:`Role.safe_stop`)."""
+    head = "| process that dies | what `vesselbot run` does |\n|---|---|\n"
+    rows = []
+    for r in ALL_ROLES:
+        if r.safe_stop:
+            what = ("the loop goes on until the coil driver's watchdog has held the output for "
+                    "`coil.command_timeout_s` and ramped it to zero within the slew limit; then every node stops, "
+                    "the bag is finalised, exit 1 naming the node")
+        elif r is RECORDER:
+            what = "the run stops at once, exit 1 naming the recorder (nothing more could be recorded)"
+        else:
+            what = "the run stops at once (no sim time passes without it), the bag is finalised, exit 1 naming the node"
+        rows.append(f"| {r.name} (`{r.node_name}`) | {what} |")
+    rows.append("| the launcher itself (SIGKILL, SIGHUP, a crash) | every node gets SIGTERM from the kernel "
+                "(parent-death signal), the recorder finalises the bag; the domain stays leased until the last "
+                "node exited |")
+    return head + "\n".join(rows)
+
+
+def contract_table() -> str:
+    """The README's ``--without ROLE`` contract: what a user's node in each slot must do."""
+    return "\n\n".join("```text\n" + role_contract(r.name) + "\n```" for r in ROLES)
