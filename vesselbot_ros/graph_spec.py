@@ -116,9 +116,13 @@ class TopicSpec:
         frame: ``header.frame_id`` (``-`` if none).
         per_tick: Lockstep: exactly one message per tick.
         depth: Writers keep this many samples.  Reliable KEEP_LAST overwrites
-            samples not yet acknowledged once the history is full, and the
-            recorder and the launcher's monitor are not paced by the lockstep
-            loop, so per-tick topics keep 1 s at 1 kHz.
+            samples not yet acknowledged once the history is full, and a
+            sample the transport dropped (a full shared-memory port on a loaded
+            machine) is only resent after the reader learns of the gap from a
+            heartbeat, seconds later; the recorder and the launcher's monitor
+            are not paced by the lockstep loop.  With 1000 (1 s at 1 kHz) a
+            recorded lockstep run lost its last few commands on a loaded
+            machine; per-tick topics keep 10 s at 1 kHz.
     """
 
     key: str
@@ -131,7 +135,7 @@ class TopicSpec:
     units: str
     frame: str
     per_tick: bool = False
-    depth: int = 1000
+    depth: int = 10_000
     #: The canonical absolute name (default namespace): what bags and diagnostics use.
     name: str = field(init=False, compare=False)
 

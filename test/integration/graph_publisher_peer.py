@@ -8,6 +8,7 @@ Usage: graph_publisher_peer.py COUNTS_JSON TICKS RATE_HZ
 """
 
 import json
+import os
 import sys
 import time
 
@@ -16,6 +17,14 @@ from rclpy.executors import ExternalShutdownException
 
 from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
 from vesselbot_ros.graph_spec import TOPICS, qos_profile
+
+
+def write_counts(path: str, counts: dict[str, int]) -> None:
+    """Write the published counts atomically (a reader never sees a half-written file)."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as fh:
+        json.dump({f"published:{n}": c for n, c in counts.items()}, fh)
+    os.replace(tmp, path)
 
 
 def main() -> int:
@@ -49,16 +58,13 @@ def main() -> int:
                 counts[name] += 1
             k += 1
             if ticks == 0 and k % 50 == 0:
-                with open(counts_path, "w") as fh:
-                    json.dump({f"published:{n}": c for n, c in counts.items()}, fh)
-        with open(counts_path, "w") as fh:
-            json.dump({f"published:{n}": c for n, c in counts.items()}, fh)
+                write_counts(counts_path, counts)
+        write_counts(counts_path, counts)
         print("done", flush=True)
         while rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
-        with open(counts_path, "w") as fh:
-            json.dump({f"published:{n}": c for n, c in counts.items()}, fh)
+        write_counts(counts_path, counts)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -136,7 +136,7 @@ def test_console_scripts_and_counters_derive_from_the_roles():
 def test_contract_names_every_port_of_the_slot():
     text = spec.role_contract("controller", "robot2")
     assert "/robot2/estimate" in text and "/robot2/reference" in text and "/robot2/gradient_command" in text
-    assert "keep last 1000" in text
+    assert "keep last 10000" in text
 
 
 def test_readme_sections_are_generated_from_the_spec(repo):
