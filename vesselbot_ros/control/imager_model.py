@@ -36,13 +36,14 @@ import math
 from collections import deque
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError, check_nonnegative, check_positive, check_range
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel"]
+__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame"]
 
 _EPS_S = 1e-9  # tick-grid tolerance: a tick within 1 ns of a deadline counts as on time
 
@@ -148,6 +149,11 @@ class ImagerModel:
         self._dropouts: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s) for d in params.dropouts]
         self._t_last = -math.inf
 
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator the imager draws from (owned by the model)."""
+        return self._rng
+
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
         """Add an outlier burst at run time (same effect as a scheduled one)."""
         burst = OutlierBurst(start_s=start_s, duration_s=duration_s, magnitude_m=magnitude_m)
@@ -200,3 +206,75 @@ class ImagerModel:
         while self._queue and self._queue[0].t_acq_s + prm.latency_s <= t_s + _EPS_S:
             out = self._queue.popleft()
         return out
+
+
+# ---- compiled stage -------------------------------------------------------------------------------
+# params (4,): [frame period (s), noise sigma (m), latency (s), dropout probability]
+# outliers (m, 3): [start, end, magnitude]; dropouts (m, 2): [start, end]
+# state (4,): [index of the next frame slot, time of the last call, queue head, queue tail]
+# queue (cap, 4): [t_acq, p x, p z, outlier] of frames acquired and not yet delivered
+# out (5,): [delivered (0/1), t_acq, p x, p z, outlier]
+
+
+def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
+    """``(params (4,), outliers (m, 3), dropouts (m, 2))`` of :func:`imager_frame`."""
+    prm = np.array([1.0 / params.frame_rate_Hz, float(params.noise_sigma_m), float(params.latency_s),
+                    float(params.dropout_probability)])
+    out = np.array([(o.start_s, o.start_s + o.duration_s, o.magnitude_m) for o in params.outliers],
+                   dtype=np.float64).reshape(-1, 3)
+    drop = np.array([(d.start_s, d.start_s + d.duration_s) for d in params.dropouts], dtype=np.float64).reshape(-1, 2)
+    return prm, out, drop
+
+
+@numba.njit(cache=True, nogil=True)
+def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
+    """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles).
+
+    The caller checks that ``t`` and ``(px, pz)`` are finite and that time does
+    not go backwards, and sizes ``queue`` for every frame that can wait
+    (one row per tick is always enough).  Draws from ``rng`` (a
+    ``numpy.random.Generator``) in the documented order: two standard normals,
+    two uniforms per acquired frame.  Writes ``out``; allocates nothing.
+    """
+    state[1] = t
+    period = prm[0]
+    if t + _EPS_S >= state[0] * period:
+        state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
+        n0 = rng.standard_normal()
+        n1 = rng.standard_normal()
+        u_dir = rng.random()
+        u_drop = rng.random()
+        m0 = px + prm[1] * n0
+        m1 = pz + prm[1] * n1
+        outlier = 0.0
+        for i in range(outliers.shape[0]):
+            if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
+                th = 2.0 * math.pi * u_dir
+                m0 = m0 + outliers[i, 2] * math.cos(th)
+                m1 = m1 + outliers[i, 2] * math.sin(th)
+                outlier = 1.0
+                break
+        dropped = u_drop < prm[3]
+        if not dropped:
+            for i in range(dropouts.shape[0]):
+                if dropouts[i, 0] - _EPS_S <= t < dropouts[i, 1] - _EPS_S:
+                    dropped = True
+                    break
+        if not dropped:
+            j = int(state[3]) % queue.shape[0]
+            queue[j, 0] = t
+            queue[j, 1] = m0
+            queue[j, 2] = m1
+            queue[j, 3] = outlier
+            state[3] += 1.0
+    out[0] = 0.0
+    while state[2] < state[3]:
+        j = int(state[2]) % queue.shape[0]
+        if not queue[j, 0] + prm[2] <= t + _EPS_S:
+            break
+        out[0] = 1.0
+        out[1] = queue[j, 0]
+        out[2] = queue[j, 1]
+        out[3] = queue[j, 2]
+        out[4] = queue[j, 3]
+        state[2] += 1.0
