@@ -57,7 +57,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import hypot2, mat2, mat2_apply
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5_ws, integrate_rk4_ws
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
 
 #: Estimates kept for delay compensation (one per update).
 HISTORY_LEN = 4096
@@ -246,6 +246,16 @@ class HighGainObserver:
         self._initialised = False
         self._history: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_LEN)
         self.rejected = 0
+        # A DynamicsModel is the kernel at packed params: then update() runs the compiled
+        # observer_update (as the compiled loop does); any other ObserverModel runs in Python.
+        self._compiled = all(hasattr(model, a) for a in ("p", "integrator", "stats", "_work", "_fbuf"))
+        if self._compiled:
+            self._prm = observer_params(params, self._b)
+            self._ig = integrator_vector(model.integrator)
+            self._scal = np.array([self._t, -math.inf, 0.0, model.integrator.max_step_s])
+            self._hist = np.empty((HISTORY_LEN, 3))
+            self._hist_n = np.zeros(2, dtype=np.int64)
+            self._out = np.zeros(9)
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
@@ -279,6 +289,8 @@ class HighGainObserver:
             raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
         if not math.isfinite(t_s) or t_s < self._t - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
+        if self._compiled:
+            return self._update_compiled(float(t_s), measurement, float(g[0]), float(g[1]))
         if t_s > self._t:
             self.model.propagate(self._t, t_s, self._y, np.array(mat2_apply(self._b, g[0], g[1])), self._contact)
             y = self._y
@@ -321,6 +333,28 @@ class HighGainObserver:
                 self.rejected += 1
         age = self._t - self._t_meas
         return Estimate(self._t, self._y[:2].copy(), self._y[2:].copy(), age, innov, used, rejected)
+
+    def _update_compiled(self, t_s: float, measurement: Any | None, gx: float, gz: float) -> Estimate:
+        has = measurement is not None
+        t_acq, m0, m1 = math.nan, math.nan, math.nan
+        if has:
+            yp = np.asarray(measurement.p, dtype=np.float64)
+            t_acq = float(measurement.t_acq_s)
+            if yp.shape == (2,):
+                m0, m1 = float(yp[0]), float(yp[1])
+        m = self.model
+        t0 = self._t
+        code = observer_update(self._prm, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig, m.p,
+                               m.stats, m._work, m._fbuf, t_s, gx, gz, has, t_acq, m0, m1, self._out)
+        if code != OK:
+            raise ModelInputError(failure_message("observer model", t0, t_s, code, self._y.tolist()))
+        self._t = t_s
+        self._t_meas = float(self._scal[1])
+        self._initialised = bool(self._scal[2] > 0.5)
+        o = self._out
+        rejected = bool(o[8] > 0.5)
+        self.rejected += int(rejected)
+        return Estimate(self._t, o[0:2].copy(), o[2:4].copy(), float(o[4]), o[5:7].copy(), bool(o[7] > 0.5), rejected)
 
     def _estimate_at(self, t_acq: float) -> npt.NDArray[np.float64]:
         best = None

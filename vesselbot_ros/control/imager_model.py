@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from typing import NamedTuple
 
 import numba
@@ -140,14 +139,11 @@ class ImagerModel:
     def __init__(self, params: ImagerParams, rng: np.random.Generator) -> None:
         self.params = params
         self._rng = rng
-        self._period = 1.0 / params.frame_rate_Hz
-        self._n_next = 0
-        self._queue: deque[Measurement] = deque()
-        self._outliers: list[tuple[float, float, float]] = [
-            (o.start_s, o.start_s + o.duration_s, o.magnitude_m) for o in params.outliers
-        ]
-        self._dropouts: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s) for d in params.dropouts]
-        self._t_last = -math.inf
+        self._prm, self._outliers, self._dropouts = imager_arrays(params)
+        # compiled state: next frame slot, last tick time, queue head, queue tail (imager_frame)
+        self._state = np.array([0.0, -math.inf, 0.0, 0.0])
+        self._queue = np.empty((16, 4))
+        self._out = np.zeros(5)
 
     @property
     def rng(self) -> np.random.Generator:
@@ -157,15 +153,16 @@ class ImagerModel:
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
         """Add an outlier burst at run time (same effect as a scheduled one)."""
         burst = OutlierBurst(start_s=start_s, duration_s=duration_s, magnitude_m=magnitude_m)
-        self._outliers.append((burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m))
+        row = np.array([[burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m]])
+        self._outliers = np.concatenate([self._outliers, row])
 
     def inject_dropout(self, start_s: float, duration_s: float) -> None:
         """Add a dropout window at run time (same effect as a scheduled one)."""
         d = Dropout(start_s=start_s, duration_s=duration_s)
-        self._dropouts.append((d.start_s, d.start_s + d.duration_s))
+        self._dropouts = np.concatenate([self._dropouts, np.array([[d.start_s, d.start_s + d.duration_s]])])
 
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
-        """Acquire (if due) and deliver (if due) at tick ``t_s``.
+        """Acquire (if due) and deliver (if due) at tick ``t_s`` (the compiled :func:`imager_frame`).
 
         Args:
             t_s: Tick time (s), non-decreasing across calls.
@@ -181,31 +178,23 @@ class ImagerModel:
         p = np.asarray(p_true, dtype=np.float64)
         if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
             raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._t_last:
+        if not math.isfinite(t_s) or t_s < self._state[1]:
             raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
-        self._t_last = t_s
-        prm = self.params
-        if t_s + _EPS_S >= self._n_next * self._period:
-            # skip frames whose slot passed between ticks (ticks slower than frames)
-            self._n_next = int(math.floor((t_s + _EPS_S) / self._period)) + 1
-            noise = self._rng.standard_normal(2)
-            u_dir = self._rng.random()
-            u_drop = self._rng.random()
-            meas = p + prm.noise_sigma_m * noise
-            outlier = False
-            for a, b, mag in self._outliers:
-                if a - _EPS_S <= t_s < b - _EPS_S:
-                    th = 2.0 * math.pi * u_dir
-                    meas = meas + mag * np.array([math.cos(th), math.sin(th)])
-                    outlier = True
-                    break
-            dropped = u_drop < prm.dropout_probability or any(a - _EPS_S <= t_s < b - _EPS_S for a, b in self._dropouts)
-            if not dropped:
-                self._queue.append(Measurement(float(t_s), meas, outlier))
-        out: Measurement | None = None
-        while self._queue and self._queue[0].t_acq_s + prm.latency_s <= t_s + _EPS_S:
-            out = self._queue.popleft()
-        return out
+        st = self._state
+        waiting = int(st[3] - st[2])
+        if waiting + 1 >= self._queue.shape[0]:  # grow the ring, oldest first
+            cap = self._queue.shape[0]
+            order = (int(st[2]) + np.arange(waiting)) % cap
+            grown = np.empty((2 * cap, 4))
+            grown[:waiting] = self._queue[order]
+            self._queue = grown
+            st[2], st[3] = 0.0, float(waiting)
+        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._rng, float(t_s),
+                     float(p[0]), float(p[1]), self._out)
+        o = self._out
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(o[1]), o[2:4].copy(), bool(o[4] > 0.5))
 
 
 # ---- compiled stage -------------------------------------------------------------------------------

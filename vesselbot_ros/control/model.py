@@ -22,7 +22,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import accel_no_motive, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["DynamicsModel"]
 
@@ -92,4 +92,4 @@ class DynamicsModel:
             code = integrate_rk4_ws(t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p,
                                     ig.fixed_step_s, self.stats, self._work, self._fbuf)
         if code != OK:
-            raise ModelInputError(f"model integration failed on [{t0_s!r}, {t1_s!r}] (code {code}), state {y.tolist()}")
+            raise ModelInputError(failure_message("observer model", t0_s, t1_s, code, y.tolist()))

@@ -80,7 +80,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["Stages", "SimResult", "build_stages", "run_closed_loop", "run_many", "STATUS_CODES", "PATHS"]
+__all__ = ["Stages", "SimResult", "build_stages", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES", "PATHS", "REPLACEABLE"]
 
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
@@ -185,17 +185,33 @@ def run_closed_loop(
     unknown = sorted(set(user) - set(REPLACEABLE))
     if unknown:
         raise ModelInputError(f"stages: unknown stage name(s) {unknown}; replaceable: {list(REPLACEABLE)}")
-    if user:
-        st = st._replace(**user)
-    builtin = all(type(getattr(st, name)) is cls for name, cls in _BUILTIN.items()) and not user
-    if path == "compiled" and not builtin:
-        raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {sorted(user)}")
+    return run_stages(scenario, st._replace(**user), seed, path=path)
+
+
+def run_stages(
+    scenario: Scenario,
+    stages: Stages,
+    seed: int | None = None,
+    *,
+    path: Literal["auto", "compiled", "per_tick"] = "auto",
+) -> SimResult:
+    """Run the loop over stages you built (:func:`build_stages`, then modified or replaced).
+
+    The compiled loop runs when every stage is an unmodified type of the
+    built-in ones (it reads their parameters and initial state); otherwise the
+    per-tick loop calls their methods.  ``seed`` only labels the metrics: the
+    imager's generator is the one in ``stages``.  See :func:`run_closed_loop`.
+    """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    if builtin and path != "per_tick":
-        inp = compiled_loop.prepare(st, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
-        return _compiled_result(scenario, seed, inp, st.imager.rng)
-    return _run_per_tick(scenario, seed, st)
+    foreign = sorted(name for name, cls in _BUILTIN.items() if type(getattr(stages, name)) is not cls)
+    compiled = not foreign and getattr(stages.controller, "model_params", None) is not None
+    if path == "compiled" and not compiled:
+        raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
+    if compiled and path != "per_tick":
+        inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
+        return _compiled_result(scenario, seed, inp, stages.imager.rng)
+    return _run_per_tick(scenario, seed, stages)
 
 
 def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.LoopInputs, rng: np.random.Generator,

@@ -48,7 +48,7 @@ from vesselbot_ros.control.high_gain_observer import (
 from vesselbot_ros.control.imager_model import imager_arrays, imager_frame
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import forces_into, nearest_wall_delta
-from vesselbot_ros.sim.integrator import OK, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["LoopInputs", "prepare", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS"]
 
@@ -288,11 +288,9 @@ def raise_for_code(code: int, tick: int, inp: LoopInputs, y: npt.NDArray[np.floa
                    err: npt.NDArray[np.float64]) -> None:
     """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``."""
     if code == PLANT_FAILED:
-        raise ModelInputError(f"plant integration failed on [{float(err[0])!r}, {float(err[1])!r}] "
-                              f"(code {int(err[2])}): state {y.tolist()}")
+        raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))
     if code == OBSERVER_FAILED:
-        raise ModelInputError(f"model integration failed on [{float(err[0])!r}, {float(err[1])!r}] "
-                              f"(code {int(err[2])}), state {obs_y.tolist()}")
+        raise ModelInputError(failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), obs_y.tolist()))
     if code == ESTIMATE_NONFINITE:
         raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:2].copy()!r}, z_hat={obs_y[2:].copy()!r}")
     if code == REFERENCE_NONFINITE:

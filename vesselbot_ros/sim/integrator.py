@@ -22,7 +22,10 @@ The contact loading/unloading state (``contact_arr``) is advanced by
 :func:`~vesselbot_ros.physics.kernel.update_contact` after every accepted
 step, with the nearest wall's ``delta``.
 
-Return codes: 0 = ok; 2 = non-finite state (1 is reserved).
+Return codes: 0 = ok; 1 = the step size collapsed (no progress in time, or more
+than :data:`MAX_STEPS_PER_CALL` steps over one period); 2 = a non-finite state
+(returned as soon as a step would accept one, so a NaN never loops on).
+:func:`failure_message` words them for the plant's and the observer's errors.
 """
 
 from __future__ import annotations
@@ -49,11 +52,22 @@ __all__ = [
     "OK",
     "STEP_TOO_SMALL",
     "NON_FINITE",
+    "MAX_STEPS_PER_CALL",
+    "failure_message",
 ]
 
 OK = 0
 STEP_TOO_SMALL = 1
 NON_FINITE = 2
+#: Steps (accepted + rejected) allowed in one call before it stops with STEP_TOO_SMALL: a normal
+#: control period takes tens to a few thousand, so this bounds a collapsing run to seconds, never a hang.
+MAX_STEPS_PER_CALL = 1_000_000
+CAUSES = {OK: "ok", STEP_TOO_SMALL: "step size collapsed", NON_FINITE: "non-finite state"}
+
+
+def failure_message(who: str, t0: float, t1: float, code: int, state: list[float]) -> str:
+    """One line naming the integration that failed, its interval (the tick) and the cause."""
+    return f"{who} integration failed on [{t0!r}, {t1!r}] (code {code}: {CAUSES.get(code, 'unknown')}): state {state}"
 
 @dataclasses.dataclass(frozen=True)
 class IntegratorParams:
@@ -168,12 +182,16 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
     h = min(max(h, h_min), h_max)
     _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
     stats[2] += 1
+    n_steps = 0
     while t < t1 - 1e-15 * max(1.0, abs(t1)):
         last = False
         hs = h
         if t + hs >= t1:
             hs = t1 - t
             last = True
+        n_steps += 1
+        if not t + hs > t or n_steps > MAX_STEPS_PER_CALL:
+            return STEP_TOO_SMALL, h
         for i in range(4):
             yt[i] = y[i] + hs * _A21 * k1[i]
         _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2, fbuf)
@@ -209,6 +227,10 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
             # delta = 0) cannot meet the tolerance at any step: accept at h_min
             stats[3] += 1
         if err <= 1.0 or forced:
+            if not (math.isfinite(yn[0]) and math.isfinite(yn[1]) and math.isfinite(yn[2]) and math.isfinite(yn[3])):
+                for i in range(4):
+                    y[i] = yn[i]
+                return NON_FINITE, h
             t = t1 if last else t + hs
             for i in range(4):
                 y[i] = yn[i]

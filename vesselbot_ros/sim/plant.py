@@ -19,7 +19,7 @@ import numpy.typing as npt
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, nearest_wall_delta, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 
@@ -140,7 +140,5 @@ class PlantSimulator:
             code = integrate_rk4_ws(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s,
                                     self.stats, self._work, self._fbuf)
         if code != OK:
-            raise ModelInputError(
-                f"plant integration failed on [{t0!r}, {t1!r}] (code {code}): state {self._y.tolist()}"
-            )
+            raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
         self._k += 1
