@@ -10,15 +10,14 @@ code (:data:`NUMBA_SOURCES`) and, when the hash differs from the stamp kept
 beside the caches, deletes every numba cache file of the package first.
 
 It runs when :mod:`vesselbot_ros` is imported (about 1 ms), before any
-compiled function can load its cache.  ``python -m vesselbot_ros.numba_cache``
-warms the cache (``tools/bootstrap.sh`` does it once per version of the code,
-so ``make run`` and ``make test`` start without compiling).
+compiled function can load its cache.  :func:`warm` fills the cache
+(``tools/bootstrap.sh`` calls it once per version of the compiled sources, so
+``make run``, ``make test`` and every node start without compiling).
 """
 
 from __future__ import annotations
 
 import hashlib
-import sys
 from pathlib import Path
 
 __all__ = ["NUMBA_SOURCES", "source_digest", "ensure_fresh", "warm"]
@@ -83,8 +82,3 @@ def warm() -> None:
         run_closed_loop(sc, path="per_tick")
         run_many(sc, [0, 1], workers=2)
 
-
-if __name__ == "__main__":
-    ensure_fresh()
-    warm()
-    sys.exit(0)
