@@ -61,8 +61,7 @@ fi
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
 #    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
 #    of other code on import; this only warms them).  About 1-2 min on a fresh machine.
-nb=$(hash_files requirements.txt $(find vesselbot_ros/physics vesselbot_ros/control vesselbot_ros/sim -maxdepth 1 -name '*.py' | LC_ALL=C sort) \
-     vesselbot_ros/blas_free.py vesselbot_ros/numba_cache.py)
+nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
 if ! fresh numba-cache "$nb"; then
   echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code)"
   rm -f "$stamps/numba-cache"

@@ -5,9 +5,12 @@ each module) is keyed on the *defining* file's modification time and size
 only.  Our compiled functions call and inline functions of other modules (the
 compiled loop inlines the kernel, the integrator and every stage), so an edit
 to one of those would leave stale machine code in the callers' caches.
-:func:`ensure_fresh` hashes the sources of every package that holds numba
-code (:data:`NUMBA_SOURCES`) and, when the hash differs from the stamp kept
-beside the caches, deletes every numba cache file of the package first.
+:func:`ensure_fresh` hashes every module of the package that mentions numba
+(:func:`numba_sources`: the compiled functions, the ``register_jitable``
+formulas they inline, and the constants they freeze all live in such modules)
+and, when the hash differs from the stamp kept beside the caches, deletes every
+numba cache file of the package first.  Editing a module without numba code
+(the runner's Python, the CLI, the nodes) keeps the cache.
 
 It runs when :mod:`vesselbot_ros` is imported (about 1 ms), before any
 compiled function can load its cache.  :func:`warm` fills the cache
@@ -20,26 +23,21 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-__all__ = ["NUMBA_SOURCES", "source_digest", "ensure_fresh", "warm"]
+__all__ = ["numba_sources", "source_digest", "ensure_fresh", "warm"]
 
 ROOT = Path(__file__).resolve().parent
-#: Folders (relative to the package) and files whose sources numba compiles.
-NUMBA_SOURCES = ("physics", "control", "sim", "blas_free.py", "numba_cache.py")
 STAMP_NAME = "numba.sources.sha256"
 
 
-def _sources(root: Path) -> list[Path]:
-    out: list[Path] = []
-    for entry in NUMBA_SOURCES:
-        p = root / entry
-        out.extend(sorted(p.glob("*.py")) if p.is_dir() else [p])
-    return [p for p in out if p.is_file()]
+def numba_sources(root: Path = ROOT) -> list[Path]:
+    """Every ``*.py`` below ``root`` whose text mentions ``numba``, sorted."""
+    return sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts and b"numba" in p.read_bytes())
 
 
 def source_digest(root: Path = ROOT) -> str:
     """SHA-256 over the names and bytes of every numba source of the package at ``root``."""
     h = hashlib.sha256()
-    for p in _sources(root):
+    for p in numba_sources(root):
         h.update(p.relative_to(root).as_posix().encode() + b"\0")
         h.update(p.read_bytes())
     return h.hexdigest()
@@ -56,9 +54,8 @@ def ensure_fresh(root: Path = ROOT) -> bool:
     try:
         if stamp.is_file() and stamp.read_text() == digest:
             return False
-        for d in [root, *(root / e for e in NUMBA_SOURCES if (root / e).is_dir())]:
-            for f in (d / "__pycache__").glob("*.nb[ic]"):
-                f.unlink(missing_ok=True)
+        for f in root.rglob("__pycache__/*.nb[ic]"):
+            f.unlink(missing_ok=True)
         stamp.parent.mkdir(exist_ok=True)
         tmp = stamp.with_suffix(".tmp")
         tmp.write_text(digest)
@@ -81,4 +78,3 @@ def warm() -> None:
         run_closed_loop(sc, path="compiled")
         run_closed_loop(sc, path="per_tick")
         run_many(sc, [0, 1], workers=2)
-

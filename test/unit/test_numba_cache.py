@@ -11,13 +11,13 @@ def _fake_package(root: Path) -> list[Path]:
     caches = []
     for d in ("physics", "control", "sim"):
         (root / d / "__pycache__").mkdir(parents=True)
-        (root / d / "mod.py").write_text(f"# {d}\n")
+        (root / d / "mod.py").write_text(f"import numba  # {d}\n")
         for ext in ("nbi", "nbc"):
             f = root / d / "__pycache__" / f"mod.fn-1.py311.{ext}"
             f.write_bytes(b"x")
             caches.append(f)
-    (root / "blas_free.py").write_text("# blas\n")
-    (root / "numba_cache.py").write_text("# stamp\n")
+    (root / "blas_free.py").write_text("import numba  # blas\n")
+    (root / "runner.py").write_text("# no compiled code here\n")
     (root / "__pycache__").mkdir()
     return caches
 
@@ -35,7 +35,9 @@ def test_cache_dropped_when_any_numba_source_changes(tmp_path: Path) -> None:
     assert numba_cache.ensure_fresh(tmp_path)
     assert not any(f.exists() for f in caches)
     assert not numba_cache.ensure_fresh(tmp_path)
-    (tmp_path / "blas_free.py").write_text("# blas, edited\n")
+    (tmp_path / "runner.py").write_text("# edited, still no compiled code\n")
+    assert not numba_cache.ensure_fresh(tmp_path)  # a module without numba code keeps the cache
+    (tmp_path / "blas_free.py").write_text("import numba  # blas, edited\n")
     assert numba_cache.ensure_fresh(tmp_path)
 
 

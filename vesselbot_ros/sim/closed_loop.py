@@ -335,7 +335,9 @@ def run_many(
         seeds: Imager seeds run for every scenario; ``None`` runs each
             scenario once with its own ``seed``.
         workers: Threads (the compiled loop releases the GIL); ``None`` uses
-            every core this process may run on, ``1`` runs in the caller's thread.
+            every core this process may run on, ``1`` runs in the caller's thread
+            (use 1 inside a task of an engine that already runs one task per
+            core, e.g. a Dask worker with ``nthreads`` = cores).
         keep_timeseries: Keep every run's time series (memory: ~0.5 MB per
             2000-tick run); by default rows carry metrics only.
 
