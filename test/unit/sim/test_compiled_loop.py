@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
+import os
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -161,3 +164,34 @@ def test_non_finite_measurement_is_rejected_the_same_way() -> None:
     a, b = run_closed_loop(sc, 0), run_closed_loop(sc, 0, path="per_tick")
     _assert_identical(a, b)
     assert np.count_nonzero(a.timeseries["meas_rejected"]) == 20 and np.all(np.isfinite(a.timeseries["x_hat"]))
+
+
+ALLOCATIONS = """
+import numpy as np
+from numba.core.runtime import rtsys
+from vesselbot_ros.sim import compiled_loop
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+sc = load_scenario(shipped_scenarios()["sound_small_artery"])
+for n in (50, 500):
+    inp = compiled_loop.prepare(build_stages(sc, 0), n, sc.sim.dt_control_s, False)
+    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    a = rtsys.get_allocation_stats()
+    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    b = rtsys.get_allocation_stats()
+    print(b.alloc - a.alloc, b.mi_alloc - a.mi_alloc)
+"""
+
+
+def test_the_compiled_loop_allocates_nothing_per_tick() -> None:
+    # numba's runtime counts its allocations when NUMBA_NRT_STATS=1: a run of 500 ticks makes exactly as many
+    # as a run of 50 (the scratch arrays allocated once before the first tick), so no tick allocates
+    import os
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", ALLOCATIONS], capture_output=True, text=True, timeout=600, check=True,
+                         env=dict(os.environ, NUMBA_NRT_STATS="1"))
+    short, long = out.stdout.split("\n")[:2]
+    assert short == long, out.stdout
+    assert 0 < int(short.split()[0]) < 100
