@@ -3,6 +3,7 @@
 #   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...)
 #   2. msg_defs/ (vesselbot_msgs) built with rosidl and installed into .venv
 #   3. vesselbot_ros installed in editable mode
+#   4. numba cache of the compiled stages and loop warmed (vesselbot_ros.numba_cache)
 # Each step is skipped when the sha256 of its inputs matches the stamp it left,
 # so a second call does nothing (well under 5 s).  A failing step leaves no stamp.
 set -euo pipefail
@@ -56,4 +57,15 @@ if ! fresh package "$pkg"; then
   quiet_pip install --no-deps --no-build-isolation -e .
   (cd / && "$venv/bin/python" -c "import vesselbot_ros.cli") || { echo "vesselbot bootstrap: vesselbot_ros does not import" >&2; exit 1; }
   mark package "$pkg"
+fi
+
+# 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
+#    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
+#    of other code on import; this only warms them).  About 1-2 min on a fresh machine.
+nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
+if ! fresh numba-cache "$nb"; then
+  echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code)"
+  rm -f "$stamps/numba-cache"
+  (cd / && "$venv/bin/python" -c "from vesselbot_ros.numba_cache import warm; warm()") || { echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1; }
+  mark numba-cache "$nb"
 fi

@@ -6,3 +6,7 @@ The physics (:mod:`vesselbot_ros.physics`) and control
 """
 
 __version__ = "0.1.0"
+
+from vesselbot_ros.numba_cache import ensure_fresh as _ensure_fresh_numba_cache
+
+_ensure_fresh_numba_cache()

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import make_interp_spline
 
-from vesselbot_ros.blas_free import interp_spline, interp_spline_fitpack, mat2, mat2_apply, mat2_inverse, solve
+from vesselbot_ros.blas_free import hypot2, interp_spline, interp_spline_fitpack, mat2, mat2_apply, mat2_inverse, solve
 from vesselbot_ros.errors import ModelInputError
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
@@ -81,3 +82,35 @@ def test_interp_spline_fitpack_is_the_not_a_knot_spline() -> None:
     np.testing.assert_allclose(ours(xx, 2), ref(xx, 2), rtol=0, atol=1e-7)
     with pytest.raises(ModelInputError, match="finite"):
         interp_spline_fitpack(x, np.where(x > 1.0, np.nan, y))
+
+
+@numba.njit(cache=True)
+def _hypot2_many(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = hypot2(x[i], y[i])
+    return out
+
+
+@numba.njit(cache=True)
+def _numba_hypot_many(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = math.hypot(x[i], y[i])
+    return out
+
+
+def test_hypot2_is_cpythons_math_hypot_double_for_double() -> None:
+    # the trap it exists for: numba's math.hypot (C library) differs from CPython's for ~0.3 % of inputs
+    rng = np.random.default_rng(18)
+    n = 300_000
+    x = rng.standard_normal(n) * 10.0 ** rng.integers(-300, 300, n)
+    y = rng.standard_normal(n) * 10.0 ** rng.integers(-300, 300, n)
+    near = rng.integers(0, 2, n).astype(bool)  # half the pairs of similar size (the coil's gradients)
+    y[near] = x[near] * rng.uniform(-3.0, 3.0, np.count_nonzero(near))
+    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1e-310, 1.7976931348623157e308, math.inf, -math.inf, math.nan, 3.0, 4.0]
+    xs = np.concatenate([x, np.repeat(special, len(special))])
+    ys = np.concatenate([y, np.tile(special, len(special))])
+    want = np.array([math.hypot(a, b) for a, b in zip(xs.tolist(), ys.tolist())])
+    np.testing.assert_array_equal(_hypot2_many(xs, ys), want)
+    assert np.count_nonzero(_numba_hypot_many(x, y) != want[:n]) > 0  # the trap is real on this machine

@@ -41,9 +41,11 @@ import dataclasses
 import math
 from typing import Literal, NamedTuple
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import hypot2
 from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ModelInputError
 
@@ -54,6 +56,10 @@ __all__ = [
     "CoilLimits",
     "CoilOutput",
     "CoilLimiter",
+    "coil_params",
+    "coil_apply",
+    "coil_slew_to",
+    "COIL_OUT_SIZE",
 ]
 
 #: Section III-C: ``U_sat = 80 mT/m``.
@@ -127,6 +133,91 @@ class CoilOutput(NamedTuple):
     rejected: bool
 
 
+# ---- compiled stage -------------------------------------------------------------------------------
+# params (4,) float64: [saturation (T/m), slew rate (T/m/s), per_axis (0/1), ramp_to_zero on reject (0/1)]
+# state (4,) float64: [applied x, applied z (T/m), t_prev (s), t_last_command (s)]
+# out (7,) float64: [applied x, applied z, k_scale, saturated, slew_limited x, slew_limited z, rejected]
+COIL_OUT_SIZE = 7
+
+
+def coil_params(limits: CoilLimits) -> npt.NDArray[np.float64]:
+    """The (4,) parameter vector of :func:`coil_apply` for ``limits``."""
+    return np.array([
+        float(limits.saturation_T_per_m),
+        float(limits.slew_rate_T_per_m_per_s),
+        1.0 if limits.saturation_norm == "per_axis" else 0.0,
+        1.0 if limits.on_reject == "ramp_to_zero" else 0.0,
+    ])
+
+
+@numba.njit(cache=True, nogil=True)
+def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]
+    """Move the applied gradient towards ``(tx, tz)`` (T/m) within ``S * dt``; flags into ``out[4:6]``.
+
+    The step is scaled uniformly (stays on the segment applied -> target).
+    """
+    s0 = tx - state[0]
+    s1 = tz - state[1]
+    max_step = prm[1] * dt
+    a0 = abs(s0)
+    a1 = abs(s1)
+    out[4] = 1.0 if a0 > max_step else 0.0
+    out[5] = 1.0 if a1 > max_step else 0.0
+    biggest = a0 if a0 >= a1 else a1
+    if biggest > max_step:
+        f = max_step / biggest
+        s0 = s0 * f
+        s1 = s1 * f
+    state[0] = state[0] + s0
+    state[1] = state[1] + s1
+    out[0] = state[0]
+    out[1] = state[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
+    """Saturate, then slew-limit the command ``(gx, gz)`` (T/m) at time ``t`` (s); see :class:`CoilLimiter`.
+
+    The caller checks that ``t`` is finite and not before ``state[2]``.  Writes
+    ``out`` (:data:`COIL_OUT_SIZE`,) and updates ``state``; allocates nothing.
+    """
+    dt = t - state[2]
+    if dt < 0.0:
+        dt = 0.0
+    state[2] = t
+    if not (math.isfinite(gx) and math.isfinite(gz)):
+        if prm[3] > 0.5:
+            coil_slew_to(prm, state, 0.0, 0.0, dt, out)
+        else:
+            coil_slew_to(prm, state, state[0], state[1], dt, out)
+        out[2] = 1.0
+        out[3] = 0.0
+        out[6] = 1.0
+        return
+    state[3] = t
+    g_sat = prm[0]
+    if prm[2] < 0.5:
+        k = hypot2(gx, gz) / g_sat  # CPython's math.hypot, double for double
+        if not k > 1.0:
+            k = 1.0
+        sx = gx / k
+        sz = gz / k
+    else:
+        kx = abs(gx) / g_sat
+        if not kx > 1.0:
+            kx = 1.0
+        kz = abs(gz) / g_sat
+        if not kz > 1.0:
+            kz = 1.0
+        sx = gx / kx
+        sz = gz / kz
+        k = kx if kx >= kz else kz
+    coil_slew_to(prm, state, sx, sz, dt, out)
+    out[2] = k
+    out[3] = 1.0 if k > 1.0 else 0.0
+    out[6] = 0.0
+
+
 class CoilLimiter:
     """Stateful saturation + slew limiter (the coil driver's pure core).
 
@@ -143,45 +234,38 @@ class CoilLimiter:
         if not math.isfinite(t0_s):
             raise ModelInputError(f"t0_s must be finite, got {t0_s!r}")
         self.limits = limits
-        self._g_sat = float(limits.saturation_T_per_m)
-        self._slew = float(limits.slew_rate_T_per_m_per_s)
-        self._applied = np.zeros(2)
-        self._t_prev = float(t0_s)
-        self._t_last_command = float(t0_s)
+        self._prm = coil_params(limits)
+        self._state = np.array([0.0, 0.0, float(t0_s), float(t0_s)])  # applied x, z, t_prev, t_last_command
+        self._out = np.zeros(COIL_OUT_SIZE)
 
     @property
     def applied(self) -> npt.NDArray[np.float64]:
         """(2,) last applied gradient, T/m (a copy)."""
-        return self._applied.copy()
+        return self._state[:2].copy()
+
+    @property
+    def state(self) -> npt.NDArray[np.float64]:
+        """(4,) copy of the compiled state: applied x, z (T/m), time of the last call and of the last command (s)."""
+        return self._state.copy()
 
     def reset(self, t0_s: float = 0.0) -> None:
         """Zero the coil at time ``t0_s``."""
-        self._applied = np.zeros(2)
-        self._t_prev = float(t0_s)
-        self._t_last_command = float(t0_s)
+        self._state[:] = (0.0, 0.0, float(t0_s), float(t0_s))
 
     def _dt(self, t_s: float) -> float:
         if not math.isfinite(t_s):
             raise ModelInputError(f"coil time must be finite, got {t_s!r}")
-        dt = t_s - self._t_prev
+        dt = t_s - self._state[2]
         if dt < -1e-12:
-            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {self._t_prev!r}")
+            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {float(self._state[2])!r}")
         return max(dt, 0.0)
 
-    def _slew_to(self, target: npt.NDArray[np.float64], dt: float) -> npt.NDArray[np.bool_]:
-        step = target - self._applied
-        max_step = self._slew * dt
-        a0, a1 = abs(step[0]), abs(step[1])
-        over = np.array((a0 > max_step, a1 > max_step))
-        biggest = a0 if a0 >= a1 else a1
-        if biggest > max_step:
-            # uniform scaling: stays on the segment applied -> target (convexity)
-            step = step * (max_step / biggest)
-        self._applied = self._applied + step
-        return over
+    def _output(self) -> CoilOutput:
+        o = self._out
+        return CoilOutput(o[:2].copy(), float(o[2]), bool(o[3] > 0.5), o[4:6] > 0.5, bool(o[6] > 0.5))
 
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
-        """Saturate, then slew-limit one command.
+        """Saturate, then slew-limit one command (the compiled :func:`coil_apply`).
 
         Args:
             t_s: Time of the command (s); must not go backwards.
@@ -198,22 +282,9 @@ class CoilLimiter:
         g = np.asarray(commanded_T_per_m, dtype=np.float64)
         if g.shape != (2,):
             raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
-        dt = self._dt(t_s)
-        self._t_prev = float(t_s)
-        if not (math.isfinite(g[0]) and math.isfinite(g[1])):
-            target = self._applied if self.limits.on_reject == "hold" else np.zeros(2)
-            over = self._slew_to(target, dt)
-            return CoilOutput(self._applied.copy(), 1.0, False, over, True)
-        self._t_last_command = float(t_s)
-        if self.limits.saturation_norm == "euclidean":
-            k = max(1.0, math.hypot(g[0], g[1]) / self._g_sat)
-            g_sat = g / k
-        else:
-            ks = np.maximum(1.0, np.abs(g) / self._g_sat)
-            g_sat = g / ks
-            k = float(np.max(ks))
-        over = self._slew_to(g_sat, dt)
-        return CoilOutput(self._applied.copy(), float(k), k > 1.0, over, False)
+        self._dt(t_s)
+        coil_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), self._out)
+        return self._output()
 
     def watchdog(self, t_now_s: float) -> CoilOutput | None:
         """Ramp to zero within the slew limit if commands stopped.
@@ -227,14 +298,17 @@ class CoilLimiter:
         """
         if not math.isfinite(t_now_s):
             raise ModelInputError(f"watchdog time must be finite, got {t_now_s!r}")
-        if t_now_s - self._t_last_command <= self.limits.command_timeout_s:
+        t_last_command = float(self._state[3])
+        if t_now_s - t_last_command <= self.limits.command_timeout_s:
             return None
         self._dt(t_now_s)  # checks that time does not go backwards
         # The output did not move while it was held for command_timeout_s, so that
         # interval is not slew time: the ramp starts when the timeout expires.
-        ramp_start = max(self._t_prev, self._t_last_command + self.limits.command_timeout_s)
+        ramp_start = max(float(self._state[2]), t_last_command + self.limits.command_timeout_s)
         dt = max(float(t_now_s) - ramp_start, 0.0)
-        self._t_prev = float(t_now_s)
-        over = self._slew_to(np.zeros(2), dt)
-        return CoilOutput(self._applied.copy(), 1.0, False, over, False)
-
+        self._state[2] = float(t_now_s)
+        coil_slew_to(self._prm, self._state, 0.0, 0.0, dt, self._out)
+        self._out[2] = 1.0
+        self._out[3] = 0.0
+        self._out[6] = 0.0
+        return self._output()

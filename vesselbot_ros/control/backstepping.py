@@ -33,14 +33,27 @@ import math
 from collections.abc import Callable
 from typing import Any, Literal, NamedTuple
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import I_MASS, forces_into
 
-__all__ = ["BacksteppingGains", "ControllerParams", "ControlCommand", "BacksteppingController", "backstepping_u"]
+__all__ = [
+    "BacksteppingGains",
+    "ControllerParams",
+    "ControlCommand",
+    "BacksteppingController",
+    "backstepping_u",
+    "controller_params",
+    "backstepping_command",
+    "STATUS_OK",
+    "STATUS_STALE",
+    "STATUS_NONFINITE",
+]
 
 ForceFn = Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]]
 
@@ -129,6 +142,80 @@ def backstepping_u(
     return a_ref + s * v_ref + c * p_ref - c * x - s * z - f
 
 
+# ---- compiled stage -------------------------------------------------------------------------------
+STATUS_OK, STATUS_STALE, STATUS_NONFINITE = 0, 1, 2
+_STATUS_NAMES = ("ok", "stale", "nonfinite")
+
+
+def controller_params(params: ControllerParams, b_inv: tuple[float, float, float, float], half_hold_s: float) -> npt.NDArray[np.float64]:
+    """(9,) parameter vector of :func:`backstepping_command`.
+
+    ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), B^-1 (4, row-major)]``.
+    """
+    return np.array([float(params.gains.k1), float(params.gains.k2), float(half_hold_s), float(params.stale_timeout_s),
+                     1.0 if params.stale_action == "hold" else 0.0, *b_inv])
+
+
+@numba.njit(cache=True, nogil=True)
+def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]
+    if prm[4] < 0.5:
+        last[0] = 0.0
+        last[1] = 0.0
+    out[0] = last[0]
+    out[1] = last[1]
+    out[2] = 0.0
+    out[3] = 0.0
+    return status
+
+
+@numba.njit(cache=True, nogil=True)
+def backstepping_command(prm, last, model_p, free_contact, fbuf, t, x0, x1, z0, z1, age, pr0, pr1, vr0, vr1, ar0, ar1, out):  # type: ignore[no-untyped-def]
+    """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model's packed parameters.
+
+    Args: prm (9,) from :func:`controller_params`; last (2,) last command (T/m),
+    updated; model_p packed model physics; free_contact (4,) zeros (memoryless
+    contact of ``F``); fbuf (8, 2) scratch; t (s); estimate x, z (m, m/s); age
+    (s); reference p, v, a.  Writes ``out`` = [g x, g z (T/m), U x, U z (m/s^2)].
+
+    Returns:
+        ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken).
+        The same doubles as :func:`backstepping_u` and ``blas_free.mat2_apply``.
+    """
+    if not age <= prm[3]:
+        return _safe_command(prm, last, out, STATUS_STALE)
+    k1 = prm[0]
+    k2 = prm[1]
+    s = k1 + k2
+    c = 1.0 + k1 * k2
+    h = prm[2]
+    m = model_p[I_MASS]
+    if h > 0.0:
+        a0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - 0.0
+        a1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - 0.0
+        hh = 0.5 * h * h
+        forces_into(t + h, x0 + h * z0 + hh * a0, x1 + h * z1 + hh * a1, z0 + h * a0, z1 + h * a1, 0.0, 0.0,
+                    free_contact, model_p, fbuf)
+        u0 = a0 - fbuf[7, 0] / m
+        u1 = a1 - fbuf[7, 1] / m
+    else:
+        forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, model_p, fbuf)
+        f0 = fbuf[7, 0] / m
+        f1 = fbuf[7, 1] / m
+        u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
+        u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
+    g0 = prm[5] * u0 + prm[6] * u1
+    g1 = prm[7] * u0 + prm[8] * u1
+    if not (math.isfinite(g0) and math.isfinite(g1)):
+        return _safe_command(prm, last, out, STATUS_NONFINITE)
+    last[0] = g0
+    last[1] = g1
+    out[0] = g0
+    out[1] = g1
+    out[2] = u0
+    out[3] = u1
+    return STATUS_OK
+
+
 class BacksteppingController:
     """Eq. (24) on the observer's estimate, mapped to a coil gradient.
 
@@ -165,15 +252,26 @@ class BacksteppingController:
         self._k2 = float(params.gains.k2)
         self._last = np.zeros(2)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
+        # F of a DynamicsModel is the kernel at its packed params: then the law runs compiled
+        # (backstepping_command), as in the compiled loop; any other force_fn runs in Python.
+        owner = getattr(force_fn, "__self__", None)
+        model_p = getattr(owner, "p", None)
+        self.model_params: npt.NDArray[np.float64] | None = (
+            model_p if getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) else None
+        )
+        self.params_vector = controller_params(params, b_inv, self._half)
+        self._out = np.zeros(4)
+        self._free = np.zeros(4)
+        self._fbuf = np.empty((8, 2))
 
     def reset(self) -> None:
         """Forget the last command (the ``hold`` action then holds zero)."""
-        self._last = np.zeros(2)
+        self._last[:] = 0.0
 
     def _safe(self, status: str) -> ControlCommand:
-        g = self._last.copy() if self.params.stale_action == "hold" else np.zeros(2)
-        self._last = g
-        return ControlCommand(g, np.zeros(2), status)
+        if self.params.stale_action != "hold":
+            self._last[:] = 0.0
+        return ControlCommand(self._last.copy(), np.zeros(2), status)
 
     def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
         """Compute the gradient command from an observer estimate and a reference sample.
@@ -226,6 +324,15 @@ class BacksteppingController:
         if not (math.isfinite(p_ref[0]) and math.isfinite(p_ref[1]) and math.isfinite(v_ref[0])
                 and math.isfinite(v_ref[1]) and math.isfinite(a_ref[0]) and math.isfinite(a_ref[1])):
             raise ModelInputError("controller: non-finite reference sample")
+        if self.model_params is not None:
+            status = backstepping_command(
+                self.params_vector, self._last, self.model_params, self._free, self._fbuf, float(t_s),
+                float(x_hat[0]), float(x_hat[1]), float(z_hat[0]), float(z_hat[1]), float(time_since_measurement_s),
+                float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]), float(a_ref[0]), float(a_ref[1]),
+                self._out,
+            )
+            o = self._out
+            return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
         if not time_since_measurement_s <= self.params.stale_timeout_s:
             return self._safe("stale")
         if self._half > 0.0:
@@ -239,5 +346,5 @@ class BacksteppingController:
         g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return self._safe("nonfinite")
-        self._last = g
+        self._last[:] = g
         return ControlCommand(g, u, "ok")

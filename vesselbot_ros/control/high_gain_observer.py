@@ -50,12 +50,17 @@ import math
 from collections import deque
 from typing import Any, Literal, NamedTuple, Protocol
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import mat2, mat2_apply
+from vesselbot_ros.blas_free import hypot2, mat2, mat2_apply
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
+
+#: Estimates kept for delay compensation (one per update).
+HISTORY_LEN = 4096
 
 __all__ = [
     "ObserverParams",
@@ -65,6 +70,10 @@ __all__ = [
     "linearised_error_matrix",
     "sampled_error_radius",
     "ObserverModel",
+    "HISTORY_LEN",
+    "observer_params",
+    "integrator_vector",
+    "observer_update",
 ]
 
 
@@ -235,8 +244,18 @@ class HighGainObserver:
         self._contact = model.new_contact_state()
         self._t_meas = -math.inf
         self._initialised = False
-        self._history: deque[tuple[float, float, float]] = deque(maxlen=4096)
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_LEN)
         self.rejected = 0
+        # A DynamicsModel is the kernel at packed params: then update() runs the compiled
+        # observer_update (as the compiled loop does); any other ObserverModel runs in Python.
+        self._compiled = all(hasattr(model, a) for a in ("p", "integrator", "stats", "_work", "_fbuf"))
+        if self._compiled:
+            self._prm = observer_params(params, self._b)
+            self._ig = integrator_vector(model.integrator)
+            self._scal = np.array([self._t, -math.inf, 0.0, model.integrator.max_step_s])
+            self._hist = np.empty((HISTORY_LEN, 3))
+            self._hist_n = np.zeros(2, dtype=np.int64)
+            self._out = np.zeros(9)
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
@@ -270,6 +289,8 @@ class HighGainObserver:
             raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
         if not math.isfinite(t_s) or t_s < self._t - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
+        if self._compiled:
+            return self._update_compiled(float(t_s), measurement, float(g[0]), float(g[1]))
         if t_s > self._t:
             self.model.propagate(self._t, t_s, self._y, np.array(mat2_apply(self._b, g[0], g[1])), self._contact)
             y = self._y
@@ -313,6 +334,28 @@ class HighGainObserver:
         age = self._t - self._t_meas
         return Estimate(self._t, self._y[:2].copy(), self._y[2:].copy(), age, innov, used, rejected)
 
+    def _update_compiled(self, t_s: float, measurement: Any | None, gx: float, gz: float) -> Estimate:
+        has = measurement is not None
+        t_acq, m0, m1 = math.nan, math.nan, math.nan
+        if has:
+            yp = np.asarray(measurement.p, dtype=np.float64)
+            t_acq = float(measurement.t_acq_s)
+            if yp.shape == (2,):
+                m0, m1 = float(yp[0]), float(yp[1])
+        m = self.model
+        t0 = self._t
+        code = observer_update(self._prm, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig, m.p,
+                               m.stats, m._work, m._fbuf, t_s, gx, gz, has, t_acq, m0, m1, self._out)
+        if code != OK:
+            raise ModelInputError(failure_message("observer model", t0, t_s, code, self._y.tolist()))
+        self._t = t_s
+        self._t_meas = float(self._scal[1])
+        self._initialised = bool(self._scal[2] > 0.5)
+        o = self._out
+        rejected = bool(o[8] > 0.5)
+        self.rejected += int(rejected)
+        return Estimate(self._t, o[0:2].copy(), o[2:4].copy(), float(o[4]), o[5:7].copy(), bool(o[7] > 0.5), rejected)
+
     def _estimate_at(self, t_acq: float) -> npt.NDArray[np.float64]:
         best = None
         for t, x, z in reversed(self._history):
@@ -322,3 +365,111 @@ class HighGainObserver:
         if best is None:
             return self._y[:2].copy()
         return np.array(best)
+
+
+# ---- compiled stage -------------------------------------------------------------------------------
+# params (11,): [kx x, kx z, kz x, kz z, B (4, row-major), delay_compensation, innovation_gate_m, init_from_first]
+# scal (4,): [t (s), t of the last accepted measurement (s, -inf before), initialised (0/1), next integrator step (s)]
+# y (4,) estimate (X, Z); contact (4,) model contact state; hist (HISTORY_LEN, 3) ring of (t, x, z) and
+# hist_n (2,) int64 [count, next slot]; ig (7,) from integrator_vector; stats (4,) int64 model integrator counters
+# out (9,): [x x, x z, z x, z z, time since measurement, innovation x, z, used (0/1), rejected (0/1)]
+
+
+def observer_params(params: ObserverParams, b: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
+    """(11,) parameter vector of :func:`observer_update` (gains as :class:`HighGainObserver` forms them)."""
+    gx, gz = axis_gains(params)
+    kx = params.high_gain * gx
+    kz = params.high_gain**2 * gz
+    return np.array([kx[0], kx[1], kz[0], kz[1], *b, 1.0 if params.delay_compensation else 0.0,
+                     float(params.innovation_gate_m), 1.0 if params.init_from_first_measurement else 0.0])
+
+
+def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
+    """(7,) ``[rk4 (0/1), rtol, atol_pos, atol_vel, min_step, max_step, fixed_step]`` for compiled stages."""
+    return np.array([1.0 if ig.method == "rk4" else 0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s,
+                     ig.min_step_s, ig.max_step_s, ig.fixed_step_s])
+
+
+@numba.njit(cache=True, nogil=True)
+def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf,  # type: ignore[no-untyped-def]
+                    t, gx, gz, has_meas, t_acq, m0, m1, out):
+    """:meth:`HighGainObserver.update` over explicit state (same doubles).
+
+    Predicts ``y`` from ``scal[0]`` to ``t`` under ``U = B (gx, gz)`` with the
+    model's integrator, then corrects with the measurement ``(m0, m1)``
+    acquired at ``t_acq`` if ``has_meas``.  The caller checks that ``t`` is
+    finite and not before ``scal[0]`` and that the gradient is finite.
+
+    Returns:
+        The model integrator's code (``OK`` = 0); on failure ``y`` holds the
+        state reached and nothing else changed.
+    """
+    if t > scal[0]:
+        ux = prm[4] * gx + prm[5] * gz
+        uz = prm[6] * gx + prm[7] * gz
+        if ig[0] < 0.5:
+            code, h = integrate_dopri5_ws(scal[0], t, y, 0.0, 0.0, ux, uz, contact, model_p, scal[3], ig[1], ig[2],
+                                          ig[3], ig[4], ig[5], stats, work, fbuf)
+            scal[3] = h
+        else:
+            code = integrate_rk4_ws(scal[0], t, y, 0.0, 0.0, ux, uz, contact, model_p, ig[6], stats, work, fbuf)
+        if code != OK:
+            return code
+    scal[0] = t
+    if prm[8] > 0.5:
+        j = hist_n[1]
+        hist[j, 0] = t
+        hist[j, 1] = y[0]
+        hist[j, 2] = y[1]
+        hist_n[1] = (j + 1) % hist.shape[0]
+        if hist_n[0] < hist.shape[0]:
+            hist_n[0] += 1
+    used = 0.0
+    rejected = 0.0
+    i0 = 0.0
+    i1 = 0.0
+    if has_meas:
+        if not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(t_acq)):
+            rejected = 1.0
+        elif scal[2] < 0.5 and prm[10] > 0.5:
+            y[0] = m0
+            y[1] = m1
+            scal[1] = t_acq
+            scal[2] = 1.0
+            used = 1.0
+        else:
+            r0 = y[0]
+            r1 = y[1]
+            if prm[8] > 0.5:  # the newest estimate stored at or before t_acq (else the oldest)
+                for i in range(hist_n[0]):
+                    j = (hist_n[1] - 1 - i) % hist.shape[0]
+                    r0 = hist[j, 1]
+                    r1 = hist[j, 2]
+                    if hist[j, 0] <= t_acq + 1e-9:
+                        break
+            i0 = r0 - m0
+            i1 = r1 - m1
+            if prm[9] > 0.0 and hypot2(i0, i1) > prm[9]:
+                rejected = 1.0
+                i0 = 0.0
+                i1 = 0.0
+            else:
+                tm = t_acq - scal[1] if math.isfinite(scal[1]) else 0.0
+                if tm > 0.0:
+                    y[0] = y[0] + tm * prm[0] * i0
+                    y[1] = y[1] + tm * prm[1] * i1
+                    y[2] = y[2] + tm * prm[2] * i0
+                    y[3] = y[3] + tm * prm[3] * i1
+                scal[1] = t_acq
+                scal[2] = 1.0
+                used = 1.0
+    out[0] = y[0]
+    out[1] = y[1]
+    out[2] = y[2]
+    out[3] = y[3]
+    out[4] = scal[0] - scal[1]
+    out[5] = i0
+    out[6] = i1
+    out[7] = used
+    out[8] = rejected
+    return OK

@@ -37,16 +37,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from typing import Literal, NamedTuple
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive, check_range
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel"]
+__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame"]
 
 _EPS_S = 1e-9  # tick-grid tolerance: a tick within 1 ns of a deadline counts as on time
 
@@ -152,16 +152,16 @@ class ImagerModel:
     def __init__(self, params: ImagerParams, rng: np.random.Generator) -> None:
         self.params = params
         self._rng = rng
-        self._period = 1.0 / params.frame_rate_Hz
-        self._n_next = 0
-        self._queue: deque[Measurement] = deque()
-        # (start, end, magnitude, fixed angle or None for a random angle per frame)
-        self._outliers: list[tuple[float, float, float, float | None]] = [
-            (o.start_s, o.start_s + o.duration_s, o.magnitude_m, o.angle_rad if o.direction == "fixed" else None)
-            for o in params.outliers
-        ]
-        self._dropouts: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s) for d in params.dropouts]
-        self._t_last = -math.inf
+        self._prm, self._outliers, self._dropouts = imager_arrays(params)
+        # compiled state: next frame slot, last tick time, queue head, queue tail (imager_frame)
+        self._state = np.array([0.0, -math.inf, 0.0, 0.0])
+        self._queue = np.empty((16, 4))
+        self._out = np.zeros(5)
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator the imager draws from (owned by the model)."""
+        return self._rng
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float,
                         angle_rad: float | None = None) -> None:
@@ -173,15 +173,17 @@ class ImagerModel:
         burst = OutlierBurst(start_s=start_s, duration_s=duration_s, magnitude_m=magnitude_m,
                              direction="random_per_frame" if angle_rad is None else "fixed",
                              angle_rad=0.0 if angle_rad is None else angle_rad)
-        self._outliers.append((burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m, angle_rad))
+        row = np.array([[burst.start_s, burst.start_s + burst.duration_s, burst.magnitude_m,
+                         math.nan if angle_rad is None else burst.angle_rad]])
+        self._outliers = np.concatenate([self._outliers, row])
 
     def inject_dropout(self, start_s: float, duration_s: float) -> None:
         """Add a dropout window at run time (same effect as a scheduled one)."""
         d = Dropout(start_s=start_s, duration_s=duration_s)
-        self._dropouts.append((d.start_s, d.start_s + d.duration_s))
+        self._dropouts = np.concatenate([self._dropouts, np.array([[d.start_s, d.start_s + d.duration_s]])])
 
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
-        """Acquire (if due) and deliver (if due) at tick ``t_s``.
+        """Acquire (if due) and deliver (if due) at tick ``t_s`` (the compiled :func:`imager_frame`).
 
         Args:
             t_s: Tick time (s), non-decreasing across calls.
@@ -197,28 +199,94 @@ class ImagerModel:
         p = np.asarray(p_true, dtype=np.float64)
         if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
             raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._t_last:
+        if not math.isfinite(t_s) or t_s < self._state[1]:
             raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
-        self._t_last = t_s
-        prm = self.params
-        if t_s + _EPS_S >= self._n_next * self._period:
-            # skip frames whose slot passed between ticks (ticks slower than frames)
-            self._n_next = int(math.floor((t_s + _EPS_S) / self._period)) + 1
-            noise = self._rng.standard_normal(2)
-            u_dir = self._rng.random()
-            u_drop = self._rng.random()
-            meas = p + prm.noise_sigma_m * noise
-            outlier = False
-            for a, b, mag, angle in self._outliers:
-                if a - _EPS_S <= t_s < b - _EPS_S:
-                    th = 2.0 * math.pi * u_dir if angle is None else angle
-                    meas = meas + mag * np.array([math.cos(th), math.sin(th)])
-                    outlier = True
+        st = self._state
+        waiting = int(st[3] - st[2])
+        if waiting + 1 >= self._queue.shape[0]:  # grow the ring, oldest first
+            cap = self._queue.shape[0]
+            order = (int(st[2]) + np.arange(waiting)) % cap
+            grown = np.empty((2 * cap, 4))
+            grown[:waiting] = self._queue[order]
+            self._queue = grown
+            st[2], st[3] = 0.0, float(waiting)
+        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._rng, float(t_s),
+                     float(p[0]), float(p[1]), self._out)
+        o = self._out
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(o[1]), o[2:4].copy(), bool(o[4] > 0.5))
+
+
+# ---- compiled stage -------------------------------------------------------------------------------
+# params (4,): [frame period (s), noise sigma (m), latency (s), dropout probability]
+# outliers (m, 4): [start, end, magnitude, fixed angle (rad) or NaN for a random angle per frame];
+# dropouts (m, 2): [start, end]
+# state (4,): [index of the next frame slot, time of the last call, queue head, queue tail]
+# queue (cap, 4): [t_acq, p x, p z, outlier] of frames acquired and not yet delivered
+# out (5,): [delivered (0/1), t_acq, p x, p z, outlier]
+
+
+def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
+    """``(params (4,), outliers (m, 4), dropouts (m, 2))`` of :func:`imager_frame`."""
+    prm = np.array([1.0 / params.frame_rate_Hz, float(params.noise_sigma_m), float(params.latency_s),
+                    float(params.dropout_probability)])
+    out = np.array([(o.start_s, o.start_s + o.duration_s, o.magnitude_m,
+                     o.angle_rad if o.direction == "fixed" else math.nan) for o in params.outliers],
+                   dtype=np.float64).reshape(-1, 4)
+    drop = np.array([(d.start_s, d.start_s + d.duration_s) for d in params.dropouts], dtype=np.float64).reshape(-1, 2)
+    return prm, out, drop
+
+
+@numba.njit(cache=True, nogil=True)
+def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
+    """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles).
+
+    The caller checks that ``t`` and ``(px, pz)`` are finite and that time does
+    not go backwards, and sizes ``queue`` for every frame that can wait
+    (one row per tick is always enough).  Draws from ``rng`` (a
+    ``numpy.random.Generator``) in the documented order: two standard normals,
+    two uniforms per acquired frame.  Writes ``out``; allocates nothing.
+    """
+    state[1] = t
+    period = prm[0]
+    if t + _EPS_S >= state[0] * period:
+        state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
+        n0 = rng.standard_normal()
+        n1 = rng.standard_normal()
+        u_dir = rng.random()
+        u_drop = rng.random()
+        m0 = px + prm[1] * n0
+        m1 = pz + prm[1] * n1
+        outlier = 0.0
+        for i in range(outliers.shape[0]):
+            if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
+                th = 2.0 * math.pi * u_dir if math.isnan(outliers[i, 3]) else outliers[i, 3]
+                m0 = m0 + outliers[i, 2] * math.cos(th)
+                m1 = m1 + outliers[i, 2] * math.sin(th)
+                outlier = 1.0
+                break
+        dropped = u_drop < prm[3]
+        if not dropped:
+            for i in range(dropouts.shape[0]):
+                if dropouts[i, 0] - _EPS_S <= t < dropouts[i, 1] - _EPS_S:
+                    dropped = True
                     break
-            dropped = u_drop < prm.dropout_probability or any(a - _EPS_S <= t_s < b - _EPS_S for a, b in self._dropouts)
-            if not dropped:
-                self._queue.append(Measurement(float(t_s), meas, outlier))
-        out: Measurement | None = None
-        while self._queue and self._queue[0].t_acq_s + prm.latency_s <= t_s + _EPS_S:
-            out = self._queue.popleft()
-        return out
+        if not dropped:
+            j = int(state[3]) % queue.shape[0]
+            queue[j, 0] = t
+            queue[j, 1] = m0
+            queue[j, 2] = m1
+            queue[j, 3] = outlier
+            state[3] += 1.0
+    out[0] = 0.0
+    while state[2] < state[3]:
+        j = int(state[2]) % queue.shape[0]
+        if not queue[j, 0] + prm[2] <= t + _EPS_S:
+            break
+        out[0] = 1.0
+        out[1] = queue[j, 0]
+        out[2] = queue[j, 1]
+        out[3] = queue[j, 2]
+        out[4] = queue[j, 3]
+        state[2] += 1.0

@@ -22,7 +22,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import accel_no_motive, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5, integrate_rk4
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["DynamicsModel"]
 
@@ -49,6 +49,7 @@ class DynamicsModel:
         self._free = np.zeros(4)
         self._h = self.integrator.max_step_s
         self.stats = np.zeros(4, dtype=np.int64)
+        self._work, self._fbuf = new_workspace()  # integrator scratch, allocated once
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
@@ -82,12 +83,13 @@ class DynamicsModel:
         """
         ig = self.integrator
         if ig.method == "dopri5":
-            code, self._h = integrate_dopri5(
+            code, self._h = integrate_dopri5_ws(
                 t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p, self._h,
                 ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
+                self._work, self._fbuf,
             )
         else:
-            code = integrate_rk4(t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p,
-                                 ig.fixed_step_s, self.stats)
+            code = integrate_rk4_ws(t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p,
+                                    ig.fixed_step_s, self.stats, self._work, self._fbuf)
         if code != OK:
-            raise ModelInputError(f"model integration failed on [{t0_s!r}, {t1_s!r}] (code {code}), state {y.tolist()}")
+            raise ModelInputError(failure_message("observer model", t0_s, t1_s, code, y.tolist()))

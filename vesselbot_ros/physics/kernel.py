@@ -21,8 +21,6 @@ diameter ratio below 1).
 from __future__ import annotations
 
 import functools
-import hashlib
-from pathlib import Path
 
 import numba
 import numpy as np
@@ -52,31 +50,8 @@ from vesselbot_ros.physics.wall_interactions import (
 
 
 
-def _invalidate_stale_cache() -> None:
-    """Drop this module's numba cache when a module it inlines has changed.
-
-    numba's on-disk cache is keyed on this file only, but the kernel inlines
-    the register_jitable formulas of the concept modules: a stamp of their
-    sources, kept beside the cache, detects edits to them.
-    """
-    here = Path(__file__).resolve().parent
-    deps = ("kernel.py", "apparent_weight.py", "drag.py", "blood_flow.py", "bifurcation.py", "wall_contact.py",
-            "wall_interactions.py", "magnetic_force.py")
-    digest = hashlib.sha256(b"".join((here / d).read_bytes() for d in deps)).hexdigest()
-    cache_dir = here / "__pycache__"
-    stamp = cache_dir / "kernel.deps.sha256"
-    try:
-        if stamp.is_file() and stamp.read_text() == digest:
-            return
-        for f in cache_dir.glob("kernel.*.nb[ic]"):
-            f.unlink()
-        cache_dir.mkdir(exist_ok=True)
-        stamp.write_text(digest)
-    except OSError:  # read-only install: numba then uses its own user cache
-        pass
-
-
-_invalidate_stale_cache()
+# numba's cache of this module (and of every module that inlines it) is dropped when any numba
+# source changes: vesselbot_ros.numba_cache, run on package import.
 
 __all__ = [
     "TERM_NAMES",

@@ -22,7 +22,10 @@ The contact loading/unloading state (``contact_arr``) is advanced by
 :func:`~vesselbot_ros.physics.kernel.update_contact` after every accepted
 step, with the nearest wall's ``delta``.
 
-Return codes: 0 = ok; 2 = non-finite state (1 is reserved).
+Return codes: 0 = ok; 1 = the step size collapsed (no progress in time, or more
+than :data:`MAX_STEPS_PER_CALL` steps over one period); 2 = a non-finite state
+(returned as soon as a step would accept one, so a NaN never loops on).
+:func:`failure_message` words them for the plant's and the observer's errors.
 """
 
 from __future__ import annotations
@@ -36,13 +39,35 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 
-from vesselbot_ros.physics.kernel import accel, nearest_wall_delta, update_contact
+from vesselbot_ros.physics.kernel import I_MASS, forces_into, nearest_wall_delta, update_contact
 
-__all__ = ["IntegratorParams", "integrate_dopri5", "integrate_rk4", "OK", "STEP_TOO_SMALL", "NON_FINITE"]
+__all__ = [
+    "IntegratorParams",
+    "Workspace",
+    "new_workspace",
+    "integrate_dopri5",
+    "integrate_dopri5_ws",
+    "integrate_rk4",
+    "integrate_rk4_ws",
+    "OK",
+    "STEP_TOO_SMALL",
+    "NON_FINITE",
+    "MAX_STEPS_PER_CALL",
+    "failure_message",
+]
 
 OK = 0
 STEP_TOO_SMALL = 1
 NON_FINITE = 2
+#: Steps (accepted + rejected) allowed in one call before it stops with STEP_TOO_SMALL: a normal
+#: control period takes tens to a few thousand, so this bounds a collapsing run to seconds, never a hang.
+MAX_STEPS_PER_CALL = 1_000_000
+CAUSES = {OK: "ok", STEP_TOO_SMALL: "step size collapsed", NON_FINITE: "non-finite state"}
+
+
+def failure_message(who: str, t0: float, t1: float, code: int, state: list[float]) -> str:
+    """One line naming the integration that failed, its interval (the tick) and the cause."""
+    return f"{who} integration failed on [{t0!r}, {t1!r}] (code {code}: {CAUSES.get(code, 'unknown')}): state {state}"
 
 @dataclasses.dataclass(frozen=True)
 class IntegratorParams:
@@ -84,6 +109,16 @@ class IntegratorParams:
 
 
 
+#: Scratch arrays of one integrator: ``(work (9, 4), fbuf (8, 2))`` float64.
+Workspace = tuple[np.ndarray, np.ndarray]
+
+
+@numba.njit(cache=True)
+def new_workspace():  # type: ignore[no-untyped-def]
+    """``(work, fbuf)``: the scratch arrays :func:`integrate_dopri5_ws` and :func:`integrate_rk4_ws` write into."""
+    return np.empty((9, 4)), np.empty((8, 2))
+
+
 # Dormand-Prince 5(4) tableau
 _C2, _C3, _C4, _C5 = 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0
 _A21 = 1.0 / 5.0
@@ -101,12 +136,13 @@ _E7 = -1.0 / 40.0
 
 
 @numba.njit(cache=True)
-def _rhs(t, y, gx, gz, ux, uz, contact, p, out):  # type: ignore[no-untyped-def]
-    ax, az = accel(t, y[0], y[1], y[2], y[3], gx, gz, contact, p)
+def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf):  # type: ignore[no-untyped-def]
+    # the kernel's accel() without its (8, 2) scratch: same operations, same doubles
+    forces_into(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf)
     out[0] = y[2]
     out[1] = y[3]
-    out[2] = ax + ux
-    out[3] = az + uz
+    out[2] = fbuf[7, 0] / p[I_MASS] + ux
+    out[3] = fbuf[7, 1] / p[I_MASS] + uz
 
 
 @numba.njit(cache=True)
@@ -116,7 +152,7 @@ def _update_contact_at(t, y, contact, p):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats):  # type: ignore[no-untyped-def]
+def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats, work, fbuf):  # type: ignore[no-untyped-def]
     """Integrate ``y = (x, z, vx, vz)`` in place from ``t0`` to ``t1`` (s).
 
     Args: t0, t1 (s); y (4,) float64, overwritten; gx, gz gradient (T/m);
@@ -127,46 +163,53 @@ def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, a
     at ``h_min`` is accepted and counted as forced (the tolerance cannot be met
     across a jump of the right-hand side).
 
+    ``work`` (9, 4) and ``fbuf`` (8, 2) float64 are scratch arrays the caller
+    allocates once (:func:`new_workspace`): nothing is allocated here.
+
     Returns:
         (code, h_next): return code and the step size to propose next period.
     """
-    k1 = np.empty(4)
-    k2 = np.empty(4)
-    k3 = np.empty(4)
-    k4 = np.empty(4)
-    k5 = np.empty(4)
-    k6 = np.empty(4)
-    k7 = np.empty(4)
-    yt = np.empty(4)
-    yn = np.empty(4)
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    k5 = work[4]
+    k6 = work[5]
+    k7 = work[6]
+    yt = work[7]
+    yn = work[8]
     t = t0
     h = min(max(h, h_min), h_max)
-    _rhs(t, y, gx, gz, ux, uz, contact, p, k1)
+    _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
     stats[2] += 1
+    n_steps = 0
     while t < t1 - 1e-15 * max(1.0, abs(t1)):
         last = False
         hs = h
         if t + hs >= t1:
             hs = t1 - t
             last = True
+        n_steps += 1
+        if not t + hs > t or n_steps > MAX_STEPS_PER_CALL:
+            return STEP_TOO_SMALL, h
         for i in range(4):
             yt[i] = y[i] + hs * _A21 * k1[i]
-        _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2)
+        _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2, fbuf)
         for i in range(4):
             yt[i] = y[i] + hs * (_A31 * k1[i] + _A32 * k2[i])
-        _rhs(t + _C3 * hs, yt, gx, gz, ux, uz, contact, p, k3)
+        _rhs(t + _C3 * hs, yt, gx, gz, ux, uz, contact, p, k3, fbuf)
         for i in range(4):
             yt[i] = y[i] + hs * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
-        _rhs(t + _C4 * hs, yt, gx, gz, ux, uz, contact, p, k4)
+        _rhs(t + _C4 * hs, yt, gx, gz, ux, uz, contact, p, k4, fbuf)
         for i in range(4):
             yt[i] = y[i] + hs * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
-        _rhs(t + _C5 * hs, yt, gx, gz, ux, uz, contact, p, k5)
+        _rhs(t + _C5 * hs, yt, gx, gz, ux, uz, contact, p, k5, fbuf)
         for i in range(4):
             yt[i] = y[i] + hs * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
-        _rhs(t + hs, yt, gx, gz, ux, uz, contact, p, k6)
+        _rhs(t + hs, yt, gx, gz, ux, uz, contact, p, k6, fbuf)
         for i in range(4):
             yn[i] = y[i] + hs * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
-        _rhs(t + hs, yn, gx, gz, ux, uz, contact, p, k7)
+        _rhs(t + hs, yn, gx, gz, ux, uz, contact, p, k7, fbuf)
         stats[2] += 6
         err = 0.0
         for i in range(4):
@@ -184,6 +227,10 @@ def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, a
             # delta = 0) cannot meet the tolerance at any step: accept at h_min
             stats[3] += 1
         if err <= 1.0 or forced:
+            if not (math.isfinite(yn[0]) and math.isfinite(yn[1]) and math.isfinite(yn[2]) and math.isfinite(yn[3])):
+                for i in range(4):
+                    y[i] = yn[i]
+                return NON_FINITE, h
             t = t1 if last else t + hs
             for i in range(4):
                 y[i] = yn[i]
@@ -194,7 +241,7 @@ def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, a
                 for i in range(4):  # FSAL: last stage is the next first stage
                     k1[i] = k7[i]
             else:  # the contact state changed the rhs: re-evaluate
-                _rhs(t, y, gx, gz, ux, uz, contact, p, k1)
+                _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
                 stats[2] += 1
             fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** -0.2))
             if not last or hs >= h:
@@ -209,32 +256,40 @@ def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, a
 
 
 @numba.njit(cache=True)
-def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # type: ignore[no-untyped-def]
+def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats):  # type: ignore[no-untyped-def]
+    """:func:`integrate_dopri5_ws` with a workspace allocated for this call (convenience)."""
+    work, fbuf = new_workspace()
+    return integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max,
+                               stats, work, fbuf)
+
+
+@numba.njit(cache=True)
+def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf):  # type: ignore[no-untyped-def]
     """Fixed-step RK4 from ``t0`` to ``t1`` with ``ceil((t1-t0)/h_fixed)`` equal steps.
 
-    Same arguments as :func:`integrate_dopri5`; returns the code.
+    Same arguments as :func:`integrate_dopri5_ws`; returns the code.
     """
     n = int(math.ceil((t1 - t0) / h_fixed - 1e-9))
     if n < 1:
         n = 1
     h = (t1 - t0) / n
-    k1 = np.empty(4)
-    k2 = np.empty(4)
-    k3 = np.empty(4)
-    k4 = np.empty(4)
-    yt = np.empty(4)
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    yt = work[7]
     for j in range(n):
         t = t0 + j * h
-        _rhs(t, y, gx, gz, ux, uz, contact, p, k1)
+        _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
         for i in range(4):
             yt[i] = y[i] + 0.5 * h * k1[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k2)
+        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k2, fbuf)
         for i in range(4):
             yt[i] = y[i] + 0.5 * h * k2[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k3)
+        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k3, fbuf)
         for i in range(4):
             yt[i] = y[i] + h * k3[i]
-        _rhs(t + h, yt, gx, gz, ux, uz, contact, p, k4)
+        _rhs(t + h, yt, gx, gz, ux, uz, contact, p, k4, fbuf)
         for i in range(4):
             y[i] = y[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         _update_contact_at(t + h, y, contact, p)
@@ -244,3 +299,10 @@ def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # typ
         if not math.isfinite(y[i]):
             return NON_FINITE
     return OK
+
+
+@numba.njit(cache=True)
+def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # type: ignore[no-untyped-def]
+    """:func:`integrate_rk4_ws` with a workspace allocated for this call (convenience)."""
+    work, fbuf = new_workspace()
+    return integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf)

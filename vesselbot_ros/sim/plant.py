@@ -19,7 +19,7 @@ import numpy.typing as npt
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, nearest_wall_delta, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, integrate_dopri5, integrate_rk4
+from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 
@@ -86,6 +86,7 @@ class PlantSimulator:
         self._g = np.zeros(2)
         self._h = integrator.max_step_s
         self._forces = np.empty((8, 2))
+        self._work, self._fbuf = new_workspace()  # integrator scratch, allocated once
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
 
     @property
@@ -130,14 +131,14 @@ class PlantSimulator:
         t1 = self._t0 + (self._k + 1) * self._dt
         ig = self.integrator
         if ig.method == "dopri5":
-            code, self._h = integrate_dopri5(
+            code, self._h = integrate_dopri5_ws(
                 t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, self._h,
                 ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
+                self._work, self._fbuf,
             )
         else:
-            code = integrate_rk4(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s, self.stats)
+            code = integrate_rk4_ws(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s,
+                                    self.stats, self._work, self._fbuf)
         if code != OK:
-            raise ModelInputError(
-                f"plant integration failed on [{t0!r}, {t1!r}] (code {code}): state {self._y.tolist()}"
-            )
+            raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
         self._k += 1

@@ -1,0 +1,197 @@
+"""The compiled closed loop against the per-tick loop: bit for bit, batches, user stages, bad input."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+import os
+import subprocess
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
+from vesselbot_ros.control.backstepping import ControlCommand
+from vesselbot_ros.control.imager_model import Dropout
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import I_D0_RATIO
+from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
+from vesselbot_ros.sim.fingerprint import fingerprint
+from vesselbot_ros.sim.integrator import IntegratorParams
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
+
+SEEDS = range(5)
+
+
+def _assert_identical(a: SimResult, b: SimResult) -> None:
+    assert sorted(a.timeseries) == sorted(b.timeseries)
+    for k, v in a.timeseries.items():
+        w = b.timeseries[k]
+        assert v.dtype == w.dtype and v.shape == w.shape, k
+        np.testing.assert_array_equal(v, w, err_msg=k)  # NaN == NaN here, nothing else is forgiven
+    assert sorted(a.metrics) == sorted(b.metrics)
+    for k, v in a.metrics.items():
+        assert repr(v) == repr(b.metrics[k]), (k, v, b.metrics[k])  # repr round-trips every double
+    assert fingerprint(a) == fingerprint(b)
+
+
+@pytest.mark.parametrize("name", sorted(shipped_scenarios()))
+def test_compiled_equals_per_tick_on_every_column_metric_and_statistic(name: str) -> None:
+    scenario = load_scenario(shipped_scenarios()[name])
+    for seed in SEEDS:
+        compiled = run_closed_loop(scenario, seed)
+        per_tick = run_closed_loop(scenario, seed, path="per_tick")
+        assert (compiled.path, per_tick.path) == ("compiled", "per_tick")
+        _assert_identical(compiled, per_tick)
+        # the run statistics are part of the metrics; make sure they are not trivially zero
+        assert compiled.metrics["plant_rhs_evals"] > 0 and compiled.metrics["observer_rhs_evals"] > 0
+
+
+def _short(s: Scenario, duration: float = 0.25) -> Scenario:
+    return dc.replace(s, sim=dc.replace(s.sim, duration_s=duration, metrics_after_s=0.4 * duration))
+
+
+def _variants() -> dict[str, Scenario]:
+    """Branches the shipped scenarios do not take: forces, per-axis saturation, hold, 50 Hz + latency + dropouts + gate
+    + delay compensation, fixed-step RK4, flow-synchronised reference."""
+    sound = _short(load_scenario(shipped_scenarios()["sound_small_artery"]))
+    paper = _short(load_scenario(shipped_scenarios()["paper_small_artery"]))
+    return {
+        "forces_per_axis_hold": dc.replace(
+            paper, sim=dc.replace(paper.sim, record_forces=True), coil=dc.replace(paper.coil, saturation_norm="per_axis"),
+            controller=dc.replace(paper.controller, stale_action="hold", stale_timeout_s=0.015),
+            imager=dc.replace(paper.imager, frame_rate_Hz=50.0, dropouts=(Dropout(start_s=0.05, duration_s=0.05),))),
+        "mri_50Hz_latency_gate_delay": dc.replace(
+            sound, imager=dc.replace(sound.imager, frame_rate_Hz=50.0, latency_s=0.03, dropout_probability=0.2,
+                                     outliers=(dc.replace(sound.imager.outliers[0], start_s=0.1, duration_s=0.05),)),
+            observer=dc.replace(sound.observer, delay_compensation=True, innovation_gate_m=5e-4)),
+        "rk4_flow_sync": dc.replace(
+            sound, sim=dc.replace(sound.sim, integrator=IntegratorParams(method="rk4", fixed_step_s=2e-4)),
+            reference=dc.replace(sound.reference, timing="flow_synchronised", duration_s=0.25)),
+    }
+
+
+@pytest.mark.parametrize("variant", sorted(_variants()))
+def test_compiled_equals_per_tick_on_other_branches(variant: str) -> None:
+    scenario = _variants()[variant]
+    for seed in (0, 1):
+        _assert_identical(run_closed_loop(scenario, seed), run_closed_loop(scenario, seed, path="per_tick"))
+    res = run_closed_loop(scenario, 0)
+    ts = res.timeseries
+    if variant == "forces_per_axis_hold":
+        assert ts["forces"].shape == (res.metrics["n_ticks"], 8, 2)
+        assert np.any(ts["cmd_status"] == 1)  # stale -> hold during the dropout
+    if variant == "mri_50Hz_latency_gate_delay":
+        assert np.any(ts["meas_rejected"]) and np.count_nonzero(np.isfinite(ts["meas_t_acq_s"])) < 20
+
+
+def test_batch_rows_equal_single_runs() -> None:
+    variants = _variants()
+    scenarios = [variants["mri_50Hz_latency_gate_delay"], variants["forces_per_axis_hold"]]
+    rows = run_many(scenarios, [3, 0, 7], workers=2, keep_timeseries=True)
+    assert [(r.metrics["scenario"], r.metrics["seed"]) for r in rows] == [
+        (s.name, seed) for s in scenarios for seed in (3, 0, 7)]
+    for row, (s, seed) in zip(rows, [(s, seed) for s in scenarios for seed in (3, 0, 7)]):
+        assert row.path == "compiled"
+        _assert_identical(row, run_closed_loop(s, seed))
+    lean = run_many(scenarios[0], [3, 0], workers=1)
+    assert lean[0].timeseries == {} and lean[1].timeseries == {}
+    assert [repr(r.metrics) for r in lean] == [repr(r.metrics) for r in rows[:2]]
+    assert run_many(scenarios[0])[0].metrics["seed"] == scenarios[0].seed
+
+
+class PlainPythonLaw:
+    """A user's controller: eq. (24) written out in Python floats, F from the model (no project stage code)."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        model = build_stages(scenario).model
+        self.F = model.F
+        self.b_inv = mat2_inverse(mat2(model.input_matrix))
+        self.k1, self.k2 = scenario.controller.gains.k1, scenario.controller.gains.k2
+        self.timeout = scenario.controller.stale_timeout_s
+        self.calls = 0
+
+    def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
+        self.calls += 1
+        if not estimate.time_since_measurement_s <= self.timeout:
+            return ControlCommand(np.zeros(2), np.zeros(2), "stale")
+        x, z = estimate.x_hat, estimate.z_hat
+        f = self.F(t_s, x, z)
+        s, c = self.k1 + self.k2, 1.0 + self.k1 * self.k2
+        u = [float(ref.a[i]) + s * float(ref.v[i]) + c * float(ref.p[i]) - c * float(x[i]) - s * float(z[i]) - float(f[i])
+             for i in range(2)]
+        g = mat2_apply(self.b_inv, u[0], u[1])
+        if not (math.isfinite(g[0]) and math.isfinite(g[1])):
+            return ControlCommand(np.zeros(2), np.zeros(2), "nonfinite")
+        return ControlCommand(np.array(g), np.array(u), "ok")
+
+
+def test_user_python_controller_runs_per_tick_and_gives_the_built_in_numbers() -> None:
+    scenario = load_scenario(shipped_scenarios()["paper_small_artery"])  # law (24) as printed: F at the tick
+    for seed in (0, 1):
+        law = PlainPythonLaw(scenario)
+        user = run_closed_loop(scenario, seed, stages={"controller": law})
+        assert user.path == "per_tick" and law.calls == scenario.sim.n_ticks
+        _assert_identical(user, run_closed_loop(scenario, seed))
+    with pytest.raises(ModelInputError, match="path='compiled' needs the built-in stages"):
+        run_closed_loop(scenario, 0, stages={"controller": PlainPythonLaw(scenario)}, path="compiled")
+    with pytest.raises(ModelInputError, match="unknown stage name"):
+        run_closed_loop(scenario, 0, stages={"planner": object()})
+
+
+def test_non_finite_state_inside_the_loop_ends_with_the_per_tick_error() -> None:
+    # a NaN permanent-deformation ratio: harmless until the first wall contact ends (tick 94 here), then NaN
+    scenario = _short(load_scenario(shipped_scenarios()["paper_small_artery"]), 0.3)
+    messages = []
+    for path in ("compiled", "per_tick"):
+        st = build_stages(scenario, 0)
+        bad = st.plant.p.copy()
+        bad[I_D0_RATIO] = np.nan
+        st.plant.p = bad
+        with pytest.raises(ModelInputError, match=r"tick \d\d+: plant integration failed on \[0\.\d+, 0\.\d+\] \(code 2: non-finite state\): state \[nan") as exc:
+            run_stages(scenario, st, 0, path=path)
+        messages.append(str(exc.value))
+    assert messages[0] == messages[1]
+
+
+def test_non_finite_measurement_is_rejected_the_same_way() -> None:
+    sc = _short(load_scenario(shipped_scenarios()["sound_small_artery"]), 0.05)
+    burst = dc.replace(sc.imager.outliers[0], start_s=0.01)
+    object.__setattr__(burst, "magnitude_m", math.inf)  # past validation: an imager gone mad
+    sc = dc.replace(sc, imager=dc.replace(sc.imager, outliers=(burst,)))
+    a, b = run_closed_loop(sc, 0), run_closed_loop(sc, 0, path="per_tick")
+    _assert_identical(a, b)
+    assert np.count_nonzero(a.timeseries["meas_rejected"]) == 20 and np.all(np.isfinite(a.timeseries["x_hat"]))
+
+
+ALLOCATIONS = """
+import numpy as np
+from numba.core.runtime import rtsys
+from vesselbot_ros.sim import compiled_loop
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+sc = load_scenario(shipped_scenarios()["sound_small_artery"])
+for n in (50, 500):
+    inp = compiled_loop.prepare(build_stages(sc, 0), n, sc.sim.dt_control_s, False)
+    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    a = rtsys.get_allocation_stats()
+    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    b = rtsys.get_allocation_stats()
+    print(b.alloc - a.alloc, b.mi_alloc - a.mi_alloc)
+"""
+
+
+def test_the_compiled_loop_allocates_nothing_per_tick() -> None:
+    # numba's runtime counts its allocations when NUMBA_NRT_STATS=1: a run of 500 ticks makes exactly as many
+    # as a run of 50 (the scratch arrays allocated once before the first tick), so no tick allocates
+    import os
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", ALLOCATIONS], capture_output=True, text=True, timeout=600, check=True,
+                         env=dict(os.environ, NUMBA_NRT_STATS="1"))
+    short, long = out.stdout.split("\n")[:2]
+    assert short == long, out.stdout
+    assert 0 < int(short.split()[0]) < 100

@@ -1,0 +1,80 @@
+"""One stamp over every source numba compiles, so no process ever loads a cache from other code.
+
+numba's on-disk cache (``__pycache__/*.nbi`` index, ``*.nbc`` code, next to
+each module) is keyed on the *defining* file's modification time and size
+only.  Our compiled functions call and inline functions of other modules (the
+compiled loop inlines the kernel, the integrator and every stage), so an edit
+to one of those would leave stale machine code in the callers' caches.
+:func:`ensure_fresh` hashes every module of the package that mentions numba
+(:func:`numba_sources`: the compiled functions, the ``register_jitable``
+formulas they inline, and the constants they freeze all live in such modules)
+and, when the hash differs from the stamp kept beside the caches, deletes every
+numba cache file of the package first.  Editing a module without numba code
+(the runner's Python, the CLI, the nodes) keeps the cache.
+
+It runs when :mod:`vesselbot_ros` is imported (about 1 ms), before any
+compiled function can load its cache.  :func:`warm` fills the cache
+(``tools/bootstrap.sh`` calls it once per version of the compiled sources, so
+``make run``, ``make test`` and every node start without compiling).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+__all__ = ["numba_sources", "source_digest", "ensure_fresh", "warm"]
+
+ROOT = Path(__file__).resolve().parent
+STAMP_NAME = "numba.sources.sha256"
+
+
+def numba_sources(root: Path = ROOT) -> list[Path]:
+    """Every ``*.py`` below ``root`` whose text mentions ``numba``, sorted."""
+    return sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts and b"numba" in p.read_bytes())
+
+
+def source_digest(root: Path = ROOT) -> str:
+    """SHA-256 over the names and bytes of every numba source of the package at ``root``."""
+    h = hashlib.sha256()
+    for p in numba_sources(root):
+        h.update(p.relative_to(root).as_posix().encode() + b"\0")
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def ensure_fresh(root: Path = ROOT) -> bool:
+    """Delete the package's numba cache files if its sources changed since they were written.
+
+    Returns:
+        True if caches were dropped (or there was no stamp yet).
+    """
+    digest = source_digest(root)
+    stamp = root / "__pycache__" / STAMP_NAME
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return False
+        for f in root.rglob("__pycache__/*.nb[ic]"):
+            f.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        tmp = stamp.with_suffix(".tmp")
+        tmp.write_text(digest)
+        tmp.replace(stamp)
+    except OSError:  # read-only install: numba then uses its own user cache dir
+        pass
+    return True
+
+
+def warm() -> None:
+    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly."""
+    import dataclasses as dc
+
+    from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
+    from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+
+    for path in shipped_scenarios().values():
+        sc = load_scenario(path)
+        sc = dc.replace(sc, sim=dc.replace(sc.sim, duration_s=0.01))
+        run_closed_loop(sc, path="compiled")
+        run_closed_loop(sc, path="per_tick")
+        run_many(sc, [0, 1], workers=2)

@@ -1,0 +1,298 @@
+"""The closed loop of :mod:`vesselbot_ros.sim.closed_loop` as one compiled function.
+
+:func:`loop_kernel` runs every tick of one run in numba, calling the compiled
+stages in the runner's order::
+
+    plant output (nearest_wall_delta, forces_into)  -> imager_frame
+    -> observer_update -> backstepping_command -> coil_apply -> plant step (integrate_dopri5_ws)
+
+over explicit state arrays that :func:`prepare` builds from the same
+:class:`~vesselbot_ros.sim.closed_loop.Stages` as the per-tick loop, and it
+writes every time-series column into arrays allocated once per run.  Each
+stage does the same IEEE operations in the same order as its Python class
+(the classes of the coil and the law call the very same functions), so the
+two paths are bit-identical; ``test/unit/sim/test_compiled_loop.py`` checks
+every column, metric and run statistic.
+
+Random draws: the imager's ``numpy.random.Generator`` is passed into the
+kernel and drawn from in the documented order (two standard normals, two
+uniforms per acquired frame), so one seed gives one stream in both paths.
+
+Bad input inside the loop (a non-finite state, a failing integrator) stops
+the kernel at that tick with a code; :func:`raise_for_code` raises the
+per-tick loop's :class:`~vesselbot_ros.errors.ModelInputError`, word for word.
+
+The kernel releases the GIL (``nogil``), so :func:`~vesselbot_ros.sim.closed_loop.run_many`
+runs several in threads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.blas_free import mat2
+from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, coil_apply, coil_params
+from vesselbot_ros.control.backstepping import backstepping_command, controller_params
+from vesselbot_ros.control.high_gain_observer import (
+    HISTORY_LEN,
+    integrator_vector,
+    observer_params,
+    observer_update,
+)
+from vesselbot_ros.control.imager_model import imager_arrays, imager_frame
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import forces_into, nearest_wall_delta
+from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+
+__all__ = ["LoopInputs", "prepare", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS"]
+
+# codes of loop_kernel (besides OK): where the loop stopped
+PLANT_FAILED = 1  # plant integration failed (non-finite state)
+OBSERVER_FAILED = 2  # the observer's model integration failed
+ESTIMATE_NONFINITE = 3  # the controller got a non-finite estimate
+REFERENCE_NONFINITE = 4  # the controller got a non-finite reference sample
+
+#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order.
+COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
+    ("p_true", np.float64, (2,)),
+    ("v_true", np.float64, (2,)),
+    ("delta_m", np.float64, ()),
+    ("in_contact", np.bool_, ()),
+    ("contact_phase", np.int8, ()),
+    ("meas_p", np.float64, (2,)),
+    ("meas_t_acq_s", np.float64, ()),
+    ("meas_outlier", np.bool_, ()),
+    ("x_hat", np.float64, (2,)),
+    ("z_hat", np.float64, (2,)),
+    ("meas_used", np.bool_, ()),
+    ("meas_rejected", np.bool_, ()),
+    ("u_cmd", np.float64, (2,)),
+    ("g_cmd", np.float64, (2,)),
+    ("g_applied", np.float64, (2,)),
+    ("k_scale", np.float64, ()),
+    ("saturated", np.bool_, ()),
+    ("slew_limited", np.bool_, (2,)),
+    ("cmd_status", np.int8, ()),
+)
+
+
+@dataclass
+class LoopInputs:
+    """Everything :func:`loop_kernel` reads for one scenario (shared by the runs of a batch; read-only).
+
+    Built by :func:`prepare` from freshly built stages; the per-run state is
+    created by :func:`run_kernel`.
+    """
+
+    n: int
+    dt: float
+    ts: npt.NDArray[np.float64]
+    p_ref: npt.NDArray[np.float64]
+    v_ref: npt.NDArray[np.float64]
+    a_ref: npt.NDArray[np.float64]
+    plant_p: npt.NDArray[np.float64]
+    model_p: npt.NDArray[np.float64]
+    ig: npt.NDArray[np.float64]
+    imager_prm: npt.NDArray[np.float64]
+    outliers: npt.NDArray[np.float64]
+    dropouts: npt.NDArray[np.float64]
+    obs_prm: npt.NDArray[np.float64]
+    ctrl_prm: npt.NDArray[np.float64]
+    coil_prm: npt.NDArray[np.float64]
+    plant_y0: npt.NDArray[np.float64]
+    obs_y0: npt.NDArray[np.float64]
+    coil_t0: float
+    record_forces: bool
+
+
+def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
+    """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs.
+
+    Takes the parameters the stage objects hold (so both paths read the same
+    numbers) and the reference sampled at every tick (``sample_many``, as the
+    per-tick runner does).
+    """
+    ts = np.arange(n) * dt
+    p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
+    plant, observer, controller, coil, model = stages.plant, stages.observer, stages.controller, stages.coil, stages.model
+    if controller.model_params is None:
+        raise ModelInputError("compiled loop needs the controller's F from the DynamicsModel")
+    ig = integrator_vector(plant.integrator)
+    if not np.array_equal(ig, integrator_vector(model.integrator)):
+        raise ModelInputError("compiled loop needs the same integrator settings for the plant and the observer's model")
+    imager_prm, outliers, dropouts = imager_arrays(stages.imager.params)
+    return LoopInputs(
+        n=n, dt=dt, ts=ts,
+        p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
+        plant_p=plant.p, model_p=model.p, ig=ig,
+        imager_prm=imager_prm, outliers=outliers, dropouts=dropouts,
+        obs_prm=observer_params(observer.params, mat2(model.input_matrix)),
+        ctrl_prm=controller.params_vector,
+        coil_prm=coil_params(coil.limits),
+        plant_y0=plant.state, obs_y0=observer.state, coil_t0=float(coil.state[2]),
+        record_forces=record_forces,
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # type: ignore[no-untyped-def]
+                imager_prm, outliers, dropouts, obs_prm, ctrl_prm, coil_prm,
+                y, contact, obs_y, obs_contact, obs_scal, coil_state,
+                plant_stats, model_stats, record_forces, forces,
+                p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
+                x_hat, z_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
+                slew_limited, cmd_status, err):
+    """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
+
+    State arrays (``y``, ``contact``, ``obs_*``, ``coil_state``, stats) are
+    updated in place; ``err`` (3,) receives ``[t0, t1, integrator code]`` of a
+    failed integration.  All scratch is allocated once, before the first tick.
+    """
+    work, fbuf = new_workspace()
+    obs_work, obs_fbuf = new_workspace()
+    ctrl_fbuf = np.empty((8, 2))
+    free = np.zeros(4)
+    queue = np.empty((n + 1, 4))
+    img_state = np.zeros(4)
+    img_state[1] = -math.inf
+    img_out = np.zeros(5)
+    hist = np.empty((HISTORY_LEN, 3))
+    hist_n = np.zeros(2, dtype=np.int64)
+    obs_out = np.zeros(9)
+    ctrl_last = np.zeros(2)
+    ctrl_out = np.zeros(4)
+    coil_out = np.zeros(COIL_OUT_SIZE)
+    gx_prev = 0.0
+    gz_prev = 0.0
+    h = ig[5]
+    for k in range(n):
+        t = ts[k]
+        # plant output at t_k
+        delta, _wall = nearest_wall_delta(t, y[1], plant_p)
+        p_true[k, 0] = y[0]
+        p_true[k, 1] = y[1]
+        v_true[k, 0] = y[2]
+        v_true[k, 1] = y[3]
+        delta_m[k] = delta
+        in_contact[k] = delta > 0.0
+        contact_phase[k] = int(contact[0])
+        if record_forces:
+            forces_into(t, y[0], y[1], y[2], y[3], gx_prev, gz_prev, contact, plant_p, forces[k])
+        # imager (the plant state is finite: the integrator checked it)
+        imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], img_out)
+        has_meas = img_out[0] > 0.5
+        if has_meas:
+            meas_p[k, 0] = img_out[2]
+            meas_p[k, 1] = img_out[3]
+            meas_t_acq_s[k] = img_out[1]
+            meas_outlier[k] = img_out[4] > 0.5
+        else:
+            meas_p[k, 0] = np.nan
+            meas_p[k, 1] = np.nan
+            meas_t_acq_s[k] = np.nan
+        # observer
+        code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, ig, model_p, model_stats,
+                               obs_work, obs_fbuf, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
+                               img_out[3], obs_out)
+        if code != OK:
+            err[0] = obs_scal[0]
+            err[1] = t
+            err[2] = code
+            return OBSERVER_FAILED, k
+        x_hat[k, 0] = obs_out[0]
+        x_hat[k, 1] = obs_out[1]
+        z_hat[k, 0] = obs_out[2]
+        z_hat[k, 1] = obs_out[3]
+        meas_used[k] = obs_out[7] > 0.5
+        meas_rejected[k] = obs_out[8] > 0.5
+        # controller
+        if not (math.isfinite(obs_out[0]) and math.isfinite(obs_out[1]) and math.isfinite(obs_out[2])
+                and math.isfinite(obs_out[3])):
+            return ESTIMATE_NONFINITE, k
+        if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
+                and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
+            return REFERENCE_NONFINITE, k
+        status = backstepping_command(ctrl_prm, ctrl_last, model_p, free, ctrl_fbuf, t, obs_out[0], obs_out[1],
+                                      obs_out[2], obs_out[3], obs_out[4], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0],
+                                      v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
+        g_cmd[k, 0] = ctrl_out[0]
+        g_cmd[k, 1] = ctrl_out[1]
+        u_cmd[k, 0] = ctrl_out[2]
+        u_cmd[k, 1] = ctrl_out[3]
+        cmd_status[k] = status
+        # coil
+        coil_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
+        gx_prev = coil_out[0]
+        gz_prev = coil_out[1]
+        g_applied[k, 0] = gx_prev
+        g_applied[k, 1] = gz_prev
+        k_scale[k] = coil_out[2]
+        saturated[k] = coil_out[3] > 0.5
+        slew_limited[k, 0] = coil_out[4] > 0.5
+        slew_limited[k, 1] = coil_out[5] > 0.5
+        # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
+        t0 = 0.0 + k * dt
+        t1 = 0.0 + (k + 1) * dt
+        if ig[0] < 0.5:
+            code, h = integrate_dopri5_ws(t0, t1, y, gx_prev, gz_prev, 0.0, 0.0, contact, plant_p, h, ig[1], ig[2],
+                                          ig[3], ig[4], ig[5], plant_stats, work, fbuf)
+        else:
+            code = integrate_rk4_ws(t0, t1, y, gx_prev, gz_prev, 0.0, 0.0, contact, plant_p, ig[6], plant_stats,
+                                    work, fbuf)
+        if code != OK:
+            err[0] = t0
+            err[1] = t1
+            err[2] = code
+            return PLANT_FAILED, k
+    return OK, n
+
+
+def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """One run of :func:`loop_kernel` with fresh state; returns ``(columns, plant stats, model stats)``.
+
+    Raises:
+        ModelInputError: as the per-tick loop would (:func:`raise_for_code`).
+    """
+    n = inp.n
+    cols = {name: (np.zeros if dt is np.bool_ else np.empty)((n, *shape), dtype=dt) for name, dt, shape in COLUMNS}
+    forces = np.empty((n, 8, 2)) if inp.record_forces else np.empty((0, 8, 2))
+    y = inp.plant_y0.copy()
+    contact = np.zeros(4)
+    obs_y = inp.obs_y0.copy()
+    obs_contact = np.zeros(4)
+    obs_scal = np.array([0.0, -math.inf, 0.0, inp.ig[5]])
+    coil_state = np.array([0.0, 0.0, inp.coil_t0, inp.coil_t0])
+    plant_stats = np.zeros(4, dtype=np.int64)
+    model_stats = np.zeros(4, dtype=np.int64)
+    err = np.zeros(3)
+    code, tick = loop_kernel(
+        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, rng,
+        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_prm, inp.ctrl_prm, inp.coil_prm,
+        y, contact, obs_y, obs_contact, obs_scal, coil_state, plant_stats, model_stats,
+        inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,
+    )
+    if code != OK:
+        raise_for_code(code, tick, inp, y, obs_y, err)
+    if inp.record_forces:
+        cols["forces"] = forces
+    return cols, plant_stats, model_stats
+
+
+def raise_for_code(code: int, tick: int, inp: LoopInputs, y: npt.NDArray[np.float64], obs_y: npt.NDArray[np.float64],
+                   err: npt.NDArray[np.float64]) -> None:
+    """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``."""
+    if code == PLANT_FAILED:
+        raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))
+    if code == OBSERVER_FAILED:
+        raise ModelInputError(failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), obs_y.tolist()))
+    if code == ESTIMATE_NONFINITE:
+        raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:2].copy()!r}, z_hat={obs_y[2:].copy()!r}")
+    if code == REFERENCE_NONFINITE:
+        raise ModelInputError("controller: non-finite reference sample")
+    raise ModelInputError(f"compiled loop stopped at tick {tick} with code {code}")
