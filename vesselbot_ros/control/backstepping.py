@@ -73,17 +73,25 @@ class ControllerParams:
             with ``a = U + F`` the acceleration (24) asks for, so the *average*
             acceleration over the hold is the continuous law's (error O(T^2)
             instead of O(T); see docs/control.md).
+        flow_compensation: ``none``: ``F`` with the model's blood velocity, as
+            printed.  ``estimate``: ``F`` with the model's ``V_f`` scaled by the
+            observer's estimate ``s_hat`` (``Estimate.flow_scale``; the
+            extended Kalman observer estimates it), i.e. certainty-equivalence
+            compensation of the blood-velocity error (Section III-D; the
+            observer-based alternative to the adaptive law of ref. [39]).
     """
 
     gains: BacksteppingGains = dataclasses.field(default_factory=BacksteppingGains)
     stale_timeout_s: float = 0.2
     stale_action: Literal["hold", "zero"] = "zero"
     sample_hold: Literal["none", "midpoint"] = "none"
+    flow_compensation: Literal["none", "estimate"] = "none"
 
     def __post_init__(self) -> None:
         check_positive("stale_timeout_s", self.stale_timeout_s)
         check_choice("stale_action", self.stale_action, ("hold", "zero"))
         check_choice("sample_hold", self.sample_hold, ("none", "midpoint"))
+        check_choice("flow_compensation", self.flow_compensation, ("none", "estimate"))
 
 
 class ControlCommand(NamedTuple):
@@ -165,6 +173,7 @@ class BacksteppingController:
         self._k2 = float(params.gains.k2)
         self._last = np.zeros(2)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
+        self._compensate = params.flow_compensation == "estimate"
 
     def reset(self) -> None:
         """Forget the last command (the ``hold`` action then holds zero)."""
@@ -188,7 +197,8 @@ class BacksteppingController:
             The :class:`ControlCommand`; see :meth:`command_arrays`.
         """
         return self.command_arrays(
-            t_s, estimate.x_hat, estimate.z_hat, estimate.time_since_measurement_s, ref.p, ref.v, ref.a
+            t_s, estimate.x_hat, estimate.z_hat, estimate.time_since_measurement_s, ref.p, ref.v, ref.a,
+            estimate.flow_scale,
         )
 
     def command_arrays(
@@ -200,6 +210,7 @@ class BacksteppingController:
         p_ref: npt.NDArray[np.float64],
         v_ref: npt.NDArray[np.float64],
         a_ref: npt.NDArray[np.float64],
+        flow_scale: float = 1.0,
     ) -> ControlCommand:
         """Compute the gradient command at time ``t_s``.
 
@@ -211,6 +222,8 @@ class BacksteppingController:
             p_ref: (2,) reference position, m.
             v_ref: (2,) reference velocity, m/s.
             a_ref: (2,) reference acceleration, m/s^2.
+            flow_scale: Observer's blood-velocity scale ``s_hat`` (-); used
+                only with ``flow_compensation: estimate``.
 
         Returns:
             The :class:`ControlCommand`.
@@ -228,13 +241,21 @@ class BacksteppingController:
             raise ModelInputError("controller: non-finite reference sample")
         if not time_since_measurement_s <= self.params.stale_timeout_s:
             return self._safe("stale")
+        if self._compensate:
+            if not (math.isfinite(flow_scale) and flow_scale > 0.0):
+                raise ModelInputError(f"controller: flow scale must be finite and > 0, got {flow_scale!r}")
+
+            def force(t: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+                return self._f(t, x, z, flow_scale)
+        else:
+            force = self._f
         if self._half > 0.0:
             h = self._half
             a = backstepping_u(self._k1, self._k2, x_hat, z_hat, np.zeros(2), p_ref, v_ref, a_ref)
-            f = self._f(t_s + h, x_hat + h * z_hat + 0.5 * h * h * a, z_hat + h * a)
+            f = force(t_s + h, x_hat + h * z_hat + 0.5 * h * h * a, z_hat + h * a)
             u = a - f
         else:
-            f = self._f(t_s, x_hat, z_hat)
+            f = force(t_s, x_hat, z_hat)
             u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
         g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):

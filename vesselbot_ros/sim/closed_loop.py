@@ -33,6 +33,7 @@ meas_p               m        measurement delivered at t_k (NaN if none)
 meas_t_acq_s         s        its acquisition time (NaN if none)
 meas_outlier         bool     injected aberrant frame (ground truth flag)
 x_hat, z_hat         m, m/s   observer estimate after the update at t_k
+flow_scale_hat       -        observer's blood-velocity scale s_hat (1 if not estimated)
 meas_used            bool     a measurement corrected the estimate
 meas_rejected        bool     a measurement was rejected (non-finite, gate)
 u_cmd                m/s^2    U of eq. (24)
@@ -57,6 +58,7 @@ import numpy.typing as npt
 from vesselbot_ros.control.actuator_limits import CoilLimiter
 from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
+from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.high_gain_observer import HighGainObserver
 from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
@@ -75,7 +77,7 @@ class Stages(NamedTuple):
 
     plant: PlantSimulator
     imager: ImagerModel
-    observer: HighGainObserver
+    observer: HighGainObserver | ExtendedKalmanObserver
     reference: ReferenceTrajectory
     controller: BacksteppingController
     coil: CoilLimiter
@@ -97,6 +99,14 @@ class SimResult:
     metrics: dict[str, Any]
 
 
+def make_observer(scenario: Scenario, model: DynamicsModel, x_hat0: npt.ArrayLike) -> Any:
+    """The scenario's observer (``observer.kind``): high-gain (25) or the extended Kalman filter."""
+    s = scenario
+    if s.observer.kind == "ekf":
+        return ExtendedKalmanObserver(s.observer.ekf, model, x_hat0, s.initial.z_hat0_m_per_s, 0.0, s.sim.dt_control_s)
+    return HighGainObserver(s.observer, model, x_hat0, s.initial.z_hat0_m_per_s, 0.0)
+
+
 def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     """Construct every stage of the loop for ``scenario``.
 
@@ -116,7 +126,7 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     reference = ReferenceTrajectory(s.reference, flow_velocity_x=flow_x)
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
-    observer = HighGainObserver(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, 0.0)
+    observer = make_observer(s, model, reference.sample(0.0).p)
     controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s)
     # The coil was idle (zero) before t = 0 and ramps during the period before
     # the first command, exactly as between any two later ticks: the first
@@ -148,7 +158,7 @@ def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
     rec_forces = scenario.sim.record_forces
 
     f2 = {k: np.empty((n, 2)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
-    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale")}
+    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale", "flow_scale_hat")}
     b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
     slew = np.zeros((n, 2), dtype=bool)
     phase = np.zeros(n, dtype=np.int8)
@@ -164,7 +174,7 @@ def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
         meas = imager.frame(t, truth.p)
         est = observer.update(t, meas, g_prev)
         ref = (p_ref[k], v_ref[k], a_ref[k])
-        cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref)
+        cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref, est.flow_scale)
         out = coil.apply(t, cmd.gradient_T_per_m)
         plant.step(out.applied)
         g_prev = out.applied
@@ -183,6 +193,7 @@ def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
             b1["meas_outlier"][k] = meas.outlier
         f2["x_hat"][k] = est.x_hat
         f2["z_hat"][k] = est.z_hat
+        f1["flow_scale_hat"][k] = est.flow_scale
         b1["meas_used"][k] = est.used_measurement
         b1["meas_rejected"][k] = est.rejected
         f2["u_cmd"][k] = cmd.u_m_per_s2
