@@ -32,8 +32,12 @@ form ``P <- (I - K H) P (I - K H)^T + K R K^T``.  The chi-square gate rejects
 the frame when ``nu^T S^-1 nu > gate_chi2`` (13.82 = 99.9 % for 2 degrees of
 freedom): an aberrant frame (Section III-C, t = 0.5 s) is refused instead of
 pulling the estimate by a millimetre.  After ``max_consecutive_rejections``
-rejected frames in a row the filter accepts again (it must not lock itself
-out if the robot really moved, e.g. after a wall contact).
+rejected frames in a row the filter restarts its track on the next frame
+(position from the frame, prior covariance): it must not lock itself out when
+the robot really is elsewhere.  Near a wall the Hertz contact makes ``A``
+stiff; the covariance step is then split into sub-steps with
+``||A h_s|| <= 0.5``, and a covariance that still became non-finite is reset
+to the prior (counted in ``covariance_resets``).
 
 Delay compensation.  A frame acquired at ``t_a`` and delivered at
 ``t_a + latency`` corrects the state *at* ``t_a``: the filter keeps, for every
@@ -90,7 +94,7 @@ def _f(t, y, ux, uz, free, p, p_s, out):  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True)
 def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T):  # type: ignore[no-untyped-def]
-    """``P <- Phi P Phi^T + Q h`` with ``Phi = I + A h + (A h)^2/2``, ``A = df/dy`` at (t, y)."""
+    """``P <- Phi P Phi^T + Q h`` with ``Phi = I + A h + (A h)^2/2``, ``A = df/dy`` at (t, y); returns the sub-steps."""
     _f(t, y, ux, uz, free, p, p_s, f0)
     for j in range(N):
         d = 1e-7 * max(abs(y[j]), 1e-3) if j < 2 else (1e-7 * max(abs(y[j]), 1e-2) if j < 4 else 1e-7)
@@ -100,28 +104,41 @@ def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi,
         _f(t, yp, ux, uz, free, p, p_s, f1)
         for i in range(N):
             A[i, j] = (f1[i] - f0[i]) / d
-    for i in range(N):  # Phi = I + A h + (A h)^2 / 2
+    # sub-steps so that ||A h_s||_inf <= 0.5: near a wall the Hertz contact makes A stiff
+    norm = 0.0
+    for i in range(N):
+        row = 0.0
+        for j in range(N):
+            row += abs(A[i, j])
+        norm = max(norm, row)
+    n_sub = 1
+    if norm * h > 0.5:
+        n_sub = min(int(math.ceil(norm * h / 0.5)), 100000)
+    hs = h / n_sub
+    for i in range(N):  # Phi_s = I + A h_s + (A h_s)^2 / 2
         for j in range(N):
             acc = 0.0
             for k in range(N):
                 acc += A[i, k] * A[k, j]
-            Phi[i, j] = (1.0 if i == j else 0.0) + A[i, j] * h + 0.5 * acc * h * h
-    for i in range(N):  # T = Phi P
-        for j in range(N):
-            acc = 0.0
-            for k in range(N):
-                acc += Phi[i, k] * P[k, j]
-            T[i, j] = acc
-    for i in range(N):  # P = T Phi^T + Q h, symmetrised
-        for j in range(i, N):
-            acc = 0.0
-            for k in range(N):
-                acc += T[i, k] * Phi[j, k]
-            P[i, j] = acc
-            P[j, i] = acc
-    P[2, 2] += qa2 * h
-    P[3, 3] += qa2 * h
-    P[4, 4] += qs2 * h
+            Phi[i, j] = (1.0 if i == j else 0.0) + A[i, j] * hs + 0.5 * acc * hs * hs
+    for _ in range(n_sub):
+        for i in range(N):  # T = Phi_s P
+            for j in range(N):
+                acc = 0.0
+                for k in range(N):
+                    acc += Phi[i, k] * P[k, j]
+                T[i, j] = acc
+        for i in range(N):  # P = T Phi_s^T + Q h_s, symmetrised
+            for j in range(i, N):
+                acc = 0.0
+                for k in range(N):
+                    acc += T[i, k] * Phi[j, k]
+                P[i, j] = acc
+                P[j, i] = acc
+        P[2, 2] += qa2 * hs
+        P[3, 3] += qa2 * hs
+        P[4, 4] += qs2 * hs
+    return n_sub
 
 
 @numba.njit(cache=True)
@@ -207,6 +224,8 @@ class ExtendedKalmanObserver:
         self._initialised = False
         self._rejections_in_row = 0
         self.rejected = 0
+        self.covariance_resets = 0
+        self.track_resets = 0
         # scratch (no allocation per tick)
         self._f0, self._f1, self._yp = np.empty(N), np.empty(N), np.empty(N)
         self._A, self._Phi, self._T, self._KK = np.empty((N, N)), np.empty((N, N)), np.empty((N, N)), np.empty((N, 2))
@@ -244,6 +263,16 @@ class ExtendedKalmanObserver:
         if code != OK or not all(math.isfinite(v) for v in ys):
             raise ModelInputError(f"observer: prediction failed on [{t0!r}, {t1!r}] (code {code}), state {y.tolist()}")
         y[0], y[1], y[2], y[3] = ys[0], ys[1], ys[2], ys[3]
+        if not (np.all(np.isfinite(P)) and P[0, 0] < 1.0 and P[1, 1] < 1.0):  # covariance lost: start it again
+            self._reset_covariance(P)
+            self.covariance_resets += 1
+
+    def _reset_covariance(self, P: npt.NDArray[np.float64]) -> None:
+        q = self.params
+        P[:] = 0.0
+        P[0, 0] = P[1, 1] = q.position_sigma0_m**2
+        P[2, 2] = P[3, 3] = q.velocity_sigma0_m_per_s**2
+        P[4, 4] = q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0
 
     def _push(self, t: float, u: tuple[float, float]) -> None:
         """Store the prior at tick ``t`` (before any correction) and the input that follows it."""
@@ -321,7 +350,17 @@ class ExtendedKalmanObserver:
                 self._hist_P[self._hist_head] = self._P
                 self._t_meas, self._initialised, used = t_acq, True, True
             else:
-                force = self._rejections_in_row >= self.params.max_consecutive_rejections
+                if self._rejections_in_row >= self.params.max_consecutive_rejections:
+                    # the robot really is elsewhere (the filter lost it): restart the track on this frame
+                    self._y[0], self._y[1] = yp[0], yp[1]
+                    self._reset_covariance(self._P)
+                    self.track_resets += 1
+                    self._rejections_in_row = 0
+                    self._t_meas, used = t_acq, True
+                    age = self._t - self._t_meas
+                    return Estimate(self._t, self._y[:2].copy(), self._y[2:4].copy(), age, innov, used, False,
+                                    float(self._y[4]))
+                force = False
                 found = False
                 if self.params.delay_compensation and t_acq < self._t - 1e-9:
                     found, nx, nz = self._fuse_at(t_acq, float(yp[0]), float(yp[1]), force)

@@ -29,7 +29,9 @@ class EkfParams:
             after the first frame initialises the position.
         velocity_sigma0_m_per_s: Prior standard deviation of the velocity (m/s).
         gate_chi2: Reject a frame with ``nu^T S^-1 nu`` above this; 0 disables.
-        max_consecutive_rejections: Accept again after this many rejections in a row.
+        max_consecutive_rejections: After this many rejections in a row the
+            filter restarts its track on the next frame (position from the
+            frame, prior covariance).
         delay_compensation: Correct at the acquisition time and re-predict.
         history_s: How far back frames can be fused at their acquisition time (s).
         estimate_flow_scale: Estimate ``s``; False freezes it at ``flow_scale0``.

@@ -59,7 +59,7 @@ from vesselbot_ros.control.actuator_limits import CoilLimiter
 from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
-from vesselbot_ros.control.high_gain_observer import HighGainObserver
+from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
 from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
@@ -99,12 +99,12 @@ class SimResult:
     metrics: dict[str, Any]
 
 
-def make_observer(scenario: Scenario, model: DynamicsModel, x_hat0: npt.ArrayLike) -> Any:
-    """The scenario's observer (``observer.kind``): high-gain (25) or the extended Kalman filter."""
-    s = scenario
-    if s.observer.kind == "ekf":
-        return ExtendedKalmanObserver(s.observer.ekf, model, x_hat0, s.initial.z_hat0_m_per_s, 0.0, s.sim.dt_control_s)
-    return HighGainObserver(s.observer, model, x_hat0, s.initial.z_hat0_m_per_s, 0.0)
+def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike,
+                  tick_s: float) -> HighGainObserver | ExtendedKalmanObserver:
+    """The observer ``params.kind`` selects: high-gain (25) or the extended Kalman filter, prior at t = 0."""
+    if params.kind == "ekf":
+        return ExtendedKalmanObserver(params.ekf, model, x_hat0, z_hat0, 0.0, tick_s)
+    return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
 
 
 def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
@@ -126,7 +126,7 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     reference = ReferenceTrajectory(s.reference, flow_velocity_x=flow_x)
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
-    observer = make_observer(s, model, reference.sample(0.0).p)
+    observer = make_observer(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
     controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s)
     # The coil was idle (zero) before t = 0 and ramps during the period before
     # the first command, exactly as between any two later ticks: the first
