@@ -79,6 +79,11 @@ class ControllerParams:
             extended Kalman observer estimates it), i.e. certainty-equivalence
             compensation of the blood-velocity error (Section III-D; the
             observer-based alternative to the adaptive law of ref. [39]).
+        duty_compensation: ``none``: the gradient (24) asks for.  ``sequence``:
+            divided by the scanner's propulsion duty cycle ``d`` (the fraction
+            of time the gradient may be on, :mod:`vesselbot_ros.scanner.sequence`),
+            so that the gradient averaged over a sequence period is the one (24)
+            asks for (then saturated as usual).
     """
 
     gains: BacksteppingGains = dataclasses.field(default_factory=BacksteppingGains)
@@ -86,12 +91,14 @@ class ControllerParams:
     stale_action: Literal["hold", "zero"] = "zero"
     sample_hold: Literal["none", "midpoint"] = "none"
     flow_compensation: Literal["none", "estimate"] = "none"
+    duty_compensation: Literal["none", "sequence"] = "none"
 
     def __post_init__(self) -> None:
         check_positive("stale_timeout_s", self.stale_timeout_s)
         check_choice("stale_action", self.stale_action, ("hold", "zero"))
         check_choice("sample_hold", self.sample_hold, ("none", "midpoint"))
         check_choice("flow_compensation", self.flow_compensation, ("none", "estimate"))
+        check_choice("duty_compensation", self.duty_compensation, ("none", "sequence"))
 
 
 class ControlCommand(NamedTuple):
@@ -150,6 +157,8 @@ class BacksteppingController:
         input_matrix: (2, 2) ``B`` with ``U = B G`` (m/s^2 per T/m).
         hold_period_s: Period ``T`` over which the coil holds each command (s);
             used by ``sample_hold: midpoint`` (0 = continuous, same as ``none``).
+        duty_cycle: The scanner's propulsion duty cycle in (0, 1]; used by
+            ``duty_compensation: sequence``.
     """
 
     def __init__(
@@ -158,6 +167,7 @@ class BacksteppingController:
         force_fn: ForceFn,
         input_matrix: npt.ArrayLike,
         hold_period_s: float = 0.0,
+        duty_cycle: float = 1.0,
     ) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
@@ -174,6 +184,9 @@ class BacksteppingController:
         self._last = np.zeros(2)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
         self._compensate = params.flow_compensation == "estimate"
+        if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
+            raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
+        self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
 
     def reset(self) -> None:
         """Forget the last command (the ``hold`` action then holds zero)."""
@@ -258,6 +271,8 @@ class BacksteppingController:
             f = force(t_s, x_hat, z_hat)
             u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
         g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
+        if self._inv_duty != 1.0:
+            g = g * self._inv_duty
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return self._safe("nonfinite")
         self._last = g

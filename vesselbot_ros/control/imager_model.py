@@ -158,6 +158,29 @@ class ImagerModel:
         d = Dropout(start_s=start_s, duration_s=duration_s)
         self._dropouts.append((d.start_s, d.start_s + d.duration_s))
 
+    def acquire(self, t_acq_s: float, p: npt.NDArray[np.float64]) -> Measurement | None:
+        """One frame of position ``p`` (m) acquired at ``t_acq_s`` (s), or None if it is dropped.
+
+        Draws the frame's four random numbers (two normals for the noise, one
+        uniform for the outlier direction, one for random dropout, in this
+        order, whether or not they are used), so the stream depends only on the
+        seed and on how many frames were acquired.
+        """
+        prm = self.params
+        noise = self._rng.standard_normal(2)
+        u_dir = self._rng.random()
+        u_drop = self._rng.random()
+        meas = p + prm.noise_sigma_m * noise
+        outlier = False
+        for a, b, mag in self._outliers:
+            if a - _EPS_S <= t_acq_s < b - _EPS_S:
+                th = 2.0 * math.pi * u_dir
+                meas = meas + mag * np.array([math.cos(th), math.sin(th)])
+                outlier = True
+                break
+        dropped = u_drop < prm.dropout_probability or any(a - _EPS_S <= t_acq_s < b - _EPS_S for a, b in self._dropouts)
+        return None if dropped else Measurement(float(t_acq_s), meas, outlier)
+
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
         """Acquire (if due) and deliver (if due) at tick ``t_s``.
 
@@ -182,20 +205,9 @@ class ImagerModel:
         if t_s + _EPS_S >= self._n_next * self._period:
             # skip frames whose slot passed between ticks (ticks slower than frames)
             self._n_next = int(math.floor((t_s + _EPS_S) / self._period)) + 1
-            noise = self._rng.standard_normal(2)
-            u_dir = self._rng.random()
-            u_drop = self._rng.random()
-            meas = p + prm.noise_sigma_m * noise
-            outlier = False
-            for a, b, mag in self._outliers:
-                if a - _EPS_S <= t_s < b - _EPS_S:
-                    th = 2.0 * math.pi * u_dir
-                    meas = meas + mag * np.array([math.cos(th), math.sin(th)])
-                    outlier = True
-                    break
-            dropped = u_drop < prm.dropout_probability or any(a - _EPS_S <= t_s < b - _EPS_S for a, b in self._dropouts)
-            if not dropped:
-                self._queue.append(Measurement(float(t_s), meas, outlier))
+            meas = self.acquire(float(t_s), p)
+            if meas is not None:
+                self._queue.append(meas)
         out: Measurement | None = None
         while self._queue and self._queue[0].t_acq_s + prm.latency_s <= t_s + _EPS_S:
             out = self._queue.popleft()

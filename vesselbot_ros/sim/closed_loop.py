@@ -43,6 +43,7 @@ k_scale              -        saturation factor k of Section III-C
 saturated            bool     k > 1
 slew_limited         bool     (n, 2) slew limit active per axis
 cmd_status           -        0 ok, 1 stale (safe action), 2 non-finite law
+sequence_phase       -        scanner phase at t_k: 0 continuous, 1 tracking, 2 dead, 3 propulsion
 forces               N        (n, 8, 2) force terms (only if record_forces)
 ===================  =======  ==============================================
 """
@@ -63,6 +64,8 @@ from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverP
 from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
+from vesselbot_ros.scanner.sequence import PHASE_CODES, duty_cycle, phase_at
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import Scenario
@@ -76,11 +79,11 @@ class Stages(NamedTuple):
     """The six stages of the loop, each owning its state."""
 
     plant: PlantSimulator
-    imager: ImagerModel
+    imager: ImagerModel | SequencedImager
     observer: HighGainObserver | ExtendedKalmanObserver
     reference: ReferenceTrajectory
     controller: BacksteppingController
-    coil: CoilLimiter
+    coil: CoilLimiter | SequencedCoil
     model: DynamicsModel
 
 
@@ -127,12 +130,16 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
     observer = make_observer(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
-    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s)
+    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s,
+                                        duty_cycle(s.sequence))
     # The coil was idle (zero) before t = 0 and ramps during the period before
     # the first command, exactly as between any two later ticks: the first
     # command may move S * dt, not 0 (which left the robot unactuated for the
     # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
     coil = CoilLimiter(s.coil, -s.sim.dt_control_s)
+    if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
+        imager = SequencedImager(imager, s.sequence)
+        coil = SequencedCoil(coil, s.sequence, s.sim.dt_control_s)
     return Stages(plant, imager, observer, reference, controller, coil, model)
 
 
@@ -162,6 +169,7 @@ def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
     b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
     slew = np.zeros((n, 2), dtype=bool)
     phase = np.zeros(n, dtype=np.int8)
+    seq_phase = np.array([PHASE_CODES[phase_at(scenario.sequence, float(t))] for t in ts], dtype=np.int8)
     status = np.zeros(n, dtype=np.int8)
     forces = np.empty((n, 8, 2)) if rec_forces else None
 
@@ -212,6 +220,7 @@ def run_closed_loop(scenario: Scenario, seed: int | None = None) -> SimResult:
     series.update(b1)
     series["slew_limited"] = slew
     series["contact_phase"] = phase
+    series["sequence_phase"] = seq_phase
     series["cmd_status"] = status
     if forces is not None:
         series["forces"] = forces
