@@ -28,6 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
     "replay": ("vesselbot_ros.bag.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),
+    "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
+                      "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
 }
 
 
