@@ -73,48 +73,37 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _figures(rows: list[dict], out: Path) -> None:
+    windows = sorted({r["propulsion_window_s"] for r in rows})
+    lats = sorted({r["latency_s"] for r in rows})
+    lat_mid, w_mid = lats[len(lats) // 2], windows[len(windows) // 2]
+    _plot(rows, out / "tracking_vs_duty.png", "duty_cycle", 1.0, "propulsion duty cycle (-)",
+          lambda r: r["latency_s"] == lat_mid, f"latency {lat_mid * 1e3:g} ms")
+    _plot(rows, out / "tracking_vs_latency.png", "latency_s", 1e3, "reconstruction + localisation latency (ms)",
+          lambda r: r["propulsion_window_s"] == w_mid, f"propulsion window {w_mid * 1e3:g} ms")
+
+
+def _plot(rows: list[dict], path: Path, xkey: str, xscale: float, xlabel: str, keep, fixed: str) -> None:  # type: ignore[no-untyped-def]
+    """Tracking error (mean over seeds) against ``xkey``, one panel per hardware, one line per pair."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     hw = sorted({r["hardware"] for r in rows})
-    lat0 = sorted({r["latency_s"] for r in rows})
-    lat_mid = lat0[len(lat0) // 2]
     fig, axes = plt.subplots(1, len(hw), figsize=(4.5 * len(hw), 3.6), squeeze=False, sharey=True)
     for ax, h in zip(axes[0], hw, strict=True):
         for pair in sorted({r["pair"] for r in rows}):
-            pts = sorted((r["duty_cycle"], r["tracking_max_mean_m"] * 1e6) for r in rows
-                         if r["hardware"] == h and r["pair"] == pair and r["latency_s"] == lat_mid and r["status"] == "ok")
+            pts = sorted((r[xkey] * xscale, r["tracking_max_mean_m"] * 1e6) for r in rows
+                         if r["hardware"] == h and r["pair"] == pair and r["status"] == "ok" and keep(r))
             if pts:
                 ax.plot(*zip(*pts, strict=True), marker="o", label=pair)
-        ax.set_title(f"{h} (latency {lat_mid * 1e3:g} ms)")
-        ax.set_xlabel("propulsion duty cycle (-)")
+        ax.set_title(f"{h} ({fixed})")
+        ax.set_xlabel(xlabel)
         ax.set_yscale("log")
-        ax.axhline(150, color="grey", ls="--", lw=0.8)
+        ax.axhline(150, color="grey", ls="--", lw=0.8)  # the paper's 150 um claim
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].set_ylabel("tracking error max after 0.6 s, mean over seeds (um)")
     axes[0][-1].legend(title="observer / controller")
     fig.tight_layout()
-    fig.savefig(out / "tracking_vs_duty.png", dpi=120)
-    plt.close(fig)
-    windows = sorted({r["propulsion_window_s"] for r in rows})
-    w_mid = windows[len(windows) // 2]
-    fig, axes = plt.subplots(1, len(hw), figsize=(4.5 * len(hw), 3.6), squeeze=False, sharey=True)
-    for ax, h in zip(axes[0], hw, strict=True):
-        for pair in sorted({r["pair"] for r in rows}):
-            pts = sorted((r["latency_s"] * 1e3, r["tracking_max_mean_m"] * 1e6) for r in rows
-                         if r["hardware"] == h and r["pair"] == pair and r["propulsion_window_s"] == w_mid
-                         and r["status"] == "ok")
-            if pts:
-                ax.plot(*zip(*pts, strict=True), marker="o", label=pair)
-        ax.set_title(f"{h} (propulsion window {w_mid * 1e3:g} ms)")
-        ax.set_xlabel("reconstruction + localisation latency (ms)")
-        ax.set_yscale("log")
-        ax.axhline(150, color="grey", ls="--", lw=0.8)
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("tracking error max after 0.6 s (um)")
-    axes[0][-1].legend(title="observer / controller")
-    fig.tight_layout()
-    fig.savefig(out / "tracking_vs_latency.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)

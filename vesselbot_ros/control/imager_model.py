@@ -128,6 +128,16 @@ class Measurement(NamedTuple):
     outlier: bool
 
 
+def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float) -> npt.NDArray[np.float64]:
+    """The true position as a (2,) array; ModelInputError unless it is finite and time does not go back."""
+    p = np.asarray(p_true, dtype=np.float64)
+    if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
+        raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
+    if not math.isfinite(t_s) or t_s < t_last_s:
+        raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
+    return p
+
+
 class ImagerModel:
     """Stateful imager: call :meth:`frame` once per tick, in time order.
 
@@ -195,11 +205,7 @@ class ImagerModel:
             ModelInputError: on a non-finite time or position, a wrong shape or
                 time going backwards.
         """
-        p = np.asarray(p_true, dtype=np.float64)
-        if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
-            raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._t_last:
-            raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
+        p = check_frame_inputs(t_s, p_true, self._t_last)
         self._t_last = t_s
         prm = self.params
         if t_s + _EPS_S >= self._n_next * self._period:

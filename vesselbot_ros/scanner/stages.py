@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput
-from vesselbot_ros.control.imager_model import ImagerModel, Measurement
+from vesselbot_ros.control.imager_model import ImagerModel, Measurement, check_frame_inputs
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import SequenceParams, propulsion_limit, propulsion_target, tracking_window_of
 
@@ -82,11 +82,7 @@ class SequencedImager:
         Returns:
             The newest frame delivered at ``t_s``, or None.
         """
-        p = np.asarray(p_true, dtype=np.float64)
-        if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
-            raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._t_last:
-            raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
+        p = check_frame_inputs(t_s, p_true, self._t_last)
         self._t_last = t_s
         w = tracking_window_of(self.sequence, t_s)
         if self._window is not None and (w is None or w.index != self._window.index):
