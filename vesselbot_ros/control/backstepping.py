@@ -86,17 +86,32 @@ class ControllerParams:
             with ``a = U + F`` the acceleration (24) asks for, so the *average*
             acceleration over the hold is the continuous law's (error O(T^2)
             instead of O(T); see docs/control.md).
+        flow_compensation: ``none``: ``F`` with the model's blood velocity, as
+            printed.  ``estimate``: ``F`` with the model's ``V_f`` scaled by the
+            observer's estimate ``s_hat`` (``Estimate.flow_scale``; the
+            extended Kalman observer estimates it), i.e. certainty-equivalence
+            compensation of the blood-velocity error (Section III-D; the
+            observer-based alternative to the adaptive law of ref. [39]).
+        duty_compensation: ``none``: the gradient (24) asks for.  ``sequence``:
+            divided by the scanner's propulsion duty cycle ``d`` (the fraction
+            of time the gradient may be on, :mod:`vesselbot_ros.scanner.sequence`),
+            so that the gradient averaged over a sequence period is the one (24)
+            asks for (then saturated as usual).
     """
 
     gains: BacksteppingGains = dataclasses.field(default_factory=BacksteppingGains)
     stale_timeout_s: float = 0.2
     stale_action: Literal["hold", "zero"] = "zero"
     sample_hold: Literal["none", "midpoint"] = "none"
+    flow_compensation: Literal["none", "estimate"] = "none"
+    duty_compensation: Literal["none", "sequence"] = "none"
 
     def __post_init__(self) -> None:
         check_positive("stale_timeout_s", self.stale_timeout_s)
         check_choice("stale_action", self.stale_action, ("hold", "zero"))
         check_choice("sample_hold", self.sample_hold, ("none", "midpoint"))
+        check_choice("flow_compensation", self.flow_compensation, ("none", "estimate"))
+        check_choice("duty_compensation", self.duty_compensation, ("none", "sequence"))
 
 
 class ControlCommand(NamedTuple):
@@ -229,6 +244,8 @@ class BacksteppingController:
         input_matrix: (2, 2) ``B`` with ``U = B G`` (m/s^2 per T/m).
         hold_period_s: Period ``T`` over which the coil holds each command (s);
             used by ``sample_hold: midpoint`` (0 = continuous, same as ``none``).
+        duty_cycle: The scanner's propulsion duty cycle in (0, 1]; used by
+            ``duty_compensation: sequence``.
     """
 
     def __init__(
@@ -237,6 +254,7 @@ class BacksteppingController:
         force_fn: ForceFn,
         input_matrix: npt.ArrayLike,
         hold_period_s: float = 0.0,
+        duty_cycle: float = 1.0,
     ) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
@@ -252,12 +270,18 @@ class BacksteppingController:
         self._k2 = float(params.gains.k2)
         self._last = np.zeros(2)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
+        self._compensate = params.flow_compensation == "estimate"
+        if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
+            raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
+        self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
         # F of a DynamicsModel is the kernel at its packed params: then the law runs compiled
         # (backstepping_command), as in the compiled loop; any other force_fn runs in Python.
         owner = getattr(force_fn, "__self__", None)
         model_p = getattr(owner, "p", None)
+        # the compiled law knows neither the observer's flow scale nor the duty cycle: those run in Python
+        plain = not self._compensate and self._inv_duty == 1.0
         self.model_params: npt.NDArray[np.float64] | None = (
-            model_p if getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) else None
+            model_p if plain and getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) else None
         )
         self.params_vector = controller_params(params, b_inv, self._half)
         self._out = np.zeros(4)
@@ -286,7 +310,8 @@ class BacksteppingController:
             The :class:`ControlCommand`; see :meth:`command_arrays`.
         """
         return self.command_arrays(
-            t_s, estimate.x_hat, estimate.z_hat, estimate.time_since_measurement_s, ref.p, ref.v, ref.a
+            t_s, estimate.x_hat, estimate.z_hat, estimate.time_since_measurement_s, ref.p, ref.v, ref.a,
+            estimate.flow_scale,
         )
 
     def command_arrays(
@@ -298,6 +323,7 @@ class BacksteppingController:
         p_ref: npt.NDArray[np.float64],
         v_ref: npt.NDArray[np.float64],
         a_ref: npt.NDArray[np.float64],
+        flow_scale: float = 1.0,
     ) -> ControlCommand:
         """Compute the gradient command at time ``t_s``.
 
@@ -309,6 +335,8 @@ class BacksteppingController:
             p_ref: (2,) reference position, m.
             v_ref: (2,) reference velocity, m/s.
             a_ref: (2,) reference acceleration, m/s^2.
+            flow_scale: Observer's blood-velocity scale ``s_hat`` (-); used
+                only with ``flow_compensation: estimate``.
 
         Returns:
             The :class:`ControlCommand`.
@@ -335,15 +363,25 @@ class BacksteppingController:
             return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
         if not time_since_measurement_s <= self.params.stale_timeout_s:
             return self._safe("stale")
+        if self._compensate:
+            if not (math.isfinite(flow_scale) and flow_scale > 0.0):
+                raise ModelInputError(f"controller: flow scale must be finite and > 0, got {flow_scale!r}")
+
+            def force(t: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+                return self._f(t, x, z, flow_scale)
+        else:
+            force = self._f
         if self._half > 0.0:
             h = self._half
             a = backstepping_u(self._k1, self._k2, x_hat, z_hat, np.zeros(2), p_ref, v_ref, a_ref)
-            f = self._f(t_s + h, x_hat + h * z_hat + 0.5 * h * h * a, z_hat + h * a)
+            f = force(t_s + h, x_hat + h * z_hat + 0.5 * h * h * a, z_hat + h * a)
             u = a - f
         else:
-            f = self._f(t_s, x_hat, z_hat)
+            f = force(t_s, x_hat, z_hat)
             u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
         g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
+        if self._inv_duty != 1.0:
+            g = g * self._inv_duty
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return self._safe("nonfinite")
         self._last[:] = g

@@ -56,6 +56,8 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import hypot2, mat2, mat2_apply
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
+from vesselbot_ros.control.ekf_params import EkfParams
+from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
 
@@ -111,6 +113,11 @@ class ObserverParams:
             the acquisition time of the frame.
         innovation_gate_m: Reject a measurement whose innovation norm exceeds
             this (m); 0 disables the gate (paper).
+        kind: ``high_gain``: observer (25) with the gains above (paper);
+            ``ekf``: the extended Kalman filter of
+            :mod:`vesselbot_ros.control.ekf_observer` with the settings in ``ekf``
+            (estimates the blood-velocity scale, chi-square gate, delay compensation).
+        ekf: Extended Kalman filter settings (``kind: ekf`` only).
     """
 
     high_gain: float = 5.0
@@ -122,8 +129,11 @@ class ObserverParams:
     init_from_first_measurement: bool = True
     delay_compensation: bool = False
     innovation_gate_m: float = 0.0
+    kind: Literal["high_gain", "ekf"] = "high_gain"
+    ekf: EkfParams = dataclasses.field(default_factory=EkfParams)
 
     def __post_init__(self) -> None:
+        check_choice("kind", self.kind, ("high_gain", "ekf"))
         check_positive("high_gain", self.high_gain)
         for name in ("g1", "g2", "g3", "g4"):
             v = getattr(self, name)
@@ -132,29 +142,6 @@ class ObserverParams:
                 raise ConfigError(f"{name} must be < 0 (Hurwitz error dynamics), got {v!r}")
         check_choice("gain_layout", self.gain_layout, ("per_axis", "per_equation"))
         check_nonnegative("innovation_gate_m", self.innovation_gate_m)
-
-
-class Estimate(NamedTuple):
-    """Observer output at one tick.
-
-    Attributes:
-        t_s: Time of the estimate (s).
-        x_hat: (2,) estimated position, m, frame W.
-        z_hat: (2,) estimated velocity, m/s, frame W.
-        time_since_measurement_s: Time since the last accepted measurement
-            (s); ``inf`` before the first one.
-        innovation: (2,) last innovation ``X_hat - Y`` used (m); zeros if none.
-        used_measurement: True if a measurement corrected this tick.
-        rejected: True if a measurement was offered and rejected this tick.
-    """
-
-    t_s: float
-    x_hat: npt.NDArray[np.float64]
-    z_hat: npt.NDArray[np.float64]
-    time_since_measurement_s: float
-    innovation: npt.NDArray[np.float64]
-    used_measurement: bool
-    rejected: bool
 
 
 def axis_gains(params: ObserverParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:

@@ -46,7 +46,8 @@ import numpy.typing as npt
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive, check_range
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame"]
+__all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame",
+           "imager_acquire", "check_frame_inputs"]
 
 _EPS_S = 1e-9  # tick-grid tolerance: a tick within 1 ns of a deadline counts as on time
 
@@ -141,6 +142,16 @@ class Measurement(NamedTuple):
     outlier: bool
 
 
+def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float) -> npt.NDArray[np.float64]:
+    """The true position as a (2,) array; ModelInputError unless it is finite and time does not go back."""
+    p = np.asarray(p_true, dtype=np.float64)
+    if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
+        raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
+    if not math.isfinite(t_s) or t_s < t_last_s:
+        raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
+    return p
+
+
 class ImagerModel:
     """Stateful imager: call :meth:`frame` once per tick, in time order.
 
@@ -182,6 +193,20 @@ class ImagerModel:
         d = Dropout(start_s=start_s, duration_s=duration_s)
         self._dropouts = np.concatenate([self._dropouts, np.array([[d.start_s, d.start_s + d.duration_s]])])
 
+    def acquire(self, t_acq_s: float, p: npt.NDArray[np.float64]) -> Measurement | None:
+        """One frame of position ``p`` (m) acquired at ``t_acq_s`` (s), or None if it is dropped.
+
+        The acquisition of :func:`imager_frame` on its own (same four draws,
+        same doubles), for imagers that decide themselves when to acquire (the
+        scanner's :class:`~vesselbot_ros.scanner.stages.SequencedImager`).
+        """
+        o = self._out
+        imager_acquire(self._prm, self._outliers, self._dropouts, self._rng, float(t_acq_s), float(p[0]),
+                       float(p[1]), o)
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(t_acq_s), o[2:4].copy(), bool(o[4] > 0.5))
+
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
         """Acquire (if due) and deliver (if due) at tick ``t_s`` (the compiled :func:`imager_frame`).
 
@@ -196,11 +221,7 @@ class ImagerModel:
             ModelInputError: on a non-finite time or position, a wrong shape or
                 time going backwards.
         """
-        p = np.asarray(p_true, dtype=np.float64)
-        if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
-            raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._state[1]:
-            raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
+        p = check_frame_inputs(t_s, p_true, self._state[1])
         st = self._state
         waiting = int(st[3] - st[2])
         if waiting + 1 >= self._queue.shape[0]:  # grow the ring, oldest first
@@ -239,6 +260,40 @@ def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
 
 
 @numba.njit(cache=True, nogil=True)
+def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
+    """Acquire one frame of ``(px, pz)`` at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[2:5]`` = (x, z, outlier).
+
+    Draws two standard normals (noise on x, z), one uniform (outlier
+    direction) and one uniform (random dropout), in this order, always.
+    """
+    n0 = rng.standard_normal()
+    n1 = rng.standard_normal()
+    u_dir = rng.random()
+    u_drop = rng.random()
+    m0 = px + prm[1] * n0
+    m1 = pz + prm[1] * n1
+    outlier = 0.0
+    for i in range(outliers.shape[0]):
+        if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
+            th = 2.0 * math.pi * u_dir if math.isnan(outliers[i, 3]) else outliers[i, 3]
+            m0 = m0 + outliers[i, 2] * math.cos(th)
+            m1 = m1 + outliers[i, 2] * math.sin(th)
+            outlier = 1.0
+            break
+    dropped = u_drop < prm[3]
+    if not dropped:
+        for i in range(dropouts.shape[0]):
+            if dropouts[i, 0] - _EPS_S <= t < dropouts[i, 1] - _EPS_S:
+                dropped = True
+                break
+    out[0] = 0.0 if dropped else 1.0
+    out[1] = t
+    out[2] = m0
+    out[3] = m1
+    out[4] = outlier
+
+
+@numba.njit(cache=True, nogil=True)
 def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
     """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles).
 
@@ -252,32 +307,13 @@ def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  #
     period = prm[0]
     if t + _EPS_S >= state[0] * period:
         state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
-        n0 = rng.standard_normal()
-        n1 = rng.standard_normal()
-        u_dir = rng.random()
-        u_drop = rng.random()
-        m0 = px + prm[1] * n0
-        m1 = pz + prm[1] * n1
-        outlier = 0.0
-        for i in range(outliers.shape[0]):
-            if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
-                th = 2.0 * math.pi * u_dir if math.isnan(outliers[i, 3]) else outliers[i, 3]
-                m0 = m0 + outliers[i, 2] * math.cos(th)
-                m1 = m1 + outliers[i, 2] * math.sin(th)
-                outlier = 1.0
-                break
-        dropped = u_drop < prm[3]
-        if not dropped:
-            for i in range(dropouts.shape[0]):
-                if dropouts[i, 0] - _EPS_S <= t < dropouts[i, 1] - _EPS_S:
-                    dropped = True
-                    break
-        if not dropped:
+        imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out)
+        if out[0] > 0.5:
             j = int(state[3]) % queue.shape[0]
             queue[j, 0] = t
-            queue[j, 1] = m0
-            queue[j, 2] = m1
-            queue[j, 3] = outlier
+            queue[j, 1] = out[2]
+            queue[j, 2] = out[3]
+            queue[j, 3] = out[4]
             state[3] += 1.0
     out[0] = 0.0
     while state[2] < state[3]:

@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import accel_no_motive, pack_params
+from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
@@ -47,6 +47,7 @@ class DynamicsModel:
         self.p = pack_params(physics)
         self.input_matrix = input_matrix(physics, mapping)
         self._free = np.zeros(4)
+        self._p_scaled = self.p.copy()
         self._h = self.integrator.max_step_s
         self.stats = np.zeros(4, dtype=np.int64)
         self._work, self._fbuf = new_workspace()  # integrator scratch, allocated once
@@ -55,9 +56,18 @@ class DynamicsModel:
         """A fresh (free) contact state array (4,)."""
         return np.zeros(4)
 
-    def F(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """``F(X, Z)`` (m/s^2), shape (2,), at time ``t_s`` (memoryless contact)."""
-        ax, az = accel_no_motive(t_s, x[0], x[1], z[0], z[1], self._free, self.p)
+    def F(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64],
+          flow_scale: float = 1.0) -> npt.NDArray[np.float64]:
+        """``F(X, Z)`` (m/s^2), shape (2,), at time ``t_s`` (memoryless contact).
+
+        ``flow_scale`` multiplies the model's centreline blood velocity ``V_f``
+        (an observer's estimate of the model's flow error; 1 = the model's own).
+        """
+        p = self.p
+        if flow_scale != 1.0:
+            p = self._p_scaled
+            p[I_V_F] = self.p[I_V_F] * flow_scale
+        ax, az = accel_no_motive(t_s, x[0], x[1], z[0], z[1], self._free, p)
         return np.array((ax, az))
 
     def propagate(

@@ -43,6 +43,7 @@ meas_p               m        measurement delivered at t_k (NaN if none)
 meas_t_acq_s         s        its acquisition time (NaN if none)
 meas_outlier         bool     injected aberrant frame (ground truth flag)
 x_hat, z_hat         m, m/s   observer estimate after the update at t_k
+flow_scale_hat       -        observer's blood-velocity scale s_hat (1 if not estimated)
 meas_used            bool     a measurement corrected the estimate
 meas_rejected        bool     a measurement was rejected (non-finite, gate)
 u_cmd                m/s^2    U of eq. (24)
@@ -52,6 +53,7 @@ k_scale              -        saturation factor k of Section III-C
 saturated            bool     k > 1
 slew_limited         bool     (n, 2) slew limit active per axis
 cmd_status           -        0 ok, 1 stale (safe action), 2 non-finite law
+sequence_phase       -        scanner phase at t_k: 0 continuous, 1 tracking, 2 dead, 3 propulsion
 forces               N        (n, 8, 2) force terms (only if record_forces)
 ===================  =======  ==============================================
 """
@@ -70,11 +72,14 @@ import numpy.typing as npt
 from vesselbot_ros.control.actuator_limits import CoilLimiter
 from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.bspline_reference import RefSample, ReferenceTrajectory
-from vesselbot_ros.control.high_gain_observer import HighGainObserver
+from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
+from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
 from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
+from vesselbot_ros.scanner.sequence import PHASE_CODES, duty_cycle, phase_at
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim import compiled_loop
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.plant import PlantSimulator
@@ -95,11 +100,11 @@ class Stages(NamedTuple):
     """The six stages of the loop, each owning its state."""
 
     plant: PlantSimulator
-    imager: ImagerModel
-    observer: HighGainObserver
+    imager: ImagerModel | SequencedImager
+    observer: HighGainObserver | ExtendedKalmanObserver
     reference: ReferenceTrajectory
     controller: BacksteppingController
-    coil: CoilLimiter
+    coil: CoilLimiter | SequencedCoil
     model: DynamicsModel
 
 
@@ -121,6 +126,14 @@ class SimResult:
     path: str = "per_tick"
 
 
+def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike,
+                  tick_s: float) -> HighGainObserver | ExtendedKalmanObserver:
+    """The observer ``params.kind`` selects: high-gain (25) or the extended Kalman filter, prior at t = 0."""
+    if params.kind == "ekf":
+        return ExtendedKalmanObserver(params.ekf, model, x_hat0, z_hat0, 0.0, tick_s)
+    return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
+
+
 def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     """Construct every stage of the loop for ``scenario``.
 
@@ -140,13 +153,17 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     reference = ReferenceTrajectory(s.reference, flow_velocity_x=flow_x)
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
-    observer = HighGainObserver(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, 0.0)
-    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s)
+    observer = make_observer(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
+    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s,
+                                        duty_cycle(s.sequence))
     # The coil was idle (zero) before t = 0 and ramps during the period before
     # the first command, exactly as between any two later ticks: the first
     # command may move S * dt, not 0 (which left the robot unactuated for the
     # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
     coil = CoilLimiter(s.coil, -s.sim.dt_control_s)
+    if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
+        imager = SequencedImager(imager, s.sequence)
+        coil = SequencedCoil(coil, s.sequence, s.sim.dt_control_s)
     return Stages(plant, imager, observer, reference, controller, coil, model)
 
 
@@ -219,8 +236,17 @@ def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.Lo
     cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
     series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts, "p_ref": inp.p_ref, "v_ref": inp.v_ref, "a_ref": inp.a_ref}
     series.update(cols)
+    # the compiled loop runs observer (25) (no flow scale) in a continuous sequence: the columns the
+    # per-tick loop records for the EKF and the scanner, with the same values it would record
+    series["flow_scale_hat"] = np.ones(inp.ts.size)
+    series["sequence_phase"] = _sequence_phase(scenario, inp.ts)
     metrics = _metrics(scenario, seed, series, plant_stats, model_stats)
     return SimResult(series if keep_timeseries else {}, metrics, "compiled")
+
+
+def _sequence_phase(scenario: Scenario, ts: npt.NDArray[np.float64]) -> npt.NDArray[np.int8]:
+    """The scanner's phase code at every tick (``sequence_phase`` column)."""
+    return np.array([PHASE_CODES[phase_at(scenario.sequence, float(t))] for t in ts], dtype=np.int8)
 
 
 def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDArray[Any]],
@@ -250,15 +276,17 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     rec_forces = scenario.sim.record_forces
 
     f2 = {k: np.empty((n, 2)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
-    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale")}
+    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale", "flow_scale_hat")}
     b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
     slew = np.zeros((n, 2), dtype=bool)
     phase = np.zeros(n, dtype=np.int8)
+    seq_phase = _sequence_phase(scenario, ts)
     status = np.zeros(n, dtype=np.int8)
     forces = np.empty((n, 8, 2)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
     arrays_port = hasattr(controller, "command_arrays")
+    builtin_controller = type(controller) is BacksteppingController  # takes the observer's flow scale
     g_prev = np.zeros(2)
     nan2 = np.array([np.nan, np.nan])
     for k in range(n):
@@ -267,7 +295,10 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         meas = imager.frame(t, truth.p)
         est = observer.update(t, meas, g_prev)
         ref = (p_ref[k], v_ref[k], a_ref[k])
-        if arrays_port:
+        if builtin_controller:
+            cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref,
+                                            getattr(est, "flow_scale", 1.0))
+        elif arrays_port:
             cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref)
         else:
             cmd = controller.command(t, est, RefSample(*ref))
@@ -289,6 +320,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             b1["meas_outlier"][k] = meas.outlier
         f2["x_hat"][k] = est.x_hat
         f2["z_hat"][k] = est.z_hat
+        f1["flow_scale_hat"][k] = est.flow_scale
         b1["meas_used"][k] = est.used_measurement
         b1["meas_rejected"][k] = est.rejected
         f2["u_cmd"][k] = cmd.u_m_per_s2
@@ -307,6 +339,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     series.update(b1)
     series["slew_limited"] = slew
     series["contact_phase"] = phase
+    series["sequence_phase"] = seq_phase
     series["cmd_status"] = status
     if forces is not None:
         series["forces"] = forces

@@ -1,0 +1,131 @@
+"""Extended Kalman observer: flow-scale estimate, chi-square gate, delay compensation, robustness."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
+from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
+from vesselbot_ros.control.imager_model import Measurement
+from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.plant import PlantSimulator
+from vesselbot_ros.sim.scenario import load_scenario, scenario_from_mapping, shipped_scenarios
+
+EKF_SCENARIO = load_scenario(shipped_scenarios()["sound_small_artery_ekf"])
+TRUE_SCALE = 0.025 / 0.02625  # the plant's V_f over the model's (the paper's 5 % error)
+
+
+def _meas(t_acq: float, p: tuple[float, float]) -> Measurement:
+    return Measurement(t_acq, np.array(p), False)
+
+
+def test_chi2_quantile() -> None:
+    assert CHI2_2DOF_999 == pytest.approx(13.8155, abs=1e-4)
+
+
+def test_params_are_validated() -> None:
+    with pytest.raises(ConfigError, match="measurement_sigma_m must be > 0"):
+        EkfParams(measurement_sigma_m=0.0)
+    with pytest.raises(ConfigError, match="gate_chi2"):
+        EkfParams(gate_chi2=-1.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closed_loop_estimates_the_flow_scale_and_gates_the_outliers(seed: int) -> None:
+    ts = run_closed_loop(EKF_SCENARIO, seed).timeseries
+    s_hat = ts["flow_scale_hat"]
+    late = ts["t_s"] >= 0.6
+    assert np.all(np.abs(s_hat[late] - TRUE_SCALE) < 0.03), (s_hat[late].min(), s_hat[late].max())
+    assert abs(float(np.mean(s_hat[late])) - TRUE_SCALE) < 0.01  # the 5 % model error is seen and removed
+    outlier, rejected = ts["meas_outlier"], ts["meas_rejected"]
+    assert outlier.sum() == 20 and (outlier & rejected).sum() == 20  # every aberrant frame refused
+    assert (rejected & ~outlier).sum() <= 6  # 99.9 % gate: about 2 of 2000 clean frames expected
+    assert np.all(np.isfinite(ts["x_hat"])) and np.all(np.isfinite(ts["z_hat"]))
+
+
+def test_delayed_frame_gives_the_state_of_the_on_time_frame() -> None:
+    """A frame fused 20 ticks late, by correction at t_acq and re-prediction, equals on-time fusion.
+
+    Equal up to the prediction's integration error: the late filter re-predicts
+    with its own adaptive step sizes, so the integrator runs at a tight tolerance here.
+    """
+    tight = dataclasses.replace(EKF_SCENARIO.sim.integrator, rtol=1e-11, atol_position_m=1e-15,
+                                atol_velocity_m_per_s=1e-13)
+    model_a = DynamicsModel(EKF_SCENARIO.model_physics(), tight)
+    model_b = DynamicsModel(EKF_SCENARIO.model_physics(), tight)
+    params = EkfParams()
+    a = ExtendedKalmanObserver(params, model_a, (0.0, 1e-3), tick_s=1e-3)
+    b = ExtendedKalmanObserver(params, model_b, (0.0, 1e-3), tick_s=1e-3)
+    rng = np.random.default_rng(3)
+    # about the gradient that holds the bead against gravity: it stays in free flow (no stiff wall contact)
+    gradients = np.column_stack([np.full(200, 0.01), np.full(200, 0.035)]) + rng.uniform(-0.003, 0.003, size=(200, 2))
+    plant = PlantSimulator(EKF_SCENARIO.physics, EKF_SCENARIO.sim.integrator, 1e-3, (0.0, 1e-3), (0.0, 0.0))
+    truth = []
+    for k in range(200):
+        truth.append(plant.output().p.copy())
+        plant.step(gradients[k])
+    assert max(abs(p[1]) for p in truth) < 1.05e-3  # far from the walls at +-1.25 mm
+    frames = {k: (k * 1e-3, (truth[k][0] + rng.normal(0, 1e-4), truth[k][1] + rng.normal(0, 1e-4)))
+              for k in range(0, 200, 40)}
+    gradients = np.vstack([np.zeros((1, 2)), gradients])  # applied since the previous tick
+    for k in range(200):
+        t = k * 1e-3
+        g = gradients[k]
+        fa = _meas(*frames[k]) if k in frames else None
+        late = k - 20
+        fb = _meas(*frames[late]) if late in frames and late > 0 else (_meas(*frames[0]) if k == 0 else None)
+        ea = a.update(t, fa, g)
+        eb = b.update(t, fb, g)
+        if k >= 20 and (k - 20) % 40 == 0:  # b just fused the frame a fused 20 ticks ago
+            np.testing.assert_allclose(eb.x_hat, ea.x_hat, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(eb.z_hat, ea.z_hat, rtol=0, atol=1e-7)
+            assert eb.flow_scale == pytest.approx(ea.flow_scale, rel=0, abs=1e-9)
+            np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-6, atol=1e-16)
+    assert b.rejected == 0 and a.rejected == 0 and abs(eb.flow_scale - 1.0) > 1e-6  # frames were used
+
+
+def test_never_non_finite_when_latency_is_not_compensated() -> None:
+    """Regression: 25 frames/s, 20 ms latency, no compensation drove the robot to a wall and the EKF to NaN."""
+    m = copy.deepcopy(EKF_SCENARIO.to_mapping())
+    m["imager"].update(frame_rate_Hz=25.0, latency_s=0.02)
+    m["observer"]["ekf"]["delay_compensation"] = False
+    ts = run_closed_loop(scenario_from_mapping(m), 0).timeseries
+    assert np.all(np.isfinite(ts["x_hat"])) and np.all(np.isfinite(ts["flow_scale_hat"]))
+
+
+def test_bad_frames_are_rejected_without_moving_the_state() -> None:
+    model = DynamicsModel(EKF_SCENARIO.model_physics(), EKF_SCENARIO.sim.integrator)
+    obs = ExtendedKalmanObserver(EkfParams(), model, (0.0, 1e-3), tick_s=1e-3)
+    obs.update(0.0, _meas(0.0, (0.0, 1e-3)), np.zeros(2))
+    before = obs.state
+    for bad in (_meas(1e-3, (math.nan, 0.0)), _meas(5.0, (0.0, 1e-3)), _meas(math.inf, (0.0, 1e-3))):
+        e = obs.update(1e-3, bad, np.zeros(2))
+        assert e.rejected and not e.used_measurement
+    after = obs.update(1e-3, None, np.zeros(2))
+    assert np.all(np.isfinite(after.x_hat))
+    assert obs.rejected == 3
+    with pytest.raises(ModelInputError, match="non-decreasing"):
+        obs.update(0.0, None, np.zeros(2))
+    with pytest.raises(ModelInputError, match="applied gradient"):
+        obs.update(2e-3, None, np.array([math.nan, 0.0]))
+    assert before.shape == (5,)
+
+
+def test_track_restarts_after_too_many_rejections() -> None:
+    model = DynamicsModel(EKF_SCENARIO.model_physics(), EKF_SCENARIO.sim.integrator)
+    obs = ExtendedKalmanObserver(EkfParams(max_consecutive_rejections=3), model, (0.0, 1e-3), tick_s=1e-3)
+    obs.update(0.0, _meas(0.0, (0.0, 1e-3)), np.zeros(2))
+    far = (0.0, -1e-3)  # 2 mm away: gated
+    for k in range(1, 4):
+        assert obs.update(k * 1e-3, _meas(k * 1e-3, far), np.zeros(2)).rejected
+    e = obs.update(4e-3, _meas(4e-3, far), np.zeros(2))
+    assert e.used_measurement and obs.track_resets == 1
+    np.testing.assert_allclose(e.x_hat, far, rtol=0, atol=1e-12)

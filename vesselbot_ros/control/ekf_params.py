@@ -1,0 +1,63 @@
+"""Settings of the extended Kalman observer (:mod:`vesselbot_ros.control.ekf_observer`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from vesselbot_ros.config import check_nonnegative, check_positive
+
+__all__ = ["EkfParams", "CHI2_2DOF_999"]
+
+#: Chi-square quantile, 2 degrees of freedom, 99.9 %: -2 ln(0.001).
+CHI2_2DOF_999 = -2.0 * math.log(0.001)
+
+
+@dataclasses.dataclass(frozen=True)
+class EkfParams:
+    """Extended Kalman filter settings (see the module docstring).
+
+    Attributes:
+        measurement_sigma_m: Standard deviation of a frame per axis (m); the
+            imager's ``noise_sigma_m`` is the honest choice.
+        accel_noise_m_per_s2_sqrt_s: ``q_a``, density of the white acceleration
+            noise standing for unmodelled forces (m/s^2 per sqrt(Hz)).
+        flow_scale_noise_per_sqrt_s: ``q_s``, random-walk density of ``s`` (1/sqrt(s)).
+        flow_scale0: Prior of ``s`` (-).
+        flow_scale_sigma0: Prior standard deviation of ``s`` (-).
+        position_sigma0_m: Prior standard deviation of the position (m), used
+            after the first frame initialises the position.
+        velocity_sigma0_m_per_s: Prior standard deviation of the velocity (m/s).
+        gate_chi2: Reject a frame with ``nu^T S^-1 nu`` above this; 0 disables.
+        max_consecutive_rejections: After this many rejections in a row the
+            filter restarts its track on the next frame (position from the
+            frame, prior covariance).
+        delay_compensation: Correct at the acquisition time and re-predict.
+        history_s: How far back frames can be fused at their acquisition time (s).
+        estimate_flow_scale: Estimate ``s``; False freezes it at ``flow_scale0``.
+    """
+
+    measurement_sigma_m: float = 100e-6
+    accel_noise_m_per_s2_sqrt_s: float = 0.01
+    flow_scale_noise_per_sqrt_s: float = 0.02
+    flow_scale0: float = 1.0
+    flow_scale_sigma0: float = 0.1
+    position_sigma0_m: float = 100e-6
+    velocity_sigma0_m_per_s: float = 5e-3
+    gate_chi2: float = CHI2_2DOF_999
+    max_consecutive_rejections: int = 50
+    delay_compensation: bool = True
+    history_s: float = 0.25
+    estimate_flow_scale: bool = True
+
+    def __post_init__(self) -> None:
+        check_positive("measurement_sigma_m", self.measurement_sigma_m)
+        check_nonnegative("accel_noise_m_per_s2_sqrt_s", self.accel_noise_m_per_s2_sqrt_s)
+        check_nonnegative("flow_scale_noise_per_sqrt_s", self.flow_scale_noise_per_sqrt_s)
+        check_positive("flow_scale0", self.flow_scale0)
+        check_nonnegative("flow_scale_sigma0", self.flow_scale_sigma0)
+        check_positive("position_sigma0_m", self.position_sigma0_m)
+        check_positive("velocity_sigma0_m_per_s", self.velocity_sigma0_m_per_s)
+        check_nonnegative("gate_chi2", self.gate_chi2)
+        check_positive("max_consecutive_rejections", self.max_consecutive_rejections)
+        check_positive("history_s", self.history_s)

@@ -1,0 +1,228 @@
+"""MRI navigation sequence: tracking and propulsion windows multiplexed on one gradient system.
+
+A clinical scanner's gradient coils both image and propel (Tamaz et al., IEEE
+TBME 2008, the paper's ref. [23]), so the two alternate.  One period::
+
+    | tracking (imaging) | dead | propulsion | dead | tracking | ...
+    0                    T_t    T_t+T_d      T_t+T_d+T_p       T = T_t+2T_d+T_p
+
+* tracking window: the gradients image; no propulsion gradient may be applied;
+  one frame per window, of the robot's mean position over the window (motion
+  blur), stamped at the window's middle, delivered ``latency_s`` after the
+  window ends (reconstruction and localisation);
+* dead time: switching between the two (gradient ramps, eddy currents);
+  neither imaging nor propulsion;
+* propulsion window: the controller's gradient is applied; it must be back
+  at zero when the window ends, so the coil starts ramping down early enough
+  (:func:`propulsion_limit`).
+
+``mode: continuous`` is the paper's idealised loop (imaging at every control
+tick, propulsion all the time, no latency): today's behaviour, unchanged.
+
+Everything here is a pure function of time and the parameters, shared by the
+ROS nodes and the ROS-free runner.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal, NamedTuple
+
+from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive
+
+__all__ = [
+    "SequenceParams",
+    "Phase",
+    "PHASE_CODES",
+    "phase_at",
+    "propulsion_limit",
+    "tracking_window_of",
+    "duty_cycle",
+    "TrackingWindow",
+    "propulsion_target",
+]
+
+_EPS_S = 1e-9
+
+#: Numeric codes of the phases (recorded and published).
+PHASE_CODES = {"continuous": 0, "tracking": 1, "dead": 2, "propulsion": 3}
+Phase = Literal["continuous", "tracking", "dead", "propulsion"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceParams:
+    """Navigation sequence timing.
+
+    Attributes:
+        mode: ``continuous`` (paper: image every tick, propel always) or
+            ``multiplexed`` (the windows below).
+        tracking_window_s: Imaging window per period (s).
+        dead_time_s: Switching time between windows, at each switch (s).
+        propulsion_window_s: Propulsion window per period (s).
+        latency_s: Reconstruction and localisation delay after a tracking
+            window ends (s).
+        start_s: Time of the first tracking window's start (s).
+    """
+
+    mode: Literal["continuous", "multiplexed"] = "continuous"
+    tracking_window_s: float = 0.02
+    dead_time_s: float = 0.002
+    propulsion_window_s: float = 0.03
+    latency_s: float = 0.02
+    start_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_choice("mode", self.mode, ("continuous", "multiplexed"))
+        check_positive("tracking_window_s", self.tracking_window_s)
+        check_nonnegative("dead_time_s", self.dead_time_s)
+        check_positive("propulsion_window_s", self.propulsion_window_s)
+        check_nonnegative("latency_s", self.latency_s)
+        check_nonnegative("start_s", self.start_s)
+        for name in ("tracking_window_s", "dead_time_s", "propulsion_window_s", "latency_s"):
+            if getattr(self, name) > 60.0:
+                raise ConfigError(f"{name} must be <= 60 s, got {getattr(self, name)!r}")
+
+    @property
+    def period_s(self) -> float:
+        """One tracking + dead + propulsion + dead cycle (s)."""
+        return self.tracking_window_s + 2.0 * self.dead_time_s + self.propulsion_window_s
+
+
+class TrackingWindow(NamedTuple):
+    """One tracking window: ``[start_s, end_s)``; its frame is stamped ``t_acq_s`` and delivered at ``t_deliver_s``."""
+
+    index: int
+    start_s: float
+    end_s: float
+    t_acq_s: float
+    t_deliver_s: float
+
+
+def duty_cycle(params: SequenceParams) -> float:
+    """Fraction of the time the propulsion gradient may be on (1 in continuous mode)."""
+    if params.mode == "continuous":
+        return 1.0
+    return params.propulsion_window_s / params.period_s
+
+
+def _cycle(params: SequenceParams, t_s: float) -> tuple[int, float]:
+    """(period index, time within the period) at ``t_s``; index -1 before ``start_s``."""
+    if not math.isfinite(t_s):
+        raise ConfigError(f"sequence time must be finite, got {t_s!r}")
+    rel = t_s - params.start_s
+    if rel < -_EPS_S:
+        return -1, rel
+    n = int(math.floor((rel + _EPS_S) / params.period_s))
+    return n, rel - n * params.period_s
+
+
+def phase_at(params: SequenceParams, t_s: float) -> Phase:
+    """The sequence phase at time ``t_s`` (s).  Before ``start_s`` the scanner is in dead time."""
+    if params.mode == "continuous":
+        return "continuous"
+    n, tau = _cycle(params, t_s)
+    if n < 0:
+        return "dead"
+    t_t, t_d, t_p = params.tracking_window_s, params.dead_time_s, params.propulsion_window_s
+    if tau < t_t - _EPS_S:
+        return "tracking"
+    if tau < t_t + t_d - _EPS_S:
+        return "dead"
+    if tau < t_t + t_d + t_p - _EPS_S:
+        return "propulsion"
+    return "dead"
+
+
+def tracking_window_of(params: SequenceParams, t_s: float) -> TrackingWindow | None:
+    """The tracking window containing ``t_s``, or None (continuous mode or another phase)."""
+    if params.mode == "continuous" or phase_at(params, t_s) != "tracking":
+        return None
+    n, _ = _cycle(params, t_s)
+    start = params.start_s + n * params.period_s
+    end = start + params.tracking_window_s
+    return TrackingWindow(n, start, end, 0.5 * (start + end), end + params.latency_s)
+
+
+def propulsion_limit(params: SequenceParams, t_s: float, hold_s: float, slew_T_per_m_per_s: float,
+                     saturation_T_per_m: float) -> float:
+    """Largest gradient norm (T/m) the coil may apply from ``t_s`` and hold for ``hold_s``.
+
+    Zero unless the whole hold ``[t_s, t_s + hold_s]`` lies in a propulsion
+    window.  Inside, the limit falls at the slew rate towards the window's end,
+    ``S (t_end - t_s - hold_s)``, so a slew-limited coil can always be back at
+    zero before the next dead time and tracking window.  In continuous mode it
+    is the saturation.
+
+    Args:
+        params: The sequence.
+        t_s: Start of the hold (s).
+        hold_s: Duration of the hold (s), >= 0 (the control period).
+        slew_T_per_m_per_s: Slew rate ``S`` (T/m/s), > 0.
+        saturation_T_per_m: Amplitude limit (T/m), > 0.
+    """
+    if params.mode == "continuous":
+        return saturation_T_per_m
+    if not (hold_s >= 0.0 and slew_T_per_m_per_s > 0.0 and saturation_T_per_m > 0.0):
+        raise ConfigError(f"propulsion_limit needs hold_s >= 0, S > 0, saturation > 0, got "
+                          f"{hold_s!r}, {slew_T_per_m_per_s!r}, {saturation_T_per_m!r}")
+    n, tau = _cycle(params, t_s)
+    if n < 0:
+        return 0.0
+    p0 = params.tracking_window_s + params.dead_time_s
+    p1 = p0 + params.propulsion_window_s
+    if tau < p0 - _EPS_S or tau + hold_s > p1 + _EPS_S:
+        return 0.0
+    rem = p1 - tau - hold_s
+    if rem <= _EPS_S:  # within the 1 ns tick tolerance of the window's end: exactly zero
+        return 0.0
+    # 1e-9 relative margin: rounding in tau must not leave the last step a hair above S dt, or
+    # the slew-scaled step would land 1e-18 T/m short of exactly zero
+    return min(saturation_T_per_m, slew_T_per_m_per_s * rem * (1.0 - 1e-9))
+
+
+def propulsion_target(applied_prev: tuple[float, float], commanded: tuple[float, float], limit_T_per_m: float,
+                      max_step_T_per_m: float) -> tuple[float, float]:
+    """The command to hand a slew-limited coil so its output stays within ``limit_T_per_m``.
+
+    The coil (:class:`~vesselbot_ros.control.actuator_limits.CoilLimiter`) moves
+    from ``applied_prev`` towards its command by at most ``max_step_T_per_m`` per
+    axis, scaling the whole step.  The commanded gradient is first scaled into
+    the disc of radius ``limit``; if the coil could not get inside the disc in
+    one step that way (the command points elsewhere), the target is the
+    previous output scaled onto the disc, which is within one step because
+    :func:`propulsion_limit` falls by at most the slew per tick.
+
+    Args:
+        applied_prev: (gx, gz) the coil's output over the previous tick (T/m).
+        commanded: (gx, gz) the controller's command (T/m), finite.
+        limit_T_per_m: :func:`propulsion_limit` for this tick (T/m), >= 0.
+        max_step_T_per_m: Slew rate times the tick (T/m).
+
+    Returns:
+        (gx, gz) the target to hand the coil (T/m).
+    """
+    cx, cz = commanded
+    n = math.hypot(cx, cz)
+    if n > limit_T_per_m:
+        if limit_T_per_m <= 0.0:
+            cx = cz = 0.0
+        else:
+            cx, cz = cx * (limit_T_per_m / n), cz * (limit_T_per_m / n)
+    px, pz = applied_prev
+    sx, sz = cx - px, cz - pz
+    biggest = max(abs(sx), abs(sz))
+    # the coil's own step, S times the tick as it measures it, may be a rounding larger: the endpoint
+    # estimated with a slightly smaller step lies on the same segment, so inside the disc means inside
+    step = max_step_T_per_m * (1.0 - 1e-9)
+    if biggest > step:
+        f = step / biggest
+        ex, ez = px + sx * f, pz + sz * f
+    else:
+        ex, ez = cx, cz
+    if math.hypot(ex, ez) <= limit_T_per_m:
+        return (cx, cz)
+    m = math.hypot(px, pz)
+    if m <= limit_T_per_m or m == 0.0:
+        return (px, pz)
+    return (px * (limit_T_per_m / m), pz * (limit_T_per_m / m))
