@@ -221,7 +221,7 @@ def run_stages(
     """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    foreign = sorted(name for name, cls in _BUILTIN.items() if type(getattr(stages, name)) is not cls)
+    foreign = _foreign_stages(stages)
     compiled = not foreign and getattr(stages.controller, "model_params", None) is not None
     if path == "compiled" and not compiled:
         raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
@@ -229,6 +229,11 @@ def run_stages(
         inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
         return _compiled_result(scenario, seed, inp, stages.imager.rng)
     return _run_per_tick(scenario, seed, stages)
+
+
+def _foreign_stages(stages: Stages) -> list[str]:
+    """Stages the compiled loop cannot run (a user's, the EKF, the scanner's), by name."""
+    return sorted(name for name, cls in _BUILTIN.items() if type(getattr(stages, name)) is not cls)
 
 
 def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.LoopInputs, rng: np.random.Generator,
@@ -386,15 +391,20 @@ def run_many(
     """
     variants = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
     seed_list = None if seeds is None else [int(x) for x in seeds]
-    jobs: list[tuple[Scenario, int | None, compiled_loop.LoopInputs]] = []
+    jobs: list[tuple[Scenario, int | None, compiled_loop.LoopInputs | None]] = []
     for sc in variants:
         st = build_stages(sc, None)
-        inp = compiled_loop.prepare(st, sc.sim.n_ticks, sc.sim.dt_control_s, sc.sim.record_forces)
+        compilable = not _foreign_stages(st) and getattr(st.controller, "model_params", None) is not None
+        # a variant with stages the compiled loop does not have (EKF, scanner) runs the per-tick loop
+        inp = compiled_loop.prepare(st, sc.sim.n_ticks, sc.sim.dt_control_s, sc.sim.record_forces) if compilable else None
         for seed in seed_list if seed_list is not None else [None]:
             jobs.append((sc, seed, inp))
 
-    def one(job: tuple[Scenario, int | None, compiled_loop.LoopInputs]) -> SimResult:
+    def one(job: tuple[Scenario, int | None, compiled_loop.LoopInputs | None]) -> SimResult:
         sc, seed, inp = job
+        if inp is None:
+            res = _run_per_tick(sc, seed, build_stages(sc, seed))
+            return res if keep_timeseries else SimResult({}, res.metrics, res.path)
         rng = np.random.default_rng(sc.seed if seed is None else seed)
         return _compiled_result(sc, seed, inp, rng, keep_timeseries)
 
