@@ -131,12 +131,14 @@ def _versions() -> dict[str, str]:
 def run(args: argparse.Namespace) -> int:
     """Run the graph (see module docstring)."""
     from vesselbot_ros.config import load_yaml
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
+    from vesselbot_ros.sim.scenario import check_resources, scenario_from_mapping
 
     # 1. validate everything before touching the disk or starting anything
     validate_args(args)
     scenario = scenario_from_mapping(apply_overrides(load_yaml(args.config), args.duration, args.seed))
     record = not args.no_record
+    # a run that does not fit in memory or on disk is refused here, one line naming the keys
+    check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
     if record:
         import importlib.util
 

@@ -90,10 +90,6 @@ __all__ = ["Stages", "SimResult", "build_stages", "run_closed_loop", "run_stages
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
 PATHS = ("compiled", "per_tick")
-#: Stages a scenario may replace with a user's object (``stages=`` of :func:`run_closed_loop`).
-REPLACEABLE = ("plant", "imager", "observer", "reference", "controller", "coil")
-_BUILTIN = {"plant": PlantSimulator, "imager": ImagerModel, "observer": HighGainObserver,
-            "reference": ReferenceTrajectory, "controller": BacksteppingController, "coil": CoilLimiter}
 
 
 class Stages(NamedTuple):
@@ -106,6 +102,14 @@ class Stages(NamedTuple):
     controller: BacksteppingController
     coil: CoilLimiter | SequencedCoil
     model: DynamicsModel
+
+
+#: Stages a scenario may replace with a user's object (``stages=`` of :func:`run_closed_loop`):
+#: every field of :class:`Stages` but the model.
+REPLACEABLE = tuple(f for f in Stages._fields if f != "model")
+#: The built-in type of each replaceable stage, in field order: the types the compiled loop runs.
+_BUILTIN = dict(zip(REPLACEABLE, (PlantSimulator, ImagerModel, HighGainObserver, ReferenceTrajectory,
+                                  BacksteppingController, CoilLimiter), strict=True))
 
 
 @dataclasses.dataclass(frozen=True)

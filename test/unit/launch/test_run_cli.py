@@ -68,3 +68,19 @@ def test_without_choices_come_from_the_graph_spec(capsys):
     err = capsys.readouterr().err
     for r in LOOP_ROLES:
         assert r in err
+
+
+
+def test_a_run_that_does_not_fit_is_refused_before_any_directory(tmp_path, capsys, monkeypatch):
+    """``vesselbot run`` calls the scenario layer's resource check before it makes the run directory."""
+    huge = tmp_path / "cfg" / "huge.yaml"
+    huge.parent.mkdir()
+    huge.write_text(PAPER.read_text().replace("control_rate_Hz: 1000.0", "control_rate_Hz: 1.0e+9"))
+    assert "1.0e+9" in huge.read_text()
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(["run", "--config", str(huge), "--record-dir", str(tmp_path / "bag"), "--quiet"])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert "sim.control_rate_Hz" in lines[0] and "sim.duration_s" in lines[0], err
+    assert os.listdir(tmp_path) == ["cfg"]  # no bag, no runs/, no log directory
