@@ -167,7 +167,9 @@ def test_full_disk_stops_the_recorder_with_one_line_and_a_repairable_bag(ros, tm
     pub = None
     try:
         assert spin_until(ex, client.service_is_ready, timeout=30), rec.output()
-        pub = NodeProcess(["python", str(PEER), str(tmp_path / "counts.json"), "0", "500"], ros.env,
+        # 100 ticks/s (~0.2 MB/s): several 0.5 s chunks (~0.1 MB each) are written before the 600 kB cap;
+        # at 500 ticks/s one chunk was about the cap, and whether any tick survived was a matter of timing
+        pub = NodeProcess(["python", str(PEER), str(tmp_path / "counts.json"), "0", "100"], ros.env,
                           tmp_path / "peer.log")
         assert spin_until(ex, lambda: not rec.alive(), timeout=90), rec.output()
         assert rec.wait(5) == 1
