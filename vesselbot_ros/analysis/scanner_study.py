@@ -37,6 +37,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.physics.apparent_weight import apparent_weight_z
 from vesselbot_ros.scanner.hardware import PRESETS
+from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
@@ -101,8 +102,6 @@ def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
 
 def hold_margin(scenario: Scenario) -> float:
     """``duty * a_sat - |a_weight|`` (m/s^2): negative means the bead cannot hold against its weight."""
-    from vesselbot_ros.scanner.sequence import duty_cycle
-
     ph = scenario.physics
     b = input_matrix(scenario.physics)
     a_sat = abs(float(b[1, 1])) * scenario.coil.saturation_T_per_m
@@ -120,8 +119,6 @@ def run_cell(args: tuple[Scenario, StudyCell, Sequence[int]]) -> dict[str, Any]:
     except ConfigError as exc:
         row.update(status=f"refused: {exc}")
         return row
-    from vesselbot_ros.scanner.sequence import duty_cycle
-
     row.update(duty_cycle=duty_cycle(sc.sequence), frame_rate_Hz=1.0 / sc.sequence.period_s,
                hold_margin_m_per_s2=hold_margin(sc))
     tr, es = [], []

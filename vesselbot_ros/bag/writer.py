@@ -31,8 +31,9 @@
 
 Example::
 
+    truth = graph_spec.topic("truth")
     with BagWriter(out_dir, run_metadata={"scenario": "small_artery", "seed": 1}) as bag:
-        conn = bag.add_topic("/vesselbot/truth", "vesselbot_msgs/msg/PlantState")
+        conn = bag.add_topic(truth.name, truth.msgtype)
         bag.write(conn, cdr_bytes, t_ns)
 """
 

@@ -50,6 +50,7 @@ from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ModelInputError
 
 __all__ = [
+    "coil_saturate",
     "CLINICAL_SLEW_RATE_T_PER_M_PER_S",
     "PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S",
     "PAPER_SATURATION_T_PER_M",
@@ -175,6 +176,24 @@ def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
+def coil_saturate(prm, gx, gz):  # type: ignore[no-untyped-def]
+    """``(sx, sz, k)``: the finite command ``(gx, gz)`` (T/m) saturated in the configured norm, and ``k >= 1``."""
+    g_sat = prm[0]
+    if prm[2] < 0.5:
+        k = hypot2(gx, gz) / g_sat  # CPython's math.hypot, double for double
+        if not k > 1.0:
+            k = 1.0
+        return gx / k, gz / k, k
+    kx = abs(gx) / g_sat
+    if not kx > 1.0:
+        kx = 1.0
+    kz = abs(gz) / g_sat
+    if not kz > 1.0:
+        kz = 1.0
+    return gx / kx, gz / kz, (kx if kx >= kz else kz)
+
+
+@numba.njit(cache=True, nogil=True)
 def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
     """Saturate, then slew-limit the command ``(gx, gz)`` (T/m) at time ``t`` (s); see :class:`CoilLimiter`.
 
@@ -195,23 +214,7 @@ def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
         out[6] = 1.0
         return
     state[3] = t
-    g_sat = prm[0]
-    if prm[2] < 0.5:
-        k = hypot2(gx, gz) / g_sat  # CPython's math.hypot, double for double
-        if not k > 1.0:
-            k = 1.0
-        sx = gx / k
-        sz = gz / k
-    else:
-        kx = abs(gx) / g_sat
-        if not kx > 1.0:
-            kx = 1.0
-        kz = abs(gz) / g_sat
-        if not kz > 1.0:
-            kz = 1.0
-        sx = gx / kx
-        sz = gz / kz
-        k = kx if kx >= kz else kz
+    sx, sz, k = coil_saturate(prm, gx, gz)
     coil_slew_to(prm, state, sx, sz, dt, out)
     out[2] = k
     out[3] = 1.0 if k > 1.0 else 0.0

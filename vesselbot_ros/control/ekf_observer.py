@@ -154,7 +154,7 @@ def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi,
 
 
 @numba.njit(cache=True)
-def _correct(y, P, mx, mz, r2, gate, force, KK, T):  # type: ignore[no-untyped-def]
+def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]
     """Kalman correction with a position frame; returns (accepted, nu_x, nu_z, d2)."""
     nx = mx - y[0]
     nz = mz - y[1]
@@ -166,7 +166,7 @@ def _correct(y, P, mx, mz, r2, gate, force, KK, T):  # type: ignore[no-untyped-d
     i01 = -s01 / det
     i11 = s00 / det
     d2 = nx * (i00 * nx + i01 * nz) + nz * (i01 * nx + i11 * nz)
-    if gate > 0.0 and d2 > gate and not force:
+    if gate > 0.0 and d2 > gate:
         return False, nx, nz, d2
     for i in range(N):  # K = P[:, :2] S^-1
         KK[i, 0] = P[i, 0] * i00 + P[i, 1] * i01
@@ -337,7 +337,7 @@ class ExtendedKalmanObserver:
         self._repredict(back, y, P)
         return True
 
-    def _fuse_at(self, t_acq: float, mx: float, mz: float, force: bool) -> tuple[bool, float, float]:
+    def _fuse_at(self, t_acq: float, mx: float, mz: float) -> tuple[bool, float, float]:
         """Correct the stored state at ``t_acq`` and re-predict to now; False if not in the history."""
         back = self._find(t_acq)
         if back < 0:
@@ -345,7 +345,7 @@ class ExtendedKalmanObserver:
         i = (self._hist_head - back) % self._hist_t.size
         y = self._hist_y[i].copy()
         P = self._hist_P[i].copy()
-        ok, nx, nz, _ = _correct(y, P, mx, mz, self._r2, self.params.gate_chi2, force, self._KK, self._T)
+        ok, nx, nz, _ = _correct(y, P, mx, mz, self._r2, self.params.gate_chi2, self._KK, self._T)
         if not ok:
             return True, math.nan, math.nan
         self._repredict(back, y, P)
@@ -401,14 +401,13 @@ class ExtendedKalmanObserver:
                     age = self._t - self._t_meas
                     return Estimate(self._t, self._y[:2].copy(), self._y[2:4].copy(), age, innov, used, False,
                                     float(self._y[4]))
-                force = False
                 found = False
                 if self.params.delay_compensation and t_acq < self._t - 1e-9:
-                    found, nx, nz = self._fuse_at(t_acq, float(yp[0]), float(yp[1]), force)
+                    found, nx, nz = self._fuse_at(t_acq, float(yp[0]), float(yp[1]))
                     ok = found and math.isfinite(nx)
                 if not found:
                     ok, nx, nz, _ = _correct(self._y, self._P, float(yp[0]), float(yp[1]), self._r2,
-                                             self.params.gate_chi2, force, self._KK, self._T)
+                                             self.params.gate_chi2, self._KK, self._T)
                 if ok:
                     innov = np.array([-nx, -nz])  # X_hat - Y, as Estimate documents
                     self._t_meas, used = t_acq, True

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput
+from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput, coil_params, coil_saturate
 from vesselbot_ros.control.imager_model import ImagerModel, Measurement, check_frame_inputs
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import SequenceParams, propulsion_limit, propulsion_target, tracking_window_of
@@ -117,6 +117,7 @@ class SequencedCoil:
         self._hold = float(hold_s)
         self._slew = float(coil.limits.slew_rate_T_per_m_per_s)
         self._sat = float(coil.limits.saturation_T_per_m)
+        self._prm = coil_params(coil.limits)
 
     @property
     def applied(self) -> npt.NDArray[np.float64]:
@@ -124,7 +125,7 @@ class SequencedCoil:
         return self.inner.applied
 
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
-        """Gate the command by the sequence, then saturate and slew-limit it."""
+        """Saturate the command in the coil's norm, gate it by the sequence, then slew-limit it."""
         g = np.asarray(commanded_T_per_m, dtype=np.float64)
         if g.shape != (2,):
             raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
@@ -133,9 +134,8 @@ class SequencedCoil:
         if not finite:  # the coil's own rejection rule, then the gate (it must not hold into a tracking window)
             g = prev if self.limits.on_reject == "hold" else np.zeros(2)
         lim = propulsion_limit(self.sequence, t_s, self._hold, self._slew, self._sat)
-        k = max(1.0, math.hypot(g[0], g[1]) / self._sat)
-        target = propulsion_target((float(prev[0]), float(prev[1])), (float(g[0]), float(g[1])), lim,
-                                   self._slew * self._hold)
+        sx, sz, k = coil_saturate(self._prm, float(g[0]), float(g[1]))  # the coil's own norm and k
+        target = propulsion_target((float(prev[0]), float(prev[1])), (sx, sz), lim, self._slew * self._hold)
         out = self.inner.apply(t_s, np.array(target))
         return out._replace(k_scale=float(k), saturated=k > 1.0, rejected=not finite)
 

@@ -255,6 +255,8 @@ def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.Lo
 
 def _sequence_phase(scenario: Scenario, ts: npt.NDArray[np.float64]) -> npt.NDArray[np.int8]:
     """The scanner's phase code at every tick (``sequence_phase`` column)."""
+    if scenario.sequence.mode == "continuous":  # one phase throughout: no per-tick Python call per run
+        return np.full(ts.size, PHASE_CODES["continuous"], dtype=np.int8)
     return np.array([PHASE_CODES[phase_at(scenario.sequence, float(t))] for t in ts], dtype=np.int8)
 
 
