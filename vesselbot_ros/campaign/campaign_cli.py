@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         "code_version": prepared.code,
         "n_runs": len({t.run_id for t in prepared.tasks}),
         "n_seeds": len(spec.seed_list()),
-        "grid_keys": list(spec.grid),
+        "grid_keys": list(spec.group_keys()),
         "varied_keys": list(spec.varied_keys()),
         "written_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }

@@ -8,6 +8,11 @@ values that vary across runs::
     overrides:                           # fixed changes to the base (dotted keys)
       sim.duration_s: 2.0
     seeds: {start: 0, count: 100}        # imager noise seeds (or a list: [0, 3, 7])
+    variants:                            # named sets of changes that go together (a controller
+      table3_gains: {}                   #   with its observer and gains): one more grid axis,
+      ekf_flow_estimate:                 #   the column ``variant`` holds the name
+        observer.kind: ekf
+        controller.gains.k1: 150.0
     grid:                                # every combination of these values
       controller.sample_hold: [none, midpoint]
     samples:                             # random draws over any scenario key
@@ -21,8 +26,8 @@ values that vary across runs::
     keep_timeseries: {seeds: [0], runs: []}   # per-run time series kept for these seeds / run indices
     chunk_size: 0                        # runs per Dask task; 0 = automatic
 
-The runs are every grid point x every draw x every seed (or x the paired seed),
-in that nesting order; the position in that order is the run ``index``.  Keys
+The runs are every variant x grid point x every draw x every seed (or x the
+paired seed), in that nesting order; the position in that order is the run ``index``.  Keys
 are dotted paths into :class:`~vesselbot_ros.sim.scenario.Scenario` (a key
 inside ``model.overrides`` is free-form, checked when the scenario is built).
 Like every config, the file goes through :func:`vesselbot_ros.config.load_dataclass`:
@@ -197,6 +202,9 @@ class CampaignSpec:
         base: Base scenario YAML; a relative path is taken from the spec file's folder.
         overrides: Fixed changes to the base, dotted key -> value.
         seeds: Imager noise seeds: a list or ``{start, count}`` (loaded as a tuple or a :class:`SeedRange`).
+        variants: Name -> {dotted key: value}: named sets of changes applied together
+            (e.g. an observer with its controller and gains); every variant runs with every
+            grid point, draw and seed, and the results' ``variant`` column holds its name.
         grid: Dotted key -> list of values; every combination is run.
         samples: Random draws (:class:`SampleSpec`).
         keep_timeseries: Runs whose time series are kept (:class:`KeepSpec`).
@@ -208,6 +216,7 @@ class CampaignSpec:
     base: str
     overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
     seeds: Any = (0,)
+    variants: dict[str, Any] = dataclasses.field(default_factory=dict)
     grid: dict[str, Any] = dataclasses.field(default_factory=dict)
     samples: SampleSpec = dataclasses.field(default_factory=SampleSpec)
     keep_timeseries: KeepSpec = dataclasses.field(default_factory=KeepSpec)
@@ -233,6 +242,18 @@ class CampaignSpec:
         for key, values in self.grid.items():
             if not isinstance(values, list) or not values:
                 raise ConfigError(f"grid.{key} must be a non-empty list of values, got {values!r}")
+        for vname, changes in self.variants.items():
+            if not isinstance(vname, str) or not vname or not all(c.isalnum() or c in "_-." for c in vname):
+                raise ConfigError(f"variants: name must be non-empty and use only letters, digits, '_', '-', '.', got {vname!r}")
+            if not isinstance(changes, dict):
+                raise ConfigError(f"variants.{vname} must be a mapping of dotted key -> value ({{}} for none), got {changes!r}")
+            for key in changes:
+                try:
+                    check_scenario_key(key)
+                except ConfigError as exc:
+                    raise ConfigError(f"variants.{vname}.{key}: {exc}") from None
+                if key in self.grid or key in self.samples.params:
+                    raise ConfigError(f"variants.{vname}.{key} is also varied by grid or samples; vary a key in one place")
         if self.chunk_size < 0:
             raise ConfigError(f"chunk_size must be >= 0 (0 = automatic), got {self.chunk_size!r}")
         for section, keys in (("overrides", self.overrides), ("grid", self.grid), ("samples.params", self.samples.params)):
@@ -257,8 +278,12 @@ class CampaignSpec:
         return self.seeds
 
     def varied_keys(self) -> tuple[str, ...]:
-        """The dotted keys that vary (grid keys, then sampled keys)."""
-        return tuple(self.grid) + tuple(self.samples.params)
+        """The columns that vary: ``variant`` (when there are variants), grid keys, then sampled keys."""
+        return (("variant",) if self.variants else ()) + tuple(self.grid) + tuple(self.samples.params)
+
+    def group_keys(self) -> tuple[str, ...]:
+        """The columns that split the runs into summary groups: ``variant`` and the grid keys."""
+        return (("variant",) if self.variants else ()) + tuple(self.grid)
 
 
 def _seed(name: str, value: Any) -> int:
@@ -350,15 +375,19 @@ def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunP
     else:
         draws = [{}]
     keep_seeds, keep_runs = set(spec.keep_timeseries.seeds), set(spec.keep_timeseries.runs)
+    variants = list(spec.variants.items()) or [(None, {})]
     points: list[RunPoint] = []
-    for g in grid_points:
-        for i, d in enumerate(draws):
-            for seed in ((seeds[i],) if s.paired_with_seeds else seeds):
-                values = {**g, **d}
-                mapping = _with_values(base_mapping, values)
-                mapping["seed"] = seed
-                idx = len(points)
-                points.append(RunPoint(idx, seed, values, mapping, seed in keep_seeds or idx in keep_runs))
+    for vname, changes in variants:
+        variant_base = _with_values(base_mapping, changes)
+        tag = {} if vname is None else {"variant": vname}
+        for g in grid_points:
+            for i, d in enumerate(draws):
+                for seed in ((seeds[i],) if s.paired_with_seeds else seeds):
+                    values = {**tag, **g, **d}
+                    mapping = _with_values(variant_base, {**g, **d})
+                    mapping["seed"] = seed
+                    idx = len(points)
+                    points.append(RunPoint(idx, seed, values, mapping, seed in keep_seeds or idx in keep_runs))
     return points
 
 
@@ -393,6 +422,11 @@ def load_campaign_spec(path: str | Path) -> tuple[CampaignSpec, dict[str, Any]]:
         scenario_from_mapping(base)
     except ConfigError as exc:
         raise ConfigError(f"base scenario {str(base_path)!r} with overrides: {exc}") from None
+    for vname, changes in spec.variants.items():
+        try:
+            scenario_from_mapping(_with_values(base, changes))
+        except ConfigError as exc:
+            raise ConfigError(f"variants.{vname} gives an invalid scenario: {exc}") from None
     for key, values in spec.grid.items():
         for i, v in enumerate(values):
             try:

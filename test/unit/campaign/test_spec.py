@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from vesselbot_ros.campaign.spec import (
     load_campaign_spec,
 )
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.sim.scenario import load_scenario, scenario_from_mapping
 
 ROOT = Path(__file__).resolve().parents[3]
 SOUND = ROOT / "config" / "sound_small_artery.yaml"
@@ -34,10 +36,14 @@ def _write(tmp_path: Path, **doc) -> Path:
 def test_shipped_examples_load_and_expand() -> None:
     spec, base = load_campaign_spec(ROOT / "config" / "campaigns" / "vf_error_seeds.yaml")
     points = expand_points(spec, base)
-    assert len(points) == 200
+    assert len(points) == 300
     assert [p.seed for p in points[:3]] == [0, 1, 2]
-    assert {p.values["controller.sample_hold"] for p in points} == {"none", "midpoint"}
-    assert sum(p.keep_timeseries for p in points) == 2  # seed 0 of each controller
+    assert [p.values["variant"] for p in points[::100]] == ["bs24_printed_hold", "bs24_midpoint", "ekf_flow_estimate"]
+    assert sum(p.keep_timeseries for p in points) == 3  # seed 0 of each controller
+    # the EKF variant is exactly the shipped EKF scenario (but for name and seed)
+    ekf = scenario_from_mapping(points[200].mapping)
+    shipped = load_scenario(ROOT / "config" / "sound_small_artery_ekf.yaml")
+    assert dataclasses.replace(ekf, name=shipped.name, seed=shipped.seed) == shipped
     assert base["model"]["overrides"]["flow"]["centreline_velocity_m_per_s"] == pytest.approx(1.05 * 0.025, rel=0, abs=1e-12)
 
     spec, base = load_campaign_spec(ROOT / "config" / "campaigns" / "table2_ranges.yaml")
@@ -72,10 +78,32 @@ def test_expansion_order_is_grid_then_draws_then_seeds(tmp_path) -> None:
     assert [p.values for p in expand_points(spec, base)] == [p.values for p in pts]
 
 
+def test_variants_are_the_outer_axis_and_set_their_keys_together(tmp_path) -> None:
+    p = _write(tmp_path, seeds=[0, 1], grid={"imager.noise_sigma_m": [50e-6, 100e-6]},
+               variants={"a": {}, "b": {"controller.gains.k1": 150.0, "controller.gains.k2": 150.0}})
+    spec, base = load_campaign_spec(p)
+    assert spec.varied_keys() == ("variant", "imager.noise_sigma_m")
+    assert spec.group_keys() == ("variant", "imager.noise_sigma_m")
+    pts = expand_points(spec, base)
+    assert [p.values["variant"] for p in pts] == ["a"] * 4 + ["b"] * 4
+    assert [p.values["imager.noise_sigma_m"] for p in pts] == [50e-6, 50e-6, 100e-6, 100e-6] * 2
+    assert {p.mapping["controller"]["gains"]["k1"] for p in pts[:4]} == {base["controller"]["gains"]["k1"]}
+    assert {(p.mapping["controller"]["gains"]["k1"], p.mapping["controller"]["gains"]["k2"]) for p in pts[4:]} == {(150.0, 150.0)}
+    # without variants there is no variant column
+    spec, _ = load_campaign_spec(_write(tmp_path, grid={"imager.noise_sigma_m": [50e-6]}))
+    assert spec.varied_keys() == ("imager.noise_sigma_m",)
+
+
 @pytest.mark.parametrize(
     ("doc", "match"),
     [
         ({"bogus": 1}, r"unknown key bogus"),
+        ({"variants": {"a": {"controller.gains.bogus": 1.0}}}, r"variants\.a\.controller\.gains\.bogus: unknown scenario key"),
+        ({"variants": {"a": {"controller.gains.k1": -1.0}}}, r"variants\.a gives an invalid scenario: .*k1 must be > 0"),
+        ({"variants": {"a b": {}}}, r"variants: name must be"),
+        ({"variants": {"a": [1]}}, r"variants\.a must be a mapping"),
+        ({"variants": {"a": {"imager.noise_sigma_m": 1e-5}}, "grid": {"imager.noise_sigma_m": [1e-5]}},
+         r"variants\.a\.imager\.noise_sigma_m is also varied"),
         ({"grid": {"physics.blood.bogus_Pa": [1.0]}}, r"grid\.physics\.blood\.bogus_Pa: unknown scenario key"),
         ({"grid": {"physics.blood": [1.0]}}, r"names a section"),
         ({"grid": {"seed": [1, 2]}}, r"set by the campaign"),
