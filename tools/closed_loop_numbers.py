@@ -1,7 +1,7 @@
 """Regenerate every closed-loop number of docs/reproduction.md and the README (seeds 0-4, mean / worst).
 
 The numbers sit between ``<!-- BEGIN name -->`` and ``<!-- END name -->``
-markers (``closed_loop``, ``closed_loop_ablations`` in docs/reproduction.md;
+markers (``closed_loop``, ``closed_loop_ablations``, ``closed_loop_controllers`` in docs/reproduction.md;
 ``closed_loop_summary`` in README.md); nothing between the markers is written
 by hand.  Run::
 
@@ -48,6 +48,18 @@ ABLATIONS = (
     Case("exact model, no noise, no outliers", "sound_small_artery", EXACT + NO_NOISE),
     Case("outlier direction random per frame (not fixed)", "sound_small_artery", RANDOM_DIR),
     Case("exact model, outlier direction random per frame", "sound_small_artery", EXACT + RANDOM_DIR),
+)
+
+GAINS_100 = ("controller.gains.k1=100.0", "controller.gains.k2=100.0")
+EKF_NO_SCALE = ("controller.flow_compensation=none", "observer.ekf.flow_scale_sigma0=1.0e-9",
+                "observer.ekf.flow_scale_noise_per_sqrt_s=1.0e-9")
+#: Controller/observer pairs against the paper's 5 % blood-velocity error (Section III-D's question).
+CONTROLLERS = (
+    Case("law (24), Table III gains (k1 = 5, k2 = 10), observer (25)", "sound_small_artery"),
+    Case("law (24), k1 = k2 = 100, observer (25)", "sound_small_artery", GAINS_100),
+    Case("adaptive backstepping [39] (V_f scale adapted), k1 = k2 = 100, observer (25)", "sound_small_artery_adaptive"),
+    Case("EKF with V_f scale held at the model's (1), law (24), k1 = k2 = 150", "sound_small_artery_ekf", EKF_NO_SCALE),
+    Case("EKF estimating the V_f scale, law (24) using it, k1 = k2 = 150", "sound_small_artery_ekf"),
 )
 
 
@@ -99,6 +111,18 @@ def ablation_table(results: dict[str, dict[str, list[float]]]) -> str:
     return "\n".join(lines)
 
 
+def controller_table(results: dict[str, dict[str, list[float]]]) -> str:
+    lines = ["| controller / observer (sound variant, 5 % V_f error, seeds 0-4: mean / worst) | scenario | "
+             "tracking max | estimation max | wall contact |",
+             "|---|---|---|---|---|"]
+    for case in CONTROLLERS:
+        r = results[case.label]
+        lines.append(f"| {case.label} | `{case.scenario}`{' + ' + str(len(case.sets)) + ' sets' if case.sets else ''} | "
+                     f"{mean_worst(r['tracking_error_max_m'])} um | {mean_worst(r['estimation_error_max_m'])} um | "
+                     f"{mean_worst(r['contact_time_s'], 1.0, 2)} s |")
+    return "\n".join(lines)
+
+
 def summary(paper: dict[str, list[float]], results: dict[str, dict[str, list[float]]]) -> str:
     import textwrap
 
@@ -120,6 +144,7 @@ def sections(with_paper: bool = True) -> dict[str, str]:
     """The generated sections, by marker name (``with_paper=False`` skips the slow printed variant)."""
     results = {c.label: measure(c) for c in ABLATIONS}
     out = {"closed_loop_ablations": ablation_table(results)}
+    out["closed_loop_controllers"] = controller_table({c.label: measure(c) for c in CONTROLLERS})
     if with_paper:
         paper = measure(Case("paper", "paper_small_artery"))
         out["closed_loop"] = main_table(paper, results["as configured"])

@@ -38,7 +38,8 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
-from vesselbot_ros.config import check_choice, check_positive
+from vesselbot_ros.config import ConfigError, check_choice, check_positive
+from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adaptation_step
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, forces_into
 
@@ -75,6 +76,12 @@ class ControllerParams:
     """Backstepping controller parameters.
 
     Attributes:
+        kind: ``backstepping``: law (24) with the model's parameters.
+            ``adaptive_backstepping``: law (24) with on-line estimates of the
+            blood-velocity scale and the magnetisation scale (the adaptive
+            backstepping of the paper's ref. [39];
+            :mod:`vesselbot_ros.control.adaptive`).
+        adaptive: Gains and bounds of the adaptation (``kind: adaptive_backstepping``).
         gains: ``k1, k2`` of eq. (24).
         stale_timeout_s: Estimate age (time since the last measurement, s)
             beyond which the controller goes to its safe action.
@@ -99,6 +106,8 @@ class ControllerParams:
             asks for (then saturated as usual).
     """
 
+    kind: Literal["backstepping", "adaptive_backstepping"] = "backstepping"
+    adaptive: AdaptiveParams = dataclasses.field(default_factory=AdaptiveParams)
     gains: BacksteppingGains = dataclasses.field(default_factory=BacksteppingGains)
     stale_timeout_s: float = 0.2
     stale_action: Literal["hold", "zero"] = "zero"
@@ -112,6 +121,10 @@ class ControllerParams:
         check_choice("sample_hold", self.sample_hold, ("none", "midpoint"))
         check_choice("flow_compensation", self.flow_compensation, ("none", "estimate"))
         check_choice("duty_compensation", self.duty_compensation, ("none", "sequence"))
+        check_choice("kind", self.kind, ("backstepping", "adaptive_backstepping"))
+        if self.kind == "adaptive_backstepping" and self.flow_compensation != "none":
+            raise ConfigError("flow_compensation must be 'none' with kind 'adaptive_backstepping' (the controller "
+                              f"estimates the blood-velocity scale itself), got {self.flow_compensation!r}")
 
 
 class ControlCommand(NamedTuple):
@@ -271,6 +284,9 @@ class BacksteppingController:
         self._last = np.zeros(2)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
         self._compensate = params.flow_compensation == "estimate"
+        self._b = mat2(input_matrix)
+        #: the adapted scales (``kind: adaptive_backstepping``), else None
+        self.adapted: AdaptiveState | None = AdaptiveState() if params.kind == "adaptive_backstepping" else None
         if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
             raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
         self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
@@ -279,7 +295,7 @@ class BacksteppingController:
         owner = getattr(force_fn, "__self__", None)
         model_p = getattr(owner, "p", None)
         # the compiled law knows neither the observer's flow scale nor the duty cycle: those run in Python
-        plain = not self._compensate and self._inv_duty == 1.0
+        plain = not self._compensate and self._inv_duty == 1.0 and self.adapted is None
         self.model_params: npt.NDArray[np.float64] | None = (
             model_p if plain and getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) else None
         )
@@ -289,8 +305,10 @@ class BacksteppingController:
         self._fbuf = np.empty((8, 2))
 
     def reset(self) -> None:
-        """Forget the last command (the ``hold`` action then holds zero)."""
+        """Forget the last command (the ``hold`` action then holds zero) and any adapted scale."""
         self._last[:] = 0.0
+        if self.adapted is not None:
+            self.adapted = AdaptiveState()
 
     def _safe(self, status: str) -> ControlCommand:
         if self.params.stale_action != "hold":
@@ -362,8 +380,14 @@ class BacksteppingController:
             o = self._out
             return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
         if not time_since_measurement_s <= self.params.stale_timeout_s:
+            if self.adapted is not None:
+                self.adapted.t_last_s = float(t_s)  # adaptation pauses while the estimate is stale
             return self._safe("stale")
-        if self._compensate:
+        inv_m = 1.0
+        if self.adapted is not None:
+            flow_scale = self._adapt(float(t_s), x_hat, z_hat, p_ref, v_ref)
+            inv_m = 1.0 / self.adapted.magnetization_scale
+        if self._compensate or self.adapted is not None:
             if not (math.isfinite(flow_scale) and flow_scale > 0.0):
                 raise ModelInputError(f"controller: flow scale must be finite and > 0, got {flow_scale!r}")
 
@@ -382,7 +406,26 @@ class BacksteppingController:
         g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
         if self._inv_duty != 1.0:
             g = g * self._inv_duty
+        if inv_m != 1.0:
+            g = g * inv_m
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return self._safe("nonfinite")
         self._last[:] = g
         return ControlCommand(g, u, "ok")
+
+    def _adapt(self, t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.NDArray[np.float64],
+               p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64]) -> float:
+        """One step of the adaptation laws (:mod:`vesselbot_ros.control.adaptive`); the flow scale to use."""
+        st = self.adapted
+        assert st is not None
+        prm = self.params.adaptive
+        k1 = self._k1
+        e2 = (z_hat[0] - v_ref[0] + k1 * (x_hat[0] - p_ref[0]), z_hat[1] - v_ref[1] + k1 * (x_hat[1] - p_ref[1]))
+        h = prm.regressor_step
+        f0 = self._f(t_s, x_hat, z_hat, st.flow_scale)
+        f1 = self._f(t_s, x_hat, z_hat, st.flow_scale + h)
+        phi_s = ((f1[0] - f0[0]) / h, (f1[1] - f0[1]) / h)
+        b = self._b  # phi_m = B G of the gradient commanded since the last update (m = 1)
+        phi_m = (b[0] * self._last[0] + b[1] * self._last[1], b[2] * self._last[0] + b[3] * self._last[1])
+        adaptation_step(prm, st, t_s, e2, phi_s, phi_m)
+        return st.flow_scale

@@ -43,7 +43,9 @@ meas_p               m        measurement delivered at t_k (NaN if none)
 meas_t_acq_s         s        its acquisition time (NaN if none)
 meas_outlier         bool     injected aberrant frame (ground truth flag)
 x_hat, z_hat         m, m/s   observer estimate after the update at t_k
-flow_scale_hat       -        observer's blood-velocity scale s_hat (1 if not estimated)
+flow_scale_hat       -        estimated blood-velocity scale s_hat: the observer's (EKF) or the adaptive
+                              controller's after its update at this tick (1 if not estimated)
+magnetization_scale_hat -     adaptive controller's magnetisation scale m_hat (1 if not estimated)
 meas_used            bool     a measurement corrected the estimate
 meas_rejected        bool     a measurement was rejected (non-finite, gate)
 u_cmd                m/s^2    U of eq. (24)
@@ -228,7 +230,9 @@ def run_stages(
     foreign = _foreign_stages(stages)
     compiled = not foreign and getattr(stages.controller, "model_params", None) is not None
     if path == "compiled" and not compiled:
-        raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
+        why = (f"user stage(s) {foreign}" if foreign else
+               "a controller option it lacks (adaptive backstepping, flow or duty compensation)")
+        raise ModelInputError(f"path='compiled' needs the built-in stages, got {why}")
     if compiled and path != "per_tick":
         inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
         return _compiled_result(scenario, seed, inp, stages.imager.rng)
@@ -248,6 +252,7 @@ def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.Lo
     # the compiled loop runs observer (25) (no flow scale) in a continuous sequence: the columns the
     # per-tick loop records for the EKF and the scanner, with the same values it would record
     series["flow_scale_hat"] = np.ones(inp.ts.size)
+    series["magnetization_scale_hat"] = np.ones(inp.ts.size)
     series["sequence_phase"] = _sequence_phase(scenario, inp.ts)
     metrics = _metrics(scenario, seed, series, plant_stats, model_stats)
     return SimResult(series if keep_timeseries else {}, metrics, "compiled")
@@ -287,7 +292,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     rec_forces = scenario.sim.record_forces
 
     f2 = {k: np.empty((n, 2)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
-    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale", "flow_scale_hat")}
+    f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale", "flow_scale_hat",
+                                      "magnetization_scale_hat")}
     b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
     slew = np.zeros((n, 2), dtype=bool)
     phase = np.zeros(n, dtype=np.int8)
@@ -298,6 +304,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
     arrays_port = hasattr(controller, "command_arrays")
     builtin_controller = type(controller) is BacksteppingController  # takes the observer's flow scale
+    adapted = getattr(controller, "adapted", None) if builtin_controller else None  # adaptive backstepping
     g_prev = np.zeros(2)
     nan2 = np.array([np.nan, np.nan])
     for k in range(n):
@@ -331,7 +338,13 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             b1["meas_outlier"][k] = meas.outlier
         f2["x_hat"][k] = est.x_hat
         f2["z_hat"][k] = est.z_hat
-        f1["flow_scale_hat"][k] = est.flow_scale
+        if adapted is None:
+            f1["flow_scale_hat"][k] = est.flow_scale
+            f1["magnetization_scale_hat"][k] = 1.0
+        else:
+            adapted = controller.adapted  # reset() replaces it
+            f1["flow_scale_hat"][k] = adapted.flow_scale
+            f1["magnetization_scale_hat"][k] = adapted.magnetization_scale
         b1["meas_used"][k] = est.used_measurement
         b1["meas_rejected"][k] = est.rejected
         f2["u_cmd"][k] = cmd.u_m_per_s2

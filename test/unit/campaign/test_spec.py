@@ -36,14 +36,16 @@ def _write(tmp_path: Path, **doc) -> Path:
 def test_shipped_examples_load_and_expand() -> None:
     spec, base = load_campaign_spec(ROOT / "config" / "campaigns" / "vf_error_seeds.yaml")
     points = expand_points(spec, base)
-    assert len(points) == 300
+    assert len(points) == 400
     assert [p.seed for p in points[:3]] == [0, 1, 2]
-    assert [p.values["variant"] for p in points[::100]] == ["bs24_printed_hold", "bs24_midpoint", "ekf_flow_estimate"]
-    assert sum(p.keep_timeseries for p in points) == 3  # seed 0 of each controller
-    # the EKF variant is exactly the shipped EKF scenario (but for name and seed)
-    ekf = scenario_from_mapping(points[200].mapping)
-    shipped = load_scenario(ROOT / "config" / "sound_small_artery_ekf.yaml")
-    assert dataclasses.replace(ekf, name=shipped.name, seed=shipped.seed) == shipped
+    assert [p.values["variant"] for p in points[::100]] == ["bs24_printed_hold", "bs24_midpoint", "adaptive_bs",
+                                                             "ekf_flow_estimate"]
+    assert sum(p.keep_timeseries for p in points) == 4  # seed 0 of each controller
+    # the adaptive and EKF variants are exactly the shipped scenarios (but for name and seed)
+    for index, name in ((200, "sound_small_artery_adaptive"), (300, "sound_small_artery_ekf")):
+        variant = scenario_from_mapping(points[index].mapping)
+        shipped = load_scenario(ROOT / "config" / f"{name}.yaml")
+        assert dataclasses.replace(variant, name=shipped.name, seed=shipped.seed) == shipped
     assert base["model"]["overrides"]["flow"]["centreline_velocity_m_per_s"] == pytest.approx(1.05 * 0.025, rel=0, abs=1e-12)
 
     spec, base = load_campaign_spec(ROOT / "config" / "campaigns" / "table2_ranges.yaml")

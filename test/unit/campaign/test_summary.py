@@ -72,5 +72,5 @@ def test_reproduction_doc_tables_are_generated_from_the_stored_campaigns(repo) -
     assert mod.render(doc) == doc, "docs/reproduction.md is stale: run tools/gen_campaign_tables.py"
     names = {p.name for p in (repo / "docs" / "campaigns").iterdir()}
     assert names == {p.stem for p in (repo / "config" / "campaigns").glob("*.yaml")}
-    for variant in ("bs24_printed_hold", "bs24_midpoint", "ekf_flow_estimate"):
+    for variant in ("bs24_printed_hold", "bs24_midpoint", "adaptive_bs", "ekf_flow_estimate"):
         assert f"| variant={variant} | tracking error max (um) | 100 / 0 |" in doc
