@@ -1,6 +1,7 @@
 """``vesselbot scanner-study``: tracking under MRI multiplexing and latency, per hardware and controller.
 
-Writes ``table.csv`` (one row per cell), ``tracking_vs_duty.png`` and
+Writes ``table.csv`` (one row per cell), ``table.md`` (the same as Markdown,
+what docs/reproduction.md quotes), ``tracking_vs_duty.png`` and
 ``tracking_vs_latency.png`` to ``--out`` and prints the table.
 See :mod:`vesselbot_ros.analysis.scanner_study`.
 """
@@ -16,6 +17,15 @@ from vesselbot_ros.analysis.scanner_study import PAIRS, fmt_um, run_study, study
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+
+
+def _tracking(text: str) -> list[float | None]:
+    if text.strip() == "preset":
+        return [None]
+    vals = _floats(text)
+    if any(v <= 0.0 for v in vals):
+        raise argparse.ArgumentTypeError(f"tracking windows must be > 0 s, got {text!r}")
+    return list(vals)
 
 
 def _floats(text: str) -> list[float]:
@@ -35,10 +45,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hardware", default=",".join(PRESETS), help="comma-separated presets (default: all)")
     parser.add_argument("--propulsion-windows", type=_floats, default=[0.01, 0.03, 0.06, 0.12],
                         help="propulsion window lengths in s (duty cycle and frame rate follow)")
+    parser.add_argument("--tracking-windows", type=_tracking, default=[None],
+                        help="tracking (imaging) window lengths in s, or 'preset' (default: each preset's)")
     parser.add_argument("--latencies", type=_floats, default=[0.0, 0.02, 0.05], help="latencies in s")
     parser.add_argument("--pairs", default=",".join(PAIRS), help="observer/controller pairs (default: all)")
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per cell (default 3)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: all cores)")
+    parser.add_argument("--cell-timeout-s", type=float, default=300.0,
+                        help="wall-clock budget per cell; a cell over it is recorded as 'timeout' (default 300)")
     parser.add_argument("--out", default="out/scanner-study", help="output folder")
 
 
@@ -48,28 +62,50 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--seeds must be in 1..100, got {args.seeds}")
     base = load_scenario(args.config)
     cells = study_cells([h for h in args.hardware.split(",") if h], args.propulsion_windows, args.latencies,
-                        [p for p in args.pairs.split(",") if p])
-    rows = run_study(base, cells, range(args.seeds), max(1, args.workers))
+                        [p for p in args.pairs.split(",") if p], args.tracking_windows)
+    rows = run_study(base, cells, range(args.seeds), max(1, args.workers), args.cell_timeout_s)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    keys = ["hardware", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s", "pair", "status",
-            "hold_margin_m_per_s2", "tracking_max_mean_m", "tracking_max_worst_m", "estimation_rms_mean_m",
-            "estimation_rms_worst_m"]
+    keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
+            "pair", "status", "hold_margin_m_per_s2", "coast_floor_m", "tracking_max_mean_m", "tracking_max_worst_m",
+            "estimation_rms_mean_m", "estimation_rms_worst_m"]
     with (out / "table.csv").open("w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    print(f"{'hardware':<18}{'P win':>7}{'duty':>6}{'fps':>6}{'lat':>6}  {'pair':<9}{'hold':>7}"
+    (out / "table.md").write_text(markdown_table(rows), encoding="utf-8")
+    print(f"{'hardware':<18}{'T win':>7}{'P win':>7}{'duty':>6}{'fps':>6}{'lat':>6}  {'pair':<9}{'hold':>7}{'floor':>7}"
           f"{'track max mean/worst um':>25}{'est rms mean um':>17}  status")
     for r in rows:
-        print(f"{r['hardware']:<18}{r['propulsion_window_s']:>7.3f}{r.get('duty_cycle', float('nan')):>6.2f}"
-              f"{r.get('frame_rate_Hz', float('nan')):>6.1f}{r['latency_s']:>6.3f}  {r['pair']:<9}"
-              f"{r.get('hold_margin_m_per_s2', float('nan')):>7.2f}"
+        print(f"{r['hardware']:<18}{_f(r.get('tracking_window_s'), 3, 7)}{r['propulsion_window_s']:>7.3f}"
+              f"{_f(r.get('duty_cycle'), 2, 6)}{_f(r.get('frame_rate_Hz'), 1, 6)}{r['latency_s']:>6.3f}  {r['pair']:<9}"
+              f"{_f(r.get('hold_margin_m_per_s2'), 2, 7)}{fmt_um(r.get('coast_floor_m')):>7}"
               f"{fmt_um(r.get('tracking_max_mean_m')):>14} / {fmt_um(r.get('tracking_max_worst_m')):<8}"
               f"{fmt_um(r.get('estimation_rms_mean_m')):>15}    {r['status'][:60]}")
     _figures(rows, out)
-    print(f"wrote {out / 'table.csv'}, {out / 'tracking_vs_duty.png'}, {out / 'tracking_vs_latency.png'}")
+    print(f"wrote {out / 'table.csv'}, {out / 'table.md'}, {out / 'tracking_vs_duty.png'}, {out / 'tracking_vs_latency.png'}")
     return 0
+
+
+def _f(v: object, digits: int, width: int) -> str:
+    return f"{v:>{width}.{digits}f}" if isinstance(v, float) else f"{'-':>{width}}"
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The study's rows as a Markdown table (micrometres; ``-`` where a cell did not run)."""
+    lines = ["| hardware | tracking window (ms) | propulsion window (ms) | duty | frames/s | latency (ms) | pair | "
+             "hold margin (m/s^2) | coast floor (um) | tracking max, mean / worst (um) | estimation rms, mean (um) | status |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        tw = r.get("tracking_window_s")
+        lines.append(
+            f"| {r['hardware']} | {'-' if tw is None else f'{tw * 1e3:g}'} | {r['propulsion_window_s'] * 1e3:g} | "
+            f"{_f(r.get('duty_cycle'), 2, 0).strip()} | {_f(r.get('frame_rate_Hz'), 1, 0).strip()} | "
+            f"{r['latency_s'] * 1e3:g} | {r['pair']} | {_f(r.get('hold_margin_m_per_s2'), 1, 0).strip()} | "
+            f"{fmt_um(r.get('coast_floor_m'))} | {fmt_um(r.get('tracking_max_mean_m'))} / "
+            f"{fmt_um(r.get('tracking_max_worst_m'))} | {fmt_um(r.get('estimation_rms_mean_m'))} | "
+            f"{r['status'].split(':')[0]} |")
+    return "\n".join(lines) + "\n"
 
 
 def _figures(rows: list[dict], out: Path) -> None:

@@ -1,0 +1,101 @@
+"""Tests of the scanner study: cells, physical bounds, the per-cell time budget, the CLI's outputs."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses as dc
+
+import pytest
+
+from vesselbot_ros.analysis import scanner_study as ss
+from vesselbot_ros.cli import main as cli_main
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
+
+
+def _short(s: Scenario, duration: float = 0.3) -> Scenario:
+    return dc.replace(s, sim=dc.replace(s.sim, duration_s=duration, metrics_after_s=0.4 * duration))
+
+
+@pytest.fixture(scope="module")
+def base() -> Scenario:
+    return load_scenario(shipped_scenarios()["sound_small_artery_ekf"])
+
+
+def test_cells_are_the_full_grid_in_a_fixed_order_and_names_are_checked() -> None:
+    cells = ss.study_cells(["clinical_3t", "propulsion_insert"], [0.03, 0.06], [0.0], ["paper", "ekf"], [0.005, None])
+    assert len(cells) == 2 * 2 * 2 * 1 * 2
+    assert [(c.hardware, c.tracking_window_s, c.propulsion_window_s, c.pair) for c in cells[:4]] == [
+        ("clinical_3t", 0.005, 0.03, "paper"), ("clinical_3t", 0.005, 0.03, "ekf"),
+        ("clinical_3t", 0.005, 0.06, "paper"), ("clinical_3t", 0.005, 0.06, "ekf")]
+    with pytest.raises(ConfigError, match=r"hardware must be one of .* got 'mri9000'"):
+        ss.study_cells(["mri9000"], [0.03], [0.0], ["ekf"])
+    with pytest.raises(ConfigError, match=r"pair must be one of .* got 'pid'"):
+        ss.study_cells(["clinical_3t"], [0.03], [0.0], ["pid"])
+
+
+def test_cell_scenario_takes_the_hardware_the_windows_and_the_pair(base: Scenario) -> None:
+    sc = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.06, 0.03, "ekf_k300", 0.005))
+    assert sc.sequence.mode == "multiplexed"
+    assert (sc.sequence.tracking_window_s, sc.sequence.propulsion_window_s, sc.sequence.latency_s) == (0.005, 0.06, 0.03)
+    assert sc.coil.saturation_T_per_m == 0.4
+    assert (sc.controller.gains.k1, sc.controller.gains.k2, sc.observer.kind) == (150.0, 150.0, "ekf")
+    preset = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.03, 0.02, "paper"))
+    assert preset.sequence.tracking_window_s == 0.02  # the preset's
+    assert preset.observer.kind == "high_gain"
+
+
+def test_bounds_say_where_the_loop_can_be_feasible(base: Scenario) -> None:
+    """Against the apparent weight (8.2 m/s^2) and the drag of the peak systolic flow, following the reference
+    needs ~13 m/s^2: more than the clinical 45 mT/m coil gives even propelling all the time, less than the
+    paper's 80 mT/m gives continuously, far less than the 400 mT/m insert gives at half duty.
+    The coast floor grows with the time without propulsion (drift with the flow and sinking)."""
+    clinical = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.02, 0.0, "ekf", 0.02))
+    insert = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.02, 0.0, "ekf", 0.02))
+    a_sat_clinical = 208.5 * 0.045  # tau_m M / rho per T/m, times the saturation (m/s^2)
+    need = ss.required_accel(clinical)
+    assert a_sat_clinical < need < 208.5 * 0.08
+    duty = 0.02 / (0.02 + 2 * 0.002 + 0.02)  # tracking, dead, propulsion, dead
+    assert ss.hold_margin(clinical) == pytest.approx(duty * a_sat_clinical - need, rel=1e-3)
+    assert ss.hold_margin(clinical) < 0.0 < ss.hold_margin(insert)
+    short = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.02, 0.0, "ekf", 0.005))
+    floor_long, floor_short = ss.coast_floor(insert), ss.coast_floor(short)
+    assert 0.0 < floor_short < floor_long
+    # at ~45 mm/s of flow over a 24 ms coast the bead drifts about a millimetre: floor ~ half of it
+    assert 200e-6 < floor_long < 800e-6
+
+
+def test_study_rows_in_order_and_a_cell_over_budget_is_a_timeout_not_a_stall(base: Scenario) -> None:
+    short = _short(base)
+    cells = ss.study_cells(["propulsion_insert"], [0.03], [0.0, 0.02], ["ekf"])
+    rows = ss.run_study(short, cells, [0], workers=2, cell_timeout_s=600.0)
+    assert [(r["latency_s"], r["status"]) for r in rows] == [(0.0, "ok"), (0.02, "ok")]
+    assert all(r["tracking_max_mean_m"] > 0.0 and r["coast_floor_m"] > 0.0 for r in rows)
+    # the same cell again, in process: identical (deterministic, whichever process ran it)
+    assert ss.run_cell((short, cells[1], (0,)))["tracking_max_mean_m"] == rows[1]["tracking_max_mean_m"]
+    timed = ss.run_study(base, cells[:1], [0, 1, 2], workers=1, cell_timeout_s=0.5)
+    assert timed[0]["status"].startswith("timeout: over 0.5 s")
+    with pytest.raises(ConfigError, match="cell_timeout_s must be > 0"):
+        ss.run_study(short, cells, [0], cell_timeout_s=0.0)
+
+
+def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> None:
+    out = tmp_path / "study"
+    cfg = tmp_path / "base.yaml"
+    text = shipped_scenarios()["sound_small_artery_ekf"].read_text()
+    cfg.write_text(text.replace("duration_s: 2.0", "duration_s: 0.3", 1))
+    code = cli_main(["scanner-study", "--config", str(cfg), "--hardware", "propulsion_insert,clinical_3t",
+                     "--tracking-windows", "0.005", "--propulsion-windows", "0.03", "--latencies", "0.02",
+                     "--pairs", "ekf", "--seeds", "1", "--workers", "2", "--out", str(out)])
+    assert code == 0
+    rows = list(csv.DictReader((out / "table.csv").open()))
+    assert [r["hardware"] for r in rows] == ["propulsion_insert", "clinical_3t"]
+    assert all(float(r["tracking_window_s"]) == 0.005 for r in rows)
+    md = (out / "table.md").read_text()
+    assert md.count("\n") == 4 and "| propulsion_insert | 5 | 30 |" in md
+    for name in ("tracking_vs_duty.png", "tracking_vs_latency.png"):
+        assert (out / name).stat().st_size > 1000
+    with pytest.raises(SystemExit) as exc:  # argparse: usage and one error line, exit 2
+        cli_main(["scanner-study", "--tracking-windows", "-1", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "--tracking-windows: expected numbers in [0, 10] s, got '-1'" in capsys.readouterr().err
