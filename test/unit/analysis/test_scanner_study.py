@@ -99,3 +99,24 @@ def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> 
         cli_main(["scanner-study", "--tracking-windows", "-1", "--out", str(out)])
     assert exc.value.code == 2
     assert "--tracking-windows: expected numbers in [0, 10] s, got '-1'" in capsys.readouterr().err
+
+
+def test_reproduction_doc_quotes_the_stored_study_table() -> None:
+    """docs/reproduction.md's scanner section is tools/gen_scanner_study.py's rendering of docs/scanner_study/."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    spec = importlib.util.spec_from_file_location("gen_scanner_study", root / "tools" / "gen_scanner_study.py")
+    mod = importlib.util.module_from_spec(spec)
+    assert spec.loader is not None
+    spec.loader.exec_module(mod)
+    doc = (root / "docs" / "reproduction.md").read_text()
+    table = (root / "docs" / "scanner_study" / "table.md").read_text()
+    assert mod.render(doc, table) == doc, "run tools/gen_scanner_study.py --render"
+    rows = list(csv.DictReader((root / "docs" / "scanner_study" / "table.csv").open()))
+    assert len(rows) == table.count("\n") - 2 == 72
+    assert {r["status"] for r in rows} == {"ok"}
+    # the bounds the prose quotes
+    assert all(float(r["hold_margin_m_per_s2"]) < 0 for r in rows if r["hardware"] == "clinical_3t")
+    assert all(float(r["hold_margin_m_per_s2"]) > 0 for r in rows if r["hardware"] == "propulsion_insert")
