@@ -38,6 +38,7 @@ from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
 from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.integrator import IntegratorParams
 
@@ -172,6 +173,8 @@ class Scenario:
         sim: Simulation settings.
         sequence: The scanner's imaging/propulsion sequence (``continuous``:
             the paper's loop; ``multiplexed``: tracking and propulsion windows).
+        dbdt: The coil's dB/dt (peripheral nerve stimulation) limit, as a
+            slew limit (``mode: off``, the default: the coil's slew only).
     """
 
     name: str = "scenario"
@@ -186,6 +189,7 @@ class Scenario:
     initial: InitialConditions = dataclasses.field(default_factory=InitialConditions)
     sim: SimParams = dataclasses.field(default_factory=SimParams)
     sequence: SequenceParams = dataclasses.field(default_factory=SequenceParams)
+    dbdt: DbdtLimit = dataclasses.field(default_factory=DbdtLimit)
 
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
