@@ -233,7 +233,10 @@ TOPICS: tuple[TopicSpec, ...] = (
                    "arrives at the first tick at or after window_end + latency, so it is that much old; a newer "
                    "stamp means a fresh frame, the same stamp a repeat; stamp 0 with an empty frame_id: no frame yet"),
     TopicSpec("estimate", "estimate", "nav_msgs/msg/Odometry", "observer", ("controller",),
-              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True),
+              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True,
+              note="x_hat in pose.pose.position, z_hat in twist.twist.linear; pose.covariance[35] = seconds since "
+                   "the last fresh measurement; twist.covariance[35] = the observer's blood-velocity scale s_hat "
+                   "(law (24) with flow_compensation: estimate takes it; 0, unset, reads as 1)"),
     TopicSpec("reference", "reference", "vesselbot_msgs/msg/ReferenceSample", "reference", ("controller",),
               "per tick", "reliable", "m, m/s, m/s^2", FRAME_ID, per_tick=True),
     TopicSpec("reference_path", "reference/path", "nav_msgs/msg/Path", "reference", ("(viewers)",),
