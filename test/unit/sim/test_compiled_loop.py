@@ -37,8 +37,9 @@ def _assert_identical(a: SimResult, b: SimResult) -> None:
     assert fingerprint(a) == fingerprint(b)
 
 
-#: Shipped scenarios whose stages the compiled loop does not have yet (the extended Kalman observer): they run per tick.
-PER_TICK_ONLY = {"sound_small_artery_ekf"}
+#: Shipped scenarios whose stages the compiled loop does not have yet (the extended Kalman observer, the scanner's
+#: sequenced imager and coil): they run per tick.
+PER_TICK_ONLY = {"sound_small_artery_ekf", "clinical_3t_small_artery", "propulsion_insert_small_artery"}
 
 
 def test_scenarios_without_compiled_stages_run_per_tick_and_say_so() -> None:
