@@ -44,6 +44,8 @@ Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
 5. controller, once it has ``estimate`` k and ``reference`` k, publishes
    ``gradient_command`` (stamp t_k);
 6. coil driver publishes ``coil/applied`` and ``coil/state`` (stamp t_k);
+   before them, when the scanner's phase at t_k+1 differs from the last one
+   it published, ``scanner/phase`` (stamp t_k+1; latched; see below);
 7. plant, once it has ``coil/applied`` k, integrates [t_k, t_k+1] and goes to 1.
 
 Tick times are rebuilt as ``k * dt`` from the stamps (never by summing floats),
@@ -56,6 +58,20 @@ The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused
 yaw-yaw variance ``pose.covariance[35]`` carries the observer's time since the
 last fresh measurement (s), which the controller's stale-estimate safe
 behaviour reads.
+
+The scanner (``sequence:`` of the scenario).  ``scanner/phase`` says which
+window of the MRI sequence holds: ``TRACKING`` (the gradients image; the coil
+applies exactly zero), ``DEAD`` (switching), ``PROPULSION`` (the controller's
+gradient is applied, within saturation, slew and dB/dt, and back at zero by
+the window's end), or ``CONTINUOUS`` (the paper's loop: one message, on
+[0, inf)).  Each message carries its window's ``[window_start, window_end)``,
+the frame latency and the duty cycle, so a consumer holding the latest one
+knows the phase of every tick up to ``window_end``; the phase of t_k+1 is
+published before ``coil/applied`` k, hence before anything of tick k+1.  In
+a multiplexed sequence the imager takes one frame per tracking window (the
+robot's mean position over the window: motion blur), stamps it at the
+window's middle and delivers it at the first tick at or after
+``window_end + latency``; until then it repeats the previous frame.
 
 Lockstep watchdog: if the command for tick k has not arrived within
 ``graph.stall_timeout_s`` of wall time (the controller died or hangs), the coil
@@ -136,6 +152,8 @@ class TopicSpec:
     frame: str
     per_tick: bool = False
     depth: int = 10_000
+    #: What a user's node in a slot must know beyond type and units (printed in its contract).
+    note: str = ""
     #: The canonical absolute name (default namespace): what bags and diagnostics use.
     name: str = field(init=False, compare=False)
 
@@ -174,6 +192,8 @@ class Role:
         node_class: ``module:Class`` of our implementation.
         module: Module with the process's ``main()`` (``python -m`` target).
         inputs: Topic keys it subscribes to (its contract).
+        optional_inputs: Topic keys a node in its slot may subscribe to (the
+            contract lists them; our implementation need not).
         outputs: Topic keys it publishes (besides ``/diagnostics``).
         services: Service keys it serves.
         counters: Diagnostic keys the launcher adds to the run's metrics.
@@ -188,6 +208,7 @@ class Role:
     module: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
+    optional_inputs: tuple[str, ...] = ()
     services: tuple[str, ...] = ()
     counters: tuple[str, ...] = ()
     safe_stop: bool = False
@@ -207,9 +228,15 @@ TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec("vessel_markers", "vessel_markers", "visualization_msgs/msg/MarkerArray", "plant", ("(viewers)",),
               "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
     TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager", ("observer",),
-              "per tick (lockstep, ZOH) / frame rate (real time)", "reliable", "m", FRAME_ID, per_tick=True),
+              "per tick (lockstep, ZOH) / frame rate (real time)", "reliable", "m", FRAME_ID, per_tick=True,
+              note="header.stamp = acquisition time (multiplexed: the middle of its tracking window); the frame "
+                   "arrives at the first tick at or after window_end + latency, so it is that much old; a newer "
+                   "stamp means a fresh frame, the same stamp a repeat; stamp 0 with an empty frame_id: no frame yet"),
     TopicSpec("estimate", "estimate", "nav_msgs/msg/Odometry", "observer", ("controller",),
-              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True),
+              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True,
+              note="x_hat in pose.pose.position, z_hat in twist.twist.linear; pose.covariance[35] = seconds since "
+                   "the last fresh measurement; twist.covariance[35] = the observer's blood-velocity scale s_hat "
+                   "(law (24) with flow_compensation: estimate takes it; 0, unset, reads as 1)"),
     TopicSpec("reference", "reference", "vesselbot_msgs/msg/ReferenceSample", "reference", ("controller",),
               "per tick", "reliable", "m, m/s, m/s^2", FRAME_ID, per_tick=True),
     TopicSpec("reference_path", "reference/path", "nav_msgs/msg/Path", "reference", ("(viewers)",),
@@ -220,6 +247,12 @@ TOPICS: tuple[TopicSpec, ...] = (
               ("plant", "observer"), "per tick (+ watchdog)", "reliable", "T/m", FRAME_ID, per_tick=True),
     TopicSpec("coil_state", "coil/state", "vesselbot_msgs/msg/CoilState", "coil_driver", ("recorder",),
               "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True),
+    TopicSpec("sequence_phase", "scanner/phase", "vesselbot_msgs/msg/SequencePhase", "coil_driver",
+              ("recorder", "(your observer or controller)"), "on phase change (latched; once when continuous)",
+              "reliable_latched", "s", FRAME_ID,
+              note="phase CONTINUOUS (0), TRACKING (1: no propulsion gradient, a frame is acquired), DEAD (2) or "
+                   "PROPULSION (3: the command is applied) holds on [window_start, window_end) of sim time; the "
+                   "phase of t_k+1 is published before coil/applied k; latency (s) and duty_cycle come with it"),
     TopicSpec("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "all", ("launcher", "recorder"),
               "1 Hz wall + on events", "diagnostics", "-", "-"),
 )
@@ -247,12 +280,15 @@ ROLES: tuple[Role, ...] = (
           counters=("outlier_frames",), safe_stop=True,
           summary="MRI imager: noisy frames at a frame rate, latency, outliers, dropouts"),
     _node("observer", "ObserverNode", inputs=("coil_applied", "measurement"), outputs=("estimate",),
+          optional_inputs=("sequence_phase",),
           counters=("observer_rhs_evals", "measurements_used", "measurements_rejected"), safe_stop=True,
           summary="high-gain observer (eq. 25): position and velocity estimate"),
     _node("controller", "ControllerNode", inputs=("reference", "estimate"), outputs=("gradient_command",),
+          optional_inputs=("sequence_phase",),
           safe_stop=True, summary="backstepping controller (eq. 24): gradient command"),
-    _node("coil_driver", "CoilDriverNode", inputs=("gradient_command", "clock"), outputs=("coil_applied", "coil_state"),
-          summary="gradient coils: saturation, slew limit, watchdog"),
+    _node("coil_driver", "CoilDriverNode", inputs=("gradient_command", "clock"),
+          outputs=("coil_applied", "coil_state", "sequence_phase"),
+          summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),
     _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers"),
           services=("run_control",),
           counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
@@ -373,6 +409,13 @@ def diagnostic_counters() -> dict[str, tuple[str, ...]]:
     return {r.name: r.counters for r in ROLES if r.counters}
 
 
+def _note_lines(t: TopicSpec, width: int = 100) -> list[str]:
+    """A port's note, wrapped and indented under its contract line."""
+    import textwrap
+
+    return textwrap.wrap(t.note, width, initial_indent="      ", subsequent_indent="      ") if t.note else []
+
+
 def role_contract(name: str, namespace: str | None = None) -> str:
     """What a user's node in the slot of role ``name`` must do (printed by ``vesselbot run --without``)."""
     r = role(name)
@@ -380,13 +423,20 @@ def role_contract(name: str, namespace: str | None = None) -> str:
     for k in r.inputs:
         t = topic(k)
         lines.append(f"  subscribe {resolve(t.rel, namespace)} [{t.msgtype}] ({t.units}, frame {t.frame})")
+        lines += _note_lines(t)
+    for k in r.optional_inputs:
+        t = topic(k)
+        lines.append(f"  may subscribe {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
+        lines += _note_lines(t)
     for k in r.outputs:
         t = topic(k)
         lines.append(f"  publish   {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
+        lines += _note_lines(t)
     for k in r.services:
         s = service(k)
         lines.append(f"  serve     {resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")
-    depth = {qos_text(topic(k)) for k in (*r.inputs, *r.outputs) if topic(k).qos != "reliable_latched"}
+    depth = {qos_text(topic(k)) for k in (*r.inputs, *r.optional_inputs, *r.outputs)
+             if topic(k).qos != "reliable_latched"}
     lines.append(f"  with use_sim_time=true; QoS: {', '.join(sorted(depth))} (see docs/graph.md).")
     if name != "plant":
         lines.append("  Lockstep: answer tick k with header.stamp = t_k of the input that triggered it.")

@@ -1,7 +1,9 @@
 """Determinism and isolation: three lockstep runs at the same time on one machine.
 
 Runs A and B (seed 0) and C (seed 1) of the sound scenario, 0.3 s, are started together; each leases
-its own ROS domain and records to its own directory.  A and B must give identical deserialized message
+its own ROS domain and records to its own directory.  Runs D and E (seed 2) of the clinical 3 T scanner
+scenario (multiplexed sequence, latency, dB/dt limit) are started together too and must agree message for
+message as well, the sequence-phase topic included.  A and B must give identical deserialized message
 sequences on every recorded topic (``/diagnostics`` aside: its stamps and counters are wall-clock
 driven), ``/clock`` included; C must differ in the imager noise, hence in the measurements.  That A and
 B agree message for message while C ran next to them also shows concurrent runs do not interfere.
@@ -94,3 +96,47 @@ def test_another_seed_changes_the_imager_noise(three_runs):
     assert np.all(pa[0] != pc[0])
     d = np.linalg.norm(pa - pc, axis=1)
     assert np.count_nonzero(d > 0) == N_TICKS and np.median(d) > 20e-6
+
+
+@pytest.fixture(scope="module")
+def two_scanner_runs(tmp_path_factory):
+    from _runs import REPO
+
+    from vesselbot_ros.bag.reader import open_bag
+
+    tmp = tmp_path_factory.mktemp("determinism_scanner")
+    cfg = REPO / "config" / "clinical_3t_small_artery.yaml"
+    runs = {name: popen_run("--config", str(cfg), "--duration", str(DURATION_S), "--seed", "2",
+                            "--record-dir", str(tmp / name), "--quiet", cwd=tmp) for name in ("d", "e")}
+    outs = {}
+    try:
+        for name, p in runs.items():
+            outs[name] = p.communicate(timeout=200)
+    finally:
+        for p in runs.values():
+            if p.poll() is None:
+                p.kill()
+    for name, p in runs.items():
+        assert p.returncode == 0, (name, *outs[name])
+    return {name: open_bag(tmp / name) for name in runs}
+
+
+@pytest.mark.timeout(260)
+def test_multiplexed_scanner_runs_give_identical_messages_on_every_topic(two_scanner_runs):
+    from vesselbot_ros.graph_spec import topic
+
+    d, e = two_scanner_runs["d"], two_scanner_runs["e"]
+    topics = _topics(d)
+    assert topics == _topics(e)
+    phase = topic("sequence_phase").name
+    assert phase in topics
+    for t in topics:
+        if t == "/diagnostics":
+            continue
+        md, me = _messages(d, t), _messages(e, t)
+        assert len(md) == len(me), t
+        for i, (x, y) in enumerate(zip(md, me, strict=True)):
+            assert repr(x) == repr(y), f"{t} message {i} differs:\n{x}\n{y}"
+    # 0.3 s of a 54 ms period: 6 periods of tracking, dead, propulsion, dead (the last one begun)
+    assert len(_messages(d, phase)) == 23
+    assert len(_messages(d, "/vesselbot/measurement")) == N_TICKS

@@ -71,3 +71,10 @@ def test_paper_scenario_recorded_equals_pure_runner(repo, tmp_path):
     for t in ("/clock", "/vesselbot/truth", "/vesselbot/measurement", "/vesselbot/estimate", "/vesselbot/reference",
               "/vesselbot/gradient_command", "/vesselbot/coil/applied", "/vesselbot/coil/state"):
         assert info.topic(t).count == 2000, (t, info.topic(t).count)
+    # the paper's continuous sequence: one phase message for the whole run, CONTINUOUS on [0, inf)
+    from vesselbot_ros.bag.reader import iter_messages  # noqa: PLC0415
+    from vesselbot_ros.graph_spec import topic  # noqa: PLC0415
+
+    phase = [m.decode() for m in iter_messages(info, topics=[topic("sequence_phase").name])]
+    assert len(phase) == 1
+    assert (phase[0].phase, phase[0].window_start, phase[0].window_end) == (phase[0].CONTINUOUS, 0.0, math.inf)

@@ -149,3 +149,13 @@ def test_readme_sections_are_generated_from_the_spec(repo):
     assert gen.render(readme) == readme, "README is stale: run .venv/bin/python tools/gen_readme_sections.py"
     for body in (spec.markdown_table(), spec.architecture_table(), spec.contract_table()):
         assert body in readme
+
+
+def test_contract_explains_the_phase_stamps_and_latency():
+    ctl = spec.role_contract("controller")
+    assert "may subscribe /vesselbot/scanner/phase [vesselbot_msgs/msg/SequencePhase]" in ctl
+    assert "window_start, window_end" in ctl and "PROPULSION (3" in ctl
+    obs = spec.role_contract("observer")
+    assert "acquisition time" in obs and "latency" in obs and "may subscribe /vesselbot/scanner/phase" in obs
+    assert "publish   /vesselbot/scanner/phase" in spec.role_contract("coil_driver")
+    assert spec.topic("sequence_phase").publisher == "coil_driver"

@@ -344,7 +344,14 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
     * ``command.t_s, command.u_cmd`` (T/m);
     * ``coil.t_s, coil.commanded, coil.applied`` (T/m), ``coil.saturated,
       coil.slew_limited_x, coil.slew_limited_z, coil.rejected, coil.watchdog``
-      (bool), ``coil.max_gradient`` (T/m), ``coil.saturation_scale``;
+      (bool), ``coil.max_gradient`` (T/m), ``coil.saturation_scale``,
+      ``coil.slew_rate`` (T/m/s, the per-axis slew limit in force),
+      ``coil.dbdt_limit`` (T/s, 0: none), ``coil.dbdt_radius`` (m);
+    * ``phase.t_s`` (first tick the phase applies to), ``phase.phase`` (0
+      continuous, 1 tracking, 2 dead, 3 propulsion), ``phase.period_index``,
+      ``phase.window_start_s``, ``phase.window_end_s`` (s, the window
+      ``[start, end)``), ``phase.latency_s``, ``phase.duty_cycle``: the scanner's
+      sequence, one row per phase change;
     * ``faults.t_s`` / ``faults.kind`` (str) / ``faults.duration_s``: faults
       announced on ``/diagnostics`` by the imager (KeyValues ``fault_kind``,
       ``fault_start``, ``fault_duration``).
@@ -356,7 +363,8 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
 
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     names = {topic(k).name: k for k in
-             ("truth", "estimate", "reference", "measurement", "gradient_command", "coil_state", "diagnostics")}
+             ("truth", "estimate", "reference", "measurement", "gradient_command", "coil_state", "sequence_phase",
+              "diagnostics")}
     present = [n for n in names if info.topic(n) is not None]
     rows: dict[str, dict[str, list[Any]]] = {k: {} for k in names.values()}
 
@@ -400,7 +408,13 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
                 saturated=bool(msg.saturated), slew_limited_x=bool(msg.slew_limited_x),
                 slew_limited_z=bool(msg.slew_limited_z), rejected=bool(msg.command_rejected),
                 watchdog=bool(msg.watchdog_active), max_gradient=float(msg.max_gradient),
-                saturation_scale=float(msg.saturation_scale))
+                saturation_scale=float(msg.saturation_scale), slew_rate=float(msg.slew_rate),
+                dbdt_limit=float(getattr(msg, "dbdt_limit", 0.0)),  # bags from before the dB/dt limit lack these
+                dbdt_radius=float(getattr(msg, "dbdt_radius", 0.0)))
+        elif key == "sequence_phase":
+            add(key, t_s=_stamp_s(msg.header), phase=int(msg.phase), period_index=int(msg.period_index),
+                window_start_s=float(msg.window_start), window_end_s=float(msg.window_end),
+                latency_s=float(msg.latency), duty_cycle=float(msg.duty_cycle))
         elif key == "diagnostics":
             for status in msg.status:
                 kv = {v.key: v.value for v in status.values}
@@ -416,7 +430,7 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
                         continue
                     fault_kind.append(kv["fault_kind"])
 
-    prefix = {"gradient_command": "command", "coil_state": "coil"}
+    prefix = {"gradient_command": "command", "coil_state": "coil", "sequence_phase": "phase"}
     out: dict[str, np.ndarray] = {}
     for key, d in rows.items():
         if key == "diagnostics":

@@ -21,7 +21,10 @@ aligns the per-tick topics on their stamps, computes the metrics with the
 
 Every time plot shades saturated intervals (red, full height), and marks
 slew-limited (orange strip along the bottom) and fault (grey strip along the
-top) intervals, so that no shading hides another.  Faults are the imager's scheduled outlier bursts and
+top) intervals, so that no shading hides another.  With a multiplexed
+scanner sequence it also shades the tracking windows (light blue, full
+height) read from the bag's sequence-phase topic (:func:`tracking_windows`):
+no propulsion gradient is applied there, and the frames are acquired there.  Faults are the imager's scheduled outlier bursts and
 dropouts from the run's config, those it announced on ``/diagnostics``, and
 outlier frames detected in the bag: fresh measurements farther from the
 true position at their acquisition time than ``max(10 um, median + 10 MAD)``
@@ -44,7 +47,7 @@ from vesselbot_ros import graph_spec
 from vesselbot_ros.bag.reader import BagInfo, open_bag, read_timeseries
 from vesselbot_ros.errors import BagError
 
-__all__ = ["write_report", "metrics_timeseries", "bool_intervals", "detect_outlier_frames", "diagnostic_counters",
+__all__ = ["write_report", "metrics_timeseries", "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
            "DIAGNOSTIC_COUNTERS", "FIGURES", "fig9a_trajectory", "fig9b_errors", "fig10a_gradients",
            "fig10b_velocities", "fig10c_velocity_error", "forces_figure"]
 
@@ -182,6 +185,22 @@ def _fault_intervals(ts: Mapping[str, np.ndarray], run: Mapping[str, Any], dt: f
     return out
 
 
+def tracking_windows(ts: Mapping[str, np.ndarray], t_end_s: float) -> list[tuple[float, float]]:
+    """The scanner's tracking windows ``[start, end)`` recorded on the sequence-phase topic, clipped to ``t_end_s``.
+
+    Empty for a continuous sequence (the paper's loop) and for bags without the topic.
+    """
+    from vesselbot_ros.scanner.sequence import PHASE_CODES
+
+    phase = np.asarray(ts.get("phase.phase", np.zeros(0)))
+    if phase.size == 0:
+        return []
+    sel = phase == PHASE_CODES["tracking"]
+    starts = np.asarray(ts["phase.window_start_s"])[sel]
+    ends = np.asarray(ts["phase.window_end_s"])[sel]
+    return [(float(a), float(min(b, t_end_s))) for a, b in zip(starts, ends, strict=True) if a < t_end_s]
+
+
 def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
     """Saturation over the full height; slew limiting and faults as strips along the bottom and top edge.
 
@@ -189,7 +208,7 @@ def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
     slew-limited for the whole run.
     """
     style = {"saturated": ("tab:red", 0.15, 0.0, 1.0), "slew limited": ("tab:orange", 0.6, 0.0, 0.05),
-             "fault": ("0.3", 0.6, 0.95, 1.0)}
+             "fault": ("0.3", 0.6, 0.95, 1.0), "tracking window": ("tab:blue", 0.1, 0.0, 1.0)}
     for label, ivs in spans.items():
         color, alpha, lo, hi = style[label]
         for i, (a, b) in enumerate(ivs):
@@ -484,7 +503,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     sat = bool_intervals(t, m["saturated"])
     slew = bool_intervals(t, m["slew_limited"].any(axis=1))
     faults = _fault_intervals(ts, info.run_metadata, dt)
-    spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults]}
+    tracking = tracking_windows(ts, float(t[-1]) + dt)
+    spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults],
+             "tracking window": tracking}
     t_out, thr = detect_outlier_frames(ts)
     metrics.update(diagnostic_counters(info))
     metrics.update({
@@ -496,6 +517,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         "saturated_intervals_s": sat,
         "slew_limited_intervals_s": slew,
         "faults": faults,
+        "tracking_windows_s": tracking,
         "outlier_frames_detected": int(t_out.size),
         "outlier_threshold_m": thr,
         "tracking_bound_m": TRACKING_BOUND_M,
@@ -503,7 +525,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         "tracking_within_bound": bool(metrics["tracking_error_max_m"] <= TRACKING_BOUND_M),
     })
 
-    slew_limit = _slew_limit(run)
+    # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
+    recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
+    slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)
     figures = {
         FIGURES[0]: fig9a_trajectory(t, m),
         FIGURES[1]: fig9b_errors(t, m, spans, after_s),

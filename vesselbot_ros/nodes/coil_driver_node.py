@@ -2,7 +2,18 @@
 
 Thin adapter over :class:`vesselbot_ros.control.actuator_limits.CoilLimiter`
 (Section III-C: ``U_a = U / k``, ``k = max(1, |U| / U_sat)``, then the slew
-limit), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+limit, lowered by the scenario's ``dbdt:`` limit when that binds), built by
+:func:`vesselbot_ros.sim.closed_loop.build_stages`: with a multiplexed
+``sequence:`` it is the scanner's
+:class:`~vesselbot_ros.scanner.stages.SequencedCoil`, which applies the
+command only in propulsion windows (exactly zero in tracking windows and dead
+time; saturation, slew and dB/dt hold across window edges), the very stage
+the ROS-free runner calls.
+
+Sequence phase: the driver publishes ``scanner/phase``
+(vesselbot_msgs/SequencePhase, latched) whenever the phase window of the next
+tick differs from the last one published, before that tick's
+``coil/applied``; in continuous mode once, at start-up (no per-tick cost).
 
 Ports (frame ``vessel``):
 
@@ -13,6 +24,7 @@ in  ``/vesselbot/gradient_command``    geometry_msgs/Vector3Stamped      per tic
 in  ``/clock``                         rosgraph_msgs/Clock               per tick                s
 out ``/vesselbot/coil/applied``        geometry_msgs/Vector3Stamped      per tick (+ watchdog)   T/m
 out ``/vesselbot/coil/state``          vesselbot_msgs/CoilState          per tick (+ watchdog)   T/m, T/m/s
+out ``/vesselbot/scanner/phase``       vesselbot_msgs/SequencePhase      on phase change         s
 out ``/diagnostics``                   diagnostic_msgs/DiagnosticArray   1 Hz wall               counts
 =====================================  ================================  ======================  ==========
 
@@ -56,11 +68,13 @@ import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 
-from vesselbot_msgs.msg import CoilState
+from vesselbot_msgs.msg import CoilState, SequencePhase
 from vesselbot_ros.control.actuator_limits import CoilOutput
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.scanner.hardware import dbdt_at
+from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
 from vesselbot_ros.sim.closed_loop import build_stages
 
 __all__ = ["CoilDriverNode", "main"]
@@ -78,7 +92,15 @@ class CoilDriverNode(VesselbotNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
         self.limiter = build_stages(self.scenario).coil
-        self.limits = self.scenario.coil
+        self.limits = self.limiter.limits  # in force: the dB/dt limit may have lowered the slew
+        seq, dbdt = self.scenario.sequence, self.scenario.dbdt
+        self.sequence = seq
+        self._multiplexed = seq.mode == "multiplexed"
+        self._latency = seq.latency_s if self._multiplexed else self.scenario.imager.latency_s
+        self._duty = duty_cycle(seq)
+        self._dbdt = ((dbdt_at(dbdt, self.limits.saturation_T_per_m, self.limits.slew_rate_T_per_m_per_s), dbdt.radius_m)
+                      if dbdt.mode != "off" else (0.0, 0.0))
+        self._window: PhaseWindow | None = None  # the last phase window published
         self.k = 0  # next tick to answer
         self.k_due = -1  # latest tick announced by /clock
         self._due_wall = 0.0
@@ -88,6 +110,8 @@ class CoilDriverNode(VesselbotNode):
         self.commands_lost = False
         self.add_publisher("coil_applied", Vector3Stamped)
         self.add_publisher("coil_state", CoilState)
+        self.add_publisher("sequence_phase", SequencePhase)
+        self._publish_phase(0)
         self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
         self.add_subscription("clock", Clock, self._on_clock)
         if self.lockstep:
@@ -154,11 +178,24 @@ class CoilDriverNode(VesselbotNode):
         self._emit(k, t, g if ok else np.zeros(2), out, watchdog=False)
 
     # ------------------------------------------------------------------ outputs
+    def _publish_phase(self, k: int) -> None:
+        """Publish the phase window of tick ``k`` if it is not the one last published (continuous: only once)."""
+        if self._window is not None and not self._multiplexed:
+            return
+        t = cv.tick_time(k, self.dt)
+        w = window_at(self.sequence, t)
+        if self._window is not None and (w.phase, w.index) == (self._window.phase, self._window.index):
+            return
+        self._window = w
+        self.publish("sequence_phase", cv.sequence_phase_msg(t, w, self._latency, self._duty))
+
     def _emit(self, k: int, t: float, commanded: np.ndarray, out: CoilOutput, watchdog: bool) -> None:
         self._t_last = t
+        if self._multiplexed and k + 1 < self.n_ticks:
+            self._publish_phase(k + 1)  # the phase of the next tick, before anything of that tick
         self.publish("coil_applied", cv.gradient_msg(t, out.applied))
         cmd = np.where(np.isfinite(commanded), commanded, 0.0)
-        self.publish("coil_state", cv.coil_state_msg(k, t, cmd, out, self.limits, watchdog))
+        self.publish("coil_state", cv.coil_state_msg(k, t, cmd, out, self.limits, watchdog, *self._dbdt))
         self.period_done(k)
         if self.lockstep:
             self.k = k + 1

@@ -61,6 +61,7 @@ class ControllerNode(VesselbotNode):
 
     def _on_estimate(self, msg: Odometry) -> None:
         x, z, age = cv.estimate_arrays(msg)
+        flow_scale = cv.estimate_flow_scale(msg)
         p = msg.pose.pose.position
         v = msg.twist.twist.linear
         stamp = stamp_ns_of(msg)
@@ -71,13 +72,13 @@ class ControllerNode(VesselbotNode):
         if k is None:
             return
         if self.lockstep:
-            if self.join.put("estimate", k, (x, z, age)):
+            if self.join.put("estimate", k, (x, z, age, flow_scale)):
                 self.count_received("estimate")
                 self._drain()
             return
         self.count_received("estimate")
         if self._ref_latest is not None:
-            self._command(k, (x, z, age), self._ref_latest)
+            self._command(k, (x, z, age, flow_scale), self._ref_latest)
 
     def _on_reference(self, msg: ReferenceSample) -> None:
         p, v, a = cv.reference_arrays(msg)
@@ -98,9 +99,10 @@ class ControllerNode(VesselbotNode):
         self.count_received("reference")
         self._ref_latest = (p, v, a)
 
-    def _command(self, k: int, est: tuple[Any, Any, float], ref: tuple[Any, Any, Any]) -> None:
+    def _command(self, k: int, est: tuple[Any, Any, float, float], ref: tuple[Any, Any, Any]) -> None:
         t = cv.tick_time(k, self.dt)
-        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref)
+        # the observer's blood-velocity scale, as the runner hands it (controller.flow_compensation: estimate)
+        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref, est[3])
         self.status[cmd.status] += 1
         self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
         self.period_done(k)

@@ -15,7 +15,12 @@ the pure runner.
 Estimates travel as ``nav_msgs/Odometry``.  The core's estimate also carries
 the age of the last used measurement (the controller's staleness input); it
 is stored in ``pose.covariance[35]`` (the yaw-yaw slot, meaningless in this
-planar x-z problem).  All other covariance entries are 0 (not estimated).
+planar x-z problem).  The observer's blood-velocity scale ``s_hat``
+(:class:`~vesselbot_ros.control.ekf_observer.ExtendedKalmanObserver`; 1 when
+not estimated), which law (24) takes with ``controller.flow_compensation:
+estimate``, is stored in ``twist.covariance[35]`` (the yaw-rate slot, as
+meaningless here); 0 there (a user's observer that does not set it) reads
+as 1.  All other covariance entries are 0 (not estimated).
 """
 
 from __future__ import annotations
@@ -33,8 +38,9 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from vesselbot_msgs.msg import CoilState, ReferenceSample
+from vesselbot_msgs.msg import CoilState, ReferenceSample, SequencePhase
 from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.scanner.sequence import PHASE_CODES
 
 __all__ = [
     "AGE_COVARIANCE_INDEX",
@@ -51,6 +57,7 @@ __all__ = [
     "measurement_msg",
     "estimate_msg",
     "estimate_arrays",
+    "estimate_flow_scale",
     "reference_msg",
     "reference_arrays",
     "gradient_msg",
@@ -61,6 +68,8 @@ __all__ = [
 ]
 
 AGE_COVARIANCE_INDEX = 35
+#: ``twist.covariance`` slot carrying the observer's blood-velocity scale (module docstring).
+FLOW_SCALE_COVARIANCE_INDEX = 35
 NS_PER_S = 1_000_000_000
 
 
@@ -112,8 +121,9 @@ def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
     return PointStamped(header=header(t_acq_s), point=point(p))
 
 
-def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float) -> Odometry:
-    """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s)."""
+def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float,
+                 flow_scale: float = 1.0) -> Odometry:
+    """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
     msg = Odometry(header=header(t_s), child_frame_id="robot")
     msg.pose.pose.position = point(x_hat)
     msg.pose.pose.orientation.w = 1.0
@@ -122,7 +132,16 @@ def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: 
     # inf age (no measurement yet) cannot travel as a finite number: clamp it
     cov[AGE_COVARIANCE_INDEX] = float(age_s) if math.isfinite(age_s) else 1e9
     msg.pose.covariance = cov
+    tcov = [0.0] * 36
+    tcov[FLOW_SCALE_COVARIANCE_INDEX] = float(flow_scale)
+    msg.twist.covariance = tcov
     return msg
+
+
+def estimate_flow_scale(msg: Odometry) -> float:
+    """The blood-velocity scale an estimate carries (``twist.covariance[35]``); 1 if unset, non-finite or <= 0."""
+    s = float(msg.twist.covariance[FLOW_SCALE_COVARIANCE_INDEX])
+    return s if math.isfinite(s) and s > 0.0 else 1.0
 
 
 def estimate_arrays(msg: Odometry) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
@@ -145,8 +164,9 @@ def gradient_msg(t_s: float, g: npt.ArrayLike) -> Vector3Stamped:
     return Vector3Stamped(header=header(t_s), vector=vector3(g))
 
 
-def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool) -> CoilState:
-    """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput`."""
+def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
+                   dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> CoilState:
+    """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
     slew = np.asarray(out.slew_limited, dtype=bool)
     return CoilState(
         header=header(t_s),
@@ -161,7 +181,16 @@ def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limit
         watchdog_active=bool(watchdog),
         max_gradient=float(limits.saturation_T_per_m),
         slew_rate=float(limits.slew_rate_T_per_m_per_s),
+        dbdt_limit=float(dbdt_limit_T_per_s),
+        dbdt_radius=float(dbdt_radius_m),
     )
+
+
+def sequence_phase_msg(t_s: float, window: Any, latency_s: float, duty_cycle: float) -> SequencePhase:
+    """SequencePhase (stamp ``t_s``, the first tick it applies to) from a :class:`~vesselbot_ros.scanner.sequence.PhaseWindow`."""
+    return SequencePhase(header=header(t_s), phase=PHASE_CODES[window.phase], period_index=int(window.index),
+                         window_start=float(window.start_s), window_end=float(window.end_s),
+                         latency=float(latency_s), duty_cycle=float(duty_cycle))
 
 
 def path_msg(points_m: npt.ArrayLike, t_s: float = 0.0) -> Path:

@@ -50,6 +50,7 @@ from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x
+from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stages
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES"]
@@ -230,7 +231,7 @@ class PlantNode(VesselbotNode):
         The driver limits slew between its own outputs; under load its outputs
         skip ticks, so the plant's input is limited again here, tick by tick.
         """
-        step = self.scenario.coil.slew_rate_T_per_m_per_s * self.dt
+        step = effective_coil_limits(self.scenario.coil, self.scenario.dbdt).slew_rate_T_per_m_per_s * self.dt
         return self._g + np.clip(g - self._g, -step, step)
 
     def started(self) -> bool:

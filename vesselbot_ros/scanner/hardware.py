@@ -22,16 +22,34 @@ threshold, in normal operating mode
 ``dB/dt <= 0.8 rb (1 + 0.36 / t_eff)`` with the rheobase ``rb = 20 T/s`` and
 the effective stimulus duration ``t_eff`` in ms; :func:`iec_normal_mode_dbdt`
 computes it, and :func:`dbdt_slew_limit` turns it into a slew limit.
+
+As a coil limit (:class:`DbdtLimit`, the scenario's ``dbdt:`` section, off by
+default).  The two gradient axes share one field, ``B_z = G_x x + G_z z``, so
+within radius ``r`` of the isocentre ``dB/dt <= r |dG/dt|`` (Euclidean norm).
+The coil limits each axis's step to ``S dt``, so the norm can reach
+``sqrt(2) S``: the per-axis slew that keeps ``dB/dt`` within the IEC limit
+is ``S sqrt(2) r <= 0.8 rb (1 + 0.36 / t_eff)``.  The effective stimulus
+duration is the full-scale ramp at that slew, ``t_eff = G_sat / S`` (in ms,
+``1000 G_sat / S``), so the bound is a fixed point with the closed form
+``S = 0.8 rb / (sqrt(2) r - 0.8 rb 0.36e-3 / G_sat)``
+(:func:`dbdt_axis_slew_limit`; no bound when the denominator is <= 0: the
+allowance then grows faster with a shorter ramp than dB/dt does).  The coil
+slews at the smaller of its hardware rate and that bound
+(:func:`effective_coil_limits`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from typing import Literal
 
-from vesselbot_ros.config import ConfigError, check_positive
+from vesselbot_ros.config import ConfigError, check_choice, check_positive
+from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import SequenceParams
 
-__all__ = ["HardwarePreset", "PRESETS", "iec_normal_mode_dbdt", "dbdt_slew_limit"]
+__all__ = ["HardwarePreset", "PRESETS", "iec_normal_mode_dbdt", "dbdt_slew_limit", "DbdtLimit", "dbdt_axis_slew_limit",
+           "effective_coil_limits", "dbdt_at"]
 
 RHEOBASE_T_PER_S = 20.0  # IEC 60601-2-33 rb
 
@@ -76,3 +94,49 @@ def dbdt_slew_limit(dbdt_T_per_s: float, radius_m: float) -> float:
     if radius_m > 2.0:
         raise ConfigError(f"radius_m must be <= 2 m (inside the bore), got {radius_m!r}")
     return dbdt_T_per_s / radius_m
+
+
+@dataclasses.dataclass(frozen=True)
+class DbdtLimit:
+    """The dB/dt (peripheral nerve stimulation) limit of the coil (module docstring).
+
+    Attributes:
+        mode: ``off`` (the paper: slew limit only) or ``iec_normal_mode``
+            (IEC 60601-2-33 normal operating mode, applied as a slew limit).
+        radius_m: Distance from the isocentre within which dB/dt is bounded
+            (m), in ``(0, 2]``.
+    """
+
+    mode: Literal["off", "iec_normal_mode"] = "off"
+    radius_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        check_choice("mode", self.mode, ("off", "iec_normal_mode"))
+        check_positive("radius_m", self.radius_m)
+        if self.radius_m > 2.0:
+            raise ConfigError(f"radius_m must be <= 2 m (inside the bore), got {self.radius_m!r}")
+
+
+def dbdt_axis_slew_limit(saturation_T_per_m: float, radius_m: float) -> float:
+    """Per-axis slew (T/m/s) that keeps dB/dt within the IEC normal-mode limit inside ``radius_m``; inf if none binds."""
+    check_positive("saturation_T_per_m", saturation_T_per_m)
+    check_positive("radius_m", radius_m)
+    a = 0.8 * RHEOBASE_T_PER_S
+    den = math.sqrt(2.0) * radius_m - a * 0.36e-3 / saturation_T_per_m
+    return a / den if den > 0.0 else math.inf
+
+
+def dbdt_at(limit: DbdtLimit, saturation_T_per_m: float, slew_T_per_m_per_s: float) -> float:
+    """The IEC normal-mode dB/dt limit (T/s) for a full-scale ramp at the per-axis slew ``slew_T_per_m_per_s``."""
+    check_positive("slew_T_per_m_per_s", slew_T_per_m_per_s)
+    return iec_normal_mode_dbdt(1e3 * saturation_T_per_m / slew_T_per_m_per_s)
+
+
+def effective_coil_limits(coil: CoilLimits, limit: DbdtLimit) -> CoilLimits:
+    """``coil`` with its slew lowered to the dB/dt bound when that binds (``coil`` itself when ``mode: off``)."""
+    if limit.mode == "off":
+        return coil
+    s_db = dbdt_axis_slew_limit(coil.saturation_T_per_m, limit.radius_m)
+    if s_db >= coil.slew_rate_T_per_m_per_s:
+        return coil
+    return dataclasses.replace(coil, slew_rate="custom", custom_slew_rate_T_per_m_per_s=s_db)

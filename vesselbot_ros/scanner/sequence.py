@@ -41,6 +41,8 @@ __all__ = [
     "duty_cycle",
     "TrackingWindow",
     "propulsion_target",
+    "PhaseWindow",
+    "window_at",
 ]
 
 _EPS_S = 1e-9
@@ -132,6 +134,37 @@ def phase_at(params: SequenceParams, t_s: float) -> Phase:
     if tau < t_t + t_d + t_p - _EPS_S:
         return "propulsion"
     return "dead"
+
+
+class PhaseWindow(NamedTuple):
+    """The window of the sequence containing a time: ``phase`` holds on ``[start_s, end_s)``.
+
+    ``index`` is the period (0 for the first tracking window's period, -1
+    before ``start_s`` and in continuous mode).  In continuous mode the one
+    window is ``[0, inf)``; before ``start_s`` the dead time is ``[-inf, start_s)``.
+    """
+
+    phase: Phase
+    index: int
+    start_s: float
+    end_s: float
+
+
+def window_at(params: SequenceParams, t_s: float) -> PhaseWindow:
+    """The phase window containing ``t_s`` (what the coil driver publishes on the sequence-phase port)."""
+    if params.mode == "continuous":
+        return PhaseWindow("continuous", -1, 0.0, math.inf)
+    n, tau = _cycle(params, t_s)
+    if n < 0:
+        return PhaseWindow("dead", -1, -math.inf, params.start_s)
+    t0 = params.start_s + n * params.period_s
+    t_t, t_d, t_p = params.tracking_window_s, params.dead_time_s, params.propulsion_window_s
+    edges = (0.0, t_t, t_t + t_d, t_t + t_d + t_p, params.period_s)
+    phases: tuple[Phase, ...] = ("tracking", "dead", "propulsion", "dead")
+    for i, ph in enumerate(phases):
+        if tau < edges[i + 1] - _EPS_S or i == len(phases) - 1:
+            return PhaseWindow(ph, n, t0 + edges[i], t0 + edges[i + 1])
+    raise AssertionError("unreachable")  # pragma: no cover
 
 
 def tracking_window_of(params: SequenceParams, t_s: float) -> TrackingWindow | None:

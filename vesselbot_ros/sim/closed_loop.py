@@ -80,6 +80,7 @@ from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
+from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.sequence import PHASE_CODES, duty_cycle, phase_at
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim import compiled_loop
@@ -166,7 +167,7 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     # the first command, exactly as between any two later ticks: the first
     # command may move S * dt, not 0 (which left the robot unactuated for the
     # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
-    coil = CoilLimiter(s.coil, -s.sim.dt_control_s)
+    coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt), -s.sim.dt_control_s)
     if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
         imager = SequencedImager(imager, s.sequence)
         coil = SequencedCoil(coil, s.sequence, s.sim.dt_control_s)

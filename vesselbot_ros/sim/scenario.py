@@ -38,6 +38,7 @@ from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
 from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.integrator import IntegratorParams
 
@@ -172,6 +173,8 @@ class Scenario:
         sim: Simulation settings.
         sequence: The scanner's imaging/propulsion sequence (``continuous``:
             the paper's loop; ``multiplexed``: tracking and propulsion windows).
+        dbdt: The coil's dB/dt (peripheral nerve stimulation) limit, as a
+            slew limit (``mode: off``, the default: the coil's slew only).
     """
 
     name: str = "scenario"
@@ -186,6 +189,7 @@ class Scenario:
     initial: InitialConditions = dataclasses.field(default_factory=InitialConditions)
     sim: SimParams = dataclasses.field(default_factory=SimParams)
     sequence: SequenceParams = dataclasses.field(default_factory=SequenceParams)
+    dbdt: DbdtLimit = dataclasses.field(default_factory=DbdtLimit)
 
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
@@ -204,6 +208,7 @@ class Scenario:
             if self.sequence.tracking_window_s < self.sim.dt_control_s - 1e-12:
                 raise ConfigError(f"sequence.tracking_window_s must be >= one control tick ({self.sim.dt_control_s!r} s), "
                                   f"got {self.sequence.tracking_window_s!r}")
+            _check_on_tick_grid(self.sequence, self.sim.dt_control_s)
         # observer (25)'s gains only matter when it is the observer (the EKF has none to check)
         rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if self.observer.kind == "high_gain" else 0.0
         if rho >= 1.0:
@@ -232,6 +237,23 @@ class Scenario:
         """Plain YAML-able mapping; ``scenario_from_mapping`` inverts it."""
         out: dict[str, Any] = to_mapping(self)
         return out
+
+
+def _check_on_tick_grid(seq: SequenceParams, dt: float) -> None:
+    """Window edges and frame stamps of a multiplexed sequence fall on control ticks.
+
+    A frame is stamped at its tracking window's middle, and the graph's nodes
+    recover every stamp as a tick (``graph_spec.tick_of_ns``): an off-tick
+    stamp would be refused by the observer node while the ROS-free runner
+    used it.  So the start, the windows and the dead time are whole ticks, and
+    the tracking window an even number of them.
+    """
+    for name, value, mult in (("start_s", seq.start_s, 1), ("tracking_window_s", seq.tracking_window_s, 2),
+                              ("dead_time_s", seq.dead_time_s, 1), ("propulsion_window_s", seq.propulsion_window_s, 1)):
+        n = value / (mult * dt)
+        if abs(n - round(n)) > 1e-6:
+            what = "an even number of control ticks (its middle stamps the frame)" if mult == 2 else "whole control ticks"
+            raise ConfigError(f"sequence.{name} must be {what} of {dt!r} s with sequence.mode 'multiplexed', got {value!r}")
 
 
 def scenario_from_mapping(mapping: Any) -> Scenario:

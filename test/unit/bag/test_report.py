@@ -199,3 +199,16 @@ def test_force_plot_axis_is_not_stretched_by_negligible_terms(series):
     labels = _labels(ax)
     assert any("below the axis: van der Waals (max 1.4e-16 N)" in lb for lb in labels)
     assert "van der Waals" not in labels
+
+
+def test_tracking_windows_come_from_the_phase_rows_clipped_to_the_run():
+    from vesselbot_ros.bag.report import tracking_windows
+
+    ts = {"phase.phase": np.array([1, 2, 3, 2, 1, 2]),
+          "phase.window_start_s": np.array([0.0, 0.02, 0.022, 0.052, 0.054, 0.074]),
+          "phase.window_end_s": np.array([0.02, 0.022, 0.052, 0.054, 0.074, 0.076])}
+    assert tracking_windows(ts, 0.06) == [(0.0, 0.02), (0.054, 0.06)]
+    assert tracking_windows(ts, 1.0) == [(0.0, 0.02), (0.054, 0.074)]
+    assert tracking_windows({"phase.phase": np.array([0]), "phase.window_start_s": np.array([0.0]),
+                             "phase.window_end_s": np.array([np.inf])}, 1.0) == []  # continuous: nothing to shade
+    assert tracking_windows({}, 1.0) == []  # a bag from before the scanner

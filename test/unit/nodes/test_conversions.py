@@ -44,3 +44,26 @@ def test_infinite_age_travels_as_a_large_finite_number():
 def test_stamp_split_into_sec_and_nanosec():
     s = cv.stamp_of_ns(2_000_000_001)
     assert (s.sec, s.nanosec) == (2, 1)
+
+
+def test_estimate_carries_the_flow_scale_and_unset_reads_as_one():
+    msg = cv.estimate_msg(0.1, np.zeros(2), np.zeros(2), 0.0, 0.9523)
+    assert cv.estimate_flow_scale(msg) == 0.9523
+    assert cv.estimate_arrays(msg)[2] == 0.0  # the age slot is untouched
+    from nav_msgs.msg import Odometry
+
+    assert cv.estimate_flow_scale(Odometry()) == 1.0  # a user's observer that does not set it
+    for bad in (float("nan"), -1.0, 0.0):
+        msg.twist.covariance[35] = bad
+        assert cv.estimate_flow_scale(msg) == 1.0
+
+
+def test_sequence_phase_message_from_a_window():
+    from vesselbot_ros.scanner.sequence import SequenceParams, window_at
+
+    seq = SequenceParams(mode="multiplexed")
+    msg = cv.sequence_phase_msg(0.022, window_at(seq, 0.022), 0.02, 0.5555)
+    assert (msg.phase, msg.period_index, msg.window_start, msg.window_end) == (msg.PROPULSION, 0, 0.022, 0.052)
+    assert cv.ns_of_stamp(msg.header.stamp) == 22_000_000 and msg.header.frame_id == "vessel"
+    cont = cv.sequence_phase_msg(0.0, window_at(SequenceParams(), 0.0), 0.0, 1.0)
+    assert cont.phase == cont.CONTINUOUS and cont.window_end == float("inf") and cont.duty_cycle == 1.0

@@ -92,3 +92,30 @@ def test_presets_and_dbdt() -> None:
     assert dbdt_slew_limit(32.0, 0.2) == pytest.approx(160.0, rel=1e-12)
     with pytest.raises(ConfigError, match="radius_m"):
         dbdt_slew_limit(32.0, 0.0)
+
+
+@given(st.floats(-0.01, 1.0))
+@settings(max_examples=300, deadline=None)
+def test_window_at_agrees_with_phase_at_and_contains_the_time(t: float) -> None:
+    from vesselbot_ros.scanner.sequence import window_at
+
+    w = window_at(SEQ, t)
+    assert w.phase == phase_at(SEQ, t)
+    assert w.start_s - 1e-9 <= t < w.end_s - 1e-9 or (w.start_s == -math.inf and t < w.end_s)
+    if w.phase == "tracking":
+        tw = tracking_window_of(SEQ, t)
+        assert (tw.start_s, tw.end_s, tw.index) == pytest.approx((w.start_s, w.end_s, w.index), abs=1e-15)
+    # the window's end is where the next window starts
+    nxt = window_at(SEQ, w.end_s)
+    assert nxt.start_s == pytest.approx(w.end_s, abs=1e-12) and nxt.phase != w.phase
+
+
+def test_window_at_by_hand() -> None:
+    from vesselbot_ros.scanner.sequence import window_at
+
+    assert tuple(window_at(SEQ, 0.03)) == ("propulsion", 0, 0.022, pytest.approx(0.052))
+    assert tuple(window_at(SEQ, 0.0525)) == ("dead", 0, pytest.approx(0.052), pytest.approx(0.054))
+    assert window_at(SEQ, 0.054)[:2] == ("tracking", 1)
+    assert tuple(window_at(SequenceParams(), 5.0)) == ("continuous", -1, 0.0, math.inf)
+    late = SequenceParams(mode="multiplexed", start_s=0.1)
+    assert tuple(window_at(late, 0.05)) == ("dead", -1, -math.inf, 0.1)

@@ -70,3 +70,16 @@ def test_multiplexed_needs_the_sequence_latency() -> None:
     with pytest.raises(ConfigError, match="sequence.tracking_window_s must be >= one control tick"):
         scenario_from_mapping(_multiplexed(tracking_window_s=0.0005))
     assert SequenceParams().mode == "continuous"
+
+
+@pytest.mark.parametrize(("key", "value", "match"), [
+    ("tracking_window_s", 0.021, "tracking_window_s must be an even number of control ticks"),
+    ("dead_time_s", 0.0015, "dead_time_s must be whole control ticks"),
+    ("propulsion_window_s", 0.0305, "propulsion_window_s must be whole control ticks"),
+    ("start_s", 0.0001, "start_s must be whole control ticks"),
+])
+def test_windows_off_the_tick_grid_are_refused(key, value, match):
+    """A frame stamp off the tick grid would be refused by the graph's observer while the runner used it."""
+    with pytest.raises(ConfigError, match=f"sequence.{match}"):
+        scenario_from_mapping(_multiplexed(**{key: value}))
+    scenario_from_mapping(_multiplexed(tracking_window_s=0.022, dead_time_s=0.003, propulsion_window_s=0.031))
