@@ -23,11 +23,11 @@ def base() -> Scenario:
 
 
 def test_cells_are_the_full_grid_in_a_fixed_order_and_names_are_checked() -> None:
-    cells = ss.study_cells(["clinical_3t", "propulsion_insert"], [0.03, 0.06], [0.0], ["paper", "ekf"], [0.005, None])
+    cells = ss.study_cells(["clinical_3t", "propulsion_insert"], [0.03, 0.06], [0.0], ["paper", "ekf"], [0.004, None])
     assert len(cells) == 2 * 2 * 2 * 1 * 2
     assert [(c.hardware, c.tracking_window_s, c.propulsion_window_s, c.pair) for c in cells[:4]] == [
-        ("clinical_3t", 0.005, 0.03, "paper"), ("clinical_3t", 0.005, 0.03, "ekf"),
-        ("clinical_3t", 0.005, 0.06, "paper"), ("clinical_3t", 0.005, 0.06, "ekf")]
+        ("clinical_3t", 0.004, 0.03, "paper"), ("clinical_3t", 0.004, 0.03, "ekf"),
+        ("clinical_3t", 0.004, 0.06, "paper"), ("clinical_3t", 0.004, 0.06, "ekf")]
     with pytest.raises(ConfigError, match=r"hardware must be one of .* got 'mri9000'"):
         ss.study_cells(["mri9000"], [0.03], [0.0], ["ekf"])
     with pytest.raises(ConfigError, match=r"pair must be one of .* got 'pid'"):
@@ -35,9 +35,9 @@ def test_cells_are_the_full_grid_in_a_fixed_order_and_names_are_checked() -> Non
 
 
 def test_cell_scenario_takes_the_hardware_the_windows_and_the_pair(base: Scenario) -> None:
-    sc = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.06, 0.03, "ekf_k300", 0.005))
+    sc = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.06, 0.03, "ekf_k300", 0.004))
     assert sc.sequence.mode == "multiplexed"
-    assert (sc.sequence.tracking_window_s, sc.sequence.propulsion_window_s, sc.sequence.latency_s) == (0.005, 0.06, 0.03)
+    assert (sc.sequence.tracking_window_s, sc.sequence.propulsion_window_s, sc.sequence.latency_s) == (0.004, 0.06, 0.03)
     assert sc.coil.saturation_T_per_m == 0.4
     assert (sc.controller.gains.k1, sc.controller.gains.k2, sc.observer.kind) == (150.0, 150.0, "ekf")
     preset = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.03, 0.02, "paper"))
@@ -58,7 +58,7 @@ def test_bounds_say_where_the_loop_can_be_feasible(base: Scenario) -> None:
     duty = 0.02 / (0.02 + 2 * 0.002 + 0.02)  # tracking, dead, propulsion, dead
     assert ss.hold_margin(clinical) == pytest.approx(duty * a_sat_clinical - need, rel=1e-3)
     assert ss.hold_margin(clinical) < 0.0 < ss.hold_margin(insert)
-    short = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.02, 0.0, "ekf", 0.005))
+    short = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.02, 0.0, "ekf", 0.004))
     floor_long, floor_short = ss.coast_floor(insert), ss.coast_floor(short)
     assert 0.0 < floor_short < floor_long
     # at ~45 mm/s of flow over a 24 ms coast the bead drifts about a millimetre: floor ~ half of it
@@ -85,14 +85,14 @@ def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> 
     text = shipped_scenarios()["sound_small_artery_ekf"].read_text()
     cfg.write_text(text.replace("duration_s: 2.0", "duration_s: 0.3", 1))
     code = cli_main(["scanner-study", "--config", str(cfg), "--hardware", "propulsion_insert,clinical_3t",
-                     "--tracking-windows", "0.005", "--propulsion-windows", "0.03", "--latencies", "0.02",
+                     "--tracking-windows", "0.004", "--propulsion-windows", "0.03", "--latencies", "0.02",
                      "--pairs", "ekf", "--seeds", "1", "--workers", "2", "--out", str(out)])
     assert code == 0
     rows = list(csv.DictReader((out / "table.csv").open()))
     assert [r["hardware"] for r in rows] == ["propulsion_insert", "clinical_3t"]
-    assert all(float(r["tracking_window_s"]) == 0.005 for r in rows)
+    assert all(float(r["tracking_window_s"]) == 0.004 for r in rows)
     md = (out / "table.md").read_text()
-    assert md.count("\n") == 4 and "| propulsion_insert | 5 | 30 |" in md
+    assert md.count("\n") == 4 and "| propulsion_insert | 4 | 30 |" in md
     for name in ("tracking_vs_duty.png", "tracking_vs_latency.png"):
         assert (out / name).stat().st_size > 1000
     with pytest.raises(SystemExit) as exc:  # argparse: usage and one error line, exit 2
