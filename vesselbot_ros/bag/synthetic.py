@@ -129,10 +129,12 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
 
 
 def latched_messages() -> list[tuple[str, Any]]:
-    """The two latched topics (vessel markers, reference path), published once."""
+    """The latched topics (vessel markers, reference path, the scanner's phase: continuous), published once."""
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path as PathMsg
     from visualization_msgs.msg import Marker, MarkerArray
+
+    from vesselbot_msgs.msg import SequencePhase
 
     ma = MarkerArray()
     for i, z in enumerate((PARAMS["D"] / 2, -PARAMS["D"] / 2)):
@@ -150,4 +152,8 @@ def latched_messages() -> list[tuple[str, Any]]:
         _stamp(ps.header, 0.5 * j)
         ps.pose.position.x, ps.pose.position.z = PARAMS["v_x"] * 0.5 * j, PARAMS["z0"]
         path.poses.append(ps)
-    return [(topic("vessel_markers").name, ma), (topic("reference_path").name, path)]
+    phase = SequencePhase()  # the paper's continuous loop: one message, as the coil driver publishes it
+    _stamp(phase.header, 0.0)
+    phase.phase, phase.period_index, phase.window_start, phase.window_end = 0, -1, 0.0, float("inf")
+    return [(topic("vessel_markers").name, ma), (topic("reference_path").name, path),
+            (topic("sequence_phase").name, phase)]

@@ -38,7 +38,7 @@ def test_repair_rebuilds_a_valid_bag_with_every_flushed_message(tmp_path, cut_ex
     res = repair_bag(killed)
     assert res.repaired
     assert res.counts["/vesselbot/truth"] == 300
-    assert res.message_count == 300 * 8 + 3 + 2
+    assert res.message_count == 300 * 8 + 3 + 3  # ticks, diagnostics, the three latched messages
     assert res.dropped_bytes == (0 if cut_extra == 0 else 1 + 8 + cut_extra)
     assert res.damaged_path.name == "run.mcap.damaged" and res.damaged_path.exists()
     info = open_bag(killed)
@@ -72,7 +72,7 @@ def test_repair_of_a_mcap_cut_inside_a_chunk_keeps_the_complete_chunks(tmp_path)
 
 def test_repair_leaves_a_valid_bag_alone_and_rejects_non_mcap(synthetic_bag, tmp_path):
     res = repair_bag(synthetic_bag[0])
-    assert not res.repaired and res.message_count == 8012
+    assert not res.repaired and res.message_count == 8013
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "bad.mcap").write_bytes(b"not an mcap at all")
@@ -152,7 +152,7 @@ def test_garbage_metadata_with_an_intact_mcap_leaves_the_mcap_alone(synthetic_ba
     assert "metadata.yaml" in err and "line 3 column" in err and "Mark" not in err and "0x" not in err
     assert main(["bag", "repair", str(bag)]) == 0
     out = capsys.readouterr().out
-    assert "the MCAP is intact (8012 messages)" in out and "trailing bytes" not in out
+    assert "the MCAP is intact (8013 messages)" in out and "trailing bytes" not in out
     assert "original kept as metadata.yaml.orig" in out
     assert _digest(bag / "run1.mcap") == mcap and not (bag / "run1.mcap.damaged").exists()
     assert open_bag(bag).consistent
