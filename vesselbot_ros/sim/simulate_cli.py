@@ -60,4 +60,8 @@ def run(args: argparse.Namespace) -> int:
         f"rms {m['tracking_error_rms_m'] * 1e6:.1f} um; estimation error max {m['estimation_error_max_m'] * 1e6:.1f} um; "
         f"saturated {m['saturation_time_s']:.3f} s; contacts {m['wall_contacts']}; wall time {wall:.2f} s -> {out}"
     )
+    if "branch_final" in m:
+        target = m["route_outlet"] or "-"
+        print(f"{scenario.name}: branch reached {m['branch_final']} (target {target}: "
+              f"{'reached' if m['reached_target'] else 'NOT reached'}); outside the lumen {m['outside_lumen_time_s']:.3f} s")
     return 0

@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 
-__all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics"]
+__all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
 
 
 def route_branches(network: str, outlet: str) -> list[str]:
@@ -96,17 +96,23 @@ def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> d
     (first tick outside, s, -1 if never): leaving the lumen is an event every
     run reports.
     """
+    ref = scenario.reference
+    return navigation_outcome(scenario.physics.vessel.network, ref.route_outlet, ref.route_anchor_spacing_m, t_s, p_true)
+
+
+def navigation_outcome(network: str, target: str, min_arc_m: float, t_s: npt.ArrayLike, p_true: npt.ArrayLike
+                       ) -> dict[str, object]:
+    """:func:`navigation_metrics` from plain values (network file, target outlet, arc past its start (m))."""
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
-    net = load_network(scenario.physics.vessel.network)
+    net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(p)
     # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
     out = q["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
-    target = scenario.reference.route_outlet
-    reached = bool(target) and final_branch == target and not out[-1] and float(q["arc"][-1]) >= scenario.reference.route_anchor_spacing_m
+    reached = bool(target) and final_branch == target and not out[-1] and float(q["arc"][-1]) >= min_arc_m
     return {
         "branch_final": final_branch,
         "route_outlet": target,
@@ -114,3 +120,18 @@ def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> d
         "outside_lumen_time_s": float(np.count_nonzero(out) * dt),
         "outside_lumen_first_s": float(t[np.argmax(out)]) if out.any() else -1.0,
     }
+
+
+def draw_network(ax, network: str, mm: float = 1e3) -> None:  # type: ignore[no-untyped-def]
+    """Draw the network's walls (grey fill, dark outline) on a matplotlib axis, in mm by default."""
+    geom = NetworkGeometry(load_network(network))
+    for name, (pts, rad, _arc) in geom.branches.items():
+        t = np.gradient(pts, axis=0)
+        t /= np.hypot(t[:, 0], t[:, 1])[:, None]
+        nrm = np.column_stack([-t[:, 1], t[:, 0]])
+        poly = np.concatenate([pts + rad[:, None] * nrm, (pts - rad[:, None] * nrm)[::-1]]) * mm
+        ax.fill(poly[:, 0], poly[:, 1], color="0.92", lw=0, zorder=0)
+        ax.plot(*(pts + rad[:, None] * nrm).T * mm, color="0.3", lw=0.8, zorder=1)
+        ax.plot(*(pts - rad[:, None] * nrm).T * mm, color="0.3", lw=0.8, zorder=1)
+        ax.plot(*pts.T * mm, color="0.6", lw=0.5, ls=":", zorder=1)
+        ax.annotate(name, pts[-1] * mm, fontsize=7, color="0.3")
