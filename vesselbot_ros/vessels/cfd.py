@@ -56,7 +56,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 
 def cache_dir() -> Path:
@@ -188,7 +188,7 @@ def _parabola_dofs(ubasis: Any, facets: npt.NDArray[np.int64], cap: tuple[Any, A
     ids_z = np.concatenate(iz)
     loc = X[:, ids_x].T
     tang = np.array([-n_out[1], n_out[0]])
-    eta = ((loc - centre) @ tang) / r
+    eta = ((loc[:, 0] - centre[0]) * tang[0] + (loc[:, 1] - centre[1]) * tang[1]) / r
     prof = vc * np.clip(1.0 - eta * eta, 0.0, None) * direction
     return np.concatenate([ids_x, ids_z]), np.concatenate([prof * n_out[0], prof * n_out[1]])
 
@@ -212,8 +212,8 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     mid = 0.5 * (m.p[:, m.facets[0, bf]] + m.p[:, m.facets[1, bf]]).T
     assigned = np.zeros(len(bf), dtype=bool)
     for name, (centre, n_out, r) in meshed.caps.items():
-        along = (mid - centre) @ n_out
-        across = np.abs((mid - centre) @ np.array([-n_out[1], n_out[0]]))
+        along = (mid[:, 0] - centre[0]) * n_out[0] + (mid[:, 1] - centre[1]) * n_out[1]
+        across = np.abs(-(mid[:, 0] - centre[0]) * n_out[1] + (mid[:, 1] - centre[1]) * n_out[0])
         on = (np.abs(along) < 1e-3 * r) & (across <= r * (1 + 1e-6)) & ~assigned
         meshed.boundaries[name] = bf[on]
         assigned |= on

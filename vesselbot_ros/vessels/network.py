@@ -259,11 +259,11 @@ def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
     n = max(2, int(math.ceil(chord[-1] / spacing_m)) + 1)
     u = np.linspace(0.0, chord[-1], n)
     if smoothing == "spline" and len(pts) >= 3:
-        from scipy.interpolate import make_interp_spline
+        from vesselbot_ros.blas_free import interp_spline
 
+        # make_interp_spline's spline, solved without LAPACK: the same centreline bits on every CPU
         k = 3 if len(pts) >= 4 else 2
-        spl = make_interp_spline(chord, pts, k=k, bc_type="natural" if k == 3 else None)
-        out = spl(u)
+        out = interp_spline(chord, pts, k=k)(u)
     else:
         out = np.column_stack([np.interp(u, chord, pts[:, 0]), np.interp(u, chord, pts[:, 1])])
     r = np.interp(u, chord, rad)
