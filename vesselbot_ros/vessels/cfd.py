@@ -52,7 +52,7 @@ from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, smooth_centreline
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
-           "network_field", "cache_dir", "field_key", "FIELD_NAMES"]
+           "network_field", "cache_dir", "field_key", "FIELD_NAMES", "womersley_numbers"]
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
@@ -428,3 +428,13 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
     field.meta["total_s"] = time.perf_counter() - t0
     field.save(path)
     return field
+
+
+def womersley_numbers(net: VesselNetworkParams, blood: BloodParams, omega_rad_per_s: float) -> dict[str, float]:
+    """Womersley number alpha = R sqrt(omega rho / eta(D)) of each branch (at its widest radius), by name."""
+    out = {}
+    for b in net.branches:
+        r = float(max(b.radius_m))
+        eta = viscosity_for(blood, 2.0 * r)
+        out[b.name] = r * math.sqrt(omega_rad_per_s * blood.density_kg_per_m3 / eta)
+    return out

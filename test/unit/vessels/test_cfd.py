@@ -78,3 +78,13 @@ def test_bifurcation_outlets_carry_the_inflow_within_half_a_percent_and_split_by
     assert sol.fluxes["outlet:c"] / q_in == pytest.approx(share_c, rel=1e-3)
     assert sol.fluxes["outlet:b"] / q_in == pytest.approx(1.0 - share_c, rel=0.005)
     assert sol.picard_change < net.cfd.picard_tol
+
+
+def test_womersley_numbers_of_the_iii_c_network() -> None:
+    from vesselbot_ros.vessels.network import load_network
+
+    a = cfd.womersley_numbers(load_network("paper_iiic_artery"), BloodParams(), 2 * np.pi)
+    # alpha = R sqrt(omega rho / eta), eta = Pries at 5 mPa s plasma: ~16 mPa s (docs/vessels.md)
+    assert a["trunk_a"] == pytest.approx(0.97, abs=0.01)
+    assert a["upper"] == pytest.approx(0.77, abs=0.01)
+    assert a["side_up"] == pytest.approx(0.23, abs=0.01)
