@@ -1,6 +1,6 @@
 """`vesselbot run` through the Section III-C vessel network: recorded, reported, the chosen branch reached.
 
-One lockstep run (one process per node, seed 0, --report) of paper_iiic_network_lower.yaml; the
+One lockstep run (all nodes composed in one process, seed 0, --report) of paper_iiic_network_lower.yaml; the
 launcher's metrics equal the ROS-free loop's, the bag holds the network markers and the planned path,
 and the report states the branch reached.
 """
@@ -30,7 +30,7 @@ CONFIG = "config/paper_iiic_network_lower.yaml"
 def run(tmp_path_factory):  # type: ignore[no-untyped-def]
     tmp = tmp_path_factory.mktemp("network_run")
     bag, metrics = tmp / "bag", tmp / "metrics.json"
-    cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", CONFIG, "--seed", "0", "--quiet",
+    cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", CONFIG, "--seed", "0", "--quiet", "--single-process",
            "--record-dir", str(bag), "--metrics-json", str(metrics), "--report"]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -410,8 +410,8 @@ def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = graph_spec.diagnostic_counters()
 
 
-def _run_network(run: Mapping[str, Any]) -> tuple[str, str, float] | None:
-    """(network file, target outlet, min arc (m)) of a run in a vessel network, else None."""
+def _run_network(run: Mapping[str, Any]) -> tuple[str, str] | None:
+    """(network file, target outlet) of a run in a vessel network, else None."""
     try:
         net = run["config"]["physics"]["vessel"].get("network", "")
     except (KeyError, TypeError, AttributeError):
@@ -419,7 +419,7 @@ def _run_network(run: Mapping[str, Any]) -> tuple[str, str, float] | None:
     if not net:
         return None
     ref = (run.get("config") or {}).get("reference") or {}
-    return str(net), str(ref.get("route_outlet", "")), float(ref.get("route_anchor_spacing_m", 0.0))
+    return str(net), str(ref.get("route_outlet", ""))
 
 
 def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], network: str,
@@ -544,7 +544,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if net is not None:
         from vesselbot_ros.vessels.route import navigation_outcome
 
-        metrics.update(navigation_outcome(net[0], net[1], net[2], t, m["p_true"]))
+        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"]))
     slew_limit = _slew_limit(run)
     figures = {
         FIGURES[0]: fig9a_trajectory(t, m) if net is None else network_trajectory(t, m, net[0], metrics),

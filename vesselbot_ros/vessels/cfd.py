@@ -56,7 +56,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 
 
 def cache_dir() -> Path:
@@ -402,8 +402,19 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     d_unique = np.unique(np.round(q["diameter"], 12))
     eta_of = {d: viscosity_for(blood, float(d)) for d in d_unique}
     eta = np.array([eta_of[d] for d in np.round(q["diameter"], 12)])
+    # The local diameter (and viscosity) jumps where the branch holding a point changes (at a node);
+    # the wall moves out by D eps(t) / 2 with the pulsation (13), so a jump of D would be a step of the
+    # wall under a robot in contact.  Both are smoothed with a Gaussian of cfd.diameter_smoothing_m
+    # (a constant field, the straight vessel, stays exactly constant).
+    sig = net.cfd.diameter_smoothing_m / h
+    diam = q["diameter"].reshape(nz, nx)
+    if sig > 0:
+        from scipy.ndimage import gaussian_filter
+
+        diam = np.where(np.ptp(diam) > 0, gaussian_filter(diam, sig, mode="nearest"), diam)
+        eta = np.where(np.ptp(eta) > 0, gaussian_filter(eta.reshape(nz, nx), sig, mode="nearest").ravel(), eta)
     data = np.stack([
-        vel[:, 0] / vc_in, vel[:, 1] / vc_in, q["sdist"], q["normal"][:, 0], q["normal"][:, 1], q["diameter"], eta,
+        vel[:, 0] / vc_in, vel[:, 1] / vc_in, q["sdist"], q["normal"][:, 0], q["normal"][:, 1], diam.ravel(), eta,
     ]).reshape(len(FIELD_NAMES), nz, nx)
     # stored in single precision: the sparse LU's last bits depend on the CPU's BLAS kernel; rounded to
     # float32 (7 digits: 0.1 nm in the distance, 1e-7 of V_f) the field is the same on every machine

@@ -121,6 +121,9 @@ class CfdParams:
         outlet_split: ``murray``: each outlet carries a share of the inflow
             proportional to r^3 (Murray's law, the 3-D flow the 2-D solve
             stands for); ``area``: proportional to r^2 (same mean velocity).
+        diameter_smoothing_m: Gaussian width (m) with which the sampled local
+            diameter and viscosity are smoothed across the nodes, where the
+            branch holding a point changes (the pulsating wall would step there).
         picard_max_iterations: Cap on the Picard (Oseen) iterations.
         picard_tol: Relative change of the velocity at which Picard stops.
     """
@@ -130,6 +133,7 @@ class CfdParams:
     grid_spacing_m: float = 2.5e-5
     grid_margin_m: float = 5.0e-4
     outlet_split: Literal["murray", "area"] = "murray"
+    diameter_smoothing_m: float = 2.5e-4
     picard_max_iterations: int = 30
     picard_tol: float = 1.0e-9
 
@@ -139,6 +143,7 @@ class CfdParams:
         check_positive("grid_spacing_m", self.grid_spacing_m)
         check_range("grid_margin_m", self.grid_margin_m, 0.0, 0.1)
         check_choice("outlet_split", self.outlet_split, ("murray", "area"))
+        check_range("diameter_smoothing_m", self.diameter_smoothing_m, 0.0, 0.01)
         if self.picard_max_iterations < 1:
             raise ConfigError(f"picard_max_iterations must be >= 1, got {self.picard_max_iterations!r}")
         check_positive("picard_tol", self.picard_tol)

@@ -11,8 +11,11 @@ wall, where the flow is slow, at the wall-safe height
 :func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m` of the local
 diameter (margin ``reference.route_wall_margin_m`` outside the band where the
 observer error is unstable); where that height is not positive (small vessels)
-the anchor is on the centreline.  "Upper" is the side of the centreline whose
-normal points up (+z).  The first anchor is the start point itself.  The C2
+the anchor is on the centreline.  Within one local diameter of a bifurcation
+node the height ramps linearly down to the centreline (the side of the wall
+changes there, and a route waiting at the upper wall in front of the wrong
+daughter's entrance loses the robot into it).  "Upper" is the side of the
+centreline whose normal points up (+z).  The first anchor is the start point itself.  The C2
 B-spline through the anchors and its timing are those of
 :class:`~vesselbot_ros.control.bspline_reference.ReferenceTrajectory`.
 """
@@ -55,6 +58,9 @@ def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-de
     up = np.column_stack([-tang[:, 1], tang[:, 0]])
     up[up[:, 1] < 0] *= -1.0  # the normal that points up
     q = geom.query(path)
+    # arc lengths of the bifurcation nodes the route passes (the ends of all but its last branch)
+    lengths = [geom.branches[n][2][-1] for n in names]
+    nodes = np.cumsum(lengths)[:-1]
     base = dataclasses.replace(phys, vessel=dataclasses.replace(phys.vessel, network=""))
     heights: dict[float, float] = {}
     out = [p0]
@@ -64,7 +70,10 @@ def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-de
         if d not in heights:
             pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
             heights[d] = max(0.0, wall_safe_delta_m(pd, scenario.observer, ref.route_wall_margin_m))
-        out.append(path[i] + heights[d] * up[i])
+        # within one local diameter of a node the height ramps down to the centreline, so the route never
+        # waits in front of the other daughter's entrance (the wall side of a bend changes there)
+        ramp = 1.0 if nodes.size == 0 else min(1.0, float(np.min(np.abs(nodes - s))) / d)
+        out.append(path[i] + ramp * heights[d] * up[i])
     return np.array(out)
 
 
@@ -90,19 +99,17 @@ def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> d
 
     Keys: ``branch_final`` (branch holding the final true position),
     ``route_outlet`` (target, ``""`` if none), ``reached_target`` (1 if the final
-    position lies inside the lumen of the target branch, past its first
-    ``route_anchor_spacing_m``), ``outside_lumen_time_s`` (time the robot's
+    position lies inside the lumen of the target branch, further into it than
+    the parent's radius at the node), ``outside_lumen_time_s`` (time the robot's
     centre spent outside the steady lumen, s) and ``outside_lumen_first_s``
     (first tick outside, s, -1 if never): leaving the lumen is an event every
     run reports.
     """
-    ref = scenario.reference
-    return navigation_outcome(scenario.physics.vessel.network, ref.route_outlet, ref.route_anchor_spacing_m, t_s, p_true)
+    return navigation_outcome(scenario.physics.vessel.network, scenario.reference.route_outlet, t_s, p_true)
 
 
-def navigation_outcome(network: str, target: str, min_arc_m: float, t_s: npt.ArrayLike, p_true: npt.ArrayLike
-                       ) -> dict[str, object]:
-    """:func:`navigation_metrics` from plain values (network file, target outlet, arc past its start (m))."""
+def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:
+    """:func:`navigation_metrics` from plain values (network file, target outlet or "")."""
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
@@ -112,7 +119,12 @@ def navigation_outcome(network: str, target: str, min_arc_m: float, t_s: npt.Arr
     out = q["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
-    reached = bool(target) and final_branch == target and not out[-1] and float(q["arc"][-1]) >= min_arc_m
+    reached = False
+    if target and final_branch == target and not out[-1]:
+        parent = next(b for b in net.branches if b.name == target).parent
+        # past the bifurcation: the centre lies further into the branch than the parent's end radius
+        min_arc = float(next(b for b in net.branches if b.name == parent).radii()[-1]) if parent else 0.0
+        reached = float(q["arc"][-1]) >= min_arc
     return {
         "branch_final": final_branch,
         "route_outlet": target,

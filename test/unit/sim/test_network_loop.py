@@ -44,9 +44,10 @@ def test_one_branch_network_reproduces_the_straight_vessel_within_1_percent(name
         assert n["branch_final"] == "trunk" and n["outside_lumen_time_s"] == 0.0
 
 
-@pytest.mark.parametrize("outlet", ["upper", "lower"])
-def test_paper_network_reaches_the_chosen_daughter_on_seeds_0_to_4(outlet: str) -> None:
-    sc = load_scenario(shipped_scenarios()[f"paper_iiic_network_{outlet}"])
+@pytest.mark.parametrize(("name", "outlet"), [("paper_iiic_network_upper", "upper"), ("paper_iiic_network_lower", "lower"),
+                                            ("small_artery_4gen_udu", "g0udu")])
+def test_network_scenarios_reach_the_chosen_branch_on_seeds_0_to_4(name: str, outlet: str) -> None:
+    sc = load_scenario(shipped_scenarios()[name])
     ref = planned_reference(sc)
     assert ref.anchors_x_m[0] == sc.initial.p0_m[0]  # the route starts at the injection point
     for seed in range(5):
@@ -59,7 +60,7 @@ def test_paper_network_reaches_the_chosen_daughter_on_seeds_0_to_4(outlet: str) 
 def test_leaving_the_lumen_is_a_recorded_event() -> None:
     t = np.arange(5) * 1e-3
     p = np.array([[0.0, 0.0], [0.0, 1.0e-3], [0.0, 1.6e-3], [0.0, 1.7e-3], [0.0, 1.0e-3]])
-    out = navigation_outcome("paper_iiic_artery", "upper", 2.5e-3, t, p)
+    out = navigation_outcome("paper_iiic_artery", "upper", t, p)
     assert out["outside_lumen_time_s"] == pytest.approx(2e-3)
     assert out["outside_lumen_first_s"] == pytest.approx(2e-3)
     assert out["branch_final"] == "trunk_a" and out["reached_target"] == 0
