@@ -23,6 +23,7 @@ B-spline through the anchors and its timing are those of
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import numpy.typing as npt
@@ -38,17 +39,21 @@ def route_branches(network: str, outlet: str) -> list[str]:
 
 
 def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+    return _anchors_cached(scenario.physics, scenario.observer, scenario.reference, tuple(scenario.initial.p0_m))
+
+
+@functools.lru_cache(maxsize=64)
+def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+    """The planned anchors (k, 2) (m); cached per (frozen) inputs: the wall-safe heights cost ~0.3 s each."""
     from vesselbot_ros.control.reference_design import wall_safe_delta_m
 
-    phys = scenario.physics
-    ref = scenario.reference
     net = load_network(phys.vessel.network)
     geom = NetworkGeometry(net)
     names = route_to_outlet(net, ref.route_outlet)
     path = geom.centreline_path(names)
     seg = np.hypot(*np.diff(path, axis=0).T)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
-    p0 = np.asarray(scenario.initial.p0_m, dtype=np.float64)
+    p0 = np.asarray(p0_m, dtype=np.float64)
     s0 = float(arc[int(np.argmin(np.hypot(*(path - p0).T)))])
     s_end = arc[-1] - ref.route_end_margin_m
     n = max(1, int(np.floor((s_end - s0) / ref.route_anchor_spacing_m + 1e-9)))
@@ -69,12 +74,14 @@ def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-de
         d = float(np.round(q["diameter"][i], 9))
         if d not in heights:
             pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
-            heights[d] = max(0.0, wall_safe_delta_m(pd, scenario.observer, ref.route_wall_margin_m))
+            heights[d] = max(0.0, wall_safe_delta_m(pd, observer, ref.route_wall_margin_m))
         # within one local diameter of a node the height ramps down to the centreline, so the route never
         # waits in front of the other daughter's entrance (the wall side of a bend changes there)
         ramp = 1.0 if nodes.size == 0 else min(1.0, float(np.min(np.abs(nodes - s))) / d)
         out.append(path[i] + ramp * heights[d] * up[i])
-    return np.array(out)
+    arr = np.array(out)
+    arr.setflags(write=False)
+    return arr
 
 
 def planned_reference(scenario):  # type: ignore[no-untyped-def]
