@@ -13,8 +13,7 @@ law (shares r^3 / sum r^3, ``cfd.outlet_split: murray``) or by area (shares
 r^2), and accept that a daughter's centreline velocity is the 2-D one
 (for a symmetric Murray bifurcation 0.63 of the parent's instead of 0.79 in 3-D).
 
-Equations, in the branch frame of each element: ``rho (u . grad) u = -grad p +
-div(mu grad u)``, ``div u = 0``; Taylor-Hood P2/P1 elements on a gmsh
+Equations: ``rho (u . grad) u = -grad p + div(mu grad u)``, ``div u = 0``; Taylor-Hood P2/P1 elements on a gmsh
 triangulation; mu is the Pries apparent viscosity (eq. (9), the scenario's
 blood model) at the local branch diameter, element by element; Picard (Oseen)
 iterations from the Stokes solution.  Boundary conditions: parabolic inflow

@@ -17,9 +17,10 @@ distance of a point to the union of the branch tubes (> 0 inside the lumen,
 the "capsule" distance max_b (r_b - |p - c_b|) -- exact away from the
 junctions, a lower bound of the true distance inside a junction), the unit
 inward wall normal and the local diameter 2 r_b of the branch that contains the
-point.  The CFD sampler (:mod:`vesselbot_ros.vessels.cfd`) measures the signed
-distance to the meshed wall instead; both agree away from the junctions
-(tested).
+point.  The CFD sampler (:mod:`vesselbot_ros.vessels.cfd`) samples these on its
+grid; the mesh is the union of the same tubes (flat caps at the inlet and
+outlets, a disc at each node), so the sampled wall and the meshed wall agree
+away from the open ends.
 """
 
 from __future__ import annotations
