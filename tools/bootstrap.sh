@@ -36,6 +36,9 @@ if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
   quiet_pip install -r requirements.txt
   "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow" \
     || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
+  "$venv/bin/python" -c "import skfem, gmsh" \
+    || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \
+              "(apt-get install libglu1-mesa libxcursor1 libxft2 libxinerama1)" >&2; exit 1; }
   mark requirements "$req"
 fi
 

@@ -429,6 +429,43 @@ def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = graph_spec.diagnostic_counters()
 
 
+def _run_network(run: Mapping[str, Any]) -> tuple[str, str] | None:
+    """(network file, target outlet) of a run in a vessel network, else None."""
+    try:
+        net = run["config"]["physics"]["vessel"].get("network", "")
+    except (KeyError, TypeError, AttributeError):
+        return None
+    if not net:
+        return None
+    ref = (run.get("config") or {}).get("reference") or {}
+    return str(net), str(ref.get("route_outlet", ""))
+
+
+def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], network: str,
+                       metrics: Mapping[str, Any]) -> Any:
+    """Fig. 9a in a vessel network: the network, the trajectory, the reference and the estimate; the branch reached."""
+    import matplotlib.pyplot as plt
+
+    from vesselbot_ros.vessels.route import draw_network
+
+    mm = 1e3
+    fig, ax = plt.subplots(figsize=(9, 5))
+    draw_network(ax, network, mm)
+    ax.plot(m["p_ref"][:, 0] * mm, m["p_ref"][:, 1] * mm, "k--", lw=1.0, label="reference")
+    ax.plot(m["x_hat"][:, 0] * mm, m["x_hat"][:, 1] * mm, color="tab:orange", lw=0.6, alpha=0.8, label="estimate")
+    ax.plot(m["p_true"][:, 0] * mm, m["p_true"][:, 1] * mm, color="tab:blue", lw=1.2, label="robot")
+    target = metrics.get("route_outlet") or "-"
+    ok = "reached" if metrics.get("reached_target") else "NOT reached"
+    ax.set_title(f"branch reached: {metrics.get('branch_final')} (target {target}: {ok}); "
+                 f"outside the lumen {metrics.get('outside_lumen_time_s', 0.0):.3f} s")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float | None:
     try:
         v = float(run["config"][section][key])
@@ -525,11 +562,16 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         "tracking_within_bound": bool(metrics["tracking_error_max_m"] <= TRACKING_BOUND_M),
     })
 
+    net = _run_network(run)
+    if net is not None:
+        from vesselbot_ros.vessels.route import navigation_outcome
+
+        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"]))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
     recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
     slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)
     figures = {
-        FIGURES[0]: fig9a_trajectory(t, m),
+        FIGURES[0]: fig9a_trajectory(t, m) if net is None else network_trajectory(t, m, net[0], metrics),
         FIGURES[1]: fig9b_errors(t, m, spans, after_s),
         FIGURES[2]: fig10a_gradients(t, m, spans, slew_limit),
         FIGURES[3]: fig10b_velocities(t, m, spans),

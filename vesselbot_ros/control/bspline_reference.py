@@ -60,6 +60,13 @@ class ReferenceParams:
         start_s: Time at which the reference leaves the first anchor (s).
         timing: ``constant``, ``rest_to_rest`` or ``flow_synchronised``.
         sync_ratio: ``c`` in ``dx_ref/dt = c v_f`` (flow_synchronised only).
+        route_outlet: In a vessel network (``physics.vessel.network``): the
+            target outlet branch; the anchors are then planned along the route
+            from the start point (:mod:`vesselbot_ros.vessels.route`) and
+            ``anchors_x_m``/``anchors_z_m`` are not used.  ``""``: the anchors as given.
+        route_anchor_spacing_m: Arc length between planned anchors (m).
+        route_end_margin_m: The last planned anchor lies this far before the outlet (m).
+        route_wall_margin_m: Margin of the planned height outside the observer's unstable band (m).
     """
 
     anchors_x_m: tuple[float, ...] = (0.0, 3e-3, 6e-3, 9e-3)
@@ -68,6 +75,10 @@ class ReferenceParams:
     start_s: float = 0.0
     timing: Literal["constant", "rest_to_rest", "flow_synchronised"] = "constant"
     sync_ratio: float = 1.0
+    route_outlet: str = ""
+    route_anchor_spacing_m: float = 2.5e-3
+    route_end_margin_m: float = 2.0e-3
+    route_wall_margin_m: float = 1.5e-4
 
     def __post_init__(self) -> None:
         if len(self.anchors_x_m) < 2:
@@ -90,6 +101,9 @@ class ReferenceParams:
         check_nonnegative("start_s", self.start_s)
         check_choice("timing", self.timing, ("constant", "rest_to_rest", "flow_synchronised"))
         check_positive("sync_ratio", self.sync_ratio)
+        check_positive("route_anchor_spacing_m", self.route_anchor_spacing_m)
+        check_nonnegative("route_end_margin_m", self.route_end_margin_m)
+        check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
 
 
 class RefSample(NamedTuple):

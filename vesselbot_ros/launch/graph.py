@@ -330,6 +330,10 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     series = _series(mon, scenario)
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
+    if scenario.physics.vessel.network:
+        from vesselbot_ros.vessels.route import navigation_metrics
+
+        metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))
     for r, keys in diagnostic_counters().items():
         d = diagnostics.get(NODE_NAMES[r], {})
         for key in keys:

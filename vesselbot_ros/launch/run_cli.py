@@ -139,6 +139,11 @@ def run(args: argparse.Namespace) -> int:
     record = not args.no_record
     # a run that does not fit in memory or on disk is refused here, one line naming the keys
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
+    if scenario.physics.vessel.network:
+        # the network's CFD field is solved (or read from the cache) once, here, before any node starts
+        from vesselbot_ros.physics.kernel import pack_params
+
+        pack_params(scenario.physics)
     if record:
         import importlib.util
 

@@ -40,6 +40,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Literal
 
+import numpy as np
 from rclpy.node import Node
 
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive, load_dataclass
@@ -358,6 +359,16 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if now - self._last_diag_wall >= 0.2:
             self.publish_diagnostics()
 
+    def _network_clearance(self, x: float, z: float) -> float:
+        """Signed distance (m) of (x, z) to the network's wall at its widest (diameter pulsation), > 0 inside."""
+        from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+
+        geom = getattr(self, "_net_geom", None)
+        if geom is None:
+            geom = self._net_geom = NetworkGeometry(load_network(self.scenario.physics.vessel.network))
+        q = geom.query(np.array([[x, z]]))
+        return float(q["sdist"][0] + 0.5 * q["diameter"][0] * self.scenario.physics.flow.diameter_pulsation)
+
     def check(
         self,
         key: str,
@@ -367,6 +378,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         values: Iterable[float] = (),
         y_values: Iterable[float] = (),
         z_position: float | None = None,
+        x_position: float | None = None,
         extra_age_s: float = 0.0,
     ) -> bool:
         """Validate one input message; on failure call :meth:`reject` and return False.
@@ -380,6 +392,9 @@ class VesselbotNode(Node):  # type: ignore[misc]
             y_values: Components along the unused y axis (must be 0).
             z_position: A position's z (m): must lie within the vessel walls
                 plus ``graph.position_margin_m``.
+            x_position: The position's x (m); in a vessel network the point
+                (x, z) must lie within the network's walls (dilated by the
+                diameter pulsation) plus ``graph.position_margin_m``.
             extra_age_s: Allowed extra age (e.g. the imager latency), s.
         """
         vals = list(values)
@@ -392,7 +407,13 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if any(y != 0.0 for y in y_values):
             self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
             return False
-        if z_position is not None:
+        if z_position is not None and self.scenario.physics.vessel.network and x_position is not None:
+            s = self._network_clearance(x_position, z_position)
+            if s < -self.graph.position_margin_m:
+                self.reject(key, "outside_vessel", f"(x, z) = ({x_position!r}, {z_position!r}) m lies {-s!r} m outside "
+                                                   f"the vessel network's walls")
+                return False
+        elif z_position is not None:
             half = 0.5 * self.scenario.physics.vessel.diameter_m * (1.0 + self.scenario.physics.flow.diameter_pulsation)
             if abs(z_position) > half + self.graph.position_margin_m:
                 self.reject(key, "outside_vessel", f"z = {z_position!r} m, walls at +/-{half!r} m")

@@ -66,7 +66,7 @@ class ControllerNode(VesselbotNode):
         v = msg.twist.twist.linear
         stamp = stamp_ns_of(msg)
         if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z, v.x, v.y, v.z, age),
-                          y_values=(p.y, v.y), z_position=p.z):
+                          y_values=(p.y, v.y), z_position=p.z, x_position=p.x):
             return
         k = self.join.tick_of("estimate", stamp)
         if k is None:
@@ -86,7 +86,7 @@ class ControllerNode(VesselbotNode):
         vals = (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y, msg.velocity.z,
                 msg.acceleration.x, msg.acceleration.y, msg.acceleration.z)
         if not self.check("reference", frame_id=msg.header.frame_id, stamp_ns=stamp, values=vals,
-                          y_values=(msg.position.y, msg.velocity.y, msg.acceleration.y), z_position=msg.position.z):
+                          y_values=(msg.position.y, msg.velocity.y, msg.acceleration.y), z_position=msg.position.z, x_position=msg.position.x):
             return
         k = self.join.tick_of("reference", stamp, int(msg.tick))
         if k is None:

@@ -216,3 +216,30 @@ def vessel_markers(x_min_m: float, x_max_m: float, diameter_m: float, robot_radi
         m.points = [point((x_min_m, z)), point((x_max_m, z))]
         out.markers.append(m)
     return out
+
+
+def network_markers(geom: Any, robot_radius_m: float, step_m: float = 2.0e-4) -> MarkerArray:
+    """A vessel network for viewers: per branch, its two walls and its centreline (LINE_STRIPs).
+
+    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry`; points every ``step_m``.
+    """
+    out = MarkerArray()
+    mid = 0
+    for name, (pts, rad, _arc) in geom.branches.items():
+        stride = max(1, int(round(step_m / geom.net.sample_spacing_m)))
+        idx = np.unique(np.r_[np.arange(0, len(pts), stride), len(pts) - 1])
+        t = np.gradient(pts, axis=0)
+        t /= np.hypot(t[:, 0], t[:, 1])[:, None]
+        nrm = np.column_stack([-t[:, 1], t[:, 0]])
+        lines = (("wall_left", pts + rad[:, None] * nrm, (0.8, 0.2, 0.2)),
+                 ("wall_right", pts - rad[:, None] * nrm, (0.8, 0.2, 0.2)),
+                 ("centreline", pts, (0.5, 0.5, 0.5)))
+        for label, line, (r, g, b) in lines:
+            m = Marker(header=header(0.0), ns=f"{name}/{label}", id=mid, type=Marker.LINE_STRIP, action=Marker.ADD)
+            mid += 1
+            m.scale.x = 0.1 * robot_radius_m
+            m.color.r, m.color.g, m.color.b, m.color.a = r, g, b, 1.0
+            m.pose.orientation.w = 1.0
+            m.points = [point((float(x), float(z))) for x, z in line[idx]]
+            out.markers.append(m)
+    return out

@@ -89,7 +89,7 @@ class ImagerNode(VesselbotNode):
         p = msg.position
         stamp = stamp_ns_of(msg)
         if not self.check("truth", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
-                          y_values=(p.y,), z_position=p.z):
+                          y_values=(p.y,), z_position=p.z, x_position=p.x):
             return
         k = int(msg.tick)
         if cv.ns_of_time(cv.tick_time(k, self.dt)) != stamp:

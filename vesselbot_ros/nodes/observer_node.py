@@ -103,7 +103,7 @@ class ObserverNode(VesselbotNode):
         p = msg.point
         stamp = stamp_ns_of(msg)
         if not self.check("measurement", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
-                          y_values=(p.y,), z_position=p.z, extra_age_s=self.scenario.imager.latency_s):
+                          y_values=(p.y,), z_position=p.z, x_position=p.x, extra_age_s=self.scenario.imager.latency_s):
             return None
         j, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:

@@ -49,7 +49,7 @@ from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.physics.blood_flow import Vessel
-from vesselbot_ros.physics.kernel import fluid_velocity_x
+from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stages
 
@@ -82,11 +82,16 @@ class PlantNode(VesselbotNode):
         self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
         self.add_service("run_control", RunControl, self._on_run_control)
         ref = self.scenario.reference
-        self.publish(
-            "vessel_markers",
-            cv.vessel_markers(min(ref.anchors_x_m) - 1e-3, max(ref.anchors_x_m) + 1e-3,
-                              self.scenario.physics.vessel.diameter_m, self.scenario.physics.robot.radius_m),
-        )
+        self._network = bool(self.scenario.physics.vessel.network)
+        if self._network:
+            from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+
+            markers = cv.network_markers(NetworkGeometry(load_network(self.scenario.physics.vessel.network)),
+                                         self.scenario.physics.robot.radius_m)
+        else:
+            markers = cv.vessel_markers(min(ref.anchors_x_m) - 1e-3, max(ref.anchors_x_m) + 1e-3,
+                                        self.scenario.physics.vessel.diameter_m, self.scenario.physics.robot.radius_m)
+        self.publish("vessel_markers", markers)
         self._rt_timer = None
         self._poll = self.create_timer(0.05, self._housekeeping, clock=self._wall)
 
@@ -154,8 +159,15 @@ class PlantNode(VesselbotNode):
     def _truth_msg(self, out: Any) -> PlantState:
         t = out.t_s
         r = self.scenario.physics.robot.radius_m
-        d = self._vessel.diameter(t)
         x, z = float(out.p[0]), float(out.p[1])
+        if self._network:
+            s_t, _nx, _nz, d, _eta, vfx, vfz = network_geometry(t, x, z, self.plant.p)
+            near, far = s_t - r, d - s_t - r  # gaps to the nearest wall and the opposite one
+            gap_up, gap_lo = (near, far) if out.wall > 0 else (far, near)
+        else:
+            d = self._vessel.diameter(t)
+            vfx, vfz = float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0
+            gap_up, gap_lo = 0.5 * d - z - r, z + 0.5 * d - r
         h = cv.header(t)
         f = out.forces
         fb = ForceBreakdown(header=h)
@@ -167,10 +179,10 @@ class PlantNode(VesselbotNode):
             tick=self.k,
             position=cv.point(out.p),
             velocity=cv.vector3(out.v),
-            blood_velocity=cv.vector3((float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0)),
-            vessel_diameter=d,
-            wall_gap_upper=0.5 * d - z - r,
-            wall_gap_lower=z + 0.5 * d - r,
+            blood_velocity=cv.vector3((float(vfx), float(vfz))),
+            vessel_diameter=float(d),
+            wall_gap_upper=float(gap_up),
+            wall_gap_lower=float(gap_lo),
             signed_wall_distance=out.delta_m,
             in_contact=out.in_contact,
             contact_phase=out.contact_phase,

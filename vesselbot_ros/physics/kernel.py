@@ -61,7 +61,10 @@ __all__ = [
     "forces_into",
     "update_contact",
     "nearest_wall_delta",
+    "wall_delta_xz",
     "fluid_velocity_x",
+    "fluid_velocity_xz",
+    "network_geometry",
 ]
 
 TERM_NAMES = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic", "steric", "total")
@@ -100,8 +103,10 @@ I_BIF_TH0 = 30  # theta at start (deg)
 I_BIF_TH1 = 31  # theta at end (deg)
 I_BIF_RAMP = 32  # blend ramp fraction (-)
 I_BIF_NKNOTS = 33  # K
-I_TABLE = 34  # start of the table (3 K + ... entries)
-N_FIXED = 34
+I_NET_ON = 34  # 1 if the vessel is a network (vessel.network): geometry and flow from the sampled CFD grid
+I_NET_OFF = 35  # index of the network block: x0, z0, h (m), nx, nz, then 7 (nz, nx) grids (cfd.FIELD_NAMES)
+I_TABLE = 36  # start of the table (3 K + ... entries)
+N_FIXED = 36
 _LAMBDA_MAX = 0.999
 
 
@@ -153,7 +158,16 @@ def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
         head[I_BIF_RAMP] = bif.ramp_fraction
         head[I_BIF_NKNOTS] = table.knots_deg.size
         tail = np.concatenate([table.knots_deg, table.values.ravel(), table.slopes.ravel()])
-    out = np.concatenate([head, tail])
+    net_block = np.zeros(0)
+    if v.network:
+        from vesselbot_ros.vessels.cfd import network_field
+        from vesselbot_ros.vessels.network import load_network
+
+        fld = network_field(load_network(v.network), b)
+        head[I_NET_ON] = 1.0
+        head[I_NET_OFF] = N_FIXED + tail.size
+        net_block = np.concatenate([[fld.x0_m, fld.z0_m, fld.h_m, fld.nx, fld.nz], fld.data.ravel()])
+    out = np.concatenate([head, tail, net_block])
     out.setflags(write=False)
     return out
 
@@ -164,8 +178,99 @@ def _diameter(t, p):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
+def _grid_bilinear(p, x, z, first, count, out):  # type: ignore[no-untyped-def]
+    """Bilinear interpolation of ``count`` grids starting at field ``first`` at (x, z) (m) into ``out``.
+
+    Outside the grid the value at the nearest grid edge is used.
+    """
+    o = int(p[I_NET_OFF])
+    x0 = p[o]
+    z0 = p[o + 1]
+    h = p[o + 2]
+    nx = int(p[o + 3])
+    nz = int(p[o + 4])
+    fx = (x - x0) / h
+    fz = (z - z0) / h
+    i = int(np.floor(fx))
+    j = int(np.floor(fz))
+    if i < 0:
+        i = 0
+    elif i > nx - 2:
+        i = nx - 2
+    if j < 0:
+        j = 0
+    elif j > nz - 2:
+        j = nz - 2
+    tx = min(1.0, max(0.0, fx - i))
+    tz = min(1.0, max(0.0, fz - j))
+    w00 = (1.0 - tx) * (1.0 - tz)
+    w10 = tx * (1.0 - tz)
+    w01 = (1.0 - tx) * tz
+    w11 = tx * tz
+    base = o + 5 + j * nx + i
+    n = nx * nz
+    for k in range(count):
+        b = base + (first + k) * n
+        out[k] = w00 * p[b] + w10 * p[b + 1] + w01 * p[b + nx] + w11 * p[b + nx + 1]
+
+
+@numba.njit(cache=True)
+def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
+    """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
+
+    s_t: signed distance of the centre to the wall (m, > 0 inside) with the wall
+    moved out by the diameter pulsation (13): s + D eps(t) / 2, D_t = D (1 + eps(t));
+    (nx, nz): unit inward normal of the nearest wall; eta: viscosity (Pa s);
+    (vfx, vfz): blood velocity (m/s), eq. (12) on the steady CFD field, which
+    dilates with the vessel: sampled at the point moved towards the centreline by
+    the factor 1 / (1 + eps) (exactly p_p(z, D(t)) in a straight branch).
+    """
+    g = np.empty(7)
+    _grid_bilinear(p, x, z, 2, 5, g)
+    s, gx, gz, d, eta = g[0], g[1], g[2], g[3], g[4]
+    nn = np.sqrt(gx * gx + gz * gz)
+    if nn > 1e-12:
+        gx /= nn
+        gz /= nn
+    else:
+        gx = 0.0
+        gz = -1.0
+    eps = p[I_D_PULSE] * np.sin(p[I_OMEGA_F] * t + p[I_PHI_F])
+    s_t = s + 0.5 * d * eps
+    d_t = d * (1.0 + eps)
+    shift = (0.5 * d - s) * (1.0 - 1.0 / (1.0 + eps))
+    _grid_bilinear(p, x + gx * shift, z + gz * shift, 0, 2, g)
+    scale = p[I_V_F] * pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F])
+    return s_t, gx, gz, d_t, eta, scale * g[0], scale * g[1]
+
+
+@numba.njit(cache=True)
+def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]
+    """(delta (m), wall) of the nearest wall for a robot centred at (x, z).
+
+    Straight vessel: :func:`nearest_wall_delta`.  Network: delta = r - s_t;
+    wall = +1 if the nearest wall lies above the centre (inward normal down), else -1.
+    """
+    if p[I_NET_ON] > 0.5:
+        s_t, gx, gz, d_t, eta, vx, vz = network_geometry(t, x, z, p)
+        return p[I_R] - s_t, (1.0 if gz <= 0.0 else -1.0)
+    return nearest_wall_delta(t, z, p)
+
+
+@numba.njit(cache=True)
+def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
+    """(v_fx, v_fz) blood velocity (m/s) at (x, z) (m), time t (s)."""
+    if p[I_NET_ON] > 0.5:
+        r = network_geometry(t, x, z, p)
+        return r[5], r[6]
+    return fluid_velocity_x(t, x, z, p), 0.0
+
+
+@numba.njit(cache=True)
 def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
     """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
+    if p[I_NET_ON] > 0.5:
+        return network_geometry(t, x, z, p)[5]
     d_t = _diameter(t, p)
     if p[I_BIF_ON] > 0.5:
         nk = int(p[I_BIF_NKNOTS])
@@ -195,6 +300,9 @@ def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[n
     Args: t (s); x, z (m); vx, vz (m/s); gx, gz gradient (T/m); contact_arr (4,);
     p packed params; out (8, 2) float64, overwritten.
     """
+    if p[I_NET_ON] > 0.5:
+        _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
+        return
     r = p[I_R]
     d_t = _diameter(t, p)
     # magnetic (2)
@@ -230,6 +338,45 @@ def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[n
     out[5, 1] = el
     out[6, 0] = 0.0
     out[6, 1] = st
+    out[7, 0] = out[0, 0] + out[1, 0] + out[2, 0] + out[3, 0] + out[4, 0] + out[5, 0] + out[6, 0]
+    out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
+
+
+@numba.njit(cache=True)
+def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
+    """:func:`forces_into` in a vessel network: every force from the local wall geometry.
+
+    delta and the inward normal n from the signed distance; the drag's wall
+    factor from the local diameter and viscosity; contact (15)-(16) against the
+    nearest wall along n; interactions from the nearest wall (gap s) and the
+    opposite one (gap D - s) along the normal.
+    """
+    r = p[I_R]
+    s_t, nx, nz, d_t, eta, vfx, vfz = network_geometry(t, x, z, p)
+    out[0, 0] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gx)
+    out[0, 1] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gz)
+    ux = vx - vfx
+    uz = vz - vfz
+    lam = min(2.0 * r / max(d_t, 2.0 * r), _LAMBDA_MAX)
+    c = drag_gain(np.sqrt(ux * ux + uz * uz), r, eta, p[I_RHO_F], wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0]))
+    out[1, 0] = -c * ux
+    out[1, 1] = -c * uz
+    out[2, 0] = 0.0
+    out[2, 1] = p[I_WEIGHT_Z]
+    d_near = min(r - s_t, r)
+    d_far = min(r - (d_t - s_t), r)
+    fc = contact_force_magnitude(d_near, contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3], p[I_HERTZ_K], p[I_UNLOAD_EXP])
+    out[3, 0] = fc * nx
+    out[3, 1] = fc * nz
+    # wall_pair_forces_z's "+" is towards its first wall: here the nearest one, direction -n
+    vdw, el, st = wall_pair_forces_z(d_near, d_far, r, p[I_HAMAKER], p[I_VDW_GMIN], p[I_CHARGE], p[I_EPS_EPS0],
+                                     p[I_EL_FACTOR], p[I_STERIC_COEF], p[I_BRUSH_L0], p[I_HEAVISIDE])
+    out[4, 0] = -vdw * nx
+    out[4, 1] = -vdw * nz
+    out[5, 0] = -el * nx
+    out[5, 1] = -el * nz
+    out[6, 0] = -st * nx
+    out[6, 1] = -st * nz
     out[7, 0] = out[0, 0] + out[1, 0] + out[2, 0] + out[3, 0] + out[4, 0] + out[5, 0] + out[6, 0]
     out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
 

@@ -165,15 +165,30 @@ class VesselParams:
         diameter_m: Nominal diameter D (m). Table III: 3e-3.
         gravity_m_per_s2: Gravity magnitude g (m/s^2), acting along -z.
         major_bifurcation: Optional major-bifurcation section.
+        network: ``""`` (the straight vessel above, analytic flow) or a vessel
+            network file (``config/vessels/<name>.yaml``, or a shipped name):
+            geometry and flow from its CFD field (``vesselbot_ros.vessels``);
+            ``diameter_m`` is then only the nominal diameter of the design rules.
     """
 
     diameter_m: float = 3.0e-3
     gravity_m_per_s2: float = 9.81
     major_bifurcation: MajorBifurcationParams = dataclasses.field(default_factory=MajorBifurcationParams)
+    network: str = ""
 
     def __post_init__(self) -> None:
         check_positive("diameter_m", self.diameter_m)
         check_nonnegative("gravity_m_per_s2", self.gravity_m_per_s2)
+        if self.network:
+            from vesselbot_ros.vessels.network import load_network
+
+            try:
+                load_network(self.network)
+            except ConfigError as exc:
+                raise ConfigError(f"network: {exc}") from None
+            if self.major_bifurcation.enabled:
+                raise ConfigError("major_bifurcation.enabled must be false with a network (its bifurcations are in "
+                                  f"the geometry), got network={self.network!r}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -81,6 +81,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
 from vesselbot_ros.scanner.hardware import effective_coil_limits
+from vesselbot_ros.vessels.route import navigation_metrics, planned_reference
 from vesselbot_ros.scanner.sequence import PHASE_CODES, duty_cycle, phase_at
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim import compiled_loop
@@ -157,7 +158,7 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
         return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
 
-    reference = ReferenceTrajectory(s.reference, flow_velocity_x=flow_x)
+    reference = ReferenceTrajectory(planned_reference(s), flow_velocity_x=flow_x)
     plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
     imager = ImagerModel(s.imager, np.random.default_rng(seed))
     observer = make_observer(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
@@ -281,6 +282,8 @@ def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDAr
         measurements_rejected=int(np.count_nonzero(series["meas_rejected"])),
         outlier_frames=int(np.count_nonzero(series["meas_outlier"])),
     )
+    if scenario.physics.vessel.network:
+        metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))
     return metrics
 
 

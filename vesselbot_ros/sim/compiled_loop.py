@@ -47,7 +47,7 @@ from vesselbot_ros.control.high_gain_observer import (
 )
 from vesselbot_ros.control.imager_model import imager_arrays, imager_frame
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import forces_into, nearest_wall_delta
+from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["LoopInputs", "prepare", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS"]
@@ -174,7 +174,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # ty
     for k in range(n):
         t = ts[k]
         # plant output at t_k
-        delta, _wall = nearest_wall_delta(t, y[1], plant_p)
+        delta, _wall = wall_delta_xz(t, y[0], y[1], plant_p)
         p_true[k, 0] = y[0]
         p_true[k, 1] = y[1]
         v_true[k, 0] = y[2]

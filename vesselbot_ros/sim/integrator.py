@@ -39,7 +39,7 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 
-from vesselbot_ros.physics.kernel import I_MASS, forces_into, nearest_wall_delta, update_contact
+from vesselbot_ros.physics.kernel import I_MASS, forces_into, update_contact, wall_delta_xz
 
 __all__ = [
     "IntegratorParams",
@@ -147,7 +147,7 @@ def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf):  # type: ignore[no-untype
 
 @numba.njit(cache=True)
 def _update_contact_at(t, y, contact, p):  # type: ignore[no-untyped-def]
-    delta, _wall = nearest_wall_delta(t, y[1], p)
+    delta, _wall = wall_delta_xz(t, y[0], y[1], p)
     update_contact(contact, delta, p)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, nearest_wall_delta, pack_params
+from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, pack_params, wall_delta_xz
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
@@ -108,7 +108,7 @@ class PlantSimulator:
         """Ground truth at the current tick (see :class:`PlantOutput`)."""
         t = self.t_s
         y = self._y
-        delta, wall = nearest_wall_delta(t, y[1], self.p)
+        delta, wall = wall_delta_xz(t, y[0], y[1], self.p)
         forces = None
         if with_forces:
             forces_into(t, y[0], y[1], y[2], y[3], self._g[0], self._g[1], self._contact, self.p, self._forces)

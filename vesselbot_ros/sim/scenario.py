@@ -20,6 +20,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from vesselbot_ros.config import (
     ConfigError,
     apply_overrides,
@@ -216,16 +218,43 @@ class Scenario:
                 f"observer gains are unstable at imager.frame_rate_Hz={self.imager.frame_rate_Hz!r}: "
                 f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
             )
+        if self.physics.vessel.network:
+            self._check_network()
+        elif self.reference.route_outlet:
+            raise ConfigError(f"reference.route_outlet needs physics.vessel.network, got route_outlet={self.reference.route_outlet!r}")
         half_d = 0.5 * self.physics.vessel.diameter_m
-        for i, z in enumerate(self.reference.anchors_z_m):
+        for i, z in (() if self.physics.vessel.network else enumerate(self.reference.anchors_z_m)):
             if abs(z) >= half_d:
                 raise ConfigError(f"reference.anchors_z_m[{i}] must lie inside the vessel (|z| < {half_d!r}), got {z!r}")
-        if abs(self.initial.p0_m[1]) >= half_d:
+        if not self.physics.vessel.network and abs(self.initial.p0_m[1]) >= half_d:
             raise ConfigError(f"initial.p0_m[1] must lie inside the vessel (|z| < {half_d!r}), got {self.initial.p0_m[1]!r}")
         try:
             self.model_physics()
         except ConfigError as exc:
             raise ConfigError(f"model.overrides: {exc}") from None
+
+    def _check_network(self) -> None:
+        """Start point and anchors (given or planned) must lie inside the network's lumen."""
+        from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
+        from vesselbot_ros.vessels.route import planned_reference
+
+        net = load_network(self.physics.vessel.network)
+        if self.reference.route_outlet:
+            if self.reference.route_outlet not in net.outlets:
+                raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
+                                  f"({net.outlets}), got {self.reference.route_outlet!r}")
+            route_to_outlet(net, self.reference.route_outlet)
+        geom = NetworkGeometry(net)
+        s0 = float(geom.signed_distance(np.asarray(self.initial.p0_m))[0])
+        if s0 <= 0.0:
+            raise ConfigError(f"initial.p0_m must lie inside the vessel network {net.name!r}, got {list(self.initial.p0_m)} "
+                              f"({-s0:.6g} m outside the wall)")
+        ref = planned_reference(self)
+        sd = geom.signed_distance(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]))
+        for i, v in enumerate(sd):
+            if v <= 0.0:
+                raise ConfigError(f"reference anchor {i} ({ref.anchors_x_m[i]!r}, {ref.anchors_z_m[i]!r}) must lie inside the "
+                                  f"vessel network {net.name!r} ({-v:.6g} m outside the wall)")
 
     def model_physics(self) -> PhysicsParams:
         """The controller's physics: ``physics`` with ``model.overrides`` applied."""

@@ -60,4 +60,16 @@ def run(args: argparse.Namespace) -> int:
         f"rms {m['tracking_error_rms_m'] * 1e6:.1f} um; estimation error max {m['estimation_error_max_m'] * 1e6:.1f} um; "
         f"saturated {m['saturation_time_s']:.3f} s; contacts {m['wall_contacts']}; wall time {wall:.2f} s -> {out}"
     )
+    if scenario.physics.vessel.network:
+        from vesselbot_ros.vessels.cfd import womersley_numbers
+        from vesselbot_ros.vessels.network import load_network
+
+        wo = womersley_numbers(load_network(scenario.physics.vessel.network), scenario.physics.blood,
+                               scenario.physics.flow.angular_frequency_rad_per_s)
+        print(f"{scenario.name}: Womersley numbers {min(wo.values()):.2f} to {max(wo.values()):.2f} "
+              f"(quasi-steady flow field, docs/vessels.md)")
+    if "branch_final" in m:
+        target = m["route_outlet"] or "-"
+        print(f"{scenario.name}: branch reached {m['branch_final']} (target {target}: "
+              f"{'reached' if m['reached_target'] else 'NOT reached'}); outside the lumen {m['outside_lumen_time_s']:.3f} s")
     return 0

@@ -1,0 +1,90 @@
+"""The CFD path (vesselbot_ros.vessels.cfd): small solves from scratch, validated against theory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.config import load_dataclass
+from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.vessels import cfd
+from vesselbot_ros.vessels.network import VesselNetworkParams
+
+CFD = {"inlet_centreline_velocity_m_per_s": 0.025, "mesh_size_m": 4e-4, "grid_spacing_m": 5e-5, "grid_margin_m": 1e-4}
+
+
+def _straight() -> VesselNetworkParams:
+    return load_dataclass(VesselNetworkParams, {"name": "s", "cfd": CFD, "branches": [
+        {"name": "a", "parent": "", "x_m": [0.0, 8e-3], "z_m": [0.0, 0.0], "radius_m": [1.5e-3]}]}, "")
+
+
+def _bifurcation() -> VesselNetworkParams:
+    return load_dataclass(VesselNetworkParams, {"name": "y", "cfd": CFD, "branches": [
+        {"name": "a", "parent": "", "x_m": [0.0, 4e-3], "z_m": [0.0, 0.0], "radius_m": [1.5e-3]},
+        {"name": "b", "parent": "a", "x_m": [4e-3, 9e-3], "z_m": [0.0, 2.9e-3], "radius_m": [1.19e-3]},
+        {"name": "c", "parent": "a", "x_m": [4e-3, 9e-3], "z_m": [0.0, -2.9e-3], "radius_m": [0.9e-3]}]}, "")
+
+
+@pytest.fixture(scope="module")
+def straight_field(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    import os
+
+    old = os.environ.get("VESSELBOT_CFD_CACHE")
+    os.environ["VESSELBOT_CFD_CACHE"] = str(tmp_path_factory.mktemp("cfd"))
+    try:
+        yield cfd.network_field(_straight(), BloodParams())
+    finally:
+        if old is None:
+            os.environ.pop("VESSELBOT_CFD_CACHE")
+        else:
+            os.environ["VESSELBOT_CFD_CACHE"] = old
+
+
+def test_straight_vessel_profile_is_the_analytic_parabola_within_1_percent(straight_field) -> None:  # type: ignore[no-untyped-def]
+    f = straight_field
+    x, z = f.grid()
+    vx = f.field("vx")
+    for xc in (1e-3, 4e-3, 7.5e-3):  # near the inlet, mid-vessel, near the outlet
+        i = int(np.argmin(np.abs(x - xc)))
+        inside = np.abs(z) < 1.5e-3
+        err = np.abs(vx[inside, i] - (1.0 - (z[inside] / 1.5e-3) ** 2))
+        assert err.max() < 0.01, (xc, err.max())
+    np.testing.assert_allclose(f.field("vz")[np.abs(z) < 1.5e-3], 0.0, atol=1e-3)
+    # geometry fields: signed distance, normal and diameter of the tube
+    j = np.abs(z) < 1.4e-3
+    i = int(np.argmin(np.abs(x - 4e-3)))
+    np.testing.assert_allclose(f.field("sdist")[j, i], 1.5e-3 - np.abs(z[j]), atol=1e-9)
+    np.testing.assert_allclose(f.field("diameter")[j, i], 3e-3, rtol=1e-6)
+
+
+def test_cache_is_keyed_by_geometry_and_blood_and_reused(straight_field, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    again = cfd.network_field(_straight(), BloodParams())  # same key: read from the cache, no solve
+    np.testing.assert_array_equal(again.data, straight_field.data)
+    assert cfd.field_key(_straight(), BloodParams()) != cfd.field_key(_straight(), BloodParams(hematocrit=0.3))
+    net2 = load_dataclass(VesselNetworkParams, {"name": "s", "cfd": dict(CFD, mesh_size_m=3e-4), "branches": [
+        {"name": "a", "parent": "", "x_m": [0.0, 8e-3], "z_m": [0.0, 0.0], "radius_m": [1.5e-3]}]}, "")
+    assert cfd.field_key(net2, BloodParams()) != cfd.field_key(_straight(), BloodParams())
+
+
+def test_bifurcation_outlets_carry_the_inflow_within_half_a_percent_and_split_by_murray() -> None:
+    net = _bifurcation()
+    sol = cfd.solve_flow(net, BloodParams())
+    q_in = -sol.fluxes["inlet"]
+    q_out = sol.fluxes["outlet:b"] + sol.fluxes["outlet:c"]
+    assert q_in == pytest.approx(4.0 / 3.0 * 0.025 * 1.5e-3, rel=1e-6)  # the parabolic inflow, integrated
+    assert abs(q_out - q_in) / q_in < 0.005
+    # Murray: shares r^3 / sum r^3 (b is the traction-free outlet: its flux is what the solve delivers)
+    share_c = 0.9 ** 3 / (0.9 ** 3 + 1.19 ** 3)
+    assert sol.fluxes["outlet:c"] / q_in == pytest.approx(share_c, rel=1e-3)
+    assert sol.fluxes["outlet:b"] / q_in == pytest.approx(1.0 - share_c, rel=0.005)
+    assert sol.picard_change < net.cfd.picard_tol
+
+
+def test_womersley_numbers_of_the_iii_c_network() -> None:
+    from vesselbot_ros.vessels.network import load_network
+
+    a = cfd.womersley_numbers(load_network("paper_iiic_artery"), BloodParams(), 2 * np.pi)
+    # alpha = R sqrt(omega rho / eta), eta = Pries at 5 mPa s plasma: ~16 mPa s (docs/vessels.md)
+    assert a["trunk_a"] == pytest.approx(0.97, abs=0.01)
+    assert a["upper"] == pytest.approx(0.77, abs=0.01)
+    assert a["side_up"] == pytest.approx(0.23, abs=0.01)

@@ -1,0 +1,450 @@
+"""Steady blood flow through a vessel network: gmsh mesh + scikit-fem Navier-Stokes.
+
+Dimensional reduction (docs/vessels.md): the paper's navigation plane is XZ and
+its plant is planar, so we solve the steady incompressible Navier-Stokes
+equations in that plane (a 2-D solve, the network as a planar slab).  In a
+straight branch the 2-D solution is the plane-Poiseuille parabola
+``u = V_c (1 - (2 z / D)^2)``, which is exactly the tube's axial profile in its
+plane of symmetry at the same centreline velocity -- the profile the analytic
+plant uses (eq. (12)).  What a planar slab cannot reproduce is the 3-D flux
+balance: in 2-D the flux of a branch scales as ``V_c r``, in a tube as
+``V_c r^2``.  We therefore split the 2-D inflow among the outlets by Murray's
+law (shares r^3 / sum r^3, ``cfd.outlet_split: murray``) or by area (shares
+r^2), and accept that a daughter's centreline velocity is the 2-D one
+(for a symmetric Murray bifurcation 0.63 of the parent's instead of 0.79 in 3-D).
+
+Equations: ``rho (u . grad) u = -grad p + div(mu grad u)``, ``div u = 0``; Taylor-Hood P2/P1 elements on a gmsh
+triangulation; mu is the Pries apparent viscosity (eq. (9), the scenario's
+blood model) at the local branch diameter, element by element; Picard (Oseen)
+iterations from the Stokes solution.  Boundary conditions: parabolic inflow
+with centreline velocity ``cfd.inlet_centreline_velocity_m_per_s`` on the
+inlet; no slip on the walls; a fully developed parabolic outflow carrying its
+share of the flux on every outlet but the widest, which is traction-free
+("do nothing": mu du/dn - p n = 0) and so takes what the solve delivers --
+the flux balance through it measures the discrete mass conservation (tested).
+
+Sampling: the field is normalised to an inlet centreline velocity of 1 and
+sampled with the signed distance, inward normal, local diameter and viscosity
+on a regular grid (:class:`NetworkField`), which the compiled plant
+interpolates bilinearly.  Fields are cached on disk by a hash of the geometry,
+the CFD settings and the blood model (:func:`network_field`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import to_mapping
+from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, smooth_centreline
+
+__all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
+           "network_field", "cache_dir", "field_key", "FIELD_NAMES", "womersley_numbers"]
+
+#: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
+FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
+CACHE_VERSION = 4
+
+
+def cache_dir() -> Path:
+    """Where sampled fields are cached: ``$VESSELBOT_CFD_CACHE`` or ``~/.cache/vesselbot_ros/cfd``."""
+    env = os.environ.get("VESSELBOT_CFD_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "vesselbot_ros" / "cfd"
+
+
+def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
+    """Cache key: sha256 of the network (geometry + CFD settings), the blood model and the code version."""
+    text = json.dumps({"net": to_mapping(net), "blood": to_mapping(blood), "v": CACHE_VERSION}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+@dataclasses.dataclass
+class MeshedNetwork:
+    """Triangulation with boundary facets by name (``inlet``, ``outlet:<branch>``, ``wall``)."""
+
+    points: npt.NDArray[np.float64]  # (n, 2) m
+    triangles: npt.NDArray[np.int64]  # (t, 3)
+    boundaries: dict[str, npt.NDArray[np.int64]]  # skfem facet indices, filled by solve_flow
+    caps: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]]  # name -> (centre, unit outward normal, radius)
+
+
+def _offset_polygon(pts: npt.NDArray[np.float64], rad: npt.NDArray[np.float64], step: int) -> npt.NDArray[np.float64]:
+    """Closed polygon (left side forward, right side backward) of a tube around ``pts``."""
+    t = np.gradient(pts, axis=0)
+    t /= np.hypot(t[:, 0], t[:, 1])[:, None]
+    nrm = np.column_stack([-t[:, 1], t[:, 0]])
+    idx = np.unique(np.concatenate([np.arange(0, len(pts), step), [len(pts) - 1]]))
+    left = pts[idx] + rad[idx, None] * nrm[idx]
+    right = pts[idx] - rad[idx, None] * nrm[idx]
+    return np.concatenate([left, right[::-1]])
+
+
+def mesh_network(net: VesselNetworkParams) -> MeshedNetwork:
+    """Mesh the union of the branch tubes with gmsh (OpenCASCADE boolean union, flat inlet/outlet caps).
+
+    Each branch is a polygon around its smoothed centreline; each bifurcation
+    node gets a disc of the parent's end radius so the branches join without gaps.
+    """
+    import gmsh  # the wheel needs libGLU & co (tools/bootstrap.sh checks)
+
+    h = net.cfd.mesh_size_m
+    caps: dict[str, tuple[Any, Any, float]] = {}
+    gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add(net.name)
+        occ = gmsh.model.occ
+        surfaces = []
+        for b in net.branches:
+            pts, rad, _s = smooth_centreline(b, net.smoothing, net.sample_spacing_m)
+            step = max(1, int(0.5 * h / net.sample_spacing_m))
+            poly = _offset_polygon(pts, rad, step)
+            lc = min(h, float(rad.min()) / 3.0)  # at least 6 elements across a narrow branch
+            tags = [occ.addPoint(float(x), float(z), 0.0, lc) for x, z in poly]
+            lines = [occ.addLine(tags[i], tags[(i + 1) % len(tags)]) for i in range(len(tags))]
+            loop = occ.addCurveLoop(lines)
+            surfaces.append((2, occ.addPlaneSurface([loop])))
+            if b.parent == "":
+                t0 = pts[1] - pts[0]
+                caps["inlet"] = (pts[0].copy(), -t0 / np.hypot(*t0), float(rad[0]))
+            if not net.children(b.name):
+                t1 = pts[-1] - pts[-2]
+                caps[f"outlet:{b.name}"] = (pts[-1].copy(), t1 / np.hypot(*t1), float(rad[-1]))
+            else:
+                surfaces.append((2, occ.addDisk(float(pts[-1, 0]), float(pts[-1, 1]), 0.0, float(rad[-1]), float(rad[-1]))))
+        if len(surfaces) > 1:
+            occ.fuse(surfaces[:1], surfaces[1:])
+        occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.05 * h)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 1)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.model.mesh.generate(2)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        _types, _etags, enodes = gmsh.model.mesh.getElements(2)
+        tri_nodes = np.asarray(enodes[0], dtype=np.int64).reshape(-1, 3)
+    finally:
+        gmsh.finalize()
+    tags = np.asarray(node_tags, dtype=np.int64)
+    xyz = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+    lookup = np.full(tags.max() + 1, -1, dtype=np.int64)
+    lookup[tags] = np.arange(len(tags))
+    tri = lookup[tri_nodes]
+    used = np.unique(tri)
+    remap = np.full(len(tags), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    pts2 = xyz[used, :2]
+    tri = remap[tri]
+    # counter-clockwise orientation
+    a, b_, c = pts2[tri[:, 0]], pts2[tri[:, 1]], pts2[tri[:, 2]]
+    area = (b_[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b_[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    neg = area < 0
+    tri[neg] = tri[neg][:, [0, 2, 1]]
+    return MeshedNetwork(pts2, tri, {}, caps)
+
+
+@dataclasses.dataclass
+class FlowSolution:
+    """Steady solution: skfem mesh and bases, velocity and pressure dofs, fluxes (m^2/s per unit depth)."""
+
+    mesh: Any
+    ubasis: Any
+    pbasis: Any
+    u: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
+    fluxes: dict[str, float]  # name -> outward flux (inlet negative)
+    picard_iterations: int
+    picard_change: float
+    elapsed_s: float
+
+
+def _parabola_dofs(ubasis: Any, facets: npt.NDArray[np.int64], cap: tuple[Any, Any, float], vc: float,
+                   direction: float) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """Dirichlet dofs and values of a parabolic profile on a cap (``direction`` +1 out of, -1 into the domain)."""
+    centre, n_out, r = cap
+    dofs = ubasis.get_dofs(facets)
+    ix = dofs.nodal["u^1"], dofs.facet["u^1"]
+    iz = dofs.nodal["u^2"], dofs.facet["u^2"]
+    X = ubasis.doflocs
+    ids_x = np.concatenate(ix)
+    ids_z = np.concatenate(iz)
+    loc = X[:, ids_x].T
+    tang = np.array([-n_out[1], n_out[0]])
+    eta = ((loc[:, 0] - centre[0]) * tang[0] + (loc[:, 1] - centre[1]) * tang[1]) / r
+    prof = vc * np.clip(1.0 - eta * eta, 0.0, None) * direction
+    return np.concatenate([ids_x, ids_z]), np.concatenate([prof * n_out[0], prof * n_out[1]])
+
+
+def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwork | None = None) -> FlowSolution:
+    """Solve the steady Navier-Stokes flow of ``net`` (see the module docstring)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    from skfem import Basis, BilinearForm, ElementTriP0, ElementTriP1, ElementTriP2, ElementVector, FacetBasis, Functional, MeshTri, asm, bmat, condense
+    from skfem.helpers import ddot, div, dot, grad
+
+    t0 = time.perf_counter()
+    meshed = meshed or mesh_network(net)
+    geom = NetworkGeometry(net)
+    m = MeshTri(np.ascontiguousarray(meshed.points.T), np.ascontiguousarray(meshed.triangles.T))
+    ub = Basis(m, ElementVector(ElementTriP2()), intorder=4)
+    pb = ub.with_element(ElementTriP1())
+    b0 = ub.with_element(ElementTriP0())
+    # boundary facets by cap
+    bf = m.boundary_facets()
+    mid = 0.5 * (m.p[:, m.facets[0, bf]] + m.p[:, m.facets[1, bf]]).T
+    assigned = np.zeros(len(bf), dtype=bool)
+    for name, (centre, n_out, r) in meshed.caps.items():
+        along = (mid[:, 0] - centre[0]) * n_out[0] + (mid[:, 1] - centre[1]) * n_out[1]
+        across = np.abs(-(mid[:, 0] - centre[0]) * n_out[1] + (mid[:, 1] - centre[1]) * n_out[0])
+        on = (np.abs(along) < 1e-3 * r) & (across <= r * (1 + 1e-6)) & ~assigned
+        meshed.boundaries[name] = bf[on]
+        assigned |= on
+    meshed.boundaries["wall"] = bf[~assigned]
+    # viscosity per element: Pries at the local branch diameter
+    cent = m.p[:, m.t].mean(axis=1).T
+    d_el = geom.query(cent)["diameter"]
+    d_round = np.round(d_el, 12)
+    eta_of = {d: viscosity_for(blood, float(d)) for d in np.unique(d_round)}
+    mu_el = np.array([eta_of[d] for d in d_round])
+    mu = b0.interpolate(mu_el)
+    rho = blood.density_kg_per_m3
+
+    @BilinearForm
+    def viscous(u, v, w):  # type: ignore[no-untyped-def]
+        return w.mu * ddot(grad(u), grad(v))
+
+    @BilinearForm
+    def convection(u, v, w):  # type: ignore[no-untyped-def]
+        gu = grad(u)
+        adv = np.einsum("j...,ij...->i...", w.wv, gu)
+        return rho * dot(adv, v)
+
+    @BilinearForm
+    def divergence(u, q, w):  # type: ignore[no-untyped-def]
+        return div(u) * q
+
+    A_visc = asm(viscous, ub, mu=mu)
+    B = asm(divergence, ub, pb)
+    nu, npr = A_visc.shape[0], B.shape[0]
+    # Dirichlet data
+    vc_in = net.cfd.inlet_centreline_velocity_m_per_s
+    r_in = meshed.caps["inlet"][2]
+    q_in = 4.0 / 3.0 * vc_in * r_in  # 2-D flux of the inlet parabola (m^2/s)
+    outlets = [k for k in meshed.caps if k.startswith("outlet:")]
+    radii = {k: meshed.caps[k][2] for k in outlets}
+    power = 3.0 if net.cfd.outlet_split == "murray" else 2.0
+    total = sum(r ** power for r in radii.values())
+    free = max(outlets, key=lambda k: (radii[k], outlets.index(k)))  # the widest (last among equals) is traction-free
+    fixed_dofs: list[npt.NDArray[np.int64]] = []
+    fixed_vals: list[npt.NDArray[np.float64]] = []
+    wall_dofs = ub.get_dofs(meshed.boundaries["wall"]).all()
+    fixed_dofs.append(wall_dofs)
+    fixed_vals.append(np.zeros(len(wall_dofs)))
+    d, v = _parabola_dofs(ub, meshed.boundaries["inlet"], meshed.caps["inlet"], vc_in, -1.0)
+    fixed_dofs.append(d)
+    fixed_vals.append(v)
+    for k in outlets:
+        if k == free:
+            continue
+        share = radii[k] ** power / total
+        vc_k = 3.0 * share * q_in / (4.0 * radii[k])
+        d, v = _parabola_dofs(ub, meshed.boundaries[k], meshed.caps[k], vc_k, 1.0)
+        fixed_dofs.append(d)
+        fixed_vals.append(v)
+    x = np.zeros(nu + npr)
+    # the inlet/outlet values win over the wall's zero at the shared corner nodes
+    for dd, vv in zip(fixed_dofs, fixed_vals):
+        x[dd] = vv
+    D = np.unique(np.concatenate(fixed_dofs))
+    corner_zero = np.intersect1d(wall_dofs, np.concatenate(fixed_dofs[1:]))
+    x[corner_zero] = 0.0
+    u = np.zeros(nu)
+    change = np.inf
+    it = 0
+    for it in range(1, net.cfd.picard_max_iterations + 1):
+        if it == 1:
+            A = A_visc
+        else:
+            A = A_visc + asm(convection, ub, wv=ub.interpolate(u))
+        K = bmat([[A, -B.T], [-B, None]], "csc")
+        Kc, rhs, xI, I = condense(K, np.zeros(nu + npr), x=x, D=D)
+        sol = xI.copy()
+        sol[I] = splu(sp.csc_matrix(Kc)).solve(rhs)
+        u_new = sol[:nu]
+        change = float(np.max(np.abs(u_new - u)) / max(np.max(np.abs(u_new)), 1e-300))
+        u = u_new
+        pr = sol[nu:]
+        if it > 1 and change < net.cfd.picard_tol:
+            break
+    flux_form = Functional(lambda w: dot(w["u"], w.n))
+    fluxes = {}
+    for name in ["inlet", *outlets]:
+        fb = FacetBasis(m, ub.elem, facets=meshed.boundaries[name], intorder=6)
+        fluxes[name] = float(asm(flux_form, fb, u=fb.interpolate(u)))
+    return FlowSolution(m, ub, pb, u, pr, fluxes, it, change, time.perf_counter() - t0)
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkField:
+    """Fields sampled on a regular grid (the plant's lookup table).
+
+    Attributes:
+        x0_m, z0_m: Grid origin (m).  h_m: spacing (m).  nx, nz: points per axis.
+        data: (7, nz, nx) float64 in :data:`FIELD_NAMES` order: velocity
+            normalised to an inlet centreline velocity of 1 (-), signed distance
+            (m, > 0 inside), unit inward normal (-), local diameter (m), viscosity (Pa s).
+        meta: Solve statistics and provenance (JSON-able).
+    """
+
+    x0_m: float
+    z0_m: float
+    h_m: float
+    nx: int
+    nz: int
+    data: npt.NDArray[np.float64]
+    meta: dict[str, Any]
+
+    def field(self, name: str) -> npt.NDArray[np.float64]:
+        """(nz, nx) grid of ``name`` (one of :data:`FIELD_NAMES`)."""
+        return self.data[FIELD_NAMES.index(name)]
+
+    def grid(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """(x (nx,), z (nz,)) grid coordinates (m)."""
+        return self.x0_m + self.h_m * np.arange(self.nx), self.z0_m + self.h_m * np.arange(self.nz)
+
+    def save(self, path: Path) -> None:
+        """Write atomically (temporary file, then rename) as compressed npz."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+        os.close(fd)
+        try:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, head=np.array([self.x0_m, self.z0_m, self.h_m, self.nx, self.nz]),
+                                    data=self.data, meta=np.array(json.dumps(self.meta)))
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+    @classmethod
+    def load(cls, path: Path) -> NetworkField:
+        """Read a field written by :meth:`save`."""
+        with np.load(path) as z:
+            head = z["head"]
+            data = np.ascontiguousarray(z["data"], dtype=np.float64)
+            meta = json.loads(str(z["meta"]))
+        return cls(float(head[0]), float(head[1]), float(head[2]), int(head[3]), int(head[4]), data, meta)
+
+
+def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: Any) -> npt.NDArray[np.float64]:
+    """(m, 2) P2 velocity at points (m, 2); zero outside the mesh.
+
+    Evaluated element by element from barycentric coordinates (skfem's
+    ``probes`` builds a dense points x elements array, too big for a grid).
+    """
+    m = sol.mesh
+    el = tri.get_trifinder()(pts[:, 0], pts[:, 1])
+    out = np.zeros((len(pts), 2))
+    ok = el >= 0
+    e = el[ok]
+    q = pts[ok]
+    P = m.p[:, m.t[:, e]]  # (2, 3, k)
+    a, b, c = P[:, 0].T, P[:, 1].T, P[:, 2].T
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    l1 = ((q[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (q[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) / det
+    l2 = ((b[:, 0] - a[:, 0]) * (q[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (q[:, 0] - a[:, 0])) / det
+    l0 = 1.0 - l1 - l2
+    # P2 shape functions: vertices, then the edges (0,1), (1,2), (0,2) (skfem's MeshTri facet order)
+    N = np.stack([l0 * (2 * l0 - 1), l1 * (2 * l1 - 1), l2 * (2 * l2 - 1), 4 * l0 * l1, 4 * l1 * l2, 4 * l0 * l2])
+    for comp, (uc, sb) in enumerate(sol.ubasis.split(sol.u)):
+        out[ok, comp] = (N * uc[sb.element_dofs[:, e]]).sum(axis=0)
+    return out
+
+
+def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution) -> NetworkField:
+    """Sample ``sol`` and the geometry on the regular grid of ``net.cfd``."""
+    from matplotlib.tri import Triangulation
+
+    geom = NetworkGeometry(net)
+    h = net.cfd.grid_spacing_m
+    xmin, xmax, zmin, zmax = geom.bbox
+    mg = net.cfd.grid_margin_m
+    # grid nodes on multiples of h, so a centreline at z = 0 lies on grid nodes
+    x0 = math.floor((xmin - mg) / h) * h
+    z0 = math.floor((zmin - mg) / h) * h
+    nx = int(math.ceil((xmax + mg - x0) / h)) + 1
+    nz = int(math.ceil((zmax + mg - z0) / h)) + 1
+    X, Z = np.meshgrid(x0 + h * np.arange(nx), z0 + h * np.arange(nz))
+    pts = np.column_stack([X.ravel(), Z.ravel()])
+    q = geom.query(pts)
+    m = sol.mesh
+    tri = Triangulation(m.p[0], m.p[1], m.t.T)
+    vel = interpolate_velocity(sol, pts, Triangulation(m.p[0], m.p[1], m.t.T))
+    vc_in = net.cfd.inlet_centreline_velocity_m_per_s
+    d_unique = np.unique(np.round(q["diameter"], 12))
+    eta_of = {d: viscosity_for(blood, float(d)) for d in d_unique}
+    eta = np.array([eta_of[d] for d in np.round(q["diameter"], 12)])
+    # The local diameter (and viscosity) jumps where the branch holding a point changes (at a node);
+    # the wall moves out by D eps(t) / 2 with the pulsation (13), so a jump of D would be a step of the
+    # wall under a robot in contact.  Both are smoothed with a Gaussian of cfd.diameter_smoothing_m
+    # (a constant field, the straight vessel, stays exactly constant).
+    sig = net.cfd.diameter_smoothing_m / h
+    diam = q["diameter"].reshape(nz, nx)
+    if sig > 0:
+        from scipy.ndimage import gaussian_filter
+
+        diam = np.where(np.ptp(diam) > 0, gaussian_filter(diam, sig, mode="nearest"), diam)
+        eta = np.where(np.ptp(eta) > 0, gaussian_filter(eta.reshape(nz, nx), sig, mode="nearest").ravel(), eta)
+    data = np.stack([
+        vel[:, 0] / vc_in, vel[:, 1] / vc_in, q["sdist"], q["normal"][:, 0], q["normal"][:, 1], diam.ravel(), eta,
+    ]).reshape(len(FIELD_NAMES), nz, nx)
+    # stored in single precision: the sparse LU's last bits depend on the CPU's BLAS kernel; rounded to
+    # float32 (7 digits: 0.1 nm in the distance, 1e-7 of V_f) the field is the same on every machine
+    data = data.astype(np.float32).astype(np.float64)
+    meta = {"network": net.name, "fluxes_m2_per_s": sol.fluxes, "picard_iterations": sol.picard_iterations,
+            "picard_change": sol.picard_change, "solve_s": sol.elapsed_s, "n_triangles": int(m.t.shape[1]),
+            "n_dofs": int(sol.u.size + sol.p.size)}
+    return NetworkField(x0, z0, h, nx, nz, np.ascontiguousarray(data), meta)
+
+
+def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool = False) -> NetworkField:
+    """The sampled field of ``net`` for ``blood``: from the cache, or solved, sampled and cached."""
+    path = cache_dir() / f"{net.name}-{field_key(net, blood)}.npz"
+    if path.is_file() and not refresh:
+        try:
+            return NetworkField.load(path)
+        except (OSError, ValueError, KeyError):
+            pass  # a torn or foreign file: solve again
+    t0 = time.perf_counter()
+    sol = solve_flow(net, blood)
+    field = sample_field(net, blood, sol)
+    field.meta["total_s"] = time.perf_counter() - t0
+    field.save(path)
+    return field
+
+
+def womersley_numbers(net: VesselNetworkParams, blood: BloodParams, omega_rad_per_s: float) -> dict[str, float]:
+    """Womersley number alpha = R sqrt(omega rho / eta(D)) of each branch (at its widest radius), by name."""
+    out = {}
+    for b in net.branches:
+        r = float(max(b.radius_m))
+        eta = viscosity_for(blood, 2.0 * r)
+        out[b.name] = r * math.sqrt(omega_rad_per_s * blood.density_kg_per_m3 / eta)
+    return out

@@ -1,0 +1,409 @@
+"""Vessel networks in the paper's XZ plane: format, validation and pure geometry.
+
+A network is a tree of branches (YAML in ``config/vessels/``, format in
+``docs/vessels.md``).  Each branch is a centreline polyline ``(x_m, z_m)`` with a
+radius at each point (linear in arc length between points; one value means a
+constant radius).  The root branch (``parent: ""``) starts at the inlet; a
+daughter starts at its parent's last point (the bifurcation node); branches
+without daughters end at the outlets.  Gravity acts along -z, as everywhere.
+
+Smoothing: the polyline is replaced by the C2 cubic interpolating spline
+through its points in the chord-length parameter (``smoothing: spline``; a
+straight 2-point branch stays straight), sampled every ``sample_spacing_m``;
+``smoothing: none`` keeps the polyline.
+
+Geometry queries (:class:`NetworkGeometry`, numpy, never rclpy): the signed
+distance of a point to the union of the branch tubes (> 0 inside the lumen,
+the "capsule" distance max_b (r_b - |p - c_b|) -- exact away from the
+junctions, a lower bound of the true distance inside a junction), the unit
+inward wall normal and the local diameter 2 r_b of the branch that contains the
+point.  The CFD sampler (:mod:`vesselbot_ros.vessels.cfd`) samples these on its
+grid; the mesh is the union of the same tubes (flat caps at the inlet and
+outlets, a disc at each node), so the sampled wall and the meshed wall agree
+away from the open ends.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import (
+    ConfigError,
+    check_choice,
+    check_finite,
+    check_positive,
+    check_range,
+    load_dataclass,
+    load_yaml,
+    to_mapping,
+)
+
+__all__ = [
+    "BranchParams",
+    "CfdParams",
+    "VesselNetworkParams",
+    "NetworkGeometry",
+    "load_network",
+    "resolve_network_path",
+    "route_to_outlet",
+]
+
+#: Folder of the shipped vessel networks.
+VESSELS_DIR = Path(__file__).resolve().parents[2] / "config" / "vessels"
+
+
+@dataclasses.dataclass(frozen=True)
+class BranchParams:
+    """One branch: a centreline polyline with a radius at each point.
+
+    Attributes:
+        name: Unique branch name (letters, digits, ``_``).
+        parent: Name of the parent branch; ``""`` for the root (inlet) branch.
+            A daughter's first point must be its parent's last point.
+        x_m: x of the centreline points (m), >= 2 points.
+        z_m: z of the centreline points (m), same length.
+        radius_m: Lumen radius at each point (m), same length, or one value.
+    """
+
+    name: str
+    x_m: tuple[float, ...]
+    z_m: tuple[float, ...]
+    radius_m: tuple[float, ...]
+    parent: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c == "_" for c in self.name):
+            raise ConfigError(f"name must be non-empty letters, digits or '_', got {self.name!r}")
+        if len(self.x_m) < 2:
+            raise ConfigError(f"x_m needs at least 2 points, got {list(self.x_m)}")
+        if len(self.z_m) != len(self.x_m):
+            raise ConfigError(f"z_m must have as many points as x_m ({len(self.x_m)}), got {len(self.z_m)}")
+        if len(self.radius_m) not in (1, len(self.x_m)):
+            raise ConfigError(f"radius_m must have 1 or {len(self.x_m)} values, got {len(self.radius_m)}")
+        for i, v in enumerate(self.x_m):
+            check_finite(f"x_m[{i}]", v)
+        for i, v in enumerate(self.z_m):
+            check_finite(f"z_m[{i}]", v)
+        for i, v in enumerate(self.radius_m):
+            check_positive(f"radius_m[{i}]", v)
+        pts = np.column_stack([self.x_m, self.z_m])
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        if np.any(seg <= 0.0):
+            i = int(np.argmin(seg))
+            raise ConfigError(f"x_m, z_m: points must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
+
+    def radii(self) -> npt.NDArray[np.float64]:
+        """(n,) radius at each point (m)."""
+        return np.broadcast_to(np.asarray(self.radius_m, dtype=np.float64), (len(self.x_m),)).copy()
+
+
+@dataclasses.dataclass(frozen=True)
+class CfdParams:
+    """How the network's steady flow is computed (:mod:`vesselbot_ros.vessels.cfd`).
+
+    Attributes:
+        inlet_centreline_velocity_m_per_s: Centreline velocity of the parabolic
+            inflow of the steady solve (m/s); sets its Reynolds number.  The
+            plant scales the field (normalised to an inlet centreline velocity of
+            1) by ``physics.flow.centreline_velocity_m_per_s`` and the pulse (12).
+        mesh_size_m: Target element size of the gmsh mesh (m).
+        grid_spacing_m: Spacing of the regular sampling grid (m).
+        grid_margin_m: Margin of the grid around the network's bounding box (m).
+        outlet_split: ``murray``: each outlet carries a share of the inflow
+            proportional to r^3 (Murray's law, the 3-D flow the 2-D solve
+            stands for); ``area``: proportional to r^2 (same mean velocity).
+        diameter_smoothing_m: Gaussian width (m) with which the sampled local
+            diameter and viscosity are smoothed across the nodes, where the
+            branch holding a point changes (the pulsating wall would step there).
+        picard_max_iterations: Cap on the Picard (Oseen) iterations.
+        picard_tol: Relative change of the velocity at which Picard stops.
+    """
+
+    inlet_centreline_velocity_m_per_s: float = 0.025
+    mesh_size_m: float = 1.0e-4
+    grid_spacing_m: float = 2.5e-5
+    grid_margin_m: float = 5.0e-4
+    outlet_split: Literal["murray", "area"] = "murray"
+    diameter_smoothing_m: float = 2.5e-4
+    picard_max_iterations: int = 30
+    picard_tol: float = 1.0e-9
+
+    def __post_init__(self) -> None:
+        check_positive("inlet_centreline_velocity_m_per_s", self.inlet_centreline_velocity_m_per_s)
+        check_positive("mesh_size_m", self.mesh_size_m)
+        check_positive("grid_spacing_m", self.grid_spacing_m)
+        check_range("grid_margin_m", self.grid_margin_m, 0.0, 0.1)
+        check_choice("outlet_split", self.outlet_split, ("murray", "area"))
+        check_range("diameter_smoothing_m", self.diameter_smoothing_m, 0.0, 0.01)
+        if self.picard_max_iterations < 1:
+            raise ConfigError(f"picard_max_iterations must be >= 1, got {self.picard_max_iterations!r}")
+        check_positive("picard_tol", self.picard_tol)
+
+
+@dataclasses.dataclass(frozen=True)
+class VesselNetworkParams:
+    """A vessel network (tree of branches) and how its flow is computed.
+
+    Attributes:
+        name: Network name.
+        branches: The branches, root first or in any order.
+        smoothing: ``spline`` (C2 cubic through the points) or ``none``.
+        sample_spacing_m: Spacing of the smoothed centreline samples (m).
+        cfd: CFD settings.
+    """
+
+    name: str
+    branches: tuple[BranchParams, ...]
+    smoothing: Literal["spline", "none"] = "spline"
+    sample_spacing_m: float = 2.0e-5
+    cfd: CfdParams = dataclasses.field(default_factory=CfdParams)
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
+            raise ConfigError(f"name must be non-empty letters, digits, '_', '-', '.', got {self.name!r}")
+        check_choice("smoothing", self.smoothing, ("spline", "none"))
+        check_positive("sample_spacing_m", self.sample_spacing_m)
+        if not self.branches:
+            raise ConfigError("branches must list at least one branch, got []")
+        names = [b.name for b in self.branches]
+        for i, n in enumerate(names):
+            if names.index(n) != i:
+                raise ConfigError(f"branches[{i}].name {n!r} is used twice (also branches[{names.index(n)}])")
+        roots = [i for i, b in enumerate(self.branches) if b.parent == ""]
+        if len(roots) != 1:
+            raise ConfigError(f"exactly one branch must have parent '' (the inlet branch), got {[names[i] for i in roots]}")
+        by_name = {b.name: b for b in self.branches}
+        for i, b in enumerate(self.branches):
+            if b.parent == "":
+                continue
+            if b.parent not in by_name:
+                raise ConfigError(f"branches[{i}].parent {b.parent!r} is not a branch name; names: {names}")
+            par = by_name[b.parent]
+            gap = math.hypot(b.x_m[0] - par.x_m[-1], b.z_m[0] - par.z_m[-1])
+            if gap > 1e-9:
+                raise ConfigError(f"branches[{i}] ({b.name!r}) must start at the last point of its parent {b.parent!r} "
+                                  f"({[par.x_m[-1], par.z_m[-1]]}), got {[b.x_m[0], b.z_m[0]]}")
+        # cycles: every branch must reach the root
+        for i, b in enumerate(self.branches):
+            seen, cur = set(), b
+            while cur.parent:
+                if cur.name in seen:
+                    raise ConfigError(f"branches[{i}] ({b.name!r}): parent chain has a cycle through {cur.name!r}")
+                seen.add(cur.name)
+                cur = by_name[cur.parent]
+        _check_overlaps(self)
+
+    @property
+    def root(self) -> BranchParams:
+        """The inlet branch."""
+        return next(b for b in self.branches if b.parent == "")
+
+    def children(self, name: str) -> list[BranchParams]:
+        """Daughters of branch ``name``."""
+        return [b for b in self.branches if b.parent == name]
+
+    @property
+    def outlets(self) -> list[str]:
+        """Names of the branches that end at an outlet (no daughters), in file order."""
+        return [b.name for b in self.branches if not self.children(b.name)]
+
+    def geometry_hash(self) -> str:
+        """sha256 of the geometry (branches, smoothing, sampling) and CFD settings."""
+        text = json.dumps(to_mapping(self), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _check_overlaps(net: VesselNetworkParams) -> None:
+    """Raise ConfigError naming two branches whose tubes overlap away from their common node."""
+    cl = {b.name: smooth_centreline(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
+    by_name = {b.name: b for b in net.branches}
+    for i, a in enumerate(net.branches):
+        for b in net.branches[i + 1:]:
+            pa, ra, sa = cl[a.name]
+            pb, rb, sb = cl[b.name]
+            related = a.parent == b.name or b.parent == a.name or (a.parent == b.parent and a.parent != "")
+            ma = np.ones(len(pa), dtype=bool)
+            mb = np.ones(len(pb), dtype=bool)
+            if related:
+                # near the shared node the tubes meet by construction: skip one junction length
+                node = pa[-1] if b.parent == a.name else (pb[-1] if a.parent == b.name else pa[0])
+                reach = 3.0 * (ra.max() + rb.max())
+                ma = np.hypot(*(pa - node).T) > reach
+                mb = np.hypot(*(pb - node).T) > reach
+                if b.parent == a.name or a.parent == b.name:
+                    continue  # a parent and its daughter only meet at the node (the daughter leaves it)
+            if not ma.any() or not mb.any():
+                continue
+            qa, qb = pa[ma], pb[mb]
+            d = np.hypot(qa[:, None, 0] - qb[None, :, 0], qa[:, None, 1] - qb[None, :, 1])
+            need = ra[ma][:, None] + rb[mb][None, :]
+            bad = d < need
+            if bad.any():
+                ia, ib = np.unravel_index(int(np.argmax(need - d)), d.shape)
+                where = (0.5 * (qa[ia] + qb[ib])).tolist()
+                raise ConfigError(f"branches {a.name!r} and {by_name[b.name].name!r} overlap near (x, z) = "
+                                  f"({where[0]:.6g}, {where[1]:.6g}) m: centrelines {d[ia, ib]:.6g} m apart, "
+                                  f"radii sum {need[ia, ib]:.6g} m")
+
+
+def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
+                      ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(points (n, 2) m, radius (n,) m, arc length (n,) m) of the smoothed centreline of ``b``."""
+    pts = np.column_stack([b.x_m, b.z_m]).astype(np.float64)
+    rad = b.radii()
+    chord = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    n = max(2, int(math.ceil(chord[-1] / spacing_m)) + 1)
+    u = np.linspace(0.0, chord[-1], n)
+    if smoothing == "spline" and len(pts) >= 3:
+        from vesselbot_ros.blas_free import interp_spline
+
+        # make_interp_spline's spline, solved without LAPACK: the same centreline bits on every CPU
+        k = 3 if len(pts) >= 4 else 2
+        out = interp_spline(chord, pts, k=k)(u)
+    else:
+        out = np.column_stack([np.interp(u, chord, pts[:, 0]), np.interp(u, chord, pts[:, 1])])
+    r = np.interp(u, chord, rad)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(out, axis=0).T))])
+    return out, r, s
+
+
+def resolve_network_path(source: str) -> Path:
+    """Path of a network file: as given (absolute or relative to the working directory), else
+    relative to the repository (``config/vessels/...``), else a shipped name (``paper_iiic_artery``)."""
+    p = Path(source)
+    if p.is_file():
+        return p
+    repo = VESSELS_DIR.parents[1]
+    for cand in (repo / source, VESSELS_DIR / source, VESSELS_DIR / f"{source}.yaml"):
+        if cand.is_file():
+            return cand
+    raise ConfigError(f"vessel network {source!r} does not exist (looked in the working directory, {repo}, {VESSELS_DIR})")
+
+
+def load_network(source: str) -> VesselNetworkParams:
+    """Load and validate a network YAML file (see :func:`resolve_network_path`); cached per file version."""
+    path = resolve_network_path(source).resolve()
+    st = path.stat()
+    return _load_network_cached(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=32)
+def _load_network_cached(path: str, _mtime_ns: int, _size: int) -> VesselNetworkParams:
+    try:
+        return load_dataclass(VesselNetworkParams, load_yaml(path), "")
+    except ConfigError as exc:
+        raise ConfigError(f"vessel network {str(path)!r}: {exc}") from None
+
+
+class NetworkGeometry:
+    """Pure geometry of a network: smoothed centrelines, signed distance, normal, diameter.
+
+    Args:
+        net: The validated network.
+    """
+
+    def __init__(self, net: VesselNetworkParams) -> None:
+        self.net = net
+        self.branches = {b.name: smooth_centreline(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
+        self.names = [b.name for b in net.branches]
+        self._trees: dict[str, object] = {}
+
+    @cached_property
+    def bbox(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, z_min, z_max) of the lumen (m)."""
+        lo = np.array([np.inf, np.inf])
+        hi = -lo
+        for pts, r, _s in self.branches.values():
+            lo = np.minimum(lo, (pts - r[:, None]).min(axis=0))
+            hi = np.maximum(hi, (pts + r[:, None]).max(axis=0))
+        return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+    def _branch_query(self, name: str, q: npt.NDArray[np.float64]
+                      ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """(signed distance (m,), foot point (m, 2), radius at the foot (m,), arc length (m,)) to branch ``name``."""
+        pts, rad, arc = self.branches[name]
+        tree = self._trees.get(name)
+        if tree is None:
+            from scipy.spatial import cKDTree
+
+            tree = self._trees[name] = cKDTree(pts)
+        _d, j = tree.query(q)
+        best = np.full(len(q), np.inf)
+        foot = np.zeros_like(q)
+        rfoot = np.zeros(len(q))
+        sfoot = np.zeros(len(q))
+        # the nearest point of the polyline lies on a segment next to the nearest vertex
+        for seg in (np.maximum(j - 1, 0), np.minimum(j, len(pts) - 2)):
+            a = pts[seg]
+            d = pts[seg + 1] - a
+            L2 = np.maximum((d * d).sum(axis=1), 1e-300)
+            t = np.clip(((q - a) * d).sum(axis=1) / L2, 0.0, 1.0)
+            f = a + t[:, None] * d
+            dist = np.hypot(q[:, 0] - f[:, 0], q[:, 1] - f[:, 1])
+            better = dist < best
+            best[better] = dist[better]
+            foot[better] = f[better]
+            rfoot[better] = (rad[seg] + t * (rad[seg + 1] - rad[seg]))[better]
+            sfoot[better] = (arc[seg] + t * (arc[seg + 1] - arc[seg]))[better]
+        return rfoot - best, foot, rfoot, sfoot
+
+    def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
+        """Signed distance, inward normal, diameter and branch index at points (m, 2).
+
+        Returns a dict: ``sdist`` (m,) m (> 0 inside), ``normal`` (m, 2) unit
+        inward normal of the nearest wall (towards the centreline), ``diameter``
+        (m,) m, ``branch`` (m,) index into ``names``, ``arc`` (m,) arc length
+        along that branch (m).
+        """
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        sd = np.full(len(q), -np.inf)
+        nrm = np.zeros_like(q)
+        diam = np.zeros(len(q))
+        br = np.zeros(len(q), dtype=np.int64)
+        arc = np.zeros(len(q))
+        for k, name in enumerate(self.names):
+            s, foot, r, a = self._branch_query(name, q)
+            better = s > sd
+            sd[better] = s[better]
+            v = foot[better] - q[better]
+            nv = np.hypot(v[:, 0], v[:, 1])
+            ok = nv > 1e-15
+            vv = np.zeros_like(v)
+            vv[ok] = v[ok] / nv[ok, None]
+            vv[~ok] = (0.0, 1.0)
+            nrm[better] = vv
+            diam[better] = 2.0 * r[better]
+            br[better] = k
+            arc[better] = a[better]
+        # outside the lumen the inward normal points to the centreline too (towards the foot)
+        return {"sdist": sd, "normal": nrm, "diameter": diam, "branch": br, "arc": arc}
+
+    def signed_distance(self, points_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """(m,) signed distance to the wall (m), > 0 inside the lumen."""
+        return self.query(points_m)["sdist"]
+
+    def centreline_path(self, branch_names: list[str]) -> npt.NDArray[np.float64]:
+        """(n, 2) concatenated smoothed centreline through ``branch_names`` (m)."""
+        parts = [self.branches[n][0] for n in branch_names]
+        return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
+
+
+def route_to_outlet(net: VesselNetworkParams, outlet: str) -> list[str]:
+    """Branch sequence from the inlet branch to the outlet branch ``outlet`` (over the tree)."""
+    by_name = {b.name: b for b in net.branches}
+    if outlet not in by_name:
+        raise ConfigError(f"route outlet {outlet!r} is not a branch of network {net.name!r}; branches: {list(by_name)}")
+    seq = [outlet]
+    while by_name[seq[-1]].parent:
+        seq.append(by_name[seq[-1]].parent)
+    return seq[::-1]
