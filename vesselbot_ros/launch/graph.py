@@ -84,6 +84,9 @@ class GraphOptions:
         progress: Called with (sim_time_s, duration_s, wall_s, status) about once a second;
             ``status`` is the real-time figures (empty in lockstep).
         on_contract: Called with the contract text of each role left to the user.
+        compression: MCAP chunk compression of the bag (``none``, ``zstd_fast``, ``zstd_small``).
+        live_port: Serve every topic live over the Foxglove WebSocket protocol on this port
+            (None: off).  The recorder serves it (with no bag when ``record_dir`` is None).
     """
 
     mode: str = "lockstep"
@@ -101,6 +104,8 @@ class GraphOptions:
     stall_timeout_s: float = 2.0
     progress: Callable[..., None] | None = None
     on_contract: Callable[[str], None] | None = None
+    compression: str = "none"
+    live_port: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,10 +257,11 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     recorded: dict[str, int] = {}
     published: dict[str, int] | None = None
     try:
-        if options.record_dir is not None:
+        if options.record_dir is not None or options.live_port is not None:
             from vesselbot_ros.nodes.recorder_node import recorder_command
 
-            sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace))
+            sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace,
+                                                compression=options.compression, live_port=options.live_port))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
         sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
                         options.single_process)

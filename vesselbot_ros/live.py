@@ -1,0 +1,113 @@
+"""Live view: the graph's topics over the Foxglove WebSocket protocol (``vesselbot run --live``).
+
+:class:`LiveView` runs the Foxglove SDK's WebSocket server (``foxglove-sdk`` on
+PyPI; we never implement the protocol ourselves) and advertises one channel per
+topic it is given: ``cdr`` messages with their ``ros2msg`` schema (the full
+definition with its dependencies, the same text the bag embeds), so Foxglove
+decodes them exactly as it decodes a recorded bag.  The channels come from
+the graph spec (:data:`vesselbot_ros.graph_spec.TOPICS`): a port added there
+appears in the live view with no view code.
+
+Messages are logged as the bytes the publisher sent (the recorder's raw
+subscriptions feed both the bag and this server, so ``--live`` adds no DDS
+reader to the loop).  Latched topics (the vessel markers, the reference path)
+are sent once when published; a client that subscribes later gets the last
+one again on subscription, as a transient-local subscriber would.
+
+The server listens on ``127.0.0.1`` only.  Connect Foxglove (desktop app or
+browser) with *Open connection -> Foxglove WebSocket* ``ws://127.0.0.1:PORT``
+and load ``config/foxglove/vesselbot.json`` as the layout.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable
+from typing import Any
+
+__all__ = ["LiveView", "DEFAULT_LIVE_PORT", "check_port"]
+
+#: Foxglove's default WebSocket port.
+DEFAULT_LIVE_PORT = 8765
+
+
+def check_port(port: int) -> None:
+    """Raise ValueError naming ``port`` if it is not a TCP port number (0: any free port)."""
+    if not 0 <= int(port) <= 65535:
+        raise ValueError(f"live port must be in [0, 65535], got {port}")
+
+
+class LiveView:
+    """A Foxglove WebSocket server of a set of ROS topics.
+
+    Args:
+        topics: ``(name, msgtype, latched)`` per channel.
+        typestore: rosbags typestore that knows every ``msgtype`` (for the
+            ``ros2msg`` schema text).
+        port: TCP port (0: any free one; see :attr:`port`).
+        host: Interface to listen on.
+        name: Server name shown by Foxglove.
+
+    Raises:
+        OSError / RuntimeError: the port cannot be bound (the message names it).
+    """
+
+    def __init__(self, topics: Iterable[tuple[str, str, bool]], typestore: Any, port: int = DEFAULT_LIVE_PORT,
+                 host: str = "127.0.0.1", name: str = "vesselbot") -> None:
+        import foxglove
+
+        check_port(port)
+        self._ctx = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self._latched: dict[str, bytes | None] = {}
+        self._lock = threading.Lock()
+        for topic, msgtype, latched in topics:
+            text, _ = typestore.generate_msgdef(msgtype, ros_version=2)
+            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=text.encode("utf-8"))
+            self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self._ctx)
+            if latched:
+                self._latched[topic] = None
+        view = self
+
+        class _Listener:
+            def on_subscribe(self, client: Any, channel: Any) -> None:
+                view._resend_latched(channel.topic)
+
+        self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
+                                             server_listener=_Listener())
+        self.host = host
+        self.port = int(self._server.port)
+
+    @property
+    def url(self) -> str:
+        """``ws://HOST:PORT`` of the server."""
+        return f"ws://{self.host}:{self.port}"
+
+    @property
+    def topics(self) -> list[str]:
+        """The advertised topics."""
+        return list(self._channels)
+
+    def log(self, topic: str, data: bytes, t_ns: int) -> None:
+        """Send one serialized (CDR) message of ``topic`` to the subscribed clients."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            return
+        if topic in self._latched:
+            with self._lock:
+                self._latched[topic] = bytes(data)
+        ch.log(bytes(data), log_time=int(t_ns))
+
+    def _resend_latched(self, topic: str) -> None:
+        with self._lock:
+            data = self._latched.get(topic)
+        if data is not None:
+            import time
+
+            self._channels[topic].log(data, log_time=time.time_ns())
+
+    def close(self) -> None:
+        """Stop the server (idempotent)."""
+        server, self._server = self._server, None
+        if server is not None:
+            server.stop()
