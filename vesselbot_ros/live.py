@@ -68,8 +68,9 @@ class LiveView:
             if latched:
                 self._latched[topic] = None
         view = self
+        from foxglove.websocket import ServerListener
 
-        class _Listener:
+        class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 view._resend_latched(channel.topic)
 

@@ -5,10 +5,14 @@
 //   {"advertised": [{topic, encoding, schemaName, schemaEncoding}], "counts": {topic: n},
 //    "decode_errors": {topic: "..."}, "positions": [[stamp_ns, x, z], ...]}   (positions: /vesselbot/truth)
 // usage: node ws_live.mjs PORT [CONNECT_TIMEOUT_S=60] [IDLE_S=20]
-import { FoxgloveClient } from "@foxglove/ws-protocol";
+// The client offers ws-protocol's "foxglove.websocket.v1" and "foxglove.sdk.v1", the name the SDK's server
+// (foxglove-sdk 0.30) accepts for the same protocol.
+import wsProtocol from "@foxglove/ws-protocol";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
 import WebSocket from "ws";
+
+const { FoxgloveClient } = wsProtocol;
 
 const [port, connectTimeoutS = "60", idleS = "20"] = process.argv.slice(2);
 const url = `ws://127.0.0.1:${port}`;
@@ -30,7 +34,7 @@ function finish(reason) {
 }
 
 function connect() {
-  const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
+  const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.sdk.v1"]);
   ws.binaryType = "arraybuffer";
   let opened = false;
   ws.on("open", () => { opened = true; });

@@ -2,7 +2,7 @@
 
 Examples::
 
-    vesselbot run                                   # paper scenario, lockstep, recorded to runs/
+    vesselbot run                                   # sound Section III-C scenario, lockstep, recorded to runs/
     vesselbot run --mode realtime --duration 5      # wall-clock plant, sim-time nodes
     vesselbot run --single-process --no-record      # all nodes in one process
     vesselbot run --without controller              # bring your own controller (see docs/graph.md)
@@ -37,14 +37,15 @@ from vesselbot_ros.graph_spec import LOOP_ROLES
 
 __all__ = ["register", "run", "apply_overrides"]
 
-DEFAULT_CONFIG = "config/paper_small_artery.yaml"
+DEFAULT_CONFIG = "sound_small_artery"  # vesselbot_ros.sim.scenario.DEFAULT_SCENARIO, without importing the core
 ROLES_CHOICES = LOOP_ROLES
 _NAMESPACE_RE = re.compile(r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` arguments."""
-    parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"scenario YAML (default {DEFAULT_CONFIG})")
+    parser.add_argument("--config", default=DEFAULT_CONFIG,
+                        help=f"a shipped scenario's name (vesselbot scenarios) or a scenario YAML (default {DEFAULT_CONFIG})")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                         help="lockstep: deterministic, as fast as the graph allows; realtime: wall-clock plant")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="override sim.duration_s (s)")

@@ -1,0 +1,46 @@
+"""``vesselbot run --live``: Foxglove's own client (@foxglove/ws-protocol, run by node) on the live view."""
+
+from __future__ import annotations
+
+import subprocess
+
+from _runs import free_port, last_json, node_client, run_cmd
+from vesselbot_ros.bag.reader import iter_messages, open_bag
+from vesselbot_ros.graph_spec import TOPICS, ns_of_time
+
+
+def test_foxglove_client_decodes_every_channel_and_sees_the_recorded_positions(tmp_path):
+    port = free_port()
+    client = node_client("ws_live.mjs", str(port), "120", "60")
+    bag = tmp_path / "bag"
+    try:
+        run = subprocess.run(run_cmd("--config", "sound_small_artery", "--duration", "0.3", "--live-port", str(port),
+                                     "--record-dir", str(bag), "--quiet"),
+                             cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-3000:]
+        assert f"live view: ws://127.0.0.1:{port}" in run.stdout
+        got = last_json(client, timeout=120)  # the server stops with the recorder: the client ends
+    finally:
+        if client.poll() is None:
+            client.kill()
+    assert got["reason"] == "server closed"
+    # every topic of the graph spec is advertised, as cdr with its ros2msg schema
+    adv = {a["topic"]: a for a in got["advertised"]}
+    assert set(adv) == {t.name for t in TOPICS}
+    for t in TOPICS:
+        assert (adv[t.name]["encoding"], adv[t.name]["schemaEncoding"], adv[t.name]["schemaName"]) == \
+            ("cdr", "ros2msg", t.msgtype)
+    # messages on every channel, each decoded by Foxglove's deserializer from the advertised schema
+    assert got["decode_errors"] == {}
+    assert all(got["counts"][t.name] >= 1 for t in TOPICS), got["counts"]
+    # the robot positions received equal the bag's at the same stamps
+    recorded = {}
+    for m in iter_messages(open_bag(bag), topics=["/vesselbot/truth"]):
+        msg = m.decode()
+        recorded[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = (msg.position.x, msg.position.z)
+    assert len(recorded) == 300
+    live = {int(t): (x, z) for t, x, z in got["positions"]}
+    assert len(live) >= 1 and set(live) <= set(recorded)
+    assert all(live[t] == recorded[t] for t in live)
+    # the client connected while the recorder waited for the nodes: it saw the run from tick 0
+    assert ns_of_time(0.0) in live and len(live) == 300
