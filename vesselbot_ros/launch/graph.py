@@ -85,6 +85,9 @@ class GraphOptions:
             ``status`` is the real-time figures (empty in lockstep).
         on_contract: Called with the contract text of each role left to the user.
         compression: MCAP chunk compression of the bag (``none``, ``zstd_fast``, ``zstd_small``).
+        start_paused: Start the run paused at t = 0 (simulation_interfaces SetSimulationState PAUSED) instead
+            of playing; ``vesselbot run`` then waits (no run timeout unless ``run_timeout_s``) until a client
+            plays or steps it to the end, or quits it.
         live_port: Serve every topic live over the Foxglove WebSocket protocol on this port
             (None: off).  The recorder serves it (with no bag when ``record_dir`` is None).
     """
@@ -106,6 +109,7 @@ class GraphOptions:
     on_contract: Callable[[str], None] | None = None
     compression: str = "none"
     live_port: int | None = None
+    start_paused: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,10 +278,20 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         wait_for(lambda: mon.publishes("truth") and mon.subscribers("estimate") > 0
                  and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, sup,
                  "the plant's RunControl service")
-        from vesselbot_msgs.srv import RunControl
+        if options.start_paused:
+            from simulation_interfaces.msg import SimulationState
 
-        fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
-        wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
+            wait_for(mon.set_simulation_state.service_is_ready, options.wait_timeout_s, mon, sup,
+                     "the plant's simulation_interfaces services")
+            req = mon.set_simulation_state.srv_type.Request()
+            req.state.state = SimulationState.STATE_PAUSED
+            fut = mon.set_simulation_state.call_async(req)
+            wait_for(fut.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")
+        else:
+            from vesselbot_msgs.srv import RunControl
+
+            fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
+            wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
         t_start = time.monotonic()
         _watch(mon, sup, roles, options, scenario, t_start)
         t_end = mon.t_last_truth or time.monotonic()
@@ -393,6 +407,8 @@ def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOption
     dt = scenario.sim.dt_control_s
     duration = n * dt
     timeout = options.run_timeout_s
+    if timeout is None and options.start_paused:
+        timeout = float("inf")  # a paused run goes on as long as its client drives it
     if timeout is None:
         timeout = 120.0 + (duration / options.real_time_factor if options.mode == "realtime" else 200.0 * duration)
     last_progress = t_start

@@ -61,6 +61,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compression", choices=tuple(_compression_choices()), default="none",
                         help="MCAP chunk compression of the bag: rosbag2's storage presets on Jazzy "
                              "(zstd_fast: fastest zstd, 768 KiB chunks; zstd_small: strongest zstd, 4 MiB chunks)")
+    parser.add_argument("--start-paused", action="store_true",
+                        help="start paused at t = 0: drive the run through the simulation_interfaces services "
+                             "(/NAMESPACE/step_simulation, set_simulation_state, reset_simulation, ...)")
     parser.add_argument("--live", action="store_true",
                         help="serve every topic live over the Foxglove WebSocket protocol (open it in Foxglove with "
                              "the layout config/foxglove/vesselbot.json)")
@@ -215,10 +218,15 @@ def run(args: argparse.Namespace) -> int:
                         namespace=args.namespace,
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,
                         stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract,
-                        compression=args.compression, live_port=_live_port(args))
+                        compression=args.compression, live_port=_live_port(args), start_paused=args.start_paused)
     procs = "1 process" if args.single_process else "one process per node"
     print(f"vesselbot run: {scenario.name} seed {scenario.seed}, {args.mode}, {scenario.sim.duration_s} s at "
           f"{scenario.sim.control_rate_Hz:g} Hz, {procs}" + (f", recording to {run_dir}" if record else ""), flush=True)
+    if args.start_paused:
+        from vesselbot_ros.graph_spec import SIMULATION_SERVICES, resolve, service
+
+        print("paused at t = 0; simulation_interfaces: " + ", ".join(resolve(service(k).rel, args.namespace)
+                                                                     for k in SIMULATION_SERVICES), flush=True)
     if _live_port(args) is not None:
         print(f"live view: ws://127.0.0.1:{_live_port(args)} (Foxglove: Open connection -> Foxglove WebSocket; "
               f"layout config/foxglove/vesselbot.json)", flush=True)

@@ -77,8 +77,19 @@ class CoilDriverNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.limiter = build_stages(self.scenario).coil
         self.limits = self.scenario.coil
+        self.reset_state()
+        self.add_publisher("coil_applied", Vector3Stamped)
+        self.add_publisher("coil_state", CoilState)
+        self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
+        self.add_subscription("clock", Clock, self._on_clock)
+        if self.lockstep:
+            self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
+        self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """The coils as built from the scenario (zero output), at tick 0, no command pending."""
+        self.limiter = build_stages(self.scenario).coil
         self.k = 0  # next tick to answer
         self.k_due = -1  # latest tick announced by /clock
         self._due_wall = 0.0
@@ -86,14 +97,7 @@ class CoilDriverNode(VesselbotNode):
         self.rejected_commands = 0
         self._t_last = 0.0
         self.commands_lost = False
-        self.add_publisher("coil_applied", Vector3Stamped)
-        self.add_publisher("coil_state", CoilState)
-        self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
-        self.add_subscription("clock", Clock, self._on_clock)
-        if self.lockstep:
-            self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
         self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
-        self.realtime_clock()
 
     # ------------------------------------------------------------------ inputs
     def _on_clock(self, msg: Clock) -> None:
