@@ -83,7 +83,7 @@ from typing import Any, Literal
 
 __all__ = [
     "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
-    "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key",
+    "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
     "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
@@ -171,6 +171,30 @@ class ServiceSpec:
 
 
 @dataclass(frozen=True)
+class ViewSpec:
+    """A channel the live view derives from topics (``vesselbot run --live``; not a DDS topic).
+
+    Attributes:
+        key: Short handle.
+        rel: Name relative to the namespace (``view/markers``).
+        msgtype: A ROS message type (sent as CDR with its ``ros2msg`` schema) or ``json``.
+        inputs: Topic keys it is computed from (:mod:`vesselbot_ros.live_view`).
+        shows: What a viewer sees on it.
+    """
+
+    key: str
+    rel: str
+    msgtype: str
+    inputs: tuple[str, ...]
+    shows: str
+
+    @property
+    def name(self) -> str:
+        """The canonical absolute name (default namespace)."""
+        return resolve(self.rel)
+
+
+@dataclass(frozen=True)
 class Role:
     """One node role: what it is, how it starts, its ports.
 
@@ -250,6 +274,17 @@ SERVICES: tuple[ServiceSpec, ...] = (
                 "simulation_interfaces: back to t = 0 with the scenario's initial state (every node; same messages again)"),
     ServiceSpec("simulate_steps", "simulate_steps", "simulation_interfaces/action/SimulateSteps", "plant",
                 "simulation_interfaces action: N control ticks while paused, completed/remaining as feedback"),
+)
+
+#: What the live view derives for its 3D and plot panels (``config/foxglove/vesselbot.json``), besides forwarding
+#: every topic above as it is.  A port added to TOPICS appears in the live view with no view code.
+VIEW_CHANNELS: tuple[ViewSpec, ...] = (
+    ViewSpec("view_markers", "view/markers", "visualization_msgs/msg/MarkerArray",
+             ("truth", "estimate", "coil_state", "reference_path"),
+             "3D: the vessel walls at +/- D(t)/2 as they pulse, the robot, its estimate, the applied gradient "
+             "(arrow, 2 mm at the coil limit), the reference path"),
+    ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
+             "plots: tracking and estimation error (m), applied |G| against its limit U_sat (T/m)"),
 )
 
 #: The simulation_interfaces services and action, served by the plant (node :data:`SIMULATION_NODE`).
@@ -440,6 +475,14 @@ def markdown_table() -> str:
     srv_head = "\n\n| service / action | type | server | purpose |\n|---|---|---|---|\n"
     srv_rows = [f"| `{s.name}` | `{s.srvtype}` | {s.server} | {s.purpose} |" for s in SERVICES]
     return head + "\n".join(rows) + srv_head + "\n".join(srv_rows)
+
+
+def view_table() -> str:
+    """The README's live-view table: every channel the live view serves besides the topics."""
+    head = "| channel | type | from | shows |\n|---|---|---|---|\n"
+    rows = [f"| `{v.name}` | `{v.msgtype}` | {', '.join(f'`{topic(k).name}`' for k in v.inputs)} | {v.shows} |"
+            for v in VIEW_CHANNELS]
+    return head + "\n".join(rows)
 
 
 def architecture_table() -> str:

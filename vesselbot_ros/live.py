@@ -14,6 +14,10 @@ reader to the loop).  Latched topics (the vessel markers, the reference path)
 are sent once when published; a client that subscribes later gets the last
 one again on subscription, as a transient-local subscriber would.
 
+Besides the topics it serves the derived channels of
+:data:`vesselbot_ros.graph_spec.VIEW_CHANNELS` (:mod:`vesselbot_ros.live_view`):
+the scene as markers and the error time series, at most 30 updates per second.
+
 The server listens on ``127.0.0.1`` only.  Connect Foxglove (desktop app or
 browser) with *Open connection -> Foxglove WebSocket* ``ws://127.0.0.1:PORT``
 and load ``config/foxglove/vesselbot.json`` as the layout.
@@ -61,12 +65,23 @@ class LiveView:
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, bytes | None] = {}
         self._lock = threading.Lock()
-        for topic, msgtype, latched in topics:
+        from vesselbot_ros.graph_spec import VIEW_CHANNELS
+        from vesselbot_ros.live_view import ERRORS_SCHEMA, DerivedView
+
+        def ros_channel(name: str, msgtype: str) -> Any:
             text, _ = typestore.generate_msgdef(msgtype, ros_version=2)
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=text.encode("utf-8"))
-            self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self._ctx)
+            return foxglove.Channel(name, schema=schema, message_encoding="cdr", context=self._ctx)
+
+        for topic, msgtype, latched in topics:
+            self._channels[topic] = ros_channel(topic, msgtype)
             if latched:
                 self._latched[topic] = None
+        self._views: dict[str, Any] = {}
+        for v in VIEW_CHANNELS:
+            self._views[v.key] = (foxglove.Channel(v.name, schema=ERRORS_SCHEMA, context=self._ctx)
+                                  if v.msgtype == "json" else ros_channel(v.name, v.msgtype))
+        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)))
         view = self
         from foxglove.websocket import ServerListener
 
@@ -86,7 +101,7 @@ class LiveView:
 
     @property
     def topics(self) -> list[str]:
-        """The advertised topics."""
+        """The forwarded topics (the derived view channels aside)."""
         return list(self._channels)
 
     def log(self, topic: str, data: bytes, t_ns: int) -> None:
@@ -98,6 +113,7 @@ class LiveView:
             with self._lock:
                 self._latched[topic] = bytes(data)
         ch.log(bytes(data), log_time=int(t_ns))
+        self.view.offer(topic, data, t_ns)
 
     def _resend_latched(self, topic: str) -> None:
         with self._lock:

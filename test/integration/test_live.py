@@ -6,7 +6,9 @@ import subprocess
 
 from _runs import free_port, last_json, node_client, run_cmd
 from vesselbot_ros.bag.reader import iter_messages, open_bag
-from vesselbot_ros.graph_spec import TOPICS, ns_of_time
+import math
+
+from vesselbot_ros.graph_spec import TOPICS, VIEW_CHANNELS, ns_of_time
 
 
 def test_foxglove_client_decodes_every_channel_and_sees_the_recorded_positions(tmp_path):
@@ -24,15 +26,27 @@ def test_foxglove_client_decodes_every_channel_and_sees_the_recorded_positions(t
         if client.poll() is None:
             client.kill()
     assert got["reason"] == "server closed"
-    # every topic of the graph spec is advertised, as cdr with its ros2msg schema
+    # every topic of the graph spec is advertised, as cdr with its ros2msg schema, and the derived view channels
     adv = {a["topic"]: a for a in got["advertised"]}
-    assert set(adv) == {t.name for t in TOPICS}
+    assert set(adv) == {t.name for t in TOPICS} | {v.name for v in VIEW_CHANNELS}
+    for v in VIEW_CHANNELS:
+        assert adv[v.name]["encoding"] == ("json" if v.msgtype == "json" else "cdr")
     for t in TOPICS:
         assert (adv[t.name]["encoding"], adv[t.name]["schemaEncoding"], adv[t.name]["schemaName"]) == \
             ("cdr", "ros2msg", t.msgtype)
     # messages on every channel, each decoded by Foxglove's deserializer from the advertised schema
     assert got["decode_errors"] == {}
-    assert all(got["counts"][t.name] >= 1 for t in TOPICS), got["counts"]
+    assert all(got["counts"][name] >= 1 for name in adv), got["counts"]
+    # the view: walls, robot, estimate, gradient arrow and path; errors and |G| within the coil's per-axis limit
+    assert set(got["views"]["marker_namespaces"]) == {"upper_wall", "lower_wall", "robot", "estimate", "gradient",
+                                                      "reference_path"}
+    errors = got["views"]["errors"]
+    assert errors and set(errors[-1]) == {"t_s", "tracking_error_m", "estimation_error_m", "gradient_norm_T_per_m",
+                                          "gradient_limit_T_per_m"}
+    for e in errors:  # the first ones may precede the first estimate or coil state
+        assert 0 <= e.get("tracking_error_m", 0) < 5e-3 and 0 <= e.get("estimation_error_m", 0) < 5e-3
+        assert 0 <= e["gradient_norm_T_per_m"] <= math.sqrt(2) * e.get("gradient_limit_T_per_m", math.inf)
+    assert [e["t_s"] for e in errors] == sorted(e["t_s"] for e in errors)
     # the robot positions received equal the bag's at the same stamps
     recorded = {}
     for m in iter_messages(open_bag(bag), topics=["/vesselbot/truth"]):
