@@ -284,7 +284,7 @@ VIEW_CHANNELS: tuple[ViewSpec, ...] = (
              "3D: the vessel walls at +/- D(t)/2 as they pulse, the robot, its estimate, the applied gradient "
              "(arrow, 2 mm at the coil limit), the reference path"),
     ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
-             "plots: tracking and estimation error (m), applied |G| against its limit U_sat (T/m)"),
+             "plots: tracking and estimation error (m), the applied gradient norm against its limit U_sat (T/m)"),
 )
 
 #: The simulation_interfaces services and action, served by the plant (node :data:`SIMULATION_NODE`).
