@@ -10,7 +10,11 @@ appears in the live view with no view code.
 
 Messages are logged as the bytes the publisher sent (the recorder's raw
 subscriptions feed both the bag and this server, so ``--live`` adds no DDS
-reader to the loop).  Latched topics (the vessel markers, the reference path)
+reader to the loop).  A viewer needs far fewer than the loop's 1000 ticks per
+second: each topic is forwarded at most ``max_rate_Hz`` times per wall second
+(default :data:`DEFAULT_LIVE_RATE_HZ`; 0: every message), and nothing is
+forwarded or derived while no client subscribes, so the live view's cost
+does not grow with the control rate (``bench/bench_live.py``).  Latched topics (the vessel markers, the reference path)
 are sent once when published; a client that subscribes later gets the last
 one again on subscription, as a transient-local subscriber would.
 
@@ -26,13 +30,16 @@ and load ``config/foxglove/vesselbot.json`` as the layout.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterable
 from typing import Any
 
-__all__ = ["LiveView", "DEFAULT_LIVE_PORT", "check_port"]
+__all__ = ["LiveView", "DEFAULT_LIVE_PORT", "DEFAULT_LIVE_RATE_HZ", "check_port"]
 
 #: Foxglove's default WebSocket port.
 DEFAULT_LIVE_PORT = 8765
+#: Messages per topic and wall second forwarded to the viewer, at most.
+DEFAULT_LIVE_RATE_HZ = 100.0
 
 
 def check_port(port: int) -> None:
@@ -51,16 +58,22 @@ class LiveView:
         port: TCP port (0: any free one; see :attr:`port`).
         host: Interface to listen on.
         name: Server name shown by Foxglove.
+        max_rate_Hz: Forward each topic at most this often per wall second (0: every message);
+            latched topics are always forwarded.
 
     Raises:
         OSError / RuntimeError: the port cannot be bound (the message names it).
     """
 
     def __init__(self, topics: Iterable[tuple[str, str, bool]], typestore: Any, port: int = DEFAULT_LIVE_PORT,
-                 host: str = "127.0.0.1", name: str = "vesselbot") -> None:
+                 host: str = "127.0.0.1", name: str = "vesselbot", max_rate_Hz: float = DEFAULT_LIVE_RATE_HZ) -> None:
         import foxglove
 
         check_port(port)
+        if not max_rate_Hz >= 0:
+            raise ValueError(f"live rate must be >= 0 messages per second, got {max_rate_Hz}")
+        self._period_s = 1.0 / max_rate_Hz if max_rate_Hz > 0 else 0.0
+        self._last_sent: dict[str, float] = {}
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, bytes | None] = {}
@@ -81,7 +94,8 @@ class LiveView:
         for v in VIEW_CHANNELS:
             self._views[v.key] = (foxglove.Channel(v.name, schema=ERRORS_SCHEMA, context=self._ctx)
                                   if v.msgtype == "json" else ros_channel(v.name, v.msgtype))
-        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)))
+        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)),
+                                wanted=lambda: any(ch.has_sinks() for ch in self._views.values()))
         view = self
         from foxglove.websocket import ServerListener
 
@@ -105,22 +119,29 @@ class LiveView:
         return list(self._channels)
 
     def log(self, topic: str, data: bytes, t_ns: int) -> None:
-        """Send one serialized (CDR) message of ``topic`` to the subscribed clients."""
+        """Offer one serialized (CDR) message of ``topic``: sent to subscribed clients, at most at the live rate."""
         ch = self._channels.get(topic)
         if ch is None:
             return
         if topic in self._latched:
             with self._lock:
                 self._latched[topic] = bytes(data)
-        ch.log(bytes(data), log_time=int(t_ns))
+            ch.log(bytes(data), log_time=int(t_ns))
+            self.view.offer(topic, data, t_ns)
+            return
         self.view.offer(topic, data, t_ns)
+        if not ch.has_sinks():  # no client subscribed to it
+            return
+        now = time.monotonic()
+        if now - self._last_sent.get(topic, -1e9) < self._period_s:
+            return
+        self._last_sent[topic] = now
+        ch.log(data, log_time=int(t_ns))
 
     def _resend_latched(self, topic: str) -> None:
         with self._lock:
             data = self._latched.get(topic)
         if data is not None:
-            import time
-
             self._channels[topic].log(data, log_time=time.time_ns())
 
     def close(self) -> None:

@@ -74,10 +74,12 @@ class DerivedView:
 
     Args:
         send: ``send(view_key, payload: bytes, t_ns)``: hands one view message to the server.
+        wanted: ``wanted() -> bool``: whether anyone subscribes to a view channel (no work otherwise).
     """
 
-    def __init__(self, send: Any) -> None:
+    def __init__(self, send: Any, wanted: Any = lambda: True) -> None:
         self._send = send
+        self._wanted = wanted
         self.inputs = sorted({k for v in VIEW_CHANNELS for k in v.inputs})
         self._latest: dict[str, bytes] = {}
         self._types = {k: import_type(topic(k).msgtype) for k in self.inputs}
@@ -95,7 +97,7 @@ class DerivedView:
             self._path_points = [p.pose.position for p in self._decode(key).poses]
         now = time.monotonic()
         # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
-        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ:
+        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
             self._last_wall = now
             self.emit(t_ns)
 

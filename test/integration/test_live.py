@@ -17,7 +17,7 @@ def test_foxglove_client_decodes_every_channel_and_sees_the_recorded_positions(t
     bag = tmp_path / "bag"
     try:
         run = subprocess.run(run_cmd("--config", "sound_small_artery", "--duration", "0.3", "--live-port", str(port),
-                                     "--record-dir", str(bag), "--quiet"),
+                                     "--live-rate", "0", "--record-dir", str(bag), "--quiet"),
                              cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, run.stderr[-3000:]
         assert f"live view: ws://127.0.0.1:{port}" in run.stdout
@@ -58,3 +58,29 @@ def test_foxglove_client_decodes_every_channel_and_sees_the_recorded_positions(t
     assert all(live[t] == recorded[t] for t in live)
     # the client connected while the recorder waited for the nodes: it saw the run from tick 0
     assert ns_of_time(0.0) in live and len(live) == 300
+
+
+def test_the_live_view_sends_each_topic_at_most_at_the_live_rate(tmp_path):
+    """Default --live-rate (100 per topic and wall second): a subset of the ticks, each equal to the bag's."""
+    import json
+
+    port = free_port()
+    client = node_client("ws_live.mjs", str(port), "120", "60")
+    bag = tmp_path / "bag"
+    try:
+        run = subprocess.run(run_cmd("--duration", "1.0", "--live-port", str(port), "--record-dir", str(bag),
+                                     "--metrics-json", str(tmp_path / "m.json"), "--quiet"),
+                             cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-3000:]
+        got = last_json(client, timeout=120)
+    finally:
+        if client.poll() is None:
+            client.kill()
+    wall = json.loads((tmp_path / "m.json").read_text())["wall_s"]
+    recorded = {}
+    for m in iter_messages(open_bag(bag), topics=["/vesselbot/truth"]):
+        msg = m.decode()
+        recorded[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = (msg.position.x, msg.position.z)
+    live = {int(t): (x, z) for t, x, z in got["positions"]}
+    assert 1 <= len(live) <= 100 * (wall + 1.0) and len(live) < len(recorded) == 1000
+    assert all(live[t] == recorded[t] for t in live)

@@ -32,8 +32,7 @@ function finish(reason) {
   if (done) return;
   done = true;
   process.stdout.write(JSON.stringify({ reason, advertised, counts, decode_errors: decodeErrors, views,
-    positions: positions.map(([t, x, z]) => [t.toString(), x, z]) }) + "\n");
-  process.exit(0);
+    positions: positions.map(([t, x, z]) => [t.toString(), x, z]) }) + "\n", () => process.exit(0));
 }
 
 function connect() {

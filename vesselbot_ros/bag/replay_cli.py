@@ -37,6 +37,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="also serve the replay live over the Foxglove WebSocket protocol (port 8765)")
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
                         help="port of the live view (0: any free port); implies --live")
+    parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
+                        help="messages per topic and second sent to the live view, at most (default 100; 0: all)")
     parser.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                         help="first wait up to S seconds until every replayed topic has a subscriber")
     g = parser.add_argument_group("re-run one node on the bag's inputs (lockstep bags)")
@@ -98,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 def _live_view(args: argparse.Namespace, info: Any) -> Any:
     """The live view of the replayed topics (``--live`` / ``--live-port``), or None."""
     from vesselbot_ros.errors import BagError
-    from vesselbot_ros.live import DEFAULT_LIVE_PORT, LiveView
+    from vesselbot_ros.live import DEFAULT_LIVE_PORT, DEFAULT_LIVE_RATE_HZ, LiveView
 
     port = args.live_port if args.live_port is not None else (DEFAULT_LIVE_PORT if args.live else None)
     if port is None:
@@ -110,7 +112,10 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
     topics = [t for t in info.topics if args.topics is None or t.name in args.topics]
     ts = make_typestore([t.msgtype for t in topics])
     try:
-        live = LiveView([(t.name, t.msgtype, t.latched) for t in topics], ts, port=port)
+        rate = DEFAULT_LIVE_RATE_HZ if args.live_rate is None else args.live_rate
+        live = LiveView([(t.name, t.msgtype, t.latched) for t in topics], ts, port=port, max_rate_Hz=rate)
+    except ValueError as exc:
+        raise BagError(f"--live-rate: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
         raise BagError(f"live view: cannot serve on port {port}: {exc}") from None
     print(f"vesselbot replay: live view on {live.url}", flush=True)

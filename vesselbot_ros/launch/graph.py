@@ -90,6 +90,7 @@ class GraphOptions:
             plays or steps it to the end, or quits it.
         live_port: Serve every topic live over the Foxglove WebSocket protocol on this port
             (None: off).  The recorder serves it (with no bag when ``record_dir`` is None).
+        live_rate_Hz: Messages per topic and wall second sent to the live view, at most (0: all; None: default).
     """
 
     mode: str = "lockstep"
@@ -109,6 +110,7 @@ class GraphOptions:
     on_contract: Callable[[str], None] | None = None
     compression: str = "none"
     live_port: int | None = None
+    live_rate_Hz: float | None = None
     start_paused: bool = False
 
 
@@ -265,7 +267,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             from vesselbot_ros.nodes.recorder_node import recorder_command
 
             sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace,
-                                                compression=options.compression, live_port=options.live_port))
+                                                compression=options.compression, live_port=options.live_port,
+                                                live_rate_Hz=options.live_rate_Hz))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
         sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
                         options.single_process)

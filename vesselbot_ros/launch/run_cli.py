@@ -69,6 +69,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "the layout config/foxglove/vesselbot.json)")
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
                         help="port of the live view (default 8765; 0: any free port); implies --live")
+    parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
+                        help="messages per topic and second sent to the live view, at most (default 100; 0: every "
+                             "message of the 1 kHz loop)")
     parser.add_argument("--report", action="store_true", help="write the report (figures, metrics) from the bag")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: lease a free one)")
     parser.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
@@ -124,6 +127,8 @@ def validate_args(args: argparse.Namespace) -> None:
                           f"got {args.namespace!r}")
     if args.live_port is not None and not 0 <= args.live_port <= 65535:
         raise ConfigError(f"--live-port must be in [0, 65535], got {args.live_port}")
+    if args.live_rate is not None and not (math.isfinite(args.live_rate) and args.live_rate >= 0):
+        raise ConfigError(f"--live-rate must be a finite number >= 0, got {args.live_rate!r}")
     if args.compression != "none" and args.no_record:
         raise ConfigError(f"--compression {args.compression} needs a recording (drop --no-record)")
     if args.report and args.no_record:
@@ -218,7 +223,8 @@ def run(args: argparse.Namespace) -> int:
                         namespace=args.namespace,
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,
                         stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract,
-                        compression=args.compression, live_port=_live_port(args), start_paused=args.start_paused)
+                        compression=args.compression, live_port=_live_port(args), start_paused=args.start_paused,
+                        live_rate_Hz=args.live_rate)
     procs = "1 process" if args.single_process else "one process per node"
     print(f"vesselbot run: {scenario.name} seed {scenario.seed}, {args.mode}, {scenario.sim.duration_s} s at "
           f"{scenario.sim.control_rate_Hz:g} Hz, {procs}" + (f", recording to {run_dir}" if record else ""), flush=True)

@@ -21,6 +21,7 @@ period of chunk flushes, default 0.5 s), ``min_free_mb`` (default 256),
 ``use_sim_time`` (log times on the ROS clock instead of the system clock),
 ``compression`` (MCAP chunk compression: ``none``, ``zstd_fast``, ``zstd_small``,
 rosbag2's storage presets, see :data:`vesselbot_ros.bag.writer.COMPRESSION_PRESETS`),
+``live_rate_Hz`` (messages per topic and wall second forwarded live, at most; 0: all),
 ``live_port`` (>= 0: also serve every topic live over the Foxglove WebSocket
 protocol on that port, :class:`vesselbot_ros.live.LiveView`; -1: off).  With
 ``live_port`` set, ``output_dir`` may be empty: live view only, no bag.
@@ -66,6 +67,7 @@ def recorder_command(
     namespace: str | None = None,
     compression: str = "none",
     live_port: int | None = None,
+    live_rate_Hz: float | None = None,
 ) -> list[str]:
     """The argv that starts a recorder (the launcher's and replay's way to start one).
 
@@ -79,11 +81,14 @@ def recorder_command(
         compression: MCAP chunk compression preset (``none``, ``zstd_fast``, ``zstd_small``).
         live_port: Serve the topics live on this port (None: no live view).
             ``output_dir`` None: live view only.
+        live_rate_Hz: Messages per topic and wall second forwarded live, at most (0: all; None: the default).
     """
     argv = [python or sys.executable, "-m", "vesselbot_ros.nodes.recorder_node", "--ros-args", *remap_args(namespace),
             "-p", f"output_dir:={_yaml_str(str(output_dir or ''))}"]
     if live_port is not None:
         argv += ["-p", f"live_port:={int(live_port)}"]
+    if live_rate_Hz is not None:
+        argv += ["-p", f"live_rate_Hz:={float(live_rate_Hz)!r}"]
     if run_metadata is not None:
         argv += ["-p", f"run_metadata:={_yaml_str(json.dumps(dict(run_metadata), sort_keys=True))}"]
     if compression != "none":
@@ -132,6 +137,9 @@ class RecorderNode:
         n.declare_parameter("min_free_mb", 256)
         n.declare_parameter("compression", "none")
         n.declare_parameter("live_port", -1)
+        from vesselbot_ros.live import DEFAULT_LIVE_RATE_HZ
+
+        n.declare_parameter("live_rate_Hz", DEFAULT_LIVE_RATE_HZ)
         self.bag: Any = None
         self._subs: list[Any] = []
         self.write_error: OSError | None = None  # set when the disk fills; main() stops
@@ -202,7 +210,7 @@ class RecorderNode:
 
             try:
                 self.live = LiveView([(name, msgtype, latched) for name, _, msgtype, _, latched in specs], ts,
-                                     port=live_port)
+                                     port=live_port, max_rate_Hz=float(self._param("live_rate_Hz")))
             except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
                 raise BagError(f"live view: cannot serve on port {live_port}: {exc}") from None
             n.get_logger().info(f"live view on {self.live.url}")
