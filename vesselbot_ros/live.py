@@ -20,7 +20,7 @@ one again on subscription, as a transient-local subscriber would.
 
 Besides the topics it serves the derived channels of
 :data:`vesselbot_ros.graph_spec.VIEW_CHANNELS` (:mod:`vesselbot_ros.live_view`):
-the scene as markers and the error time series, at most 30 updates per second.
+the scene as markers and the error time series, at most 20 updates per second.
 
 The server listens on ``127.0.0.1`` only.  Connect Foxglove (desktop app or
 browser) with *Open connection -> Foxglove WebSocket* ``ws://127.0.0.1:PORT``
@@ -39,7 +39,7 @@ __all__ = ["LiveView", "DEFAULT_LIVE_PORT", "DEFAULT_LIVE_RATE_HZ", "check_port"
 #: Foxglove's default WebSocket port.
 DEFAULT_LIVE_PORT = 8765
 #: Messages per topic and wall second forwarded to the viewer, at most.
-DEFAULT_LIVE_RATE_HZ = 100.0
+DEFAULT_LIVE_RATE_HZ = 50.0
 
 
 def check_port(port: int) -> None:
@@ -74,11 +74,14 @@ class LiveView:
             raise ValueError(f"live rate must be >= 0 messages per second, got {max_rate_Hz}")
         self._period_s = 1.0 / max_rate_Hz if max_rate_Hz > 0 else 0.0
         self._last_sent: dict[str, float] = {}
+        # subscriptions per channel topic, kept by the server listener: the hot path only reads this dict
+        self._subscribers: dict[str, int] = {}
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, bytes | None] = {}
         self._lock = threading.Lock()
         from vesselbot_ros.graph_spec import VIEW_CHANNELS
+        from vesselbot_ros.graph_spec import topic as topic_spec
         from vesselbot_ros.live_view import ERRORS_SCHEMA, DerivedView
 
         def ros_channel(name: str, msgtype: str) -> Any:
@@ -94,14 +97,21 @@ class LiveView:
         for v in VIEW_CHANNELS:
             self._views[v.key] = (foxglove.Channel(v.name, schema=ERRORS_SCHEMA, context=self._ctx)
                                   if v.msgtype == "json" else ros_channel(v.name, v.msgtype))
-        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)),
-                                wanted=lambda: any(ch.has_sinks() for ch in self._views.values()))
+        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)))
+        self._view_names = {v.name for v in VIEW_CHANNELS}
+        self._view_inputs = {topic_spec(k).name for v in VIEW_CHANNELS for k in v.inputs}
         view = self
         from foxglove.websocket import ServerListener
 
         class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:
+                with view._lock:
+                    view._subscribers[channel.topic] = view._subscribers.get(channel.topic, 0) + 1
                 view._resend_latched(channel.topic)
+
+            def on_unsubscribe(self, client: Any, channel: Any) -> None:
+                with view._lock:
+                    view._subscribers[channel.topic] = max(0, view._subscribers.get(channel.topic, 0) - 1)
 
         self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
                                              server_listener=_Listener())
@@ -129,8 +139,10 @@ class LiveView:
             ch.log(bytes(data), log_time=int(t_ns))
             self.view.offer(topic, data, t_ns)
             return
-        self.view.offer(topic, data, t_ns)
-        if not ch.has_sinks():  # no client subscribed to it
+        subs = self._subscribers
+        if topic in self._view_inputs and any(subs.get(v) for v in self._view_names):
+            self.view.offer(topic, data, t_ns)
+        if not subs.get(topic):  # no client subscribed to it
             return
         now = time.monotonic()
         if now - self._last_sent.get(topic, -1e9) < self._period_s:

@@ -33,7 +33,7 @@ from vesselbot_ros.graph_spec import FRAME_ID, VIEW_CHANNELS, import_type, topic
 __all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRORS_SCHEMA", "ARROW_AT_LIMIT_M"]
 
 #: View updates per wall second, at most.
-VIEW_RATE_HZ = 30.0
+VIEW_RATE_HZ = 20.0
 #: Length of the gradient arrow at the coil limit (m).
 ARROW_AT_LIMIT_M = 2e-3
 #: JSON schema of ``view/errors``.

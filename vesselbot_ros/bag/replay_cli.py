@@ -38,7 +38,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
                         help="port of the live view (0: any free port); implies --live")
     parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
-                        help="messages per topic and second sent to the live view, at most (default 100; 0: all)")
+                        help="messages per topic and second sent to the live view, at most (default 50; 0: all)")
     parser.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                         help="first wait up to S seconds until every replayed topic has a subscriber")
     g = parser.add_argument_group("re-run one node on the bag's inputs (lockstep bags)")

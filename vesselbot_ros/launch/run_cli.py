@@ -70,7 +70,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
                         help="port of the live view (default 8765; 0: any free port); implies --live")
     parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
-                        help="messages per topic and second sent to the live view, at most (default 100; 0: every "
+                        help="messages per topic and second sent to the live view, at most (default 50; 0: every "
                              "message of the 1 kHz loop)")
     parser.add_argument("--report", action="store_true", help="write the report (figures, metrics) from the bag")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: lease a free one)")
