@@ -149,8 +149,19 @@ class TopicSpec:
         return self.rel.startswith("/")
 
 
+class _Relative:
+    """A name relative to the graph's namespace (``rel``), with its canonical absolute form."""
+
+    rel: str
+
+    @property
+    def name(self) -> str:
+        """The canonical absolute name (default namespace)."""
+        return resolve(self.rel)
+
+
 @dataclass(frozen=True)
-class ServiceSpec:
+class ServiceSpec(_Relative):
     """One service (or action: ``pkg/action/Name``) of the graph."""
 
     key: str
@@ -164,14 +175,9 @@ class ServiceSpec:
         """True for an action (``pkg/action/Name``)."""
         return self.srvtype.split("/")[1] == "action"
 
-    @property
-    def name(self) -> str:
-        """The canonical absolute name (default namespace)."""
-        return resolve(self.rel)
-
 
 @dataclass(frozen=True)
-class ViewSpec:
+class ViewSpec(_Relative):
     """A channel the live view derives from topics (``vesselbot run --live``; not a DDS topic).
 
     Attributes:
@@ -187,11 +193,6 @@ class ViewSpec:
     msgtype: str
     inputs: tuple[str, ...]
     shows: str
-
-    @property
-    def name(self) -> str:
-        """The canonical absolute name (default namespace)."""
-        return resolve(self.rel)
 
 
 @dataclass(frozen=True)

@@ -185,40 +185,34 @@ class PlantNode(VesselbotNode):
     # ------------------------------------------------------------------ simulation states (any thread)
     def play(self) -> str:
         """Stopped or paused -> playing; returns '' or why not."""
-        with self._lock:
-            if self.finished:
-                return "the run has finished"
-            if self.sim_state == PLAYING:
-                return ALREADY
-            if not self.running:
-                self._start()
-                return ""
-            self.sim_state = PLAYING
-            self._budget = 0
-            if self.lockstep:
-                self._release()
-            else:
-                self.paused = False
-                self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
-                self._anchor = self._wall_start
-            return ""
+        return self._enter(PLAYING)
 
     def pause(self) -> str:
         """Stopped or playing -> paused (a stopped run starts paused, at t = 0); returns '' or why not.
 
         Lockstep: the tick in flight completes; the next one is held at the gate.
         """
+        return self._enter(PAUSED)
+
+    def _enter(self, state: str) -> str:
         with self._lock:
             if self.finished:
                 return "the run has finished"
-            if self.sim_state == PAUSED:
+            if self.sim_state == state:
                 return ALREADY
             if not self.running:
-                self._start(paused=True)
+                self._start(paused=state == PAUSED)
                 return ""
-            self.sim_state = PAUSED
+            self.sim_state = state
             self._budget = 0
-            self.paused = not self.lockstep
+            if state == PAUSED:
+                self.paused = not self.lockstep
+            elif self.lockstep:
+                self._release()
+            else:
+                self.paused = False
+                self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
+                self._anchor = self._wall_start
             return ""
 
     def step(self, n: int) -> tuple[str, int]:
