@@ -56,7 +56,8 @@ fi
 
 # 2b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
 sif=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
-      $(find third_party/simulation_interfaces -type f | LC_ALL=C sort))
+      $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
+           -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
 if ! fresh sim-interfaces "$sif"; then
   echo "vesselbot bootstrap: building third_party/simulation_interfaces into .venv"
   rm -f "$stamps/sim-interfaces"
