@@ -6,9 +6,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export PYTHONDONTWRITEBYTECODE :=
 
 SEED ?= 1
-# The paper's Section III-C scenario with the physically sound readings (docs/reproduction.md);
-# the as-printed variant: make run CONFIG=config/paper_small_artery.yaml
-CONFIG ?= config/sound_small_artery.yaml
+# Empty: the default scenario of `vesselbot run` / `simulate` (sound_small_artery: the paper's Section III-C
+# scenario with the physically sound readings, docs/reproduction.md); the as-printed variant:
+# make run CONFIG=paper_small_artery  (a shipped name, see `vesselbot scenarios`, or a path)
+CONFIG ?=
 PYTEST_ARGS ?=
 
 .PHONY: bootstrap run test test-unit test-integration bench simulate figures clean
@@ -18,7 +19,7 @@ bootstrap:
 
 ## The main job: the paper's closed-loop scenario over ROS 2, recorded to runs/, then reported.
 run: bootstrap
-	@$(PY) -m vesselbot_ros.cli run --config $(CONFIG) --seed $(SEED) --report
+	@$(PY) -m vesselbot_ros.cli run $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED) --report
 
 ## The whole test suite (unit + integration over real ROS 2 topics).
 test: bootstrap
@@ -32,7 +33,7 @@ test-integration: bootstrap
 
 ## ROS-free closed loop of the same scenario.
 simulate: bootstrap
-	@$(PY) -m vesselbot_ros.cli simulate --config $(CONFIG) --seed $(SEED)
+	@$(PY) -m vesselbot_ros.cli simulate $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED)
 
 ## Paper figures 7 and 8.
 figures: bootstrap

@@ -28,9 +28,13 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        # the shipped scenarios, parameter sets, campaigns and the Foxglove layout: `vesselbot run --config NAME`
+        # finds them here when installed (vesselbot_ros.config.shipped_config_dir)
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/campaigns", glob("config/campaigns/*.yaml")),
+        (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk"],
     zip_safe=False,
     maintainer="vesselbot maintainers",
     maintainer_email="maintainers@vesselbot.example",

@@ -9,6 +9,11 @@ metadata.yaml).  Prints one line per rate and the highest message rate
 sustained with zero drops.  Target: 1 kHz control (about 8 k msg/s) without
 drops.
 
+Then the compression presets (``--compression``): the bag writer alone on the
+same message mix as fast as it goes (msg/s, MB/s of CDR, bag size and ratio
+against an uncompressed bag, side by side), and a recorder process per preset
+at 1 kHz control (drops, bag size).
+
 Usage: python bench/bench_recorder.py [DURATION_S] [RATE_HZ ...]
 """
 
@@ -33,11 +38,12 @@ from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
 DIAGNOSTICS = topic("diagnostics").name
 
 
-def bench_rate(ros, work: Path, rate_hz: float, duration_s: float) -> tuple[int, int, float]:
-    """Return (published, recorded, achieved publish rate in msg/s)."""
+def bench_rate(ros, work: Path, rate_hz: float, duration_s: float, compression: str = "none"
+               ) -> tuple[int, int, float, int]:
+    """Return (published, recorded, achieved publish rate in msg/s, bag size in bytes)."""
     out = Path(tempfile.mkdtemp(dir=work)) / f"bag_{int(rate_hz)}"
-    rec = NodeProcess(recorder_command(out, {"scenario": "bench", "rate_hz": rate_hz}), ros.env,
-                      work / f"rec_{int(rate_hz)}.log")
+    rec = NodeProcess(recorder_command(out, {"scenario": "bench", "rate_hz": rate_hz}, compression=compression),
+                      ros.env, work / f"rec_{int(rate_hz)}_{compression}.log")
     node = rclpy.create_node(f"bench_{int(rate_hz)}", context=ros.context)
     from rclpy.executors import SingleThreadedExecutor
 
@@ -80,7 +86,8 @@ def bench_rate(ros, work: Path, rate_hz: float, duration_s: float) -> tuple[int,
         rec.stop(timeout=30)
         info = open_bag(out)
         in_bag = sum(t.count for t in info.topics if t.name in pubs and t.name != DIAGNOSTICS)
-        return published, in_bag, published / elapsed
+        size = sum(p.stat().st_size for p in info.mcap_paths)
+        return published, in_bag, published / elapsed, size
     finally:
         rec.stop()
         node.destroy_node()
@@ -93,7 +100,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp, isolated_ros(tmp) as ros:
         print(f"recorder throughput, {duration:.0f} s per rate, 8 msgs/tick (+ /diagnostics)")
         for rate in rates:
-            pub, got, achieved = bench_rate(ros, Path(tmp), rate, duration)
+            pub, got, achieved, _ = bench_rate(ros, Path(tmp), rate, duration)
             drops = pub - got
             print(f"  control {rate:6.0f} Hz: published {pub:7d} at {achieved:8.0f} msg/s, "
                   f"recorded {got:7d}, drops {drops}")
@@ -101,7 +108,50 @@ def main() -> int:
                 best = max(best, achieved)
     print(f"highest rate sustained with zero drops: {best:.0f} msg/s "
           f"({best / 8:.0f} Hz control; target 1000 Hz = 8000 msg/s)")
+    bench_compression(duration)
     return 0
+
+
+def writer_throughput(out: Path, compression: str, n_ticks: int) -> tuple[float, float, int]:
+    """The bag writer alone on n_ticks of the graph's mix: (msg/s, MB/s of CDR, bag bytes)."""
+    from vesselbot_ros.bag.writer import BagWriter
+
+    specs = {s.name: s for s in TOPICS}
+    sample = [[(n, serialize_message(m)) for n, m in tick_messages(k)] for k in range(n_ticks)]
+    n_msgs = sum(len(t) for t in sample)
+    n_bytes = sum(len(d) for t in sample for _, d in t)
+    bag = BagWriter(out, run_metadata={"scenario": "bench"}, compression=compression).open()
+    conns = {name: bag.add_topic(name, specs[name].msgtype) for name, _ in sample[0]}
+    t0 = time.perf_counter()
+    t_ns = 1_700_000_000_000_000_000
+    for k, tick in enumerate(sample):
+        for name, data in tick:
+            bag.write(conns[name], data, t_ns + k * 1_000_000)
+    bag.finish()
+    wall = time.perf_counter() - t0
+    size = sum(p.stat().st_size for p in open_bag(out).mcap_paths)
+    return n_msgs / wall, n_bytes / wall / 1e6, size
+
+
+def bench_compression(duration: float) -> None:
+    from vesselbot_ros.bag.writer import COMPRESSION_PRESETS
+
+    n_ticks = 10_000  # 10 s of the 1 kHz graph, 80 k messages
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = {c: writer_throughput(Path(tmp) / c, c, n_ticks) for c in COMPRESSION_PRESETS}
+    base = rows["none"]
+    print(f"\nbag writer alone, {n_ticks} ticks of the graph's mix ({n_ticks * 8} messages):")
+    print(f"  {'compression':12s} {'msg/s':>10s} {'MB/s':>8s} {'bag MB':>8s} {'size / none':>12s} {'speed / none':>13s}")
+    for c, (rate, mbs, size) in rows.items():
+        print(f"  {c:12s} {rate:10.0f} {mbs:8.2f} {size / 1e6:8.2f} {size / base[2]:12.3f} {rate / base[0]:13.3f}")
+    with tempfile.TemporaryDirectory() as tmp, isolated_ros(tmp) as ros:
+        print(f"\nrecorder process at 1000 Hz control, {duration:.0f} s:")
+        sizes = {}
+        for c in COMPRESSION_PRESETS:
+            pub, got, achieved, size = bench_rate(ros, Path(tmp), 1000.0, duration, compression=c)
+            sizes[c] = size
+            print(f"  {c:12s} published {pub:7d} at {achieved:8.0f} msg/s, recorded {got:7d}, drops {pub - got}, "
+                  f"bag {size / 1e6:6.2f} MB ({size / sizes['none']:.3f} of none)")
 
 
 if __name__ == "__main__":

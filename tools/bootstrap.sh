@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Idempotent setup of everything `make run` and `make test` need, from nothing:
 #   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...)
-#   2. msg_defs/ (vesselbot_msgs) built with rosidl and installed into .venv
+#   2. msg_defs/ (vesselbot_msgs) and third_party/simulation_interfaces built with rosidl into .venv
 #   3. vesselbot_ros installed in editable mode
 #   4. numba cache of the compiled stages and loop warmed (vesselbot_ros.numba_cache)
+#   5. tools/js: Foxglove's own JavaScript readers and clients (npm ci from the committed lock file),
+#      which the integration tests run with node
 # Each step is skipped when the sha256 of its inputs matches the stamp it left,
 # so a second call does nothing (well under 5 s).  A failing step leaves no stamp.
 set -euo pipefail
@@ -26,15 +28,18 @@ mark() { mkdir -p "$stamps"; echo "$2" > "$stamps/$1"; }
 for tool in cmake ninja cc; do
   command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install cmake ninja-build gcc)" >&2; exit 1; }
 done
+for tool in node npm; do
+  command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install nodejs npm)" >&2; exit 1; }
+done
 
 # 1. virtual environment + pinned requirements
 req=$(hash_files requirements.txt)
 if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
   echo "vesselbot bootstrap: installing pinned requirements into .venv (about 1 min on a fresh machine)"
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
-  rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/package"
+  rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/sim-interfaces" "$stamps/package"
   quiet_pip install -r requirements.txt
-  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow" \
+  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow, foxglove" \
     || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
   "$venv/bin/python" -c "import skfem, gmsh" \
     || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \
@@ -50,6 +55,17 @@ if ! fresh interfaces "$ifc"; then
   rm -f "$stamps/interfaces"
   tools/build_interfaces.sh "$venv" msg_defs build/msg_defs
   mark interfaces "$ifc"
+fi
+
+# 2b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
+sif=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+      $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
+           -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
+if ! fresh sim-interfaces "$sif"; then
+  echo "vesselbot bootstrap: building third_party/simulation_interfaces into .venv"
+  rm -f "$stamps/sim-interfaces"
+  tools/build_interfaces.sh "$venv" third_party/simulation_interfaces build/simulation_interfaces
+  mark sim-interfaces "$sif"
 fi
 
 # 3. vesselbot_ros itself, editable
@@ -71,4 +87,13 @@ if ! fresh numba-cache "$nb"; then
   rm -f "$stamps/numba-cache"
   (cd / && "$venv/bin/python" -c "from vesselbot_ros.numba_cache import warm; warm()") || { echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1; }
   mark numba-cache "$nb"
+fi
+
+# 5. Foxglove's JavaScript packages for the tests (exact versions from tools/js/package-lock.json)
+js=$(hash_files tools/js/package.json tools/js/package-lock.json)
+if ! fresh npm "$js" || [ ! -d tools/js/node_modules ]; then
+  echo "vesselbot bootstrap: installing tools/js (npm ci)"
+  rm -f "$stamps/npm"
+  (cd tools/js && npm ci --no-audit --no-fund --loglevel=error) || { echo "vesselbot bootstrap: npm ci in tools/js failed" >&2; exit 1; }
+  mark npm "$js"
 fi

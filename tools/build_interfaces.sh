@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Build the rosidl interface package msg_defs/ (vesselbot_msgs) against the ROS 2
-# PyPI wheels in a venv, and install it into that venv's prefix.
+# Build a rosidl interface package (msg_defs/ = vesselbot_msgs, third_party/simulation_interfaces)
+# against the ROS 2 PyPI wheels in a venv, and install it into that venv's prefix.
 #
 # usage: tools/build_interfaces.sh VENV SRC_DIR BUILD_DIR [--no-install]
 #
@@ -38,11 +38,12 @@ run "cmake configure" cmake -S "$src" -B "$build" -G Ninja \
 run "build" cmake --build "$build" -j "$(nproc)"
 [ $install = yes ] || exit 0
 
-manifest="$venv/share/vesselbot_msgs/.install_manifest.txt"
+pkg=$(sed -n 's:.*<name>\(.*\)</name>.*:\1:p' "$src/package.xml" | head -1)
+manifest="$venv/share/$pkg/.install_manifest.txt"
 if [ -f "$manifest" ]; then            # uninstall the previous interface build
   while IFS= read -r f; do [ -n "$f" ] && rm -f "$f"; done < "$manifest"
 fi
 run "install" cmake --install "$build"
 cp "$build/install_manifest.txt" "$manifest"
-"$py" -c "import vesselbot_msgs.msg, vesselbot_msgs.srv" || {
-  echo "vesselbot bootstrap: vesselbot_msgs installed but does not import" >&2; exit 1; }
+"$py" -c "import $pkg.msg, $pkg.srv" || {
+  echo "vesselbot bootstrap: $pkg installed but does not import" >&2; exit 1; }

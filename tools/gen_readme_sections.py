@@ -24,7 +24,8 @@ def sections() -> dict[str, str]:
     faults = faults.split("\n", 1)[1].strip()  # drop the document's own heading
     faults += "\n\nNode loss, per process (from the graph spec):\n\n" + topics.faults_table()
     return {"architecture": topics.architecture_table(), "topics": topics.markdown_table(),
-            "contract": topics.contract_table(), "lockstep": protocol, "faults": faults}
+            "contract": topics.contract_table(), "lockstep": protocol, "faults": faults,
+            "live_view": topics.view_table()}
 
 
 def render(text: str) -> str:

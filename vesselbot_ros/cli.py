@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sensitivity": ("vesselbot_ros.analysis.sensitivity_cli", "Fig. 8b: +/-10 % on M, eps, q, V_f"),
     "simulate": ("vesselbot_ros.sim.simulate_cli", "ROS-free closed loop of a scenario"),
     "run": ("vesselbot_ros.launch.run_cli", "run the ROS 2 node graph (recorded)"),
+    "scenarios": ("vesselbot_ros.sim.scenarios_cli", "list the shipped scenarios (names for --config)"),
     "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
     "replay": ("vesselbot_ros.bag.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),

@@ -12,6 +12,12 @@ dataclasses:
   the offending value and the rule, e.g.
   ``robot.radius_m must be > 0, got -0.00025``.
 
+Configuration files are found the same way by every command
+(:func:`resolve_config_path`): a path that exists, else a shipped file by name
+(``sound_small_artery``) or by its repository path (``config/...``), looked up
+in :func:`shipped_config_dir`, so every ``vesselbot`` command works from any
+directory, from a checkout as from an installed wheel.
+
 Nothing here imports rclpy: nodes flatten their ROS parameters with
 :func:`flatten` / :func:`unflatten` and pass them through the same loader.
 """
@@ -20,7 +26,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
+import sys
 import types
 import typing
 from collections.abc import Mapping
@@ -374,8 +382,42 @@ def parse_yaml_text(text: str, source: str = "YAML text") -> Any:
             loader.dispose()
 
 
+def shipped_config_dir() -> Path:
+    """The folder of the shipped configuration files (scenarios, parameter sets, campaigns).
+
+    From a checkout (``make``, an editable install) it is the repository's
+    ``config/``; from an installed wheel it is ``<prefix>/share/vesselbot_ros/config``,
+    where ``setup.py`` installs the same files (the ament layout colcon uses too).
+    """
+    src = Path(__file__).resolve().parents[1] / "config"
+    if src.is_dir() and (src.parent / "setup.py").is_file():
+        return src
+    return Path(sys.prefix) / "share" / "vesselbot_ros" / "config"
+
+
+def resolve_config_path(path: str | Path) -> Path:
+    """``path`` if it is a file; else the shipped file it names; else ``path`` unchanged.
+
+    A bare name (``sound_small_artery`` or ``sound_small_artery.yaml``) and a
+    repository path (``config/campaigns/x.yaml``) are looked up in
+    :func:`shipped_config_dir`.
+    """
+    p = Path(path).expanduser()
+    if p.is_file():
+        return p
+    text = str(path)
+    d = shipped_config_dir()
+    candidates: list[Path] = []
+    if text and "/" not in text and os.sep not in text:
+        candidates += [d / text, d / f"{text}.yaml"]
+    parts = Path(text).parts
+    if not p.is_absolute() and len(parts) > 1 and parts[0] == "config":
+        candidates.append(d.joinpath(*parts[1:]))
+    return next((c for c in candidates if c.is_file()), p)
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a non-empty YAML mapping from ``path`` with a clear error for every failure mode.
+    """Read a non-empty YAML mapping from ``path`` (or a shipped file it names, :func:`resolve_config_path`).
 
     Refused, each with one line naming the file: a missing file, a file larger
     than :data:`MAX_CONFIG_BYTES`, one that is not UTF-8 text, invalid YAML
@@ -383,9 +425,12 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     expansion past the bounds of :func:`parse_yaml_text`, an empty document
     and a document that is not a mapping.
     """
-    p = Path(path)
+    p = resolve_config_path(path)
     if not p.is_file():
-        raise ConfigError(f"config file {str(p)!r} does not exist")
+        names = ""
+        if shipped_config_dir().is_dir():
+            names = "; shipped: " + ", ".join(sorted(q.stem for q in shipped_config_dir().glob("*.yaml")))
+        raise ConfigError(f"config file {str(p)!r} does not exist{names}")
     try:
         size = p.stat().st_size
         if size > MAX_CONFIG_BYTES:

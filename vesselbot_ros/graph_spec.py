@@ -99,6 +99,7 @@ from typing import Any, Literal
 
 __all__ = [
     "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
+    "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
     "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
@@ -166,9 +167,20 @@ class TopicSpec:
         return self.rel.startswith("/")
 
 
+class _Relative:
+    """A name relative to the graph's namespace (``rel``), with its canonical absolute form."""
+
+    rel: str
+
+    @property
+    def name(self) -> str:
+        """The canonical absolute name (default namespace)."""
+        return resolve(self.rel)
+
+
 @dataclass(frozen=True)
-class ServiceSpec:
-    """One service of the graph."""
+class ServiceSpec(_Relative):
+    """One service (or action: ``pkg/action/Name``) of the graph."""
 
     key: str
     rel: str
@@ -177,9 +189,28 @@ class ServiceSpec:
     purpose: str
 
     @property
-    def name(self) -> str:
-        """The canonical absolute name (default namespace)."""
-        return resolve(self.rel)
+    def is_action(self) -> bool:
+        """True for an action (``pkg/action/Name``)."""
+        return self.srvtype.split("/")[1] == "action"
+
+
+@dataclass(frozen=True)
+class ViewSpec(_Relative):
+    """A channel the live view derives from topics (``vesselbot run --live``; not a DDS topic).
+
+    Attributes:
+        key: Short handle.
+        rel: Name relative to the namespace (``view/markers``).
+        msgtype: A ROS message type (sent as CDR with its ``ros2msg`` schema) or ``json``.
+        inputs: Topic keys it is computed from (:mod:`vesselbot_ros.live_view`).
+        shows: What a viewer sees on it.
+    """
+
+    key: str
+    rel: str
+    msgtype: str
+    inputs: tuple[str, ...]
+    shows: str
 
 
 @dataclass(frozen=True)
@@ -264,12 +295,50 @@ SERVICES: tuple[ServiceSpec, ...] = (
                 "start / pause / resume / stop / status of the run"),
     ServiceSpec("recorder_flush", "recorder/flush", "std_srvs/srv/Trigger", "recorder",
                 "flush and fsync the bag; the per-topic counts as JSON"),
+    # The simulation_interfaces standard (Jazzy), under its usual names, relative to the graph's namespace.
+    ServiceSpec("get_simulator_features", "get_simulator_features", "simulation_interfaces/srv/GetSimulatorFeatures",
+                "plant", "simulation_interfaces: what this simulator supports (stepping and reset in lockstep only)"),
+    ServiceSpec("get_simulation_state", "get_simulation_state", "simulation_interfaces/srv/GetSimulationState",
+                "plant", "simulation_interfaces: stopped / playing / paused"),
+    ServiceSpec("set_simulation_state", "set_simulation_state", "simulation_interfaces/srv/SetSimulationState",
+                "plant", "simulation_interfaces: play, pause, stop (= pause and reset), quit (end the run)"),
+    ServiceSpec("step_simulation", "step_simulation", "simulation_interfaces/srv/StepSimulation", "plant",
+                "simulation_interfaces: while paused, run N control ticks; returns when they are done"),
+    ServiceSpec("reset_simulation", "reset_simulation", "simulation_interfaces/srv/ResetSimulation", "plant",
+                "simulation_interfaces: back to t = 0 with the scenario's initial state (every node; same messages again)"),
+    ServiceSpec("simulate_steps", "simulate_steps", "simulation_interfaces/action/SimulateSteps", "plant",
+                "simulation_interfaces action: N control ticks while paused, completed/remaining as feedback"),
 )
+
+#: What the live view derives for its 3D and plot panels (``config/foxglove/vesselbot.json``), besides forwarding
+#: every topic above as it is.  A port added to TOPICS appears in the live view with no view code.
+VIEW_CHANNELS: tuple[ViewSpec, ...] = (
+    ViewSpec("view_markers", "view/markers", "visualization_msgs/msg/MarkerArray",
+             ("truth", "estimate", "coil_state", "reference_path"),
+             "3D: the vessel walls at +/- D(t)/2 as they pulse, the robot, its estimate, the applied gradient "
+             "(arrow, 2 mm at the coil limit), the reference path"),
+    ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
+             "plots: tracking and estimation error (m), the applied gradient norm against its limit U_sat (T/m)"),
+)
+
+#: The simulation_interfaces services and action, served by the plant (node :data:`SIMULATION_NODE`).
+SIMULATION_SERVICES: tuple[str, ...] = ("get_simulator_features", "get_simulation_state", "set_simulation_state",
+                                        "step_simulation", "reset_simulation", "simulate_steps")
+#: The plant process's second node: it serves :data:`SIMULATION_SERVICES` on its own thread, so that a
+#: StepSimulation call can wait for its ticks while the plant's node goes on stepping.
+SIMULATION_NODE = "vesselbot_simulation"
 
 
 def _node(role: str, cls: str, **kw: Any) -> Role:
+    if role != "plant":  # every loop node but the plant (which serves ResetSimulation) resets on request
+        kw["services"] = (*kw.get("services", ()), reset_service_key(role))
     return Role(role, f"vesselbot_{role}", f"vesselbot_ros.nodes.{role}_node:{cls}", f"vesselbot_ros.nodes.{role}_node",
                 **kw)
+
+
+def reset_service_key(role_name: str) -> str:
+    """Key of the service that returns node ``role_name`` to t = 0 (called by the plant's ResetSimulation)."""
+    return f"{role_name}_reset"
 
 
 #: The loop's roles in start order (the plant last: it owns the clock).
@@ -290,7 +359,7 @@ ROLES: tuple[Role, ...] = (
           outputs=("coil_applied", "coil_state", "sequence_phase"),
           summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),
     _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers"),
-          services=("run_control",),
+          services=("run_control", *SIMULATION_SERVICES),
           counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
           summary="robot dynamics in the vessel; owns /clock"),
 )
@@ -299,6 +368,11 @@ ROLES: tuple[Role, ...] = (
 RECORDER = Role("recorder", "vesselbot_recorder", "vesselbot_ros.nodes.recorder_node:RecorderNode",
                 "vesselbot_ros.nodes.recorder_node", inputs=tuple(t.key for t in TOPICS), outputs=(),
                 services=("recorder_flush",), summary="writes every topic into a rosbag2 MCAP bag, bytes as published")
+
+SERVICES = SERVICES + tuple(
+    ServiceSpec(reset_service_key(r.name), f"{r.name}/reset", "std_srvs/srv/Trigger", r.name,
+                "lockstep: back to t = 0 with the scenario's initial state (the plant calls it on ResetSimulation)")
+    for r in ROLES if reset_service_key(r.name) in r.services)
 
 LOOP_ROLES: tuple[str, ...] = tuple(r.name for r in ROLES)
 ALL_ROLES: tuple[Role, ...] = (*ROLES, RECORDER)
@@ -392,7 +466,7 @@ def qos_text(spec: TopicSpec) -> str:
 
 
 def import_type(msgtype: str) -> Any:
-    """The Python class of a ROS type ``pkg/msg/Name`` (or ``pkg/srv/Name``)."""
+    """The Python class of a ROS type ``pkg/msg/Name`` (or ``pkg/srv/Name``, ``pkg/action/Name``)."""
     import importlib
 
     pkg, kind, name = msgtype.split("/")
@@ -434,7 +508,8 @@ def role_contract(name: str, namespace: str | None = None) -> str:
         lines += _note_lines(t)
     for k in r.services:
         s = service(k)
-        lines.append(f"  serve     {resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")
+        what = "serve     " if not s.is_action else "action    "
+        lines.append(f"  {what}{resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")
     depth = {qos_text(topic(k)) for k in (*r.inputs, *r.optional_inputs, *r.outputs)
              if topic(k).qos != "reliable_latched"}
     lines.append(f"  with use_sim_time=true; QoS: {', '.join(sorted(depth))} (see docs/graph.md).")
@@ -448,9 +523,17 @@ def markdown_table() -> str:
     head = "| topic | type | publisher | subscribers | rate | QoS | units | frame |\n|---|---|---|---|---|---|---|---|\n"
     rows = [f"| `{t.name}` | `{t.msgtype}` | {t.publisher} | {', '.join(t.subscribers)} | {t.rate} | "
             f"{qos_text(t)} | {t.units} | {t.frame} |" for t in TOPICS]
-    srv_head = "\n\n| service | type | server | purpose |\n|---|---|---|---|\n"
+    srv_head = "\n\n| service / action | type | server | purpose |\n|---|---|---|---|\n"
     srv_rows = [f"| `{s.name}` | `{s.srvtype}` | {s.server} | {s.purpose} |" for s in SERVICES]
     return head + "\n".join(rows) + srv_head + "\n".join(srv_rows)
+
+
+def view_table() -> str:
+    """The README's live-view table: every channel the live view serves besides the topics."""
+    head = "| channel | type | from | shows |\n|---|---|---|---|\n"
+    rows = [f"| `{v.name}` | `{v.msgtype}` | {', '.join(f'`{topic(k).name}`' for k in v.inputs)} | {v.shows} |"
+            for v in VIEW_CHANNELS]
+    return head + "\n".join(rows)
 
 
 def architecture_table() -> str:

@@ -140,3 +140,28 @@ def fill_message(msg: Any, seed: int = 1) -> Any:
 
     fill(msg)
     return msg
+
+
+#: Foxglove's own JavaScript readers and clients (``tools/js``, installed by ``tools/bootstrap.sh`` with npm ci).
+JS_DIR = Path(__file__).resolve().parents[1] / "tools" / "js"
+
+
+def run_node_script(script: str, *args: str, timeout: float = 120.0) -> Any:
+    """Run ``node tools/js/SCRIPT ARGS`` (bounded) and return the JSON object it printed last.
+
+    Raises:
+        AssertionError: node failed, timed out or printed no JSON (its stderr is in the message).
+    """
+    import json
+    import shutil
+    import subprocess
+
+    node = shutil.which("node")
+    assert node is not None, "node is not installed (tools/bootstrap.sh needs Node.js and npm)"
+    assert (JS_DIR / "node_modules").is_dir(), f"{JS_DIR}/node_modules missing: run `make bootstrap`"
+    proc = subprocess.run([node, str(JS_DIR / script), *args], cwd=JS_DIR, capture_output=True, text=True,
+                          timeout=timeout)
+    assert proc.returncode == 0, f"node {script} failed ({proc.returncode}): {proc.stderr[-2000:]}"
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    assert lines, f"node {script} printed no JSON: {proc.stdout[-2000:]} {proc.stderr[-2000:]}"
+    return json.loads(lines[-1])

@@ -139,3 +139,35 @@ def status_values(arr: Any, node_name: str) -> list[tuple[dict[str, str], int]]:
             lvl = st.level if isinstance(st.level, int) else int.from_bytes(bytes(st.level), "little")
             out.append(({kv.key: kv.value for kv in st.values}, lvl))
     return out
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now (the kernel's choice)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def node_client(script: str, *args: str) -> subprocess.Popen[str]:
+    """Start ``node tools/js/SCRIPT ARGS`` (Foxglove's own client) with pipes."""
+    import shutil
+
+    from vesselbot_ros.testing import JS_DIR
+
+    node = shutil.which("node")
+    assert node is not None and (JS_DIR / "node_modules").is_dir(), "node / tools/js not installed: make bootstrap"
+    return subprocess.Popen([node, str(JS_DIR / script), *args], cwd=JS_DIR, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def last_json(proc: subprocess.Popen[str], timeout: float) -> Any:
+    """Wait (bounded) for ``proc`` and return the last JSON line it printed."""
+    import json
+
+    out, err = proc.communicate(timeout=timeout)
+    assert proc.returncode == 0, f"exit {proc.returncode}: {err[-2000:]}"
+    lines = [ln for ln in out.splitlines() if ln.startswith("{")]
+    assert lines, f"no JSON printed: {out[-1000:]} {err[-1000:]}"
+    return json.loads(lines[-1])

@@ -187,3 +187,21 @@ def test_overrides_replace_mappings_and_never_touch_the_original():
     assert out["model"]["overrides"] == {"flow": {"v": 2.0}}
     with pytest.raises(ConfigError, match=r"cannot set seed\.x: seed is 1, not a mapping"):
         apply_overrides(base, {"seed.x": 2})
+
+
+def test_config_files_are_found_by_name_or_repository_path_from_any_directory(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from vesselbot_ros.config import load_yaml, resolve_config_path, shipped_config_dir
+
+    monkeypatch.chdir(tmp_path)
+    d = shipped_config_dir()
+    assert resolve_config_path("sound_small_artery") == d / "sound_small_artery.yaml"
+    assert resolve_config_path("sound_small_artery.yaml") == d / "sound_small_artery.yaml"
+    assert resolve_config_path("config/campaigns/vf_error_seeds.yaml") == d / "campaigns" / "vf_error_seeds.yaml"
+    assert load_yaml("paper_small_artery")["name"] == "paper_small_artery"
+    mine = tmp_path / "sound_small_artery.yaml"  # a file of the user's wins over the shipped one
+    mine.write_text("name: mine\n")
+    assert resolve_config_path("sound_small_artery.yaml") == Path("sound_small_artery.yaml")
+    with pytest.raises(ConfigError, match="'nowhere' does not exist; shipped: .*sound_small_artery"):
+        load_yaml("nowhere")

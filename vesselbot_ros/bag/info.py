@@ -22,6 +22,8 @@ def info_dict(info: BagInfo) -> dict[str, Any]:
         "path": str(info.path),
         "files": [p.name for p in info.mcap_paths],
         "message_count": info.message_count,
+        "chunk_compression": info.chunk_compression,
+        "chunks": info.chunks,
         "start_ns": info.start_ns,
         "end_ns": info.end_ns,
         "duration_s": info.duration_ns * 1e-9,
@@ -51,6 +53,7 @@ def format_info(info: BagInfo, show_config: bool = True) -> str:
         f"Start:      {_iso(info.start_ns)} ({info.start_ns} ns)",
         f"End:        {_iso(info.end_ns)} ({info.end_ns} ns)",
         f"Messages:   {info.message_count}",
+        f"Chunks:     {info.chunks}, compression {info.chunk_compression}",
         "Topics:",
     ]
     width = max((len(t.name) for t in info.topics), default=10)

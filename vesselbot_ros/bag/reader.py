@@ -75,6 +75,9 @@ class BagInfo:
         end_ns: Log time of the last message (ns).
         run_metadata: The run's description (scenario, seed, config, ...), or {}.
         problems: Inconsistencies between ``metadata.yaml`` and the MCAP (empty if none).
+        chunk_compression: The MCAP chunks' compression, as their index records say
+            (``none``, ``zstd``, ``lz4``; several joined by ``+``; ``-`` without a summary).
+        chunks: Number of MCAP chunks (from the summary's chunk indexes).
     """
 
     path: Path
@@ -85,6 +88,8 @@ class BagInfo:
     end_ns: int
     run_metadata: dict[str, Any] = field(default_factory=dict)
     problems: tuple[str, ...] = ()
+    chunk_compression: str = "-"
+    chunks: int = 0
 
     @property
     def duration_ns(self) -> int:
@@ -118,8 +123,11 @@ class BagMessage:
         return self._typestore.deserialize_cdr(self.data, self.msgtype)
 
 
-def _check_mcap(path: Path, bag_dir: Path) -> dict[str, int] | None:
-    """Check one MCAP file; return its per-topic message counts from the summary."""
+def _check_mcap(path: Path, bag_dir: Path, chunk_kinds: list[str] | None = None) -> dict[str, int] | None:
+    """Check one MCAP file; return its per-topic message counts from the summary.
+
+    ``chunk_kinds``, if given, receives the compression of each chunk (``""`` for none).
+    """
     from mcap.reader import make_reader
 
     if not path.is_file():
@@ -141,6 +149,8 @@ def _check_mcap(path: Path, bag_dir: Path) -> dict[str, int] | None:
             summary = make_reader(fh).get_summary()
         except Exception as exc:  # noqa: BLE001 - mcap raises many types on corrupt input
             raise BagError(f"bag {bag_dir}: {path.name} is corrupt (summary unreadable: {exc!r})") from None
+    if summary is not None and chunk_kinds is not None:
+        chunk_kinds.extend(ci.compression for ci in summary.chunk_indexes)
     if summary is None or summary.statistics is None:
         return None
     counts: dict[str, int] = {}
@@ -200,8 +210,9 @@ def open_bag(path: str | Path) -> BagInfo:
 
     mcap_paths = tuple(bag_dir / f for f in files)
     mcap_counts: dict[str, int] | None = {}
+    chunk_kinds: list[str] = []
     for mp in mcap_paths:
-        c = _check_mcap(mp, bag_dir)
+        c = _check_mcap(mp, bag_dir, chunk_kinds)
         if c is None or mcap_counts is None:
             mcap_counts = None
         else:
@@ -249,6 +260,8 @@ def open_bag(path: str | Path) -> BagInfo:
         end_ns=start_ns + duration_ns,
         run_metadata=run_metadata,
         problems=tuple(problems),
+        chunk_compression="+".join(sorted({k or "none" for k in chunk_kinds})) or "-",
+        chunks=len(chunk_kinds),
     )
 
 

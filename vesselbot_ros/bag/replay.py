@@ -95,6 +95,7 @@ def replay(
     wait_subscribers_s: float = 0.0,
     should_stop: Callable[[], bool] = lambda: False,
     log: Callable[[str], None] = lambda s: None,
+    on_message: Callable[[str, bytes, int], None] | None = None,
 ) -> ReplayStats:
     """Publish a bag's messages on ``node`` with their recorded timing divided by ``rate``.
 
@@ -110,6 +111,8 @@ def replay(
             topic has a subscriber (0: do not wait).
         should_stop: Polled between messages; True ends the replay.
         log: Receives progress lines.
+        on_message: Also called with (topic, CDR bytes, wall ns) for every message
+            published (``replay --live`` hands them to the live view).
 
     Raises:
         BagError: for an invalid bag, an unknown topic or a bad argument.
@@ -188,6 +191,8 @@ def replay(
                     last_clock_ns = now_ns
             pubs[m.topic].publish(m.data)
             published[m.topic] += 1
+            if on_message is not None:
+                on_message(m.topic, m.data, time.time_ns())
         loops += 1
         log(f"pass {loops} done: {sum(published.values())} messages published")
         if not loop or should_stop() or first_ns is None:

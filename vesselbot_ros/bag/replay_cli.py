@@ -33,6 +33,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="replay again and again until Ctrl-C")
     parser.add_argument("--clock", action="store_true",
                         help="publish /clock from the bag's log time (and do not replay a recorded /clock)")
+    parser.add_argument("--live", action="store_true",
+                        help="also serve the replay live over the Foxglove WebSocket protocol (port 8765)")
+    parser.add_argument("--live-port", type=int, default=None, metavar="N",
+                        help="port of the live view (0: any free port); implies --live")
+    parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
+                        help="messages per topic and second sent to the live view, at most (default 50; 0: all)")
     parser.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                         help="first wait up to S seconds until every replayed topic has a subscriber")
     g = parser.add_argument_group("re-run one node on the bag's inputs (lockstep bags)")
@@ -69,22 +75,51 @@ def run(args: argparse.Namespace) -> int:
 
     from vesselbot_ros.bag.replay import replay
 
+    live = _live_view(args, info)
     rclpy.init()
     node = rclpy.create_node("vesselbot_player")
     try:
         stats = replay(info, node, rate=args.rate, topics=args.topics, start_s=args.start, loop=args.loop,
                        clock=args.clock, wait_subscribers_s=args.wait_subscribers,
                        should_stop=lambda: not rclpy.ok(),
-                       log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True))
+                       log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True),
+                       on_message=live.log if live is not None else None)
     except (KeyboardInterrupt, ExternalShutdownException):
         print("vesselbot replay: stopped", file=sys.stderr)
         return 0
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        if live is not None:
+            live.close()
     print(f"vesselbot replay: published {sum(stats.published.values())} messages in {stats.wall_s:.2f} s "
           f"({stats.loops} pass(es)); max lateness {stats.max_lateness_s * 1e3:.1f} ms", flush=True)
     return 0
+
+
+def _live_view(args: argparse.Namespace, info: Any) -> Any:
+    """The live view of the replayed topics (``--live`` / ``--live-port``), or None."""
+    from vesselbot_ros.errors import BagError
+    from vesselbot_ros.live import DEFAULT_LIVE_PORT, DEFAULT_LIVE_RATE_HZ, LiveView
+
+    port = args.live_port if args.live_port is not None else (DEFAULT_LIVE_PORT if args.live else None)
+    if port is None:
+        return None
+    if not 0 <= port <= 65535:
+        raise BagError(f"--live-port must be in [0, 65535], got {port}")
+    from vesselbot_ros.bag.writer import make_typestore
+
+    topics = [t for t in info.topics if args.topics is None or t.name in args.topics]
+    ts = make_typestore([t.msgtype for t in topics])
+    try:
+        rate = DEFAULT_LIVE_RATE_HZ if args.live_rate is None else args.live_rate
+        live = LiveView([(t.name, t.msgtype, t.latched) for t in topics], ts, port=port, max_rate_Hz=rate)
+    except ValueError as exc:
+        raise BagError(f"--live-rate: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
+        raise BagError(f"live view: cannot serve on port {port}: {exc}") from None
+    print(f"vesselbot replay: live view on {live.url}", flush=True)
+    return live
 
 
 def _run_into(args: argparse.Namespace, info: object) -> int:

@@ -27,7 +27,15 @@
   ``RMW_DURATION_INFINITE`` (9223372036 s, 854775807 ns); every MCAP channel
   carries ``offered_qos_profiles`` *and* ``topic_type_hash`` in its metadata,
   so a bag read from the MCAP alone keeps its type hashes; every chunk carries
-  the CRC32 of its records and the footer the CRC32 of the summary section.
+  the CRC32 of its records and the footer the CRC32 of the summary section;
+* chunk compression follows rosbag2's MCAP storage presets on Jazzy
+  (``ros2 bag record --storage-preset-profile``, :data:`COMPRESSION_PRESETS`):
+  ``zstd_fast`` (zstd at libzstd's fastest level, ZSTD_minCLevel, 768 KiB
+  chunks, no chunk CRC) and ``zstd_small`` (zstd at ZSTD_maxCLevel, 4 MiB
+  chunks, chunk CRC).  The bag stays indexed (chunk indexes, message
+  indexes, statistics) and ``metadata.yaml`` says what rosbag2 says for a
+  storage preset: ``compression_format`` and ``compression_mode`` empty (the
+  compression is inside the MCAP chunks, which every MCAP reader undoes).
 
 Example::
 
@@ -47,6 +55,7 @@ import struct
 import sys
 from binascii import crc32
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from typing import Any
@@ -69,6 +78,8 @@ __all__ = [
     "check_output_dir",
     "qos_from_spec",
     "write_failed_message",
+    "COMPRESSION_PRESETS",
+    "McapPreset",
 ]
 
 RUN_METADATA_KEY = "vesselbot.run"
@@ -80,6 +91,52 @@ ROS_DISTRO = "jazzy"
 RMW_DURATION_INFINITE = (9223372036, 854775807)
 
 _CUSTOM_PACKAGE = "vesselbot_msgs"
+
+
+@dataclass(frozen=True)
+class McapPreset:
+    """How MCAP chunks are written (rosbag2's ``SetOptionsForPreset`` in ``mcap_storage.cpp``, Jazzy).
+
+    Attributes:
+        compression: Chunk compression (``""`` or ``"zstd"``).
+        level: ``"min"`` / ``"max"``: libzstd's ZSTD_minCLevel / ZSTD_maxCLevel
+            (mcap's ``CompressionLevel::Fastest`` / ``Slowest``); None: no compression.
+        chunk_bytes: A chunk is closed once its records exceed this size.
+        chunk_crc: Whether chunks carry the CRC32 of their uncompressed records.
+    """
+
+    compression: str
+    level: str | None
+    chunk_bytes: int
+    chunk_crc: bool
+
+
+#: ``--compression`` presets: ``none`` is this project's uncompressed bag (rosbags' 1 MiB chunks, with CRCs);
+#: the others are rosbag2's MCAP storage preset profiles on Jazzy (mcap's default chunk size is 768 KiB).
+COMPRESSION_PRESETS: dict[str, McapPreset] = {
+    "none": McapPreset("", None, 2**20, True),
+    "zstd_fast": McapPreset("zstd", "min", 768 * 1024, False),
+    "zstd_small": McapPreset("zstd", "max", 4 * 1024 * 1024, True),
+}
+
+
+def _zstd_compressor(level: str) -> Any:
+    """``bytes -> bytes`` zstd at libzstd's minimum or maximum level (the library rosbags reads with)."""
+    try:
+        from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
+    except ImportError:
+        from backports import zstd  # type: ignore[import-not-found,no-redef]
+    lo, hi = zstd.CompressionParameter.compression_level.bounds()
+    lvl = lo if level == "min" else hi
+    return lambda data: zstd.compress(data, level=lvl)
+
+
+def compression_preset(name: str) -> McapPreset:
+    """The preset called ``name``; BagError naming the valid ones otherwise."""
+    try:
+        return COMPRESSION_PRESETS[name]
+    except KeyError:
+        raise BagError(f"unknown compression {name!r}; valid: {', '.join(COMPRESSION_PRESETS)}") from None
 
 
 def _msg_dirs(package: str) -> list[Path]:
@@ -201,8 +258,35 @@ class JazzyMcapWriter(McapWriter):
     mcap's ``McapWriter`` defaults): channel metadata holds ``topic_type_hash``
     next to ``offered_qos_profiles``; chunks carry the CRC32 of their
     uncompressed records; the footer carries the summary CRC; the rosbag2
-    metadata record says ``ros_distro: jazzy``.
+    metadata record says ``ros_distro: jazzy``.  Chunk size, compression
+    and chunk CRC follow a :class:`McapPreset`.
     """
+
+    def __init__(self, path: Path, compression: Any, preset: McapPreset = COMPRESSION_PRESETS["none"]) -> None:
+        super().__init__(path, compression)
+        self.preset = preset
+        if preset.compression:
+            self.compression = preset.compression
+            self.compressor = _zstd_compressor(preset.level or "min")
+
+    def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:  # noqa: D102
+        # rosbags' write() with the preset's chunk size instead of its fixed 1 MiB
+        self.message_start_time = min(timestamp, self.message_start_time)
+        self.message_end_time = max(timestamp, self.message_end_time)
+        self.channel_stats[connection.id] += 1
+        chunk = self.chunk
+        chunk.message_start_time = min(timestamp, chunk.message_start_time)
+        chunk.message_end_time = max(timestamp, chunk.message_end_time)
+        chunk.msgs[connection.id].append((timestamp, chunk.bio.tell()))
+        rec = BytesIO()
+        _mcap.write_uint16(rec, connection.id)
+        _mcap.write_uint32(rec, 0)
+        _mcap.write_uint64(rec, timestamp)
+        _mcap.write_uint64(rec, timestamp)
+        rec.write(data)
+        _mcap.write_record(chunk.bio, 0x05, rec)
+        if chunk.bio.tell() > self.preset.chunk_bytes:
+            self.close_chunk()
 
     def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:  # noqa: D102
         super().add_connection(connection, offered_qos_profiles)
@@ -223,7 +307,7 @@ class JazzyMcapWriter(McapWriter):
 
     def close_chunk(self) -> None:  # noqa: D102
         start = self.bio.tell()
-        crc = crc32(self.chunk.bio.getvalue())
+        crc = crc32(self.chunk.bio.getvalue()) if self.preset.chunk_crc else 0
         super().close_chunk()
         # the Chunk record: opcode (1), length (8), start, end, uncompressed size (8 each), then the CRC
         end = self.bio.tell()
@@ -270,18 +354,19 @@ def write_summary_crc(path: Path) -> None:
 class _DirWriter(Writer):
     """rosbags' Writer, except that the bag directory may already exist (never the bag files)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, preset: McapPreset = COMPRESSION_PRESETS["none"]) -> None:
         # rosbags refuses existing directories in __init__ and open(); the check
         # for existing bag files is done here instead, and McapWriter opens 'xb'.
         super().__init__(path / f".unused-{os.getpid()}-{id(self)}", version=9, storage_plugin=StoragePlugin.MCAP)
         self.path = path
+        self.preset = preset
         self.metapath = path / "metadata.yaml"
 
     def open(self) -> None:
         self.path.mkdir(mode=0o755, parents=True, exist_ok=True)
         if self.metapath.exists():
             raise WriterError(f"{self.metapath} exists already, not overwriting.")
-        self.storage = JazzyMcapWriter(self.path, self.compression_mode)
+        self.storage = JazzyMcapWriter(self.path, self.compression_mode, self.preset)
 
     def close(self) -> None:
         super().close()
@@ -299,6 +384,8 @@ class BagWriter:
             seed, mode, config, versions, command); stored in ``custom_data``.
         typestore: Typestore used for the embedded definitions and type
             hashes (default: :func:`make_typestore`).
+        compression: A key of :data:`COMPRESSION_PRESETS` (``none``,
+            ``zstd_fast``, ``zstd_small``).
 
     Raises:
         BagError: if the directory cannot hold a new bag.
@@ -309,8 +396,11 @@ class BagWriter:
         path: str | os.PathLike[str],
         run_metadata: Mapping[str, Any] | None = None,
         typestore: Typestore | None = None,
+        compression: str = "none",
     ) -> None:
         self.path = Path(path)
+        self.compression = compression
+        self.preset = compression_preset(compression)
         self.run_metadata = dict(run_metadata or {})
         try:
             self._run_json = json.dumps(self.run_metadata, sort_keys=True)
@@ -330,7 +420,7 @@ class BagWriter:
             return self
         if self._finished:
             raise BagError(f"bag {self.path} is already finished")
-        writer = _DirWriter(self.path)
+        writer = _DirWriter(self.path, self.preset)
         writer.set_custom_data(RUN_METADATA_KEY, self._run_json)
         try:
             writer.open()

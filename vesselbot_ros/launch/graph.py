@@ -84,6 +84,13 @@ class GraphOptions:
         progress: Called with (sim_time_s, duration_s, wall_s, status) about once a second;
             ``status`` is the real-time figures (empty in lockstep).
         on_contract: Called with the contract text of each role left to the user.
+        compression: MCAP chunk compression of the bag (``none``, ``zstd_fast``, ``zstd_small``).
+        start_paused: Start the run paused at t = 0 (simulation_interfaces SetSimulationState PAUSED) instead
+            of playing; ``vesselbot run`` then waits (no run timeout unless ``run_timeout_s``) until a client
+            plays or steps it to the end, or quits it.
+        live_port: Serve every topic live over the Foxglove WebSocket protocol on this port
+            (None: off).  The recorder serves it (with no bag when ``record_dir`` is None).
+        live_rate_Hz: Messages per topic and wall second sent to the live view, at most (0: all; None: default).
     """
 
     mode: str = "lockstep"
@@ -101,6 +108,10 @@ class GraphOptions:
     stall_timeout_s: float = 2.0
     progress: Callable[..., None] | None = None
     on_contract: Callable[[str], None] | None = None
+    compression: str = "none"
+    live_port: int | None = None
+    live_rate_Hz: float | None = None
+    start_paused: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,10 +263,12 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     recorded: dict[str, int] = {}
     published: dict[str, int] | None = None
     try:
-        if options.record_dir is not None:
+        if options.record_dir is not None or options.live_port is not None:
             from vesselbot_ros.nodes.recorder_node import recorder_command
 
-            sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace))
+            sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace,
+                                                compression=options.compression, live_port=options.live_port,
+                                                live_rate_Hz=options.live_rate_Hz))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
         sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
                         options.single_process)
@@ -268,10 +281,20 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         wait_for(lambda: mon.publishes("truth") and mon.subscribers("estimate") > 0
                  and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, sup,
                  "the plant's RunControl service")
-        from vesselbot_msgs.srv import RunControl
+        if options.start_paused:
+            from simulation_interfaces.msg import SimulationState
 
-        fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
-        wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
+            wait_for(mon.set_simulation_state.service_is_ready, options.wait_timeout_s, mon, sup,
+                     "the plant's simulation_interfaces services")
+            req = mon.set_simulation_state.srv_type.Request()
+            req.state.state = SimulationState.STATE_PAUSED
+            fut = mon.set_simulation_state.call_async(req)
+            wait_for(fut.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")
+        else:
+            from vesselbot_msgs.srv import RunControl
+
+            fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
+            wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
         t_start = time.monotonic()
         _watch(mon, sup, roles, options, scenario, t_start)
         t_end = mon.t_last_truth or time.monotonic()
@@ -391,6 +414,8 @@ def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOption
     dt = scenario.sim.dt_control_s
     duration = n * dt
     timeout = options.run_timeout_s
+    if timeout is None and options.start_paused:
+        timeout = float("inf")  # a paused run goes on as long as its client drives it
     if timeout is None:
         timeout = 120.0 + (duration / options.real_time_factor if options.mode == "realtime" else 200.0 * duration)
     last_progress = t_start

@@ -2,7 +2,7 @@
 
 Examples::
 
-    vesselbot run                                   # paper scenario, lockstep, recorded to runs/
+    vesselbot run                                   # sound Section III-C scenario, lockstep, recorded to runs/
     vesselbot run --mode realtime --duration 5      # wall-clock plant, sim-time nodes
     vesselbot run --single-process --no-record      # all nodes in one process
     vesselbot run --without controller              # bring your own controller (see docs/graph.md)
@@ -37,14 +37,15 @@ from vesselbot_ros.graph_spec import LOOP_ROLES
 
 __all__ = ["register", "run", "apply_overrides"]
 
-DEFAULT_CONFIG = "config/paper_small_artery.yaml"
+DEFAULT_CONFIG = "sound_small_artery"  # vesselbot_ros.sim.scenario.DEFAULT_SCENARIO, without importing the core
 ROLES_CHOICES = LOOP_ROLES
 _NAMESPACE_RE = re.compile(r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` arguments."""
-    parser.add_argument("--config", default=DEFAULT_CONFIG, help=f"scenario YAML (default {DEFAULT_CONFIG})")
+    parser.add_argument("--config", default=DEFAULT_CONFIG,
+                        help=f"a shipped scenario's name (vesselbot scenarios) or a scenario YAML (default {DEFAULT_CONFIG})")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                         help="lockstep: deterministic, as fast as the graph allows; realtime: wall-clock plant")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="override sim.duration_s (s)")
@@ -57,6 +58,20 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true", help="do not record a bag")
     parser.add_argument("--record-dir", type=Path, default=None, metavar="DIR",
                         help="bag directory (default runs/<UTC time>_<scenario>)")
+    parser.add_argument("--compression", choices=tuple(_compression_choices()), default="none",
+                        help="MCAP chunk compression of the bag: rosbag2's storage presets on Jazzy "
+                             "(zstd_fast: fastest zstd, 768 KiB chunks; zstd_small: strongest zstd, 4 MiB chunks)")
+    parser.add_argument("--start-paused", action="store_true",
+                        help="start paused at t = 0: drive the run through the simulation_interfaces services "
+                             "(/NAMESPACE/step_simulation, set_simulation_state, reset_simulation, ...)")
+    parser.add_argument("--live", action="store_true",
+                        help="serve every topic live over the Foxglove WebSocket protocol (open it in Foxglove with "
+                             "the layout config/foxglove/vesselbot.json)")
+    parser.add_argument("--live-port", type=int, default=None, metavar="N",
+                        help="port of the live view (default 8765; 0: any free port); implies --live")
+    parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
+                        help="messages per topic and second sent to the live view, at most (default 50; 0: every "
+                             "message of the 1 kHz loop)")
     parser.add_argument("--report", action="store_true", help="write the report (figures, metrics) from the bag")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: lease a free one)")
     parser.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
@@ -69,6 +84,21 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--namespace", default=None, metavar="NAME",
                         help="put the graph under /NAME instead of /vesselbot (two graphs can share one domain)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _live_port(args: argparse.Namespace) -> int | None:
+    """The live view's port, or None when the live view is off."""
+    from vesselbot_ros.live import DEFAULT_LIVE_PORT
+
+    if args.live_port is not None:
+        return int(args.live_port)
+    return DEFAULT_LIVE_PORT if args.live else None
+
+
+def _compression_choices() -> list[str]:
+    from vesselbot_ros.bag.writer import COMPRESSION_PRESETS
+
+    return list(COMPRESSION_PRESETS)
 
 
 def _check_number(flag: str, value: float | None, *, positive: bool = True) -> None:
@@ -95,6 +125,12 @@ def validate_args(args: argparse.Namespace) -> None:
     if args.namespace is not None and not _NAMESPACE_RE.match(args.namespace):
         raise ConfigError(f"--namespace must be a ROS name (letters, digits, _; segments separated by /), "
                           f"got {args.namespace!r}")
+    if args.live_port is not None and not 0 <= args.live_port <= 65535:
+        raise ConfigError(f"--live-port must be in [0, 65535], got {args.live_port}")
+    if args.live_rate is not None and not (math.isfinite(args.live_rate) and args.live_rate >= 0):
+        raise ConfigError(f"--live-rate must be a finite number >= 0, got {args.live_rate!r}")
+    if args.compression != "none" and args.no_record:
+        raise ConfigError(f"--compression {args.compression} needs a recording (drop --no-record)")
     if args.report and args.no_record:
         raise ConfigError("--report needs a recording (drop --no-record)")
     if args.metrics_json is not None:
@@ -175,7 +211,8 @@ def run(args: argparse.Namespace) -> int:
     from vesselbot_ros.launch.graph import GraphOptions, NodeDied, RecordingMismatch, run_graph
 
     metadata = {"scenario": scenario.name, "seed": scenario.seed, "mode": args.mode, "config": scenario.to_mapping(),
-                "versions": _versions(), "command": list(sys.argv), "namespace": namespace_of(args.namespace)}
+                "versions": _versions(), "command": list(sys.argv), "namespace": namespace_of(args.namespace),
+                "compression": args.compression}
 
     def progress(t_sim: float, duration: float, wall: float, status: str = "") -> None:
         if not args.quiet:
@@ -190,10 +227,20 @@ def run(args: argparse.Namespace) -> int:
                         run_metadata=metadata, log_dir=log_dir, domain_id=args.domain_id, lease=lease,
                         namespace=args.namespace,
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,
-                        stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract)
+                        stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract,
+                        compression=args.compression, live_port=_live_port(args), start_paused=args.start_paused,
+                        live_rate_Hz=args.live_rate)
     procs = "1 process" if args.single_process else "one process per node"
     print(f"vesselbot run: {scenario.name} seed {scenario.seed}, {args.mode}, {scenario.sim.duration_s} s at "
           f"{scenario.sim.control_rate_Hz:g} Hz, {procs}" + (f", recording to {run_dir}" if record else ""), flush=True)
+    if args.start_paused:
+        from vesselbot_ros.graph_spec import SIMULATION_SERVICES, resolve, service
+
+        print("paused at t = 0; simulation_interfaces: " + ", ".join(resolve(service(k).rel, args.namespace)
+                                                                     for k in SIMULATION_SERVICES), flush=True)
+    if _live_port(args) is not None:
+        print(f"live view: ws://127.0.0.1:{_live_port(args)} (Foxglove: Open connection -> Foxglove WebSocket; "
+              f"layout config/foxglove/vesselbot.json)", flush=True)
 
     def on_term(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt

@@ -53,10 +53,12 @@ from vesselbot_ros.graph_spec import (
     TopicSpec,
     ns_of_time,
     qos_profile,
+    reset_service_key,
     service,
     tick_of_ns,
     topic,
 )
+from vesselbot_ros.graph_spec import role as graph_role
 
 __all__ = ["GraphParams", "VesselbotNode", "TickJoin", "run_node", "make_executor", "spin_nodes"]
 
@@ -188,6 +190,33 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
         self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
+        reset_key = reset_service_key(role)
+        if reset_key in graph_role(role).services:
+            from std_srvs.srv import Trigger
+
+            self.add_service(reset_key, Trigger, self._on_reset)
+
+    def reset_state(self) -> None:
+        """Put the node's core back as the scenario builds it, at tick 0 (override; called by ``__init__`` too)."""
+
+    def _on_reset(self, request: Any, response: Any) -> Any:
+        """Lockstep: back to t = 0 with the scenario's initial state (the plant's ResetSimulation calls this).
+
+        Counts of published and received messages go on (they are what the
+        bag holds); tick bookkeeping and the core start again, so the same
+        seed gives the same messages again.
+        """
+        if not self.lockstep:
+            response.success = False
+            response.message = "reset applies to lockstep runs only"
+            return response
+        self.tick_now = -1
+        self.period_tick = -1
+        self.finished = False
+        self.reset_state()
+        response.success = True
+        response.message = f"{self.get_name()} at t = 0"
+        return response
 
     def realtime_clock(self) -> None:
         """Real time: follow ``/clock`` for the announced tick (call in a subclass's ``__init__``, after its ports)."""

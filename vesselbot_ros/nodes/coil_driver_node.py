@@ -91,23 +91,13 @@ class CoilDriverNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.limiter = build_stages(self.scenario).coil
-        self.limits = self.limiter.limits  # in force: the dB/dt limit may have lowered the slew
         seq, dbdt = self.scenario.sequence, self.scenario.dbdt
         self.sequence = seq
         self._multiplexed = seq.mode == "multiplexed"
         self._latency = seq.latency_s if self._multiplexed else self.scenario.imager.latency_s
         self._duty = duty_cycle(seq)
-        self._dbdt = ((dbdt_at(dbdt, self.limits.saturation_T_per_m, self.limits.slew_rate_T_per_m_per_s), dbdt.radius_m)
-                      if dbdt.mode != "off" else (0.0, 0.0))
         self._window: PhaseWindow | None = None  # the last phase window published
-        self.k = 0  # next tick to answer
-        self.k_due = -1  # latest tick announced by /clock
-        self._due_wall = 0.0
-        self.watchdog_ticks = 0
-        self.rejected_commands = 0
-        self._t_last = 0.0
-        self.commands_lost = False
+        self.reset_state()
         self.add_publisher("coil_applied", Vector3Stamped)
         self.add_publisher("coil_state", CoilState)
         self.add_publisher("sequence_phase", SequencePhase)
@@ -116,8 +106,29 @@ class CoilDriverNode(VesselbotNode):
         self.add_subscription("clock", Clock, self._on_clock)
         if self.lockstep:
             self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
-        self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
         self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """The coils as built from the scenario (zero output), at tick 0, no command pending.
+
+        After a reset in a multiplexed sequence the phase of tick 0 is published again before its first output.
+        """
+        self.limiter = build_stages(self.scenario).coil
+        self.limits = self.limiter.limits  # in force: the dB/dt limit may have lowered the slew
+        dbdt = self.scenario.dbdt
+        self._dbdt = ((dbdt_at(dbdt, self.limits.saturation_T_per_m, self.limits.slew_rate_T_per_m_per_s), dbdt.radius_m)
+                      if dbdt.mode != "off" else (0.0, 0.0))
+        if self._multiplexed and self._window is not None:
+            self._window = None
+            self._publish_phase(0)
+        self.k = 0  # next tick to answer
+        self.k_due = -1  # latest tick announced by /clock
+        self._due_wall = 0.0
+        self.watchdog_ticks = 0
+        self.rejected_commands = 0
+        self._t_last = 0.0
+        self.commands_lost = False
+        self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
 
     # ------------------------------------------------------------------ inputs
     def _on_clock(self, msg: Clock) -> None:

@@ -50,14 +50,18 @@ class ControllerNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.controller = build_stages(self.scenario).controller
-        self.join = TickJoin(self, {"estimate": 0, "reference": 0})
-        self._ref_latest: Any = None
-        self.status: Counter[str] = Counter()
+        self.reset_state()
         self.add_publisher("gradient_command", Vector3Stamped)
         self.add_subscription("estimate", Odometry, self._on_estimate)
         self.add_subscription("reference", ReferenceSample, self._on_reference)
         self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """The controller as built from the scenario, at tick 0."""
+        self.controller = build_stages(self.scenario).controller
+        self.join = TickJoin(self, {"estimate": 0, "reference": 0})
+        self._ref_latest: Any = None
+        self.status: Counter[str] = Counter()
 
     def _on_estimate(self, msg: Odometry) -> None:
         x, z, age = cv.estimate_arrays(msg)

@@ -65,15 +65,8 @@ class ImagerNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.imager = build_stages(self.scenario).imager
         self.dt = self.scenario.sim.dt_control_s
-        self.k_next = 0
-        self._last_msg: PointStamped | None = None
-        self.frames = 0
-        self.outlier_frames = 0
-        self.dropout_frames = 0
-        # (kind, start_s, duration_s, magnitude_m, source), in announcement order
-        self._faults: list[tuple[str, float, float, float, str]] = []
+        self.reset_state()
         self._windows: list[tuple[float, float]] = [(d.start_s, d.start_s + d.duration_s)
                                                     for d in self.scenario.imager.dropouts]
         self._scheduled = sorted(
@@ -84,6 +77,17 @@ class ImagerNode(VesselbotNode):
         self.add_subscription("truth", PlantState, self._on_truth)
         self.add_service("inject_fault", InjectFault, self._on_inject)
         self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """The imager as built from the scenario (its noise generator seeded again), no frame yet, no injected fault."""
+        self.imager = build_stages(self.scenario).imager
+        self.k_next = 0
+        self._last_msg: PointStamped | None = None
+        self.frames = 0
+        self.outlier_frames = 0
+        self.dropout_frames = 0
+        # (kind, start_s, duration_s, magnitude_m, source), in announcement order
+        self._faults: list[tuple[str, float, float, float, str]] = []
 
     def _on_truth(self, msg: PlantState) -> None:
         p = msg.position

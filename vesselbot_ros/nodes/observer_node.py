@@ -74,6 +74,16 @@ class ObserverNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
+        im = self.scenario.imager
+        self.lost_after_s = max(2.0 / im.frame_rate_Hz, 2.0 * self.dt) + im.latency_s
+        self.reset_state()
+        self.add_publisher("estimate", Odometry)
+        self.add_subscription("measurement", PointStamped, self._on_measurement)
+        self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
+        self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """The observer as built from the scenario, at tick 0 with no input yet."""
         st = build_stages(self.scenario)
         self.observer = st.observer
         self.model = st.model
@@ -84,16 +94,10 @@ class ObserverNode(VesselbotNode):
         self._g_prev = np.zeros(2)
         self.used = 0
         self.rejected_by_core = 0
-        im = self.scenario.imager
-        self.lost_after_s = max(2.0 / im.frame_rate_Hz, 2.0 * self.dt) + im.latency_s
         self.measurement_age_s = float("inf")
         self.measurement_lost = False
         self.measurement_losses = 0
         self._t_last = 0.0
-        self.add_publisher("estimate", Odometry)
-        self.add_subscription("measurement", PointStamped, self._on_measurement)
-        self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
-        self.realtime_clock()
 
     # ------------------------------------------------------------------ inputs
     def _parse_measurement(self, msg: PointStamped) -> Any:

@@ -13,6 +13,7 @@ out ``/vesselbot/truth``    vesselbot_msgs/PlantState            per tick       
 out ``vessel_markers``      visualization_msgs/MarkerArray       once, latched   m
 in  ``coil/applied``        geometry_msgs/Vector3Stamped         per tick        T/m
 srv ``run_control``         vesselbot_msgs/RunControl            on demand       -
+srv/action simulation_interfaces (see below)                     on demand       -
 out ``/diagnostics``        diagnostic_msgs/DiagnosticArray      1 Hz wall       tick, sim_time_s, finished
 ==========================  ===================================  ==============  =========================
 
@@ -20,6 +21,26 @@ Lockstep (``graph.mode: lockstep``): on START, publish ``/clock`` t_0 and truth
 0; each ``coil/applied`` stamped t_k integrates [t_k, t_k+1] under it and
 publishes tick k+1.  After tick n-1 (n = ``sim.n_ticks``) the run is finished:
 final diagnostics (``finished: true``), RunControl STATUS reports it.
+
+Pausing and stepping (lockstep): the plant holds a gate in front of each
+tick.  Playing, it publishes tick k+1 as soon as ``coil/applied`` k has been
+integrated; paused, it integrates [t_k, t_k+1] but holds tick k+1 until a
+step allows it, so ``StepSimulation(N)`` from a paused plant at tick k
+publishes ticks k..k+N-1 and returns once ``coil/applied`` k+N-1 has been
+integrated: the bag then holds exactly those N more ticks, and a run stepped
+in pieces publishes what an unpaused run publishes, message for message (the
+nodes only ever see ticks, never wall time).  The gate is the only thing
+added to the hot path (a lock and a state test per tick).
+
+The standard's services and action (``simulation_interfaces``, declared in
+the graph spec, :data:`~vesselbot_ros.graph_spec.SIMULATION_SERVICES`) are
+served by :class:`~vesselbot_ros.nodes.simulation_control.SimulationControl`,
+a second node of this process on its own thread, so a call that waits for
+its ticks never blocks this node's stepping.  States: *stopped* (before the
+run starts, or after a stop: at t = 0, nothing published), *playing*,
+*paused*.  ResetSimulation (lockstep) pauses at the end of the tick in
+flight, calls every loop node's ``reset`` service, rebuilds the plant from
+the scenario and returns to the state it had (playing goes on from t = 0).
 
 Real-time (``graph.mode: realtime``): on START a wall-clock timer advances the
 plant by as many ticks as ``graph.real_time_factor`` asks, applying the latest
@@ -35,6 +56,7 @@ the current one is rejected (WARN diagnostics); the plant then keeps waiting
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from typing import Any
 
@@ -53,7 +75,12 @@ from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stages
 
-__all__ = ["PlantNode", "main", "PLANT_STAT_NAMES"]
+__all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
+
+#: Simulation states (simulation_interfaces' SimulationState, by name).
+STOPPED, PLAYING, PAUSED = "stopped", "playing", "paused"
+#: What :meth:`PlantNode.play` / :meth:`PlantNode.pause` return when nothing changes.
+ALREADY = "already in the target state"
 
 #: Names of ``PlantSimulator.stats`` entries, as the pure runner reports them.
 PLANT_STAT_NAMES = role("plant").counters
@@ -66,14 +93,15 @@ class PlantNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        st = build_stages(self.scenario)
-        self.plant = st.plant
         self.dt = self.scenario.sim.dt_control_s
         self._vessel = Vessel(self.scenario.physics)
-        self.k = 0
+        # the gate's lock: taken by this node's callbacks and by the simulation_interfaces thread
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
+        self.sim_state = STOPPED
         self.running = False
         self.paused = False
-        self._g = np.zeros(2)
+        self.reset_state()
         self._wait_since = time.monotonic()
         self._wall_start = 0.0
         self.add_publisher("clock", Clock)
@@ -94,11 +122,32 @@ class PlantNode(VesselbotNode):
         self.publish("vessel_markers", markers)
         self._rt_timer = None
         self._poll = self.create_timer(0.05, self._housekeeping, clock=self._wall)
+        from vesselbot_ros.nodes.simulation_control import SimulationControl
+
+        self.simulation = SimulationControl(self)
+
+    def reset_state(self) -> None:
+        """The plant as built from the scenario, at tick 0, nothing published for it yet."""
+        self.plant = build_stages(self.scenario).plant
+        self.k = 0
+        self._g = np.zeros(2)
+        self._budget = 0  # ticks a paused plant may still publish (steps asked for)
+        self._held = True  # tick k is computed but not published
+
+    def destroy_node(self) -> None:  # noqa: D102
+        self.simulation.close()
+        super().destroy_node()
 
     # ------------------------------------------------------------------ run control
-    def _start(self) -> None:
+    def _start(self, paused: bool = False) -> None:
         self.running = True
+        self.sim_state = PAUSED if paused else PLAYING
         self._wait_since = time.monotonic()
+        if self.lockstep:
+            self._release()
+            return
+        self.paused = paused
+        self._held = False
         self._emit()
         if not self.lockstep:
             self._wall_start = time.monotonic()
@@ -108,6 +157,10 @@ class PlantNode(VesselbotNode):
             )
 
     def _on_run_control(self, req: Any, resp: Any) -> Any:
+        with self._lock:
+            return self._run_control(req, resp)
+
+    def _run_control(self, req: Any, resp: Any) -> Any:
         c = req.command
         resp.success = True
         if c == RunControl.Request.START:
@@ -118,16 +171,13 @@ class PlantNode(VesselbotNode):
                 self._start()
                 resp.message = "started"
         elif c == RunControl.Request.PAUSE:
-            resp.success = self.running and not self.finished and not self.lockstep
-            self.paused = resp.success
-            resp.message = "paused" if resp.success else "pause applies to a running real-time run only"
+            why = self.pause() if self.running else "pause applies to a running run only"
+            resp.success = not why
+            resp.message = why or "paused"
         elif c == RunControl.Request.RESUME:
-            resp.success = self.paused
-            if self.paused:
-                self.paused = False
-                self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
-                self._anchor = self._wall_start
-            resp.message = "resumed" if resp.success else "not paused"
+            why = self.play() if self.sim_state == PAUSED else "not paused"
+            resp.success = not why
+            resp.message = why or "resumed"
         elif c == RunControl.Request.STOP:
             self._finish()
             resp.message = "stopped"
@@ -138,10 +188,107 @@ class PlantNode(VesselbotNode):
         resp.finished = self.finished
         return resp
 
+    # ------------------------------------------------------------------ simulation states (any thread)
+    def play(self) -> str:
+        """Stopped or paused -> playing; returns '' or why not."""
+        return self._enter(PLAYING)
+
+    def pause(self) -> str:
+        """Stopped or playing -> paused (a stopped run starts paused, at t = 0); returns '' or why not.
+
+        Lockstep: the tick in flight completes; the next one is held at the gate.
+        """
+        return self._enter(PAUSED)
+
+    def _enter(self, state: str) -> str:
+        with self._lock:
+            if self.finished:
+                return "the run has finished"
+            if self.sim_state == state:
+                return ALREADY
+            if not self.running:
+                self._start(paused=state == PAUSED)
+                return ""
+            self.sim_state = state
+            self._budget = 0
+            if state == PAUSED:
+                self.paused = not self.lockstep
+            elif self.lockstep:
+                self._release()
+            else:
+                self.paused = False
+                self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
+                self._anchor = self._wall_start
+            return ""
+
+    def step(self, n: int) -> tuple[str, int]:
+        """Paused, lockstep: let ``n`` more ticks through; returns ('' or why not, the tick reached when done)."""
+        with self._lock:
+            if not self.lockstep:
+                return "stepping needs a lockstep run (graph.mode: lockstep)", self.k
+            if self.finished:
+                return "the run has finished", self.k
+            if self.sim_state != PAUSED:
+                return f"the simulation is {self.sim_state}, not paused", self.k
+            left = self.n_ticks - self.k - self._budget
+            if n < 1 or n > left:
+                return f"steps must be in [1, {left}] (ticks left in the run), got {n}", self.k
+            self._budget += n
+            target = self.k + self._budget
+            self._release()
+            return "", target
+
+    def cancel_steps(self) -> None:
+        """Drop the steps still owed (a cancelled SimulateSteps goal)."""
+        with self._lock:
+            self._budget = 0
+
+    def wait_for_tick(self, target: int, timeout_s: float) -> bool:
+        """Block (another thread) until tick ``target`` is reached or the run finished; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self.k >= target or self.finished, timeout_s)
+
+    def wait_idle(self, timeout_s: float) -> bool:
+        """Block (another thread) until no tick is in flight; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self.idle, timeout_s)
+
+    def hold(self) -> str:
+        """Close the gate for a reset; returns the state to go back to."""
+        with self._lock:
+            prior = self.sim_state
+            if self.running:
+                self.sim_state = PAUSED
+                self._budget = 0
+            return prior
+
+    def restart(self, state: str) -> None:
+        """After every node reset: rebuild the plant at t = 0 and go on in ``state`` (stopped: not started)."""
+        with self._lock:
+            self.reset_state()
+            self.tick_now = -1
+            self.period_tick = -1
+            if state == STOPPED:
+                self.running = False
+                self.sim_state = STOPPED
+            else:
+                self.running = True
+                self.sim_state = state
+                self._release()
+            self._cond.notify_all()
+
+    def quit(self) -> None:
+        """End the run now (the launcher then stops every node and finalises the bag)."""
+        with self._lock:
+            if not self.finished:
+                self._finish()
+
     def _housekeeping(self) -> None:
-        if self.graph.autostart and not self.running and not self.finished and self.wired():
-            self._start()
-        if self.running and self.lockstep and not self.finished:
+        with self._lock:
+            if self.graph.autostart and not self.running and not self.finished and self.wired():
+                self._start()
+            waiting = self.running and self.lockstep and not self.finished and not self._held
+        if waiting:
             waited = time.monotonic() - self._wait_since
             if waited > self.graph.plant_wait_warn_s:
                 self._wait_since = time.monotonic()
@@ -197,16 +344,44 @@ class PlantNode(VesselbotNode):
         self._wait_since = time.monotonic()
         if self.k >= self.n_ticks:
             self._finish()
+        elif self.lockstep:
+            self._held = True
+            self._release()
         else:
             self._emit()
+        self._cond.notify_all()
+
+    # ------------------------------------------------------------------ the gate (lockstep), under self._lock
+    def _release(self) -> None:
+        """Publish the held tick if the state lets it through (playing, or a step still owed)."""
+        if not self._held or self.finished or not self.running:
+            return
+        if self.sim_state == PAUSED:
+            if self._budget <= 0:
+                return
+            self._budget -= 1
+        elif self.sim_state != PLAYING:
+            return
+        self._held = False
+        self._emit()
+
+    @property
+    def idle(self) -> bool:
+        """True when no tick is in flight (the loop waits at the gate, or the run has not started or is over)."""
+        return self._held or self.finished or not self.running
 
     def _finish(self) -> None:
         self.running = False
         if self._rt_timer is not None:
             self._rt_timer.cancel()
         self.mark_finished()
+        self._cond.notify_all()
 
     def _on_applied(self, msg: Vector3Stamped) -> None:
+        with self._lock:
+            self._applied(msg)
+
+    def _applied(self, msg: Vector3Stamped) -> None:
         v = msg.vector
         if not self.check("coil_applied", frame_id=msg.header.frame_id, values=(v.x, v.y, v.z), y_values=(v.y,),
                           stamp_ns=None if self.lockstep else stamp_ns_of(msg)):
@@ -220,7 +395,7 @@ class PlantNode(VesselbotNode):
         if not on_grid:
             self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp_ns_of(msg)} ns")
             return
-        if not self.running or k != self.k:
+        if not self.running or k != self.k or self._held:
             self.reject("coil_applied", "stale_tick" if k < self.k or not self.running else "future_tick",
                         f"tick {k}, plant at tick {self.k}")
             return
@@ -228,6 +403,10 @@ class PlantNode(VesselbotNode):
         self._advance(g)
 
     def _realtime_tick(self) -> None:
+        with self._lock:
+            self._realtime_ticks()
+
+    def _realtime_ticks(self) -> None:
         if not self.running or self.paused or self.finished:
             return
         target = int((time.monotonic() - self._wall_start) * self.graph.real_time_factor / self.dt)
@@ -252,6 +431,7 @@ class PlantNode(VesselbotNode):
     def diagnostic_values(self) -> dict[str, str]:
         return {
             "tick": str(self.k),
+            "simulation_state": self.sim_state,
             "sim_time_s": repr(self.k * self.dt),
             "n_ticks": str(self.n_ticks),
         } | {name: str(int(v)) for name, v in zip(PLANT_STAT_NAMES, self.plant.stats)}

@@ -18,7 +18,17 @@ Parameters: ``output_dir`` (the bag directory; may exist, e.g. with
 YAML-quoted, see :func:`recorder_command`) or ``run_metadata_file`` (path to
 a JSON file), ``extra_topics`` (string array), ``flush_period_s`` (wall-clock
 period of chunk flushes, default 0.5 s), ``min_free_mb`` (default 256),
-``use_sim_time`` (log times on the ROS clock instead of the system clock).
+``use_sim_time`` (log times on the ROS clock instead of the system clock),
+``compression`` (MCAP chunk compression: ``none``, ``zstd_fast``, ``zstd_small``,
+rosbag2's storage presets, see :data:`vesselbot_ros.bag.writer.COMPRESSION_PRESETS`),
+``live_rate_Hz`` (messages per topic and wall second forwarded live, at most; 0: all),
+``live_port`` (>= 0: also serve every topic live over the Foxglove WebSocket
+protocol on that port, :class:`vesselbot_ros.live.LiveView`; -1: off).  With
+``live_port`` set, ``output_dir`` may be empty: live view only, no bag.
+
+The live view rides on the recorder's raw subscriptions, so ``--live`` adds
+no reader to the loop's topics; with it off the callback is the bag write
+alone.
 
 Durability: a chunk is written to the file when it reaches 1 MiB (rosbags'
 threshold) or every ``flush_period_s`` of wall time, whichever comes first, so
@@ -50,11 +60,14 @@ STATUS_NAME = NODE_NAMES["recorder"]
 
 
 def recorder_command(
-    output_dir: str | Path,
+    output_dir: str | Path | None,
     run_metadata: Mapping[str, Any] | None = None,
     extra_topics: Sequence[str] = (),
     python: str | None = None,
     namespace: str | None = None,
+    compression: str = "none",
+    live_port: int | None = None,
+    live_rate_Hz: float | None = None,
 ) -> list[str]:
     """The argv that starts a recorder (the launcher's and replay's way to start one).
 
@@ -65,11 +78,21 @@ def recorder_command(
         extra_topics: ``"name:type"`` entries recorded besides the graph's topics.
         python: Interpreter (default: this one).
         namespace: The graph's namespace (None: the default one).
+        compression: MCAP chunk compression preset (``none``, ``zstd_fast``, ``zstd_small``).
+        live_port: Serve the topics live on this port (None: no live view).
+            ``output_dir`` None: live view only.
+        live_rate_Hz: Messages per topic and wall second forwarded live, at most (0: all; None: the default).
     """
     argv = [python or sys.executable, "-m", "vesselbot_ros.nodes.recorder_node", "--ros-args", *remap_args(namespace),
-            "-p", f"output_dir:={_yaml_str(str(output_dir))}"]
+            "-p", f"output_dir:={_yaml_str(str(output_dir or ''))}"]
+    if live_port is not None:
+        argv += ["-p", f"live_port:={int(live_port)}"]
+    if live_rate_Hz is not None:
+        argv += ["-p", f"live_rate_Hz:={float(live_rate_Hz)!r}"]
     if run_metadata is not None:
         argv += ["-p", f"run_metadata:={_yaml_str(json.dumps(dict(run_metadata), sort_keys=True))}"]
+    if compression != "none":
+        argv += ["-p", f"compression:={_yaml_str(compression)}"]
     if extra_topics:
         argv += ["-p", "extra_topics:=[" + ", ".join(_yaml_str(t) for t in extra_topics) + "]"]
     return argv
@@ -112,10 +135,16 @@ class RecorderNode:
         n.declare_parameter("extra_topics", Parameter.Type.STRING_ARRAY)
         n.declare_parameter("flush_period_s", 0.5)
         n.declare_parameter("min_free_mb", 256)
+        n.declare_parameter("compression", "none")
+        n.declare_parameter("live_port", -1)
+        from vesselbot_ros.live import DEFAULT_LIVE_RATE_HZ
+
+        n.declare_parameter("live_rate_Hz", DEFAULT_LIVE_RATE_HZ)
         self.bag: Any = None
         self._subs: list[Any] = []
         self.write_error: OSError | None = None  # set when the disk fills; main() stops
         self._diag_pub: Any = None
+        self.live: Any = None  # the LiveView, when live_port >= 0
 
     def _param(self, name: str) -> Any:
         from rclpy.exceptions import ParameterUninitializedException
@@ -135,8 +164,9 @@ class RecorderNode:
         from vesselbot_ros.graph_spec import qos_profile
 
         out = str(self._param("output_dir") or "")
-        if not out:
-            raise BagError("parameter output_dir is required (the bag directory to create)")
+        live_port = int(self._param("live_port"))
+        if not out and live_port < 0:
+            raise BagError("parameter output_dir is required (the bag directory to create), unless live_port is set")
         meta_text = str(self._param("run_metadata") or "")
         meta_file = str(self._param("run_metadata_file") or "")
         if meta_file:
@@ -151,10 +181,12 @@ class RecorderNode:
         if not isinstance(run_metadata, dict):
             raise BagError(f"parameter run_metadata must be a JSON object, got {type(run_metadata).__name__}")
         extra = parse_extra_topics(self._param("extra_topics") or [])
-        path = check_output_dir(out, min_free_bytes=int(self._param("min_free_mb")) * 2**20)
+        path = check_output_dir(out, min_free_bytes=int(self._param("min_free_mb")) * 2**20) if out else None
 
         ts = make_typestore([t for _, t in extra])
-        self.bag = BagWriter(path, run_metadata=run_metadata, typestore=ts).open()
+        if path is not None:
+            self.bag = BagWriter(path, run_metadata=run_metadata, typestore=ts,
+                                 compression=str(self._param("compression") or "none")).open()
         n = self.node
         use_sim = bool(n.get_parameter("use_sim_time").value)
         clock = n.get_clock()
@@ -173,23 +205,24 @@ class RecorderNode:
                                                     reliability=ReliabilityPolicy.RELIABLE,
                                                     durability=DurabilityPolicy.VOLATILE), False))
             known.add(name)
+        if live_port >= 0:
+            from vesselbot_ros.live import LiveView
+
+            try:
+                self.live = LiveView([(name, msgtype, latched) for name, _, msgtype, _, latched in specs], ts,
+                                     port=live_port, max_rate_Hz=float(self._param("live_rate_Hz")))
+            except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
+                raise BagError(f"live view: cannot serve on port {live_port}: {exc}") from None
+            n.get_logger().info(f"live view on {self.live.url}")
+            print(f"vesselbot recorder: live view on {self.live.url}", flush=True)
         for name, sub_name, msgtype, qos, latched in specs:
-            conn = self.bag.add_topic(name, msgtype, latched=latched, depth=qos.depth)
+            conn = self.bag.add_topic(name, msgtype, latched=latched, depth=qos.depth) if self.bag is not None else name
             cls = import_type(msgtype)
             # Depth is not part of QoS matching: a deep reader history means a recorder that
             # falls behind for a moment (a disk hiccup, a loaded CPU) buffers instead of dropping.
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(qos.depth, SUBSCRIPTION_DEPTH),
                              reliability=qos.reliability, durability=qos.durability)
-            write = self.bag.write
-
-            def cb(data: bytes, conn: Any = conn, write: Any = write) -> None:
-                if self.write_error is not None:
-                    return
-                try:
-                    write(conn, data, now())
-                except OSError as exc:  # a full disk: main() stops with one line (no executor traceback)
-                    self.write_error = exc
-
+            cb = self._callback(conn, name, now)
             self._subs.append(n.create_subscription(cls, sub_name, cb, qos, raw=True))
 
         from diagnostic_msgs.msg import DiagnosticArray
@@ -201,9 +234,46 @@ class RecorderNode:
         n.create_service(Trigger, service("recorder_flush").rel, self._on_flush_service)
         n.get_logger().info(f"recording {len(specs)} topics into {path}")
 
+    def _callback(self, conn: Any, name: str, now: Any) -> Any:
+        """The raw subscription callback of one topic: the bag write, plus the live view's send when on."""
+        live = self.live
+        if self.bag is None:  # live view only
+            self._live_counts: dict[str, int] = getattr(self, "_live_counts", {})
+            self._live_counts[name] = 0
+            counts = self._live_counts
+
+            def live_only(data: bytes) -> None:
+                counts[name] += 1
+                live.log(name, data, now())
+
+            return live_only
+        write = self.bag.write
+        if live is None:
+            def cb(data: bytes) -> None:
+                if self.write_error is not None:
+                    return
+                try:
+                    write(conn, data, now())
+                except OSError as exc:  # a full disk: main() stops with one line (no executor traceback)
+                    self.write_error = exc
+            return cb
+
+        def cb_live(data: bytes) -> None:
+            if self.write_error is not None:
+                return
+            try:
+                t = write(conn, data, now())
+            except OSError as exc:
+                self.write_error = exc
+                return
+            live.log(name, data, t)
+        return cb_live
+
     def counts(self) -> dict[str, int]:
-        """Messages written per topic."""
-        return dict(self.bag.counts) if self.bag is not None else {}
+        """Messages written per topic (received, in live-only mode)."""
+        if self.bag is None:
+            return dict(getattr(self, "_live_counts", {}))
+        return dict(self.bag.counts)
 
     def publish_counts(self) -> None:
         """Publish ``received:<topic>`` KeyValues on /diagnostics."""
@@ -213,9 +283,11 @@ class RecorderNode:
             return
         arr = DiagnosticArray()
         arr.header.stamp = self.node.get_clock().now().to_msg()
-        st = DiagnosticStatus(level=DiagnosticStatus.OK, name=STATUS_NAME, hardware_id=str(self.bag.path),
-                              message=f"{sum(self.bag.counts.values())} messages written")
-        st.values = [KeyValue(key=f"received:{k}", value=str(v)) for k, v in self.bag.counts.items()]
+        counts = self.counts()
+        where = str(self.bag.path) if self.bag is not None else (self.live.url if self.live is not None else "")
+        st = DiagnosticStatus(level=DiagnosticStatus.OK, name=STATUS_NAME, hardware_id=where,
+                              message=f"{sum(counts.values())} messages " + ("written" if self.bag else "served"))
+        st.values = [KeyValue(key=f"received:{k}", value=str(v)) for k, v in counts.items()]
         arr.status = [st]
         self._diag_pub.publish(arr)
 
@@ -228,7 +300,8 @@ class RecorderNode:
 
     def _on_flush_service(self, request: Any, response: Any) -> Any:
         try:
-            self.bag.flush(fsync=True)
+            if self.bag is not None:
+                self.bag.flush(fsync=True)
             response.success = True
             response.message = json.dumps(self.counts(), sort_keys=True)
         except Exception as exc:  # noqa: BLE001 - answer the caller instead of dying
@@ -242,6 +315,8 @@ class RecorderNode:
         counts = self.counts()
         if self.bag is not None:
             self.bag.finish()
+        if self.live is not None:
+            self.live.close()
         return counts
 
 
@@ -289,13 +364,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             rec.bag.abort()
             return 1
         counts = rec.finish()
-        print(f"vesselbot recorder: bag {rec.bag.path} finalised: "
-              + json.dumps(counts, sort_keys=True), flush=True)
+        if rec.bag is not None:
+            print(f"vesselbot recorder: bag {rec.bag.path} finalised: "
+                  + json.dumps(counts, sort_keys=True), flush=True)
     except BagError as exc:
         print(f"vesselbot recorder: error: {exc}", file=sys.stderr, flush=True)
         code = 1
     finally:
-        if rec.bag is not None:
+        if rec.bag is not None or rec.live is not None:
             try:
                 rec.finish()
             except BagError as exc:

@@ -50,12 +50,16 @@ class ReferenceNode(VesselbotNode):
         self.reference = build_stages(self.scenario).reference
         ts = np.arange(self.n_ticks) * self.dt
         self._p, self._v, self._a = self.reference.sample_many(ts)
-        self._last_ns = -1
+        self.reset_state()
         self.add_publisher("reference", ReferenceSample)
         self.add_publisher("reference_path", Path)
         self.add_subscription("clock", Clock, self._on_clock)
         self.publish("reference_path", cv.path_msg(self.reference.path(200)))
         self.realtime_clock()
+
+    def reset_state(self) -> None:
+        """Back to t = 0 (the reference itself is a pure function of time)."""
+        self._last_ns = -1
 
     def _on_clock(self, msg: Clock) -> None:
         if not self.lockstep:

@@ -32,6 +32,7 @@ from vesselbot_ros.config import (
     load_dataclass,
     load_yaml,
     parse_set_items,
+    shipped_config_dir,
     to_mapping,
 )
 from vesselbot_ros.control.actuator_limits import CoilLimits
@@ -59,6 +60,7 @@ __all__ = [
     "BAG_BYTES_PER_TICK",
     "shipped_scenarios",
     "SCENARIO_DIR",
+    "DEFAULT_SCENARIO",
 ]
 
 # What one control tick costs: the runner's and the launcher's per-tick time
@@ -414,8 +416,12 @@ def check_resources(
     return est
 
 
-#: Folder of the scenarios shipped with vesselbot_ros.
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config"
+#: The scenario ``vesselbot run`` / ``simulate`` (and ``make run`` / ``make simulate``) run without ``--config``:
+#: Section III-C with the physically sound readings (docs/reproduction.md).
+DEFAULT_SCENARIO = "sound_small_artery"
+
+#: Folder of the scenarios shipped with vesselbot_ros (a checkout's config/, or the installed share/ copy).
+SCENARIO_DIR = shipped_config_dir()
 
 
 def shipped_scenarios() -> dict[str, Path]:

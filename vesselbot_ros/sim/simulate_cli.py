@@ -21,14 +21,15 @@ import yaml
 
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.metrics import metrics_window_note
-from vesselbot_ros.sim.scenario import check_resources, load_scenario
+from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, check_resources, load_scenario
 
 __all__ = ["register", "run"]
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` arguments."""
-    parser.add_argument("--config", required=True, help="scenario YAML, e.g. config/paper_small_artery.yaml")
+    parser.add_argument("--config", default=DEFAULT_SCENARIO,
+                        help=f"a shipped scenario's name (vesselbot scenarios) or a scenario YAML (default {DEFAULT_SCENARIO})")
     parser.add_argument("--seed", type=int, default=None, help="imager seed (default: the scenario's)")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="override sim.duration_s (s)")
     parser.add_argument("--out", default=None, help="output directory (default out/simulate/<scenario>/)")

@@ -19,7 +19,7 @@ RUN_METADATA = {
 
 
 def write_synthetic_bag(path: Path, n_ticks: int, dt_s: float = 1e-3, flush_every: int = 0,
-                        t0_ns: int = 1_700_000_000_000_000_000, finish: bool = True):
+                        t0_ns: int = 1_700_000_000_000_000_000, finish: bool = True, compression: str = "none"):
     """Write ``n_ticks`` of the synthetic graph (1 ms apart in log time); return (writer, sent list)."""
     from rclpy.serialization import serialize_message
 
@@ -27,7 +27,7 @@ def write_synthetic_bag(path: Path, n_ticks: int, dt_s: float = 1e-3, flush_ever
     from vesselbot_ros.bag.writer import BagWriter
     from vesselbot_ros.graph_spec import TOPICS
 
-    bag = BagWriter(path, run_metadata=RUN_METADATA).open()
+    bag = BagWriter(path, run_metadata=RUN_METADATA, compression=compression).open()
     conns = {s.name: bag.add_topic(s.name, s.msgtype, latched=s.qos == "reliable_latched", depth=s.depth)
              for s in TOPICS}
     sent = []

@@ -30,6 +30,11 @@ BAD = [
     (["--namespace", "a b"], ["--namespace", "a b"]),
     (["--report", "--no-record"], ["--report", "--no-record"]),
     (["--metrics-json", "/nonexistent_dir_vb/m.json"], ["--metrics-json", "nonexistent_dir_vb"]),
+    (["--live-port", "70000"], ["--live-port", "70000"]),
+    (["--live-port", "-1"], ["--live-port", "-1"]),
+    (["--live", "--live-rate", "-5"], ["--live-rate", "-5"]),
+    (["--live", "--live-rate", "nan"], ["--live-rate", "nan"]),
+    (["--compression", "zstd_small", "--no-record"], ["--compression zstd_small", "--no-record"]),
 ]
 
 
@@ -84,3 +89,17 @@ def test_a_run_that_does_not_fit_is_refused_before_any_directory(tmp_path, capsy
     assert code == 2 and len(lines) == 1, err
     assert "sim.control_rate_Hz" in lines[0] and "sim.duration_s" in lines[0], err
     assert os.listdir(tmp_path) == ["cfg"]  # no bag, no runs/, no log directory
+
+
+def test_no_config_means_the_scenario_make_run_runs(tmp_path, capsys, monkeypatch):
+    """`vesselbot run` and `make run` (empty CONFIG: run's default) run sound_small_artery, from any directory."""
+    from vesselbot_ros.launch.run_cli import DEFAULT_CONFIG
+    from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, load_scenario
+
+    assert DEFAULT_CONFIG == DEFAULT_SCENARIO == "sound_small_artery"
+    assert "\nCONFIG ?=\n" in (REPO / "Makefile").read_text()
+    monkeypatch.chdir(tmp_path)
+    assert load_scenario(DEFAULT_CONFIG).name == "sound_small_artery"
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["run", "--compression", "gzip"])
+    assert exc.value.code == 2 and "invalid choice: 'gzip'" in capsys.readouterr().err

@@ -1,0 +1,148 @@
+"""A run driven through the ``simulation_interfaces`` services and action alone (``vesselbot run --start-paused``).
+
+Start paused, step 100 ticks (the bag then holds exactly 100 ticks), reset,
+step in pieces (a service call and an action goal with feedback), then play
+to the end.  The ticks after the reset equal an unpaused run message for
+message, and so do the 100 before it.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+
+import pytest
+
+from _runs import run_cmd
+from vesselbot_ros.graph_spec import TOPICS, import_type, resolve, service
+
+DURATION = 0.3
+N = int(round(DURATION * 1000))
+PER_TICK = [t for t in TOPICS if t.per_tick]
+
+
+def _call(ex, client, request, timeout=120.0):
+    assert client.wait_for_service(timeout_sec=timeout), client.srv_name
+    fut = client.call_async(request)
+    ex.spin_until_future_complete(fut, timeout_sec=timeout)
+    assert fut.done(), f"{client.srv_name}: no answer within {timeout} s"
+    return fut.result()
+
+
+def _per_tick_messages(bag):
+    """Topic -> decoded messages (rclpy classes, compared by value), in bag order."""
+    from rclpy.serialization import deserialize_message
+
+    from vesselbot_ros.bag.reader import iter_messages, open_bag
+
+    out = {t.name: [] for t in PER_TICK}
+    types = {t.name: import_type(t.msgtype) for t in PER_TICK}
+    for m in iter_messages(open_bag(bag), topics=list(out)):
+        out[m.topic].append(deserialize_message(m.data, types[m.topic]))
+    return out
+
+
+@pytest.mark.timeout(600)
+def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path):
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.executors import SingleThreadedExecutor
+    from simulation_interfaces.msg import Result, SimulationState, SimulatorFeatures
+    from simulation_interfaces.srv import ResetSimulation, SetSimulationState, StepSimulation
+    from std_srvs.srv import Trigger
+
+    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+
+    with allocate_domain() as lease:
+        dom = lease.domain_id
+    common = ["--config", "sound_small_artery", "--duration", str(DURATION), "--seed", "3", "--quiet"]
+    driven = subprocess.Popen(run_cmd(*common, "--start-paused", "--domain-id", str(dom),
+                                      "--record-dir", str(tmp_path / "driven")),
+                              cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    saved = apply_to_process(ros_environment(dom, tmp_path / "client_log"))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=dom)
+    node = rclpy.create_node("simulation_client", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+
+    def client(key):
+        s = service(key)
+        return node.create_client(import_type(s.srvtype), resolve(s.rel))
+
+    try:
+        features = _call(ex, client("get_simulator_features"), client("get_simulator_features").srv_type.Request())
+        f = set(features.features.features)
+        assert {SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
+                SimulatorFeatures.STEP_SIMULATION_ACTION, SimulatorFeatures.SIMULATION_RESET,
+                SimulatorFeatures.SIMULATION_STATE_GETTING, SimulatorFeatures.SIMULATION_STATE_SETTING,
+                SimulatorFeatures.SIMULATION_STATE_PAUSE} == f  # and nothing we do not do (spawning, worlds)
+        get_state = client("get_simulation_state")
+        deadline = time.monotonic() + 120
+        while _call(ex, get_state, get_state.srv_type.Request()).state.state != SimulationState.STATE_PAUSED:
+            assert time.monotonic() < deadline and driven.poll() is None, "the launcher never paused the run"
+            time.sleep(0.1)
+        flush = node.create_client(Trigger, resolve(service("recorder_flush").rel))
+
+        def bag_counts():
+            return json.loads(_call(ex, flush, Trigger.Request()).message)
+
+        # nothing has run yet; a step while playing or past the end is refused
+        assert all(bag_counts()[t.name] == 0 for t in PER_TICK)
+        step = client("step_simulation")
+        too_many = _call(ex, step, StepSimulation.Request(steps=N + 1))
+        assert too_many.result.result == Result.RESULT_OPERATION_FAILED and "ticks left" in too_many.result.error_message
+        # step 100 ticks: the bag holds exactly 100 ticks of every per-tick topic
+        assert _call(ex, step, StepSimulation.Request(steps=100)).result.result == Result.RESULT_OK
+        counts = bag_counts()
+        assert {t.name: counts[t.name] for t in PER_TICK} == {t.name: 100 for t in PER_TICK}
+        # reset: back to t = 0, still paused, nothing more published
+        reset = client("reset_simulation")
+        assert _call(ex, reset, ResetSimulation.Request()).result.result == Result.RESULT_OK
+        assert _call(ex, get_state, get_state.srv_type.Request()).state.state == SimulationState.STATE_PAUSED
+        assert all(bag_counts()[t.name] == 100 for t in PER_TICK)
+        # step in pieces: 37 by the service, 63 by the action (with feedback)
+        assert _call(ex, step, StepSimulation.Request(steps=37)).result.result == Result.RESULT_OK
+        spec = service("simulate_steps")
+        action = ActionClient(node, import_type(spec.srvtype), resolve(spec.rel))
+        assert action.wait_for_server(timeout_sec=60)
+        feedback = []
+        goal = action.send_goal_async(action._action_type.Goal(steps=63),
+                                      feedback_callback=lambda m: feedback.append(
+                                          (m.feedback.completed_steps, m.feedback.remaining_steps)))
+        ex.spin_until_future_complete(goal, timeout_sec=60)
+        assert goal.result().accepted
+        res = goal.result().get_result_async()
+        ex.spin_until_future_complete(res, timeout_sec=120)
+        assert res.result().result.result.result == Result.RESULT_OK
+        assert feedback and feedback[-1] == (63, 0)
+        assert all(c + r == 63 for c, r in feedback) and [c for c, _ in feedback] == sorted(c for c, _ in feedback)
+        assert all(bag_counts()[t.name] == 200 for t in PER_TICK)
+        # play to the end
+        play = client("set_simulation_state")
+        req = SetSimulationState.Request()
+        req.state.state = SimulationState.STATE_PLAYING
+        assert _call(ex, play, req).result.result == Result.RESULT_OK
+        again = _call(ex, play, req)
+        assert again.result.result in (SetSimulationState.Response.ALREADY_IN_TARGET_STATE, Result.RESULT_INCORRECT_STATE)
+        out, err = driven.communicate(timeout=300)
+        assert driven.returncode == 0, err[-3000:]
+    finally:
+        if driven.poll() is None:
+            driven.kill()
+            driven.communicate()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        restore_process_env(saved)
+
+    plain = subprocess.run(run_cmd(*common, "--record-dir", str(tmp_path / "plain")), cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300)
+    assert plain.returncode == 0, plain.stderr[-3000:]
+    a = _per_tick_messages(tmp_path / "driven")
+    b = _per_tick_messages(tmp_path / "plain")
+    for t in PER_TICK:
+        assert len(b[t.name]) == N and len(a[t.name]) == 100 + N, (t.name, len(a[t.name]), len(b[t.name]))
+        assert a[t.name][:100] == b[t.name][:100], t.name  # the steps before the reset
+        assert a[t.name][100:] == b[t.name], t.name  # after the reset: stepped in pieces, then played

@@ -1,0 +1,178 @@
+"""What the live view derives from the graph's topics: the scene as markers, and the error time series.
+
+The live view (:mod:`vesselbot_ros.live`) forwards every topic of the graph
+spec as it is.  On top of that it offers the channels of
+:data:`vesselbot_ros.graph_spec.VIEW_CHANNELS`, computed here from the latest
+messages of the topics each one names, at most :data:`VIEW_RATE_HZ` times per
+wall second (a viewer needs no more, and the run pays nothing per tick: the
+latest bytes are kept, and decoded only when a view update is due):
+
+* ``view/markers`` (``visualization_msgs/MarkerArray``, a standard message
+  Foxglove's 3D panel draws): both vessel walls at +/- D(t)/2 as they pulse,
+  the robot (its true radius, from the wall gaps), the estimate, the applied
+  gradient as an arrow from the robot (2 mm at the coil limit), and the
+  reference path;
+* ``view/errors`` (JSON): ``t_s``, ``tracking_error_m`` (|p - p_ref|),
+  ``estimation_error_m`` (|p - p_hat|), ``gradient_norm_T_per_m`` (|G|
+  applied) and ``gradient_limit_T_per_m`` (U_sat in force), for Foxglove's
+  Plot panel.
+
+:func:`scene_numbers` is the pure part (plain numbers in, plain numbers out).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from vesselbot_ros.graph_spec import FRAME_ID, VIEW_CHANNELS, import_type, topic
+
+__all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRORS_SCHEMA", "ARROW_AT_LIMIT_M"]
+
+#: View updates per wall second, at most.
+VIEW_RATE_HZ = 20.0
+#: Length of the gradient arrow at the coil limit (m).
+ARROW_AT_LIMIT_M = 2e-3
+#: JSON schema of ``view/errors``.
+ERRORS_SCHEMA = {
+    "type": "object",
+    "properties": {k: {"type": "number"} for k in
+                   ("t_s", "tracking_error_m", "estimation_error_m", "gradient_norm_T_per_m", "gradient_limit_T_per_m")},
+}
+
+
+@dataclass(frozen=True)
+class SceneNumbers:
+    """One view update in numbers (SI units, frame ``vessel``, XZ plane)."""
+
+    t_s: float
+    robot_xz: tuple[float, float]
+    robot_radius_m: float
+    wall_z_m: float  # the walls at +/- wall_z_m
+    estimate_xz: tuple[float, float] | None
+    gradient_xz: tuple[float, float]
+    gradient_limit: float
+    tracking_error_m: float | None
+    estimation_error_m: float | None
+
+
+def scene_numbers(t_s: float, robot_xz: tuple[float, float], diameter_m: float, gap_upper_m: float,
+                  gradient_xz: tuple[float, float], gradient_limit: float,
+                  estimate_xz: tuple[float, float] | None, reference_xz: tuple[float, float] | None) -> SceneNumbers:
+    """The view of one moment: robot radius from the upper gap (D/2 - z - r), errors as Euclidean norms."""
+    radius = 0.5 * diameter_m - robot_xz[1] - gap_upper_m
+    track = math.dist(robot_xz, reference_xz) if reference_xz is not None else None
+    est = math.dist(robot_xz, estimate_xz) if estimate_xz is not None else None
+    return SceneNumbers(t_s, robot_xz, radius, 0.5 * diameter_m, estimate_xz, gradient_xz, gradient_limit, track, est)
+
+
+class DerivedView:
+    """Keeps the latest bytes of the topics the view channels need; emits view updates at :data:`VIEW_RATE_HZ`.
+
+    Args:
+        send: ``send(view_key, payload: bytes, t_ns)``: hands one view message to the server.
+        wanted: ``wanted() -> bool``: whether anyone subscribes to a view channel (no work otherwise).
+    """
+
+    def __init__(self, send: Any, wanted: Any = lambda: True) -> None:
+        self._send = send
+        self._wanted = wanted
+        self.inputs = sorted({k for v in VIEW_CHANNELS for k in v.inputs})
+        self._latest: dict[str, bytes] = {}
+        self._types = {k: import_type(topic(k).msgtype) for k in self.inputs}
+        self._names = {topic(k).name: k for k in self.inputs}
+        self._last_wall = 0.0
+        self._path_points: list[Any] = []
+
+    def offer(self, name: str, data: bytes, t_ns: int) -> None:
+        """A message of topic ``name`` (canonical name) arrived; maybe emit a view update."""
+        key = self._names.get(name)
+        if key is None:
+            return
+        self._latest[key] = data
+        if key == "reference_path":
+            self._path_points = [p.pose.position for p in self._decode(key).poses]
+        now = time.monotonic()
+        # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
+        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
+            self._last_wall = now
+            self.emit(t_ns)
+
+    def _decode(self, key: str) -> Any:
+        from rclpy.serialization import deserialize_message
+
+        return deserialize_message(self._latest[key], self._types[key])
+
+    def emit(self, t_ns: int) -> None:
+        """Send one update of every view channel from the latest messages (needs a truth message)."""
+        if "truth" not in self._latest:
+            return
+        truth = self._decode("truth")
+        est = self._decode("estimate") if "estimate" in self._latest else None
+        ref = self._decode("reference") if "reference" in self._latest else None
+        coil = self._decode("coil_state") if "coil_state" in self._latest else None
+        t = truth.header.stamp.sec + truth.header.stamp.nanosec * 1e-9
+        sn = scene_numbers(
+            t, (truth.position.x, truth.position.z), truth.vessel_diameter, truth.wall_gap_upper,
+            (truth.applied_gradient.x, truth.applied_gradient.z), coil.max_gradient if coil is not None else math.nan,
+            (est.pose.pose.position.x, est.pose.pose.position.z) if est is not None else None,
+            (ref.position.x, ref.position.z) if ref is not None else None)
+        from rclpy.serialization import serialize_message
+
+        self._send("view_markers", serialize_message(self.markers(sn, truth.header)), t_ns)
+        errors = {"t_s": sn.t_s, "gradient_norm_T_per_m": math.hypot(*sn.gradient_xz)}
+        if not math.isnan(sn.gradient_limit):
+            errors["gradient_limit_T_per_m"] = sn.gradient_limit
+        if sn.tracking_error_m is not None:
+            errors["tracking_error_m"] = sn.tracking_error_m
+        if sn.estimation_error_m is not None:
+            errors["estimation_error_m"] = sn.estimation_error_m
+        self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
+
+    def markers(self, sn: SceneNumbers, header: Any) -> Any:
+        """The MarkerArray of one view update."""
+        from geometry_msgs.msg import Point
+        from visualization_msgs.msg import Marker, MarkerArray
+
+        def marker(ns: str, kind: int, rgba: tuple[float, float, float, float]) -> Any:
+            m = Marker(header=header, ns=ns, id=0, type=kind, action=Marker.ADD)
+            m.header.frame_id = FRAME_ID
+            m.pose.orientation.w = 1.0
+            m.color.r, m.color.g, m.color.b, m.color.a = rgba
+            return m
+
+        out = MarkerArray()
+        xs = [p.x for p in self._path_points] or [sn.robot_xz[0] - 5e-3, sn.robot_xz[0] + 5e-3]
+        x0, x1 = min(xs) - 1e-3, max(xs) + 1e-3
+        r = max(sn.robot_radius_m, 1e-6)
+        for name, z in (("upper_wall", sn.wall_z_m), ("lower_wall", -sn.wall_z_m)):
+            m = marker(name, Marker.CUBE, (0.8, 0.2, 0.2, 0.6))
+            m.pose.position.x, m.pose.position.z = 0.5 * (x0 + x1), z + (0.25 * r if z > 0 else -0.25 * r)
+            m.scale.x, m.scale.y, m.scale.z = x1 - x0, 4 * r, 0.5 * r
+            out.markers.append(m)
+        robot = marker("robot", Marker.SPHERE, (0.9, 0.7, 0.1, 1.0))
+        robot.pose.position.x, robot.pose.position.z = sn.robot_xz
+        robot.scale.x = robot.scale.y = robot.scale.z = 2 * r
+        out.markers.append(robot)
+        if sn.estimate_xz is not None:
+            est = marker("estimate", Marker.SPHERE, (0.2, 0.5, 1.0, 0.5))
+            est.pose.position.x, est.pose.position.z = sn.estimate_xz
+            est.scale.x = est.scale.y = est.scale.z = 2 * r
+            out.markers.append(est)
+        g = math.hypot(*sn.gradient_xz)
+        if g > 0 and sn.gradient_limit > 0:
+            arrow = marker("gradient", Marker.ARROW, (0.1, 0.8, 0.3, 1.0))
+            scale = ARROW_AT_LIMIT_M / sn.gradient_limit
+            arrow.points = [Point(x=sn.robot_xz[0], z=sn.robot_xz[1]),
+                            Point(x=sn.robot_xz[0] + scale * sn.gradient_xz[0], z=sn.robot_xz[1] + scale * sn.gradient_xz[1])]
+            arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.2 * r, 0.4 * r, 0.4 * r
+            out.markers.append(arrow)
+        if self._path_points:
+            path = marker("reference_path", Marker.LINE_STRIP, (0.3, 0.3, 0.3, 1.0))
+            path.points = [Point(x=p.x, z=p.z) for p in self._path_points]
+            path.scale.x = 0.1 * r
+            out.markers.append(path)
+        return out
