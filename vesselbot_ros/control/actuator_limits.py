@@ -289,6 +289,16 @@ class CoilLimiter:
         coil_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), self._out)
         return self._output()
 
+    def hold(self, t_s: float) -> CoilOutput:
+        """Hold the applied gradient at ``t_s`` (an output without a command, within the command timeout).
+
+        The output does not move, and the next command slews from ``t_s``: a held
+        tick is an output like any other, so it is not slew time for the next one.
+        """
+        self._dt(t_s)  # checks that time does not go backwards
+        self._state[2] = float(t_s)
+        return CoilOutput(self._state[:2].copy(), 1.0, False, np.zeros(2, dtype=bool), False)
+
     def watchdog(self, t_now_s: float) -> CoilOutput | None:
         """Ramp to zero within the slew limit if commands stopped.
 

@@ -215,8 +215,8 @@ class CoilDriverNode(VesselbotNode):
 
     def _watchdog_output(self, t: float) -> tuple[CoilOutput, bool]:
         out = self.limiter.watchdog(t)
-        if out is None:  # within command_timeout_s: hold
-            return CoilOutput(self.limiter.applied, 1.0, False, np.zeros(2, dtype=bool), False), False
+        if out is None:  # within command_timeout_s: hold (and the next command slews from this tick, not before)
+            return self.limiter.hold(t), False
         return out, True
 
     def _lockstep_watchdog(self) -> None:

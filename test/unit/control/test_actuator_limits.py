@@ -51,6 +51,20 @@ def test_slew_from_zero_and_first_tick() -> None:
     np.testing.assert_array_equal(out1.slew_limited, [True, False])
 
 
+def test_a_held_tick_is_an_output_so_the_next_command_slews_from_it() -> None:
+    """The coil driver holds the output when a command is late (within the command timeout): that tick
+    counts, so the next command may move S * dt from it, not S * 2 dt (a stall at the first tick of a run
+    let the next command jump two ticks' worth of slew)."""
+    lim = CoilLimiter(CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=2.0, command_timeout_s=0.02), -1e-3)
+    out0 = lim.hold(0.0)  # tick 0 answered without a command
+    np.testing.assert_array_equal(out0.applied, [0.0, 0.0])
+    assert not out0.saturated and out0.k_scale == 1.0
+    out1 = lim.apply(1e-3, [0.08, 0.0])
+    np.testing.assert_allclose(out1.applied, [2e-3, 0.0], rtol=1e-12, atol=0)
+    with pytest.raises(ModelInputError, match="went backwards"):
+        lim.hold(0.0)
+
+
 def test_non_finite_command_is_rejected_and_held() -> None:
     lim = CoilLimiter(CoilLimits())
     lim.apply(0.001, [0.02, 0.01])
