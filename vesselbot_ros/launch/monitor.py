@@ -104,8 +104,6 @@ class Monitor:
                 sub(import_type(t.msgtype), t.rel, lambda _data, name=t.name: self._count_user(name),
                     qos_profile(t), raw=True)
         self.run_control = self.node.create_client(RunControl, service("run_control").rel)
-        from vesselbot_ros.graph_spec import import_type
-
         spec = service("set_simulation_state")
         self.set_simulation_state = self.node.create_client(import_type(spec.srvtype), spec.rel)
         self._decoded = 0
