@@ -64,7 +64,7 @@ from vesselbot_ros.blas_free import mat2, mat2_apply
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
 from vesselbot_ros.sim.integrator import OK, integrate_dopri5_ws, new_workspace
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message", "EKF_OUT_SIZE", "PREDICTION_FAILED"]
@@ -81,10 +81,14 @@ def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _f(t, y, ux, uz, free, p, p_s, out, fbuf):  # type: ignore[no-untyped-def]
-    """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles)."""
+def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-def]
+    """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles).
+
+    ``tc`` memoises the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
+    which do not depend on ``V_f``, the only parameter ``s`` scales.
+    """
     _scaled(p, y[4], p_s)
-    forces_into(t, y[0], y[1], y[2], y[3], 0.0, 0.0, free, p_s, fbuf)
+    forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, free, p_s, fbuf, tc)
     out[0] = y[2]
     out[1] = y[3]
     out[2] = fbuf[7, 0] / p_s[I_MASS] + ux
@@ -93,15 +97,16 @@ def _f(t, y, ux, uz, free, p, p_s, out, fbuf):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf):  # type: ignore[no-untyped-def]
+def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc):  # type: ignore[no-untyped-def]
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
-    _f(t, y, ux, uz, free, p, p_s, f0, fbuf)
+    tc[0] = np.nan  # p (the model) may differ from the last call's
+    _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc)
     for j in range(N):
         d = 1e-7 * max(abs(y[j]), 1e-3) if j < 2 else (1e-7 * max(abs(y[j]), 1e-2) if j < 4 else 1e-7)
         for i in range(N):
             yp[i] = y[i]
         yp[j] = y[j] + d
-        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf)
+        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf, tc)
         for i in range(N):
             A[i, j] = (f1[i] - f0[i]) / d
     # Phi = exp(A h) by scaling and squaring: Phi_s = I + M + M^2/2 with M = A h / 2^s, ||M||_inf <= 0.5,
@@ -194,7 +199,7 @@ def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
 # y (5,), P (5, 5); history: hist_t (n,), hist_y (n, 5), hist_P (n, 5, 5), hist_u (n, 2)
 # free (4,) the model's contact state; p the model's packed params, p_s (same size) scratch;
-# work, fbuf: integrator workspace (new_workspace); vec (8, 5) and mat (6, 5, 5) scratch
+# work, fbuf: integrator workspace (new_workspace); vec (8, 5) and mat (6, 5, 5) scratch (vec[5]: time-terms memo)
 # out (10,): [x (2), z (2), time since the last frame, innovation X_hat - Y (2), used, rejected, s_hat]
 # err (8,): [t0, t1, integrator code, the 5 states the failing prediction started from]
 EKF_PRM_SIZE = 20
@@ -235,7 +240,7 @@ def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]
 def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
     _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
-                 mat[2], fbuf)
+                 mat[2], fbuf, vec[5])
     _scaled(p, y[4], p_s)
     ys = vec[3]
     ys[0] = y[0]
