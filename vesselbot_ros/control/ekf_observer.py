@@ -63,6 +63,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate
+from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
 from vesselbot_ros.sim.integrator import OK, integrate_dopri5_ws, new_workspace
@@ -418,15 +419,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
                 ist[2] += 1
         if rejected > 0.5:
             ist[3] += 1
-    out[0] = y[0]
-    out[1] = y[1]
-    out[2] = y[2]
-    out[3] = y[3]
-    out[4] = scal[0] - scal[1]
-    out[5] = i0
-    out[6] = i1
-    out[7] = used
-    out[8] = rejected
+    write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
     out[9] = y[4]
     return OK
 
