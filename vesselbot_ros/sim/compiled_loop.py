@@ -201,7 +201,7 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
 def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]
                 imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, coil_prm, seq_mode, sv, hold_s,
                 y, contact, obs_y, obs_contact, obs_scal, coil_state,
-                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p_s, e_work, e_fbuf,
+                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
                 e_vec, e_mat,
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
@@ -269,7 +269,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
             meas_t_acq_s[k] = np.nan
         # observer
         if obs_kind == OBS_EKF:
-            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, model_p,
+            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p,
                               e_p_s, e_work, e_fbuf, e_vec, e_mat, model_stats, t, gx_prev, gz_prev, has_meas,
                               img_out[1], img_out[2], img_out[3], obs_out, err)
             if code != OK:
@@ -340,7 +340,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
 
 _NO_EKF: tuple[npt.NDArray[Any], ...] = (
     np.zeros(20), np.zeros(4), np.zeros(6, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(1), np.zeros((1, 5)),
-    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros((10, 4)), np.zeros((8, 2)),
+    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros(1), np.zeros((10, 4)), np.zeros((8, 2)),
     np.zeros((8, 5)), np.zeros((6, 5, 5)),
 )
 
@@ -365,7 +365,7 @@ def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt
     err = np.zeros(8)
     if inp.ekf is not None:
         e = inp.ekf.copy()
-        ekf_arrays = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p_s, e.work,
+        ekf_arrays = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s, e.work,
                       e.fbuf, e.vec, e.mat)
     else:
         ekf_arrays = _NO_EKF

@@ -16,7 +16,7 @@ from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.control.backstepping import ControlCommand
 from vesselbot_ros.control.imager_model import Dropout
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_D0_RATIO
+from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint
@@ -239,6 +239,27 @@ def test_non_finite_state_inside_the_loop_ends_with_the_per_tick_error() -> None
             run_stages(scenario, st, 0, path=path)
         messages.append(str(exc.value))
     assert messages[0] == messages[1]
+
+
+def test_failing_filter_and_unusable_flow_scale_end_with_the_per_tick_error() -> None:
+    scenario = _short(load_scenario(shipped_scenarios()["sound_small_artery_ekf"]), 0.05)
+    for breakage, pattern in (
+        ("nan_model", r"observer: prediction failed on \[0\.0, 0\.001\] \(code 2\), state \[[-0-9.e]+, [-0-9.e]+, 0\.0, 0\.0, 1\.0\]$"),
+        ("negative_scale", r"controller: flow scale must be finite and > 0, got -1\.0$"),
+    ):
+        messages = []
+        for path in ("compiled", "per_tick"):
+            st = build_stages(scenario, 0)
+            if breakage == "nan_model":  # the filter's model (its V_f): the first prediction is non-finite
+                bad = st.observer.ekf.p.copy()
+                bad[I_V_F] = np.nan
+                st.observer.ekf.p = bad
+            else:  # a flow-scale estimate the compensating law must refuse
+                st.observer.ekf.y[4] = -1.0
+            with pytest.raises(ModelInputError, match=pattern) as exc:
+                run_stages(scenario, st, 0, path=path)
+            messages.append(str(exc.value))
+        assert messages[0] == messages[1]
 
 
 def test_non_finite_measurement_is_rejected_the_same_way() -> None:
