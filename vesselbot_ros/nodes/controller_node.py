@@ -8,7 +8,7 @@ Ports (frame ``vessel``):
 =================================  ===================================  =========  =================
 port                               type                                 rate       units
 =================================  ===================================  =========  =================
-in  ``/vesselbot/estimate``        nav_msgs/Odometry                    per tick   m, m/s, age s
+in  ``/vesselbot/estimate``        nav_msgs/Odometry                    per tick   m, m/s, age s, s_hat
 in  ``/vesselbot/reference``       vesselbot_msgs/ReferenceSample       per tick   m, m/s, m/s^2
 out ``/vesselbot/gradient_command`` geometry_msgs/Vector3Stamped        per tick   T/m
 out ``/diagnostics``               diagnostic_msgs/DiagnosticArray      1 Hz wall  status counts
@@ -28,6 +28,7 @@ diverged) are counted in diagnostics (``status:<name>``).
 
 from __future__ import annotations
 
+import math
 import sys
 from collections import Counter
 from typing import Any
@@ -61,23 +62,26 @@ class ControllerNode(VesselbotNode):
 
     def _on_estimate(self, msg: Odometry) -> None:
         x, z, age = cv.estimate_arrays(msg)
+        scale = cv.estimate_flow_scale(msg)
         p = msg.pose.pose.position
         v = msg.twist.twist.linear
         stamp = stamp_ns_of(msg)
-        if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z, v.x, v.y, v.z, age),
+        # a flow scale that is not > 0 is as unusable as a non-finite value: rejected the same way
+        if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp,
+                          values=(p.x, p.y, p.z, v.x, v.y, v.z, age, scale if scale > 0.0 else math.nan),
                           y_values=(p.y, v.y), z_position=p.z):
             return
         k = self.join.tick_of("estimate", stamp)
         if k is None:
             return
         if self.lockstep:
-            if self.join.put("estimate", k, (x, z, age)):
+            if self.join.put("estimate", k, (x, z, age, scale)):
                 self.count_received("estimate")
                 self._drain()
             return
         self.count_received("estimate")
         if self._ref_latest is not None:
-            self._command(k, (x, z, age), self._ref_latest)
+            self._command(k, (x, z, age, scale), self._ref_latest)
 
     def _on_reference(self, msg: ReferenceSample) -> None:
         p, v, a = cv.reference_arrays(msg)
@@ -98,9 +102,9 @@ class ControllerNode(VesselbotNode):
         self.count_received("reference")
         self._ref_latest = (p, v, a)
 
-    def _command(self, k: int, est: tuple[Any, Any, float], ref: tuple[Any, Any, Any]) -> None:
+    def _command(self, k: int, est: tuple[Any, Any, float, float], ref: tuple[Any, Any, Any]) -> None:
         t = cv.tick_time(k, self.dt)
-        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref)
+        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref, est[3])
         self.status[cmd.status] += 1
         self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
         self.period_done(k)

@@ -38,6 +38,8 @@ from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
 
 __all__ = [
     "AGE_COVARIANCE_INDEX",
+    "FLOW_SCALE_COVARIANCE_INDEX",
+    "estimate_flow_scale",
     "tick_time",
     "ns_of_time",
     "tick_of_ns",
@@ -61,6 +63,10 @@ __all__ = [
 ]
 
 AGE_COVARIANCE_INDEX = 35
+#: Index in the estimate's ``twist.covariance`` (the otherwise unused yaw-rate variance) carrying the observer's
+#: blood-velocity scale ``s_hat`` (-), which the flow-compensating law reads; 0 (an observer that does not
+#: estimate it, a bag recorded before it travelled) reads as 1.
+FLOW_SCALE_COVARIANCE_INDEX = 35
 NS_PER_S = 1_000_000_000
 
 
@@ -112,8 +118,9 @@ def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
     return PointStamped(header=header(t_acq_s), point=point(p))
 
 
-def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float) -> Odometry:
-    """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s)."""
+def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float,
+                 flow_scale: float = 1.0) -> Odometry:
+    """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s), flow scale ``s_hat`` (-)."""
     msg = Odometry(header=header(t_s), child_frame_id="robot")
     msg.pose.pose.position = point(x_hat)
     msg.pose.pose.orientation.w = 1.0
@@ -122,7 +129,16 @@ def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: 
     # inf age (no measurement yet) cannot travel as a finite number: clamp it
     cov[AGE_COVARIANCE_INDEX] = float(age_s) if math.isfinite(age_s) else 1e9
     msg.pose.covariance = cov
+    tcov = [0.0] * 36
+    tcov[FLOW_SCALE_COVARIANCE_INDEX] = float(flow_scale)
+    msg.twist.covariance = tcov
     return msg
+
+
+def estimate_flow_scale(msg: Odometry) -> float:
+    """The observer's blood-velocity scale ``s_hat`` (-) an estimate carries (1 if it carries none)."""
+    s = float(msg.twist.covariance[FLOW_SCALE_COVARIANCE_INDEX])
+    return 1.0 if s == 0.0 else s
 
 
 def estimate_arrays(msg: Odometry) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
