@@ -230,7 +230,7 @@ def run_stages(
     """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    foreign = compiled_loop.compilable(stages)
+    foreign = compiled_loop.foreign_stages(stages)
     if path == "compiled" and foreign:
         raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
     if not foreign and path != "per_tick":
@@ -255,7 +255,7 @@ def prepared(scenario: Scenario) -> compiled_loop.LoopInputs | None:
         if hit is not None and hit[0]() is scenario:
             return hit[1]
     st = build_stages(scenario, None)
-    inp = None if compiled_loop.compilable(st) else compiled_loop.prepare(
+    inp = None if compiled_loop.foreign_stages(st) else compiled_loop.prepare(
         st, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
     with _PREPARED_LOCK:
         if len(_PREPARED) >= _PREPARED_MAX:

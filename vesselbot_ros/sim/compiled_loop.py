@@ -56,7 +56,7 @@ from vesselbot_ros.physics.kernel import forces_into, nearest_wall_delta
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
-__all__ = ["LoopInputs", "prepare", "compilable", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
+__all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
@@ -130,7 +130,7 @@ class LoopInputs:
 OBS_HIGH_GAIN, OBS_EKF = 0, 1
 
 
-def compilable(stages: Any) -> list[str]:
+def foreign_stages(stages: Any) -> list[str]:
     """The stages :func:`prepare` cannot read (a user's object, or a built-in one over a user's part), by name."""
     from vesselbot_ros.control.backstepping import BacksteppingController
     from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
@@ -164,9 +164,9 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     (``sample_many``, as the per-tick runner does).
 
     Raises:
-        ModelInputError: a stage the compiled loop does not have (:func:`compilable`).
+        ModelInputError: a stage the compiled loop does not have (:func:`foreign_stages`).
     """
-    bad = compilable(stages)
+    bad = foreign_stages(stages)
     if bad:
         raise ModelInputError(f"compiled loop needs the built-in stages, got user stage(s) {bad}")
     ts = np.arange(n) * dt
