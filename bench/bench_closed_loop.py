@@ -1,6 +1,7 @@
 """Per-tick against compiled closed loop, batches on 1 and 2 cores, cold start; then accuracy.
 
 Usage: .venv/bin/python bench/bench_closed_loop.py [--runs 1000] [--config config/sound_small_artery.yaml]
+       [--ekf-config config/sound_small_artery_ekf.yaml]
 
 Prints, side by side in one run (issue 18 targets in brackets):
 
@@ -12,6 +13,9 @@ Prints, side by side in one run (issue 18 targets in brackets):
    whole process (interpreter, imports, first run);
 4. the machine's load average before and after (other jobs share the cores: read the figures with it);
 5. accuracy: key metrics against a run with 100x tighter integrator tolerances, and seeds 0-4.
+
+Sections 1-3 run for the paper scenario and again for the extended-Kalman-filter scenario
+(``--ekf-config``; ``--ekf-config ''`` skips it), whose filter and flow-compensating law run compiled too.
 
 The default scenario is the one ``make run`` runs: Section III-C with the sound readings
 (``config/sound_small_artery.yaml``, 2000 ticks at 1 kHz).  The as-printed variant
@@ -129,13 +133,15 @@ def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--config", default=str(ROOT / "config" / "sound_small_artery.yaml"))
     ap.add_argument("--runs", type=int, default=1000, help="runs per batch (section 2)")
+    ap.add_argument("--ekf-config", default=str(ROOT / "config" / "sound_small_artery_ekf.yaml"))
     ap.add_argument("--warm-runs", type=int, default=15, help="runs per path (section 1)")
     args = ap.parse_args(argv)
     print(f"4. before: {_load()}; every wall figure stretches with the load, the CPU figures much less")
-    per_run(args.config, args.warm_runs)
-    batches(args.config, args.runs)
-    cold(args.config)
-    print(f"4. after:  {_load()}")
+    for path in [args.config] + ([args.ekf_config] if args.ekf_config else []):
+        per_run(path, args.warm_runs)
+        batches(path, args.runs)
+        cold(path)
+        print(f"4. now:    {_load()}")
     accuracy(args.config)
 
 

@@ -57,7 +57,9 @@ stale and future ticks rejected without moving any state.
 The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused
 yaw-yaw variance ``pose.covariance[35]`` carries the observer's time since the
 last fresh measurement (s), which the controller's stale-estimate safe
-behaviour reads.
+behaviour reads, and its yaw-rate variance ``twist.covariance[35]`` the
+observer's blood-velocity scale ``s_hat`` (-; 1 for observer (25), 0 read as 1),
+which the flow-compensating law reads.
 
 The scanner (``sequence:`` of the scenario).  ``scanner/phase`` says which
 window of the MRI sequence holds: ``TRACKING`` (the gradients image; the coil

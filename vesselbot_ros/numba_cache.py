@@ -72,9 +72,15 @@ def warm() -> None:
     from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
     from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
-    for path in shipped_scenarios().values():
-        sc = load_scenario(path)
+    from vesselbot_ros.scanner.sequence import SequenceParams
+
+    scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
+    # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
+    scenarios.append(dc.replace(scenarios[0], sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
+                                                                      dead_time_s=0.001, propulsion_window_s=0.003,
+                                                                      latency_s=0.001)))
+    for sc in scenarios:
         sc = dc.replace(sc, sim=dc.replace(sc.sim, duration_s=0.01))
-        run_closed_loop(sc)  # compiled where the stages allow it (the EKF and the scanner run per tick)
-        run_closed_loop(sc, path="per_tick")
+        run_closed_loop(sc)  # the compiled loop (every built-in stage)
+        run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
         run_many(sc, [0, 1], workers=2)

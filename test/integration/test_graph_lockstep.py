@@ -19,9 +19,9 @@ from vesselbot_ros.sim.scenario import scenario_from_mapping  # noqa: E402
 CONFIG = "config/paper_small_artery.yaml"
 
 
-def _vesselbot_run(repo, tmp_path, *args, timeout=240):
+def _vesselbot_run(repo, tmp_path, *args, timeout=240, config=CONFIG):
     out = tmp_path / "metrics.json"
-    cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", CONFIG, "--quiet", "--metrics-json", str(out), *args]
+    cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", config, "--quiet", "--metrics-json", str(out), *args]
     proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return json.loads(out.read_text()), proc.stdout
@@ -48,6 +48,18 @@ def test_short_lockstep_run_equals_pure_runner(repo, tmp_path, extra):
     assert ros["metrics"]["n_ticks"] == 300
     _assert_identical(pure, ros)
     assert "run finished: 300 ticks" in stdout
+
+
+def test_ekf_scenario_lockstep_equals_pure_runner(repo, tmp_path):
+    """The extended Kalman filter and the law compensating with its flow scale (which travels in the estimate)."""
+    config = "config/sound_small_artery_ekf.yaml"
+    scenario = scenario_from_mapping(apply_overrides(load_yaml(repo / config), 0.3, 2))
+    pure = run_closed_loop(scenario)
+    assert pure.path == "compiled" and pure.timeseries["flow_scale_hat"][-1] != 1.0
+    ros, stdout = _vesselbot_run(repo, tmp_path, "--duration", "0.3", "--seed", "2", "--no-record", "--single-process",
+                                 config=config)
+    assert ros["metrics"]["n_ticks"] == 300
+    _assert_identical(pure, ros)
 
 
 def test_paper_scenario_recorded_equals_pure_runner(repo, tmp_path):

@@ -41,7 +41,7 @@ from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adaptation_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, forces_into
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
 
 __all__ = [
     "BacksteppingGains",
@@ -54,6 +54,8 @@ __all__ = [
     "STATUS_OK",
     "STATUS_STALE",
     "STATUS_NONFINITE",
+    "FLOW_SCALE_INVALID",
+    "flow_scale_message",
 ]
 
 ForceFn = Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]]
@@ -172,16 +174,26 @@ def backstepping_u(
 
 # ---- compiled stage -------------------------------------------------------------------------------
 STATUS_OK, STATUS_STALE, STATUS_NONFINITE = 0, 1, 2
+#: :func:`backstepping_command` refused the observer's flow scale (not finite and > 0): an error, not a status.
+FLOW_SCALE_INVALID = 3
 _STATUS_NAMES = ("ok", "stale", "nonfinite")
 
 
-def controller_params(params: ControllerParams, b_inv: tuple[float, float, float, float], half_hold_s: float) -> npt.NDArray[np.float64]:
-    """(9,) parameter vector of :func:`backstepping_command`.
+def controller_params(params: ControllerParams, b_inv: tuple[float, float, float, float], half_hold_s: float,
+                      inv_duty: float = 1.0) -> npt.NDArray[np.float64]:
+    """(11,) parameter vector of :func:`backstepping_command`.
 
-    ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), B^-1 (4, row-major)]``.
+    ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), B^-1 (4, row-major),
+    flow compensation (1 = estimate), 1 / duty cycle (1 = none)]``.
     """
     return np.array([float(params.gains.k1), float(params.gains.k2), float(half_hold_s), float(params.stale_timeout_s),
-                     1.0 if params.stale_action == "hold" else 0.0, *b_inv])
+                     1.0 if params.stale_action == "hold" else 0.0, *b_inv,
+                     1.0 if params.flow_compensation == "estimate" else 0.0, float(inv_duty)])
+
+
+def flow_scale_message(flow_scale: float) -> str:
+    """The error of a flow scale the compensating law cannot use (:data:`FLOW_SCALE_INVALID`)."""
+    return f"controller: flow scale must be finite and > 0, got {flow_scale!r}"
 
 
 @numba.njit(cache=True, nogil=True)
@@ -197,20 +209,33 @@ def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def backstepping_command(prm, last, model_p, free_contact, fbuf, t, x0, x1, z0, z1, age, pr0, pr1, vr0, vr1, ar0, ar1, out):  # type: ignore[no-untyped-def]
+def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]
+                         pr0, pr1, vr0, vr1, ar0, ar1, out):
     """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model's packed parameters.
 
-    Args: prm (9,) from :func:`controller_params`; last (2,) last command (T/m),
-    updated; model_p packed model physics; free_contact (4,) zeros (memoryless
-    contact of ``F``); fbuf (8, 2) scratch; t (s); estimate x, z (m, m/s); age
-    (s); reference p, v, a.  Writes ``out`` = [g x, g z (T/m), U x, U z (m/s^2)].
+    Args: prm (11,) from :func:`controller_params`; last (2,) last command (T/m),
+    updated; model_p packed model physics; p_s scratch of its size (``V_f``
+    scaled by ``flow_scale`` with flow compensation); free_contact (4,) zeros
+    (memoryless contact of ``F``); fbuf (8, 2) scratch; t (s); estimate x, z
+    (m, m/s); age (s); the observer's flow scale ``s_hat`` (-); reference p, v,
+    a.  Writes ``out`` = [g x, g z (T/m), U x, U z (m/s^2)].
 
     Returns:
-        ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken).
-        The same doubles as :func:`backstepping_u` and ``blas_free.mat2_apply``.
+        ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken),
+        or :data:`FLOW_SCALE_INVALID` (nothing changed).  The same doubles as
+        :func:`backstepping_u`, ``DynamicsModel.F`` and ``blas_free.mat2_apply``.
     """
     if not age <= prm[3]:
         return _safe_command(prm, last, out, STATUS_STALE)
+    p = model_p
+    if prm[9] > 0.5:  # F with the model's V_f scaled by the observer's estimate
+        if not (math.isfinite(flow_scale) and flow_scale > 0.0):
+            return FLOW_SCALE_INVALID
+        if flow_scale != 1.0:
+            for i in range(model_p.shape[0]):
+                p_s[i] = model_p[i]
+            p_s[I_V_F] = model_p[I_V_F] * flow_scale
+            p = p_s
     k1 = prm[0]
     k2 = prm[1]
     s = k1 + k2
@@ -222,17 +247,20 @@ def backstepping_command(prm, last, model_p, free_contact, fbuf, t, x0, x1, z0, 
         a1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - 0.0
         hh = 0.5 * h * h
         forces_into(t + h, x0 + h * z0 + hh * a0, x1 + h * z1 + hh * a1, z0 + h * a0, z1 + h * a1, 0.0, 0.0,
-                    free_contact, model_p, fbuf)
+                    free_contact, p, fbuf)
         u0 = a0 - fbuf[7, 0] / m
         u1 = a1 - fbuf[7, 1] / m
     else:
-        forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, model_p, fbuf)
+        forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, p, fbuf)
         f0 = fbuf[7, 0] / m
         f1 = fbuf[7, 1] / m
         u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
         u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
     g0 = prm[5] * u0 + prm[6] * u1
     g1 = prm[7] * u0 + prm[8] * u1
+    if prm[10] != 1.0:  # duty compensation
+        g0 = g0 * prm[10]
+        g1 = g1 * prm[10]
     if not (math.isfinite(g0) and math.isfinite(g1)):
         return _safe_command(prm, last, out, STATUS_NONFINITE)
     last[0] = g0
@@ -294,12 +322,13 @@ class BacksteppingController:
         # (backstepping_command), as in the compiled loop; any other force_fn runs in Python.
         owner = getattr(force_fn, "__self__", None)
         model_p = getattr(owner, "p", None)
-        # the compiled law knows neither the observer's flow scale nor the duty cycle: those run in Python
-        plain = not self._compensate and self._inv_duty == 1.0 and self.adapted is None
+        # the compiled law (flow and duty compensation included) has no adaptation: adaptive backstepping runs in Python
         self.model_params: npt.NDArray[np.float64] | None = (
-            model_p if plain and getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) else None
+            model_p if (self.adapted is None and getattr(owner, "F", None) == force_fn
+                        and isinstance(model_p, np.ndarray)) else None
         )
-        self.params_vector = controller_params(params, b_inv, self._half)
+        self.params_vector = controller_params(params, b_inv, self._half, self._inv_duty)
+        self._p_s = np.empty_like(model_p) if self.model_params is not None else np.empty(0)
         self._out = np.zeros(4)
         self._free = np.zeros(4)
         self._fbuf = np.empty((8, 2))
@@ -372,11 +401,13 @@ class BacksteppingController:
             raise ModelInputError("controller: non-finite reference sample")
         if self.model_params is not None:
             status = backstepping_command(
-                self.params_vector, self._last, self.model_params, self._free, self._fbuf, float(t_s),
+                self.params_vector, self._last, self.model_params, self._p_s, self._free, self._fbuf, float(t_s),
                 float(x_hat[0]), float(x_hat[1]), float(z_hat[0]), float(z_hat[1]), float(time_since_measurement_s),
-                float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]), float(a_ref[0]), float(a_ref[1]),
-                self._out,
+                float(flow_scale), float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]), float(a_ref[0]),
+                float(a_ref[1]), self._out,
             )
+            if status == FLOW_SCALE_INVALID:
+                raise ModelInputError(flow_scale_message(flow_scale))
             o = self._out
             return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
         if not time_since_measurement_s <= self.params.stale_timeout_s:
@@ -389,7 +420,7 @@ class BacksteppingController:
             inv_m = 1.0 / self.adapted.magnetization_scale
         if self._compensate or self.adapted is not None:
             if not (math.isfinite(flow_scale) and flow_scale > 0.0):
-                raise ModelInputError(f"controller: flow scale must be finite and > 0, got {flow_scale!r}")
+                raise ModelInputError(flow_scale_message(flow_scale))
 
             def force(t: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
                 return self._f(t, x, z, flow_scale)

@@ -63,16 +63,17 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate
+from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
-from vesselbot_ros.sim.integrator import OK, integrate_dopri5
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
+from vesselbot_ros.sim.integrator import OK, integrate_dopri5_ws, new_workspace
 
-__all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999"]
+__all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message", "EKF_OUT_SIZE", "PREDICTION_FAILED"]
 
 N = 5
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]
     """Copy ``p`` into ``p_s`` with V_f multiplied by ``s``."""
     for i in range(p.shape[0]):
@@ -80,28 +81,33 @@ def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]
     p_s[I_V_F] = p[I_V_F] * s
 
 
-@numba.njit(cache=True)
-def _f(t, y, ux, uz, free, p, p_s, out):  # type: ignore[no-untyped-def]
-    """Continuous dynamics f(t, y) (5,) into ``out``."""
+@numba.njit(cache=True, nogil=True)
+def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-def]
+    """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles).
+
+    ``tc`` memoises the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
+    which do not depend on ``V_f``, the only parameter ``s`` scales.
+    """
     _scaled(p, y[4], p_s)
-    ax, az = accel_no_motive(t, y[0], y[1], y[2], y[3], free, p_s)
+    forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, free, p_s, fbuf, tc)
     out[0] = y[2]
     out[1] = y[3]
-    out[2] = ax + ux
-    out[3] = az + uz
+    out[2] = fbuf[7, 0] / p_s[I_MASS] + ux
+    out[3] = fbuf[7, 1] / p_s[I_MASS] + uz
     out[4] = 0.0
 
 
-@numba.njit(cache=True)
-def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, nogil=True)
+def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc):  # type: ignore[no-untyped-def]
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
-    _f(t, y, ux, uz, free, p, p_s, f0)
+    tc[0] = np.nan  # p (the model) may differ from the last call's
+    _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc)
     for j in range(N):
         d = 1e-7 * max(abs(y[j]), 1e-3) if j < 2 else (1e-7 * max(abs(y[j]), 1e-2) if j < 4 else 1e-7)
         for i in range(N):
             yp[i] = y[i]
         yp[j] = y[j] + d
-        _f(t, yp, ux, uz, free, p, p_s, f1)
+        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf, tc)
         for i in range(N):
             A[i, j] = (f1[i] - f0[i]) / d
     # Phi = exp(A h) by scaling and squaring: Phi_s = I + M + M^2/2 with M = A h / 2^s, ||M||_inf <= 0.5,
@@ -153,7 +159,7 @@ def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi,
     return n_sq
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]
     """Kalman correction with a position frame; returns (accepted, nu_x, nu_z, d2)."""
     nx = mx - y[0]
@@ -186,12 +192,297 @@ def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]
     return True, nx, nz, d2
 
 
+# ---- compiled stage -------------------------------------------------------------------------------
+# prm (20,): [B (4, row-major), q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2, max_consecutive_rejections,
+#   delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2, flow_scale_sigma0^2 (0 if frozen),
+#   rtol, atol_pos, atol_vel, min_step, max_step, (unused), (unused)]
+# scal (4,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1)]
+# ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
+# y (5,), P (5, 5); history: hist_t (n,), hist_y (n, 5), hist_P (n, 5, 5), hist_u (n, 2)
+# free (4,) the model's contact state; p the model's packed params, p_s (same size) scratch;
+# work, fbuf: integrator workspace (new_workspace); vec (8, 5) and mat (6, 5, 5) scratch (vec[5]: time-terms memo)
+# out (10,): [x (2), z (2), time since the last frame, innovation X_hat - Y (2), used, rejected, s_hat]
+# err (8,): [t0, t1, integrator code, the 5 states the failing prediction started from]
+EKF_PRM_SIZE = 20
+EKF_OUT_SIZE = 10
+#: codes of :func:`ekf_update` besides OK: the prediction failed (see ``err``)
+PREDICTION_FAILED = 3
+
+
+def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any) -> npt.NDArray[np.float64]:
+    """(20,) parameter vector of :func:`ekf_update` (squares formed as :class:`ExtendedKalmanObserver` forms them)."""
+    q = params
+    return np.array([*b, q.accel_noise_m_per_s2_sqrt_s**2,
+                     q.flow_scale_noise_per_sqrt_s**2 if q.estimate_flow_scale else 0.0,
+                     q.measurement_sigma_m**2, float(q.gate_chi2), float(q.max_consecutive_rejections),
+                     1.0 if q.delay_compensation else 0.0, q.position_sigma0_m**2, q.velocity_sigma0_m_per_s**2,
+                     q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0,
+                     ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0, 0.0])
+
+
+def ekf_history_len(params: EkfParams, tick_s: float) -> int:
+    """Entries of the delay-compensation history: one per tick of ``history_s``, plus two."""
+    return int(math.ceil(params.history_s / tick_s)) + 2
+
+
+@numba.njit(cache=True, nogil=True)
+def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]
+    for i in range(N):
+        for j in range(N):
+            P[i, j] = 0.0
+    P[0, 0] = prm[10]
+    P[1, 1] = prm[10]
+    P[2, 2] = prm[11]
+    P[3, 3] = prm[11]
+    P[4, 4] = prm[12]
+
+
+@numba.njit(cache=True, nogil=True)
+def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]
+    """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
+    _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
+                 mat[2], fbuf, vec[5])
+    _scaled(p, y[4], p_s)
+    ys = vec[3]
+    ys[0] = y[0]
+    ys[1] = y[1]
+    ys[2] = y[2]
+    ys[3] = y[3]
+    code, h = integrate_dopri5_ws(t0, t1, ys, 0.0, 0.0, ux, uz, free, p_s, scal[2], prm[13], prm[14], prm[15],
+                                  prm[16], prm[17], stats, work, fbuf)
+    scal[2] = h
+    if code != OK or not (math.isfinite(ys[0]) and math.isfinite(ys[1]) and math.isfinite(ys[2])
+                          and math.isfinite(ys[3])):
+        err[0] = t0
+        err[1] = t1
+        err[2] = code
+        for i in range(N):
+            err[3 + i] = y[i]
+        return PREDICTION_FAILED
+    y[0] = ys[0]
+    y[1] = ys[1]
+    y[2] = ys[2]
+    y[3] = ys[3]
+    finite = True
+    for i in range(N):
+        for j in range(N):
+            if not math.isfinite(P[i, j]):
+                finite = False
+    if not (finite and P[0, 0] < 1.0 and P[1, 1] < 1.0):  # covariance lost: start it again
+        _ekf_reset_covariance(prm, P)
+        ist[4] += 1
+    return OK
+
+
+@numba.njit(cache=True, nogil=True)
+def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]
+    n = hist_t.shape[0]
+    for back in range(ist[0]):
+        if abs(hist_t[(ist[1] - back + n) % n] - t_acq) <= 1e-9:
+            return back
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec,
+                   mat, stats, err):  # type: ignore[no-untyped-def]
+    """``(yc, Pc)`` is the state ``back`` ticks ago: rewrite the history to now, set ``(y, P)``; code."""
+    n = hist_t.shape[0]
+    for step in range(back, 0, -1):
+        j = (ist[1] - step + n) % n
+        k = (j + 1) % n
+        hist_y[j, :] = yc
+        hist_P[j, :, :] = Pc
+        code = _ekf_predict(prm, scal, ist, hist_t[j], hist_t[k], yc, Pc, hist_u[j, 0], hist_u[j, 1], free, p, p_s,
+                            work, fbuf, vec, mat, stats, err)
+        if code != OK:
+            return code
+    hist_y[ist[1], :] = yc
+    hist_P[ist[1], :, :] = Pc
+    y[:] = yc
+    P[:, :] = Pc
+    return OK
+
+
+@numba.njit(cache=True, nogil=True)
+def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat,  # type: ignore[no-untyped-def]
+               stats, t, gx, gz, has_meas, t_acq, m0, m1, out, err):
+    """:meth:`ExtendedKalmanObserver.update` over explicit state: predict to ``t``, fuse a delivered frame.
+
+    The caller checks that ``t`` is finite and not before ``scal[0]`` and that
+    the gradient is finite.  Writes ``out`` (:data:`EKF_OUT_SIZE`,); allocates nothing.
+
+    Returns:
+        ``OK``, or :data:`PREDICTION_FAILED` (``err`` = ``[t0, t1, integrator code, state (5)]``,
+        :func:`ekf_failure_message`).
+    """
+    n = hist_t.shape[0]
+    ux = prm[0] * gx + prm[1] * gz
+    uz = prm[2] * gx + prm[3] * gz
+    if ist[0] > 0:  # the input over the last tick is the one applied since
+        hist_u[ist[1], 0] = ux
+        hist_u[ist[1], 1] = uz
+    if t > scal[0]:
+        code = _ekf_predict(prm, scal, ist, scal[0], t, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err)
+        if code != OK:
+            return code
+    scal[0] = t
+    # push the prior at t (before any correction) and a zero input that the next tick overwrites
+    head = (ist[1] + 1) % n
+    ist[1] = head
+    hist_t[head] = t
+    hist_y[head, :] = y
+    hist_P[head, :, :] = P
+    hist_u[head, 0] = 0.0
+    hist_u[head, 1] = 0.0
+    ist[0] = min(ist[0] + 1, n)
+    used = 0.0
+    rejected = 0.0
+    i0 = 0.0
+    i1 = 0.0
+    yc = vec[4]
+    Pc = mat[3]
+    KK = mat[4][:, :2]
+    if has_meas:
+        if not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(t_acq)) or t_acq > scal[0] + 1e-9:
+            rejected = 1.0
+        elif scal[3] < 0.5:
+            # the first frame sets the position at its acquisition time (then re-predicted to now)
+            done = False
+            if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
+                back = _ekf_find(ist, hist_t, t_acq)
+                if back >= 0:
+                    i = (ist[1] - back + n) % n
+                    yc[:] = hist_y[i]
+                    Pc[:, :] = hist_P[i]
+                    yc[0] = m0
+                    yc[1] = m1
+                    for j in range(N):
+                        Pc[0, j] = 0.0
+                        Pc[j, 0] = 0.0
+                        Pc[1, j] = 0.0
+                        Pc[j, 1] = 0.0
+                    Pc[0, 0] = prm[10]
+                    Pc[1, 1] = prm[10]
+                    code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p,
+                                          p_s, work, fbuf, vec, mat, stats, err)
+                    if code != OK:
+                        return code
+                    done = True
+            if not done:
+                y[0] = m0
+                y[1] = m1
+                P[0, 0] = prm[10]
+                P[1, 1] = prm[10]
+                hist_y[ist[1], :] = y
+                hist_P[ist[1], :, :] = P
+            scal[1] = t_acq
+            scal[3] = 1.0
+            used = 1.0
+        elif ist[2] >= prm[8]:
+            # the robot really is elsewhere (the filter lost it): restart the track on this frame
+            y[0] = m0
+            y[1] = m1
+            _ekf_reset_covariance(prm, P)
+            ist[5] += 1
+            ist[2] = 0
+            scal[1] = t_acq
+            used = 1.0
+        else:
+            found = False
+            ok = False
+            nx = 0.0
+            nz = 0.0
+            if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
+                back = _ekf_find(ist, hist_t, t_acq)
+                if back >= 0:
+                    found = True
+                    i = (ist[1] - back + n) % n
+                    yc[:] = hist_y[i]
+                    Pc[:, :] = hist_P[i]
+                    ok, nx, nz, _d2 = _correct(yc, Pc, m0, m1, prm[6], prm[7], KK, mat[2])
+                    if ok:
+                        code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                              p, p_s, work, fbuf, vec, mat, stats, err)
+                        if code != OK:
+                            return code
+            if not found:
+                ok, nx, nz, _d2 = _correct(y, P, m0, m1, prm[6], prm[7], KK, mat[2])
+            if ok:
+                i0 = -nx  # X_hat - Y, as Estimate documents
+                i1 = -nz
+                scal[1] = t_acq
+                used = 1.0
+                ist[2] = 0
+            else:
+                rejected = 1.0
+                ist[2] += 1
+        if rejected > 0.5:
+            ist[3] += 1
+    write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
+    out[9] = y[4]
+    return OK
+
+
+def ekf_failure_message(err: npt.NDArray[np.float64]) -> str:
+    """The error of a failed prediction (:data:`PREDICTION_FAILED`): the interval, the code and the state."""
+    return f"observer: prediction failed on [{float(err[0])!r}, {float(err[1])!r}] (code {int(err[2])}), state {err[3:8].tolist()}"
+
+
+class EkfState:
+    """The explicit state of one filter (:func:`ekf_update`): estimate, covariance, history, scratch.
+
+    Args:
+        params: Filter settings.
+        model: The dynamics model (packed parameters ``p``, input matrix, integrator).
+        x_hat0: (2,) prior position, m.
+        z_hat0: (2,) prior velocity, m/s.
+        t0_s: Time of the prior (s).
+        tick_s: Control period (s).
+    """
+
+    def __init__(self, params: EkfParams, model: Any, x_hat0: npt.NDArray[np.float64], z_hat0: npt.NDArray[np.float64],
+                 t0_s: float, tick_s: float) -> None:
+        self.prm = ekf_params(params, mat2(model.input_matrix), model.integrator)
+        self.p = np.asarray(model.p, dtype=np.float64)
+        self.p_s = np.empty_like(self.p)
+        self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0])
+        self.ist = np.zeros(6, dtype=np.int64)
+        self.ist[1] = -1
+        self.y = np.array([x_hat0[0], x_hat0[1], z_hat0[0], z_hat0[1], params.flow_scale0])
+        self.P = np.diag([params.position_sigma0_m**2 * 1e4, params.position_sigma0_m**2 * 1e4,
+                          params.velocity_sigma0_m_per_s**2, params.velocity_sigma0_m_per_s**2,
+                          params.flow_scale_sigma0**2])
+        if not params.estimate_flow_scale:
+            self.P[4, 4] = 0.0
+        n_hist = ekf_history_len(params, tick_s)
+        self.hist_t = np.full(n_hist, -math.inf)
+        self.hist_y = np.zeros((n_hist, N))
+        self.hist_P = np.zeros((n_hist, N, N))
+        self.hist_u = np.zeros((n_hist, 2))
+        self.free = np.zeros(4)
+        self.work, self.fbuf = new_workspace()
+        self.vec = np.zeros((8, N))
+        self.mat = np.zeros((6, N, N))
+        self.out = np.zeros(EKF_OUT_SIZE)
+        self.err = np.zeros(8)
+
+    def copy(self) -> EkfState:
+        """An independent copy (every array copied): a fresh run's state from a prepared one."""
+        new = object.__new__(EkfState)
+        for k, v in vars(self).items():
+            setattr(new, k, v.copy() if isinstance(v, np.ndarray) and k != "p" else v)
+        return new
+
+
 class ExtendedKalmanObserver:
     """EKF over ``(X, Z, s)``; the same port as :class:`HighGainObserver` (:meth:`update` once per tick).
 
     Ports: inputs ``measurement`` (or None) and ``applied_gradient_prev``
     (T/m, applied since the previous tick); output :class:`Estimate`, whose
     ``flow_scale`` is ``s_hat`` (the flow-compensating controller reads it).
+    Each update is one call of the compiled :func:`ekf_update` (which the
+    compiled closed loop calls too).
 
     Args:
         params: Filter settings.
@@ -213,143 +504,34 @@ class ExtendedKalmanObserver:
             raise ModelInputError(f"tick_s must be finite and > 0, got {tick_s!r}")
         self.params = params
         self.model = model
-        self._b = mat2(model.input_matrix)
-        self._p = np.asarray(model.p, dtype=np.float64)
-        self._p_s = np.empty_like(self._p)
-        self._free = np.zeros(4)
-        ig = model.integrator
-        self._ig = (ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s)
-        self._h = ig.max_step_s
         self.stats = model.stats  # integrator statistics shared with the model, as observer (25)
-        self._y = np.array([x0[0], x0[1], z0[0], z0[1], params.flow_scale0])
-        self._P = np.diag([params.position_sigma0_m**2 * 1e4, params.position_sigma0_m**2 * 1e4,
-                           params.velocity_sigma0_m_per_s**2, params.velocity_sigma0_m_per_s**2,
-                           params.flow_scale_sigma0**2])
-        self._qa2 = params.accel_noise_m_per_s2_sqrt_s**2
-        self._qs2 = params.flow_scale_noise_per_sqrt_s**2 if params.estimate_flow_scale else 0.0
-        if not params.estimate_flow_scale:
-            self._P[4, 4] = 0.0
-        self._r2 = params.measurement_sigma_m**2
-        self._t = float(t0_s)
-        self._tick = float(tick_s)
-        self._t_meas = -math.inf
-        self._initialised = False
-        self._rejections_in_row = 0
-        self.rejected = 0
-        self.covariance_resets = 0
-        self.track_resets = 0
-        # scratch (no allocation per tick)
-        self._f0, self._f1, self._yp = np.empty(N), np.empty(N), np.empty(N)
-        self._A, self._Phi, self._T, self._KK = np.empty((N, N)), np.empty((N, N)), np.empty((N, N)), np.empty((N, 2))
-        self._ystep = np.empty(4)
-        # history ring: tick times, prior states/covariances at each tick, input over the following tick
-        n_hist = int(math.ceil(params.history_s / tick_s)) + 2
-        self._hist_t = np.full(n_hist, -math.inf)
-        self._hist_y = np.zeros((n_hist, N))
-        self._hist_P = np.zeros((n_hist, N, N))
-        self._hist_u = np.zeros((n_hist, 2))
-        self._hist_n = 0
-        self._hist_head = -1
+        self.tick_s = float(tick_s)
+        self.ekf = EkfState(params, model, x0, z0, float(t0_s), float(tick_s))
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
         """(5,) ``(x, z, vx, vz, s)`` copy."""
-        return self._y.copy()
+        return self.ekf.y.copy()
 
     @property
     def covariance(self) -> npt.NDArray[np.float64]:
         """(5, 5) covariance copy."""
-        return self._P.copy()
+        return self.ekf.P.copy()
 
-    def _predict(self, t0: float, t1: float, y: npt.NDArray[np.float64], P: npt.NDArray[np.float64],
-                 ux: float, uz: float) -> None:
-        h = t1 - t0
-        _predict_cov(t0, h, y, P, ux, uz, self._qa2, self._qs2, self._free, self._p, self._p_s,
-                     self._f0, self._f1, self._yp, self._A, self._Phi, self._T)
-        _scaled(self._p, y[4], self._p_s)
-        ys = self._ystep
-        ys[0], ys[1], ys[2], ys[3] = y[0], y[1], y[2], y[3]
-        rtol, atol_p, atol_v, h_min, h_max = self._ig
-        code, self._h = integrate_dopri5(t0, t1, ys, 0.0, 0.0, ux, uz, self._free, self._p_s, self._h,
-                                         rtol, atol_p, atol_v, h_min, h_max, self.stats)
-        if code != OK or not all(math.isfinite(v) for v in ys):
-            raise ModelInputError(f"observer: prediction failed on [{t0!r}, {t1!r}] (code {code}), state {y.tolist()}")
-        y[0], y[1], y[2], y[3] = ys[0], ys[1], ys[2], ys[3]
-        if not (np.all(np.isfinite(P)) and P[0, 0] < 1.0 and P[1, 1] < 1.0):  # covariance lost: start it again
-            self._reset_covariance(P)
-            self.covariance_resets += 1
+    @property
+    def rejected(self) -> int:
+        """Frames rejected so far (non-finite, from the future, or refused by the gate)."""
+        return int(self.ekf.ist[3])
 
-    def _reset_covariance(self, P: npt.NDArray[np.float64]) -> None:
-        q = self.params
-        P[:] = 0.0
-        P[0, 0] = P[1, 1] = q.position_sigma0_m**2
-        P[2, 2] = P[3, 3] = q.velocity_sigma0_m_per_s**2
-        P[4, 4] = q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0
+    @property
+    def covariance_resets(self) -> int:
+        """Times the covariance became non-finite or larger than 1 m and was reset to the prior."""
+        return int(self.ekf.ist[4])
 
-    def _push(self, t: float, u: tuple[float, float]) -> None:
-        """Store the prior at tick ``t`` (before any correction) and the input that follows it."""
-        n = self._hist_t.size
-        self._hist_head = (self._hist_head + 1) % n
-        i = self._hist_head
-        self._hist_t[i] = t
-        self._hist_y[i] = self._y
-        self._hist_P[i] = self._P
-        self._hist_u[i] = u
-        self._hist_n = min(self._hist_n + 1, n)
-
-    def _find(self, t_acq: float) -> int:
-        """How many ticks back the history entry at ``t_acq`` is, or -1."""
-        n = self._hist_t.size
-        for back in range(self._hist_n):
-            if abs(self._hist_t[(self._hist_head - back) % n] - t_acq) <= 1e-9:
-                return back
-        return -1
-
-    def _repredict(self, back: int, y: npt.NDArray[np.float64], P: npt.NDArray[np.float64]) -> None:
-        """``(y, P)`` is the state at the entry ``back`` ticks ago: rewrite the history to now, set the state."""
-        n = self._hist_t.size
-        for step in range(back, 0, -1):
-            j = (self._hist_head - step) % n
-            k = (j + 1) % n
-            self._hist_y[j] = y  # the state at t_j now includes every frame acquired up to t_j
-            self._hist_P[j] = P
-            self._predict(float(self._hist_t[j]), float(self._hist_t[k]), y, P, *self._hist_u[j])
-        self._hist_y[self._hist_head] = y
-        self._hist_P[self._hist_head] = P
-        self._y[:] = y
-        self._P[:] = P
-
-    def _init_at(self, t_acq: float, yp: npt.NDArray[np.float64]) -> bool:
-        """Initialise the position at ``t_acq`` from the first frame and re-predict; False if not in the history."""
-        back = self._find(t_acq)
-        if back < 0:
-            return False
-        n = self._hist_t.size
-        i = (self._hist_head - back) % n
-        y = self._hist_y[i].copy()
-        P = self._hist_P[i].copy()
-        y[0], y[1] = yp[0], yp[1]
-        P[0, :] = 0.0
-        P[:, 0] = 0.0
-        P[1, :] = 0.0
-        P[:, 1] = 0.0
-        P[0, 0] = P[1, 1] = self.params.position_sigma0_m**2
-        self._repredict(back, y, P)
-        return True
-
-    def _fuse_at(self, t_acq: float, mx: float, mz: float) -> tuple[bool, float, float]:
-        """Correct the stored state at ``t_acq`` and re-predict to now; False if not in the history."""
-        back = self._find(t_acq)
-        if back < 0:
-            return False, 0.0, 0.0
-        i = (self._hist_head - back) % self._hist_t.size
-        y = self._hist_y[i].copy()
-        P = self._hist_P[i].copy()
-        ok, nx, nz, _ = _correct(y, P, mx, mz, self._r2, self.params.gate_chi2, self._KK, self._T)
-        if not ok:
-            return True, math.nan, math.nan
-        self._repredict(back, y, P)
-        return True, nx, nz
+    @property
+    def track_resets(self) -> int:
+        """Times the track restarted on a frame after ``max_consecutive_rejections`` rejections in a row."""
+        return int(self.ekf.ist[5])
 
     def update(self, t_s: float, measurement: Any | None, applied_gradient_prev: npt.ArrayLike) -> Estimate:
         """Predict to ``t_s`` under the applied gradient, then fuse a delivered frame.
@@ -365,58 +547,21 @@ class ExtendedKalmanObserver:
         g = np.asarray(applied_gradient_prev, dtype=np.float64)
         if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
             raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
-        if not math.isfinite(t_s) or t_s < self._t - 1e-12:
-            raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
-        u = mat2_apply(self._b, float(g[0]), float(g[1]))
-        if self._hist_n:  # the input over the last tick is the one applied since
-            self._hist_u[self._hist_head] = u
-        if t_s > self._t:
-            self._predict(self._t, t_s, self._y, self._P, u[0], u[1])
-        self._t = float(t_s)
-        self._push(self._t, (0.0, 0.0))
-        used = rejected = False
-        innov = np.zeros(2)
-        if measurement is not None:
+        e = self.ekf
+        if not math.isfinite(t_s) or t_s < e.scal[0] - 1e-12:
+            raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {float(e.scal[0])!r}")
+        has = measurement is not None
+        t_acq, m0, m1 = math.nan, math.nan, math.nan
+        if has:
             yp = np.asarray(measurement.p, dtype=np.float64)
             t_acq = float(measurement.t_acq_s)
-            if yp.shape != (2,) or not (math.isfinite(yp[0]) and math.isfinite(yp[1]) and math.isfinite(t_acq)) \
-                    or t_acq > self._t + 1e-9:
-                rejected = True
-            elif not self._initialised:
-                # the first frame sets the position at its acquisition time (then re-predicted to now)
-                if not (self.params.delay_compensation and t_acq < self._t - 1e-9 and self._init_at(t_acq, yp)):
-                    self._y[0], self._y[1] = yp[0], yp[1]
-                    self._P[0, 0] = self._P[1, 1] = self.params.position_sigma0_m**2
-                    self._hist_y[self._hist_head] = self._y
-                    self._hist_P[self._hist_head] = self._P
-                self._t_meas, self._initialised, used = t_acq, True, True
-            else:
-                if self._rejections_in_row >= self.params.max_consecutive_rejections:
-                    # the robot really is elsewhere (the filter lost it): restart the track on this frame
-                    self._y[0], self._y[1] = yp[0], yp[1]
-                    self._reset_covariance(self._P)
-                    self.track_resets += 1
-                    self._rejections_in_row = 0
-                    self._t_meas, used = t_acq, True
-                    age = self._t - self._t_meas
-                    return Estimate(self._t, self._y[:2].copy(), self._y[2:4].copy(), age, innov, used, False,
-                                    float(self._y[4]))
-                found = False
-                if self.params.delay_compensation and t_acq < self._t - 1e-9:
-                    found, nx, nz = self._fuse_at(t_acq, float(yp[0]), float(yp[1]))
-                    ok = found and math.isfinite(nx)
-                if not found:
-                    ok, nx, nz, _ = _correct(self._y, self._P, float(yp[0]), float(yp[1]), self._r2,
-                                             self.params.gate_chi2, self._KK, self._T)
-                if ok:
-                    innov = np.array([-nx, -nz])  # X_hat - Y, as Estimate documents
-                    self._t_meas, used = t_acq, True
-                    self._rejections_in_row = 0
-                else:
-                    rejected = True
-                    self._rejections_in_row += 1
-            if rejected:
-                self.rejected += 1
-        age = self._t - self._t_meas
-        y = self._y
-        return Estimate(self._t, y[:2].copy(), y[2:4].copy(), age, innov, used, rejected, float(y[4]))
+            if yp.shape == (2,):
+                m0, m1 = float(yp[0]), float(yp[1])
+        code = ekf_update(e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s,
+                          e.work, e.fbuf, e.vec, e.mat, self.stats, float(t_s), float(g[0]), float(g[1]), has, t_acq,
+                          m0, m1, e.out, e.err)
+        if code != OK:
+            raise ModelInputError(ekf_failure_message(e.err))
+        o = e.out
+        return Estimate(float(e.scal[0]), o[0:2].copy(), o[2:4].copy(), float(o[4]), o[5:7].copy(), bool(o[7] > 0.5),
+                        bool(o[8] > 0.5), float(o[9]))

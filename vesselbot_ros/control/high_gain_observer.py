@@ -76,6 +76,7 @@ __all__ = [
     "observer_params",
     "integrator_vector",
     "observer_update",
+    "write_estimate",
 ]
 
 
@@ -378,6 +379,20 @@ def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
+def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-untyped-def]
+    """The compiled observers' output: ``out[:9]`` = [X (2), Z (2) from ``y``, age, innovation (2), used, rejected]."""
+    out[0] = y[0]
+    out[1] = y[1]
+    out[2] = y[2]
+    out[3] = y[3]
+    out[4] = age
+    out[5] = i0
+    out[6] = i1
+    out[7] = used
+    out[8] = rejected
+
+
+@numba.njit(cache=True, nogil=True)
 def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf,  # type: ignore[no-untyped-def]
                     t, gx, gz, has_meas, t_acq, m0, m1, out):
     """:meth:`HighGainObserver.update` over explicit state (same doubles).
@@ -450,13 +465,5 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, wor
                 scal[1] = t_acq
                 scal[2] = 1.0
                 used = 1.0
-    out[0] = y[0]
-    out[1] = y[1]
-    out[2] = y[2]
-    out[3] = y[3]
-    out[4] = scal[0] - scal[1]
-    out[5] = i0
-    out[6] = i1
-    out[7] = used
-    out[8] = rejected
+    write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
     return OK

@@ -8,7 +8,7 @@ Ports (frame ``vessel``):
 =================================  ===================================  =========  =================
 port                               type                                 rate       units
 =================================  ===================================  =========  =================
-in  ``/vesselbot/estimate``        nav_msgs/Odometry                    per tick   m, m/s, age s
+in  ``/vesselbot/estimate``        nav_msgs/Odometry                    per tick   m, m/s, age s, s_hat
 in  ``/vesselbot/reference``       vesselbot_msgs/ReferenceSample       per tick   m, m/s, m/s^2
 out ``/vesselbot/gradient_command`` geometry_msgs/Vector3Stamped        per tick   T/m
 out ``/diagnostics``               diagnostic_msgs/DiagnosticArray      1 Hz wall  status counts

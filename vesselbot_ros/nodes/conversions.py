@@ -44,6 +44,7 @@ from vesselbot_ros.scanner.sequence import PHASE_CODES
 
 __all__ = [
     "AGE_COVARIANCE_INDEX",
+    "FLOW_SCALE_COVARIANCE_INDEX",
     "tick_time",
     "ns_of_time",
     "tick_of_ns",
@@ -68,7 +69,9 @@ __all__ = [
 ]
 
 AGE_COVARIANCE_INDEX = 35
-#: ``twist.covariance`` slot carrying the observer's blood-velocity scale (module docstring).
+#: Index in the estimate's ``twist.covariance`` (the otherwise unused yaw-rate variance) carrying the observer's
+#: blood-velocity scale ``s_hat`` (-), which the flow-compensating law reads; 0 (an observer that does not
+#: estimate it, a bag recorded before it travelled), or any value not finite and > 0, reads as 1.
 FLOW_SCALE_COVARIANCE_INDEX = 35
 NS_PER_S = 1_000_000_000
 

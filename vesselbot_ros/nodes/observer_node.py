@@ -168,7 +168,7 @@ class ObserverNode(VesselbotNode):
         self.used += int(est.used_measurement)
         self.rejected_by_core += int(est.rejected)
         self.publish("estimate", cv.estimate_msg(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s,
-                                                 est.flow_scale))
+                                                 getattr(est, "flow_scale", 1.0)))
         self.measurement_age_s = float(est.time_since_measurement_s)
         lost = est.t_s > self.lost_after_s and self.measurement_age_s > self.lost_after_s + 1e-9
         if lost != self.measurement_lost:

@@ -65,6 +65,11 @@ __all__ = [
     "fluid_velocity_x",
     "fluid_velocity_xz",
     "network_geometry",
+    "time_terms",
+    "time_terms_into",
+    "forces_at",
+    "forces_tc",
+    "wall_delta_at",
 ]
 
 TERM_NAMES = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic", "steric", "total")
@@ -267,11 +272,38 @@ def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
-    """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
-    if p[I_NET_ON] > 0.5:
-        return network_geometry(t, x, z, p)[5]
+def time_terms(t, p):  # type: ignore[no-untyped-def]
+    """The terms of the force model that depend on time only: ``(D(t) (m), pulse factor (-), wall factor f (-))``.
+
+    ``D(t)`` of eq. (13), ``1 + a_f sin(omega_f t + phi_f)`` of eq. (12) and the
+    drag's wall factor (10)-(11) at ``lambda = min(2 r / D(t), 0.999)``.
+    """
     d_t = _diameter(t, p)
+    pulse = pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F])
+    lam = min(2.0 * p[I_R] / d_t, _LAMBDA_MAX)
+    return d_t, pulse, wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0])
+
+
+@numba.njit(cache=True)
+def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
+    """Fill ``tc`` (4,) = ``[t, *time_terms(t, p)]`` unless it already holds time ``t``.
+
+    The memo of one integrator call: its stages revisit the same times (the
+    last two stages and the contact update all sit at the step's end; the
+    extended Kalman filter's Jacobian evaluates one time six times).  Whoever
+    owns ``tc`` sets ``tc[0] = nan`` whenever ``p`` may have changed (every
+    integrator call does), so a hit always means the same ``t`` and ``p``.
+    """
+    if not tc[0] == t:
+        d_t, pulse, wf = time_terms(t, p)
+        tc[0] = t
+        tc[1] = d_t
+        tc[2] = pulse
+        tc[3] = wf
+
+
+@numba.njit(cache=True)
+def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]
     if p[I_BIF_ON] > 0.5:
         nk = int(p[I_BIF_NKNOTS])
         i0 = I_TABLE
@@ -281,38 +313,49 @@ def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
         prof = blended_profile(x, z, d_t, p[I_BIF_X0], p[I_BIF_X1], p[I_BIF_TH0], p[I_BIF_TH1], p[I_BIF_RAMP], knots, values, slopes)
     else:
         prof = parabolic_profile(z, d_t)
-    return p[I_V_F] * pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]) * prof
+    return p[I_V_F] * pulse * prof
 
 
 @numba.njit(cache=True)
-def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]
-    """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
-    d_up, d_lo = wall_deltas(z, p[I_R], _diameter(t, p))
+def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
+    """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
+    if p[I_NET_ON] > 0.5:
+        return network_geometry(t, x, z, p)[5]
+    return _flow_x(x, z, _diameter(t, p), pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]), p)
+
+
+@numba.njit(cache=True)
+def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]
+    """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z, vessel diameter d_t.
+
+    Straight vessel only; a network's wall: :func:`wall_delta_xz`.
+    """
+    d_up, d_lo = wall_deltas(z, p[I_R], d_t)
     if d_up >= d_lo:
         return d_up, 1.0
     return d_lo, -1.0
 
 
 @numba.njit(cache=True)
-def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
-    """Fill ``out`` (8, 2) with the force terms (N) in ``TERM_NAMES`` order.
+def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]
+    """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
+    return wall_delta_at(z, _diameter(t, p), p)
 
-    Args: t (s); x, z (m); vx, vz (m/s); gx, gz gradient (T/m); contact_arr (4,);
-    p packed params; out (8, 2) float64, overwritten.
+
+@numba.njit(cache=True)
+def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # type: ignore[no-untyped-def]
+    """:func:`forces_into` of a straight vessel with the time-only terms given (``time_terms``): the same doubles.
+
+    Not for a network (``p[I_NET_ON]``): use :func:`forces_into` / :func:`forces_tc`, which dispatch.
     """
-    if p[I_NET_ON] > 0.5:
-        _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
-        return
     r = p[I_R]
-    d_t = _diameter(t, p)
     # magnetic (2)
     out[0, 0] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gx)
     out[0, 1] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gz)
     # drag (11)
-    ux = vx - fluid_velocity_x(t, x, z, p)
+    ux = vx - _flow_x(x, z, d_t, pulse, p)
     uz = vz
-    lam = min(2.0 * r / d_t, _LAMBDA_MAX)
-    c = drag_gain(np.sqrt(ux * ux + uz * uz), r, p[I_ETA], p[I_RHO_F], wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0]))
+    c = drag_gain(np.sqrt(ux * ux + uz * uz), r, p[I_ETA], p[I_RHO_F], wf)
     out[1, 0] = -c * ux
     out[1, 1] = -c * uz
     # apparent weight (14)
@@ -340,6 +383,34 @@ def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[n
     out[6, 1] = st
     out[7, 0] = out[0, 0] + out[1, 0] + out[2, 0] + out[3, 0] + out[4, 0] + out[5, 0] + out[6, 0]
     out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
+
+
+@numba.njit(cache=True)
+def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
+    """Fill ``out`` (8, 2) with the force terms (N) in ``TERM_NAMES`` order.
+
+    Args: t (s); x, z (m); vx, vz (m/s); gx, gz gradient (T/m); contact_arr (4,);
+    p packed params; out (8, 2) float64, overwritten.
+    """
+    if p[I_NET_ON] > 0.5:
+        _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
+        return
+    d_t, pulse, wf = time_terms(t, p)
+    forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf)
+
+
+@numba.njit(cache=True)
+def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore[no-untyped-def]
+    """:func:`forces_into` with the time-only terms memoised in ``tc`` (:func:`time_terms_into`): the same doubles.
+
+    A network (``p[I_NET_ON]``) takes its time-dependent terms from the grid at (x, z), not from the
+    straight vessel's D(t) and wall factor: it goes to :func:`forces_into`'s network path, unmemoised.
+    """
+    if p[I_NET_ON] > 0.5:
+        _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
+        return
+    time_terms_into(t, p, tc)
+    forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, tc[1], tc[2], tc[3])
 
 
 @numba.njit(cache=True)

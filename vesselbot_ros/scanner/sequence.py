@@ -29,6 +29,11 @@ import dataclasses
 import math
 from typing import Literal, NamedTuple
 
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.blas_free import hypot2
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive
 
 __all__ = [
@@ -41,8 +46,14 @@ __all__ = [
     "duty_cycle",
     "TrackingWindow",
     "propulsion_target",
+    "sequence_vector",
+    "phase_code",
+    "phase_codes",
+    "tracking_window_at",
     "PhaseWindow",
     "window_at",
+    "limit_at",
+    "target_for",
 ]
 
 _EPS_S = 1e-9
@@ -108,32 +119,135 @@ def duty_cycle(params: SequenceParams) -> float:
     return params.propulsion_window_s / params.period_s
 
 
-def _cycle(params: SequenceParams, t_s: float) -> tuple[int, float]:
-    """(period index, time within the period) at ``t_s``; index -1 before ``start_s``."""
-    if not math.isfinite(t_s):
-        raise ConfigError(f"sequence time must be finite, got {t_s!r}")
-    rel = t_s - params.start_s
+# ---- compiled forms (the Python functions below call them; so do the compiled loop and the scanner's stages) ----
+# sequence vector sv (7,): [multiplexed (0/1), tracking_window_s, dead_time_s, propulsion_window_s, latency_s,
+# start_s, period_s]
+_CODE_CONTINUOUS, _CODE_TRACKING, _CODE_DEAD, _CODE_PROPULSION = (PHASE_CODES[k] for k in ("continuous", "tracking",
+                                                                                         "dead", "propulsion"))
+_PHASE_NAMES: tuple[Phase, ...] = ("continuous", "tracking", "dead", "propulsion")
+
+
+def sequence_vector(params: SequenceParams) -> npt.NDArray[np.float64]:
+    """(7,) the sequence as the compiled functions read it."""
+    return np.array([1.0 if params.mode == "multiplexed" else 0.0, params.tracking_window_s, params.dead_time_s,
+                     params.propulsion_window_s, params.latency_s, params.start_s, params.period_s])
+
+
+@numba.njit(cache=True, nogil=True)
+def _cycle_c(sv, t_s):  # type: ignore[no-untyped-def]
+    rel = t_s - sv[5]
     if rel < -_EPS_S:
         return -1, rel
-    n = int(math.floor((rel + _EPS_S) / params.period_s))
-    return n, rel - n * params.period_s
+    n = int(math.floor((rel + _EPS_S) / sv[6]))
+    return n, rel - n * sv[6]
+
+
+@numba.njit(cache=True, nogil=True)
+def phase_code(sv, t_s):  # type: ignore[no-untyped-def]
+    """:data:`PHASE_CODES` of the phase at ``t_s`` (finite); see :func:`phase_at`."""
+    if sv[0] < 0.5:
+        return _CODE_CONTINUOUS
+    n, tau = _cycle_c(sv, t_s)
+    if n < 0:
+        return _CODE_DEAD
+    t_t = sv[1]
+    t_d = sv[2]
+    t_p = sv[3]
+    if tau < t_t - _EPS_S:
+        return _CODE_TRACKING
+    if tau < t_t + t_d - _EPS_S:
+        return _CODE_DEAD
+    if tau < t_t + t_d + t_p - _EPS_S:
+        return _CODE_PROPULSION
+    return _CODE_DEAD
+
+
+@numba.njit(cache=True, nogil=True)
+def phase_codes(sv, ts):  # type: ignore[no-untyped-def]
+    """:func:`phase_code` at every time of ``ts``, int8."""
+    out = np.empty(ts.shape[0], dtype=np.int8)
+    for i in range(ts.shape[0]):
+        out[i] = phase_code(sv, ts[i])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def tracking_window_at(sv, t_s):  # type: ignore[no-untyped-def]
+    """``(index, start, end, t_acq, t_deliver)`` of the tracking window containing ``t_s``; index -1 if none."""
+    if sv[0] < 0.5 or phase_code(sv, t_s) != _CODE_TRACKING:
+        return -1, 0.0, 0.0, 0.0, 0.0
+    n, _tau = _cycle_c(sv, t_s)
+    start = sv[5] + n * sv[6]
+    end = start + sv[1]
+    return n, start, end, 0.5 * (start + end), end + sv[4]
+
+
+@numba.njit(cache=True, nogil=True)
+def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]
+    """:func:`propulsion_limit` for valid arguments (compiled)."""
+    if sv[0] < 0.5:
+        return sat
+    n, tau = _cycle_c(sv, t_s)
+    if n < 0:
+        return 0.0
+    p0 = sv[1] + sv[2]
+    p1 = p0 + sv[3]
+    if tau < p0 - _EPS_S or tau + hold_s > p1 + _EPS_S:
+        return 0.0
+    rem = p1 - tau - hold_s
+    if rem <= _EPS_S:  # within the 1 ns tick tolerance of the window's end: exactly zero
+        return 0.0
+    # 1e-9 relative margin: rounding in tau must not leave the last step a hair above S dt, or
+    # the slew-scaled step would land 1e-18 T/m short of exactly zero
+    v = slew * rem * (1.0 - 1e-9)
+    return sat if not v < sat else v
+
+
+@numba.njit(cache=True, nogil=True)
+def target_for(px, pz, cx, cz, limit, max_step):  # type: ignore[no-untyped-def]
+    """:func:`propulsion_target` (compiled; CPython's ``math.hypot`` via ``hypot2``): ``(gx, gz)``."""
+    n = hypot2(cx, cz)
+    if n > limit:
+        if limit <= 0.0:
+            cx = 0.0
+            cz = 0.0
+        else:
+            cx = cx * (limit / n)
+            cz = cz * (limit / n)
+    sx = cx - px
+    sz = cz - pz
+    ax = abs(sx)
+    az = abs(sz)
+    biggest = az if az > ax else ax
+    # the coil's own step, S times the tick as it measures it, may be a rounding larger: the endpoint
+    # estimated with a slightly smaller step lies on the same segment, so inside the disc means inside
+    step = max_step * (1.0 - 1e-9)
+    if biggest > step:
+        f = step / biggest
+        ex = px + sx * f
+        ez = pz + sz * f
+    else:
+        ex = cx
+        ez = cz
+    if hypot2(ex, ez) <= limit:
+        return cx, cz
+    m = hypot2(px, pz)
+    if m <= limit or m == 0.0:
+        return px, pz
+    return px * (limit / m), pz * (limit / m)
+
+
+def _check_time(t_s: float) -> None:
+    if not math.isfinite(t_s):
+        raise ConfigError(f"sequence time must be finite, got {t_s!r}")
 
 
 def phase_at(params: SequenceParams, t_s: float) -> Phase:
     """The sequence phase at time ``t_s`` (s).  Before ``start_s`` the scanner is in dead time."""
     if params.mode == "continuous":
         return "continuous"
-    n, tau = _cycle(params, t_s)
-    if n < 0:
-        return "dead"
-    t_t, t_d, t_p = params.tracking_window_s, params.dead_time_s, params.propulsion_window_s
-    if tau < t_t - _EPS_S:
-        return "tracking"
-    if tau < t_t + t_d - _EPS_S:
-        return "dead"
-    if tau < t_t + t_d + t_p - _EPS_S:
-        return "propulsion"
-    return "dead"
+    _check_time(t_s)
+    return _PHASE_NAMES[phase_code(sequence_vector(params), float(t_s))]
 
 
 class PhaseWindow(NamedTuple):
@@ -154,7 +268,8 @@ def window_at(params: SequenceParams, t_s: float) -> PhaseWindow:
     """The phase window containing ``t_s`` (what the coil driver publishes on the sequence-phase port)."""
     if params.mode == "continuous":
         return PhaseWindow("continuous", -1, 0.0, math.inf)
-    n, tau = _cycle(params, t_s)
+    _check_time(t_s)
+    n, tau = _cycle_c(sequence_vector(params), float(t_s))
     if n < 0:
         return PhaseWindow("dead", -1, -math.inf, params.start_s)
     t0 = params.start_s + n * params.period_s
@@ -169,12 +284,11 @@ def window_at(params: SequenceParams, t_s: float) -> PhaseWindow:
 
 def tracking_window_of(params: SequenceParams, t_s: float) -> TrackingWindow | None:
     """The tracking window containing ``t_s``, or None (continuous mode or another phase)."""
-    if params.mode == "continuous" or phase_at(params, t_s) != "tracking":
+    if params.mode == "continuous":
         return None
-    n, _ = _cycle(params, t_s)
-    start = params.start_s + n * params.period_s
-    end = start + params.tracking_window_s
-    return TrackingWindow(n, start, end, 0.5 * (start + end), end + params.latency_s)
+    _check_time(t_s)
+    n, start, end, t_acq, t_deliver = tracking_window_at(sequence_vector(params), float(t_s))
+    return None if n < 0 else TrackingWindow(int(n), start, end, t_acq, t_deliver)
 
 
 def propulsion_limit(params: SequenceParams, t_s: float, hold_s: float, slew_T_per_m_per_s: float,
@@ -199,19 +313,9 @@ def propulsion_limit(params: SequenceParams, t_s: float, hold_s: float, slew_T_p
     if not (hold_s >= 0.0 and slew_T_per_m_per_s > 0.0 and saturation_T_per_m > 0.0):
         raise ConfigError(f"propulsion_limit needs hold_s >= 0, S > 0, saturation > 0, got "
                           f"{hold_s!r}, {slew_T_per_m_per_s!r}, {saturation_T_per_m!r}")
-    n, tau = _cycle(params, t_s)
-    if n < 0:
-        return 0.0
-    p0 = params.tracking_window_s + params.dead_time_s
-    p1 = p0 + params.propulsion_window_s
-    if tau < p0 - _EPS_S or tau + hold_s > p1 + _EPS_S:
-        return 0.0
-    rem = p1 - tau - hold_s
-    if rem <= _EPS_S:  # within the 1 ns tick tolerance of the window's end: exactly zero
-        return 0.0
-    # 1e-9 relative margin: rounding in tau must not leave the last step a hair above S dt, or
-    # the slew-scaled step would land 1e-18 T/m short of exactly zero
-    return min(saturation_T_per_m, slew_T_per_m_per_s * rem * (1.0 - 1e-9))
+    _check_time(t_s)
+    return float(limit_at(sequence_vector(params), float(t_s), float(hold_s), float(slew_T_per_m_per_s),
+                          float(saturation_T_per_m)))
 
 
 def propulsion_target(applied_prev: tuple[float, float], commanded: tuple[float, float], limit_T_per_m: float,
@@ -235,27 +339,6 @@ def propulsion_target(applied_prev: tuple[float, float], commanded: tuple[float,
     Returns:
         (gx, gz) the target to hand the coil (T/m).
     """
-    cx, cz = commanded
-    n = math.hypot(cx, cz)
-    if n > limit_T_per_m:
-        if limit_T_per_m <= 0.0:
-            cx = cz = 0.0
-        else:
-            cx, cz = cx * (limit_T_per_m / n), cz * (limit_T_per_m / n)
-    px, pz = applied_prev
-    sx, sz = cx - px, cz - pz
-    biggest = max(abs(sx), abs(sz))
-    # the coil's own step, S times the tick as it measures it, may be a rounding larger: the endpoint
-    # estimated with a slightly smaller step lies on the same segment, so inside the disc means inside
-    step = max_step_T_per_m * (1.0 - 1e-9)
-    if biggest > step:
-        f = step / biggest
-        ex, ez = px + sx * f, pz + sz * f
-    else:
-        ex, ez = cx, cz
-    if math.hypot(ex, ez) <= limit_T_per_m:
-        return (cx, cz)
-    m = math.hypot(px, pz)
-    if m <= limit_T_per_m or m == 0.0:
-        return (px, pz)
-    return (px * (limit_T_per_m / m), pz * (limit_T_per_m / m))
+    gx, gz = target_for(float(applied_prev[0]), float(applied_prev[1]), float(commanded[0]), float(commanded[1]),
+                        float(limit_T_per_m), float(max_step_T_per_m))
+    return (float(gx), float(gz))

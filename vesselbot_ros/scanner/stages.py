@@ -23,24 +23,115 @@ saturation and slew limits hold across window edges.
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput, coil_params, coil_saturate
-from vesselbot_ros.control.imager_model import ImagerModel, Measurement, check_frame_inputs
+from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput, coil_apply, coil_params, coil_saturate
+from vesselbot_ros.control.imager_model import ImagerModel, Measurement, check_frame_inputs, imager_acquire
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.scanner.sequence import SequenceParams, propulsion_limit, propulsion_target, tracking_window_of
+from vesselbot_ros.scanner.sequence import SequenceParams, limit_at, sequence_vector, target_for, tracking_window_at
 
-__all__ = ["SequencedImager", "SequencedCoil"]
+__all__ = ["SequencedImager", "SequencedCoil", "seq_imager_frame", "seq_coil_apply", "SEQ_IMAGER_STATE_SIZE",
+           "new_seq_imager_state"]
 
 _EPS_S = 1e-9
+
+# ---- compiled stages ------------------------------------------------------------------------------
+# imager state st (8,): [open window index (-1: none), sum x, sum z, ticks summed, window t_acq, window t_deliver,
+#   queue head, queue tail]; queue (cap, 5): [t_deliver, t_acq, x, z, outlier] of frames waiting for delivery;
+# acq (5,) scratch of imager_acquire; out (5,) as imager_frame: [delivered (0/1), t_acq, x, z, outlier]
+SEQ_IMAGER_STATE_SIZE = 8
+
+
+def new_seq_imager_state() -> npt.NDArray[np.float64]:
+    """A fresh imager state (no window open, empty queue)."""
+    st = np.zeros(SEQ_IMAGER_STATE_SIZE)
+    st[0] = -1.0
+    return st
+
+
+@numba.njit(cache=True, nogil=True)
+def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz, out):  # type: ignore[no-untyped-def]
+    """:meth:`SequencedImager.frame` over explicit state (same draws, same doubles).
+
+    The caller checks the inputs (finite, time not going back) and sizes
+    ``queue`` for every frame that can wait (one row per tick is enough; the
+    head and tail only grow).  Writes ``out``; allocates nothing.
+    """
+    w, _start, _end, w_acq, w_del = tracking_window_at(sv, t)
+    if st[0] >= 0.0 and (w < 0 or w != st[0]):  # the open window ended: acquire its frame
+        st[0] = -1.0
+        if st[3] > 0.0:
+            imager_acquire(prm, outliers, dropouts, rng, st[4], st[1] / st[3], st[2] / st[3], acq)
+            if acq[0] > 0.5:
+                j = int(st[7])
+                queue[j, 0] = st[5]
+                queue[j, 1] = st[4]
+                queue[j, 2] = acq[2]
+                queue[j, 3] = acq[3]
+                queue[j, 4] = acq[4]
+                st[7] += 1.0
+    if w >= 0:
+        if st[0] < 0.0:
+            st[0] = float(w)
+            st[1] = 0.0
+            st[2] = 0.0
+            st[3] = 0.0
+            st[4] = w_acq
+            st[5] = w_del
+        st[1] += px
+        st[2] += pz
+        st[3] += 1.0
+    out[0] = 0.0
+    while st[6] < st[7]:
+        j = int(st[6])
+        if not queue[j, 0] <= t + _EPS_S:
+            break
+        out[0] = 1.0
+        out[1] = queue[j, 1]
+        out[2] = queue[j, 2]
+        out[3] = queue[j, 3]
+        out[4] = queue[j, 4]
+        st[6] += 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def seq_coil_apply(prm, sv, hold, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
+    """:meth:`SequencedCoil.apply` over the coil's explicit state (:func:`coil_apply`'s ``prm``, ``state``, ``out``).
+
+    Saturates the command in the coil's norm, gates it by the sequence
+    (:func:`~vesselbot_ros.scanner.sequence.limit_at`, ``target_for``), then
+    slew-limits it; ``out[2]`` is the saturation factor of the command,
+    ``out[6]`` 1 if the command was rejected (non-finite).  The caller checks
+    that time does not go back.
+    """
+    p0 = state[0]
+    p1 = state[1]
+    finite = math.isfinite(gx) and math.isfinite(gz)
+    if not finite:  # the coil's own rejection rule, then the gate (it must not hold into a tracking window)
+        if prm[3] < 0.5:  # hold
+            gx = p0
+            gz = p1
+        else:
+            gx = 0.0
+            gz = 0.0
+    lim = limit_at(sv, t, hold, prm[1], prm[0])
+    sx, sz, k = coil_saturate(prm, gx, gz)
+    tx, tz = target_for(p0, p1, sx, sz, lim, prm[1] * hold)
+    coil_apply(prm, state, t, tx, tz, out)
+    out[2] = k
+    out[3] = 1.0 if k > 1.0 else 0.0
+    out[6] = 0.0 if finite else 1.0
 
 
 class SequencedImager:
     """An imager that acquires only in tracking windows (see module docstring).
+
+    Each tick is one call of the compiled :func:`seq_imager_frame` (which the
+    compiled closed loop calls too).
 
     Args:
         imager: The imager model (noise, outliers, dropouts, seeded generator).
@@ -52,11 +143,17 @@ class SequencedImager:
             raise ModelInputError("SequencedImager needs a multiplexed sequence")
         self.inner = imager
         self.sequence = sequence
-        self._window: Any = None
-        self._sum = [0.0, 0.0]
-        self._count = 0
-        self._queue: deque[tuple[float, Measurement]] = deque()
+        self.sv = sequence_vector(sequence)
+        self._st = new_seq_imager_state()
+        self._queue = np.empty((16, 5))
+        self._acq = np.zeros(5)
+        self._out = np.zeros(5)
         self._t_last = -math.inf
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator the imager draws from (the inner model's)."""
+        return self.inner.rng
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
         """As :meth:`ImagerModel.inject_outliers` (by acquisition time)."""
@@ -66,16 +163,6 @@ class SequencedImager:
         """As :meth:`ImagerModel.inject_dropout` (by acquisition time)."""
         self.inner.inject_dropout(start_s, duration_s)
 
-    def _close_window(self) -> None:
-        w = self._window
-        self._window = None
-        if self._count == 0:
-            return
-        p = np.array([self._sum[0] / self._count, self._sum[1] / self._count])
-        meas = self.inner.acquire(w.t_acq_s, p)
-        if meas is not None:
-            self._queue.append((w.t_deliver_s, meas))
-
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
         """Accumulate (inside a tracking window) and deliver (when due) at tick ``t_s``.
 
@@ -84,23 +171,27 @@ class SequencedImager:
         """
         p = check_frame_inputs(t_s, p_true, self._t_last)
         self._t_last = t_s
-        w = tracking_window_of(self.sequence, t_s)
-        if self._window is not None and (w is None or w.index != self._window.index):
-            self._close_window()
-        if w is not None:
-            if self._window is None:
-                self._window, self._sum, self._count = w, [0.0, 0.0], 0
-            self._sum[0] += float(p[0])
-            self._sum[1] += float(p[1])
-            self._count += 1
-        out: Measurement | None = None
-        while self._queue and self._queue[0][0] <= t_s + _EPS_S:
-            out = self._queue.popleft()[1]
-        return out
+        st = self._st
+        if int(st[7]) + 1 >= self._queue.shape[0]:  # room for one more frame: move the waiting ones to the front
+            head, tail = int(st[6]), int(st[7])
+            grown = np.empty((max(16, 2 * (tail - head + 1)), 5))
+            grown[:tail - head] = self._queue[head:tail]
+            self._queue = grown
+            st[6], st[7] = 0.0, float(tail - head)
+        inner = self.inner
+        seq_imager_frame(self.sv, inner._prm, inner._outliers, inner._dropouts, inner.rng, st, self._queue, self._acq,
+                         float(t_s), float(p[0]), float(p[1]), self._out)
+        o = self._out
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(o[1]), o[2:4].copy(), bool(o[4] > 0.5))
 
 
 class SequencedCoil:
     """A coil driver that propels only in propulsion windows (see module docstring).
+
+    Each command is one call of the compiled :func:`seq_coil_apply` on the
+    inner coil's state (which the compiled closed loop calls too).
 
     Args:
         coil: The saturation/slew limiter.
@@ -114,9 +205,8 @@ class SequencedCoil:
         self.inner = coil
         self.sequence = sequence
         self.limits = coil.limits
-        self._hold = float(hold_s)
-        self._slew = float(coil.limits.slew_rate_T_per_m_per_s)
-        self._sat = float(coil.limits.saturation_T_per_m)
+        self.hold_s = float(hold_s)
+        self.sv = sequence_vector(sequence)
         self._prm = coil_params(coil.limits)
 
     @property
@@ -124,20 +214,20 @@ class SequencedCoil:
         """(2,) last applied gradient, T/m."""
         return self.inner.applied
 
+    @property
+    def state(self) -> npt.NDArray[np.float64]:
+        """(4,) copy of the inner coil's compiled state (:attr:`CoilLimiter.state`)."""
+        return self.inner.state
+
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
         """Saturate the command in the coil's norm, gate it by the sequence, then slew-limit it."""
         g = np.asarray(commanded_T_per_m, dtype=np.float64)
         if g.shape != (2,):
             raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
-        prev = self.inner.applied
-        finite = math.isfinite(g[0]) and math.isfinite(g[1])
-        if not finite:  # the coil's own rejection rule, then the gate (it must not hold into a tracking window)
-            g = prev if self.limits.on_reject == "hold" else np.zeros(2)
-        lim = propulsion_limit(self.sequence, t_s, self._hold, self._slew, self._sat)
-        sx, sz, k = coil_saturate(self._prm, float(g[0]), float(g[1]))  # the coil's own norm and k
-        target = propulsion_target((float(prev[0]), float(prev[1])), (sx, sz), lim, self._slew * self._hold)
-        out = self.inner.apply(t_s, np.array(target))
-        return out._replace(k_scale=float(k), saturated=k > 1.0, rejected=not finite)
+        inner = self.inner
+        inner._dt(t_s)  # time must be finite and not go back
+        seq_coil_apply(self._prm, self.sv, self.hold_s, inner._state, float(t_s), float(g[0]), float(g[1]), inner._out)
+        return inner._output()
 
     def watchdog(self, t_now_s: float) -> CoilOutput | None:
         """As :meth:`CoilLimiter.watchdog` (a ramp to zero is always allowed)."""

@@ -64,6 +64,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
+import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Literal, NamedTuple
@@ -81,8 +83,8 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
 from vesselbot_ros.scanner.hardware import effective_coil_limits
+from vesselbot_ros.scanner.sequence import duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.vessels.route import navigation_metrics, planned_reference
-from vesselbot_ros.scanner.sequence import PHASE_CODES, duty_cycle, phase_at
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim import compiled_loop
 from vesselbot_ros.sim.metrics import compute_metrics
@@ -111,9 +113,6 @@ class Stages(NamedTuple):
 #: Stages a scenario may replace with a user's object (``stages=`` of :func:`run_closed_loop`):
 #: every field of :class:`Stages` but the model.
 REPLACEABLE = tuple(f for f in Stages._fields if f != "model")
-#: The built-in type of each replaceable stage, in field order: the types the compiled loop runs.
-_BUILTIN = dict(zip(REPLACEABLE, (PlantSimulator, ImagerModel, HighGainObserver, ReferenceTrajectory,
-                                  BacksteppingController, CoilLimiter), strict=True))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,11 +204,17 @@ def run_closed_loop(
         ModelInputError: if an integration fails (reported with the state), or
             ``path="compiled"`` with a user stage.
     """
-    st = build_stages(scenario, seed)
     user = dict(stages or {})
     unknown = sorted(set(user) - set(REPLACEABLE))
     if unknown:
         raise ModelInputError(f"stages: unknown stage name(s) {unknown}; replaceable: {list(REPLACEABLE)}")
+    if path not in ("auto", "compiled", "per_tick"):
+        raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
+    if not user and path != "per_tick":
+        inp = prepared(scenario)  # built-in stages: prepared once per scenario, the imager's seed per run
+        if inp is not None:
+            return _compiled_result(scenario, seed, inp, np.random.default_rng(scenario.seed if seed is None else int(seed)))
+    st = build_stages(scenario, seed)
     return run_stages(scenario, st._replace(**user), seed, path=path)
 
 
@@ -229,42 +234,66 @@ def run_stages(
     """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    foreign = _foreign_stages(stages)
-    compiled = not foreign and getattr(stages.controller, "model_params", None) is not None
-    if path == "compiled" and not compiled:
-        why = (f"user stage(s) {foreign}" if foreign else
-               "a controller option it lacks (adaptive backstepping, flow or duty compensation)")
-        raise ModelInputError(f"path='compiled' needs the built-in stages, got {why}")
-    if compiled and path != "per_tick":
+    foreign = compiled_loop.foreign_stages(stages)
+    if path == "compiled" and foreign:
+        raise ModelInputError(f"path='compiled' needs the built-in stages, got {_foreign_reason(stages, foreign)}")
+    if not foreign and path != "per_tick":
         inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
         return _compiled_result(scenario, seed, inp, stages.imager.rng)
     return _run_per_tick(scenario, seed, stages)
 
 
-def _foreign_stages(stages: Stages) -> list[str]:
-    """Stages the compiled loop cannot run (a user's, the EKF, the scanner's), by name."""
-    return sorted(name for name, cls in _BUILTIN.items() if type(getattr(stages, name)) is not cls)
+def _foreign_reason(stages: Stages, foreign: list[str]) -> str:
+    """Why the compiled loop cannot run ``stages`` (``foreign`` from :func:`compiled_loop.foreign_stages`)."""
+    ctl = stages.controller
+    if foreign == ["controller"] and type(ctl) is BacksteppingController and ctl.adapted is not None:
+        return "a controller option it lacks (adaptive backstepping)"
+    return f"user stage(s) {foreign}"
+
+
+# Prepared kernel inputs per scenario object (a frozen Scenario: the same object is the same scenario), so that
+# repeated runs of one scenario over seeds build the stages and sample the reference once.  Keyed on id() and
+# checked through a weak reference (the dict never keeps a scenario alive, and a recycled id is detected).
+_PREPARED: dict[int, tuple[weakref.ref[Scenario], compiled_loop.LoopInputs | None]] = {}
+_PREPARED_LOCK = threading.Lock()
+_PREPARED_MAX = 64
+
+
+def prepared(scenario: Scenario) -> compiled_loop.LoopInputs | None:
+    """The compiled loop's inputs for ``scenario`` (None if its stages are not all built in), cached per object."""
+    key = id(scenario)
+    with _PREPARED_LOCK:
+        hit = _PREPARED.get(key)
+        if hit is not None and hit[0]() is scenario:
+            return hit[1]
+    st = build_stages(scenario, None)
+    inp = None if compiled_loop.foreign_stages(st) else compiled_loop.prepare(
+        st, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
+    with _PREPARED_LOCK:
+        if len(_PREPARED) >= _PREPARED_MAX:
+            _PREPARED.clear()
+        _PREPARED[key] = (weakref.ref(scenario), inp)
+    return inp
 
 
 def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.LoopInputs, rng: np.random.Generator,
                      keep_timeseries: bool = True) -> SimResult:
     cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
-    series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts, "p_ref": inp.p_ref, "v_ref": inp.v_ref, "a_ref": inp.a_ref}
+    # copies: the prepared inputs are shared by every run of the scenario and must not be written through a result
+    series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts.copy(), "p_ref": inp.p_ref.copy(), "v_ref": inp.v_ref.copy(),
+                                           "a_ref": inp.a_ref.copy()}
     series.update(cols)
-    # the compiled loop runs observer (25) (no flow scale) in a continuous sequence: the columns the
-    # per-tick loop records for the EKF and the scanner, with the same values it would record
-    series["flow_scale_hat"] = np.ones(inp.ts.size)
+    # the compiled loop has no adaptive controller: the column the per-tick loop records for it, with the
+    # value it records for every other controller
     series["magnetization_scale_hat"] = np.ones(inp.ts.size)
-    series["sequence_phase"] = _sequence_phase(scenario, inp.ts)
+    series["sequence_phase"] = _sequence_phase(scenario, series["t_s"])
     metrics = _metrics(scenario, seed, series, plant_stats, model_stats)
     return SimResult(series if keep_timeseries else {}, metrics, "compiled")
 
 
 def _sequence_phase(scenario: Scenario, ts: npt.NDArray[np.float64]) -> npt.NDArray[np.int8]:
-    """The scanner's phase code at every tick (``sequence_phase`` column)."""
-    if scenario.sequence.mode == "continuous":  # one phase throughout: no per-tick Python call per run
-        return np.full(ts.size, PHASE_CODES["continuous"], dtype=np.int8)
-    return np.array([PHASE_CODES[phase_at(scenario.sequence, float(t))] for t in ts], dtype=np.int8)
+    """The scanner's phase code at every tick (``sequence_phase`` column; compiled :func:`phase_codes`)."""
+    return phase_codes(sequence_vector(scenario.sequence), ts)
 
 
 def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDArray[Any]],
@@ -416,10 +445,8 @@ def run_many(
     seed_list = None if seeds is None else [int(x) for x in seeds]
     jobs: list[tuple[Scenario, int | None, compiled_loop.LoopInputs | None]] = []
     for sc in variants:
-        st = build_stages(sc, None)
-        compilable = not _foreign_stages(st) and getattr(st.controller, "model_params", None) is not None
-        # a variant with stages the compiled loop does not have (EKF, scanner) runs the per-tick loop
-        inp = compiled_loop.prepare(st, sc.sim.n_ticks, sc.sim.dt_control_s, sc.sim.record_forces) if compilable else None
+        # a variant with stages the compiled loop does not have runs the per-tick loop
+        inp = prepared(sc)
         for seed in seed_list if seed_list is not None else [None]:
             jobs.append((sc, seed, inp))
 

@@ -3,8 +3,11 @@
 :func:`loop_kernel` runs every tick of one run in numba, calling the compiled
 stages in the runner's order::
 
-    plant output (nearest_wall_delta, forces_into)  -> imager_frame
-    -> observer_update -> backstepping_command -> coil_apply -> plant step (integrate_dopri5_ws)
+    plant output (wall_delta_xz, forces_into)
+    -> imager_frame | seq_imager_frame (scanner)
+    -> observer_update (25) | ekf_update (extended Kalman)
+    -> backstepping_command (24, any sample hold, flow and duty compensation)
+    -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate_dopri5_ws | integrate_rk4_ws)
 
 over explicit state arrays that :func:`prepare` builds from the same
 :class:`~vesselbot_ros.sim.closed_loop.Stages` as the per-tick loop, and it
@@ -18,9 +21,10 @@ Random draws: the imager's ``numpy.random.Generator`` is passed into the
 kernel and drawn from in the documented order (two standard normals, two
 uniforms per acquired frame), so one seed gives one stream in both paths.
 
-Bad input inside the loop (a non-finite state, a failing integrator) stops
-the kernel at that tick with a code; :func:`raise_for_code` raises the
-per-tick loop's :class:`~vesselbot_ros.errors.ModelInputError`, word for word.
+Bad input inside the loop (a non-finite state, a failing integrator, a flow
+scale the law cannot use) stops the kernel at that tick with a code;
+:func:`raise_for_code` raises the per-tick loop's
+:class:`~vesselbot_ros.errors.ModelInputError`, word for word.
 
 The kernel releases the GIL (``nogil``), so :func:`~vesselbot_ros.sim.closed_loop.run_many`
 runs several in threads.
@@ -37,26 +41,30 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2
-from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, coil_apply, coil_params
-from vesselbot_ros.control.backstepping import backstepping_command, controller_params
+from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
+from vesselbot_ros.control.backstepping import FLOW_SCALE_INVALID, backstepping_command, flow_scale_message
+from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
 from vesselbot_ros.control.high_gain_observer import (
     HISTORY_LEN,
     integrator_vector,
     observer_params,
     observer_update,
 )
-from vesselbot_ros.control.imager_model import imager_arrays, imager_frame
+from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
-__all__ = ["LoopInputs", "prepare", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS"]
+__all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
 OBSERVER_FAILED = 2  # the observer's model integration failed
 ESTIMATE_NONFINITE = 3  # the controller got a non-finite estimate
 REFERENCE_NONFINITE = 4  # the controller got a non-finite reference sample
+EKF_FAILED = 5  # the extended Kalman filter's prediction failed
+FLOW_SCALE_FAILED = 6  # the compensating law got a flow scale it cannot use
 
 #: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order.
 COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
@@ -70,6 +78,7 @@ COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
     ("meas_outlier", np.bool_, ()),
     ("x_hat", np.float64, (2,)),
     ("z_hat", np.float64, (2,)),
+    ("flow_scale_hat", np.float64, ()),
     ("meas_used", np.bool_, ()),
     ("meas_rejected", np.bool_, ()),
     ("u_cmd", np.float64, (2,)),
@@ -87,7 +96,7 @@ class LoopInputs:
     """Everything :func:`loop_kernel` reads for one scenario (shared by the runs of a batch; read-only).
 
     Built by :func:`prepare` from freshly built stages; the per-run state is
-    created by :func:`run_kernel`.
+    created by :func:`run_kernel` (copies of the initial state held here).
     """
 
     n: int
@@ -99,72 +108,131 @@ class LoopInputs:
     plant_p: npt.NDArray[np.float64]
     model_p: npt.NDArray[np.float64]
     ig: npt.NDArray[np.float64]
+    obs_ig: npt.NDArray[np.float64]
     imager_prm: npt.NDArray[np.float64]
     outliers: npt.NDArray[np.float64]
     dropouts: npt.NDArray[np.float64]
+    obs_kind: int
     obs_prm: npt.NDArray[np.float64]
+    ekf: EkfState | None
     ctrl_prm: npt.NDArray[np.float64]
     coil_prm: npt.NDArray[np.float64]
+    seq_mode: int
+    sv: npt.NDArray[np.float64]
+    hold_s: float
     plant_y0: npt.NDArray[np.float64]
     obs_y0: npt.NDArray[np.float64]
-    coil_t0: float
+    coil_state0: npt.NDArray[np.float64]
     record_forces: bool
+
+
+#: observer kinds of :func:`loop_kernel`
+OBS_HIGH_GAIN, OBS_EKF = 0, 1
+
+
+def foreign_stages(stages: Any) -> list[str]:
+    """The stages :func:`prepare` cannot read (a user's object, or a built-in one over a user's part), by name."""
+    from vesselbot_ros.control.backstepping import BacksteppingController
+    from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
+    from vesselbot_ros.control.high_gain_observer import HighGainObserver
+    from vesselbot_ros.sim.plant import PlantSimulator
+
+    bad = []
+    if type(stages.plant) is not PlantSimulator:
+        bad.append("plant")
+    im = stages.imager
+    if not (type(im) is ImagerModel or (type(im) is SequencedImager and type(im.inner) is ImagerModel)):
+        bad.append("imager")
+    ob = stages.observer
+    if not ((type(ob) is HighGainObserver and getattr(ob, "_compiled", False)) or type(ob) is ExtendedKalmanObserver):
+        bad.append("observer")
+    if type(stages.reference) is not ReferenceTrajectory:
+        bad.append("reference")
+    if type(stages.controller) is not BacksteppingController or stages.controller.model_params is None:
+        bad.append("controller")
+    co = stages.coil
+    if not (type(co) is CoilLimiter or (type(co) is SequencedCoil and type(co.inner) is CoilLimiter)):
+        bad.append("coil")
+    return bad
 
 
 def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs.
 
-    Takes the parameters the stage objects hold (so both paths read the same
-    numbers) and the reference sampled at every tick (``sample_many``, as the
-    per-tick runner does).
+    Takes the parameters and the initial state the stage objects hold (so
+    both paths read the same numbers) and the reference sampled at every tick
+    (``sample_many``, as the per-tick runner does).
+
+    Raises:
+        ModelInputError: a stage the compiled loop does not have (:func:`foreign_stages`).
     """
+    bad = foreign_stages(stages)
+    if bad:
+        raise ModelInputError(f"compiled loop needs the built-in stages, got user stage(s) {bad}")
     ts = np.arange(n) * dt
     p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
     plant, observer, controller, coil, model = stages.plant, stages.observer, stages.controller, stages.coil, stages.model
-    if controller.model_params is None:
-        raise ModelInputError("compiled loop needs the controller's F from the DynamicsModel")
-    ig = integrator_vector(plant.integrator)
-    if not np.array_equal(ig, integrator_vector(model.integrator)):
-        raise ModelInputError("compiled loop needs the same integrator settings for the plant and the observer's model")
-    imager_prm, outliers, dropouts = imager_arrays(stages.imager.params)
+    imager = stages.imager.inner if isinstance(stages.imager, SequencedImager) else stages.imager
+    limiter = coil.inner if isinstance(coil, SequencedCoil) else coil
+    seq = isinstance(coil, SequencedCoil) or isinstance(stages.imager, SequencedImager)
+    if seq and not (isinstance(coil, SequencedCoil) and isinstance(stages.imager, SequencedImager)
+                    and np.array_equal(coil.sv, stages.imager.sv)):
+        raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
+    if isinstance(observer, ExtendedKalmanObserver):
+        obs_kind, obs_prm, ekf, obs_y0 = OBS_EKF, np.zeros(11), observer.ekf.copy(), np.zeros(4)
+    else:
+        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer_params(observer.params, mat2(model.input_matrix)), None, observer.state
     return LoopInputs(
         n=n, dt=dt, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
-        plant_p=plant.p, model_p=model.p, ig=ig,
-        imager_prm=imager_prm, outliers=outliers, dropouts=dropouts,
-        obs_prm=observer_params(observer.params, mat2(model.input_matrix)),
+        plant_p=plant.p, model_p=model.p, ig=integrator_vector(plant.integrator),
+        obs_ig=integrator_vector(model.integrator),
+        imager_prm=imager._prm, outliers=imager._outliers, dropouts=imager._dropouts,
+        obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf,
         ctrl_prm=controller.params_vector,
-        coil_prm=coil_params(coil.limits),
-        plant_y0=plant.state, obs_y0=observer.state, coil_t0=float(coil.state[2]),
+        coil_prm=coil_params(limiter.limits),
+        seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
+        plant_y0=plant.state, obs_y0=obs_y0, coil_state0=limiter.state,
         record_forces=record_forces,
     )
 
 
 @numba.njit(cache=True, nogil=True)
-def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # type: ignore[no-untyped-def]
-                imager_prm, outliers, dropouts, obs_prm, ctrl_prm, coil_prm,
+def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]
+                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, coil_prm, seq_mode, sv, hold_s,
                 y, contact, obs_y, obs_contact, obs_scal, coil_state,
+                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
+                e_vec, e_mat,
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
-                x_hat, z_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
+                x_hat, z_hat, flow_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
                 slew_limited, cmd_status, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
 
-    State arrays (``y``, ``contact``, ``obs_*``, ``coil_state``, stats) are
-    updated in place; ``err`` (3,) receives ``[t0, t1, integrator code]`` of a
-    failed integration.  All scratch is allocated once, before the first tick.
+    State arrays (``y``, ``contact``, ``obs_*``, the filter's ``e_*``,
+    ``coil_state``, stats) are updated in place; ``err`` (8,) receives the
+    failure's details (``[t0, t1, integrator code, state...]``, or the flow
+    scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the
+    ``obs_*`` arrays) or the extended Kalman filter (:data:`OBS_EKF`, the
+    ``e_*`` arrays); ``seq_mode`` 1 runs the scanner's imager and coil on the
+    sequence ``sv``.  All scratch is allocated once, before the first tick.
     """
     work, fbuf = new_workspace()
     obs_work, obs_fbuf = new_workspace()
     ctrl_fbuf = np.empty((8, 2))
+    ctrl_p_s = np.empty(model_p.shape[0])
     free = np.zeros(4)
-    queue = np.empty((n + 1, 4))
+    queue = np.empty((n + 1, 5))
     img_state = np.zeros(4)
     img_state[1] = -math.inf
+    seq_state = np.zeros(8)
+    seq_state[0] = -1.0
+    acq = np.zeros(5)
     img_out = np.zeros(5)
     hist = np.empty((HISTORY_LEN, 3))
     hist_n = np.zeros(2, dtype=np.int64)
-    obs_out = np.zeros(9)
+    obs_out = np.zeros(EKF_OUT_SIZE)
+    obs_out[9] = 1.0  # observer (25) does not estimate the flow scale
     ctrl_last = np.zeros(2)
     ctrl_out = np.zeros(4)
     coil_out = np.zeros(COIL_OUT_SIZE)
@@ -185,7 +253,10 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # ty
         if record_forces:
             forces_into(t, y[0], y[1], y[2], y[3], gx_prev, gz_prev, contact, plant_p, forces[k])
         # imager (the plant state is finite: the integrator checked it)
-        imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], img_out)
+        if seq_mode == 1:
+            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[0], y[1], img_out)
+        else:
+            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], img_out)
         has_meas = img_out[0] > 0.5
         if has_meas:
             meas_p[k, 0] = img_out[2]
@@ -197,18 +268,26 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # ty
             meas_p[k, 1] = np.nan
             meas_t_acq_s[k] = np.nan
         # observer
-        code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, ig, model_p, model_stats,
-                               obs_work, obs_fbuf, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
-                               img_out[3], obs_out)
-        if code != OK:
-            err[0] = obs_scal[0]
-            err[1] = t
-            err[2] = code
-            return OBSERVER_FAILED, k
+        if obs_kind == OBS_EKF:
+            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p,
+                              e_p_s, e_work, e_fbuf, e_vec, e_mat, model_stats, t, gx_prev, gz_prev, has_meas,
+                              img_out[1], img_out[2], img_out[3], obs_out, err)
+            if code != OK:
+                return EKF_FAILED, k
+        else:
+            code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_p, model_stats,
+                                   obs_work, obs_fbuf, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
+                                   img_out[3], obs_out)
+            if code != OK:
+                err[0] = obs_scal[0]
+                err[1] = t
+                err[2] = code
+                return OBSERVER_FAILED, k
         x_hat[k, 0] = obs_out[0]
         x_hat[k, 1] = obs_out[1]
         z_hat[k, 0] = obs_out[2]
         z_hat[k, 1] = obs_out[3]
+        flow_scale_hat[k] = obs_out[9]
         meas_used[k] = obs_out[7] > 0.5
         meas_rejected[k] = obs_out[8] > 0.5
         # controller
@@ -218,16 +297,22 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # ty
         if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
                 and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
             return REFERENCE_NONFINITE, k
-        status = backstepping_command(ctrl_prm, ctrl_last, model_p, free, ctrl_fbuf, t, obs_out[0], obs_out[1],
-                                      obs_out[2], obs_out[3], obs_out[4], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0],
-                                      v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
+        status = backstepping_command(ctrl_prm, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t, obs_out[0],
+                                      obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0],
+                                      p_ref[k, 1], v_ref[k, 0], v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
+        if status == FLOW_SCALE_INVALID:
+            err[0] = obs_out[9]
+            return FLOW_SCALE_FAILED, k
         g_cmd[k, 0] = ctrl_out[0]
         g_cmd[k, 1] = ctrl_out[1]
         u_cmd[k, 0] = ctrl_out[2]
         u_cmd[k, 1] = ctrl_out[3]
         cmd_status[k] = status
         # coil
-        coil_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
+        if seq_mode == 1:
+            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
+        else:
+            coil_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
         gx_prev = coil_out[0]
         gz_prev = coil_out[1]
         g_applied[k, 0] = gx_prev
@@ -253,6 +338,13 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, rng,  # ty
     return OK, n
 
 
+_NO_EKF: tuple[npt.NDArray[Any], ...] = (
+    np.zeros(20), np.zeros(4), np.zeros(6, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(1), np.zeros((1, 5)),
+    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros(1), np.zeros((10, 4)), np.zeros((8, 2)),
+    np.zeros((8, 5)), np.zeros((6, 5, 5)),
+)
+
+
 def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """One run of :func:`loop_kernel` with fresh state; returns ``(columns, plant stats, model stats)``.
 
@@ -266,19 +358,26 @@ def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt
     contact = np.zeros(4)
     obs_y = inp.obs_y0.copy()
     obs_contact = np.zeros(4)
-    obs_scal = np.array([0.0, -math.inf, 0.0, inp.ig[5]])
-    coil_state = np.array([0.0, 0.0, inp.coil_t0, inp.coil_t0])
+    obs_scal = np.array([0.0, -math.inf, 0.0, inp.obs_ig[5]])
+    coil_state = inp.coil_state0.copy()
     plant_stats = np.zeros(4, dtype=np.int64)
     model_stats = np.zeros(4, dtype=np.int64)
-    err = np.zeros(3)
+    err = np.zeros(8)
+    if inp.ekf is not None:
+        e = inp.ekf.copy()
+        ekf_arrays = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s, e.work,
+                      e.fbuf, e.vec, e.mat)
+    else:
+        ekf_arrays = _NO_EKF
     code, tick = loop_kernel(
-        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, rng,
-        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_prm, inp.ctrl_prm, inp.coil_prm,
-        y, contact, obs_y, obs_contact, obs_scal, coil_state, plant_stats, model_stats,
+        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, inp.obs_ig, rng,
+        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl_prm, inp.coil_prm,
+        inp.seq_mode, inp.sv, inp.hold_s,
+        y, contact, obs_y, obs_contact, obs_scal, coil_state, *ekf_arrays, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,
     )
     if code != OK:
-        raise_for_code(code, tick, inp, y, obs_y, err)
+        raise_for_code(code, tick, inp, y, ekf_arrays[3][:4].copy() if inp.ekf is not None else obs_y, err)
     if inp.record_forces:
         cols["forces"] = forces
     return cols, plant_stats, model_stats
@@ -286,13 +385,20 @@ def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt
 
 def raise_for_code(code: int, tick: int, inp: LoopInputs, y: npt.NDArray[np.float64], obs_y: npt.NDArray[np.float64],
                    err: npt.NDArray[np.float64]) -> None:
-    """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``."""
+    """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``.
+
+    ``y`` is the plant's state, ``obs_y`` the observer's ``(X, Z)`` when the kernel stopped.
+    """
     if code == PLANT_FAILED:
         raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))
     if code == OBSERVER_FAILED:
         raise ModelInputError(failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), obs_y.tolist()))
+    if code == EKF_FAILED:
+        raise ModelInputError(ekf_failure_message(err))
     if code == ESTIMATE_NONFINITE:
         raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:2].copy()!r}, z_hat={obs_y[2:].copy()!r}")
     if code == REFERENCE_NONFINITE:
         raise ModelInputError("controller: non-finite reference sample")
+    if code == FLOW_SCALE_FAILED:
+        raise ModelInputError(flow_scale_message(float(err[0])))
     raise ModelInputError(f"compiled loop stopped at tick {tick} with code {code}")

@@ -39,7 +39,7 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 
-from vesselbot_ros.physics.kernel import I_MASS, forces_into, update_contact, wall_delta_xz
+from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, forces_tc, time_terms_into, update_contact, wall_delta_at, wall_delta_xz
 
 __all__ = [
     "IntegratorParams",
@@ -109,14 +109,19 @@ class IntegratorParams:
 
 
 
-#: Scratch arrays of one integrator: ``(work (9, 4), fbuf (8, 2))`` float64.
+#: Scratch arrays of one integrator: ``(work (10, 4), fbuf (8, 2))`` float64.  ``work`` rows 0-8 are the
+#: stages, row 9 the memo of the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`).
 Workspace = tuple[np.ndarray, np.ndarray]
+#: Row of ``work`` holding the time-only terms ``[t, D(t), pulse factor, wall factor]``.
+TIME_TERMS_ROW = 9
 
 
 @numba.njit(cache=True)
 def new_workspace():  # type: ignore[no-untyped-def]
     """``(work, fbuf)``: the scratch arrays :func:`integrate_dopri5_ws` and :func:`integrate_rk4_ws` write into."""
-    return np.empty((9, 4)), np.empty((8, 2))
+    work = np.empty((10, 4))
+    work[TIME_TERMS_ROW, 0] = np.nan
+    return work, np.empty((8, 2))
 
 
 # Dormand-Prince 5(4) tableau
@@ -136,9 +141,9 @@ _E7 = -1.0 / 40.0
 
 
 @numba.njit(cache=True)
-def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf):  # type: ignore[no-untyped-def]
-    # the kernel's accel() without its (8, 2) scratch: same operations, same doubles
-    forces_into(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf)
+def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-untyped-def]
+    # the kernel's accel() without its (8, 2) scratch, time-only terms memoised in tc: same operations, same doubles
+    forces_tc(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf, tc)
     out[0] = y[2]
     out[1] = y[3]
     out[2] = fbuf[7, 0] / p[I_MASS] + ux
@@ -146,8 +151,12 @@ def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf):  # type: ignore[no-untype
 
 
 @numba.njit(cache=True)
-def _update_contact_at(t, y, contact, p):  # type: ignore[no-untyped-def]
-    delta, _wall = wall_delta_xz(t, y[0], y[1], p)
+def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]
+    if p[I_NET_ON] > 0.5:  # a network's wall comes from the grid at (x, z), not from D(t)
+        delta, _wall = wall_delta_xz(t, y[0], y[1], p)
+    else:
+        time_terms_into(t, p, tc)
+        delta, _wall = wall_delta_at(y[1], tc[1], p)
     update_contact(contact, delta, p)
 
 
@@ -163,7 +172,7 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
     at ``h_min`` is accepted and counted as forced (the tolerance cannot be met
     across a jump of the right-hand side).
 
-    ``work`` (9, 4) and ``fbuf`` (8, 2) float64 are scratch arrays the caller
+    ``work`` (10, 4) and ``fbuf`` (8, 2) float64 are scratch arrays the caller
     allocates once (:func:`new_workspace`): nothing is allocated here.
 
     Returns:
@@ -178,9 +187,11 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
     k7 = work[6]
     yt = work[7]
     yn = work[8]
+    tc = work[TIME_TERMS_ROW]
+    tc[0] = np.nan  # p may differ from the last call's
     t = t0
     h = min(max(h, h_min), h_max)
-    _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
+    _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
     stats[2] += 1
     n_steps = 0
     while t < t1 - 1e-15 * max(1.0, abs(t1)):
@@ -194,22 +205,22 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
             return STEP_TOO_SMALL, h
         for i in range(4):
             yt[i] = y[i] + hs * _A21 * k1[i]
-        _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2, fbuf)
+        _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + hs * (_A31 * k1[i] + _A32 * k2[i])
-        _rhs(t + _C3 * hs, yt, gx, gz, ux, uz, contact, p, k3, fbuf)
+        _rhs(t + _C3 * hs, yt, gx, gz, ux, uz, contact, p, k3, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + hs * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
-        _rhs(t + _C4 * hs, yt, gx, gz, ux, uz, contact, p, k4, fbuf)
+        _rhs(t + _C4 * hs, yt, gx, gz, ux, uz, contact, p, k4, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + hs * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
-        _rhs(t + _C5 * hs, yt, gx, gz, ux, uz, contact, p, k5, fbuf)
+        _rhs(t + _C5 * hs, yt, gx, gz, ux, uz, contact, p, k5, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + hs * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
-        _rhs(t + hs, yt, gx, gz, ux, uz, contact, p, k6, fbuf)
+        _rhs(t + hs, yt, gx, gz, ux, uz, contact, p, k6, fbuf, tc)
         for i in range(4):
             yn[i] = y[i] + hs * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
-        _rhs(t + hs, yn, gx, gz, ux, uz, contact, p, k7, fbuf)
+        _rhs(t + hs, yn, gx, gz, ux, uz, contact, p, k7, fbuf, tc)
         stats[2] += 6
         err = 0.0
         for i in range(4):
@@ -235,13 +246,13 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
             for i in range(4):
                 y[i] = yn[i]
             c0, c1, c2, c3 = contact[0], contact[1], contact[2], contact[3]
-            _update_contact_at(t, y, contact, p)
+            _update_contact_at(t, y, contact, p, tc)
             stats[0] += 1
             if c0 == contact[0] and c1 == contact[1] and c2 == contact[2] and c3 == contact[3]:
                 for i in range(4):  # FSAL: last stage is the next first stage
                     k1[i] = k7[i]
             else:  # the contact state changed the rhs: re-evaluate
-                _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
+                _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
                 stats[2] += 1
             fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** -0.2))
             if not last or hs >= h:
@@ -278,21 +289,23 @@ def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work
     k3 = work[2]
     k4 = work[3]
     yt = work[7]
+    tc = work[TIME_TERMS_ROW]
+    tc[0] = np.nan  # p may differ from the last call's
     for j in range(n):
         t = t0 + j * h
-        _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf)
+        _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + 0.5 * h * k1[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k2, fbuf)
+        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k2, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + 0.5 * h * k2[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k3, fbuf)
+        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k3, fbuf, tc)
         for i in range(4):
             yt[i] = y[i] + h * k3[i]
-        _rhs(t + h, yt, gx, gz, ux, uz, contact, p, k4, fbuf)
+        _rhs(t + h, yt, gx, gz, ux, uz, contact, p, k4, fbuf, tc)
         for i in range(4):
             y[i] = y[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-        _update_contact_at(t + h, y, contact, p)
+        _update_contact_at(t + h, y, contact, p, tc)
         stats[0] += 1
         stats[2] += 4
     for i in range(4):

@@ -36,6 +36,17 @@ def test_estimate_round_trip_and_age_slot():
     assert sum(msg.pose.covariance) == pytest.approx(0.02, abs=0)
 
 
+def test_flow_scale_travels_exactly_and_none_reads_as_one():
+    s_hat = 1.0498765432101234
+    msg = cv.estimate_msg(0.25, np.zeros(2), np.zeros(2), 0.0, s_hat)
+    assert cv.estimate_flow_scale(msg) == s_hat  # the double itself: the law downstream is bit-identical
+    assert sum(msg.twist.covariance) == s_hat and msg.twist.covariance[cv.FLOW_SCALE_COVARIANCE_INDEX] == s_hat
+    assert cv.estimate_flow_scale(cv.estimate_msg(0.25, np.zeros(2), np.zeros(2), 0.0)) == 1.0
+    legacy = cv.estimate_msg(0.25, np.zeros(2), np.zeros(2), 0.0)
+    legacy.twist.covariance = [0.0] * 36  # a bag recorded before the scale travelled
+    assert cv.estimate_flow_scale(legacy) == 1.0
+
+
 def test_infinite_age_travels_as_a_large_finite_number():
     msg = cv.estimate_msg(0.0, np.zeros(2), np.zeros(2), float("inf"))
     assert cv.estimate_arrays(msg)[2] == 1e9

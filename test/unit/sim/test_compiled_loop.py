@@ -16,7 +16,8 @@ from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.control.backstepping import ControlCommand
 from vesselbot_ros.control.imager_model import Dropout
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_D0_RATIO
+from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
+from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint
 from vesselbot_ros.sim.integrator import IntegratorParams
@@ -37,10 +38,9 @@ def _assert_identical(a: SimResult, b: SimResult) -> None:
     assert fingerprint(a) == fingerprint(b)
 
 
-#: Shipped scenarios whose stages the compiled loop does not have yet (the extended Kalman observer, the
-#: adaptive controller, the scanner's sequenced imager and coil): they run per tick.
-PER_TICK_ONLY = {"sound_small_artery_ekf", "sound_small_artery_adaptive", "clinical_3t_small_artery",
-                 "propulsion_insert_small_artery"}
+#: Shipped scenarios whose stages the compiled loop does not have: the adaptive controller (Lyapunov updates of
+#: its scale estimates, no compiled form); they run per tick.
+PER_TICK_ONLY = {"sound_small_artery_adaptive"}
 
 
 def test_scenarios_without_compiled_stages_run_per_tick_and_say_so() -> None:
@@ -52,6 +52,27 @@ def test_scenarios_without_compiled_stages_run_per_tick_and_say_so() -> None:
         rows = run_many(scenario, [0, 1], workers=2, keep_timeseries=True)
         for seed, row in zip([0, 1], rows, strict=True):
             _assert_identical(row, run_closed_loop(scenario, seed))
+
+class ForeignObserver:
+    """A user's observer: wraps the built-in one (same numbers), but it is not a type the compiled loop knows."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.model = inner.model
+
+    def update(self, t_s: float, measurement: Any, applied: Any) -> Any:
+        return self.inner.update(t_s, measurement, applied)
+
+
+def test_a_stage_the_compiled_loop_lacks_runs_per_tick_and_says_so() -> None:
+    scenario = _short(load_scenario(shipped_scenarios()["sound_small_artery_ekf"]))
+    st = build_stages(scenario, 0)
+    res = run_stages(scenario, st._replace(observer=ForeignObserver(st.observer)), 0)
+    assert res.path == "per_tick"
+    _assert_identical(res, run_closed_loop(scenario, 0, path="per_tick"))
+    st = build_stages(scenario, 0)
+    with pytest.raises(ModelInputError, match=r"path='compiled' needs the built-in stages.*observer"):
+        run_stages(scenario, st._replace(observer=ForeignObserver(st.observer)), 0, path="compiled")
 
 
 @pytest.mark.parametrize("name", sorted(set(shipped_scenarios()) - PER_TICK_ONLY))
@@ -72,10 +93,37 @@ def _short(s: Scenario, duration: float = 0.25) -> Scenario:
 
 def _variants() -> dict[str, Scenario]:
     """Branches the shipped scenarios do not take: forces, per-axis saturation, hold, 50 Hz + latency + dropouts + gate
-    + delay compensation, fixed-step RK4, flow-synchronised reference."""
+    + delay compensation, fixed-step RK4, flow-synchronised reference; the extended Kalman filter with latency (delay
+    compensation, history re-prediction), track restarts, a frozen flow scale; the scanner's multiplexed sequence with
+    duty compensation, ramp-to-zero and per-axis coils; flow compensation with observer (25)."""
     sound = _short(load_scenario(shipped_scenarios()["sound_small_artery"]))
     paper = _short(load_scenario(shipped_scenarios()["paper_small_artery"]))
+    ekf = _short(load_scenario(shipped_scenarios()["sound_small_artery_ekf"]), 0.4)
+    # window edges on the tick grid (scenario rule), latency off it
+    mux = SequenceParams(mode="multiplexed", tracking_window_s=0.010, dead_time_s=0.002, propulsion_window_s=0.023,
+                         latency_s=0.0071, start_s=0.003)
     return {
+        "ekf_50Hz_latency_delay": dc.replace(
+            ekf, imager=dc.replace(ekf.imager, frame_rate_Hz=50.0, latency_s=0.03, dropout_probability=0.2,
+                                   outliers=(dc.replace(ekf.imager.outliers[0], start_s=0.1, duration_s=0.05),))),
+        "ekf_track_restart": dc.replace(
+            ekf, imager=dc.replace(ekf.imager, frame_rate_Hz=200.0, latency_s=0.01,
+                                   outliers=(dc.replace(ekf.imager.outliers[0], start_s=0.1, duration_s=0.25,
+                                                        magnitude_m=2e-3),)),
+            observer=dc.replace(ekf.observer, ekf=dc.replace(ekf.observer.ekf, max_consecutive_rejections=5))),
+        "ekf_frozen_scale_short_history": dc.replace(
+            ekf, imager=dc.replace(ekf.imager, frame_rate_Hz=100.0, latency_s=0.05),
+            observer=dc.replace(ekf.observer, ekf=dc.replace(ekf.observer.ekf, history_s=0.03,
+                                                               estimate_flow_scale=False))),
+        "scanner_ekf_duty_ramp_per_axis": dc.replace(
+            ekf, sequence=mux, controller=dc.replace(ekf.controller, duty_compensation="sequence"),
+            coil=dc.replace(ekf.coil, on_reject="ramp_to_zero", saturation_norm="per_axis"),
+            imager=dc.replace(ekf.imager, dropouts=(Dropout(start_s=0.1, duration_s=0.05),))),
+        "scanner_high_gain": dc.replace(
+            sound, sequence=dc.replace(mux, start_s=0.0, latency_s=0.02),
+            controller=dc.replace(sound.controller, duty_compensation="sequence", stale_timeout_s=0.5)),
+        "flow_compensation_high_gain": dc.replace(
+            sound, controller=dc.replace(sound.controller, flow_compensation="estimate", sample_hold="midpoint")),
         "forces_per_axis_hold": dc.replace(
             paper, sim=dc.replace(paper.sim, record_forces=True), coil=dc.replace(paper.coil, saturation_norm="per_axis"),
             controller=dc.replace(paper.controller, stale_action="hold", stale_timeout_s=0.015),
@@ -102,11 +150,22 @@ def test_compiled_equals_per_tick_on_other_branches(variant: str) -> None:
         assert np.any(ts["cmd_status"] == 1)  # stale -> hold during the dropout
     if variant == "mri_50Hz_latency_gate_delay":
         assert np.any(ts["meas_rejected"]) and np.count_nonzero(np.isfinite(ts["meas_t_acq_s"])) < 20
+    if variant.startswith("ekf_") or variant.startswith("scanner_ekf"):  # the filter's branches are taken
+        assert np.any(ts["flow_scale_hat"] != 1.0) or "frozen" in variant
+        assert np.any(ts["meas_t_acq_s"][np.isfinite(ts["meas_t_acq_s"])] < ts["t_s"][np.isfinite(ts["meas_t_acq_s"])])
+    if variant.startswith("scanner_"):
+        assert set(np.unique(ts["sequence_phase"])) == {1, 2, 3}
+        assert np.all(ts["g_applied"][ts["sequence_phase"] == 1] == 0.0)  # no propulsion while imaging
+    if variant == "ekf_track_restart":
+        st = build_stages(scenario, 0)
+        run_stages(scenario, st, 0, path="per_tick")
+        assert st.observer.track_resets > 0
 
 
 def test_batch_rows_equal_single_runs() -> None:
     variants = _variants()
-    scenarios = [variants["mri_50Hz_latency_gate_delay"], variants["forces_per_axis_hold"]]
+    scenarios = [variants["mri_50Hz_latency_gate_delay"], variants["forces_per_axis_hold"],
+                 variants["scanner_ekf_duty_ramp_per_axis"]]
     rows = run_many(scenarios, [3, 0, 7], workers=2, keep_timeseries=True)
     assert [(r.metrics["scenario"], r.metrics["seed"]) for r in rows] == [
         (s.name, seed) for s in scenarios for seed in (3, 0, 7)]
@@ -120,7 +179,11 @@ def test_batch_rows_equal_single_runs() -> None:
 
 
 class PlainPythonLaw:
-    """A user's controller: eq. (24) written out in Python floats, F from the model (no project stage code)."""
+    """A user's controller: eq. (24) written out in Python floats, F from the model (no project stage code).
+
+    Implements the options the shipped scenarios use: ``F`` at the tick (as printed) or at the middle of the hold
+    (``sample_hold: midpoint``), and ``F`` with the observer's blood-velocity scale (``flow_compensation: estimate``).
+    """
 
     def __init__(self, scenario: Scenario) -> None:
         model = build_stages(scenario).model
@@ -128,6 +191,8 @@ class PlainPythonLaw:
         self.b_inv = mat2_inverse(mat2(model.input_matrix))
         self.k1, self.k2 = scenario.controller.gains.k1, scenario.controller.gains.k2
         self.timeout = scenario.controller.stale_timeout_s
+        self.half = 0.5 * scenario.sim.dt_control_s if scenario.controller.sample_hold == "midpoint" else 0.0
+        self.compensate = scenario.controller.flow_compensation == "estimate"
         self.calls = 0
 
     def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
@@ -135,23 +200,38 @@ class PlainPythonLaw:
         if not estimate.time_since_measurement_s <= self.timeout:
             return ControlCommand(np.zeros(2), np.zeros(2), "stale")
         x, z = estimate.x_hat, estimate.z_hat
-        f = self.F(t_s, x, z)
-        s, c = self.k1 + self.k2, 1.0 + self.k1 * self.k2
-        u = [float(ref.a[i]) + s * float(ref.v[i]) + c * float(ref.p[i]) - c * float(x[i]) - s * float(z[i]) - float(f[i])
-             for i in range(2)]
+        scale = estimate.flow_scale if self.compensate else 1.0
+        s, c, h = self.k1 + self.k2, 1.0 + self.k1 * self.k2, self.half
+        if h > 0.0:  # F at the middle of the hold, along the acceleration (24) asks for
+            a = [float(ref.a[i]) + s * float(ref.v[i]) + c * float(ref.p[i]) - c * float(x[i]) - s * float(z[i]) - 0.0
+                 for i in range(2)]
+            xm = np.array([float(x[i]) + h * float(z[i]) + 0.5 * h * h * a[i] for i in range(2)])
+            zm = np.array([float(z[i]) + h * a[i] for i in range(2)])
+            f = self.F(t_s + h, xm, zm, scale)
+            u = [a[i] - float(f[i]) for i in range(2)]
+        else:
+            f = self.F(t_s, x, z, scale)
+            u = [float(ref.a[i]) + s * float(ref.v[i]) + c * float(ref.p[i]) - c * float(x[i]) - s * float(z[i])
+                 - float(f[i]) for i in range(2)]
         g = mat2_apply(self.b_inv, u[0], u[1])
         if not (math.isfinite(g[0]) and math.isfinite(g[1])):
             return ControlCommand(np.zeros(2), np.zeros(2), "nonfinite")
         return ControlCommand(np.array(g), np.array(u), "ok")
 
 
-def test_user_python_controller_runs_per_tick_and_gives_the_built_in_numbers() -> None:
-    scenario = load_scenario(shipped_scenarios()["paper_small_artery"])  # law (24) as printed: F at the tick
+@pytest.mark.parametrize("name", ["paper_small_artery", "sound_small_artery_ekf"])
+def test_user_python_controller_runs_per_tick_and_gives_the_built_in_numbers(name: str) -> None:
+    # paper: law (24) as printed (F at the tick) with observer (25); EKF: F at mid-hold with the filter's flow scale
+    scenario = load_scenario(shipped_scenarios()[name])
     for seed in (0, 1):
         law = PlainPythonLaw(scenario)
         user = run_closed_loop(scenario, seed, stages={"controller": law})
         assert user.path == "per_tick" and law.calls == scenario.sim.n_ticks
-        _assert_identical(user, run_closed_loop(scenario, seed))
+        builtin = run_closed_loop(scenario, seed)
+        assert builtin.path == "compiled"
+        _assert_identical(user, builtin)
+        if name == "sound_small_artery_ekf":
+            assert np.ptp(user.timeseries["flow_scale_hat"]) > 0.01  # the law really read a moving flow scale
     with pytest.raises(ModelInputError, match="path='compiled' needs the built-in stages"):
         run_closed_loop(scenario, 0, stages={"controller": PlainPythonLaw(scenario)}, path="compiled")
     with pytest.raises(ModelInputError, match="unknown stage name"):
@@ -171,6 +251,27 @@ def test_non_finite_state_inside_the_loop_ends_with_the_per_tick_error() -> None
             run_stages(scenario, st, 0, path=path)
         messages.append(str(exc.value))
     assert messages[0] == messages[1]
+
+
+def test_failing_filter_and_unusable_flow_scale_end_with_the_per_tick_error() -> None:
+    scenario = _short(load_scenario(shipped_scenarios()["sound_small_artery_ekf"]), 0.05)
+    for breakage, pattern in (
+        ("nan_model", r"observer: prediction failed on \[0\.0, 0\.001\] \(code 2\), state \[[-0-9.e]+, [-0-9.e]+, 0\.0, 0\.0, 1\.0\]$"),
+        ("negative_scale", r"controller: flow scale must be finite and > 0, got -1\.0$"),
+    ):
+        messages = []
+        for path in ("compiled", "per_tick"):
+            st = build_stages(scenario, 0)
+            if breakage == "nan_model":  # the filter's model (its V_f): the first prediction is non-finite
+                bad = st.observer.ekf.p.copy()
+                bad[I_V_F] = np.nan
+                st.observer.ekf.p = bad
+            else:  # a flow-scale estimate the compensating law must refuse
+                st.observer.ekf.y[4] = -1.0
+            with pytest.raises(ModelInputError, match=pattern) as exc:
+                run_stages(scenario, st, 0, path=path)
+            messages.append(str(exc.value))
+        assert messages[0] == messages[1]
 
 
 def test_non_finite_measurement_is_rejected_the_same_way() -> None:
