@@ -32,6 +32,7 @@ setup(
         # finds them here when installed (vesselbot_ros.config.shipped_config_dir)
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/campaigns", glob("config/campaigns/*.yaml")),
+        (f"share/{PACKAGE}/config/vessels", glob("config/vessels/*.yaml")),
         (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),
     ],
     install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk"],

@@ -278,16 +278,21 @@ def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
 
 
 def resolve_network_path(source: str) -> Path:
-    """Path of a network file: as given (absolute or relative to the working directory), else
-    relative to the repository (``config/vessels/...``), else a shipped name (``paper_iiic_artery``)."""
+    """Path of a network file: as given (absolute or relative to the working directory), else in the
+    shipped configuration (``config/vessels/...`` of a checkout, or of ``<prefix>/share/vesselbot_ros``
+    for an installed wheel: :func:`vesselbot_ros.config.shipped_config_dir`), else a shipped name
+    (``paper_iiic_artery``)."""
+    from vesselbot_ros.config import resolve_config_path, shipped_config_dir
+
     p = Path(source)
     if p.is_file():
         return p
-    repo = VESSELS_DIR.parents[1]
-    for cand in (repo / source, VESSELS_DIR / source, VESSELS_DIR / f"{source}.yaml"):
+    vessels = shipped_config_dir() / "vessels"
+    repo = vessels.parents[1]
+    for cand in (resolve_config_path(source), vessels / source, vessels / f"{source}.yaml"):
         if cand.is_file():
             return cand
-    raise ConfigError(f"vessel network {source!r} does not exist (looked in the working directory, {repo}, {VESSELS_DIR})")
+    raise ConfigError(f"vessel network {source!r} does not exist (looked in the working directory, {repo}, {vessels})")
 
 
 def load_network(source: str) -> VesselNetworkParams:
