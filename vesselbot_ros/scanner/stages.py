@@ -229,6 +229,10 @@ class SequencedCoil:
         seq_coil_apply(self._prm, self.sv, self.hold_s, inner._state, float(t_s), float(g[0]), float(g[1]), inner._out)
         return inner._output()
 
+    def hold(self, t_s: float) -> CoilOutput:
+        """As :meth:`CoilLimiter.hold` (holding the output is always allowed: outside propulsion it is zero)."""
+        return self.inner.hold(t_s)
+
     def watchdog(self, t_now_s: float) -> CoilOutput | None:
         """As :meth:`CoilLimiter.watchdog` (a ramp to zero is always allowed)."""
         return self.inner.watchdog(t_now_s)
