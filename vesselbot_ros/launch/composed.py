@@ -6,8 +6,11 @@ Usage::
         --ros-args --params-file params.yaml
 
 Every node gets the same ROS arguments (so the same parameters) and its own
-name.  Messages still cross DDS, but with one executor and no process
-boundary a lockstep tick costs a fraction of the multi-process graph.
+name.  In lockstep the nodes hand each other's messages over in process
+(:class:`vesselbot_ros.nodes.base.IntraProcess`, as rclcpp's intra-process
+communication does for composed nodes); DDS carries a message only to
+readers outside the process (recorder, launcher, viewers, a user's node).
+``--no-intra-process``: every message over DDS.
 An invalid parameter exits with code 2 and one line naming it.
 """
 
@@ -38,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from vesselbot_ros.nodes.base import spin_nodes
+    from vesselbot_ros.nodes.base import spin_nodes, use_intra_process
 
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
@@ -47,6 +50,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv, ros_args = argv[:i], argv[i:]
     parser = argparse.ArgumentParser(prog="vesselbot-composed")
     parser.add_argument("--roles", required=True, help="comma-separated node roles")
+    parser.add_argument("--no-intra-process", dest="intra_process", action="store_false",
+                        help="every message over DDS (default: lockstep deliveries between these nodes in process)")
     ns = parser.parse_args(argv)
     roles = [r for r in ns.roles.split(",") if r]
     for r in roles:
@@ -55,6 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
     nodes: list[Any] = []
     rclpy.init(args=["vesselbot_composed", *ros_args])
+    use_intra_process(roles if ns.intra_process else None)
     try:
         for r in roles:
             try:

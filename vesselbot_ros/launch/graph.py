@@ -72,6 +72,8 @@ class GraphOptions:
         real_time_factor: Real-time mode only.
         without: Roles not started (a user's node fills the slot).
         single_process: Compose all nodes in one process.
+        intra_process: Composed, lockstep: co-located nodes hand messages to each other without DDS
+            (:class:`vesselbot_ros.nodes.base.IntraProcess`); False: every message over DDS.
         record_dir: Bag directory (None: do not record).
         run_metadata: JSON-able run description for the recorder.
         log_dir: Folder for node logs (ROS logs and each process's output).
@@ -97,6 +99,7 @@ class GraphOptions:
     real_time_factor: float = 1.0
     without: tuple[str, ...] = ()
     single_process: bool = False
+    intra_process: bool = True
     record_dir: Path | None = None
     run_metadata: dict[str, Any] | None = None
     log_dir: Path | None = None
@@ -271,7 +274,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
                                                 live_rate_Hz=options.live_rate_Hz))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
         sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
-                        options.single_process)
+                        options.single_process, options.intra_process)
         for r in options.without:
             if options.on_contract is not None:
                 options.on_contract(role_contract(r, options.namespace))

@@ -55,6 +55,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--without", action="append", default=[], choices=ROLES_CHOICES, metavar="NODE",
                         help=f"do not start NODE (one of {', '.join(ROLES_CHOICES)}); your own node takes its slot")
     parser.add_argument("--single-process", action="store_true", help="compose all nodes in one process")
+    parser.add_argument("--no-intra-process", dest="intra_process", action="store_false",
+                        help="with --single-process: every message over DDS (default: co-located nodes hand "
+                             "messages to each other in lockstep, DDS only for readers outside the process)")
     parser.add_argument("--no-record", action="store_true", help="do not record a bag")
     parser.add_argument("--record-dir", type=Path, default=None, metavar="DIR",
                         help="bag directory (default runs/<UTC time>_<scenario>)")
@@ -223,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         print(text, flush=True)
 
     opts = GraphOptions(mode=args.mode, real_time_factor=args.real_time_factor, without=tuple(args.without),
-                        single_process=args.single_process, record_dir=run_dir if record else None,
+                        single_process=args.single_process, intra_process=args.intra_process, record_dir=run_dir if record else None,
                         run_metadata=metadata, log_dir=log_dir, domain_id=args.domain_id, lease=lease,
                         namespace=args.namespace,
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,

@@ -52,10 +52,12 @@ class Supervisor:
         self.recorder = ChildProcess("recorder", argv, self.env, self.log_dir / "recorder.log", self.hold_fds)
         return self.recorder
 
-    def start_nodes(self, roles: Sequence[str], ros_args: Sequence[str], single_process: bool) -> None:
-        """Start ``roles``: one process each, or one composed process."""
+    def start_nodes(self, roles: Sequence[str], ros_args: Sequence[str], single_process: bool,
+                    intra_process: bool = True) -> None:
+        """Start ``roles``: one process each, or one composed process (intra-process deliveries unless told not to)."""
         if single_process:
-            argv = [sys.executable, "-m", "vesselbot_ros.launch.composed", "--roles", ",".join(roles), *ros_args]
+            argv = [sys.executable, "-m", "vesselbot_ros.launch.composed", "--roles", ",".join(roles),
+                    *([] if intra_process else ["--no-intra-process"]), *ros_args]
             self.nodes.append(ChildProcess("composed", argv, self.env, self.log_dir / "composed.log", self.hold_fds))
             self.roles_of["composed"] = list(roles)
             return

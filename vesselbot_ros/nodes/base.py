@@ -60,7 +60,8 @@ from vesselbot_ros.graph_spec import (
 )
 from vesselbot_ros.graph_spec import role as graph_role
 
-__all__ = ["GraphParams", "VesselbotNode", "TickJoin", "run_node", "make_executor", "spin_nodes"]
+__all__ = ["GraphParams", "VesselbotNode", "TickJoin", "IntraProcess", "use_intra_process", "run_node", "make_executor",
+           "spin_nodes"]
 
 GRAPH_PREFIX = "graph."
 #: Real time: a ``/clock`` more than this many ticks ahead of the announced one is garbage.
@@ -118,10 +119,117 @@ class GraphParams:
         check_nonnegative("position_margin_m", self.position_margin_m)
 
 
+class _TopicNames(dict):  # type: ignore[type-arg]
+    """Topic key -> canonical name, looked up in the graph spec once per key."""
+
+    def __missing__(self, key: str) -> str:
+        name = self[key] = topic(key).name
+        return name
+
+
 def _rclpy() -> Any:
     import rclpy
 
     return rclpy
+
+
+class IntraProcess:
+    """Deliveries between nodes composed in one process, without DDS (``--single-process``, lockstep).
+
+    What rclcpp's intra-process communication does for composed nodes: a
+    message published by a co-located node goes to its co-located subscribers
+    as the same Python object (no serialization, no DDS, no copy), and over DDS
+    only when a subscriber outside the process (the recorder, the launcher, a
+    viewer, a user's node) is matched.  Nodes never mutate a message they
+    published or received, which is what makes sharing it safe.
+
+    Deliveries are queued first in, first out, and run as a task of the
+    executor (:meth:`attach`), at most :attr:`BUDGET` per turn, so the executor still
+    serves timers, services and DDS inputs between them; a message posted
+    from another thread (the simulation_interfaces thread stepping the plant)
+    is delivered on the executor's thread.  Only topics whose publishing role
+    (graph spec) is composed here travel this way: their co-located
+    subscribers create no DDS subscription, so nothing is delivered twice.
+    """
+
+    #: Deliveries per executor turn (a lockstep tick is nine).
+    BUDGET = 256
+
+    def __init__(self, roles: Iterable[str]) -> None:
+        from collections import deque
+
+        self.roles = frozenset(roles)
+        self._subs: dict[str, list[Callable[[Any], None]]] = {}
+        self._pubs: Counter[str] = Counter()
+        self._queue: Any = deque()
+        self._ex: Any = None
+        self._pending = False
+
+    def carries(self, key: str) -> bool:
+        """True if topic ``key`` is published by a role composed in this process."""
+        return topic(key).publisher in self.roles
+
+    def add_publisher(self, key: str) -> None:
+        """A co-located node publishes ``key``."""
+        self._pubs[key] += 1
+
+    def subscribe(self, node: Any, key: str, callback: Callable[[Any], None]) -> None:
+        """Deliver every message of ``key`` published here to ``callback`` (on ``node``'s executor)."""
+        self._subs.setdefault(key, []).append(callback)
+
+    def attach(self, executor: Any) -> None:
+        """Run deliveries on ``executor`` (the one spinning the composed nodes)."""
+        self._ex = executor
+        if self._queue:
+            self._schedule()
+
+    def _schedule(self) -> None:
+        self._pending = True
+        if self._ex is not None:
+            self._ex.create_task(self._drain)
+
+    def publishers(self, key: str) -> int:
+        """Co-located publishers of ``key``."""
+        return self._pubs[key]
+
+    def subscribers(self, key: str) -> int:
+        """Co-located subscribers of ``key``."""
+        return len(self._subs.get(key, ()))
+
+    def post(self, key: str, msg: Any) -> None:
+        """Queue ``msg`` for every co-located subscriber of ``key`` (any thread)."""
+        subs = self._subs.get(key)
+        if not subs:
+            return
+        q = self._queue
+        for cb in subs:
+            q.append((cb, msg))
+        if not self._pending:
+            self._schedule()
+
+    def _drain(self) -> None:
+        q = self._queue
+        try:
+            for _ in range(self.BUDGET):
+                if not q:
+                    break
+                cb, msg = q.popleft()
+                cb(msg)
+        finally:
+            self._pending = False  # posts from here on schedule their own turn
+            if q:
+                self._schedule()
+
+
+#: The process's intra-process bus (None: every message goes over DDS); set by :func:`use_intra_process`.
+_INTRA: IntraProcess | None = None
+
+
+def use_intra_process(roles: Iterable[str] | None) -> IntraProcess | None:
+    """Compose the nodes of ``roles`` built from now on over one :class:`IntraProcess` bus (None: off)."""
+    global _INTRA
+    _INTRA = IntraProcess(roles) if roles is not None else None
+    return _INTRA
 
 
 class VesselbotNode(Node):  # type: ignore[misc]
@@ -170,6 +278,11 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._last_diag_wall = 0.0
         self._pubs: dict[str, Any] = {}
         self._subs: dict[str, Any] = {}
+        #: the process's intra-process bus, if composed with one (lockstep only)
+        self._intra = _INTRA if self.lockstep else None
+        self._pub_intra: dict[str, Any] = {}  # topic key -> its DDS publisher, for topics also delivered intra-process
+        self._subs_intra: list[str] = []  # topic keys received intra-process
+        self._names: _TopicNames = _TopicNames()
         self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         from rclpy.clock import Clock, ClockType
 
@@ -337,11 +450,21 @@ class VesselbotNode(Node):  # type: ignore[misc]
         spec = topic(key)
         pub = self.create_publisher(msg_cls, spec.rel, qos_profile(spec))
         self._pubs[key] = pub
+        bus = self._intra
+        if bus is not None and bus.carries(key):
+            bus.add_publisher(key)
+            if spec.qos != "reliable_latched":  # latched: always over DDS, for late joiners
+                self._pub_intra[key] = pub
         return pub
 
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
-        """Subscribe to topic ``key`` with the contract's QoS."""
+        """Subscribe to topic ``key`` with the contract's QoS (intra-process if its publisher is co-located)."""
         spec = topic(key)
+        bus = self._intra
+        if bus is not None and bus.carries(key) and spec.qos != "reliable_latched":
+            bus.subscribe(self, key, callback)
+            self._subs_intra.append(key)
+            return None
         sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
         self._subs[key] = sub
         return sub
@@ -353,25 +476,36 @@ class VesselbotNode(Node):  # type: ignore[misc]
     def publish(self, key: str, msg: Any) -> None:
         """Publish on topic ``key`` and count it for diagnostics.
 
+        Composed (:class:`IntraProcess`): co-located subscribers get the
+        message itself; DDS carries it only when a subscriber outside the
+        process is matched (a message with no reader is not serialized).
         Real time: nothing is published once the node finished (its final
         diagnostics hold its final counts, which the launcher checks against the bag).
         """
         if self.finished and not self.lockstep:
             return
-        self._pubs[key].publish(msg)
-        self._published[topic(key).name] += 1
+        pub = self._pub_intra.get(key)
+        if pub is None:
+            self._pubs[key].publish(msg)
+        else:
+            self._intra.post(key, msg)  # type: ignore[union-attr]
+            if pub.get_subscription_count():
+                pub.publish(msg)
+        self._published[self._names[key]] += 1
 
     def count_received(self, key: str) -> None:
         """Count one accepted input on topic ``key``."""
-        self._received[topic(key).name] += 1
+        self._received[self._names[key]] += 1
 
     def wired(self) -> bool:
-        """True once every publisher and subscription of this node is matched."""
+        """True once every publisher and subscription of this node is matched (over DDS or within the process)."""
+        bus = self._intra
         return all(
-            p.get_subscription_count() > 0 for k, p in self._pubs.items() if topic(k).qos != "reliable_latched"
+            p.get_subscription_count() > 0 or (bus is not None and bus.subscribers(k) > 0)
+            for k, p in self._pubs.items() if topic(k).qos != "reliable_latched"
         ) and all(
             s.get_publisher_count() > 0 for s in self._subs.values()
-        )
+        ) and all(bus is not None and bus.publishers(k) > 0 for k in self._subs_intra)
 
     # ------------------------------------------------------------------ validation
     def reject(self, key: str, reason: str, detail: str = "") -> None:
@@ -609,6 +743,8 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
     ex = make_executor(context)
     for n in nodes:
         ex.add_node(n)
+    if _INTRA is not None:
+        _INTRA.attach(ex)
     never = Future()
     try:
         while rclpy.ok(context=context) and not (stop is not None and stop()):
