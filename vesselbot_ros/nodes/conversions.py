@@ -32,13 +32,24 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, PointStamped, PoseStamped, Vector3, Vector3Stamped
+from geometry_msgs.msg import (
+    Point,
+    PointStamped,
+    Pose,
+    PoseStamped,
+    PoseWithCovariance,
+    Quaternion,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+    Vector3Stamped,
+)
 from nav_msgs.msg import Odometry, Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from vesselbot_msgs.msg import CoilState, ReferenceSample, SequencePhase
+from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample, SequencePhase
 from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
@@ -63,10 +74,54 @@ __all__ = [
     "reference_arrays",
     "gradient_msg",
     "coil_state_msg",
+    "plant_state_msg",
+    "message_builder",
+    "FORCE_NAMES",
     "path_msg",
     "vessel_markers",
     "all_finite",
 ]
+
+def message_builder(cls: Any) -> Any:
+    """A keyword-only constructor of message ``cls`` that stores every field directly.
+
+    The generated constructors run one property setter per field, nested
+    messages included; a lockstep tick builds eight messages, so the hot path
+    uses these instead.  Every field must be given, with the type the setter
+    would have stored (float, int, bool, str, a message, a float64 array for
+    a fixed-size double array); the result equals the generated constructor's
+    (``test/unit/nodes/test_conversions.py`` checks each builder below against it).
+    """
+    fields = [f for f in cls.__slots__ if f != "_check_fields"]
+    args = ", ".join(f[1:] for f in fields)
+    body = "".join(f"    m.{f} = {f[1:]}\n" for f in fields)
+    src = f"def build(*, {args}):\n    m = new(cls)\n{body}    m._check_fields = False\n    return m\n"
+    scope: dict[str, Any] = {"new": cls.__new__, "cls": cls}
+    exec(src, scope)  # noqa: S102 - generated from the message's own slot names
+    build = scope["build"]
+    build.__doc__ = f"Build a {cls.__name__} from every field (keyword arguments)."
+    return build
+
+
+_time = message_builder(Time)
+_header = message_builder(Header)
+_vector3 = message_builder(Vector3)
+_point = message_builder(Point)
+_quaternion = message_builder(Quaternion)
+_clock = message_builder(Clock)
+_point_stamped = message_builder(PointStamped)
+_vector3_stamped = message_builder(Vector3Stamped)
+_pose = message_builder(Pose)
+_twist = message_builder(Twist)
+_pose_cov = message_builder(PoseWithCovariance)
+_twist_cov = message_builder(TwistWithCovariance)
+_odometry = message_builder(Odometry)
+_reference_sample = message_builder(ReferenceSample)
+_coil_state = message_builder(CoilState)
+_plant_state = message_builder(PlantState)
+_force_breakdown = message_builder(ForceBreakdown)
+#: ForceBreakdown's vectors, in the order of the plant's force array rows.
+FORCE_NAMES = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic", "steric", "total")
 
 AGE_COVARIANCE_INDEX = 35
 #: Index in the estimate's ``twist.covariance`` (the otherwise unused yaw-rate variance) carrying the observer's
@@ -79,7 +134,7 @@ NS_PER_S = 1_000_000_000
 def stamp_of_ns(ns: int) -> Time:
     """Integer ns -> ``builtin_interfaces/Time``."""
     sec, nsec = divmod(int(ns), NS_PER_S)
-    return Time(sec=sec, nanosec=nsec)
+    return _time(sec=sec, nanosec=nsec)
 
 
 def ns_of_stamp(stamp: Any) -> int:
@@ -89,19 +144,17 @@ def ns_of_stamp(stamp: Any) -> int:
 
 def header(t_s: float) -> Header:
     """Header stamped ``t_s`` in frame ``vessel``."""
-    return Header(stamp=stamp_of_ns(ns_of_time(t_s)), frame_id=FRAME_ID)
+    return _header(stamp=stamp_of_ns(ns_of_time(t_s)), frame_id=FRAME_ID)
 
 
 def vector3(a: npt.ArrayLike) -> Vector3:
     """(2,) ``(x, z)`` -> Vector3 with y = 0."""
-    v = np.asarray(a, dtype=np.float64)
-    return Vector3(x=float(v[0]), y=0.0, z=float(v[1]))
+    return _vector3(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index]
 
 
 def point(a: npt.ArrayLike) -> Point:
     """(2,) ``(x, z)`` -> Point with y = 0."""
-    v = np.asarray(a, dtype=np.float64)
-    return Point(x=float(v[0]), y=0.0, z=float(v[1]))
+    return _point(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index]
 
 
 def xz(v: Any) -> npt.NDArray[np.float64]:
@@ -116,29 +169,26 @@ def all_finite(values: Iterable[float]) -> bool:
 
 def clock_msg(t_s: float) -> Clock:
     """``/clock`` message for sim time ``t_s``."""
-    return Clock(clock=stamp_of_ns(ns_of_time(t_s)))
+    return _clock(clock=stamp_of_ns(ns_of_time(t_s)))
 
 
 def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
     """An imager frame: stamp = acquisition time, point = measured position (m)."""
-    return PointStamped(header=header(t_acq_s), point=point(p))
+    return _point_stamped(header=header(t_acq_s), point=point(p))
 
 
 def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float,
                  flow_scale: float = 1.0) -> Odometry:
     """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
-    msg = Odometry(header=header(t_s), child_frame_id="robot")
-    msg.pose.pose.position = point(x_hat)
-    msg.pose.pose.orientation.w = 1.0
-    msg.twist.twist.linear = vector3(z_hat)
-    cov = [0.0] * 36
+    cov = np.zeros(36)
     # inf age (no measurement yet) cannot travel as a finite number: clamp it
     cov[AGE_COVARIANCE_INDEX] = float(age_s) if math.isfinite(age_s) else 1e9
-    msg.pose.covariance = cov
-    tcov = [0.0] * 36
+    tcov = np.zeros(36)
     tcov[FLOW_SCALE_COVARIANCE_INDEX] = float(flow_scale)
-    msg.twist.covariance = tcov
-    return msg
+    pose = _pose(position=point(x_hat), orientation=_quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    twist = _twist(linear=vector3(z_hat), angular=_vector3(x=0.0, y=0.0, z=0.0))
+    return _odometry(header=header(t_s), child_frame_id="robot", pose=_pose_cov(pose=pose, covariance=cov),
+                     twist=_twist_cov(twist=twist, covariance=tcov))
 
 
 def estimate_flow_scale(msg: Odometry) -> float:
@@ -154,7 +204,8 @@ def estimate_arrays(msg: Odometry) -> tuple[npt.NDArray[np.float64], npt.NDArray
 
 def reference_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> ReferenceSample:
     """Reference sample k: ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
-    return ReferenceSample(header=header(t_s), tick=int(k), position=point(p), velocity=vector3(v), acceleration=vector3(a))
+    return _reference_sample(header=header(t_s), tick=int(k), position=point(p), velocity=vector3(v),
+                             acceleration=vector3(a))
 
 
 def reference_arrays(msg: ReferenceSample) -> tuple[npt.NDArray[np.float64], ...]:
@@ -164,14 +215,14 @@ def reference_arrays(msg: ReferenceSample) -> tuple[npt.NDArray[np.float64], ...
 
 def gradient_msg(t_s: float, g: npt.ArrayLike) -> Vector3Stamped:
     """A gradient (T/m) stamped ``t_s``."""
-    return Vector3Stamped(header=header(t_s), vector=vector3(g))
+    return _vector3_stamped(header=header(t_s), vector=vector3(g))
 
 
 def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> CoilState:
     """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
-    slew = np.asarray(out.slew_limited, dtype=bool)
-    return CoilState(
+    slew = out.slew_limited
+    return _coil_state(
         header=header(t_s),
         tick=int(k),
         commanded=vector3(commanded),
@@ -187,6 +238,22 @@ def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limit
         dbdt_limit=float(dbdt_limit_T_per_s),
         dbdt_radius=float(dbdt_radius_m),
     )
+
+
+def plant_state_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
+                    diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
+                    in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> PlantState:
+    """The plant's ground truth of tick ``k``: ``forces`` is (8, 2), rows in :data:`FORCE_NAMES` order (N)."""
+    h = header(t_s)
+    f = forces
+    fb = _force_breakdown(header=h, magnetic=vector3(f[0]), drag=vector3(f[1]), apparent_weight=vector3(f[2]),  # type: ignore[index]
+                          contact=vector3(f[3]), van_der_waals=vector3(f[4]), electrostatic=vector3(f[5]),  # type: ignore[index]
+                          steric=vector3(f[6]), total=vector3(f[7]))  # type: ignore[index]
+    return _plant_state(header=h, tick=int(k), position=point(p), velocity=vector3(v), blood_velocity=vector3(blood_velocity),
+                        vessel_diameter=float(diameter_m), wall_gap_upper=float(gap_upper_m),
+                        wall_gap_lower=float(gap_lower_m), signed_wall_distance=float(signed_wall_distance_m),
+                        in_contact=bool(in_contact), contact_phase=int(contact_phase), applied_gradient=vector3(applied),
+                        forces=fb)
 
 
 def sequence_phase_msg(t_s: float, window: Any, latency_s: float, duty_cycle: float) -> SequencePhase:

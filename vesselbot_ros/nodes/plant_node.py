@@ -65,7 +65,7 @@ from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import MarkerArray
 
-from vesselbot_msgs.msg import ForceBreakdown, PlantState
+from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import RunControl
 from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
@@ -315,27 +315,8 @@ class PlantNode(VesselbotNode):
             d = self._vessel.diameter(t)
             vfx, vfz = float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0
             gap_up, gap_lo = 0.5 * d - z - r, z + 0.5 * d - r
-        h = cv.header(t)
-        f = out.forces
-        fb = ForceBreakdown(header=h)
-        for i, name in enumerate(("magnetic", "drag", "apparent_weight", "contact", "van_der_waals",
-                                  "electrostatic", "steric", "total")):
-            setattr(fb, name, cv.vector3(f[i]))
-        return PlantState(
-            header=h,
-            tick=self.k,
-            position=cv.point(out.p),
-            velocity=cv.vector3(out.v),
-            blood_velocity=cv.vector3((float(vfx), float(vfz))),
-            vessel_diameter=float(d),
-            wall_gap_upper=float(gap_up),
-            wall_gap_lower=float(gap_lo),
-            signed_wall_distance=out.delta_m,
-            in_contact=out.in_contact,
-            contact_phase=out.contact_phase,
-            applied_gradient=cv.vector3(self._g),
-            forces=fb,
-        )
+        return cv.plant_state_msg(self.k, t, out.p, out.v, (float(vfx), float(vfz)), d, gap_up, gap_lo, out.delta_m,
+                                  out.in_contact, out.contact_phase, self._g, out.forces)
 
     def _advance(self, g: np.ndarray) -> None:
         self.plant.step(g)

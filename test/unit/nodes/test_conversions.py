@@ -78,3 +78,74 @@ def test_sequence_phase_message_from_a_window():
     assert cv.ns_of_stamp(msg.header.stamp) == 22_000_000 and msg.header.frame_id == "vessel"
     cont = cv.sequence_phase_msg(0.0, window_at(SequenceParams(), 0.0), 0.0, 1.0)
     assert cont.phase == cont.CONTINUOUS and cont.window_end == float("inf") and cont.duty_cycle == 1.0
+
+
+# ---------------------------------------------------------------- the hot path's message builders
+def _slow_references():
+    """Each builder's message built the generated way (constructors and setters), with the same numbers."""
+    from builtin_interfaces.msg import Time
+    from geometry_msgs.msg import Point, PointStamped, Vector3, Vector3Stamped
+    from nav_msgs.msg import Odometry
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Header
+
+    from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample
+
+    t = 0.123
+    ns = cv.ns_of_time(t)
+    h = Header(stamp=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id="vessel")
+    odo = Odometry(header=h, child_frame_id="robot")
+    odo.pose.pose.position = Point(x=1e-3, y=0.0, z=-2e-4)
+    odo.pose.pose.orientation.w = 1.0
+    odo.twist.twist.linear = Vector3(x=3e-3, y=0.0, z=4e-5)
+    cov, tcov = [0.0] * 36, [0.0] * 36
+    cov[cv.AGE_COVARIANCE_INDEX], tcov[cv.FLOW_SCALE_COVARIANCE_INDEX] = 0.02, 0.97
+    odo.pose.covariance, odo.twist.covariance = cov, tcov
+    forces = np.arange(16, dtype=float).reshape(8, 2) * 1e-9
+    fb = ForceBreakdown(header=h, **{n: Vector3(x=forces[i, 0], y=0.0, z=forces[i, 1]) for i, n in enumerate(cv.FORCE_NAMES)})
+
+    class Out:  # a CoilOutput's fields
+        applied, k_scale, saturated, slew_limited, rejected = np.array([0.1, -0.2]), 0.5, True, np.array([True, False]), False
+
+    class Limits:
+        saturation_T_per_m, slew_rate_T_per_m_per_s = 0.08, 100.0
+
+    return [
+        (cv.clock_msg(t), Clock(clock=h.stamp)),
+        (cv.measurement_msg(t, np.array([1e-3, 2e-4])), PointStamped(header=h, point=Point(x=1e-3, y=0.0, z=2e-4))),
+        (cv.gradient_msg(t, (0.1, -0.2)), Vector3Stamped(header=h, vector=Vector3(x=0.1, y=0.0, z=-0.2))),
+        (cv.estimate_msg(t, np.array([1e-3, -2e-4]), np.array([3e-3, 4e-5]), 0.02, 0.97), odo),
+        (cv.reference_msg(7, t, (1e-3, 0.0), (2e-3, 1e-4), (3.0, -4.0)),
+         ReferenceSample(header=h, tick=7, position=Point(x=1e-3, y=0.0, z=0.0), velocity=Vector3(x=2e-3, y=0.0, z=1e-4),
+                         acceleration=Vector3(x=3.0, y=0.0, z=-4.0))),
+        (cv.coil_state_msg(7, t, np.array([0.2, -0.4]), Out, Limits, True, 20.0, 0.25),
+         CoilState(header=h, tick=7, commanded=Vector3(x=0.2, y=0.0, z=-0.4), applied=Vector3(x=0.1, y=0.0, z=-0.2),
+                   saturation_scale=0.5, saturated=True, slew_limited_x=True, slew_limited_z=False, command_rejected=False,
+                   watchdog_active=True, max_gradient=0.08, slew_rate=100.0, dbdt_limit=20.0, dbdt_radius=0.25)),
+        (cv.plant_state_msg(7, t, np.array([1e-3, 2e-4]), np.array([3e-3, 0.0]), (0.1, 0.0), 2e-3, 5e-4, 6e-4, 4e-4,
+                            True, 2, np.array([0.05, 0.01]), forces),
+         PlantState(header=h, tick=7, position=Point(x=1e-3, y=0.0, z=2e-4), velocity=Vector3(x=3e-3, y=0.0, z=0.0),
+                    blood_velocity=Vector3(x=0.1, y=0.0, z=0.0), vessel_diameter=2e-3, wall_gap_upper=5e-4,
+                    wall_gap_lower=6e-4, signed_wall_distance=4e-4, in_contact=True, contact_phase=2,
+                    applied_gradient=Vector3(x=0.05, y=0.0, z=0.01), forces=fb)),
+    ]
+
+
+@pytest.mark.parametrize("i", range(7))
+def test_fast_builders_equal_the_generated_constructors_on_the_wire(i):
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    fast, slow = _slow_references()[i]
+    assert type(fast) is type(slow)
+    assert fast == slow
+    assert serialize_message(fast) == serialize_message(slow)
+    assert deserialize_message(serialize_message(fast), type(slow)) == slow
+
+
+def test_builder_needs_every_field():
+    from geometry_msgs.msg import Vector3
+
+    build = cv.message_builder(Vector3)
+    with pytest.raises(TypeError):
+        build(x=1.0, z=2.0)
+    assert build(x=1.0, y=0.0, z=2.0) == Vector3(x=1.0, z=2.0)
