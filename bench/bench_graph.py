@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -126,6 +127,79 @@ def bare_nodes(context, n_ticks: int, names, done):
     return nodes
 
 
+# ------------------------------------------------------- the bare chain with our topology
+#: role -> the input key whose arrival completes its tick (lockstep order); its other inputs are only heard
+TRIGGER = {"reference": "clock", "imager": "truth", "observer": "measurement", "controller": "estimate",
+           "coil_driver": "gradient_command", "plant": "coil_applied"}
+#: what the launcher's monitor takes per tick (raw), as vesselbot_ros.launch.monitor does
+MONITORED = ("truth", "estimate", "reference", "coil_state")
+
+
+def topo_nodes(context, n_ticks: int, names, done):
+    """Our graph's topics, types, QoS and fan-out (from the graph spec), no project code per message.
+
+    Each role answers its trigger input with one default-constructed message per output (the tick in
+    the stamp), hears its other inputs, and does nothing else; ``launcher`` takes the monitored topics raw.
+    """
+    import rclpy
+
+    from vesselbot_ros.graph_spec import import_type, qos_profile, role, topic
+
+    def stamp_of(msg):
+        return msg.clock if hasattr(msg, "clock") else msg.header.stamp
+
+    nodes = []
+    for name in names:
+        node = rclpy.create_node(f"topo_{name}", namespace="/topo", context=context)
+        if name == "launcher":
+            for key in MONITORED:
+                node.create_subscription(import_type(topic(key).msgtype), topic(key).rel, lambda _d: None,
+                                         qos_profile(topic(key)), raw=True)
+            node.ready = lambda: True
+            nodes.append(node)
+            continue
+        r = role(name)
+        outs = [k for k in r.outputs if topic(k).per_tick]
+        pubs = {k: node.create_publisher(import_type(topic(k).msgtype), topic(k).rel, qos_profile(topic(k)))
+                for k in outs}
+        types = {k: import_type(topic(k).msgtype) for k in outs}
+
+        def emit(k, pubs=pubs, types=types):
+            for key, pub in pubs.items():
+                m = types[key]()
+                stamp_of(m).nanosec = k
+                pub.publish(m)
+
+        if name == "plant":
+            state = {"t0": None}
+
+            def on_applied(msg, emit=emit, state=state):
+                k = msg.header.stamp.nanosec + 1
+                if k < n_ticks:
+                    emit(k)
+                else:
+                    done(time.perf_counter() - state["t0"])
+
+            node.create_subscription(import_type(topic("coil_applied").msgtype), topic("coil_applied").rel, on_applied,
+                                     qos_profile(topic("coil_applied")))
+            node.start = lambda emit=emit, state=state: (state.__setitem__("t0", time.perf_counter()), emit(0))
+            # the whole graph is wired: every per-tick topic has its publisher and its subscribers
+            wired = [node.resolve_topic_name(topic(k).rel) for k in {*TRIGGER.values(), *MONITORED}]
+            node.ready = lambda node=node, wired=wired: all(
+                node.count_publishers(t) > 0 and node.count_subscribers(t) > 0 for t in wired)
+        else:
+            trig = TRIGGER[name]
+            node.create_subscription(import_type(topic(trig).msgtype), topic(trig).rel,
+                                     lambda msg, emit=emit: emit(stamp_of(msg).nanosec), qos_profile(topic(trig)))
+            for key in r.inputs:
+                if key != trig and topic(key).per_tick:
+                    node.create_subscription(import_type(topic(key).msgtype), topic(key).rel, lambda _m: None,
+                                             qos_profile(topic(key)))
+            node.ready = lambda pubs=pubs: all(p.get_subscription_count() > 0 for p in pubs.values())
+        nodes.append(node)
+    return nodes
+
+
 def bare_node_main(name: str, n_ticks: int) -> int:
     """One bare-chain node as a process (``--bare-node NAME``); the plant prints the wall time."""
     import rclpy
@@ -133,9 +207,14 @@ def bare_node_main(name: str, n_ticks: int) -> int:
 
     rclpy.init()
     result = {}
-    (node,) = bare_nodes(None, n_ticks, [name], lambda wall: result.setdefault("wall", wall))
+    topo = name.startswith("topo:")
+    names = name[5:].split(",") if topo else [name]
+    made = (topo_nodes if topo else bare_nodes)(None, n_ticks, names, lambda wall: result.setdefault("wall", wall))
+    node = next((nd for nd in made if nd.get_name().endswith("plant")), made[0])
+    name = "plant" if node.get_name().endswith("plant") else name
     ex = EventsExecutor()
-    ex.add_node(node)
+    for nd in made:
+        ex.add_node(nd)
     if name == "plant":
         while not node.ready():
             ex.spin_once(timeout_sec=0.05)
@@ -151,6 +230,33 @@ def bare_node_main(name: str, n_ticks: int) -> int:
     except KeyboardInterrupt:
         pass
     return 0
+
+
+def topo_chain(n_ticks: int, processes: bool) -> float:
+    """Wall time (s) of ``n_ticks`` ticks of our topology with no project code (launcher in its own process)."""
+    import signal as sig
+
+    from vesselbot_ros.graph_spec import LOOP_ROLES
+    from vesselbot_ros.ros_env import allocate_domain, ros_environment
+
+    others = [r for r in LOOP_ROLES if r != "plant"]
+    groups = [[r] for r in others] + [["plant"]] if processes else [list(LOOP_ROLES)]
+    with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
+        env = ros_environment(lease.domain_id, Path(d) / "log")
+
+        def start(names):
+            return [sys.executable, __file__, "--bare-node", "topo:" + ",".join(names), "--bare-ticks", str(n_ticks)]
+
+        helpers = [subprocess.Popen(start(g), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                   for g in [["launcher"], *groups[:-1]]]
+        try:
+            out = subprocess.run(start(groups[-1]), env=env, capture_output=True, text=True, timeout=600)
+        finally:
+            for p in helpers:
+                p.send_signal(sig.SIGINT)
+            for p in helpers:
+                p.wait(timeout=20)
+        return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
 
 
 def bare_chain(n_ticks: int, processes: bool) -> float:
@@ -274,18 +380,26 @@ def main() -> int:
     pure, sim = pure_wall(a.duration)
     n = int(round(sim * 1000))
     print(f"{sim:.3f} s sim at 1 kHz = {n} ticks")
+    load0 = os.getloadavg()[0]
     bare = {"processes": bare_chain(n, True), "single": bare_chain(n, False)}
+    topo = {"processes": topo_chain(n, True), "single": topo_chain(n, False)}
     for mode, wall in bare.items():
-        print(f"bare rclpy chain, {mode + ':':11s} wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick")
-    print(f"pure runner:                 wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
+        print(f"bare rclpy chain, {mode + ':':11s}       wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick")
+    for mode, wall in topo.items():
+        print(f"bare, our topology, {mode + ':':11s}     wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick   "
+              f"(our 8 topics, types, QoS, fan-out and the launcher's 4 raw readers; no code per message)")
+    print(f"pure runner:                       wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
     for label, extra, mode in (("lockstep, 7 processes", [], "processes"),
-                               ("lockstep, --single-process", ["--single-process"], "single")):
+                               ("lockstep, --single-process", ["--single-process"], "single"),
+                               ("  same, --no-intra-process", ["--single-process", "--no-intra-process"], "single")):
         r = ros_run(extra, a.duration)
         over_us = (r["wall_s"] - pure) / n * 1e6
         bare_us = bare[mode] / n * 1e6
-        print(f"{label:28s} wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
-              f"ROS/pure wall ratio {r['wall_s'] / pure:5.2f}   graph overhead {over_us:7.0f} us/tick   "
-              f"ours/bare chain {over_us / bare_us:5.2f} (target <= 1.2)")
+        print(f"{label:34s} wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
+              f"ROS/pure {r['wall_s'] / pure:6.1f}   graph overhead {over_us:6.0f} us/tick   "
+              f"ours/bare chain {over_us / bare_us:5.2f} (target <= 1.2)   "
+              f"ours/bare topology {r['wall_s'] / topo[mode]:5.2f}")
+    print(f"load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after (2 cores; other jobs share them)")
     if not a.skip_realtime:
         lat = realtime_latency(a.rt_duration, a.rt_factor)
         if lat.size:
