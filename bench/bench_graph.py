@@ -72,6 +72,21 @@ BARE = {"plant": ("d", ("clock", "state")), "r1": ("state", ("a",)), "r2": ("a",
         "r4": ("c", ("d",))}
 
 
+def plant_loop(node, emit, n_ticks: int, done, msg_cls, name: str, qos) -> None:
+    """The plant of a bare chain: tick k+1 on the answer to tick k; ``node.start()`` emits tick 0."""
+    state = {"t0": None}
+
+    def on_answer(msg):
+        k = msg.header.stamp.nanosec + 1
+        if k < n_ticks:
+            emit(k)
+        else:
+            done(time.perf_counter() - state["t0"])
+
+    node.create_subscription(msg_cls, name, on_answer, qos)
+    node.start = lambda: (state.__setitem__("t0", time.perf_counter()), emit(0))
+
+
 def bare_nodes(context, n_ticks: int, names, done):
     """The bare chain's nodes ``names`` (plain rclpy; Vector3Stamped payloads stamped with the tick)."""
     import rclpy
@@ -87,8 +102,6 @@ def bare_nodes(context, n_ticks: int, names, done):
         sub, pubs = BARE[name]
         out = {t: node.create_publisher(Clock if t == "clock" else Vector3Stamped, t, qos) for t in pubs}
         if name == "plant":
-            state = {"t0": None}
-
             def emit(k, out=out):
                 c = Clock()
                 c.clock.nanosec = k
@@ -97,15 +110,7 @@ def bare_nodes(context, n_ticks: int, names, done):
                 m.header.stamp.nanosec = k
                 out["state"].publish(m)
 
-            def on_d(msg, emit=emit, state=state):
-                k = msg.header.stamp.nanosec + 1
-                if k < n_ticks:
-                    emit(k)
-                else:
-                    done(time.perf_counter() - state["t0"])
-
-            node.create_subscription(Vector3Stamped, sub, on_d, qos)
-            node.start = lambda emit=emit, state=state: (state.__setitem__("t0", time.perf_counter()), emit(0))
+            plant_loop(node, emit, n_ticks, done, Vector3Stamped, sub, qos)
             # the whole chain is wired: every hop has its publisher and its subscriber (graph-wide)
             node.ready = lambda node=node: all(node.count_publishers(f"/bare/{t}") > 0 and
                                                node.count_subscribers(f"/bare/{t}") > 0
@@ -171,18 +176,8 @@ def topo_nodes(context, n_ticks: int, names, done):
                 pub.publish(m)
 
         if name == "plant":
-            state = {"t0": None}
-
-            def on_applied(msg, emit=emit, state=state):
-                k = msg.header.stamp.nanosec + 1
-                if k < n_ticks:
-                    emit(k)
-                else:
-                    done(time.perf_counter() - state["t0"])
-
-            node.create_subscription(import_type(topic("coil_applied").msgtype), topic("coil_applied").rel, on_applied,
-                                     qos_profile(topic("coil_applied")))
-            node.start = lambda emit=emit, state=state: (state.__setitem__("t0", time.perf_counter()), emit(0))
+            t = topic("coil_applied")
+            plant_loop(node, emit, n_ticks, done, import_type(t.msgtype), t.rel, qos_profile(t))
             # the whole graph is wired: every per-tick topic has its publisher and its subscribers
             wired = [node.resolve_topic_name(topic(k).rel) for k in {*TRIGGER.values(), *MONITORED}]
             node.ready = lambda node=node, wired=wired: all(
@@ -234,8 +229,6 @@ def bare_node_main(name: str, n_ticks: int) -> int:
 
 def topo_chain(n_ticks: int, processes: bool) -> float:
     """Wall time (s) of ``n_ticks`` ticks of our topology with no project code (launcher in its own process)."""
-    import signal as sig
-
     from vesselbot_ros.graph_spec import LOOP_ROLES
     from vesselbot_ros.ros_env import allocate_domain, ros_environment
 
@@ -244,25 +237,30 @@ def topo_chain(n_ticks: int, processes: bool) -> float:
     with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
         env = ros_environment(lease.domain_id, Path(d) / "log")
 
-        def start(names):
-            return [sys.executable, __file__, "--bare-node", "topo:" + ",".join(names), "--bare-ticks", str(n_ticks)]
+        return run_node_processes(env, n_ticks, ["topo:" + ",".join(g) for g in [["launcher"], *groups[:-1]]],
+                                  "topo:" + ",".join(groups[-1]))
 
-        helpers = [subprocess.Popen(start(g), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                   for g in [["launcher"], *groups[:-1]]]
-        try:
-            out = subprocess.run(start(groups[-1]), env=env, capture_output=True, text=True, timeout=600)
-        finally:
-            for p in helpers:
-                p.send_signal(sig.SIGINT)
-            for p in helpers:
-                p.wait(timeout=20)
-        return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
+
+def run_node_processes(env: dict, n_ticks: int, others: list[str], plant: str) -> float:
+    """Start the ``--bare-node`` processes ``others``, run ``plant`` to the end, stop them; the plant's wall time."""
+    import signal as sig
+
+    def argv(name: str) -> list[str]:
+        return [sys.executable, __file__, "--bare-node", name, "--bare-ticks", str(n_ticks)]
+
+    procs = [subprocess.Popen(argv(o), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for o in others]
+    try:
+        out = subprocess.run(argv(plant), env=env, capture_output=True, text=True, timeout=600)
+    finally:
+        for p in procs:
+            p.send_signal(sig.SIGINT)
+        for p in procs:
+            p.wait(timeout=20)
+    return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
 
 
 def bare_chain(n_ticks: int, processes: bool) -> float:
     """Wall time (s) of ``n_ticks`` lockstep ticks of the bare chain."""
-    import signal as sig
-
     import rclpy
     from rclpy.experimental import EventsExecutor
 
@@ -271,18 +269,7 @@ def bare_chain(n_ticks: int, processes: bool) -> float:
     with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
         env = ros_environment(lease.domain_id, Path(d) / "log")
         if processes:
-            relays = [subprocess.Popen([sys.executable, __file__, "--bare-node", r, "--bare-ticks", str(n_ticks)],
-                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                      for r in ("r1", "r2", "r3", "r4")]
-            try:
-                out = subprocess.run([sys.executable, __file__, "--bare-node", "plant", "--bare-ticks", str(n_ticks)],
-                                     env=env, capture_output=True, text=True, timeout=600)
-            finally:
-                for p in relays:
-                    p.send_signal(sig.SIGINT)
-                for p in relays:
-                    p.wait(timeout=20)
-            return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
+            return run_node_processes(env, n_ticks, ["r1", "r2", "r3", "r4"], "plant")
         saved = apply_to_process(env)
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=lease.domain_id)

@@ -34,6 +34,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from collections import Counter
@@ -538,7 +539,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         *,
         frame_id: str | None = None,
         stamp_ns: int | None = None,
-        values: Iterable[float] = (),
+        values: Sequence[float] = (),
         y_values: Iterable[float] = (),
         z_position: float | None = None,
         x_position: float | None = None,
@@ -560,12 +561,11 @@ class VesselbotNode(Node):  # type: ignore[misc]
                 diameter pulsation) plus ``graph.position_margin_m``.
             extra_age_s: Allowed extra age (e.g. the imager latency), s.
         """
-        vals = list(values)
         if frame_id is not None and frame_id != FRAME_ID:
             self.reject(key, "wrong_frame_id", f"got {frame_id!r}, expected {FRAME_ID!r}")
             return False
-        if not all(v == v and v not in (float("inf"), float("-inf")) for v in vals):
-            self.reject(key, "non_finite", f"values {vals}")
+        if not all(map(math.isfinite, values)):
+            self.reject(key, "non_finite", f"values {list(values)}")
             return False
         if any(y != 0.0 for y in y_values):
             self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
