@@ -83,3 +83,30 @@ def test_windows_off_the_tick_grid_are_refused(key, value, match):
     with pytest.raises(ConfigError, match=f"sequence.{match}"):
         scenario_from_mapping(_multiplexed(**{key: value}))
     scenario_from_mapping(_multiplexed(tracking_window_s=0.022, dead_time_s=0.003, propulsion_window_s=0.031))
+
+
+def test_sequenced_coil_hold_keeps_the_output_and_the_slew_clock() -> None:
+    """The coil driver's watchdog holds a late tick: the output stays, the next command slews from the held tick."""
+    from vesselbot_ros.scanner.stages import SequencedCoil
+    from vesselbot_ros.sim.closed_loop import build_stages
+
+    m = _multiplexed()
+    m["coil"].update(slew_rate="custom", custom_slew_rate_T_per_m_per_s=2.0)  # 2 mT/m per tick: never saturates here
+    sc = scenario_from_mapping(m)
+    coil = build_stages(sc).coil
+    assert isinstance(coil, SequencedCoil)
+    seq, dt = sc.sequence, sc.sim.dt_control_s
+    # first propulsion tick whose hold [t, t + dt] stays in the window, and two more after it
+    k0 = next(k for k in range(1000) if phase_at(seq, k * dt) == "propulsion" and phase_at(seq, (k + 3) * dt) == "propulsion")
+    big = np.array([1.0, 1.0])  # far beyond saturation: every tick moves by the full slew step
+    out1 = coil.apply(k0 * dt, big)
+    held = coil.hold((k0 + 1) * dt)
+    np.testing.assert_array_equal(held.applied, out1.applied)
+    assert not held.saturated and not held.rejected
+    out3 = coil.apply((k0 + 2) * dt, big)
+    step = sc.coil.slew_rate_T_per_m_per_s * dt
+    # one tick of slew from the held tick, not two from the last command
+    assert np.all(np.abs(out3.applied - held.applied) <= step * (1 + 1e-9))
+    assert np.any(np.abs(out3.applied - held.applied) > 0.5 * step)
+    with pytest.raises(Exception, match="back"):
+        coil.hold(k0 * dt)  # time never goes back
