@@ -21,15 +21,13 @@ DURATION_S = 0.3
 N_TICKS = 300
 
 
-@pytest.fixture(scope="module")
-def three_runs(tmp_path_factory):
+def _concurrent_runs(tmp, cfg, seeds):
+    """Start one recorded run per ``name -> seed`` at once, wait for all, return their opened bags."""
     from vesselbot_ros.bag.reader import open_bag
 
-    tmp = tmp_path_factory.mktemp("determinism")
-    cfg = write_config(tmp)
     runs = {name: popen_run("--config", str(cfg), "--duration", str(DURATION_S), "--seed", str(seed),
                             "--record-dir", str(tmp / name), "--quiet", cwd=tmp)
-            for name, seed in (("a", 0), ("b", 0), ("c", 1))}
+            for name, seed in seeds.items()}
     outs = {}
     try:
         for name, p in runs.items():
@@ -44,6 +42,12 @@ def three_runs(tmp_path_factory):
     for name, info in infos.items():
         assert info.consistent, (name, info.problems)
     return infos
+
+
+@pytest.fixture(scope="module")
+def three_runs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("determinism")
+    return _concurrent_runs(tmp, write_config(tmp), {"a": 0, "b": 0, "c": 1})
 
 
 def _messages(info, topic):
@@ -102,23 +106,8 @@ def test_another_seed_changes_the_imager_noise(three_runs):
 def two_scanner_runs(tmp_path_factory):
     from _runs import REPO
 
-    from vesselbot_ros.bag.reader import open_bag
-
     tmp = tmp_path_factory.mktemp("determinism_scanner")
-    cfg = REPO / "config" / "clinical_3t_small_artery.yaml"
-    runs = {name: popen_run("--config", str(cfg), "--duration", str(DURATION_S), "--seed", "2",
-                            "--record-dir", str(tmp / name), "--quiet", cwd=tmp) for name in ("d", "e")}
-    outs = {}
-    try:
-        for name, p in runs.items():
-            outs[name] = p.communicate(timeout=200)
-    finally:
-        for p in runs.values():
-            if p.poll() is None:
-                p.kill()
-    for name, p in runs.items():
-        assert p.returncode == 0, (name, *outs[name])
-    return {name: open_bag(tmp / name) for name in runs}
+    return _concurrent_runs(tmp, REPO / "config" / "clinical_3t_small_artery.yaml", {"d": 2, "e": 2})
 
 
 @pytest.mark.timeout(260)

@@ -62,7 +62,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2, mat2_apply
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
-from vesselbot_ros.control.estimate import Estimate
+from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
@@ -550,13 +550,7 @@ class ExtendedKalmanObserver:
         e = self.ekf
         if not math.isfinite(t_s) or t_s < e.scal[0] - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {float(e.scal[0])!r}")
-        has = measurement is not None
-        t_acq, m0, m1 = math.nan, math.nan, math.nan
-        if has:
-            yp = np.asarray(measurement.p, dtype=np.float64)
-            t_acq = float(measurement.t_acq_s)
-            if yp.shape == (2,):
-                m0, m1 = float(yp[0]), float(yp[1])
+        has, t_acq, m0, m1 = measurement_scalars(measurement)
         code = ekf_update(e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s,
                           e.work, e.fbuf, e.vec, e.mat, self.stats, float(t_s), float(g[0]), float(g[1]), has, t_acq,
                           m0, m1, e.out, e.err)

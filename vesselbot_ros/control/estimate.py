@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import math
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Estimate"]
+__all__ = ["Estimate", "measurement_scalars"]
 
 
 class Estimate(NamedTuple):
@@ -35,3 +36,18 @@ class Estimate(NamedTuple):
     used_measurement: bool
     rejected: bool
     flow_scale: float = 1.0
+
+
+def measurement_scalars(measurement: Any | None) -> tuple[bool, float, float, float]:
+    """A delivered frame (``t_acq_s``, ``p``) or None -> ``(has, t_acq_s, x, z)`` for a compiled observer update.
+
+    No frame: ``(False, nan, nan, nan)``; a position of the wrong shape travels
+    as nan, which the compiled update rejects like any non-finite measurement.
+    """
+    if measurement is None:
+        return False, math.nan, math.nan, math.nan
+    yp = np.asarray(measurement.p, dtype=np.float64)
+    t_acq = float(measurement.t_acq_s)
+    if yp.shape == (2,):
+        return True, t_acq, float(yp[0]), float(yp[1])
+    return True, t_acq, math.nan, math.nan

@@ -57,7 +57,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import hypot2, mat2, mat2_apply
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.control.ekf_params import EkfParams
-from vesselbot_ros.control.estimate import Estimate
+from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
 
@@ -323,13 +323,7 @@ class HighGainObserver:
         return Estimate(self._t, self._y[:2].copy(), self._y[2:].copy(), age, innov, used, rejected)
 
     def _update_compiled(self, t_s: float, measurement: Any | None, gx: float, gz: float) -> Estimate:
-        has = measurement is not None
-        t_acq, m0, m1 = math.nan, math.nan, math.nan
-        if has:
-            yp = np.asarray(measurement.p, dtype=np.float64)
-            t_acq = float(measurement.t_acq_s)
-            if yp.shape == (2,):
-                m0, m1 = float(yp[0]), float(yp[1])
+        has, t_acq, m0, m1 = measurement_scalars(measurement)
         m = self.model
         t0 = self._t
         code = observer_update(self._prm, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig, m.p,
