@@ -44,7 +44,9 @@ def _per_tick_messages(bag):
 
 
 @pytest.mark.timeout(600)
-def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path):
+@pytest.mark.parametrize("composed", [[], ["--single-process"]], ids=["processes", "single_process"])
+def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, composed):
+    """Driven run: one process per node, or composed (steps then arrive from the services' thread)."""
     import rclpy
     from rclpy.action import ActionClient
     from rclpy.executors import SingleThreadedExecutor
@@ -57,7 +59,7 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path):
     with allocate_domain() as lease:
         dom = lease.domain_id
     common = ["--config", "sound_small_artery", "--duration", str(DURATION), "--seed", "3", "--quiet"]
-    driven = subprocess.Popen(run_cmd(*common, "--start-paused", "--domain-id", str(dom),
+    driven = subprocess.Popen(run_cmd(*common, *composed, "--start-paused", "--domain-id", str(dom),
                                       "--record-dir", str(tmp_path / "driven")),
                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     saved = apply_to_process(ros_environment(dom, tmp_path / "client_log"))

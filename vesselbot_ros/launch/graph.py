@@ -284,6 +284,9 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         wait_for(lambda: mon.publishes("truth") and mon.subscribers("estimate") > 0
                  and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, sup,
                  "the plant's RunControl service")
+        if sup.recorder is not None:
+            wait_for(mon.recorder_matched, options.wait_timeout_s, mon, sup,
+                     "the recorder to match every publisher (else it drops their first messages)")
         if options.start_paused:
             from simulation_interfaces.msg import SimulationState
 

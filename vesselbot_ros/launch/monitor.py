@@ -235,6 +235,19 @@ class Monitor:
         out.pop(topic("diagnostics").name, None)  # every node publishes there, the recorder too
         return out
 
+    def recorder_matched(self) -> bool:
+        """True once the recorder's reader of every topic matched every publisher the graph has of it.
+
+        A reader that has not yet matched a writer drops what it sends (volatile
+        durability), so the launcher starts the run only after this.
+        """
+        rec = self.diag.get(NODE_NAMES["recorder"])
+        if rec is None:
+            return False
+        matched = counts_with_prefix(rec, "matched_publishers:")
+        return all(matched.get(t.name, 0) >= self.node.count_publishers(self.resolved(t.key)) for t in TOPICS
+                   if t.key != "diagnostics")
+
     def recorder_received(self) -> dict[str, int] | None:
         """The recorder's ``received:<topic>`` counts (None before its first diagnostics)."""
         rec = self.diag.get(NODE_NAMES["recorder"])

@@ -142,6 +142,8 @@ class RecorderNode:
         n.declare_parameter("live_rate_Hz", DEFAULT_LIVE_RATE_HZ)
         self.bag: Any = None
         self._subs: list[Any] = []
+        self._sub_names: list[str] = []  # the canonical topic name of each subscription
+        self._matched: list[int] = []  # publishers each subscription matched, as last reported
         self.write_error: OSError | None = None  # set when the disk fills; main() stops
         self._diag_pub: Any = None
         self.live: Any = None  # the LiveView, when live_port >= 0
@@ -224,6 +226,7 @@ class RecorderNode:
                              reliability=qos.reliability, durability=qos.durability)
             cb = self._callback(conn, name, now)
             self._subs.append(n.create_subscription(cls, sub_name, cb, qos, raw=True))
+            self._sub_names.append(name)
 
         from diagnostic_msgs.msg import DiagnosticArray
 
@@ -231,6 +234,8 @@ class RecorderNode:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         n.create_timer(float(self._param("flush_period_s")), self._on_flush_timer, clock=steady)
         n.create_timer(1.0, self.publish_counts, clock=steady)
+        # before a run starts the launcher waits for our readers to match every writer: report matches fast
+        n.create_timer(0.1, self._on_match_timer, clock=steady)
         n.create_service(Trigger, service("recorder_flush").rel, self._on_flush_service)
         n.get_logger().info(f"recording {len(specs)} topics into {path}")
 
@@ -287,9 +292,16 @@ class RecorderNode:
         where = str(self.bag.path) if self.bag is not None else (self.live.url if self.live is not None else "")
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name=STATUS_NAME, hardware_id=where,
                               message=f"{sum(counts.values())} messages " + ("written" if self.bag else "served"))
-        st.values = [KeyValue(key=f"received:{k}", value=str(v)) for k, v in counts.items()]
+        self._matched = [s.get_publisher_count() for s in self._subs]
+        st.values = [KeyValue(key=f"received:{k}", value=str(v)) for k, v in counts.items()] + [
+            KeyValue(key=f"matched_publishers:{name}", value=str(m)) for name, m in zip(self._sub_names, self._matched)]
         arr.status = [st]
         self._diag_pub.publish(arr)
+
+    def _on_match_timer(self) -> None:
+        """Publish the counts as soon as a reader's matched publishers change (e.g. a node came up)."""
+        if [s.get_publisher_count() for s in self._subs] != self._matched:
+            self.publish_counts()
 
     def _on_flush_timer(self) -> None:
         if self.bag is not None and self.bag.is_open and self.write_error is None:
