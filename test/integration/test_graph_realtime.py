@@ -75,6 +75,25 @@ def test_realtime_run_finishes_with_every_node_alive_and_reports_its_periods(tmp
 
 
 @pytest.mark.timeout(240)
+def test_realtime_run_the_machine_can_follow_holds_its_factor(tmp_path):
+    """At 0.05x real time (20 ms of wall per 1 ms tick) the graph keeps up and says so, exit 0.
+
+    Before the plant started its wall schedule when tick 0 went out (it started it after tick 0's
+    first, slow emit), every later tick looked one period late to the nodes and any factor failed.
+    """
+    proc = subprocess.run(
+        run_cmd("--config", str(CONFIG), "--mode", "realtime", "--real-time-factor", "0.05", "--duration", "0.3",
+                "--no-record"),
+        cwd=REPO, capture_output=True, text=True, timeout=200,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "real time (asked RTF 0.05, held about 0.05)" in proc.stdout, proc.stdout[-3000:]
+    for role in ("reference", "imager", "observer", "controller", "coil_driver", "plant"):
+        m = re.search(rf"{role}\s+missed\s+(\d+) of 300 periods", proc.stdout)
+        assert m and int(m.group(1)) <= 3, (role, proc.stdout[-3000:])
+
+
+@pytest.mark.timeout(240)
 def test_realtime_run_that_cannot_keep_up_exits_nonzero_with_the_held_factor(tmp_path):
     # 50x real time at 1 kHz: a tick every 20 us of wall time, far beyond any Python graph
     proc = subprocess.run(

@@ -304,6 +304,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
         self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
+        if not self.lockstep:  # the stages' first calls cost tens of ms: pay them before the first tick is due
+            from vesselbot_ros.sim.closed_loop import warm_up
+
+            warm_up(self.scenario)
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             from std_srvs.srv import Trigger

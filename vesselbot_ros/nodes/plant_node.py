@@ -148,13 +148,15 @@ class PlantNode(VesselbotNode):
             return
         self.paused = paused
         self._held = False
+        # tick 0 is due now, and every later tick on the same schedule: the nodes anchor their periods on
+        # tick 0's arrival, so a schedule started after tick 0 went out (its first emit takes a while)
+        # made every later tick look one period late
+        self._wall_start = time.monotonic()
+        self._anchor = self._wall_start
+        self._rt_timer = self.create_timer(
+            min(self.dt / self.graph.real_time_factor, 0.01), self._realtime_tick, clock=self._wall
+        )
         self._emit()
-        if not self.lockstep:
-            self._wall_start = time.monotonic()
-            self._anchor = self._wall_start
-            self._rt_timer = self.create_timer(
-                min(self.dt / self.graph.real_time_factor, 0.01), self._realtime_tick, clock=self._wall
-            )
 
     def _on_run_control(self, req: Any, resp: Any) -> Any:
         with self._lock:
