@@ -177,16 +177,16 @@ def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _diameter(t, p):  # type: ignore[no-untyped-def]
     return vessel_diameter(t, p[I_DIAMETER], p[I_D_PULSE], p[I_OMEGA_F], p[I_PHI_F])
 
 
-@numba.njit(cache=True)
-def _grid_bilinear(p, x, z, first, count, out):  # type: ignore[no-untyped-def]
-    """Bilinear interpolation of ``count`` grids starting at field ``first`` at (x, z) (m) into ``out``.
+@numba.njit(cache=True, _nrt=False)
+def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]
+    """The network grid's cell holding (x, z) (m): ``(base index, nx, cells per field, w00, w10, w01, w11)``.
 
-    Outside the grid the value at the nearest grid edge is used.
+    Bilinear weights; outside the grid the cell at the nearest grid edge, its weights clipped to [0, 1].
     """
     o = int(p[I_NET_OFF])
     x0 = p[o]
@@ -208,18 +208,18 @@ def _grid_bilinear(p, x, z, first, count, out):  # type: ignore[no-untyped-def]
         j = nz - 2
     tx = min(1.0, max(0.0, fx - i))
     tz = min(1.0, max(0.0, fz - j))
-    w00 = (1.0 - tx) * (1.0 - tz)
-    w10 = tx * (1.0 - tz)
-    w01 = (1.0 - tx) * tz
-    w11 = tx * tz
-    base = o + 5 + j * nx + i
-    n = nx * nz
-    for k in range(count):
-        b = base + (first + k) * n
-        out[k] = w00 * p[b] + w10 * p[b + 1] + w01 * p[b + nx] + w11 * p[b + nx + 1]
+    return (o + 5 + j * nx + i, nx, nx * nz, (1.0 - tx) * (1.0 - tz), tx * (1.0 - tz), (1.0 - tx) * tz, tx * tz)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
+def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]
+    """Grid field ``field`` interpolated in ``cell`` (:func:`_grid_cell`)."""
+    base, nx, n, w00, w10, w01, w11 = cell
+    b = base + field * n
+    return w00 * p[b] + w10 * p[b + 1] + w01 * p[b + nx] + w11 * p[b + nx + 1]
+
+
+@numba.njit(cache=True, _nrt=False)
 def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
 
@@ -229,10 +229,14 @@ def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     (vfx, vfz): blood velocity (m/s), eq. (12) on the steady CFD field, which
     dilates with the vessel: sampled at the point moved towards the centreline by
     the factor 1 / (1 + eps) (exactly p_p(z, D(t)) in a straight branch).
+    Allocates nothing (grid fields 2-6: s, normal, D, eta; 0-1: velocity).
     """
-    g = np.empty(7)
-    _grid_bilinear(p, x, z, 2, 5, g)
-    s, gx, gz, d, eta = g[0], g[1], g[2], g[3], g[4]
+    cell = _grid_cell(p, x, z)
+    s = _grid_value(p, cell, 2)
+    gx = _grid_value(p, cell, 3)
+    gz = _grid_value(p, cell, 4)
+    d = _grid_value(p, cell, 5)
+    eta = _grid_value(p, cell, 6)
     nn = np.sqrt(gx * gx + gz * gz)
     if nn > 1e-12:
         gx /= nn
@@ -244,12 +248,12 @@ def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     s_t = s + 0.5 * d * eps
     d_t = d * (1.0 + eps)
     shift = (0.5 * d - s) * (1.0 - 1.0 / (1.0 + eps))
-    _grid_bilinear(p, x + gx * shift, z + gz * shift, 0, 2, g)
+    cell = _grid_cell(p, x + gx * shift, z + gz * shift)
     scale = p[I_V_F] * pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F])
-    return s_t, gx, gz, d_t, eta, scale * g[0], scale * g[1]
+    return s_t, gx, gz, d_t, eta, scale * _grid_value(p, cell, 0), scale * _grid_value(p, cell, 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]
     """(delta (m), wall) of the nearest wall for a robot centred at (x, z).
 
@@ -262,7 +266,7 @@ def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]
     return nearest_wall_delta(t, z, p)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
     """(v_fx, v_fz) blood velocity (m/s) at (x, z) (m), time t (s)."""
     if p[I_NET_ON] > 0.5:
@@ -271,7 +275,7 @@ def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
     return fluid_velocity_x(t, x, z, p), 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def time_terms(t, p):  # type: ignore[no-untyped-def]
     """The terms of the force model that depend on time only: ``(D(t) (m), pulse factor (-), wall factor f (-))``.
 
@@ -284,7 +288,7 @@ def time_terms(t, p):  # type: ignore[no-untyped-def]
     return d_t, pulse, wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
     """Fill ``tc`` (4,) = ``[t, *time_terms(t, p)]`` unless it already holds time ``t``.
 
@@ -302,7 +306,7 @@ def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
         tc[3] = wf
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]
     if p[I_BIF_ON] > 0.5:
         nk = int(p[I_BIF_NKNOTS])
@@ -316,7 +320,7 @@ def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]
     return p[I_V_F] * pulse * prof
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
     """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
     if p[I_NET_ON] > 0.5:
@@ -324,7 +328,7 @@ def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
     return _flow_x(x, z, _diameter(t, p), pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]), p)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]
     """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z, vessel diameter d_t.
 
@@ -336,13 +340,13 @@ def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]
     return d_lo, -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]
     """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
     return wall_delta_at(z, _diameter(t, p), p)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # type: ignore[no-untyped-def]
     """:func:`forces_into` of a straight vessel with the time-only terms given (``time_terms``): the same doubles.
 
@@ -385,7 +389,7 @@ def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # typ
     out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
     """Fill ``out`` (8, 2) with the force terms (N) in ``TERM_NAMES`` order.
 
@@ -399,7 +403,7 @@ def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[n
     forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore[no-untyped-def]
     """:func:`forces_into` with the time-only terms memoised in ``tc`` (:func:`time_terms_into`): the same doubles.
 
@@ -413,7 +417,7 @@ def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore
     forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, tc[1], tc[2], tc[3])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
     """:func:`forces_into` in a vessel network: every force from the local wall geometry.
 
@@ -466,7 +470,7 @@ def accel_no_motive(t, x, z, vx, vz, contact_arr, p):  # type: ignore[no-untyped
     return accel(t, x, z, vx, vz, 0.0, 0.0, contact_arr, p)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def update_contact(contact_arr, delta, p):  # type: ignore[no-untyped-def]
     """Advance the loading/unloading state in place after observing ``delta`` (m)."""
     ph, dm, fm, d0 = contact_transition(contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3],

@@ -109,6 +109,10 @@ class IntegratorParams:
 
 
 
+# The functions that run once per force evaluation or per step are compiled with ``_nrt=False``: they allocate
+# nothing, and without numba's runtime they take no atomic reference counts on the arrays they view and pass
+# (those counts were ~18 % of a compiled run's samples under ``perf``, and contended between threads).
+
 #: Scratch arrays of one integrator: ``(work (10, 4), fbuf (8, 2))`` float64.  ``work`` rows 0-8 are the
 #: stages, row 9 the memo of the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`).
 Workspace = tuple[np.ndarray, np.ndarray]
@@ -140,7 +144,7 @@ _E6 = 22.0 / 525.0
 _E7 = -1.0 / 40.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-untyped-def]
     # the kernel's accel() without its (8, 2) scratch, time-only terms memoised in tc: same operations, same doubles
     forces_tc(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf, tc)
@@ -150,7 +154,7 @@ def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-un
     out[3] = fbuf[7, 1] / p[I_MASS] + uz
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]
     if p[I_NET_ON] > 0.5:  # a network's wall comes from the grid at (x, z), not from D(t)
         delta, _wall = wall_delta_xz(t, y[0], y[1], p)
@@ -160,7 +164,7 @@ def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]
     update_contact(contact, delta, p)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats, work, fbuf):  # type: ignore[no-untyped-def]
     """Integrate ``y = (x, z, vx, vz)`` in place from ``t0`` to ``t1`` (s).
 
@@ -274,7 +278,7 @@ def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, a
                                stats, work, fbuf)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf):  # type: ignore[no-untyped-def]
     """Fixed-step RK4 from ``t0`` to ``t1`` with ``ceil((t1-t0)/h_fixed)`` equal steps.
 
