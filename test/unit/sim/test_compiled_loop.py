@@ -285,12 +285,13 @@ def test_non_finite_measurement_is_rejected_the_same_way() -> None:
 
 
 ALLOCATIONS = """
+import sys
 import numpy as np
 from numba.core.runtime import rtsys
 from vesselbot_ros.sim import compiled_loop
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
-sc = load_scenario(shipped_scenarios()["sound_small_artery"])
+sc = load_scenario(shipped_scenarios()[sys.argv[1]])
 for n in (50, 500):
     inp = compiled_loop.prepare(build_stages(sc, 0), n, sc.sim.dt_control_s, False)
     compiled_loop.run_kernel(inp, np.random.default_rng(0))
@@ -301,14 +302,15 @@ for n in (50, 500):
 """
 
 
-def test_the_compiled_loop_allocates_nothing_per_tick() -> None:
+@pytest.mark.parametrize("name", ["sound_small_artery", "paper_iiic_network_upper"])
+def test_the_compiled_loop_allocates_nothing_per_tick(name: str) -> None:
     # numba's runtime counts its allocations when NUMBA_NRT_STATS=1: a run of 500 ticks makes exactly as many
     # as a run of 50 (the scratch arrays allocated once before the first tick), so no tick allocates
     import os
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-c", ALLOCATIONS], capture_output=True, text=True, timeout=600, check=True,
+    out = subprocess.run([sys.executable, "-c", ALLOCATIONS, name], capture_output=True, text=True, timeout=600, check=True,
                          env=dict(os.environ, NUMBA_NRT_STATS="1"))
     short, long = out.stdout.split("\n")[:2]
     assert short == long, out.stdout
