@@ -227,33 +227,51 @@ def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1,
     """
     if not age <= prm[3]:
         return _safe_command(prm, last, out, STATUS_STALE)
-    p = model_p
-    if prm[9] > 0.5:  # F with the model's V_f scaled by the observer's estimate
-        if not (math.isfinite(flow_scale) and flow_scale > 0.0):
-            return FLOW_SCALE_INVALID
-        if flow_scale != 1.0:
-            for i in range(model_p.shape[0]):
-                p_s[i] = model_p[i]
-            p_s[I_V_F] = model_p[I_V_F] * flow_scale
-            p = p_s
+    compensate = prm[9] > 0.5  # F with the model's V_f scaled by the observer's estimate
+    if compensate and not (math.isfinite(flow_scale) and flow_scale > 0.0):
+        return FLOW_SCALE_INVALID
+    p = _scaled_model(model_p, p_s, flow_scale) if compensate else model_p
+    g0, g1, u0, u1 = _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1)
+    return _emit(prm, last, out, g0, g1, u0, u1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _scaled_model(model_p, p_s, flow_scale):  # type: ignore[no-untyped-def]
+    """The model's packed parameters with ``V_f`` times ``flow_scale`` (``model_p`` itself for 1), as ``DynamicsModel.F``."""
+    if flow_scale == 1.0:
+        return model_p
+    for i in range(model_p.shape[0]):
+        p_s[i] = model_p[i]
+    p_s[I_V_F] = model_p[I_V_F] * flow_scale
+    return p_s
+
+
+@numba.njit(cache=True, nogil=True)
+def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore[no-untyped-def]
+    """``DynamicsModel.F`` at ``(X, Z)``, time ``t``, on packed parameters ``p`` (m/s^2): the same doubles."""
+    forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, p, fbuf)
+    m = model_p[I_MASS]
+    return fbuf[7, 0] / m, fbuf[7, 1] / m
+
+
+@numba.njit(cache=True, nogil=True)
+def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1):  # type: ignore[no-untyped-def]
+    """Eq. (24) with ``F`` on ``p``, mapped by ``B^-1`` and the duty compensation: ``(g x, g z, U x, U z)``."""
     k1 = prm[0]
     k2 = prm[1]
     s = k1 + k2
     c = 1.0 + k1 * k2
     h = prm[2]
-    m = model_p[I_MASS]
     if h > 0.0:
         a0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - 0.0
         a1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - 0.0
         hh = 0.5 * h * h
-        forces_into(t + h, x0 + h * z0 + hh * a0, x1 + h * z1 + hh * a1, z0 + h * a0, z1 + h * a1, 0.0, 0.0,
-                    free_contact, p, fbuf)
-        u0 = a0 - fbuf[7, 0] / m
-        u1 = a1 - fbuf[7, 1] / m
+        f0, f1 = _model_f(model_p, p, free_contact, fbuf, t + h, x0 + h * z0 + hh * a0, x1 + h * z1 + hh * a1,
+                          z0 + h * a0, z1 + h * a1)
+        u0 = a0 - f0
+        u1 = a1 - f1
     else:
-        forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, p, fbuf)
-        f0 = fbuf[7, 0] / m
-        f1 = fbuf[7, 1] / m
+        f0, f1 = _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1)
         u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
         u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
     g0 = prm[5] * u0 + prm[6] * u1
@@ -261,6 +279,12 @@ def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1,
     if prm[10] != 1.0:  # duty compensation
         g0 = g0 * prm[10]
         g1 = g1 * prm[10]
+    return g0, g1, u0, u1
+
+
+@numba.njit(cache=True, nogil=True)
+def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]
+    """Write a command (or take the safe action if it is not finite); its status."""
     if not (math.isfinite(g0) and math.isfinite(g1)):
         return _safe_command(prm, last, out, STATUS_NONFINITE)
     last[0] = g0
@@ -270,6 +294,60 @@ def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1,
     out[2] = u0
     out[3] = u1
     return STATUS_OK
+
+
+def adaptive_params(params: AdaptiveParams, input_matrix: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
+    """(9,) parameter vector of :func:`adaptive_command`: ``[gamma_s, gamma_m, scale_min, scale_max, regressor_step,
+    B (4, row-major)]``."""
+    return np.array([float(params.flow_scale_gain_s3_per_m2), float(params.magnetization_gain_s3_per_m2),
+                     float(params.scale_min), float(params.scale_max), float(params.regressor_step), *input_matrix])
+
+
+@numba.njit(cache=True, nogil=True)
+def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age,  # type: ignore[no-untyped-def]
+                     pr0, pr1, vr0, vr1, ar0, ar1, out):
+    """Adaptive backstepping (:mod:`vesselbot_ros.control.adaptive`): adapt, then law (24) at the adapted scales.
+
+    ``aprm`` from :func:`adaptive_params`; ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``,
+    updated (:func:`~vesselbot_ros.control.adaptive.adaptation_step`, explicit Euler, projected);
+    the rest as :func:`backstepping_command`.  A stale estimate pauses the adaptation.  The law
+    uses ``F`` at ``s_hat`` and divides the gradient by ``m_hat``.  The same doubles as the Python
+    reading in :class:`BacksteppingController` with a user's ``F``.
+    """
+    if not age <= prm[3]:
+        ast[2] = t  # adaptation pauses while the estimate is stale
+        return _safe_command(prm, last, out, STATUS_STALE)
+    k1 = prm[0]
+    e20 = z0 - vr0 + k1 * (x0 - pr0)
+    e21 = z1 - vr1 + k1 * (x1 - pr1)
+    h = aprm[4]
+    fa0, fa1 = _model_f(model_p, _scaled_model(model_p, p_s, ast[0]), free_contact, fbuf, t, x0, x1, z0, z1)
+    fb0, fb1 = _model_f(model_p, _scaled_model(model_p, p_s, ast[0] + h), free_contact, fbuf, t, x0, x1, z0, z1)
+    phi_s0 = (fb0 - fa0) / h
+    phi_s1 = (fb1 - fa1) / h
+    phi_m0 = aprm[5] * last[0] + aprm[6] * last[1]  # B G of the gradient commanded since the last update
+    phi_m1 = aprm[7] * last[0] + aprm[8] * last[1]
+    dt = t - ast[2]
+    ast[2] = t
+    if dt > 0.0:  # not the first call (nan), not a repeated tick
+        lo = aprm[2]
+        hi = aprm[3]
+        if aprm[0] > 0.0:
+            ds = dt * aprm[0] * (phi_s0 * e20 + phi_s1 * e21)
+            ast[0] = min(hi, max(lo, ast[0] + ds))
+        if aprm[1] > 0.0:
+            dm = dt * aprm[1] * (phi_m0 * e20 + phi_m1 * e21)
+            ast[1] = min(hi, max(lo, ast[1] + dm))
+    flow_scale = ast[0]
+    if not (math.isfinite(flow_scale) and flow_scale > 0.0):
+        return FLOW_SCALE_INVALID
+    g0, g1, u0, u1 = _law(prm, model_p, _scaled_model(model_p, p_s, flow_scale), free_contact, fbuf, t, x0, x1,
+                          z0, z1, pr0, pr1, vr0, vr1, ar0, ar1)
+    inv_m = 1.0 / ast[1]
+    if inv_m != 1.0:
+        g0 = g0 * inv_m
+        g1 = g1 * inv_m
+    return _emit(prm, last, out, g0, g1, u0, u1)
 
 
 class BacksteppingController:
@@ -313,8 +391,10 @@ class BacksteppingController:
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
         self._compensate = params.flow_compensation == "estimate"
         self._b = mat2(input_matrix)
-        #: the adapted scales (``kind: adaptive_backstepping``), else None
-        self.adapted: AdaptiveState | None = AdaptiveState() if params.kind == "adaptive_backstepping" else None
+        # the adapted scales [s_hat, m_hat, time of the last update] (``kind: adaptive_backstepping``), else None
+        self._ast: npt.NDArray[np.float64] | None = (np.array([1.0, 1.0, math.nan])
+                                                     if params.kind == "adaptive_backstepping" else None)
+        self._aprm = adaptive_params(params.adaptive, self._b) if self._ast is not None else np.zeros(9)
         if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
             raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
         self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
@@ -322,10 +402,9 @@ class BacksteppingController:
         # (backstepping_command), as in the compiled loop; any other force_fn runs in Python.
         owner = getattr(force_fn, "__self__", None)
         model_p = getattr(owner, "p", None)
-        # the compiled law (flow and duty compensation included) has no adaptation: adaptive backstepping runs in Python
+        # the compiled law takes flow and duty compensation and the adaptation (adaptive_command)
         self.model_params: npt.NDArray[np.float64] | None = (
-            model_p if (self.adapted is None and getattr(owner, "F", None) == force_fn
-                        and isinstance(model_p, np.ndarray)) else None
+            model_p if (getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray)) else None
         )
         self.params_vector = controller_params(params, b_inv, self._half, self._inv_duty)
         self._p_s = np.empty_like(model_p) if self.model_params is not None else np.empty(0)
@@ -336,8 +415,20 @@ class BacksteppingController:
     def reset(self) -> None:
         """Forget the last command (the ``hold`` action then holds zero) and any adapted scale."""
         self._last[:] = 0.0
-        if self.adapted is not None:
-            self.adapted = AdaptiveState()
+        if self._ast is not None:
+            self._ast[:] = (1.0, 1.0, math.nan)
+
+    @property
+    def adapted(self) -> AdaptiveState | None:
+        """The adapted scales now (``kind: adaptive_backstepping``; a copy), else None."""
+        if self._ast is None:
+            return None
+        return AdaptiveState(float(self._ast[0]), float(self._ast[1]), float(self._ast[2]))
+
+    @property
+    def adaptive_vector(self) -> npt.NDArray[np.float64] | None:
+        """``(aprm (9,), state (3,))`` of :func:`adaptive_command` for the compiled loop, or None (not adaptive)."""
+        return None if self._ast is None else (self._aprm, self._ast)  # type: ignore[return-value]
 
     def _safe(self, status: str) -> ControlCommand:
         if self.params.stale_action != "hold":
@@ -399,6 +490,17 @@ class BacksteppingController:
         if not (math.isfinite(p_ref[0]) and math.isfinite(p_ref[1]) and math.isfinite(v_ref[0])
                 and math.isfinite(v_ref[1]) and math.isfinite(a_ref[0]) and math.isfinite(a_ref[1])):
             raise ModelInputError("controller: non-finite reference sample")
+        if self.model_params is not None and self._ast is not None:
+            status = adaptive_command(
+                self.params_vector, self._aprm, self._ast, self._last, self.model_params, self._p_s, self._free,
+                self._fbuf, float(t_s), float(x_hat[0]), float(x_hat[1]), float(z_hat[0]), float(z_hat[1]),
+                float(time_since_measurement_s), float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]),
+                float(a_ref[0]), float(a_ref[1]), self._out,
+            )
+            if status == FLOW_SCALE_INVALID:
+                raise ModelInputError(flow_scale_message(float(self._ast[0])))
+            o = self._out
+            return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
         if self.model_params is not None:
             status = backstepping_command(
                 self.params_vector, self._last, self.model_params, self._p_s, self._free, self._fbuf, float(t_s),
@@ -410,15 +512,16 @@ class BacksteppingController:
                 raise ModelInputError(flow_scale_message(flow_scale))
             o = self._out
             return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
+        # a user's F (not the model's kernel): the same law in Python
         if not time_since_measurement_s <= self.params.stale_timeout_s:
-            if self.adapted is not None:
-                self.adapted.t_last_s = float(t_s)  # adaptation pauses while the estimate is stale
+            if self._ast is not None:
+                self._ast[2] = float(t_s)  # adaptation pauses while the estimate is stale
             return self._safe("stale")
         inv_m = 1.0
-        if self.adapted is not None:
+        if self._ast is not None:
             flow_scale = self._adapt(float(t_s), x_hat, z_hat, p_ref, v_ref)
-            inv_m = 1.0 / self.adapted.magnetization_scale
-        if self._compensate or self.adapted is not None:
+            inv_m = 1.0 / float(self._ast[1])
+        if self._compensate or self._ast is not None:
             if not (math.isfinite(flow_scale) and flow_scale > 0.0):
                 raise ModelInputError(flow_scale_message(flow_scale))
 
@@ -448,7 +551,7 @@ class BacksteppingController:
                p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64]) -> float:
         """One step of the adaptation laws (:mod:`vesselbot_ros.control.adaptive`); the flow scale to use."""
         st = self.adapted
-        assert st is not None
+        assert st is not None and self._ast is not None
         prm = self.params.adaptive
         k1 = self._k1
         e2 = (z_hat[0] - v_ref[0] + k1 * (x_hat[0] - p_ref[0]), z_hat[1] - v_ref[1] + k1 * (x_hat[1] - p_ref[1]))
@@ -459,4 +562,5 @@ class BacksteppingController:
         b = self._b  # phi_m = B G of the gradient commanded since the last update (m = 1)
         phi_m = (b[0] * self._last[0] + b[1] * self._last[1], b[2] * self._last[0] + b[3] * self._last[1])
         adaptation_step(prm, st, t_s, e2, phi_s, phi_m)
+        self._ast[:] = (st.flow_scale, st.magnetization_scale, st.t_last_s)
         return st.flow_scale

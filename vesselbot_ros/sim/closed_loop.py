@@ -248,19 +248,11 @@ def run_stages(
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
     foreign = compiled_loop.foreign_stages(stages)
     if path == "compiled" and foreign:
-        raise ModelInputError(f"path='compiled' needs the built-in stages, got {_foreign_reason(stages, foreign)}")
+        raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
     if not foreign and path != "per_tick":
         inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
         return _compiled_result(scenario, seed, inp, stages.imager.rng)
     return _run_per_tick(scenario, seed, stages)
-
-
-def _foreign_reason(stages: Stages, foreign: list[str]) -> str:
-    """Why the compiled loop cannot run ``stages`` (``foreign`` from :func:`compiled_loop.foreign_stages`)."""
-    ctl = stages.controller
-    if foreign == ["controller"] and type(ctl) is BacksteppingController and ctl.adapted is not None:
-        return "a controller option it lacks (adaptive backstepping)"
-    return f"user stage(s) {foreign}"
 
 
 # Prepared kernel inputs per scenario object (a frozen Scenario: the same object is the same scenario), so that
@@ -295,9 +287,6 @@ def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.Lo
     series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts.copy(), "p_ref": inp.p_ref.copy(), "v_ref": inp.v_ref.copy(),
                                            "a_ref": inp.a_ref.copy()}
     series.update(cols)
-    # the compiled loop has no adaptive controller: the column the per-tick loop records for it, with the
-    # value it records for every other controller
-    series["magnetization_scale_hat"] = np.ones(inp.ts.size)
     series["sequence_phase"] = _sequence_phase(scenario, series["t_s"])
     metrics = _metrics(scenario, seed, series, plant_stats, model_stats)
     return SimResult(series if keep_timeseries else {}, metrics, "compiled")

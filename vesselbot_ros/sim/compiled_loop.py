@@ -6,7 +6,7 @@ stages in the runner's order::
     plant output (wall_delta_xz, forces_into)
     -> imager_frame | seq_imager_frame (scanner)
     -> observer_update (25) | ekf_update (extended Kalman)
-    -> backstepping_command (24, any sample hold, flow and duty compensation)
+    -> backstepping_command (24, any sample hold, flow and duty compensation) | adaptive_command
     -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate_dopri5_ws | integrate_rk4_ws)
 
 over explicit state arrays that :func:`prepare` builds from the same
@@ -42,7 +42,12 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
-from vesselbot_ros.control.backstepping import FLOW_SCALE_INVALID, backstepping_command, flow_scale_message
+from vesselbot_ros.control.backstepping import (
+    FLOW_SCALE_INVALID,
+    adaptive_command,
+    backstepping_command,
+    flow_scale_message,
+)
 from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
 from vesselbot_ros.control.high_gain_observer import (
     HISTORY_LEN,
@@ -79,6 +84,7 @@ COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
     ("x_hat", np.float64, (2,)),
     ("z_hat", np.float64, (2,)),
     ("flow_scale_hat", np.float64, ()),
+    ("magnetization_scale_hat", np.float64, ()),
     ("meas_used", np.bool_, ()),
     ("meas_rejected", np.bool_, ()),
     ("u_cmd", np.float64, (2,)),
@@ -116,6 +122,8 @@ class LoopInputs:
     obs_prm: npt.NDArray[np.float64]
     ekf: EkfState | None
     ctrl_prm: npt.NDArray[np.float64]
+    ctrl_aprm: npt.NDArray[np.float64]
+    ctrl_ast0: npt.NDArray[np.float64]
     coil_prm: npt.NDArray[np.float64]
     seq_mode: int
     sv: npt.NDArray[np.float64]
@@ -190,6 +198,8 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
         imager_prm=imager._prm, outliers=imager._outliers, dropouts=imager._dropouts,
         obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf,
         ctrl_prm=controller.params_vector,
+        ctrl_aprm=controller.adaptive_vector[0] if controller.adaptive_vector is not None else np.zeros(0),
+        ctrl_ast0=controller.adaptive_vector[1].copy() if controller.adaptive_vector is not None else np.zeros(0),
         coil_prm=coil_params(limiter.limits),
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
         plant_y0=plant.state, obs_y0=obs_y0, coil_state0=limiter.state,
@@ -199,13 +209,13 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
 
 @numba.njit(cache=True, nogil=True)
 def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]
-                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, coil_prm, seq_mode, sv, hold_s,
-                y, contact, obs_y, obs_contact, obs_scal, coil_state,
+                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, ctrl_aprm, ctrl_ast, coil_prm, seq_mode, sv,
+                hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
                 e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
                 e_vec, e_mat,
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
-                x_hat, z_hat, flow_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
+                x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
                 slew_limited, cmd_status, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
 
@@ -215,7 +225,9 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the
     ``obs_*`` arrays) or the extended Kalman filter (:data:`OBS_EKF`, the
     ``e_*`` arrays); ``seq_mode`` 1 runs the scanner's imager and coil on the
-    sequence ``sv``.  All scratch is allocated once, before the first tick.
+    sequence ``sv``.  ``ctrl_aprm`` empty: law (24); else the adaptive law
+    (:func:`~vesselbot_ros.control.backstepping.adaptive_command`) on the state ``ctrl_ast``.
+    All scratch is allocated once, before the first tick.
     """
     work, fbuf = new_workspace()
     obs_work, obs_fbuf = new_workspace()
@@ -287,7 +299,6 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         x_hat[k, 1] = obs_out[1]
         z_hat[k, 0] = obs_out[2]
         z_hat[k, 1] = obs_out[3]
-        flow_scale_hat[k] = obs_out[9]
         meas_used[k] = obs_out[7] > 0.5
         meas_rejected[k] = obs_out[8] > 0.5
         # controller
@@ -297,12 +308,24 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
                 and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
             return REFERENCE_NONFINITE, k
-        status = backstepping_command(ctrl_prm, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t, obs_out[0],
-                                      obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0],
+        if ctrl_aprm.shape[0] > 0:
+            status = adaptive_command(ctrl_prm, ctrl_aprm, ctrl_ast, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t,
+                                      obs_out[0], obs_out[1], obs_out[2], obs_out[3], obs_out[4], p_ref[k, 0],
                                       p_ref[k, 1], v_ref[k, 0], v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
-        if status == FLOW_SCALE_INVALID:
-            err[0] = obs_out[9]
-            return FLOW_SCALE_FAILED, k
+            flow_scale_hat[k] = ctrl_ast[0]  # the adapted scales after this tick's update
+            magnetization_scale_hat[k] = ctrl_ast[1]
+            if status == FLOW_SCALE_INVALID:
+                err[0] = ctrl_ast[0]
+                return FLOW_SCALE_FAILED, k
+        else:
+            status = backstepping_command(ctrl_prm, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t, obs_out[0],
+                                          obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0],
+                                          p_ref[k, 1], v_ref[k, 0], v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
+            flow_scale_hat[k] = obs_out[9]
+            magnetization_scale_hat[k] = 1.0
+            if status == FLOW_SCALE_INVALID:
+                err[0] = obs_out[9]
+                return FLOW_SCALE_FAILED, k
         g_cmd[k, 0] = ctrl_out[0]
         g_cmd[k, 1] = ctrl_out[1]
         u_cmd[k, 0] = ctrl_out[2]
@@ -371,7 +394,8 @@ def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt
         ekf_arrays = _NO_EKF
     code, tick = loop_kernel(
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, inp.obs_ig, rng,
-        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl_prm, inp.coil_prm,
+        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl_prm, inp.ctrl_aprm,
+        inp.ctrl_ast0.copy(), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s,
         y, contact, obs_y, obs_contact, obs_scal, coil_state, *ekf_arrays, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,

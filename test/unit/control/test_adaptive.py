@@ -112,7 +112,7 @@ def test_shipped_adaptive_scenario_beats_the_same_gains_without_adaptation_and_e
     sc = load_scenario(shipped_scenarios()["sound_small_artery_adaptive"])
     plain = dataclasses.replace(sc, controller=dataclasses.replace(sc.controller, kind="backstepping"))
     adaptive, fixed = run_closed_loop(sc, 0), run_closed_loop(plain, 0)
-    assert adaptive.path == "per_tick"
+    assert adaptive.path == "compiled"  # the adaptive law has its compiled form
     assert adaptive.metrics["tracking_error_max_m"] < 150e-6  # the paper's claim
     assert adaptive.metrics["tracking_error_max_m"] < 0.9 * fixed.metrics["tracking_error_max_m"]
     s_hat = adaptive.timeseries["flow_scale_hat"]
@@ -120,3 +120,35 @@ def test_shipped_adaptive_scenario_beats_the_same_gains_without_adaptation_and_e
     true_scale = 0.025 / 0.02625  # the model believes V_f 5 % too high
     assert abs(float(np.mean(s_hat[t >= 1.0])) - true_scale) < 0.03
     assert np.all(adaptive.timeseries["magnetization_scale_hat"] == 1.0)  # gain 0: not adapted
+
+
+@pytest.mark.parametrize("sample_hold", ["none", "midpoint"])
+@pytest.mark.parametrize("gains", [(1000.0, 0.0), (1000.0, 500.0)])
+def test_compiled_adaptive_law_gives_the_python_laws_doubles(sample_hold, gains) -> None:
+    """The model's F runs the compiled adaptive_command; a user's F (the same function, wrapped) the Python
+    reading: the same commands, statuses and adapted scales, bit for bit, stale ticks included."""
+    from vesselbot_ros.sim.closed_loop import build_stages
+
+    sc = load_scenario(shipped_scenarios()["sound_small_artery_adaptive"])
+    adaptive = dataclasses.replace(sc.controller.adaptive, flow_scale_gain_s3_per_m2=gains[0],
+                                   magnetization_gain_s3_per_m2=gains[1])
+    sc = dataclasses.replace(sc, controller=dataclasses.replace(sc.controller, adaptive=adaptive,
+                                                                sample_hold=sample_hold))
+    model = build_stages(sc).model
+    compiled = BacksteppingController(sc.controller, model.F, model.input_matrix, sc.sim.dt_control_s)
+    python = BacksteppingController(sc.controller, lambda t, x, z, s=1.0: model.F(t, x, z, s), model.input_matrix,
+                                    sc.sim.dt_control_s)
+    assert compiled.model_params is not None and python.model_params is None
+    rng = np.random.default_rng(3)
+    for k in range(300):
+        t = k * 1e-3
+        x = np.array([1e-3 * t, 0.0]) + rng.normal(0.0, 5e-5, 2)
+        z = np.array([1e-3, 0.0]) + rng.normal(0.0, 5e-4, 2)
+        age = 1.0 if k % 50 == 7 else 1e-3  # now and then a stale estimate: adaptation pauses
+        ref = (np.array([1e-3 * t, 0.0]), np.array([1e-3, 0.0]), np.zeros(2))
+        a = compiled.command_arrays(t, x, z, age, *ref)
+        b = python.command_arrays(t, x, z, age, *ref)
+        assert a.status == b.status
+        assert a.gradient_T_per_m.tolist() == b.gradient_T_per_m.tolist() and a.u_m_per_s2.tolist() == b.u_m_per_s2.tolist()
+        assert compiled.adapted == python.adapted, k
+    assert compiled.adapted.flow_scale != 1.0

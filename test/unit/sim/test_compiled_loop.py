@@ -38,20 +38,11 @@ def _assert_identical(a: SimResult, b: SimResult) -> None:
     assert fingerprint(a) == fingerprint(b)
 
 
-#: Shipped scenarios whose stages the compiled loop does not have: the adaptive controller (Lyapunov updates of
-#: its scale estimates, no compiled form); they run per tick.
-PER_TICK_ONLY = {"sound_small_artery_adaptive"}
+def test_every_shipped_scenario_runs_compiled() -> None:
+    """Every built-in stage has its compiled form (the adaptive law included): no shipped scenario runs per tick."""
+    for name, path in shipped_scenarios().items():
+        assert run_closed_loop(_short(load_scenario(path)), 0).path == "compiled", name
 
-
-def test_scenarios_without_compiled_stages_run_per_tick_and_say_so() -> None:
-    for name in sorted(PER_TICK_ONLY):
-        scenario = _short(load_scenario(shipped_scenarios()[name]))
-        assert run_closed_loop(scenario, 0).path == "per_tick"
-        with pytest.raises(ModelInputError, match=r"path='compiled' needs the built-in stages, got (user stage\(s\) \[.*\]|a controller option)"):
-            run_closed_loop(scenario, 0, path="compiled")
-        rows = run_many(scenario, [0, 1], workers=2, keep_timeseries=True)
-        for seed, row in zip([0, 1], rows, strict=True):
-            _assert_identical(row, run_closed_loop(scenario, seed))
 
 class ForeignObserver:
     """A user's observer: wraps the built-in one (same numbers), but it is not a type the compiled loop knows."""
@@ -75,7 +66,7 @@ def test_a_stage_the_compiled_loop_lacks_runs_per_tick_and_says_so() -> None:
         run_stages(scenario, st._replace(observer=ForeignObserver(st.observer)), 0, path="compiled")
 
 
-@pytest.mark.parametrize("name", sorted(set(shipped_scenarios()) - PER_TICK_ONLY))
+@pytest.mark.parametrize("name", sorted(shipped_scenarios()))
 def test_compiled_equals_per_tick_on_every_column_metric_and_statistic(name: str) -> None:
     scenario = load_scenario(shipped_scenarios()[name])
     for seed in SEEDS:
