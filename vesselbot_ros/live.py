@@ -76,6 +76,7 @@ class LiveView:
         self._last_sent: dict[str, float] = {}
         # subscriptions per channel topic, kept by the server listener: the hot path only reads this dict
         self._subscribers: dict[str, int] = {}
+        self._view_wanted = False  # some client subscribes to a derived view channel (kept by the listener)
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, bytes | None] = {}
@@ -97,7 +98,8 @@ class LiveView:
         for v in VIEW_CHANNELS:
             self._views[v.key] = (foxglove.Channel(v.name, schema=ERRORS_SCHEMA, context=self._ctx)
                                   if v.msgtype == "json" else ros_channel(v.name, v.msgtype))
-        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)))
+        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)),
+                                lambda: self._view_wanted)
         self._view_names = {v.name for v in VIEW_CHANNELS}
         self._view_inputs = {topic_spec(k).name for v in VIEW_CHANNELS for k in v.inputs}
         view = self
@@ -107,11 +109,13 @@ class LiveView:
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 with view._lock:
                     view._subscribers[channel.topic] = view._subscribers.get(channel.topic, 0) + 1
+                    view._view_wanted = any(view._subscribers.get(v) for v in view._view_names)
                 view._resend_latched(channel.topic)
 
             def on_unsubscribe(self, client: Any, channel: Any) -> None:
                 with view._lock:
                     view._subscribers[channel.topic] = max(0, view._subscribers.get(channel.topic, 0) - 1)
+                    view._view_wanted = any(view._subscribers.get(v) for v in view._view_names)
 
         self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
                                              server_listener=_Listener())
@@ -139,10 +143,9 @@ class LiveView:
             ch.log(bytes(data), log_time=int(t_ns))
             self.view.offer(topic, data, t_ns)
             return
-        subs = self._subscribers
-        if topic in self._view_inputs and any(subs.get(v) for v in self._view_names):
+        if self._view_wanted and topic in self._view_inputs:
             self.view.offer(topic, data, t_ns)
-        if not subs.get(topic):  # no client subscribed to it
+        if not self._subscribers.get(topic):  # no client subscribed to it
             return
         now = time.monotonic()
         if now - self._last_sent.get(topic, -1e9) < self._period_s:

@@ -34,6 +34,9 @@ __all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRO
 
 #: View updates per wall second, at most.
 VIEW_RATE_HZ = 20.0
+#: The reference path (static, hundreds of points) rides along with a view update at most this often (wall s);
+#: Foxglove keeps a marker until the same namespace and id come again, so the others need not repeat it.
+PATH_PERIOD_S = 1.0
 #: Length of the gradient arrow at the coil limit (m).
 ARROW_AT_LIMIT_M = 2e-3
 #: JSON schema of ``view/errors``.
@@ -86,6 +89,9 @@ class DerivedView:
         self._names = {topic(k).name: k for k in self.inputs}
         self._last_wall = 0.0
         self._path_points: list[Any] = []
+        self._path_marker: Any = None  # built once per path (and robot radius), sent every PATH_PERIOD_S
+        self._path_key: tuple[int, float] | None = None
+        self._path_wall = -math.inf
 
     def offer(self, name: str, data: bytes, t_ns: int) -> None:
         """A message of topic ``name`` (canonical name) arrived; maybe emit a view update."""
@@ -122,7 +128,11 @@ class DerivedView:
             (ref.position.x, ref.position.z) if ref is not None else None)
         from rclpy.serialization import serialize_message
 
-        self._send("view_markers", serialize_message(self.markers(sn, truth.header)), t_ns)
+        now = time.monotonic()
+        with_path = now - self._path_wall >= PATH_PERIOD_S
+        if with_path:
+            self._path_wall = now
+        self._send("view_markers", serialize_message(self.markers(sn, truth.header, with_path)), t_ns)
         errors = {"t_s": sn.t_s, "gradient_norm_T_per_m": math.hypot(*sn.gradient_xz)}
         if not math.isnan(sn.gradient_limit):
             errors["gradient_limit_T_per_m"] = sn.gradient_limit
@@ -132,8 +142,8 @@ class DerivedView:
             errors["estimation_error_m"] = sn.estimation_error_m
         self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
 
-    def markers(self, sn: SceneNumbers, header: Any) -> Any:
-        """The MarkerArray of one view update."""
+    def markers(self, sn: SceneNumbers, header: Any, with_path: bool = True) -> Any:
+        """The MarkerArray of one view update (the reference path only ``with_path``)."""
         from geometry_msgs.msg import Point
         from visualization_msgs.msg import Marker, MarkerArray
 
@@ -170,9 +180,13 @@ class DerivedView:
                             Point(x=sn.robot_xz[0] + scale * sn.gradient_xz[0], z=sn.robot_xz[1] + scale * sn.gradient_xz[1])]
             arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.2 * r, 0.4 * r, 0.4 * r
             out.markers.append(arrow)
-        if self._path_points:
-            path = marker("reference_path", Marker.LINE_STRIP, (0.3, 0.3, 0.3, 1.0))
-            path.points = [Point(x=p.x, z=p.z) for p in self._path_points]
-            path.scale.x = 0.1 * r
-            out.markers.append(path)
+        if with_path and self._path_points:
+            key = (id(self._path_points), round(r, 8))  # r comes from the wall gaps: equal to ~1e-12
+            if self._path_key != key:
+                path = marker("reference_path", Marker.LINE_STRIP, (0.3, 0.3, 0.3, 1.0))
+                path.points = [Point(x=p.x, z=p.z) for p in self._path_points]
+                path.scale.x = 0.1 * r
+                self._path_marker, self._path_key = path, key
+            self._path_marker.header = header
+            out.markers.append(self._path_marker)
         return out

@@ -59,3 +59,35 @@ def test_layout_names_only_channels_the_live_view_serves():
             named.add(cfg["topicPath"].split(".", 1)[0])
     assert named and named <= served, named - served
     assert {v.name for v in VIEW_CHANNELS} <= named  # every derived channel has a panel
+
+
+def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
+    pytest.importorskip("rclpy")
+    from geometry_msgs.msg import Point
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Header
+    from visualization_msgs.msg import MarkerArray
+
+    from vesselbot_ros.live_view import DerivedView
+
+    view = DerivedView(lambda *a: None)
+    view._path_points = [Point(x=1e-5 * i, z=0.0) for i in range(500)]
+    sn = scene_numbers(0.1, (2e-3, 1e-4), 3.1e-3, 0.5 * 3.1e-3 - 1e-4 - 2.5e-4, (0.08, 0.0), 0.08, None, None)
+    first = [m for m in view.markers(sn, Header()).markers if m.ns == "reference_path"]
+    again = [m for m in view.markers(sn, Header()).markers if m.ns == "reference_path"]
+    assert len(first[0].points) == 500 and again[0] is first[0]  # not rebuilt
+    assert not [m for m in view.markers(sn, Header(), with_path=False).markers if m.ns == "reference_path"]
+    # emit(): a view update every 1/20 s, the path in one of them per second
+    sent = []
+    view._send = lambda key, data, t: sent.append(deserialize_message(data, MarkerArray)) if key == "view_markers" else None
+    view._path_wall = -1e9
+    view._latest = {}
+    from vesselbot_ros.nodes import conversions as cv
+    from rclpy.serialization import serialize_message
+
+    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3,
+                                                                  1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0), [(0.0, 0.0)] * 8))
+    for _ in range(3):
+        view.emit(5)
+    with_path = [any(m.ns == "reference_path" for m in arr.markers) for arr in sent]
+    assert with_path == [True, False, False]
