@@ -107,15 +107,11 @@ class LiveView:
 
         class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:
-                with view._lock:
-                    view._subscribers[channel.topic] = view._subscribers.get(channel.topic, 0) + 1
-                    view._view_wanted = any(view._subscribers.get(v) for v in view._view_names)
+                view._count_subscriber(channel.topic, +1)
                 view._resend_latched(channel.topic)
 
             def on_unsubscribe(self, client: Any, channel: Any) -> None:
-                with view._lock:
-                    view._subscribers[channel.topic] = max(0, view._subscribers.get(channel.topic, 0) - 1)
-                    view._view_wanted = any(view._subscribers.get(v) for v in view._view_names)
+                view._count_subscriber(channel.topic, -1)
 
         self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
                                              server_listener=_Listener())
@@ -152,6 +148,12 @@ class LiveView:
             return
         self._last_sent[topic] = now
         ch.log(data, log_time=int(t_ns))
+
+    def _count_subscriber(self, topic: str, delta: int) -> None:
+        """A client subscribed (+1) to or left (-1) ``topic``; keep whether a derived view is wanted."""
+        with self._lock:
+            self._subscribers[topic] = max(0, self._subscribers.get(topic, 0) + delta)
+            self._view_wanted = any(self._subscribers.get(v) for v in self._view_names)
 
     def _resend_latched(self, topic: str) -> None:
         with self._lock:

@@ -36,9 +36,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numba
+import numpy as np
+import numpy.typing as npt
+
 from vesselbot_ros.config import ConfigError, check_finite, check_positive
 
-__all__ = ["AdaptiveParams", "AdaptiveState", "adaptation_step"]
+__all__ = ["AdaptiveParams", "AdaptiveState", "adaptation_step", "adaptive_params", "adapt_scales"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +90,36 @@ class AdaptiveState:
     t_last_s: float = math.nan
 
 
+def adaptive_params(params: AdaptiveParams, input_matrix: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
+    """(9,) vector of :func:`adapt_scales` and ``backstepping.adaptive_command``: ``[gamma_s, gamma_m, scale_min,
+    scale_max, regressor_step, B (4, row-major)]``."""
+    return np.array([float(params.flow_scale_gain_s3_per_m2), float(params.magnetization_gain_s3_per_m2),
+                     float(params.scale_min), float(params.scale_max), float(params.regressor_step), *input_matrix])
+
+
+@numba.njit(cache=True, nogil=True)
+def adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1):  # type: ignore[no-untyped-def]
+    """The update laws on arrays: ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``, in place.
+
+    ``aprm`` from :func:`adaptive_params`.  Explicit Euler over the time since the
+    last update, projected onto ``[scale_min, scale_max]``; the first call (time
+    nan) and a repeated tick only record the time.  Every reading of the law
+    (:func:`adaptation_step`, the controller in Python or compiled) runs this.
+    """
+    dt = t - ast[2]
+    ast[2] = t
+    if not dt > 0.0:
+        return
+    lo = aprm[2]
+    hi = aprm[3]
+    if aprm[0] > 0.0:
+        ds = dt * aprm[0] * (phi_s0 * e20 + phi_s1 * e21)
+        ast[0] = min(hi, max(lo, ast[0] + ds))
+    if aprm[1] > 0.0:
+        dm = dt * aprm[1] * (phi_m0 * e20 + phi_m1 * e21)
+        ast[1] = min(hi, max(lo, ast[1] + dm))
+
+
 def adaptation_step(
     prm: AdaptiveParams,
     state: AdaptiveState,
@@ -104,14 +138,7 @@ def adaptation_step(
         phi_s: ``dF/ds`` at ``s_hat`` (m/s^2).
         phi_m: ``B G`` of the gradient applied since the last update (m/s^2).
     """
-    dt = t_s - state.t_last_s
-    state.t_last_s = t_s
-    if not dt > 0.0:  # first call (nan) or a repeated tick
-        return
-    lo, hi = prm.scale_min, prm.scale_max
-    if prm.flow_scale_gain_s3_per_m2 > 0.0:
-        ds = dt * prm.flow_scale_gain_s3_per_m2 * (phi_s[0] * e2[0] + phi_s[1] * e2[1])
-        state.flow_scale = min(hi, max(lo, state.flow_scale + ds))
-    if prm.magnetization_gain_s3_per_m2 > 0.0:
-        dm = dt * prm.magnetization_gain_s3_per_m2 * (phi_m[0] * e2[0] + phi_m[1] * e2[1])
-        state.magnetization_scale = min(hi, max(lo, state.magnetization_scale + dm))
+    ast = np.array([state.flow_scale, state.magnetization_scale, state.t_last_s], dtype=np.float64)
+    adapt_scales(adaptive_params(prm, (1.0, 0.0, 0.0, 1.0)), ast, float(t_s), float(e2[0]), float(e2[1]),
+                 float(phi_s[0]), float(phi_s[1]), float(phi_m[0]), float(phi_m[1]))
+    state.flow_scale, state.magnetization_scale, state.t_last_s = float(ast[0]), float(ast[1]), float(ast[2])

@@ -39,7 +39,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
-from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adaptation_step
+from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
 
@@ -296,20 +296,13 @@ def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]
     return STATUS_OK
 
 
-def adaptive_params(params: AdaptiveParams, input_matrix: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
-    """(9,) parameter vector of :func:`adaptive_command`: ``[gamma_s, gamma_m, scale_min, scale_max, regressor_step,
-    B (4, row-major)]``."""
-    return np.array([float(params.flow_scale_gain_s3_per_m2), float(params.magnetization_gain_s3_per_m2),
-                     float(params.scale_min), float(params.scale_max), float(params.regressor_step), *input_matrix])
-
-
 @numba.njit(cache=True, nogil=True)
 def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age,  # type: ignore[no-untyped-def]
                      pr0, pr1, vr0, vr1, ar0, ar1, out):
     """Adaptive backstepping (:mod:`vesselbot_ros.control.adaptive`): adapt, then law (24) at the adapted scales.
 
-    ``aprm`` from :func:`adaptive_params`; ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``,
-    updated (:func:`~vesselbot_ros.control.adaptive.adaptation_step`, explicit Euler, projected);
+    ``aprm`` from :func:`~vesselbot_ros.control.adaptive.adaptive_params`; ``ast`` (3,) ``[s_hat, m_hat,
+    time of the last update]``, updated (:func:`~vesselbot_ros.control.adaptive.adapt_scales`);
     the rest as :func:`backstepping_command`.  A stale estimate pauses the adaptation.  The law
     uses ``F`` at ``s_hat`` and divides the gradient by ``m_hat``.  The same doubles as the Python
     reading in :class:`BacksteppingController` with a user's ``F``.
@@ -327,17 +320,7 @@ def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, 
     phi_s1 = (fb1 - fa1) / h
     phi_m0 = aprm[5] * last[0] + aprm[6] * last[1]  # B G of the gradient commanded since the last update
     phi_m1 = aprm[7] * last[0] + aprm[8] * last[1]
-    dt = t - ast[2]
-    ast[2] = t
-    if dt > 0.0:  # not the first call (nan), not a repeated tick
-        lo = aprm[2]
-        hi = aprm[3]
-        if aprm[0] > 0.0:
-            ds = dt * aprm[0] * (phi_s0 * e20 + phi_s1 * e21)
-            ast[0] = min(hi, max(lo, ast[0] + ds))
-        if aprm[1] > 0.0:
-            dm = dt * aprm[1] * (phi_m0 * e20 + phi_m1 * e21)
-            ast[1] = min(hi, max(lo, ast[1] + dm))
+    adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1)
     flow_scale = ast[0]
     if not (math.isfinite(flow_scale) and flow_scale > 0.0):
         return FLOW_SCALE_INVALID
@@ -426,9 +409,9 @@ class BacksteppingController:
         return AdaptiveState(float(self._ast[0]), float(self._ast[1]), float(self._ast[2]))
 
     @property
-    def adaptive_vector(self) -> npt.NDArray[np.float64] | None:
+    def adaptive_vector(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
         """``(aprm (9,), state (3,))`` of :func:`adaptive_command` for the compiled loop, or None (not adaptive)."""
-        return None if self._ast is None else (self._aprm, self._ast)  # type: ignore[return-value]
+        return None if self._ast is None else (self._aprm, self._ast)
 
     def _safe(self, status: str) -> ControlCommand:
         if self.params.stale_action != "hold":
@@ -550,17 +533,17 @@ class BacksteppingController:
     def _adapt(self, t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.NDArray[np.float64],
                p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64]) -> float:
         """One step of the adaptation laws (:mod:`vesselbot_ros.control.adaptive`); the flow scale to use."""
-        st = self.adapted
-        assert st is not None and self._ast is not None
-        prm = self.params.adaptive
+        ast = self._ast
+        assert ast is not None
         k1 = self._k1
-        e2 = (z_hat[0] - v_ref[0] + k1 * (x_hat[0] - p_ref[0]), z_hat[1] - v_ref[1] + k1 * (x_hat[1] - p_ref[1]))
-        h = prm.regressor_step
-        f0 = self._f(t_s, x_hat, z_hat, st.flow_scale)
-        f1 = self._f(t_s, x_hat, z_hat, st.flow_scale + h)
-        phi_s = ((f1[0] - f0[0]) / h, (f1[1] - f0[1]) / h)
+        h = self.params.adaptive.regressor_step
+        s_hat = float(ast[0])
+        f0 = self._f(t_s, x_hat, z_hat, s_hat)
+        f1 = self._f(t_s, x_hat, z_hat, s_hat + h)
         b = self._b  # phi_m = B G of the gradient commanded since the last update (m = 1)
-        phi_m = (b[0] * self._last[0] + b[1] * self._last[1], b[2] * self._last[0] + b[3] * self._last[1])
-        adaptation_step(prm, st, t_s, e2, phi_s, phi_m)
-        self._ast[:] = (st.flow_scale, st.magnetization_scale, st.t_last_s)
-        return st.flow_scale
+        adapt_scales(self._aprm, ast, t_s,
+                     float(z_hat[0] - v_ref[0] + k1 * (x_hat[0] - p_ref[0])),
+                     float(z_hat[1] - v_ref[1] + k1 * (x_hat[1] - p_ref[1])),
+                     float((f1[0] - f0[0]) / h), float((f1[1] - f0[1]) / h),
+                     b[0] * self._last[0] + b[1] * self._last[1], b[2] * self._last[0] + b[3] * self._last[1])
+        return float(ast[0])

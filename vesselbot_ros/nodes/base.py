@@ -120,14 +120,6 @@ class GraphParams:
         check_nonnegative("position_margin_m", self.position_margin_m)
 
 
-class _TopicNames(dict):  # type: ignore[type-arg]
-    """Topic key -> canonical name, looked up in the graph spec once per key."""
-
-    def __missing__(self, key: str) -> str:
-        name = self[key] = topic(key).name
-        return name
-
-
 def _rclpy() -> Any:
     import rclpy
 
@@ -149,8 +141,9 @@ class IntraProcess:
     serves timers, services and DDS inputs between them; a message posted
     from another thread (the simulation_interfaces thread stepping the plant)
     is delivered on the executor's thread.  Only topics whose publishing role
-    (graph spec) is composed here travel this way: their co-located
-    subscribers create no DDS subscription, so nothing is delivered twice.
+    (graph spec) is composed here travel this way, latched ones excepted (they
+    stay on DDS, for late joiners): their co-located subscribers create no DDS
+    subscription, so nothing is delivered twice.
     """
 
     #: Deliveries per executor turn (a lockstep tick is nine).
@@ -167,15 +160,16 @@ class IntraProcess:
         self._pending = False
 
     def carries(self, key: str) -> bool:
-        """True if topic ``key`` is published by a role composed in this process."""
-        return topic(key).publisher in self.roles
+        """True if topic ``key`` travels in process: published by a role composed here, and not latched."""
+        spec = topic(key)
+        return spec.publisher in self.roles and spec.qos != "reliable_latched"
 
     def add_publisher(self, key: str) -> None:
         """A co-located node publishes ``key``."""
         self._pubs[key] += 1
 
-    def subscribe(self, node: Any, key: str, callback: Callable[[Any], None]) -> None:
-        """Deliver every message of ``key`` published here to ``callback`` (on ``node``'s executor)."""
+    def subscribe(self, key: str, callback: Callable[[Any], None]) -> None:
+        """Deliver every message of ``key`` published here to ``callback`` (on the attached executor)."""
         self._subs.setdefault(key, []).append(callback)
 
     def attach(self, executor: Any) -> None:
@@ -283,7 +277,6 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._intra = _INTRA if self.lockstep else None
         self._pub_intra: dict[str, Any] = {}  # topic key -> its DDS publisher, for topics also delivered intra-process
         self._subs_intra: list[str] = []  # topic keys received intra-process
-        self._names: _TopicNames = _TopicNames()
         self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         from rclpy.clock import Clock, ClockType
 
@@ -458,16 +451,15 @@ class VesselbotNode(Node):  # type: ignore[misc]
         bus = self._intra
         if bus is not None and bus.carries(key):
             bus.add_publisher(key)
-            if spec.qos != "reliable_latched":  # latched: always over DDS, for late joiners
-                self._pub_intra[key] = pub
+            self._pub_intra[key] = pub
         return pub
 
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
         """Subscribe to topic ``key`` with the contract's QoS (intra-process if its publisher is co-located)."""
         spec = topic(key)
         bus = self._intra
-        if bus is not None and bus.carries(key) and spec.qos != "reliable_latched":
-            bus.subscribe(self, key, callback)
+        if bus is not None and bus.carries(key):
+            bus.subscribe(key, callback)
             self._subs_intra.append(key)
             return None
         sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
@@ -496,11 +488,11 @@ class VesselbotNode(Node):  # type: ignore[misc]
             self._intra.post(key, msg)  # type: ignore[union-attr]
             if pub.get_subscription_count():
                 pub.publish(msg)
-        self._published[self._names[key]] += 1
+        self._published[topic(key).name] += 1
 
     def count_received(self, key: str) -> None:
         """Count one accepted input on topic ``key``."""
-        self._received[self._names[key]] += 1
+        self._received[topic(key).name] += 1
 
     def wired(self) -> bool:
         """True once every publisher and subscription of this node is matched (over DDS or within the process)."""

@@ -51,6 +51,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample, SequencePhase
 from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
 __all__ = [
@@ -76,7 +77,6 @@ __all__ = [
     "coil_state_msg",
     "plant_state_msg",
     "message_builder",
-    "FORCE_NAMES",
     "path_msg",
     "vessel_markers",
     "all_finite",
@@ -120,8 +120,6 @@ _reference_sample = message_builder(ReferenceSample)
 _coil_state = message_builder(CoilState)
 _plant_state = message_builder(PlantState)
 _force_breakdown = message_builder(ForceBreakdown)
-#: ForceBreakdown's vectors, in the order of the plant's force array rows.
-FORCE_NAMES = ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic", "steric", "total")
 
 AGE_COVARIANCE_INDEX = 35
 #: Index in the estimate's ``twist.covariance`` (the otherwise unused yaw-rate variance) carrying the observer's
@@ -243,12 +241,9 @@ def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limit
 def plant_state_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
                     diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
                     in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> PlantState:
-    """The plant's ground truth of tick ``k``: ``forces`` is (8, 2), rows in :data:`FORCE_NAMES` order (N)."""
+    """The plant's ground truth of tick ``k``: ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
     h = header(t_s)
-    f = forces
-    fb = _force_breakdown(header=h, magnetic=vector3(f[0]), drag=vector3(f[1]), apparent_weight=vector3(f[2]),  # type: ignore[index]
-                          contact=vector3(f[3]), van_der_waals=vector3(f[4]), electrostatic=vector3(f[5]),  # type: ignore[index]
-                          steric=vector3(f[6]), total=vector3(f[7]))  # type: ignore[index]
+    fb = _force_breakdown(header=h, **{name: vector3(forces[i]) for i, name in enumerate(TERM_NAMES)})  # type: ignore[index]
     return _plant_state(header=h, tick=int(k), position=point(p), velocity=vector3(v), blood_velocity=vector3(blood_velocity),
                         vessel_diameter=float(diameter_m), wall_gap_upper=float(gap_upper_m),
                         wall_gap_lower=float(gap_lower_m), signed_wall_distance=float(signed_wall_distance_m),

@@ -32,10 +32,11 @@ def _bus(roles: tuple[str, ...] = tuple(r.name for r in ROLES)) -> tuple[IntraPr
     return bus, ex
 
 
-def test_carries_only_topics_of_co_located_publishers() -> None:
+def test_carries_only_topics_of_co_located_publishers_and_never_latched_ones() -> None:
     bus = IntraProcess(("plant", "imager"))
     for t in TOPICS:
-        assert bus.carries(t.key) == (t.publisher in ("plant", "imager"))
+        assert bus.carries(t.key) == (t.publisher in ("plant", "imager") and t.qos != "reliable_latched")
+    assert not bus.carries("vessel_markers")  # the plant's latched markers stay on DDS for late joiners
 
 
 def test_deliveries_are_first_in_first_out_and_breadth_first() -> None:
@@ -50,10 +51,10 @@ def test_deliveries_are_first_in_first_out_and_breadth_first() -> None:
                 bus.post(out, msg)
         return cb
 
-    bus.subscribe(None, "truth", relay("imager", "measurement"))
-    bus.subscribe(None, "clock", relay("reference", "reference"))
-    bus.subscribe(None, "measurement", relay("observer", None))
-    bus.subscribe(None, "reference", relay("controller", None))
+    bus.subscribe("truth", relay("imager", "measurement"))
+    bus.subscribe("clock", relay("reference", "reference"))
+    bus.subscribe("measurement", relay("observer", None))
+    bus.subscribe("reference", relay("controller", None))
     bus.post("clock", 1)
     bus.post("truth", 1)
     ex.run()
@@ -63,8 +64,8 @@ def test_deliveries_are_first_in_first_out_and_breadth_first() -> None:
 def test_every_subscriber_gets_the_same_object_once() -> None:
     bus, ex = _bus()
     got: list[Any] = []
-    bus.subscribe(None, "coil_applied", got.append)
-    bus.subscribe(None, "coil_applied", got.append)
+    bus.subscribe("coil_applied", got.append)
+    bus.subscribe("coil_applied", got.append)
     msg = object()
     bus.post("coil_applied", msg)
     bus.post("estimate", object())  # no co-located subscriber: dropped (DDS carries it, if anyone listens)
@@ -83,7 +84,7 @@ def test_an_endless_loop_yields_to_the_executor_every_budget() -> None:
         if n["k"] < 10 * IntraProcess.BUDGET:
             bus.post("coil_applied", n["k"])
 
-    bus.subscribe(None, "coil_applied", plant)
+    bus.subscribe("coil_applied", plant)
     bus.post("coil_applied", 0)
     ex.run()
     assert n["k"] == 10 * IntraProcess.BUDGET
@@ -93,7 +94,7 @@ def test_an_endless_loop_yields_to_the_executor_every_budget() -> None:
 def test_posts_before_the_executor_is_attached_run_once_it_is() -> None:
     bus = IntraProcess(("plant",))
     got: list[int] = []
-    bus.subscribe(None, "truth", got.append)
+    bus.subscribe("truth", got.append)
     bus.post("truth", 7)
     assert got == []
     ex = FakeExecutor()
@@ -105,7 +106,7 @@ def test_posts_before_the_executor_is_attached_run_once_it_is() -> None:
 def test_posts_from_another_thread_are_all_delivered_on_the_executor() -> None:
     bus, ex = _bus()
     got: list[int] = []
-    bus.subscribe(None, "truth", got.append)
+    bus.subscribe("truth", got.append)
 
     def poster() -> None:
         for i in range(2000):

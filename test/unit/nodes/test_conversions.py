@@ -90,6 +90,7 @@ def _slow_references():
     from std_msgs.msg import Header
 
     from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample
+    from vesselbot_ros.physics.kernel import TERM_NAMES
 
     t = 0.123
     ns = cv.ns_of_time(t)
@@ -102,7 +103,7 @@ def _slow_references():
     cov[cv.AGE_COVARIANCE_INDEX], tcov[cv.FLOW_SCALE_COVARIANCE_INDEX] = 0.02, 0.97
     odo.pose.covariance, odo.twist.covariance = cov, tcov
     forces = np.arange(16, dtype=float).reshape(8, 2) * 1e-9
-    fb = ForceBreakdown(header=h, **{n: Vector3(x=forces[i, 0], y=0.0, z=forces[i, 1]) for i, n in enumerate(cv.FORCE_NAMES)})
+    fb = ForceBreakdown(header=h, **{n: Vector3(x=forces[i, 0], y=0.0, z=forces[i, 1]) for i, n in enumerate(TERM_NAMES)})
 
     class Out:  # a CoilOutput's fields
         applied, k_scale, saturated, slew_limited, rejected = np.array([0.1, -0.2]), 0.5, True, np.array([True, False]), False
