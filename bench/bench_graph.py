@@ -9,7 +9,7 @@ measured side by side in one run:
    hops (plant -> r1 -> r2 -> r3 -> r4 -> plant), reliable keep-last 1000,
    EventsExecutor; one process per node and all in one process;
 2. pure runner wall time (same process, after a warm-up for numba);
-3. lockstep over ROS, one process per node (6 nodes + the launcher = 7 processes);
+3. lockstep over ROS, one process per node (6 nodes; the launcher takes no per-tick topic);
 4. lockstep over ROS, ``--single-process``;
 5. the ratios: our graph overhead per tick (wall minus the pure runner's, per
    tick) over the bare chain's time per tick, in both modes (target <= 1.2), and
@@ -136,15 +136,14 @@ def bare_nodes(context, n_ticks: int, names, done):
 #: role -> the input key whose arrival completes its tick (lockstep order); its other inputs are only heard
 TRIGGER = {"reference": "clock", "imager": "truth", "observer": "measurement", "controller": "estimate",
            "coil_driver": "gradient_command", "plant": "coil_applied"}
-#: what the launcher's monitor takes per tick (raw), as vesselbot_ros.launch.monitor does
-MONITORED = ("truth", "estimate", "reference", "coil_state")
 
 
 def topo_nodes(context, n_ticks: int, names, done):
     """Our graph's topics, types, QoS and fan-out (from the graph spec), no project code per message.
 
     Each role answers its trigger input with one default-constructed message per output (the tick in
-    the stamp), hears its other inputs, and does nothing else; ``launcher`` takes the monitored topics raw.
+    the stamp), hears its other inputs, and does nothing else.  The launcher takes no per-tick topic (it
+    reads the run's series from the nodes afterwards), so it has no counterpart here.
     """
     import rclpy
 
@@ -156,13 +155,6 @@ def topo_nodes(context, n_ticks: int, names, done):
     nodes = []
     for name in names:
         node = rclpy.create_node(f"topo_{name}", namespace="/topo", context=context)
-        if name == "launcher":
-            for key in MONITORED:
-                node.create_subscription(import_type(topic(key).msgtype), topic(key).rel, lambda _d: None,
-                                         qos_profile(topic(key)), raw=True)
-            node.ready = lambda: True
-            nodes.append(node)
-            continue
         r = role(name)
         outs = [k for k in r.outputs if topic(k).per_tick]
         pubs = {k: node.create_publisher(import_type(topic(k).msgtype), topic(k).rel, qos_profile(topic(k)))
@@ -179,7 +171,7 @@ def topo_nodes(context, n_ticks: int, names, done):
             t = topic("coil_applied")
             plant_loop(node, emit, n_ticks, done, import_type(t.msgtype), t.rel, qos_profile(t))
             # the whole graph is wired: every per-tick topic has its publisher and its subscribers
-            wired = [node.resolve_topic_name(topic(k).rel) for k in {*TRIGGER.values(), *MONITORED}]
+            wired = [node.resolve_topic_name(topic(k).rel) for k in set(TRIGGER.values())]
             node.ready = lambda node=node, wired=wired: all(
                 node.count_publishers(t) > 0 and node.count_subscribers(t) > 0 for t in wired)
         else:
@@ -228,7 +220,7 @@ def bare_node_main(name: str, n_ticks: int) -> int:
 
 
 def topo_chain(n_ticks: int, processes: bool) -> float:
-    """Wall time (s) of ``n_ticks`` ticks of our topology with no project code (launcher in its own process)."""
+    """Wall time (s) of ``n_ticks`` ticks of our topology with no project code."""
     from vesselbot_ros.graph_spec import LOOP_ROLES
     from vesselbot_ros.ros_env import allocate_domain, ros_environment
 
@@ -237,7 +229,7 @@ def topo_chain(n_ticks: int, processes: bool) -> float:
     with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
         env = ros_environment(lease.domain_id, Path(d) / "log")
 
-        return run_node_processes(env, n_ticks, ["topo:" + ",".join(g) for g in [["launcher"], *groups[:-1]]],
+        return run_node_processes(env, n_ticks, ["topo:" + ",".join(g) for g in groups[:-1]],
                                   "topo:" + ",".join(groups[-1]))
 
 
@@ -374,9 +366,9 @@ def main() -> int:
         print(f"bare rclpy chain, {mode + ':':11s}       wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick")
     for mode, wall in topo.items():
         print(f"bare, our topology, {mode + ':':11s}     wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick   "
-              f"(our 8 topics, types, QoS, fan-out and the launcher's 4 raw readers; no code per message)")
+              f"(our 8 per-tick topics, types, QoS and fan-out; no code per message)")
     print(f"pure runner:                       wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
-    for label, extra, mode in (("lockstep, 7 processes", [], "processes"),
+    for label, extra, mode in (("lockstep, 6 node processes", [], "processes"),
                                ("lockstep, --single-process", ["--single-process"], "single"),
                                ("  same, --no-intra-process", ["--single-process", "--no-intra-process"], "single")):
         r = ros_run(extra, a.duration)

@@ -101,7 +101,7 @@ from typing import Any, Literal
 
 __all__ = [
     "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
-    "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
+    "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "series_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
     "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
@@ -157,6 +157,10 @@ class TopicSpec:
     depth: int = 10_000
     #: What a user's node in a slot must know beyond type and units (printed in its contract).
     note: str = ""
+    #: The run series (:data:`vesselbot_ros.nodes.series.SERIES_COLUMNS`) its messages carry: its publisher
+    #: keeps them and serves them once on ``<role>/series`` at the end of a run, which is how the launcher
+    #: reads them without a per-tick subscription (it subscribes only when a user's node publishes the topic).
+    series: tuple[str, ...] = ()
     #: The canonical absolute name (default namespace): what bags and diagnostics use.
     name: str = field(init=False, compare=False)
 
@@ -257,7 +261,7 @@ TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec("clock", "/clock", "rosgraph_msgs/msg/Clock", "plant", ("all (use_sim_time)", "reference", "coil_driver"),
               "per tick", "clock", "s", "-", per_tick=True),
     TopicSpec("truth", "truth", "vesselbot_msgs/msg/PlantState", "plant", ("imager", "recorder"),
-              "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True),
+              "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True, series=("p_true", "v_true", "in_contact")),
     TopicSpec("vessel_markers", "vessel_markers", "visualization_msgs/msg/MarkerArray", "plant", ("(viewers)",),
               "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
     TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager", ("observer",),
@@ -266,12 +270,12 @@ TOPICS: tuple[TopicSpec, ...] = (
                    "arrives at the first tick at or after window_end + latency, so it is that much old; a newer "
                    "stamp means a fresh frame, the same stamp a repeat; stamp 0 with an empty frame_id: no frame yet"),
     TopicSpec("estimate", "estimate", "nav_msgs/msg/Odometry", "observer", ("controller",),
-              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True,
+              "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True, series=("x_hat", "z_hat"),
               note="x_hat in pose.pose.position, z_hat in twist.twist.linear; pose.covariance[35] = seconds since "
                    "the last fresh measurement; twist.covariance[35] = the observer's blood-velocity scale s_hat "
                    "(law (24) with flow_compensation: estimate takes it; 0, unset, reads as 1)"),
     TopicSpec("reference", "reference", "vesselbot_msgs/msg/ReferenceSample", "reference", ("controller",),
-              "per tick", "reliable", "m, m/s, m/s^2", FRAME_ID, per_tick=True),
+              "per tick", "reliable", "m, m/s, m/s^2", FRAME_ID, per_tick=True, series=("p_ref",)),
     TopicSpec("reference_path", "reference/path", "nav_msgs/msg/Path", "reference", ("(viewers)",),
               "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
     TopicSpec("gradient_command", "gradient_command", "geometry_msgs/msg/Vector3Stamped", "controller",
@@ -279,7 +283,8 @@ TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec("coil_applied", "coil/applied", "geometry_msgs/msg/Vector3Stamped", "coil_driver",
               ("plant", "observer"), "per tick (+ watchdog)", "reliable", "T/m", FRAME_ID, per_tick=True),
     TopicSpec("coil_state", "coil/state", "vesselbot_msgs/msg/CoilState", "coil_driver", ("recorder",),
-              "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True),
+              "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True,
+              series=("g_applied", "saturated", "slew_limited")),
     TopicSpec("sequence_phase", "scanner/phase", "vesselbot_msgs/msg/SequencePhase", "coil_driver",
               ("recorder", "(your observer or controller)"), "on phase change (latched; once when continuous)",
               "reliable_latched", "s", FRAME_ID,
@@ -331,11 +336,21 @@ SIMULATION_SERVICES: tuple[str, ...] = ("get_simulator_features", "get_simulatio
 SIMULATION_NODE = "vesselbot_simulation"
 
 
+_TOPIC = {t.key: t for t in TOPICS}
+
+
 def _node(role: str, cls: str, **kw: Any) -> Role:
     if role != "plant":  # every loop node but the plant (which serves ResetSimulation) resets on request
         kw["services"] = (*kw.get("services", ()), reset_service_key(role))
+    if any(_TOPIC[k].series for k in kw.get("outputs", ())):  # it serves the run series its outputs carry
+        kw["services"] = (*kw.get("services", ()), series_service_key(role))
     return Role(role, f"vesselbot_{role}", f"vesselbot_ros.nodes.{role}_node:{cls}", f"vesselbot_ros.nodes.{role}_node",
                 **kw)
+
+
+def series_service_key(role_name: str) -> str:
+    """Key of the service on which node ``role_name`` serves the run series of its outputs (:class:`TopicSpec`)."""
+    return f"{role_name}_series"
 
 
 def reset_service_key(role_name: str) -> str:
@@ -376,11 +391,15 @@ SERVICES = SERVICES + tuple(
                 "lockstep: back to t = 0 with the scenario's initial state (the plant calls it on ResetSimulation)")
     for r in ROLES if reset_service_key(r.name) in r.services)
 
+SERVICES = SERVICES + tuple(
+    ServiceSpec(series_service_key(r.name), f"{r.name}/series", "vesselbot_msgs/srv/GetSeries", r.name,
+                "the run series of its per-tick outputs, one row per tick (the launcher reads them after the run)")
+    for r in ROLES if series_service_key(r.name) in r.services)
+
 LOOP_ROLES: tuple[str, ...] = tuple(r.name for r in ROLES)
 ALL_ROLES: tuple[Role, ...] = (*ROLES, RECORDER)
 NODE_NAMES: dict[str, str] = {r.name: r.node_name for r in ALL_ROLES}
 
-_TOPIC = {t.key: t for t in TOPICS}
 _SERVICE = {s.key: s for s in SERVICES}
 _ROLE = {r.name: r for r in ALL_ROLES}
 
@@ -509,6 +528,8 @@ def role_contract(name: str, namespace: str | None = None) -> str:
         lines.append(f"  publish   {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
         lines += _note_lines(t)
     for k in r.services:
+        if k == series_service_key(name):  # the launcher reads a user's node's outputs itself
+            continue
         s = service(k)
         what = "serve     " if not s.is_action else "action    "
         lines.append(f"  {what}{resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")

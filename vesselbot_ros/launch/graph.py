@@ -16,8 +16,9 @@
    publisher published, stop the nodes, then the recorder (it finalises the
    bag), and compare the bag's per-topic counts with the published counts
    (:func:`check_recorded_counts`): any difference fails the run;
-6. rebuild the pure runner's time series from the monitored topics and
-   compute the same metrics (:func:`vesselbot_ros.sim.metrics.compute_metrics`);
+6. take the run's time series from the nodes that published them
+   (``<role>/series``; a user's node's messages from the monitor) and
+   compute the same metrics as the pure runner (:func:`vesselbot_ros.sim.metrics.compute_metrics`);
    in real-time mode, collect each loop node's missed periods and input age
    (:func:`realtime_report`).
 
@@ -265,6 +266,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     finished_ok = False
     recorded: dict[str, int] = {}
     published: dict[str, int] | None = None
+    series: dict[str, np.ndarray] = {}
     try:
         if options.record_dir is not None or options.live_port is not None:
             from vesselbot_ros.nodes.recorder_node import recorder_command
@@ -281,9 +283,10 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         wait_for(lambda: _wired(mon, roles, options.without), options.wait_timeout_s, mon, sup,
                  "every node to be wired (all publishers and subscriptions matched)" +
                  (f" and a node to take the slot(s) {list(options.without)}" if options.without else ""))
-        wait_for(lambda: mon.publishes("truth") and mon.subscribers("estimate") > 0
-                 and mon.run_control.service_is_ready(), options.wait_timeout_s, mon, sup,
-                 "the plant's RunControl service")
+        wait_for(lambda: mon.run_control.service_is_ready()
+                 and all(c.service_is_ready() for c in mon.series_clients.values()),
+                 options.wait_timeout_s, mon, sup,
+                 "the plant's RunControl service and every node's series service")
         if sup.recorder is not None:
             wait_for(mon.recorder_matched, options.wait_timeout_s, mon, sup,
                      "the recorder to match every publisher (else it drops their first messages)")
@@ -303,14 +306,17 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
         t_start = time.monotonic()
         _watch(mon, sup, roles, options, scenario, t_start)
-        t_end = mon.t_last_truth or time.monotonic()
-        wall = t_end - (mon.t_first_truth or t_start)
-        # every node's final counts, and every per-tick message at the launcher
+        t_end = time.monotonic()
+        # every node's final counts, then the run's series from every node that publishes some
         wait_for(lambda: mon.published(roles, require_finished=True) is not None, 30.0, mon, sup,
                  "every node's final diagnostics")
-        if options.mode == "lockstep":
-            wait_for(lambda: all(v >= n for v in mon.got.values()), 30.0, mon, sup,
-                     "the last messages of the run at the launcher")
+        wall = mon.run_wall_s(t_end - t_start)
+        if options.mode == "lockstep" and "plant" not in roles:
+            wait_for(lambda: mon.user_counts[topic("truth").name] >= n, 30.0, mon, sup,
+                     "the last truth of the user's plant at the launcher")
+        mon.request_series()
+        wait_for(mon.series_ready, 30.0, mon, sup, "every node's run series (<role>/series)")
+        series = mon.series()
         if sup.recorder is not None:
             try:
                 wait_for(lambda: _recorder_caught_up(mon, roles), 30.0, mon, sup,
@@ -329,7 +335,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             # a node died (or a wait timed out): before stopping anything, let the recorder catch up with
             # what the launcher saw, so the bag holds the run up to that moment (incl. the watchdog's ramp)
             deadline = time.monotonic() + 10.0
-            while time.monotonic() < deadline and not _recorder_has_seen(mon):
+            while time.monotonic() < deadline and not _recorder_has_seen(mon, roles):
                 with contextlib.suppress(Exception):
                     mon.spin(0.05)
         sup.stop_nodes(10.0)
@@ -355,8 +361,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         problems = check_recorded_counts(published, recorded)
         if problems:
             raise RecordingMismatch("the bag does not hold what was published: " + "; ".join(problems))
-    mon.decode_all()
-    series = _series(mon, scenario)
+    series = {"t_s": np.arange(n) * dt, **series}
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
     if scenario.physics.vessel.network:
@@ -436,7 +441,7 @@ def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOption
                 sup.safe_stop(died, dead, mon, options.wait_timeout_s, dt)
             raise
         plant_done = mon.diag.get(plant_name, {}).get("finished") == "true" if "plant" in roles else False
-        if plant_done or (mon.got["truth"] >= n and "plant" not in roles):
+        if plant_done or ("plant" not in roles and mon.user_counts[topic("truth").name] >= n):
             return
         now = time.monotonic()
         if options.progress is not None and now - last_progress >= 1.0:
@@ -461,21 +466,12 @@ def _recorder_caught_up(mon: Monitor, roles: list[str]) -> bool:
     return all(received.get(t, 0) >= c for t, c in published.items())
 
 
-def _recorder_has_seen(mon: Monitor) -> bool:
-    """True once the recorder reports at least the per-tick messages the launcher's monitor got."""
+def _recorder_has_seen(mon: Monitor, roles: list[str]) -> bool:
+    """True once the recorder reports at least what the nodes' latest diagnostics say they published."""
     received = mon.recorder_received()
-    if received is None:
-        return False
-    return all(received.get(topic(key).name, 0) >= c for key, c in mon.got.items())
-
-
-def _series(mon: Monitor, scenario: Scenario) -> dict[str, np.ndarray]:
-    n = mon.n
-    return {
-        "t_s": np.arange(n) * scenario.sim.dt_control_s,
-        "p_true": mon.p_true, "v_true": mon.v_true, "p_ref": mon.p_ref,
-        "x_hat": mon.x_hat, "z_hat": mon.z_hat, "g_applied": mon.g_applied,
-        "saturated": mon.saturated, "slew_limited": mon.slew, "in_contact": mon.contact,
-    }
+    published = mon.published(roles)
+    if received is None or published is None:
+        return received is not None
+    return all(received.get(t, 0) >= c for t, c in published.items())
 
 

@@ -1,11 +1,13 @@
-"""The launcher's own node: the run's time series, the nodes' diagnostics, the users' slots.
+"""The launcher's own node: the nodes' diagnostics, the run's time series, the users' slots.
 
-:class:`Monitor` subscribes to truth, estimate, reference, coil state and
-``/diagnostics`` (names from the graph spec, in the run's namespace), plus the
-outputs of every role left to a user's node (``--without``), whose messages it
-counts: a user's node reports no diagnostics, so these counts are what the
-launcher knows it published.  It is not part of the loop, so it cannot slow it
-down beyond the DDS fan-out.
+:class:`Monitor` subscribes to ``/diagnostics`` (names from the graph spec, in
+the run's namespace), which carries every node's counts, progress and real-time
+figures, and to the outputs of every role left to a user's node
+(``--without``), whose messages it counts: a user's node reports no
+diagnostics, so these counts are what the launcher knows it published.  It takes
+no per-tick topic of our own nodes: after the run it asks each of them for the
+series it published (``<role>/series``, :mod:`vesselbot_ros.nodes.series`), so
+the launcher costs the loop nothing per tick.
 """
 
 from __future__ import annotations
@@ -19,15 +21,18 @@ import numpy as np
 
 from vesselbot_ros.graph_spec import (
     DEFAULT_NAMESPACE,
+    LOOP_ROLES,
     NODE_NAMES,
     TOPICS,
     import_type,
     qos_profile,
     remap_args,
     role,
+    series_service_key,
     service,
     topic,
 )
+from vesselbot_ros.nodes.series import SeriesLog, empty_series, series_from_response
 
 __all__ = ["Monitor", "counts_with_prefix"]
 
@@ -43,7 +48,7 @@ def counts_with_prefix(diag: dict[str, str], prefix: str) -> dict[str, int]:
 
 
 class Monitor:
-    """Collects the run's per-tick series and every node's latest diagnostics.
+    """Every node's latest diagnostics, and the run's series after it.
 
     Args:
         context: rclpy Context of the run's domain.
@@ -57,10 +62,7 @@ class Monitor:
                  user_roles: Sequence[str] = ()) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from nav_msgs.msg import Odometry
-
-        from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample
-        from vesselbot_msgs.srv import RunControl
+        from vesselbot_msgs.srv import GetSeries, RunControl
         from vesselbot_ros.nodes.base import make_executor
 
         self.n = n
@@ -73,58 +75,54 @@ class Monitor:
         from rclpy.task import Future
 
         self._never = Future()  # spin() handles every event of its slice, then returns
-        self.p_true = np.full((n, 2), np.nan)
-        self.v_true = np.full((n, 2), np.nan)
-        self.contact = np.zeros(n, dtype=bool)
-        self.x_hat = np.full((n, 2), np.nan)
-        self.z_hat = np.full((n, 2), np.nan)
-        self.p_ref = np.full((n, 2), np.nan)
-        self.g_applied = np.full((n, 2), np.nan)
-        self.saturated = np.zeros(n, dtype=bool)
-        self.slew = np.zeros((n, 2), dtype=bool)
-        self.got = {"truth": 0, "estimate": 0, "reference": 0, "coil_state": 0}
         self.diag: dict[str, dict[str, str]] = {}
         self.diag_level: dict[str, tuple[int, str]] = {}
-        self.t_first_truth: float | None = None
-        self.t_last_truth: float | None = None
+        self.user_roles = tuple(user_roles)
         #: messages received per canonical topic name from the users' nodes
         self.user_counts: dict[str, int] = {}
+        #: wall times of the first and last truth from a user's plant
+        self.t_first_truth: float | None = None
+        self.t_last_truth: float | None = None
         sub = self.node.create_subscription
-        # the per-tick topics arrive raw and are decoded after the run (or on demand): the launcher
-        # then costs the loop one bytes copy per message, and never falls behind a fast graph
-        self._types = {"truth": PlantState, "estimate": Odometry, "reference": ReferenceSample, "coil_state": CoilState}
-        self._raw: dict[str, list[bytes]] = {key: [] for key in self._types}
-        for key, msg_cls in self._types.items():
-            sub(msg_cls, topic(key).rel, self._raw_callback(key), qos_profile(topic(key)), raw=True)
         sub(DiagnosticArray, topic("diagnostics").rel, self._on_diag, qos_profile(topic("diagnostics")))
+        # the per-tick topics our nodes publish are not subscribed to: each node serves its series at the end
+        # (nodes/series.py).  A user's node serves nothing, so its outputs arrive here, raw (one bytes copy per
+        # message), counted, and decoded after the run.
+        self._types: dict[str, Any] = {}
+        self._raw: dict[str, list[bytes]] = {}
+        self._user_series_keys: list[str] = []
         for r in user_roles:
             for key in role(r).outputs:
                 t = topic(key)
                 self.user_counts[t.name] = 0
-                sub(import_type(t.msgtype), t.rel, lambda _data, name=t.name: self._count_user(name),
-                    qos_profile(t), raw=True)
+                self._types[key] = import_type(t.msgtype)
+                if t.series:
+                    self._raw[key] = []
+                    self._user_series_keys.append(key)
+                sub(self._types[key], t.rel, self._user_callback(key), qos_profile(t), raw=True)
         self.run_control = self.node.create_client(RunControl, service("run_control").rel)
         spec = service("set_simulation_state")
         self.set_simulation_state = self.node.create_client(import_type(spec.srvtype), spec.rel)
-        self._decoded = 0
+        self.series_clients = {
+            r: self.node.create_client(GetSeries, service(series_service_key(r)).rel)
+            for r in LOOP_ROLES if r not in self.user_roles and series_service_key(r) in role(r).services}
+        self._series_futures: dict[str, Any] = {}
 
-    def _raw_callback(self, key: str) -> Any:
-        store = self._raw[key].append
-        got = self.got
+    def _user_callback(self, key: str) -> Any:
+        name = topic(key).name
+        store = self._raw[key].append if key in self._raw else None
+        counts = self.user_counts
+        is_truth = key == "truth"
 
-        if key == "truth":
-            def on_truth(data: bytes) -> None:
+        def on_message(data: bytes) -> None:
+            if is_truth:
                 now = time.monotonic()
                 if self.t_first_truth is None:
                     self.t_first_truth = now
                 self.t_last_truth = now
+            if store is not None:
                 store(data)
-                got["truth"] += 1
-            return on_truth
-
-        def on_message(data: bytes) -> None:
-            store(data)
-            got[key] += 1
+            counts[name] += 1
         return on_message
 
     def _decode(self, key: str, data: bytes) -> Any:
@@ -134,63 +132,80 @@ class Monitor:
 
     @property
     def max_tick(self) -> int:
-        """The latest tick of the plant's truth so far (-1 before the first)."""
-        raw = self._raw["truth"]
-        return int(self._decode("truth", raw[-1]).tick) if raw else -1
+        """The latest tick of the plant so far (-1 before the first): its diagnostics, or a user's truth."""
+        raw = self._raw.get("truth")
+        if raw is not None:
+            return int(self._decode("truth", raw[-1]).tick) if raw else -1
+        d = self.diag.get(NODE_NAMES["plant"], {})
+        return int(d.get("tick", -1)) if d.get(f"published:{topic('truth').name}", "0") != "0" else -1
+
+    def run_wall_s(self, fallback: float) -> float:
+        """Wall time (s) from tick 0 to the last tick: the plant's own figure, or a user's truth as it arrived."""
+        if self.t_first_truth is not None and self.t_last_truth is not None:
+            return self.t_last_truth - self.t_first_truth
+        d = self.diag.get(NODE_NAMES["plant"], {})
+        return float(d["run_wall_s"]) if "run_wall_s" in d else fallback
+
+    def watch_coil(self) -> None:
+        """Start taking the coil state (raw): what :attr:`last_coil` reads (a node died: the watchdog's ramp)."""
+        if "coil_state" in self._raw:
+            return
+        t = topic("coil_state")
+        self._types["coil_state"] = import_type(t.msgtype)
+        self._raw["coil_state"] = []
+        store = self._raw["coil_state"].append
+        self.node.create_subscription(self._types["coil_state"], t.rel, lambda data: store(data), qos_profile(t),
+                                      raw=True)
 
     @property
     def last_coil(self) -> tuple[int, tuple[float, float], bool] | None:
-        """The latest coil state: (tick, applied (x, z), watchdog_active)."""
-        raw = self._raw["coil_state"]
+        """The latest coil state since :meth:`watch_coil`: (tick, applied (x, z), watchdog_active)."""
+        raw = self._raw.get("coil_state")
         if not raw:
             return None
         m = self._decode("coil_state", raw[-1])
         return int(m.tick), (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active)
 
-    def decode_all(self) -> None:
-        """Fill the per-tick arrays from every message received (after the run)."""
-        for data in self._raw["truth"]:
-            self._on_truth(self._decode("truth", data))
-        for data in self._raw["estimate"]:
-            self._on_estimate(self._decode("estimate", data))
-        for data in self._raw["reference"]:
-            self._on_reference(self._decode("reference", data))
-        for data in self._raw["coil_state"]:
-            self._on_coil(self._decode("coil_state", data))
+    def request_series(self) -> None:
+        """Ask each of our nodes for its run series (after the run); :meth:`series_ready` tells when all came."""
+        from vesselbot_msgs.srv import GetSeries
 
-    def _count_user(self, name: str) -> None:
-        self.user_counts[name] += 1
+        self._series_futures = {r: c.call_async(GetSeries.Request()) for r, c in self.series_clients.items()}
 
-    def _tick(self, stamp: Any) -> int | None:
-        from vesselbot_ros.nodes.conversions import ns_of_stamp, tick_of_ns
+    def series_ready(self) -> bool:
+        """True once every node asked by :meth:`request_series` answered."""
+        return all(f.done() for f in self._series_futures.values())
 
-        k, ok = tick_of_ns(ns_of_stamp(stamp), self.dt)
-        return k if ok and 0 <= k < self.n else None
+    def series(self) -> dict[str, np.ndarray]:
+        """The run's series: from our nodes' answers and the users' nodes' messages (unknown: NaN / False).
 
-    def _on_truth(self, m: Any) -> None:
-        k = int(m.tick)
-        if 0 <= k < self.n:
-            self.p_true[k] = (m.position.x, m.position.z)
-            self.v_true[k] = (m.velocity.x, m.velocity.z)
-            self.contact[k] = m.in_contact
+        Raises:
+            VesselbotError: a node's answer is malformed or says it has not finished.
+        """
+        from vesselbot_ros.errors import VesselbotError
 
-    def _on_estimate(self, m: Any) -> None:
-        k = self._tick(m.header.stamp)
-        if k is not None:
-            self.x_hat[k] = (m.pose.pose.position.x, m.pose.pose.position.z)
-            self.z_hat[k] = (m.twist.twist.linear.x, m.twist.twist.linear.z)
-
-    def _on_reference(self, m: Any) -> None:
-        k = int(m.tick)
-        if 0 <= k < self.n:
-            self.p_ref[k] = (m.position.x, m.position.z)
-
-    def _on_coil(self, m: Any) -> None:
-        k = int(m.tick)
-        if 0 <= k < self.n:
-            self.g_applied[k] = (m.applied.x, m.applied.z)
-            self.saturated[k] = m.saturated
-            self.slew[k] = (m.slew_limited_x, m.slew_limited_z)
+        out = empty_series(self.n)
+        for r, fut in self._series_futures.items():
+            resp = fut.result()
+            if resp is None or not resp.success:
+                raise VesselbotError(f"node {NODE_NAMES[r]} did not serve its run series: "
+                                     f"{'no answer' if resp is None else resp.message}")
+            try:
+                got = series_from_response(resp)
+            except ValueError as exc:
+                raise VesselbotError(f"node {NODE_NAMES[r]} served malformed series: {exc}") from None
+            for name, arr in got.items():
+                if arr.shape[0] != self.n:
+                    raise VesselbotError(f"node {NODE_NAMES[r]} served {arr.shape[0]} rows, the run has {self.n}")
+                out[name] = arr
+        keys = self._user_series_keys
+        if keys:
+            log = SeriesLog(keys, self.n, self.dt)
+            for key in keys:
+                for data in self._raw[key]:
+                    log.add(key, self._decode(key, data))
+            out.update(log.as_dict())
+        return out
 
     def _on_diag(self, m: Any) -> None:
         for st in m.status:

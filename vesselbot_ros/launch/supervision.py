@@ -92,6 +92,7 @@ class Supervisor:
             NodeDied: always; the message names the dead node and says where the coil output ended.
         """
         k_death = mon.max_tick
+        mon.watch_coil()  # the coil state from now on: where the watchdog's ramp ends
         print(f"vesselbot run: node {dead.label} died (exit code {dead.poll()}) at tick {k_death} "
               f"(t = {k_death * dt:.3f} s); letting the coil driver's watchdog ramp the gradient to zero",
               file=sys.stderr, flush=True)

@@ -50,16 +50,19 @@ from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.graph_spec import (
     DEFAULT_NAMESPACE,
     FRAME_ID,
+    LOOP_ROLES,
     NODE_NAMES,
     TopicSpec,
     ns_of_time,
     qos_profile,
     reset_service_key,
+    series_service_key,
     service,
     tick_of_ns,
     topic,
 )
 from vesselbot_ros.graph_spec import role as graph_role
+from vesselbot_ros.nodes.series import SeriesLog
 
 __all__ = ["GraphParams", "VesselbotNode", "TickJoin", "IntraProcess", "use_intra_process", "run_node", "make_executor",
            "spin_nodes"]
@@ -227,6 +230,11 @@ def use_intra_process(roles: Iterable[str] | None) -> IntraProcess | None:
     return _INTRA
 
 
+#: The loop's roles: a publisher is wired once the loop's readers of its topic (graph spec) matched it; a topic
+#: only outside readers take (the coil state: the recorder, viewers) needs none.
+_LOOP_READERS = frozenset(LOOP_ROLES)
+
+
 class VesselbotNode(Node):  # type: ignore[misc]
     """Base class: parameters, diagnostics and input checks (see module docstring).
 
@@ -306,6 +314,14 @@ class VesselbotNode(Node):  # type: ignore[misc]
             from std_srvs.srv import Trigger
 
             self.add_service(reset_key, Trigger, self._on_reset)
+        #: the run series of this node's outputs (graph spec), served once the run is over
+        self.series = SeriesLog(graph_role(role).outputs, self.n_ticks, self.dt)
+        self._series_keys = frozenset(self.series.keys)
+        series_key = series_service_key(role)
+        if series_key in graph_role(role).services:
+            from vesselbot_msgs.srv import GetSeries
+
+            self.add_service(series_key, GetSeries, self._on_series)
 
     def reset_state(self) -> None:
         """Put the node's core back as the scenario builds it, at tick 0 (override; called by ``__init__`` too)."""
@@ -324,9 +340,18 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self.tick_now = -1
         self.period_tick = -1
         self.finished = False
+        self.series.reset()
         self.reset_state()
         response.success = True
         response.message = f"{self.get_name()} at t = 0"
+        return response
+
+    def _on_series(self, request: Any, response: Any) -> Any:
+        """The run series of this node's outputs, one row per tick (``success`` once the node finished)."""
+        self.series.fill(response)
+        response.success = self.finished
+        response.message = (f"{len(self.series.columns)} columns x {self.series.n} ticks" if self.finished
+                            else "the run is not over yet; rows so far")
         return response
 
     def realtime_clock(self) -> None:
@@ -489,6 +514,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
             if pub.get_subscription_count():
                 pub.publish(msg)
         self._published[topic(key).name] += 1
+        if key in self._series_keys:
+            self.series.add(key, msg)
 
     def count_received(self, key: str) -> None:
         """Count one accepted input on topic ``key``."""
@@ -499,7 +526,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         bus = self._intra
         return all(
             p.get_subscription_count() > 0 or (bus is not None and bus.subscribers(k) > 0)
-            for k, p in self._pubs.items() if topic(k).qos != "reliable_latched"
+            for k, p in self._pubs.items() if topic(k).qos != "reliable_latched" and _LOOP_READERS.intersection(
+                topic(k).subscribers)
         ) and all(
             s.get_publisher_count() > 0 for s in self._subs.values()
         ) and all(bus is not None and bus.publishers(k) > 0 for k in self._subs_intra)

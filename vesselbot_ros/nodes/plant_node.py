@@ -104,6 +104,8 @@ class PlantNode(VesselbotNode):
         self.reset_state()
         self._wait_since = time.monotonic()
         self._wall_start = 0.0
+        self._first_emit_wall: float | None = None
+        self._last_emit_wall = 0.0
         self.add_publisher("clock", Clock)
         self.add_publisher("truth", PlantState)
         self.add_publisher("vessel_markers", MarkerArray)
@@ -300,6 +302,10 @@ class PlantNode(VesselbotNode):
     def _emit(self) -> None:
         """Publish /clock and truth for the current tick k."""
         self.tick_now = self.k
+        now = time.monotonic()
+        if self._first_emit_wall is None:
+            self._first_emit_wall = now
+        self._last_emit_wall = now
         out = self.plant.output(with_forces=True)
         self.publish("clock", cv.clock_msg(out.t_s))
         self.publish("truth", self._truth_msg(out))
@@ -417,6 +423,8 @@ class PlantNode(VesselbotNode):
             "simulation_state": self.sim_state,
             "sim_time_s": repr(self.k * self.dt),
             "n_ticks": str(self.n_ticks),
+            # wall time from tick 0 to the last tick published (s): what the launcher reports the run took
+            "run_wall_s": repr(0.0 if self._first_emit_wall is None else self._last_emit_wall - self._first_emit_wall),
         } | {name: str(int(v)) for name, v in zip(PLANT_STAT_NAMES, self.plant.stats)}
 
 

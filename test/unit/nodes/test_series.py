@@ -1,0 +1,115 @@
+"""The run series a node keeps of what it published, and the GetSeries answer the launcher reads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("vesselbot_msgs")
+
+from geometry_msgs.msg import PointStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+
+from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample  # noqa: E402
+from vesselbot_msgs.srv import GetSeries  # noqa: E402
+from vesselbot_ros.graph_spec import TOPICS, ns_of_time, role, series_service_key, service  # noqa: E402
+from vesselbot_ros.nodes.series import (  # noqa: E402
+    READERS,
+    SERIES_COLUMNS,
+    SeriesLog,
+    columns_of,
+    empty_series,
+    series_from_response,
+)
+
+DT = 1e-3
+TYPES = {"truth": PlantState, "estimate": Odometry, "reference": ReferenceSample, "coil_state": CoilState}
+
+
+def _stamp(msg, k):
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns_of_time(k * DT), 1_000_000_000)
+
+
+def _truth(k, x):
+    m = PlantState(tick=k)
+    _stamp(m, k)
+    m.position.x, m.position.z, m.velocity.x, m.velocity.z, m.in_contact = x, -x / 3, 2 * x, 0.1 + x, k % 2 == 1
+    return m
+
+
+def _estimate(k, x):
+    m = Odometry()
+    _stamp(m, k)
+    m.pose.pose.position.x, m.pose.pose.position.z = x, x / 7
+    m.twist.twist.linear.x, m.twist.twist.linear.z = -x, x * 1e-3
+    return m
+
+
+def test_every_topic_with_series_has_a_reader_of_its_width_and_a_serving_role():
+    with_series = [t for t in TOPICS if t.series]
+    assert {t.key for t in with_series} == set(READERS) == set(TYPES)
+    for t in with_series:
+        assert len(READERS[t.key](TYPES[t.key]())) == len(columns_of(t.key))
+        assert series_service_key(t.publisher) in role(t.publisher).services
+        assert service(series_service_key(t.publisher)).srvtype == "vesselbot_msgs/srv/GetSeries"
+    # each series comes from exactly one topic
+    names = [n for t in with_series for n in t.series]
+    assert sorted(names) == sorted(SERIES_COLUMNS)
+
+
+def test_a_log_answers_exactly_the_floats_it_was_given_row_by_tick():
+    log = SeriesLog(role("plant").outputs, 5, DT)
+    assert log.keys == ("truth",)
+    xs = {0: 0.1, 3: 1 / 3, 4: np.nextafter(2.0, 3.0)}
+    for k, x in xs.items():
+        log.add("truth", _truth(k, x))
+        log.add("clock", object())  # topics without series are ignored
+    got = series_from_response(log.fill(GetSeries.Response()))
+    for k, x in xs.items():
+        assert got["p_true"][k, 0] == x and got["p_true"][k, 1] == -x / 3
+        assert got["v_true"][k, 1] == 0.1 + x
+        assert got["in_contact"][k] == (k % 2 == 1)
+    assert np.isnan(got["p_true"][[1, 2]]).all()
+    assert got["in_contact"].dtype == bool and got["p_true"].shape == (5, 2)
+
+
+def test_the_estimate_row_comes_from_its_stamp_and_off_grid_or_out_of_run_stamps_are_dropped():
+    log = SeriesLog(("estimate",), 4, DT)
+    log.add("estimate", _estimate(2, 0.5))
+    off = _estimate(1, 9.0)
+    off.header.stamp.nanosec += 400_000  # 0.4 of a tick off the grid
+    log.add("estimate", off)
+    log.add("estimate", _estimate(7, 9.0))  # beyond the run
+    d = log.as_dict()
+    assert d["x_hat"][2].tolist() == [0.5, 0.5 / 7] and d["z_hat"][2].tolist() == [-0.5, 0.5e-3]
+    assert np.isnan(d["x_hat"][[0, 1, 3]]).all()
+
+
+def test_reset_forgets_every_row():
+    log = SeriesLog(("reference",), 3, DT)
+    log.add("reference", ReferenceSample(tick=1))
+    assert not np.isnan(log.values[1]).any()
+    log.reset()
+    assert np.isnan(log.values).all()
+
+
+def test_a_malformed_answer_is_an_error_not_a_silent_series():
+    r = GetSeries.Response(rows=3, columns=["p_true_x_m", "p_true_z_m"], values=[0.0] * 5)
+    with pytest.raises(ValueError, match="5 values"):
+        series_from_response(r)
+    r = GetSeries.Response(rows=1, columns=["p_true_x_m", "p_true_z_m", "bogus"], values=[0.0] * 3)
+    with pytest.raises(ValueError, match="bogus"):
+        series_from_response(r)
+
+
+def test_empty_series_cover_every_series_with_nan_or_false():
+    e = empty_series(4)
+    assert set(e) == set(SERIES_COLUMNS)
+    assert e["slew_limited"].shape == (4, 2) and not e["slew_limited"].any()
+    assert e["p_ref"].shape == (4, 2) and np.isnan(e["p_ref"]).all()
+
+
+def test_a_point_message_has_no_series():
+    assert SeriesLog(("measurement",), 3, DT).keys == ()
+    assert columns_of("measurement") == ()
+    assert PointStamped  # the imager's output carries no run series

@@ -1,0 +1,153 @@
+"""The run's time series, kept by the node that publishes them and served once at the end of a run.
+
+A per-tick topic whose :class:`~vesselbot_ros.graph_spec.TopicSpec` names
+``series`` (truth, estimate, reference, coil state) carries some of the run's
+series: its publisher copies the floats of every message it publishes into one
+row per tick (:class:`SeriesLog`, a few microseconds per tick) and answers
+``<role>/series`` (``vesselbot_msgs/srv/GetSeries``) with them after the run.
+The launcher reads a run's series this way instead of subscribing to four
+per-tick topics, which cost the loop four deliveries per tick; it subscribes
+only to the topics a user's node publishes (``--without``), and reads those
+messages with the same :data:`READERS`.  The values are the floats of the
+published messages, so they equal what the bag holds bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from vesselbot_ros.graph_spec import tick_of_ns, topic
+
+__all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "columns_of", "tick_of_message", "series_from_response",
+           "split_series", "empty_series"]
+
+#: series name -> its columns (x and z of a vector, or one flag)
+SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
+    "p_true": ("p_true_x_m", "p_true_z_m"),
+    "v_true": ("v_true_x_m_per_s", "v_true_z_m_per_s"),
+    "in_contact": ("in_contact",),
+    "x_hat": ("x_hat_x_m", "x_hat_z_m"),
+    "z_hat": ("z_hat_x_m_per_s", "z_hat_z_m_per_s"),
+    "p_ref": ("p_ref_x_m", "p_ref_z_m"),
+    "g_applied": ("g_applied_x_T_per_m", "g_applied_z_T_per_m"),
+    "saturated": ("saturated",),
+    "slew_limited": ("slew_limited_x", "slew_limited_z"),
+}
+
+#: Flags (stored as 0.0 / 1.0, returned as bool).
+FLAGS = frozenset({"in_contact", "saturated", "slew_limited"})
+
+#: topic key -> one message's floats, in the order of its spec's ``series`` columns
+READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
+    "truth": lambda m: (m.position.x, m.position.z, m.velocity.x, m.velocity.z, float(m.in_contact)),
+    "estimate": lambda m: (m.pose.pose.position.x, m.pose.pose.position.z,
+                           m.twist.twist.linear.x, m.twist.twist.linear.z),
+    "reference": lambda m: (m.position.x, m.position.z),
+    "coil_state": lambda m: (m.applied.x, m.applied.z, float(m.saturated),
+                             float(m.slew_limited_x), float(m.slew_limited_z)),
+}
+
+
+def columns_of(key: str) -> tuple[str, ...]:
+    """The columns topic ``key`` carries (empty: none)."""
+    return tuple(c for name in topic(key).series for c in SERIES_COLUMNS[name])
+
+
+def tick_of_message(key: str, msg: Any, dt: float) -> int | None:
+    """The tick a message of topic ``key`` belongs to (its ``tick`` field, else its stamp on the tick grid)."""
+    if hasattr(msg, "tick"):
+        return int(msg.tick)
+    st = msg.header.stamp
+    k, on_grid = tick_of_ns(st.sec * 1_000_000_000 + st.nanosec, dt)
+    return k if on_grid else None
+
+
+class SeriesLog:
+    """One row per tick of the series a node's published topics carry.
+
+    Args:
+        keys: Topic keys the node publishes (those without series are ignored).
+        n: Ticks of the run.
+        dt: Control period (s).
+    """
+
+    def __init__(self, keys: Iterable[str], n: int, dt: float) -> None:
+        self.keys = tuple(k for k in keys if topic(k).series)
+        self.columns = tuple(c for k in self.keys for c in columns_of(k))
+        self.n = int(n)
+        self.dt = float(dt)
+        self.values = np.full((self.n, len(self.columns)), np.nan)
+        self._slot: dict[str, tuple[int, int, Callable[[Any], tuple[float, ...]]]] = {}
+        col = 0
+        for k in self.keys:
+            w = len(columns_of(k))
+            self._slot[k] = (col, col + w, READERS[k])
+            col += w
+
+    def add(self, key: str, msg: Any) -> None:
+        """Keep the floats of one published message of topic ``key`` in its tick's row (others: ignored)."""
+        slot = self._slot.get(key)
+        if slot is None:
+            return
+        k = tick_of_message(key, msg, self.dt)
+        if k is not None and 0 <= k < self.n:
+            a, b, read = slot
+            self.values[k, a:b] = read(msg)
+
+    def reset(self) -> None:
+        """Forget every row (ResetSimulation: the run starts again at tick 0)."""
+        self.values.fill(np.nan)
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """``{series name: array}`` of the rows so far (as :func:`series_from_response` returns them)."""
+        return split_series(list(self.columns), self.values)
+
+    def fill(self, response: Any) -> Any:
+        """Fill a ``GetSeries`` response with every row."""
+        response.rows = self.n
+        response.columns = list(self.columns)
+        response.values = self.values.ravel().tolist()
+        return response
+
+
+def series_from_response(response: Any) -> dict[str, np.ndarray]:
+    """A ``GetSeries`` response -> ``{series name: (rows, width) array}`` (flags as bool, width-1 series 1-D).
+
+    Raises:
+        ValueError: the response's shape does not add up, or a column is unknown.
+    """
+    cols = list(response.columns)
+    rows = int(response.rows)
+    values = np.asarray(response.values, dtype=float)
+    if values.size != rows * len(cols):
+        raise ValueError(f"series response holds {values.size} values, not {rows} rows x {len(cols)} columns")
+    return split_series(cols, values.reshape(rows, len(cols)))
+
+
+def split_series(cols: list[str], table: np.ndarray) -> dict[str, np.ndarray]:
+    """Columns of a (rows, columns) table -> ``{series name: array}`` (flags as bool, width-1 series 1-D)."""
+    out: dict[str, np.ndarray] = {}
+    for name, names in SERIES_COLUMNS.items():
+        if names[0] not in cols:
+            continue
+        idx = [cols.index(c) for c in names]
+        block = table[:, idx]
+        if name in FLAGS:
+            block = np.nan_to_num(block) != 0.0
+        out[name] = block[:, 0] if len(names) == 1 else block
+    unknown = set(cols) - {c for names in SERIES_COLUMNS.values() for c in names}
+    if unknown:
+        raise ValueError(f"unknown series columns {sorted(unknown)}")
+    return out
+
+
+def empty_series(n: int) -> dict[str, np.ndarray]:
+    """Every series of a run of ``n`` ticks, unknown (NaN; flags False)."""
+    out: dict[str, np.ndarray] = {}
+    for name, names in SERIES_COLUMNS.items():
+        shape = (n,) if len(names) == 1 else (n, len(names))
+        out[name] = np.zeros(shape, dtype=bool) if name in FLAGS else np.full(shape, np.nan)
+    return out
