@@ -283,7 +283,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._subs: dict[str, Any] = {}
         #: the process's intra-process bus, if composed with one (lockstep only)
         self._intra = _INTRA if self.lockstep else None
-        self._pub_intra: dict[str, Any] = {}  # topic key -> its DDS publisher, for topics also delivered intra-process
+        #: topic key -> (its DDS publisher, its matched-readers count), for topics also delivered intra-process
+        self._pub_intra: dict[str, tuple[Any, Callable[[], int]]] = {}
         self._subs_intra: list[str] = []  # topic keys received intra-process
         self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         from rclpy.clock import Clock, ClockType
@@ -305,10 +306,11 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
         self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
-        if not self.lockstep:  # the stages' first calls cost tens of ms: pay them before the first tick is due
-            from vesselbot_ros.sim.closed_loop import warm_up
+        # the stages' first calls cost tens of ms (numba's cache, first allocations): pay them before the run, so
+        # that a real-time node's first ticks are on time and a lockstep run's wall time is the loop's own
+        from vesselbot_ros.sim.closed_loop import warm_up
 
-            warm_up(self.scenario)
+        warm_up(self.scenario)
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             from std_srvs.srv import Trigger
@@ -476,7 +478,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         bus = self._intra
         if bus is not None and bus.carries(key):
             bus.add_publisher(key)
-            self._pub_intra[key] = pub
+            # the handle's own count: a quarter of Publisher.get_subscription_count's cost, on every publish
+            self._pub_intra[key] = (pub, pub.handle.get_subscription_count)
         return pub
 
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
@@ -506,12 +509,13 @@ class VesselbotNode(Node):  # type: ignore[misc]
         """
         if self.finished and not self.lockstep:
             return
-        pub = self._pub_intra.get(key)
-        if pub is None:
+        intra = self._pub_intra.get(key)
+        if intra is None:
             self._pubs[key].publish(msg)
         else:
             self._intra.post(key, msg)  # type: ignore[union-attr]
-            if pub.get_subscription_count():
+            pub, matched = intra
+            if matched():
                 pub.publish(msg)
         self._published[topic(key).name] += 1
         if key in self._series_keys:

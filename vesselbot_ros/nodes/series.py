@@ -21,7 +21,7 @@ import numpy as np
 
 from vesselbot_ros.graph_spec import tick_of_ns, topic
 
-__all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "columns_of", "tick_of_message", "series_from_response",
+__all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "columns_of", "series_from_response",
            "split_series", "empty_series"]
 
 #: series name -> its columns (x and z of a vector, or one flag)
@@ -51,18 +51,13 @@ READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
 }
 
 
+#: topic key -> its messages carry the tick (else: their stamp on the tick grid gives it)
+_HAS_TICK: dict[str, bool] = {"truth": True, "estimate": False, "reference": True, "coil_state": True}
+
+
 def columns_of(key: str) -> tuple[str, ...]:
     """The columns topic ``key`` carries (empty: none)."""
     return tuple(c for name in topic(key).series for c in SERIES_COLUMNS[name])
-
-
-def tick_of_message(key: str, msg: Any, dt: float) -> int | None:
-    """The tick a message of topic ``key`` belongs to (its ``tick`` field, else its stamp on the tick grid)."""
-    if hasattr(msg, "tick"):
-        return int(msg.tick)
-    st = msg.header.stamp
-    k, on_grid = tick_of_ns(st.sec * 1_000_000_000 + st.nanosec, dt)
-    return k if on_grid else None
 
 
 class SeriesLog:
@@ -79,27 +74,46 @@ class SeriesLog:
         self.columns = tuple(c for k in self.keys for c in columns_of(k))
         self.n = int(n)
         self.dt = float(dt)
-        self.values = np.full((self.n, len(self.columns)), np.nan)
-        self._slot: dict[str, tuple[int, int, Callable[[Any], tuple[float, ...]]]] = {}
+        # per topic: (tick or stamp ns, floats) as published; the table is built when asked for (:attr:`values`)
+        self._rows: dict[str, list[tuple[int, tuple[float, ...]]]] = {k: [] for k in self.keys}
+        self._slot: dict[str, tuple[int, int, Callable[[Any], tuple[float, ...]], bool]] = {}
         col = 0
         for k in self.keys:
             w = len(columns_of(k))
-            self._slot[k] = (col, col + w, READERS[k])
+            self._slot[k] = (col, col + w, READERS[k], _HAS_TICK[k])
             col += w
 
     def add(self, key: str, msg: Any) -> None:
-        """Keep the floats of one published message of topic ``key`` in its tick's row (others: ignored)."""
+        """Keep the floats of one published message of topic ``key`` (others: ignored); about 1 us."""
         slot = self._slot.get(key)
         if slot is None:
             return
-        k = tick_of_message(key, msg, self.dt)
-        if k is not None and 0 <= k < self.n:
-            a, b, read = slot
-            self.values[k, a:b] = read(msg)
+        if slot[3]:
+            self._rows[key].append((msg.tick, slot[2](msg)))
+        else:
+            st = msg.header.stamp
+            self._rows[key].append((st.sec * 1_000_000_000 + st.nanosec, slot[2](msg)))
+
+    @property
+    def values(self) -> np.ndarray:
+        """(n, columns) table: row k holds the floats of the message of tick k (NaN: none; the last one wins)."""
+        table = np.full((self.n, len(self.columns)), np.nan)
+        for key, rows in self._rows.items():
+            a, b, _read, has_tick = self._slot[key]
+            for t, vals in rows:
+                if has_tick:
+                    k: int | None = int(t)
+                else:
+                    k, on_grid = tick_of_ns(int(t), self.dt)
+                    k = k if on_grid else None
+                if k is not None and 0 <= k < self.n:
+                    table[k, a:b] = vals
+        return table
 
     def reset(self) -> None:
         """Forget every row (ResetSimulation: the run starts again at tick 0)."""
-        self.values.fill(np.nan)
+        for rows in self._rows.values():
+            rows.clear()
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """``{series name: array}`` of the rows so far (as :func:`series_from_response` returns them)."""

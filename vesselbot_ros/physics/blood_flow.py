@@ -22,12 +22,14 @@ profile of :mod:`vesselbot_ros.physics.bifurcation`.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 from numba.extending import register_jitable
 
+from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics._validate import finite_array
 from vesselbot_ros.physics.bifurcation import ProfileTable, rational_profile_at, load_profile_table
 from vesselbot_ros.physics.params import PhysicsParams
@@ -139,7 +141,9 @@ class Vessel:
     def diameter(self, t_s: float) -> float:
         """D(t) (m), eq. (13)."""
         f = self.params.flow
-        t = float(finite_array("t_s", t_s))
+        t = float(t_s) if isinstance(t_s, (float, int)) else float(finite_array("t_s", t_s))
+        if not math.isfinite(t):
+            raise ModelInputError(f"t_s must be finite, got {t_s!r}")
         return float(vessel_diameter(t, self.params.vessel.diameter_m, f.diameter_pulsation,
                                      f.angular_frequency_rad_per_s, f.phase_rad))
 

@@ -16,6 +16,7 @@ from vesselbot_ros.graph_spec import TOPICS, ns_of_time, role, series_service_ke
 from vesselbot_ros.nodes.series import (  # noqa: E402
     READERS,
     SERIES_COLUMNS,
+    _HAS_TICK,
     SeriesLog,
     columns_of,
     empty_series,
@@ -50,6 +51,7 @@ def test_every_topic_with_series_has_a_reader_of_its_width_and_a_serving_role():
     assert {t.key for t in with_series} == set(READERS) == set(TYPES)
     for t in with_series:
         assert len(READERS[t.key](TYPES[t.key]())) == len(columns_of(t.key))
+        assert _HAS_TICK[t.key] == hasattr(TYPES[t.key](), "tick")
         assert series_service_key(t.publisher) in role(t.publisher).services
         assert service(series_service_key(t.publisher)).srvtype == "vesselbot_msgs/srv/GetSeries"
     # each series comes from exactly one topic
