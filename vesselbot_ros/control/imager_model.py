@@ -42,12 +42,14 @@ from typing import Literal, NamedTuple
 import numba
 import numpy as np
 import numpy.typing as npt
+from numba import types
+from numba.extending import overload
 
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive, check_range
 from vesselbot_ros.errors import ModelInputError
 
 __all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame",
-           "imager_acquire", "check_frame_inputs"]
+           "imager_acquire", "check_frame_inputs", "draw_variates", "fill_variates", "VariateBuffer"]
 
 _EPS_S = 1e-9  # tick-grid tolerance: a tick within 1 ns of a deadline counts as on time
 
@@ -162,7 +164,7 @@ class ImagerModel:
 
     def __init__(self, params: ImagerParams, rng: np.random.Generator) -> None:
         self.params = params
-        self._rng = rng
+        self._variates = VariateBuffer(rng)
         self._prm, self._outliers, self._dropouts = imager_arrays(params)
         # compiled state: next frame slot, last tick time, queue head, queue tail (imager_frame)
         self._state = np.array([0.0, -math.inf, 0.0, 0.0])
@@ -171,8 +173,12 @@ class ImagerModel:
 
     @property
     def rng(self) -> np.random.Generator:
-        """The generator the imager draws from (owned by the model)."""
-        return self._rng
+        """The generator the imager draws from (owned by the model), exactly where its draws so far left it."""
+        return self._variates.generator()
+
+    def variates(self) -> npt.NDArray[np.float64]:
+        """The variate buffer for one more acquisition (:class:`VariateBuffer`), for compiled callers."""
+        return self._variates.ready()
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float,
                         angle_rad: float | None = None) -> None:
@@ -201,7 +207,7 @@ class ImagerModel:
         scanner's :class:`~vesselbot_ros.scanner.stages.SequencedImager`).
         """
         o = self._out
-        imager_acquire(self._prm, self._outliers, self._dropouts, self._rng, float(t_acq_s), float(p[0]),
+        imager_acquire(self._prm, self._outliers, self._dropouts, self._variates.ready(), float(t_acq_s), float(p[0]),
                        float(p[1]), o)
         if o[0] < 0.5:
             return None
@@ -231,7 +237,7 @@ class ImagerModel:
             grown[:waiting] = self._queue[order]
             self._queue = grown
             st[2], st[3] = 0.0, float(waiting)
-        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._rng, float(t_s),
+        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._variates.ready(), float(t_s),
                      float(p[0]), float(p[1]), self._out)
         o = self._out
         if o[0] < 0.5:
@@ -259,6 +265,85 @@ def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
     return prm, out, drop
 
 
+def draw_variates(src):  # type: ignore[no-untyped-def]
+    """The four variates of one acquisition, in this order: two standard normals, two uniforms.
+
+    Compiled code only.  ``src`` is a ``numpy.random.Generator`` (the compiled
+    loop draws from it) or a :class:`VariateBuffer` array (the per-tick path: the
+    same variates, drawn ahead in blocks, so that no call from Python passes a
+    Generator, which numba types and unboxes on every call, about 8 us).
+    """
+    raise NotImplementedError("draw_variates runs in compiled code only")
+
+
+@overload(draw_variates, jit_options={"nogil": True})
+def _draw_variates(src):  # type: ignore[no-untyped-def]
+    if isinstance(src, types.NumPyRandomGeneratorType):
+        def from_generator(src):  # type: ignore[no-untyped-def]
+            n0 = src.standard_normal()
+            n1 = src.standard_normal()
+            u0 = src.random()
+            u1 = src.random()
+            return n0, n1, u0, u1
+        return from_generator
+    if isinstance(src, types.Array):
+        def from_buffer(src):  # type: ignore[no-untyped-def]
+            i = int(src[0])
+            src[0] = i + 4
+            return src[i + 1], src[i + 2], src[i + 3], src[i + 4]
+        return from_buffer
+    return None
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_variates(rng, buf):  # type: ignore[no-untyped-def]
+    """Draw ``buf[1:]`` from ``rng`` in :func:`draw_variates`' order; ``buf[0] = 0`` (none used)."""
+    for i in range(1, buf.shape[0] - 3, 4):
+        buf[i] = rng.standard_normal()
+        buf[i + 1] = rng.standard_normal()
+        buf[i + 2] = rng.random()
+        buf[i + 3] = rng.random()
+    buf[0] = 0.0
+
+
+class VariateBuffer:
+    """A Generator's acquisition variates, drawn ahead in blocks (the same stream, the same doubles).
+
+    ``buf[0]`` counts the variates used, ``buf[1:]`` holds them.  :meth:`ready`
+    refills when fewer than one acquisition's four remain; :meth:`generator`
+    gives the Generator back exactly where the variates used so far left it
+    (it rewinds to the last refill and draws only what was used).
+    """
+
+    #: Acquisitions per block.
+    BLOCK = 256
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self.buf = np.zeros(1 + 4 * self.BLOCK)
+        self.buf[0] = float(self.buf.shape[0] - 1)  # empty: the first use fills
+        self._state_at_fill: dict | None = None
+
+    def ready(self) -> npt.NDArray[np.float64]:
+        """The buffer, with at least one acquisition's variates left."""
+        b = self.buf
+        if b[0] + 4.0 > b.shape[0] - 1:
+            self._state_at_fill = self._rng.bit_generator.state
+            fill_variates(self._rng, b)
+        return b
+
+    def generator(self) -> np.random.Generator:
+        """The Generator, advanced by exactly the variates used (the buffer is emptied)."""
+        if self._state_at_fill is not None:
+            used = int(self.buf[0])
+            self._rng.bit_generator.state = self._state_at_fill
+            if used:
+                fill_variates(self._rng, np.zeros(1 + used))
+            self._state_at_fill = None
+            self.buf[0] = float(self.buf.shape[0] - 1)
+        return self._rng
+
+
 @numba.njit(cache=True, nogil=True)
 def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
     """Acquire one frame of ``(px, pz)`` at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[2:5]`` = (x, z, outlier).
@@ -266,10 +351,7 @@ def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignor
     Draws two standard normals (noise on x, z), one uniform (outlier
     direction) and one uniform (random dropout), in this order, always.
     """
-    n0 = rng.standard_normal()
-    n1 = rng.standard_normal()
-    u_dir = rng.random()
-    u_drop = rng.random()
+    n0, n1, u_dir, u_drop = draw_variates(rng)
     m0 = px + prm[1] * n0
     m1 = pz + prm[1] * n1
     outlier = 0.0

@@ -179,7 +179,8 @@ class SequencedImager:
             self._queue = grown
             st[6], st[7] = 0.0, float(tail - head)
         inner = self.inner
-        seq_imager_frame(self.sv, inner._prm, inner._outliers, inner._dropouts, inner.rng, st, self._queue, self._acq,
+        seq_imager_frame(self.sv, inner._prm, inner._outliers, inner._dropouts, inner.variates(), st, self._queue,
+                         self._acq,
                          float(t_s), float(p[0]), float(p[1]), self._out)
         o = self._out
         if o[0] < 0.5:

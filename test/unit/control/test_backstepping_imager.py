@@ -169,3 +169,37 @@ def test_paper_scenarios_default_to_a_fixed_outlier_offset() -> None:
     for name in ("paper_small_artery", "sound_small_artery"):
         sc = load_scenario(Path(__file__).resolve().parents[3] / "config" / f"{name}.yaml")
         assert [(o.direction, o.angle_rad) for o in sc.imager.outliers] == [("fixed", 0.0)], name
+
+
+def test_variate_buffer_draws_the_generators_stream_and_gives_it_back_where_it_was_used_up_to():
+    from vesselbot_ros.control.imager_model import VariateBuffer, fill_variates
+
+    direct = np.random.default_rng(7)
+    expected = np.zeros(1 + 4 * 300)
+    fill_variates(direct, expected)  # 300 acquisitions straight from the generator
+    buffered = VariateBuffer(np.random.default_rng(7))
+    got = []
+    for _ in range(300):  # more than one block
+        b = buffered.ready()
+        i = int(b[0])
+        got.extend(b[i + 1:i + 5])
+        b[0] = i + 4  # what the compiled draw_variates does
+    assert np.array_equal(np.array(got), expected[1:])
+    # the generator comes back exactly where 300 acquisitions left it, whatever was drawn ahead
+    assert buffered.generator().random() == direct.random()
+
+
+def test_the_imager_per_tick_and_its_generator_handed_on_continue_one_stream():
+    from vesselbot_ros.control.imager_model import fill_variates
+
+    params = ImagerParams(frame_rate_Hz=1000.0, noise_sigma_m=1e-4, latency_s=0.0)
+    a = ImagerModel(params, np.random.default_rng(3))
+    b = ImagerModel(params, np.random.default_rng(3))
+    p = np.array([1e-3, 2e-4])
+    for k in range(10):
+        assert a.frame(k * 1e-3, p).p.tolist() == b.frame(k * 1e-3, p).p.tolist()
+    a_next = a.rng.standard_normal()
+    b.frame(10e-3, p)  # b draws one more acquisition: two normals first
+    ref = np.random.default_rng(3)
+    fill_variates(ref, np.zeros(1 + 4 * 10))
+    assert a_next == ref.standard_normal()
