@@ -100,7 +100,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = [
-    "DEFAULT_NAMESPACE", "FRAME_ID", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
+    "DEFAULT_NAMESPACE", "FRAME_ID", "CHILD_FRAME_ID", "WIRE_STRINGS", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
     "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "series_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
@@ -108,6 +108,11 @@ __all__ = [
 ]
 
 FRAME_ID = "vessel"
+#: The estimate's ``child_frame_id``: the robot it tracks.
+CHILD_FRAME_ID = "robot"
+#: The string fields of the per-tick messages, as the graph fixes them: a message whose strings are these travels
+#: by its flat codec (nodes/wire.py); any other (a user's, a malformed one) by rclpy's own (de)serializer.
+WIRE_STRINGS = {"header.frame_id": FRAME_ID, "forces.header.frame_id": FRAME_ID, "child_frame_id": CHILD_FRAME_ID}
 #: Namespace of the graph's nodes (and so of its relative topic and service names).
 DEFAULT_NAMESPACE = "/vesselbot"
 #: Where ``replay --into`` puts a re-computed output in its result bag (relative to the namespace).

@@ -102,6 +102,8 @@ def _script(role):
         flood = m["clock"](0.0)
     else:  # pragma: no cover
         raise AssertionError(role)
+    # bytes that are no message of the type (a truncated CDR): rejected, never a crash of the node
+    s.append((s[0][0], b"\x00\x01\x00\x00" + bytes(4), "malformed_cdr"))
     return s, flood
 
 

@@ -48,6 +48,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, c
 from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.graph_spec import (
+    WIRE_STRINGS,
     DEFAULT_NAMESPACE,
     FRAME_ID,
     LOOP_ROLES,
@@ -63,6 +64,7 @@ from vesselbot_ros.graph_spec import (
 )
 from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.nodes.series import SeriesLog
+from vesselbot_ros.nodes.wire import codec_for
 
 __all__ = ["GraphParams", "VesselbotNode", "TickJoin", "IntraProcess", "use_intra_process", "run_node", "make_executor",
            "spin_nodes"]
@@ -280,6 +282,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._last_warn: dict[tuple[str, str], float] = {}
         self._last_diag_wall = 0.0
         self._pubs: dict[str, Any] = {}
+        #: topic key -> what goes on DDS: the flat codec's encoder (per-tick topics), else the message itself
+        self._wire_out: dict[str, Callable[[Any], Any]] = {}
         self._subs: dict[str, Any] = {}
         #: the process's intra-process bus, if composed with one (lockstep only)
         self._intra = _INTRA if self.lockstep else None
@@ -475,6 +479,9 @@ class VesselbotNode(Node):  # type: ignore[misc]
         spec = topic(key)
         pub = self.create_publisher(msg_cls, spec.rel, qos_profile(spec))
         self._pubs[key] = pub
+        codec = codec_for(msg_cls, WIRE_STRINGS) if spec.per_tick else None
+        if codec is not None:  # one struct call instead of rclpy's field-by-field conversion (nodes/wire.py)
+            self._wire_out[key] = codec.encode
         bus = self._intra
         if bus is not None and bus.carries(key):
             bus.add_publisher(key)
@@ -490,7 +497,21 @@ class VesselbotNode(Node):  # type: ignore[misc]
             bus.subscribe(key, callback)
             self._subs_intra.append(key)
             return None
-        sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
+        codec = codec_for(msg_cls, WIRE_STRINGS) if spec.per_tick else None
+        if codec is None:
+            sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
+        else:  # the CDR as it arrived, decoded by one struct call (nodes/wire.py); the callback gets the message
+            decode = codec.decode
+
+            def on_raw(raw: bytes) -> None:
+                try:
+                    msg = decode(raw)
+                except Exception:  # noqa: BLE001 - rclpy's error for bytes that are not this type's CDR
+                    self.reject(key, "malformed_cdr", f"{len(raw)} bytes that do not decode as {spec.msgtype}")
+                    return
+                callback(msg)
+
+            sub = self.create_subscription(msg_cls, spec.rel, on_raw, qos_profile(spec), raw=True)
         self._subs[key] = sub
         return sub
 
@@ -510,13 +531,14 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if self.finished and not self.lockstep:
             return
         intra = self._pub_intra.get(key)
+        wire = self._wire_out.get(key)
         if intra is None:
-            self._pubs[key].publish(msg)
+            self._pubs[key].publish(msg if wire is None else wire(msg))
         else:
             self._intra.post(key, msg)  # type: ignore[union-attr]
             pub, matched = intra
             if matched():
-                pub.publish(msg)
+                pub.publish(msg if wire is None else wire(msg))
         self._published[topic(key).name] += 1
         if key in self._series_keys:
             self.series.add(key, msg)

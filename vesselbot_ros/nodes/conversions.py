@@ -50,7 +50,8 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample, SequencePhase
-from vesselbot_ros.graph_spec import FRAME_ID, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.graph_spec import CHILD_FRAME_ID, FRAME_ID, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.nodes.wire import message_builder
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
@@ -81,27 +82,6 @@ __all__ = [
     "vessel_markers",
     "all_finite",
 ]
-
-def message_builder(cls: Any) -> Any:
-    """A keyword-only constructor of message ``cls`` that stores every field directly.
-
-    The generated constructors run one property setter per field, nested
-    messages included; a lockstep tick builds eight messages, so the hot path
-    uses these instead.  Every field must be given, with the type the setter
-    would have stored (float, int, bool, str, a message, a float64 array for
-    a fixed-size double array); the result equals the generated constructor's
-    (``test/unit/nodes/test_conversions.py`` checks each builder below against it).
-    """
-    fields = [f for f in cls.__slots__ if f != "_check_fields"]
-    args = ", ".join(f[1:] for f in fields)
-    body = "".join(f"    m.{f} = {f[1:]}\n" for f in fields)
-    src = f"def build(*, {args}):\n    m = new(cls)\n{body}    m._check_fields = False\n    return m\n"
-    scope: dict[str, Any] = {"new": cls.__new__, "cls": cls}
-    exec(src, scope)  # noqa: S102 - generated from the message's own slot names
-    build = scope["build"]
-    build.__doc__ = f"Build a {cls.__name__} from every field (keyword arguments)."
-    return build
-
 
 _time = message_builder(Time)
 _header = message_builder(Header)
@@ -185,7 +165,7 @@ def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: 
     tcov[FLOW_SCALE_COVARIANCE_INDEX] = float(flow_scale)
     pose = _pose(position=point(x_hat), orientation=_quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
     twist = _twist(linear=vector3(z_hat), angular=_vector3(x=0.0, y=0.0, z=0.0))
-    return _odometry(header=header(t_s), child_frame_id="robot", pose=_pose_cov(pose=pose, covariance=cov),
+    return _odometry(header=header(t_s), child_frame_id=CHILD_FRAME_ID, pose=_pose_cov(pose=pose, covariance=cov),
                      twist=_twist_cov(twist=twist, covariance=tcov))
 
 
