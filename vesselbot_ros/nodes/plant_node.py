@@ -17,9 +17,11 @@ srv/action simulation_interfaces (see below)                     on demand      
 out ``/diagnostics``        diagnostic_msgs/DiagnosticArray      1 Hz wall       tick, sim_time_s, finished
 ==========================  ===================================  ==============  =========================
 
-Lockstep (``graph.mode: lockstep``): on START, publish ``/clock`` t_0 and truth
-0; each ``coil/applied`` stamped t_k integrates [t_k, t_k+1] under it and
-publishes tick k+1.  After tick n-1 (n = ``sim.n_ticks``) the run is finished:
+Lockstep (``graph.mode: lockstep``): on START, publish truth 0 and ``/clock``
+t_0 (truth first: it starts the tick's critical path, imager -> observer ->
+controller -> coil driver -> plant, while ``/clock`` only feeds the reference
+and the coil driver's watchdog); each ``coil/applied`` stamped t_k integrates
+[t_k, t_k+1] under it and publishes tick k+1.  After tick n-1 (n = ``sim.n_ticks``) the run is finished:
 final diagnostics (``finished: true``), RunControl STATUS reports it.
 
 Pausing and stepping (lockstep): the plant holds a gate in front of each
@@ -307,8 +309,12 @@ class PlantNode(VesselbotNode):
             self._first_emit_wall = now
         self._last_emit_wall = now
         out = self.plant.output(with_forces=True)
-        self.publish("clock", cv.clock_msg(out.t_s))
-        self.publish("truth", self._truth_msg(out))
+        if self.lockstep:  # truth first: it starts the tick's critical path (imager -> ... -> plant)
+            self.publish("truth", self._truth_msg(out))
+            self.publish("clock", cv.clock_msg(out.t_s))
+        else:  # real time: a node takes the tick from /clock, then its inputs of that tick
+            self.publish("clock", cv.clock_msg(out.t_s))
+            self.publish("truth", self._truth_msg(out))
         self.period_done(self.k)  # real time: tick k is due at wall start + k * dt / real_time_factor
 
     def _truth_msg(self, out: Any) -> PlantState:
