@@ -33,6 +33,8 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/campaigns", glob("config/campaigns/*.yaml")),
         (f"share/{PACKAGE}/config/vessels", glob("config/vessels/*.yaml")),
+        # the sampled CFD fields of the shipped networks (vesselbot_ros.vessels.cfd, "Shipped fields")
+        (f"share/{PACKAGE}/config/cfd", glob("config/cfd/*.npz")),
         (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),
     ],
     install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk"],

@@ -28,7 +28,18 @@ sampled with the signed distance, inward normal, local diameter and viscosity
 on a regular grid (:class:`NetworkField`), which the compiled plant
 interpolates bilinearly.  Fields are cached on disk by a hash of the geometry,
 the CFD settings and the blood model (:func:`network_field`).
+
+Shipped fields: the solve (assembly, sparse factorisation) runs through
+kernels chosen by CPU (OpenBLAS's, numpy's SIMD levels: AVX-512 or AVX2), so
+two machines solve the same network to fields that differ in the last bits -- and a run that touches the walls, as the
+III-C upper branch does, turns that into different trajectories (wall
+contacts 4 against 3).  The fields of the shipped scenarios' networks are
+therefore solved once and shipped (``config/cfd/<network>-<key>.npz``,
+written by ``tools/ship_cfd_fields.py``): every machine runs them on the same
+doubles, and :func:`network_field` reads them before the local cache.  A
+network or blood model of one's own is solved and cached locally.
 """
+
 
 from __future__ import annotations
 
@@ -45,13 +56,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.config import to_mapping
+from vesselbot_ros.config import shipped_config_dir, to_mapping
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, smooth_centreline
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
-           "network_field", "cache_dir", "field_key", "FIELD_NAMES", "womersley_numbers"]
+           "network_field", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
@@ -65,6 +76,16 @@ def cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "vesselbot_ros" / "cfd"
+
+
+def shipped_field_dir() -> Path:
+    """Where the fields of the shipped scenarios' networks are shipped (the shipped config's ``cfd/``)."""
+    return shipped_config_dir() / "cfd"
+
+
+def field_file(net: VesselNetworkParams, blood: BloodParams) -> str:
+    """File name of the sampled field of ``net`` for ``blood`` (in the shipped folder or the cache)."""
+    return f"{net.name}-{field_key(net, blood)}.npz"
 
 
 def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
@@ -425,13 +446,18 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
 
 
 def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool = False) -> NetworkField:
-    """The sampled field of ``net`` for ``blood``: from the cache, or solved, sampled and cached."""
-    path = cache_dir() / f"{net.name}-{field_key(net, blood)}.npz"
-    if path.is_file() and not refresh:
-        try:
-            return NetworkField.load(path)
-        except (OSError, ValueError, KeyError):
-            pass  # a torn or foreign file: solve again
+    """The sampled field of ``net`` for ``blood``: shipped, cached, or solved, sampled and cached.
+
+    ``refresh`` solves again whatever is shipped or cached (and caches the result).
+    """
+    name = field_file(net, blood)
+    path = cache_dir() / name
+    for found in () if refresh else (shipped_field_dir() / name, path):
+        if found.is_file():
+            try:
+                return NetworkField.load(found)
+            except (OSError, ValueError, KeyError):
+                pass  # a torn or foreign file: solve again
     t0 = time.perf_counter()
     sol = solve_flow(net, blood)
     field = sample_field(net, blood, sol)

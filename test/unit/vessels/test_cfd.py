@@ -88,3 +88,38 @@ def test_womersley_numbers_of_the_iii_c_network() -> None:
     assert a["trunk_a"] == pytest.approx(0.97, abs=0.01)
     assert a["upper"] == pytest.approx(0.77, abs=0.01)
     assert a["side_up"] == pytest.approx(0.23, abs=0.01)
+
+
+def test_every_shipped_network_scenario_runs_on_a_shipped_field() -> None:
+    """The shipped scenarios' fields are in config/cfd under their current key (else each machine would solve
+    its own, and a run touching the walls would differ between CPUs), and nothing else is."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("ship_cfd_fields", Path(__file__).parents[3] / "tools" / "ship_cfd_fields.py")
+    tool = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(tool)  # type: ignore[union-attr]
+    wanted = tool.shipped_networks()
+    assert {n.split("-")[0] for n in wanted} == {"paper_iiic_artery", "small_artery_4gen"}
+    assert sorted(p.name for p in cfd.shipped_field_dir().glob("*.npz")) == sorted(wanted)
+    for name in wanted:
+        f = cfd.NetworkField.load(cfd.shipped_field_dir() / name)
+        assert f.data.shape == (len(cfd.FIELD_NAMES), f.nz, f.nx) and np.isfinite(f.data).all()
+
+
+def test_the_shipped_field_is_what_the_solve_gives(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The III-C network solved here (another CPU: other last bits) against its shipped field, and the shipped
+    field is what network_field returns even with an empty cache."""
+    from vesselbot_ros.vessels.network import load_network
+
+    monkeypatch.setenv("VESSELBOT_CFD_CACHE", str(tmp_path))
+    net, blood = load_network("paper_iiic_artery"), BloodParams()
+    shipped = cfd.NetworkField.load(cfd.shipped_field_dir() / cfd.field_file(net, blood))
+    np.testing.assert_array_equal(cfd.network_field(net, blood).data, shipped.data)
+    assert not list(tmp_path.iterdir())  # nothing solved, nothing cached
+    solved = cfd.network_field(net, blood, refresh=True)
+    assert (solved.nx, solved.nz, solved.x0_m, solved.z0_m, solved.h_m) == (shipped.nx, shipped.nz, shipped.x0_m,
+                                                                             shipped.z0_m, shipped.h_m)
+    for i, name in enumerate(cfd.FIELD_NAMES):  # velocities normalised to 1, lengths in m, viscosity in Pa s
+        scale = max(1.0, float(np.abs(shipped.data[i]).max()))
+        np.testing.assert_allclose(solved.data[i], shipped.data[i], rtol=0, atol=1e-9 * scale, err_msg=name)
