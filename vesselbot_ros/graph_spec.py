@@ -75,12 +75,15 @@ robot's mean position over the window: motion blur), stamps it at the
 window's middle and delivers it at the first tick at or after
 ``window_end + latency``; until then it repeats the previous frame.
 
-Lockstep watchdog: if the command for tick k has not arrived within
-``graph.stall_timeout_s`` of wall time (the controller died or hangs), the coil
-driver answers tick k itself through ``CoilLimiter.watchdog``: it holds the
-output until ``coil.command_timeout_s`` of sim time passed without commands,
-then ramps to zero within the slew limit, so the loop (and the bag) goes on.
-A late command for a tick already answered is rejected as stale.
+Lockstep watchdog: if ``coil/applied`` of tick k has not arrived within
+``graph.stall_timeout_s`` of wall time (the controller died or hangs), the
+plant, which knows whether tick k is in flight or held at its gate, publishes
+``coil/stall`` stamped t_k, and the coil driver answers tick k itself through
+``CoilLimiter.watchdog``: it holds the output until ``coil.command_timeout_s``
+of sim time passed without commands, then ramps to zero within the slew limit,
+so the loop (and the bag) goes on.  A late command for a tick already
+answered is rejected as stale.  (The driver does not follow ``/clock`` in
+lockstep: one delivery and one process wake-up less per tick.)
 
 In real-time mode the plant steps on the wall clock at a real-time factor and
 applies the latest ``coil/applied`` (zero-order hold); the imager publishes only
@@ -263,7 +266,8 @@ class Role:
 
 
 TOPICS: tuple[TopicSpec, ...] = (
-    TopicSpec("clock", "/clock", "rosgraph_msgs/msg/Clock", "plant", ("all (use_sim_time)", "reference", "coil_driver"),
+    TopicSpec("clock", "/clock", "rosgraph_msgs/msg/Clock", "plant",
+              ("all (use_sim_time)", "reference", "(real time: every loop node)"),
               "per tick", "clock", "s", "-", per_tick=True),
     TopicSpec("truth", "truth", "vesselbot_msgs/msg/PlantState", "plant", ("imager", "recorder"),
               "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True, series=("p_true", "v_true", "in_contact")),
@@ -287,6 +291,11 @@ TOPICS: tuple[TopicSpec, ...] = (
               ("coil_driver",), "per tick", "reliable", "T/m", FRAME_ID, per_tick=True),
     TopicSpec("coil_applied", "coil/applied", "geometry_msgs/msg/Vector3Stamped", "coil_driver",
               ("plant", "observer"), "per tick (+ watchdog)", "reliable", "T/m", FRAME_ID, per_tick=True),
+    TopicSpec("coil_stall", "coil/stall", "std_msgs/msg/Header", "plant", ("coil_driver", "recorder"),
+              "lockstep: when a tick's coil/applied is late", "reliable_latched", "s", FRAME_ID,
+              note="the plant waited graph.stall_timeout_s of wall time (then, while commands stay lost, 20 ms) for "
+                   "coil/applied of the tick stamped here: the driver answers that tick itself (watchdog); a "
+                   "request for a tick already answered crossed the answer and is ignored"),
     TopicSpec("coil_state", "coil/state", "vesselbot_msgs/msg/CoilState", "coil_driver", ("recorder",),
               "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True,
               series=("g_applied", "saturated", "slew_limited")),
@@ -377,10 +386,10 @@ ROLES: tuple[Role, ...] = (
     _node("controller", "ControllerNode", inputs=("reference", "estimate"), outputs=("gradient_command",),
           optional_inputs=("sequence_phase",),
           safe_stop=True, summary="backstepping controller (eq. 24): gradient command"),
-    _node("coil_driver", "CoilDriverNode", inputs=("gradient_command", "clock"),
+    _node("coil_driver", "CoilDriverNode", inputs=("gradient_command",), optional_inputs=("coil_stall",),
           outputs=("coil_applied", "coil_state", "sequence_phase"),
           summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),
-    _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers"),
+    _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers", "coil_stall"),
           services=("run_control", *SIMULATION_SERVICES),
           counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
           summary="robot dynamics in the vessel; owns /clock"),

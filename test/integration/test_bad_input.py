@@ -51,7 +51,13 @@ def _msgs():
         "reference": lambda k, p=(0.0, 0.0), frame="vessel": with_frame(
             cv.reference_msg(k, k * DT, p, (0.0, 0.0), (0.0, 0.0)), frame),
         "clock": lambda t: cv.clock_msg(t),
+        "coil_stall": lambda t, frame="vessel": _framed(cv.header(t), frame),
     }
+
+
+def _framed(header, frame):
+    header.frame_id = frame
+    return header
 
 
 def _script(role):
@@ -84,14 +90,19 @@ def _script(role):
             s += bad_values(key, 1) + [(key, m[key](100), "future_tick"), (key, m[key](0), "stale_tick")]
         flood = m["estimate"](1, p=(0.0, INF))
     elif role == "coil_driver":
-        # each malformed command still answers its tick (held by the limiter): NaN at 1, -Inf at 2, frame at 3
-        s = [("clock", m["clock"](0.0), None), ("gradient_command", m["gradient_command"](0, g=(0.01, 0.0)), None),
-                     ("gradient_command", m["gradient_command"](1, g=(NAN, 0.0)), "non_finite"),
-                     ("gradient_command", m["gradient_command"](2, g=(0.0, -INF)), "non_finite"),
-                     ("gradient_command", m["gradient_command"](3, frame="map"), "wrong_frame_id"),
-                     ("gradient_command", m["gradient_command"](100), "future_tick"),
-                     ("gradient_command", m["gradient_command"](0), "stale_tick"),
-                     ("clock", m["clock"](0.0), "stale_stamp"), ("clock", m["clock"](0.0005), "off_tick_stamp")]
+        # each malformed command still answers its tick (held by the limiter): NaN at 1, -Inf at 2, frame at 3;
+        # the plant's stall request for tick 4 is answered by the watchdog (held); one for tick 2 crossed its
+        # answer and is ignored; a request for a tick not reached, off the grid or in another frame is rejected
+        s = [("gradient_command", m["gradient_command"](0, g=(0.01, 0.0)), None),
+             ("gradient_command", m["gradient_command"](1, g=(NAN, 0.0)), "non_finite"),
+             ("gradient_command", m["gradient_command"](2, g=(0.0, -INF)), "non_finite"),
+             ("gradient_command", m["gradient_command"](3, frame="map"), "wrong_frame_id"),
+             ("gradient_command", m["gradient_command"](100), "future_tick"),
+             ("gradient_command", m["gradient_command"](0), "stale_tick"),
+             ("coil_stall", m["coil_stall"](4 * DT), None), ("coil_stall", m["coil_stall"](2 * DT), None),
+             ("coil_stall", m["coil_stall"](100 * DT), "future_tick"),
+             ("coil_stall", m["coil_stall"](0.0005), "off_tick_stamp"),
+             ("coil_stall", m["coil_stall"](5 * DT, frame="map"), "wrong_frame_id")]
         flood = m["gradient_command"](0, g=(NAN, NAN))
     elif role == "plant":
         s = [("coil_applied", m["coil_applied"](0), None)] + bad_values("coil_applied", 1, has_pos=False) + [
@@ -108,7 +119,7 @@ def _script(role):
 
 
 INPUTS = {"imager": ["truth"], "observer": ["measurement", "coil_applied"], "controller": ["estimate", "reference"],
-          "coil_driver": ["gradient_command", "clock"], "plant": ["coil_applied"], "reference": ["clock"]}
+          "coil_driver": ["gradient_command", "coil_stall"], "plant": ["coil_applied"], "reference": ["clock"]}
 OUTPUTS = {"imager": ["measurement"], "observer": ["estimate"], "controller": ["gradient_command"],
            "coil_driver": ["coil_applied", "coil_state"], "plant": ["clock", "truth"], "reference": ["reference"]}
 
@@ -247,6 +258,9 @@ def test_outputs_stay_finite(probed):
     assert n >= 1, probed["outputs"]
     if probed["role"] == "coil_driver":
         applied = np.array([[m.vector.x, m.vector.z] for m in probed["outputs"]["coil_applied"]])
-        # ticks 0..3 answered: the 10 mT/m command, then held through NaN, -Inf and the wrong frame
-        assert len(applied) >= 4
-        np.testing.assert_array_equal(applied[1:4], np.repeat(applied[:1], 3, axis=0))
+        # ticks 0..3 answered: the 10 mT/m command, then held through NaN, -Inf and the wrong frame; tick 4 by the
+        # watchdog on the stall request (held: within coil.command_timeout_s), and nothing for the other requests
+        states = probed["outputs"]["coil_state"]
+        assert len(applied) == len(states) == 5
+        np.testing.assert_array_equal(applied[1:5], np.repeat(applied[:1], 4, axis=0))
+        assert [s.watchdog_active for s in states[:5]] == [False] * 5

@@ -82,7 +82,7 @@ def test_the_bag_reads_back_with_rosbags_and_with_mcap(run):
         for conn, _, raw in reader.messages():
             assert reader.deserialize(raw, conn.msgtype) is not None
             per_topic[conn.topic] = per_topic.get(conn.topic, 0) + 1
-    assert per_topic == {t.name: t.count for t in info.topics}
+    assert per_topic == {t.name: t.count for t in info.topics if t.count}  # coil/stall: declared, no message
 
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory

@@ -285,6 +285,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         #: topic key -> what goes on DDS: the flat codec's encoder (per-tick topics), else the message itself
         self._wire_out: dict[str, Callable[[Any], Any]] = {}
         self._subs: dict[str, Any] = {}
+        self._optional_inputs = frozenset(graph_role(role).optional_inputs)
         #: the process's intra-process bus, if composed with one (lockstep only)
         self._intra = _INTRA if self.lockstep else None
         #: topic key -> (its DDS publisher, its matched-readers count), for topics also delivered intra-process
@@ -554,9 +555,9 @@ class VesselbotNode(Node):  # type: ignore[misc]
             p.get_subscription_count() > 0 or (bus is not None and bus.subscribers(k) > 0)
             for k, p in self._pubs.items() if topic(k).qos != "reliable_latched" and _LOOP_READERS.intersection(
                 topic(k).subscribers)
-        ) and all(
-            s.get_publisher_count() > 0 for s in self._subs.values()
-        ) and all(bus is not None and bus.publishers(k) > 0 for k in self._subs_intra)
+        ) and all(  # an optional input (a node in its publisher's slot may not publish it) is not waited for
+            s.get_publisher_count() > 0 for k, s in self._subs.items() if k not in self._optional_inputs
+        ) and all(bus is not None and bus.publishers(k) > 0 for k in self._subs_intra if k not in self._optional_inputs)
 
     # ------------------------------------------------------------------ validation
     def reject(self, key: str, reason: str, detail: str = "") -> None:

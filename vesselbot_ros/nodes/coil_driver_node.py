@@ -21,7 +21,8 @@ Ports (frame ``vessel``):
 port                                   type                              rate                    units
 =====================================  ================================  ======================  ==========
 in  ``/vesselbot/gradient_command``    geometry_msgs/Vector3Stamped      per tick                T/m
-in  ``/clock``                         rosgraph_msgs/Clock               per tick                s
+in  ``/vesselbot/coil/stall``          std_msgs/Header                   lockstep: a late tick   s
+in  ``/clock``                         rosgraph_msgs/Clock               real time: per tick     s
 out ``/vesselbot/coil/applied``        geometry_msgs/Vector3Stamped      per tick (+ watchdog)   T/m
 out ``/vesselbot/coil/state``          vesselbot_msgs/CoilState          per tick (+ watchdog)   T/m, T/m/s
 out ``/vesselbot/scanner/phase``       vesselbot_msgs/SequencePhase      on phase change         s
@@ -41,32 +42,40 @@ Watchdog ("commands stopped"):
   ``CoilLimiter.watchdog(now)``, which ramps to zero within the slew limit once
   no command arrived for ``coil.command_timeout_s`` of sim time;
 * lockstep: sim time only advances when the driver answers, so silence is
-  measured on the wall clock: when ``/clock`` announced tick k and no command
-  for k arrived within ``graph.stall_timeout_s`` (wall), the driver answers
-  tick k itself with ``CoilLimiter.watchdog(t_k)``: it holds the applied value
-  until ``coil.command_timeout_s`` of *sim* time passed without commands, then
-  ramps to zero (``watchdog_active = true``).  The loop therefore goes on, and
-  the bag shows the ramp.  A command arriving later for an answered tick is
-  rejected as stale.  Once a tick has been answered by the watchdog the
-  commands are *lost*: the following ticks wait only
-  ``min(graph.stall_timeout_s, LOST_GRACE_S)`` (20 ms wall) for a command, so a
-  dead controller costs one stall timeout, not one per tick, and the ramp to
-  zero runs at graph speed.  A command that arrives in time for its tick ends
-  the lost state.
+  measured on the wall clock, by the plant, which knows whether a tick is in
+  flight or held at its gate (paused, stepping): when ``coil/applied`` of tick
+  k has not come within ``graph.stall_timeout_s`` (wall) of announcing k, the
+  plant publishes ``coil/stall`` stamped t_k, and the driver answers tick k
+  itself with ``CoilLimiter.watchdog(t_k)``: it holds the applied value until
+  ``coil.command_timeout_s`` of *sim* time passed without commands, then ramps
+  to zero (``watchdog_active = true``).  The loop therefore goes on, and the
+  bag shows the ramp (and the requests).  A command arriving later for an
+  answered tick is rejected as stale.  Once a tick has been answered by the
+  watchdog the commands are *lost*: the plant then waits only
+  ``min(graph.stall_timeout_s, LOST_GRACE_S)`` (20 ms wall) per tick, so a dead
+  controller costs one stall timeout, not one per tick, and the ramp to zero
+  runs at graph speed.  A command that arrives in time for its tick ends the
+  lost state.  The driver does not follow ``/clock`` in lockstep (one delivery
+  and one process wake-up less per tick).
 
-``/clock`` input checks: an off-grid time or a time not newer than the last
-announced tick is rejected (``off_tick_stamp`` / ``stale_stamp``).
+``coil/stall`` input checks: a time off the tick grid, a frame other than
+``vessel`` or a tick the driver has not reached (``off_tick_stamp``,
+``wrong_frame_id``, ``future_tick``) is rejected and moves nothing; a request
+for a tick already answered crossed that answer and is ignored.
+
+Real-time ``/clock`` input checks (``VesselbotNode.accept_clock``): an off-grid
+time, a time not newer than the last announced tick or a jump far ahead is
+rejected (``off_tick_stamp`` / ``stale_stamp`` / ``future_stamp``).
 """
 
 from __future__ import annotations
 
 import sys
-import time
 from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
-from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
 
 from vesselbot_msgs.msg import CoilState, SequencePhase
 from vesselbot_ros.control.actuator_limits import CoilOutput
@@ -80,8 +89,6 @@ from vesselbot_ros.sim.closed_loop import build_stages
 __all__ = ["CoilDriverNode", "main"]
 
 _NAN2 = np.array([np.nan, np.nan])
-#: Lockstep: wall time (s) a tick waits for its command once commands are lost.
-LOST_GRACE_S = 0.02
 
 
 class CoilDriverNode(VesselbotNode):
@@ -103,9 +110,8 @@ class CoilDriverNode(VesselbotNode):
         self.add_publisher("sequence_phase", SequencePhase)
         self._publish_phase(0)
         self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
-        self.add_subscription("clock", Clock, self._on_clock)
-        if self.lockstep:
-            self._wd = self.create_timer(0.005, self._lockstep_watchdog, clock=self._wall)
+        if self.lockstep:  # the plant says when a tick's command is late; real time follows /clock
+            self.add_subscription("coil_stall", Header, self._on_stall)
         self.realtime_clock()
 
     def reset_state(self) -> None:
@@ -122,8 +128,6 @@ class CoilDriverNode(VesselbotNode):
             self._window = None
             self._publish_phase(0)
         self.k = 0  # next tick to answer
-        self.k_due = -1  # latest tick announced by /clock
-        self._due_wall = 0.0
         self.watchdog_ticks = 0
         self.rejected_commands = 0
         self._t_last = 0.0
@@ -131,23 +135,29 @@ class CoilDriverNode(VesselbotNode):
         self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
 
     # ------------------------------------------------------------------ inputs
-    def _on_clock(self, msg: Clock) -> None:
-        if not self.lockstep:
-            k = self.accept_clock(msg)  # a garbage /clock is rejected and moves nothing
-            if k is not None:
-                self._realtime_tick(k)
-            return
-        ns = cv.ns_of_stamp(msg.clock)
-        k, on_grid = cv.tick_of_ns(ns, self.dt)
+    def _on_stall(self, msg: Header) -> None:
+        """Lockstep: the plant waited too long for ``coil/applied`` of the stamped tick: answer it (watchdog)."""
+        stamp = cv.ns_of_stamp(msg.stamp)
+        k, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
-            self.reject("clock", "off_tick_stamp", f"clock {ns} ns is not a tick time")
+            self.reject("coil_stall", "off_tick_stamp", f"stamp {stamp} ns")
             return
-        if k <= self.k_due:
-            self.reject("clock", "stale_stamp", f"clock tick {k} not newer than {self.k_due}")
+        if not self.check("coil_stall", frame_id=msg.frame_id):
             return
-        self.count_received("clock")
-        self.k_due = k
-        self._due_wall = time.monotonic()
+        if k > self.k:
+            self.reject("coil_stall", "future_tick", f"tick {k}, driver at {self.k}")
+            return
+        if k < self.k or self.finished:  # answered already: the request crossed the answer
+            return
+        self.count_received("coil_stall")
+        self.commands_lost = True
+        t = cv.tick_time(k, self.dt)
+        out, active = self._watchdog_output(t)
+        self.watchdog_ticks += 1
+        self.get_logger().warning(
+            f"no gradient command for tick {k} within {self.graph.stall_timeout_s} s (wall): "
+            + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
+        self._emit(k, t, np.zeros(2), out, watchdog=active)
 
     def _on_command(self, msg: Vector3Stamped) -> None:
         v = msg.vector
@@ -219,20 +229,7 @@ class CoilDriverNode(VesselbotNode):
             return self.limiter.hold(t), False
         return out, True
 
-    def _lockstep_watchdog(self) -> None:
-        wait = min(self.graph.stall_timeout_s, LOST_GRACE_S) if self.commands_lost else self.graph.stall_timeout_s
-        if self.finished or self.k_due != self.k or time.monotonic() - self._due_wall < wait:
-            return
-        self.commands_lost = True
-        t = cv.tick_time(self.k, self.dt)
-        out, active = self._watchdog_output(t)
-        self.watchdog_ticks += 1
-        self.get_logger().warning(
-            f"no gradient command for tick {self.k} within {self.graph.stall_timeout_s} s (wall): "
-            + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
-        self._emit(self.k, t, np.zeros(2), out, watchdog=active)
-
-    def _realtime_tick(self, k: int) -> None:
+    def on_realtime_tick(self, k: int) -> None:
         """Real time, tick ``k`` announced: apply an early command now due, else run the watchdog at t_k."""
         if self._pending is not None and self._pending[0] <= k:
             kp, msg = self._pending

@@ -11,6 +11,7 @@ port                        type                                 rate           
 out ``/clock``              rosgraph_msgs/Clock                  per tick        s (t_k)
 out ``/vesselbot/truth``    vesselbot_msgs/PlantState            per tick        m, m/s, N, T/m
 out ``vessel_markers``      visualization_msgs/MarkerArray       once, latched   m
+out ``coil/stall``          std_msgs/Header                      a late tick     s (t_k)
 in  ``coil/applied``        geometry_msgs/Vector3Stamped         per tick        T/m
 srv ``run_control``         vesselbot_msgs/RunControl            on demand       -
 srv/action simulation_interfaces (see below)                     on demand       -
@@ -20,7 +21,7 @@ out ``/diagnostics``        diagnostic_msgs/DiagnosticArray      1 Hz wall      
 Lockstep (``graph.mode: lockstep``): on START, publish truth 0 and ``/clock``
 t_0 (truth first: it starts the tick's critical path, imager -> observer ->
 controller -> coil driver -> plant, while ``/clock`` only feeds the reference
-and the coil driver's watchdog); each ``coil/applied`` stamped t_k integrates
+and users' nodes); each ``coil/applied`` stamped t_k integrates
 [t_k, t_k+1] under it and publishes tick k+1.  After tick n-1 (n = ``sim.n_ticks``) the run is finished:
 final diagnostics (``finished: true``), RunControl STATUS reports it.
 
@@ -44,6 +45,15 @@ run starts, or after a stop: at t = 0, nothing published), *playing*,
 flight, calls every loop node's ``reset`` service, rebuilds the plant from
 the scenario and returns to the state it had (playing goes on from t = 0).
 
+Lockstep watchdog: when ``coil/applied`` of the tick in flight has not come
+within ``graph.stall_timeout_s`` of wall time since the tick was published
+(the controller died or hangs), the plant publishes ``coil/stall`` stamped
+t_k (latched) and the coil driver answers the tick itself (holding, then
+ramping its output to zero).  Until an answer comes for a tick it did not
+have to ask for, commands count as lost and the plant asks after
+``min(graph.stall_timeout_s, LOST_GRACE_S)`` instead, so the ramp runs at
+graph speed.  A tick held at the gate (paused, stepping) is never asked for.
+
 Real-time (``graph.mode: realtime``): on START a wall-clock timer advances the
 plant by as many ticks as ``graph.real_time_factor`` asks, applying the latest
 ``coil/applied`` (zero-order hold), and publishes ``/clock`` and truth per tick.
@@ -65,6 +75,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from vesselbot_msgs.msg import PlantState
@@ -77,7 +88,7 @@ from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stages
 
-__all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
+__all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S"]
 
 #: Simulation states (simulation_interfaces' SimulationState, by name).
 STOPPED, PLAYING, PAUSED = "stopped", "playing", "paused"
@@ -86,6 +97,10 @@ ALREADY = "already in the target state"
 
 #: Names of ``PlantSimulator.stats`` entries, as the pure runner reports them.
 PLANT_STAT_NAMES = role("plant").counters
+#: Lockstep: wall time (s) a tick waits for its coil/applied once commands are lost (see the module docstring).
+LOST_GRACE_S = 0.02
+#: Lockstep: period (s, wall) of the check for a late coil/applied.
+STALL_POLL_S = 0.005
 
 
 class PlantNode(VesselbotNode):
@@ -111,6 +126,7 @@ class PlantNode(VesselbotNode):
         self.add_publisher("clock", Clock)
         self.add_publisher("truth", PlantState)
         self.add_publisher("vessel_markers", MarkerArray)
+        self.add_publisher("coil_stall", Header)
         self.add_subscription("coil_applied", Vector3Stamped, self._on_applied)
         self.add_service("run_control", RunControl, self._on_run_control)
         ref = self.scenario.reference
@@ -126,6 +142,8 @@ class PlantNode(VesselbotNode):
         self.publish("vessel_markers", markers)
         self._rt_timer = None
         self._poll = self.create_timer(0.05, self._housekeeping, clock=self._wall)
+        if self.lockstep:
+            self._stall_timer = self.create_timer(STALL_POLL_S, self._stall_check, clock=self._wall)
         from vesselbot_ros.nodes.simulation_control import SimulationControl
 
         self.simulation = SimulationControl(self)
@@ -137,6 +155,8 @@ class PlantNode(VesselbotNode):
         self._g = np.zeros(2)
         self._budget = 0  # ticks a paused plant may still publish (steps asked for)
         self._held = True  # tick k is computed but not published
+        self._stall_sent = -1  # lockstep: the last tick the coil driver was asked to answer itself
+        self._commands_lost = False  # lockstep: the last tick asked for has not been followed by a tick answered in time
 
     def destroy_node(self) -> None:  # noqa: D102
         self.simulation.close()
@@ -300,6 +320,19 @@ class PlantNode(VesselbotNode):
                 self._wait_since = time.monotonic()
                 self.get_logger().warning(f"lockstep: still waiting for coil/applied of tick {self.k} ({waited:.1f} s)")
 
+    def _stall_check(self) -> None:
+        """Lockstep: ask the coil driver to answer the tick in flight itself when its coil/applied is late."""
+        with self._lock:
+            if not self.running or self.finished or self._held or self._stall_sent == self.k:
+                return
+            wait = self.graph.stall_timeout_s
+            if self._commands_lost:
+                wait = min(wait, LOST_GRACE_S)
+            if time.monotonic() - self._last_emit_wall < wait:
+                return
+            self._stall_sent, self._commands_lost = self.k, True
+            self.publish("coil_stall", cv.header(cv.tick_time(self.k, self.dt)))
+
     # ------------------------------------------------------------------ ticks
     def _emit(self) -> None:
         """Publish /clock and truth for the current tick k."""
@@ -395,6 +428,8 @@ class PlantNode(VesselbotNode):
                         f"tick {k}, plant at tick {self.k}")
             return
         self.count_received("coil_applied")
+        if self._stall_sent != k:  # answered without being asked: the commands come again
+            self._commands_lost = False
         self._advance(g)
 
     def _realtime_tick(self) -> None:

@@ -53,3 +53,61 @@ def test_tick_zero_is_due_when_the_wall_schedule_starts(realtime_plant, monkeypa
     node._realtime_tick()
     after = int((time.monotonic() - node._wall_start) * 0.1 / node.dt)
     assert before <= node.k <= after
+
+
+@pytest.fixture()
+def lockstep_plant():
+    from rclpy.parameter import Parameter
+
+    from vesselbot_ros.nodes.plant_node import PlantNode
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = PlantNode(context=ctx, parameter_overrides=[Parameter("graph.stall_timeout_s", Parameter.Type.DOUBLE, 0.2)])
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_a_late_tick_is_asked_for_once_then_after_the_grace_and_a_held_tick_never(lockstep_plant, monkeypatch):
+    """Lockstep watchdog, the plant's half: coil/stall for the tick in flight once its coil/applied is
+    stall_timeout_s late (once per tick); while commands stay lost, after LOST_GRACE_S; a tick answered
+    in time ends that; a tick held at the gate (paused) is never asked for."""
+    from vesselbot_ros.nodes import conversions as cv
+    from vesselbot_ros.nodes.plant_node import LOST_GRACE_S
+
+    node = lockstep_plant
+    asked: list[int] = []
+    publish = node.publish
+
+    def spy(key, msg):
+        if key == "coil_stall":
+            asked.append(cv.tick_of_ns(cv.ns_of_stamp(msg.stamp), node.dt)[0])
+            assert msg.frame_id == "vessel"
+        publish(key, msg)
+
+    monkeypatch.setattr(node, "publish", spy)
+    node._start()  # tick 0 in flight
+    node._stall_check()
+    assert asked == []  # not late yet
+    node._last_emit_wall -= 0.21
+    node._stall_check()
+    node._stall_check()
+    assert asked == [0]  # once per tick
+    node._on_applied(cv.gradient_msg(0.0, (0.0, 0.0)))  # the driver's watchdog answer to tick 0
+    assert node.k == 1
+    node._last_emit_wall -= LOST_GRACE_S + 1e-3  # commands lost: the grace, not the timeout
+    node._stall_check()
+    assert asked == [0, 1]
+    node._on_applied(cv.gradient_msg(node.dt, (0.0, 0.0)))  # answered by the watchdog: still lost
+    node._on_applied(cv.gradient_msg(2 * node.dt, (0.0, 0.0)))  # tick 2 answered in time: commands are back
+    node._last_emit_wall -= LOST_GRACE_S + 1e-3
+    node._stall_check()
+    assert asked == [0, 1]  # tick 3 waits the full timeout again
+    assert node.pause() == ""
+    node._on_applied(cv.gradient_msg(3 * node.dt, (0.0, 0.0)))  # tick 4 integrated, held at the gate
+    node._last_emit_wall -= 10.0
+    node._stall_check()
+    assert asked == [0, 1] and node.k == 4 and node.idle
