@@ -15,7 +15,7 @@ measured side by side in one run:
    tick) over the bare chain's time per tick, in both modes (target <= 1.2), and
    our wall time over the pure runner's.  The machine is shared and its speed
    drifts within minutes, so the bare chain and ours run back to back in
-   ``--rounds`` rounds (default 3); each round gives one ratio per mode, and the
+   ``--rounds`` rounds (default 5); each round gives one ratio per mode, and the
    median over the rounds is the figure;
 6. real-time mode: imager -> coil-driver latency (median, p99), measured by a
    probe node that timestamps, on one clock, the arrival of each fresh
@@ -348,7 +348,7 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=None,
                     help="scenario (default: config/sound_small_artery.yaml, the one `make run` runs)")
     ap.add_argument("--skip-realtime", action="store_true")
-    ap.add_argument("--rounds", type=int, default=3, help="bare chain / ours side by side, this many times (median)")
+    ap.add_argument("--rounds", type=int, default=5, help="bare chain / ours side by side, this many times (median)")
     ap.add_argument("--rt-duration", type=float, default=0.5)
     ap.add_argument("--rt-factor", type=float, default=0.1, help="real-time factor of the latency run")
     ap.add_argument("--bare-node", help=argparse.SUPPRESS)

@@ -108,7 +108,7 @@ def replay(
         loop: Replay again from ``start_s`` until ``should_stop()``.
         clock: Publish ``/clock`` from the bag's log time (see module doc).
         wait_subscribers_s: First wait up to this long until every replayed
-            topic has a subscriber (0: do not wait).
+            topic with a message has a subscriber (0: do not wait).
         should_stop: Polled between messages; True ends the replay.
         log: Receives progress lines.
         on_message: Also called with (topic, CDR bytes, wall ns) for every message
@@ -141,15 +141,17 @@ def replay(
 
     if wait_subscribers_s > 0:
         deadline = time.monotonic() + wait_subscribers_s
+        # a topic the bag declares with no message (coil/stall of a run without a stall) has nothing to wait for
+        awaited = {n: p for n, p in pubs.items() if info.topic(n).count}  # type: ignore[union-attr]
         while time.monotonic() < deadline and not should_stop():
-            if all(p.get_subscription_count() > 0 for p in pubs.values()):
+            if all(p.get_subscription_count() > 0 for p in awaited.values()):
                 # our side has matched; give the subscribers' side of DDS discovery time to
                 # match too, or the first reliable samples arrive late through repairs
                 time.sleep(0.5)
                 break
             time.sleep(0.02)
         else:
-            missing = [n for n, p in pubs.items() if p.get_subscription_count() == 0]
+            missing = [n for n, p in awaited.items() if p.get_subscription_count() == 0]
             if missing:
                 log(f"no subscriber after {wait_subscribers_s} s on {missing}; publishing anyway")
 
