@@ -21,12 +21,13 @@ bootstrap:
 run: bootstrap
 	@$(PY) -m vesselbot_ros.cli run $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED) --report
 
-## The whole test suite (unit + integration over real ROS 2 topics).
+## The whole test suite (unit + integration over real ROS 2 topics). The unit tests are pure and run on
+## two workers; the integration tests run one at a time (real-time runs and stall timeouts measure wall time).
 test: bootstrap
-	@$(PY) -m pytest test -q $(PYTEST_ARGS)
+	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS) && $(PY) -m pytest test/integration -q $(PYTEST_ARGS)
 
 test-unit: bootstrap
-	@$(PY) -m pytest test/unit -q $(PYTEST_ARGS)
+	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS)
 
 test-integration: bootstrap
 	@$(PY) -m pytest test/integration -q $(PYTEST_ARGS)
