@@ -313,7 +313,7 @@ class PlantNode(VesselbotNode):
         with self._lock:
             if self.graph.autostart and not self.running and not self.finished and self.wired():
                 self._start()
-            waiting = self.running and self.lockstep and not self.finished and not self._held
+            waiting = self.lockstep and not self.idle
         if waiting:
             waited = time.monotonic() - self._wait_since
             if waited > self.graph.plant_wait_warn_s:
@@ -323,7 +323,7 @@ class PlantNode(VesselbotNode):
     def _stall_check(self) -> None:
         """Lockstep: ask the coil driver to answer the tick in flight itself when its coil/applied is late."""
         with self._lock:
-            if not self.running or self.finished or self._held or self._stall_sent == self.k:
+            if self.idle or self._stall_sent == self.k:  # no tick in flight, or this one asked for already
                 return
             wait = self.graph.stall_timeout_s
             if self._commands_lost:

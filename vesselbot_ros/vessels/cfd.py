@@ -31,9 +31,9 @@ the CFD settings and the blood model (:func:`network_field`).
 
 Shipped fields: the solve (assembly, sparse factorisation) runs through
 kernels chosen by CPU (OpenBLAS's, numpy's SIMD levels: AVX-512 or AVX2), so
-two machines solve the same network to fields that differ in the last bits -- and a run that touches the walls, as the
-III-C upper branch does, turns that into different trajectories (wall
-contacts 4 against 3).  The fields of the shipped scenarios' networks are
+two machines solve the same network to fields that differ in the last bits,
+and a run that touches the walls, as the III-C upper branch does, turns that
+into different trajectories (wall contacts 4 against 3).  The fields of the shipped scenarios' networks are
 therefore solved once and shipped (``config/cfd/<network>-<key>.npz``,
 written by ``tools/ship_cfd_fields.py``): every machine runs them on the same
 doubles, and :func:`network_field` reads them before the local cache.  A

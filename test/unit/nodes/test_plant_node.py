@@ -9,21 +9,25 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 
-@pytest.fixture()
-def realtime_plant():
+def _plant(**graph: object):
+    """A plant node in a context of its own, with ``graph.<name>`` parameters; destroyed after the test."""
     from rclpy.parameter import Parameter
 
     from vesselbot_ros.nodes.plant_node import PlantNode
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
-    node = PlantNode(context=ctx, parameter_overrides=[Parameter("graph.mode", Parameter.Type.STRING, "realtime"),
-                                                       Parameter("graph.real_time_factor", Parameter.Type.DOUBLE, 0.1)])
+    node = PlantNode(context=ctx, parameter_overrides=[Parameter(f"graph.{k}", value=v) for k, v in graph.items()])
     try:
         yield node
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture()
+def realtime_plant():
+    yield from _plant(mode="realtime", real_time_factor=0.1)
 
 
 def test_tick_zero_is_due_when_the_wall_schedule_starts(realtime_plant, monkeypatch):
@@ -57,18 +61,7 @@ def test_tick_zero_is_due_when_the_wall_schedule_starts(realtime_plant, monkeypa
 
 @pytest.fixture()
 def lockstep_plant():
-    from rclpy.parameter import Parameter
-
-    from vesselbot_ros.nodes.plant_node import PlantNode
-
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = PlantNode(context=ctx, parameter_overrides=[Parameter("graph.stall_timeout_s", Parameter.Type.DOUBLE, 0.2)])
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+    yield from _plant(stall_timeout_s=0.2)
 
 
 def test_a_late_tick_is_asked_for_once_then_after_the_grace_and_a_held_tick_never(lockstep_plant, monkeypatch):
