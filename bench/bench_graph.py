@@ -14,14 +14,19 @@ measured side by side in one run:
 5. the ratios: our graph overhead per tick (wall minus the pure runner's, per
    tick) over the bare chain's time per tick, in both modes (target <= 1.2), and
    our wall time over the pure runner's.  The machine is shared and its speed
-   drifts within minutes, so the bare chain and ours run back to back in
-   ``--rounds`` rounds (default 5); each round gives one ratio per mode, and the
-   median over the rounds is the figure;
+   drifts by tens of % within a minute, so both graphs stay up for the whole
+   comparison and take turns: ``--segments`` pairs (default 16) of
+   ``--segment-ticks`` ticks (default 250) each, the bare chain stepped by its
+   plant process, ours by ``StepSimulation`` (``vesselbot run --start-paused``),
+   ours first in every other pair.  Each pair gives one ratio; the median over
+   the pairs is the figure (quartiles and range printed with it).  The graph
+   that waits is idle (its timers only);
 6. real-time mode: imager -> coil-driver latency (median, p99), measured by a
    probe node that timestamps, on one clock, the arrival of each fresh
    measurement and of the first ``coil/applied`` that answers it.
 
-Usage: .venv/bin/python bench/bench_graph.py [--config F] [--duration S] [--rounds N] [--skip-realtime]
+Usage: .venv/bin/python bench/bench_graph.py [--config F] [--duration S] [--segments N] [--segment-ticks N]
+       [--skip-realtime]
 """
 
 from __future__ import annotations
@@ -76,18 +81,29 @@ BARE = {"plant": ("d", ("clock", "state")), "r1": ("state", ("a",)), "r2": ("a",
 
 
 def plant_loop(node, emit, n_ticks: int, done, msg_cls, name: str, qos) -> None:
-    """The plant of a bare chain: tick k+1 on the answer to tick k; ``node.start()`` emits tick 0."""
-    state = {"t0": None}
+    """The plant of a bare chain: tick k+1 on the answer to tick k.
+
+    ``node.start()`` runs all ``n_ticks`` ticks; ``node.segment(n)`` runs the next ``n`` of them.  ``done``
+    gets the wall time (s) from the first emit to the last answer.
+    """
+    state = {"t0": 0.0, "next": 0, "end": n_ticks}
 
     def on_answer(msg):
         k = msg.header.stamp.nanosec + 1
-        if k < n_ticks:
+        state["next"] = k
+        if k < state["end"]:
             emit(k)
         else:
             done(time.perf_counter() - state["t0"])
 
+    def segment(n: int) -> None:
+        state["end"] = state["next"] + n
+        state["t0"] = time.perf_counter()
+        emit(state["next"])
+
     node.create_subscription(msg_cls, name, on_answer, qos)
-    node.start = lambda: (state.__setitem__("t0", time.perf_counter()), emit(0))
+    node.segment = segment
+    node.start = lambda: segment(n_ticks)
 
 
 def bare_nodes(context, n_ticks: int, names, done):
@@ -190,29 +206,42 @@ def topo_nodes(context, n_ticks: int, names, done):
     return nodes
 
 
-def bare_node_main(name: str, n_ticks: int) -> int:
-    """One bare-chain node as a process (``--bare-node NAME``); the plant prints the wall time."""
+def bare_node_main(name: str, n_ticks: int, stepped: bool = False) -> int:
+    """Bare-chain nodes as one process (``--bare-node NAME``); the process with the plant prints wall times.
+
+    ``NAME``: one node of the bare chain, ``bare:a,b,...`` several, or ``topo:a,b,...`` roles of the bare
+    topology.  ``--stepped``: the plant reads a tick count per line on stdin, runs that many ticks and
+    prints their wall time, until stdin closes; otherwise it runs all ``n_ticks`` once.
+    """
     import rclpy
     from rclpy.experimental import EventsExecutor
 
     rclpy.init()
     result = {}
-    topo = name.startswith("topo:")
-    names = name[5:].split(",") if topo else [name]
-    made = (topo_nodes if topo else bare_nodes)(None, n_ticks, names, lambda wall: result.setdefault("wall", wall))
-    node = next((nd for nd in made if nd.get_name().endswith("plant")), made[0])
-    name = "plant" if node.get_name().endswith("plant") else name
+    kind, _, group = name.partition(":")
+    names = group.split(",") if group else [name]
+    made = (topo_nodes if kind == "topo" else bare_nodes)(None, n_ticks, names, lambda wall: result.setdefault("wall", wall))
+    node = next((nd for nd in made if nd.get_name().endswith("plant")), None)
     ex = EventsExecutor()
     for nd in made:
         ex.add_node(nd)
-    if name == "plant":
+    if node is not None:
         while not node.ready():
             ex.spin_once(timeout_sec=0.05)
         time.sleep(1.0)  # every relay's matches settle too
-        node.start()
-        while "wall" not in result:
-            ex.spin_once(timeout_sec=0.1)
-        print(json.dumps(result), flush=True)
+        if not stepped:
+            node.start()
+            while "wall" not in result:
+                ex.spin_once(timeout_sec=0.1)
+            print(json.dumps(result), flush=True)
+            return 0
+        print(json.dumps({"ready": True}), flush=True)
+        for line in sys.stdin:
+            result.clear()
+            node.segment(int(line))
+            while "wall" not in result:
+                ex.spin_once(timeout_sec=0.1)
+            print(json.dumps(result), flush=True)
         return 0
     try:
         while rclpy.ok():
@@ -254,40 +283,160 @@ def run_node_processes(env: dict, n_ticks: int, others: list[str], plant: str) -
     return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
 
 
-def bare_chain(n_ticks: int, processes: bool) -> float:
-    """Wall time (s) of ``n_ticks`` lockstep ticks of the bare chain."""
-    import rclpy
-    from rclpy.experimental import EventsExecutor
+class SteppedBare:
+    """The bare chain's processes, alive through the whole comparison; :meth:`run` times its next ``n`` ticks.
 
-    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+    Processes: one per node; ``processes=False``: all five in one process.
+    """
 
-    with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
-        env = ros_environment(lease.domain_id, Path(d) / "log")
-        if processes:
-            return run_node_processes(env, n_ticks, ["r1", "r2", "r3", "r4"], "plant")
-        saved = apply_to_process(env)
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=lease.domain_id)
-        result = {}
+    def __init__(self, processes: bool, n_ticks: int) -> None:
+        from vesselbot_ros.ros_env import allocate_domain, ros_environment
+
+        self._lease = allocate_domain()
+        self._tmp = tempfile.TemporaryDirectory()
+        env = ros_environment(self._lease.domain_id, Path(self._tmp.name) / "log")
+
+        def argv(name: str, *more: str) -> list[str]:
+            return [sys.executable, __file__, "--bare-node", name, "--bare-ticks", str(n_ticks), *more]
+
+        relays = [r for r in BARE if r != "plant"]
+        self._others = [subprocess.Popen(argv(r), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                        for r in (relays if processes else [])]
+        self._plant = subprocess.Popen(argv("plant" if processes else "bare:" + ",".join(BARE), "--stepped"), env=env,
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                       text=True)
+        self._read()  # wired and settled
+
+    def _read(self) -> dict:
+        line = self._plant.stdout.readline()  # type: ignore[union-attr]
+        if not line:
+            raise SystemExit("bench: the bare chain's plant process ended early")
+        return json.loads(line)
+
+    def run(self, n: int) -> float:
+        """Wall time (s) of the next ``n`` ticks."""
+        self._plant.stdin.write(f"{n}\n")  # type: ignore[union-attr]
+        self._plant.stdin.flush()  # type: ignore[union-attr]
+        return float(self._read()["wall"])
+
+    def close(self) -> None:
+        import signal as sig
+
+        self._plant.stdin.close()  # type: ignore[union-attr]
+        self._plant.wait(timeout=20)
+        for p in self._others:
+            p.send_signal(sig.SIGINT)
+        for p in self._others:
+            p.wait(timeout=20)
+        self._lease.release()
+        self._tmp.cleanup()
+
+
+class SteppedOurs:
+    """``vesselbot run --start-paused`` (no recording), stepped by ``StepSimulation``; :meth:`run` times ``n`` ticks.
+
+    The timed call includes the service's round trip, which counts against us.
+    """
+
+    def __init__(self, extra: list[str], n_ticks: int, dt: float) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from simulation_interfaces.msg import SimulationState
+
+        from vesselbot_ros.graph_spec import import_type, resolve, service
+        from vesselbot_ros.ros_env import allocate_domain, apply_to_process, ros_environment
+
+        with allocate_domain() as lease:  # the launcher leases it again for the run; our client joins it
+            dom = lease.domain_id
+        self._tmp = tempfile.TemporaryDirectory()
+        self._metrics = Path(self._tmp.name) / "m.json"
+        cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", str(CONFIG), "--no-record", "--quiet",
+               "--start-paused", "--domain-id", str(dom), "--duration", repr(n_ticks * dt),
+               "--metrics-json", str(self._metrics), *extra]
+        self._proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self._saved = apply_to_process(ros_environment(dom, Path(self._tmp.name) / "log"))
+        self._ctx = rclpy.Context()
+        rclpy.init(context=self._ctx, domain_id=dom)
+        self._node = rclpy.create_node("bench_stepper", context=self._ctx)
+        self._ex = SingleThreadedExecutor(context=self._ctx)
+        self._ex.add_node(self._node)
+
+        def client(key: str):
+            spec = service(key)
+            return self._node.create_client(import_type(spec.srvtype), resolve(spec.rel))
+
+        self._step = client("step_simulation")
+        get_state = client("get_simulation_state")
+        deadline = time.monotonic() + 180
+        while True:
+            if self._proc.poll() is not None or time.monotonic() > deadline:
+                raise SystemExit(f"bench: our graph did not come up paused:\n{self._proc.stdout.read()}")
+            if get_state.service_is_ready():
+                state = self._call(get_state, get_state.srv_type.Request(), 10.0)
+                if state is not None and state.state.state == SimulationState.STATE_PAUSED:
+                    break
+            self._ex.spin_once(timeout_sec=0.1)
+
+    def _call(self, cli, req, timeout: float):
+        fut = cli.call_async(req)
+        deadline = time.monotonic() + timeout
+        while not fut.done() and time.monotonic() < deadline:
+            self._ex.spin_once(timeout_sec=0.05)
+        return fut.result() if fut.done() else None
+
+    def run(self, n: int) -> float:
+        """Wall time (s) of the next ``n`` ticks."""
+        from simulation_interfaces.msg import Result
+
+        req = self._step.srv_type.Request(steps=n)
+        t0 = time.perf_counter()
+        resp = self._call(self._step, req, 600.0)
+        wall = time.perf_counter() - t0
+        if resp is None or resp.result.result != Result.RESULT_OK:
+            raise SystemExit(f"bench: StepSimulation({n}) failed: {resp}")
+        return wall
+
+    def close(self) -> None:
+        """After the last tick the launcher ends the run by itself; an unfinished run is stopped."""
+        import rclpy
+
+        from vesselbot_ros.ros_env import restore_process_env
+
+        self._node.destroy_node()
+        rclpy.try_shutdown(context=self._ctx)
+        restore_process_env(self._saved)
         try:
-            nodes = bare_nodes(ctx, n_ticks, list(BARE), lambda wall: result.setdefault("wall", wall))
-            ex = EventsExecutor(context=ctx)
-            for nd in nodes:
-                ex.add_node(nd)
-            deadline = time.monotonic() + 60
-            while not all(nd.ready() for nd in nodes) and time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.05)
-            nodes[0].start()
-            while "wall" not in result:
-                ex.spin_once(timeout_sec=0.1)
-            for nd in nodes:
-                ex.remove_node(nd)
-                nd.destroy_node()
-            ex.shutdown()
-        finally:
-            rclpy.try_shutdown(context=ctx)
-            restore_process_env(saved)
-        return float(result["wall"])
+            self._proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            self._proc.send_signal(2)
+            self._proc.wait(timeout=60)
+        self._tmp.cleanup()
+
+
+def compare(processes: bool, segments: int, ticks: int, pure_tick_s: float, dt: float) -> list[tuple[float, float]]:
+    """``segments`` pairs of (bare chain, ours) wall per tick (s) over ``ticks`` ticks each, both graphs alive.
+
+    The two alternate every ``ticks`` ticks (ours first in every other pair), so a drift of the machine's
+    speed, which on a shared host reaches tens of % within a minute, hits both sides of a pair alike.
+    Ours is its graph overhead: wall minus the pure runner's time for the same ticks.
+    """
+    extra = [] if processes else ["--single-process"]
+    ours = SteppedOurs(extra, segments * ticks, dt)
+    bare = SteppedBare(processes, segments * ticks)
+    pairs = []
+    try:
+        for i in range(segments):
+            if i % 2:
+                o = ours.run(ticks)
+                b = bare.run(ticks)
+            else:
+                b = bare.run(ticks)
+                o = ours.run(ticks)
+            pairs.append((b / ticks, o / ticks - pure_tick_s))
+    finally:
+        bare.close()
+        ours.close()
+    return pairs
 
 
 def realtime_latency(duration: float, rtf: float) -> np.ndarray:
@@ -348,14 +497,16 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=None,
                     help="scenario (default: config/sound_small_artery.yaml, the one `make run` runs)")
     ap.add_argument("--skip-realtime", action="store_true")
-    ap.add_argument("--rounds", type=int, default=5, help="bare chain / ours side by side, this many times (median)")
+    ap.add_argument("--segments", type=int, default=16, help="pairs of bare chain / ours segments (median)")
+    ap.add_argument("--segment-ticks", type=int, default=250, help="ticks per segment")
     ap.add_argument("--rt-duration", type=float, default=0.5)
     ap.add_argument("--rt-factor", type=float, default=0.1, help="real-time factor of the latency run")
     ap.add_argument("--bare-node", help=argparse.SUPPRESS)
     ap.add_argument("--bare-ticks", type=int, default=2000, help=argparse.SUPPRESS)
+    ap.add_argument("--stepped", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.bare_node:
-        return bare_node_main(a.bare_node, a.bare_ticks)
+        return bare_node_main(a.bare_node, a.bare_ticks, a.stepped)
     if a.config is not None:
         global CONFIG
         CONFIG = a.config.resolve()
@@ -369,27 +520,28 @@ def main() -> int:
         print(f"bare, our topology, {mode + ':':11s}     wall {wall:7.2f} s   {wall / n * 1e6:7.0f} us/tick   "
               f"(our 8 per-tick topics, types, QoS and fan-out; no code per message)")
     print(f"pure runner:                       wall {pure:7.2f} s   RTF {sim / pure:6.3f}")
-    # the machine is shared: its speed drifts by tens of % within minutes, so the bare chain and ours run
-    # back to back, round after round, and each round gives one ratio; the median over rounds is the result
-    ratios: dict[str, list[float]] = {"processes": [], "single": []}
-    runs = (("lockstep, 6 node processes", [], "processes"), ("lockstep, --single-process", ["--single-process"], "single"))
-    for i in range(a.rounds):
-        print(f"round {i + 1} of {a.rounds}")
-        for label, extra, mode in runs:
-            bare_us = bare_chain(n, mode == "processes") / n * 1e6
-            print(f"  bare rclpy chain, {mode + ':':11s}     {bare_us:7.0f} us/tick")
-            r = ros_run(extra, a.duration)
-            over_us = (r["wall_s"] - pure) / n * 1e6
-            ratios[mode].append(over_us / bare_us)
-            print(f"  {label:32s} wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
-                  f"ROS/pure {r['wall_s'] / pure:6.1f}   graph overhead {over_us:6.0f} us/tick   "
-                  f"ours/bare chain {over_us / bare_us:5.2f}   ours/bare topology {r['wall_s'] / topo[mode]:5.2f}")
+    pure_tick = pure / n
+    dt = sim / n
+    medians = {}
+    for mode, label in (("processes", "6 node processes"), ("single", "--single-process")):
+        pairs = np.asarray(compare(mode == "processes", a.segments, a.segment_ticks, pure_tick, dt))
+        bare_us, ours_us = pairs[:, 0] * 1e6, pairs[:, 1] * 1e6
+        ratio = ours_us / bare_us
+        medians[mode] = float(np.median(ratio))
+        q1, q3 = np.percentile(ratio, [25, 75])
+        print(f"lockstep, {label:17s} {a.segments} x {a.segment_ticks} ticks alternating with the bare chain:")
+        print(f"  bare rclpy chain, {mode + ':':11s}  median {np.median(bare_us):6.0f} us/tick "
+              f"(range {bare_us.min():.0f}-{bare_us.max():.0f})")
+        print(f"  ours, graph overhead:          median {np.median(ours_us):6.0f} us/tick "
+              f"(range {ours_us.min():.0f}-{ours_us.max():.0f})   RTF {1.0 / (np.median(ours_us) * 1e-6 + pure_tick) * dt:6.3f}"
+              f"   ours/bare topology {np.median(ours_us) / (topo[mode] / n * 1e6):5.2f}")
+        print(f"  ours/bare chain per pair:      median {medians[mode]:5.2f}  quartiles {q1:.2f}-{q3:.2f}  "
+              f"range {ratio.min():.2f}-{ratio.max():.2f}")
     r = ros_run(["--single-process", "--no-intra-process"], a.duration)
     print(f"lockstep, --single-process --no-intra-process: wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
           f"graph overhead {(r['wall_s'] - pure) / n * 1e6:6.0f} us/tick   ours/bare topology {r['wall_s'] / topo['single']:5.2f}")
-    for mode, rs in ratios.items():
-        print(f"ours/bare chain, {mode + ':':11s} median {float(np.median(rs)):5.2f} over {len(rs)} rounds "
-              f"({', '.join(f'{x:.2f}' for x in rs)})   target <= 1.2")
+    for mode, med in medians.items():
+        print(f"ours/bare chain, {mode + ':':11s} median {med:5.2f} over {a.segments} pairs   target <= 1.2")
     print(f"load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after (2 cores; other jobs share them)")
     if not a.skip_realtime:
         lat = realtime_latency(a.rt_duration, a.rt_factor)

@@ -289,7 +289,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         #: the process's intra-process bus, if composed with one (lockstep only)
         self._intra = _INTRA if self.lockstep else None
         #: topic key -> (its DDS publisher, its matched-readers count), for topics also delivered intra-process
-        self._pub_intra: dict[str, tuple[Any, Callable[[], int]]] = {}
+        self._pub_intra: set[str] = set()  # topic keys also delivered intra-process
+        self._readers: dict[str, Callable[[], int]] = {}  # topic key -> its matched DDS readers (volatile topics)
         self._subs_intra: list[str] = []  # topic keys received intra-process
         self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         from rclpy.clock import Clock, ClockType
@@ -486,8 +487,12 @@ class VesselbotNode(Node):  # type: ignore[misc]
         bus = self._intra
         if bus is not None and bus.carries(key):
             bus.add_publisher(key)
-            # the handle's own count: a quarter of Publisher.get_subscription_count's cost, on every publish
-            self._pub_intra[key] = (pub, pub.handle.get_subscription_count)
+            self._pub_intra.add(key)
+        if bus is not None and bus.carries(key) or spec.qos != "reliable_latched":
+            # a volatile message no reader is matched to is not serialized (a late joiner gets a latched
+            # topic's last message, so those are always published); the handle's own count is a quarter of
+            # Publisher.get_subscription_count's cost, on every publish
+            self._readers[key] = pub.handle.get_subscription_count
         return pub
 
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
@@ -524,22 +529,22 @@ class VesselbotNode(Node):  # type: ignore[misc]
         """Publish on topic ``key`` and count it for diagnostics.
 
         Composed (:class:`IntraProcess`): co-located subscribers get the
-        message itself; DDS carries it only when a subscriber outside the
-        process is matched (a message with no reader is not serialized).
+        message itself.  DDS carries a volatile topic's message only when a
+        reader is matched (outside the process, when composed): a message no
+        one can receive is not serialized, yet counted as published, since a
+        reader that joins later could not have had it either.  Latched topics
+        are always published (a late joiner gets the last one).
         Real time: nothing is published once the node finished (its final
         diagnostics hold its final counts, which the launcher checks against the bag).
         """
         if self.finished and not self.lockstep:
             return
-        intra = self._pub_intra.get(key)
-        wire = self._wire_out.get(key)
-        if intra is None:
-            self._pubs[key].publish(msg if wire is None else wire(msg))
-        else:
+        if key in self._pub_intra:
             self._intra.post(key, msg)  # type: ignore[union-attr]
-            pub, matched = intra
-            if matched():
-                pub.publish(msg if wire is None else wire(msg))
+        readers = self._readers.get(key)
+        if readers is None or readers():
+            wire = self._wire_out.get(key)
+            self._pubs[key].publish(msg if wire is None else wire(msg))
         self._published[topic(key).name] += 1
         if key in self._series_keys:
             self.series.add(key, msg)

@@ -99,7 +99,9 @@ ALREADY = "already in the target state"
 PLANT_STAT_NAMES = role("plant").counters
 #: Lockstep: wall time (s) a tick waits for its coil/applied once commands are lost (see the module docstring).
 LOST_GRACE_S = 0.02
-#: Lockstep: period (s, wall) of the check for a late coil/applied.
+#: Lockstep: period (s, wall) of the check for a late coil/applied while commands are lost; while ticks
+#: are answered in time the check runs every tenth of ``graph.stall_timeout_s``, at most every 50 ms
+#: (a timer that wakes the plant 200 times a second costs the loop CPU on every tick).
 STALL_POLL_S = 0.005
 
 
@@ -143,7 +145,10 @@ class PlantNode(VesselbotNode):
         self._rt_timer = None
         self._poll = self.create_timer(0.05, self._housekeeping, clock=self._wall)
         if self.lockstep:
-            self._stall_timer = self.create_timer(STALL_POLL_S, self._stall_check, clock=self._wall)
+            slow = min(0.05, max(STALL_POLL_S, self.graph.stall_timeout_s / 10))
+            self._stall_timer = self.create_timer(slow, self._stall_check, clock=self._wall)
+            self._stall_fast = self.create_timer(STALL_POLL_S, self._stall_check, clock=self._wall)
+            self._stall_fast.cancel()  # runs while commands are lost
         from vesselbot_ros.nodes.simulation_control import SimulationControl
 
         self.simulation = SimulationControl(self)
@@ -323,6 +328,8 @@ class PlantNode(VesselbotNode):
     def _stall_check(self) -> None:
         """Lockstep: ask the coil driver to answer the tick in flight itself when its coil/applied is late."""
         with self._lock:
+            if not self._commands_lost and not self._stall_fast.is_canceled():
+                self._stall_fast.cancel()  # commands came again (or a reset): back to the slow check
             if self.idle or self._stall_sent == self.k:  # no tick in flight, or this one asked for already
                 return
             wait = self.graph.stall_timeout_s
@@ -331,6 +338,8 @@ class PlantNode(VesselbotNode):
             if time.monotonic() - self._last_emit_wall < wait:
                 return
             self._stall_sent, self._commands_lost = self.k, True
+            if self._stall_fast.is_canceled():
+                self._stall_fast.reset()
             self.publish("coil_stall", cv.header(cv.tick_time(self.k, self.dt)))
 
     # ------------------------------------------------------------------ ticks
