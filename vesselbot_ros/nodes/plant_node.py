@@ -117,6 +117,8 @@ class PlantNode(VesselbotNode):
         # the gate's lock: taken by this node's callbacks and by the simulation_interfaces thread
         self._lock = threading.RLock()
         self._cond = threading.Condition(self._lock)
+        self._wake_tick: int | None = None  # the lowest tick a thread waits for (wait_for_tick)
+        self._idle_waiters = 0  # threads waiting for the loop to be idle (wait_idle)
         self.sim_state = STOPPED
         self.running = False
         self.paused = False
@@ -275,14 +277,29 @@ class PlantNode(VesselbotNode):
             self._budget = 0
 
     def wait_for_tick(self, target: int, timeout_s: float) -> bool:
-        """Block (another thread) until tick ``target`` is reached or the run finished; False on timeout."""
+        """Block (another thread) until tick ``target`` is reached or the run finished; False on timeout.
+
+        A tick wakes a waiter only when it reaches the lowest tick waited for, not on every tick: a
+        stepping client's thread would otherwise take the GIL from the loop once per tick.
+        """
+        end = time.monotonic() + timeout_s
         with self._cond:
-            return self._cond.wait_for(lambda: self.k >= target or self.finished, timeout_s)
+            while not (self.k >= target or self.finished):
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._wake_tick = target if self._wake_tick is None else min(self._wake_tick, target)
+                self._cond.wait(left)
+            return True
 
     def wait_idle(self, timeout_s: float) -> bool:
         """Block (another thread) until no tick is in flight; False on timeout."""
         with self._cond:
-            return self._cond.wait_for(lambda: self.idle, timeout_s)
+            self._idle_waiters += 1
+            try:
+                return self._cond.wait_for(lambda: self.idle, timeout_s)
+            finally:
+                self._idle_waiters -= 1
 
     def hold(self) -> str:
         """Close the gate for a reset; returns the state to go back to."""
@@ -386,7 +403,9 @@ class PlantNode(VesselbotNode):
             self._release()
         else:
             self._emit()
-        self._cond.notify_all()
+        if (self._wake_tick is not None and self.k >= self._wake_tick) or (self._idle_waiters and self.idle):
+            self._wake_tick = None  # waiters still short of their tick set it again
+            self._cond.notify_all()
 
     # ------------------------------------------------------------------ the gate (lockstep), under self._lock
     def _release(self) -> None:
