@@ -214,6 +214,7 @@ def bare_node_main(name: str, n_ticks: int, stepped: bool = False) -> int:
     prints their wall time, until stdin closes; otherwise it runs all ``n_ticks`` once.
     """
     import rclpy
+    from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor
 
     rclpy.init()
@@ -225,30 +226,48 @@ def bare_node_main(name: str, n_ticks: int, stepped: bool = False) -> int:
     ex = EventsExecutor()
     for nd in made:
         ex.add_node(nd)
-    if node is not None:
+    try:
+        if node is None:  # relays: until SIGINT
+            while rclpy.ok():
+                ex.spin_once(timeout_sec=0.1)
+            return 0
         while not node.ready():
             ex.spin_once(timeout_sec=0.05)
         time.sleep(1.0)  # every relay's matches settle too
-        if not stepped:
-            node.start()
-            while "wall" not in result:
-                ex.spin_once(timeout_sec=0.1)
-            print(json.dumps(result), flush=True)
-            return 0
-        print(json.dumps({"ready": True}), flush=True)
-        for line in sys.stdin:
+        counts = [n_ticks] if not stepped else None
+        if stepped:
+            print(json.dumps({"ready": True}), flush=True)
+        for line in counts or sys.stdin:
             result.clear()
-            node.segment(int(line))
+            if stepped:
+                node.segment(int(line))
+            else:
+                node.start()
             while "wall" not in result:
                 ex.spin_once(timeout_sec=0.1)
             print(json.dumps(result), flush=True)
         return 0
-    try:
-        while rclpy.ok():
-            ex.spin_once(timeout_sec=0.1)
-    except KeyboardInterrupt:
-        pass
-    return 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:  # an executor left to the interpreter's exit can hang it
+        ex.shutdown()
+        for nd in made:
+            nd.destroy_node()
+        rclpy.try_shutdown()
+
+
+def stop(procs: list[subprocess.Popen]) -> None:
+    """SIGINT every relay process; one that has not exited within 20 s is killed."""
+    import signal as sig
+
+    for p in procs:
+        p.send_signal(sig.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def topo_chain(n_ticks: int, processes: bool) -> float:
@@ -267,8 +286,6 @@ def topo_chain(n_ticks: int, processes: bool) -> float:
 
 def run_node_processes(env: dict, n_ticks: int, others: list[str], plant: str) -> float:
     """Start the ``--bare-node`` processes ``others``, run ``plant`` to the end, stop them; the plant's wall time."""
-    import signal as sig
-
     def argv(name: str) -> list[str]:
         return [sys.executable, __file__, "--bare-node", name, "--bare-ticks", str(n_ticks)]
 
@@ -276,11 +293,16 @@ def run_node_processes(env: dict, n_ticks: int, others: list[str], plant: str) -
     try:
         out = subprocess.run(argv(plant), env=env, capture_output=True, text=True, timeout=600)
     finally:
-        for p in procs:
-            p.send_signal(sig.SIGINT)
-        for p in procs:
-            p.wait(timeout=20)
+        stop(procs)
     return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
+
+
+def _exits(p: subprocess.Popen, timeout: float) -> bool:
+    try:
+        p.wait(timeout=timeout)
+        return True
+    except subprocess.TimeoutExpired:
+        return False
 
 
 class SteppedBare:
@@ -320,14 +342,9 @@ class SteppedBare:
         return float(self._read()["wall"])
 
     def close(self) -> None:
-        import signal as sig
-
         self._plant.stdin.close()  # type: ignore[union-attr]
-        self._plant.wait(timeout=20)
-        for p in self._others:
-            p.send_signal(sig.SIGINT)
-        for p in self._others:
-            p.wait(timeout=20)
+        stop([self._plant] if self._plant.poll() is None and not _exits(self._plant, 20) else [])
+        stop(self._others)
         self._lease.release()
         self._tmp.cleanup()
 
