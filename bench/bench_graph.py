@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -83,8 +84,8 @@ BARE = {"plant": ("d", ("clock", "state")), "r1": ("state", ("a",)), "r2": ("a",
 def plant_loop(node, emit, n_ticks: int, done, msg_cls, name: str, qos) -> None:
     """The plant of a bare chain: tick k+1 on the answer to tick k.
 
-    ``node.start()`` runs all ``n_ticks`` ticks; ``node.segment(n)`` runs the next ``n`` of them.  ``done``
-    gets the wall time (s) from the first emit to the last answer.
+    ``node.segment(n)`` runs the next ``n`` of its ``n_ticks`` ticks; ``done`` gets their wall time (s),
+    from the first emit to the last answer.
     """
     state = {"t0": 0.0, "next": 0, "end": n_ticks}
 
@@ -103,7 +104,6 @@ def plant_loop(node, emit, n_ticks: int, done, msg_cls, name: str, qos) -> None:
 
     node.create_subscription(msg_cls, name, on_answer, qos)
     node.segment = segment
-    node.start = lambda: segment(n_ticks)
 
 
 def bare_nodes(context, n_ticks: int, names, done):
@@ -234,15 +234,11 @@ def bare_node_main(name: str, n_ticks: int, stepped: bool = False) -> int:
         while not node.ready():
             ex.spin_once(timeout_sec=0.05)
         time.sleep(1.0)  # every relay's matches settle too
-        counts = [n_ticks] if not stepped else None
         if stepped:
             print(json.dumps({"ready": True}), flush=True)
-        for line in counts or sys.stdin:
+        for line in sys.stdin if stepped else [n_ticks]:
             result.clear()
-            if stepped:
-                node.segment(int(line))
-            else:
-                node.start()
+            node.segment(int(line))
             while "wall" not in result:
                 ex.spin_once(timeout_sec=0.1)
             print(json.dumps(result), flush=True)
@@ -258,10 +254,8 @@ def bare_node_main(name: str, n_ticks: int, stepped: bool = False) -> int:
 
 def stop(procs: list[subprocess.Popen]) -> None:
     """SIGINT every relay process; one that has not exited within 20 s is killed."""
-    import signal as sig
-
     for p in procs:
-        p.send_signal(sig.SIGINT)
+        p.send_signal(signal.SIGINT)
     for p in procs:
         try:
             p.wait(timeout=20)
@@ -295,14 +289,6 @@ def run_node_processes(env: dict, n_ticks: int, others: list[str], plant: str) -
     finally:
         stop(procs)
     return float(json.loads(out.stdout.strip().splitlines()[-1])["wall"])
-
-
-def _exits(p: subprocess.Popen, timeout: float) -> bool:
-    try:
-        p.wait(timeout=timeout)
-        return True
-    except subprocess.TimeoutExpired:
-        return False
 
 
 class SteppedBare:
@@ -343,7 +329,11 @@ class SteppedBare:
 
     def close(self) -> None:
         self._plant.stdin.close()  # type: ignore[union-attr]
-        stop([self._plant] if self._plant.poll() is None and not _exits(self._plant, 20) else [])
+        try:  # the plant process ends at the end of its stdin
+            self._plant.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self._plant.kill()
+            self._plant.wait()
         stop(self._others)
         self._lease.release()
         self._tmp.cleanup()
@@ -366,10 +356,8 @@ class SteppedOurs:
         with allocate_domain() as lease:  # the launcher leases it again for the run; our client joins it
             dom = lease.domain_id
         self._tmp = tempfile.TemporaryDirectory()
-        self._metrics = Path(self._tmp.name) / "m.json"
         cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", str(CONFIG), "--no-record", "--quiet",
-               "--start-paused", "--domain-id", str(dom), "--duration", repr(n_ticks * dt),
-               "--metrics-json", str(self._metrics), *extra]
+               "--start-paused", "--domain-id", str(dom), "--duration", repr(n_ticks * dt), *extra]
         self._proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self._saved = apply_to_process(ros_environment(dom, Path(self._tmp.name) / "log"))
         self._ctx = rclpy.Context()
@@ -425,7 +413,7 @@ class SteppedOurs:
         try:
             self._proc.wait(timeout=120)
         except subprocess.TimeoutExpired:
-            self._proc.send_signal(2)
+            self._proc.send_signal(signal.SIGINT)
             self._proc.wait(timeout=60)
         self._tmp.cleanup()
 
@@ -549,13 +537,15 @@ def main() -> int:
         print(f"lockstep, {label:17s} {a.segments} x {a.segment_ticks} ticks alternating with the bare chain:")
         print(f"  bare rclpy chain, {mode + ':':11s}  median {np.median(bare_us):6.0f} us/tick "
               f"(range {bare_us.min():.0f}-{bare_us.max():.0f})")
+        ours_tick = np.median(ours_us) * 1e-6 + pure_tick  # wall per tick
         print(f"  ours, graph overhead:          median {np.median(ours_us):6.0f} us/tick "
-              f"(range {ours_us.min():.0f}-{ours_us.max():.0f})   RTF {1.0 / (np.median(ours_us) * 1e-6 + pure_tick) * dt:6.3f}"
-              f"   ours/bare topology {np.median(ours_us) / (topo[mode] / n * 1e6):5.2f}")
+              f"(range {ours_us.min():.0f}-{ours_us.max():.0f})   RTF {dt / ours_tick:6.3f}   "
+              f"ROS/pure {ours_tick / pure_tick:6.1f}   ours/bare topology {np.median(ours_us) / (topo[mode] / n * 1e6):5.2f}")
         print(f"  ours/bare chain per pair:      median {medians[mode]:5.2f}  quartiles {q1:.2f}-{q3:.2f}  "
               f"range {ratio.min():.2f}-{ratio.max():.2f}")
     r = ros_run(["--single-process", "--no-intra-process"], a.duration)
     print(f"lockstep, --single-process --no-intra-process: wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
+          f"ROS/pure {r['wall_s'] / pure:6.1f}   "
           f"graph overhead {(r['wall_s'] - pure) / n * 1e6:6.0f} us/tick   ours/bare topology {r['wall_s'] / topo['single']:5.2f}")
     for mode, med in medians.items():
         print(f"ours/bare chain, {mode + ':':11s} median {med:5.2f} over {a.segments} pairs   target <= 1.2")

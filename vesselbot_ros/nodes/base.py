@@ -288,7 +288,6 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._optional_inputs = frozenset(graph_role(role).optional_inputs)
         #: the process's intra-process bus, if composed with one (lockstep only)
         self._intra = _INTRA if self.lockstep else None
-        #: topic key -> (its DDS publisher, its matched-readers count), for topics also delivered intra-process
         self._pub_intra: set[str] = set()  # topic keys also delivered intra-process
         self._readers: dict[str, Callable[[], int]] = {}  # topic key -> its matched DDS readers (volatile topics)
         self._subs_intra: list[str] = []  # topic keys received intra-process
@@ -485,10 +484,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if codec is not None:  # one struct call instead of rclpy's field-by-field conversion (nodes/wire.py)
             self._wire_out[key] = codec.encode
         bus = self._intra
-        if bus is not None and bus.carries(key):
+        if bus is not None and bus.carries(key):  # the bus carries volatile topics only
             bus.add_publisher(key)
             self._pub_intra.add(key)
-        if bus is not None and bus.carries(key) or spec.qos != "reliable_latched":
+        if spec.qos != "reliable_latched":
             # a volatile message no reader is matched to is not serialized (a late joiner gets a latched
             # topic's last message, so those are always published); the handle's own count is a quarter of
             # Publisher.get_subscription_count's cost, on every publish
