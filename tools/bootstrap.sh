@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Idempotent setup of everything `make run` and `make test` need, from nothing:
 #   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...)
-#   2. msg_defs/ (vesselbot_msgs) and third_party/simulation_interfaces built with rosidl into .venv
-#   3. vesselbot_ros installed in editable mode
-#   4. numba cache of the compiled stages and loop warmed (vesselbot_ros.numba_cache)
+#   2. vesselbot_ros installed in editable mode
+#   3. msg_defs/ (vesselbot_msgs) and third_party/simulation_interfaces built with rosidl into .venv
+#   4. numba cache of the compiled stages and loop warmed (vesselbot_ros.numba_cache), in the
+#      background from step 2 on (one core; the interface builds take the other)
 #   5. tools/js: Foxglove's own JavaScript readers and clients (npm ci from the committed lock file),
 #      which the integration tests run with node
 # Each step is skipped when the sha256 of its inputs matches the stamp it left,
@@ -20,7 +21,7 @@ fresh() { [ -f "$stamps/$1" ] && [ "$(cat "$stamps/$1")" = "$2" ]; }
 quiet_pip() {  # pip without the local index's noise; fails when pip fails
   local out rc=0
   out=$("$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2>&1) || rc=$?
-  grep -v "is ignored: it is neither a file nor a directory" <<<"$out" || true
+  [ -z "$out" ] || grep -v "is ignored: it is neither a file nor a directory" <<<"$out" || true
   if [ $rc -ne 0 ]; then echo "vesselbot bootstrap: pip $1 failed (exit $rc)" >&2; exit $rc; fi
 }
 mark() { mkdir -p "$stamps"; echo "$2" > "$stamps/$1"; }
@@ -47,28 +48,7 @@ if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
   mark requirements "$req"
 fi
 
-# 2. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
-ifc=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
-      $(find msg_defs -type f | LC_ALL=C sort))
-if ! fresh interfaces "$ifc"; then
-  echo "vesselbot bootstrap: building msg_defs (vesselbot_msgs) into .venv"
-  rm -f "$stamps/interfaces"
-  tools/build_interfaces.sh "$venv" msg_defs build/msg_defs
-  mark interfaces "$ifc"
-fi
-
-# 2b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
-sif=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
-      $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
-           -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
-if ! fresh sim-interfaces "$sif"; then
-  echo "vesselbot bootstrap: building third_party/simulation_interfaces into .venv"
-  rm -f "$stamps/sim-interfaces"
-  tools/build_interfaces.sh "$venv" third_party/simulation_interfaces build/simulation_interfaces
-  mark sim-interfaces "$sif"
-fi
-
-# 3. vesselbot_ros itself, editable
+# 2. vesselbot_ros itself, editable (before the interfaces: it needs none of them, and the numba warm-up needs it)
 # the console scripts derive from the graph spec
 pkg=$(hash_files setup.py setup.cfg package.xml requirements.txt vesselbot_ros/graph_spec.py)
 if ! fresh package "$pkg"; then
@@ -80,13 +60,48 @@ fi
 
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
 #    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
-#    of other code on import; this only warms them).  About 1-2 min on a fresh machine.
+#    of other code on import; this only warms them).  About 2-3 min on a fresh machine, on one core:
+#    it runs in the background while the interfaces build (it needs none of them), and is waited for
+#    before the bootstrap ends.
 nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
+numba_pid=
 if ! fresh numba-cache "$nb"; then
-  echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code)"
+  echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code, in the background)"
   rm -f "$stamps/numba-cache"
-  (cd / && "$venv/bin/python" -c "from vesselbot_ros.numba_cache import warm; warm()") || { echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1; }
+  numba_log=$(mktemp)
+  (cd / && exec "$venv/bin/python" -c "from vesselbot_ros.numba_cache import warm; warm()") >"$numba_log" 2>&1 &
+  numba_pid=$!
+fi
+numba_done() {  # wait for the background warm-up; stamp it, or show its error and fail
+  [ -n "$numba_pid" ] || return 0
+  if ! wait "$numba_pid"; then
+    tail -30 "$numba_log" >&2; rm -f "$numba_log"
+    echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1
+  fi
+  rm -f "$numba_log"; numba_pid=
   mark numba-cache "$nb"
+}
+trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
+
+# 3. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
+ifc=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+      $(find msg_defs -type f | LC_ALL=C sort))
+if ! fresh interfaces "$ifc"; then
+  echo "vesselbot bootstrap: building msg_defs (vesselbot_msgs) into .venv"
+  rm -f "$stamps/interfaces"
+  tools/build_interfaces.sh "$venv" msg_defs build/msg_defs
+  mark interfaces "$ifc"
+fi
+
+# 3b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
+sif=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+      $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
+           -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
+if ! fresh sim-interfaces "$sif"; then
+  echo "vesselbot bootstrap: building third_party/simulation_interfaces into .venv"
+  rm -f "$stamps/sim-interfaces"
+  tools/build_interfaces.sh "$venv" third_party/simulation_interfaces build/simulation_interfaces
+  mark sim-interfaces "$sif"
 fi
 
 # 5. Foxglove's JavaScript packages for the tests (exact versions from tools/js/package-lock.json)
@@ -97,3 +112,5 @@ if ! fresh npm "$js" || [ ! -d tools/js/node_modules ]; then
   (cd tools/js && npm ci --no-audit --no-fund --loglevel=error) || { echo "vesselbot bootstrap: npm ci in tools/js failed" >&2; exit 1; }
   mark npm "$js"
 fi
+
+numba_done

@@ -580,13 +580,13 @@ class VesselbotNode(Node):  # type: ignore[misc]
 
     def _network_clearance(self, x: float, z: float) -> float:
         """Signed distance (m) of (x, z) to the network's wall at its widest (diameter pulsation), > 0 inside."""
-        from vesselbot_ros.vessels.network import NetworkGeometry, load_network
-
         geom = getattr(self, "_net_geom", None)
         if geom is None:
+            from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+
             geom = self._net_geom = NetworkGeometry(load_network(self.scenario.physics.vessel.network))
-        q = geom.query(np.array([[x, z]]))
-        return float(q["sdist"][0] + 0.5 * q["diameter"][0] * self.scenario.physics.flow.diameter_pulsation)
+        s, diameter = geom.clearance(x, z)
+        return s + 0.5 * diameter * self.scenario.physics.flow.diameter_pulsation
 
     def check(
         self,

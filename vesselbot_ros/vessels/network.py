@@ -34,6 +34,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -393,6 +394,25 @@ class NetworkGeometry:
         # outside the lumen the inward normal points to the centreline too (towards the foot)
         return {"sdist": sd, "normal": nrm, "diameter": diam, "branch": br, "arc": arc}
 
+    @cached_property
+    def _flat(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+                             npt.NDArray[np.int64]]:
+        """Every branch's smoothed centreline in one set of arrays: (x (n,), z (n,), radius (n,), starts (b + 1,))."""
+        parts = [self.branches[n] for n in self.names]
+        starts = np.concatenate([[0], np.cumsum([len(p[0]) for p in parts])]).astype(np.int64)
+        pts = np.concatenate([p[0] for p in parts])
+        return (np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                np.concatenate([p[1] for p in parts]), starts)
+
+    def clearance(self, x_m: float, z_m: float) -> tuple[float, float]:
+        """(signed distance (m, > 0 inside), diameter (m)) at one point: :meth:`query` for a scalar, compiled.
+
+        The same nearest-vertex, two-segment search and the same arithmetic as :meth:`query`, in a few
+        microseconds instead of a few hundred (the nodes check every position they receive with it).
+        """
+        xs, zs, rad, starts = self._flat
+        return _point_clearance(float(x_m), float(z_m), xs, zs, rad, starts)
+
     def signed_distance(self, points_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """(m,) signed distance to the wall (m), > 0 inside the lumen."""
         return self.query(points_m)["sdist"]
@@ -401,6 +421,41 @@ class NetworkGeometry:
         """(n, 2) concatenated smoothed centreline through ``branch_names`` (m)."""
         parts = [self.branches[n][0] for n in branch_names]
         return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_clearance(px, pz, xs, zs, rad, starts):  # type: ignore[no-untyped-def]
+    """:meth:`NetworkGeometry.clearance`: per branch the polyline point nearest (px, pz) on the two segments
+    next to its nearest vertex; the branch of the largest signed distance (radius at the foot minus distance)."""
+    best_s = -np.inf
+    best_r = 0.0
+    for b in range(len(starts) - 1):
+        lo, hi = starts[b], starts[b + 1]
+        j = lo
+        dmin = np.inf
+        for i in range(lo, hi):
+            dx = xs[i] - px
+            dz = zs[i] - pz
+            d2 = dx * dx + dz * dz
+            if d2 < dmin:
+                dmin = d2
+                j = i
+        dist = np.inf
+        r = 0.0
+        for seg in (max(j - 1, lo), min(j, hi - 2)):
+            ax, az = xs[seg], zs[seg]
+            dx = xs[seg + 1] - ax
+            dz = zs[seg + 1] - az
+            t = ((px - ax) * dx + (pz - az) * dz) / max(dx * dx + dz * dz, 1e-300)
+            t = min(max(t, 0.0), 1.0)
+            d = math.hypot(px - (ax + t * dx), pz - (az + t * dz))
+            if d < dist:
+                dist = d
+                r = rad[seg] + t * (rad[seg + 1] - rad[seg])
+        if r - dist > best_s:
+            best_s = r - dist
+            best_r = r
+    return best_s, 2.0 * best_r
 
 
 def route_to_outlet(net: VesselNetworkParams, outlet: str) -> list[str]:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, route_to_outlet
@@ -73,3 +75,14 @@ def test_shipped_networks_load() -> None:
     net = load_network("paper_iiic_artery")
     assert net.outlets == ["side_down", "side_up", "upper", "lower"]
     assert load_network("config/vessels/straight_table3.yaml").root.name == "trunk"
+
+
+@settings(max_examples=300, deadline=None)
+@given(name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen", "straight_table3"]),
+       u=st.floats(-0.1, 1.1), v=st.floats(-0.1, 1.1))
+def test_point_clearance_equals_the_vectorised_query_bit_for_bit(name: str, u: float, v: float) -> None:
+    g = NetworkGeometry(load_network(name))
+    x0, x1, z0, z1 = g.bbox  # points in and around the lumen's bounding box, 10 % beyond each side
+    x, z = x0 + u * (x1 - x0), z0 + v * (z1 - z0)
+    q = g.query(np.array([[x, z]]))
+    assert g.clearance(x, z) == (q["sdist"][0], q["diameter"][0])
