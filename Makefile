@@ -21,16 +21,19 @@ bootstrap:
 run: bootstrap
 	@$(PY) -m vesselbot_ros.cli run $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED) --report
 
-## The whole test suite (unit + integration over real ROS 2 topics). The unit tests are pure and run on
-## two workers; the integration tests run one at a time (real-time runs and stall timeouts measure wall time).
+## The whole test suite (unit + integration over real ROS 2 topics), on two workers (each test leases its
+## own ROS domain; a module's tests stay on one worker, so its module fixtures run once).  The tests that
+## bound wall time tightly (marker `wallclock`: real-time runs, process-exit deadlines) run alone, last.
+INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not wallclock" $(PYTEST_ARGS) \
+	&& $(PY) -m pytest test/integration -q -m wallclock $(PYTEST_ARGS)
 test: bootstrap
-	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS) && $(PY) -m pytest test/integration -q $(PYTEST_ARGS)
+	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS) && $(INTEGRATION)
 
 test-unit: bootstrap
 	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS)
 
 test-integration: bootstrap
-	@$(PY) -m pytest test/integration -q $(PYTEST_ARGS)
+	@$(INTEGRATION)
 
 ## ROS-free closed loop of the same scenario.
 simulate: bootstrap

@@ -24,3 +24,8 @@ def ros(tmp_path):
 def repo() -> Path:
     """The repository root."""
     return REPO
+
+
+def pytest_collection_modifyitems(config, items):  # type: ignore[no-untyped-def]
+    """Tests marked ``slow`` first (stable): on two workers the longest ones start early instead of ending the run alone."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

@@ -62,6 +62,7 @@ def _topics(info):
     return sorted({m.topic for m in iter_messages(info)})
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(260)
 def test_same_seed_gives_identical_messages_on_every_topic(three_runs):
     a, b = three_runs["a"], three_runs["b"]

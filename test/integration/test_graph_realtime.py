@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
+pytestmark = pytest.mark.wallclock  # real-time runs: a second test's load would cost them periods
 
 from _runs import HERE, REPO, diagnostics, hostile_env, run_cmd  # noqa: E402
 

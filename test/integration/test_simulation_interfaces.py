@@ -43,6 +43,7 @@ def _per_tick_messages(bag):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("composed", [[], ["--single-process"]], ids=["processes", "single_process"])
 def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, composed):

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("rclpy")
+pytestmark = pytest.mark.wallclock  # the nodes must be gone within 5 s of wall time
 
 from _runs import children, popen_run  # noqa: E402
 
