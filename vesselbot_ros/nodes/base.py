@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 import time
 from collections import Counter
@@ -810,8 +811,15 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
         ex.shutdown()
 
 
-def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None) -> int:
+def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *, exit_process: bool = False) -> int:
     """``main()`` of a node process: init, build, spin, clean up.
+
+    Args:
+        node_cls: The node class.
+        argv: Command line (``sys.argv`` if None).
+        exit_process: End the process right after the node's clean-up, with
+            the code this would return (``python -m`` and the console
+            scripts), instead of returning.  A runtime error still raises.
 
     Returns:
         0 on a clean stop (SIGINT, SIGTERM or end of run), 2 on an invalid
@@ -824,17 +832,19 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None) ->
     role_name = getattr(node_cls, "ROLE", "node")
     exe = f"vesselbot_{role_name}"
     node = None
+    code = 0
     rclpy.init(args=args)
     try:
         try:
             node = node_cls()
         except ConfigError as exc:
             print(f"{exe}: invalid parameter: {exc}", file=sys.stderr, flush=True)
-            return 2
+            code = 2
+            return code
         spin_nodes([node], stop=lambda: node.done)
-        return 0
+        return code
     except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
+        return code
     finally:
         if node is not None:
             try:
@@ -842,6 +852,13 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None) ->
             except Exception:  # noqa: BLE001 - best effort during shutdown
                 pass
         rclpy.try_shutdown()
+        if exit_process and sys.exc_info()[0] in (None, KeyboardInterrupt, ExternalShutdownException):
+            # Everything of the node is shut down and nothing is left to write: end the process here.  The
+            # interpreter's own teardown (numba's and LLVM's objects, the DDS libraries' static destructors)
+            # took 0.6 s per node, and 2 s for a graph's six nodes stopping together on two cores.
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
 
 
 def stamp_ns_of(msg: Any) -> int:

@@ -256,7 +256,7 @@ class CoilDriverNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_coil_driver``."""
-    return run_node(CoilDriverNode, argv)
+    return run_node(CoilDriverNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":

@@ -125,7 +125,7 @@ class ControllerNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_controller``."""
-    return run_node(ControllerNode, argv)
+    return run_node(ControllerNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":

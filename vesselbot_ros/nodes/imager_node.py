@@ -170,7 +170,7 @@ class ImagerNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_imager``."""
-    return run_node(ImagerNode, argv)
+    return run_node(ImagerNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":

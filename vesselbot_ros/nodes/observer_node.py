@@ -215,7 +215,7 @@ class ObserverNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_observer``."""
-    return run_node(ObserverNode, argv)
+    return run_node(ObserverNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":

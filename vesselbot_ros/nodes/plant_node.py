@@ -499,7 +499,7 @@ class PlantNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_plant``."""
-    return run_node(PlantNode, argv)
+    return run_node(PlantNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":

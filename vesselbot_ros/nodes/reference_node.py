@@ -89,7 +89,7 @@ class ReferenceNode(VesselbotNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``vesselbot_reference``."""
-    return run_node(ReferenceNode, argv)
+    return run_node(ReferenceNode, argv, exit_process=True)
 
 
 if __name__ == "__main__":
