@@ -59,6 +59,7 @@ def _subscribe(ros, names):
     return node, ex, got
 
 
+@pytest.mark.wallclock  # publication times within 10 ms of the schedule: alone, not beside another test
 @pytest.mark.parametrize("rate", [1.0, 2.0])
 def test_replay_reproduces_messages_order_and_timing(ros, tmp_path, rate):
     bag = _bag(tmp_path / "bag")

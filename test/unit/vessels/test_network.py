@@ -77,7 +77,7 @@ def test_shipped_networks_load() -> None:
     assert load_network("config/vessels/straight_table3.yaml").root.name == "trunk"
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen", "straight_table3"]),
        u=st.floats(-0.1, 1.1), v=st.floats(-0.1, 1.1))
 def test_point_clearance_equals_the_vectorised_query_bit_for_bit(name: str, u: float, v: float) -> None:
