@@ -33,6 +33,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -856,6 +857,12 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *,
             # Everything of the node is shut down and nothing is left to write: end the process here.  The
             # interpreter's own teardown (numba's and LLVM's objects, the DDS libraries' static destructors)
             # took 0.6 s per node, and 2 s for a graph's six nodes stopping together on two cores.
+            # A signal shut the context down without closing rcl's log file (its last lines are written at the
+            # interpreter's teardown, which this skips): close it here, as rclpy's own shutdown would have.
+            ctx = rclpy.get_default_context()
+            if getattr(ctx, "_logging_initialized", False):
+                with contextlib.suppress(Exception), ctx._lock:
+                    ctx._logging_fini()
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(code)
