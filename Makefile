@@ -23,7 +23,7 @@ run: bootstrap
 
 ## The whole test suite (unit + integration over real ROS 2 topics), on two workers (each test leases its
 ## own ROS domain; a module's tests stay on one worker, so its module fixtures run once).  The tests that
-## bound wall time tightly (marker `wallclock`: real-time runs, process-exit deadlines) run alone, last.
+## bound wall time tightly (marker `wallclock`: real-time runs, process-exit deadlines, replay timing) run alone, last.
 INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not wallclock" --durations=8 $(PYTEST_ARGS) \
 	&& $(PY) -m pytest test/integration -q -m wallclock --durations=4 $(PYTEST_ARGS)
 test: bootstrap
