@@ -91,6 +91,16 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
         def bag_counts():
             return json.loads(_call(ex, flush, Trigger.Request()).message)
 
+        def settled_counts(n):
+            """The counts once every per-tick topic has n messages (or after 20 s): a step's reply means the
+            plant has its last coil/applied, and the recorder, another subscriber, may still be receiving it."""
+            deadline = time.monotonic() + 20
+            while True:
+                counts = bag_counts()
+                if all(counts[t.name] >= n for t in PER_TICK) or time.monotonic() > deadline:
+                    return {t.name: counts[t.name] for t in PER_TICK}
+                time.sleep(0.05)
+
         # nothing has run yet; a step while playing or past the end is refused
         assert all(bag_counts()[t.name] == 0 for t in PER_TICK)
         step = client("step_simulation")
@@ -98,8 +108,7 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
         assert too_many.result.result == Result.RESULT_OPERATION_FAILED and "ticks left" in too_many.result.error_message
         # step 100 ticks: the bag holds exactly 100 ticks of every per-tick topic
         assert _call(ex, step, StepSimulation.Request(steps=100)).result.result == Result.RESULT_OK
-        counts = bag_counts()
-        assert {t.name: counts[t.name] for t in PER_TICK} == {t.name: 100 for t in PER_TICK}
+        assert settled_counts(100) == {t.name: 100 for t in PER_TICK}
         # reset: back to t = 0, still paused, nothing more published
         reset = client("reset_simulation")
         assert _call(ex, reset, ResetSimulation.Request()).result.result == Result.RESULT_OK
@@ -121,7 +130,7 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
         assert res.result().result.result.result == Result.RESULT_OK
         assert feedback and feedback[-1] == (63, 0)
         assert all(c + r == 63 for c, r in feedback) and [c for c, _ in feedback] == sorted(c for c, _ in feedback)
-        assert all(bag_counts()[t.name] == 200 for t in PER_TICK)
+        assert settled_counts(200) == {t.name: 200 for t in PER_TICK}
         # play to the end
         play = client("set_simulation_state")
         req = SetSimulationState.Request()
