@@ -20,13 +20,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import BSpline, splrep
-
 from vesselbot_ros.errors import ModelInputError
+
+if TYPE_CHECKING:  # scipy.interpolate takes 0.7 s to import; only the stages that build splines pay it
+    from scipy.interpolate import BSpline
 
 __all__ = [
     "Mat2",
@@ -164,6 +166,8 @@ def interp_spline(x: Sequence[float] | npt.NDArray[np.float64], y: npt.ArrayLike
         raise ModelInputError(f"interp_spline needs >= {k + 1} strictly increasing x and matching y, got {xa!r}")
     t = _knots(xa, k)
     nc = t.size - k - 1
+    from scipy.interpolate import BSpline
+
     eye = BSpline.construct_fast(t, np.eye(nc), k)
     rows = [eye(xa)]
     rhs = [ya.reshape(xa.size, -1)]
@@ -188,6 +192,8 @@ def interp_spline_fitpack(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
     """
     if x.ndim != 1 or x.size < 4 or y.shape != x.shape or not all(math.isfinite(v) for v in y):
         raise ModelInputError("interp_spline_fitpack needs >= 4 points and finite values")
+    from scipy.interpolate import BSpline, splrep
+
     t, c, k = splrep(x, y, k=3, s=0)
     return BSpline.construct_fast(t, c, k)
 

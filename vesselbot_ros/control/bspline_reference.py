@@ -29,15 +29,17 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Literal, NamedTuple
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import BSpline
 
 from vesselbot_ros.blas_free import interp_spline, interp_spline_fitpack
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
+
+if TYPE_CHECKING:  # the splines come from blas_free, which imports scipy.interpolate when it builds one
+    from scipy.interpolate import BSpline
 
 __all__ = [
     "ReferenceParams",

@@ -3,7 +3,7 @@
 Thin adapter over :class:`vesselbot_ros.control.actuator_limits.CoilLimiter`
 (Section III-C: ``U_a = U / k``, ``k = max(1, |U| / U_sat)``, then the slew
 limit, lowered by the scenario's ``dbdt:`` limit when that binds), built by
-:func:`vesselbot_ros.sim.closed_loop.build_stages`: with a multiplexed
+:func:`vesselbot_ros.sim.closed_loop.build_stage`: with a multiplexed
 ``sequence:`` it is the scanner's
 :class:`~vesselbot_ros.scanner.stages.SequencedCoil`, which applies the
 command only in propulsion windows (exactly zero in tracking windows and dead
@@ -84,7 +84,7 @@ from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.scanner.hardware import dbdt_at
 from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["CoilDriverNode", "main"]
 
@@ -95,6 +95,7 @@ class CoilDriverNode(VesselbotNode):
     """The gradient-coil driver (see module docstring)."""
 
     ROLE = "coil_driver"
+    STAGES = ("coil",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -119,7 +120,7 @@ class CoilDriverNode(VesselbotNode):
 
         After a reset in a multiplexed sequence the phase of tick 0 is published again before its first output.
         """
-        self.limiter = build_stages(self.scenario).coil
+        self.limiter = build_stage(self.scenario, "coil")
         self.limits = self.limiter.limits  # in force: the dB/dt limit may have lowered the slew
         dbdt = self.scenario.dbdt
         self._dbdt = ((dbdt_at(dbdt, self.limits.saturation_T_per_m, self.limits.slew_rate_T_per_m_per_s), dbdt.radius_m)

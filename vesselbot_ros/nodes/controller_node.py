@@ -1,7 +1,7 @@
 """Backstepping controller node: gradient command from the estimate and the reference.
 
 Thin adapter over :class:`vesselbot_ros.control.backstepping.BacksteppingController`
-(eq. (24)), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+(eq. (24)), built by :func:`vesselbot_ros.sim.closed_loop.build_stage`.
 
 Ports (frame ``vessel``):
 
@@ -38,7 +38,7 @@ from nav_msgs.msg import Odometry
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ControllerNode", "main"]
 
@@ -47,6 +47,7 @@ class ControllerNode(VesselbotNode):
     """The backstepping controller (see module docstring)."""
 
     ROLE = "controller"
+    STAGES = ("controller",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -58,7 +59,7 @@ class ControllerNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The controller as built from the scenario, at tick 0."""
-        self.controller = build_stages(self.scenario).controller
+        self.controller = build_stage(self.scenario, "controller")
         self.join = TickJoin(self, {"estimate": 0, "reference": 0})
         self._ref_latest: Any = None
         self.status: Counter[str] = Counter()

@@ -53,7 +53,7 @@ from vesselbot_msgs.srv import InjectFault
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ImagerNode", "main"]
 
@@ -62,6 +62,7 @@ class ImagerNode(VesselbotNode):
     """The imager (see module docstring)."""
 
     ROLE = "imager"
+    STAGES = ("imager",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -80,7 +81,7 @@ class ImagerNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The imager as built from the scenario (its noise generator seeded again), no frame yet, no injected fault."""
-        self.imager = build_stages(self.scenario).imager
+        self.imager = build_stage(self.scenario, "imager")
         self.k_next = 0
         self._last_msg: PointStamped | None = None
         self.frames = 0

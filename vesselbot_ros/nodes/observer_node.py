@@ -1,7 +1,7 @@
 """High-gain observer node: position and velocity from imager frames and the applied gradient.
 
 Thin adapter over :class:`vesselbot_ros.control.high_gain_observer.HighGainObserver`
-(eq. (25)), built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+(eq. (25)), built by :func:`vesselbot_ros.sim.closed_loop.build_stage`.
 
 Ports (frame ``vessel``):
 
@@ -60,7 +60,7 @@ from nav_msgs.msg import Odometry
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ObserverNode", "main"]
 
@@ -71,6 +71,7 @@ class ObserverNode(VesselbotNode):
     """The high-gain observer (see module docstring)."""
 
     ROLE = "observer"
+    STAGES = ("observer",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -84,9 +85,8 @@ class ObserverNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The observer as built from the scenario, at tick 0 with no input yet."""
-        st = build_stages(self.scenario)
-        self.observer = st.observer
-        self.model = st.model
+        self.observer = build_stage(self.scenario, "observer")
+        self.model = self.observer.model
         # lockstep: tick k needs measurement k (the k-th message) and coil/applied k-1
         self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, windows={"measurement": None, "coil_applied": 3})
         self.n_meas = 0  # measurement messages received (lockstep: = ticks)

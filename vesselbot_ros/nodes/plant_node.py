@@ -1,7 +1,7 @@
 """Plant simulator node: the robot's true dynamics, ground truth, and the ``/clock``.
 
 Thin adapter over :class:`vesselbot_ros.sim.plant.PlantSimulator` (built by
-:func:`vesselbot_ros.sim.closed_loop.build_stages`, like the pure runner).
+:func:`vesselbot_ros.sim.closed_loop.build_stage`, like the pure runner).
 
 Ports (frame ``vessel``; k = tick, t_k = k * dt, dt = 1 / sim.control_rate_Hz):
 
@@ -86,7 +86,7 @@ from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S"]
 
@@ -109,6 +109,7 @@ class PlantNode(VesselbotNode):
     """The plant simulator (see module docstring for ports and modes)."""
 
     ROLE = "plant"
+    STAGES = ("plant",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -157,7 +158,7 @@ class PlantNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The plant as built from the scenario, at tick 0, nothing published for it yet."""
-        self.plant = build_stages(self.scenario).plant
+        self.plant = build_stage(self.scenario, "plant")
         self.k = 0
         self._g = np.zeros(2)
         self._budget = 0  # ticks a paused plant may still publish (steps asked for)

@@ -1,7 +1,7 @@
 """Reference planner node: the C2 B-spline reference, as a path and per-tick samples.
 
 Thin adapter over :class:`vesselbot_ros.control.bspline_reference.ReferenceTrajectory`,
-built by :func:`vesselbot_ros.sim.closed_loop.build_stages`.
+built by :func:`vesselbot_ros.sim.closed_loop.build_stage`.
 
 Ports (frame ``vessel``):
 
@@ -35,7 +35,7 @@ from rosgraph_msgs.msg import Clock
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -44,10 +44,11 @@ class ReferenceNode(VesselbotNode):
     """The reference planner (see module docstring)."""
 
     ROLE = "reference"
+    STAGES = ("reference",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.reference = build_stages(self.scenario).reference
+        self.reference = build_stage(self.scenario, "reference")
         ts = np.arange(self.n_ticks) * self.dt
         self._p, self._v, self._a = self.reference.sample_many(ts)
         self.reset_state()

@@ -91,7 +91,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["Stages", "SimResult", "build_stages", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES", "PATHS", "REPLACEABLE"]
+__all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES", "PATHS", "REPLACEABLE"]
 
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
@@ -141,6 +141,70 @@ def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.Arra
     return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
 
 
+class _StageBuilder:
+    """Builds the stages of one scenario, each on first use, with only what it needs.
+
+    A node process needs one stage; building the reference (a spline fit, and
+    scipy.interpolate's 0.7 s import) or the model for a stage that uses neither
+    made every node start as slowly as the whole loop.
+    """
+
+    def __init__(self, scenario: Scenario, seed: int | None) -> None:
+        self.s = scenario
+        self.seed = scenario.seed if seed is None else int(seed)
+        self._built: dict[str, Any] = {}
+
+    def get(self, name: str) -> Any:
+        if name not in self._built:
+            self._built[name] = getattr(self, "_" + name)()
+        return self._built[name]
+
+    def _model(self) -> DynamicsModel:
+        s = self.s
+        return DynamicsModel(s.model_physics(), s.sim.integrator, s.model.input_mapping)
+
+    def _reference(self) -> ReferenceTrajectory:
+        p_model = pack_params(self.s.model_physics())
+
+        def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
+            return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
+
+        return ReferenceTrajectory(planned_reference(self.s), flow_velocity_x=flow_x)
+
+    def _plant(self) -> PlantSimulator:
+        s = self.s
+        return PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
+
+    def _imager(self) -> ImagerModel | SequencedImager:
+        s = self.s
+        imager = ImagerModel(s.imager, np.random.default_rng(self.seed))
+        if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
+            return SequencedImager(imager, s.sequence)
+        return imager
+
+    def _observer(self) -> HighGainObserver | ExtendedKalmanObserver:
+        s = self.s
+        return make_observer(s.observer, self.get("model"), self.get("reference").sample(0.0).p,
+                             s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
+
+    def _controller(self) -> BacksteppingController:
+        s = self.s
+        model = self.get("model")
+        return BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s,
+                                      duty_cycle(s.sequence))
+
+    def _coil(self) -> CoilLimiter | SequencedCoil:
+        s = self.s
+        # The coil was idle (zero) before t = 0 and ramps during the period before
+        # the first command, exactly as between any two later ticks: the first
+        # command may move S * dt, not 0 (which left the robot unactuated for the
+        # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
+        coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt), -s.sim.dt_control_s)
+        if s.sequence.mode == "multiplexed":
+            return SequencedCoil(coil, s.sequence, s.sim.dt_control_s)
+        return coil
+
+
 def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
     """Construct every stage of the loop for ``scenario``.
 
@@ -148,42 +212,81 @@ def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
         scenario: The scenario.
         seed: Imager seed; ``None`` uses ``scenario.seed``.
     """
-    s = scenario
-    seed = s.seed if seed is None else int(seed)
-    model_phys = s.model_physics()
-    model = DynamicsModel(model_phys, s.sim.integrator, s.model.input_mapping)
-    p_model = pack_params(model_phys)
-
-    def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
-        return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
-
-    reference = ReferenceTrajectory(planned_reference(s), flow_velocity_x=flow_x)
-    plant = PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
-    imager = ImagerModel(s.imager, np.random.default_rng(seed))
-    observer = make_observer(s.observer, model, reference.sample(0.0).p, s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
-    controller = BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s,
-                                        duty_cycle(s.sequence))
-    # The coil was idle (zero) before t = 0 and ramps during the period before
-    # the first command, exactly as between any two later ticks: the first
-    # command may move S * dt, not 0 (which left the robot unactuated for the
-    # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
-    coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt), -s.sim.dt_control_s)
-    if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
-        imager = SequencedImager(imager, s.sequence)
-        coil = SequencedCoil(coil, s.sequence, s.sim.dt_control_s)
-    return Stages(plant, imager, observer, reference, controller, coil, model)
+    b = _StageBuilder(scenario, seed)
+    return Stages(*(b.get(name) for name in Stages._fields))
 
 
-def warm_up(scenario: Scenario) -> None:
-    """Run a few ticks of ``scenario``'s per-tick loop on throwaway stages, for their first-call costs only.
+def build_stage(scenario: Scenario, name: str, seed: int | None = None) -> Any:
+    """Construct one stage of the loop (a field of :class:`Stages`), as :func:`build_stages` builds it.
+
+    Only what that stage needs is built (the controller needs the model, the
+    observer the model and the reference's start), so a node that runs one
+    stage starts without paying for the others.
+
+    Raises:
+        ModelInputError: if ``name`` is not a stage.
+    """
+    if name not in Stages._fields:
+        raise ModelInputError(f"unknown stage {name!r}; stages: {list(Stages._fields)}")
+    return _StageBuilder(scenario, seed).get(name)
+
+
+#: Ticks a warm-up runs: the first calls load numba's cache and allocate; three settle every branch taken at start.
+WARM_TICKS = 3
+
+
+def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
+    """Call the per-tick methods of ``scenario``'s stages a few times on throwaway copies, for their first-call costs.
 
     Loading compiled code from numba's cache, first-time allocations and lazy
-    imports happen on a stage's first call (tens of ms).  A real-time node calls
-    this before its run starts, so its first ticks are on time; nothing of the
-    run's own stages (state, noise stream) is touched.
+    imports happen on a stage's first call (tens of ms).  A node calls this
+    before its run starts, so its first ticks are on time; nothing of the run's
+    own stages (state, noise stream) is touched.
+
+    Args:
+        scenario: The scenario.
+        stages: Names of the stages to warm (fields of :class:`Stages`); ``None``
+            runs a few ticks of the whole per-tick loop.  A node warms its own.
     """
-    sim = dataclasses.replace(scenario.sim, duration_s=3.0 / scenario.sim.control_rate_Hz)
-    run_closed_loop(dataclasses.replace(scenario, sim=sim), path="per_tick")
+    sim = dataclasses.replace(scenario.sim, duration_s=WARM_TICKS / scenario.sim.control_rate_Hz)
+    short = dataclasses.replace(scenario, sim=sim)
+    if stages is None:
+        run_closed_loop(short, path="per_tick")
+        return
+    names = list(stages)
+    unknown = sorted(set(names) - set(Stages._fields))
+    if unknown:
+        raise ModelInputError(f"warm_up: unknown stage(s) {unknown}; stages: {list(Stages._fields)}")
+    b = _StageBuilder(short, None)
+    dt = short.sim.dt_control_s
+    ts = [k * dt for k in range(WARM_TICKS)]
+    p0 = np.asarray(short.initial.p0_m, dtype=np.float64)
+    v0 = np.asarray(short.initial.v0_m_per_s, dtype=np.float64)
+    zero = np.zeros(2)
+    for name in names:
+        stage = b.get(name)
+        if name == "plant":
+            for _ in ts:
+                stage.output(True)
+                stage.output(False)
+                stage.step(zero)
+        elif name == "imager":
+            for t in ts:
+                stage.frame(t, p0)
+        elif name == "observer":
+            imager = _StageBuilder(short, None).get("imager")
+            for t in ts:
+                stage.update(t, imager.frame(t, p0), zero)
+        elif name == "reference":
+            stage.sample_many(np.asarray(ts))
+            stage.sample(0.0)
+        elif name == "controller":
+            for t in ts:
+                stage.command_arrays(t, p0, v0, 0.0, p0, zero, zero, 1.0)
+        elif name == "coil":
+            for t in ts:
+                stage.apply(t, zero)
+        # the model has no per-tick method of its own: the observer and controller call it
 
 
 def run_closed_loop(

@@ -190,3 +190,36 @@ def test_short_run_says_the_metrics_cover_the_whole_run(tmp_path: Path, capsys) 
     assert "ends before the metrics window starts (sim.metrics_after_s = 0.6 s)" in text
     m = json.loads((out / "metrics.json").read_text())
     assert m["after_s"] == 0.0 and np.isfinite(m["tracking_error_max_m"])
+
+
+@pytest.mark.parametrize("name", ["sound_small_artery", "clinical_3t_small_artery", "sound_small_artery_ekf",
+                                  "sound_small_artery_adaptive", "paper_iiic_network_upper"])
+def test_stages_built_one_at_a_time_run_the_same_loop_as_build_stages(name: str) -> None:
+    """A node builds only its own stage (build_stage); the six together give build_stages' run, double for double."""
+    from vesselbot_ros.sim.closed_loop import REPLACEABLE, Stages, build_stage, build_stages, run_stages
+
+    s = _short(load_scenario(name), 0.05)
+    whole = run_stages(s, build_stages(s, 2), 2, path="per_tick")
+    one = {n: build_stage(s, n, 2) for n in REPLACEABLE}
+    each = run_stages(s, Stages(**one, model=one["observer"].model), 2, path="per_tick")
+    assert whole.timeseries.keys() == each.timeseries.keys()
+    for key, col in whole.timeseries.items():
+        np.testing.assert_array_equal(each.timeseries[key], col, err_msg=key)
+    assert json.dumps(each.metrics, sort_keys=True, default=str) == json.dumps(whole.metrics, sort_keys=True, default=str)
+
+
+def test_warm_up_of_each_stage_leaves_a_later_run_unchanged_and_names_unknown_stages() -> None:
+    from vesselbot_ros.sim.closed_loop import Stages, build_stage, warm_up
+
+    s = _short(load_scenario("clinical_3t_small_artery"), 0.02)
+    before = run_closed_loop(s, 1, path="per_tick")
+    for stage in Stages._fields:
+        warm_up(s, [stage])
+    warm_up(s)
+    after = run_closed_loop(s, 1, path="per_tick")
+    for key, col in before.timeseries.items():
+        np.testing.assert_array_equal(after.timeseries[key], col, err_msg=key)
+    with pytest.raises(ModelInputError, match="unknown stage"):
+        warm_up(s, ["plant", "coil_driver"])
+    with pytest.raises(ModelInputError, match="unknown stage"):
+        build_stage(s, "driver")
