@@ -84,7 +84,7 @@ numba_done() {  # wait for the background warm-up; stamp it, or show its error a
 trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
 
 # 3. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
-ifc=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+ifc=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \
       $(find msg_defs -type f | LC_ALL=C sort))
 if ! fresh interfaces "$ifc"; then
   echo "vesselbot bootstrap: building msg_defs (vesselbot_msgs) into .venv"
@@ -94,7 +94,7 @@ if ! fresh interfaces "$ifc"; then
 fi
 
 # 3b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
-sif=$(hash_files requirements.txt cmake/fix_wheel_include_paths.cmake tools/build_interfaces.sh \
+sif=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \
       $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
            -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
 if ! fresh sim-interfaces "$sif"; then
