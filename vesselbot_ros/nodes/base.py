@@ -323,6 +323,9 @@ class VesselbotNode(Node):  # type: ignore[misc]
         from vesselbot_ros.sim.closed_loop import warm_up
 
         warm_up(self.scenario, self.STAGES)
+        if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
+            p0 = self.scenario.initial.p0_m
+            self._network_clearance(float(p0[0]), float(p0[1]))
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             from std_srvs.srv import Trigger

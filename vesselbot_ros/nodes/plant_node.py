@@ -152,6 +152,9 @@ class PlantNode(VesselbotNode):
             self._stall_timer = self.create_timer(slow, self._stall_check, clock=self._wall)
             self._stall_fast = self.create_timer(STALL_POLL_S, self._stall_check, clock=self._wall)
             self._stall_fast.cancel()  # runs while commands are lost
+        # the truth message's own compiled calls (flow, diameter, the network's geometry) before tick 0: a
+        # throwaway message, nothing published and no state touched
+        self._truth_msg(self.plant.output(with_forces=True))
         from vesselbot_ros.nodes.simulation_control import SimulationControl
 
         self.simulation = SimulationControl(self)
