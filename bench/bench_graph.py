@@ -20,7 +20,9 @@ measured side by side in one run:
    plant process, ours by ``StepSimulation`` (``vesselbot run --start-paused``),
    ours first in every other pair.  Each pair gives one ratio; the median over
    the pairs is the figure (quartiles and range printed with it).  The graph
-   that waits is idle (its timers only);
+   that waits is idle (its timers only).  With them, the CPU time of each graph's processes over its
+   own segments, per tick and by process (from /proc): on two cores, a graph whose processes need
+   more than one core between them also waits for the CPU;
 6. real-time mode: imager -> coil-driver latency (median, p99), measured by a
    probe node that timestamps, on one clock, the arrival of each fresh
    measurement and of the first ``coil/applied`` that answers it.
@@ -321,6 +323,11 @@ class SteppedBare:
             raise SystemExit("bench: the bare chain's plant process ended early")
         return json.loads(line)
 
+    @property
+    def pids(self) -> list[int]:
+        """The chain's processes."""
+        return [p.pid for p in self._others] + [self._plant.pid]
+
     def run(self, n: int) -> float:
         """Wall time (s) of the next ``n`` ticks."""
         self._plant.stdin.write(f"{n}\n")  # type: ignore[union-attr]
@@ -389,6 +396,11 @@ class SteppedOurs:
             self._ex.spin_once(timeout_sec=0.05)
         return fut.result() if fut.done() else None
 
+    @property
+    def pid(self) -> int:
+        """The launcher's process (our nodes are its children)."""
+        return self._proc.pid
+
     def run(self, n: int) -> float:
         """Wall time (s) of the next ``n`` ticks."""
         from simulation_interfaces.msg import Result
@@ -418,8 +430,85 @@ class SteppedOurs:
         self._tmp.cleanup()
 
 
-def compare(processes: bool, segments: int, ticks: int, pure_tick_s: float, dt: float) -> list[tuple[float, float]]:
+_CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def _tree(pid: int) -> list[int]:
+    """``pid`` and every process below it (Linux /proc)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        try:
+            for task in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{task}/children") as f:
+                    todo += [int(c) for c in f.read().split()]
+        except OSError:  # ended meanwhile
+            pass
+    return out
+
+
+def _label(pid: int) -> str:
+    """What a process of either graph is: a role of ours, a node of the bare chain, our launcher."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            argv = f.read().decode(errors="replace").split("\0")
+    except OSError:
+        return "?"
+    for i, arg in enumerate(argv):
+        if arg == "--bare-node" and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith("vesselbot_ros.nodes.") and arg.endswith("_node"):
+            return arg[len("vesselbot_ros.nodes."):-len("_node")]
+        if arg == "vesselbot_ros.launch.composed":
+            return "composed nodes"
+        if arg == "vesselbot_ros.cli":
+            return "launcher"
+    return "other"
+
+
+def _cpu_s(pids: list[int]) -> dict[int, float]:
+    """CPU time (user + system, s) of each process still alive."""
+    out = {}
+    for p in pids:
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            out[p] = (int(fields[11]) + int(fields[12])) / _CLK_TCK
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+class CpuTally:
+    """CPU time per process of one graph over the segments it ran, by label; :meth:`per_tick` in us."""
+
+    def __init__(self, roots: list[int]) -> None:
+        self.pids = [p for r in roots for p in _tree(r)]
+        self.labels = {p: _label(p) for p in self.pids}
+        self.cpu: dict[str, float] = {}
+        self.ticks = 0
+
+    def timed(self, run, n: int) -> float:
+        before = _cpu_s(self.pids)
+        wall = run(n)
+        after = _cpu_s(self.pids)
+        for p, t in after.items():
+            if p in before:
+                self.cpu[self.labels[p]] = self.cpu.get(self.labels[p], 0.0) + t - before[p]
+        self.ticks += n
+        return wall
+
+    def per_tick(self) -> dict[str, float]:
+        return {k: v / self.ticks * 1e6 for k, v in sorted(self.cpu.items(), key=lambda kv: -kv[1])}
+
+
+def compare(processes: bool, segments: int, ticks: int, pure_tick_s: float,
+            dt: float) -> tuple[list[tuple[float, float]], dict[str, float], dict[str, float]]:
     """``segments`` pairs of (bare chain, ours) wall per tick (s) over ``ticks`` ticks each, both graphs alive.
+
+    Also returns the CPU time (us per tick) of each graph's processes, by process, over its own segments:
+    on two cores a graph whose processes need more than one core between them waits for the CPU too.
 
     The two alternate every ``ticks`` ticks (ours first in every other pair), so a drift of the machine's
     speed, which on a shared host reaches tens of % within a minute, hits both sides of a pair alike.
@@ -428,20 +517,21 @@ def compare(processes: bool, segments: int, ticks: int, pure_tick_s: float, dt: 
     extra = [] if processes else ["--single-process"]
     ours = SteppedOurs(extra, segments * ticks, dt)
     bare = SteppedBare(processes, segments * ticks)
+    cpu_ours, cpu_bare = CpuTally([ours.pid]), CpuTally(bare.pids)
     pairs = []
     try:
         for i in range(segments):
             if i % 2:
-                o = ours.run(ticks)
-                b = bare.run(ticks)
+                o = cpu_ours.timed(ours.run, ticks)
+                b = cpu_bare.timed(bare.run, ticks)
             else:
-                b = bare.run(ticks)
-                o = ours.run(ticks)
+                b = cpu_bare.timed(bare.run, ticks)
+                o = cpu_ours.timed(ours.run, ticks)
             pairs.append((b / ticks, o / ticks - pure_tick_s))
     finally:
         bare.close()
         ours.close()
-    return pairs
+    return pairs, cpu_bare.per_tick(), cpu_ours.per_tick()
 
 
 def realtime_latency(duration: float, rtf: float) -> np.ndarray:
@@ -529,7 +619,8 @@ def main() -> int:
     dt = sim / n
     medians = {}
     for mode, label in (("processes", "6 node processes"), ("single", "--single-process")):
-        pairs = np.asarray(compare(mode == "processes", a.segments, a.segment_ticks, pure_tick, dt))
+        got, cpu_bare, cpu_ours = compare(mode == "processes", a.segments, a.segment_ticks, pure_tick, dt)
+        pairs = np.asarray(got)
         bare_us, ours_us = pairs[:, 0] * 1e6, pairs[:, 1] * 1e6
         ratio = ours_us / bare_us
         medians[mode] = float(np.median(ratio))
@@ -543,6 +634,11 @@ def main() -> int:
               f"ROS/pure {ours_tick / pure_tick:6.1f}   ours/bare topology {np.median(ours_us) / (topo[mode] / n * 1e6):5.2f}")
         print(f"  ours/bare chain per pair:      median {medians[mode]:5.2f}  quartiles {q1:.2f}-{q3:.2f}  "
               f"range {ratio.min():.2f}-{ratio.max():.2f}")
+        total_b, total_o = sum(cpu_bare.values()), sum(cpu_ours.values())
+        print(f"  CPU, every process of a graph: bare {total_b:6.0f} us/tick, ours {total_o:6.0f} us/tick "
+              f"({total_o / total_b:.2f}x); one tick's wall: bare {np.median(bare_us):.0f}, ours {np.median(ours_us):.0f} us")
+        for name, tally in (("bare", cpu_bare), ("ours", cpu_ours)):
+            print(f"    {name} by process (us/tick): " + ", ".join(f"{k} {v:.0f}" for k, v in tally.items()))
     r = ros_run(["--single-process", "--no-intra-process"], a.duration)
     print(f"lockstep, --single-process --no-intra-process: wall {r['wall_s']:7.2f} s   RTF {r['real_time_factor']:6.3f}   "
           f"ROS/pure {r['wall_s'] / pure:6.1f}   "
