@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 from pathlib import Path
 
 import pytest
@@ -46,6 +45,12 @@ def _start(ros, tmp_path, out: Path, ticks: int, rate: float):
     pub = NodeProcess(["python", str(PEER), str(tmp_path / "counts.json"), str(ticks), str(rate)], ros.env,
                       tmp_path / "peer.log")
     return rec, pub, node, ex, client
+
+
+def _published_truth(tmp_path: Path) -> int:
+    """Truth messages the peer has published so far (it rewrites counts.json atomically every 50 ticks)."""
+    path = tmp_path / "counts.json"
+    return json.loads(path.read_text()).get("published:/vesselbot/truth", 0) if path.exists() else 0
 
 
 def _contiguous_ticks(bag) -> list[int]:
@@ -101,8 +106,8 @@ def test_signal_mid_run_leaves_a_finalised_complete_bag(ros, tmp_path, sig):
     out = tmp_path / "r2"
     rec, pub, node, ex, client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
     try:
-        assert spin_until(ex, lambda: (tmp_path / "counts.json").exists(), timeout=60), pub.output()
-        time.sleep(1.0)
+        # a second of ticks published (a fixed sleep let a loaded machine publish fewer than the bound below)
+        assert spin_until(ex, lambda: _published_truth(tmp_path) >= 500, timeout=60), pub.output()
         assert rec.stop(timeout=20, sig=sig) == 0, rec.output()
         assert "finalised" in rec.log_path.read_text()
     finally:
@@ -119,8 +124,7 @@ def test_sigkill_leaves_an_mcap_that_repair_turns_into_a_valid_bag(ros, tmp_path
     out = tmp_path / "r3"
     rec, pub, node, ex, client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
     try:
-        assert spin_until(ex, lambda: (tmp_path / "counts.json").exists(), timeout=60), pub.output()
-        time.sleep(2.0)
+        assert spin_until(ex, lambda: _published_truth(tmp_path) >= 1000, timeout=60), pub.output()
         rec.stop(timeout=5, sig=signal.SIGKILL)
         killed_at = json.loads((tmp_path / "counts.json").read_text())["published:/vesselbot/truth"]
     finally:
