@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 import numpy.typing as npt
+
 from vesselbot_ros.errors import ModelInputError
 
 if TYPE_CHECKING:  # scipy.interpolate takes 0.7 s to import; only the stages that build splines pay it

@@ -159,12 +159,15 @@ class _StageBuilder:
             self._built[name] = getattr(self, "_" + name)()
         return self._built[name]
 
+    def _model_physics(self) -> Any:
+        return self.s.model_physics()  # the model's own physics (blood-velocity error): the model and the reference
+
     def _model(self) -> DynamicsModel:
         s = self.s
-        return DynamicsModel(s.model_physics(), s.sim.integrator, s.model.input_mapping)
+        return DynamicsModel(self.get("model_physics"), s.sim.integrator, s.model.input_mapping)
 
     def _reference(self) -> ReferenceTrajectory:
-        p_model = pack_params(self.s.model_physics())
+        p_model = pack_params(self.get("model_physics"))
 
         def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
             return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
@@ -226,9 +229,14 @@ def build_stage(scenario: Scenario, name: str, seed: int | None = None) -> Any:
     Raises:
         ModelInputError: if ``name`` is not a stage.
     """
-    if name not in Stages._fields:
-        raise ModelInputError(f"unknown stage {name!r}; stages: {list(Stages._fields)}")
+    _check_stage_names("build_stage", [name])
     return _StageBuilder(scenario, seed).get(name)
+
+
+def _check_stage_names(caller: str, names: Iterable[str]) -> None:
+    unknown = sorted(set(names) - set(Stages._fields))
+    if unknown:
+        raise ModelInputError(f"{caller}: unknown stage(s) {unknown}; stages: {list(Stages._fields)}")
 
 
 #: Ticks a warm-up runs: the first calls load numba's cache and allocate; three settle every branch taken at start.
@@ -254,9 +262,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
         run_closed_loop(short, path="per_tick")
         return
     names = list(stages)
-    unknown = sorted(set(names) - set(Stages._fields))
-    if unknown:
-        raise ModelInputError(f"warm_up: unknown stage(s) {unknown}; stages: {list(Stages._fields)}")
+    _check_stage_names("warm_up", names)
     b = _StageBuilder(short, None)
     dt = short.sim.dt_control_s
     ts = [k * dt for k in range(WARM_TICKS)]
@@ -274,7 +280,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
             for t in ts:
                 stage.frame(t, p0)
         elif name == "observer":
-            imager = _StageBuilder(short, None).get("imager")
+            imager = b.get("imager")  # its frames feed the observer
             for t in ts:
                 stage.update(t, imager.frame(t, p0), zero)
         elif name == "reference":
