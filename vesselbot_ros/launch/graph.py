@@ -467,8 +467,16 @@ def _recorder_caught_up(mon: Monitor, roles: list[str]) -> bool:
 
 
 def _recorder_has_seen(mon: Monitor, roles: list[str]) -> bool:
-    """True once the recorder reports at least what the nodes' latest diagnostics say they published."""
+    """True once the recorder reports at least what the nodes' latest diagnostics say they published.
+
+    After a node died the launcher follows the coil state itself (the watchdog's ramp): the recorder must
+    also hold a coil state for every tick up to the last one the launcher saw.  The nodes' diagnostics
+    come once a second and could predate the ramp's end, which a bag then lacked.
+    """
     received = mon.recorder_received()
+    lc = mon.last_coil
+    if received is not None and lc is not None and received.get(topic("coil_state").name, 0) < lc[0] + 1:
+        return False
     published = mon.published(roles)
     if received is None or published is None:
         return received is not None
