@@ -24,6 +24,7 @@ from vesselbot_ros.graph_spec import (
     LOOP_ROLES,
     NODE_NAMES,
     TOPICS,
+    WIRE_STRINGS,
     import_type,
     qos_profile,
     remap_args,
@@ -33,6 +34,7 @@ from vesselbot_ros.graph_spec import (
     topic,
 )
 from vesselbot_ros.nodes.series import SeriesLog, empty_series, series_from_response
+from vesselbot_ros.nodes.wire import codec_for
 
 __all__ = ["Monitor", "counts_with_prefix"]
 
@@ -202,8 +204,9 @@ class Monitor:
         if keys:
             log = SeriesLog(keys, self.n, self.dt)
             for key in keys:
+                codec = codec_for(self._types[key], WIRE_STRINGS)  # the series logs read flat forms
                 for data in self._raw[key]:
-                    log.add(key, self._decode(key, data))
+                    log.add(key, codec.flatten(self._decode(key, data)))
             out.update(log.as_dict())
         return out
 

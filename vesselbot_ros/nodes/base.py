@@ -66,12 +66,14 @@ from vesselbot_ros.graph_spec import (
 )
 from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.nodes.series import SeriesLog
-from vesselbot_ros.nodes.wire import codec_for
+from vesselbot_ros.nodes.wire import FlatCodec, codec_for
 
 __all__ = ["GraphParams", "VesselbotNode", "TickJoin", "IntraProcess", "use_intra_process", "run_node", "make_executor",
            "spin_nodes"]
 
 GRAPH_PREFIX = "graph."
+#: ``header.frame_id`` as a flat form holds it (CDR string bytes, NUL-terminated)
+_FRAME_CDR = FRAME_ID.encode() + b"\0"
 #: Real time: a ``/clock`` more than this many ticks ahead of the announced one is garbage.
 MAX_CLOCK_JUMP_TICKS = 50
 #: Real time: a gap in ``/clock`` longer than this (wall s) is a pause of the plant: re-anchor the schedule.
@@ -288,8 +290,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._last_warn: dict[tuple[str, str], float] = {}
         self._last_diag_wall = 0.0
         self._pubs: dict[str, Any] = {}
-        #: topic key -> what goes on DDS: the flat codec's encoder (per-tick topics), else the message itself
-        self._wire_out: dict[str, Callable[[Any], Any]] = {}
+        #: per-tick topic key -> its flat codec: such a topic's messages are flat forms (nodes/wire.py) in the node,
+        #: one struct call from and to the CDR
+        self._codecs: dict[str, FlatCodec] = {}
+        self._topic_names: dict[str, str] = {}  # topic key -> topic name, for the counters
         self._subs: dict[str, Any] = {}
         self._optional_inputs = frozenset(graph_role(role).optional_inputs)
         #: the process's intra-process bus, if composed with one (lockstep only)
@@ -397,7 +401,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         than :data:`MAX_CLOCK_JUMP_TICKS` ahead of it (a hostile or garbage
         clock) is rejected and moves nothing.
         """
-        ns = int(msg.clock.sec) * 1_000_000_000 + int(msg.clock.nanosec)
+        ns = msg.clock_sec * 1_000_000_000 + msg.clock_nanosec  # flat form
         k, on_grid = tick_of_ns(ns, self.dt)
         if not on_grid:
             self.reject("clock", "off_tick_stamp", f"clock {ns} ns is not a tick time")
@@ -490,9 +494,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         spec = topic(key)
         pub = self.create_publisher(msg_cls, spec.rel, qos_profile(spec))
         self._pubs[key] = pub
-        codec = codec_for(msg_cls, WIRE_STRINGS) if spec.per_tick else None
+        self._topic_names[key] = spec.name
+        codec = self._codec(key, msg_cls)
         if codec is not None:  # one struct call instead of rclpy's field-by-field conversion (nodes/wire.py)
-            self._wire_out[key] = codec.encode
+            self._codecs[key] = codec
         bus = self._intra
         if bus is not None and bus.carries(key):  # the bus carries volatile topics only
             bus.add_publisher(key)
@@ -504,23 +509,38 @@ class VesselbotNode(Node):  # type: ignore[misc]
             self._readers[key] = pub.handle.get_subscription_count
         return pub
 
+    @staticmethod
+    def _codec(key: str, msg_cls: Any) -> FlatCodec | None:
+        """The flat codec of topic ``key``: every per-tick topic's type has one, the others none."""
+        if not topic(key).per_tick:
+            return None
+        codec = codec_for(msg_cls, WIRE_STRINGS)
+        if codec is None:
+            raise TypeError(f"per-tick topic {key} of type {msg_cls.__name__} has no flat layout")
+        return codec
+
     def add_subscription(self, key: str, msg_cls: Any, callback: Callable[[Any], None]) -> Any:
-        """Subscribe to topic ``key`` with the contract's QoS (intra-process if its publisher is co-located)."""
+        """Subscribe to topic ``key`` with the contract's QoS (intra-process if its publisher is co-located).
+
+        ``callback`` gets a per-tick topic's messages in their flat form (:class:`~vesselbot_ros.nodes.wire.FlatCodec`:
+        a named tuple of the CDR's values, e.g. ``header_stamp_sec``, ``vector_x``), any other topic's as rclpy messages.
+        """
         spec = topic(key)
+        codec = self._codec(key, msg_cls)
+        self._topic_names[key] = spec.name
         bus = self._intra
         if bus is not None and bus.carries(key):
-            bus.subscribe(key, callback)
+            bus.subscribe(key, callback)  # the publisher posts flat forms too (publish)
             self._subs_intra.append(key)
             return None
-        codec = codec_for(msg_cls, WIRE_STRINGS) if spec.per_tick else None
         if codec is None:
             sub = self.create_subscription(msg_cls, spec.rel, callback, qos_profile(spec))
-        else:  # the CDR as it arrived, decoded by one struct call (nodes/wire.py); the callback gets the message
-            decode = codec.decode
+        else:  # the CDR as it arrived, unpacked by one struct call (nodes/wire.py)
+            unpack = codec.unpack
 
             def on_raw(raw: bytes) -> None:
                 try:
-                    msg = decode(raw)
+                    msg = unpack(raw)
                 except Exception:  # noqa: BLE001 - rclpy's error for bytes that are not this type's CDR
                     self.reject(key, "malformed_cdr", f"{len(raw)} bytes that do not decode as {spec.msgtype}")
                     return
@@ -548,19 +568,21 @@ class VesselbotNode(Node):  # type: ignore[misc]
         """
         if self.finished and not self.lockstep:
             return
+        codec = self._codecs.get(key)
+        if codec is not None and type(msg) is not codec.Flat:
+            msg = codec.flatten(msg)  # a per-tick topic's messages travel in their flat form
         if key in self._pub_intra:
             self._intra.post(key, msg)  # type: ignore[union-attr]
         readers = self._readers.get(key)
         if readers is None or readers():
-            wire = self._wire_out.get(key)
-            self._pubs[key].publish(msg if wire is None else wire(msg))
-        self._published[topic(key).name] += 1
+            self._pubs[key].publish(msg if codec is None else codec.pack(msg))
+        self._published[self._topic_names[key]] += 1
         if key in self._series_keys:
             self.series.add(key, msg)
 
     def count_received(self, key: str) -> None:
         """Count one accepted input on topic ``key``."""
-        self._received[topic(key).name] += 1
+        self._received[self._topic_names.get(key) or topic(key).name] += 1
 
     def wired(self) -> bool:
         """True once every publisher and subscription of this node is matched (over DDS or within the process)."""
@@ -614,7 +636,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
 
         Args:
             key: Topic key of the input.
-            frame_id: The message's ``header.frame_id`` (must be ``vessel``).
+            frame_id: The message's ``header.frame_id`` (must be ``vessel``), or in a flat form the
+                ``header_frame_id_cdr`` bytes (NUL-terminated).
             stamp_ns: The message's stamp (ns); checked against the sim clock
                 in real-time mode only (lockstep checks ticks instead).
             values: Every float of the message (must be finite).
@@ -626,8 +649,9 @@ class VesselbotNode(Node):  # type: ignore[misc]
                 diameter pulsation) plus ``graph.position_margin_m``.
             extra_age_s: Allowed extra age (e.g. the imager latency), s.
         """
-        if frame_id is not None and frame_id != FRAME_ID:
-            self.reject(key, "wrong_frame_id", f"got {frame_id!r}, expected {FRAME_ID!r}")
+        if frame_id is not None and frame_id != FRAME_ID and frame_id != _FRAME_CDR:
+            got = frame_id[:-1].decode(errors="replace") if isinstance(frame_id, bytes) else frame_id
+            self.reject(key, "wrong_frame_id", f"got {got!r}, expected {FRAME_ID!r}")
             return False
         if not all(map(math.isfinite, values)):
             self.reject(key, "non_finite", f"values {list(values)}")

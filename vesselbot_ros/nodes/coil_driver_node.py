@@ -81,7 +81,7 @@ from vesselbot_msgs.msg import CoilState, SequencePhase
 from vesselbot_ros.control.actuator_limits import CoilOutput
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import VesselbotNode, run_node
 from vesselbot_ros.scanner.hardware import dbdt_at
 from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
 from vesselbot_ros.sim.closed_loop import build_stage
@@ -133,7 +133,7 @@ class CoilDriverNode(VesselbotNode):
         self.rejected_commands = 0
         self._t_last = 0.0
         self.commands_lost = False
-        self._pending: tuple[int, Vector3Stamped] | None = None  # real time: a command for a tick not yet announced
+        self._pending: tuple[int, Any] | None = None  # real time: a command for a tick not yet announced
 
     # ------------------------------------------------------------------ inputs
     def _on_stall(self, msg: Header) -> None:
@@ -160,9 +160,9 @@ class CoilDriverNode(VesselbotNode):
             + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
         self._emit(k, t, np.zeros(2), out, watchdog=active)
 
-    def _on_command(self, msg: Vector3Stamped) -> None:
-        v = msg.vector
-        stamp = stamp_ns_of(msg)
+    def _on_command(self, msg: Any) -> None:
+        """A gradient command, in its flat form (``Vector3Stamped``: ``header_stamp_sec``, ``vector_x`` ...)."""
+        stamp = cv.stamp_ns(msg)
         k, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
             self.reject("gradient_command", "off_tick_stamp", f"stamp {stamp} ns")
@@ -179,14 +179,14 @@ class CoilDriverNode(VesselbotNode):
             return
         self._apply(k, msg, stamp)
 
-    def _apply(self, k: int, msg: Vector3Stamped, stamp: int) -> None:
-        v = msg.vector
+    def _apply(self, k: int, msg: Any, stamp: int) -> None:
         if not self.lockstep and cv.tick_time(k, self.dt) < self._t_last:
             self.reject("gradient_command", "stale_stamp", f"stamp {stamp} ns older than the last applied")
             return
-        ok = self.check("gradient_command", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
-                        y_values=(v.y,))
-        g = cv.xz(v) if ok else _NAN2  # malformed -> the limiter's reject rule, never dropped
+        x, y, z = msg.vector_x, msg.vector_y, msg.vector_z
+        ok = self.check("gradient_command", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
+                        y_values=(y,))
+        g = np.array([x, z]) if ok else _NAN2  # malformed -> the limiter's reject rule, never dropped
         if ok:
             self.count_received("gradient_command")
         self.commands_lost = False
@@ -215,9 +215,9 @@ class CoilDriverNode(VesselbotNode):
         self._t_last = t
         if self._multiplexed and k + 1 < self.n_ticks:
             self._publish_phase(k + 1)  # the phase of the next tick, before anything of that tick
-        self.publish("coil_applied", cv.gradient_msg(t, out.applied))
+        self.publish("coil_applied", cv.gradient_flat(t, out.applied))
         cmd = np.where(np.isfinite(commanded), commanded, 0.0)
-        self.publish("coil_state", cv.coil_state_msg(k, t, cmd, out, self.limits, watchdog, *self._dbdt))
+        self.publish("coil_state", cv.coil_state_flat(k, t, cmd, out, self.limits, watchdog, *self._dbdt))
         self.period_done(k)
         if self.lockstep:
             self.k = k + 1
@@ -235,7 +235,7 @@ class CoilDriverNode(VesselbotNode):
         if self._pending is not None and self._pending[0] <= k:
             kp, msg = self._pending
             self._pending = None
-            self._apply(kp, msg, stamp_ns_of(msg))
+            self._apply(kp, msg, cv.stamp_ns(msg))
         t = cv.tick_time(k, self.dt)
         if t <= self._t_last:
             return

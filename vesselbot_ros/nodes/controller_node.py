@@ -37,7 +37,7 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ControllerNode", "main"]
@@ -64,14 +64,16 @@ class ControllerNode(VesselbotNode):
         self._ref_latest: Any = None
         self.status: Counter[str] = Counter()
 
-    def _on_estimate(self, msg: Odometry) -> None:
+    def _on_estimate(self, msg: Any) -> None:
+        """An estimate, in its flat form (``Odometry``: ``pose_pose_position_x`` ...)."""
         x, z, age = cv.estimate_arrays(msg)
         flow_scale = cv.estimate_flow_scale(msg)
-        p = msg.pose.pose.position
-        v = msg.twist.twist.linear
-        stamp = stamp_ns_of(msg)
-        if not self.check("estimate", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z, v.x, v.y, v.z, age),
-                          y_values=(p.y, v.y), z_position=p.z, x_position=p.x):
+        px, py, pz = msg.pose_pose_position_x, msg.pose_pose_position_y, msg.pose_pose_position_z
+        vy = msg.twist_twist_linear_y
+        stamp = cv.stamp_ns(msg)
+        if not self.check("estimate", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp,
+                          values=(px, py, pz, msg.twist_twist_linear_x, vy, msg.twist_twist_linear_z, age),
+                          y_values=(py, vy), z_position=pz, x_position=px):
             return
         k = self.join.tick_of("estimate", stamp)
         if k is None:
@@ -85,13 +87,15 @@ class ControllerNode(VesselbotNode):
         if self._ref_latest is not None:
             self._command(k, (x, z, age, flow_scale), self._ref_latest)
 
-    def _on_reference(self, msg: ReferenceSample) -> None:
+    def _on_reference(self, msg: Any) -> None:
+        """A reference sample, in its flat form (``ReferenceSample``: ``tick``, ``position_x`` ...)."""
         p, v, a = cv.reference_arrays(msg)
-        stamp = stamp_ns_of(msg)
-        vals = (msg.position.x, msg.position.y, msg.position.z, msg.velocity.x, msg.velocity.y, msg.velocity.z,
-                msg.acceleration.x, msg.acceleration.y, msg.acceleration.z)
-        if not self.check("reference", frame_id=msg.header.frame_id, stamp_ns=stamp, values=vals,
-                          y_values=(msg.position.y, msg.velocity.y, msg.acceleration.y), z_position=msg.position.z, x_position=msg.position.x):
+        stamp = cv.stamp_ns(msg)
+        vals = (msg.position_x, msg.position_y, msg.position_z, msg.velocity_x, msg.velocity_y, msg.velocity_z,
+                msg.acceleration_x, msg.acceleration_y, msg.acceleration_z)
+        if not self.check("reference", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=vals,
+                          y_values=(msg.position_y, msg.velocity_y, msg.acceleration_y), z_position=msg.position_z,
+                          x_position=msg.position_x):
             return
         k = self.join.tick_of("reference", stamp, int(msg.tick))
         if k is None:
@@ -109,7 +113,7 @@ class ControllerNode(VesselbotNode):
         # the observer's blood-velocity scale, as the runner hands it (controller.flow_compensation: estimate)
         cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref, est[3])
         self.status[cmd.status] += 1
-        self.publish("gradient_command", cv.gradient_msg(t, cmd.gradient_T_per_m))
+        self.publish("gradient_command", cv.gradient_flat(t, cmd.gradient_T_per_m))
         self.period_done(k)
 
     def _drain(self) -> None:

@@ -50,8 +50,8 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample, SequencePhase
-from vesselbot_ros.graph_spec import CHILD_FRAME_ID, FRAME_ID, ns_of_time, tick_of_ns, tick_time
-from vesselbot_ros.nodes.wire import message_builder
+from vesselbot_ros.graph_spec import CHILD_FRAME_ID, FRAME_ID, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.nodes.wire import FlatCodec, codec_for, message_builder
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
@@ -67,6 +67,15 @@ __all__ = [
     "vector3",
     "point",
     "xz",
+    "codec",
+    "stamp_ns",
+    "clock_flat",
+    "measurement_flat",
+    "gradient_flat",
+    "estimate_flat",
+    "reference_flat",
+    "coil_state_flat",
+    "plant_state_flat",
     "clock_msg",
     "measurement_msg",
     "estimate_msg",
@@ -87,19 +96,6 @@ _time = message_builder(Time)
 _header = message_builder(Header)
 _vector3 = message_builder(Vector3)
 _point = message_builder(Point)
-_quaternion = message_builder(Quaternion)
-_clock = message_builder(Clock)
-_point_stamped = message_builder(PointStamped)
-_vector3_stamped = message_builder(Vector3Stamped)
-_pose = message_builder(Pose)
-_twist = message_builder(Twist)
-_pose_cov = message_builder(PoseWithCovariance)
-_twist_cov = message_builder(TwistWithCovariance)
-_odometry = message_builder(Odometry)
-_reference_sample = message_builder(ReferenceSample)
-_coil_state = message_builder(CoilState)
-_plant_state = message_builder(PlantState)
-_force_breakdown = message_builder(ForceBreakdown)
 
 AGE_COVARIANCE_INDEX = 35
 #: Index in the estimate's ``twist.covariance`` (the otherwise unused yaw-rate variance) carrying the observer's
@@ -145,90 +141,153 @@ def all_finite(values: Iterable[float]) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
+def codec(cls: Any) -> FlatCodec:
+    """The flat codec of per-tick message type ``cls`` with the graph's strings (every per-tick type has one)."""
+    c = codec_for(cls, WIRE_STRINGS)
+    if c is None:
+        raise TypeError(f"{cls.__name__} has no flat layout")
+    return c
+
+
+# The per-tick messages are built in their flat form (nodes/wire.py: a named tuple of the CDR's values, which one
+# struct call turns into the CDR); ``*_msg`` turns one into the rclpy message, for tools and tests.
+_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
+_XZ = (".x", ".z")
+_make_clock = codec(Clock).maker("clock.sec", "clock.nanosec")
+_make_measurement = codec(PointStamped).maker(*_STAMP, "point.x", "point.z")
+_make_gradient = codec(Vector3Stamped).maker(*_STAMP, "vector.x", "vector.z")
+_make_estimate = codec(Odometry).maker(*_STAMP, "pose.pose.position.x", "pose.pose.position.z",
+                                       "twist.twist.linear.x", "twist.twist.linear.z",
+                                       f"pose.covariance_{AGE_COVARIANCE_INDEX}",
+                                       f"twist.covariance_{FLOW_SCALE_COVARIANCE_INDEX}")
+_make_reference = codec(ReferenceSample).maker(*_STAMP, "tick", *(f"{v}{c}" for v in ("position", "velocity",
+                                                                                     "acceleration") for c in _XZ))
+_make_coil_state = codec(CoilState).maker(
+    *_STAMP, "tick", "commanded.x", "commanded.z", "applied.x", "applied.z", "saturation_scale", "saturated",
+    "slew_limited_x", "slew_limited_z", "command_rejected", "watchdog_active", "max_gradient", "slew_rate",
+    "dbdt_limit", "dbdt_radius")
+_make_plant_state = codec(PlantState).maker(
+    *_STAMP, "tick", "position.x", "position.z", "velocity.x", "velocity.z", "blood_velocity.x", "blood_velocity.z",
+    "vessel_diameter", "wall_gap_upper", "wall_gap_lower", "signed_wall_distance", "in_contact", "contact_phase",
+    "applied_gradient.x", "applied_gradient.z", "forces.header.stamp.sec", "forces.header.stamp.nanosec",
+    *(f"forces.{name}{c}" for name in TERM_NAMES for c in _XZ))
+
+
+def stamp_ns(v: Any) -> int:
+    """Stamp (ns) of a per-tick message with a header, in its flat form."""
+    return v.header_stamp_sec * NS_PER_S + v.header_stamp_nanosec  # type: ignore[no-any-return]
+
+
+def clock_flat(t_s: float) -> Any:
+    """``/clock`` for sim time ``t_s`` (flat form)."""
+    return _make_clock(*divmod(ns_of_time(t_s), NS_PER_S))
+
+
+def measurement_flat(t_acq_s: float, p: npt.ArrayLike) -> Any:
+    """An imager frame (flat form): stamp = acquisition time, point = measured position (m)."""
+    return _make_measurement(*divmod(ns_of_time(t_acq_s), NS_PER_S), float(p[0]), float(p[1]))  # type: ignore[index]
+
+
+def gradient_flat(t_s: float, g: npt.ArrayLike) -> Any:
+    """A gradient (T/m) stamped ``t_s`` (flat form)."""
+    return _make_gradient(*divmod(ns_of_time(t_s), NS_PER_S), float(g[0]), float(g[1]))  # type: ignore[index]
+
+
+def estimate_flat(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float, flow_scale: float = 1.0) -> Any:
+    """Observer estimate at ``t_s`` (flat form): position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
+    # inf age (no measurement yet) cannot travel as a finite number: clamp it
+    return _make_estimate(*divmod(ns_of_time(t_s), NS_PER_S), float(x_hat[0]), float(x_hat[1]),  # type: ignore[index]
+                          float(z_hat[0]), float(z_hat[1]), float(age_s) if math.isfinite(age_s) else 1e9,  # type: ignore[index]
+                          float(flow_scale))
+
+
+def reference_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> Any:
+    """Reference sample k (flat form): ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
+    return _make_reference(*divmod(ns_of_time(t_s), NS_PER_S), int(k), float(p[0]), float(p[1]),  # type: ignore[index]
+                           float(v[0]), float(v[1]), float(a[0]), float(a[1]))  # type: ignore[index]
+
+
+def coil_state_flat(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
+                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> Any:
+    """CoilState (flat form) from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no limit)."""
+    slew = out.slew_limited
+    return _make_coil_state(
+        *divmod(ns_of_time(t_s), NS_PER_S), int(k), float(commanded[0]), float(commanded[1]),  # type: ignore[index]
+        float(out.applied[0]), float(out.applied[1]), float(out.k_scale), bool(out.saturated), bool(slew[0]),
+        bool(slew[1]), bool(out.rejected), bool(watchdog), float(limits.saturation_T_per_m),
+        float(limits.slew_rate_T_per_m_per_s), float(dbdt_limit_T_per_s), float(dbdt_radius_m))
+
+
+def plant_state_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
+                     diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
+                     in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> Any:
+    """The plant's ground truth of tick ``k`` (flat form): ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
+    sec, nsec = divmod(ns_of_time(t_s), NS_PER_S)
+    return _make_plant_state(
+        sec, nsec, int(k), float(p[0]), float(p[1]), float(v[0]), float(v[1]),  # type: ignore[index]
+        float(blood_velocity[0]), float(blood_velocity[1]), float(diameter_m), float(gap_upper_m), float(gap_lower_m),
+        float(signed_wall_distance_m), bool(in_contact), int(contact_phase), float(applied[0]),  # type: ignore[index]
+        float(applied[1]), sec, nsec, *np.asarray(forces, dtype=np.float64).ravel().tolist())  # type: ignore[index]
+
+
 def clock_msg(t_s: float) -> Clock:
     """``/clock`` message for sim time ``t_s``."""
-    return _clock(clock=stamp_of_ns(ns_of_time(t_s)))
+    return codec(Clock).to_message(clock_flat(t_s))
 
 
 def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
     """An imager frame: stamp = acquisition time, point = measured position (m)."""
-    return _point_stamped(header=header(t_acq_s), point=point(p))
+    return codec(PointStamped).to_message(measurement_flat(t_acq_s, p))
 
 
 def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float,
                  flow_scale: float = 1.0) -> Odometry:
     """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
-    cov = np.zeros(36)
-    # inf age (no measurement yet) cannot travel as a finite number: clamp it
-    cov[AGE_COVARIANCE_INDEX] = float(age_s) if math.isfinite(age_s) else 1e9
-    tcov = np.zeros(36)
-    tcov[FLOW_SCALE_COVARIANCE_INDEX] = float(flow_scale)
-    pose = _pose(position=point(x_hat), orientation=_quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
-    twist = _twist(linear=vector3(z_hat), angular=_vector3(x=0.0, y=0.0, z=0.0))
-    return _odometry(header=header(t_s), child_frame_id=CHILD_FRAME_ID, pose=_pose_cov(pose=pose, covariance=cov),
-                     twist=_twist_cov(twist=twist, covariance=tcov))
+    return codec(Odometry).to_message(estimate_flat(t_s, x_hat, z_hat, age_s, flow_scale))
 
 
-def estimate_flow_scale(msg: Odometry) -> float:
-    """The blood-velocity scale an estimate carries (``twist.covariance[35]``); 1 if unset, non-finite or <= 0."""
-    s = float(msg.twist.covariance[FLOW_SCALE_COVARIANCE_INDEX])
+def estimate_flow_scale(v: Any) -> float:
+    """The blood-velocity scale an estimate (flat form) carries (``twist.covariance[35]``); 1 if unset, non-finite or <= 0."""
+    s = float(v.twist_covariance_35)
     return s if math.isfinite(s) and s > 0.0 else 1.0
 
 
-def estimate_arrays(msg: Odometry) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
-    """Odometry -> ``(x_hat (2,) m, z_hat (2,) m/s, age s)``."""
-    return xz(msg.pose.pose.position), xz(msg.twist.twist.linear), float(msg.pose.covariance[AGE_COVARIANCE_INDEX])
+def estimate_arrays(v: Any) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
+    """Estimate (flat form) -> ``(x_hat (2,) m, z_hat (2,) m/s, age s)``."""
+    return (np.array([v.pose_pose_position_x, v.pose_pose_position_z]),
+            np.array([v.twist_twist_linear_x, v.twist_twist_linear_z]), float(v.pose_covariance_35))
 
 
 def reference_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> ReferenceSample:
     """Reference sample k: ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
-    return _reference_sample(header=header(t_s), tick=int(k), position=point(p), velocity=vector3(v),
-                             acceleration=vector3(a))
+    return codec(ReferenceSample).to_message(reference_flat(k, t_s, p, v, a))
 
 
-def reference_arrays(msg: ReferenceSample) -> tuple[npt.NDArray[np.float64], ...]:
-    """ReferenceSample -> ``(p, v, a)``, each (2,)."""
-    return xz(msg.position), xz(msg.velocity), xz(msg.acceleration)
+def reference_arrays(v: Any) -> tuple[npt.NDArray[np.float64], ...]:
+    """Reference sample (flat form) -> ``(p, v, a)``, each (2,)."""
+    return (np.array([v.position_x, v.position_z]), np.array([v.velocity_x, v.velocity_z]),
+            np.array([v.acceleration_x, v.acceleration_z]))
 
 
 def gradient_msg(t_s: float, g: npt.ArrayLike) -> Vector3Stamped:
     """A gradient (T/m) stamped ``t_s``."""
-    return _vector3_stamped(header=header(t_s), vector=vector3(g))
+    return codec(Vector3Stamped).to_message(gradient_flat(t_s, g))
 
 
 def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> CoilState:
     """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
-    slew = out.slew_limited
-    return _coil_state(
-        header=header(t_s),
-        tick=int(k),
-        commanded=vector3(commanded),
-        applied=vector3(out.applied),
-        saturation_scale=float(out.k_scale),
-        saturated=bool(out.saturated),
-        slew_limited_x=bool(slew[0]),
-        slew_limited_z=bool(slew[1]),
-        command_rejected=bool(out.rejected),
-        watchdog_active=bool(watchdog),
-        max_gradient=float(limits.saturation_T_per_m),
-        slew_rate=float(limits.slew_rate_T_per_m_per_s),
-        dbdt_limit=float(dbdt_limit_T_per_s),
-        dbdt_radius=float(dbdt_radius_m),
-    )
+    return codec(CoilState).to_message(coil_state_flat(k, t_s, commanded, out, limits, watchdog, dbdt_limit_T_per_s,
+                                                       dbdt_radius_m))
 
 
 def plant_state_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
                     diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
                     in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> PlantState:
     """The plant's ground truth of tick ``k``: ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
-    h = header(t_s)
-    fb = _force_breakdown(header=h, **{name: vector3(forces[i]) for i, name in enumerate(TERM_NAMES)})  # type: ignore[index]
-    return _plant_state(header=h, tick=int(k), position=point(p), velocity=vector3(v), blood_velocity=vector3(blood_velocity),
-                        vessel_diameter=float(diameter_m), wall_gap_upper=float(gap_upper_m),
-                        wall_gap_lower=float(gap_lower_m), signed_wall_distance=float(signed_wall_distance_m),
-                        in_contact=bool(in_contact), contact_phase=int(contact_phase), applied_gradient=vector3(applied),
-                        forces=fb)
+    return codec(PlantState).to_message(plant_state_flat(k, t_s, p, v, blood_velocity, diameter_m, gap_upper_m,
+                                                         gap_lower_m, signed_wall_distance_m, in_contact,
+                                                         contact_phase, applied, forces))
 
 
 def sequence_phase_msg(t_s: float, window: Any, latency_s: float, duty_cycle: float) -> SequencePhase:

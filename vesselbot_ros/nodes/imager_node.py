@@ -46,13 +46,14 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import PointStamped
 
 from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import InjectFault
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import VesselbotNode, run_node
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ImagerNode", "main"]
@@ -83,20 +84,21 @@ class ImagerNode(VesselbotNode):
         """The imager as built from the scenario (its noise generator seeded again), no frame yet, no injected fault."""
         self.imager = build_stage(self.scenario, "imager")
         self.k_next = 0
-        self._last_msg: PointStamped | None = None
+        self._last_msg: Any = None  # the last frame published (flat form)
         self.frames = 0
         self.outlier_frames = 0
         self.dropout_frames = 0
         # (kind, start_s, duration_s, magnitude_m, source), in announcement order
         self._faults: list[tuple[str, float, float, float, str]] = []
 
-    def _on_truth(self, msg: PlantState) -> None:
-        p = msg.position
-        stamp = stamp_ns_of(msg)
-        if not self.check("truth", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
-                          y_values=(p.y,), z_position=p.z, x_position=p.x):
+    def _on_truth(self, msg: Any) -> None:
+        """The plant's truth, in its flat form (``PlantState``: ``tick``, ``position_x`` ...)."""
+        x, y, z = msg.position_x, msg.position_y, msg.position_z
+        stamp = cv.stamp_ns(msg)
+        if not self.check("truth", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
+                          y_values=(y,), z_position=z, x_position=x):
             return
-        k = int(msg.tick)
+        k = msg.tick
         if cv.ns_of_time(cv.tick_time(k, self.dt)) != stamp:
             self.reject("truth", "stamp_tick_mismatch", f"tick {k} but stamp {stamp} ns")
             return
@@ -111,11 +113,11 @@ class ImagerNode(VesselbotNode):
             self._announce(kind, start, duration, magnitude, "schedule")
         if any(a - 1e-9 <= t_k < b - 1e-9 for a, b in self._windows):
             self.dropout_frames += 1
-        meas = self.imager.frame(t_k, cv.xz(p))
+        meas = self.imager.frame(t_k, np.array([x, z]))
         if meas is not None:
             self.frames += 1
             self.outlier_frames += int(meas.outlier)
-            self._last_msg = cv.measurement_msg(meas.t_acq_s, meas.p)
+            self._last_msg = cv.measurement_flat(meas.t_acq_s, meas.p)
             self.publish("measurement", self._last_msg)
         elif self.lockstep:
             if self._last_msg is None:

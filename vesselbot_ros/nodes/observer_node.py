@@ -59,12 +59,14 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ObserverNode", "main"]
 
 _NO_FRAME = object()
+#: An empty ``header.frame_id`` as a flat form holds it (the imager's "no frame yet" placeholder)
+_EMPTY_CDR = b"\0"
 
 
 class ObserverNode(VesselbotNode):
@@ -100,14 +102,14 @@ class ObserverNode(VesselbotNode):
         self._t_last = 0.0
 
     # ------------------------------------------------------------------ inputs
-    def _parse_measurement(self, msg: PointStamped) -> Any:
-        """A Measurement, _NO_FRAME (placeholder / not fresh) or None (rejected)."""
-        if msg.header.frame_id == "" and msg.header.stamp.sec == 0 and msg.header.stamp.nanosec == 0:
+    def _parse_measurement(self, msg: Any) -> Any:
+        """A Measurement, _NO_FRAME (placeholder / not fresh) or None (rejected); ``msg`` in its flat form."""
+        if msg.header_frame_id_cdr == _EMPTY_CDR and msg.header_stamp_sec == 0 and msg.header_stamp_nanosec == 0:
             return _NO_FRAME
-        p = msg.point
-        stamp = stamp_ns_of(msg)
-        if not self.check("measurement", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(p.x, p.y, p.z),
-                          y_values=(p.y,), z_position=p.z, x_position=p.x, extra_age_s=self.scenario.imager.latency_s):
+        x, y, z = msg.point_x, msg.point_y, msg.point_z
+        stamp = cv.stamp_ns(msg)
+        if not self.check("measurement", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
+                          y_values=(y,), z_position=z, x_position=x, extra_age_s=self.scenario.imager.latency_s):
             return None
         j, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
@@ -123,9 +125,9 @@ class ObserverNode(VesselbotNode):
             self.reject("measurement", "stale_stamp", f"frame stamp {stamp} ns not newer than {self._last_stamp_ns} ns")
             return None
         self._last_stamp_ns = stamp
-        return Measurement(cv.tick_time(j, self.dt), cv.xz(p), False)
+        return Measurement(cv.tick_time(j, self.dt), np.array([x, z]), False)
 
-    def _on_measurement(self, msg: PointStamped) -> None:
+    def _on_measurement(self, msg: Any) -> None:
         meas = self._parse_measurement(msg)
         if meas is not None:
             self.count_received("measurement")
@@ -136,20 +138,21 @@ class ObserverNode(VesselbotNode):
         elif isinstance(meas, Measurement):
             self._update_now(meas)
 
-    def _on_applied(self, msg: Vector3Stamped) -> None:
-        v = msg.vector
-        stamp = stamp_ns_of(msg)
-        if not self.check("coil_applied", frame_id=msg.header.frame_id, stamp_ns=stamp, values=(v.x, v.y, v.z),
-                          y_values=(v.y,)):
+    def _on_applied(self, msg: Any) -> None:
+        """The applied gradient, in its flat form (``Vector3Stamped``)."""
+        x, y, z = msg.vector_x, msg.vector_y, msg.vector_z
+        stamp = cv.stamp_ns(msg)
+        if not self.check("coil_applied", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
+                          y_values=(y,)):
             return
         k = self.join.tick_of("coil_applied", stamp)
         if k is None:
             return
         if not self.lockstep:
             self.count_received("coil_applied")
-            self._g_prev = cv.xz(v)
+            self._g_prev = np.array([x, z])
             return
-        if self.join.put("coil_applied", k, cv.xz(v)):
+        if self.join.put("coil_applied", k, np.array([x, z])):
             self.count_received("coil_applied")
             self._drain()
 
@@ -167,8 +170,8 @@ class ObserverNode(VesselbotNode):
         self._t_last = est.t_s
         self.used += int(est.used_measurement)
         self.rejected_by_core += int(est.rejected)
-        self.publish("estimate", cv.estimate_msg(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s,
-                                                 getattr(est, "flow_scale", 1.0)))
+        self.publish("estimate", cv.estimate_flat(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s,
+                                                  getattr(est, "flow_scale", 1.0)))
         self.measurement_age_s = float(est.time_since_measurement_s)
         lost = est.t_s > self.lost_after_s and self.measurement_age_s > self.lost_after_s + 1e-9
         if lost != self.measurement_lost:

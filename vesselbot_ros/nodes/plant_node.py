@@ -82,7 +82,7 @@ from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import RunControl
 from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node, stamp_ns_of
+from vesselbot_ros.nodes.base import VesselbotNode, run_node
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
@@ -374,13 +374,14 @@ class PlantNode(VesselbotNode):
         out = self.plant.output(with_forces=True)
         if self.lockstep:  # truth first: it starts the tick's critical path (imager -> ... -> plant)
             self.publish("truth", self._truth_msg(out))
-            self.publish("clock", cv.clock_msg(out.t_s))
+            self.publish("clock", cv.clock_flat(out.t_s))
         else:  # real time: a node takes the tick from /clock, then its inputs of that tick
-            self.publish("clock", cv.clock_msg(out.t_s))
+            self.publish("clock", cv.clock_flat(out.t_s))
             self.publish("truth", self._truth_msg(out))
         self.period_done(self.k)  # real time: tick k is due at wall start + k * dt / real_time_factor
 
-    def _truth_msg(self, out: Any) -> PlantState:
+    def _truth_msg(self, out: Any) -> Any:
+        """The truth of the current tick, in its flat form (``PlantState``)."""
         t = out.t_s
         r = self.scenario.physics.robot.radius_m
         x, z = float(out.p[0]), float(out.p[1])
@@ -392,7 +393,7 @@ class PlantNode(VesselbotNode):
             d = self._vessel.diameter(t)
             vfx, vfz = float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0
             gap_up, gap_lo = 0.5 * d - z - r, z + 0.5 * d - r
-        return cv.plant_state_msg(self.k, t, out.p, out.v, (float(vfx), float(vfz)), d, gap_up, gap_lo, out.delta_m,
+        return cv.plant_state_flat(self.k, t, out.p, out.v, (float(vfx), float(vfz)), d, gap_up, gap_lo, out.delta_m,
                                   out.in_contact, out.contact_phase, self._g, out.forces)
 
     def _advance(self, g: np.ndarray) -> None:
@@ -437,23 +438,25 @@ class PlantNode(VesselbotNode):
         self.mark_finished()
         self._cond.notify_all()
 
-    def _on_applied(self, msg: Vector3Stamped) -> None:
+    def _on_applied(self, msg: Any) -> None:
+        """The applied gradient, in its flat form (``Vector3Stamped``: ``header_stamp_sec``, ``vector_x`` ...)."""
         with self._lock:
             self._applied(msg)
 
-    def _applied(self, msg: Vector3Stamped) -> None:
-        v = msg.vector
-        if not self.check("coil_applied", frame_id=msg.header.frame_id, values=(v.x, v.y, v.z), y_values=(v.y,),
-                          stamp_ns=None if self.lockstep else stamp_ns_of(msg)):
+    def _applied(self, msg: Any) -> None:
+        x, y, z = msg.vector_x, msg.vector_y, msg.vector_z
+        stamp = cv.stamp_ns(msg)
+        if not self.check("coil_applied", frame_id=msg.header_frame_id_cdr, values=(x, y, z), y_values=(y,),
+                          stamp_ns=None if self.lockstep else stamp):
             return
-        g = cv.xz(v)
+        g = np.array([x, z])
         if not self.lockstep:
             self.count_received("coil_applied")
             self._g_latest = g
             return
-        k, on_grid = cv.tick_of_ns(stamp_ns_of(msg), self.dt)
+        k, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
-            self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp_ns_of(msg)} ns")
+            self.reject("coil_applied", "off_tick_stamp", f"stamp {stamp} ns")
             return
         if not self.running or k != self.k or self._held:
             self.reject("coil_applied", "stale_tick" if k < self.k or not self.running else "future_tick",

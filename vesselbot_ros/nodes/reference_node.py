@@ -62,15 +62,16 @@ class ReferenceNode(VesselbotNode):
         """Back to t = 0 (the reference itself is a pure function of time)."""
         self._last_ns = -1
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, msg: Any) -> None:
+        """``/clock``, in its flat form (``clock_sec``, ``clock_nanosec``)."""
         if not self.lockstep:
             k = self.accept_clock(msg)  # real time: a garbage /clock moves nothing
             if k is not None and k < self.n_ticks:
-                self.publish("reference", cv.reference_msg(k, cv.tick_time(k, self.dt), self._p[k], self._v[k],
-                                                           self._a[k]))
+                self.publish("reference", cv.reference_flat(k, cv.tick_time(k, self.dt), self._p[k], self._v[k],
+                                                            self._a[k]))
                 self.period_done(k)
             return
-        ns = cv.ns_of_stamp(msg.clock)
+        ns = msg.clock_sec * cv.NS_PER_S + msg.clock_nanosec  # flat form
         if ns <= self._last_ns:
             self.reject("clock", "stale_stamp", f"clock {ns} ns not newer than {self._last_ns} ns")
             return
@@ -79,13 +80,13 @@ class ReferenceNode(VesselbotNode):
         k, on_grid = cv.tick_of_ns(ns, self.dt)
         if on_grid and 0 <= k < self.n_ticks:
             t = cv.tick_time(k, self.dt)
-            self.publish("reference", cv.reference_msg(k, t, self._p[k], self._v[k], self._a[k]))
+            self.publish("reference", cv.reference_flat(k, t, self._p[k], self._v[k], self._a[k]))
             self.period_done(k)
             if k + 1 >= self.n_ticks:
                 self.mark_finished()
         elif on_grid:
             s = self.reference.sample(ns * 1e-9)
-            self.publish("reference", cv.reference_msg(k, ns * 1e-9, s.p, s.v, s.a))
+            self.publish("reference", cv.reference_flat(k, ns * 1e-9, s.p, s.v, s.a))
 
 
 def main(argv: list[str] | None = None) -> int:

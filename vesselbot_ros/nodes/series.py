@@ -40,13 +40,13 @@ SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
 #: Flags (stored as 0.0 / 1.0, returned as bool).
 FLAGS = frozenset({"in_contact", "saturated", "slew_limited"})
 
-#: topic key -> one message's floats, in the order of its spec's ``series`` columns
+#: topic key -> one message's floats (its flat form, nodes/wire.py), in the order of its spec's ``series`` columns
 READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
-    "truth": lambda m: (m.position.x, m.position.z, m.velocity.x, m.velocity.z, float(m.in_contact)),
-    "estimate": lambda m: (m.pose.pose.position.x, m.pose.pose.position.z,
-                           m.twist.twist.linear.x, m.twist.twist.linear.z),
-    "reference": lambda m: (m.position.x, m.position.z),
-    "coil_state": lambda m: (m.applied.x, m.applied.z, float(m.saturated),
+    "truth": lambda m: (m.position_x, m.position_z, m.velocity_x, m.velocity_z, float(m.in_contact)),
+    "estimate": lambda m: (m.pose_pose_position_x, m.pose_pose_position_z,
+                           m.twist_twist_linear_x, m.twist_twist_linear_z),
+    "reference": lambda m: (m.position_x, m.position_z),
+    "coil_state": lambda m: (m.applied_x, m.applied_z, float(m.saturated),
                              float(m.slew_limited_x), float(m.slew_limited_z)),
 }
 
@@ -84,15 +84,14 @@ class SeriesLog:
             col += w
 
     def add(self, key: str, msg: Any) -> None:
-        """Keep the floats of one published message of topic ``key`` (others: ignored); about 1 us."""
+        """Keep the floats of one published message of topic ``key``, in its flat form (others: ignored); about 1 us."""
         slot = self._slot.get(key)
         if slot is None:
             return
         if slot[3]:
             self._rows[key].append((msg.tick, slot[2](msg)))
         else:
-            st = msg.header.stamp
-            self._rows[key].append((st.sec * 1_000_000_000 + st.nanosec, slot[2](msg)))
+            self._rows[key].append((msg.header_stamp_sec * 1_000_000_000 + msg.header_stamp_nanosec, slot[2](msg)))
 
     @property
     def values(self) -> np.ndarray:

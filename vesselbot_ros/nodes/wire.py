@@ -29,6 +29,8 @@ serializer for every hot-path type, with random values (hypothesis).
 from __future__ import annotations
 
 import struct
+from collections import namedtuple
+from collections.abc import Callable
 from functools import cache
 from typing import Any
 
@@ -79,33 +81,40 @@ def _message_class(t: Any) -> Any:
 
 
 class FlatCodec:
-    """One message type's flat CDR layout (see module doc); build with :func:`codec_for`."""
+    """One message type's flat CDR layout (see module doc); build with :func:`codec_for`.
+
+    Attributes:
+        Flat: The type's flat form, a named tuple of every value of its CDR in
+            wire order (see :meth:`unpack`).
+        size: Bytes of the type's CDR on the layout.
+    """
 
     def __init__(self, cls: Any, strings: dict[str, str]) -> None:
         self.cls = cls
-        self._fmt = ["<"]
+        self._fmt = ["<", "4s"]
         self._off = 0  # offset in the payload (after the encapsulation header)
-        self._args: list[str] = []  # pack arguments: accessor expressions or string constants
+        self._names = ["cdr_header"]  # the flat form's field names, in wire order
+        self._flat = ["ENC"]  # expressions of the flat values of a message ``m``
+        self._defaults: list[Any] = [ENCAPSULATION_LE]  # the flat values of a default message on the layout
         self._checks: list[tuple[int, bytes]] = []  # (offset in the buffer, bytes a string must equal)
+        self._fixed: list[tuple[int, int, bytes]] = []  # (size index, bytes index, bytes) of each fixed string
         self._builders: dict[str, Any] = {}
-        self._scope: dict[str, Any] = {"np": np}
-        self._n = 0  # unpacked values so far
+        self._scope: dict[str, Any] = {"np": np, "ENC": ENCAPSULATION_LE}
         self._strings = strings
-        self._paths: list[str] = []  # the string fields, fixed to their values
-        self._fmt.append("4s")
-        self._args.append("ENC")
-        self._scope["ENC"] = ENCAPSULATION_LE
-        self._n = 1
-        build = self._walk(cls, "m", "")
+        build = self._walk(cls, "m", "", cls())
         self.size = 4 + self._off
         self._struct = struct.Struct("".join(self._fmt))
-        guard = " and ".join(f"m.{p} == {strings[p]!r}" for p in self._paths) or "True"
-        src = (f"def encode(m):\n    if {guard}:\n        return S.pack({', '.join(self._args)})\n    return None\n"
-               f"def decode(v):\n    return {build}\n")
-        self._scope["S"] = self._struct
+        self.Flat = namedtuple(f"Flat{cls.__name__}", self._names)  # type: ignore[misc]  # noqa: PYI024
+        self.index = {name: i for i, name in enumerate(self._names)}
+        on_layout = " and ".join(f"v[{i}] == {len(b)} and v[{j}] == {b!r}" for i, j, b in self._fixed) or "True"
+        src = (f"def flatten(m):\n    return new(Flat, ({', '.join(self._flat)},))\n"
+               f"def to_message(v):\n    return {build}\n"
+               f"def pack(v):\n    if {on_layout}:\n        return S.pack(*v)\n    return None\n")
+        self._scope.update(S=self._struct, Flat=self.Flat, new=tuple.__new__)
         exec(src, self._scope)  # noqa: S102 - generated from the message type's own introspection
-        self._encode_fast = self._scope["encode"]
-        self._decode_fast = self._scope["decode"]
+        self.flatten: Callable[[Any], Any] = self._scope["flatten"]
+        self.to_message: Callable[[Any], Any] = self._scope["to_message"]
+        self._pack_fast = self._scope["pack"]
 
     # ------------------------------------------------------------------ layout
     def _pad(self, align: int) -> None:
@@ -114,8 +123,8 @@ class FlatCodec:
             self._fmt.append(f"{pad}x")
             self._off += pad
 
-    def _walk(self, cls: Any, expr: str, path: str) -> str:
-        """Lay out ``cls`` (accessed as ``expr`` when encoding); return the expression that rebuilds it."""
+    def _walk(self, cls: Any, expr: str, path: str, default: Any) -> str:
+        """Lay out ``cls`` (a message ``expr``; ``default`` its default); return the expression rebuilding it from ``v``."""
         from rosidl_parser.definition import AbstractString, Array, BasicType, NamespacedType
 
         names = [s for s in cls.__slots__ if s != "_check_fields"]
@@ -123,22 +132,27 @@ class FlatCodec:
         for slot, t in zip(names, cls.SLOT_TYPES, strict=True):
             name = slot[1:]
             p = f"{path}.{name}" if path else name
-            e = f"{expr}.{name}"
+            e = f"{expr}.{slot}"  # the slot itself: the generated property costs a Python call per field
+            flat = p.replace(".", "_")
+            n = len(self._names)
+            value = getattr(default, slot)
             if isinstance(t, BasicType):
                 code, size = _PRIMITIVES[t.typename]
                 self._pad(size)
                 self._fmt.append(code)
                 self._off += size
-                self._args.append(e)
-                parts.append(f"{name}=v[{self._n}]")
-                self._n += 1
+                self._names.append(flat)
+                self._flat.append(e)
+                self._defaults.append(value)
+                parts.append(f"{name}=v[{n}]")
             elif isinstance(t, Array) and isinstance(t.value_type, BasicType) and t.value_type.typename == "double":
                 self._pad(8)
                 self._fmt.append(f"{t.size}d")
                 self._off += 8 * t.size
-                self._args.append(f"*{e}")
-                parts.append(f"{name}=np.array(v[{self._n}:{self._n + t.size}])")
-                self._n += t.size
+                self._names += [f"{flat}_{i}" for i in range(t.size)]
+                self._flat.append(f"*{e}")
+                self._defaults += [float(x) for x in value]
+                parts.append(f"{name}=np.array(v[{n}:{n + t.size}])")
             elif isinstance(t, AbstractString):
                 if p not in self._strings:
                     raise _NotFlat(f"{cls.__name__}.{name}: a string the graph does not fix")
@@ -146,13 +160,14 @@ class FlatCodec:
                 self._pad(4)
                 self._fmt.append(f"I{len(raw)}s")
                 self._checks.append((4 + self._off, struct.pack("<I", len(raw)) + raw))
+                self._fixed.append((n, n + 1, raw))
                 self._off += 4 + len(raw)
-                self._args += [str(len(raw)), repr(raw)]
-                parts.append(f"{name}={self._strings[p]!r}")
-                self._paths.append(p)
-                self._n += 2
+                self._names += [f"{flat}_size", f"{flat}_cdr"]
+                self._flat += [f"len({e}.encode()) + 1", f"{e}.encode() + b'\\0'"]
+                self._defaults += [len(raw), raw]
+                parts.append(f"{name}=v[{n + 1}][:-1].decode()")
             elif isinstance(t, NamespacedType):
-                parts.append(f"{name}={self._walk(_message_class(t), e, p)}")
+                parts.append(f"{name}={self._walk(_message_class(t), e, p, value)}")
             else:
                 raise _NotFlat(f"{cls.__name__}.{name}: {type(t).__name__}")
         key = f"B{len(self._builders)}"
@@ -160,23 +175,67 @@ class FlatCodec:
         return f"{key}({', '.join(parts)})"
 
     # ------------------------------------------------------------------ use
-    def encode(self, msg: Any) -> bytes:
-        """The message's CDR, as rclpy's ``serialize_message`` writes it."""
-        raw = self._encode_fast(msg)
+    def on_layout(self, raw: bytes) -> bool:
+        """True if ``raw`` is this type's CDR on the flat layout (little endian, the graph's strings, long enough)."""
+        return len(raw) >= self.size and raw[:4] == ENCAPSULATION_LE and all(
+            raw[o:o + len(b)] == b for o, b in self._checks)
+
+    def unpack(self, raw: bytes) -> Any:
+        """The flat form of a received CDR buffer: one struct call on the layout, else rclpy's deserializer.
+
+        Raises:
+            Exception: rclpy's error for bytes that are not this type's CDR.
+        """
+        if self.on_layout(raw):
+            return tuple.__new__(self.Flat, self._struct.unpack_from(raw))
+        from rclpy.serialization import deserialize_message
+
+        return self.flatten(deserialize_message(raw, self.cls))
+
+    def pack(self, flat: Any) -> bytes:
+        """The CDR of a flat form, as rclpy's ``serialize_message`` writes it."""
+        raw = self._pack_fast(flat)
         if raw is not None:
             return raw  # type: ignore[no-any-return]
         from rclpy.serialization import serialize_message
 
-        return serialize_message(msg)  # type: ignore[no-any-return]
+        return serialize_message(self.to_message(flat))  # type: ignore[no-any-return]
+
+    def encode(self, msg: Any) -> bytes:
+        """The message's CDR, as rclpy's ``serialize_message`` writes it."""
+        return self.pack(self.flatten(msg))
 
     def decode(self, raw: bytes) -> Any:
         """The message of a received CDR buffer, equal to rclpy's ``deserialize_message``."""
-        if len(raw) >= self.size and raw[:4] == ENCAPSULATION_LE and all(
-                raw[o:o + len(b)] == b for o, b in self._checks):
-            return self._decode_fast(self._struct.unpack_from(raw))
+        if self.on_layout(raw):
+            return self.to_message(self._struct.unpack_from(raw))
         from rclpy.serialization import deserialize_message
 
         return deserialize_message(raw, self.cls)
+
+    def maker(self, *paths: str) -> Callable[..., Any]:
+        """A builder of the flat form from the values of ``paths`` (positional, in that order).
+
+        Every other value is the type's default, and every string the graph's
+        (e.g. ``maker("header.stamp.sec", "header.stamp.nanosec", "vector.x", "vector.z")``
+        builds a Vector3Stamped in frame ``vessel`` with ``vector.y = 0``).  A
+        path names a primitive field (dots between nested messages) or one
+        element of an array (``pose.covariance_35``).
+
+        Raises:
+            KeyError: a path the type does not have, or a string.
+        """
+        idx = {}
+        for i, p in enumerate(paths):
+            flat = p.replace(".", "_")
+            if flat not in self.index or flat.endswith(("_size", "_cdr")) or flat == "cdr_header":
+                raise KeyError(f"{self.cls.__name__} has no primitive field {p!r}")
+            idx[self.index[flat]] = f"a{i}"
+        values = [idx.get(j, f"D[{j}]") for j in range(len(self._names))]
+        args = ", ".join(f"a{i}" for i in range(len(paths)))
+        scope = {"new": tuple.__new__, "Flat": self.Flat, "D": tuple(self._defaults)}
+        exec(f"def make({args}):\n    return new(Flat, ({', '.join(values)},))\n", scope)  # noqa: S102
+        return scope["make"]  # type: ignore[no-any-return]
 
 
 @cache

@@ -89,18 +89,18 @@ def test_a_late_tick_is_asked_for_once_then_after_the_grace_and_a_held_tick_neve
     node._stall_check()
     node._stall_check()
     assert asked == [0]  # once per tick
-    node._on_applied(cv.gradient_msg(0.0, (0.0, 0.0)))  # the driver's watchdog answer to tick 0
+    node._on_applied(cv.gradient_flat(0.0, (0.0, 0.0)))  # the driver's watchdog answer to tick 0
     assert node.k == 1
     node._last_emit_wall -= LOST_GRACE_S + 1e-3  # commands lost: the grace, not the timeout
     node._stall_check()
     assert asked == [0, 1]
-    node._on_applied(cv.gradient_msg(node.dt, (0.0, 0.0)))  # answered by the watchdog: still lost
-    node._on_applied(cv.gradient_msg(2 * node.dt, (0.0, 0.0)))  # tick 2 answered in time: commands are back
+    node._on_applied(cv.gradient_flat(node.dt, (0.0, 0.0)))  # answered by the watchdog: still lost
+    node._on_applied(cv.gradient_flat(2 * node.dt, (0.0, 0.0)))  # tick 2 answered in time: commands are back
     node._last_emit_wall -= LOST_GRACE_S + 1e-3
     node._stall_check()
     assert asked == [0, 1]  # tick 3 waits the full timeout again
     assert node.pause() == ""
-    node._on_applied(cv.gradient_msg(3 * node.dt, (0.0, 0.0)))  # tick 4 integrated, held at the gate
+    node._on_applied(cv.gradient_flat(3 * node.dt, (0.0, 0.0)))  # tick 4 integrated, held at the gate
     node._last_emit_wall -= 10.0
     node._stall_check()
     assert asked == [0, 1] and node.k == 4 and node.idle

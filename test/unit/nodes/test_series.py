@@ -13,6 +13,7 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample  # noqa: E402
 from vesselbot_msgs.srv import GetSeries  # noqa: E402
 from vesselbot_ros.graph_spec import TOPICS, ns_of_time, role, series_service_key, service  # noqa: E402
+from vesselbot_ros.nodes.conversions import codec  # noqa: E402
 from vesselbot_ros.nodes.series import (  # noqa: E402
     READERS,
     SERIES_COLUMNS,
@@ -27,6 +28,11 @@ DT = 1e-3
 TYPES = {"truth": PlantState, "estimate": Odometry, "reference": ReferenceSample, "coil_state": CoilState}
 
 
+def _flat(msg):
+    """A message's flat form (what a node publishes, and so what its log reads)."""
+    return codec(type(msg)).flatten(msg)
+
+
 def _stamp(msg, k):
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns_of_time(k * DT), 1_000_000_000)
 
@@ -35,22 +41,23 @@ def _truth(k, x):
     m = PlantState(tick=k)
     _stamp(m, k)
     m.position.x, m.position.z, m.velocity.x, m.velocity.z, m.in_contact = x, -x / 3, 2 * x, 0.1 + x, k % 2 == 1
-    return m
+    return _flat(m)
 
 
-def _estimate(k, x):
+def _estimate(k, x, off_grid_ns=0):
     m = Odometry()
     _stamp(m, k)
     m.pose.pose.position.x, m.pose.pose.position.z = x, x / 7
     m.twist.twist.linear.x, m.twist.twist.linear.z = -x, x * 1e-3
-    return m
+    m.header.stamp.nanosec += off_grid_ns
+    return _flat(m)
 
 
 def test_every_topic_with_series_has_a_reader_of_its_width_and_a_serving_role():
     with_series = [t for t in TOPICS if t.series]
     assert {t.key for t in with_series} == set(READERS) == set(TYPES)
     for t in with_series:
-        assert len(READERS[t.key](TYPES[t.key]())) == len(columns_of(t.key))
+        assert len(READERS[t.key](_flat(TYPES[t.key]()))) == len(columns_of(t.key))
         assert _HAS_TICK[t.key] == hasattr(TYPES[t.key](), "tick")
         assert series_service_key(t.publisher) in role(t.publisher).services
         assert service(series_service_key(t.publisher)).srvtype == "vesselbot_msgs/srv/GetSeries"
@@ -78,9 +85,7 @@ def test_a_log_answers_exactly_the_floats_it_was_given_row_by_tick():
 def test_the_estimate_row_comes_from_its_stamp_and_off_grid_or_out_of_run_stamps_are_dropped():
     log = SeriesLog(("estimate",), 4, DT)
     log.add("estimate", _estimate(2, 0.5))
-    off = _estimate(1, 9.0)
-    off.header.stamp.nanosec += 400_000  # 0.4 of a tick off the grid
-    log.add("estimate", off)
+    log.add("estimate", _estimate(1, 9.0, off_grid_ns=400_000))  # 0.4 of a tick off the grid
     log.add("estimate", _estimate(7, 9.0))  # beyond the run
     d = log.as_dict()
     assert d["x_hat"][2].tolist() == [0.5, 0.5 / 7] and d["z_hat"][2].tolist() == [-0.5, 0.5e-3]
@@ -89,7 +94,7 @@ def test_the_estimate_row_comes_from_its_stamp_and_off_grid_or_out_of_run_stamps
 
 def test_reset_forgets_every_row():
     log = SeriesLog(("reference",), 3, DT)
-    log.add("reference", ReferenceSample(tick=1))
+    log.add("reference", _flat(ReferenceSample(tick=1)))
     assert not np.isnan(log.values[1]).any()
     log.reset()
     assert np.isnan(log.values).all()
