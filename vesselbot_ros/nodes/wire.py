@@ -1,26 +1,35 @@
-"""Flat CDR codecs: the hot path's messages to and from the wire without rclpy's per-field conversions.
+"""Flat CDR codecs: the hot path's messages to and from the wire as flat tuples, without message objects.
 
 rclpy turns a received message into Python by calling the generated
 constructor of every nested message (a PlantState is 17 of them), and a
 published one back field by field; between processes that cost more than the
-delivery itself (``bench/bench_graph.py``: the graph's own topology with no
-code per message took 1.2-1.4x the bare chain, 0.6x when the same bytes travel
-raw).  A :class:`FlatCodec` does the same job with one ``struct`` call:
+delivery itself.  Building our own message objects cost about as much
+(``bench/bench_graph.py``, session 11: with message objects built and read on
+the hot path the graph took 1.24-1.38x the bare chain with one process per
+node, 1.04-1.09x with flat forms).  So a per-tick message lives in the nodes
+in its *flat form*: a named tuple (:attr:`FlatCodec.Flat`) of every value of
+its CDR in wire order, fields named by their path (``header_stamp_sec``,
+``vector_x``, ``pose_covariance_35``; a string as ``<path>_size`` and
+``<path>_cdr``, its NUL-terminated bytes).  A :class:`FlatCodec` does:
 
-* its layout is derived from the message type's rosidl introspection
-  (``SLOT_TYPES``): XCDR1 little endian, as rmw_fastrtps writes it, each
-  primitive aligned to its size relative to the payload after the 4-byte
-  encapsulation header;
-* a type qualifies when every field is a primitive, a fixed-size array of
-  primitives, a nested message that qualifies, or a string whose value the
-  graph fixes (``header.frame_id`` is ``vessel``); :func:`codec_for` returns
-  None for the others, which keep rclpy's path;
-* :meth:`FlatCodec.decode` returns the same message object rclpy's
-  deserializer would (built slot by slot), and :meth:`FlatCodec.encode` the
-  same CDR rclpy's serializer would; a message off the layout (another
-  frame_id, an empty one, a big-endian sender, a truncated buffer) goes
-  through rclpy's own (de)serializer instead, so nothing is rejected here
-  that the node would not reject itself.
+* :meth:`FlatCodec.unpack`: CDR -> flat form, one ``struct`` call;
+* :meth:`FlatCodec.pack`: flat form -> CDR, one ``struct`` call;
+* :meth:`FlatCodec.maker`: a builder of the flat form from a few values (the
+  others are the type's defaults and the graph's strings);
+* :meth:`FlatCodec.flatten` and :meth:`FlatCodec.to_message`: rclpy message
+  <-> flat form, for tools, tests and anything off the layout.
+
+Its layout is derived from the message type's rosidl introspection
+(``SLOT_TYPES``): XCDR1 little endian, as rmw_fastrtps writes it, each
+primitive aligned to its size relative to the payload after the 4-byte
+encapsulation header.  A type qualifies when every field is a primitive, a
+fixed-size array of primitives, a nested message that qualifies, or a string
+whose value the graph fixes (``header.frame_id`` is ``vessel``);
+:func:`codec_for` returns None for the others.  A buffer off the layout
+(another frame_id, an empty one, a big-endian sender, a truncated buffer)
+goes through rclpy's own (de)serializer instead, so nothing is rejected here
+that the node would not reject itself, and a flat form with another string
+is packed by rclpy's serializer.
 
 ``test/unit/nodes/test_wire.py`` checks both directions against rclpy's
 serializer for every hot-path type, with random values (hypothesis).
@@ -109,12 +118,16 @@ class FlatCodec:
         on_layout = " and ".join(f"v[{i}] == {len(b)} and v[{j}] == {b!r}" for i, j, b in self._fixed) or "True"
         src = (f"def flatten(m):\n    return new(Flat, ({', '.join(self._flat)},))\n"
                f"def to_message(v):\n    return {build}\n"
-               f"def pack(v):\n    if {on_layout}:\n        return S.pack(*v)\n    return None\n")
+               f"def pack(v):\n    if {on_layout}:\n        return S.pack(*v)\n    return None\n"
+               f"def on_layout(raw):\n    return len(raw) >= {self.size} and raw[:4] == ENC"
+               + "".join(f" and raw[{o}:{o + len(b)}] == {b!r}" for o, b in self._checks) + "\n")
         self._scope.update(S=self._struct, Flat=self.Flat, new=tuple.__new__)
         exec(src, self._scope)  # noqa: S102 - generated from the message type's own introspection
         self.flatten: Callable[[Any], Any] = self._scope["flatten"]
         self.to_message: Callable[[Any], Any] = self._scope["to_message"]
         self._pack_fast = self._scope["pack"]
+        self.on_layout: Callable[[bytes], bool] = self._scope["on_layout"]
+        """True if a buffer is this type's CDR on the flat layout (little endian, the graph's strings, long enough)."""
 
     # ------------------------------------------------------------------ layout
     def _pad(self, align: int) -> None:
@@ -175,11 +188,6 @@ class FlatCodec:
         return f"{key}({', '.join(parts)})"
 
     # ------------------------------------------------------------------ use
-    def on_layout(self, raw: bytes) -> bool:
-        """True if ``raw`` is this type's CDR on the flat layout (little endian, the graph's strings, long enough)."""
-        return len(raw) >= self.size and raw[:4] == ENCAPSULATION_LE and all(
-            raw[o:o + len(b)] == b for o, b in self._checks)
-
     def unpack(self, raw: bytes) -> Any:
         """The flat form of a received CDR buffer: one struct call on the layout, else rclpy's deserializer.
 
