@@ -41,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from vesselbot_ros.nodes.base import spin_nodes, use_intra_process
+    from vesselbot_ros.nodes.base import freeze_heap, spin_nodes, use_intra_process
 
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
@@ -68,6 +68,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except ConfigError as exc:
                 print(f"vesselbot_{r}: invalid parameter: {exc}", file=sys.stderr, flush=True)
                 return 2
+        freeze_heap()
         spin_nodes(nodes)
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):
