@@ -1,7 +1,10 @@
 """A peer that, in a real-time run, sends one far-future gradient command and one garbage /clock.
 
-Once the plant's /clock passes ``--at`` seconds of sim time it publishes a gradient command stamped
-1e6 s and a /clock of 1e9 s (once each), prints ``injected <sim time>`` and keeps spinning.
+Once the plant's /clock passes ``--at`` seconds of sim time, and both of its writers have matched every
+reader of their topic that it sees in the graph (a volatile sample published before its writer matched a
+reader never reaches that reader: under load the writer's side of discovery can lag the reader's), it
+publishes a gradient command stamped 1e6 s and a /clock of 1e9 s (once each), prints
+``injected <sim time>`` and keeps spinning.
 
 usage: python realtime_hostile_peer.py --at 0.2
 """
@@ -15,7 +18,7 @@ import rclpy
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 
-from vesselbot_ros.graph_spec import FRAME_ID, qos_profile, topic
+from vesselbot_ros.graph_spec import FRAME_ID, LOOP_ROLES, qos_profile, topic
 from vesselbot_ros.nodes.conversions import ns_of_stamp, stamp_of_ns
 from vesselbot_ros.testing import spin_node
 
@@ -30,10 +33,16 @@ def main() -> int:
     cmd_pub = node.create_publisher(Vector3Stamped, cmd.name, qos_profile(cmd))
     clock_pub = node.create_publisher(Clock, clk.name, qos_profile(clk))
     done = [False]
+    # real time: every loop node but the plant reads /clock, and the recorder and this peer; the driver and the
+    # recorder read gradient commands
+    least = {clock_pub: len(LOOP_ROLES) + 1, cmd_pub: 2}
+
+    def matched() -> bool:
+        return all(p.get_subscription_count() >= max(n, node.count_subscribers(p.topic_name)) for p, n in least.items())
 
     def on_clock(msg: Clock) -> None:
         t = ns_of_stamp(msg.clock) * 1e-9
-        if done[0] or t < a.at or t > 1e5:
+        if done[0] or t < a.at or t > 1e5 or not matched():
             return
         done[0] = True
         bad = Vector3Stamped()
