@@ -321,6 +321,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
         self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
+        #: half the vessel's widest diameter (diameter pulsation), m: where a position check puts the walls
+        self._half_walls = 0.5 * self.scenario.physics.vessel.diameter_m * (1.0 + self.scenario.physics.flow.diameter_pulsation)
         # the stages' first calls cost tens of ms (numba's cache, first allocations): pay them before the run, so
         # that a real-time node's first ticks are on time and a lockstep run's wall time is the loop's own.
         # Only this node's own stages: warming the whole loop made every node start as slowly as all six.
@@ -582,7 +584,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
 
     def count_received(self, key: str) -> None:
         """Count one accepted input on topic ``key``."""
-        self._received[self._topic_names.get(key) or topic(key).name] += 1
+        names = self._topic_names
+        self._received[names[key] if key in names else topic(key).name] += 1
 
     def wired(self) -> bool:
         """True once every publisher and subscription of this node is matched (over DDS or within the process)."""
@@ -656,9 +659,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if not all(map(math.isfinite, values)):
             self.reject(key, "non_finite", f"values {list(values)}")
             return False
-        if any(y != 0.0 for y in y_values):
-            self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
-            return False
+        for y in y_values:
+            if y != 0.0:
+                self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
+                return False
         if z_position is not None and self.scenario.physics.vessel.network and x_position is not None:
             s = self._network_clearance(x_position, z_position)
             if s < -self.graph.position_margin_m:
@@ -666,7 +670,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
                                                    f"the vessel network's walls")
                 return False
         elif z_position is not None:
-            half = 0.5 * self.scenario.physics.vessel.diameter_m * (1.0 + self.scenario.physics.flow.diameter_pulsation)
+            half = self._half_walls
             if abs(z_position) > half + self.graph.position_margin_m:
                 self.reject(key, "outside_vessel", f"z = {z_position!r} m, walls at +/-{half!r} m")
                 return False

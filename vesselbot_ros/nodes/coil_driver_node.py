@@ -70,6 +70,7 @@ rejected (``off_tick_stamp`` / ``stale_stamp`` / ``future_stamp``).
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any
 
@@ -89,6 +90,7 @@ from vesselbot_ros.sim.closed_loop import build_stage
 __all__ = ["CoilDriverNode", "main"]
 
 _NAN2 = np.array([np.nan, np.nan])
+_ZERO2 = (0.0, 0.0)
 
 
 class CoilDriverNode(VesselbotNode):
@@ -216,7 +218,8 @@ class CoilDriverNode(VesselbotNode):
         if self._multiplexed and k + 1 < self.n_ticks:
             self._publish_phase(k + 1)  # the phase of the next tick, before anything of that tick
         self.publish("coil_applied", cv.gradient_flat(t, out.applied))
-        cmd = np.where(np.isfinite(commanded), commanded, 0.0)
+        # what was commanded (zero for a rejected command or a watchdog tick: never a non-finite value)
+        cmd = commanded if math.isfinite(commanded[0]) and math.isfinite(commanded[1]) else _ZERO2
         self.publish("coil_state", cv.coil_state_flat(k, t, cmd, out, self.limits, watchdog, *self._dbdt))
         self.period_done(k)
         if self.lockstep:
