@@ -245,6 +245,9 @@ class Role:
         safe_stop: Upstream of the coil driver: when it dies, the driver's
             watchdog ramps the gradient to zero before the run stops.
         summary: One line for the architecture table.
+        stage: The stage of the pure loop our implementation runs (a field of
+            :class:`vesselbot_ros.sim.closed_loop.Stages`): the node builds
+            and warms only that one.
     """
 
     name: str
@@ -258,6 +261,7 @@ class Role:
     counters: tuple[str, ...] = ()
     safe_stop: bool = False
     summary: str = ""
+    stage: str = ""
 
     @property
     def console_script(self) -> str:
@@ -375,23 +379,24 @@ def reset_service_key(role_name: str) -> str:
 #: The loop's roles in start order (the plant last: it owns the clock).
 ROLES: tuple[Role, ...] = (
     _node("reference", "ReferenceNode", inputs=("clock",), outputs=("reference", "reference_path"), safe_stop=True,
+          stage="reference",
           summary="C2 B-spline reference: a path (latched) and one sample per tick"),
     _node("imager", "ImagerNode", inputs=("truth",), outputs=("measurement",), services=("inject_fault",),
-          counters=("outlier_frames",), safe_stop=True,
+          counters=("outlier_frames",), safe_stop=True, stage="imager",
           summary="MRI imager: noisy frames at a frame rate, latency, outliers, dropouts"),
     _node("observer", "ObserverNode", inputs=("coil_applied", "measurement"), outputs=("estimate",),
           optional_inputs=("sequence_phase",),
-          counters=("observer_rhs_evals", "measurements_used", "measurements_rejected"), safe_stop=True,
+          counters=("observer_rhs_evals", "measurements_used", "measurements_rejected"), safe_stop=True, stage="observer",
           summary="high-gain observer (eq. 25): position and velocity estimate"),
     _node("controller", "ControllerNode", inputs=("reference", "estimate"), outputs=("gradient_command",),
           optional_inputs=("sequence_phase",),
-          safe_stop=True, summary="backstepping controller (eq. 24): gradient command"),
+          safe_stop=True, stage="controller", summary="backstepping controller (eq. 24): gradient command"),
     _node("coil_driver", "CoilDriverNode", inputs=("gradient_command",), optional_inputs=("coil_stall",),
-          outputs=("coil_applied", "coil_state", "sequence_phase"),
+          outputs=("coil_applied", "coil_state", "sequence_phase"), stage="coil",
           summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),
     _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers", "coil_stall"),
           services=("run_control", *SIMULATION_SERVICES),
-          counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"),
+          counters=("plant_steps", "plant_rejected_steps", "plant_rhs_evals", "plant_forced_steps"), stage="plant",
           summary="robot dynamics in the vessel; owns /clock"),
 )
 

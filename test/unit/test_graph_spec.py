@@ -133,6 +133,16 @@ def test_console_scripts_and_counters_derive_from_the_roles():
     assert spec.diagnostic_counters()["plant"] == spec.role("plant").counters
 
 
+def test_each_loop_role_runs_one_stage_of_the_pure_loop():
+    """The spec says which stage of ``closed_loop.Stages`` each node builds and warms: each one once (the model
+    is the controller's and the observer's, built with them)."""
+    from vesselbot_ros.sim.closed_loop import Stages
+
+    stages = [spec.role(r).stage for r in spec.LOOP_ROLES]
+    assert sorted(stages) == sorted(f for f in Stages._fields if f != "model")
+    assert spec.RECORDER.stage == ""
+
+
 def test_contract_names_every_port_of_the_slot():
     text = spec.role_contract("controller", "robot2")
     assert "/robot2/estimate" in text and "/robot2/reference" in text and "/robot2/gradient_command" in text

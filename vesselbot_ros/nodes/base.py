@@ -254,10 +254,6 @@ class VesselbotNode(Node):  # type: ignore[misc]
         ConfigError: a parameter is unknown or invalid (the message names it).
     """
 
-    #: The loop's stages this node runs (fields of :class:`vesselbot_ros.sim.closed_loop.Stages`), which it
-    #: warms before the run; ``None`` (a node of yours that does not say) warms the whole loop.
-    STAGES: tuple[str, ...] | None = None
-
     def __init__(
         self,
         role: str,
@@ -275,6 +271,8 @@ class VesselbotNode(Node):  # type: ignore[misc]
             cli_args=list(cli_args) if cli_args else None, parameter_overrides=overrides,
         )
         self.role = role
+        #: the pure loop's stage this node runs (graph spec); it builds and warms only that one
+        self.stage = graph_role(role).stage
         self.scenario, self.graph = self._load_parameters()
         self.rate_Hz = float(self.scenario.sim.control_rate_Hz)
         self.dt = float(self.scenario.sim.dt_control_s)
@@ -325,10 +323,10 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._half_walls = 0.5 * self.scenario.physics.vessel.diameter_m * (1.0 + self.scenario.physics.flow.diameter_pulsation)
         # the stages' first calls cost tens of ms (numba's cache, first allocations): pay them before the run, so
         # that a real-time node's first ticks are on time and a lockstep run's wall time is the loop's own.
-        # Only this node's own stages: warming the whole loop made every node start as slowly as all six.
+        # Only this node's own stage (graph spec): warming the whole loop made every node start as slowly as all six.
         from vesselbot_ros.sim.closed_loop import warm_up
 
-        warm_up(self.scenario, self.STAGES)
+        warm_up(self.scenario, (self.stage,) if self.stage else None)
         if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
             p0 = self.scenario.initial.p0_m
             self._network_clearance(float(p0[0]), float(p0[1]))

@@ -97,7 +97,6 @@ class CoilDriverNode(VesselbotNode):
     """The gradient-coil driver (see module docstring)."""
 
     ROLE = "coil_driver"
-    STAGES = ("coil",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -122,7 +121,7 @@ class CoilDriverNode(VesselbotNode):
 
         After a reset in a multiplexed sequence the phase of tick 0 is published again before its first output.
         """
-        self.limiter = build_stage(self.scenario, "coil")
+        self.limiter = build_stage(self.scenario, self.stage)
         self.limits = self.limiter.limits  # in force: the dB/dt limit may have lowered the slew
         dbdt = self.scenario.dbdt
         self._dbdt = ((dbdt_at(dbdt, self.limits.saturation_T_per_m, self.limits.slew_rate_T_per_m_per_s), dbdt.radius_m)

@@ -47,7 +47,6 @@ class ControllerNode(VesselbotNode):
     """The backstepping controller (see module docstring)."""
 
     ROLE = "controller"
-    STAGES = ("controller",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -59,7 +58,7 @@ class ControllerNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The controller as built from the scenario, at tick 0."""
-        self.controller = build_stage(self.scenario, "controller")
+        self.controller = build_stage(self.scenario, self.stage)
         self.join = TickJoin(self, {"estimate": 0, "reference": 0})
         self._ref_latest: Any = None
         self.status: Counter[str] = Counter()

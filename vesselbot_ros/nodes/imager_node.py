@@ -63,7 +63,6 @@ class ImagerNode(VesselbotNode):
     """The imager (see module docstring)."""
 
     ROLE = "imager"
-    STAGES = ("imager",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -82,7 +81,7 @@ class ImagerNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The imager as built from the scenario (its noise generator seeded again), no frame yet, no injected fault."""
-        self.imager = build_stage(self.scenario, "imager")
+        self.imager = build_stage(self.scenario, self.stage)
         self.k_next = 0
         self._last_msg: Any = None  # the last frame published (flat form)
         self.frames = 0

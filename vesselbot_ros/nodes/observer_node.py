@@ -73,7 +73,6 @@ class ObserverNode(VesselbotNode):
     """The high-gain observer (see module docstring)."""
 
     ROLE = "observer"
-    STAGES = ("observer",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -87,7 +86,7 @@ class ObserverNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The observer as built from the scenario, at tick 0 with no input yet."""
-        self.observer = build_stage(self.scenario, "observer")
+        self.observer = build_stage(self.scenario, self.stage)
         self.model = self.observer.model
         # lockstep: tick k needs measurement k (the k-th message) and coil/applied k-1
         self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, windows={"measurement": None, "coil_applied": 3})

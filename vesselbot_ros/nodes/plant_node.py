@@ -109,7 +109,6 @@ class PlantNode(VesselbotNode):
     """The plant simulator (see module docstring for ports and modes)."""
 
     ROLE = "plant"
-    STAGES = ("plant",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
@@ -161,7 +160,7 @@ class PlantNode(VesselbotNode):
 
     def reset_state(self) -> None:
         """The plant as built from the scenario, at tick 0, nothing published for it yet."""
-        self.plant = build_stage(self.scenario, "plant")
+        self.plant = build_stage(self.scenario, self.stage)
         self.k = 0
         self._g = np.zeros(2)
         self._budget = 0  # ticks a paused plant may still publish (steps asked for)

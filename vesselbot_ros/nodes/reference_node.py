@@ -44,11 +44,10 @@ class ReferenceNode(VesselbotNode):
     """The reference planner (see module docstring)."""
 
     ROLE = "reference"
-    STAGES = ("reference",)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        self.reference = build_stage(self.scenario, "reference")
+        self.reference = build_stage(self.scenario, self.stage)
         ts = np.arange(self.n_ticks) * self.dt
         self._p, self._v, self._a = self.reference.sample_many(ts)
         self.reset_state()
