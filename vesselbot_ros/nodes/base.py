@@ -916,11 +916,6 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *,
             os._exit(code)
 
 
-def stamp_ns_of(msg: Any) -> int:
-    """Stamp of a message with a header, ns."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
 def topic_spec(key: str) -> TopicSpec:
     """Shorthand for :func:`vesselbot_ros.graph_spec.topic`."""
     return topic(key)

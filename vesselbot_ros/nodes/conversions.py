@@ -26,31 +26,19 @@ as 1.  All other covariance entries are 0 (not estimated).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import (
-    Point,
-    PointStamped,
-    Pose,
-    PoseStamped,
-    PoseWithCovariance,
-    Quaternion,
-    Twist,
-    TwistWithCovariance,
-    Vector3,
-    Vector3Stamped,
-)
+from geometry_msgs.msg import Point, PointStamped, PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample, SequencePhase
-from vesselbot_ros.graph_spec import CHILD_FRAME_ID, FRAME_ID, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
+from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
+from vesselbot_ros.graph_spec import FRAME_ID, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for, message_builder
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
@@ -64,9 +52,7 @@ __all__ = [
     "stamp_of_ns",
     "ns_of_stamp",
     "header",
-    "vector3",
     "point",
-    "xz",
     "codec",
     "stamp_ns",
     "clock_flat",
@@ -89,12 +75,10 @@ __all__ = [
     "message_builder",
     "path_msg",
     "vessel_markers",
-    "all_finite",
 ]
 
 _time = message_builder(Time)
 _header = message_builder(Header)
-_vector3 = message_builder(Vector3)
 _point = message_builder(Point)
 
 AGE_COVARIANCE_INDEX = 35
@@ -121,24 +105,9 @@ def header(t_s: float) -> Header:
     return _header(stamp=stamp_of_ns(ns_of_time(t_s)), frame_id=FRAME_ID)
 
 
-def vector3(a: npt.ArrayLike) -> Vector3:
-    """(2,) ``(x, z)`` -> Vector3 with y = 0."""
-    return _vector3(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index]
-
-
 def point(a: npt.ArrayLike) -> Point:
     """(2,) ``(x, z)`` -> Point with y = 0."""
     return _point(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index]
-
-
-def xz(v: Any) -> npt.NDArray[np.float64]:
-    """Point or Vector3 -> (2,) ``(x, z)``."""
-    return np.array([v.x, v.z], dtype=np.float64)
-
-
-def all_finite(values: Iterable[float]) -> bool:
-    """True if every value is a finite float."""
-    return all(math.isfinite(v) for v in values)
 
 
 def codec(cls: Any) -> FlatCodec:
