@@ -95,6 +95,7 @@ class FlatCodec:
     Attributes:
         Flat: The type's flat form, a named tuple of every value of its CDR in
             wire order (see :meth:`unpack`).
+        index: Field name -> its position in the flat form.
         size: Bytes of the type's CDR on the layout.
     """
 
@@ -115,10 +116,10 @@ class FlatCodec:
         self._struct = struct.Struct("".join(self._fmt))
         self.Flat = namedtuple(f"Flat{cls.__name__}", self._names)  # type: ignore[misc]  # noqa: PYI024
         self.index = {name: i for i, name in enumerate(self._names)}
-        on_layout = " and ".join(f"v[{i}] == {len(b)} and v[{j}] == {b!r}" for i, j, b in self._fixed) or "True"
+        packable = " and ".join(f"v[{i}] == {len(b)} and v[{j}] == {b!r}" for i, j, b in self._fixed) or "True"
         src = (f"def flatten(m):\n    return new(Flat, ({', '.join(self._flat)},))\n"
                f"def to_message(v):\n    return {build}\n"
-               f"def pack(v):\n    if {on_layout}:\n        return S.pack(*v)\n    return None\n"
+               f"def pack(v):\n    if {packable}:\n        return S.pack(*v)\n    return None\n"
                f"def on_layout(raw):\n    return len(raw) >= {self.size} and raw[:4] == ENC"
                + "".join(f" and raw[{o}:{o + len(b)}] == {b!r}" for o, b in self._checks) + "\n")
         self._scope.update(S=self._struct, Flat=self.Flat, new=tuple.__new__)
