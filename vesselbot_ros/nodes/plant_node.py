@@ -153,7 +153,7 @@ class PlantNode(VesselbotNode):
             self._stall_fast.cancel()  # runs while commands are lost
         # the truth message's own compiled calls (flow, diameter, the network's geometry) before tick 0: a
         # throwaway message, nothing published and no state touched
-        self._truth_msg(self.plant.output(with_forces=True))
+        self._truth(self.plant.output(with_forces=True))
         from vesselbot_ros.nodes.simulation_control import SimulationControl
 
         self.simulation = SimulationControl(self)
@@ -372,14 +372,14 @@ class PlantNode(VesselbotNode):
         self._last_emit_wall = now
         out = self.plant.output(with_forces=True)
         if self.lockstep:  # truth first: it starts the tick's critical path (imager -> ... -> plant)
-            self.publish("truth", self._truth_msg(out))
+            self.publish("truth", self._truth(out))
             self.publish("clock", cv.clock_flat(out.t_s))
         else:  # real time: a node takes the tick from /clock, then its inputs of that tick
             self.publish("clock", cv.clock_flat(out.t_s))
-            self.publish("truth", self._truth_msg(out))
+            self.publish("truth", self._truth(out))
         self.period_done(self.k)  # real time: tick k is due at wall start + k * dt / real_time_factor
 
-    def _truth_msg(self, out: Any) -> Any:
+    def _truth(self, out: Any) -> Any:
         """The truth of the current tick, in its flat form (``PlantState``)."""
         t = out.t_s
         r = self.scenario.physics.robot.radius_m

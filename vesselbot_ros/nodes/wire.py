@@ -210,18 +210,6 @@ class FlatCodec:
 
         return serialize_message(self.to_message(flat))  # type: ignore[no-any-return]
 
-    def encode(self, msg: Any) -> bytes:
-        """The message's CDR, as rclpy's ``serialize_message`` writes it."""
-        return self.pack(self.flatten(msg))
-
-    def decode(self, raw: bytes) -> Any:
-        """The message of a received CDR buffer, equal to rclpy's ``deserialize_message``."""
-        if self.on_layout(raw):
-            return self.to_message(self._struct.unpack_from(raw))
-        from rclpy.serialization import deserialize_message
-
-        return deserialize_message(raw, self.cls)
-
     def maker(self, *paths: str) -> Callable[..., Any]:
         """A builder of the flat form from the values of ``paths`` (positional, in that order).
 

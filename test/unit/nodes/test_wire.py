@@ -15,6 +15,16 @@ from vesselbot_ros.nodes import wire
 
 rclpy_ser = pytest.importorskip("rclpy.serialization")
 
+def _encode(codec, msg):
+    """A message's CDR through its flat form (what a node publishes)."""
+    return codec.pack(codec.flatten(msg))
+
+
+def _decode(codec, raw):
+    """A buffer's message through its flat form (what a node reads)."""
+    return codec.to_message(codec.unpack(raw))
+
+
 PER_TICK_TYPES = sorted({t.msgtype for t in TOPICS if t.per_tick})
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 tick = st.integers(min_value=0, max_value=2**32 - 1)
@@ -60,12 +70,12 @@ def test_encode_and_decode_equal_rclpys_serializer(values, k):
     """Both directions against rclpy's serializer, as messages and as flat forms."""
     for msg in _messages(values, k):
         codec = wire.codec_for(type(msg), WIRE_STRINGS)
-        ours = codec.encode(msg)
+        ours = _encode(codec, msg)
         theirs = rclpy_ser.serialize_message(msg)
         assert len(ours) == codec.size == len(theirs)
         # CDR padding is not initialised by rclpy's serializer: compare what the bytes decode to
         assert rclpy_ser.deserialize_message(ours, type(msg)) == msg
-        decoded = codec.decode(theirs)
+        decoded = _decode(codec, theirs)
         assert type(decoded) is type(msg)
         assert decoded == msg
         assert rclpy_ser.serialize_message(decoded) is not None  # a valid rclpy message object
@@ -117,9 +127,9 @@ def test_a_maker_fills_the_defaults_and_the_graphs_strings():
 def test_nan_travels_as_nan():
     msg = cv.gradient_msg(0.001, (math.nan, math.inf))
     codec = wire.codec_for(type(msg), WIRE_STRINGS)
-    back = codec.decode(codec.encode(msg))
+    back = _decode(codec, _encode(codec, msg))
     assert math.isnan(back.vector.x) and back.vector.z == math.inf
-    back = rclpy_ser.deserialize_message(codec.encode(msg), type(msg))
+    back = rclpy_ser.deserialize_message(_encode(codec, msg), type(msg))
     assert math.isnan(back.vector.x) and back.vector.z == math.inf
 
 
@@ -128,9 +138,9 @@ def test_another_frame_goes_through_rclpy_both_ways(frame):
     msg = cv.measurement_msg(0.002, np.array([1e-3, 2e-4]))
     msg.header.frame_id = frame
     codec = wire.codec_for(type(msg), WIRE_STRINGS)
-    raw = codec.encode(msg)
+    raw = _encode(codec, msg)
     assert rclpy_ser.deserialize_message(raw, type(msg)) == msg
-    back = codec.decode(rclpy_ser.serialize_message(msg))
+    back = _decode(codec, rclpy_ser.serialize_message(msg))
     assert back == msg and back.header.frame_id == frame
 
 
@@ -138,7 +148,7 @@ def test_an_odometry_from_another_child_frame_is_decoded_by_rclpy():
     msg = cv.estimate_msg(0.003, np.array([1e-3, -2e-4]), np.array([3e-3, 4e-5]), 0.02, 0.97)
     msg.child_frame_id = "base_link"
     codec = wire.codec_for(type(msg), WIRE_STRINGS)
-    assert codec.decode(rclpy_ser.serialize_message(msg)) == msg
+    assert _decode(codec, rclpy_ser.serialize_message(msg)) == msg
 
 
 def _outcome(fn, raw, cls):
@@ -154,7 +164,7 @@ def test_a_truncated_or_big_endian_buffer_is_left_to_rclpy():
     raw = rclpy_ser.serialize_message(msg)
     for odd in (raw[: codec.size - 8], b"\x00\x00" + raw[2:]):  # short; big-endian encapsulation
         assert not codec.on_layout(odd)
-        ours = _outcome(lambda r, _c: codec.decode(r), odd, type(msg))
+        ours = _outcome(lambda r, _c: _decode(codec, r), odd, type(msg))
         theirs = _outcome(rclpy_ser.deserialize_message, odd, type(msg))
         assert ours == theirs
 
@@ -162,7 +172,7 @@ def test_a_truncated_or_big_endian_buffer_is_left_to_rclpy():
 def test_received_buffers_may_carry_trailing_padding():
     msg = cv.clock_msg(0.004)
     codec = wire.codec_for(type(msg), WIRE_STRINGS)
-    assert codec.decode(codec.encode(msg) + b"\x00\x00\x00") == msg
+    assert _decode(codec, _encode(codec, msg) + b"\x00\x00\x00") == msg
 
 
 def test_the_frame_is_the_graphs():
