@@ -40,6 +40,7 @@ from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import bead_pulling_force
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
 from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
+from vesselbot_ros.vessels.wall import nearest_wall
 from vesselbot_ros.physics.wall_interactions import (
     contact_heaviside_flag,
     electrostatic_factor,
@@ -109,9 +110,11 @@ I_BIF_TH1 = 31  # theta at end (deg)
 I_BIF_RAMP = 32  # blend ramp fraction (-)
 I_BIF_NKNOTS = 33  # K
 I_NET_ON = 34  # 1 if the vessel is a network (vessel.network): geometry and flow from the sampled CFD grid
-I_NET_OFF = 35  # index of the network block: x0, z0, h (m), nx, nz, then 7 (nz, nx) grids (cfd.FIELD_NAMES)
+I_NET_OFF = 35  # index of the network block (NET_HEAD entries, then 7 (nz, nx) grids in cfd.FIELD_NAMES order, the
+# k wall segments (4 k: ax, az, bx, bz), the (nx-1)(nz-1)+1 cells' CSR offsets and their candidate segments)
 I_TABLE = 36  # start of the table (3 K + ... entries)
 N_FIXED = 36
+NET_HEAD = 7  # network block head: x0, z0, h (m), nx, nz, k (wall segments), total candidates
 _LAMBDA_MAX = 0.999
 
 
@@ -171,7 +174,8 @@ def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
         fld = network_field(load_network(v.network), b)
         head[I_NET_ON] = 1.0
         head[I_NET_OFF] = N_FIXED + tail.size
-        net_block = np.concatenate([[fld.x0_m, fld.z0_m, fld.h_m, fld.nx, fld.nz], fld.data.ravel()])
+        net_block = np.concatenate([[fld.x0_m, fld.z0_m, fld.h_m, fld.nx, fld.nz, len(fld.wall_segments), fld.cell_index.size],
+                                    fld.data.ravel(), fld.wall_segments.ravel(), fld.cell_offsets, fld.cell_index])
     out = np.concatenate([head, tail, net_block])
     out.setflags(write=False)
     return out
@@ -208,7 +212,7 @@ def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]
         j = nz - 2
     tx = min(1.0, max(0.0, fx - i))
     tz = min(1.0, max(0.0, fz - j))
-    return (o + 5 + j * nx + i, nx, nx * nz, (1.0 - tx) * (1.0 - tz), tx * (1.0 - tz), (1.0 - tx) * tz, tx * tz)
+    return (o + NET_HEAD + j * nx + i, nx, nx * nz, (1.0 - tx) * (1.0 - tz), tx * (1.0 - tz), (1.0 - tx) * tz, tx * tz)
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -220,30 +224,39 @@ def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, _nrt=False)
+def _network_wall(p, x, z):  # type: ignore[no-untyped-def]
+    """(s, nx, nz): exact signed distance (m, > 0 inside) and unit inward normal of the meshed wall at (x, z) (m).
+
+    :func:`vesselbot_ros.vessels.wall.nearest_wall` over the packed wall segments and cell candidates.
+    """
+    o = int(p[I_NET_OFF])
+    nx = int(p[o + 3])
+    nz = int(p[o + 4])
+    k = int(p[o + 5])
+    n_idx = int(p[o + 6])
+    segs = o + NET_HEAD + 7 * nx * nz
+    offs = segs + 4 * k
+    idx = offs + (nx - 1) * (nz - 1) + 1
+    return nearest_wall(x, z, p[segs:offs], p[offs:idx], p[idx:idx + n_idx], p[o], p[o + 1], p[o + 2], nx, nz)
+
+
+@numba.njit(cache=True, _nrt=False)
 def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
 
-    s_t: signed distance of the centre to the wall (m, > 0 inside) with the wall
-    moved out by the diameter pulsation (13): s + D eps(t) / 2, D_t = D (1 + eps(t));
-    (nx, nz): unit inward normal of the nearest wall; eta: viscosity (Pa s);
-    (vfx, vfz): blood velocity (m/s), eq. (12) on the steady CFD field, which
-    dilates with the vessel: sampled at the point moved towards the centreline by
-    the factor 1 / (1 + eps) (exactly p_p(z, D(t)) in a straight branch).
-    Allocates nothing (grid fields 2-6: s, normal, D, eta; 0-1: velocity).
+    s_t: signed distance of the centre to the meshed wall (m, > 0 inside; exact, computed
+    here from the wall's segments: vessels/wall.py) with the wall moved out by the
+    diameter pulsation (13): s + D eps(t) / 2, D_t = D (1 + eps(t));
+    (nx, nz): unit inward normal of the nearest wall (exact); D: local diameter and
+    eta: viscosity (Pa s), bilinear on the grid; (vfx, vfz): blood velocity (m/s),
+    eq. (12) on the steady CFD field, which dilates with the vessel: sampled at the point
+    moved towards the centreline by the factor 1 / (1 + eps) (exactly p_p(z, D(t)) in a
+    straight branch).  Allocates nothing (grid fields 5-6: D, eta; 0-1: velocity).
     """
+    s, gx, gz = _network_wall(p, x, z)
     cell = _grid_cell(p, x, z)
-    s = _grid_value(p, cell, 2)
-    gx = _grid_value(p, cell, 3)
-    gz = _grid_value(p, cell, 4)
     d = _grid_value(p, cell, 5)
     eta = _grid_value(p, cell, 6)
-    nn = np.sqrt(gx * gx + gz * gz)
-    if nn > 1e-12:
-        gx /= nn
-        gz /= nn
-    else:
-        gx = 0.0
-        gz = -1.0
     eps = p[I_D_PULSE] * np.sin(p[I_OMEGA_F] * t + p[I_PHI_F])
     s_t = s + 0.5 * d * eps
     d_t = d * (1.0 + eps)

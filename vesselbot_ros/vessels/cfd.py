@@ -66,7 +66,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 4
+CACHE_VERSION = 5  # 5: exact meshed-wall geometry (vessels/wall.py), cap-snapped velocity
 
 
 def cache_dir() -> Path:
@@ -194,6 +194,7 @@ class FlowSolution:
     picard_iterations: int
     picard_change: float
     elapsed_s: float
+    caps: dict[str, tuple[Any, Any, float]] = dataclasses.field(default_factory=dict)  # the mesh's open ends (MeshedNetwork.caps)
 
 
 def _parabola_dofs(ubasis: Any, facets: npt.NDArray[np.int64], cap: tuple[Any, Any, float], vc: float,
@@ -319,19 +320,26 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     for name in ["inlet", *outlets]:
         fb = FacetBasis(m, ub.elem, facets=meshed.boundaries[name], intorder=6)
         fluxes[name] = float(asm(flux_form, fb, u=fb.interpolate(u)))
-    return FlowSolution(m, ub, pb, u, pr, fluxes, it, change, time.perf_counter() - t0)
+    return FlowSolution(m, ub, pb, u, pr, fluxes, it, change, time.perf_counter() - t0, dict(meshed.caps))
 
 
 @dataclasses.dataclass(frozen=True)
 class NetworkField:
-    """Fields sampled on a regular grid (the plant's lookup table).
+    """Fields sampled on a regular grid and the meshed wall (the plant's lookup table).
 
     Attributes:
         x0_m, z0_m: Grid origin (m).  h_m: spacing (m).  nx, nz: points per axis.
         data: (7, nz, nx) float64 in :data:`FIELD_NAMES` order: velocity
             normalised to an inlet centreline velocity of 1 (-), signed distance
             (m, > 0 inside), unit inward normal (-), local diameter (m), viscosity (Pa s).
+            The distance and normal at the nodes are the exact ones of the meshed wall
+            (:mod:`vesselbot_ros.vessels.wall`); the plant computes them exactly at any point
+            from the three wall arrays below and reads only the velocity, diameter and viscosity here.
         meta: Solve statistics and provenance (JSON-able).
+        wall_segments: (k, 4) wall segments ``(ax, az, bx, bz)`` (m), lumen on the left, caps left
+            out and each wall end continued beyond its cap (:func:`vesselbot_ros.vessels.wall.wall_segments`).
+        cell_offsets: ((nx-1)(nz-1)+1,) int64, CSR offsets of the grid cells' candidate segments.
+        cell_index: (total,) int64, the candidate segments of cell ``j (nx-1) + i``.
     """
 
     x0_m: float
@@ -341,6 +349,9 @@ class NetworkField:
     nz: int
     data: npt.NDArray[np.float64]
     meta: dict[str, Any]
+    wall_segments: npt.NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros((0, 4)))
+    cell_offsets: npt.NDArray[np.int64] = dataclasses.field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    cell_index: npt.NDArray[np.int64] = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def field(self, name: str) -> npt.NDArray[np.float64]:
         """(nz, nx) grid of ``name`` (one of :data:`FIELD_NAMES`)."""
@@ -358,7 +369,9 @@ class NetworkField:
         try:
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, head=np.array([self.x0_m, self.z0_m, self.h_m, self.nx, self.nz]),
-                                    data=self.data, meta=np.array(json.dumps(self.meta)))
+                                    data=self.data, meta=np.array(json.dumps(self.meta)),
+                                    wall_segments=self.wall_segments, cell_offsets=self.cell_offsets,
+                                    cell_index=self.cell_index)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):
@@ -371,21 +384,16 @@ class NetworkField:
             head = z["head"]
             data = np.ascontiguousarray(z["data"], dtype=np.float64)
             meta = json.loads(str(z["meta"]))
-        return cls(float(head[0]), float(head[1]), float(head[2]), int(head[3]), int(head[4]), data, meta)
+            segs = np.ascontiguousarray(z["wall_segments"], dtype=np.float64)
+            off = np.ascontiguousarray(z["cell_offsets"], dtype=np.int64)
+            idx = np.ascontiguousarray(z["cell_index"], dtype=np.int64)
+        return cls(float(head[0]), float(head[1]), float(head[2]), int(head[3]), int(head[4]), data, meta, segs, off, idx)
 
 
-def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: Any) -> npt.NDArray[np.float64]:
-    """(m, 2) P2 velocity at points (m, 2); zero outside the mesh.
-
-    Evaluated element by element from barycentric coordinates (skfem's
-    ``probes`` builds a dense points x elements array, too big for a grid).
-    """
+def _p2_velocity(sol: FlowSolution, q: npt.NDArray[np.float64], e: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+    """(k, 2) P2 velocity at points q (k, 2) in elements e (k,) (barycentric, element by element)."""
     m = sol.mesh
-    el = tri.get_trifinder()(pts[:, 0], pts[:, 1])
-    out = np.zeros((len(pts), 2))
-    ok = el >= 0
-    e = el[ok]
-    q = pts[ok]
+    out = np.zeros((len(q), 2))
     P = m.p[:, m.t[:, e]]  # (2, 3, k)
     a, b, c = P[:, 0].T, P[:, 1].T, P[:, 2].T
     det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
@@ -395,13 +403,46 @@ def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: A
     # P2 shape functions: vertices, then the edges (0,1), (1,2), (0,2) (skfem's MeshTri facet order)
     N = np.stack([l0 * (2 * l0 - 1), l1 * (2 * l1 - 1), l2 * (2 * l2 - 1), 4 * l0 * l1, 4 * l1 * l2, 4 * l0 * l2])
     for comp, (uc, sb) in enumerate(sol.ubasis.split(sol.u)):
-        out[ok, comp] = (N * uc[sb.element_dofs[:, e]]).sum(axis=0)
+        out[:, comp] = (N * uc[sb.element_dofs[:, e]]).sum(axis=0)
+    return out
+
+
+def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: Any) -> npt.NDArray[np.float64]:
+    """(m, 2) P2 velocity at points (m, 2); outside the mesh, the velocity at the nearest boundary point.
+
+    Evaluated element by element from barycentric coordinates (skfem's
+    ``probes`` builds a dense points x elements array, too big for a grid).
+    A point outside the mesh takes the velocity of the nearest point of the
+    mesh's boundary, in the element of that boundary edge: zero beyond a wall,
+    the inflow/outflow profile beyond a cap (a grid node just outside an open
+    end then carries the profile there instead of a zero that bilinear
+    interpolation would smear into the lumen).
+    """
+    from vesselbot_ros.vessels.wall import nearest_segment
+
+    m = sol.mesh
+    el = tri.get_trifinder()(pts[:, 0], pts[:, 1])
+    out = np.zeros((len(pts), 2))
+    ok = el >= 0
+    out[ok] = _p2_velocity(sol, pts[ok], el[ok])
+    if (~ok).any():
+        t = m.t.T
+        e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+        owner = np.tile(np.arange(len(t)), 3)
+        key = np.sort(e, axis=1)
+        _u, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        bnd = cnt[inv.ravel()] == 1
+        segs = np.ascontiguousarray(np.column_stack([m.p[:, e[bnd, 0]].T, m.p[:, e[bnd, 1]].T]))
+        k, foot = nearest_segment(np.ascontiguousarray(pts[~ok]), segs)
+        out[~ok] = _p2_velocity(sol, foot, owner[bnd][k])
     return out
 
 
 def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution) -> NetworkField:
-    """Sample ``sol`` and the geometry on the regular grid of ``net.cfd``."""
+    """Sample ``sol`` and the meshed wall's geometry on the regular grid of ``net.cfd``."""
     from matplotlib.tri import Triangulation
+
+    from vesselbot_ros.vessels.wall import cell_candidates, local_thickness, query_points, wall_segments
 
     geom = NetworkGeometry(net)
     h = net.cfd.grid_spacing_m
@@ -414,35 +455,43 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     nz = int(math.ceil((zmax + mg - z0) / h)) + 1
     X, Z = np.meshgrid(x0 + h * np.arange(nx), z0 + h * np.arange(nz))
     pts = np.column_stack([X.ravel(), Z.ravel()])
-    q = geom.query(pts)
     m = sol.mesh
-    tri = Triangulation(m.p[0], m.p[1], m.t.T)
     vel = interpolate_velocity(sol, pts, Triangulation(m.p[0], m.p[1], m.t.T))
     vc_in = net.cfd.inlet_centreline_velocity_m_per_s
-    d_unique = np.unique(np.round(q["diameter"], 12))
-    eta_of = {d: viscosity_for(blood, float(d)) for d in d_unique}
-    eta = np.array([eta_of[d] for d in np.round(q["diameter"], 12)])
-    # The local diameter (and viscosity) jumps where the branch holding a point changes (at a node);
-    # the wall moves out by D eps(t) / 2 with the pulsation (13), so a jump of D would be a step of the
-    # wall under a robot in contact.  Both are smoothed with a Gaussian of cfd.diameter_smoothing_m
-    # (a constant field, the straight vessel, stays exactly constant).
+    # the meshed wall, rounded to float32 like every stored number (the candidate lists are built on the
+    # rounded segments, so they are exact for what the plant computes with); each wall end is continued
+    # beyond its cap past the grid's edge (the grid reaches (r + margin) sqrt(2) beyond a cap at most)
+    ext = 2.0 * (max(c[2] for c in sol.caps.values()) + mg) + 4.0 * h
+    segs, _caps = wall_segments(m.p.T, m.t.T, sol.caps, ext)
+    segs = np.ascontiguousarray(segs.astype(np.float32).astype(np.float64))
+    off, idx = cell_candidates(segs, x0, z0, h, nx, nz)
+    q = query_points(pts, segs.ravel(), off.astype(np.float64), idx.astype(np.float64), x0, z0, h, nx, nz)
+    sd = q[:, 0].reshape(nz, nx)
+    # local diameter: twice the largest inscribed disc holding the point (vessels/wall.py); it changes
+    # continuously but with kinks through a junction, and the wall moves out by D eps(t) / 2 with the
+    # pulsation (13), so it (and the viscosity that follows it) is smoothed with a Gaussian of
+    # cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
+    diam = local_thickness(sd, h)
+    dr = np.round(diam, 9)
+    d_unique, inv = np.unique(dr, return_inverse=True)
+    eta = np.array([viscosity_for(blood, float(d)) for d in d_unique])[inv.ravel()].reshape(nz, nx)
     sig = net.cfd.diameter_smoothing_m / h
-    diam = q["diameter"].reshape(nz, nx)
     if sig > 0:
         from scipy.ndimage import gaussian_filter
 
         diam = np.where(np.ptp(diam) > 0, gaussian_filter(diam, sig, mode="nearest"), diam)
-        eta = np.where(np.ptp(eta) > 0, gaussian_filter(eta.reshape(nz, nx), sig, mode="nearest").ravel(), eta)
+        eta = np.where(np.ptp(eta) > 0, gaussian_filter(eta, sig, mode="nearest"), eta)
     data = np.stack([
-        vel[:, 0] / vc_in, vel[:, 1] / vc_in, q["sdist"], q["normal"][:, 0], q["normal"][:, 1], diam.ravel(), eta,
+        vel[:, 0] / vc_in, vel[:, 1] / vc_in, q[:, 0], q[:, 1], q[:, 2], diam.ravel(), eta.ravel(),
     ]).reshape(len(FIELD_NAMES), nz, nx)
     # stored in single precision: the sparse LU's last bits depend on the CPU's BLAS kernel; rounded to
     # float32 (7 digits: 0.1 nm in the distance, 1e-7 of V_f) the field is the same on every machine
     data = data.astype(np.float32).astype(np.float64)
     meta = {"network": net.name, "fluxes_m2_per_s": sol.fluxes, "picard_iterations": sol.picard_iterations,
             "picard_change": sol.picard_change, "solve_s": sol.elapsed_s, "n_triangles": int(m.t.shape[1]),
-            "n_dofs": int(sol.u.size + sol.p.size)}
-    return NetworkField(x0, z0, h, nx, nz, np.ascontiguousarray(data), meta)
+            "n_dofs": int(sol.u.size + sol.p.size), "n_wall_segments": int(len(segs)),
+            "n_cell_candidates": int(idx.size)}
+    return NetworkField(x0, z0, h, nx, nz, np.ascontiguousarray(data), meta, segs, off, idx)
 
 
 def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool = False) -> NetworkField:

@@ -1,0 +1,321 @@
+"""The meshed vessel wall: exact signed distance, inward normal and local diameter.
+
+The wall the CFD solves in is the boundary of the gmsh triangulation
+(:func:`vesselbot_ros.vessels.cfd.mesh_network`), a polyline of straight mesh
+edges.  This module makes that polyline the plant's wall everywhere, junctions
+included (the centreline-tube distance of
+:class:`~vesselbot_ros.vessels.network.NetworkGeometry` is only a lower bound
+inside a junction: 0.8 mm off in a Y, with normals up to 45 deg off).
+
+Wall segments (:func:`wall_segments`): the mesh's boundary edges, oriented with
+the lumen on their left, *without* the inlet and outlet caps: a cap is where
+the modelled vessel is cut, not a wall, so nothing touches it.  Each wall end at
+a cap is continued by a straight segment along the cap's outward normal (long
+enough to reach the grid's edge), so beyond an open end the lumen continues as
+a straight tube of the cap's width, as the vessel it was cut from would.
+
+Exact query (:func:`nearest_wall`, compiled, allocation-free): the grid of the
+sampled field is divided into cells; each cell stores (CSR: ``offsets`` per
+cell into ``index``) every segment whose distance to the cell centre c is at
+most d(c) + 2 w (w: the cell's half-diagonal; d: the distance to the wall).
+That set holds the nearest segment of every point q of the cell: with s* the
+segment nearest q, dist(s*, c) <= dist(s*, q) + w = d(q) + w <= d(c) + 2 w.  So
+the distance, the nearest wall point and the normal computed over the cell's
+candidates are those of the whole polyline: exact up to rounding.  Sign: the
+nearest segment's side (lumen on its left); where the nearest point is a vertex
+shared by two segments, the one the point lies further off the line of decides
+(the standard rule that makes the side test exact at vertices).  The inward
+normal is ``(q - foot) / |q - foot|`` inside and its opposite outside (it points
+from the wall into the lumen); on the wall itself the segment's left normal.
+Outside the grid the nearest edge cell's candidates answer: an upper bound of
+the distance, and the point is then far outside the lumen anyway.
+
+Local diameter (:func:`local_thickness`): twice the radius of the largest disc
+inscribed in the lumen that contains the point (the "local thickness" of
+image analysis), over discs centred at the grid nodes: exactly 2 r in a
+straight branch of radius r, continuous across a junction (where it grows to
+the junction's inscribed disc), and never the branch-holding-the-point jump of
+the centreline tubes.  Outside the lumen a node takes the value of the nearest
+lumen node.  The sampler then smooths it with ``cfd.diameter_smoothing_m``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "query_points", "local_thickness", "WallQuery"]
+
+
+def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int64],
+                  caps: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]],
+                  extension_m: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The wall polyline of a triangulation, oriented, caps left out and continued beyond them.
+
+    Args:
+        points: (n, 2) mesh vertices (m).
+        triangles: (t, 3) vertex indices (either orientation).
+        caps: ``name -> (centre (2,) m, unit outward normal (2,), radius m)`` of the open ends.
+        extension_m: Length (m) of the straight continuation of each wall end beyond its cap.
+
+    Returns:
+        ``(segments, caps_segments)``: (k, 4) rows ``(ax, az, bx, bz)`` (m) with the lumen on the left of
+        a -> b (mesh wall edges, then the continuations), and the (c, 4) cap edges (open ends, same form).
+    """
+    tri = np.array(triangles, dtype=np.int64)
+    pa, pb, pc = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    neg = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0]) < 0
+    tri[neg] = tri[neg][:, [0, 2, 1]]  # counter-clockwise, whatever order the mesh library keeps
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])  # directed, lumen on the left
+    key = np.sort(e, axis=1)
+    _u, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    bnd = e[cnt[inv.ravel()] == 1]
+    a, b = points[bnd[:, 0]], points[bnd[:, 1]]
+    mid = 0.5 * (a + b)
+    on_cap = np.zeros(len(bnd), dtype=bool)
+    ext = []
+    for centre, n_out, r in caps.values():
+        along = (mid[:, 0] - centre[0]) * n_out[0] + (mid[:, 1] - centre[1]) * n_out[1]
+        across = np.abs(-(mid[:, 0] - centre[0]) * n_out[1] + (mid[:, 1] - centre[1]) * n_out[0])
+        on = (np.abs(along) < 1e-3 * r) & (across <= r * (1 + 1e-6)) & ~on_cap
+        on_cap |= on
+        # the cap's two corners: vertices of its edges farthest from the centre across the vessel
+        vs = np.unique(bnd[on].ravel())
+        off = -(points[vs, 0] - centre[0]) * n_out[1] + (points[vs, 1] - centre[1]) * n_out[0]
+        for corner in (points[vs[int(np.argmax(off))]], points[vs[int(np.argmin(off))]]):
+            far = corner + extension_m * np.asarray(n_out)
+            d = far - corner
+            to_c = np.asarray(centre) - corner
+            ext.append(np.concatenate([corner, far]) if d[0] * to_c[1] - d[1] * to_c[0] > 0 else np.concatenate([far, corner]))
+    segs = np.concatenate([np.column_stack([a[~on_cap], b[~on_cap]]), np.array(ext).reshape(-1, 4)])
+    return np.ascontiguousarray(segs), np.ascontiguousarray(np.column_stack([a[on_cap], b[on_cap]]))
+
+
+@numba.njit(cache=True, _nrt=False)
+def _seg_dist2(px, pz, segs, m):  # type: ignore[no-untyped-def]
+    """(squared distance, foot x, foot z, cross) of point to segment ``m`` of flat ``segs`` (4 per segment)."""
+    ax = segs[4 * m]
+    az = segs[4 * m + 1]
+    dx = segs[4 * m + 2] - ax
+    dz = segs[4 * m + 3] - az
+    L2 = dx * dx + dz * dz
+    t = ((px - ax) * dx + (pz - az) * dz) / L2
+    if t <= 0.0:
+        fx = ax
+        fz = az
+    elif t >= 1.0:
+        fx = segs[4 * m + 2]  # the endpoint itself: two segments meeting at a vertex give the same foot
+        fz = segs[4 * m + 3]
+    else:
+        fx = ax + t * dx
+        fz = az + t * dz
+    ex = px - fx
+    ez = pz - fz
+    return ex * ex + ez * ez, fx, fz, (dx * ez - dz * ex) / math.sqrt(L2)
+
+
+@numba.njit(cache=True, _nrt=False)
+def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+    """``(s, nx, nz)``: signed distance (m, > 0 in the lumen) and unit inward normal of the wall at (px, pz) (m).
+
+    ``segs`` flat (4 k,) segments; ``offsets`` ((nx-1)(nz-1)+1,) and ``index`` the cells' candidates
+    (floats holding integers); grid origin x0, z0 (m), spacing h (m), nx, nz nodes.  Allocates nothing.
+    """
+    i = int(np.floor((px - x0) / h))
+    j = int(np.floor((pz - z0) / h))
+    if i < 0:
+        i = 0
+    elif i > nx - 2:
+        i = nx - 2
+    if j < 0:
+        j = 0
+    elif j > nz - 2:
+        j = nz - 2
+    c = j * (nx - 1) + i
+    best = np.inf
+    bperp = -1.0
+    cross = 1.0
+    fx = px
+    fz = pz
+    mbest = -1
+    for k in range(int(offsets[c]), int(offsets[c + 1])):
+        m = int(index[k])
+        d2, gx, gz, cr = _seg_dist2(px, pz, segs, m)
+        perp = abs(cr)
+        if d2 < best or (d2 == best and perp > bperp):
+            best = d2
+            bperp = perp
+            cross = cr
+            fx = gx
+            fz = gz
+            mbest = m
+    if mbest < 0:
+        return -np.inf, 0.0, -1.0
+    d = math.sqrt(best)
+    sign = 1.0 if cross >= 0.0 else -1.0
+    if d > 0.0:
+        return sign * d, sign * (px - fx) / d, sign * (pz - fz) / d
+    dx = segs[4 * mbest + 2] - segs[4 * mbest]
+    dz = segs[4 * mbest + 3] - segs[4 * mbest + 1]
+    L = math.sqrt(dx * dx + dz * dz)
+    return 0.0, -dz / L, dx / L
+
+
+@numba.njit(cache=True)
+def query_points(pts, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+    """(m, 3) rows ``(s, nx, nz)`` of :func:`nearest_wall` at points (m, 2) (m)."""
+    out = np.empty((pts.shape[0], 3))
+    for k in range(pts.shape[0]):
+        s, gx, gz = nearest_wall(pts[k, 0], pts[k, 1], segs, offsets, index, x0, z0, h, nx, nz)
+        out[k, 0] = s
+        out[k, 1] = gx
+        out[k, 2] = gz
+    return out
+
+
+@numba.njit(cache=True)
+def _candidates(segs, x0, z0, h, nx, nz, slack):  # type: ignore[no-untyped-def]
+    ncell = (nx - 1) * (nz - 1)
+    nseg = segs.size // 4
+    w2 = 2.0 * 0.5 * math.sqrt(2.0) * h + slack
+    counts = np.zeros(ncell + 1, dtype=np.int64)
+    dist = np.empty(nseg)
+    for rep in range(2):
+        if rep == 1:
+            for c in range(ncell):
+                counts[c + 1] += counts[c]
+            index = np.empty(counts[ncell], dtype=np.int64)
+        for j in range(nz - 1):
+            for i in range(nx - 1):
+                cx = x0 + (i + 0.5) * h
+                cz = z0 + (j + 0.5) * h
+                dmin = np.inf
+                for m in range(nseg):
+                    d2, _fx, _fz, _cr = _seg_dist2(cx, cz, segs, m)
+                    dist[m] = math.sqrt(d2)
+                    dmin = min(dmin, dist[m])
+                c = j * (nx - 1) + i
+                lim = dmin + w2
+                if rep == 0:
+                    for m in range(nseg):
+                        if dist[m] <= lim:
+                            counts[c + 1] += 1
+                else:
+                    k = counts[c]
+                    for m in range(nseg):
+                        if dist[m] <= lim:
+                            index[k] = m
+                            k += 1
+    return counts, index
+
+
+def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: float, nx: int, nz: int
+                    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """CSR candidate lists of the grid's cells (see the module docstring): ``(offsets, index)``.
+
+    Args:
+        segs: (k, 4) wall segments (m).  x0, z0, h: grid origin and spacing (m); nx, nz: nodes per axis.
+
+    Returns:
+        offsets ((nx-1)(nz-1)+1,) and index (total,) int64: cell ``j (nx-1) + i`` holds
+        ``index[offsets[c]:offsets[c+1]]``.
+    """
+    return _candidates(np.ascontiguousarray(segs, dtype=np.float64).ravel(), x0, z0, h, nx, nz, 1e-9)  # type: ignore[no-any-return]
+
+
+@numba.njit(cache=True)
+def _thickness(sd, h):  # type: ignore[no-untyped-def]
+    nz, nx = sd.shape
+    out = np.zeros((nz, nx))
+    for j in range(nz):
+        for i in range(nx):
+            r = sd[j, i]
+            if r <= 0.0:
+                continue
+            k = int(r / h) + 1
+            r2 = r * r
+            for jj in range(max(0, j - k), min(nz, j + k + 1)):
+                for ii in range(max(0, i - k), min(nx, i + k + 1)):
+                    ddx = (ii - i) * h
+                    ddz = (jj - j) * h
+                    if ddx * ddx + ddz * ddz <= r2 and 2.0 * r > out[jj, ii]:
+                        out[jj, ii] = 2.0 * r
+    return out
+
+
+def local_thickness(sdist: npt.NDArray[np.float64], h: float) -> npt.NDArray[np.float64]:
+    """(nz, nx) local diameter (m) from the (nz, nx) signed distance on a grid of spacing ``h`` (m).
+
+    Twice the largest inscribed disc (centred at a grid node) containing each lumen node; a node outside
+    every disc takes the value of the nearest node inside one.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    d = _thickness(np.ascontiguousarray(sdist, dtype=np.float64), float(h))
+    empty = d <= 0.0
+    if empty.all():
+        raise ValueError("local_thickness: no grid node lies in the lumen")
+    if empty.any():
+        _dist, (jj, ii) = distance_transform_edt(empty, return_indices=True)
+        d = d[jj, ii]
+    return d  # type: ignore[no-any-return]
+
+
+class WallQuery:
+    """Exact wall queries of a sampled network field (numpy API over :func:`nearest_wall`).
+
+    Args:
+        field: A :class:`vesselbot_ros.vessels.cfd.NetworkField` (its wall segments and candidate lists).
+    """
+
+    def __init__(self, field) -> None:  # type: ignore[no-untyped-def]
+        self.field = field
+        self._segs = np.ascontiguousarray(field.wall_segments, dtype=np.float64).ravel()
+        self._off = np.ascontiguousarray(field.cell_offsets, dtype=np.float64)
+        self._idx = np.ascontiguousarray(field.cell_index, dtype=np.float64)
+        self._grid = (float(field.x0_m), float(field.z0_m), float(field.h_m), int(field.nx), int(field.nz))
+
+    def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
+        """``sdist`` (m,) m (> 0 inside), ``normal`` (m, 2) unit inward normal, ``diameter`` (m,) m at points (m, 2)."""
+        q = np.ascontiguousarray(np.atleast_2d(np.asarray(points_m, dtype=np.float64)))
+        r = query_points(q, self._segs, self._off, self._idx, *self._grid)
+        return {"sdist": r[:, 0], "normal": r[:, 1:3], "diameter": self.diameter(q)}
+
+    def diameter(self, points_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """(m,) local diameter (m): the field's, bilinear (as the plant reads it)."""
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        x0, z0, h, nx, nz = self._grid
+        fx = np.clip((q[:, 0] - x0) / h, 0.0, nx - 1.0)
+        fz = np.clip((q[:, 1] - z0) / h, 0.0, nz - 1.0)
+        i = np.clip(np.floor(fx).astype(np.int64), 0, nx - 2)
+        j = np.clip(np.floor(fz).astype(np.int64), 0, nz - 2)
+        tx, tz = fx - i, fz - j
+        g = self.field.field("diameter")
+        return ((1 - tx) * (1 - tz) * g[j, i] + tx * (1 - tz) * g[j, i + 1] + (1 - tx) * tz * g[j + 1, i]  # type: ignore[no-any-return]
+                + tx * tz * g[j + 1, i + 1])
+
+    def clearance(self, x_m: float, z_m: float) -> tuple[float, float]:
+        """(signed distance (m, > 0 inside), local diameter (m)) at one point."""
+        s, _gx, _gz = nearest_wall(float(x_m), float(z_m), self._segs, self._off, self._idx, *self._grid)
+        return float(s), float(self.diameter(np.array([[x_m, z_m]]))[0])
+
+
+@numba.njit(cache=True)
+def nearest_segment(pts, segs):  # type: ignore[no-untyped-def]
+    """(index (m,), foot (m, 2)) of the segment of (k, 4) ``segs`` nearest each point (m, 2), brute force."""
+    flat = segs.ravel()
+    idx = np.empty(pts.shape[0], dtype=np.int64)
+    foot = np.empty((pts.shape[0], 2))
+    for q in range(pts.shape[0]):
+        best = np.inf
+        for m in range(segs.shape[0]):
+            d2, fx, fz, _cr = _seg_dist2(pts[q, 0], pts[q, 1], flat, m)
+            if d2 < best:
+                best = d2
+                idx[q] = m
+                foot[q, 0] = fx
+                foot[q, 1] = fz
+    return idx, foot
