@@ -6,7 +6,7 @@ Usage::
         --ros-args --params-file params.yaml
 
 Every node gets the same ROS arguments (so the same parameters) and its own
-name.  In lockstep the nodes hand each other's messages over in process
+name.  The nodes hand each other's messages over in process
 (:class:`vesselbot_ros.nodes.base.IntraProcess`, as rclcpp's intra-process
 communication does for composed nodes); DDS carries a message only to
 readers outside the process (recorder, launcher, viewers, a user's node).
@@ -41,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from vesselbot_ros.nodes.base import freeze_heap, spin_nodes, use_intra_process
+    from vesselbot_ros.nodes.base import freeze_heap, spin_nodes, use_intra_process, warm_logging
 
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
@@ -68,6 +68,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except ConfigError as exc:
                 print(f"vesselbot_{r}: invalid parameter: {exc}", file=sys.stderr, flush=True)
                 return 2
+        warm_logging()
         freeze_heap()
         spin_nodes(nodes)
         return 0
