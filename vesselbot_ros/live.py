@@ -8,6 +8,21 @@ decodes them exactly as it decodes a recorded bag.  The channels come from
 the graph spec (:data:`vesselbot_ros.graph_spec.TOPICS`): a port added there
 appears in the live view with no view code.
 
+Clients connect with either name of the protocol: ``foxglove.sdk.v1`` (the
+SDK's, current Foxglove) or ``foxglove.websocket.v1`` (the specification's:
+older Foxglove releases, Lichtblick, ``@foxglove/ws-protocol``); the SDK takes
+only the first, so the port is held by :class:`vesselbot_ros.live_front.SubprotocolFront`,
+which hands each connection to the SDK's server.  The server is listening when
+the constructor returns, and :attr:`LiveView.port` is the bound port (also for 0).
+
+Sim time: the server advertises the protocol's ``time`` capability and
+broadcasts the simulation time, the latest ``/clock`` it is given (or
+:meth:`LiveView.set_time`), at most :data:`TIME_RATE_HZ` times per wall second,
+right before each derived view update, to each client that subscribes, and when
+asked (:meth:`LiveView.flush_time`), so Foxglove's timeline runs on sim time,
+not on the wall clock.  Every message keeps its log time (the bag's: the
+recorder's receive time) as the protocol's message timestamp.
+
 Messages are logged as the bytes the publisher sent (the recorder's raw
 subscriptions feed both the bag and this server, so ``--live`` adds no DDS
 reader to the loop).  A viewer needs far fewer than the loop's 1000 ticks per
@@ -15,8 +30,8 @@ second: each topic is forwarded at most ``max_rate_Hz`` times per wall second
 (default :data:`DEFAULT_LIVE_RATE_HZ`; 0: every message), and nothing is
 forwarded or derived while no client subscribes, so the live view's cost
 does not grow with the control rate (``bench/bench_live.py``).  Latched topics (the vessel markers, the reference path)
-are sent once when published; a client that subscribes later gets the last
-one again on subscription, as a transient-local subscriber would.
+are sent whenever published; a client that subscribes later gets the last
+one again on subscription, with its original log time, as a transient-local subscriber would.
 
 Besides the topics it serves the derived channels of
 :data:`vesselbot_ros.graph_spec.VIEW_CHANNELS` (:mod:`vesselbot_ros.live_view`):
@@ -29,17 +44,21 @@ and load ``config/foxglove/vesselbot.json`` as the layout.
 
 from __future__ import annotations
 
+import struct
 import threading
 import time
 from collections.abc import Iterable
 from typing import Any
 
-__all__ = ["LiveView", "DEFAULT_LIVE_PORT", "DEFAULT_LIVE_RATE_HZ", "check_port"]
+__all__ = ["LiveView", "DEFAULT_LIVE_PORT", "DEFAULT_LIVE_RATE_HZ", "TIME_RATE_HZ", "check_port", "clock_ns"]
 
 #: Foxglove's default WebSocket port.
 DEFAULT_LIVE_PORT = 8765
 #: Messages per topic and wall second forwarded to the viewer, at most.
 DEFAULT_LIVE_RATE_HZ = 50.0
+#: Sim-time broadcasts per wall second, at most (besides one right before each derived view update).  The
+#: SDK queues them with its control messages, and disconnects a client whose control queue (1024) fills.
+TIME_RATE_HZ = 50.0
 
 
 def check_port(port: int) -> None:
@@ -48,8 +67,23 @@ def check_port(port: int) -> None:
         raise ValueError(f"live port must be in [0, 65535], got {port}")
 
 
+def clock_ns(data: bytes) -> int:
+    """Sim time (ns) of a serialized ``rosgraph_msgs/Clock``.
+
+    The CDR is a 4-byte encapsulation header (byte 1: 1 little endian, 0 big) and
+    ``builtin_interfaces/Time``: int32 sec, uint32 nanosec.
+
+    Raises:
+        ValueError: ``data`` is shorter than a Clock.
+    """
+    if len(data) < 12:
+        raise ValueError(f"a serialized Clock has 12 bytes, got {len(data)}")
+    sec, nanosec = struct.unpack_from("<iI" if data[1] & 1 else ">iI", data, 4)
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
 class LiveView:
-    """A Foxglove WebSocket server of a set of ROS topics.
+    """A Foxglove WebSocket server of a set of ROS topics, on sim time.
 
     Args:
         topics: ``(name, msgtype, latched)`` per channel.
@@ -60,14 +94,25 @@ class LiveView:
         name: Server name shown by Foxglove.
         max_rate_Hz: Forward each topic at most this often per wall second (0: every message);
             latched topics are always forwarded.
+        clock_topic: The topic whose messages (``rosgraph_msgs/Clock``) give the sim time
+            (default: the graph spec's ``/clock``).
 
     Raises:
         OSError / RuntimeError: the port cannot be bound (the message names it).
     """
 
     def __init__(self, topics: Iterable[tuple[str, str, bool]], typestore: Any, port: int = DEFAULT_LIVE_PORT,
-                 host: str = "127.0.0.1", name: str = "vesselbot", max_rate_Hz: float = DEFAULT_LIVE_RATE_HZ) -> None:
+                 host: str = "127.0.0.1", name: str = "vesselbot", max_rate_Hz: float = DEFAULT_LIVE_RATE_HZ,
+                 clock_topic: str | None = None) -> None:
+        import json
+
         import foxglove
+        from foxglove.websocket import Capability
+
+        from vesselbot_ros.graph_spec import VIEW_CHANNELS
+        from vesselbot_ros.graph_spec import topic as topic_spec
+        from vesselbot_ros.live_front import SubprotocolFront
+        from vesselbot_ros.live_view import ERRORS_SCHEMA, ERRORS_SCHEMA_NAME, DerivedView
 
         check_port(port)
         if not max_rate_Hz >= 0:
@@ -79,11 +124,13 @@ class LiveView:
         self._view_wanted = False  # some client subscribes to a derived view channel (kept by the listener)
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
-        self._latched: dict[str, bytes | None] = {}
+        self._latched: dict[str, tuple[bytes, int] | None] = {}  # the last message and its log time (ns)
         self._lock = threading.Lock()
-        from vesselbot_ros.graph_spec import VIEW_CHANNELS
-        from vesselbot_ros.graph_spec import topic as topic_spec
-        from vesselbot_ros.live_view import ERRORS_SCHEMA, DerivedView
+        self._clock_topic = clock_topic if clock_topic is not None else topic_spec("clock").name
+        self._time_ns = 0  # the sim time: 0 until the first /clock (a run starts at t = 0)
+        self._time_sent: int | None = None  # the last broadcast
+        self._time_wall = -1e9  # when (monotonic s)
+        self._time_period_s = 1.0 / TIME_RATE_HZ
 
         def ros_channel(name: str, msgtype: str) -> Any:
             text, _ = typestore.generate_msgdef(msgtype, ros_version=2)
@@ -94,12 +141,14 @@ class LiveView:
             self._channels[topic] = ros_channel(topic, msgtype)
             if latched:
                 self._latched[topic] = None
+        errors_schema = foxglove.Schema(name=ERRORS_SCHEMA_NAME, encoding="jsonschema",
+                                        data=json.dumps(ERRORS_SCHEMA).encode("utf-8"))
         self._views: dict[str, Any] = {}
         for v in VIEW_CHANNELS:
-            self._views[v.key] = (foxglove.Channel(v.name, schema=ERRORS_SCHEMA, context=self._ctx)
+            self._views[v.key] = (foxglove.Channel(v.name, schema=errors_schema, message_encoding="json",
+                                                   context=self._ctx)
                                   if v.msgtype == "json" else ros_channel(v.name, v.msgtype))
-        self.view = DerivedView(lambda key, data, t_ns: self._views[key].log(data, log_time=int(t_ns)),
-                                lambda: self._view_wanted)
+        self.view = DerivedView(self._send_view, lambda: self._view_wanted)
         self._view_names = {v.name for v in VIEW_CHANNELS}
         self._view_inputs = {topic_spec(k).name for v in VIEW_CHANNELS for k in v.inputs}
         view = self
@@ -108,19 +157,26 @@ class LiveView:
         class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 view._count_subscriber(channel.topic, +1)
+                view._send_time(view._time_ns)  # the new subscriber's timeline starts at the current sim time
                 view._resend_latched(channel.topic)
 
             def on_unsubscribe(self, client: Any, channel: Any) -> None:
                 view._count_subscriber(channel.topic, -1)
 
-        self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
-                                             server_listener=_Listener())
+        # the SDK's server on a private loopback port; clients connect to the front's port
+        self._server: Any = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self._ctx,
+                                                  server_listener=_Listener(), capabilities=[Capability.Time])
+        try:
+            self._front: Any = SubprotocolFront(int(self._server.port), host=host, port=port)
+        except BaseException:
+            self._server.stop()
+            raise
         self.host = host
-        self.port = int(self._server.port)
+        self.port = self._front.port
 
     @property
     def url(self) -> str:
-        """``ws://HOST:PORT`` of the server."""
+        """``ws://HOST:PORT`` of the server (the bound port, also when asked for port 0)."""
         return f"ws://{self.host}:{self.port}"
 
     @property
@@ -129,13 +185,22 @@ class LiveView:
         return list(self._channels)
 
     def log(self, topic: str, data: bytes, t_ns: int) -> None:
-        """Offer one serialized (CDR) message of ``topic``: sent to subscribed clients, at most at the live rate."""
+        """Offer one serialized (CDR) message of ``topic`` logged at ``t_ns`` (ns; the bag's log time).
+
+        It is sent to subscribed clients, at most at the live rate, with ``t_ns`` as its timestamp; a
+        ``/clock`` message also sets the sim time (:meth:`set_time`).
+        """
         ch = self._channels.get(topic)
         if ch is None:
             return
+        if topic == self._clock_topic:
+            try:
+                self.set_time(clock_ns(data))
+            except ValueError:
+                pass
         if topic in self._latched:
             with self._lock:
-                self._latched[topic] = bytes(data)
+                self._latched[topic] = (bytes(data), int(t_ns))
             ch.log(bytes(data), log_time=int(t_ns))
             self.view.offer(topic, data, t_ns)
             return
@@ -149,6 +214,37 @@ class LiveView:
         self._last_sent[topic] = now
         ch.log(data, log_time=int(t_ns))
 
+    def set_time(self, t_ns: int) -> None:
+        """The sim time is now ``t_ns`` (ns): broadcast it, at most :data:`TIME_RATE_HZ` times per wall second."""
+        self._time_ns = t_ns = int(t_ns)
+        if t_ns != self._time_sent:
+            now = time.monotonic()
+            if now - self._time_wall >= self._time_period_s:
+                self._send_time(t_ns, now)
+
+    def flush_time(self) -> None:
+        """Broadcast the sim time now if the last broadcast is behind it (the rate limit held it back)."""
+        if self._time_ns != self._time_sent:
+            self._send_time(self._time_ns)
+
+    @property
+    def time_ns(self) -> int:
+        """The current sim time (ns)."""
+        return self._time_ns
+
+    def _send_time(self, t_ns: int, now: float | None = None) -> None:
+        server = self._server
+        if server is None:
+            return
+        self._time_sent = t_ns
+        self._time_wall = time.monotonic() if now is None else now
+        server.broadcast_time(max(0, t_ns))
+
+    def _send_view(self, key: str, data: bytes, t_ns: int) -> None:
+        """One derived view update: the sim time first, so Foxglove receives the update at its sim time."""
+        self.flush_time()
+        self._views[key].log(data, log_time=int(t_ns))
+
     def _count_subscriber(self, topic: str, delta: int) -> None:
         """A client subscribed (+1) to or left (-1) ``topic``; keep whether a derived view is wanted."""
         with self._lock:
@@ -157,12 +253,16 @@ class LiveView:
 
     def _resend_latched(self, topic: str) -> None:
         with self._lock:
-            data = self._latched.get(topic)
-        if data is not None:
-            self._channels[topic].log(data, log_time=time.time_ns())
+            last = self._latched.get(topic)
+        if last is not None:
+            data, t_ns = last
+            self._channels[topic].log(data, log_time=t_ns)
 
     def close(self) -> None:
-        """Stop the server (idempotent)."""
+        """Broadcast the last sim time, stop the server and its port (idempotent)."""
+        if self._server is not None:
+            self.flush_time()
         server, self._server = self._server, None
         if server is not None:
             server.stop()
+            self._front.close()

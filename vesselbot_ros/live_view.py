@@ -1,7 +1,7 @@
 """What the live view derives from the graph's topics: the scene as markers, and the error time series.
 
 The live view (:mod:`vesselbot_ros.live`) forwards every topic of the graph
-spec as it is.  On top of that it offers the channels of
+spec, each at most at the live rate.  On top of that it offers the channels of
 :data:`vesselbot_ros.graph_spec.VIEW_CHANNELS`, computed here from the latest
 messages of the topics each one names, at most :data:`VIEW_RATE_HZ` times per
 wall second (a viewer needs no more, and the run pays nothing per tick: the
@@ -30,7 +30,8 @@ from typing import Any
 
 from vesselbot_ros.graph_spec import FRAME_ID, VIEW_CHANNELS, import_type, topic
 
-__all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRORS_SCHEMA", "ARROW_AT_LIMIT_M"]
+__all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRORS_SCHEMA", "ERRORS_SCHEMA_NAME",
+           "ARROW_AT_LIMIT_M"]
 
 #: View updates per wall second, at most.
 VIEW_RATE_HZ = 20.0
@@ -39,8 +40,11 @@ VIEW_RATE_HZ = 20.0
 PATH_PERIOD_S = 1.0
 #: Length of the gradient arrow at the coil limit (m).
 ARROW_AT_LIMIT_M = 2e-3
+#: Name of the JSON schema of ``view/errors`` (what Foxglove shows as the channel's type).
+ERRORS_SCHEMA_NAME = "vesselbot.ViewErrors"
 #: JSON schema of ``view/errors``.
 ERRORS_SCHEMA = {
+    "title": ERRORS_SCHEMA_NAME,
     "type": "object",
     "properties": {k: {"type": "number"} for k in
                    ("t_s", "tracking_error_m", "estimation_error_m", "gradient_norm_T_per_m", "gradient_limit_T_per_m")},

@@ -16,7 +16,16 @@ import WebSocket from "ws";
 
 const { FoxgloveClient } = wsProtocol;
 
-const [port, connectTimeoutS = "60", idleS = "20"] = process.argv.slice(2);
+const positional = [];
+const flags = { subprotocol: FoxgloveClient.SUPPORTED_SUBPROTOCOL, retry: true, maxMessages: Infinity };
+for (let i = 2; i < process.argv.length; i++) {
+  const a = process.argv[i];
+  if (a === "--subprotocol") flags.subprotocol = process.argv[++i];
+  else if (a === "--no-retry") flags.retry = false;
+  else if (a === "--max-messages") flags.maxMessages = Number(process.argv[++i]);
+  else positional.push(a);
+}
+const [port, connectTimeoutS = "60", idleS = "20"] = positional;
 const url = `ws://127.0.0.1:${port}`;
 const deadline = Date.now() + Number(connectTimeoutS) * 1000;
 const advertised = [];
@@ -25,29 +34,42 @@ const counts = {};
 const decodeErrors = {};
 const positions = [];
 const views = { errors: [], marker_namespaces: [] };
+const logTimes = {};
+const times = [];
+let capabilities = null;
+let subprotocol = null;
+let received = 0;
 let lastMessage = Date.now();
 let done = false;
 
 function finish(reason) {
   if (done) return;
   done = true;
-  process.stdout.write(JSON.stringify({ reason, advertised, counts, decode_errors: decodeErrors, views,
-    positions: positions.map(([t, x, z]) => [t.toString(), x, z]) }) + "\n", () => process.exit(0));
+  process.stdout.write(JSON.stringify({ reason, subprotocol, capabilities, advertised, counts,
+    decode_errors: decodeErrors, views, times: times.map(String),
+    log_times: Object.fromEntries(Object.entries(logTimes).map(([k, v]) => [k, v.map(String)])),
+    positions: positions.map(([t, x, z, lt]) => [t.toString(), x, z, lt.toString()]) }) + "\n",
+  () => process.exit(0));
 }
 
 function connect() {
-  const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.sdk.v1"]);
+  const ws = new WebSocket(url, [flags.subprotocol]);
   ws.binaryType = "arraybuffer";
   let opened = false;
-  ws.on("open", () => { opened = true; });
-  ws.on("error", () => {
+  ws.on("open", () => { opened = true; subprotocol = ws.protocol; });
+  ws.on("error", (e) => {
     if (!opened) {
-      if (Date.now() > deadline) { console.error(`no server at ${url}`); process.exit(3); }
+      if (!flags.retry || Date.now() > deadline) {
+        console.error(`no connection to ${url} offering ${flags.subprotocol}: ${e.message}`);
+        process.exit(3);
+      }
       setTimeout(connect, 200);
     }
   });
   ws.on("close", () => { if (opened) finish("server closed"); });
   const client = new FoxgloveClient({ ws });
+  client.on("serverInfo", (info) => { capabilities = info.capabilities; });
+  client.on("time", ({ timestamp }) => { times.push(timestamp); });
   client.on("advertise", (chs) => {
     for (const ch of chs) {
       advertised.push({ topic: ch.topic, encoding: ch.encoding, schemaName: ch.schemaName, schemaEncoding: ch.schemaEncoding });
@@ -57,12 +79,14 @@ function connect() {
       const sub = client.subscribe(ch.id);
       channels.set(sub, { topic: ch.topic, reader });
       counts[ch.topic] = 0;
+      logTimes[ch.topic] = [];
     }
   });
-  client.on("message", ({ subscriptionId, data }) => {
+  client.on("message", ({ subscriptionId, timestamp, data }) => {
     lastMessage = Date.now();
     const ch = channels.get(subscriptionId);
     if (!ch) return;
+    logTimes[ch.topic].push(timestamp);
     let msg;
     try {
       msg = ch.reader.readMessage(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
@@ -77,8 +101,10 @@ function connect() {
     }
     if (ch.topic.endsWith("/truth")) {
       const st = msg.header.stamp;
-      positions.push([BigInt(st.sec) * 1000000000n + BigInt(st.nanosec), msg.position.x, msg.position.z]);
+      positions.push([BigInt(st.sec) * 1000000000n + BigInt(st.nanosec), msg.position.x, msg.position.z, timestamp]);
     }
+    received += 1;
+    if (received >= flags.maxMessages) finish("max messages");
   });
 }
 

@@ -16,6 +16,10 @@ A bag without a recorded ``/clock`` gets the bag time (log time since the
 bag's first message, from 0).  The recorded ``/clock`` is then read, not
 republished (one clock source only).  The wall-clock receive time of the
 recording is never published as ``/clock``.
+
+``on_clock`` receives that same sim time (whether or not ``/clock`` is
+published: ``replay --live`` broadcasts it as the live view's time), and
+``on_message`` each message with its original log time.
 """
 
 from __future__ import annotations
@@ -96,6 +100,7 @@ def replay(
     should_stop: Callable[[], bool] = lambda: False,
     log: Callable[[str], None] = lambda s: None,
     on_message: Callable[[str, bytes, int], None] | None = None,
+    on_clock: Callable[[int], None] | None = None,
 ) -> ReplayStats:
     """Publish a bag's messages on ``node`` with their recorded timing divided by ``rate``.
 
@@ -111,8 +116,10 @@ def replay(
             topic with a message has a subscriber (0: do not wait).
         should_stop: Polled between messages; True ends the replay.
         log: Receives progress lines.
-        on_message: Also called with (topic, CDR bytes, wall ns) for every message
-            published (``replay --live`` hands them to the live view).
+        on_message: Also called with (topic, CDR bytes, log time ns as recorded) for every
+            message published (``replay --live`` hands them to the live view).
+        on_clock: Called with the sim time (ns) that ``clock`` publishes, before every message
+            whose sim time differs from the last one (also without ``clock``).
 
     Raises:
         BagError: for an invalid bag, an unknown topic or a bad argument.
@@ -128,8 +135,9 @@ def replay(
         raise BagError(f"bag {info.path} has no topic {', '.join(unknown)}; it has {[t.name for t in info.topics]}")
     if clock:
         names = [n for n in names if n != CLOCK_TOPIC]
-    recorded_clock = clock and info.topic(CLOCK_TOPIC) is not None
-    read = names + [CLOCK_TOPIC] if recorded_clock else names
+    # the sim time comes from the recorded /clock, read (and republished only if among the names)
+    recorded_clock = (clock or on_clock is not None) and info.topic(CLOCK_TOPIC) is not None
+    read = names + [CLOCK_TOPIC] if recorded_clock and CLOCK_TOPIC not in names else names
     pubs = make_publishers(node, info, names)
     clock_pub = None
     if clock:
@@ -170,7 +178,8 @@ def replay(
         for m in iter_messages(info, topics=read, start_ns=start_ns):
             if recorded_clock and m.topic == CLOCK_TOPIC:
                 sim_ns = _clock_ns(m.data)
-                continue
+                if m.topic not in pubs:
+                    continue
             if should_stop():
                 return ReplayStats(published, loops, time.monotonic() - t_begin, max_late)
             if first_ns is None:  # the schedule starts at the first message, after the reader opened
@@ -182,19 +191,22 @@ def replay(
                 sleep(delay)
             else:
                 max_late = max(max_late, -delay)
-            if clock_pub is not None:
+            if clock_pub is not None or on_clock is not None:
                 now_ns = sim_ns if recorded_clock else m.log_time_ns - info.start_ns
                 if now_ns is not None and now_ns != last_clock_ns:
-                    from rosgraph_msgs.msg import Clock
+                    if clock_pub is not None:
+                        from rosgraph_msgs.msg import Clock
 
-                    c = Clock()
-                    c.clock.sec, c.clock.nanosec = divmod(now_ns, 1_000_000_000)
-                    clock_pub.publish(c)
+                        c = Clock()
+                        c.clock.sec, c.clock.nanosec = divmod(now_ns, 1_000_000_000)
+                        clock_pub.publish(c)
+                    if on_clock is not None:
+                        on_clock(now_ns)
                     last_clock_ns = now_ns
             pubs[m.topic].publish(m.data)
             published[m.topic] += 1
             if on_message is not None:
-                on_message(m.topic, m.data, time.time_ns())
+                on_message(m.topic, m.data, m.log_time_ns)
         loops += 1
         log(f"pass {loops} done: {sum(published.values())} messages published")
         if not loop or should_stop() or first_ns is None:

@@ -34,11 +34,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock", action="store_true",
                         help="publish /clock from the bag's log time (and do not replay a recorded /clock)")
     parser.add_argument("--live", action="store_true",
-                        help="also serve the replay live over the Foxglove WebSocket protocol (port 8765)")
+                        help="also serve the replay live over the Foxglove WebSocket protocol (port 8765), on the "
+                             "bag's sim time")
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
-                        help="port of the live view (0: any free port); implies --live")
+                        help="port of the live view (0: any free port, printed once it listens); implies --live")
     parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
-                        help="messages per topic and second sent to the live view, at most (default 50; 0: all)")
+                        help="messages per topic and wall second sent to the live view, at most (default 50; 0: all)")
     parser.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                         help="first wait up to S seconds until every replayed topic has a subscriber")
     g = parser.add_argument_group("re-run one node on the bag's inputs (lockstep bags)")
@@ -83,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
                        clock=args.clock, wait_subscribers_s=args.wait_subscribers,
                        should_stop=lambda: not rclpy.ok(),
                        log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True),
-                       on_message=live.log if live is not None else None)
+                       on_message=live.log if live is not None else None,
+                       on_clock=live.set_time if live is not None else None)
     except (KeyboardInterrupt, ExternalShutdownException):
         print("vesselbot replay: stopped", file=sys.stderr)
         return 0

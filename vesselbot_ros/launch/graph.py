@@ -94,6 +94,9 @@ class GraphOptions:
         live_port: Serve every topic live over the Foxglove WebSocket protocol on this port
             (None: off).  The recorder serves it (with no bag when ``record_dir`` is None).
         live_rate_Hz: Messages per topic and wall second sent to the live view, at most (0: all; None: default).
+        on_live: Called with the live view's address (``ws://127.0.0.1:PORT``, the bound port, also for
+            ``live_port`` 0) once its server accepts connections, before the nodes start.
+        on_paused: Called once the run is paused at t = 0 (``start_paused``), its services ready.
     """
 
     mode: str = "lockstep"
@@ -116,6 +119,8 @@ class GraphOptions:
     live_port: int | None = None
     live_rate_Hz: float | None = None
     start_paused: bool = False
+    on_live: Callable[[str], None] | None = None
+    on_paused: Callable[[], None] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -275,6 +280,11 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
                                                 compression=options.compression, live_port=options.live_port,
                                                 live_rate_Hz=options.live_rate_Hz))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
+            if options.live_port is not None:
+                wait_for(lambda: mon.recorder_live_url() is not None, options.wait_timeout_s, mon, sup,
+                         "the recorder's live view to accept connections")
+                if options.on_live is not None:
+                    options.on_live(str(mon.recorder_live_url()))
         sup.start_nodes(roles, ["--ros-args", *remap_args(options.namespace), "--params-file", str(params_file)],
                         options.single_process, options.intra_process)
         for r in options.without:
@@ -299,6 +309,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             req.state.state = SimulationState.STATE_PAUSED
             fut = mon.set_simulation_state.call_async(req)
             wait_for(fut.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")
+            if options.on_paused is not None:
+                options.on_paused()
         else:
             from vesselbot_msgs.srv import RunControl
 

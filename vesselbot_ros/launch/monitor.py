@@ -266,6 +266,13 @@ class Monitor:
         return all(matched.get(t.name, 0) >= self.node.count_publishers(self.resolved(t.key)) for t in TOPICS
                    if t.key != "diagnostics")
 
+    def recorder_live_url(self) -> str | None:
+        """The live view's address as the recorder reports it once its server accepts connections (else None)."""
+        from vesselbot_ros.nodes.recorder_node import LIVE_URL_KEY
+
+        rec = self.diag.get(NODE_NAMES["recorder"])
+        return None if rec is None else rec.get(LIVE_URL_KEY)
+
     def recorder_received(self) -> dict[str, int] | None:
         """The recorder's ``received:<topic>`` counts (None before its first diagnostics)."""
         rec = self.diag.get(NODE_NAMES["recorder"])

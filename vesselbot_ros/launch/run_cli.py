@@ -71,10 +71,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="serve every topic live over the Foxglove WebSocket protocol (open it in Foxglove with "
                              "the layout config/foxglove/vesselbot.json)")
     parser.add_argument("--live-port", type=int, default=None, metavar="N",
-                        help="port of the live view (default 8765; 0: any free port); implies --live")
+                        help="port of the live view (default 8765; 0: any free port, printed once it listens); "
+                             "implies --live")
     parser.add_argument("--live-rate", type=float, default=None, metavar="HZ",
-                        help="messages per topic and second sent to the live view, at most (default 50; 0: every "
-                             "message of the 1 kHz loop)")
+                        help="messages per topic and wall second sent to the live view, at most (default 50; 0: "
+                             "every message of the 1 kHz loop)")
     parser.add_argument("--report", action="store_true", help="write the report (figures, metrics) from the bag")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: lease a free one)")
     parser.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
@@ -225,6 +226,16 @@ def run(args: argparse.Namespace) -> int:
     def contract(text: str) -> None:
         print(text, flush=True)
 
+    def live(url: str) -> None:  # printed once the server accepts connections, with the port it bound
+        print(f"live view: {url} (Foxglove: Open connection -> Foxglove WebSocket; "
+              f"layout config/foxglove/vesselbot.json)", flush=True)
+
+    def paused() -> None:  # printed once the run is paused and its services answer
+        from vesselbot_ros.graph_spec import SIMULATION_SERVICES, resolve, service
+
+        print("paused at t = 0; simulation_interfaces: " + ", ".join(resolve(service(k).rel, args.namespace)
+                                                                     for k in SIMULATION_SERVICES), flush=True)
+
     opts = GraphOptions(mode=args.mode, real_time_factor=args.real_time_factor, without=tuple(args.without),
                         single_process=args.single_process, intra_process=args.intra_process, record_dir=run_dir if record else None,
                         run_metadata=metadata, log_dir=log_dir, domain_id=args.domain_id, lease=lease,
@@ -232,18 +243,10 @@ def run(args: argparse.Namespace) -> int:
                         wait_timeout_s=args.wait_timeout, run_timeout_s=args.run_timeout,
                         stall_timeout_s=args.stall_timeout, progress=progress, on_contract=contract,
                         compression=args.compression, live_port=_live_port(args), start_paused=args.start_paused,
-                        live_rate_Hz=args.live_rate)
+                        live_rate_Hz=args.live_rate, on_live=live, on_paused=paused)
     procs = "1 process" if args.single_process else "one process per node"
     print(f"vesselbot run: {scenario.name} seed {scenario.seed}, {args.mode}, {scenario.sim.duration_s} s at "
           f"{scenario.sim.control_rate_Hz:g} Hz, {procs}" + (f", recording to {run_dir}" if record else ""), flush=True)
-    if args.start_paused:
-        from vesselbot_ros.graph_spec import SIMULATION_SERVICES, resolve, service
-
-        print("paused at t = 0; simulation_interfaces: " + ", ".join(resolve(service(k).rel, args.namespace)
-                                                                     for k in SIMULATION_SERVICES), flush=True)
-    if _live_port(args) is not None:
-        print(f"live view: ws://127.0.0.1:{_live_port(args)} (Foxglove: Open connection -> Foxglove WebSocket; "
-              f"layout config/foxglove/vesselbot.json)", flush=True)
 
     def on_term(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt

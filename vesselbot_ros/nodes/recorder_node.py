@@ -9,6 +9,8 @@ Ports (see :mod:`vesselbot_ros.graph_spec`):
 * output ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, 1 Hz wall and
   after each flush): status ``vesselbot_recorder`` with KeyValues
   ``received:<topic>`` = messages written for that topic;
+* with ``live_port`` set, the KeyValue ``live_url`` = ``ws://127.0.0.1:PORT``, the
+  live view's bound port, published once the server accepts connections;
 * service ``/vesselbot/recorder/flush`` (``std_srvs/Trigger``): closes the
   pending MCAP chunk, flushes and fsyncs the file, and returns the counts as
   JSON in ``message``.
@@ -52,11 +54,13 @@ from typing import Any
 
 from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, NODE_NAMES, TOPICS, import_type, remap_args, service, topic
 
-__all__ = ["RecorderNode", "recorder_command", "main", "FLUSH_SERVICE", "STATUS_NAME"]
+__all__ = ["RecorderNode", "recorder_command", "main", "FLUSH_SERVICE", "STATUS_NAME", "LIVE_URL_KEY"]
 
 FLUSH_SERVICE = service("recorder_flush").name
 SUBSCRIPTION_DEPTH = 10_000  # messages buffered per topic while the recorder is busy (10 s at 1 kHz)
 STATUS_NAME = NODE_NAMES["recorder"]
+#: The recorder's diagnostics key of the live view's address (``ws://127.0.0.1:PORT``, the bound port).
+LIVE_URL_KEY = "live_url"
 
 
 def recorder_command(
@@ -215,6 +219,7 @@ class RecorderNode:
                                      port=live_port, max_rate_Hz=float(self._param("live_rate_Hz")))
             except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
                 raise BagError(f"live view: cannot serve on port {live_port}: {exc}") from None
+            # the server accepts connections from here on (LiveView listens before it returns)
             n.get_logger().info(f"live view on {self.live.url}")
             print(f"vesselbot recorder: live view on {self.live.url}", flush=True)
         for name, sub_name, msgtype, qos, latched in specs:
@@ -234,10 +239,14 @@ class RecorderNode:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         n.create_timer(float(self._param("flush_period_s")), self._on_flush_timer, clock=steady)
         n.create_timer(1.0, self.publish_counts, clock=steady)
+        if self.live is not None:  # the sim time the rate limit held back, e.g. at the end of a run
+            n.create_timer(0.1, self.live.flush_time, clock=steady)
         # before a run starts the launcher waits for our readers to match every writer: report matches fast
         n.create_timer(0.1, self._on_match_timer, clock=steady)
         n.create_service(Trigger, service("recorder_flush").rel, self._on_flush_service)
         n.get_logger().info(f"recording {len(specs)} topics into {path}")
+        if self.live is not None:
+            self.publish_counts()  # the launcher prints the live view's address once it reads it here
 
     def _callback(self, conn: Any, name: str, now: Any) -> Any:
         """The raw subscription callback of one topic: the bag write, plus the live view's send when on."""
@@ -295,6 +304,8 @@ class RecorderNode:
         self._matched = [s.get_publisher_count() for s in self._subs]
         st.values = [KeyValue(key=f"received:{k}", value=str(v)) for k, v in counts.items()] + [
             KeyValue(key=f"matched_publishers:{name}", value=str(m)) for name, m in zip(self._sub_names, self._matched)]
+        if self.live is not None:
+            st.values.append(KeyValue(key=LIVE_URL_KEY, value=self.live.url))
         arr.status = [st]
         self._diag_pub.publish(arr)
 
