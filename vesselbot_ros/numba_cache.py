@@ -85,6 +85,7 @@ def warm() -> None:
         run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
         run_many(sc, [0, 1], workers=2)
         if sc.physics.vessel.network:  # the nodes' input check (VesselbotNode.check)
-            from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+            from vesselbot_ros.vessels.cfd import network_wall
+            from vesselbot_ros.vessels.network import load_network
 
-            NetworkGeometry(load_network(sc.physics.vessel.network)).clearance(0.0, 0.0)
+            network_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(0.0, 0.0)

@@ -33,11 +33,12 @@ class ForceTerms(NamedTuple):
         electrostatic: (2,) eq. (19) (model per config), both walls (N).
         steric: (2,) eq. (22), both walls (N).
         total: (2,) sum of all the above (N).
-        delta_m: Signed distance to the nearest wall (m), > 0 in contact.
-        wall: +1 upper wall, -1 lower wall (the nearest one).
-        normal_W: (2,) outward normal n of the nearest wall (-).
-        v_fluid_W: (2,) blood velocity at the robot centre (m/s).
-        diameter_m: Vessel diameter D(t) (m).
+        delta_m: Signed distance to the nearest wall (m), > 0 in contact (in a network: r - s_t, the
+            meshed wall's exact distance with the pulsation).
+        wall: +1 upper wall, -1 lower wall (the nearest one; in a network, +1 if its inward normal points down).
+        normal_W: (2,) outward normal n of the nearest wall (-), from the robot towards the wall.
+        v_fluid_W: (2,) blood velocity at the robot centre (m/s), both components in a network.
+        diameter_m: Vessel diameter D(t) (m); in a network the local one at the robot.
     """
 
     magnetic: npt.NDArray[np.float64]
@@ -92,10 +93,17 @@ def force_terms(
     packed = kernel.pack_params(params)
     out = np.empty((8, 2))
     kernel.forces_into(t, p[0], p[1], v[0], v[1], g[0], g[1], contact.to_array(), packed, out)
+    rows = [out[i].copy() for i in range(8)]
+    if packed[kernel.I_NET_ON] > 0.5:
+        # a network: the meshed wall's exact distance and normal, the local diameter and the 2-D blood
+        # velocity at (x, z), as _forces_network used them (the straight vessel's would be wrong here)
+        s_t, nx, nz, d_t, _eta, vfx, vfz = kernel.network_geometry(t, p[0], p[1], packed)
+        delta, wall = kernel.wall_delta_xz(t, p[0], p[1], packed)
+        return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([-float(nx), -float(nz)]),
+                          v_fluid_W=np.array([float(vfx), float(vfz)]), diameter_m=float(d_t))
     delta, wall = kernel.nearest_wall_delta(t, p[1], packed)
     d_t = kernel._diameter(t, packed)
     vf = kernel.fluid_velocity_x(t, p[0], p[1], packed)
-    rows = [out[i].copy() for i in range(8)]
     return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([0.0, float(wall)]),
                       v_fluid_W=np.array([float(vf), 0.0]), diameter_m=float(d_t))
 

@@ -237,7 +237,8 @@ class Scenario:
 
     def _check_network(self) -> None:
         """Start point and anchors (given or planned) must lie inside the network's lumen."""
-        from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
+        from vesselbot_ros.vessels.cfd import network_wall
+        from vesselbot_ros.vessels.network import load_network, route_to_outlet
         from vesselbot_ros.vessels.route import planned_reference
 
         net = load_network(self.physics.vessel.network)
@@ -246,13 +247,14 @@ class Scenario:
                 raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
                                   f"({net.outlets}), got {self.reference.route_outlet!r}")
             route_to_outlet(net, self.reference.route_outlet)
-        geom = NetworkGeometry(net)
-        s0 = float(geom.signed_distance(np.asarray(self.initial.p0_m))[0])
+        # the meshed wall the plant sees (exact in the junctions, where the centreline tubes are a lower bound)
+        geom = network_wall(net, self.physics.blood)
+        s0 = float(geom.query(np.asarray(self.initial.p0_m))["sdist"][0])
         if s0 <= 0.0:
             raise ConfigError(f"initial.p0_m must lie inside the vessel network {net.name!r}, got {list(self.initial.p0_m)} "
                               f"({-s0:.6g} m outside the wall)")
         ref = planned_reference(self)
-        sd = geom.signed_distance(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]))
+        sd = geom.query(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]))["sdist"]
         for i, v in enumerate(sd):
             if v <= 0.0:
                 raise ConfigError(f"reference anchor {i} ({ref.anchors_x_m[i]!r}, {ref.anchors_z_m[i]!r}) must lie inside the "

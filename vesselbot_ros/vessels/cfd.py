@@ -44,6 +44,7 @@ network or blood model of one's own is solved and cached locally.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -62,7 +63,7 @@ from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, smooth_centreline
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
-           "network_field", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
+           "network_field", "network_wall", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
@@ -490,7 +491,7 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     meta = {"network": net.name, "fluxes_m2_per_s": sol.fluxes, "picard_iterations": sol.picard_iterations,
             "picard_change": sol.picard_change, "solve_s": sol.elapsed_s, "n_triangles": int(m.t.shape[1]),
             "n_dofs": int(sol.u.size + sol.p.size), "n_wall_segments": int(len(segs)),
-            "n_cell_candidates": int(idx.size)}
+            "n_cell_candidates": int(idx.size), "n_wall_extensions": 2 * len(sol.caps)}
     return NetworkField(x0, z0, h, nx, nz, np.ascontiguousarray(data), meta, segs, off, idx)
 
 
@@ -513,6 +514,19 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
     field.meta["total_s"] = time.perf_counter() - t0
     field.save(path)
     return field
+
+
+@functools.lru_cache(maxsize=16)
+def network_wall(net: VesselNetworkParams, blood: BloodParams | None = None) -> Any:
+    """The meshed wall of ``net`` as :class:`vesselbot_ros.vessels.wall.WallQuery` (exact distance and normal).
+
+    The wall depends on the geometry and mesh settings only, not on the blood model; it is read from
+    the field of ``blood`` (default :class:`BloodParams`, the shipped scenarios' blood), so a wall of a
+    shipped network costs no solve.  Cached per (frozen) network and blood.
+    """
+    from vesselbot_ros.vessels.wall import WallQuery
+
+    return WallQuery(network_field(net, blood if blood is not None else BloodParams()))
 
 
 def womersley_numbers(net: VesselNetworkParams, blood: BloodParams, omega_rad_per_s: float) -> dict[str, float]:

@@ -28,6 +28,7 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 
 __all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
@@ -95,10 +96,17 @@ def planned_reference(scenario):  # type: ignore[no-untyped-def]
 
 
 def branch_at(network: str, points_m: npt.ArrayLike) -> tuple[list[str], npt.NDArray[np.float64]]:
-    """(branch name, signed distance (m)) of each point (m, 2) in the network."""
-    geom = NetworkGeometry(load_network(network))
+    """(branch name, signed distance to the meshed wall (m)) of each point (m, 2) in the network.
+
+    The branch is the centreline tube holding the point; the distance is the meshed wall's
+    (:func:`vesselbot_ros.vessels.cfd.network_wall`), exact in the junctions too.
+    """
+    from vesselbot_ros.vessels.cfd import network_wall
+
+    net = load_network(network)
+    geom = NetworkGeometry(net)
     q = geom.query(points_m)
-    return [geom.names[i] for i in q["branch"]], q["sdist"]
+    return [geom.names[i] for i in q["branch"]], network_wall(net).query(points_m)["sdist"]
 
 
 def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:  # type: ignore[no-untyped-def]
@@ -112,18 +120,27 @@ def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> d
     (first tick outside, s, -1 if never): leaving the lumen is an event every
     run reports.
     """
-    return navigation_outcome(scenario.physics.vessel.network, scenario.reference.route_outlet, t_s, p_true)
+    return navigation_outcome(scenario.physics.vessel.network, scenario.reference.route_outlet, t_s, p_true,
+                              blood=scenario.physics.blood)
 
 
-def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:
-    """:func:`navigation_metrics` from plain values (network file, target outlet or "")."""
+def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: npt.ArrayLike, *,
+                       blood: BloodParams | None = None) -> dict[str, object]:
+    """:func:`navigation_metrics` from plain values (network file, target outlet or "").
+
+    "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.cfd.network_wall`, read
+    from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it);
+    the branch holding a point is its centreline tube's.
+    """
+    from vesselbot_ros.vessels.cfd import network_wall
+
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(p)
     # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
-    out = q["sdist"] < 0.0
+    out = network_wall(net, blood).query(p)["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
     reached = False
@@ -142,15 +159,22 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
 
 
 def draw_network(ax, network: str, mm: float = 1e3) -> None:  # type: ignore[no-untyped-def]
-    """Draw the network's walls (grey fill, dark outline) on a matplotlib axis, in mm by default."""
-    geom = NetworkGeometry(load_network(network))
+    """Draw the network on a matplotlib axis, in mm by default: the tubes filled grey, the meshed wall
+    (the one the plant sees, :func:`vesselbot_ros.vessels.cfd.network_wall`) as a dark outline, the
+    centrelines dotted."""
+    from matplotlib.collections import LineCollection
+
+    from vesselbot_ros.vessels.cfd import network_wall
+
+    net = load_network(network)
+    geom = NetworkGeometry(net)
     for name, (pts, rad, _arc) in geom.branches.items():
         t = np.gradient(pts, axis=0)
         t /= np.hypot(t[:, 0], t[:, 1])[:, None]
         nrm = np.column_stack([-t[:, 1], t[:, 0]])
         poly = np.concatenate([pts + rad[:, None] * nrm, (pts - rad[:, None] * nrm)[::-1]]) * mm
         ax.fill(poly[:, 0], poly[:, 1], color="0.92", lw=0, zorder=0)
-        ax.plot(*(pts + rad[:, None] * nrm).T * mm, color="0.3", lw=0.8, zorder=1)
-        ax.plot(*(pts - rad[:, None] * nrm).T * mm, color="0.3", lw=0.8, zorder=1)
         ax.plot(*pts.T * mm, color="0.6", lw=0.5, ls=":", zorder=1)
         ax.annotate(name, pts[-1] * mm, fontsize=7, color="0.3")
+    segs = network_wall(net).segments * mm
+    ax.add_collection(LineCollection(segs.reshape(-1, 2, 2), colors="0.3", linewidths=0.8, zorder=1))

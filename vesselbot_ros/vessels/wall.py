@@ -277,6 +277,10 @@ class WallQuery:
         self._off = np.ascontiguousarray(field.cell_offsets, dtype=np.float64)
         self._idx = np.ascontiguousarray(field.cell_index, dtype=np.float64)
         self._grid = (float(field.x0_m), float(field.z0_m), float(field.h_m), int(field.nx), int(field.nz))
+        self._diam = np.ascontiguousarray(field.field("diameter"))
+        n_ext = int(field.meta.get("n_wall_extensions", 0))
+        #: (k, 4) the meshed wall's segments (m), lumen on the left, without the continuations beyond the caps.
+        self.segments = np.asarray(field.wall_segments)[:len(field.wall_segments) - n_ext]
 
     def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
         """``sdist`` (m,) m (> 0 inside), ``normal`` (m, 2) unit inward normal, ``diameter`` (m,) m at points (m, 2)."""
@@ -298,9 +302,22 @@ class WallQuery:
                 + tx * tz * g[j + 1, i + 1])
 
     def clearance(self, x_m: float, z_m: float) -> tuple[float, float]:
-        """(signed distance (m, > 0 inside), local diameter (m)) at one point."""
-        s, _gx, _gz = nearest_wall(float(x_m), float(z_m), self._segs, self._off, self._idx, *self._grid)
-        return float(s), float(self.diameter(np.array([[x_m, z_m]]))[0])
+        """(signed distance (m, > 0 inside), local diameter (m)) at one point, compiled (a few microseconds)."""
+        return _clearance(float(x_m), float(z_m), self._segs, self._off, self._idx, self._diam, *self._grid)  # type: ignore[no-any-return]
+
+
+@numba.njit(cache=True, nogil=True)
+def _clearance(px, pz, segs, offsets, index, diam, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+    s, _gx, _gz = nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz)
+    fx = min(max((px - x0) / h, 0.0), nx - 1.0)
+    fz = min(max((pz - z0) / h, 0.0), nz - 1.0)
+    i = min(int(np.floor(fx)), nx - 2)
+    j = min(int(np.floor(fz)), nz - 2)
+    tx = fx - i
+    tz = fz - j
+    d = ((1 - tx) * (1 - tz) * diam[j, i] + tx * (1 - tz) * diam[j, i + 1] + (1 - tx) * tz * diam[j + 1, i]
+         + tx * tz * diam[j + 1, i + 1])
+    return s, d
 
 
 @numba.njit(cache=True)
