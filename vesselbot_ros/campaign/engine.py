@@ -23,23 +23,25 @@ others, leaves the other workers idle for one run at most.  A fixed
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import logging
 import math
 import os
+import statistics
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
 
-from vesselbot_ros.campaign.runner import RunTask, code_version, resolve_mapping, run_chunk, run_id
-from vesselbot_ros.campaign.spec import CampaignSpec, expand_points
+from vesselbot_ros.campaign.runner import RunTask, SeedHasher, code_version, resolve_mapping, run_chunk
+from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping, merge_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError
+from vesselbot_ros.config import ConfigError, unflatten
 from vesselbot_ros.errors import VesselbotError
 
-__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "chunk_sizes", "Outcome", "pending", "execute", "Progress"]
+__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute", "Progress"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,19 +60,37 @@ def _column_value(v: Any) -> Any:
 def prepare(spec: CampaignSpec, base_mapping: dict[str, Any]) -> Prepared:
     """Every run of ``spec``: scenario resolved (defaults filled in) and hashed.
 
-    A run whose drawn values make an invalid scenario keeps its raw mapping;
-    its worker records the validation error.
+    The work is done once per scenario, not once per run: each variant x grid
+    point is resolved (validated, defaults filled in) once, a draw's values are
+    set into that resolved mapping, and the runs of one scenario over its seeds
+    share one mapping object and one serialisation for their ids
+    (:class:`~vesselbot_ros.campaign.runner.SeedHasher`).  The ids are those
+    of :func:`~vesselbot_ros.campaign.runner.run_id` on each run's resolved
+    mapping.  A variant x grid point that does not validate keeps its raw
+    mappings, and a draw is not validated here: the worker that builds such a
+    scenario records its error for each of its runs.
     """
     code = code_version()
     tasks, manifest = [], []
+    groups: dict[int, dict[str, Any] | None] = {}
+    scenarios: dict[int, tuple[dict[str, Any], SeedHasher]] = {}
     for p in expand_points(spec, base_mapping):
-        try:
-            mapping = resolve_mapping(p.mapping)
-        except ConfigError:
-            mapping = p.mapping
-        rid = run_id(mapping, code)
-        tasks.append(RunTask(p.index, rid, p.seed, mapping, p.keep_timeseries))
-        manifest.append({"index": p.index, "run_id": rid, "seed": p.seed,
+        hit = scenarios.get(p.point)
+        if hit is None:
+            if p.group not in groups:
+                try:
+                    groups[p.group] = resolve_mapping(group_mapping(spec, base_mapping, p.values))
+                except ConfigError:
+                    groups[p.group] = None
+            resolved = groups[p.group]
+            if resolved is None:
+                mapping = p.mapping
+            else:
+                mapping = merge_mapping(resolved, unflatten(p.draw)) if p.draw else resolved
+            hit = scenarios[p.point] = (mapping, SeedHasher(mapping, code))
+        mapping, hasher = hit
+        tasks.append(RunTask(p.index, hasher(p.seed), p.seed, mapping, p.keep_timeseries, hasher.key))
+        manifest.append({"index": p.index, "run_id": tasks[-1].run_id, "seed": p.seed,
                          **{k: _column_value(v) for k, v in p.values.items()}, "keep_timeseries": p.keep_timeseries})
     return Prepared(tasks, manifest, code)
 
@@ -120,21 +140,79 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
         cluster.close()
 
 
-def chunk_sizes(n_runs: int, n_workers: int, fixed: int = 0) -> list[int]:
-    """Sizes of the chunks that ``n_runs`` runs are cut into (see the module docstring).
+#: Target wall time of one Dask task (s): long enough that the fixed cost of a task (a few ms of
+#: scheduling and serialisation, and the client writing its part) stays near 1 %, short enough that
+#: a killed campaign loses little and the progress bar moves.
+TASK_S = 1.0
+#: Shortest task worth sending (s): the last, shrinking chunks stop at this many runs' worth.
+MIN_TASK_S = 0.05
+#: Runs per chunk before any run time is known (the first wave of tasks).
+FIRST_CHUNK = 4
+#: Tasks kept submitted per worker thread, so a worker never waits for the client between two chunks.
+IN_FLIGHT = 2
+
+
+class ChunkSizer:
+    """Sizes of the chunks a campaign's runs are cut into, from the runs left and the measured run time.
+
+    A fixed size gives equal chunks.  Otherwise (guided self-scheduling) each
+    chunk takes about 1/(2 w) of the runs still unassigned (w workers), but at
+    most :data:`TASK_S` and at least :data:`MIN_TASK_S` of runs (the median run
+    time seen so far; :data:`FIRST_CHUNK` runs before the first chunk returns),
+    and at least one run.  The first chunks are large, so the cost per task
+    stays small against the runs it carries; the last ones are short, so a
+    worker that the machine slows down, or a run that lasts longer than the
+    others, leaves the other workers idle for a short time only.
+    """
+
+    def __init__(self, n_workers: int, fixed: int = 0, run_s: float | None = None) -> None:
+        self.n_workers = max(1, n_workers)
+        self.fixed = fixed
+        self._times: collections.deque[float] = collections.deque(maxlen=512)
+        self._run_s = run_s
+
+    @property
+    def run_s(self) -> float | None:
+        """The run time (s) the sizes are based on: given, or the median of the observed ones."""
+        if self._times:
+            return float(statistics.median(self._times))
+        return self._run_s
+
+    def observe(self, run_times_s: Sequence[float]) -> None:
+        """Record the wall times (s) of finished runs."""
+        self._times.extend(float(t) for t in run_times_s)
+
+    def next(self, left: int) -> int:
+        """Runs in the next chunk, ``left`` runs being unassigned (0 when none)."""
+        if left <= 0:
+            return 0
+        if self.fixed > 0:
+            return min(self.fixed, left)
+        guided = math.ceil(left / (2 * self.n_workers))
+        run_s = self.run_s
+        if run_s is None:
+            return max(1, min(guided, FIRST_CHUNK))
+        run_s = max(run_s, 1e-6)
+        most = max(1, int(TASK_S / run_s))
+        least = max(1, int(MIN_TASK_S / run_s))
+        return min(left, max(least, min(guided, most)))
+
+
+def chunk_sizes(n_runs: int, n_workers: int, fixed: int = 0, run_s: float | None = None) -> list[int]:
+    """Sizes of the chunks that ``n_runs`` runs are cut into when each run takes ``run_s`` (:class:`ChunkSizer`).
 
     Args:
         n_runs: Runs to cut.
         n_workers: Worker threads.
         fixed: Runs per chunk; 0 = guided (shrinking) chunks.
+        run_s: Wall time of one run (s); None = unknown (chunks of at most :data:`FIRST_CHUNK`).
     """
+    sizer = ChunkSizer(n_workers, fixed, run_s)
     sizes = []
     left = n_runs
     while left > 0:
-        size = fixed if fixed > 0 else max(1, min(32, math.ceil(left / (2 * max(1, n_workers)))))
-        size = min(size, left)
-        sizes.append(size)
-        left -= size
+        sizes.append(sizer.next(left))
+        left -= sizes[-1]
     return sizes
 
 
@@ -260,17 +338,29 @@ def execute(
         except TimeoutError:
             raise VesselbotError(f"the Dask scheduler {client.scheduler.address} has no workers (waited 60 s)") from None
     n_workers = max(1, sum(client.nthreads().values()))
-    chunks, i = [], 0
-    for size in chunk_sizes(len(todo), n_workers, chunk_size):
-        chunks.append(todo[i:i + size])
-        i += size
+    sizer = ChunkSizer(n_workers, chunk_size)
     t0 = time.perf_counter()
-    futures = {client.submit(chunk_fn, c, code, key=f"vesselbot-chunk-{c[0].run_id}-{len(c)}", pure=False): c
-               for c in chunks}
+    futures: dict[Any, Sequence[RunTask]] = {}
+    queue = as_completed()
+    pos = n_tasks = 0
+
+    def submit() -> None:
+        # sized when submitted, from the run times measured so far
+        nonlocal pos, n_tasks
+        size = sizer.next(len(todo) - pos)
+        chunk = list(todo[pos:pos + size])
+        pos += size
+        n_tasks += 1
+        fut = client.submit(chunk_fn, chunk, code, key=f"vesselbot-chunk-{chunk[0].run_id}-{size}", pure=False)
+        futures[fut] = chunk
+        queue.add(fut)
+
     n_failed = 0
     busy = 0.0
     try:
-        for fut in as_completed(list(futures)):
+        while pos < len(todo) and len(futures) < IN_FLIGHT * n_workers:
+            submit()
+        for fut in queue:
             chunk = futures.pop(fut)
             try:
                 records = fut.result()
@@ -281,10 +371,14 @@ def execute(
                     f"the Dask cluster failed ({type(exc).__name__}: {exc}); finished runs are saved in "
                     f"{str(store.root)!r}, run the same command again to resume"
                 ) from None
+            times = [float(r.get("run_time_s") or 0.0) for r in records]
+            sizer.observe([t for t, r in zip(times, records) if r["status"] == "ok"])
+            if pos < len(todo):
+                submit()
             store.write_records(records)
             bad = sum(1 for r in records if r["status"] != "ok")
             n_failed += bad
-            busy += sum(float(r.get("run_time_s") or 0.0) for r in records)
+            busy += sum(times)
             if progress is not None:
                 progress.update(ok=len(records) - bad, failed=bad)
     finally:
@@ -292,4 +386,4 @@ def execute(
             client.cancel(list(futures))
         if progress is not None:
             progress.close()
-    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, len(chunks))
+    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, n_tasks)

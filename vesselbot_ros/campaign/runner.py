@@ -1,10 +1,19 @@
 """The unit of work of a campaign: a chunk of runs of the pure closed loop.
 
-:func:`run_chunk` is the one function a Dask task calls (and the seam where a
-batched ``run_many`` will slot in): it takes a list of :class:`RunTask`, runs
-each with :func:`~vesselbot_ros.sim.closed_loop.run_closed_loop` and returns
-one record per run.  A run that raises is recorded with its error; it never
-stops the chunk.  Nothing here knows about Dask or files.
+:func:`run_chunk` is the one function a Dask task calls: it takes a list of
+:class:`RunTask`, runs each with
+:func:`~vesselbot_ros.sim.closed_loop.run_closed_loop` and returns one record
+per run.  A run that raises is recorded with its error; it never stops the
+chunk.  Nothing here knows about Dask or files.
+
+Runs that differ only in their seed share one scenario mapping (the same
+object in the tasks, so a chunk carries it once).  A worker builds and
+validates each distinct scenario once, and keeps the last few
+(:data:`SCENARIO_CACHE`), so the compiled loop's prepared inputs (stages,
+reference samples) are built once per scenario, not once per run, as in
+:func:`~vesselbot_ros.sim.closed_loop.run_many`; each run then costs its
+compiled loop and its metrics only, and its numbers are bit for bit those of
+``run_closed_loop(scenario, seed)``.
 
 Runs are content-addressed: :func:`run_id` hashes the resolved scenario
 mapping (every field, defaults filled in, seed included) together with
@@ -12,11 +21,14 @@ mapping (every field, defaults filled in, seed included) together with
 (physics, control, sim, config) and of the numeric libraries' versions.  The
 same scenario, seed and code give the same id and, the loop being
 deterministic, the same numbers; new code gives new ids, so a resumed campaign
-never mixes results of two versions.
+never mixes results of two versions.  :class:`SeedHasher` gives the same ids
+as :func:`run_id` for every seed of one scenario while serialising the
+scenario once.
 """
 
 from __future__ import annotations
 
+import collections
 import functools
 import hashlib
 import json
@@ -30,7 +42,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["RunTask", "code_version", "run_id", "resolve_mapping", "run_chunk", "flatten_timeseries"]
+__all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "run_chunk", "flatten_timeseries",
+           "SCENARIO_CACHE"]
 
 # Sources whose change can change a run's numbers (relative to the package folder).
 _CODE_GLOBS = ("config.py", "errors.py", "physics/**/*.py", "physics/data/*", "control/**/*.py", "sim/**/*.py")
@@ -42,9 +55,13 @@ class RunTask(NamedTuple):
     Attributes:
         index: Position in the campaign's run order.
         run_id: Content hash (:func:`run_id`).
-        seed: Imager noise seed (also in ``mapping``).
-        mapping: The scenario mapping to build and run.
+        seed: Imager noise seed of the run.  It wins over ``mapping["seed"]``.
+        mapping: The scenario mapping to build and run (never modified).  The
+            runs of one scenario over several seeds share one object.
         keep_timeseries: Return the time series too.
+        scenario_key: Digest of ``mapping`` without its seed (:attr:`SeedHasher.key`), or ""; a
+            worker keeps the scenarios it built under this key, so the chunks
+            of one scenario build it once per worker.
     """
 
     index: int
@@ -52,6 +69,7 @@ class RunTask(NamedTuple):
     seed: int
     mapping: dict[str, Any]
     keep_timeseries: bool
+    scenario_key: str = ""
 
 
 @functools.lru_cache(maxsize=1)
@@ -95,6 +113,37 @@ def run_id(mapping: dict[str, Any], code: str) -> str:
     return hashlib.sha256(doc.encode()).hexdigest()[:24]
 
 
+_SEED_SENTINEL = "\x00vesselbot-seed\x00"
+
+
+class SeedHasher:
+    """:func:`run_id` of one scenario mapping for any seed, with the mapping serialised once.
+
+    ``SeedHasher(m, code)(s) == run_id({**m, "seed": s}, code)`` for every
+    integer seed ``s``: the JSON document is cut at the seed's value, the part
+    before it hashed once, and each seed hashes only its digits and the rest.
+
+    Attributes:
+        key: Digest (24 hex digits) of the mapping and code without the seed.
+    """
+
+    def __init__(self, mapping: dict[str, Any], code: str) -> None:
+        doc = json.dumps({"scenario": {**mapping, "seed": _SEED_SENTINEL}, "code": code}, sort_keys=True,
+                         separators=(",", ":"), allow_nan=True)
+        head, sep, tail = doc.partition(json.dumps(_SEED_SENTINEL))
+        if not sep or json.dumps(_SEED_SENTINEL) in tail:  # pragma: no cover - the sentinel cannot be a YAML value
+            raise ValueError("SeedHasher: the seed sentinel appears in the mapping")
+        self._head = hashlib.sha256(head.encode())
+        self._tail = tail
+        self.key = hashlib.sha256(doc.encode()).hexdigest()[:24]
+
+    def __call__(self, seed: int) -> str:
+        """The run id of the mapping with ``seed``."""
+        h = self._head.copy()
+        h.update(f"{int(seed)}{self._tail}".encode())
+        return h.hexdigest()[:24]
+
+
 def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Time-series columns as 1-D arrays: (n, 2) vectors -> ``<key>_x``, ``<key>_z``.
 
@@ -116,15 +165,47 @@ def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
-def _one(task: RunTask) -> dict[str, Any]:
-    from vesselbot_ros.sim.closed_loop import run_closed_loop
+#: Scenarios a worker process keeps built (by :attr:`RunTask.scenario_key`): one campaign's distinct
+#: scenarios arrive in order, so a few suffice for the chunks of one to find it built.
+SCENARIO_CACHE = 16
+_SCENARIOS: collections.OrderedDict[str, Any] = collections.OrderedDict()
+
+
+def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
+    """The task's :class:`Scenario` (or the ConfigError that building it raised), built once per mapping."""
+    from vesselbot_ros.config import ConfigError
     from vesselbot_ros.sim.scenario import scenario_from_mapping
+
+    hit = local.get(id(task.mapping))
+    if hit is None and task.scenario_key:
+        hit = _SCENARIOS.get(task.scenario_key)
+    if hit is None:
+        try:
+            hit = scenario_from_mapping(task.mapping)
+        except ConfigError as exc:
+            hit = exc
+        if task.scenario_key:
+            _SCENARIOS[task.scenario_key] = hit
+            while len(_SCENARIOS) > SCENARIO_CACHE:
+                _SCENARIOS.popitem(last=False)
+    elif task.scenario_key:
+        _SCENARIOS.move_to_end(task.scenario_key)
+    local[id(task.mapping)] = hit
+    return hit
+
+
+def _one(task: RunTask, local: dict[int, Any]) -> dict[str, Any]:
+    from vesselbot_ros.sim import closed_loop
 
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"run_id": task.run_id, "status": "ok", "error": None, "metrics": {}, "timeseries": None}
     try:
-        scenario = scenario_from_mapping(task.mapping)
-        result = run_closed_loop(scenario)
+        scenario = _scenario(task, local)
+        if isinstance(scenario, Exception):  # built once, failed once: every run of it records that error
+            rec.update(status="error", error=f"{type(scenario).__name__}: {scenario}",
+                       run_time_s=time.perf_counter() - t0)
+            return rec
+        result = closed_loop.run_closed_loop(scenario, task.seed)
         rec["metrics"] = {k: v for k, v in result.metrics.items()
                           if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
         if task.keep_timeseries:
@@ -138,6 +219,9 @@ def _one(task: RunTask) -> dict[str, Any]:
 
 def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[dict[str, Any]]:
     """Run ``tasks`` one after the other; one record per task, in order.
+
+    Each distinct scenario of the chunk is built once (see the module docstring);
+    ``run_time_s`` of the first run of a scenario includes building it.
 
     Args:
         tasks: The runs.
@@ -153,6 +237,7 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[di
     """
     worker = f"{socket.gethostname()}:{os.getpid()}"
     here = code_version()
+    local: dict[int, Any] = {}
     out = []
     for task in tasks:
         if expected_code is not None and here != expected_code:
@@ -160,7 +245,7 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[di
                    "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
                             f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
         else:
-            rec = _one(task)
+            rec = _one(task, local)
         rec["worker"] = worker
         out.append(rec)
     return out

@@ -73,6 +73,7 @@ __all__ = [
     "merge_mapping",
     "check_scenario_key",
     "expand_points",
+    "group_mapping",
 ]
 
 DISTRIBUTIONS = ("uniform", "normal", "log_uniform")
@@ -345,6 +346,11 @@ class RunPoint:
         mapping: The scenario mapping of the run (base + overrides + values + seed),
             not yet validated.
         keep_timeseries: Whether the run's time series is kept.
+        group: Index of the run's variant x grid point (its mapping before the draws:
+            :func:`group_mapping`).
+        point: Index of the run's scenario without its seed (variant x grid point x draw);
+            the runs of one point differ only in their seed.
+        draw: The sampled key -> value of this run ({} without samples).
     """
 
     index: int
@@ -352,6 +358,9 @@ class RunPoint:
     values: dict[str, Any]
     mapping: dict[str, Any]
     keep_timeseries: bool
+    group: int = 0
+    point: int = 0
+    draw: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 def _with_values(base: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
@@ -377,18 +386,33 @@ def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunP
     keep_seeds, keep_runs = set(spec.keep_timeseries.seeds), set(spec.keep_timeseries.runs)
     variants = list(spec.variants.items()) or [(None, {})]
     points: list[RunPoint] = []
+    group = point = 0
     for vname, changes in variants:
         variant_base = _with_values(base_mapping, changes)
         tag = {} if vname is None else {"variant": vname}
         for g in grid_points:
             for i, d in enumerate(draws):
+                shared = _with_values(variant_base, {**g, **d})  # the seeds of a point share its sections
                 for seed in ((seeds[i],) if s.paired_with_seeds else seeds):
                     values = {**tag, **g, **d}
-                    mapping = _with_values(variant_base, {**g, **d})
-                    mapping["seed"] = seed
                     idx = len(points)
-                    points.append(RunPoint(idx, seed, values, mapping, seed in keep_seeds or idx in keep_runs))
+                    points.append(RunPoint(idx, seed, values, {**shared, "seed": seed},
+                                           seed in keep_seeds or idx in keep_runs, group, point, d))
+                point += 1
+            group += 1
     return points
+
+
+def group_mapping(spec: CampaignSpec, base_mapping: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
+    """The scenario mapping of a run's variant x grid point, before its draws and seed.
+
+    Args:
+        spec: The campaign.
+        base_mapping: As for :func:`expand_points`.
+        values: The run's :attr:`RunPoint.values` (``variant`` and the grid keys are read).
+    """
+    changes = spec.variants[values["variant"]] if spec.variants else {}
+    return _with_values(_with_values(base_mapping, changes), {k: values[k] for k in spec.grid})
 
 
 def campaign_spec_from_mapping(mapping: Any) -> CampaignSpec:

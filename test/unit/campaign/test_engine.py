@@ -8,8 +8,19 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vesselbot_ros.campaign.engine import Progress, chunk_sizes, execute, pending, prepare
-from vesselbot_ros.campaign.spec import load_campaign_spec
+from vesselbot_ros.campaign.engine import (
+    FIRST_CHUNK,
+    MIN_TASK_S,
+    TASK_S,
+    ChunkSizer,
+    Progress,
+    chunk_sizes,
+    execute,
+    pending,
+    prepare,
+)
+from vesselbot_ros.campaign.runner import resolve_mapping, run_id
+from vesselbot_ros.campaign.spec import expand_points, load_campaign_spec
 from vesselbot_ros.campaign.store import CampaignStore
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -18,12 +29,28 @@ ROOT = Path(__file__).resolve().parents[3]
 def test_chunks_shrink_towards_the_end() -> None:
     assert chunk_sizes(0, 2) == []
     assert chunk_sizes(1, 2) == [1]
-    assert chunk_sizes(40, 2) == [10, 8, 6, 4, 3, 3, 2, 1, 1, 1, 1]
-    big = chunk_sizes(1000, 2)
-    assert sum(big) == 1000 and big[0] == 32 and big[-4:] == [1, 1, 1, 1]
+    # before any run time is known: small chunks (the first wave)
+    assert chunk_sizes(40, 2) == [4, 4, 4, 4, 4, 4, 4, 3, 3, 2, 1, 1, 1, 1]
+    # 6 ms runs: at most TASK_S (166 runs), shrinking by 1/(2w), never below MIN_TASK_S (8 runs)
+    big = chunk_sizes(1000, 2, run_s=0.006)
+    assert sum(big) == 1000 and big[0] == int(TASK_S / 0.006) and max(big) == big[0]
     assert all(a >= b for a, b in zip(big, big[1:]))
-    assert len(big) < 1000 / 10  # most runs travel in large chunks
+    assert min(big[:-1]) == int(MIN_TASK_S / 0.006)
+    assert len(big) < 1000 / 50  # most runs travel in large chunks
+    # 1 s runs: one run per task; 10 ms runs on 2 workers: 40 runs go as 10, 8, 6, 5, 5, 5, 1
+    assert chunk_sizes(16, 2, run_s=1.0) == [1] * 16
+    assert chunk_sizes(40, 2, run_s=0.01) == [10, 8, 6, 5, 5, 5, 1]
     assert chunk_sizes(10, 2, fixed=4) == [4, 4, 2]
+    assert chunk_sizes(10, 2, fixed=4, run_s=0.001) == [4, 4, 2]
+
+
+def test_chunk_sizer_learns_the_run_time_from_finished_runs() -> None:
+    sizer = ChunkSizer(2)
+    assert sizer.run_s is None and sizer.next(1000) == FIRST_CHUNK
+    sizer.observe([0.5, 0.004, 0.004, 0.005, 0.004])  # a worker's first run (cache load) does not count much
+    assert sizer.run_s == 0.004
+    assert sizer.next(10_000) == int(TASK_S / 0.004)
+    assert sizer.next(3) == 3 and sizer.next(0) == 0
 
 
 def test_progress_line_shows_runs_failures_and_eta() -> None:
@@ -84,3 +111,22 @@ def test_prepare_is_deterministic(n) -> None:
     a, b = prepare(spec, base), prepare(spec, base)
     assert [t.run_id for t in a.tasks][:n] == [t.run_id for t in b.tasks][:n]
     assert a.manifest[:n] == b.manifest[:n]
+
+
+@pytest.mark.parametrize("name", ["vf_error_seeds", "table2_ranges"])
+def test_prepare_gives_each_run_the_address_of_its_resolved_scenario(name) -> None:
+    # prepare resolves once per variant x grid point and hashes once per scenario; the ids must be
+    # those of resolving and hashing every run on its own
+    spec, base = load_campaign_spec(ROOT / "config" / "campaigns" / f"{name}.yaml")
+    prep = prepare(spec, base)
+    points = expand_points(spec, base)
+    for p in points[::13]:
+        task = prep.tasks[p.index]
+        assert task.run_id == run_id(resolve_mapping(p.mapping), prep.code), p.index
+        assert task.seed == p.seed and task.index == p.index
+        assert {**task.mapping, "seed": p.seed} == resolve_mapping(p.mapping)
+    # the runs of one scenario share its mapping (a chunk carries it once) and its key
+    same = [t for t in prep.tasks if t.mapping is prep.tasks[0].mapping]
+    assert len(same) == (1 if spec.samples.paired_with_seeds else len(spec.seed_list()))
+    assert len({t.scenario_key for t in same}) == 1
+    assert len({t.scenario_key for t in prep.tasks}) == len(prep.tasks) // len(same)

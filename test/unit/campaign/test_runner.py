@@ -8,7 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselbot_ros.campaign.runner import RunTask, code_version, flatten_timeseries, resolve_mapping, run_chunk, run_id
+from vesselbot_ros.campaign.runner import (
+    RunTask,
+    SeedHasher,
+    code_version,
+    flatten_timeseries,
+    resolve_mapping,
+    run_chunk,
+    run_id,
+)
 from vesselbot_ros.config import load_yaml
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import scenario_from_mapping
@@ -102,3 +110,47 @@ def test_flatten_timeseries_splits_vectors() -> None:
 def test_resolve_mapping_round_trips(seed) -> None:
     m = resolve_mapping(_mapping(seed))
     assert resolve_mapping(m) == m and m["seed"] == seed
+
+
+@pytest.mark.parametrize("seed", [0, 7, 12345, 2**40])
+def test_seed_hasher_gives_run_id_of_every_seed(seed) -> None:
+    code = code_version()
+    m = resolve_mapping(_mapping(0))
+    h = SeedHasher(m, code)
+    assert h(seed) == run_id({**m, "seed": seed}, code)
+    assert h(seed) != h(seed + 1)
+    assert len(h.key) == 24 and h.key == SeedHasher({**m, "seed": seed}, code).key  # the key ignores the seed
+    assert h.key != SeedHasher(m, "0" * 16).key  # ... but not the code
+    other = copy.deepcopy(m)
+    other["imager"]["noise_sigma_m"] *= 2.0
+    assert SeedHasher(other, code).key != h.key
+
+
+def test_runs_of_one_shared_scenario_build_it_once_and_match_run_closed_loop(monkeypatch) -> None:
+    import vesselbot_ros.campaign.runner as runner
+    import vesselbot_ros.sim.scenario as scenario_mod
+
+    shared = resolve_mapping(_mapping(0))
+    hasher = SeedHasher(shared, code_version())
+    tasks = [RunTask(i, hasher(s), s, shared, False, hasher.key) for i, s in enumerate([5, 6, 7])]
+    built = []
+    orig = scenario_mod.scenario_from_mapping
+    monkeypatch.setattr(scenario_mod, "scenario_from_mapping", lambda m: built.append(1) or orig(m))
+    monkeypatch.setattr(runner, "_SCENARIOS", type(runner._SCENARIOS)())
+    recs = run_chunk(tasks, code_version()) + run_chunk(tasks[:1], code_version())  # a second chunk: kept built
+    assert len(built) == 1
+    for rec, seed in zip(recs, [5, 6, 7, 5]):
+        direct = run_closed_loop(scenario_from_mapping(_mapping(seed)))
+        assert rec["status"] == "ok" and rec["metrics"]["seed"] == seed
+        for k, v in direct.metrics.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                assert rec["metrics"][k] == v or (np.isnan(v) and np.isnan(rec["metrics"][k])), k
+
+
+def test_an_invalid_shared_scenario_fails_each_of_its_runs() -> None:
+    bad = _mapping(0)
+    bad["physics"]["robot"]["radius_m"] = -1e-4
+    tasks = [RunTask(i, f"r{i}", s, bad, False) for i, s in enumerate([1, 2])]
+    recs = run_chunk(tasks, code_version())
+    assert [r["status"] for r in recs] == ["error", "error"]
+    assert all(r["error"] == "ConfigError: physics.robot.radius_m must be > 0, got -0.0001" for r in recs)
