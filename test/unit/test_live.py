@@ -1,8 +1,8 @@
-"""live / live_front: the sim time from /clock, and one port for both names of the Foxglove WebSocket protocol.
+"""live: the sim time from /clock and its rate limit, and one port that answers both names of the protocol.
 
 The handshakes here are raw HTTP over a socket, so they pin exactly what a client
-offering each name gets back; Foxglove's own client on the same server is
-``test/integration/test_live.py``.
+offering each name gets back (the rules: ``test_live_front.py``); Foxglove's own
+client on the same server is ``test/integration/test_live.py``.
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ import socket
 
 import pytest
 
-from vesselbot_ros.live_front import SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL, offered_subprotocols, rewrite_request, \
-    rewrite_response
 
 TIMEOUT_S = 10.0
 
@@ -41,35 +39,6 @@ def test_clock_ns_reads_the_cdr_of_a_clock_as_rclpy_writes_it():
     assert clock_ns(b"\x00\x00\x00\x00" + (3).to_bytes(4, "big") + (7).to_bytes(4, "big")) == 3_000_000_007  # CDR_BE
     with pytest.raises(ValueError, match="12 bytes, got 4"):
         clock_ns(b"\x00\x01\x00\x00")
-
-
-def test_an_offer_of_the_spec_name_alone_is_passed_on_as_the_sdk_name_and_answered_as_offered():
-    head = _head("foxglove.websocket.v1")
-    hs = rewrite_request(head)
-    assert hs.refused is None and hs.answer_as == SPEC_SUBPROTOCOL
-    assert offered_subprotocols(hs.head) == [SDK_SUBPROTOCOL] and hs.head.endswith(b"\r\n\r\n")
-    # everything else of the head is kept, in order
-    assert [ln for ln in hs.head.split(b"\r\n") if b"Protocol" not in ln] == \
-        [ln for ln in head.split(b"\r\n") if b"Protocol" not in ln]
-    answer = b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\nX: 1\r\n\r\n"
-    assert rewrite_response(answer, hs.answer_as) == \
-        b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.websocket.v1\r\nX: 1\r\n\r\n"
-
-
-@pytest.mark.parametrize("offers", [("foxglove.sdk.v1",), ("foxglove.websocket.v1, foxglove.sdk.v1",),
-                                    ("foxglove.websocket.v1", "foxglove.sdk.v1")])
-def test_an_offer_with_the_sdk_name_is_passed_on_unchanged(offers):
-    head = _head(*offers)
-    assert rewrite_request(head) == (head, None, None)
-    answer = b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\n\r\n"
-    assert rewrite_response(answer, None) == answer
-
-
-@pytest.mark.parametrize("offers", [(), ("mqtt",), ("foxglove.websocket.v2",)])
-def test_an_offer_of_neither_name_is_refused_naming_both(offers):
-    hs = rewrite_request(_head(*offers))
-    assert hs.refused is not None and hs.refused.startswith(b"HTTP/1.1 400 Bad Request\r\n")
-    assert b"foxglove.sdk.v1 or foxglove.websocket.v1" in hs.refused
 
 
 def _handshake(port: int, *offers: str) -> bytes:
