@@ -1,8 +1,12 @@
-"""Real-time mode is honest: it says when the machine could not hold the factor, and bad input moves nothing.
+"""Real-time mode is honest: its report agrees with the bag and its verdict follows from its figures.
 
-* Every loop node counts the control periods it missed (late by more than one period, or skipped)
-  and the age of its inputs, on ``/diagnostics``, the progress line and the summary; a run in which
-  any node missed more than 1 % of its periods exits 1 and states the real-time factor held.
+* The report states apart the average real-time factor held (sim time advanced over the wall time it
+  took) and every loop node's missed deadlines (periods late by more than one period or skipped, worst
+  lateness, input age); summary, error line, ``--metrics-json`` and the bag's ``/diagnostics`` carry the
+  same figures.  These tests check that honesty whichever way the machine's speed makes the verdict go:
+  the exit code is 1 exactly when the rule (docs/graph.md) says the figures fail the run.
+* A claim about speed (a quiet machine holds 0.05x) is judged only on a quiet machine: the test measures
+  the other work the machine did meanwhile (``_machine.py``) and skips, saying so, when it was loaded.
 * A gradient command stamped in the far future and a garbage ``/clock`` change nothing: nodes take
   time only from the plant's announced tick.
 * The slew limit holds tick by tick at the plant's input, whatever the driver's outputs skip.
@@ -22,23 +26,58 @@ import pytest
 pytest.importorskip("rclpy")
 pytestmark = pytest.mark.wallclock  # real-time runs: a second test's load would cost them periods
 
+from _machine import machine_load  # noqa: E402
 from _runs import HERE, REPO, diagnostics, hostile_env, run_cmd  # noqa: E402
 
 CONFIG = REPO / "config" / "sound_small_artery.yaml"
-NOT_HELD = re.compile(r"real time not held: node (\w+) missed (\d+) of (\d+) control periods .* held a real-time "
-                      r"factor of about ([0-9.e+-]+) \(asked ([0-9.]+)\)")
+ROLES = ("reference", "imager", "observer", "controller", "coil_driver", "plant")
+MISSED_LIMIT = 0.01  # graph_spec.REALTIME_MISSED_LIMIT, REALTIME_FACTOR_LIMIT: the documented rule, restated
+FACTOR_LIMIT = 0.01
 
 
-def _assert_ok_or_honestly_not_held(proc: subprocess.CompletedProcess[str]) -> None:
-    """Exit 0, or exit 1 saying (in one line) which node missed how many periods and the factor held."""
+def _run_realtime(tmp_path, factor: str, duration: str, *extra: str) -> tuple[subprocess.CompletedProcess[str], dict]:
+    """``vesselbot run --mode realtime`` with ``--metrics-json``; the process and its ``real_time`` report."""
+    metrics = tmp_path / "metrics.json"
+    proc = subprocess.run(
+        run_cmd("--config", str(CONFIG), "--mode", "realtime", "--real-time-factor", factor, "--duration", duration,
+                "--metrics-json", str(metrics), *extra),
+        cwd=REPO, capture_output=True, text=True, timeout=200,
+    )
     assert "died" not in proc.stderr, proc.stderr[-3000:]
-    if proc.returncode == 0:
-        return
-    assert proc.returncode == 1, proc.stderr[-3000:]
-    m = NOT_HELD.search(proc.stderr)
-    assert m, proc.stderr[-3000:]
-    assert int(m.group(2)) > 0.01 * int(m.group(3))
-    assert float(m.group(4)) < float(m.group(5))
+    assert proc.returncode in (0, 1), proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert metrics.exists(), proc.stdout[-3000:] + proc.stderr[-3000:]  # the run itself completed
+    return proc, json.loads(metrics.read_text())["real_time"]
+
+
+def _assert_verdict_follows_from_the_figures(proc: subprocess.CompletedProcess[str], rt: dict, asked: float,
+                                             n_ticks: int) -> None:
+    """The exit code, the printed lines and the JSON agree, and the verdict is the rule applied to the figures."""
+    out = proc.stdout + proc.stderr
+    assert rt["asked"] == asked and rt["missed_limit"] == MISSED_LIMIT and rt["factor_limit"] == FACTOR_LIMIT
+    # the average factor is sim time advanced over wall time: the plant's first to last tick
+    assert rt["sim_s"] == pytest.approx((n_ticks - 1) * 1e-3, abs=1e-9)
+    assert rt["factor_held"] == pytest.approx(rt["sim_s"] / rt["wall_s"], rel=1e-12)
+    assert rt["factor_held"] <= asked * (1 + 1e-3), rt  # the plant never runs ahead of its wall schedule
+    late = [n["role"] for n in rt["nodes"] if n["missed"] / n["periods"] > MISSED_LIMIT]
+    short = rt["factor_held"] < asked * (1 - FACTOR_LIMIT)
+    assert [n["role"] for n in rt["nodes"]] == list(ROLES)
+    assert all(n["periods"] == n_ticks and 0 <= n["missed"] <= n_ticks for n in rt["nodes"]), rt["nodes"]
+    assert rt["failed"] == bool(late or short) and rt["factor_short"] == short, rt
+    assert proc.returncode == (1 if rt["failed"] else 0), out[-3000:]
+    # the printed figures are the JSON's, with their digits
+    assert f"average real-time factor held {rt['factor_held']:.4f} of {asked:g} asked" in proc.stdout, proc.stdout
+    for n in rt["nodes"]:
+        assert re.search(rf"{n['role']}\s+missed\s+{n['missed']} of {n_ticks} periods \(\s*"
+                         rf"{100 * n['missed'] / n_ticks:.2f} %\)", proc.stdout), (n, proc.stdout[-3000:])
+    if rt["failed"]:
+        assert f"vesselbot run: error: {rt['verdict']}" in proc.stderr, proc.stderr[-3000:]
+        why = " and ".join((["deadlines missed"] if late else []) + (["average factor short"] if short else []))
+        assert rt["verdict"].startswith(f"real time not held ({why}): deadlines: "), rt["verdict"]
+    else:
+        assert "real time: verdict: held" in proc.stdout and "vesselbot run: error" not in proc.stderr, out[-3000:]
+        for n in rt["nodes"]:  # missed periods within the limit are a warning naming the node
+            assert (f"warning: real time held, but node {n['role']} missed {n['missed']} of" in proc.stderr) == \
+                (n["missed"] > 0), (n, proc.stderr[-3000:])
 
 
 def _plant_input_steps(bag) -> tuple[np.ndarray, float]:
@@ -50,25 +89,41 @@ def _plant_input_steps(bag) -> tuple[np.ndarray, float]:
 
 
 @pytest.mark.timeout(240)
-def test_realtime_run_finishes_with_every_node_alive_and_reports_its_periods(tmp_path):
-    metrics = tmp_path / "metrics.json"
+def test_realtime_run_reports_the_factor_and_the_deadlines_the_bag_shows(tmp_path):
+    """0.5x real time, one process per node, recorded: whatever the machine held, the report is the bag's truth.
+
+    A machine that holds the factor exits 0, one that does not exits 1 saying which of the two it missed;
+    either way the figures must agree with the recorded /clock and diagnostics.  (Before, the message said
+    "held a real-time factor of about 0.5 (asked 0.5)" while failing, and this test failed on every 2-core
+    machine: it asserted the factor held was below the asked one, which the machine's speed decides.)
+    """
+    from vesselbot_ros.bag.reader import iter_messages
+
     bag = tmp_path / "bag"
-    proc = subprocess.run(
-        run_cmd("--config", str(CONFIG), "--mode", "realtime", "--real-time-factor", "0.5", "--duration", "0.8",
-                "--record-dir", str(bag), "--metrics-json", str(metrics)),
-        cwd=REPO, capture_output=True, text=True, timeout=200,
-    )
-    _assert_ok_or_honestly_not_held(proc)
-    m = json.loads(metrics.read_text())["metrics"]
+    proc, rt = _run_realtime(tmp_path, "0.5", "0.8", "--record-dir", str(bag))
+    _assert_verdict_follows_from_the_figures(proc, rt, 0.5, 800)
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["wall_s"] == rt["wall_s"] and m["real_time_factor"] == rt["factor_held"]
+    # the plant's final diagnostics in the bag hold the figures the report states
+    plant = diagnostics(bag, "vesselbot_plant")[-1][1]
+    assert float(plant["run_wall_s"]) == rt["wall_s"] and float(plant["run_sim_s"]) == rt["sim_s"]
+    assert float(plant["real_time_factor_held"]) == rt["factor_held"]
+    # ... and so does the bag's /clock: every tick once, its sim span over the recorder's receive-time span
+    clocks = [(m.decode(), m.log_time_ns) for m in iter_messages(bag, topics=["/clock"])]
+    sim = [c.clock.sec + c.clock.nanosec * 1e-9 for c, _ in clocks]
+    np.testing.assert_allclose(sim, np.arange(800) * 1e-3, rtol=0, atol=1e-9)
+    recv_span_s = (clocks[-1][1] - clocks[0][1]) * 1e-9
+    # the recorder receives what the plant published a little later, more so on a loaded machine: 50 ms
+    assert recv_span_s == pytest.approx(rt["wall_s"], abs=0.05), (recv_span_s, rt)
+    # every node's missed periods, lateness and input age are its final recorded diagnostics
+    for n in rt["nodes"]:
+        final = diagnostics(bag, f"vesselbot_{n['role']}")[-1][1]
+        never = max(0, 799 - int(final["period_tick"]))  # periods it never reached count as missed
+        assert n["missed"] == min(int(final["missed_periods"]) + never, 800), (n, final)
+        assert n["lateness_max_s"] == float(final["lateness_max_s"]) >= 0.0
+        assert n["input_age_max_s"] == float(final["input_age_max_s"]) >= 0.0
     # the loop really ran on the coil: gradients were applied and stayed within U_sat
-    assert 0.0 < m["max_gradient_T_per_m"] <= 0.08 + 1e-12, m
-    # the summary lists every loop node's missed periods and input age
-    for role in ("reference", "imager", "observer", "controller", "coil_driver", "plant"):
-        assert re.search(rf"{role}\s+missed\s+\d+ of 800 periods", proc.stdout), proc.stdout
-    # and so do the recorded diagnostics
-    for node in ("vesselbot_observer", "vesselbot_controller", "vesselbot_coil_driver", "vesselbot_plant"):
-        final = diagnostics(bag, node)[-1][1]
-        assert int(final["missed_periods"]) >= 0 and float(final["input_age_max_s"]) >= 0.0
+    assert 0.0 < m["metrics"]["max_gradient_T_per_m"] <= 0.08 + 1e-12, m["metrics"]
     # the slew limit holds tick by tick at the plant's input (clinical 100 T/m/s: 0.1 T/m per 1 ms tick)
     steps, gmax = _plant_input_steps(bag)
     assert gmax > 0.0
@@ -77,37 +132,28 @@ def test_realtime_run_finishes_with_every_node_alive_and_reports_its_periods(tmp
 
 @pytest.mark.timeout(240)
 def test_realtime_run_the_machine_can_follow_holds_its_factor(tmp_path):
-    """At 0.05x real time (20 ms of wall per 1 ms tick) the graph keeps up and says so, exit 0.
+    """At 0.05x real time (20 ms of wall per 1 ms tick) a quiet machine keeps up, exit 0.
 
     Before the plant started its wall schedule when tick 0 went out (it started it after tick 0's
     first, slow emit), every later tick looked one period late to the nodes and any factor failed.
+    The report's honesty is checked always; the speed claim only if the machine was quiet meanwhile.
     """
-    proc = subprocess.run(
-        run_cmd("--config", str(CONFIG), "--mode", "realtime", "--real-time-factor", "0.05", "--duration", "0.3",
-                "--no-record"),
-        cwd=REPO, capture_output=True, text=True, timeout=200,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "real time (asked RTF 0.05, held about 0.05)" in proc.stdout, proc.stdout[-3000:]
-    for role in ("reference", "imager", "observer", "controller", "coil_driver", "plant"):
-        m = re.search(rf"{role}\s+missed\s+(\d+) of 300 periods", proc.stdout)
-        assert m and int(m.group(1)) <= 3, (role, proc.stdout[-3000:])
+    with machine_load() as load:
+        proc, rt = _run_realtime(tmp_path, "0.05", "0.3", "--no-record")
+    _assert_verdict_follows_from_the_figures(proc, rt, 0.05, 300)
+    if rt["failed"] and not load.quiet:
+        pytest.skip(f"cannot judge whether this machine holds 0.05x real time: {load}; the run said "
+                    f"{rt['verdict']}")
+    assert not rt["failed"], f"{rt['verdict']} ({load})"
 
 
 @pytest.mark.timeout(240)
 def test_realtime_run_that_cannot_keep_up_exits_nonzero_with_the_held_factor(tmp_path):
     # 50x real time at 1 kHz: a tick every 20 us of wall time, far beyond any Python graph
-    proc = subprocess.run(
-        run_cmd("--config", str(CONFIG), "--mode", "realtime", "--real-time-factor", "50", "--duration", "0.5",
-                "--no-record"),
-        cwd=REPO, capture_output=True, text=True, timeout=200,
-    )
-    assert proc.returncode == 1, proc.stdout + proc.stderr
-    m = NOT_HELD.search(proc.stderr)
-    assert m, proc.stderr
-    assert float(m.group(4)) < 50.0 and m.group(5) == "50"
-    assert int(m.group(2)) > 0.01 * int(m.group(3))
-    assert "real time (asked RTF 50, held about" in proc.stdout
+    proc, rt = _run_realtime(tmp_path, "50", "0.5", "--no-record")
+    _assert_verdict_follows_from_the_figures(proc, rt, 50.0, 500)
+    assert proc.returncode == 1 and "average factor short" in rt["reasons"], proc.stderr
+    assert rt["factor_held"] < 0.99 * 50
 
 
 @pytest.mark.timeout(240)

@@ -19,8 +19,8 @@
 6. take the run's time series from the nodes that published them
    (``<role>/series``; a user's node's messages from the monitor) and
    compute the same metrics as the pure runner (:func:`vesselbot_ros.sim.metrics.compute_metrics`);
-   in real-time mode, collect each loop node's missed periods and input age
-   (:func:`realtime_report`).
+   in real-time mode, the average real-time factor held, each loop node's
+   missed periods, lateness and input age, and the verdict (:class:`RealtimeReport`).
 
 Processes, supervision and monitoring live in :mod:`~vesselbot_ros.launch.processes`,
 :mod:`~vesselbot_ros.launch.supervision` and :mod:`~vesselbot_ros.launch.monitor`.
@@ -42,6 +42,7 @@ from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.graph_spec import (
     LOOP_ROLES,
     NODE_NAMES,
+    REALTIME_FACTOR_LIMIT,
     REALTIME_MISSED_LIMIT,
     diagnostic_counters,
     remap_args,
@@ -57,7 +58,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 
 __all__ = ["GraphOptions", "GraphResult", "NodeDied", "RecordingMismatch", "RealtimeStats", "run_graph",
-           "role_contract", "check_recorded_counts", "realtime_report", "held_real_time_factor"]
+           "role_contract", "check_recorded_counts", "realtime_report", "RealtimeReport"]
 
 
 class RecordingMismatch(VesselbotError):
@@ -125,7 +126,7 @@ class GraphOptions:
 
 @dataclasses.dataclass(frozen=True)
 class RealtimeStats:
-    """Real-time figures of one loop node.
+    """Real-time figures of one loop node (its deadlines).
 
     Attributes:
         role: The node's role.
@@ -134,6 +135,7 @@ class RealtimeStats:
         input_age_max_s: Largest age of an accepted input (sim s).
         input_age_mean_s: Mean age of its accepted inputs (sim s).
         lateness_mean_s: Mean wall time by which its periods ended after they were due (s).
+        lateness_max_s: Largest wall time by which a period ended after it was due (s).
     """
 
     role: str
@@ -142,11 +144,118 @@ class RealtimeStats:
     input_age_max_s: float
     input_age_mean_s: float
     lateness_mean_s: float = 0.0
+    lateness_max_s: float = 0.0
 
     @property
     def fraction(self) -> float:
         """Missed fraction of the periods."""
         return self.missed / self.periods if self.periods else 0.0
+
+    @property
+    def late(self) -> bool:
+        """True if the node missed more than :data:`REALTIME_MISSED_LIMIT` of its periods (fails the run)."""
+        return self.fraction > REALTIME_MISSED_LIMIT
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able figures (``--metrics-json``)."""
+        return dataclasses.asdict(self) | {"fraction": self.fraction, "late": self.late}
+
+
+@dataclasses.dataclass(frozen=True)
+class RealtimeReport:
+    """What a real-time run held, two things apart, and the verdict that follows from them.
+
+    1. The *average real-time factor held*: sim time the plant advanced (first
+       to last tick it published) over the wall time that took.  The plant never
+       runs ahead of its wall schedule, so this is at most the asked factor; a
+       machine too slow for the asked factor lowers it.
+    2. The *deadlines*: per loop node, the control periods it missed (its work
+       for a tick ended more than one period after the tick was due, or it
+       skipped the tick), its mean and worst lateness and its inputs' age.  A
+       plant that falls behind catches up (up to 50 ticks at once), so short
+       stalls miss deadlines while the average factor holds.
+
+    The rule (``vesselbot run``'s exit code): the run fails (exit 1) if any loop
+    node missed more than :data:`REALTIME_MISSED_LIMIT` (1 %) of its periods, or
+    if the average factor held is below the asked one by more than
+    :data:`REALTIME_FACTOR_LIMIT` (1 %) of it; missed periods within the limit
+    are a warning (exit 0).
+
+    Attributes:
+        asked: The real-time factor asked.
+        sim_s: Sim time advanced from the first to the last tick published (s).
+        wall_s: Wall time from the first to the last tick published (s).
+        nodes: Per loop node, its deadlines.
+    """
+
+    asked: float
+    sim_s: float
+    wall_s: float
+    nodes: tuple[RealtimeStats, ...]
+
+    @property
+    def factor_held(self) -> float:
+        """The average real-time factor held: ``sim_s / wall_s`` (0 if no time passed)."""
+        return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def factor_short(self) -> bool:
+        """True if the average factor held is below the asked one by more than the limit (fails the run)."""
+        return self.factor_held < self.asked * (1.0 - REALTIME_FACTOR_LIMIT)
+
+    @property
+    def late_nodes(self) -> list[RealtimeStats]:
+        """The nodes that missed more than the limit of their periods (each fails the run)."""
+        return [st for st in self.nodes if st.late]
+
+    @property
+    def worst(self) -> RealtimeStats | None:
+        """The node that missed the largest fraction of its periods (the first of equals)."""
+        return max(self.nodes, key=lambda st: st.fraction) if self.nodes else None
+
+    @property
+    def failed(self) -> bool:
+        """True if real time was not held: deadlines missed beyond the limit, or the average factor short."""
+        return self.factor_short or bool(self.late_nodes)
+
+    @property
+    def reasons(self) -> list[str]:
+        """Why the run failed, in the rule's words (empty: it held)."""
+        return (["deadlines missed"] if self.late_nodes else []) + (["average factor short"] if self.factor_short else [])
+
+    @property
+    def warnings(self) -> list[str]:
+        """Missed periods within the limit: one line per node that missed some (the run still holds)."""
+        return [f"node {st.role} missed {st.missed} of {st.periods} control periods ({100 * st.fraction:.2f} %, "
+                f"within the {100 * REALTIME_MISSED_LIMIT:g} % allowed), worst {st.lateness_max_s * 1e3:.2f} ms late"
+                for st in self.nodes if st.missed and not st.late]
+
+    def factor_text(self) -> str:
+        """The average factor held against the asked one, with the digits that make it true."""
+        ratio = 100 * self.factor_held / self.asked
+        return (f"average real-time factor held {self.factor_held:.4f} of {self.asked:g} asked ({ratio:.2f} %, "
+                f"at least {100 * (1 - REALTIME_FACTOR_LIMIT):g} % needed: {self.sim_s:.3f} s sim in "
+                f"{self.wall_s:.4f} s wall)")
+
+    def deadlines_text(self) -> str:
+        """The deadlines of the worst node: missed periods and worst lateness."""
+        st = self.worst
+        if st is None:
+            return "no loop node of ours reported its periods"
+        return (f"node {st.role} missed {st.missed} of {st.periods} control periods ({100 * st.fraction:.2f} %, "
+                f"at most {100 * REALTIME_MISSED_LIMIT:g} % allowed), worst {st.lateness_max_s * 1e3:.2f} ms late")
+
+    def verdict_line(self) -> str:
+        """``real time held`` or ``real time not held (reasons)``, then the deadlines, then the average factor."""
+        head = f"real time not held ({' and '.join(self.reasons)})" if self.failed else "real time held"
+        return f"{head}: deadlines: {self.deadlines_text()}; {self.factor_text()}"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able report (``--metrics-json``'s ``real_time``): the figures, the limits and the verdict."""
+        return {"asked": self.asked, "factor_held": self.factor_held, "sim_s": self.sim_s, "wall_s": self.wall_s,
+                "missed_limit": REALTIME_MISSED_LIMIT, "factor_limit": REALTIME_FACTOR_LIMIT,
+                "factor_short": self.factor_short, "failed": self.failed, "reasons": self.reasons,
+                "verdict": self.verdict_line(), "nodes": [st.as_dict() for st in self.nodes]}
 
 
 @dataclasses.dataclass
@@ -157,10 +266,9 @@ class GraphResult:
         metrics: Same keys as the pure runner's ``SimResult.metrics``.
         timeseries: The metric columns rebuilt from the topics (n ticks).
         wall_s: Wall time from START to the last tick (s).
-        real_time_factor: ``duration_s / wall_s``.
+        real_time_factor: Sim time advanced over ``wall_s`` (first to last tick published).
         diagnostics: Last diagnostics key/values per node name.
-        realtime: Real-time mode: per loop node, missed periods and input age.
-        held_real_time_factor: Real-time mode: the factor the whole loop held.
+        realtime: Real-time mode: the average factor held and each loop node's deadlines (:class:`RealtimeReport`).
         recorded_counts: Recorded runs: messages per topic in the bag.
     """
 
@@ -169,46 +277,32 @@ class GraphResult:
     wall_s: float
     real_time_factor: float
     diagnostics: dict[str, dict[str, str]]
-    realtime: list[RealtimeStats] = dataclasses.field(default_factory=list)
-    held_real_time_factor: float | None = None
+    realtime: RealtimeReport | None = None
     recorded_counts: dict[str, int] = dataclasses.field(default_factory=dict)
 
     @property
     def realtime_failed(self) -> bool:
-        """True if a loop node missed more than 1 % of its periods."""
-        return any(s.fraction > REALTIME_MISSED_LIMIT for s in self.realtime)
+        """True if real time was not held (:attr:`RealtimeReport.failed`)."""
+        return self.realtime is not None and self.realtime.failed
 
 
 def realtime_report(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...] | list[str],
                     n_ticks: int) -> list[RealtimeStats]:
-    """Per loop node: missed periods (incl. the ticks after its last period) and input age, from diagnostics."""
+    """Per loop node: missed periods (incl. the ticks after its last period), lateness and input age, from diagnostics."""
     out = []
+    inf = float("inf")
     for r in roles:
         d = diag.get(NODE_NAMES[r])
         if d is None:
-            out.append(RealtimeStats(r, n_ticks, n_ticks, float("inf"), float("inf"), float("inf")))
+            out.append(RealtimeStats(r, n_ticks, n_ticks, inf, inf, inf, inf))
             continue
         missed = int(d.get("missed_periods", "0"))
         last = int(d.get("period_tick", "-1"))
         missed += max(0, n_ticks - 1 - last)  # periods it never reached
         out.append(RealtimeStats(r, min(missed, n_ticks), n_ticks, float(d.get("input_age_max_s", "0")),
-                                 float(d.get("input_age_mean_s", "0")), float(d.get("lateness_mean_s", "0"))))
+                                 float(d.get("input_age_mean_s", "0")), float(d.get("lateness_mean_s", "0")),
+                                 float(d.get("lateness_max_s", "0"))))
     return out
-
-
-def held_real_time_factor(stats: list[RealtimeStats], asked: float, achieved: float, dt: float) -> float:
-    """The real-time factor the loop held: the asked one, unless a node was late.
-
-    A node whose periods end ``L`` s (wall, on average) after they are due
-    holds a factor up to ``dt / L`` (its period ``dt / factor`` then covers the
-    delay); the loop holds the smallest of these, the factor the plant
-    achieved, and the asked one.
-    """
-    held = min(asked, achieved)
-    for st in stats:
-        if st.fraction > REALTIME_MISSED_LIMIT and st.lateness_mean_s > 0:
-            held = min(held, dt / st.lateness_mean_s)
-    return held
 
 
 def realtime_status(diag: Mapping[str, Mapping[str, str]], roles: tuple[str, ...] | list[str], dt: float) -> str:
@@ -385,13 +479,22 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         for key in keys:
             if key in d:
                 metrics[key] = int(d[key])
-    duration = n * dt
-    rtf = duration / wall if wall > 0 else float("inf")
+    sim_s = _run_sim_s(mon, diagnostics, n, dt)
+    rtf = sim_s / wall if wall > 0 else float("inf")
     result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
     if options.mode == "realtime":
-        result.realtime = realtime_report(diagnostics, roles, n)
-        result.held_real_time_factor = held_real_time_factor(result.realtime, options.real_time_factor, rtf, dt)
+        result.realtime = RealtimeReport(options.real_time_factor, sim_s, wall,
+                                         tuple(realtime_report(diagnostics, roles, n)))
     return result
+
+
+def _run_sim_s(mon: Monitor, diagnostics: Mapping[str, Mapping[str, str]], n: int, dt: float) -> float:
+    """Sim time advanced from the first to the last tick published: the plant's own figure, else a user's truths."""
+    d = diagnostics.get(NODE_NAMES["plant"], {})
+    if "run_sim_s" in d:
+        return float(d["run_sim_s"])
+    count = mon.user_counts.get(topic("truth").name)
+    return max(0, (count if count is not None else n) - 1) * dt
 
 
 def _bag_counts(bag_dir: Path) -> dict[str, int]:

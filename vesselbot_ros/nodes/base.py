@@ -318,6 +318,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         self._period_wall = self.dt / self.graph.real_time_factor
         self._end_wall: float | None = None
         self._late_sum = 0.0  # real time: wall time by which periods ended after they were due (s)
+        self._late_max = 0.0
         self._late_n = 0
         self._future_ticks = int(round(self.graph.future_tolerance_s / self.dt))
         #: half the vessel's widest diameter (diameter pulsation), m: where a position check puts the walls
@@ -441,6 +442,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if not self.lockstep and self._anchor is not None:
             late = time.monotonic() - (self._anchor + k * self._period_wall)
             self._late_sum += max(late, 0.0)
+            self._late_max = max(self._late_max, late)
             self._late_n += 1
             if late > self._period_wall:
                 self.missed_periods += 1
@@ -729,6 +731,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         kv["input_age_max_s"] = repr(self._age_max)
         kv["input_age_mean_s"] = repr(self._age_sum / self._age_n if self._age_n else 0.0)
         kv["lateness_mean_s"] = repr(self._late_sum / self._late_n if self._late_n else 0.0)
+        kv["lateness_max_s"] = repr(self._late_max)
         kv.update(self.diagnostic_values())
         level = DiagnosticStatus.WARN if self._warn_pending else DiagnosticStatus.OK
         message = f"rejected input: {self._last_reason}" if self._warn_pending else ("finished" if self.finished else "ok")

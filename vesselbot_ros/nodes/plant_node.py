@@ -126,6 +126,7 @@ class PlantNode(VesselbotNode):
         self._wait_since = time.monotonic()
         self._wall_start = 0.0
         self._first_emit_wall: float | None = None
+        self._first_emit_tick = 0
         self._last_emit_wall = 0.0
         self.add_publisher("clock", Clock)
         self.add_publisher("truth", PlantState)
@@ -369,6 +370,7 @@ class PlantNode(VesselbotNode):
         now = time.monotonic()
         if self._first_emit_wall is None:
             self._first_emit_wall = now
+            self._first_emit_tick = self.k
         self._last_emit_wall = now
         out = self.plant.output(with_forces=True)
         if self.lockstep:  # truth first: it starts the tick's critical path (imager -> ... -> plant)
@@ -492,6 +494,14 @@ class PlantNode(VesselbotNode):
     def started(self) -> bool:
         return self.running
 
+    @property
+    def _run_wall_s(self) -> float:
+        return 0.0 if self._first_emit_wall is None else self._last_emit_wall - self._first_emit_wall
+
+    @property
+    def _run_sim_s(self) -> float:
+        return 0.0 if self._first_emit_wall is None else (self.tick_now - self._first_emit_tick) * self.dt
+
     def diagnostic_values(self) -> dict[str, str]:
         return {
             "tick": str(self.k),
@@ -499,7 +509,11 @@ class PlantNode(VesselbotNode):
             "sim_time_s": repr(self.k * self.dt),
             "n_ticks": str(self.n_ticks),
             # wall time from tick 0 to the last tick published (s): what the launcher reports the run took
-            "run_wall_s": repr(0.0 if self._first_emit_wall is None else self._last_emit_wall - self._first_emit_wall),
+            "run_wall_s": repr(self._run_wall_s),
+            # the sim time that advanced over it (first to last tick published) and their ratio, the average
+            # real-time factor held (real time: the run fails if it falls more than 1 % below the asked factor)
+            "run_sim_s": repr(self._run_sim_s),
+            "real_time_factor_held": repr(self._run_sim_s / self._run_wall_s if self._run_wall_s > 0 else 0.0),
         } | {name: str(int(v)) for name, v in zip(PLANT_STAT_NAMES, self.plant.stats)}
 
 

@@ -1,0 +1,78 @@
+"""How busy the machine was while a test ran: what a wall-clock test needs before it judges speed.
+
+A wall-clock test checks the program's honesty always (its figures agree with the bag, its verdict follows
+from its figures).  A claim about speed ("a quiet machine holds 0.05x real time") holds only on a quiet
+machine, so such a test measures the CPU time that other work took while it ran (``/proc/stat``, minus what
+this process and its children used; a VM's steal time counts as other work) and, when other work held a
+sizeable part of a core, skips with a message that says so instead of failing a correct program.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import time
+from dataclasses import dataclass
+
+#: Other work of at most this many cores (on average over the run) leaves a machine quiet enough to judge speed.
+QUIET_FOREIGN_CORES = 0.25
+
+
+def _proc_stat() -> tuple[float, float]:
+    """(busy, steal) CPU seconds of the whole machine since boot, from ``/proc/stat``."""
+    fields = [int(x) for x in open("/proc/stat").readline().split()[1:]]
+    tick = os.sysconf("SC_CLK_TCK")
+    user, nice, system, idle, iowait, irq, softirq = fields[:7]
+    steal = fields[7] if len(fields) > 7 else 0
+    return (user + nice + system + irq + softirq) / tick, steal / tick
+
+
+def _own_cpu_s() -> float:
+    """CPU seconds of this process and of its children that were waited for (their descendants included)."""
+    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
+
+
+@dataclass
+class Load:
+    """What the machine did during a ``with machine_load() as load:`` block (filled in at its end)."""
+
+    wall_s: float = 0.0
+    own_cpu_s: float = 0.0
+    foreign_cpu_s: float = 0.0
+    cores: int = os.cpu_count() or 1
+    loadavg_before: float = 0.0
+    loadavg_after: float = 0.0
+
+    @property
+    def foreign_cores(self) -> float:
+        """Cores that other work (not this test and its children) kept busy, on average."""
+        return self.foreign_cpu_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def quiet(self) -> bool:
+        """True if other work left the machine quiet enough to judge a claim about speed."""
+        return self.foreign_cores <= QUIET_FOREIGN_CORES
+
+    def __str__(self) -> str:
+        return (f"other work kept {self.foreign_cores:.2f} of {self.cores} cores busy over {self.wall_s:.1f} s "
+                f"(this test and its processes: {self.own_cpu_s:.1f} CPU s; load average {self.loadavg_before:.2f} "
+                f"before, {self.loadavg_after:.2f} after; quiet means at most {QUIET_FOREIGN_CORES} cores)")
+
+
+class machine_load:  # noqa: N801 - used as a context manager, like a function
+    """Measure the machine's other work while the block runs (children must be waited for inside it)."""
+
+    def __enter__(self) -> Load:
+        self.load = Load(loadavg_before=os.getloadavg()[0])
+        self._t0, self._own0 = time.monotonic(), _own_cpu_s()
+        self._busy0, self._steal0 = _proc_stat()
+        return self.load
+
+    def __exit__(self, *exc: object) -> None:
+        busy, steal = _proc_stat()
+        ld = self.load
+        ld.wall_s = time.monotonic() - self._t0
+        ld.own_cpu_s = _own_cpu_s() - self._own0
+        ld.foreign_cpu_s = max(0.0, (busy - self._busy0) - ld.own_cpu_s) + (steal - self._steal0)
+        ld.loadavg_after = os.getloadavg()[0]
