@@ -127,7 +127,7 @@ class LiveView:
         self._latched: dict[str, tuple[bytes, int] | None] = {}  # the last message and its log time (ns)
         self._lock = threading.Lock()
         self._clock_topic = clock_topic if clock_topic is not None else topic_spec("clock").name
-        self._time_ns = 0  # the sim time: 0 until the first /clock (a run starts at t = 0)
+        self._time_ns: int | None = None  # the sim time (None until the first /clock: nothing to broadcast)
         self._time_sent: int | None = None  # the last broadcast
         self._time_wall = -1e9  # when (monotonic s)
         self._time_period_s = 1.0 / TIME_RATE_HZ
@@ -157,7 +157,9 @@ class LiveView:
         class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 view._count_subscriber(channel.topic, +1)
-                view._send_time(view._time_ns)  # the new subscriber's timeline starts at the current sim time
+                now_ns = view._time_ns
+                if now_ns is not None:  # the new subscriber's timeline starts at the current sim time
+                    view._send_time(now_ns)
                 view._resend_latched(channel.topic)
 
             def on_unsubscribe(self, client: Any, channel: Any) -> None:
@@ -224,12 +226,12 @@ class LiveView:
 
     def flush_time(self) -> None:
         """Broadcast the sim time now if the last broadcast is behind it (the rate limit held it back)."""
-        if self._time_ns != self._time_sent:
+        if self._time_ns is not None and self._time_ns != self._time_sent:
             self._send_time(self._time_ns)
 
     @property
-    def time_ns(self) -> int:
-        """The current sim time (ns)."""
+    def time_ns(self) -> int | None:
+        """The current sim time (ns; None before the first)."""
         return self._time_ns
 
     def _send_time(self, t_ns: int, now: float | None = None) -> None:
