@@ -49,7 +49,9 @@ def test_tick_zero_is_due_when_the_wall_schedule_starts(realtime_plant, monkeypa
     monkeypatch.setattr(node, "_emit", spy)
     node._start()
     assert seen["wall_start"] is not None and seen["wall_start"] <= seen["emitted_at"]
-    assert seen["emitted_at"] - seen["wall_start"] < 0.01  # tick 0 goes out when it is due, not a period later
+    # tick 0 goes out when it is due, not after its slow emit: the schedule starts before that emit, and less than
+    # the emit's own 50 ms before it (a loaded machine may preempt between the two, so no tighter wall-clock bound)
+    assert seen["emitted_at"] - seen["wall_start"] < 0.05
     # the schedule the later ticks follow is the one tick 0 went out on
     assert node._wall_start == seen["wall_start"]
     # after a 50 ms emit at 0.1x real time (10 ms per tick), tick 0 is late but no later tick is scheduled later
