@@ -20,13 +20,19 @@ iterations from the Stokes solution.  Boundary conditions: parabolic inflow
 with centreline velocity ``cfd.inlet_centreline_velocity_m_per_s`` on the
 inlet; no slip on the walls; a fully developed parabolic outflow carrying its
 share of the flux on every outlet but the widest, which is traction-free
-("do nothing": mu du/dn - p n = 0) and so takes what the solve delivers --
-the flux balance through it measures the discrete mass conservation (tested).
+("do nothing": mu du/dn - p n = 0) and so takes what the solve delivers
+(Taylor-Hood conserves the discrete flux exactly, so the outlets' balance tests
+nothing; the tests integrate the *sampled* field across interior sections).
 
 Sampling: the field is normalised to an inlet centreline velocity of 1 and
-sampled with the signed distance, inward normal, local diameter and viscosity
-on a regular grid (:class:`NetworkField`), which the compiled plant
-interpolates bilinearly.  Fields are cached on disk by a hash of the geometry,
+sampled with the local diameter and viscosity on a regular grid
+(:class:`NetworkField`), which the compiled plant interpolates bilinearly; a
+grid node outside the mesh takes the velocity of the nearest boundary point
+(the profile beyond an open end, zero beside a wall).  The wall is the mesh's
+boundary (:mod:`vesselbot_ros.vessels.wall`): the field stores its segments and
+each grid cell's candidate segments, from which the plant computes the exact
+signed distance and normal at any point (the grid's sdist/normal are those at
+the nodes, for plots).  Fields are cached on disk by a hash of the geometry,
 the CFD settings and the blood model (:func:`network_field`).
 
 Shipped fields: the solve (assembly, sparse factorisation) runs through
@@ -67,7 +73,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 5  # 5: exact meshed-wall geometry (vessels/wall.py), cap-snapped velocity
+CACHE_VERSION = 6  # 5-6: exact meshed-wall geometry (vessels/wall.py), local-thickness diameter, cap-snapped velocity
 
 
 def cache_dir() -> Path:
@@ -467,12 +473,13 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     segs = np.ascontiguousarray(segs.astype(np.float32).astype(np.float64))
     off, idx = cell_candidates(segs, x0, z0, h, nx, nz)
     q = query_points(pts, segs.ravel(), off.astype(np.float64), idx.astype(np.float64), x0, z0, h, nx, nz)
-    sd = q[:, 0].reshape(nz, nx)
     # local diameter: twice the largest inscribed disc holding the point (vessels/wall.py); it changes
     # continuously but with kinks through a junction, and the wall moves out by D eps(t) / 2 with the
     # pulsation (13), so it (and the viscosity that follows it) is smoothed with a Gaussian of
     # cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
-    diam = local_thickness(sd, h)
+    segs_f, off_f, idx_f = segs.ravel(), off.astype(np.float64), idx.astype(np.float64)
+    diam = local_thickness(lambda pp: query_points(np.ascontiguousarray(pp), segs_f, off_f, idx_f, x0, z0, h, nx, nz),
+                           x0, z0, h, nx, nz)
     dr = np.round(diam, 9)
     d_unique, inv = np.unique(dr, return_inverse=True)
     eta = np.array([viscosity_for(blood, float(d)) for d in d_unique])[inv.ravel()].reshape(nz, nx)

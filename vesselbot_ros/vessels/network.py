@@ -12,15 +12,15 @@ through its points in the chord-length parameter (``smoothing: spline``; a
 straight 2-point branch stays straight), sampled every ``sample_spacing_m``;
 ``smoothing: none`` keeps the polyline.
 
-Geometry queries (:class:`NetworkGeometry`, numpy, never rclpy): the signed
-distance of a point to the union of the branch tubes (> 0 inside the lumen,
-the "capsule" distance max_b (r_b - |p - c_b|) -- exact away from the
-junctions, a lower bound of the true distance inside a junction), the unit
-inward wall normal and the local diameter 2 r_b of the branch that contains the
-point.  The CFD sampler (:mod:`vesselbot_ros.vessels.cfd`) samples these on its
-grid; the mesh is the union of the same tubes (flat caps at the inlet and
-outlets, a disc at each node), so the sampled wall and the meshed wall agree
-away from the open ends.
+Centreline-tube queries (:class:`NetworkGeometry`, numpy, never rclpy): the
+branch that holds a point, the arc length along it, the branch's diameter 2 r_b,
+and the "capsule" distance max_b (r_b - |p - c_b|) to the union of the tubes --
+exact away from the junctions but only a lower bound inside one (0.8 mm off in
+a Y).  So it is *not* the wall: the wall is the boundary of the gmsh mesh of
+these tubes, and every distance, normal and local diameter the plant, the nodes
+and the metrics use comes from it (:mod:`vesselbot_ros.vessels.wall`,
+:func:`vesselbot_ros.vessels.cfd.network_wall`).  The tubes name branches (the
+branch reached, the route) and size the CFD's per-element viscosity.
 """
 
 from __future__ import annotations
@@ -124,8 +124,9 @@ class CfdParams:
             proportional to r^3 (Murray's law, the 3-D flow the 2-D solve
             stands for); ``area``: proportional to r^2 (same mean velocity).
         diameter_smoothing_m: Gaussian width (m) with which the sampled local
-            diameter and viscosity are smoothed across the nodes, where the
-            branch holding a point changes (the pulsating wall would step there).
+            diameter (the meshed lumen's local thickness) and viscosity are
+            smoothed: they have kinks through a junction, and the pulsating wall
+            moves out by D eps / 2.
         picard_max_iterations: Cap on the Picard (Oseen) iterations.
         picard_tol: Relative change of the velocity at which Picard stops.
     """

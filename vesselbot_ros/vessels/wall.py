@@ -32,10 +32,10 @@ the distance, and the point is then far outside the lumen anyway.
 
 Local diameter (:func:`local_thickness`): twice the radius of the largest disc
 inscribed in the lumen that contains the point (the "local thickness" of
-image analysis), over discs centred at the grid nodes: exactly 2 r in a
-straight branch of radius r, continuous across a junction (where it grows to
-the junction's inscribed disc), and never the branch-holding-the-point jump of
-the centreline tubes.  Outside the lumen a node takes the value of the nearest
+image analysis): 2 r in a straight branch of radius r (to the search step,
+h / 4, on any slope), continuous across a junction (where it grows to the
+junction's inscribed disc), and never the branch-holding-the-point jump of the
+centreline tubes.  Outside the lumen a node takes the value of the nearest
 lumen node.  The sampler then smooths it with ``cfd.diameter_smoothing_m``.
 """
 
@@ -227,34 +227,53 @@ def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: floa
 
 
 @numba.njit(cache=True)
-def _thickness(sd, h):  # type: ignore[no-untyped-def]
-    nz, nx = sd.shape
+def _thickness(cx, cz, rad, x0, z0, h, tol):  # type: ignore[no-untyped-def]
+    nz, nx = rad.shape
     out = np.zeros((nz, nx))
     for j in range(nz):
         for i in range(nx):
-            r = sd[j, i]
+            r = rad[j, i]
             if r <= 0.0:
                 continue
-            k = int(r / h) + 1
-            r2 = r * r
-            for jj in range(max(0, j - k), min(nz, j + k + 1)):
-                for ii in range(max(0, i - k), min(nx, i + k + 1)):
-                    ddx = (ii - i) * h
-                    ddz = (jj - j) * h
-                    if ddx * ddx + ddz * ddz <= r2 and 2.0 * r > out[jj, ii]:
+            k = int((r + tol) / h) + 2
+            i0 = int(np.floor((cx[j, i] - x0) / h))
+            j0 = int(np.floor((cz[j, i] - z0) / h))
+            rr = (r + tol) * (r + tol)
+            for jj in range(max(0, j0 - k), min(nz, j0 + k + 1)):
+                for ii in range(max(0, i0 - k), min(nx, i0 + k + 1)):
+                    ddx = x0 + ii * h - cx[j, i]
+                    ddz = z0 + jj * h - cz[j, i]
+                    if ddx * ddx + ddz * ddz <= rr and 2.0 * r > out[jj, ii]:
                         out[jj, ii] = 2.0 * r
     return out
 
 
-def local_thickness(sdist: npt.NDArray[np.float64], h: float) -> npt.NDArray[np.float64]:
-    """(nz, nx) local diameter (m) from the (nz, nx) signed distance on a grid of spacing ``h`` (m).
+def local_thickness(query, x0: float, z0: float, h: float, nx: int, nz: int) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+    """(nz, nx) local diameter (m) on the grid (origin x0, z0, spacing h (m), nx x nz nodes).
 
-    Twice the largest inscribed disc (centred at a grid node) containing each lumen node; a node outside
-    every disc takes the value of the nearest node inside one.
+    ``query``: (m, 2) points -> (m, 3) rows (s, nx, nz) of the exact wall query.  Inscribed discs: from
+    each lumen node, the disc centred where the distance is largest along its inward normal (searched in
+    steps of h / 4 up to 1.5 h: so the centre reaches the medial axis between nodes and the radius is
+    exact there, to the search step); a node takes twice the radius of the largest disc it lies within
+    (tolerance h: a node next to the wall lies just outside the disc tangent there); a node in no disc
+    takes the value of the nearest node in one.
     """
     from scipy.ndimage import distance_transform_edt
 
-    d = _thickness(np.ascontiguousarray(sdist, dtype=np.float64), float(h))
+    X, Z = np.meshgrid(x0 + h * np.arange(nx), z0 + h * np.arange(nz))
+    pts = np.column_stack([X.ravel(), Z.ravel()])
+    q0 = query(pts)
+    best = q0[:, 0].copy()
+    cen = pts.copy()
+    for a in np.arange(1, 7) * 0.25 * h:
+        c = pts + a * q0[:, 1:3]
+        s = query(c)[:, 0]
+        better = s > best
+        best[better] = s[better]
+        cen[better] = c[better]
+    best[q0[:, 0] <= 0.0] = 0.0
+    d = _thickness(cen[:, 0].reshape(nz, nx).copy(), cen[:, 1].reshape(nz, nx).copy(), best.reshape(nz, nx),
+                   float(x0), float(z0), float(h), float(h))
     empty = d <= 0.0
     if empty.all():
         raise ValueError("local_thickness: no grid node lies in the lumen")
