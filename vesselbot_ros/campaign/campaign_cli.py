@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                         help="run on this existing Dask scheduler instead of a local cluster")
     parser.add_argument("--workers", type=int, default=None,
-                        help="worker processes of the local cluster (default: one per usable core)")
+                        help="parallel runs (threads of the local cluster's worker process; default: one per usable core)")
     parser.add_argument("--chunk-size", type=int, default=None,
                         help="runs per Dask task (default: the spec's chunk_size; 0 = automatic)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -119,13 +120,14 @@ def run(args: argparse.Namespace) -> int:
     chunk = spec.chunk_size if args.chunk_size is None else args.chunk_size
     todo = pending(prepared.tasks, store, args.retry_failed)
     n_before = meta["n_runs"] - len(todo)
-    where = args.scheduler or f"a local cluster of {args.workers or local_worker_count()} worker(s)"
+    where = args.scheduler or f"a local cluster of {args.workers or local_worker_count()} worker thread(s)"
     print(f"campaign {spec.name}: {meta['n_runs']} runs, {n_before} already in {root}, code {prepared.code}"
           + (f", running {len(todo)} on {where}" if todo else ""), file=sys.stderr)
+    closing: list[threading.Thread] = []  # the cluster closes while the report is drawn
     if todo:
         progress = Progress(f"campaign {spec.name}", meta["n_runs"], n_before, enabled=not args.no_progress)
         try:
-            with dask_client(args.scheduler, args.workers) as client:
+            with dask_client(args.scheduler, args.workers, closing) as client:
                 outcome = execute(todo, store, client, prepared.code, chunk_size=chunk, progress=progress)
         except KeyboardInterrupt:
             print(f"\ncampaign {spec.name}: interrupted; finished runs are saved in {root}: "
@@ -133,11 +135,15 @@ def run(args: argparse.Namespace) -> int:
             return 130
         rate = outcome.n_ran / outcome.wall_s if outcome.wall_s > 0 else float("nan")
         ran = (f"ran {outcome.n_ran} runs ({outcome.n_failed} failed) in {outcome.wall_s:.1f} s on {outcome.n_workers} "
-               f"worker(s): {rate:.2f} runs/s in {outcome.n_tasks} Dask tasks")
+               f"worker thread(s): {rate:.2f} runs/s in {outcome.n_tasks} Dask tasks")
     else:
         ran = "nothing to run"
-    rows = store.assemble().to_pylist()
-    _, text = write_report(rows, store.meta(), root)
+    try:
+        rows = store.assemble().to_pylist()
+        _, text = write_report(rows, store.meta(), root)
+    finally:
+        for thread in closing:
+            thread.join()
     print(text, end="")
     print(f"{ran}; {n_before} run(s) were already done")
     print(f"-> {root}/results.parquet, summary.md, summary.csv, figures/")

@@ -2,8 +2,8 @@
 
 * :func:`prepare` turns a spec into content-addressed :class:`RunTask` s.
 * :func:`dask_client` opens a ``LocalCluster`` sized to the machine (one
-  single-threaded worker process per core: the closed loop holds the GIL) or
-  connects to ``tcp://HOST:PORT``; the workers there need the same
+  worker process with one thread per core: the compiled loop releases the
+  GIL) or connects to ``tcp://HOST:PORT``; the workers there need the same
   vesselbot_ros installed (a worker with other code records every run as an
   error rather than producing numbers under a wrong address).
 * :func:`execute` skips the runs already in the folder, cuts the rest into
@@ -31,6 +31,7 @@ import math
 import os
 import statistics
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
@@ -104,12 +105,27 @@ def local_worker_count() -> int:
 
 
 @contextlib.contextmanager
-def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> Iterator[Any]:
+def dask_client(scheduler: str | None = None, n_workers: int | None = None,
+                closing: list[threading.Thread] | None = None) -> Iterator[Any]:
     """A ``distributed.Client``: on ``scheduler`` if given, else on a new ``LocalCluster``.
+
+    The local cluster is one worker process with one thread per usable core,
+    as :func:`~vesselbot_ros.sim.closed_loop.run_many` runs: the compiled loop
+    releases the GIL, so threads run in parallel, and one process starts, imports
+    the loop and loads numba's cache once instead of once per core (about
+    1 s of CPU each on start).  The process keeps the client safe from a run
+    that crashes compiled code: Dask records its chunks as failed
+    (``KilledWorker``).  No dashboard: nobody looks at it during a campaign,
+    and it costs start-up time.
 
     Args:
         scheduler: Address of an existing scheduler (``tcp://HOST:PORT``).
-        n_workers: Worker processes of the local cluster (default: one per usable core).
+        n_workers: Parallel runs (threads) of the local cluster (default: one per usable core).
+        closing: If given, a block that ends without an exception closes the
+            cluster in a thread appended here (the worker processes take about
+            0.5 s to exit, which the caller can spend on its report; join the
+            thread before exiting).  Otherwise, and on an exception, it closes
+            before the block returns.
 
     Raises:
         VesselbotError: the scheduler cannot be reached, or the local cluster does not start.
@@ -128,16 +144,26 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
         return
     n = n_workers or local_worker_count()
     try:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+        cluster = LocalCluster(n_workers=1, threads_per_worker=n, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     except (OSError, TimeoutError, RuntimeError) as exc:
         raise VesselbotError(f"cannot start a local Dask cluster of {n} workers: {exc}") from None
     client = Client(cluster)
-    try:
-        yield client
-    finally:
+
+    def close() -> None:
         client.close()
         cluster.close()
+
+    try:
+        yield client
+    except BaseException:
+        close()
+        raise
+    if closing is None:
+        close()
+    else:
+        closing.append(threading.Thread(target=close, name="vesselbot-cluster-close"))
+        closing[-1].start()
 
 
 #: Target wall time of one Dask task (s): long enough that the fixed cost of a task (a few ms of
@@ -300,8 +326,7 @@ def _chunk_failed(chunk: Sequence[RunTask], exc: BaseException) -> list[dict[str
 
 def pending(tasks: Sequence[RunTask], store: CampaignStore, retry_failed: bool = False) -> list[RunTask]:
     """The distinct runs of ``tasks`` that ``store`` does not hold yet (nor as failed, unless ``retry_failed``)."""
-    done = store.finished()
-    finished = {rid for rid, r in done.items() if r.get("status") == "ok" or not retry_failed}
+    finished = {rid for rid, status in store.statuses().items() if status == "ok" or not retry_failed}
     return [t for t in {t.run_id: t for t in tasks}.values() if t.run_id not in finished]
 
 

@@ -36,6 +36,7 @@ import os
 import platform
 import socket
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -169,6 +170,7 @@ def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 #: scenarios arrive in order, so a few suffice for the chunks of one to find it built.
 SCENARIO_CACHE = 16
 _SCENARIOS: collections.OrderedDict[str, Any] = collections.OrderedDict()
+_SCENARIOS_LOCK = threading.Lock()
 
 
 def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
@@ -177,19 +179,23 @@ def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
     from vesselbot_ros.sim.scenario import scenario_from_mapping
 
     hit = local.get(id(task.mapping))
-    if hit is None and task.scenario_key:
-        hit = _SCENARIOS.get(task.scenario_key)
+    if hit is not None:
+        return hit
+    if task.scenario_key:
+        with _SCENARIOS_LOCK:  # a worker's threads share the cache
+            hit = _SCENARIOS.get(task.scenario_key)
+            if hit is not None:
+                _SCENARIOS.move_to_end(task.scenario_key)
     if hit is None:
         try:
             hit = scenario_from_mapping(task.mapping)
         except ConfigError as exc:
             hit = exc
         if task.scenario_key:
-            _SCENARIOS[task.scenario_key] = hit
-            while len(_SCENARIOS) > SCENARIO_CACHE:
-                _SCENARIOS.popitem(last=False)
-    elif task.scenario_key:
-        _SCENARIOS.move_to_end(task.scenario_key)
+            with _SCENARIOS_LOCK:
+                _SCENARIOS[task.scenario_key] = hit
+                while len(_SCENARIOS) > SCENARIO_CACHE:
+                    _SCENARIOS.popitem(last=False)
     local[id(task.mapping)] = hit
     return hit
 

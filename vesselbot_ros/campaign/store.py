@@ -125,23 +125,53 @@ class CampaignStore:
             raise VesselbotError(f"{str(path)!r} cannot be read: {exc}") from None
 
     # -- finished runs ----------------------------------------------------
-    def finished(self) -> dict[str, dict[str, Any]]:
-        """run_id -> stored row (status, error, metrics, ...) of every finished run."""
-        out: dict[str, dict[str, Any]] = {}
+    def _parts(self, columns: Sequence[str] | None = None) -> list[pa.Table]:
+        """Every readable part (only ``columns`` of it, when given), in file-name order."""
+        out: list[pa.Table] = []
         if not self.parts.is_dir():
             return out
         for part in sorted(self.parts.glob("part-*.parquet")):
             try:
-                rows = pq.read_table(part).to_pylist()
+                out.append(pq.read_table(part, columns=list(columns) if columns is not None else None))
             except (OSError, pa.ArrowException) as exc:
                 print(f"vesselbot campaign: warning: skipping unreadable {part} ({exc}); its runs run again",
                       file=sys.stderr)
-                continue
-            for r in rows:
-                # a run retried with --retry-failed has two records: a success wins over a failure
-                if out.get(r["run_id"], {}).get("status") != "ok":
-                    out[r["run_id"]] = r
         return out
+
+    def _finished_table(self, columns: Sequence[str] | None = None) -> pa.Table | None:
+        """One row per finished run (a success wins over a failure of the same run), or None if none."""
+        tables = self._parts(columns)
+        if not tables:
+            return None
+        table = pa.concat_tables(tables, promote_options="default")
+        # a run retried with --retry-failed has two records: keep its first success, else its first record
+        chosen: dict[str, int] = {}
+        ok: set[str] = set()
+        for i, (rid, status) in enumerate(zip(table.column("run_id").to_pylist(), table.column("status").to_pylist())):
+            if rid in ok:
+                continue
+            if status == "ok":
+                ok.add(rid)
+                chosen[rid] = i
+            elif rid not in chosen:
+                chosen[rid] = i
+        if len(chosen) == table.num_rows:
+            return table
+        return table.take(pa.array(sorted(chosen.values()), pa.int64()))
+
+    def statuses(self) -> dict[str, str]:
+        """run_id -> ``ok`` / ``error`` of every finished run (reads only those two columns)."""
+        table = self._finished_table(("run_id", "status"))
+        if table is None:
+            return {}
+        return dict(zip(table.column("run_id").to_pylist(), table.column("status").to_pylist()))
+
+    def finished(self) -> dict[str, dict[str, Any]]:
+        """run_id -> stored row (status, error, metrics, ...) of every finished run."""
+        table = self._finished_table()
+        if table is None:
+            return {}
+        return {r["run_id"]: r for r in table.to_pylist()}
 
     def write_records(self, records: Iterable[dict[str, Any]]) -> None:
         """Store the records of one finished chunk (time series first, then the part).
@@ -174,20 +204,33 @@ class CampaignStore:
         """Join the manifest with the finished runs; write and return ``results.parquet``.
 
         Only finished runs appear, in run order; ``campaign.json`` tells how many were asked.
+        The join is columnar (pyarrow), so it costs little per run.
         """
-        done = self.finished()
-        rows = []
-        for m in self.manifest():
-            r = done.get(m["run_id"])
-            if r is None:
-                continue
-            row = {k: v for k, v in m.items() if k != "keep_timeseries"}
-            # the manifest names the run (seed, varied values); the part adds what the run produced
-            row.update({k: v for k, v in r.items() if k not in row})
-            rows.append(row)
         meta = self.meta()
         first = ("index", "run_id", "seed", *meta.get("varied_keys", ()), "status", "error")
-        table = _rows_to_table(rows, first) if rows else pa.table({k: pa.array([], pa.null()) for k in first})
+        path = self.root / "runs.parquet"
+        try:
+            manifest = pq.read_table(path)
+        except (OSError, pa.ArrowException) as exc:
+            raise VesselbotError(f"{str(path)!r} cannot be read: {exc}") from None
+        done = self._finished_table()
+        rows_of = {} if done is None else {rid: i for i, rid in enumerate(done.column("run_id").to_pylist())}
+        take_m, take_d = [], []
+        for i, rid in enumerate(manifest.column("run_id").to_pylist()):
+            j = rows_of.get(rid)
+            if j is not None:
+                take_m.append(i)
+                take_d.append(j)
+        if not take_m or done is None:
+            table = pa.table({k: pa.array([], pa.null()) for k in first})
+        else:
+            # the manifest names the run (seed, varied values); the part adds what the run produced
+            m = manifest.take(pa.array(take_m, pa.int64()))
+            d = done.take(pa.array(take_d, pa.int64()))
+            cols = {n: m.column(n) for n in m.column_names if n != "keep_timeseries"}
+            cols.update({n: d.column(n) for n in d.column_names if n not in cols})
+            order = [n for n in first if n in cols] + [n for n in cols if n not in first]
+            table = pa.table({n: cols[n] for n in order})
         try:
             _atomic_write_table(table, self.root / "results.parquet")
         except OSError as exc:
