@@ -148,6 +148,24 @@ def test_realtime_run_the_machine_can_follow_holds_its_factor(tmp_path):
 
 
 @pytest.mark.timeout(240)
+def test_single_process_holds_real_time_at_factor_one(tmp_path):
+    """All six nodes in one process hold 1x real time on two free cores (at most 1 % of periods missed).
+
+    Over DDS they missed ~15 % (six nodes on one thread, most of each 1 ms period spent on DDS), and a
+    40-60 ms stall at the first log line of the run (rclpy's caller lookup) cost every node ~50 periods at
+    once; the in-process bus and the logger paid for before the run fixed both.  Honesty always; the speed
+    claim only when the machine was free meanwhile.
+    """
+    with machine_load() as load:
+        proc, rt = _run_realtime(tmp_path, "1", "1", "--single-process", "--no-record")
+    _assert_verdict_follows_from_the_figures(proc, rt, 1.0, 1000)
+    if rt["failed"] and not load.quiet:
+        pytest.skip(f"cannot judge whether one process holds 1x real time here: {load}; the run said "
+                    f"{rt['verdict']}")
+    assert not rt["failed"], f"{rt['verdict']} ({load})"
+
+
+@pytest.mark.timeout(240)
 def test_realtime_run_that_cannot_keep_up_exits_nonzero_with_the_held_factor(tmp_path):
     # 50x real time at 1 kHz: a tick every 20 us of wall time, far beyond any Python graph
     proc, rt = _run_realtime(tmp_path, "50", "0.5", "--no-record")
