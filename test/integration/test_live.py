@@ -159,21 +159,23 @@ def port0_run(tmp_path_factory):
     connects, without retries, to the port the run printed."""
     tmp = tmp_path_factory.mktemp("live0")
     bag = tmp / "bag"
+    err = open(tmp / "run.stderr", "w")  # a file: a pipe nobody reads could fill and block the run
     run = subprocess.Popen(run_cmd("--duration", "1.0", "--live-port", "0", "--record-dir", str(bag),
                                    "--metrics-json", str(tmp / "m.json"), "--quiet"),
-                           cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                           cwd=tmp, stdout=subprocess.PIPE, stderr=err, text=True)
     client = None
     try:
         lines, seen = _lines(run), []
         port = int(_wait_line(lines, r"^live view: ws://127\.0\.0\.1:(\d+) ", seen).group(1))
         client = node_client("ws_live.mjs", str(port), "0", "60", "--subprotocol", "foxglove.websocket.v1",
                              "--no-retry")
-        assert run.wait(timeout=300) == 0, run.stderr.read()[-3000:] if run.stderr else ""
+        assert run.wait(timeout=300) == 0, (tmp / "run.stderr").read_text()[-3000:]
         got = last_json(client, timeout=120)
     finally:
         for p in (run, client):
             if p is not None and p.poll() is None:
                 p.kill()
+        err.close()
     yield port, got, bag, tmp
 
 
@@ -199,13 +201,14 @@ def test_the_live_view_sends_each_topic_at_most_at_the_live_rate(port0_run):
     assert all(live[t] == truth[t][:2] for t in live)
 
 
-def test_replay_live_serves_the_bag_on_its_sim_time_to_a_spec_subprotocol_client(ros, port0_run):
+def test_replay_live_serves_the_bag_on_its_sim_time_to_a_spec_subprotocol_client(ros, port0_run, tmp_path):
     """``replay --live-port 0 --loop``: the printed port accepts at once; the bag's messages with their log
     times, and its /clock as the time (going back to the start at each pass, which Foxglove takes as a seek)."""
     _, _, bag, _ = port0_run
+    err_path = tmp_path / "replay.stderr"
+    err = open(err_path, "w")  # a file: one line per pass, and nobody reads a pipe while it runs
     replay = subprocess.Popen([sys.executable, "-m", "vesselbot_ros.cli", "replay", str(bag), "--loop",
-                               "--live-port", "0"], env=ros.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
+                               "--live-port", "0"], env=ros.env, stdout=subprocess.PIPE, stderr=err, text=True)
     client = None
     try:
         lines, seen = _lines(replay), []
@@ -214,11 +217,12 @@ def test_replay_live_serves_the_bag_on_its_sim_time_to_a_spec_subprotocol_client
                              "--no-retry", "--max-messages", "300")
         got = last_json(client, timeout=120)
         replay.send_signal(signal.SIGINT)
-        assert replay.wait(timeout=60) == 0, replay.stderr.read()[-3000:] if replay.stderr else ""
+        assert replay.wait(timeout=60) == 0, err_path.read_text()[-3000:]
     finally:
         for p in (replay, client):
             if p is not None and p.poll() is None:
                 p.kill()
+        err.close()
     assert got["reason"] == "max messages" and got["subprotocol"] == "foxglove.websocket.v1"
     assert got["decode_errors"] == {}
     assert {a["topic"] for a in got["advertised"]} == {t.name for t in open_bag(bag).topics} | \
