@@ -3,7 +3,9 @@
 1. lease a ROS domain (held by every child until the last one exits), write
    the scenario as a ``--params-file``;
 2. start the recorder first (unless disabled) and wait until it subscribes to
-   every topic of the graph spec;
+   every topic of the graph spec; with the live view on, also until it reports
+   (``/diagnostics``, ``live_url``) the address its server accepts connections on,
+   and hand that address to ``on_live``;
 3. start the nodes (one process each, or one composed process), wait until
    every node reports ``wired: true`` (all its DDS endpoints matched) and, for
    a role left to the user (``without``), until some node publishes that
