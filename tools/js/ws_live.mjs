@@ -1,14 +1,19 @@
 // Foxglove's own WebSocket client (@foxglove/ws-protocol) on a vesselbot live view: subscribe to every
 // advertised channel, decode every message with Foxglove's ROS 2 deserializer from the channel's
-// ros2msg schema, and print one JSON object when the server goes away (end of the run) or after
-// IDLE_S without messages:
-//   {"advertised": [{topic, encoding, schemaName, schemaEncoding}], "counts": {topic: n},
-//    "decode_errors": {topic: "..."}, "positions": [[stamp_ns, x, z], ...],   (positions: /vesselbot/truth)
+// ros2msg schema, and print one JSON object when the server goes away (end of the run), after IDLE_S
+// without messages, or after --max-messages N messages:
+//   {"reason", "subprotocol": the one the server accepted, "capabilities": the server's,
+//    "advertised": [{topic, encoding, schemaName, schemaEncoding}], "counts": {topic: n},
+//    "decode_errors": {topic: "..."}, "positions": [[stamp_ns, x, z, log_time_ns], ...],   (/vesselbot/truth)
+//    "log_times": {topic: [each message's timestamp (ns)]}, "times": [the server's time broadcasts (ns)],
 //    "views": {"errors": [view/errors messages], "marker_namespaces": [namespaces seen on view/markers]}}
-// JSON channels (the derived view/errors) are parsed as JSON.
-// usage: node ws_live.mjs PORT [CONNECT_TIMEOUT_S=60] [IDLE_S=20]
-// The client offers ws-protocol's "foxglove.websocket.v1" and "foxglove.sdk.v1", the name the SDK's server
-// (foxglove-sdk 0.30) accepts for the same protocol.
+// (ns values as decimal strings, in the order received.)  JSON channels (view/errors) are parsed as JSON.
+// usage: node ws_live.mjs PORT [CONNECT_TIMEOUT_S=60] [IDLE_S=20] [--subprotocol NAME] [--no-retry]
+//                         [--max-messages N]
+// The client offers exactly one WebSocket subprotocol, NAME: by default ws-protocol's
+// FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.websocket.v1" (the protocol specification's name);
+// "foxglove.sdk.v1" is the name the Foxglove SDK's server uses.  Without --no-retry it retries a refused
+// connection every 200 ms until CONNECT_TIMEOUT_S; with it, a failed first attempt exits 3 at once.
 import wsProtocol from "@foxglove/ws-protocol";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
