@@ -73,7 +73,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 6  # 5-6: exact meshed-wall geometry (vessels/wall.py), local-thickness diameter, cap-snapped velocity
+CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (vessels/wall.py), wall-disc local diameter, cap-snapped velocity
 
 
 def cache_dir() -> Path:
@@ -449,7 +449,7 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     """Sample ``sol`` and the meshed wall's geometry on the regular grid of ``net.cfd``."""
     from matplotlib.tri import Triangulation
 
-    from vesselbot_ros.vessels.wall import cell_candidates, local_thickness, query_points, wall_segments
+    from vesselbot_ros.vessels.wall import cell_candidates, local_diameter, query_points, wall_segments
 
     geom = NetworkGeometry(net)
     h = net.cfd.grid_spacing_m
@@ -473,12 +473,12 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     segs = np.ascontiguousarray(segs.astype(np.float32).astype(np.float64))
     off, idx = cell_candidates(segs, x0, z0, h, nx, nz)
     q = query_points(pts, segs.ravel(), off.astype(np.float64), idx.astype(np.float64), x0, z0, h, nx, nz)
-    # local diameter: twice the largest inscribed disc holding the point (vessels/wall.py); it changes
-    # continuously but with kinks through a junction, and the wall moves out by D eps(t) / 2 with the
-    # pulsation (13), so it (and the viscosity that follows it) is smoothed with a Gaussian of
-    # cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
+    # local diameter: the largest inscribed disc touching the wall where the point's nearest wall point is
+    # (vessels/wall.py); it jumps where the nearest wall changes in a junction, and the wall moves out by
+    # D eps(t) / 2 with the pulsation (13), so it (and the viscosity that follows it) is smoothed with a
+    # Gaussian of cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
     segs_f, off_f, idx_f = segs.ravel(), off.astype(np.float64), idx.astype(np.float64)
-    diam = local_thickness(lambda pp: query_points(np.ascontiguousarray(pp), segs_f, off_f, idx_f, x0, z0, h, nx, nz),
+    diam = local_diameter(lambda pp: query_points(np.ascontiguousarray(pp), segs_f, off_f, idx_f, x0, z0, h, nx, nz),
                            x0, z0, h, nx, nz)
     dr = np.round(diam, 9)
     d_unique, inv = np.unique(dr, return_inverse=True)

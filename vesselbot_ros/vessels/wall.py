@@ -30,13 +30,19 @@ from the wall into the lumen); on the wall itself the segment's left normal.
 Outside the grid the nearest edge cell's candidates answer: an upper bound of
 the distance, and the point is then far outside the lumen anyway.
 
-Local diameter (:func:`local_thickness`): twice the radius of the largest disc
-inscribed in the lumen that contains the point (the "local thickness" of
-image analysis): 2 r in a straight branch of radius r (to the search step,
-h / 4, on any slope), continuous across a junction (where it grows to the
-junction's inscribed disc), and never the branch-holding-the-point jump of the
-centreline tubes.  Outside the lumen a node takes the value of the nearest
-lumen node.  The sampler then smooths it with ``cfd.diameter_smoothing_m``.
+Local diameter (:func:`local_diameter`): the diameter of the largest disc
+inscribed in the lumen that touches the wall at the point's nearest wall point
+-- the width of the vessel whose wall is nearest, which is what the diameter
+pulsation moves (the wall goes out by D eps / 2) and what confines the robot.
+2 r in a straight branch of radius r (to the search step, h / 4, on any slope);
+in a junction it follows the wall: the parent's width beside the node's wall,
+a daughter's beside the daughter's, the junction's inscribed disc near its
+middle and at the apex.  (The largest disc merely *containing* the point, the
+"local thickness", widened the daughters' entrances to the junction's 3 mm and
+moved the III-C upper route's stick/slide on the daughter's wall: worst seed
+2.7 mm tracking against 1.6 mm.)  Outside the lumen a node takes the value of
+the nearest lumen node.  The sampler then smooths it with
+``cfd.diameter_smoothing_m`` (it jumps where the nearest wall changes).
 """
 
 from __future__ import annotations
@@ -47,7 +53,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "query_points", "local_thickness", "WallQuery"]
+__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "query_points", "local_diameter", "WallQuery"]
 
 
 def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int64],
@@ -227,7 +233,7 @@ def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: floa
 
 
 @numba.njit(cache=True)
-def _thickness(cx, cz, rad, x0, z0, h, tol):  # type: ignore[no-untyped-def]
+def _disc_diameter(cx, cz, rad, sd, x0, z0, h, tol, tol_on):  # type: ignore[no-untyped-def]
     nz, nx = rad.shape
     out = np.zeros((nz, nx))
     for j in range(nz):
@@ -243,20 +249,24 @@ def _thickness(cx, cz, rad, x0, z0, h, tol):  # type: ignore[no-untyped-def]
                 for ii in range(max(0, i0 - k), min(nx, i0 + k + 1)):
                     ddx = x0 + ii * h - cx[j, i]
                     ddz = z0 + jj * h - cz[j, i]
-                    if ddx * ddx + ddz * ddz <= rr and 2.0 * r > out[jj, ii]:
+                    d2 = ddx * ddx + ddz * ddz
+                    # in the disc, and on one of its radii to where it touches the wall (there the node's
+                    # distance to the wall is the disc's radius minus the node's distance from its centre)
+                    if d2 <= rr and 2.0 * r > out[jj, ii] and sd[jj, ii] <= r - math.sqrt(d2) + tol_on:
                         out[jj, ii] = 2.0 * r
     return out
 
 
-def local_thickness(query, x0: float, z0: float, h: float, nx: int, nz: int) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def local_diameter(query, x0: float, z0: float, h: float, nx: int, nz: int) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
     """(nz, nx) local diameter (m) on the grid (origin x0, z0, spacing h (m), nx x nz nodes).
 
-    ``query``: (m, 2) points -> (m, 3) rows (s, nx, nz) of the exact wall query.  Inscribed discs: from
-    each lumen node, the disc centred where the distance is largest along its inward normal (searched in
-    steps of h / 4 up to 1.5 h: so the centre reaches the medial axis between nodes and the radius is
-    exact there, to the search step); a node takes twice the radius of the largest disc it lies within
-    (tolerance h: a node next to the wall lies just outside the disc tangent there); a node in no disc
-    takes the value of the nearest node in one.
+    ``query``: (m, 2) points -> (m, 3) rows (s, nx, nz) of the exact wall query.  A lumen node's
+    diameter is that of the largest disc inscribed in the lumen that touches the wall at the node's
+    nearest wall point (the node lies on the disc's radius to that point): the vessel whose wall is
+    nearest.  Discs: from each lumen node, centred where the distance is largest along its inward
+    normal (searched in steps of h / 4 up to 1.5 h, so centres reach the medial axis between nodes);
+    a node takes the largest disc it lies within (tolerance h) on a radius of (tolerance h / 4); a
+    node with none takes the value of the nearest node with one (outside the lumen too).
     """
     from scipy.ndimage import distance_transform_edt
 
@@ -272,11 +282,11 @@ def local_thickness(query, x0: float, z0: float, h: float, nx: int, nz: int) -> 
         best[better] = s[better]
         cen[better] = c[better]
     best[q0[:, 0] <= 0.0] = 0.0
-    d = _thickness(cen[:, 0].reshape(nz, nx).copy(), cen[:, 1].reshape(nz, nx).copy(), best.reshape(nz, nx),
-                   float(x0), float(z0), float(h), float(h))
+    d = _disc_diameter(cen[:, 0].reshape(nz, nx).copy(), cen[:, 1].reshape(nz, nx).copy(), best.reshape(nz, nx),
+                       q0[:, 0].reshape(nz, nx).copy(), float(x0), float(z0), float(h), float(h), 0.25 * float(h))
     empty = d <= 0.0
     if empty.all():
-        raise ValueError("local_thickness: no grid node lies in the lumen")
+        raise ValueError("local_diameter: no grid node lies in the lumen")
     if empty.any():
         _dist, (jj, ii) = distance_transform_edt(empty, return_indices=True)
         d = d[jj, ii]
