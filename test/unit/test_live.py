@@ -98,3 +98,27 @@ def test_sim_time_is_held_back_by_the_rate_limit_and_flushed(live, monkeypatch):
     live.flush_time()
     live.flush_time()  # nothing new: no second broadcast
     assert sent == [1_000_000, 2_000_000]
+
+
+def test_a_latched_message_is_re_sent_to_a_new_subscriber_with_its_own_log_time():
+    pytest.importorskip("foxglove")
+    from vesselbot_ros.bag.writer import make_typestore
+    from vesselbot_ros.graph_spec import topic
+    from vesselbot_ros.live import LiveView
+
+    path = topic("reference_path")
+    view = LiveView([(path.name, path.msgtype, True)], make_typestore([]), port=0)
+    try:
+        sent = []
+
+        class Channel:  # stands in for the SDK's channel: records what the live view logs on it
+            def log(self, data, log_time):
+                sent.append((bytes(data), log_time))
+
+        view._channels[path.name] = Channel()
+        view.view.offer = lambda *a: None  # no derived view from these bytes
+        view.log(path.name, b"\x00\x01\x00\x00path", 1_800_000_000_123_456_789)
+        view._resend_latched(path.name)  # what a subscription triggers, any wall time later
+        assert sent == [(b"\x00\x01\x00\x00path", 1_800_000_000_123_456_789)] * 2
+    finally:
+        view.close()
