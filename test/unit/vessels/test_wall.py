@@ -143,3 +143,20 @@ def test_velocity_next_to_an_open_end_continues_the_profile_inside(network: str)
                 v_in = np.array(kernel.fluid_velocity_xz(0.0, *(base - 1.5e-4 * n_out), p)) / vf
                 worst = max(worst, float(np.hypot(*(v_edge - v_in)) / max(1.0, abs(v_in @ n_out))))
     assert worst < 0.02, (network, worst)
+
+
+def test_nodes_check_and_metrics_read_the_plants_wall_bit_for_bit() -> None:
+    """network_wall (the nodes' position check, the scenario check, outside_lumen_time_s) and the kernel agree."""
+    from vesselbot_ros.vessels.cfd import network_wall
+
+    ph = _physics("paper_iiic_artery")
+    p = kernel.pack_params(ph)
+    wall = network_wall(load_network("paper_iiic_artery"), ph.blood)
+    rng = np.random.default_rng(3)
+    q = rng.uniform([-4e-3, -6e-3], [19e-3, 6e-3], size=(2000, 2))
+    got = wall.query(q)
+    for k in range(0, len(q), 10):
+        s, nx, nz, d, _eta, _vx, _vz = kernel.network_geometry(0.0, q[k, 0], q[k, 1], p)
+        assert (got["sdist"][k], got["normal"][k, 0], got["normal"][k, 1]) == (s, nx, nz)
+        assert wall.clearance(q[k, 0], q[k, 1])[0] == s
+        assert wall.clearance(q[k, 0], q[k, 1])[1] == pytest.approx(d, rel=1e-12)
