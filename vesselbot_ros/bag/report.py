@@ -229,6 +229,20 @@ def _slew_limit(run: Mapping[str, Any]) -> float | None:
         return None
 
 
+def _run_blood(run: Mapping[str, Any]) -> Any:
+    """The run's blood model (``BloodParams``) from its config, or None (then the shipped scenarios' default)."""
+    from vesselbot_ros.config import ConfigError, load_dataclass
+    from vesselbot_ros.physics.params import BloodParams
+
+    blood = ((run.get("config") or {}).get("physics") or {}).get("blood")
+    if not isinstance(blood, Mapping):
+        return None
+    try:
+        return load_dataclass(BloodParams, blood, "physics.blood")
+    except (ConfigError, TypeError, ValueError):
+        return None
+
+
 def _time_marks(t: npt.NDArray[np.float64], step_s: float = 0.25) -> npt.NDArray[np.intp]:
     """Indices of the ticks nearest to 0, step, 2 step, ... within the run."""
     marks = np.arange(math.ceil(t[0] / step_s) * step_s, t[-1] + 1e-12, step_s)
@@ -566,7 +580,8 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if net is not None:
         from vesselbot_ros.vessels.route import navigation_outcome
 
-        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"]))
+        # the meshed wall, read from the run's own field (no solve for another blood model)
+        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"], blood=_run_blood(run)))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
     recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
     slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)

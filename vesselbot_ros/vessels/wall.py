@@ -53,7 +53,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "query_points", "local_diameter", "WallQuery"]
+__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "nearest_segment", "query_points", "local_diameter", "WallQuery"]
 
 
 def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int64],
