@@ -19,13 +19,15 @@ short runs where the engine's cost per run shows), on the same ``N`` seeds:
    serialisation, every Parquet part written), into a fresh folder each round.
    Its numbers are checked bit for bit against phase 1.
 
-The two alternate for ``--rounds`` rounds and the best of each counts; the
-target is run phase <= 1.2 x ``run_many``.  Then, with the bench's cluster
-closed, ``vesselbot campaign`` itself runs ``--e2e-runs`` runs (seeds
-0..M-1) in a subprocess, twice, into fresh folders: interpreter start, spec,
-cluster start, runs, tables and figures; the target for 1000 runs is <= 8 s on
-2 cores.  The machine is shared, so the load average is printed before and
-after, and per phase.
+3. ``end to end``: ``vesselbot campaign`` itself on ``--e2e-runs`` runs
+   (seeds 0..M-1) in a subprocess, into a fresh folder: interpreter start,
+   spec, cluster start, runs, tables and figures (the bench's own cluster
+   idles meanwhile).
+
+The three alternate for ``--rounds`` rounds and the best of each counts, so a
+burst of load from other users of the shared machine hits all of them alike.
+Targets: run phase <= 1.2 x ``run_many``; 1000 runs end to end <= 8 s on 2
+cores.  The load average is printed before and after, and after each phase.
 """
 
 from __future__ import annotations
@@ -103,7 +105,7 @@ def _e2e(config: Path, n: int, tmp: Path, tag: str) -> tuple[float, str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=1000, help="runs (seeds 0..N-1) of each run_many / run-phase round")
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2, help="threads of run_many = worker processes of the campaign")
     ap.add_argument("--e2e-runs", type=int, default=1000, help="runs of the end-to-end `vesselbot campaign` (0: skip)")
     ap.add_argument("--config", default=str(ROOT / "config" / "sound_small_artery.yaml"))
@@ -143,21 +145,19 @@ def main() -> None:
                 print(f"  round {r + 1} campaign run phase  {wall:6.2f} s  {n / wall:7.1f} runs/s  "
                       f"{out.busy_s / n * 1e3:5.2f} ms per run on a worker, {out.n_tasks} Dask tasks, "
                       f"{same} runs bit-identical to run_many  ({_load()})")
+                if args.e2e_runs:  # the bench's cluster idles meanwhile
+                    wall, ran = _e2e(config, args.e2e_runs, tmp, f"r{r}")
+                    best["e2e"] = min(wall, best.get("e2e", math.inf))
+                    print(f"  round {r + 1} end to end: `vesselbot campaign` of {args.e2e_runs} runs {wall:.2f} s  "
+                          f"[{ran}]  ({_load()})")
         ratio = best["campaign"] / best["run_many"]
         print(f"run phase / run_many (best of {args.rounds}): {best['campaign']:.2f} s / {best['run_many']:.2f} s = "
               f"x{ratio:.2f} (target <= x{RUN_PHASE_TARGET}: {'met' if ratio <= RUN_PHASE_TARGET else 'NOT met'})")
-
         if args.e2e_runs:
-            walls = []
-            for r in range(2):
-                wall, ran = _e2e(config, args.e2e_runs, tmp, f"r{r}")
-                walls.append(wall)
-                print(f"  end to end {r + 1}: `vesselbot campaign` of {args.e2e_runs} runs {wall:.2f} s  [{ran}]  "
-                      f"({_load()})")
-            e2e = min(walls)
+            e2e = best["e2e"]
             verdict = ("met" if e2e <= E2E_TARGET_S else "NOT met") if args.e2e_runs == 1000 else "target is for 1000 runs"
             print(f"end to end, {args.e2e_runs} runs (interpreter, spec, cluster start, runs, tables, figures; best of "
-                  f"2): {e2e:.2f} s (target <= {E2E_TARGET_S:.0f} s on 2 cores: {verdict})")
+                  f"{args.rounds}): {e2e:.2f} s (target <= {E2E_TARGET_S:.0f} s on 2 cores: {verdict})")
     print(f"after: {_load()}")
 
 

@@ -112,7 +112,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
     The local cluster is one worker process with one thread per usable core,
     as :func:`~vesselbot_ros.sim.closed_loop.run_many` runs: the compiled loop
     releases the GIL, so threads run in parallel, and one process starts, imports
-    the loop and loads numba's cache once instead of once per core (about
+    the loop and loads its compiled code once instead of once per core (about
     1 s of CPU each on start).  The process keeps the client safe from a run
     that crashes compiled code: Dask records its chunks as failed
     (``KilledWorker``).  No dashboard: nobody looks at it during a campaign,
@@ -324,6 +324,22 @@ def _chunk_failed(chunk: Sequence[RunTask], exc: BaseException) -> list[dict[str
              "timeseries": None, "run_time_s": 0.0, "worker": None} for t in chunk]
 
 
+class _Chunk:
+    """A chunk of runs shipped as one object that Dask does not look into.
+
+    Dask walks every list, tuple and dict of a task's arguments for futures:
+    through a plain list of runs, that is every value of every scenario mapping,
+    about 0.3 ms of the client's time per run.
+    """
+
+    def __init__(self, tasks: list[RunTask]) -> None:
+        self.tasks = tasks
+
+
+def _run_packed(chunk: _Chunk, code: str, chunk_fn: Callable[..., list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    return chunk_fn(chunk.tasks, code)
+
+
 def pending(tasks: Sequence[RunTask], store: CampaignStore, retry_failed: bool = False) -> list[RunTask]:
     """The distinct runs of ``tasks`` that ``store`` does not hold yet (nor as failed, unless ``retry_failed``)."""
     finished = {rid for rid, status in store.statuses().items() if status == "ok" or not retry_failed}
@@ -376,7 +392,8 @@ def execute(
         chunk = list(todo[pos:pos + size])
         pos += size
         n_tasks += 1
-        fut = client.submit(chunk_fn, chunk, code, key=f"vesselbot-chunk-{chunk[0].run_id}-{size}", pure=False)
+        fut = client.submit(_run_packed, _Chunk(chunk), code, chunk_fn, key=f"vesselbot-chunk-{chunk[0].run_id}-{size}",
+                            pure=False)
         futures[fut] = chunk
         queue.add(fut)
 
