@@ -113,7 +113,7 @@ __all__ = [
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
     "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
-    "REALTIME_FACTOR_LIMIT",
+    "REALTIME_FACTOR_LIMIT", "NETWORK_WALL_NS",
 ]
 
 FRAME_ID = "vessel"
@@ -131,6 +131,8 @@ REALTIME_MISSED_LIMIT = 0.01
 #: Real time: a run fails if the average factor held (sim time advanced / wall time) is below the asked one by more
 #: than this fraction of it.
 REALTIME_FACTOR_LIMIT = 0.01
+#: Namespace of the meshed-wall marker in a vessel network's ``vessel_markers`` (the wall the plant computes with).
+NETWORK_WALL_NS = "wall"
 
 Qos = Literal["reliable", "reliable_latched", "clock", "diagnostics"]
 
@@ -348,8 +350,8 @@ SERVICES: tuple[ServiceSpec, ...] = (
 #: every topic above as it is.  A port added to TOPICS appears in the live view with no view code.
 VIEW_CHANNELS: tuple[ViewSpec, ...] = (
     ViewSpec("view_markers", "view/markers", "visualization_msgs/msg/MarkerArray",
-             ("truth", "estimate", "coil_state", "reference_path"),
-             "3D: the vessel walls at +/- D(t)/2 as they pulse, the robot, its estimate, the applied gradient "
+             ("truth", "estimate", "coil_state", "reference_path", "vessel_markers"),
+             "3D: the straight vessel's walls at +/- D(t)/2 as they pulse (a network's meshed wall: `vessel_markers`), the robot, its estimate, the applied gradient "
              "(arrow, 2 mm at the coil limit), the reference path"),
     ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
              "plots: tracking and estimation error (m), the applied gradient norm against its limit U_sat (T/m)"),

@@ -8,7 +8,9 @@ wall second (a viewer needs no more, and the run pays nothing per tick: the
 latest bytes are kept, and decoded only when a view update is due):
 
 * ``view/markers`` (``visualization_msgs/MarkerArray``, a standard message
-  Foxglove's 3D panel draws): both vessel walls at +/- D(t)/2 as they pulse,
+  Foxglove's 3D panel draws): in the straight vessel both walls at +/- D(t)/2
+  as they pulse (a vessel network's meshed wall is the plant's latched
+  ``vessel_markers``, drawn once, so the view adds no straight walls there),
   the robot (its true radius, from the wall gaps), the estimate, the applied
   gradient as an arrow from the robot (2 mm at the coil limit), and the
   reference path;
@@ -28,7 +30,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from vesselbot_ros.graph_spec import FRAME_ID, VIEW_CHANNELS, import_type, topic
+from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS, VIEW_CHANNELS, import_type, topic
 
 __all__ = ["VIEW_RATE_HZ", "SceneNumbers", "scene_numbers", "DerivedView", "ERRORS_SCHEMA", "ERRORS_SCHEMA_NAME",
            "ARROW_AT_LIMIT_M"]
@@ -67,10 +69,15 @@ class SceneNumbers:
 
 
 def scene_numbers(t_s: float, robot_xz: tuple[float, float], diameter_m: float, gap_upper_m: float,
-                  gradient_xz: tuple[float, float], gradient_limit: float,
+                  gap_lower_m: float, gradient_xz: tuple[float, float], gradient_limit: float,
                   estimate_xz: tuple[float, float] | None, reference_xz: tuple[float, float] | None) -> SceneNumbers:
-    """The view of one moment: robot radius from the upper gap (D/2 - z - r), errors as Euclidean norms."""
-    radius = 0.5 * diameter_m - robot_xz[1] - gap_upper_m
+    """The view of one moment: robot radius from the two wall gaps, errors as Euclidean norms.
+
+    The gaps to the two walls and the robot's diameter fill the local lumen diameter D(t), in the straight
+    vessel (D/2 - z - r and z + D/2 - r) as in a network (the nearest wall and the opposite one), so
+    ``r = (D - gap_upper - gap_lower) / 2`` holds in both.
+    """
+    radius = 0.5 * (diameter_m - gap_upper_m - gap_lower_m)
     track = math.dist(robot_xz, reference_xz) if reference_xz is not None else None
     est = math.dist(robot_xz, estimate_xz) if estimate_xz is not None else None
     return SceneNumbers(t_s, robot_xz, radius, 0.5 * diameter_m, estimate_xz, gradient_xz, gradient_limit, track, est)
@@ -96,6 +103,8 @@ class DerivedView:
         self._path_marker: Any = None  # built once per path (and robot radius), sent every PATH_PERIOD_S
         self._path_key: tuple[int, float] | None = None
         self._path_wall = -math.inf
+        #: True once the plant's vessel markers show a vessel network (then the view draws no straight walls).
+        self.network = False
 
     def offer(self, name: str, data: bytes, t_ns: int) -> None:
         """A message of topic ``name`` (canonical name) arrived; maybe emit a view update."""
@@ -105,6 +114,9 @@ class DerivedView:
         self._latest[key] = data
         if key == "reference_path":
             self._path_points = [p.pose.position for p in self._decode(key).poses]
+        elif key == "vessel_markers":
+            # a vessel network draws its meshed wall itself (the plant's latched markers): no straight walls then
+            self.network = any(m.ns == NETWORK_WALL_NS for m in self._decode(key).markers)
         now = time.monotonic()
         # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
         if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
@@ -126,7 +138,7 @@ class DerivedView:
         coil = self._decode("coil_state") if "coil_state" in self._latest else None
         t = truth.header.stamp.sec + truth.header.stamp.nanosec * 1e-9
         sn = scene_numbers(
-            t, (truth.position.x, truth.position.z), truth.vessel_diameter, truth.wall_gap_upper,
+            t, (truth.position.x, truth.position.z), truth.vessel_diameter, truth.wall_gap_upper, truth.wall_gap_lower,
             (truth.applied_gradient.x, truth.applied_gradient.z), coil.max_gradient if coil is not None else math.nan,
             (est.pose.pose.position.x, est.pose.pose.position.z) if est is not None else None,
             (ref.position.x, ref.position.z) if ref is not None else None)
@@ -162,7 +174,7 @@ class DerivedView:
         xs = [p.x for p in self._path_points] or [sn.robot_xz[0] - 5e-3, sn.robot_xz[0] + 5e-3]
         x0, x1 = min(xs) - 1e-3, max(xs) + 1e-3
         r = max(sn.robot_radius_m, 1e-6)
-        for name, z in (("upper_wall", sn.wall_z_m), ("lower_wall", -sn.wall_z_m)):
+        for name, z in () if self.network else (("upper_wall", sn.wall_z_m), ("lower_wall", -sn.wall_z_m)):
             m = marker(name, Marker.CUBE, (0.8, 0.2, 0.2, 0.6))
             m.pose.position.x, m.pose.position.z = 0.5 * (x0 + x1), z + (0.25 * r if z > 0 else -0.25 * r)
             m.scale.x, m.scale.y, m.scale.z = x1 - x0, 4 * r, 0.5 * r

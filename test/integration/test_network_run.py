@@ -20,6 +20,8 @@ from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
 from vesselbot_ros.graph_spec import topic  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_closed_loop  # noqa: E402
 from vesselbot_ros.sim.scenario import load_scenario  # noqa: E402
+from vesselbot_ros.vessels.cfd import network_wall  # noqa: E402
+from vesselbot_ros.vessels.network import load_network  # noqa: E402
 from vesselbot_ros.vessels.route import planned_reference  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -55,7 +57,11 @@ def test_report_states_the_branch_and_the_bag_holds_network_and_route(run) -> No
     markers = [bm.decode() for bm in iter_messages(info, [topic("vessel_markers").name])]
     assert len(markers) == 1
     ns = {mk.ns for mk in markers[0].markers}
-    assert {"upper/wall_left", "lower/centreline", "side_down/wall_right"} <= ns and len(ns) == 7 * 3
+    assert {"wall", "lower/centreline", "side_down/centreline"} <= ns and len(ns) == 1 + 7
+    wall = next(mk for mk in markers[0].markers if mk.ns == "wall")
+    segs = network_wall(load_network(load_scenario(REPO / CONFIG).physics.vessel.network)).segments
+    assert len(wall.points) == 2 * len(segs)  # the meshed wall the plant sees, segment by segment
+    assert (wall.points[0].x, wall.points[0].z) == pytest.approx(tuple(segs[0, :2]), abs=1e-12)
     paths = [bm.decode() for bm in iter_messages(info, [topic("reference_path").name])]
     ref = planned_reference(load_scenario(REPO / CONFIG))
     first, last = paths[0].poses[0].pose.position, paths[0].poses[-1].pose.position

@@ -17,12 +17,13 @@ REPO = Path(__file__).resolve().parents[2]
 def test_scene_numbers_take_the_radius_from_the_gap_and_errors_as_norms():
     d, z, r = 3e-3, 2e-4, 2.5e-4
     gap = 0.5 * d - z - r
-    sn = scene_numbers(0.5, (1e-3, z), d, gap, (0.03, -0.04), 0.08, (1e-3 + 3e-6, z + 4e-6), (1e-3 - 6e-5, z + 8e-5))
+    sn = scene_numbers(0.5, (1e-3, z), d, gap, z + 0.5 * d - r, (0.03, -0.04), 0.08, (1e-3 + 3e-6, z + 4e-6),
+                       (1e-3 - 6e-5, z + 8e-5))
     assert sn.robot_radius_m == pytest.approx(r, abs=1e-18)
     assert sn.wall_z_m == 0.5 * d
     assert sn.estimation_error_m == pytest.approx(5e-6, rel=1e-9)
     assert sn.tracking_error_m == pytest.approx(1e-4, rel=1e-9)
-    none = scene_numbers(0.0, (0.0, 0.0), d, 0.5 * d - r, (0.0, 0.0), 0.08, None, None)
+    none = scene_numbers(0.0, (0.0, 0.0), d, 0.5 * d - r, 0.5 * d - r, (0.0, 0.0), 0.08, None, None)
     assert none.tracking_error_m is None and none.estimation_error_m is None
 
 
@@ -36,7 +37,7 @@ def test_markers_draw_pulsing_walls_robot_estimate_gradient_arrow_and_path():
 
     view = DerivedView(lambda *a: None)
     view._path_points = [Point(x=0.0, z=0.0), Point(x=0.01, z=1e-4)]
-    sn = scene_numbers(0.1, (2e-3, 1e-4), 3.1e-3, 0.5 * 3.1e-3 - 1e-4 - 2.5e-4, (0.08, 0.0), 0.08,
+    sn = scene_numbers(0.1, (2e-3, 1e-4), 3.1e-3, 0.5 * 3.1e-3 - 1e-4 - 2.5e-4, 1e-4 + 0.5 * 3.1e-3 - 2.5e-4, (0.08, 0.0), 0.08,
                        (2e-3, 1e-4), None)
     ms = {m.ns: m for m in view.markers(sn, Header()).markers}
     assert set(ms) == {"upper_wall", "lower_wall", "robot", "estimate", "gradient", "reference_path"}
@@ -72,7 +73,7 @@ def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
 
     view = DerivedView(lambda *a: None)
     view._path_points = [Point(x=1e-5 * i, z=0.0) for i in range(500)]
-    sn = scene_numbers(0.1, (2e-3, 1e-4), 3.1e-3, 0.5 * 3.1e-3 - 1e-4 - 2.5e-4, (0.08, 0.0), 0.08, None, None)
+    sn = scene_numbers(0.1, (2e-3, 1e-4), 3.1e-3, 0.5 * 3.1e-3 - 1e-4 - 2.5e-4, 1e-4 + 0.5 * 3.1e-3 - 2.5e-4, (0.08, 0.0), 0.08, None, None)
     first = [m for m in view.markers(sn, Header()).markers if m.ns == "reference_path"]
     again = [m for m in view.markers(sn, Header()).markers if m.ns == "reference_path"]
     assert len(first[0].points) == 500 and again[0] is first[0]  # not rebuilt
@@ -91,3 +92,31 @@ def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
         view.emit(5)
     with_path = [any(m.ns == "reference_path" for m in arr.markers) for arr in sent]
     assert with_path == [True, False, False]
+
+
+def test_a_network_run_gets_no_straight_walls_and_the_radius_from_both_gaps():
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Header
+
+    from vesselbot_ros.graph_spec import topic
+    from vesselbot_ros.live_view import DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+    from vesselbot_ros.vessels.cfd import network_wall
+    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+
+    # in a network the gaps are to the nearest wall and the opposite one, not D/2 -/+ z: the old upper-gap rule
+    # (D/2 - z - gap_up) gave a wrong radius wherever the centreline is not at z = 0
+    d, r, near = 2.4e-3, 2.5e-4, 1e-4
+    sn = scene_numbers(0.1, (12e-3, 1.5e-3), d, near, d - 2 * r - near, (0.0, 0.0), 0.08, None, None)
+    assert sn.robot_radius_m == pytest.approx(r, rel=1e-12)
+    view = DerivedView(lambda *a: None)
+    assert {m.ns for m in view.markers(sn, Header()).markers} >= {"upper_wall", "lower_wall"}  # no markers seen yet
+    net = load_network("paper_iiic_artery")
+    markers = cv.network_markers(NetworkGeometry(net), network_wall(net).segments, r)
+    view.offer(topic("vessel_markers").name, serialize_message(markers), 0)
+    assert view.network
+    assert not {m.ns for m in view.markers(sn, Header()).markers} & {"upper_wall", "lower_wall"}
+    straight = cv.vessel_markers(0.0, 0.01, 3e-3, r)
+    view.offer(topic("vessel_markers").name, serialize_message(straight), 0)
+    assert not view.network

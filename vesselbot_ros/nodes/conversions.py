@@ -38,7 +38,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
-from vesselbot_ros.graph_spec import FRAME_ID, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for, message_builder
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
@@ -291,28 +291,32 @@ def vessel_markers(x_min_m: float, x_max_m: float, diameter_m: float, robot_radi
     return out
 
 
-def network_markers(geom: Any, robot_radius_m: float, step_m: float = 2.0e-4) -> MarkerArray:
-    """A vessel network for viewers: per branch, its two walls and its centreline (LINE_STRIPs).
+def network_markers(geom: Any, wall_segments_m: npt.NDArray[np.float64], robot_radius_m: float,
+                    step_m: float = 2.0e-4) -> MarkerArray:
+    """A vessel network for viewers: the meshed wall the plant sees (one LINE_LIST) and each branch's centreline.
 
-    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry`; points every ``step_m``.
+    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry` (the centrelines, a LINE_STRIP per
+    branch, points every ``step_m``); ``wall_segments_m`` (k, 4) rows ``(ax, az, bx, bz)`` (m) are the meshed
+    wall's segments (:attr:`vesselbot_ros.vessels.wall.WallQuery.segments`), the wall whose exact distance the
+    plant computes, junctions included, open ends (inlet and outlet caps) left out.
     """
     out = MarkerArray()
-    mid = 0
-    for name, (pts, rad, _arc) in geom.branches.items():
+    wall = Marker(header=header(0.0), ns=NETWORK_WALL_NS, id=0, type=Marker.LINE_LIST, action=Marker.ADD)
+    wall.scale.x = 0.1 * robot_radius_m
+    wall.color.r, wall.color.g, wall.color.b, wall.color.a = 0.8, 0.2, 0.2, 1.0
+    wall.pose.orientation.w = 1.0
+    segs = np.asarray(wall_segments_m, dtype=np.float64).reshape(-1, 2)
+    wall.points = [point((float(x), float(z))) for x, z in segs]
+    out.markers.append(wall)
+    mid = 1
+    for name, (pts, _rad, _arc) in geom.branches.items():
         stride = max(1, int(round(step_m / geom.net.sample_spacing_m)))
         idx = np.unique(np.r_[np.arange(0, len(pts), stride), len(pts) - 1])
-        t = np.gradient(pts, axis=0)
-        t /= np.hypot(t[:, 0], t[:, 1])[:, None]
-        nrm = np.column_stack([-t[:, 1], t[:, 0]])
-        lines = (("wall_left", pts + rad[:, None] * nrm, (0.8, 0.2, 0.2)),
-                 ("wall_right", pts - rad[:, None] * nrm, (0.8, 0.2, 0.2)),
-                 ("centreline", pts, (0.5, 0.5, 0.5)))
-        for label, line, (r, g, b) in lines:
-            m = Marker(header=header(0.0), ns=f"{name}/{label}", id=mid, type=Marker.LINE_STRIP, action=Marker.ADD)
-            mid += 1
-            m.scale.x = 0.1 * robot_radius_m
-            m.color.r, m.color.g, m.color.b, m.color.a = r, g, b, 1.0
-            m.pose.orientation.w = 1.0
-            m.points = [point((float(x), float(z))) for x, z in line[idx]]
-            out.markers.append(m)
+        m = Marker(header=header(0.0), ns=f"{name}/centreline", id=mid, type=Marker.LINE_STRIP, action=Marker.ADD)
+        mid += 1
+        m.scale.x = 0.1 * robot_radius_m
+        m.color.r, m.color.g, m.color.b, m.color.a = 0.5, 0.5, 0.5, 1.0
+        m.pose.orientation.w = 1.0
+        m.points = [point((float(x), float(z))) for x, z in pts[idx]]
+        out.markers.append(m)
     return out

@@ -137,9 +137,11 @@ class PlantNode(VesselbotNode):
         ref = self.scenario.reference
         self._network = bool(self.scenario.physics.vessel.network)
         if self._network:
+            from vesselbot_ros.vessels.cfd import network_wall
             from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
-            markers = cv.network_markers(NetworkGeometry(load_network(self.scenario.physics.vessel.network)),
+            net = load_network(self.scenario.physics.vessel.network)
+            markers = cv.network_markers(NetworkGeometry(net), network_wall(net, self.scenario.physics.blood).segments,
                                          self.scenario.physics.robot.radius_m)
         else:
             markers = cv.vessel_markers(min(ref.anchors_x_m) - 1e-3, max(ref.anchors_x_m) + 1e-3,
