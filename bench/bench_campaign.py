@@ -11,7 +11,7 @@ short runs where the engine's cost per run shows), on the same ``N`` seeds:
    seeds on W threads (the compiled loop releases the GIL), in this process,
    warm.  The arithmetic of the runs and nothing else.
 2. ``campaign run phase``: what ``vesselbot campaign`` does between starting
-   its cluster and drawing its report, on a LocalCluster of W worker processes
+   its cluster and drawing its report, on a LocalCluster of one worker process with W threads
    started and warmed beforehand (as :func:`~vesselbot_ros.campaign.engine.dask_client`
    starts it): :func:`~vesselbot_ros.campaign.engine.prepare` (resolving and
    hashing every run), the manifest, :func:`~vesselbot_ros.campaign.engine.pending`
@@ -106,7 +106,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=1000, help="runs (seeds 0..N-1) of each run_many / run-phase round")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--workers", type=int, default=2, help="threads of run_many = worker processes of the campaign")
+    ap.add_argument("--workers", type=int, default=2, help="threads of run_many = worker threads of the campaign")
     ap.add_argument("--e2e-runs", type=int, default=1000, help="runs of the end-to-end `vesselbot campaign` (0: skip)")
     ap.add_argument("--config", default=str(ROOT / "config" / "sound_small_artery.yaml"))
     args = ap.parse_args()
@@ -114,7 +114,8 @@ def main() -> None:
     base = load_yaml(config)
     scenario = scenario_from_mapping(base)
     n, w = args.runs, args.workers
-    print(f"bench_campaign: {n} runs of {config.name}, {w} threads / worker processes, {args.rounds} rounds; "
+    print(f"bench_campaign: {n} runs of {config.name}, {w} threads (run_many) / worker threads (campaign), "
+          f"{args.rounds} rounds; "
           f"before: {_load()}")
     t0 = time.perf_counter()
     run_many(scenario, [0, 1], workers=w)  # this process: numba cache loaded, stages built
@@ -130,7 +131,7 @@ def main() -> None:
             warm = prepare(spec, base).tasks
             client.gather([client.submit(run_chunk, warm, None, pure=False, workers=[a])
                            for a in client.scheduler_info()["workers"]])
-            print(f"  cluster of {w} started in {t1 - t0:.2f} s, workers warmed in {time.perf_counter() - t1:.2f} s "
+            print(f"  cluster of {w} worker threads started in {t1 - t0:.2f} s, workers warmed in {time.perf_counter() - t1:.2f} s "
                   f"(not counted below)")
             for r in range(args.rounds):
                 t0 = time.perf_counter()

@@ -103,6 +103,13 @@ def test_prepare_then_execute_then_nothing_pending(tmp_path) -> None:
     assert {r["status"] for r in rows} == {"ok", "error"}
     failed = {r["run_id"] for r in rows if r["status"] == "error"}
     assert {t.run_id for t in pending(prep.tasks, store, retry_failed=True)} == failed | {t.run_id for t in prep.tasks[4:]}
+    # the rest with automatic chunks (sized as they are submitted): every run stored once, nothing left
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        out = execute(pending(prep.tasks, store), store, client, prep.code)
+    assert out.n_ran == 2 and out.n_workers == 2 and 1 <= out.n_tasks <= 2
+    assert pending(prep.tasks, store) == []
+    assert [r["index"] for r in store.assemble().to_pylist()] == list(range(6))
 
 
 @pytest.mark.parametrize("n", [1, 7])

@@ -37,6 +37,7 @@ def test_records_round_trip_and_assemble_in_run_order(store) -> None:
     store.write_records([_rec("bb", ok=False)])
     done = store.finished()
     assert set(done) == {"a", "bb", "ccc"}
+    assert store.statuses() == {"a": "ok", "bb": "error", "ccc": "ok"}
     assert done["bb"]["error"] == "RuntimeError: boom" and done["bb"].get("tracking_error_max_m") is None
     assert not list(store.parts.glob(".*"))  # no temporary files left
     table = store.assemble()
@@ -84,3 +85,5 @@ def test_a_retried_run_that_succeeds_wins_over_its_old_failure(store) -> None:
     assert store.finished()["zz"]["status"] == "ok"
     ok.rename(store.parts / "part-z-ok.parquet")  # read after it
     assert store.finished()["zz"]["status"] == "ok"
+    assert store.statuses()["zz"] == "ok"
+    assert [r["run_id"] for r in store.assemble().to_pylist()] == ["a"]  # "zz" is not in the manifest
