@@ -58,6 +58,14 @@ def _parse_sets(items: list[str]) -> dict[str, Any]:
     return out
 
 
+def _import_report_libraries() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+    import scipy.special  # noqa: F401
+
+
 def report(root: Path) -> int:
     """Redraw the summary and figures of the campaign folder ``root``."""
     from vesselbot_ros.campaign.store import CampaignStore
@@ -125,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
           + (f", running {len(todo)} on {where}" if todo else ""), file=sys.stderr)
     closing: list[threading.Thread] = []  # the cluster closes while the report is drawn
     if todo:
+        # the report's imports (matplotlib: 0.3 s) happen while this process waits for the runs
+        threading.Thread(target=_import_report_libraries, name="vesselbot-report-imports", daemon=True).start()
         progress = Progress(f"campaign {spec.name}", meta["n_runs"], n_before, enabled=not args.no_progress)
         try:
             with dask_client(args.scheduler, args.workers, closing) as client:
