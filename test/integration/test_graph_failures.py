@@ -29,8 +29,9 @@ def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
         victim = node_pid(launcher.pid, "observer")  # asserts there is exactly one
         t0 = time.monotonic()
         os.kill(victim, signal.SIGKILL)
-        _, err = launcher.communicate(timeout=60)
-        assert time.monotonic() - t0 < 30
+        # the launcher's own bounds: the watchdog's ramp (--wait-timeout, 60 s), then 10 s to stop the nodes
+        _, err = launcher.communicate(timeout=120)
+        took = time.monotonic() - t0
     finally:
         if launcher.poll() is None:
             launcher.kill()
@@ -38,6 +39,14 @@ def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
     assert "node observer died (exit code -9)" in err
     # the other nodes were stopped, not orphaned
     assert not children(launcher.pid)
+    if took >= 30:  # a free machine ends it in a few seconds: judge the 30 s only if the machine is free
+        from _machine import QUIET_CPU_SHARE, cpu_share
+
+        share = cpu_share()
+        if share < QUIET_CPU_SHARE:
+            pytest.skip(f"the run ended {took:.0f} s after the node died, within its own bounds but beyond 30 s, on "
+                        f"a loaded machine (a calibration spin got {share:.2f} of a core): cannot judge the 30 s")
+        pytest.fail(f"the run ended {took:.0f} s after the node died, on a free machine (spin got {share:.2f})")
 
 
 def test_user_controller_takes_the_controller_slot(repo, tmp_path):
