@@ -128,6 +128,9 @@ class PlantNode(VesselbotNode):
         self._first_emit_wall: float | None = None
         self._first_emit_tick = 0
         self._last_emit_wall = 0.0
+        #: real time: wall time spent paused between published ticks (s), and when the current pause began
+        self._paused_wall_s = 0.0
+        self._pause_began: float | None = None
         self.add_publisher("clock", Clock)
         self.add_publisher("truth", PlantState)
         self.add_publisher("vessel_markers", MarkerArray)
@@ -184,6 +187,7 @@ class PlantNode(VesselbotNode):
             self._release()
             return
         self.paused = paused
+        self._pause_began = time.monotonic() if paused else None
         self._held = False
         # tick 0 is due now, and every later tick on the same schedule: the nodes anchor their periods on
         # tick 0's arrival, so a schedule started after tick 0 went out (its first emit takes a while)
@@ -252,10 +256,14 @@ class PlantNode(VesselbotNode):
             self._budget = 0
             if state == PAUSED:
                 self.paused = not self.lockstep
+                self._pause_began = None if self.lockstep else time.monotonic()
             elif self.lockstep:
                 self._release()
             else:
                 self.paused = False
+                if self._pause_began is not None:  # a pause is no wall time of the run's (its average factor)
+                    self._paused_wall_s += time.monotonic() - self._pause_began
+                    self._pause_began = None
                 self._wall_start = time.monotonic() - self.k * self.dt / self.graph.real_time_factor
                 self._anchor = self._wall_start
             return ""
@@ -498,7 +506,10 @@ class PlantNode(VesselbotNode):
 
     @property
     def _run_wall_s(self) -> float:
-        return 0.0 if self._first_emit_wall is None else self._last_emit_wall - self._first_emit_wall
+        """Wall time from the first to the last tick published, the run's pauses (real time) left out."""
+        if self._first_emit_wall is None:
+            return 0.0
+        return self._last_emit_wall - self._first_emit_wall - self._paused_wall_s
 
     @property
     def _run_sim_s(self) -> float:

@@ -61,6 +61,27 @@ def test_tick_zero_is_due_when_the_wall_schedule_starts(realtime_plant, monkeypa
     assert before <= node.k <= after
 
 
+def test_average_factor_is_sim_time_over_the_wall_time_played(realtime_plant):
+    """The plant's figures of the run's average real-time factor: first to last tick published, pauses left out
+    (a client that paused a real-time run did not make the machine slower)."""
+    node = realtime_plant
+    node._start()
+    time.sleep(0.035)
+    node._realtime_tick()  # 0.1x: a tick per 10 ms of wall, so ticks 1..3 are due
+    assert node.pause() == ""
+    time.sleep(0.3)
+    assert node.play() == ""
+    time.sleep(0.025)
+    node._realtime_tick()
+    d = node.diagnostic_values()
+    wall, sim = float(d["run_wall_s"]), float(d["run_sim_s"])
+    assert sim == pytest.approx(node.tick_now * node.dt, abs=1e-12) and node.tick_now >= 4
+    assert node._paused_wall_s >= 0.3
+    assert wall == pytest.approx(node._last_emit_wall - node._first_emit_wall - node._paused_wall_s, abs=1e-12)
+    assert float(d["real_time_factor_held"]) == pytest.approx(sim / wall, rel=1e-12)
+    assert float(d["real_time_factor_held"]) <= 0.1 * (1 + 1e-3)  # never ahead of the schedule
+
+
 @pytest.fixture()
 def lockstep_plant():
     yield from _plant(stall_timeout_s=0.2)
