@@ -157,8 +157,10 @@ def test_single_process_holds_real_time_at_factor_one(tmp_path):
     the speed claim only when the machine was free meanwhile.
     """
     with machine_load() as load:
-        proc, rt = _run_realtime(tmp_path, "1", "1", "--single-process", "--no-record")
-    _assert_verdict_follows_from_the_figures(proc, rt, 1.0, 1000)
+        # 3 s, not 1: one 10 ms hiccup of a quiet machine (a page fault storm, a timer slip) is then 0.33 % of the
+        # periods, not the whole 1 % budget
+        proc, rt = _run_realtime(tmp_path, "1", "3", "--single-process", "--no-record")
+    _assert_verdict_follows_from_the_figures(proc, rt, 1.0, 3000)
     if rt["failed"] and not load.quiet:
         pytest.skip(f"cannot judge whether one process holds 1x real time here: {load}; the run said "
                     f"{rt['verdict']}")
