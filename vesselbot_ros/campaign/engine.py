@@ -10,15 +10,16 @@
   chunks (one Dask task each, :func:`~vesselbot_ros.campaign.runner.run_chunk`),
   stores each chunk as it completes and draws the progress bar.
 
-Chunk size: 0 (automatic) cuts the runs into shrinking chunks (guided
-self-scheduling): each chunk takes about 1/(2 w) of the runs still unassigned
-(w workers), at most 32 and at least 1.  The first chunks are large, so Dask's
-cost per task (a few ms of scheduling and serialisation, and the client
-writing a part) stays far below 5 % of the runs it carries
-(``bench/bench_campaign.py`` measures it); the last chunks are single runs, so
-a worker that the machine slows down, or a run that lasts longer than the
-others, leaves the other workers idle for one run at most.  A fixed
-``chunk_size`` gives equal chunks.
+Chunk size: 0 (automatic) sizes each chunk when it is submitted
+(:class:`ChunkSizer`, guided self-scheduling): about 1/(2 w) of the runs still
+unassigned (w worker threads), at most :data:`TASK_S` and at least
+:data:`MIN_TASK_S` of runs at the median run time measured so far.  The first
+chunks are large, so Dask's cost per task (a few ms of scheduling and
+serialisation, and the client writing a part) stays near 1 % of the runs it
+carries (``bench/bench_campaign.py`` measures the run phase against
+``run_many``); the last ones are short, so a worker that the machine slows
+down, or a run that lasts longer than the others, leaves the other workers
+idle for a short time only.  A fixed ``chunk_size`` gives equal chunks.
 """
 
 from __future__ import annotations
