@@ -209,8 +209,8 @@ class CampaignSpec:
         grid: Dotted key -> list of values; every combination is run.
         samples: Random draws (:class:`SampleSpec`).
         keep_timeseries: Runs whose time series are kept (:class:`KeepSpec`).
-        chunk_size: Runs per Dask task; 0 = shrinking chunks sized from the runs left and the workers
-            (:func:`vesselbot_ros.campaign.engine.chunk_sizes`).
+        chunk_size: Runs per Dask task; 0 = shrinking chunks sized from the runs left, the workers and the
+            measured run time (:class:`vesselbot_ros.campaign.engine.ChunkSizer`).
     """
 
     name: str
