@@ -83,17 +83,13 @@ from vesselbot_msgs.srv import RunControl
 from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode, run_node
+from vesselbot_ros.nodes.simulation_control import ALREADY, PAUSED, PLAYING, STOPPED, SimulationControl
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S"]
-
-#: Simulation states (simulation_interfaces' SimulationState, by name).
-STOPPED, PLAYING, PAUSED = "stopped", "playing", "paused"
-#: What :meth:`PlantNode.play` / :meth:`PlantNode.pause` return when nothing changes.
-ALREADY = "already in the target state"
 
 #: Names of ``PlantSimulator.stats`` entries, as the pure runner reports them.
 PLANT_STAT_NAMES = role("plant").counters
@@ -160,8 +156,6 @@ class PlantNode(VesselbotNode):
         # the truth message's own compiled calls (flow, diameter, the network's geometry) before tick 0: a
         # throwaway message, nothing published and no state touched
         self._truth(self.plant.output(with_forces=True))
-        from vesselbot_ros.nodes.simulation_control import SimulationControl
-
         self.simulation = SimulationControl(self)
 
     def reset_state(self) -> None:

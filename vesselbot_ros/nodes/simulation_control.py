@@ -31,7 +31,12 @@ from typing import Any
 
 from vesselbot_ros.graph_spec import ROLES, SIMULATION_NODE, import_type, reset_service_key, service
 
-__all__ = ["SimulationControl", "features"]
+__all__ = ["SimulationControl", "features", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
+
+#: Simulation states (simulation_interfaces' SimulationState, by name).
+STOPPED, PLAYING, PAUSED = "stopped", "playing", "paused"
+#: What :meth:`PlantNode.play` / :meth:`PlantNode.pause` return when nothing changes.
+ALREADY = "already in the target state"
 
 #: How long a reset waits for the tick in flight and for each node's reset (wall s).
 RESET_TIMEOUT_S = 30.0
@@ -108,8 +113,6 @@ class SimulationControl:
     def _state_msg(self) -> Any:
         from simulation_interfaces.msg import SimulationState
 
-        from vesselbot_ros.nodes.plant_node import PAUSED, PLAYING
-
         p = self.plant
         if p.finished:
             return SimulationState(state=SimulationState.STATE_STOPPED)
@@ -150,8 +153,6 @@ class SimulationControl:
     def _set_state(self, request: Any, response: Any) -> Any:
         from simulation_interfaces.msg import Result, SimulationState
         from simulation_interfaces.srv import SetSimulationState
-
-        from vesselbot_ros.nodes.plant_node import ALREADY, STOPPED
 
         target = request.state.state
         p = self.plant
