@@ -7,7 +7,8 @@ provides::
     def register(parser: argparse.ArgumentParser) -> None   # add arguments
     def run(args: argparse.Namespace) -> int                # exit code
 
-A :class:`~vesselbot_ros.config.ConfigError` (or any ``VesselbotError``)
+A :class:`~vesselbot_ros.errors.VesselbotError` (the root of the package's
+errors: ``ConfigError``, ``ModelInputError``, ``BagError``, ``RunError``)
 escaping ``run`` is printed as one clear line and exits with code 2; so is an
 ``OSError`` (a full disk, a missing permission).  A closed stdout (``vesselbot
 bag info DIR | head -3``) ends the command quietly.
@@ -74,8 +75,7 @@ def _silence_stdout() -> None:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    from vesselbot_ros.config import ConfigError
-    from vesselbot_ros.errors import ModelInputError, VesselbotError
+    from vesselbot_ros.errors import VesselbotError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
@@ -87,7 +87,7 @@ def _main(argv: Sequence[str] | None) -> int:
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return int(module.run(args) or 0)
-    except (ConfigError, VesselbotError, ModelInputError) as exc:
+    except VesselbotError as exc:  # the root: config, model input, bag and run errors alike
         print(f"vesselbot {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

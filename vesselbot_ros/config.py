@@ -37,6 +37,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from vesselbot_ros.errors import ConfigError  # defined with the package's error root; re-exported here
+
 T = TypeVar("T")
 
 __all__ = [
@@ -55,13 +57,6 @@ __all__ = [
     "flatten",
     "unflatten",
 ]
-
-
-class ConfigError(ValueError):
-    """A configuration value is missing, unknown, of the wrong type or out of range.
-
-    The message always names the field (dotted path) and the offending value.
-    """
 
 
 # ---------------------------------------------------------------------------

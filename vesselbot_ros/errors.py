@@ -1,19 +1,47 @@
-"""The project's error classes (one per concern, all plain ValueError/RuntimeError)."""
+"""The package's one error root, :class:`VesselbotError`, and its subclasses.
+
+Every error vesselbot_ros raises on purpose is a :class:`VesselbotError`, so
+``except VesselbotError`` catches them all, and the ``vesselbot`` command
+prints any of them as one line and exits with code 2::
+
+    VesselbotError (RuntimeError)
+    ├── ConfigError (also ValueError)      a configuration value is missing, unknown or invalid
+    ├── ModelInputError (also ValueError)  a non-finite or wrongly shaped value reached the core
+    ├── BagError                           a bag is missing, truncated, corrupt or inconsistent
+    └── RunError                           a run failed while it ran
+        ├── NodeDied                       (vesselbot_ros.launch.supervision)
+        └── RecordingMismatch              (vesselbot_ros.launch.graph)
+
+:class:`ConfigError` and :class:`ModelInputError` stay ``ValueError`` too, so
+code that catches ``ValueError`` keeps working.  They are importable from
+their old homes as well (``vesselbot_ros.config.ConfigError``).
+
+This is the lowest layer of the package: it imports nothing from it.
+"""
 
 from __future__ import annotations
 
-from vesselbot_ros.config import ConfigError
-
-__all__ = ["ConfigError", "VesselbotError", "ModelInputError", "BagError"]
+__all__ = ["VesselbotError", "ConfigError", "ModelInputError", "BagError", "RunError"]
 
 
 class VesselbotError(RuntimeError):
-    """A run-time failure that the CLI reports as one clear line (exit code 2)."""
+    """The root of every error vesselbot_ros raises; the CLI reports it as one clear line (exit code 2)."""
 
 
-class ModelInputError(ValueError):
+class ConfigError(VesselbotError, ValueError):
+    """A configuration value is missing, unknown, of the wrong type or out of range.
+
+    The message always names the field (dotted path) and the offending value.
+    """
+
+
+class ModelInputError(VesselbotError, ValueError):
     """A non-finite or wrongly shaped value reached a pure-core function."""
 
 
 class BagError(VesselbotError):
     """A bag directory is missing, truncated, corrupt or inconsistent."""
+
+
+class RunError(VesselbotError):
+    """A run could not go on: a node died, a recording mismatched, a node or cluster did not answer."""

@@ -41,7 +41,7 @@ from vesselbot_ros.campaign.runner import RunTask, SeedHasher, code_version, res
 from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping, merge_mapping
 from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, unflatten
-from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.errors import RunError
 
 __all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute", "Progress"]
 
@@ -129,7 +129,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
             before the block returns.
 
     Raises:
-        VesselbotError: the scheduler cannot be reached, or the local cluster does not start.
+        RunError: the scheduler cannot be reached, or the local cluster does not start.
     """
     from distributed import Client, LocalCluster
 
@@ -137,7 +137,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as exc:
-            raise VesselbotError(f"cannot connect to the Dask scheduler {scheduler!r}: {exc}") from None
+            raise RunError(f"cannot connect to the Dask scheduler {scheduler!r}: {exc}") from None
         try:
             yield client
         finally:
@@ -148,7 +148,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         cluster = LocalCluster(n_workers=1, threads_per_worker=n, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     except (OSError, TimeoutError, RuntimeError) as exc:
-        raise VesselbotError(f"cannot start a local Dask cluster of {n} workers: {exc}") from None
+        raise RunError(f"cannot start a local Dask cluster of {n} workers: {exc}") from None
     client = Client(cluster)
 
     def close() -> None:
@@ -369,7 +369,7 @@ def execute(
         chunk_fn: The function a task runs on a chunk (:func:`run_chunk`).
 
     Raises:
-        VesselbotError: the cluster failed (lost scheduler, ...); stored runs are kept.
+        RunError: the cluster failed (lost scheduler, ...); stored runs are kept.
     """
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
@@ -378,7 +378,7 @@ def execute(
         try:
             client.wait_for_workers(1, timeout=60)
         except TimeoutError:
-            raise VesselbotError(f"the Dask scheduler {client.scheduler.address} has no workers (waited 60 s)") from None
+            raise RunError(f"the Dask scheduler {client.scheduler.address} has no workers (waited 60 s)") from None
     n_workers = max(1, sum(client.nthreads().values()))
     sizer = ChunkSizer(n_workers, chunk_size)
     t0 = time.perf_counter()
@@ -410,7 +410,7 @@ def execute(
             except KilledWorker as exc:  # a run that kills its worker process, after Dask's retries
                 records = _chunk_failed(chunk, exc)
             except Exception as exc:  # noqa: BLE001 - lost scheduler etc.: not a property of the runs
-                raise VesselbotError(
+                raise RunError(
                     f"the Dask cluster failed ({type(exc).__name__}: {exc}); finished runs are saved in "
                     f"{str(store.root)!r}, run the same command again to resume"
                 ) from None

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.errors import RunError, VesselbotError
 from vesselbot_ros.graph_spec import (
     LOOP_ROLES,
     NODE_NAMES,
@@ -63,7 +63,7 @@ __all__ = ["GraphOptions", "GraphResult", "NodeDied", "RecordingMismatch", "Real
            "role_contract", "check_recorded_counts", "realtime_report", "RealtimeReport"]
 
 
-class RecordingMismatch(VesselbotError):
+class RecordingMismatch(RunError):
     """The bag does not hold exactly what the publishers published."""
 
 
@@ -340,7 +340,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     Raises:
         NodeDied: a node process exited before the end (names it, with its last output lines).
         RecordingMismatch: the bag does not hold what was published (names topic and counts).
-        VesselbotError: a bounded wait expired (says what was awaited).
+        RunError: a bounded wait expired (says what was awaited).
         KeyboardInterrupt: on Ctrl-C / SIGTERM / SIGHUP, after stopping everything cleanly.
     """
     import rclpy
@@ -463,7 +463,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             print("vesselbot run: interrupted; nodes stopped" + (", bag finalised" if sup.recorder else ""),
                   file=sys.stderr)
     if not finished_ok:  # pragma: no cover - exceptions propagate above
-        raise VesselbotError("run aborted")
+        raise RunError("run aborted")
     if options.record_dir is not None and published is not None:
         recorded = _bag_counts(Path(options.record_dir))
         problems = check_recorded_counts(published, recorded)
@@ -566,7 +566,7 @@ def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOption
             status = realtime_status(mon.diag, roles, dt) if options.mode == "realtime" else ""
             options.progress((mon.max_tick + 1) * dt, duration, now - t_start, status)
         if now - t_start > timeout:
-            raise VesselbotError(f"the run did not finish within {timeout:.0f} s (wall); reached tick {mon.max_tick}")
+            raise RunError(f"the run did not finish within {timeout:.0f} s (wall); reached tick {mon.max_tick}")
 
 
 def _safe_stop_roles() -> tuple[str, ...]:

@@ -182,23 +182,23 @@ class Monitor:
         """The run's series: from our nodes' answers and the users' nodes' messages (unknown: NaN / False).
 
         Raises:
-            VesselbotError: a node's answer is malformed or says it has not finished.
+            RunError: a node's answer is malformed or says it has not finished.
         """
-        from vesselbot_ros.errors import VesselbotError
+        from vesselbot_ros.errors import RunError
 
         out = empty_series(self.n)
         for r, fut in self._series_futures.items():
             resp = fut.result()
             if resp is None or not resp.success:
-                raise VesselbotError(f"node {NODE_NAMES[r]} did not serve its run series: "
+                raise RunError(f"node {NODE_NAMES[r]} did not serve its run series: "
                                      f"{'no answer' if resp is None else resp.message}")
             try:
                 got = series_from_response(resp)
             except ValueError as exc:
-                raise VesselbotError(f"node {NODE_NAMES[r]} served malformed series: {exc}") from None
+                raise RunError(f"node {NODE_NAMES[r]} served malformed series: {exc}") from None
             for name, arr in got.items():
                 if arr.shape[0] != self.n:
-                    raise VesselbotError(f"node {NODE_NAMES[r]} served {arr.shape[0]} rows, the run has {self.n}")
+                    raise RunError(f"node {NODE_NAMES[r]} served {arr.shape[0]} rows, the run has {self.n}")
                 out[name] = arr
         keys = self._user_series_keys
         if keys:

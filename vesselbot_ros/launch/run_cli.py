@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.graph_spec import LOOP_ROLES
 
 __all__ = ["register", "run", "apply_overrides"]
@@ -198,6 +198,8 @@ def run(args: argparse.Namespace) -> int:
 
         # a chosen domain may hold graphs in other namespaces; a leased one is ours alone
         lease = allocate_domain(args.domain_id, namespace_of(args.namespace) if args.domain_id is not None else None)
+    except VesselbotError:
+        raise  # our errors are RuntimeErrors too: only the lease's own RuntimeError is about --domain-id
     except RuntimeError as exc:
         raise ConfigError(f"--domain-id: {exc}") from None
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -255,6 +257,8 @@ def run(args: argparse.Namespace) -> int:
     old = {sig: signal.signal(sig, on_term) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
         result = run_graph(scenario, opts)
+    except (ConfigError, ModelInputError):
+        raise  # bad input: the CLI's one line and exit 2, not a failed run
     except (NodeDied, RecordingMismatch, VesselbotError) as exc:
         print(f"vesselbot run: error: {exc}", file=sys.stderr)
         return 1

@@ -19,14 +19,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.errors import RunError
 from vesselbot_ros.graph_spec import NODE_NAMES, role
 from vesselbot_ros.launch.processes import ChildProcess
 
 __all__ = ["NodeDied", "Supervisor", "wait_for"]
 
 
-class NodeDied(VesselbotError):
+class NodeDied(RunError):
     """A node process exited before the run finished."""
 
 
@@ -139,11 +139,11 @@ class Supervisor:
 
 def wait_for(pred: Callable[[], bool], timeout: float, mon: Any, sup: Supervisor | None, what: str,
              procs: Sequence[ChildProcess] | None = None) -> None:
-    """Spin ``mon`` until ``pred()``; raise NodeDied if a child exits, VesselbotError after ``timeout`` s."""
+    """Spin ``mon`` until ``pred()``; raise NodeDied if a child exits, RunError after ``timeout`` s."""
     deadline = time.monotonic() + timeout
     while not pred():
         if sup is not None:
             sup.check_alive(procs)
         if time.monotonic() > deadline:
-            raise VesselbotError(f"timed out after {timeout:.0f} s waiting for {what}")
+            raise RunError(f"timed out after {timeout:.0f} s waiting for {what}")
         mon.spin(0.05)
