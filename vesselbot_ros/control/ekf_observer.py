@@ -66,7 +66,7 @@ from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
-from vesselbot_ros.sim.integrator import OK, integrate_dopri5_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, integrate_dopri5_ws, new_workspace
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message", "EKF_OUT_SIZE", "PREDICTION_FAILED"]
 

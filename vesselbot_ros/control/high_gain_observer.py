@@ -59,7 +59,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_
 from vesselbot_ros.control.ekf_params import EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
 
 #: Estimates kept for delay compensation (one per update).
 HISTORY_LEN = 4096

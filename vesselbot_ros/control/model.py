@@ -22,7 +22,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["DynamicsModel"]
 

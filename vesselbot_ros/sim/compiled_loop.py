@@ -59,7 +59,7 @@ from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
-from vesselbot_ros.sim.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 

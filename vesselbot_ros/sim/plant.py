@@ -4,7 +4,7 @@
 state and the tick counter.  ``output()`` gives the ground truth at ``t_k``;
 ``step(G)`` integrates ``[t_k, t_{k+1}]`` under the gradient ``G`` applied by
 the coil (held over the period, zero-order hold), with the compiled adaptive
-integrator of :mod:`vesselbot_ros.sim.integrator` (sub-steps inside the
+integrator of :mod:`vesselbot_ros.physics.integrator` (sub-steps inside the
 period).  Tick times are ``t_k = t0 + k / rate`` (no accumulated drift).
 """
 
@@ -19,7 +19,7 @@ import numpy.typing as npt
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, pack_params, wall_delta_xz
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.sim.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
 __all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 

@@ -43,7 +43,7 @@ from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
-from vesselbot_ros.sim.integrator import IntegratorParams
+from vesselbot_ros.physics.integrator import IntegratorParams
 
 __all__ = [
     "ModelParams",

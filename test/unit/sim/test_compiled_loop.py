@@ -20,7 +20,7 @@ from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint
-from vesselbot_ros.sim.integrator import IntegratorParams
+from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
 
 SEEDS = range(5)
