@@ -31,7 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("vesselbot_ros.launch.run_cli", "run the ROS 2 node graph (recorded)"),
     "scenarios": ("vesselbot_ros.sim.scenarios_cli", "list the shipped scenarios (names for --config)"),
     "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
-    "replay": ("vesselbot_ros.bag.replay_cli", "republish a recorded bag"),
+    "replay": ("vesselbot_ros.launch.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),
     "campaign": ("vesselbot_ros.campaign.campaign_cli", "Monte-Carlo runs and parameter sweeps on Dask (campaign report DIR: redraw)"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",

@@ -6,7 +6,7 @@ Plain replay publishes in the ROS domain of the environment
 ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set.
 
 ``--into ROLE`` re-runs one node on the bag's inputs instead
-(:mod:`vesselbot_ros.bag.reestimate`): a fresh node in a leased domain, fed
+(:mod:`vesselbot_ros.launch.reestimate`): a fresh node in a leased domain, fed
 tick by tick, its outputs recorded next to the originals and compared.  Exit
 codes: 0 every tick answered (and, with ``--tolerance``, every difference
 within it); 1 the node died, a tick went unanswered, or a difference exceeds
@@ -125,7 +125,7 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
 
 
 def _run_into(args: argparse.Namespace, info: object) -> int:
-    from vesselbot_ros.bag.reestimate import ROLES, reestimate, replay_topic
+    from vesselbot_ros.launch.reestimate import ROLES, reestimate, replay_topic
     from vesselbot_ros.errors import BagError
 
     if args.tolerance is not None and not args.tolerance >= 0:

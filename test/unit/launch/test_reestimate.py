@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselbot_ros.bag.reestimate import (
+from vesselbot_ros.launch.reestimate import (
     ROLES,
     compare_outputs,
     node_command,
