@@ -1,4 +1,4 @@
-"""What keeping BLAS out of the per-run numerics costs (issue 19), measured side by side.
+"""What keeping BLAS out of the per-run numerics costs, measured side by side.
 
 Usage: .venv/bin/python bench/bench_blas_free.py
 

@@ -3,7 +3,7 @@
 Usage: .venv/bin/python bench/bench_closed_loop.py [--runs 1000] [--config config/sound_small_artery.yaml]
        [--ekf-config config/sound_small_artery_ekf.yaml]
 
-Prints, side by side in one run (issue 18 targets in brackets):
+Prints, side by side in one run (the compiled loop's targets in brackets):
 
 1. ms per run of the same scenario and seeds, warm, the two paths interleaved:
    the per-tick Python loop (``path="per_tick"``) and the compiled loop; ratio [>= 10x];

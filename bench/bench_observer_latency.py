@@ -1,4 +1,4 @@
-"""Delay-compensating observer against observer (25), fed the same frames (issue 12 claim).
+"""Delay-compensating observer against observer (25), fed the same frames.
 
 Usage: .venv/bin/python bench/bench_observer_latency.py
 

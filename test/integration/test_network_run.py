@@ -22,7 +22,7 @@ from vesselbot_ros.sim.closed_loop import run_closed_loop  # noqa: E402
 from vesselbot_ros.sim.scenario import load_scenario  # noqa: E402
 from vesselbot_ros.vessels.cfd import network_wall  # noqa: E402
 from vesselbot_ros.vessels.network import load_network  # noqa: E402
-from vesselbot_ros.vessels.route import planned_reference  # noqa: E402
+from vesselbot_ros.control.route import planned_reference  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = "config/paper_iiic_network_lower.yaml"

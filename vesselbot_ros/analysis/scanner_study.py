@@ -1,4 +1,4 @@
-"""Scanner study (issue 12, Section III-D in numbers): what multiplexing and latency cost, and what copes.
+"""Scanner study (Section III-D in numbers): what multiplexing and latency cost, and what copes.
 
 For every gradient hardware (:data:`~vesselbot_ros.scanner.hardware.PRESETS`
 amplitude and slew), every sequence timing (propulsion window, hence duty

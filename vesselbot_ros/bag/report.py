@@ -460,7 +460,7 @@ def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], 
     """Fig. 9a in a vessel network: the network, the trajectory, the reference and the estimate; the branch reached."""
     import matplotlib.pyplot as plt
 
-    from vesselbot_ros.vessels.route import draw_network
+    from vesselbot_ros.control.route import draw_network
 
     mm = 1e3
     fig, ax = plt.subplots(figsize=(9, 5))
@@ -578,7 +578,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
 
     net = _run_network(run)
     if net is not None:
-        from vesselbot_ros.vessels.route import navigation_outcome
+        from vesselbot_ros.control.route import navigation_outcome
 
         # the meshed wall, read from the run's own field (no solve for another blood model)
         metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"], blood=_run_blood(run)))

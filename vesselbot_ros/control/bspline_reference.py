@@ -64,7 +64,7 @@ class ReferenceParams:
         sync_ratio: ``c`` in ``dx_ref/dt = c v_f`` (flow_synchronised only).
         route_outlet: In a vessel network (``physics.vessel.network``): the
             target outlet branch; the anchors are then planned along the route
-            from the start point (:mod:`vesselbot_ros.vessels.route`) and
+            from the start point (:mod:`vesselbot_ros.control.route`) and
             ``anchors_x_m``/``anchors_z_m`` are not used.  ``""``: the anchors as given.
         route_anchor_spacing_m: Arc length between planned anchors (m).
         route_end_margin_m: The last planned anchor lies this far before the outlet (m).

@@ -473,7 +473,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
     if scenario.physics.vessel.network:
-        from vesselbot_ros.vessels.route import navigation_metrics
+        from vesselbot_ros.control.route import navigation_metrics
 
         metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))
     for r, keys in diagnostic_counters().items():

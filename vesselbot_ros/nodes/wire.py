@@ -4,9 +4,10 @@ rclpy turns a received message into Python by calling the generated
 constructor of every nested message (a PlantState is 17 of them), and a
 published one back field by field; between processes that cost more than the
 delivery itself.  Building our own message objects cost about as much
-(``bench/bench_graph.py``, session 11: with message objects built and read on
-the hot path the graph took 1.24-1.38x the bare chain with one process per
-node, 1.04-1.09x with flat forms).  So a per-tick message lives in the nodes
+(``bench/bench_graph.py``, docs/graph.md "Flat forms instead of message
+objects": with message objects built and read on the hot path the graph took
+1.24-1.38x the bare chain with one process per node, 1.04-1.09x with flat
+forms).  So a per-tick message lives in the nodes
 in its *flat form*: a named tuple (:attr:`FlatCodec.Flat`) of every value of
 its CDR in wire order, fields named by their path (``header_stamp_sec``,
 ``vector_x``, ``pose_covariance_35``; a string as ``<path>_size`` and

@@ -84,7 +84,7 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.sequence import duty_cycle, phase_codes, sequence_vector
-from vesselbot_ros.vessels.route import navigation_metrics, planned_reference
+from vesselbot_ros.control.route import navigation_metrics, planned_reference
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim import compiled_loop
 from vesselbot_ros.sim.metrics import compute_metrics

@@ -239,7 +239,7 @@ class Scenario:
         """Start point and anchors (given or planned) must lie inside the network's lumen."""
         from vesselbot_ros.vessels.cfd import network_wall
         from vesselbot_ros.vessels.network import load_network, route_to_outlet
-        from vesselbot_ros.vessels.route import planned_reference
+        from vesselbot_ros.control.route import planned_reference
 
         net = load_network(self.physics.vessel.network)
         if self.reference.route_outlet:

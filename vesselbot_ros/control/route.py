@@ -1,4 +1,4 @@
-"""Route planning through a vessel network (pure): branch sequence, anchors, reference.
+"""Route planning through a vessel network (pure): branch sequence, anchors, reference; where the robot went.
 
 Given the start point (the injection point ``initial.p0_m``) and a target
 outlet, the branch sequence is the path over the centreline tree from the inlet
@@ -28,7 +28,9 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.reference_design import wall_safe_delta_m
 from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 
 __all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
@@ -46,8 +48,6 @@ def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-de
 @functools.lru_cache(maxsize=64)
 def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
     """The planned anchors (k, 2) (m); cached per (frozen) inputs: the wall-safe heights cost ~0.3 s each."""
-    from vesselbot_ros.control.reference_design import wall_safe_delta_m
-
     net = load_network(phys.vessel.network)
     geom = NetworkGeometry(net)
     names = route_to_outlet(net, ref.route_outlet)
@@ -101,8 +101,6 @@ def branch_at(network: str, points_m: npt.ArrayLike) -> tuple[list[str], npt.NDA
     The branch is the centreline tube holding the point; the distance is the meshed wall's
     (:func:`vesselbot_ros.vessels.cfd.network_wall`), exact in the junctions too.
     """
-    from vesselbot_ros.vessels.cfd import network_wall
-
     net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(points_m)
@@ -132,8 +130,6 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
     from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it);
     the branch holding a point is its centreline tube's.
     """
-    from vesselbot_ros.vessels.cfd import network_wall
-
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
@@ -162,9 +158,7 @@ def draw_network(ax, network: str, mm: float = 1e3) -> None:  # type: ignore[no-
     """Draw the network on a matplotlib axis, in mm by default: the tubes filled grey, the meshed wall
     (the one the plant sees, :func:`vesselbot_ros.vessels.cfd.network_wall`) as a dark outline, the
     centrelines dotted."""
-    from matplotlib.collections import LineCollection
-
-    from vesselbot_ros.vessels.cfd import network_wall
+    from matplotlib.collections import LineCollection  # deferred: matplotlib is a heavy optional dependency (reports only)
 
     net = load_network(network)
     geom = NetworkGeometry(net)

@@ -1,4 +1,4 @@
-"""Route planning (vesselbot_ros.vessels.route) and the scenario checks of a network."""
+"""Route planning (vesselbot_ros.control.route) and the scenario checks of a network."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network
-from vesselbot_ros.vessels.route import planned_reference, route_branches
+from vesselbot_ros.control.route import planned_reference, route_branches
 
 UPPER = shipped_scenarios()["paper_iiic_network_upper"]
 
