@@ -7,10 +7,14 @@ Any of these names works as ``--config NAME`` of ``vesselbot run`` and
 from __future__ import annotations
 
 import argparse
+import re
 
 from vesselbot_ros.config import load_yaml
 
 __all__ = ["register", "run", "describe"]
+
+# words whose full stop does not end a description's first sentence
+_ABBREVIATIONS = frozenset({"ref", "refs", "al", "e.g", "i.e", "fig", "eq", "sec", "cf", "vs"})
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -27,8 +31,10 @@ def describe(path: str) -> str:
                 break
             lines.append(line.lstrip("#").strip())
     text = " ".join(x for x in lines if x)
-    end = text.find(". ")
-    return text if end < 0 else text[: end + 1]
+    for m in re.finditer(r"(\S*)\. ", text):
+        if m.group(1).lstrip("([").lower() not in _ABBREVIATIONS:  # "the paper's ref. [23]" does not end the sentence
+            return text[: m.end() - 1]
+    return text
 
 
 def run(args: argparse.Namespace) -> int:

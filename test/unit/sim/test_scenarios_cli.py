@@ -16,3 +16,15 @@ def test_one_line_per_shipped_scenario_with_its_description(tmp_path, capsys, mo
     by_name = {ln.split()[0]: ln for ln in lines}
     assert by_name["sound_small_artery"].endswith("(default)")
     assert "PRINTED" in by_name["paper_small_artery"] and "(default)" not in by_name["paper_small_artery"]
+
+
+def test_a_description_is_a_whole_sentence_not_cut_at_an_abbreviation(tmp_path):
+    from vesselbot_ros.sim.scenarios_cli import describe
+
+    path = tmp_path / "s.yaml"
+    path.write_text("# Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T. Second sentence.\n"
+                    "name: s\n")
+    assert describe(str(path)) == "Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T."
+    for name, p in shipped_scenarios().items():
+        text = describe(str(p))
+        assert text.endswith(".") and not text.endswith(("ref.", "al.")), (name, text)
