@@ -13,10 +13,11 @@ import time
 import numba
 import numpy as np
 
-from vesselbot_ros.physics.kernel import forces_into, pack_params
+from vesselbot_ros.physics.kernel import forces_into
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+from vesselbot_ros.vessels.cfd import packed_params
 
 
 @numba.njit(cache=False)
@@ -44,7 +45,7 @@ def main() -> None:
     paper = load_scenario(shipped_scenarios()["paper_iiic_network_upper"])
     out = np.empty((8, 2))
     n = 1_000_000
-    ps, pn = pack_params(straight.physics), pack_params(paper.physics)
+    ps, pn = packed_params(straight.physics), packed_params(paper.physics)
     _many(10, ps, out)
     _many(10, pn, out)
     ts = best(lambda: _many(n, ps, out)) / n

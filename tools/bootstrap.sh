@@ -69,7 +69,7 @@ if ! fresh numba-cache "$nb"; then
   echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code, in the background)"
   rm -f "$stamps/numba-cache"
   numba_log=$(mktemp)
-  (cd / && exec "$venv/bin/python" -c "from vesselbot_ros.numba_cache import warm; warm()") >"$numba_log" 2>&1 &
+  (cd / && exec "$venv/bin/python" -c "from vesselbot_ros.sim.warm import warm; warm()") >"$numba_log" 2>&1 &
   numba_pid=$!
 fi
 numba_done() {  # wait for the background warm-up; stamp it, or show its error and fail

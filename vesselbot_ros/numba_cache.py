@@ -13,7 +13,7 @@ numba cache file of the package first.  Editing a module without numba code
 (the runner's Python, the CLI, the nodes) keeps the cache.
 
 It runs when :mod:`vesselbot_ros` is imported (about 1 ms), before any
-compiled function can load its cache.  :func:`warm` fills the cache
+compiled function can load its cache.  :func:`vesselbot_ros.sim.warm.warm` fills the cache
 (``tools/bootstrap.sh`` calls it once per version of the compiled sources, so
 ``make run``, ``make test`` and every node start without compiling).
 """
@@ -23,7 +23,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-__all__ = ["numba_sources", "source_digest", "ensure_fresh", "warm"]
+__all__ = ["numba_sources", "source_digest", "ensure_fresh"]
 
 ROOT = Path(__file__).resolve().parent
 STAMP_NAME = "numba.sources.sha256"
@@ -63,29 +63,3 @@ def ensure_fresh(root: Path = ROOT) -> bool:
     except OSError:  # read-only install: numba then uses its own user cache dir
         pass
     return True
-
-
-def warm() -> None:
-    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly."""
-    import dataclasses as dc
-
-    from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
-    from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
-
-    from vesselbot_ros.scanner.sequence import SequenceParams
-
-    scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
-    # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
-    scenarios.append(dc.replace(scenarios[0], sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
-                                                                      dead_time_s=0.001, propulsion_window_s=0.003,
-                                                                      latency_s=0.001)))
-    for sc in scenarios:
-        sc = dc.replace(sc, sim=dc.replace(sc.sim, duration_s=0.01))
-        run_closed_loop(sc)  # the compiled loop (every built-in stage)
-        run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
-        run_many(sc, [0, 1], workers=2)
-        if sc.physics.vessel.network:  # the nodes' input check (VesselbotNode.check)
-            from vesselbot_ros.vessels.cfd import network_wall
-            from vesselbot_ros.vessels.network import load_network
-
-            network_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(0.0, 0.0)

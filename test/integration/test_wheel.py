@@ -69,7 +69,7 @@ def test_wheel_in_a_fresh_venv_runs_the_default_scenario_from_a_temporary_direct
             dest = fresh_site / "vesselbot_ros" / cached.relative_to(checkout)
             dest.parent.mkdir(exist_ok=True)
             shutil.copy2(cached, dest)
-    warm = subprocess.run([str(py), "-c", "from vesselbot_ros.numba_cache import warm; warm()"], cwd=work, env=env,
+    warm = subprocess.run([str(py), "-c", "from vesselbot_ros.sim.warm import warm; warm()"], cwd=work, env=env,
                           capture_output=True, text=True, timeout=600)
     assert warm.returncode == 0, warm.stderr[-3000:]
 

@@ -22,6 +22,7 @@ from vesselbot_ros.analysis._common import add_config_arguments, load_physics
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.force_balance import ContactState, ForceTerms, force_terms
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["register", "run", "BalanceCurve", "force_balance_curve", "delta_grid", "TERMS"]
 
@@ -58,7 +59,8 @@ def steady(params: PhysicsParams) -> PhysicsParams:
 
 def force_balance_curve(params: PhysicsParams, delta_m: npt.NDArray[np.float64], t_s: float = 0.0, gradient_T_per_m: float = 0.08) -> BalanceCurve:
     """Evaluate every term at each Delta for a still robot (gradient along +z)."""
-    rows: list[ForceTerms] = [force_terms(t_s, [0.0, z], [0.0, 0.0], [0.0, gradient_T_per_m], ContactState(), params) for z in delta_m]
+    packed = packed_params(params)
+    rows: list[ForceTerms] = [force_terms(t_s, [0.0, z], [0.0, 0.0], [0.0, gradient_T_per_m], ContactState(), params, packed=packed) for z in delta_m]
     forces = {name: np.array([getattr(ft, name) for ft in rows]) for name in (*TERMS, "total")}
     forces["load"] = forces["total"] - forces["magnetic"]
     gap = np.array([-ft.delta_m for ft in rows])

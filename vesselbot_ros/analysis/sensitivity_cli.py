@@ -18,7 +18,8 @@ import numpy.typing as npt
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
 from vesselbot_ros.analysis.design_map import DesignStudy
 from vesselbot_ros.analysis.force_balance_cli import delta_grid, force_balance_curve, steady
-from vesselbot_ros.physics.kernel import I_CHARGE, pack_params
+from vesselbot_ros.physics.kernel import I_CHARGE
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
 
 __all__ = ["register", "run", "PERTURBATIONS", "perturbed", "ratio_curve"]
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     i_w = int(np.argmax(deltas))
     nominal, ftot0 = ratio_curve(base, deltas)
     curves: dict[str, npt.NDArray[np.float64]] = {"nominal": nominal}
-    print(f"sensitivity (steady flow, still robot, 80 mT/m); nominal q = {pack_params(base)[I_CHARGE]:.3e} C")
+    print(f"sensitivity (steady flow, still robot, 80 mT/m); nominal q = {packed_params(base)[I_CHARGE]:.3e} C")
     print(f"{'case':<32}{'Fm/Ftot centre':>16}{'Fm/Ftot wall':>14}{'dFtot centre':>14}{'dFtot wall':>12}")
     print(f"{'nominal':<32}{nominal[i_c]:16.4g}{nominal[i_w]:14.4g}{0:14.1%}{0:12.1%}")
     cases: list[tuple[str, PhysicsParams]] = []

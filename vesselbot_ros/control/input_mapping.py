@@ -28,7 +28,8 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice
-from vesselbot_ros.physics.kernel import forces_into, pack_params
+from vesselbot_ros.physics.kernel import forces_into
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
 
 __all__ = ["input_matrix", "gradient_from_accel", "accel_from_gradient"]
@@ -45,7 +46,7 @@ def input_matrix(
         mapping: ``with_tau_m`` or ``paper_printed`` (see module docstring).
     """
     check_choice("model.input_mapping", mapping, ("with_tau_m", "paper_printed"))
-    p = pack_params(physics)
+    p = packed_params(physics)
     out = np.empty((8, 2))
     contact = np.zeros(4)
     b = np.empty((2, 2))

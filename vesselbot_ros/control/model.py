@@ -20,7 +20,8 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive, pack_params
+from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
@@ -44,7 +45,7 @@ class DynamicsModel:
     ) -> None:
         self.physics = physics
         self.integrator = integrator if integrator is not None else IntegratorParams()
-        self.p = pack_params(physics)
+        self.p = packed_params(physics)
         self.input_matrix = input_matrix(physics, mapping)
         self._free = np.zeros(4)
         self._p_scaled = self.p.copy()

@@ -29,7 +29,8 @@ import numpy as np
 
 from vesselbot_ros.config import check_nonnegative, check_positive
 from vesselbot_ros.control.high_gain_observer import ObserverParams, linearised_error_matrix
-from vesselbot_ros.physics.kernel import accel_no_motive, pack_params
+from vesselbot_ros.physics.kernel import accel_no_motive
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
 
 __all__ = ["observer_error_jacobian", "observer_unstable_gap_m", "wall_safe_delta_m"]
@@ -49,7 +50,7 @@ def observer_error_jacobian(
     physics: PhysicsParams, t_s: float, z_m: float, vx_m_per_s: float, observer: ObserverParams
 ) -> np.ndarray:
     """(4, 4) linearised observer error matrix at centre height ``z_m`` (m), robot moving at ``vx`` (m/s)."""
-    p = pack_params(physics)
+    p = packed_params(physics)
     c = np.zeros(4)
     hz, hv = 1e-9, 1e-6
     state = [0.0, z_m, vx_m_per_s, 0.0]

@@ -182,9 +182,9 @@ def run(args: argparse.Namespace) -> int:
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
     if scenario.physics.vessel.network:
         # the network's CFD field is solved (or read from the cache) once, here, before any node starts
-        from vesselbot_ros.physics.kernel import pack_params
+        from vesselbot_ros.vessels.cfd import packed_params
 
-        pack_params(scenario.physics)
+        packed_params(scenario.physics)
     if record:
         import importlib.util
 

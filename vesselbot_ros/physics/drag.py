@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.extending import register_jitable
 
+from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics._validate import diameter_ratio, finite_array, positive
 
 __all__ = ["wall_factor", "drag_coefficient", "drag_gain", "drag_force"]
@@ -76,8 +77,6 @@ def drag_force(
     """
     u = finite_array("u_rel", u_rel)
     if u.shape[-1:] != (2,):
-        from vesselbot_ros.errors import ModelInputError
-
         raise ModelInputError(f"u_rel must have shape (..., 2), got {u.shape}")
     r = positive("radius_m", radius_m)
     eta = positive("viscosity_Pa_s", viscosity_Pa_s)

@@ -67,6 +67,8 @@ def force_terms(
     gradient_T_per_m: npt.ArrayLike,
     contact: ContactState,
     params: PhysicsParams,
+    *,
+    packed: npt.NDArray[np.float64] | None = None,
 ) -> ForceTerms:
     """Evaluate every force term at one state.
 
@@ -77,12 +79,15 @@ def force_terms(
         gradient_T_per_m: (2,) applied gradient (dB/dx, dB/dz) (T/m).
         contact: Caller-held Hertz state for the nearest wall.
         params: Physics parameters.
+        packed: The kernel's vector of ``params`` (default ``kernel.pack_params(params)``); a network
+            vessel's, its CFD field packed in, comes from :func:`vesselbot_ros.vessels.cfd.packed_params`.
 
     Returns:
         The :class:`ForceTerms` breakdown.
 
     Raises:
         ModelInputError: wrong shape or non-finite input.
+        ConfigError: a network vessel without ``packed``.
     """
     t = float(finite_array("t_s", t_s))
     p = finite_vector("p_W", p_W)
@@ -90,7 +95,8 @@ def force_terms(
     g = finite_vector("gradient_T_per_m", gradient_T_per_m)
     if not isinstance(contact, ContactState):
         raise ModelInputError(f"contact must be a ContactState, got {type(contact).__name__}")
-    packed = kernel.pack_params(params)
+    if packed is None:
+        packed = kernel.pack_params(params)
     out = np.empty((8, 2))
     kernel.forces_into(t, p[0], p[1], v[0], v[1], g[0], g[1], contact.to_array(), packed, out)
     rows = [out[i].copy() for i in range(8)]

@@ -21,11 +21,13 @@ diameter ratio below 1).
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.errors import ConfigError
 from vesselbot_ros.physics.bifurcation import load_profile_table
 from vesselbot_ros.physics.blood_flow import (
     blended_profile,
@@ -40,7 +42,7 @@ from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import bead_pulling_force
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
 from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
-from vesselbot_ros.vessels.wall import nearest_wall
+from vesselbot_ros.physics.meshed_wall import nearest_wall
 from vesselbot_ros.physics.wall_interactions import (
     contact_heaviside_flag,
     electrostatic_factor,
@@ -57,6 +59,7 @@ from vesselbot_ros.physics.wall_interactions import (
 __all__ = [
     "TERM_NAMES",
     "pack_params",
+    "pack_network_params",
     "accel",
     "accel_no_motive",
     "forces_into",
@@ -122,8 +125,32 @@ _LAMBDA_MAX = 0.999
 def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
     """Flatten ``params`` into the kernel's float64 vector (layout: ``I_*`` constants).
 
-    Cached per (hashable, frozen) params; treat the result as read-only.
+    Cached per (hashable, frozen) params; treat the result as read-only.  A network vessel
+    (``vessel.network``) also needs its sampled CFD field, and packing never solves one: its vector
+    comes from :func:`vesselbot_ros.vessels.cfd.packed_params` (the field shipped, cached or solved, once).
+
+    Raises:
+        ConfigError: ``params.vessel.network`` is set.
     """
+    if params.vessel.network:
+        raise ConfigError(f"vessel.network needs its CFD field, which pack_params never solves: pack with "
+                          f"vesselbot_ros.vessels.cfd.packed_params, got network={params.vessel.network!r}")
+    return pack_network_params(params, None)
+
+
+def pack_network_params(params: PhysicsParams, fld: Any) -> npt.NDArray[np.float64]:
+    """:func:`pack_params` with a network vessel's sampled CFD field ``fld`` packed in (``None``: no network).
+
+    ``fld`` is a :class:`vesselbot_ros.vessels.cfd.NetworkField` (grid origin ``x0_m``, ``z0_m``, spacing
+    ``h_m``, ``nx`` x ``nz`` nodes, ``data``, ``wall_segments``, ``cell_offsets``, ``cell_index``).  Not
+    cached (the field is not hashable): :func:`vesselbot_ros.vessels.cfd.packed_params` caches per params.
+
+    Raises:
+        ConfigError: a field without ``vessel.network`` or a network without a field.
+    """
+    if (fld is not None) != bool(params.vessel.network):
+        raise ConfigError(f"a CFD field goes with vessel.network and only with it, got network={params.vessel.network!r} "
+                          f"and {'a' if fld is not None else 'no'} field")
     b, f, v, rb, w, it, dg = params.blood, params.flow, params.vessel, params.robot, params.wall, params.interactions, params.drag
     eta = viscosity_for(b, v.diameter_m)
     r = rb.radius_m
@@ -167,11 +194,7 @@ def pack_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
         head[I_BIF_NKNOTS] = table.knots_deg.size
         tail = np.concatenate([table.knots_deg, table.values.ravel(), table.slopes.ravel()])
     net_block = np.zeros(0)
-    if v.network:
-        from vesselbot_ros.vessels.cfd import network_field
-        from vesselbot_ros.vessels.network import load_network
-
-        fld = network_field(load_network(v.network), b)
+    if fld is not None:
         head[I_NET_ON] = 1.0
         head[I_NET_OFF] = N_FIXED + tail.size
         net_block = np.concatenate([[fld.x0_m, fld.z0_m, fld.h_m, fld.nx, fld.nz, len(fld.wall_segments), fld.cell_index.size],
@@ -227,7 +250,7 @@ def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]
 def _network_wall(p, x, z):  # type: ignore[no-untyped-def]
     """(s, nx, nz): exact signed distance (m, > 0 inside) and unit inward normal of the meshed wall at (x, z) (m).
 
-    :func:`vesselbot_ros.vessels.wall.nearest_wall` over the packed wall segments and cell candidates.
+    :func:`vesselbot_ros.physics.meshed_wall.nearest_wall` over the packed wall segments and cell candidates.
     """
     o = int(p[I_NET_OFF])
     nx = int(p[o + 3])
@@ -245,7 +268,7 @@ def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
 
     s_t: signed distance of the centre to the meshed wall (m, > 0 inside; exact, computed
-    here from the wall's segments: vessels/wall.py) with the wall moved out by the
+    here from the wall's segments: physics/meshed_wall.py) with the wall moved out by the
     diameter pulsation (13): s + D eps(t) / 2, D_t = D (1 + eps(t));
     (nx, nz): unit inward normal of the nearest wall (exact); D: local diameter and
     eta: viscosity (Pa s), bilinear on the grid; (vfx, vfz): blood velocity (m/s),

@@ -39,6 +39,8 @@ from numba.extending import register_jitable
 
 from vesselbot_ros.blas_free import solve
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.physics._validate import finite_array, positive
+from vesselbot_ros.physics.apparent_weight import sphere_volume
 
 __all__ = [
     "bead_pulling_force",
@@ -130,9 +132,6 @@ def bead_pulling_force_W(magnetic_ratio: float, radius_m: float, magnetization_A
         ModelInputError: non-finite gradient.
         ConfigError: non-positive radius.
     """
-    from vesselbot_ros.physics._validate import finite_array, positive
-    from vesselbot_ros.physics.apparent_weight import sphere_volume
-
     g = finite_array("gradient_T_per_m", gradient_T_per_m)
     vol = sphere_volume(float(positive("radius_m", radius_m)))
     return np.asarray(bead_pulling_force(magnetic_ratio, vol, magnetization_A_per_m, g))

@@ -179,13 +179,9 @@ class VesselParams:
     def __post_init__(self) -> None:
         check_positive("diameter_m", self.diameter_m)
         check_nonnegative("gravity_m_per_s2", self.gravity_m_per_s2)
+        # the network file itself is checked where it is read (vesselbot_ros.vessels.network.load_network,
+        # called by the scenario's checks and vessels.cfd.packed_params): VesselParams never reads it
         if self.network:
-            from vesselbot_ros.vessels.network import load_network
-
-            try:
-                load_network(self.network)
-            except ConfigError as exc:
-                raise ConfigError(f"network: {exc}") from None
             if self.major_bifurcation.enabled:
                 raise ConfigError("major_bifurcation.enabled must be false with a network (its bifurcations are in "
                                   f"the geometry), got network={self.network!r}")

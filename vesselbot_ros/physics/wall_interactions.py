@@ -33,6 +33,7 @@ import numpy.typing as npt
 from numba.extending import register_jitable
 
 from vesselbot_ros.physics._validate import finite_array, positive
+from vesselbot_ros.physics.params import VACUUM_PERMITTIVITY_F_PER_M
 
 __all__ = [
     "electrostatic_factor",
@@ -143,8 +144,6 @@ def interaction_forces(
     Returns:
         Three arrays shaped like ``gap_m``: vdW (> 0), electrostatic (> 0), steric (< 0).
     """
-    from vesselbot_ros.physics.params import VACUUM_PERMITTIVITY_F_PER_M
-
     g = finite_array("gap_m", gap_m)
     r = float(positive("radius_m", radius_m))
     positive("min_separation_m", min_separation_m)

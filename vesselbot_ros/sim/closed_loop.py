@@ -81,7 +81,8 @@ from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverP
 from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import fluid_velocity_x, pack_params
+from vesselbot_ros.physics.kernel import fluid_velocity_x
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.sequence import duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.control.route import navigation_metrics, planned_reference
@@ -167,7 +168,7 @@ class _StageBuilder:
         return DynamicsModel(self.get("model_physics"), s.sim.integrator, s.model.input_mapping)
 
     def _reference(self) -> ReferenceTrajectory:
-        p_model = pack_params(self.get("model_physics"))
+        p_model = packed_params(self.get("model_physics"))
 
         def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
             return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))

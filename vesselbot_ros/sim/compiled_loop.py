@@ -44,13 +44,16 @@ from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
 from vesselbot_ros.control.backstepping import (
     FLOW_SCALE_INVALID,
+    BacksteppingController,
     adaptive_command,
     backstepping_command,
     flow_scale_message,
 )
 from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
+from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
 from vesselbot_ros.control.high_gain_observer import (
     HISTORY_LEN,
+    HighGainObserver,
     integrator_vector,
     observer_params,
     observer_update,
@@ -60,6 +63,7 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.sim.plant import PlantSimulator
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
@@ -140,11 +144,6 @@ OBS_HIGH_GAIN, OBS_EKF = 0, 1
 
 def foreign_stages(stages: Any) -> list[str]:
     """The stages :func:`prepare` cannot read (a user's object, or a built-in one over a user's part), by name."""
-    from vesselbot_ros.control.backstepping import BacksteppingController
-    from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
-    from vesselbot_ros.control.high_gain_observer import HighGainObserver
-    from vesselbot_ros.sim.plant import PlantSimulator
-
     bad = []
     if type(stages.plant) is not PlantSimulator:
         bad.append("plant")

@@ -17,7 +17,8 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, pack_params, wall_delta_xz
+from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, wall_delta_xz
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 
@@ -77,7 +78,7 @@ class PlantSimulator:
             raise ModelInputError(f"initial state must be finite (2,) + (2,), got {p0_m!r}, {v0_m_per_s!r}")
         self.physics = physics
         self.integrator = integrator
-        self.p = pack_params(physics)
+        self.p = packed_params(physics)
         self._dt = float(dt_control_s)
         self._t0 = float(t0_s)
         self._k = 0

@@ -40,10 +40,13 @@ from vesselbot_ros.control.backstepping import ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
 from vesselbot_ros.control.imager_model import ImagerParams
+from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.physics.integrator import IntegratorParams
+from vesselbot_ros.vessels.cfd import network_wall
+from vesselbot_ros.vessels.network import load_network, route_to_outlet
 
 __all__ = [
     "ModelParams",
@@ -237,11 +240,10 @@ class Scenario:
 
     def _check_network(self) -> None:
         """Start point and anchors (given or planned) must lie inside the network's lumen."""
-        from vesselbot_ros.vessels.cfd import network_wall
-        from vesselbot_ros.vessels.network import load_network, route_to_outlet
-        from vesselbot_ros.control.route import planned_reference
-
-        net = load_network(self.physics.vessel.network)
+        try:
+            net = load_network(self.physics.vessel.network)
+        except ConfigError as exc:
+            raise ConfigError(f"physics.vessel.network: {exc}") from None
         if self.reference.route_outlet:
             if self.reference.route_outlet not in net.outlets:
                 raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "

@@ -29,7 +29,7 @@ sampled with the local diameter and viscosity on a regular grid
 (:class:`NetworkField`), which the compiled plant interpolates bilinearly; a
 grid node outside the mesh takes the velocity of the nearest boundary point
 (the profile beyond an open end, zero beside a wall).  The wall is the mesh's
-boundary (:mod:`vesselbot_ros.vessels.wall`): the field stores its segments and
+boundary (:mod:`vesselbot_ros.physics.meshed_wall`): the field stores its segments and
 each grid cell's candidate segments, from which the plant computes the exact
 signed distance and normal at any point (the grid's sdist/normal are those at
 the nodes, for plots).  Fields are cached on disk by a hash of the geometry,
@@ -65,15 +65,24 @@ import numpy.typing as npt
 
 from vesselbot_ros.config import shipped_config_dir, to_mapping
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
-from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, smooth_centreline
+from vesselbot_ros.physics.kernel import pack_network_params, pack_params
+from vesselbot_ros.physics.meshed_wall import (
+    WallQuery,
+    cell_candidates,
+    local_diameter,
+    nearest_segment,
+    query_points,
+    wall_segments,
+)
+from vesselbot_ros.physics.params import BloodParams, PhysicsParams
+from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, smooth_centreline
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
-           "network_field", "network_wall", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
+           "network_field", "network_wall", "packed_params", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (vessels/wall.py), wall-disc local diameter, cap-snapped velocity
+CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (physics/meshed_wall.py), wall-disc local diameter, cap-snapped velocity
 
 
 def cache_dir() -> Path:
@@ -340,11 +349,11 @@ class NetworkField:
             normalised to an inlet centreline velocity of 1 (-), signed distance
             (m, > 0 inside), unit inward normal (-), local diameter (m), viscosity (Pa s).
             The distance and normal at the nodes are the exact ones of the meshed wall
-            (:mod:`vesselbot_ros.vessels.wall`); the plant computes them exactly at any point
+            (:mod:`vesselbot_ros.physics.meshed_wall`); the plant computes them exactly at any point
             from the three wall arrays below and reads only the velocity, diameter and viscosity here.
         meta: Solve statistics and provenance (JSON-able).
         wall_segments: (k, 4) wall segments ``(ax, az, bx, bz)`` (m), lumen on the left, caps left
-            out and each wall end continued beyond its cap (:func:`vesselbot_ros.vessels.wall.wall_segments`).
+            out and each wall end continued beyond its cap (:func:`vesselbot_ros.physics.meshed_wall.wall_segments`).
         cell_offsets: ((nx-1)(nz-1)+1,) int64, CSR offsets of the grid cells' candidate segments.
         cell_index: (total,) int64, the candidate segments of cell ``j (nx-1) + i``.
     """
@@ -425,8 +434,6 @@ def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: A
     end then carries the profile there instead of a zero that bilinear
     interpolation would smear into the lumen).
     """
-    from vesselbot_ros.vessels.wall import nearest_segment
-
     m = sol.mesh
     el = tri.get_trifinder()(pts[:, 0], pts[:, 1])
     out = np.zeros((len(pts), 2))
@@ -448,8 +455,6 @@ def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: A
 def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution) -> NetworkField:
     """Sample ``sol`` and the meshed wall's geometry on the regular grid of ``net.cfd``."""
     from matplotlib.tri import Triangulation
-
-    from vesselbot_ros.vessels.wall import cell_candidates, local_diameter, query_points, wall_segments
 
     geom = NetworkGeometry(net)
     h = net.cfd.grid_spacing_m
@@ -474,7 +479,7 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     off, idx = cell_candidates(segs, x0, z0, h, nx, nz)
     q = query_points(pts, segs.ravel(), off.astype(np.float64), idx.astype(np.float64), x0, z0, h, nx, nz)
     # local diameter: the largest inscribed disc touching the wall where the point's nearest wall point is
-    # (vessels/wall.py); it jumps where the nearest wall changes in a junction, and the wall moves out by
+    # (physics/meshed_wall.py); it jumps where the nearest wall changes in a junction, and the wall moves out by
     # D eps(t) / 2 with the pulsation (13), so it (and the viscosity that follows it) is smoothed with a
     # Gaussian of cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
     segs_f, off_f, idx_f = segs.ravel(), off.astype(np.float64), idx.astype(np.float64)
@@ -525,15 +530,26 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
 
 @functools.lru_cache(maxsize=16)
 def network_wall(net: VesselNetworkParams, blood: BloodParams | None = None) -> Any:
-    """The meshed wall of ``net`` as :class:`vesselbot_ros.vessels.wall.WallQuery` (exact distance and normal).
+    """The meshed wall of ``net`` as :class:`vesselbot_ros.physics.meshed_wall.WallQuery` (exact distance and normal).
 
     The wall depends on the geometry and mesh settings only, not on the blood model; it is read from
     the field of ``blood`` (default :class:`BloodParams`, the shipped scenarios' blood), so a wall of a
     shipped network costs no solve.  Cached per (frozen) network and blood.
     """
-    from vesselbot_ros.vessels.wall import WallQuery
-
     return WallQuery(network_field(net, blood if blood is not None else BloodParams()))
+
+
+@functools.lru_cache(maxsize=64)
+def packed_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
+    """The kernel's parameter vector of ``params``, a network's CFD field resolved and packed in.
+
+    The one step that may solve the CFD (:func:`network_field`: shipped, cached, or solved and cached);
+    :func:`vesselbot_ros.physics.kernel.pack_params` never does, and refuses a network.  A straight
+    vessel's vector is ``pack_params(params)``.  Cached per (hashable, frozen) params; read-only.
+    """
+    if not params.vessel.network:
+        return pack_params(params)
+    return pack_network_params(params, network_field(load_network(params.vessel.network), params.blood))
 
 
 def womersley_numbers(net: VesselNetworkParams, blood: BloodParams, omega_rad_per_s: float) -> dict[str, float]:

@@ -18,7 +18,7 @@ and the "capsule" distance max_b (r_b - |p - c_b|) to the union of the tubes --
 exact away from the junctions but only a lower bound inside one (0.8 mm off in
 a Y).  So it is *not* the wall: the wall is the boundary of the gmsh mesh of
 these tubes, and every distance, normal and local diameter the plant, the nodes
-and the metrics use comes from it (:mod:`vesselbot_ros.vessels.wall`,
+and the metrics use comes from it (:mod:`vesselbot_ros.physics.meshed_wall`,
 :func:`vesselbot_ros.vessels.cfd.network_wall`).  The tubes name branches (the
 branch reached, the route) and size the CFD's per-element viscosity.
 """
@@ -38,6 +38,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import interp_spline
 from vesselbot_ros.config import (
     ConfigError,
     check_choice,
@@ -46,6 +47,8 @@ from vesselbot_ros.config import (
     check_range,
     load_dataclass,
     load_yaml,
+    resolve_config_path,
+    shipped_config_dir,
     to_mapping,
 )
 
@@ -267,8 +270,6 @@ def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
     n = max(2, int(math.ceil(chord[-1] / spacing_m)) + 1)
     u = np.linspace(0.0, chord[-1], n)
     if smoothing == "spline" and len(pts) >= 3:
-        from vesselbot_ros.blas_free import interp_spline
-
         # make_interp_spline's spline, solved without LAPACK: the same centreline bits on every CPU
         k = 3 if len(pts) >= 4 else 2
         out = interp_spline(chord, pts, k=k)(u)
@@ -284,8 +285,6 @@ def resolve_network_path(source: str) -> Path:
     shipped configuration (``config/vessels/...`` of a checkout, or of ``<prefix>/share/vesselbot_ros``
     for an installed wheel: :func:`vesselbot_ros.config.shipped_config_dir`), else a shipped name
     (``paper_iiic_artery``)."""
-    from vesselbot_ros.config import resolve_config_path, shipped_config_dir
-
     p = Path(source)
     if p.is_file():
         return p

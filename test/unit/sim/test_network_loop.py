@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vesselbot_ros.physics.kernel import forces_into, pack_params, wall_delta_xz
+from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.control.route import navigation_outcome, planned_reference
@@ -18,7 +19,7 @@ KEYS = ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m"
 def test_network_kernel_equals_the_analytic_straight_kernel() -> None:
     sc = load_scenario(shipped_scenarios()["sound_small_artery"])
     net = load_scenario(shipped_scenarios()["sound_small_artery"], sets=[STRAIGHT])
-    pa, pn = pack_params(sc.physics), pack_params(net.physics)
+    pa, pn = packed_params(sc.physics), packed_params(net.physics)
     fa, fn = np.empty((8, 2)), np.empty((8, 2))
     contact = np.zeros(4)
     for t, x, z, vx, vz in [(0.1, 2e-3, 0.9e-3, 1e-3, -2e-4), (0.37, 5e-3, -1.1e-3, 0.0, 1e-3), (0.8, 9e-3, 1.2e-3, -3e-3, 0.0),

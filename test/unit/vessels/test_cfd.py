@@ -146,7 +146,7 @@ def test_shipped_networks_sampled_flow_carries_the_inflow_through_every_branch_b
     ph = load_scenario(shipped_scenarios()["paper_iiic_network_upper"]).physics
     ph = dataclasses.replace(ph, vessel=dataclasses.replace(ph.vessel, network=network),
                              flow=dataclasses.replace(ph.flow, pulsatility=0.0, diameter_pulsation=0.0))
-    p = kernel.pack_params(ph)
+    p = cfd.packed_params(ph)
     vf = ph.flow.centreline_velocity_m_per_s
     net = load_network(network)
 

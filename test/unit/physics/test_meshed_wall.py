@@ -1,7 +1,7 @@
-"""The plant's wall is the meshed wall (vesselbot_ros.vessels.wall), checked through the packed-parameter path.
+"""The plant's wall is the meshed wall (vesselbot_ros.physics.meshed_wall), checked through the packed-parameter path.
 
 The reference is brute force over the boundary edges of the gmsh triangulation (caps left out),
-written here independently of vessels/wall.py.
+written here independently of physics/meshed_wall.py.
 """
 
 from __future__ import annotations
@@ -68,8 +68,8 @@ def _brute_force(q: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.
 
 @pytest.mark.parametrize("network", NETWORKS)
 def test_kernel_distance_and_normal_are_the_meshed_walls_within_5_um_and_2_deg(network: str) -> None:
-    """Random points within 1 mm of the wall, inside and just outside the lumen, through pack_params."""
-    p = kernel.pack_params(_physics(network))
+    """Random points within 1 mm of the wall, inside and just outside the lumen, through packed_params."""
+    p = cfd.packed_params(_physics(network))
     a, b, tri = _meshed_wall(network)
     rng = np.random.default_rng(28)
     lo, hi = np.minimum(a, b).min(axis=0) - 3e-4, np.maximum(a, b).max(axis=0) + 3e-4
@@ -77,7 +77,7 @@ def test_kernel_distance_and_normal_are_the_meshed_walls_within_5_um_and_2_deg(n
     dist, foot = _brute_force(q, a, b)
     inside = tri.get_trifinder()(q[:, 0], q[:, 1]) >= 0
     caps = cfd.mesh_network(load_network(network)).caps.values()
-    # outside: only beside a wall, not beyond an open end (where the lumen continues, see vessels/wall.py)
+    # outside: only beside a wall, not beyond an open end (where the lumen continues, see physics/meshed_wall.py)
     far_from_caps = np.all([np.hypot(*(q - c).T) > 2.0 * r + 1e-3 for c, _n, r in caps], axis=0)
     keep = (inside & (dist < 1e-3)) | (~inside & (dist < 2e-4) & far_from_caps)
     q, dist, foot, inside = q[keep], dist[keep], foot[keep], inside[keep]
@@ -99,14 +99,14 @@ def test_no_phantom_contact_upstream_of_the_iii_c_apex() -> None:
     """(12.1, 0) mm, 0.28 mm upstream of the apex: the centreline tubes said clearance 0.141 mm and normal
     (-0.5, 0.866), a contact of delta = +109 um with the scenario's robot; the meshed wall is 0.281 mm away along +x."""
     ph = _physics("paper_iiic_artery")
-    p = kernel.pack_params(ph)
+    p = cfd.packed_params(ph)
     s, nx, nz, _d, _eta, _vx, _vz = kernel.network_geometry(0.0, 12.1e-3, 0.0, p)
     a, b, _tri = _meshed_wall("paper_iiic_artery")
     dist, foot = _brute_force(np.array([[12.1e-3, 0.0]]), a, b)
     assert s == pytest.approx(dist[0], abs=5e-6) and s == pytest.approx(2.81e-4, abs=2e-6)
     assert np.degrees(np.arccos(min(1.0, -nx))) < 2.0 and abs(nz) < 0.03
     assert foot[0, 0] > 12.1e-3  # the apex lies downstream
-    ft = force_terms(0.0, [12.1e-3, 0.0], [0.0, 0.0], [0.0, 0.0], ContactState(), ph)
+    ft = force_terms(0.0, [12.1e-3, 0.0], [0.0, 0.0], [0.0, 0.0], ContactState(), ph, packed=cfd.packed_params(ph))
     assert ft.delta_m == pytest.approx(ph.robot.radius_m - s) and ft.delta_m < 0.0  # no contact
     np.testing.assert_array_equal(ft.contact, [0.0, 0.0])
     np.testing.assert_allclose(ft.normal_W, [1.0, 0.0], atol=0.03)  # outward: towards the apex
@@ -114,9 +114,9 @@ def test_no_phantom_contact_upstream_of_the_iii_c_apex() -> None:
 
 def test_force_terms_in_a_network_reports_the_networks_geometry_and_both_velocity_components() -> None:
     ph = dataclasses.replace(load_scenario(shipped_scenarios()["paper_iiic_network_upper"]).physics)
-    p = kernel.pack_params(ph)
+    p = cfd.packed_params(ph)
     x, z, t = 13.0e-3, 1.2e-3, 0.37  # in the upper daughter, where the blood flows up at 30 deg
-    ft = force_terms(t, [x, z], [0.0, 0.0], [0.0, 0.0], ContactState(), ph)
+    ft = force_terms(t, [x, z], [0.0, 0.0], [0.0, 0.0], ContactState(), ph, packed=cfd.packed_params(ph))
     s_t, nx, nz, d_t, _eta, vfx, vfz = kernel.network_geometry(t, x, z, p)
     assert ft.delta_m == ph.robot.radius_m - s_t and ft.diameter_m == d_t
     np.testing.assert_array_equal(ft.normal_W, [-nx, -nz])
@@ -131,7 +131,7 @@ def test_velocity_next_to_an_open_end_continues_the_profile_inside(network: str)
     """A grid node just outside an inlet or outlet cap carries the profile (it was zero: up to 0.99 V_f off
     within 25 um of straight_table3's inlet)."""
     ph = _physics(network)
-    p = kernel.pack_params(ph)
+    p = cfd.packed_params(ph)
     vf = ph.flow.centreline_velocity_m_per_s
     worst = 0.0
     for centre, n_out, r in cfd.mesh_network(load_network(network)).caps.values():
@@ -150,7 +150,7 @@ def test_nodes_check_and_metrics_read_the_plants_wall_bit_for_bit() -> None:
     from vesselbot_ros.vessels.cfd import network_wall
 
     ph = _physics("paper_iiic_artery")
-    p = kernel.pack_params(ph)
+    p = cfd.packed_params(ph)
     wall = network_wall(load_network("paper_iiic_artery"), ph.blood)
     rng = np.random.default_rng(3)
     q = rng.uniform([-4e-3, -6e-3], [19e-3, 6e-3], size=(2000, 2))
