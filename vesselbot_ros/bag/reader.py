@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from vesselbot_ros.errors import BagError
+from vesselbot_ros.graph_spec import topic
 
 __all__ = [
     "TopicInfo",
@@ -312,8 +313,6 @@ def final_diagnostics(bag: str | Path | BagInfo) -> dict[str, dict[str, str]]:
     Raises:
         BagError: if the bag is invalid or corrupt.
     """
-    from vesselbot_ros.graph_spec import topic
-
     diagnostics = topic("diagnostics").name
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     if info.topic(diagnostics) is None:
@@ -372,8 +371,6 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
     Raises:
         BagError: if the bag is invalid or corrupt.
     """
-    from vesselbot_ros.graph_spec import topic
-
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     names = {topic(k).name: k for k in
              ("truth", "estimate", "reference", "measurement", "gradient_command", "coil_state", "sequence_phase",

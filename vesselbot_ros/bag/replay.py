@@ -32,7 +32,7 @@ from typing import Any
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.errors import BagError
-from vesselbot_ros.graph_spec import topic
+from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
 
 __all__ = ["ReplayStats", "replay", "make_publishers"]
 
@@ -69,8 +69,6 @@ def _import_type(msgtype: str) -> Any:
 def make_publishers(node: Any, info: BagInfo, topics: Sequence[str]) -> dict[str, Any]:
     """Publishers for ``topics`` of a bag, with the graph's QoS where known."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    from vesselbot_ros.graph_spec import TOPICS, qos_profile
 
     specs = {s.name: s for s in TOPICS}
     pubs = {}
@@ -142,8 +140,6 @@ def replay(
     clock_pub = None
     if clock:
         from rosgraph_msgs.msg import Clock
-
-        from vesselbot_ros.graph_spec import qos_profile, topic
 
         clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, qos_profile(topic("clock")))
 

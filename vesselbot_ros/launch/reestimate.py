@@ -49,7 +49,7 @@ import numpy as np
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.errors import BagError, VesselbotError
-from vesselbot_ros.graph_spec import REPLAY_PREFIX, resolve, role, tick_of_ns, topic
+from vesselbot_ros.graph_spec import REPLAY_PREFIX, TOPICS, qos_profile, resolve, role, tick_of_ns, topic
 from vesselbot_ros.launch.processes import ChildProcess
 
 __all__ = [
@@ -110,8 +110,6 @@ ROLES: dict[str, RoleIO] = {name: _role_io(name) for name in _FIELDS}
 
 def replay_topic(role: str) -> str:
     """Topic name of the re-computed output in the result bag, e.g. ``/vesselbot/replay/estimate``."""
-    from vesselbot_ros.graph_spec import topic
-
     return f"{REPLAY_NS}/{topic(ROLES[role].output).name.rsplit('/', 1)[-1]}"
 
 
@@ -248,7 +246,6 @@ def plan_feed(bag: str | Path | BagInfo, role: str) -> FeedPlan:
         ConfigError: the recorded config does not validate.
     """
     from vesselbot_ros.sim.scenario import scenario_from_mapping
-    from vesselbot_ros.graph_spec import topic
 
     if role not in ROLES:
         raise BagError(f"cannot re-run {role!r}: --into must be one of {sorted(ROLES)}")
@@ -395,7 +392,6 @@ class _Feeder:
 
         from vesselbot_ros.bag.replay import _import_type
         from vesselbot_ros.nodes.base import make_executor
-        from vesselbot_ros.graph_spec import qos_profile, topic
 
         self.plan = plan
         io = ROLES[plan.role]
@@ -659,7 +655,6 @@ def reestimate(
     for k, data in diags:
         entries.append((tick_last_ns.get(k, 0) + 2, len(entries), DIAGNOSTICS, data))
     entries.sort()
-    from vesselbot_ros.graph_spec import TOPICS
 
     specs = {s.name: s for s in TOPICS}
     with BagWriter(out, run_metadata=metadata) as writer:
@@ -676,14 +671,10 @@ def reestimate(
 
 
 def _out_name(role: str) -> str:
-    from vesselbot_ros.graph_spec import topic
-
     return topic(ROLES[role].output).name
 
 
 def _out_type(role: str) -> str:
-    from vesselbot_ros.graph_spec import topic
-
     return topic(ROLES[role].output).msgtype
 
 

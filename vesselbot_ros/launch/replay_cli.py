@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from vesselbot_ros.errors import BagError
+
 __all__ = ["register", "run"]
 
 
@@ -67,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
     if args.into is not None:
         return _run_into(args, info)
     if args.node_cmd is not None or args.out is not None or args.tolerance is not None:
-        from vesselbot_ros.errors import BagError
-
         raise BagError("--node-cmd, --out and --tolerance need --into observer|controller")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy
@@ -101,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _live_view(args: argparse.Namespace, info: Any) -> Any:
     """The live view of the replayed topics (``--live`` / ``--live-port``), or None."""
-    from vesselbot_ros.errors import BagError
     from vesselbot_ros.live import DEFAULT_LIVE_PORT, DEFAULT_LIVE_RATE_HZ, LiveView
 
     port = args.live_port if args.live_port is not None else (DEFAULT_LIVE_PORT if args.live else None)
@@ -126,7 +125,6 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
 
 def _run_into(args: argparse.Namespace, info: object) -> int:
     from vesselbot_ros.launch.reestimate import ROLES, reestimate, replay_topic
-    from vesselbot_ros.errors import BagError
 
     if args.tolerance is not None and not args.tolerance >= 0:
         raise BagError(f"--tolerance must be >= 0, got {args.tolerance}")
@@ -161,8 +159,6 @@ def _holds_bag(d: Path) -> bool:
 
 def _check_into_out(args: argparse.Namespace, info: Any) -> None:
     """Refuse an --into result folder that already holds a bag, suggesting a free ``--out``."""
-    from vesselbot_ros.errors import BagError
-
     default = Path(info.path) / f"reestimate_{args.into}"
     out = Path(args.out) if args.out is not None else default
     if not _holds_bag(out):
