@@ -268,7 +268,7 @@ def local_diameter(query, x0: float, z0: float, h: float, nx: int, nz: int) -> n
     a node takes the largest disc it lies within (tolerance h) on a radius of (tolerance h / 4); a
     node with none takes the value of the nearest node with one (outside the lumen too).
     """
-    from scipy.ndimage import distance_transform_edt
+    from scipy.ndimage import distance_transform_edt  # deferred: scipy.ndimage is heavy, needed only to sample
 
     X, Z = np.meshgrid(x0 + h * np.arange(nx), z0 + h * np.arange(nz))
     pts = np.column_stack([X.ravel(), Z.ravel()])

@@ -232,6 +232,7 @@ def _parabola_dofs(ubasis: Any, facets: npt.NDArray[np.int64], cap: tuple[Any, A
 
 def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwork | None = None) -> FlowSolution:
     """Solve the steady Navier-Stokes flow of ``net`` (see the module docstring)."""
+    # deferred: scikit-fem and scipy.sparse are heavy imports (~0.3 s), paid only when a field is solved
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
     from skfem import Basis, BilinearForm, ElementTriP0, ElementTriP1, ElementTriP2, ElementVector, FacetBasis, Functional, MeshTri, asm, bmat, condense
@@ -454,7 +455,7 @@ def interpolate_velocity(sol: FlowSolution, pts: npt.NDArray[np.float64], tri: A
 
 def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution) -> NetworkField:
     """Sample ``sol`` and the meshed wall's geometry on the regular grid of ``net.cfd``."""
-    from matplotlib.tri import Triangulation
+    from matplotlib.tri import Triangulation  # deferred: matplotlib is heavy, needed only to sample a new field
 
     geom = NetworkGeometry(net)
     h = net.cfd.grid_spacing_m
@@ -490,7 +491,7 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     eta = np.array([viscosity_for(blood, float(d)) for d in d_unique])[inv.ravel()].reshape(nz, nx)
     sig = net.cfd.diameter_smoothing_m / h
     if sig > 0:
-        from scipy.ndimage import gaussian_filter
+        from scipy.ndimage import gaussian_filter  # deferred: scipy.ndimage is heavy, needed only to sample
 
         diam = np.where(np.ptp(diam) > 0, gaussian_filter(diam, sig, mode="nearest"), diam)
         eta = np.where(np.ptp(eta) > 0, gaussian_filter(eta, sig, mode="nearest"), eta)
