@@ -18,6 +18,7 @@ import numpy.typing as npt
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
 from vesselbot_ros.analysis.design_map import DesignStudy
 from vesselbot_ros.analysis.force_balance_cli import delta_grid, force_balance_curve, steady
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.kernel import I_CHARGE
 from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
@@ -64,8 +65,6 @@ def run(args: argparse.Namespace) -> int:
     study = DesignStudy.from_mapping(load_study_mapping(args))
     frac = float(args.fraction)
     if not 0.0 < frac < 1.0:
-        from vesselbot_ros.config import ConfigError
-
         raise ConfigError(f"--fraction must be in (0, 1), got {frac!r}")
     deltas = delta_grid(base, base.vessel.diameter_m, n=201, min_gap_m=100e-9)
     i_c = int(np.argmin(np.abs(deltas)))

@@ -39,6 +39,7 @@ def describe(path: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Print ``NAME  description`` per shipped scenario (the default marked)."""
+    # deferred: the scenario module pulls in the compiled core; `vesselbot --help` imports this module
     from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, shipped_scenarios
 
     found = shipped_scenarios()

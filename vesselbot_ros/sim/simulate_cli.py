@@ -22,6 +22,8 @@ import yaml
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.metrics import metrics_window_note
 from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, check_resources, load_scenario
+from vesselbot_ros.vessels.cfd import womersley_numbers
+from vesselbot_ros.vessels.network import load_network
 
 __all__ = ["register", "run"]
 
@@ -62,9 +64,6 @@ def run(args: argparse.Namespace) -> int:
         f"saturated {m['saturation_time_s']:.3f} s; contacts {m['wall_contacts']}; wall time {wall:.2f} s -> {out}"
     )
     if scenario.physics.vessel.network:
-        from vesselbot_ros.vessels.cfd import womersley_numbers
-        from vesselbot_ros.vessels.network import load_network
-
         wo = womersley_numbers(load_network(scenario.physics.vessel.network), scenario.physics.blood,
                                scenario.physics.flow.angular_frequency_rad_per_s)
         print(f"{scenario.name}: Womersley numbers {min(wo.values()):.2f} to {max(wo.values()):.2f} "
