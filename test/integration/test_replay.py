@@ -135,3 +135,36 @@ def test_replay_with_topics_and_clock_publishes_the_recorded_sim_time(ros, tmp_p
     ns = [c.clock.sec * 1_000_000_000 + c.clock.nanosec for c in clocks]
     assert ns == [k * 1_000_000 for k in range(50, N_TICKS)]
     assert ns == [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in truths]
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_in_the_middle_of_a_loop_stops_the_replay_cleanly(ros, tmp_path, sig):
+    """Ctrl-C (or SIGTERM) while ``replay --loop`` publishes: "stopped", exit 0, nothing left running.
+
+    rclpy's own signal handler shut the context down under a publication in flight ("publisher's context is
+    invalid": a traceback and exit 1, seen once in a loaded CI run); the replay now turns the signal into a
+    KeyboardInterrupt between two publications.  Several passes are let through first, so the signal lands
+    while messages are going out, as it did then.
+    """
+    import signal
+    import subprocess
+
+    bag = _bag(tmp_path / "bag")
+    err_path = tmp_path / "replay.stderr"
+    with open(err_path, "w") as err:
+        player = subprocess.Popen([sys.executable, "-m", "vesselbot_ros.cli", "replay", str(bag), "--loop",
+                                   "--rate", "20"], env=ros.env, stdout=subprocess.DEVNULL, stderr=err)
+        try:
+            deadline = time.monotonic() + 60
+            while "pass 3 done" not in err_path.read_text() and time.monotonic() < deadline:
+                assert player.poll() is None, err_path.read_text()[-3000:]
+                time.sleep(0.05)
+            assert "pass 3 done" in err_path.read_text(), err_path.read_text()[-3000:]
+            player.send_signal(getattr(signal, sig))
+            rc = player.wait(timeout=30)
+        finally:
+            if player.poll() is None:
+                player.kill()
+    text = err_path.read_text()
+    assert rc == 0 and text.rstrip().endswith("vesselbot replay: stopped"), text[-3000:]
+    assert "Traceback" not in text, text[-3000:]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -73,12 +74,22 @@ def run(args: argparse.Namespace) -> int:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
     from vesselbot_ros.bag.replay import replay
 
     live = _live_view(args, info)
-    rclpy.init()
+    # rclpy's own signal handler would shut the context down from inside the signal, under a publication in
+    # flight ("publisher's context is invalid": a traceback and exit 1 on Ctrl-C); without it, SIGINT and SIGTERM
+    # raise KeyboardInterrupt between two Python steps, and the context is shut down below, after the loop (SIGINT
+    # too is set here: a shell starts a background job with SIGINT ignored, which rclpy's handler overrode)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("vesselbot_player")
+
+    def on_signal(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         stats = replay(info, node, rate=args.rate, topics=args.topics, start_s=args.start, loop=args.loop,
                        clock=args.clock, wait_subscribers_s=args.wait_subscribers,
@@ -90,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         print("vesselbot replay: stopped", file=sys.stderr)
         return 0
     finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
         node.destroy_node()
         rclpy.try_shutdown()
         if live is not None:
