@@ -42,7 +42,7 @@ from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import bead_pulling_force
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
 from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
-from vesselbot_ros.physics.meshed_wall import nearest_wall
+from vesselbot_ros.physics.meshed_wall import grid_cell, nearest_wall
 from vesselbot_ros.physics.wall_interactions import (
     contact_heaviside_flag,
     electrostatic_factor,
@@ -223,16 +223,7 @@ def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]
     nz = int(p[o + 4])
     fx = (x - x0) / h
     fz = (z - z0) / h
-    i = int(np.floor(fx))
-    j = int(np.floor(fz))
-    if i < 0:
-        i = 0
-    elif i > nx - 2:
-        i = nx - 2
-    if j < 0:
-        j = 0
-    elif j > nz - 2:
-        j = nz - 2
+    i, j = grid_cell(fx, fz, nx, nz)
     tx = min(1.0, max(0.0, fx - i))
     tz = min(1.0, max(0.0, fz - j))
     return (o + NET_HEAD + j * nx + i, nx, nx * nz, (1.0 - tx) * (1.0 - tz), tx * (1.0 - tz), (1.0 - tx) * tz, tx * tz)

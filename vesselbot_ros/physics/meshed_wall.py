@@ -53,7 +53,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["wall_segments", "cell_candidates", "nearest_wall", "nearest_segment", "query_points", "local_diameter", "WallQuery"]
+__all__ = ["wall_segments", "cell_candidates", "grid_cell", "nearest_wall", "nearest_segment", "query_points", "local_diameter", "WallQuery"]
 
 
 def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int64],
@@ -124,14 +124,14 @@ def _seg_dist2(px, pz, segs, m):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, _nrt=False)
-def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
-    """``(s, nx, nz)``: signed distance (m, > 0 in the lumen) and unit inward normal of the wall at (px, pz) (m).
+def grid_cell(fx, fz, nx, nz):  # type: ignore[no-untyped-def]
+    """``(i, j)``: the cell of a grid of nx by nz nodes holding the point at grid coordinates (fx, fz) (-).
 
-    ``segs`` flat (4 k,) segments; ``offsets`` ((nx-1)(nz-1)+1,) and ``index`` the cells' candidates
-    (floats holding integers); grid origin x0, z0 (m), spacing h (m), nx, nz nodes.  Allocates nothing.
+    Outside the grid: the cell at the nearest grid edge (the plant's field lookup and the wall's candidate
+    lists both answer from it).
     """
-    i = int(np.floor((px - x0) / h))
-    j = int(np.floor((pz - z0) / h))
+    i = int(np.floor(fx))
+    j = int(np.floor(fz))
     if i < 0:
         i = 0
     elif i > nx - 2:
@@ -140,6 +140,17 @@ def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: igno
         j = 0
     elif j > nz - 2:
         j = nz - 2
+    return i, j
+
+
+@numba.njit(cache=True, _nrt=False)
+def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+    """``(s, nx, nz)``: signed distance (m, > 0 in the lumen) and unit inward normal of the wall at (px, pz) (m).
+
+    ``segs`` flat (4 k,) segments; ``offsets`` ((nx-1)(nz-1)+1,) and ``index`` the cells' candidates
+    (floats holding integers); grid origin x0, z0 (m), spacing h (m), nx, nz nodes.  Allocates nothing.
+    """
+    i, j = grid_cell((px - x0) / h, (pz - z0) / h, nx, nz)
     c = j * (nx - 1) + i
     best = np.inf
     bperp = -1.0
