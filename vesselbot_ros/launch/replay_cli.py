@@ -73,7 +73,6 @@ def run(args: argparse.Namespace) -> int:
         raise BagError("--node-cmd, --out and --tolerance need --into observer|controller")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy
-    from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
     from vesselbot_ros.bag.replay import replay
@@ -93,11 +92,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         stats = replay(info, node, rate=args.rate, topics=args.topics, start_s=args.start, loop=args.loop,
                        clock=args.clock, wait_subscribers_s=args.wait_subscribers,
-                       should_stop=lambda: not rclpy.ok(),
                        log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True),
                        on_message=live.log if live is not None else None,
                        on_clock=live.set_time if live is not None else None)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:  # the signals above; nothing else shuts this context down during the replay
         print("vesselbot replay: stopped", file=sys.stderr)
         return 0
     finally:
