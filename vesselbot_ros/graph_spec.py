@@ -51,7 +51,7 @@ Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
 Tick times are rebuilt as ``k * dt`` from the stamps (never by summing floats),
 which is why a lockstep run reproduces the ROS-free runner bit for bit.  One
 helper does the stamp <-> tick bookkeeping for every node
-(:class:`vesselbot_ros.nodes.base.TickJoin`): inputs keyed by tick, off-grid,
+(:class:`vesselbot_ros.nodes.tick_join.TickJoin`): inputs keyed by tick, off-grid,
 stale and future ticks rejected without moving any state.
 
 The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused

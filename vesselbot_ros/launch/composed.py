@@ -7,7 +7,7 @@ Usage::
 
 Every node gets the same ROS arguments (so the same parameters) and its own
 name.  The nodes hand each other's messages over in process
-(:class:`vesselbot_ros.nodes.base.IntraProcess`, as rclcpp's intra-process
+(:class:`vesselbot_ros.nodes.intra_process.IntraProcess`, as rclcpp's intra-process
 communication does for composed nodes); DDS carries a message only to
 readers outside the process (recorder, launcher, viewers, a user's node).
 ``--no-intra-process``: every message over DDS.
@@ -41,7 +41,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from vesselbot_ros.nodes.base import freeze_heap, spin_nodes, use_intra_process, warm_logging
+    from vesselbot_ros.nodes.intra_process import use_intra_process
+    from vesselbot_ros.nodes.process import freeze_heap, spin_nodes, warm_logging
 
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []

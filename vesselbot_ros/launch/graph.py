@@ -77,7 +77,7 @@ class GraphOptions:
         without: Roles not started (a user's node fills the slot).
         single_process: Compose all nodes in one process.
         intra_process: Composed, lockstep: co-located nodes hand messages to each other without DDS
-            (:class:`vesselbot_ros.nodes.base.IntraProcess`); False: every message over DDS.
+            (:class:`vesselbot_ros.nodes.intra_process.IntraProcess`); False: every message over DDS.
         record_dir: Bag directory (None: do not record).
         run_metadata: JSON-able run description for the recorder.
         log_dir: Folder for node logs (ROS logs and each process's output).
@@ -345,7 +345,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     """
     import rclpy
 
-    from vesselbot_ros.nodes.base import GraphParams
+    from vesselbot_ros.nodes.graph_params import GraphParams
 
     roles = [r for r in LOOP_ROLES if r not in options.without]
     graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]

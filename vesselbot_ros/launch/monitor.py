@@ -65,7 +65,7 @@ class Monitor:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from vesselbot_msgs.srv import GetSeries, RunControl
-        from vesselbot_ros.nodes.base import make_executor
+        from vesselbot_ros.nodes.process import make_executor
 
         self.n = n
         self.dt = dt

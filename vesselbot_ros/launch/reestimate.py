@@ -391,7 +391,7 @@ class _Feeder:
         from rosgraph_msgs.msg import Clock
 
         from vesselbot_ros.bag.replay import _import_type
-        from vesselbot_ros.nodes.base import make_executor
+        from vesselbot_ros.nodes.process import make_executor
 
         self.plan = plan
         io = ROLES[plan.role]
@@ -509,7 +509,7 @@ def reestimate(
     import rclpy
 
     from vesselbot_ros.bag.writer import BagWriter, check_output_dir
-    from vesselbot_ros.nodes.base import GraphParams
+    from vesselbot_ros.nodes.graph_params import GraphParams
     from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
     from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
     from vesselbot_ros.sim.scenario import scenario_from_mapping

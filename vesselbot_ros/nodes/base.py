@@ -3,10 +3,12 @@
 :class:`VesselbotNode` is the base of the six graph nodes.  It
 
 * declares the whole scenario (:mod:`vesselbot_ros.nodes.params`) plus the
-  graph settings :class:`GraphParams` (``graph.*``) as ROS parameters and
-  builds them through the same frozen dataclasses as the pure core; a bad or
-  unknown parameter raises :class:`~vesselbot_ros.config.ConfigError` naming
-  it, and :func:`run_node` turns that into exit code 2 with one clear line;
+  graph settings :class:`~vesselbot_ros.nodes.graph_params.GraphParams`
+  (``graph.*``) as ROS parameters and builds them through the same frozen
+  dataclasses as the pure core; a bad or unknown parameter raises
+  :class:`~vesselbot_ros.config.ConfigError` naming it, and
+  :func:`~vesselbot_ros.nodes.process.run_node` turns that into exit code 2
+  with one clear line;
 * takes sim time only from ticks: the lockstep inputs' ticks, or (real
   time) the plant's announced ``/clock`` tick, validated; rclpy's sim clock
   is not used (``use_sim_time = false``: no hidden ``/clock`` subscription per
@@ -33,29 +35,22 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import os
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Literal
+from typing import Any
 
-import numpy as np
 from rclpy.node import Node
 
-from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive, load_dataclass
-from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
-from vesselbot_ros.sim.scenario import Scenario
+from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.graph_spec import (
     WIRE_STRINGS,
     DEFAULT_NAMESPACE,
     FRAME_ID,
     LOOP_ROLES,
     NODE_NAMES,
-    TopicSpec,
     ns_of_time,
     qos_profile,
     reset_service_key,
@@ -65,13 +60,15 @@ from vesselbot_ros.graph_spec import (
     topic,
 )
 from vesselbot_ros.graph_spec import role as graph_role
+from vesselbot_ros.nodes.graph_params import GRAPH_PREFIX, GraphParams
+from vesselbot_ros.nodes.intra_process import intra_process
+from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
+from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["GraphParams", "VesselbotNode", "TickJoin", "IntraProcess", "use_intra_process", "run_node", "make_executor",
-           "spin_nodes", "freeze_heap", "warm_logging"]
+__all__ = ["VesselbotNode"]
 
-GRAPH_PREFIX = "graph."
 #: ``header.frame_id`` as a flat form holds it (CDR string bytes, NUL-terminated)
 _FRAME_CDR = FRAME_ID.encode() + b"\0"
 #: Real time: a ``/clock`` more than this many ticks ahead of the announced one is garbage.
@@ -81,161 +78,6 @@ PAUSE_GAP_S = 0.5
 #: Real time: after the last tick, a node whose last period never came finishes after this wall time (s).
 REALTIME_END_GRACE_S = 1.0
 _IGNORED_OVERRIDES = ("use_sim_time", "start_type_description_service")
-
-
-@dataclasses.dataclass(frozen=True)
-class GraphParams:
-    """How the node graph runs (ROS parameters ``graph.*``, same for every node).
-
-    Attributes:
-        mode: ``lockstep`` (deterministic, as fast as the graph allows) or
-            ``realtime`` (the plant steps on the wall clock).
-        real_time_factor: Sim seconds per wall second in real-time mode.
-        autostart: If true the plant starts stepping by itself once its own
-            publishers are matched; otherwise it waits for RunControl START.
-        diagnostics_period_s: Wall-clock period of ``/diagnostics`` (s).
-        stall_timeout_s: Lockstep only: wall time the coil driver waits for the
-            command of the current tick before treating it as missing (its
-            watchdog then runs, so the loop goes on) (s).
-        plant_wait_warn_s: Lockstep only: wall time after which the plant warns
-            that it is still waiting for ``coil/applied`` (s).
-        input_max_age_s: Real-time only: inputs stamped older than this (sim
-            s, on top of the imager latency for measurements) are stale.
-        future_tolerance_s: Real-time only: inputs stamped later than now plus
-            this (sim s) are rejected as future.
-        position_margin_m: Positions farther than this outside the nominal
-            vessel walls are rejected (m); generous, so that scheduled imager
-            outliers still reach the observer as in the paper.
-    """
-
-    mode: Literal["lockstep", "realtime"] = "lockstep"
-    real_time_factor: float = 1.0
-    autostart: bool = False
-    diagnostics_period_s: float = 1.0
-    stall_timeout_s: float = 2.0
-    plant_wait_warn_s: float = 5.0
-    input_max_age_s: float = 0.25
-    future_tolerance_s: float = 0.005
-    position_margin_m: float = 0.005
-
-    def __post_init__(self) -> None:
-        check_choice("mode", self.mode, ("lockstep", "realtime"))
-        check_positive("real_time_factor", self.real_time_factor)
-        check_positive("diagnostics_period_s", self.diagnostics_period_s)
-        check_positive("stall_timeout_s", self.stall_timeout_s)
-        check_positive("plant_wait_warn_s", self.plant_wait_warn_s)
-        check_positive("input_max_age_s", self.input_max_age_s)
-        check_nonnegative("future_tolerance_s", self.future_tolerance_s)
-        check_nonnegative("position_margin_m", self.position_margin_m)
-
-
-def _rclpy() -> Any:
-    import rclpy
-
-    return rclpy
-
-
-class IntraProcess:
-    """Deliveries between nodes composed in one process, without DDS (``--single-process``).
-
-    What rclcpp's intra-process communication does for composed nodes: a
-    message published by a co-located node goes to its co-located subscribers
-    as the same Python object (no serialization, no DDS, no copy), and over DDS
-    only when a subscriber outside the process (the recorder, the launcher, a
-    viewer, a user's node) is matched.  Nodes never mutate a message they
-    published or received, which is what makes sharing it safe.
-
-    Deliveries are queued first in, first out, and run as a task of the
-    executor (:meth:`attach`), at most :attr:`BUDGET` per turn, so the executor still
-    serves timers, services and DDS inputs between them; a message posted
-    from another thread (the simulation_interfaces thread stepping the plant)
-    is delivered on the executor's thread.  Only topics whose publishing role
-    (graph spec) is composed here travel this way, latched ones excepted (they
-    stay on DDS, for late joiners): their co-located subscribers create no DDS
-    subscription, so nothing is delivered twice.
-    """
-
-    #: Deliveries per executor turn (a lockstep tick is nine).
-    BUDGET = 256
-
-    def __init__(self, roles: Iterable[str]) -> None:
-        from collections import deque
-
-        self.roles = frozenset(roles)
-        self._subs: dict[str, list[Callable[[Any], None]]] = {}
-        self._pubs: Counter[str] = Counter()
-        self._queue: Any = deque()
-        self._ex: Any = None
-        self._pending = False
-
-    def carries(self, key: str) -> bool:
-        """True if topic ``key`` travels in process: published by a role composed here, and not latched."""
-        spec = topic(key)
-        return spec.publisher in self.roles and spec.qos != "reliable_latched"
-
-    def add_publisher(self, key: str) -> None:
-        """A co-located node publishes ``key``."""
-        self._pubs[key] += 1
-
-    def subscribe(self, key: str, callback: Callable[[Any], None]) -> None:
-        """Deliver every message of ``key`` published here to ``callback`` (on the attached executor)."""
-        self._subs.setdefault(key, []).append(callback)
-
-    def attach(self, executor: Any) -> None:
-        """Run deliveries on ``executor`` (the one spinning the composed nodes)."""
-        self._ex = executor
-        if self._queue:
-            self._schedule()
-
-    def _schedule(self) -> None:
-        self._pending = True
-        if self._ex is not None:
-            self._ex.create_task(self._drain)
-
-    def publishers(self, key: str) -> int:
-        """Co-located publishers of ``key``."""
-        return self._pubs[key]
-
-    def subscribers(self, key: str) -> int:
-        """Co-located subscribers of ``key``."""
-        return len(self._subs.get(key, ()))
-
-    def post(self, key: str, msg: Any) -> None:
-        """Queue ``msg`` for every co-located subscriber of ``key`` (any thread)."""
-        subs = self._subs.get(key)
-        if not subs:
-            return
-        q = self._queue
-        for cb in subs:
-            q.append((cb, msg))
-        if not self._pending:
-            self._schedule()
-
-    def _drain(self) -> None:
-        q = self._queue
-        try:
-            for _ in range(self.BUDGET):
-                if not q:
-                    break
-                cb, msg = q.popleft()
-                cb(msg)
-        finally:
-            self._pending = False  # posts from here on schedule their own turn
-            if q:
-                self._schedule()
-
-
-#: The process's intra-process bus (None: every message goes over DDS); set by :func:`use_intra_process`.
-_INTRA: IntraProcess | None = None
-
-
-def use_intra_process(roles: Iterable[str] | None) -> IntraProcess | None:
-    """Compose the nodes of ``roles`` built from now on over one :class:`IntraProcess` bus (None: off)."""
-    global _INTRA
-    _INTRA = IntraProcess(roles) if roles is not None else None
-    return _INTRA
-
-
 #: The loop's roles: a publisher is wired once the loop's readers of its topic (graph spec) matched it; a topic
 #: only outside readers take (the coil state: the recorder, viewers) needs none.
 _LOOP_READERS = frozenset(LOOP_ROLES)
@@ -297,7 +139,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         #: the process's intra-process bus, if composed with one (lockstep and real time; in real time it takes the
         #: composed process from 0.36 to 0.27 ms of CPU per 1 ms tick unrecorded, recorded both take 0.52: the DDS
         #: publications the recorder reads then cost the difference)
-        self._intra = _INTRA
+        self._intra = intra_process()
         self._pub_intra: set[str] = set()  # topic keys also delivered intra-process
         self._readers: dict[str, Callable[[], int]] = {}  # topic key -> its matched DDS readers (volatile topics)
         self._subs_intra: list[str] = []  # topic keys received intra-process
@@ -561,7 +403,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
     def publish(self, key: str, msg: Any) -> None:
         """Publish on topic ``key`` and count it for diagnostics.
 
-        Composed (:class:`IntraProcess`): co-located subscribers get the
+        Composed (:class:`~vesselbot_ros.nodes.intra_process.IntraProcess`): co-located subscribers get the
         message itself.  DDS carries a volatile topic's message only when a
         reader is matched (outside the process, when composed): a message no
         one can receive is not serialized, yet counted as published, since a
@@ -755,192 +597,3 @@ class VesselbotNode(Node):  # type: ignore[misc]
         """True when the node asks its process to exit (never, by default)."""
         return False
 
-
-class TickJoin:
-    """The lockstep input join of every node: inputs keyed by the tick they serve.
-
-    Tick k is *ready* once every input it needs is in: an input with lag L
-    serves tick ``k = its own tick + L`` (the observer's ``coil/applied`` k-1
-    serves tick k), and ticks ``k < L`` need no such input (None).  An input
-    for a tick already handled (or a second one for a waiting tick) is
-    rejected as ``stale_tick``, one more than ``window`` ticks ahead as
-    ``future_tick``: the message is dropped and no state moves.  Times are
-    rebuilt as ``k * dt`` from the tick (:func:`~vesselbot_ros.nodes.conversions.tick_of_ns`),
-    never taken from a stamp.
-
-    Args:
-        node: The owning node (its :meth:`VesselbotNode.reject` reports rejections).
-        inputs: Topic key -> lag (ticks).
-        window: How far ahead of the current tick an input may arrive (per key
-            with ``windows``; None: unbounded, for inputs keyed by arrival order).
-    """
-
-    def __init__(self, node: VesselbotNode, inputs: dict[str, int], window: int = 2,
-                 windows: dict[str, int | None] | None = None) -> None:
-        self.node = node
-        self.lags = dict(inputs)
-        self.windows: dict[str, int | None] = {key: window for key in inputs} | dict(windows or {})
-        self.k = 0  # the next tick to handle
-        self._slots: dict[str, dict[int, Any]] = {key: {} for key in inputs}
-
-    def tick_of(self, key: str, stamp_ns: int, tick_field: int | None = None) -> int | None:
-        """The tick a stamp lies on (and matches ``tick_field`` if given), else None (rejected ``off_tick_stamp``)."""
-        k, on_grid = tick_of_ns(stamp_ns, self.node.dt)
-        if not on_grid or (tick_field is not None and tick_field != k):
-            self.node.reject(key, "off_tick_stamp", f"stamp {stamp_ns} ns, tick field {tick_field}")
-            return None
-        return k
-
-    def put(self, key: str, k: int, value: Any) -> bool:
-        """Store input ``key`` of tick ``k``; False (and rejected) if stale, duplicate or too far ahead."""
-        kk = k + self.lags[key]
-        slot = self._slots[key]
-        if kk < self.k or kk in slot:
-            self.node.reject(key, "stale_tick", f"tick {k}, node at {self.k}")
-            return False
-        w = self.windows[key]
-        if w is not None and kk > self.k + w:
-            self.node.reject(key, "future_tick", f"tick {k}, node at {self.k}")
-            return False
-        slot[kk] = value
-        return True
-
-    def pop_ready(self) -> dict[str, Any] | None:
-        """The inputs of the current tick if all are in (and advance to the next tick), else None."""
-        k = self.k
-        for key, lag in self.lags.items():
-            if k >= lag and k not in self._slots[key]:
-                return None
-        self.k = k + 1
-        return {key: (self._slots[key].pop(k) if k >= lag else None) for key, lag in self.lags.items()}
-
-    def expect(self, key: str, k: int, running: bool = True) -> bool:
-        """Single-input nodes: accept tick ``k`` only if it is the current one (else reject stale / future)."""
-        if running and k == self.k:
-            return True
-        self.node.reject(key, "stale_tick" if k < self.k or not running else "future_tick",
-                         f"tick {k}, node at tick {self.k}")
-        return False
-
-
-def make_executor(context: Any = None) -> Any:
-    """The executor used by every node process: rclpy's EventsExecutor."""
-    from rclpy.experimental import EventsExecutor
-
-    return EventsExecutor(context=context)
-
-
-def freeze_heap() -> None:
-    """Move every object built so far (modules, numba's and scipy's tables, the node) out of the collector's sight.
-
-    A node process holds about 160,000 objects after its start, and a full
-    collection, which the allocations of a long run trigger now and then,
-    walks all of them (tens of ms at once: a late tick in real time).  They
-    live as long as the process, so the collector need not look at them again.
-    """
-    import gc
-
-    gc.freeze()
-
-
-def warm_logging() -> None:
-    """Pay the first log call's cost now, before the run, not in a real-time node's period.
-
-    rclpy's logger finds its caller's module with :func:`inspect.getframeinfo`,
-    which the first time resolves the file of every module loaded (``realpath``
-    of each): 20-60 ms in a node process, measured as a 40-60 ms stall when the
-    observer first warned of a lost measurement in the middle of a real-time run
-    (every node then missed some 50 periods at once).  Later calls take about
-    0.2 ms.  Builds a caller id as a log call does, without logging anything.
-    """
-    with contextlib.suppress(Exception):
-        from rclpy.impl.rcutils_logger import CallerId
-
-        CallerId()
-
-
-def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], bool] | None = None) -> None:
-    """Spin ``nodes`` on one EventsExecutor until shutdown (or ``stop()``).
-
-    The EventsExecutor's own ``spin()`` ignores SIGINT/SIGTERM, so we spin in
-    short slices and let rclpy's signal handlers raise between them.
-    """
-    from rclpy.task import Future
-
-    rclpy = _rclpy()
-    ex = make_executor(context)
-    for n in nodes:
-        ex.add_node(n)
-    if _INTRA is not None:
-        _INTRA.attach(ex)
-    never = Future()
-    try:
-        while rclpy.ok(context=context) and not (stop is not None and stop()):
-            ex.spin_until_future_complete(never, timeout_sec=0.1)  # every event of a 0.1 s slice
-    finally:
-        for n in nodes:
-            ex.remove_node(n)
-        ex.shutdown()
-
-
-def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *, exit_process: bool = False) -> int:
-    """``main()`` of a node process: init, build, spin, clean up.
-
-    Args:
-        node_cls: The node class.
-        argv: Command line (``sys.argv`` if None).
-        exit_process: End the process right after the node's clean-up, with
-            the code this would return (``python -m`` and the console
-            scripts), instead of returning.  A runtime error still raises.
-
-    Returns:
-        0 on a clean stop (SIGINT, SIGTERM or end of run), 2 on an invalid
-        parameter (one line on stderr naming it), 1 on a runtime error.
-    """
-    rclpy = _rclpy()
-    from rclpy.executors import ExternalShutdownException
-
-    args = list(sys.argv if argv is None else argv)
-    role_name = getattr(node_cls, "ROLE", "node")
-    exe = f"vesselbot_{role_name}"
-    node = None
-    code = 0
-    rclpy.init(args=args)
-    try:
-        try:
-            node = node_cls()
-        except ConfigError as exc:
-            print(f"{exe}: invalid parameter: {exc}", file=sys.stderr, flush=True)
-            code = 2
-            return code
-        warm_logging()
-        freeze_heap()
-        spin_nodes([node], stop=lambda: node.done)
-        return code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return code
-    finally:
-        if node is not None:
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - best effort during shutdown
-                pass
-        rclpy.try_shutdown()
-        if exit_process and sys.exc_info()[0] in (None, KeyboardInterrupt, ExternalShutdownException):
-            # Everything of the node is shut down and nothing is left to write: end the process here.  The
-            # interpreter's own teardown (numba's and LLVM's objects, the DDS libraries' static destructors)
-            # took 0.6 s per node, and 2 s for a graph's six nodes stopping together on two cores.
-            # A signal shut the context down without closing rcl's log file (its last lines are written at the
-            # interpreter's teardown, which this skips): close it here, as rclpy's own shutdown would have.
-            ctx = rclpy.get_default_context()
-            if getattr(ctx, "_logging_initialized", False):
-                with contextlib.suppress(Exception), ctx._lock:
-                    ctx._logging_fini()
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(code)
-
-
-def topic_spec(key: str) -> TopicSpec:
-    """Shorthand for :func:`vesselbot_ros.graph_spec.topic`."""
-    return topic(key)

@@ -82,7 +82,8 @@ from vesselbot_msgs.msg import CoilState, SequencePhase
 from vesselbot_ros.control.actuator_limits import CoilOutput
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node
+from vesselbot_ros.nodes.base import VesselbotNode
+from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.scanner.hardware import dbdt_at
 from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
 from vesselbot_ros.sim.closed_loop import build_stage

@@ -37,7 +37,9 @@ from nav_msgs.msg import Odometry
 
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import TickJoin, VesselbotNode, run_node
+from vesselbot_ros.nodes.base import VesselbotNode
+from vesselbot_ros.nodes.process import run_node
+from vesselbot_ros.nodes.tick_join import TickJoin
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ControllerNode", "main"]

@@ -53,7 +53,8 @@ from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import InjectFault
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node
+from vesselbot_ros.nodes.base import VesselbotNode
+from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ImagerNode", "main"]

@@ -82,7 +82,8 @@ from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import RunControl
 from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node
+from vesselbot_ros.nodes.base import VesselbotNode
+from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.simulation_control import ALREADY, PAUSED, PLAYING, STOPPED, SimulationControl
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry

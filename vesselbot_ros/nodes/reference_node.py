@@ -34,7 +34,8 @@ from rosgraph_msgs.msg import Clock
 
 from vesselbot_msgs.msg import ReferenceSample
 from vesselbot_ros.nodes import conversions as cv
-from vesselbot_ros.nodes.base import VesselbotNode, run_node
+from vesselbot_ros.nodes.base import VesselbotNode
+from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ReferenceNode", "main"]
