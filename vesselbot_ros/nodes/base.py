@@ -65,7 +65,10 @@ from vesselbot_ros.nodes.intra_process import intra_process
 from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
+from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
+from vesselbot_ros.vessels.cfd import network_wall
+from vesselbot_ros.vessels.network import load_network
 
 __all__ = ["VesselbotNode"]
 
@@ -169,8 +172,6 @@ class VesselbotNode(Node):  # type: ignore[misc]
         # the stages' first calls cost tens of ms (numba's cache, first allocations): pay them before the run, so
         # that a real-time node's first ticks are on time and a lockstep run's wall time is the loop's own.
         # Only this node's own stage (graph spec): warming the whole loop made every node start as slowly as all six.
-        from vesselbot_ros.sim.closed_loop import warm_up
-
         warm_up(self.scenario, (self.stage,) if self.stage else None)
         if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
             p0 = self.scenario.initial.p0_m
@@ -462,9 +463,6 @@ class VesselbotNode(Node):  # type: ignore[misc]
         pulsation), > 0 inside."""
         geom = getattr(self, "_net_geom", None)
         if geom is None:
-            from vesselbot_ros.vessels.cfd import network_wall
-            from vesselbot_ros.vessels.network import load_network
-
             phys = self.scenario.physics
             geom = self._net_geom = network_wall(load_network(phys.vessel.network), phys.blood)
         s, diameter = geom.clearance(x, z)

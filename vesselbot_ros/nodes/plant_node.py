@@ -89,6 +89,8 @@ from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
+from vesselbot_ros.vessels.cfd import network_wall
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S"]
 
@@ -137,9 +139,6 @@ class PlantNode(VesselbotNode):
         ref = self.scenario.reference
         self._network = bool(self.scenario.physics.vessel.network)
         if self._network:
-            from vesselbot_ros.vessels.cfd import network_wall
-            from vesselbot_ros.vessels.network import NetworkGeometry, load_network
-
             net = load_network(self.scenario.physics.vessel.network)
             markers = cv.network_markers(NetworkGeometry(net), network_wall(net, self.scenario.physics.blood).segments,
                                          self.scenario.physics.robot.radius_m)

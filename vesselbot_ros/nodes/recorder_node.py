@@ -52,7 +52,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, NODE_NAMES, TOPICS, import_type, remap_args, service, topic
+from vesselbot_ros.errors import BagError
+from vesselbot_ros.graph_spec import (
+    DEFAULT_NAMESPACE, NODE_NAMES, TOPICS, import_type, qos_profile, remap_args, service, topic,
+)
+from vesselbot_ros.live import DEFAULT_LIVE_RATE_HZ, LiveView
 
 __all__ = ["RecorderNode", "recorder_command", "main", "FLUSH_SERVICE", "STATUS_NAME", "LIVE_URL_KEY"]
 
@@ -141,8 +145,6 @@ class RecorderNode:
         n.declare_parameter("min_free_mb", 256)
         n.declare_parameter("compression", "none")
         n.declare_parameter("live_port", -1)
-        from vesselbot_ros.live import DEFAULT_LIVE_RATE_HZ
-
         n.declare_parameter("live_rate_Hz", DEFAULT_LIVE_RATE_HZ)
         self.bag: Any = None
         self._subs: list[Any] = []
@@ -165,9 +167,9 @@ class RecorderNode:
         from rclpy.clock import Clock, ClockType
         from std_srvs.srv import Trigger
 
+        # deferred: rosbags (0.1 s to import) loads in the recorder process only; the launcher imports this module
+        # for recorder_command and LIVE_URL_KEY
         from vesselbot_ros.bag.writer import BagWriter, check_output_dir, make_typestore
-        from vesselbot_ros.errors import BagError
-        from vesselbot_ros.graph_spec import qos_profile
 
         out = str(self._param("output_dir") or "")
         live_port = int(self._param("live_port"))
@@ -212,8 +214,6 @@ class RecorderNode:
                                                     durability=DurabilityPolicy.VOLATILE), False))
             known.add(name)
         if live_port >= 0:
-            from vesselbot_ros.live import LiveView
-
             try:
                 self.live = LiveView([(name, msgtype, latched) for name, _, msgtype, _, latched in specs], ts,
                                      port=live_port, max_rate_Hz=float(self._param("live_rate_Hz")))
@@ -350,8 +350,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from vesselbot_ros.errors import BagError
-
     stop = {"sig": 0}
 
     def on_signal(signum: int, _frame: Any) -> None:
@@ -380,6 +378,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OSError as exc:
             rec.write_error = exc
         if rec.write_error is not None:  # a full disk: one line that says what to do, the MCAP left repairable
+            # deferred: as in RecorderNode.start (rosbags; already loaded here, since start opened the bag)
             from vesselbot_ros.bag.writer import write_failed_message
 
             print(f"vesselbot recorder: error: {write_failed_message(rec.bag.path, rec.write_error)}",
