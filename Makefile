@@ -12,7 +12,7 @@ SEED ?= 1
 CONFIG ?=
 PYTEST_ARGS ?=
 
-.PHONY: bootstrap run test test-unit test-integration bench simulate figures clean
+.PHONY: bootstrap run lint test test-unit test-integration bench simulate figures clean
 
 bootstrap:
 	@tools/bootstrap.sh
@@ -26,8 +26,13 @@ run: bootstrap
 ## bound wall time tightly (marker `wallclock`: real-time runs, process-exit deadlines, replay timing) run alone, last.
 INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not wallclock" --durations=8 $(PYTEST_ARGS) \
 	&& $(PY) -m pytest test/integration -q -m wallclock --durations=4 $(PYTEST_ARGS)
-test: bootstrap
+test: bootstrap lint
 	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS) && $(INTEGRATION)
+
+## Static checks (configuration in pyproject.toml): ruff over the code, tests and tools, then mypy over the
+## package (incremental, cache in .mypy_cache: a few seconds when little changed).  `make test` runs it first.
+lint: bootstrap
+	@$(PY) -m ruff check --quiet vesselbot_ros test tools bench examples && $(PY) -m mypy
 
 test-unit: bootstrap
 	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS)
