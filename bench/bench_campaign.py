@@ -83,9 +83,8 @@ def _check_identical(rows: list, store: CampaignStore) -> int:
     for res in rows:
         got = stored[res.metrics["seed"]]
         for k, v in res.metrics.items():
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and k in got:
-                if not _same(float(v), float(got[k])):
-                    raise AssertionError(f"seed {res.metrics['seed']}: {k} = {got[k]!r} in the campaign, {v!r} in run_many")
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and k in got and not _same(float(v), float(got[k])):
+                raise AssertionError(f"seed {res.metrics['seed']}: {k} = {got[k]!r} in the campaign, {v!r} in run_many")
     return len(rows)
 
 

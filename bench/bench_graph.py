@@ -539,9 +539,9 @@ def realtime_latency(duration: float, rtf: float) -> np.ndarray:
     import rclpy
     from geometry_msgs.msg import PointStamped, Vector3Stamped
 
+    from vesselbot_ros.graph_spec import qos_profile, topic
     from vesselbot_ros.nodes.conversions import ns_of_stamp
     from vesselbot_ros.ros_env import allocate_domain, ros_environment
-    from vesselbot_ros.graph_spec import qos_profile, topic
 
     lease = allocate_domain()
     dom = lease.domain_id

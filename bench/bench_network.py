@@ -64,7 +64,7 @@ def main() -> None:
           f"{f.meta['n_dofs']} dofs, {f.meta['picard_iterations']} Picard iterations; grid {f.nx} x {f.nz}) (target <= 60 s)")
     for label, sc in (("straight, analytic", straight), ("straight, one-branch CFD", net1), ("III-C network", paper)):
         run_closed_loop(sc, 0)
-        w = best(lambda: run_closed_loop(sc, 0), reps=3)
+        w = best(lambda sc=sc: run_closed_loop(sc, 0), reps=3)
         print(f"pure loop {label:26s}: {sc.sim.duration_s:.1f} s simulated in {w:.3f} s -> {sc.sim.duration_s / w:.0f}x real time")
 
 

@@ -4,7 +4,8 @@ For each control rate (ticks/s; 8 messages per tick, the lockstep graph's mix
 of vesselbot_ros.bag.synthetic, plus /diagnostics every 100 ticks) a fresh
 recorder process records DURATION_S of traffic published by this process
 (raw, pre-serialized CDR, reliable QoS as in topics.py).  Drops = published -
-recorded, over the 8 per-tick topics (the recorder adds its own /diagnostics) (from the recorder's flush service, then from the finalised bag's
+recorded, over the 8 per-tick topics (the recorder adds its own /diagnostics) (from the recorder's flush service,
+then from the finalised bag's
 metadata.yaml).  Prints one line per rate and the highest message rate
 sustained with zero drops.  Target: 1 kHz control (about 8 k msg/s) without
 drops.
@@ -31,9 +32,9 @@ from std_srvs.srv import Trigger
 
 from vesselbot_ros.bag.reader import open_bag
 from vesselbot_ros.bag.synthetic import tick_messages
+from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
 from vesselbot_ros.nodes.recorder_node import FLUSH_SERVICE, recorder_command
 from vesselbot_ros.testing import NodeProcess, isolated_ros, spin_until
-from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
 
 DIAGNOSTICS = topic("diagnostics").name
 

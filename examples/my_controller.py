@@ -25,8 +25,8 @@ from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-
 from vesselbot_msgs.msg import ReferenceSample
+
 from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, qos_profile, topic
 
 
@@ -46,7 +46,7 @@ class MyController(Node):
         self.create_subscription(ReferenceSample, ref.rel, self.on_reference, qos_profile(ref))
 
     @staticmethod
-    def key(stamp) -> tuple[int, int]:  # noqa: ANN001
+    def key(stamp) -> tuple[int, int]:
         return (stamp.sec, stamp.nanosec)
 
     def on_reference(self, msg: ReferenceSample) -> None:

@@ -35,12 +35,12 @@ from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-
 from vesselbot_msgs.msg import ReferenceSample, SequencePhase
+
 from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, FRAME_ID, qos_profile, topic
 
 
-def stamp_s(stamp) -> float:  # noqa: ANN001
+def stamp_s(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
@@ -61,7 +61,7 @@ class MyScannerController(Node):
         self.create_subscription(SequencePhase, phase.rel, self.on_phase, qos_profile(phase))
 
     @staticmethod
-    def key(stamp) -> tuple[int, int]:  # noqa: ANN001
+    def key(stamp) -> tuple[int, int]:
         return (stamp.sec, stamp.nanosec)
 
     def on_phase(self, msg: SequencePhase) -> None:

@@ -129,7 +129,7 @@ def summary(paper: dict[str, list[float]], results: dict[str, dict[str, list[flo
     sound = results["as configured"]
     exact = results["exact model (no 5 % velocity error)"]
     return textwrap.fill(
-        f"- Closed loop, sound variant, seeds 0–4 after t = 0.6 s (mean / worst): tracking error max "
+        f"- Closed loop, sound variant, seeds 0–4 after t = 0.6 s (mean / worst): tracking error max "  # noqa: RUF001 - typographic range dash
         f"{mean_worst(sound['tracking_error_max_m'])} µm (paper: < 150 µm), estimation error max "
         f"{mean_worst(sound['estimation_error_max_m'])} µm (paper: < 10 µm), wall contact "
         f"{mean_worst(sound['contact_time_s'], 1.0, 2)} s. The paper's own 5 % blood-velocity model error "

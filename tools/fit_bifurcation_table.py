@@ -19,11 +19,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from vesselbot_ros.physics import bifurcation as bif  # noqa: E402
-from vesselbot_ros.vessels.bifurcation_fit import cfd_profile_samples  # noqa: E402
+from vesselbot_ros.physics import bifurcation as bif
+from vesselbot_ros.vessels.bifurcation_fit import cfd_profile_samples
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -44,11 +44,12 @@ def block() -> str:
                          m["estimation_error_max_m"], m["contact_time_s"], m["outside_lumen_time_s"]))
         reached = sum(1 for r in rows if r[0] == outlet)
 
-        def mw(i: int, scale: float = 1e6, fmt: str = ".0f") -> str:
+        def mw(i: int, scale: float = 1e6, fmt: str = ".0f", rows: list[tuple[float, ...]] = rows) -> str:
             v = np.array([r[i] for r in rows]) * scale
             return f"{v.mean():{fmt}} / {v.max():{fmt}}"
 
-        lines.append(f"| `{name}` | {outlet}: {reached}/5 | {mw(1)} | {mw(2)} | {mw(3)} | {mw(4)} | {mw(5, 1, '.3f')} | {mw(6, 1, '.3f')} |")
+        lines.append(f"| `{name}` | {outlet}: {reached}/5 | {mw(1)} | {mw(2)} | {mw(3)} | {mw(4)} "
+                     f"| {mw(5, 1, '.3f')} | {mw(6, 1, '.3f')} |")
     return "\n".join(lines)
 
 

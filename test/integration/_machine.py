@@ -20,9 +20,10 @@ QUIET_FOREIGN_CORES = 0.25
 
 def _proc_stat() -> tuple[float, float]:
     """(busy, steal) CPU seconds of the whole machine since boot, from ``/proc/stat``."""
-    fields = [int(x) for x in open("/proc/stat").readline().split()[1:]]
+    with open("/proc/stat") as fh:
+        fields = [int(x) for x in fh.readline().split()[1:]]
     tick = os.sysconf("SC_CLK_TCK")
-    user, nice, system, idle, iowait, irq, softirq = fields[:7]
+    user, nice, system, _idle, _iowait, irq, softirq = fields[:7]
     steal = fields[7] if len(fields) > 7 else 0
     return (user + nice + system + irq + softirq) / tick, steal / tick
 
@@ -60,7 +61,7 @@ class Load:
                 f"before, {self.loadavg_after:.2f} after; quiet means at most {QUIET_FOREIGN_CORES} cores)")
 
 
-class machine_load:  # noqa: N801 - used as a context manager, like a function
+class machine_load:
     """Measure the machine's other work while the block runs (children must be waited for inside it)."""
 
     def __enter__(self) -> Load:

@@ -8,10 +8,10 @@ request, so that the test can compare deserialized content both ways.
 import sys
 
 import rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy
-
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from vesselbot_msgs import msg as vm
 from vesselbot_msgs import srv as vs
+
 from vesselbot_ros.testing import spin_node
 
 MESSAGES = ["PlantState", "ForceBreakdown", "ReferenceSample", "CoilState"]

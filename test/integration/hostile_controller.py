@@ -18,8 +18,8 @@ import rclpy
 from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 
-from vesselbot_ros.testing import spin_node
 from vesselbot_ros.graph_spec import qos_profile, topic
+from vesselbot_ros.testing import spin_node
 
 
 def main() -> int:

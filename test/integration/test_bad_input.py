@@ -148,8 +148,8 @@ def probed(request, tmp_path_factory):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
 
-    from vesselbot_ros.testing import isolated_ros, spin_until
     from vesselbot_ros.graph_spec import NODE_NAMES, qos_profile, topic
+    from vesselbot_ros.testing import isolated_ros, spin_until
 
     role = request.param
     name = NODE_NAMES[role]
@@ -220,7 +220,7 @@ def probed(request, tmp_path_factory):
 
 @pytest.mark.timeout(120)
 def test_every_bad_input_is_rejected_with_its_reason_and_counted(probed):
-    d, level = probed["after_script"]
+    d, _level = probed["after_script"]
     exp = probed["expected"]
     for t in {t for t, _ in exp}:
         assert d[f"rejected:{t}"] == str(sum(n for (tt, _), n in exp.items() if tt == t)), (t, d)

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from _runs import children  # noqa: E402 - test/integration is on sys.path (rootdir conftest)
+from _runs import children
 
 REPO = Path(__file__).resolve().parents[2]
 NONDETERMINISTIC = {"run_time_s", "worker"}

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import popen_run, write_config  # noqa: E402
+from _runs import popen_run, write_config
 
 DURATION_S = 0.3
 N_TICKS = 300

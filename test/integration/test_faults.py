@@ -12,14 +12,12 @@ draws its noise whether or not a fault is active, so baseline and faulty runs se
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import diagnostics, popen_run, write_config  # noqa: E402
+from _runs import diagnostics, popen_run, write_config
 
 DT = 1e-3
 BURST_EARLY = (0.2, 0.02, 1e-3)  # start s, duration s, magnitude m
@@ -72,7 +70,7 @@ def _err(ts):
 
 
 def test_every_fault_is_announced_on_diagnostics(fault_run):
-    bag, ts, _, resp = fault_run
+    bag, ts, _, _resp = fault_run
     t0 = 0.2
     got = sorted(zip(ts["faults.t_s"], ts["faults.kind"], ts["faults.duration_s"]))
     assert [(k, round(t, 6), round(d, 6)) for t, k, d in got] == [
@@ -85,7 +83,7 @@ def test_every_fault_is_announced_on_diagnostics(fault_run):
 
 @pytest.mark.parametrize("which", ["early", "schedule"])
 def test_observer_and_controller_recover_from_an_outlier_burst(fault_run, which):
-    _, ts, base, resp = fault_run
+    _, ts, base, _resp = fault_run
     start, dur, mag = BURST_SCHEDULE if which == "schedule" else BURST_EARLY
     t = ts["truth.t_s"]
     e_track, e_est = _err(ts)

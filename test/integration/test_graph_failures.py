@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import children, node_pid  # noqa: E402
+from _runs import children, node_pid
 
 
 def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):

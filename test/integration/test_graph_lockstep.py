@@ -11,10 +11,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.config import load_yaml  # noqa: E402
-from vesselbot_ros.launch.run_cli import apply_overrides  # noqa: E402
-from vesselbot_ros.sim.closed_loop import run_closed_loop  # noqa: E402
-from vesselbot_ros.sim.scenario import scenario_from_mapping  # noqa: E402
+from vesselbot_ros.config import load_yaml
+from vesselbot_ros.launch.run_cli import apply_overrides
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 CONFIG = "config/paper_small_artery.yaml"
 
@@ -56,7 +56,7 @@ def test_ekf_scenario_lockstep_equals_pure_runner(repo, tmp_path):
     scenario = scenario_from_mapping(apply_overrides(load_yaml(repo / config), 0.3, 2))
     pure = run_closed_loop(scenario)
     assert pure.path == "compiled" and pure.timeseries["flow_scale_hat"][-1] != 1.0
-    ros, stdout = _vesselbot_run(repo, tmp_path, "--duration", "0.3", "--seed", "2", "--no-record", "--single-process",
+    ros, _stdout = _vesselbot_run(repo, tmp_path, "--duration", "0.3", "--seed", "2", "--no-record", "--single-process",
                                  config=config)
     assert ros["metrics"]["n_ticks"] == 300
     _assert_identical(pure, ros)
@@ -74,7 +74,7 @@ def test_paper_scenario_recorded_equals_pure_runner(repo, tmp_path):
     meta = json.loads((bag / "run_metadata.json").read_text())
     assert meta["seed"] == 1 and meta["mode"] == "lockstep" and meta["config"]["name"] == "paper_small_artery"
     assert "run finished: 2000 ticks" in stdout
-    from vesselbot_ros.bag.reader import open_bag  # noqa: PLC0415
+    from vesselbot_ros.bag.reader import open_bag
 
     info = open_bag(bag)
     assert info.consistent, info.problems
@@ -84,8 +84,8 @@ def test_paper_scenario_recorded_equals_pure_runner(repo, tmp_path):
               "/vesselbot/gradient_command", "/vesselbot/coil/applied", "/vesselbot/coil/state"):
         assert info.topic(t).count == 2000, (t, info.topic(t).count)
     # the paper's continuous sequence: one phase message for the whole run, CONTINUOUS on [0, inf)
-    from vesselbot_ros.bag.reader import iter_messages  # noqa: PLC0415
-    from vesselbot_ros.graph_spec import topic  # noqa: PLC0415
+    from vesselbot_ros.bag.reader import iter_messages
+    from vesselbot_ros.graph_spec import topic
 
     phase = [m.decode() for m in iter_messages(info, topics=[topic("sequence_phase").name])]
     assert len(phase) == 1

@@ -31,11 +31,11 @@ def imager_session(tmp_path_factory):
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PointStamped
     from rclpy.executors import SingleThreadedExecutor
-
     from vesselbot_msgs.msg import PlantState
     from vesselbot_msgs.srv import InjectFault
-    from vesselbot_ros.testing import isolated_ros, spin_until
+
     from vesselbot_ros.graph_spec import qos_profile, topic
+    from vesselbot_ros.testing import isolated_ros, spin_until
 
     tmp = tmp_path_factory.mktemp("imager_srv")
     with isolated_ros(tmp) as ros:

@@ -9,9 +9,9 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-
 from vesselbot_msgs import msg as vm  # noqa: E402
 from vesselbot_msgs import srv as vs  # noqa: E402
+
 from vesselbot_ros.testing import NodeProcess, fill_message, spin_until  # noqa: E402
 
 PEER = Path(__file__).with_name("echo_peer.py")

@@ -19,8 +19,8 @@ import threading
 import time
 
 import pytest
-from _runs import free_port, last_json, node_client, run_cmd
 
+from _runs import free_port, last_json, node_client, run_cmd
 from vesselbot_ros.bag.reader import iter_messages, open_bag
 from vesselbot_ros.graph_spec import TOPICS, VIEW_CHANNELS, ns_of_time, topic
 from vesselbot_ros.live import clock_ns
@@ -159,7 +159,7 @@ def port0_run(tmp_path_factory):
     connects, without retries, to the port the run printed."""
     tmp = tmp_path_factory.mktemp("live0")
     bag = tmp / "bag"
-    err = open(tmp / "run.stderr", "w")  # a file: a pipe nobody reads could fill and block the run
+    err = open(tmp / "run.stderr", "w")  # noqa: SIM115 - a file (a pipe nobody reads could fill and block the run) the fixture closes
     run = subprocess.Popen(run_cmd("--duration", "1.0", "--live-port", "0", "--record-dir", str(bag),
                                    "--metrics-json", str(tmp / "m.json"), "--quiet"),
                            cwd=tmp, stdout=subprocess.PIPE, stderr=err, text=True)
@@ -206,7 +206,7 @@ def test_replay_live_serves_the_bag_on_its_sim_time_to_a_spec_subprotocol_client
     times, and its /clock as the time (going back to the start at each pass, which Foxglove takes as a seek)."""
     _, _, bag, _ = port0_run
     err_path = tmp_path / "replay.stderr"
-    err = open(err_path, "w")  # a file: one line per pass, and nobody reads a pipe while it runs
+    err = open(err_path, "w")  # noqa: SIM115 - a file, closed below: one line per pass, and nobody reads a pipe while it runs
     replay = subprocess.Popen([sys.executable, "-m", "vesselbot_ros.cli", "replay", str(bag), "--loop",
                                "--live-port", "0"], env=ros.env, stdout=subprocess.PIPE, stderr=err, text=True)
     client = None

@@ -15,12 +15,11 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import REPO, run_cmd  # noqa: E402
-
-from vesselbot_ros.config import load_yaml  # noqa: E402
-from vesselbot_ros.launch.run_cli import apply_overrides  # noqa: E402
-from vesselbot_ros.sim.closed_loop import run_closed_loop  # noqa: E402
-from vesselbot_ros.sim.scenario import scenario_from_mapping  # noqa: E402
+from _runs import REPO, run_cmd
+from vesselbot_ros.config import load_yaml
+from vesselbot_ros.launch.run_cli import apply_overrides
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 CONFIG = REPO / "config" / "sound_small_artery.yaml"
 DURATION = 0.2

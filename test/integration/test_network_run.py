@@ -16,13 +16,13 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
-from vesselbot_ros.graph_spec import topic  # noqa: E402
-from vesselbot_ros.sim.closed_loop import run_closed_loop  # noqa: E402
-from vesselbot_ros.sim.scenario import load_scenario  # noqa: E402
-from vesselbot_ros.vessels.cfd import network_wall  # noqa: E402
-from vesselbot_ros.vessels.network import load_network  # noqa: E402
-from vesselbot_ros.control.route import planned_reference  # noqa: E402
+from vesselbot_ros.bag.reader import iter_messages, open_bag
+from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.graph_spec import topic
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.scenario import load_scenario
+from vesselbot_ros.vessels.cfd import network_wall
+from vesselbot_ros.vessels.network import load_network
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = "config/paper_iiic_network_lower.yaml"

@@ -24,7 +24,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import assert_coil_invariants, node_pid, popen_run, write_config  # noqa: E402
+from _runs import assert_coil_invariants, node_pid, popen_run, write_config
 
 DT_S = 1e-3
 U_SAT = 0.08
@@ -60,7 +60,7 @@ def killed_runs(tmp_path_factory):
             os.kill(node_pid(p.pid, v), signal.SIGKILL)
         for v, p in runs.items():
             t0 = time.monotonic()
-            out, err = p.communicate(timeout=120)
+            _out, err = p.communicate(timeout=120)
             results[v] = {"code": p.returncode, "err": err, "wall_s": time.monotonic() - t0}
     finally:
         for p in runs.values():

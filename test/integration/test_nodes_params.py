@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.graph_spec import LOOP_ROLES as ROLES  # noqa: E402
+from vesselbot_ros.graph_spec import LOOP_ROLES as ROLES
 
 # (parameter, value as given on the command line, text the message must contain)
 BAD = {

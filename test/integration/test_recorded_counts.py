@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import REPO, hostile_env, run_cmd  # noqa: E402
+from _runs import REPO, hostile_env, run_cmd
 
 EXTRA_PUBLISHER = """
 import sys, time, rclpy
@@ -48,7 +48,7 @@ def _lease_free_domain() -> int:
 
 @pytest.mark.timeout(300)
 def test_users_controller_every_command_is_in_the_bag(tmp_path):
-    from vesselbot_ros.bag.reader import open_bag, final_diagnostics
+    from vesselbot_ros.bag.reader import final_diagnostics, open_bag
 
     dom = _lease_free_domain()
     env = hostile_env(dom, tmp_path / "ros_log")

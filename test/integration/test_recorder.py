@@ -104,7 +104,7 @@ def test_recorded_counts_equal_published_counts_and_the_bag_decodes_everywhere(r
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_mid_run_leaves_a_finalised_complete_bag(ros, tmp_path, sig):
     out = tmp_path / "r2"
-    rec, pub, node, ex, client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
+    rec, pub, node, ex, _client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
     try:
         # a second of ticks published (a fixed sleep let a loaded machine publish fewer than the bound below)
         assert spin_until(ex, lambda: _published_truth(tmp_path) >= 500, timeout=60), pub.output()
@@ -122,7 +122,7 @@ def test_signal_mid_run_leaves_a_finalised_complete_bag(ros, tmp_path, sig):
 
 def test_sigkill_leaves_an_mcap_that_repair_turns_into_a_valid_bag(ros, tmp_path):
     out = tmp_path / "r3"
-    rec, pub, node, ex, client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
+    rec, pub, node, ex, _client = _start(ros, tmp_path, out, ticks=0, rate=500.0)
     try:
         assert spin_until(ex, lambda: _published_truth(tmp_path) >= 1000, timeout=60), pub.output()
         rec.stop(timeout=5, sig=signal.SIGKILL)

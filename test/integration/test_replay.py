@@ -16,8 +16,8 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
 from vesselbot_ros.bag.synthetic import latched_messages, tick_messages  # noqa: E402
 from vesselbot_ros.bag.writer import BagWriter  # noqa: E402
-from vesselbot_ros.testing import NodeProcess, spin_until  # noqa: E402
 from vesselbot_ros.graph_spec import TOPICS, qos_profile  # noqa: E402
+from vesselbot_ros.testing import NodeProcess, spin_until  # noqa: E402
 
 TICK_NS = 4_000_000  # 4 ms between ticks in log time
 N_TICKS = 150

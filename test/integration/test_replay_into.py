@@ -19,7 +19,7 @@ import yaml
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
+from vesselbot_ros.bag.reader import iter_messages, open_bag
 
 REPO = Path(__file__).resolve().parents[2]
 N_TICKS = 300

@@ -15,9 +15,9 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.bag.reader import final_diagnostics, iter_messages, open_bag  # noqa: E402
-from vesselbot_ros.bag.report import FIGURES  # noqa: E402
-from vesselbot_ros.graph_spec import NODE_NAMES, TOPICS  # noqa: E402
+from vesselbot_ros.bag.reader import final_diagnostics, iter_messages, open_bag
+from vesselbot_ros.bag.report import FIGURES
+from vesselbot_ros.graph_spec import NODE_NAMES, TOPICS
 
 CONFIG = "config/paper_small_artery.yaml"
 N_TICKS = 300

@@ -20,7 +20,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import HERE, REPO, assert_coil_invariants, diagnostics, hostile_env, run_cmd, write_config  # noqa: E402
+from _runs import HERE, REPO, assert_coil_invariants, diagnostics, hostile_env, run_cmd, write_config
 
 U_SAT_T_PER_M = 0.08  # Section III-C, both configs
 PAPER_SLEW_T_PER_M_PER_S = 0.1  # printed "100 mT/m/s"

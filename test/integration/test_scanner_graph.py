@@ -28,9 +28,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from _runs import REPO, assert_coil_invariants, hostile_env, run_cmd  # noqa: E402
+import itertools
 
-from vesselbot_ros.scanner.sequence import PHASE_CODES  # noqa: E402
+from _runs import REPO, assert_coil_invariants, hostile_env, run_cmd
+from vesselbot_ros.scanner.sequence import PHASE_CODES
 
 CONFIG = "config/clinical_3t_small_artery.yaml"
 DT = 1e-3
@@ -70,10 +71,10 @@ def _phase_per_tick(ts, t):
 
 @pytest.mark.timeout(420)
 def test_phase_windows_tile_the_run_and_no_gradient_outside_propulsion(clinical_run):
-    info, ts, _ = clinical_run
+    _info, ts, _ = clinical_run
     w = _windows(ts)
     assert len(w) > 4 * 30  # 2 s of a 54 ms period: 37 periods of 4 windows
-    for (_, _, end), (_, start, _) in zip(w, w[1:]):
+    for (_, _, end), (_, start, _) in itertools.pairwise(w):
         assert start == pytest.approx(end, abs=1e-12)  # contiguous
     # each message is stamped at the first tick of its window
     assert np.all(ts["phase.t_s"] >= ts["phase.window_start_s"] - 1e-9)
@@ -122,7 +123,7 @@ def test_every_frame_is_acquired_in_a_tracking_window_and_delivered_after_the_la
 
 @pytest.mark.timeout(420)
 def test_amplitude_slew_and_dbdt_limits_hold_at_every_tick(clinical_run):
-    from vesselbot_ros.scanner.hardware import dbdt_at, DbdtLimit
+    from vesselbot_ros.scanner.hardware import DbdtLimit, dbdt_at
 
     _, ts, _ = clinical_run
     u_sat = float(ts["coil.max_gradient"][0])

@@ -138,7 +138,7 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
         assert _call(ex, play, req).result.result == Result.RESULT_OK
         again = _call(ex, play, req)
         assert again.result.result in (SetSimulationState.Response.ALREADY_IN_TARGET_STATE, Result.RESULT_INCORRECT_STATE)
-        out, err = driven.communicate(timeout=300)
+        _out, err = driven.communicate(timeout=300)
         assert driven.returncode == 0, err[-3000:]
     finally:
         if driven.poll() is None:

@@ -87,6 +87,6 @@ def test_command_help_names_things_not_tracker_numbers(command):
     parser = build_parser(only=command)
     text = parser.format_help()
     if command is not None:
-        sub = next(a for a in parser._actions if a.dest == "command")  # noqa: SLF001 - argparse has no public getter
+        sub = next(a for a in parser._actions if a.dest == "command")
         text = sub.choices[command].format_help()
     assert _mentions(text) == []

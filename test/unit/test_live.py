@@ -13,7 +13,6 @@ import socket
 
 import pytest
 
-
 TIMEOUT_S = 10.0
 
 

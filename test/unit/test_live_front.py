@@ -11,8 +11,7 @@ import os
 
 import pytest
 
-from vesselbot_ros.live_front import SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL, offered_subprotocols, rewrite_request, \
-    rewrite_response
+from vesselbot_ros.live_front import SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL, offered_subprotocols, rewrite_request, rewrite_response
 
 
 def _head(*protocol_headers: str) -> bytes:

@@ -83,8 +83,9 @@ def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
     view._send = lambda key, data, t: sent.append(deserialize_message(data, MarkerArray)) if key == "view_markers" else None
     view._path_wall = -1e9
     view._latest = {}
-    from vesselbot_ros.nodes import conversions as cv
     from rclpy.serialization import serialize_message
+
+    from vesselbot_ros.nodes import conversions as cv
 
     view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3,
                                                                   1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0), [(0.0, 0.0)] * 8))

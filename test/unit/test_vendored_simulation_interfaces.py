@@ -47,8 +47,7 @@ def test_built_message_hashes_equal_an_independent_computation_from_the_standard
 
 def test_services_and_action_are_built_and_import():
     from simulation_interfaces.action import SimulateSteps
-    from simulation_interfaces.srv import (GetSimulationState, GetSimulatorFeatures, ResetSimulation,
-                                           SetSimulationState, StepSimulation)
+    from simulation_interfaces.srv import GetSimulationState, GetSimulatorFeatures, ResetSimulation, SetSimulationState, StepSimulation
 
     assert StepSimulation.Request().steps == 1  # the standard's default
     assert SetSimulationState.Response.ALREADY_IN_TARGET_STATE == 101

@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from vesselbot_ros.config import ConfigError
 from vesselbot_ros.analysis.design_map import (
     DesignStudy,
     GridParams,
@@ -15,6 +14,7 @@ from vesselbot_ros.analysis.design_map import (
     load_forces,
     summarize,
 )
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.blood_viscosity import blood_viscosity
 from vesselbot_ros.physics.params import PhysicsParams
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
 from conftest import write_synthetic_bag
+
 from vesselbot_ros.bag.reader import iter_messages, open_bag
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, BagWriter
 from vesselbot_ros.errors import BagError

@@ -7,7 +7,6 @@ import shutil
 import numpy as np
 import pytest
 
-from conftest import write_synthetic_bag
 from vesselbot_ros.bag.reader import iter_messages, open_bag, read_timeseries
 from vesselbot_ros.bag.synthetic import PARAMS
 from vesselbot_ros.errors import BagError

@@ -6,8 +6,8 @@ import json
 import shutil
 
 import pytest
-
 from conftest import RUN_METADATA, write_synthetic_bag
+
 from vesselbot_ros.bag.reader import iter_messages, open_bag
 from vesselbot_ros.bag.repair import repair_bag
 from vesselbot_ros.bag.writer import RUN_METADATA_FILE
@@ -57,7 +57,7 @@ def test_repair_rebuilds_a_valid_bag_with_every_flushed_message(tmp_path, cut_ex
 
 def test_repair_of_a_mcap_cut_inside_a_chunk_keeps_the_complete_chunks(tmp_path):
     live = tmp_path / "live" / "run"
-    bag, _ = write_synthetic_bag(live, 400, flush_every=100, finish=True)
+    _bag, _ = write_synthetic_bag(live, 400, flush_every=100, finish=True)
     data = (live / "run.mcap").read_bytes()
     killed = tmp_path / "k" / "run"
     killed.mkdir(parents=True)

@@ -84,10 +84,9 @@ def test_report_takes_the_window_from_the_run_config_and_counters_from_final_dia
     from vesselbot_ros.nodes.plant_node import PLANT_STAT_NAMES
 
     assert DIAGNOSTIC_COUNTERS["plant"] == PLANT_STAT_NAMES
+    import conftest
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rclpy.serialization import serialize_message
-
-    import conftest
 
     meta = dict(conftest.RUN_METADATA, config={"sim": {"metrics_after_s": 0.25, "control_rate_Hz": 1000.0}})
     monkeypatch.setattr(conftest, "RUN_METADATA", meta)

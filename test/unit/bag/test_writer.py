@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 import yaml
-
 from conftest import RUN_METADATA, write_synthetic_bag
+
 from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY, BagWriter, check_output_dir
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import topic
@@ -87,7 +86,7 @@ def test_mcap_ros2_decodes_custom_types_from_the_embedded_schemas_alone(syntheti
         assert "MSG: vesselbot_msgs/ForceBreakdown" in schemas["vesselbot_msgs/msg/PlantState"].data.decode()
         assert reader.get_header().profile == "ros2"
         decoded = list(reader.iter_decoded_messages(log_time_order=True))
-    for schema, channel, message, ros in decoded:
+    for schema, channel, _message, _ros in decoded:
         seen[schema.name] = seen.get(schema.name, 0) + 1
         assert channel.message_encoding == "cdr"
         assert "offered_qos_profiles" in channel.metadata
@@ -157,8 +156,8 @@ def test_unknown_types_and_duplicate_topics_are_clear_errors(tmp_path):
 
 
 def test_flush_closes_the_chunk_so_a_copy_taken_now_holds_every_message(tmp_path):
-    from mcap.stream_reader import StreamReader
     from mcap.records import Message
+    from mcap.stream_reader import StreamReader
 
     bag, _ = write_synthetic_bag(tmp_path / "b", 50, finish=False)
     assert bag.pending_bytes() > 0
@@ -212,7 +211,7 @@ def test_bag_is_what_ros2_bag_record_writes_on_jazzy(synthetic_bag):
     records = list(StreamReader(str(mcap), emit_chunks=True).records)
     chunks = [r for r in records if isinstance(r, Chunk)]
     assert chunks and all(c.uncompressed_crc == crc32(c.data) != 0 for c in chunks)
-    footer = [r for r in records if isinstance(r, Footer)][0]
+    footer = next(r for r in records if isinstance(r, Footer))
     assert footer.summary_crc != 0
     assert footer.summary_crc == crc32(data[footer.summary_start:len(data) - 8 - 4])
     # a bag read from the MCAP alone keeps its type hashes (rosbags reads the channel metadata)

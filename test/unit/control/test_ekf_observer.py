@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.control.model import DynamicsModel
-from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.plant import PlantSimulator

@@ -35,7 +35,10 @@ class LinearDragModel:
         for _ in range(n):  # RK4 of the linear system
             def f(s):  # type: ignore[no-untyped-def]
                 return np.concatenate([s[2:], -self.c * s[2:] + u])
-            k1 = f(y); k2 = f(y + 0.5 * h * k1); k3 = f(y + 0.5 * h * k2); k4 = f(y + h * k3)
+            k1 = f(y)
+            k2 = f(y + 0.5 * h * k1)
+            k3 = f(y + 0.5 * h * k2)
+            k4 = f(y + h * k3)
             y += h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 

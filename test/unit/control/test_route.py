@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.control.route import planned_reference, route_branches
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network
-from vesselbot_ros.control.route import planned_reference, route_branches
 
 UPPER = shipped_scenarios()["paper_iiic_network_upper"]
 

@@ -6,8 +6,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.graph_spec import REALTIME_FACTOR_LIMIT, REALTIME_MISSED_LIMIT  # noqa: E402
-from vesselbot_ros.launch.graph import (  # noqa: E402
+from vesselbot_ros.graph_spec import REALTIME_FACTOR_LIMIT, REALTIME_MISSED_LIMIT
+from vesselbot_ros.launch.graph import (
     RealtimeReport,
     RealtimeStats,
     check_recorded_counts,

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vesselbot_ros.errors import BagError
 from vesselbot_ros.launch.reestimate import (
     ROLES,
     compare_outputs,
@@ -17,7 +18,6 @@ from vesselbot_ros.launch.reestimate import (
     plan_feed,
     replay_topic,
 )
-from vesselbot_ros.errors import BagError
 
 DT = 1e-3
 N = 40
@@ -51,8 +51,8 @@ def _write(path: Path, *, mode: str = "lockstep", config: dict | None = None, sk
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
-
     from vesselbot_msgs.msg import ReferenceSample
+
     from vesselbot_ros.bag.writer import BagWriter
     from vesselbot_ros.graph_spec import topic
 

@@ -45,7 +45,8 @@ def test_forces_into_rows_follow_term_names():
 @pytest.mark.parametrize("phase", [0.0, 1.0, 2.0])
 def test_finite_everywhere_including_outside_the_vessel(z, phase):
     c = np.array([phase, 1e-6 * (phase > 0), 1e-3 * (phase > 0), 1e-7 * (phase > 1)])
-    for p in (PK, kernel.pack_params(P.with_overrides({"interactions.in_contact": "paper_heaviside", "vessel.major_bifurcation.enabled": True}))):
+    overrides = {"interactions.in_contact": "paper_heaviside", "vessel.major_bifurcation.enabled": True}
+    for p in (PK, kernel.pack_params(P.with_overrides(overrides))):
         out = np.empty((8, 2))
         kernel.forces_into(0.3, 0.015, z, 1e3, -1e3, 0.08, 0.08, c, p, out)
         assert np.all(np.isfinite(out))

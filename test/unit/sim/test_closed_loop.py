@@ -13,9 +13,9 @@ from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.config import ConfigError, flatten, load_yaml, unflatten
 from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import FlowParams, PhysicsParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop
-from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import ModelParams, Scenario, SimParams, load_scenario, scenario_from_mapping
 

@@ -16,11 +16,11 @@ from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.control.backstepping import ControlCommand
 from vesselbot_ros.control.imager_model import Dropout
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint
-from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
 
 SEEDS = range(5)
@@ -238,7 +238,8 @@ def test_non_finite_state_inside_the_loop_ends_with_the_per_tick_error() -> None
         bad = st.plant.p.copy()
         bad[I_D0_RATIO] = np.nan
         st.plant.p = bad
-        with pytest.raises(ModelInputError, match=r"tick \d\d+: plant integration failed on \[0\.\d+, 0\.\d+\] \(code 2: non-finite state\): state \[nan") as exc:
+        message = r"tick \d\d+: plant integration failed on \[0\.\d+, 0\.\d+\] \(code 2: non-finite state\): state \[nan"
+        with pytest.raises(ModelInputError, match=message) as exc:
             run_stages(scenario, st, 0, path=path)
         messages.append(str(exc.value))
     assert messages[0] == messages[1]
@@ -311,9 +312,6 @@ for n in (50, 500):
 def test_the_compiled_loop_allocates_nothing_per_tick(name: str) -> None:
     # numba's runtime counts its allocations when NUMBA_NRT_STATS=1: a run of 500 ticks makes exactly as many
     # as a run of 50 (the scratch arrays allocated once before the first tick), so no tick allocates
-    import os
-    import subprocess
-    import sys
 
     out = subprocess.run([sys.executable, "-c", ALLOCATIONS, name], capture_output=True, text=True, timeout=600, check=True,
                          env=dict(os.environ, NUMBA_NRT_STATS="1"))

@@ -103,7 +103,7 @@ def test_fingerprint_sees_every_bit() -> None:
     assert fingerprint_series({"a": [1.0, 2.0]}) != fingerprint_series({"a": [[1.0, 2.0]]})  # shape counts
 
 
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not platform.libc_ver()[0] == "glibc",
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or platform.libc_ver()[0] != "glibc",
                     reason="glibc's x86-64 libm variants")
 def test_sound_scenario_within_1e12_when_libm_takes_its_non_fma_variants() -> None:
     """What is only close: glibc picks FMA or non-FMA ``exp``/``sin``/``pow`` by CPU.

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from vesselbot_ros.control.route import navigation_outcome, planned_reference
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
-from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
-from vesselbot_ros.control.route import navigation_outcome, planned_reference
+from vesselbot_ros.vessels.cfd import packed_params
 
 STRAIGHT = "physics.vessel.network=straight_table3"
 KEYS = ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m", "estimation_error_rms_m",
