@@ -129,7 +129,7 @@ def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64] | npt.N
             for c in range(i + 1, n):
                 s = s - row[c] * x[c][j]
             x[i][j] = s / row[i]
-    out = np.array(x, dtype=np.complex128 if cplx else np.float64)
+    out = np.array(x, dtype=np.complex128) if cplx else np.array(x, dtype=np.float64)
     return out[:, 0] if bm.ndim == 1 else out
 
 
@@ -200,7 +200,7 @@ def interp_spline_fitpack(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
 
 
 @numba.njit(cache=True, nogil=True)
-def _two_square(x):  # type: ignore[no-untyped-def]
+def _two_square(x):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     # (hi, lo) with hi = fl(x * x) and hi + lo = x * x exactly (Dekker's product error, no fma)
     hi = x * x
     t = x * 134217729.0  # Veltkamp split, 2**27 + 1
@@ -211,7 +211,7 @@ def _two_square(x):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def hypot2(x, y):  # type: ignore[no-untyped-def]
+def hypot2(x, y):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``math.hypot(x, y)`` of CPython 3.11+, double for double, for compiled code.
 
     numba's ``math.hypot`` calls the C library's ``hypot``, which gives a

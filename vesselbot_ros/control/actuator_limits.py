@@ -152,7 +152,7 @@ def coil_params(limits: CoilLimits) -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]
+def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Move the applied gradient towards ``(tx, tz)`` (T/m) within ``S * dt``; flags into ``out[4:6]``.
 
     The step is scaled uniformly (stays on the segment applied -> target).
@@ -176,7 +176,7 @@ def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def coil_saturate(prm, gx, gz):  # type: ignore[no-untyped-def]
+def coil_saturate(prm, gx, gz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(sx, sz, k)``: the finite command ``(gx, gz)`` (T/m) saturated in the configured norm, and ``k >= 1``."""
     g_sat = prm[0]
     if prm[2] < 0.5:
@@ -194,7 +194,7 @@ def coil_saturate(prm, gx, gz):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
+def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Saturate, then slew-limit the command ``(gx, gz)`` (T/m) at time ``t`` (s); see :class:`CoilLimiter`.
 
     The caller checks that ``t`` is finite and not before ``state[2]``.  Writes

@@ -76,7 +76,7 @@ class AdaptiveParams:
         if not self.scale_max > self.scale_min:
             raise ConfigError(f"scale_max must be > scale_min ({self.scale_min!r}), got {self.scale_max!r}")
         check_positive("regressor_step", self.regressor_step)
-        if not 1.0 >= self.scale_min or not self.scale_max >= 1.0:
+        if not self.scale_min <= 1.0 or not self.scale_max >= 1.0:
             raise ConfigError(f"scale_min..scale_max must contain 1 (the model's own value), got "
                               f"{self.scale_min!r}..{self.scale_max!r}")
 
@@ -98,7 +98,7 @@ def adaptive_params(params: AdaptiveParams, input_matrix: tuple[float, float, fl
 
 
 @numba.njit(cache=True, nogil=True)
-def adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1):  # type: ignore[no-untyped-def]
+def adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The update laws on arrays: ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``, in place.
 
     ``aprm`` from :func:`adaptive_params`.  Explicit Euler over the time since the

@@ -60,21 +60,22 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import mat2, mat2_apply
+from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
 from vesselbot_ros.physics.integrator import OK, integrate_dopri5_ws, new_workspace
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
 
-__all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message", "EKF_OUT_SIZE", "PREDICTION_FAILED"]
+__all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
+           "EKF_OUT_SIZE", "PREDICTION_FAILED"]
 
 N = 5
 
 
 @numba.njit(cache=True, nogil=True)
-def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]
+def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Copy ``p`` into ``p_s`` with V_f multiplied by ``s``."""
     for i in range(p.shape[0]):
         p_s[i] = p[i]
@@ -82,7 +83,7 @@ def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-def]
+def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles).
 
     ``tc`` memoises the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
@@ -98,7 +99,7 @@ def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-de
 
 
 @numba.njit(cache=True, nogil=True)
-def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc):  # type: ignore[no-untyped-def]
+def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
     tc[0] = np.nan  # p (the model) may differ from the last call's
     _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc)
@@ -160,7 +161,7 @@ def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi,
 
 
 @numba.njit(cache=True, nogil=True)
-def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]
+def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Kalman correction with a position frame; returns (accepted, nu_x, nu_z, d2)."""
     nx = mx - y[0]
     nz = mz - y[1]
@@ -226,7 +227,7 @@ def ekf_history_len(params: EkfParams, tick_s: float) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]
+def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     for i in range(N):
         for j in range(N):
             P[i, j] = 0.0
@@ -238,7 +239,7 @@ def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]
+def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
     _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
                  mat[2], fbuf, vec[5])
@@ -275,7 +276,7 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf,
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]
+def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     n = hist_t.shape[0]
     for back in range(ist[0]):
         if abs(hist_t[(ist[1] - back + n) % n] - t_acq) <= 1e-9:
@@ -284,8 +285,8 @@ def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec,
-                   mat, stats, err):  # type: ignore[no-untyped-def]
+def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+        prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat, stats, err):
     """``(yc, Pc)`` is the state ``back`` ticks ago: rewrite the history to now, set ``(y, P)``; code."""
     n = hist_t.shape[0]
     for step in range(back, 0, -1):
@@ -305,7 +306,7 @@ def _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, h
 
 
 @numba.njit(cache=True, nogil=True)
-def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat,  # type: ignore[no-untyped-def]
+def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                stats, t, gx, gz, has_meas, t_acq, m0, m1, out, err):
     """:meth:`ExtendedKalmanObserver.update` over explicit state: predict to ``t``, fuse a delivered frame.
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from typing import Any, Literal, NamedTuple, Protocol
+from typing import Any, Literal, Protocol
 
 import numba
 import numpy as np
@@ -373,7 +373,7 @@ def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-untyped-def]
+def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The compiled observers' output: ``out[:9]`` = [X (2), Z (2) from ``y``, age, innovation (2), used, rejected]."""
     out[0] = y[0]
     out[1] = y[1]
@@ -387,7 +387,7 @@ def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf,  # type: ignore[no-untyped-def]
+def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                     t, gx, gz, has_meas, t_acq, m0, m1, out):
     """:meth:`HighGainObserver.update` over explicit state (same doubles).
 

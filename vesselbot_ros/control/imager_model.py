@@ -37,7 +37,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal, NamedTuple
+from collections.abc import Mapping
+from typing import Any, Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -265,7 +266,7 @@ def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
     return prm, out, drop
 
 
-def draw_variates(src):  # type: ignore[no-untyped-def]
+def draw_variates(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The four variates of one acquisition, in this order: two standard normals, two uniforms.
 
     Compiled code only.  ``src`` is a ``numpy.random.Generator`` (the compiled
@@ -277,9 +278,9 @@ def draw_variates(src):  # type: ignore[no-untyped-def]
 
 
 @overload(draw_variates, jit_options={"nogil": True})
-def _draw_variates(src):  # type: ignore[no-untyped-def]
+def _draw_variates(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if isinstance(src, types.NumPyRandomGeneratorType):
-        def from_generator(src):  # type: ignore[no-untyped-def]
+        def from_generator(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
             n0 = src.standard_normal()
             n1 = src.standard_normal()
             u0 = src.random()
@@ -287,7 +288,7 @@ def _draw_variates(src):  # type: ignore[no-untyped-def]
             return n0, n1, u0, u1
         return from_generator
     if isinstance(src, types.Array):
-        def from_buffer(src):  # type: ignore[no-untyped-def]
+        def from_buffer(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
             i = int(src[0])
             src[0] = i + 4
             return src[i + 1], src[i + 2], src[i + 3], src[i + 4]
@@ -296,7 +297,7 @@ def _draw_variates(src):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def fill_variates(rng, buf):  # type: ignore[no-untyped-def]
+def fill_variates(rng, buf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Draw ``buf[1:]`` from ``rng`` in :func:`draw_variates`' order; ``buf[0] = 0`` (none used)."""
     for i in range(1, buf.shape[0] - 3, 4):
         buf[i] = rng.standard_normal()
@@ -322,7 +323,7 @@ class VariateBuffer:
         self._rng = rng
         self.buf = np.zeros(1 + 4 * self.BLOCK)
         self.buf[0] = float(self.buf.shape[0] - 1)  # empty: the first use fills
-        self._state_at_fill: dict | None = None
+        self._state_at_fill: Mapping[str, Any] | None = None
 
     def ready(self) -> npt.NDArray[np.float64]:
         """The buffer, with at least one acquisition's variates left."""
@@ -345,7 +346,7 @@ class VariateBuffer:
 
 
 @numba.njit(cache=True, nogil=True)
-def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
+def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Acquire one frame of ``(px, pz)`` at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[2:5]`` = (x, z, outlier).
 
     Draws two standard normals (noise on x, z), one uniform (outlier
@@ -376,7 +377,7 @@ def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignor
 
 
 @numba.njit(cache=True, nogil=True)
-def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]
+def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles).
 
     The caller checks that ``t`` and ``(px, pz)`` are finite and that time does

@@ -29,8 +29,8 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice
 from vesselbot_ros.physics.kernel import forces_into
-from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["input_matrix", "gradient_from_accel", "accel_from_gradient"]
 

@@ -20,10 +20,10 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
-from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["DynamicsModel"]
 

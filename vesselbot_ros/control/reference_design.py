@@ -30,8 +30,8 @@ import numpy as np
 from vesselbot_ros.config import check_nonnegative, check_positive
 from vesselbot_ros.control.high_gain_observer import ObserverParams, linearised_error_matrix
 from vesselbot_ros.physics.kernel import accel_no_motive
-from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["observer_error_jacobian", "observer_unstable_gap_m", "wall_safe_delta_m"]
 
@@ -54,18 +54,23 @@ def observer_error_jacobian(
     c = np.zeros(4)
     hz, hv = 1e-9, 1e-6
     state = [0.0, z_m, vx_m_per_s, 0.0]
+
+    def accel(s: list[float]) -> np.ndarray:
+        """The compiled acceleration at state ``s`` = (x, z, vx, vz) with no motive force."""
+        return np.array(accel_no_motive(t_s, s[0], s[1], s[2], s[3], c, p))
+
     jx = np.zeros((2, 2))
     jv = np.zeros((2, 2))
     for j, (idx, h) in enumerate(((0, hz), (1, hz))):
         sp, sm = list(state), list(state)
         sp[idx] += h
         sm[idx] -= h
-        jx[:, j] = (np.array(accel_no_motive(t_s, *sp, c, p)) - np.array(accel_no_motive(t_s, *sm, c, p))) / (2 * h)
+        jx[:, j] = (accel(sp) - accel(sm)) / (2 * h)
     for j, (idx, h) in enumerate(((2, hv), (3, hv))):
         sp, sm = list(state), list(state)
         sp[idx] += h
         sm[idx] -= h
-        jv[:, j] = (np.array(accel_no_motive(t_s, *sp, c, p)) - np.array(accel_no_motive(t_s, *sm, c, p))) / (2 * h)
+        jv[:, j] = (accel(sp) - accel(sm)) / (2 * h)
     return linearised_error_matrix(observer, jx, jv)
 
 

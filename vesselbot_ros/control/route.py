@@ -41,12 +41,12 @@ def route_branches(network: str, outlet: str) -> list[str]:
     return route_to_outlet(load_network(network), outlet)
 
 
-def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _anchors_cached(scenario.physics, scenario.observer, scenario.reference, tuple(scenario.initial.p0_m))
 
 
 @functools.lru_cache(maxsize=64)
-def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The planned anchors (k, 2) (m); cached per (frozen) inputs: the wall-safe heights cost ~0.3 s each."""
     net = load_network(phys.vessel.network)
     geom = NetworkGeometry(net)
@@ -85,7 +85,7 @@ def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # ty
     return arr
 
 
-def planned_reference(scenario):  # type: ignore[no-untyped-def]
+def planned_reference(scenario):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The scenario's :class:`ReferenceParams` with planned anchors when ``reference.route_outlet`` is set."""
     ref = scenario.reference
     if not ref.route_outlet:
@@ -107,7 +107,7 @@ def branch_at(network: str, points_m: npt.ArrayLike) -> tuple[list[str], npt.NDA
     return [geom.names[i] for i in q["branch"]], network_wall(net).query(points_m)["sdist"]
 
 
-def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:  # type: ignore[no-untyped-def]
+def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Where the robot went in a network run.
 
     Keys: ``branch_final`` (branch holding the final true position),
@@ -154,7 +154,7 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
     }
 
 
-def draw_network(ax, network: str, mm: float = 1e3) -> None:  # type: ignore[no-untyped-def]
+def draw_network(ax, network: str, mm: float = 1e3) -> None:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Draw the network on a matplotlib axis, in mm by default: the tubes filled grey, the meshed wall
     (the one the plant sees, :func:`vesselbot_ros.vessels.cfd.network_wall`) as a dark outline, the
     centrelines dotted."""

@@ -84,13 +84,13 @@ _RIDGE = 1e-2
 
 
 @register_jitable
-def rational_profile(y, a, b, c, d, e, p, q):  # type: ignore[no-untyped-def]
+def rational_profile(y, a, b, c, d, e, p, q):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """p_r(y) = a y^2 + b y + c + (d y + e) / ((y - p)^2 + q^2) (-); arrays broadcast."""
     return a * y * y + b * y + c + (d * y + e) / ((y - p) ** 2 + q * q)
 
 
 @register_jitable
-def _hermite(theta, k, knots, values, slopes, j):  # type: ignore[no-untyped-def]
+def _hermite(theta, k, knots, values, slopes, j):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     h = knots[k + 1] - knots[k]
     s = (theta - knots[k]) / h
     s2 = s * s
@@ -101,7 +101,7 @@ def _hermite(theta, k, knots, values, slopes, j):  # type: ignore[no-untyped-def
 
 
 @register_jitable
-def rational_profile_at(y, theta, knots, values, slopes):  # type: ignore[no-untyped-def]
+def rational_profile_at(y, theta, knots, values, slopes):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """p_r(y; theta) (-) with PCHIP-interpolated parameters (scalar y, theta in deg).
 
     ``values``/``slopes`` are the (K, 7) parameter table and its d/dtheta
@@ -166,7 +166,9 @@ def _basis(y: npt.NDArray[np.float64], p: float, q: float) -> npt.NDArray[np.flo
     return np.column_stack([y * y, y, np.ones_like(y), y * w, w])
 
 
-def _solve_linear(y: npt.NDArray[np.float64], u: npt.NDArray[np.float64], p: float, q: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+def _solve_linear(
+    y: npt.NDArray[np.float64], u: npt.NDArray[np.float64], p: float, q: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     basis = _basis(y, p, q)
     # A tiny ridge on the rational part keeps (d, e) -> 0 and the solution
     # continuous when the data are (nearly) parabolic and p, q are unidentifiable.

@@ -31,7 +31,7 @@ from numba.extending import register_jitable
 
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics._validate import finite_array
-from vesselbot_ros.physics.bifurcation import ProfileTable, rational_profile_at, load_profile_table
+from vesselbot_ros.physics.bifurcation import ProfileTable, load_profile_table, rational_profile_at
 from vesselbot_ros.physics.params import PhysicsParams
 
 __all__ = [
@@ -48,46 +48,46 @@ __all__ = [
 
 
 @register_jitable
-def pulse_factor(t, a_f, omega_f, phi_f):  # type: ignore[no-untyped-def]
+def pulse_factor(t, a_f, omega_f, phi_f):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """1 + a_f sin(omega_f t + phi_f), eq. (12) (-); t in s."""
     return 1.0 + a_f * np.sin(omega_f * t + phi_f)
 
 
 @register_jitable
-def vessel_diameter(t, d_nominal, amplitude, omega_f, phi_f):  # type: ignore[no-untyped-def]
+def vessel_diameter(t, d_nominal, amplitude, omega_f, phi_f):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """D(t) = D (1 + amplitude sin(omega_f t + phi_f)), eq. (13) (m)."""
     return d_nominal * (1.0 + amplitude * np.sin(omega_f * t + phi_f))
 
 
 @register_jitable
-def parabolic_profile(z, d_t):  # type: ignore[no-untyped-def]
+def parabolic_profile(z, d_t):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """p_p = max(0, 1 - (2 z / D(t))^2) (-); zero outside the vessel."""
     y = 2.0 * z / d_t
     return np.maximum(0.0, 1.0 - y * y)
 
 
 @register_jitable
-def wall_deltas(z, r, d_t):  # type: ignore[no-untyped-def]
+def wall_deltas(z, r, d_t):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(delta_upper, delta_lower) (m): signed robot-wall distances, > 0 in contact."""
     return z + r - 0.5 * d_t, -z + r - 0.5 * d_t
 
 
 @register_jitable
-def smoothstep(s):  # type: ignore[no-untyped-def]
+def smoothstep(s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """C^1 ramp 3 s^2 - 2 s^3 of s clamped to [0, 1] (-)."""
     c = np.minimum(1.0, np.maximum(0.0, s))
     return c * c * (3.0 - 2.0 * c)
 
 
 @register_jitable
-def bifurcation_weight(x, x_start, x_end, ramp_fraction):  # type: ignore[no-untyped-def]
+def bifurcation_weight(x, x_start, x_end, ramp_fraction):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Blend weight w(x) in [0, 1] of the rational profile; 0 outside [x_start, x_end]."""
     s = (x - x_start) / (x_end - x_start)
     return smoothstep(s / ramp_fraction) * smoothstep((1.0 - s) / ramp_fraction)
 
 
 @register_jitable
-def blended_profile(x, z, d_t, x_start, x_end, theta_start, theta_end, ramp, knots, values, slopes):  # type: ignore[no-untyped-def]
+def blended_profile(x, z, d_t, x_start, x_end, theta_start, theta_end, ramp, knots, values, slopes):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Profile p(x, z) (-) of a vessel with one major bifurcation (scalars only).
 
     theta(x) goes linearly from theta_start to theta_end (deg) over the section;

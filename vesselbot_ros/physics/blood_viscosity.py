@@ -31,13 +31,13 @@ __all__ = ["relative_viscosity_045", "hematocrit_exponent", "blood_viscosity", "
 
 
 @register_jitable
-def relative_viscosity_045(d_um):  # type: ignore[no-untyped-def]
+def relative_viscosity_045(d_um):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """eta_0.45(d): relative apparent viscosity at h_d = 0.45 (-); d in um (scalar or array)."""
     return 6.0 * np.exp(-0.085 * d_um) + 3.2 - 2.44 * np.exp(-0.06 * d_um**0.645)
 
 
 @register_jitable
-def hematocrit_exponent(d_um, printed):  # type: ignore[no-untyped-def]
+def hematocrit_exponent(d_um, printed):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Exponent c(d) (-); ``printed`` = 1.0 selects the paper's printed 1e11/d^12 term."""
     d12 = d_um**12
     frac = d12 / (d12 + 1.0e11)
@@ -46,7 +46,7 @@ def hematocrit_exponent(d_um, printed):  # type: ignore[no-untyped-def]
 
 
 @register_jitable
-def _viscosity(d_um, hematocrit, plasma_viscosity, printed):  # type: ignore[no-untyped-def]
+def _viscosity(d_um, hematocrit, plasma_viscosity, printed):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     ratio2 = (d_um / (d_um - 1.1)) ** 2
     c = hematocrit_exponent(d_um, printed)
     shape = ((1.0 - hematocrit) ** c - 1.0) / (0.55**c - 1.0)

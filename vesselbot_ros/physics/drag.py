@@ -30,19 +30,19 @@ __all__ = ["wall_factor", "drag_coefficient", "drag_gain", "drag_force"]
 
 
 @register_jitable
-def wall_factor(lam, alpha0, lambda0):  # type: ignore[no-untyped-def]
+def wall_factor(lam, alpha0, lambda0):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """f(lambda) = (1 + (lambda/lambda0)^alpha0) / (1 - lambda^alpha0), eq. (10)-(11) (-)."""
     return (1.0 + (lam / lambda0) ** alpha0) / (1.0 - lam**alpha0)
 
 
 @register_jitable
-def drag_coefficient(re):  # type: ignore[no-untyped-def]
+def drag_coefficient(re):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """C_d(Re) = 24/Re + 6/(1 + sqrt(Re)) + 0.4, eq. (8) (-); Re > 0."""
     return 24.0 / re + 6.0 / (1.0 + np.sqrt(re)) + 0.4
 
 
 @register_jitable
-def drag_gain(speed, r, eta, rho_f, f):  # type: ignore[no-untyped-def]
+def drag_gain(speed, r, eta, rho_f, f):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Scalar gain c (N s/m) with F_d = -c u; ``speed`` = |u| (m/s), arrays broadcast."""
     u_inf = f * speed
     re = 2.0 * r * rho_f * u_inf / eta

@@ -16,7 +16,8 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics import kernel
 from vesselbot_ros.physics._validate import finite_array, finite_vector
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.physics.wall_contact import ContactState, update_contact_state as _update_contact_state
+from vesselbot_ros.physics.wall_contact import ContactState
+from vesselbot_ros.physics.wall_contact import update_contact_state as _update_contact_state
 
 __all__ = ["ForceTerms", "ContactState", "force_terms", "update_contact_state", "robot_mass"]
 
@@ -103,14 +104,15 @@ def force_terms(
     if packed[kernel.I_NET_ON] > 0.5:
         # a network: the meshed wall's exact distance and normal, the local diameter and the 2-D blood
         # velocity at (x, z), as _forces_network used them (the straight vessel's would be wrong here)
-        s_t, nx, nz, d_t, _eta, vfx, vfz = kernel.network_geometry(t, p[0], p[1], packed)
+        _s_t, nx, nz, d_t, _eta, vfx, vfz = kernel.network_geometry(t, p[0], p[1], packed)
         delta, wall = kernel.wall_delta_xz(t, p[0], p[1], packed)
-        return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([-float(nx), -float(nz)]),
+        # the ignore below: *rows fills exactly the eight force fields (out has 8 rows), which mypy cannot count
+        return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([-float(nx), -float(nz)]),  # type: ignore[misc]  # 8 rows
                           v_fluid_W=np.array([float(vfx), float(vfz)]), diameter_m=float(d_t))
     delta, wall = kernel.nearest_wall_delta(t, p[1], packed)
     d_t = kernel._diameter(t, packed)
     vf = kernel.fluid_velocity_x(t, p[0], p[1], packed)
-    return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([0.0, float(wall)]),
+    return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([0.0, float(wall)]),  # type: ignore[misc]  # 8 rows
                       v_fluid_W=np.array([float(vf), 0.0]), diameter_m=float(d_t))
 
 

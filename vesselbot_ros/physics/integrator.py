@@ -38,7 +38,6 @@ import numba
 import numpy as np
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
-
 from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, forces_tc, time_terms_into, update_contact, wall_delta_at, wall_delta_xz
 
 __all__ = [
@@ -121,7 +120,7 @@ TIME_TERMS_ROW = 9
 
 
 @numba.njit(cache=True)
-def new_workspace():  # type: ignore[no-untyped-def]
+def new_workspace():  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(work, fbuf)``: the scratch arrays :func:`integrate_dopri5_ws` and :func:`integrate_rk4_ws` write into."""
     work = np.empty((10, 4))
     work[TIME_TERMS_ROW, 0] = np.nan
@@ -144,8 +143,8 @@ _E6 = 22.0 / 525.0
 _E7 = -1.0 / 40.0
 
 
-@numba.njit(cache=True, _nrt=False)
-def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     # the kernel's accel() without its (8, 2) scratch, time-only terms memoised in tc: same operations, same doubles
     forces_tc(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf, tc)
     out[0] = y[2]
@@ -154,8 +153,8 @@ def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-un
     out[3] = fbuf[7, 1] / p[I_MASS] + uz
 
 
-@numba.njit(cache=True, _nrt=False)
-def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if p[I_NET_ON] > 0.5:  # a network's wall comes from the grid at (x, z), not from D(t)
         delta, _wall = wall_delta_xz(t, y[0], y[1], p)
     else:
@@ -164,8 +163,8 @@ def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]
     update_contact(contact, delta, p)
 
 
-@numba.njit(cache=True, _nrt=False)
-def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats, work, fbuf):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats, work, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Integrate ``y = (x, z, vx, vz)`` in place from ``t0`` to ``t1`` (s).
 
     Args: t0, t1 (s); y (4,) float64, overwritten; gx, gz gradient (T/m);
@@ -271,15 +270,15 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
 
 
 @numba.njit(cache=True)
-def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats):  # type: ignore[no-untyped-def]
+def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`integrate_dopri5_ws` with a workspace allocated for this call (convenience)."""
     work, fbuf = new_workspace()
     return integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max,
                                stats, work, fbuf)
 
 
-@numba.njit(cache=True, _nrt=False)
-def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fixed-step RK4 from ``t0`` to ``t1`` with ``ceil((t1-t0)/h_fixed)`` equal steps.
 
     Same arguments as :func:`integrate_dopri5_ws`; returns the code.
@@ -319,7 +318,7 @@ def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work
 
 
 @numba.njit(cache=True)
-def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # type: ignore[no-untyped-def]
+def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`integrate_rk4_ws` with a workspace allocated for this call (convenience)."""
     work, fbuf = new_workspace()
     return integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf)

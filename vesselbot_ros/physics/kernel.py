@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ConfigError
+from vesselbot_ros.physics.apparent_weight import apparent_weight_z
 from vesselbot_ros.physics.bifurcation import load_profile_table
 from vesselbot_ros.physics.blood_flow import (
     blended_profile,
@@ -36,13 +37,12 @@ from vesselbot_ros.physics.blood_flow import (
     vessel_diameter,
     wall_deltas,
 )
-from vesselbot_ros.physics.apparent_weight import apparent_weight_z
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import bead_pulling_force
+from vesselbot_ros.physics.meshed_wall import grid_cell, nearest_wall
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
 from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
-from vesselbot_ros.physics.meshed_wall import grid_cell, nearest_wall
 from vesselbot_ros.physics.wall_interactions import (
     contact_heaviside_flag,
     electrostatic_factor,
@@ -50,8 +50,6 @@ from vesselbot_ros.physics.wall_interactions import (
     steric_coefficient,
     wall_pair_forces_z,
 )
-
-
 
 # numba's cache of this module (and of every module that inlines it) is dropped when any numba
 # source changes: vesselbot_ros.numba_cache, run on package import.
@@ -204,13 +202,13 @@ def pack_network_params(params: PhysicsParams, fld: Any) -> npt.NDArray[np.float
     return out
 
 
-@numba.njit(cache=True, _nrt=False)
-def _diameter(t, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _diameter(t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return vessel_diameter(t, p[I_DIAMETER], p[I_D_PULSE], p[I_OMEGA_F], p[I_PHI_F])
 
 
-@numba.njit(cache=True, _nrt=False)
-def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The network grid's cell holding (x, z) (m): ``(base index, nx, cells per field, w00, w10, w01, w11)``.
 
     Bilinear weights; outside the grid the cell at the nearest grid edge, its weights clipped to [0, 1].
@@ -229,16 +227,16 @@ def _grid_cell(p, x, z):  # type: ignore[no-untyped-def]
     return (o + NET_HEAD + j * nx + i, nx, nx * nz, (1.0 - tx) * (1.0 - tz), tx * (1.0 - tz), (1.0 - tx) * tz, tx * tz)
 
 
-@numba.njit(cache=True, _nrt=False)
-def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Grid field ``field`` interpolated in ``cell`` (:func:`_grid_cell`)."""
     base, nx, n, w00, w10, w01, w11 = cell
     b = base + field * n
     return w00 * p[b] + w10 * p[b + 1] + w01 * p[b + nx] + w11 * p[b + nx + 1]
 
 
-@numba.njit(cache=True, _nrt=False)
-def _network_wall(p, x, z):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _network_wall(p, x, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(s, nx, nz): exact signed distance (m, > 0 inside) and unit inward normal of the meshed wall at (x, z) (m).
 
     :func:`vesselbot_ros.physics.meshed_wall.nearest_wall` over the packed wall segments and cell candidates.
@@ -254,8 +252,8 @@ def _network_wall(p, x, z):  # type: ignore[no-untyped-def]
     return nearest_wall(x, z, p[segs:offs], p[offs:idx], p[idx:idx + n_idx], p[o], p[o + 1], p[o + 2], nx, nz)
 
 
-@numba.njit(cache=True, _nrt=False)
-def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
 
     s_t: signed distance of the centre to the meshed wall (m, > 0 inside; exact, computed
@@ -280,21 +278,21 @@ def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]
     return s_t, gx, gz, d_t, eta, scale * _grid_value(p, cell, 0), scale * _grid_value(p, cell, 1)
 
 
-@numba.njit(cache=True, _nrt=False)
-def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(delta (m), wall) of the nearest wall for a robot centred at (x, z).
 
     Straight vessel: :func:`nearest_wall_delta`.  Network: delta = r - s_t;
     wall = +1 if the nearest wall lies above the centre (inward normal down), else -1.
     """
     if p[I_NET_ON] > 0.5:
-        s_t, gx, gz, d_t, eta, vx, vz = network_geometry(t, x, z, p)
+        s_t, _gx, gz, _d_t, _eta, _vx, _vz = network_geometry(t, x, z, p)
         return p[I_R] - s_t, (1.0 if gz <= 0.0 else -1.0)
     return nearest_wall_delta(t, z, p)
 
 
-@numba.njit(cache=True, _nrt=False)
-def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(v_fx, v_fz) blood velocity (m/s) at (x, z) (m), time t (s)."""
     if p[I_NET_ON] > 0.5:
         r = network_geometry(t, x, z, p)
@@ -302,8 +300,8 @@ def fluid_velocity_xz(t, x, z, p):  # type: ignore[no-untyped-def]
     return fluid_velocity_x(t, x, z, p), 0.0
 
 
-@numba.njit(cache=True, _nrt=False)
-def time_terms(t, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def time_terms(t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The terms of the force model that depend on time only: ``(D(t) (m), pulse factor (-), wall factor f (-))``.
 
     ``D(t)`` of eq. (13), ``1 + a_f sin(omega_f t + phi_f)`` of eq. (12) and the
@@ -315,8 +313,8 @@ def time_terms(t, p):  # type: ignore[no-untyped-def]
     return d_t, pulse, wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0])
 
 
-@numba.njit(cache=True, _nrt=False)
-def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fill ``tc`` (4,) = ``[t, *time_terms(t, p)]`` unless it already holds time ``t``.
 
     The memo of one integrator call: its stages revisit the same times (the
@@ -325,7 +323,7 @@ def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
     owns ``tc`` sets ``tc[0] = nan`` whenever ``p`` may have changed (every
     integrator call does), so a hit always means the same ``t`` and ``p``.
     """
-    if not tc[0] == t:
+    if tc[0] != t:
         d_t, pulse, wf = time_terms(t, p)
         tc[0] = t
         tc[1] = d_t
@@ -333,8 +331,8 @@ def time_terms_into(t, p, tc):  # type: ignore[no-untyped-def]
         tc[3] = wf
 
 
-@numba.njit(cache=True, _nrt=False)
-def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if p[I_BIF_ON] > 0.5:
         nk = int(p[I_BIF_NKNOTS])
         i0 = I_TABLE
@@ -347,16 +345,16 @@ def _flow_x(x, z, d_t, pulse, p):  # type: ignore[no-untyped-def]
     return p[I_V_F] * pulse * prof
 
 
-@numba.njit(cache=True, _nrt=False)
-def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
     if p[I_NET_ON] > 0.5:
         return network_geometry(t, x, z, p)[5]
     return _flow_x(x, z, _diameter(t, p), pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]), p)
 
 
-@numba.njit(cache=True, _nrt=False)
-def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z, vessel diameter d_t.
 
     Straight vessel only; a network's wall: :func:`wall_delta_xz`.
@@ -367,14 +365,14 @@ def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]
     return d_lo, -1.0
 
 
-@numba.njit(cache=True, _nrt=False)
-def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
     return wall_delta_at(z, _diameter(t, p), p)
 
 
-@numba.njit(cache=True, _nrt=False)
-def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`forces_into` of a straight vessel with the time-only terms given (``time_terms``): the same doubles.
 
     Not for a network (``p[I_NET_ON]``): use :func:`forces_into` / :func:`forces_tc`, which dispatch.
@@ -416,8 +414,8 @@ def forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf):  # typ
     out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
 
 
-@numba.njit(cache=True, _nrt=False)
-def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fill ``out`` (8, 2) with the force terms (N) in ``TERM_NAMES`` order.
 
     Args: t (s); x, z (m); vx, vz (m/s); gx, gz gradient (T/m); contact_arr (4,);
@@ -430,8 +428,8 @@ def forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[n
     forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, d_t, pulse, wf)
 
 
-@numba.njit(cache=True, _nrt=False)
-def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`forces_into` with the time-only terms memoised in ``tc`` (:func:`time_terms_into`): the same doubles.
 
     A network (``p[I_NET_ON]``) takes its time-dependent terms from the grid at (x, z), not from the
@@ -444,8 +442,8 @@ def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore
     forces_at(x, z, vx, vz, gx, gz, contact_arr, p, out, tc[1], tc[2], tc[3])
 
 
-@numba.njit(cache=True, _nrt=False)
-def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`forces_into` in a vessel network: every force from the local wall geometry.
 
     delta and the inward normal n from the signed distance; the drag's wall
@@ -484,7 +482,7 @@ def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: igno
 
 
 @numba.njit(cache=True)
-def accel(t, x, z, vx, vz, gx, gz, contact_arr, p):  # type: ignore[no-untyped-def]
+def accel(t, x, z, vx, vz, gx, gz, contact_arr, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(ax, az) (m/s^2): total force including the magnetic term, divided by m = rho V."""
     out = np.empty((8, 2))
     forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
@@ -492,13 +490,13 @@ def accel(t, x, z, vx, vz, gx, gz, contact_arr, p):  # type: ignore[no-untyped-d
 
 
 @numba.njit(cache=True)
-def accel_no_motive(t, x, z, vx, vz, contact_arr, p):  # type: ignore[no-untyped-def]
+def accel_no_motive(t, x, z, vx, vz, contact_arr, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """F(X, Z) of eq. (23): (total force without the magnetic term) / m (m/s^2)."""
     return accel(t, x, z, vx, vz, 0.0, 0.0, contact_arr, p)
 
 
-@numba.njit(cache=True, _nrt=False)
-def update_contact(contact_arr, delta, p):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def update_contact(contact_arr, delta, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Advance the loading/unloading state in place after observing ``delta`` (m)."""
     ph, dm, fm, d0 = contact_transition(contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3],
                                         min(delta, p[I_R]), p[I_HERTZ_K], p[I_D0_RATIO])

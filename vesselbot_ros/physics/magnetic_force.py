@@ -55,7 +55,7 @@ __all__ = [
 
 
 @register_jitable
-def bead_pulling_force(tau_m, volume, magnetization, grad):  # type: ignore[no-untyped-def]
+def bead_pulling_force(tau_m, volume, magnetization, grad):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """tau_m V M grad_B (N) for each gradient component grad (T/m); arrays broadcast."""
     return tau_m * volume * magnetization * grad
 
@@ -87,45 +87,47 @@ def sperm_number_function(sperm_number: float, base: Literal["hinged", "free"] =
 
 
 @register_jitable
-def ef_tail_length(r, n_turns, pitch_rad, contour):  # type: ignore[no-untyped-def]
+def ef_tail_length(r, n_turns, pitch_rad, contour):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """EF tail length L (m): helix contour 2 pi n r / sin(phi) (contour=1) or axial 2 pi n r / tan(phi)."""
     return contour * 2.0 * np.pi * n_turns * r / np.sin(pitch_rad) + (1.0 - contour) * 2.0 * np.pi * n_turns * r / np.tan(pitch_rad)
 
 
 @register_jitable
-def flagellum_normal_drag(eta, length, kappa):  # type: ignore[no-untyped-def]
+def flagellum_normal_drag(eta, length, kappa):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """zeta_perp = 4 pi eta / (ln(L / (2 kappa)) + 0.193) (N s/m^2), below eq. (4)."""
     return 4.0 * np.pi * eta / (np.log(length / (2.0 * kappa)) + 0.193)
 
 
 @register_jitable
-def elastic_flagellum_force(tau_m, volume, magnetization, field, omega, length, zeta_perp, sperm, z_sp):  # type: ignore[no-untyped-def]
+def elastic_flagellum_force(tau_m, volume, magnetization, field, omega, length, zeta_perp, sperm, z_sp):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """|F_m| (N) of eq. (4) with k eliminated through S_p (see module doc)."""
     gamma0 = tau_m * volume * magnetization * field
     return gamma0 * gamma0 * sperm**8 * z_sp / (4.0 * length**4 * omega * zeta_perp)
 
 
 @register_jitable
-def helix_drag_coefficients(eta, r, kappa, pitch_rad):  # type: ignore[no-untyped-def]
+def helix_drag_coefficients(eta, r, kappa, pitch_rad):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(zeta_perp, zeta_par) (N s/m^2) of eq. (6)."""
     lg = np.log(0.36 * np.pi * r / (kappa * np.sin(pitch_rad)))
     return 4.0 * np.pi * eta / (lg + 0.5), 2.0 * np.pi * eta / lg
 
 
 @register_jitable
-def helical_tail_thrust(r, n_turns, pitch_rad, zeta_perp, zeta_par, omega):  # type: ignore[no-untyped-def]
+def helical_tail_thrust(r, n_turns, pitch_rad, zeta_perp, zeta_par, omega):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Driving term of eq. (5): 2 pi n r^2 cos(phi) (zeta_perp - zeta_par) omega (N)."""
     return 2.0 * np.pi * n_turns * r * r * np.cos(pitch_rad) * (zeta_perp - zeta_par) * omega
 
 
 @register_jitable
-def helical_tail_slowdown_gain(r, n_turns, pitch_rad, zeta_perp, zeta_par):  # type: ignore[no-untyped-def]
+def helical_tail_slowdown_gain(r, n_turns, pitch_rad, zeta_perp, zeta_par):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Gain c (N s/m) of the slow-down term of eq. (5): F = -c (v - v_f)."""
     s = np.sin(pitch_rad)
     return 2.0 * np.pi * n_turns * r * (zeta_perp * s * s + zeta_par * np.cos(pitch_rad) ** 2) / s
 
 
-def bead_pulling_force_W(magnetic_ratio: float, radius_m: float, magnetization_A_per_m: float, gradient_T_per_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
+def bead_pulling_force_W(
+    magnetic_ratio: float, radius_m: float, magnetization_A_per_m: float, gradient_T_per_m: npt.ArrayLike
+) -> npt.NDArray[np.float64]:
     """Validated BP force (..., 2) (N) for a gradient (..., 2) (T/m) on a robot of radius r (m).
 
     Raises:

@@ -53,7 +53,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["wall_segments", "cell_candidates", "grid_cell", "nearest_wall", "nearest_segment", "query_points", "local_diameter", "WallQuery"]
+__all__ = ["wall_segments", "cell_candidates", "grid_cell", "nearest_wall", "nearest_segment", "query_points", "local_diameter",
+           "WallQuery"]
 
 
 def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int64],
@@ -100,8 +101,8 @@ def wall_segments(points: npt.NDArray[np.float64], triangles: npt.NDArray[np.int
     return np.ascontiguousarray(segs), np.ascontiguousarray(np.column_stack([a[on_cap], b[on_cap]]))
 
 
-@numba.njit(cache=True, _nrt=False)
-def _seg_dist2(px, pz, segs, m):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _seg_dist2(px, pz, segs, m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(squared distance, foot x, foot z, cross) of point to segment ``m`` of flat ``segs`` (4 per segment)."""
     ax = segs[4 * m]
     az = segs[4 * m + 1]
@@ -123,8 +124,8 @@ def _seg_dist2(px, pz, segs, m):  # type: ignore[no-untyped-def]
     return ex * ex + ez * ez, fx, fz, (dx * ez - dz * ex) / math.sqrt(L2)
 
 
-@numba.njit(cache=True, _nrt=False)
-def grid_cell(fx, fz, nx, nz):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def grid_cell(fx, fz, nx, nz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(i, j)``: the cell of a grid of nx by nz nodes holding the point at grid coordinates (fx, fz) (-).
 
     Outside the grid: the cell at the nearest grid edge (the plant's field lookup and the wall's candidate
@@ -143,8 +144,8 @@ def grid_cell(fx, fz, nx, nz):  # type: ignore[no-untyped-def]
     return i, j
 
 
-@numba.njit(cache=True, _nrt=False)
-def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(s, nx, nz)``: signed distance (m, > 0 in the lumen) and unit inward normal of the wall at (px, pz) (m).
 
     ``segs`` flat (4 k,) segments; ``offsets`` ((nx-1)(nz-1)+1,) and ``index`` the cells' candidates
@@ -182,7 +183,7 @@ def nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz):  # type: igno
 
 
 @numba.njit(cache=True)
-def query_points(pts, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+def query_points(pts, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(m, 3) rows ``(s, nx, nz)`` of :func:`nearest_wall` at points (m, 2) (m)."""
     out = np.empty((pts.shape[0], 3))
     for k in range(pts.shape[0]):
@@ -194,7 +195,7 @@ def query_points(pts, segs, offsets, index, x0, z0, h, nx, nz):  # type: ignore[
 
 
 @numba.njit(cache=True)
-def _candidates(segs, x0, z0, h, nx, nz, slack):  # type: ignore[no-untyped-def]
+def _candidates(segs, x0, z0, h, nx, nz, slack):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     ncell = (nx - 1) * (nz - 1)
     nseg = segs.size // 4
     w2 = 2.0 * 0.5 * math.sqrt(2.0) * h + slack
@@ -240,11 +241,11 @@ def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: floa
         offsets ((nx-1)(nz-1)+1,) and index (total,) int64: cell ``j (nx-1) + i`` holds
         ``index[offsets[c]:offsets[c+1]]``.
     """
-    return _candidates(np.ascontiguousarray(segs, dtype=np.float64).ravel(), x0, z0, h, nx, nz, 1e-9)  # type: ignore[no-any-return]
+    return _candidates(np.ascontiguousarray(segs, dtype=np.float64).ravel(), x0, z0, h, nx, nz, 1e-9)
 
 
 @numba.njit(cache=True)
-def _disc_diameter(cx, cz, rad, sd, x0, z0, h, tol, tol_on):  # type: ignore[no-untyped-def]
+def _disc_diameter(cx, cz, rad, sd, x0, z0, h, tol, tol_on):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     nz, nx = rad.shape
     out = np.zeros((nz, nx))
     for j in range(nz):
@@ -268,7 +269,7 @@ def _disc_diameter(cx, cz, rad, sd, x0, z0, h, tol, tol_on):  # type: ignore[no-
     return out
 
 
-def local_diameter(query, x0: float, z0: float, h: float, nx: int, nz: int) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def local_diameter(query, x0: float, z0: float, h: float, nx: int, nz: int) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(nz, nx) local diameter (m) on the grid (origin x0, z0, spacing h (m), nx x nz nodes).
 
     ``query``: (m, 2) points -> (m, 3) rows (s, nx, nz) of the exact wall query.  A lumen node's
@@ -301,7 +302,7 @@ def local_diameter(query, x0: float, z0: float, h: float, nx: int, nz: int) -> n
     if empty.any():
         _dist, (jj, ii) = distance_transform_edt(empty, return_indices=True)
         d = d[jj, ii]
-    return d  # type: ignore[no-any-return]
+    return d
 
 
 class WallQuery:
@@ -311,7 +312,7 @@ class WallQuery:
         field: A :class:`vesselbot_ros.vessels.cfd.NetworkField` (its wall segments and candidate lists).
     """
 
-    def __init__(self, field) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, field) -> None:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
         self.field = field
         self._segs = np.ascontiguousarray(field.wall_segments, dtype=np.float64).ravel()
         self._off = np.ascontiguousarray(field.cell_offsets, dtype=np.float64)
@@ -338,16 +339,16 @@ class WallQuery:
         j = np.clip(np.floor(fz).astype(np.int64), 0, nz - 2)
         tx, tz = fx - i, fz - j
         g = self.field.field("diameter")
-        return ((1 - tx) * (1 - tz) * g[j, i] + tx * (1 - tz) * g[j, i + 1] + (1 - tx) * tz * g[j + 1, i]  # type: ignore[no-any-return]
+        return ((1 - tx) * (1 - tz) * g[j, i] + tx * (1 - tz) * g[j, i + 1] + (1 - tx) * tz * g[j + 1, i]
                 + tx * tz * g[j + 1, i + 1])
 
     def clearance(self, x_m: float, z_m: float) -> tuple[float, float]:
         """(signed distance (m, > 0 inside), local diameter (m)) at one point, compiled (a few microseconds)."""
-        return _clearance(float(x_m), float(z_m), self._segs, self._off, self._idx, self._diam, *self._grid)  # type: ignore[no-any-return]
+        return _clearance(float(x_m), float(z_m), self._segs, self._off, self._idx, self._diam, *self._grid)
 
 
 @numba.njit(cache=True, nogil=True)
-def _clearance(px, pz, segs, offsets, index, diam, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
+def _clearance(px, pz, segs, offsets, index, diam, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     s, _gx, _gz = nearest_wall(px, pz, segs, offsets, index, x0, z0, h, nx, nz)
     fx = min(max((px - x0) / h, 0.0), nx - 1.0)
     fz = min(max((pz - z0) / h, 0.0), nz - 1.0)
@@ -361,7 +362,7 @@ def _clearance(px, pz, segs, offsets, index, diam, x0, z0, h, nx, nz):  # type: 
 
 
 @numba.njit(cache=True)
-def nearest_segment(pts, segs):  # type: ignore[no-untyped-def]
+def nearest_segment(pts, segs):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(index (m,), foot (m, 2)) of the segment of (k, 4) ``segs`` nearest each point (m, 2), brute force."""
     flat = segs.ravel()
     idx = np.empty(pts.shape[0], dtype=np.int64)

@@ -23,7 +23,6 @@ import math
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from vesselbot_ros.physics.apparent_weight import sphere_volume
 from vesselbot_ros.config import (
     ConfigError,
     check_choice,
@@ -35,6 +34,7 @@ from vesselbot_ros.config import (
     to_mapping,
     unflatten,
 )
+from vesselbot_ros.physics.apparent_weight import sphere_volume
 
 __all__ = [
     "BloodParams",
@@ -181,10 +181,9 @@ class VesselParams:
         check_nonnegative("gravity_m_per_s2", self.gravity_m_per_s2)
         # the network file itself is checked where it is read (vesselbot_ros.vessels.network.load_network,
         # called by the scenario's checks and vessels.cfd.packed_params): VesselParams never reads it
-        if self.network:
-            if self.major_bifurcation.enabled:
-                raise ConfigError("major_bifurcation.enabled must be false with a network (its bifurcations are in "
-                                  f"the geometry), got network={self.network!r}")
+        if self.network and self.major_bifurcation.enabled:
+            raise ConfigError("major_bifurcation.enabled must be false with a network (its bifurcations are in "
+                              f"the geometry), got network={self.network!r}")
 
 
 @dataclasses.dataclass(frozen=True)

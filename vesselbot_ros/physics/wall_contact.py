@@ -49,13 +49,13 @@ UNLOADING = 2
 
 
 @register_jitable
-def hertz_stiffness(r, e_c, sigma_c, e_w, sigma_w):  # type: ignore[no-untyped-def]
+def hertz_stiffness(r, e_c, sigma_c, e_w, sigma_w):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """k = (4 sqrt(r)/3) / ((1-sigma_c^2)/E_c + (1-sigma_w^2)/E_w) (N/m^1.5)."""
     return (4.0 * np.sqrt(r) / 3.0) / ((1.0 - sigma_c**2) / e_c + (1.0 - sigma_w**2) / e_w)
 
 
 @register_jitable
-def contact_force_magnitude(delta, phase, delta_max, force_max, delta_0, k, p_exp):  # type: ignore[no-untyped-def]
+def contact_force_magnitude(delta, phase, delta_max, force_max, delta_0, k, p_exp):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """|F_c| (N), repulsive along -n (arrays ok).
 
     Loading law (15) unless ``phase`` == UNLOADING and ``delta <= delta_max``,
@@ -77,7 +77,7 @@ def contact_force_magnitude(delta, phase, delta_max, force_max, delta_0, k, p_ex
 
 
 @register_jitable
-def contact_transition(phase, delta_max, force_max, delta_0, delta, k, ratio):  # type: ignore[no-untyped-def]
+def contact_transition(phase, delta_max, force_max, delta_0, delta, k, ratio):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Next (phase, delta_max, force_max, delta_0) after observing ``delta`` (scalars)."""
     if phase == 0:
         if delta > 0.0:
@@ -122,7 +122,9 @@ class ContactState(NamedTuple):
         return cls(int(round(a[0])), float(a[1]), float(a[2]), float(a[3]))
 
 
-def update_contact_state(state: ContactState, delta_m: float, stiffness_N_per_m1p5: float, permanent_deformation_ratio: float) -> ContactState:
+def update_contact_state(
+    state: ContactState, delta_m: float, stiffness_N_per_m1p5: float, permanent_deformation_ratio: float
+) -> ContactState:
     """Pure state update after observing the penetration ``delta_m`` (m).
 
     Args:

@@ -59,45 +59,45 @@ def contact_heaviside_flag(mode: str) -> float:
     return 1.0 if mode == "paper_heaviside" else 0.0
 
 
-def robot_charge(radius_m, charge_C: float | None, charge_scale: float):  # type: ignore[no-untyped-def]
+def robot_charge(radius_m, charge_C: float | None, charge_scale: float):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """q (C): ``charge_C`` or Hays' maximum at ``radius_m`` (scalar or array), times ``charge_scale``."""
     return (max_charge(radius_m) if charge_C is None else charge_C) * charge_scale
 
 
 @register_jitable
-def max_charge(r):  # type: ignore[no-untyped-def]
+def max_charge(r):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Hays' maximum allowable charge (C) of a sphere of radius r (m)."""
     return 1.0e-6 * 4.0 * np.pi * r * r * 30.0 * (100.0 * r) ** -0.3
 
 
 @register_jitable
-def vdw_force(gap, r, hamaker, g_min):  # type: ignore[no-untyped-def]
+def vdw_force(gap, r, hamaker, g_min):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Attractive vdW force (N, along +n) at gap (m) >= 0, floored at ``g_min``."""
     h = np.maximum(gap, g_min) / r
     return 2.0 * hamaker / (3.0 * r * h * h * (h + 2.0) ** 2)
 
 
 @register_jitable
-def electrostatic_force(gap, r, charge, eps_eps0, factor):  # type: ignore[no-untyped-def]
+def electrostatic_force(gap, r, charge, eps_eps0, factor):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Attractive electrostatic force (N, along +n); factor 1 = eq. (19) as printed, 1/4 = image."""
     s = r + np.maximum(gap, 0.0)
     return factor * charge * charge / (4.0 * np.pi * eps_eps0 * s * s)
 
 
 @register_jitable
-def steric_coefficient(r, brush_length, kb_t, grafting_density):  # type: ignore[no-untyped-def]
+def steric_coefficient(r, brush_length, kb_t, grafting_density):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """50 r L0 k_B T tau^(3/2) (N): steric force at zero gap, eq. (22)."""
     return 50.0 * r * brush_length * kb_t * grafting_density**1.5
 
 
 @register_jitable
-def steric_force(gap, coefficient, brush_length):  # type: ignore[no-untyped-def]
+def steric_force(gap, coefficient, brush_length):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Repulsive steric force magnitude (N, along -n) at gap (m)."""
     return coefficient * np.exp(-2.0 * np.pi * np.maximum(gap, 0.0) / brush_length)
 
 
 @register_jitable
-def interaction_forces_along_n(delta, r, hamaker, g_min, charge, eps_eps0, el_factor, st_coef, brush_length, heaviside):  # type: ignore[no-untyped-def]
+def interaction_forces_along_n(delta, r, hamaker, g_min, charge, eps_eps0, el_factor, st_coef, brush_length, heaviside):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(vdW, electrostatic, steric) components along +n (N) for one wall at ``delta`` (m).
 
     ``heaviside`` = 1 multiplies by H(-delta) (paper), 0 holds the zero-gap value.
@@ -110,7 +110,7 @@ def interaction_forces_along_n(delta, r, hamaker, g_min, charge, eps_eps0, el_fa
 
 
 @register_jitable
-def wall_pair_forces_z(delta_up, delta_lo, r, hamaker, g_min, charge, eps_eps0, el_factor, st_coef, brush_length, heaviside):  # type: ignore[no-untyped-def]
+def wall_pair_forces_z(delta_up, delta_lo, r, hamaker, g_min, charge, eps_eps0, el_factor, st_coef, brush_length, heaviside):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """z components (N) of (vdW, electrostatic, steric), summed over both walls.
 
     The upper wall normal is +z and the lower one -z, so at the centreline the

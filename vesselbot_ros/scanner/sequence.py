@@ -105,7 +105,7 @@ class SequenceParams:
 class TrackingWindow(NamedTuple):
     """One tracking window: ``[start_s, end_s)``; its frame is stamped ``t_acq_s`` and delivered at ``t_deliver_s``."""
 
-    index: int
+    index: int  # type: ignore[assignment]  # the field's name shadows tuple.index on purpose
     start_s: float
     end_s: float
     t_acq_s: float
@@ -134,7 +134,7 @@ def sequence_vector(params: SequenceParams) -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _cycle_c(sv, t_s):  # type: ignore[no-untyped-def]
+def _cycle_c(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     rel = t_s - sv[5]
     if rel < -_EPS_S:
         return -1, rel
@@ -143,7 +143,7 @@ def _cycle_c(sv, t_s):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def phase_code(sv, t_s):  # type: ignore[no-untyped-def]
+def phase_code(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:data:`PHASE_CODES` of the phase at ``t_s`` (finite); see :func:`phase_at`."""
     if sv[0] < 0.5:
         return _CODE_CONTINUOUS
@@ -163,7 +163,7 @@ def phase_code(sv, t_s):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def phase_codes(sv, ts):  # type: ignore[no-untyped-def]
+def phase_codes(sv, ts):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`phase_code` at every time of ``ts``, int8."""
     out = np.empty(ts.shape[0], dtype=np.int8)
     for i in range(ts.shape[0]):
@@ -172,7 +172,7 @@ def phase_codes(sv, ts):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def tracking_window_at(sv, t_s):  # type: ignore[no-untyped-def]
+def tracking_window_at(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(index, start, end, t_acq, t_deliver)`` of the tracking window containing ``t_s``; index -1 if none."""
     if sv[0] < 0.5 or phase_code(sv, t_s) != _CODE_TRACKING:
         return -1, 0.0, 0.0, 0.0, 0.0
@@ -183,7 +183,7 @@ def tracking_window_at(sv, t_s):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]
+def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`propulsion_limit` for valid arguments (compiled)."""
     if sv[0] < 0.5:
         return sat
@@ -204,7 +204,7 @@ def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def target_for(px, pz, cx, cz, limit, max_step):  # type: ignore[no-untyped-def]
+def target_for(px, pz, cx, cz, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`propulsion_target` (compiled; CPython's ``math.hypot`` via ``hypot2``): ``(gx, gz)``."""
     n = hypot2(cx, cz)
     if n > limit:
@@ -259,7 +259,7 @@ class PhaseWindow(NamedTuple):
     """
 
     phase: Phase
-    index: int
+    index: int  # type: ignore[assignment]  # the field's name shadows tuple.index on purpose
     start_s: float
     end_s: float
 

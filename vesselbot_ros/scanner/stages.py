@@ -23,7 +23,6 @@ saturation and slew limits hold across window edges.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numba
 import numpy as np
@@ -54,7 +53,7 @@ def new_seq_imager_state() -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz, out):  # type: ignore[no-untyped-def]
+def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`SequencedImager.frame` over explicit state (same draws, same doubles).
 
     The caller checks the inputs (finite, time not going back) and sizes
@@ -99,7 +98,7 @@ def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz
 
 
 @numba.njit(cache=True, nogil=True)
-def seq_coil_apply(prm, sv, hold, state, t, gx, gz, out):  # type: ignore[no-untyped-def]
+def seq_coil_apply(prm, sv, hold, state, t, gx, gz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`SequencedCoil.apply` over the coil's explicit state (:func:`coil_apply`'s ``prm``, ``state``, ``out``).
 
     Saturates the command in the coil's norm, gates it by the sequence

@@ -78,7 +78,8 @@ from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, smooth_centreline
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
-           "network_field", "network_wall", "packed_params", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES", "womersley_numbers"]
+           "network_field", "network_wall", "packed_params", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES",
+           "womersley_numbers"]
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
@@ -153,8 +154,8 @@ def mesh_network(net: VesselNetworkParams) -> MeshedNetwork:
             step = max(1, int(0.5 * h / net.sample_spacing_m))
             poly = _offset_polygon(pts, rad, step)
             lc = min(h, float(rad.min()) / 3.0)  # at least 6 elements across a narrow branch
-            tags = [occ.addPoint(float(x), float(z), 0.0, lc) for x, z in poly]
-            lines = [occ.addLine(tags[i], tags[(i + 1) % len(tags)]) for i in range(len(tags))]
+            points = [occ.addPoint(float(x), float(z), 0.0, lc) for x, z in poly]
+            lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
             loop = occ.addCurveLoop(lines)
             surfaces.append((2, occ.addPlaneSurface([loop])))
             if b.parent == "":
@@ -235,7 +236,20 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     # deferred: scikit-fem and scipy.sparse are heavy imports (~0.3 s), paid only when a field is solved
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
-    from skfem import Basis, BilinearForm, ElementTriP0, ElementTriP1, ElementTriP2, ElementVector, FacetBasis, Functional, MeshTri, asm, bmat, condense
+    from skfem import (
+        Basis,
+        BilinearForm,
+        ElementTriP0,
+        ElementTriP1,
+        ElementTriP2,
+        ElementVector,
+        FacetBasis,
+        Functional,
+        MeshTri,
+        asm,
+        bmat,
+        condense,
+    )
     from skfem.helpers import ddot, div, dot, grad
 
     t0 = time.perf_counter()
@@ -266,17 +280,17 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     rho = blood.density_kg_per_m3
 
     @BilinearForm
-    def viscous(u, v, w):  # type: ignore[no-untyped-def]
+    def viscous(u, v, w):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
         return w.mu * ddot(grad(u), grad(v))
 
     @BilinearForm
-    def convection(u, v, w):  # type: ignore[no-untyped-def]
+    def convection(u, v, w):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
         gu = grad(u)
         adv = np.einsum("j...,ij...->i...", w.wv, gu)
         return rho * dot(adv, v)
 
     @BilinearForm
-    def divergence(u, q, w):  # type: ignore[no-untyped-def]
+    def divergence(u, q, w):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
         return div(u) * q
 
     A_visc = asm(viscous, ub, mu=mu)
@@ -323,9 +337,9 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
         else:
             A = A_visc + asm(convection, ub, wv=ub.interpolate(u))
         K = bmat([[A, -B.T], [-B, None]], "csc")
-        Kc, rhs, xI, I = condense(K, np.zeros(nu + npr), x=x, D=D)
+        Kc, rhs, xI, interior = condense(K, np.zeros(nu + npr), x=x, D=D)
         sol = xI.copy()
-        sol[I] = splu(sp.csc_matrix(Kc)).solve(rhs)
+        sol[interior] = splu(sp.csc_matrix(Kc)).solve(rhs)
         u_new = sol[:nu]
         change = float(np.max(np.abs(u_new - u)) / max(np.max(np.abs(u_new)), 1e-300))
         u = u_new
@@ -376,7 +390,8 @@ class NetworkField:
 
     def grid(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """(x (nx,), z (nz,)) grid coordinates (m)."""
-        return self.x0_m + self.h_m * np.arange(self.nx), self.z0_m + self.h_m * np.arange(self.nz)
+        x = np.asarray(self.x0_m + self.h_m * np.arange(self.nx), dtype=np.float64)
+        return x, np.asarray(self.z0_m + self.h_m * np.arange(self.nz), dtype=np.float64)
 
     def save(self, path: Path) -> None:
         """Write atomically (temporary file, then rename) as compressed npz."""

@@ -32,7 +32,7 @@ import json
 import math
 from functools import cached_property
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numba
 import numpy as np
@@ -234,8 +234,8 @@ def _check_overlaps(net: VesselNetworkParams) -> None:
     by_name = {b.name: b for b in net.branches}
     for i, a in enumerate(net.branches):
         for b in net.branches[i + 1:]:
-            pa, ra, sa = cl[a.name]
-            pb, rb, sb = cl[b.name]
+            pa, ra, _sa = cl[a.name]
+            pb, rb, _sb = cl[b.name]
             related = a.parent == b.name or b.parent == a.name or (a.parent == b.parent and a.parent != "")
             ma = np.ones(len(pa), dtype=bool)
             mb = np.ones(len(pb), dtype=bool)
@@ -322,7 +322,7 @@ class NetworkGeometry:
         self.net = net
         self.branches = {b.name: smooth_centreline(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
         self.names = [b.name for b in net.branches]
-        self._trees: dict[str, object] = {}
+        self._trees: dict[str, Any] = {}  # scipy.spatial.cKDTree (scipy has no types here)
 
     @cached_property
     def bbox(self) -> tuple[float, float, float, float]:
@@ -424,7 +424,7 @@ class NetworkGeometry:
 
 
 @numba.njit(cache=True, nogil=True)
-def _point_clearance(px, pz, xs, zs, rad, starts):  # type: ignore[no-untyped-def]
+def _point_clearance(px, pz, xs, zs, rad, starts):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`NetworkGeometry.clearance`: per branch the polyline point nearest (px, pz) on the two segments
     next to its nearest vertex; the branch of the largest signed distance (radius at the foot minus distance)."""
     best_s = -np.inf
