@@ -22,6 +22,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+from vesselbot_ros.errors import VesselbotError
+
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "design-map": ("vesselbot_ros.analysis.design_map_cli", "Fig. 7: F_m/F_tot maps over (lambda, Delta)"),
@@ -75,8 +77,6 @@ def _silence_stdout() -> None:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    from vesselbot_ros.errors import VesselbotError
-
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(only=command if command in COMMANDS else None)

@@ -44,11 +44,18 @@ and load ``config/foxglove/vesselbot.json`` as the layout.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import struct
 import threading
 import time
 from collections.abc import Iterable
 from typing import Any
+
+from vesselbot_ros.graph_spec import VIEW_CHANNELS
+from vesselbot_ros.graph_spec import topic as topic_spec
+from vesselbot_ros.live_front import SubprotocolFront
+from vesselbot_ros.live_view import ERRORS_SCHEMA, ERRORS_SCHEMA_NAME, DerivedView
 
 __all__ = ["LiveView", "DEFAULT_LIVE_PORT", "DEFAULT_LIVE_RATE_HZ", "TIME_RATE_HZ", "check_port", "clock_ns"]
 
@@ -108,11 +115,6 @@ class LiveView:
 
         import foxglove
         from foxglove.websocket import Capability
-
-        from vesselbot_ros.graph_spec import VIEW_CHANNELS
-        from vesselbot_ros.graph_spec import topic as topic_spec
-        from vesselbot_ros.live_front import SubprotocolFront
-        from vesselbot_ros.live_view import ERRORS_SCHEMA, ERRORS_SCHEMA_NAME, DerivedView
 
         check_port(port)
         if not max_rate_Hz >= 0:
@@ -196,10 +198,8 @@ class LiveView:
         if ch is None:
             return
         if topic == self._clock_topic:
-            try:
+            with contextlib.suppress(ValueError):
                 self.set_time(clock_ns(data))
-            except ValueError:
-                pass
         if topic in self._latched:
             with self._lock:
                 self._latched[topic] = (bytes(data), int(t_ns))

@@ -19,8 +19,10 @@ The front listens before it returns, so the port it reports accepts connections
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
+import time
 from typing import NamedTuple
 
 __all__ = ["SDK_SUBPROTOCOL", "SPEC_SUBPROTOCOL", "SUBPROTOCOLS", "SubprotocolFront", "Handshake", "rewrite_request",
@@ -216,10 +218,8 @@ class SubprotocolFront:
             dst.shutdown(socket.SHUT_WR)
         except OSError:  # a reset on either side: end both directions
             for s in (src, dst):
-                try:
+                with contextlib.suppress(OSError):
                     s.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
         finally:
             done.release()
 
@@ -228,17 +228,13 @@ class SubprotocolFront:
 
         Call after stopping the SDK's server, so its close frames reach the clients.  Idempotent.
         """
-        import time
-
         with self._lock:
             if self._closed:
                 return
             self._closed = True
             pumps = list(self._pumps)
-        try:
+        with contextlib.suppress(OSError):
             self._listener.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
         self._listener.close()
         deadline = time.monotonic() + timeout_s
         for t in pumps:
@@ -246,7 +242,5 @@ class SubprotocolFront:
         with self._lock:
             left = list(self._conns)
         for s in left:  # a client that never closed its side
-            try:
+            with contextlib.suppress(OSError):
                 s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass

@@ -20,7 +20,10 @@ Example::
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import shutil
+import subprocess
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -152,10 +155,6 @@ def run_node_script(script: str, *args: str, timeout: float = 120.0) -> Any:
     Raises:
         AssertionError: node failed, timed out or printed no JSON (its stderr is in the message).
     """
-    import json
-    import shutil
-    import subprocess
-
     node = shutil.which("node")
     assert node is not None, "node is not installed (tools/bootstrap.sh needs Node.js and npm)"
     assert (JS_DIR / "node_modules").is_dir(), f"{JS_DIR}/node_modules missing: run `make bootstrap`"

@@ -6,7 +6,7 @@ names for code written against the old topic table.
 
 from __future__ import annotations
 
-from vesselbot_ros.graph_spec import (  # noqa: F401 - re-exports
+from vesselbot_ros.graph_spec import (
     FRAME_ID,
     NODE_NAMES,
     SERVICES,

@@ -27,8 +27,8 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError, check_positive, check_range, load_dataclass
-from vesselbot_ros.physics.blood_flow import parabolic_profile, wall_deltas
 from vesselbot_ros.physics.apparent_weight import apparent_weight_z, sphere_volume
+from vesselbot_ros.physics.blood_flow import parabolic_profile, wall_deltas
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import (
@@ -70,8 +70,8 @@ __all__ = [
     "all_design_maps",
 ]
 
-DESIGNS = ("BP", "EF", "HT")
 Design = Literal["BP", "EF", "HT"]
+DESIGNS: tuple[Design, ...] = ("BP", "EF", "HT")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,7 +222,9 @@ class MapSummary(NamedTuple):
     lam_range_90: tuple[float, float]
 
 
-def motive_force(design: Design, r: npt.NDArray[np.float64], eta: float, params: PhysicsParams, dp: DesignParams) -> npt.NDArray[np.float64]:
+def motive_force(
+    design: Design, r: npt.NDArray[np.float64], eta: float, params: PhysicsParams, dp: DesignParams
+) -> npt.NDArray[np.float64]:
     """Largest motive force |F_m| (N) of ``design`` for radii ``r`` (m) in blood of viscosity eta."""
     rb = params.robot
     vol = sphere_volume(r)
@@ -235,7 +237,8 @@ def motive_force(design: Design, r: npt.NDArray[np.float64], eta: float, params:
         length = ef_tail_length(r, dp.n_turns, phi, 1.0 if dp.ef_tail_length == "helix_contour" else 0.0)
         zeta = flagellum_normal_drag(eta, length, kappa)
         z_sp = sperm_number_function(dp.sperm_number, dp.ef_base)
-        return np.asarray(elastic_flagellum_force(rb.magnetic_ratio, vol, rb.magnetization_A_per_m, dp.rot_field_T, omega, length, zeta, dp.sperm_number, z_sp))
+        return np.asarray(elastic_flagellum_force(rb.magnetic_ratio, vol, rb.magnetization_A_per_m, dp.rot_field_T, omega, length, zeta,
+                                                  dp.sperm_number, z_sp))
     if design == "HT":
         zp, zl = helix_drag_coefficients(eta, r, kappa, phi)
         return np.asarray(helical_tail_thrust(r, dp.n_turns, phi, zp, zl, omega))
@@ -334,4 +337,4 @@ def summarize(m: DesignMap) -> MapSummary:
 
 def all_design_maps(params: PhysicsParams, study: DesignStudy) -> list[DesignMap]:
     """Every vessel x design map (12 for Table I), vessel-major order."""
-    return [design_map(v, d, params, study) for v in study.vessels for d in DESIGNS]  # type: ignore[arg-type]
+    return [design_map(v, d, params, study) for v in study.vessels for d in DESIGNS]

@@ -40,6 +40,7 @@ def maps_figure(maps: list[DesignMap]) -> Any:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.font_manager import FontProperties
     from matplotlib.lines import Line2D
 
     vessels = list(dict.fromkeys(m.vessel for m in maps))
@@ -61,7 +62,7 @@ def maps_figure(maps: list[DesignMap]) -> Any:
                Line2D([], [], color="r", marker="*", ls="", ms=9, label="red star: maximum of F_m/F_tot "
                       "(value in the panel title)")]
     leg = fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, facecolor="0.6", framealpha=1.0)
-    leg.set_title("Fig. 7: log10 of F_m/F_tot over (lambda, Delta)", prop={"size": 8})
+    leg.set_title("Fig. 7: log10 of F_m/F_tot over (lambda, Delta)", prop=FontProperties(size=8))
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
 
@@ -86,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - t0
     summaries = [summarize(m) for m in maps]
     print(f"{len(maps)} maps of {study.grid.n_lambda}x{study.grid.n_delta} in {elapsed:.3f} s")
-    print(f"{'vessel':<13} {'design':<6} {'max Fm/Ftot':>11} {'lambda':>7} {'Delta (m)':>11} {'Delta/Dmax':>10}  lambda range >= 90 % of max")
+    print(f"{'vessel':<13} {'design':<6} {'max Fm/Ftot':>11} {'lambda':>7} {'Delta (m)':>11} {'Delta/Dmax':>10}"
+          "  lambda range >= 90 % of max")
     with (out / "design_map_summary.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(("vessel", "design", "max_ratio", "lambda_at_max", "delta_at_max_m", "xi_at_max", "lambda90_lo", "lambda90_hi"))

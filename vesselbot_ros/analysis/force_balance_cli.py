@@ -57,10 +57,14 @@ def steady(params: PhysicsParams) -> PhysicsParams:
     return params.with_overrides({"flow.pulsatility": 0.0, "flow.diameter_pulsation": 0.0})
 
 
-def force_balance_curve(params: PhysicsParams, delta_m: npt.NDArray[np.float64], t_s: float = 0.0, gradient_T_per_m: float = 0.08) -> BalanceCurve:
+def force_balance_curve(
+    params: PhysicsParams, delta_m: npt.NDArray[np.float64], t_s: float = 0.0, gradient_T_per_m: float = 0.08
+) -> BalanceCurve:
     """Evaluate every term at each Delta for a still robot (gradient along +z)."""
     packed = packed_params(params)
-    rows: list[ForceTerms] = [force_terms(t_s, [0.0, z], [0.0, 0.0], [0.0, gradient_T_per_m], ContactState(), params, packed=packed) for z in delta_m]
+    rows: list[ForceTerms] = [
+        force_terms(t_s, [0.0, z], [0.0, 0.0], [0.0, gradient_T_per_m], ContactState(), params, packed=packed) for z in delta_m
+    ]
     forces = {name: np.array([getattr(ft, name) for ft in rows]) for name in (*TERMS, "total")}
     forces["load"] = forces["total"] - forces["magnetic"]
     gap = np.array([-ft.delta_m for ft in rows])
@@ -111,7 +115,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--time must be a finite time (s), got {args.time!r}")
     t = 0.0 if args.time is None else float(args.time)
     p_eval = steady(params) if args.time is None else params
-    d_t = p_eval.vessel.diameter_m * (1.0 + p_eval.flow.diameter_pulsation * np.sin(p_eval.flow.angular_frequency_rad_per_s * t + p_eval.flow.phase_rad))
+    d_t = p_eval.vessel.diameter_m * (
+        1.0 + p_eval.flow.diameter_pulsation * np.sin(p_eval.flow.angular_frequency_rad_per_s * t + p_eval.flow.phase_rad)
+    )
     room = 0.5 * d_t - p_eval.robot.radius_m  # largest gap to the upper wall (robot on the centreline)
     if not (math.isfinite(args.min_gap) and 0.0 < args.min_gap < room):
         raise ConfigError(f"--min-gap must be in (0, {room:.4g}) m (the gap with the robot on the centreline), "

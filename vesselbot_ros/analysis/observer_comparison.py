@@ -96,11 +96,11 @@ def compare_observers(scenario: Scenario, seed: int, shadows: Mapping[str, Obser
         st.plant.step(out.applied)
         g_prev = out.applied
     res: dict[str, ShadowResult] = {}
-    for name, e in err.items():
+    for name, errs in err.items():
         if name in failed:
             res[name] = ShadowResult(math.inf, math.inf, failed[name])
         else:
-            a = np.asarray(e)
+            a = np.asarray(errs)
             res[name] = ShadowResult(float(np.sqrt(np.mean(a * a))), float(np.max(a)), None)
     return res
 

@@ -20,8 +20,8 @@ from vesselbot_ros.analysis.design_map import DesignStudy
 from vesselbot_ros.analysis.force_balance_cli import delta_grid, force_balance_curve, steady
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.kernel import I_CHARGE
-from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["register", "run", "PERTURBATIONS", "perturbed", "ratio_curve"]
 
@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         for v in rng:
             cases.append((f"{label} = {v:g}", base.with_overrides({key: v})))
     for v in t2.viscosity_Pa_s:
-        cases.append((f"Table II eta = {v:g} Pa s", base.with_overrides({"blood.viscosity_model": "constant", "blood.constant_viscosity_Pa_s": v})))
+        overrides = {"blood.viscosity_model": "constant", "blood.constant_viscosity_Pa_s": v}
+        cases.append((f"Table II eta = {v:g} Pa s", base.with_overrides(overrides)))
     for label, p in cases:
         ratio, ftot = ratio_curve(p, deltas)
         curves[label] = ratio

@@ -12,7 +12,7 @@ __all__ = ["format_info", "info_dict"]
 
 
 def _iso(ns: int) -> str:
-    return _dt.datetime.fromtimestamp(ns * 1e-9, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.fromtimestamp(ns * 1e-9, tz=_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def info_dict(info: BagInfo) -> dict[str, Any]:

@@ -25,7 +25,11 @@ from typing import Any
 
 import numpy as np
 import yaml
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
 
+from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY
+from vesselbot_ros.config import ConfigError, parse_yaml_text
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import topic
 
@@ -110,7 +114,7 @@ class BagInfo:
 class BagMessage:
     """One recorded message: ``topic``, ``msgtype``, ``log_time_ns``, ``data`` (CDR bytes)."""
 
-    __slots__ = ("topic", "msgtype", "log_time_ns", "data", "_typestore")
+    __slots__ = ("_typestore", "data", "log_time_ns", "msgtype", "topic")
 
     def __init__(self, topic: str, msgtype: str, log_time_ns: int, data: bytes, typestore: Any) -> None:
         self.topic = topic
@@ -129,8 +133,6 @@ def _check_mcap(path: Path, bag_dir: Path, chunk_kinds: list[str] | None = None)
 
     ``chunk_kinds``, if given, receives the compression of each chunk (``""`` for none).
     """
-    from mcap.reader import make_reader
-
     if not path.is_file():
         raise BagError(f"bag {bag_dir}: MCAP file {path.name} listed in metadata.yaml is missing")
     size = path.stat().st_size
@@ -167,8 +169,6 @@ def read_metadata_yaml(path: Path) -> Any:
         ValueError: naming the file, line and column of the first problem
             (never a Python repr).
     """
-    from vesselbot_ros.config import ConfigError, parse_yaml_text
-
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -242,8 +242,6 @@ def open_bag(path: str | Path) -> BagInfo:
 
     custom = info.get("custom_data") or {}
     run_metadata: dict[str, Any] = {}
-    from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY
-
     raw = custom.get(RUN_METADATA_KEY)
     if raw is None and (bag_dir / RUN_METADATA_FILE).is_file():
         raw = (bag_dir / RUN_METADATA_FILE).read_text(encoding="utf-8")
@@ -282,8 +280,6 @@ def iter_messages(
         BagError: if the bag is invalid, a requested topic is not in it, or a
             chunk turns out to be corrupt while reading.
     """
-    from rosbags.highlevel import AnyReader
-
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
     if topics is not None:
         missing = sorted(set(topics) - {t.name for t in info.topics})
@@ -392,15 +388,15 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
         key = names[m.topic]
         msg = m.decode()
         if key == "truth":
-            vals = {
+            plant: dict[str, object] = {
                 "t_s": _stamp_s(msg.header), "p_WR": _v3(msg.position), "v_WR": _v3(msg.velocity),
                 "v_blood": _v3(msg.blood_velocity), "diameter_m": float(msg.vessel_diameter),
                 "in_contact": bool(msg.in_contact), "applied_gradient": _v3(msg.applied_gradient),
                 "gap_upper_m": float(msg.wall_gap_upper), "gap_lower_m": float(msg.wall_gap_lower),
             }
             for term in _FORCE_TERMS:
-                vals[f"F_{term}"] = _v3(getattr(msg.forces, term))
-            add(key, **vals)
+                plant[f"F_{term}"] = _v3(getattr(msg.forces, term))
+            add(key, **plant)
         elif key == "estimate":
             add(key, t_s=_stamp_s(msg.header), p_hat=_v3(msg.pose.pose.position), v_hat=_v3(msg.twist.twist.linear))
         elif key == "reference":

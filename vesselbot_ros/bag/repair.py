@@ -35,6 +35,15 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from rosbags.rosbag2.metadata import parse_qos
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from vesselbot_ros.bag.reader import MCAP_MAGIC, open_bag
+from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY, _DirWriter
+from vesselbot_ros.config import ConfigError, parse_yaml_text
 from vesselbot_ros.errors import BagError
 
 __all__ = ["RepairResult", "repair_bag"]
@@ -83,9 +92,6 @@ def _unused(path: Path, suffix: str = ".damaged") -> Path:
 
 def _run_json_from_metadata_text(text: str) -> str | None:
     """The run metadata in a rosbag2 metadata YAML text (``custom_data``), or None."""
-    from vesselbot_ros.bag.writer import RUN_METADATA_KEY
-    from vesselbot_ros.config import ConfigError, parse_yaml_text
-
     try:
         doc = parse_yaml_text(text, source="metadata")
     except ConfigError:
@@ -98,14 +104,10 @@ def _run_json_from_metadata_text(text: str) -> str | None:
 
 
 def _qos_list(metadata: dict[str, str]) -> list:
-    from rosbags.rosbag2.metadata import parse_qos
-
     text = metadata.get("offered_qos_profiles", "")
     if not text:
         return []
     try:
-        import yaml
-
         return parse_qos(yaml.safe_load(text) or [])
     except Exception:  # noqa: BLE001 - keep the data even if the QoS text is odd
         return []
@@ -122,13 +124,6 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
         BagError: if there is no MCAP, it is not an MCAP, nothing in it can be
             recovered, or the disk is full (the bag is then left as it was).
     """
-    from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader, breakup_chunk
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    from vesselbot_ros.bag.reader import MCAP_MAGIC, open_bag
-    from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY, _DirWriter
-
     bag_dir = Path(path).expanduser().resolve()
     if not bag_dir.is_dir():
         raise BagError(f"bag directory {bag_dir} does not exist")
@@ -140,7 +135,7 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
             pass
         else:
             if info.consistent:
-                counts = {t.name: t.count for t in info.topics}
+                counts: dict[str, int] = {t.name: t.count for t in info.topics}
                 return RepairResult(bag_dir, False, info.message_count, counts, 0, None)
     mcaps = sorted(bag_dir.glob("*.mcap"))
     if not mcaps:
@@ -173,7 +168,7 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
     complete = False
     schemas: dict[int, Schema] = {}
     conns: dict[int, object] = {}
-    counts: dict[str, int] = {}
+    counts = {}
     mcap_run_json: list[str] = []
     ts = get_typestore(Stores.ROS2_JAZZY)
     writer = _DirWriter(tmp_bag)
@@ -200,8 +195,8 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
             conn = conns.get(rec.channel_id)
             if conn is None:
                 return  # a message before its channel is invalid MCAP; nothing to attach it to
-            writer.write(conn, rec.log_time, rec.data)  # type: ignore[arg-type]
-            counts[conn.topic] += 1  # type: ignore[attr-defined]
+            writer.write(conn, rec.log_time, rec.data)  # type: ignore[arg-type]  # conns holds rosbags Connections
+            counts[conn.topic] += 1  # type: ignore[attr-defined]  # (typed object: rosbags has no stubs)
         elif isinstance(rec, Metadata) and rec.name == "rosbag2":
             found = _run_json_from_metadata_text(rec.metadata.get("serialized_metadata", ""))
             if found:

@@ -24,6 +24,7 @@ published: ``replay --live`` broadcasts it as the live view's time), and
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -57,8 +58,6 @@ class ReplayStats:
 
 
 def _import_type(msgtype: str) -> Any:
-    import importlib
-
     pkg, kind, name = msgtype.split("/")
     try:
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
@@ -146,7 +145,7 @@ def replay(
     if wait_subscribers_s > 0:
         deadline = time.monotonic() + wait_subscribers_s
         # a topic the bag declares with no message (coil/stall of a run without a stall) has nothing to wait for
-        awaited = {n: p for n, p in pubs.items() if info.topic(n).count}  # type: ignore[union-attr]
+        awaited = {n: p for n, p in pubs.items() if info.topic(n).count}  # type: ignore[union-attr]  # pubs: the bag's own topics
         while time.monotonic() < deadline and not should_stop():
             if all(p.get_subscription_count() > 0 for p in awaited.values()):
                 # our side has matched; give the subscribers' side of DDS discovery time to

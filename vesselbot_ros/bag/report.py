@@ -552,7 +552,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if note:
         metrics["metrics_window_note"] = note
     sat = bool_intervals(t, m["saturated"])
-    slew = bool_intervals(t, m["slew_limited"].any(axis=1))
+    slew = bool_intervals(t, np.asarray(m["slew_limited"].any(axis=1), dtype=np.bool_))
     faults = _fault_intervals(ts, info.run_metadata, dt)
     tracking = tracking_windows(ts, float(t[-1]) + dt)
     spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults],

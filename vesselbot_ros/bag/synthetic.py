@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from typing import Any
+
 from vesselbot_ros.graph_spec import topic
 
 __all__ = ["tick_messages", "latched_messages", "OUTLIER_WINDOW_S", "PARAMS"]
@@ -43,7 +44,6 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
     from geometry_msgs.msg import PointStamped, Vector3Stamped
     from nav_msgs.msg import Odometry
     from rosgraph_msgs.msg import Clock
-
     from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample
 
     P = PARAMS
@@ -132,9 +132,8 @@ def latched_messages() -> list[tuple[str, Any]]:
     """The latched topics (vessel markers, reference path, the scanner's phase: continuous), published once."""
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path as PathMsg
-    from visualization_msgs.msg import Marker, MarkerArray
-
     from vesselbot_msgs.msg import SequencePhase
+    from visualization_msgs.msg import Marker, MarkerArray
 
     ma = MarkerArray()
     for i, z in enumerate((PARAMS["D"] / 2, -PARAMS["D"] / 2)):

@@ -47,6 +47,7 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -60,7 +61,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any
 
-from rosbags.interfaces import Connection, Qos
+from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2 import storage_mcap as _mcap
 from rosbags.rosbag2.storage_mcap import McapWriter
@@ -125,7 +126,7 @@ def _zstd_compressor(level: str) -> Any:
     try:
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:
-        from backports import zstd  # type: ignore[import-not-found,no-redef]
+        from backports import zstd
     lo, hi = zstd.CompressionParameter.compression_level.bounds()
     lvl = lo if level == "min" else hi
     return lambda data: zstd.compress(data, level=lvl)
@@ -190,8 +191,6 @@ def qos_from_spec(durability_transient_local: bool, depth: int) -> Qos:
         durability_transient_local: True for latched topics.
         depth: History depth.
     """
-    from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-
     never = QosTime(*RMW_DURATION_INFINITE)  # as ros2 bag on Jazzy writes an infinite duration
     return Qos(
         history=QosHistory.KEEP_LAST,
@@ -269,7 +268,7 @@ class JazzyMcapWriter(McapWriter):
             self.compression = preset.compression
             self.compressor = _zstd_compressor(preset.level or "min")
 
-    def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:  # noqa: D102
+    def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:
         # rosbags' write() with the preset's chunk size instead of its fixed 1 MiB
         self.message_start_time = min(timestamp, self.message_start_time)
         self.message_end_time = max(timestamp, self.message_end_time)
@@ -288,7 +287,7 @@ class JazzyMcapWriter(McapWriter):
         if chunk.bio.tell() > self.preset.chunk_bytes:
             self.close_chunk()
 
-    def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:  # noqa: D102
+    def add_connection(self, connection: Connection, offered_qos_profiles: str) -> None:
         super().add_connection(connection, offered_qos_profiles)
         meta = BytesIO()
         _mcap.write_string(meta, "offered_qos_profiles")
@@ -305,7 +304,7 @@ class JazzyMcapWriter(McapWriter):
         self.chunk.bio.truncate()
         _mcap.write_channel(self.chunk.bio, self.channels[-1], self.schemas)
 
-    def close_chunk(self) -> None:  # noqa: D102
+    def close_chunk(self) -> None:
         start = self.bio.tell()
         crc = crc32(self.chunk.bio.getvalue()) if self.preset.chunk_crc else 0
         super().close_chunk()
@@ -315,7 +314,7 @@ class JazzyMcapWriter(McapWriter):
         self.bio.write(struct.pack("<I", crc))
         self.bio.seek(end)
 
-    def close(self, version: int, metadata: str) -> None:  # noqa: D102
+    def close(self, version: int, metadata: str) -> None:
         metadata = _DISTRO_LINE.sub(f"ros_distro: {ROS_DISTRO}", metadata)
         super().close(version, metadata)
         write_summary_crc(self.path)
@@ -452,10 +451,9 @@ class BagWriter:
         self._finished = True
         if writer is None or writer.storage is None:
             return
-        try:
+        # OSError: the buffered tail cannot be written either; what is on disk stays
+        with contextlib.suppress(OSError):
             writer.storage.abort()
-        except OSError:
-            pass  # the buffered tail cannot be written either; what is on disk stays
 
     def __enter__(self) -> BagWriter:
         return self.open()

@@ -20,9 +20,12 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vesselbot_ros.errors import BagError
+
+if TYPE_CHECKING:  # annotations only: the replay imports the bag modules when it runs, not on --help
+    from vesselbot_ros.bag.info import BagInfo
 
 __all__ = ["register", "run"]
 
@@ -141,7 +144,7 @@ def _run_into(args: argparse.Namespace, info: object) -> int:
         raise BagError(f"--tolerance must be >= 0, got {args.tolerance}")
     _check_into_out(args, info)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    res = reestimate(info, args.into, out_dir=args.out, node_cmd=args.node_cmd,  # type: ignore[arg-type]
+    res = reestimate(info, args.into, out_dir=args.out, node_cmd=args.node_cmd,
                      answer_timeout_s=args.answer_timeout, wait_timeout_s=args.wait_timeout,
                      domain_id=args.domain_id,
                      log=lambda s: print(f"vesselbot replay: {s}", file=sys.stderr, flush=True))

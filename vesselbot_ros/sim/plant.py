@@ -17,10 +17,10 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, wall_delta_xz
-from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, wall_delta_xz
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 

@@ -20,6 +20,11 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+import llvmlite
+import numba
+import numpy
+import scipy
+
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
@@ -32,11 +37,6 @@ SEEDS = range(5)
 
 def library_versions() -> dict[str, str]:
     """Versions of everything that can move a number: Python, numpy, scipy, numba, llvmlite, libc."""
-    import llvmlite
-    import numba
-    import numpy
-    import scipy
-
     libc = "-".join(platform.libc_ver())
     return {
         "python": platform.python_version(),
@@ -67,7 +67,7 @@ def load_reference(path: Path = REFERENCE_FILE) -> dict[str, Any]:
 
 
 def _close(a: float, b: float, rtol: float) -> bool:
-    if isinstance(a, bool) or isinstance(b, bool) or isinstance(a, int) and isinstance(b, int):
+    if isinstance(a, bool) or isinstance(b, bool) or (isinstance(a, int) and isinstance(b, int)):
         return a == b
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)

@@ -16,6 +16,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+
 import numpy as np
 import yaml
 
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     metrics = dict(result.metrics, wall_time_s=wall)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    np.savez_compressed(out / "timeseries.npz", **result.timeseries)
+    np.savez_compressed(out / "timeseries.npz", **result.timeseries)  # type: ignore[arg-type]  # numpy's stub: a ** dict could hold allow_pickle
     (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_mapping(), sort_keys=False), encoding="utf-8")
     m = metrics
     note = metrics_window_note(m, scenario.sim.metrics_after_s)
