@@ -45,7 +45,6 @@ and load ``config/foxglove/vesselbot.json`` as the layout.
 from __future__ import annotations
 
 import contextlib
-import json
 import struct
 import threading
 import time

@@ -137,7 +137,7 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
     return live
 
 
-def _run_into(args: argparse.Namespace, info: object) -> int:
+def _run_into(args: argparse.Namespace, info: BagInfo) -> int:
     from vesselbot_ros.launch.reestimate import ROLES, reestimate, replay_topic
 
     if args.tolerance is not None and not args.tolerance >= 0:

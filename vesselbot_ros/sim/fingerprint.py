@@ -13,7 +13,6 @@ subprocesses under different OpenBLAS core types and compares the lines.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import hashlib
 import json
 import sys
