@@ -167,6 +167,7 @@ def interp_spline(x: Sequence[float] | npt.NDArray[np.float64], y: npt.ArrayLike
         raise ModelInputError(f"interp_spline needs >= {k + 1} strictly increasing x and matching y, got {xa!r}")
     t = _knots(xa, k)
     nc = t.size - k - 1
+    # deferred: scipy.interpolate takes ~0.5 s to import and every core imports this module; only spline builders pay it
     from scipy.interpolate import BSpline
 
     eye = BSpline.construct_fast(t, np.eye(nc), k)
@@ -193,6 +194,7 @@ def interp_spline_fitpack(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
     """
     if x.ndim != 1 or x.size < 4 or y.shape != x.shape or not all(math.isfinite(v) for v in y):
         raise ModelInputError("interp_spline_fitpack needs >= 4 points and finite values")
+    # deferred: scipy.interpolate takes ~0.5 s to import and every core imports this module; only spline builders pay it
     from scipy.interpolate import BSpline, splrep
 
     t, c, k = splrep(x, y, k=3, s=0)

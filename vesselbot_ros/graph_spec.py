@@ -104,6 +104,8 @@ warning.
 
 from __future__ import annotations
 
+import importlib
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -503,6 +505,7 @@ def remap_args(namespace: str | None = None) -> list[str]:
 
 def qos_profile(spec: TopicSpec) -> Any:
     """The rclpy QoSProfile of a topic (imports rclpy lazily)."""
+    # deferred: rclpy; the graph spec is read ROS-free (setup.py, the bag tools, the CLI's help)
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     durability = DurabilityPolicy.TRANSIENT_LOCAL if spec.qos == "reliable_latched" else DurabilityPolicy.VOLATILE
@@ -518,8 +521,6 @@ def qos_text(spec: TopicSpec) -> str:
 
 def import_type(msgtype: str) -> Any:
     """The Python class of a ROS type ``pkg/msg/Name`` (or ``pkg/srv/Name``, ``pkg/action/Name``)."""
-    import importlib
-
     pkg, kind, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
@@ -536,8 +537,6 @@ def diagnostic_counters() -> dict[str, tuple[str, ...]]:
 
 def _note_lines(t: TopicSpec, width: int = 100) -> list[str]:
     """A port's note, wrapped and indented under its contract line."""
-    import textwrap
-
     return textwrap.wrap(t.note, width, initial_indent="      ", subsequent_indent="      ") if t.note else []
 
 

@@ -45,6 +45,7 @@ and load ``config/foxglove/vesselbot.json`` as the layout.
 from __future__ import annotations
 
 import contextlib
+import json
 import struct
 import threading
 import time
@@ -110,8 +111,8 @@ class LiveView:
     def __init__(self, topics: Iterable[tuple[str, str, bool]], typestore: Any, port: int = DEFAULT_LIVE_PORT,
                  host: str = "127.0.0.1", name: str = "vesselbot", max_rate_Hz: float = DEFAULT_LIVE_RATE_HZ,
                  clock_topic: str | None = None) -> None:
-        import json
-
+        # deferred: the Foxglove SDK (~55 ms) loads only when a live view is served; the recorder and the CLIs
+        # import this module for its defaults
         import foxglove
         from foxglove.websocket import Capability
 
@@ -153,7 +154,7 @@ class LiveView:
         self._view_names = {v.name for v in VIEW_CHANNELS}
         self._view_inputs = {topic_spec(k).name for v in VIEW_CHANNELS for k in v.inputs}
         view = self
-        from foxglove.websocket import ServerListener
+        from foxglove.websocket import ServerListener  # deferred: the Foxglove SDK (see above)
 
         class _Listener(ServerListener):  # the protocol's no-op defaults for every other event
             def on_subscribe(self, client: Any, channel: Any) -> None:

@@ -124,6 +124,7 @@ class DerivedView:
             self.emit(t_ns)
 
     def _decode(self, key: str) -> Any:
+        # deferred: rclpy; the module's scene numbers are used and tested ROS-free, and live imports it for its defaults
         from rclpy.serialization import deserialize_message
 
         return deserialize_message(self._latest[key], self._types[key])
@@ -142,6 +143,7 @@ class DerivedView:
             (truth.applied_gradient.x, truth.applied_gradient.z), coil.max_gradient if coil is not None else math.nan,
             (est.pose.pose.position.x, est.pose.pose.position.z) if est is not None else None,
             (ref.position.x, ref.position.z) if ref is not None else None)
+        # deferred: rclpy (see _decode)
         from rclpy.serialization import serialize_message
 
         now = time.monotonic()
@@ -160,6 +162,7 @@ class DerivedView:
 
     def markers(self, sn: SceneNumbers, header: Any, with_path: bool = True) -> Any:
         """The MarkerArray of one view update (the reference path only ``with_path``)."""
+        # deferred: ROS message packages (see _decode)
         from geometry_msgs.msg import Point
         from visualization_msgs.msg import Marker, MarkerArray
 

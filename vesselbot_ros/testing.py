@@ -49,6 +49,7 @@ class RosSandbox:
 @contextlib.contextmanager
 def isolated_ros(workdir: str | os.PathLike[str], domain_id: int | None = None) -> Iterator[RosSandbox]:
     """Lease a domain, point ROS logs into ``workdir`` and init an rclpy Context on it."""
+    # deferred: rclpy; this module's process and Node.js helpers are used ROS-free (unit tests, the benches)
     import rclpy
 
     lease = allocate_domain(domain_id)
@@ -100,6 +101,7 @@ def spin_node(node: Any) -> int:
     For small node scripts (test peers, stand-ins) whose ``main()`` is just
     "create the node, spin it, exit cleanly when stopped".
     """
+    # deferred: rclpy (see isolated_ros)
     import rclpy
     from rclpy.executors import ExternalShutdownException
 

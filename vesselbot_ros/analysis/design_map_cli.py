@@ -36,9 +36,10 @@ def maps_figure(maps: list[DesignMap]) -> Any:
     crosses 1) and the red star is the panel's maximum of F_m/F_tot (its value
     is in the title).  A legend under the grid says so.
     """
-    import matplotlib
+    import matplotlib  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn (not with --no-png)
 
     matplotlib.use("Agg")
+    # deferred: matplotlib (see above)
     import matplotlib.pyplot as plt
     from matplotlib.font_manager import FontProperties
     from matplotlib.lines import Line2D
@@ -69,7 +70,7 @@ def maps_figure(maps: list[DesignMap]) -> Any:
 
 def plot_maps(maps: list[DesignMap], path: Path) -> None:
     """Save :func:`maps_figure` to ``path``."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see maps_figure)
 
     fig = maps_figure(maps)
     fig.savefig(path, dpi=110)

@@ -79,10 +79,11 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _plot(curve: BalanceCurve, params: PhysicsParams, path: Path) -> None:
+    # deferred: matplotlib (~0.5 s) loads only when the figure is drawn, not for `vesselbot force-balance --help`
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5))
     z_mm = curve.delta_m * 1e3

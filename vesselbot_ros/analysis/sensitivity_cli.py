@@ -98,10 +98,11 @@ def run(args: argparse.Namespace) -> int:
         w.writerow(["delta_m", *curves])
         for i, z in enumerate(deltas):
             w.writerow([f"{z:.9g}"] + [f"{c[i]:.6g}" for c in curves.values()])
+    # deferred: matplotlib (~0.5 s) loads only when the figure is drawn, not for `vesselbot sensitivity --help`
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
 
     fig, axes = plt.subplots(1, len(PERTURBATIONS), figsize=(4 * len(PERTURBATIONS), 4), sharey=True)
     for ax, label in zip(axes, PERTURBATIONS):

@@ -22,10 +22,11 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``bag info`` / ``bag repair``; exit 1 if ``info`` finds an inconsistent bag."""
+    # deferred: the bag modules pull in numpy, yaml and rosbags (~0.1 s); `vesselbot bag --help` imports this module
     from vesselbot_ros.bag.reader import open_bag
 
     if args.bag_command == "info":
-        from vesselbot_ros.bag.info import format_info, info_dict
+        from vesselbot_ros.bag.info import format_info, info_dict  # deferred: see open_bag above
 
         info = open_bag(args.bag)
         if args.json:
@@ -33,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(format_info(info, show_config=not args.no_config))
         return 0 if info.consistent else 1
-    from vesselbot_ros.bag.repair import repair_bag
+    from vesselbot_ros.bag.repair import repair_bag  # deferred: see open_bag above
 
     res = repair_bag(args.bag, force=args.force)
     if not res.repaired:

@@ -67,6 +67,7 @@ def _import_type(msgtype: str) -> Any:
 
 def make_publishers(node: Any, info: BagInfo, topics: Sequence[str]) -> dict[str, Any]:
     """Publishers for ``topics`` of a bag, with the graph's QoS where known."""
+    # deferred: rclpy and the message packages; this module is imported ROS-free (launch.reestimate's planning, tests)
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     specs = {s.name: s for s in TOPICS}
@@ -138,7 +139,7 @@ def replay(
     pubs = make_publishers(node, info, names)
     clock_pub = None
     if clock:
-        from rosgraph_msgs.msg import Clock
+        from rosgraph_msgs.msg import Clock  # deferred: a message package (see make_publishers)
 
         clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, qos_profile(topic("clock")))
 
@@ -188,7 +189,7 @@ def replay(
                 now_ns = sim_ns if recorded_clock else m.log_time_ns - info.start_ns
                 if now_ns is not None and now_ns != last_clock_ns:
                     if clock_pub is not None:
-                        from rosgraph_msgs.msg import Clock
+                        from rosgraph_msgs.msg import Clock  # deferred: a message package (see make_publishers)
 
                         c = Clock()
                         c.clock.sec, c.clock.nanosec = divmod(now_ns, 1_000_000_000)
@@ -207,7 +208,7 @@ def replay(
         log(f"pass {loops} done: {sum(published.values())} messages published")
         if not loop or should_stop() or first_ns is None:
             break
-    from rclpy.duration import Duration
+    from rclpy.duration import Duration  # deferred: rclpy (see make_publishers)
 
     for p in pubs.values():  # reliable delivery of the tail before the caller exits
         p.wait_for_all_acked(Duration(seconds=2))
@@ -216,6 +217,7 @@ def replay(
 
 def _clock_ns(data: bytes) -> int:
     """Sim time (ns) of a serialized ``rosgraph_msgs/Clock``."""
+    # deferred: rclpy and a message package (see make_publishers)
     from rclpy.serialization import deserialize_message
     from rosgraph_msgs.msg import Clock
 

@@ -44,8 +44,15 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros import graph_spec
-from vesselbot_ros.bag.reader import BagInfo, open_bag, read_timeseries
+from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_timeseries
+from vesselbot_ros.config import ConfigError, load_dataclass
+from vesselbot_ros.control.actuator_limits import CoilLimits
+from vesselbot_ros.control.route import draw_network, navigation_outcome
 from vesselbot_ros.errors import BagError
+from vesselbot_ros.graph_spec import NODE_NAMES
+from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.scanner.sequence import PHASE_CODES
+from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
 
 __all__ = ["write_report", "metrics_timeseries", "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
            "DIAGNOSTIC_COUNTERS", "FIGURES", "fig9a_trajectory", "fig9b_errors", "fig10a_gradients",
@@ -190,8 +197,6 @@ def tracking_windows(ts: Mapping[str, np.ndarray], t_end_s: float) -> list[tuple
 
     Empty for a continuous sequence (the paper's loop) and for bags without the topic.
     """
-    from vesselbot_ros.scanner.sequence import PHASE_CODES
-
     phase = np.asarray(ts.get("phase.phase", np.zeros(0)))
     if phase.size == 0:
         return []
@@ -217,9 +222,6 @@ def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
 
 def _slew_limit(run: Mapping[str, Any]) -> float | None:
     """The coil's slew limit (T/m/s) from the run's config, or None."""
-    from vesselbot_ros.config import ConfigError, load_dataclass
-    from vesselbot_ros.control.actuator_limits import CoilLimits
-
     coil = (run.get("config") or {}).get("coil")
     if not isinstance(coil, Mapping):
         return None
@@ -231,9 +233,6 @@ def _slew_limit(run: Mapping[str, Any]) -> float | None:
 
 def _run_blood(run: Mapping[str, Any]) -> Any:
     """The run's blood model (``BloodParams``) from its config, or None (then the shipped scenarios' default)."""
-    from vesselbot_ros.config import ConfigError, load_dataclass
-    from vesselbot_ros.physics.params import BloodParams
-
     blood = ((run.get("config") or {}).get("physics") or {}).get("blood")
     if not isinstance(blood, Mapping):
         return None
@@ -259,7 +258,7 @@ def fig9a_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray]) ->
     trajectory and the reference.  Dots on the trajectory and the reference
     mark every 0.25 s.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
     fig, ax = plt.subplots(figsize=(8, 4))
@@ -304,7 +303,7 @@ def fig9b_errors(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     The axis spans the errors after the first ticks (down to at most 1 um),
     not the exact zero of t = 0.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     um = 1e6
     e_tr = np.linalg.norm(m["p_true"] - m["p_ref"], axis=1) * um
@@ -336,7 +335,7 @@ def fig10a_gradients(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     and ``|dU_z/dt|`` of the applied gradient (the slew limit is per axis)
     and the slew limit from the run's config (if the bag says).
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
     fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5.5))
@@ -367,7 +366,7 @@ def fig10a_gradients(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 def fig10b_velocities(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
                       spans: Mapping[str, list[tuple[float, float]]]) -> Any:
     """Fig. 10b: true and estimated velocity per axis (mm/s)."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
     fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
@@ -387,7 +386,7 @@ def fig10b_velocities(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 def fig10c_velocity_error(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
                           spans: Mapping[str, list[tuple[float, float]]]) -> Any:
     """Fig. 10c: velocity estimation error per axis (mm/s)."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
     fig, ax = plt.subplots(figsize=(8, 3.5))
@@ -412,7 +411,7 @@ def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     wall) is named in the legend with its largest value instead of stretching
     the axis.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     names = ("magnetic", "drag", "apparent weight", "contact", "van der Waals", "electrostatic", "steric", "total")
     mags = [np.linalg.norm(m["forces"][:, k, :], axis=1) for k in range(len(names))]
@@ -458,9 +457,7 @@ def _run_network(run: Mapping[str, Any]) -> tuple[str, str] | None:
 def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], network: str,
                        metrics: Mapping[str, Any]) -> Any:
     """Fig. 9a in a vessel network: the network, the trajectory, the reference and the estimate; the branch reached."""
-    import matplotlib.pyplot as plt
-
-    from vesselbot_ros.control.route import draw_network
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
     fig, ax = plt.subplots(figsize=(9, 5))
@@ -490,9 +487,6 @@ def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float |
 
 def diagnostic_counters(info: BagInfo) -> dict[str, int]:
     """The launcher's extra metrics (plant/observer/imager counters) from the bag's final diagnostics."""
-    from vesselbot_ros.bag.reader import final_diagnostics
-    from vesselbot_ros.graph_spec import NODE_NAMES
-
     final = final_diagnostics(info)
     out: dict[str, int] = {}
     for role, keys in DIAGNOSTIC_COUNTERS.items():
@@ -524,12 +518,10 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     Raises:
         BagError: if the bag is invalid, corrupt or lacks the graph's topics.
     """
-    import matplotlib
+    import matplotlib  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
 
     info = bag_dir if isinstance(bag_dir, BagInfo) else open_bag(bag_dir)
     out = Path(out_dir) if out_dir is not None else info.path / "report"
@@ -578,8 +570,6 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
 
     net = _run_network(run)
     if net is not None:
-        from vesselbot_ros.control.route import navigation_outcome
-
         # the meshed wall, read from the run's own field (no solve for another blood model)
         metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"], blood=_run_blood(run)))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's

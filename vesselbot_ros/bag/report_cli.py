@@ -19,6 +19,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the report; print where and the headline metrics."""
+    # deferred: the report pulls in the bag reader and the compiled core (~0.4 s); `vesselbot report --help` imports this module
     from vesselbot_ros.bag.report import FIGURES, write_report
 
     metrics = write_report(args.bag, args.out, after_s=args.after)

@@ -40,6 +40,7 @@ def _stamp(header: Any, t_s: float, frame: str = "vessel") -> None:
 
 def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
     """(topic name, rclpy message) of tick ``k`` in lockstep order (see module doc)."""
+    # deferred: the ROS message packages; PARAMS and the closed forms are read ROS-free (bag and report tests)
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from geometry_msgs.msg import PointStamped, Vector3Stamped
     from nav_msgs.msg import Odometry
@@ -130,6 +131,7 @@ def tick_messages(k: int, dt_s: float = 1e-3) -> list[tuple[str, Any]]:
 
 def latched_messages() -> list[tuple[str, Any]]:
     """The latched topics (vessel markers, reference path, the scanner's phase: continuous), published once."""
+    # deferred: the ROS message packages (see tick_messages)
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path as PathMsg
     from vesselbot_msgs.msg import SequencePhase

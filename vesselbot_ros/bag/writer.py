@@ -123,6 +123,7 @@ COMPRESSION_PRESETS: dict[str, McapPreset] = {
 
 def _zstd_compressor(level: str) -> Any:
     """``bytes -> bytes`` zstd at libzstd's minimum or maximum level (the library rosbags reads with)."""
+    # deferred: an optional module (only the zstd presets need it), named differently before Python 3.14
     try:
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:

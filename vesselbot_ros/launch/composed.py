@@ -17,33 +17,30 @@ An invalid parameter exits with code 2 and one line naming it.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
 from typing import Any
 
-from vesselbot_ros.config import ConfigError
+import rclpy
+from rclpy.executors import ExternalShutdownException
 
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.graph_spec import LOOP_ROLES, role
+from vesselbot_ros.nodes.intra_process import use_intra_process
+from vesselbot_ros.nodes.process import freeze_heap, spin_nodes, warm_logging
 
 __all__ = ["node_class", "main"]
 
 
 def node_class(name: str) -> Any:
     """Import and return the node class of role ``name`` (from the graph spec)."""
-    import importlib
-
     module, _, cls = role(name).node_class.partition(":")
     return getattr(importlib.import_module(module), cls)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point (see module docstring)."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-
-    from vesselbot_ros.nodes.intra_process import use_intra_process
-    from vesselbot_ros.nodes.process import freeze_heap, spin_nodes, warm_logging
-
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
     if "--ros-args" in argv:

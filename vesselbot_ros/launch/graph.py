@@ -40,12 +40,16 @@ from typing import Any
 
 import numpy as np
 
-from vesselbot_ros.errors import RunError, VesselbotError
+from vesselbot_ros.bag.reader import open_bag
+from vesselbot_ros.control.route import navigation_metrics
+from vesselbot_ros.errors import BagError, RunError, VesselbotError
 from vesselbot_ros.graph_spec import (
     LOOP_ROLES,
     NODE_NAMES,
     REALTIME_FACTOR_LIMIT,
     REALTIME_MISSED_LIMIT,
+    ROLES,
+    TOPICS,
     diagnostic_counters,
     remap_args,
     role,
@@ -54,7 +58,9 @@ from vesselbot_ros.graph_spec import (
 )
 from vesselbot_ros.launch.monitor import Monitor
 from vesselbot_ros.launch.supervision import NodeDied, Supervisor, wait_for
+from vesselbot_ros.nodes.graph_params import GraphParams
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
+from vesselbot_ros.nodes.recorder_node import recorder_command
 from vesselbot_ros.ros_env import DomainLease, allocate_domain, apply_to_process, restore_process_env, ros_environment
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
@@ -343,9 +349,9 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         RunError: a bounded wait expired (says what was awaited).
         KeyboardInterrupt: on Ctrl-C / SIGTERM / SIGHUP, after stopping everything cleanly.
     """
+    # deferred: rclpy and the message packages load only once a graph runs; the module is imported ROS-free
+    # (its exceptions and options: the CLI's error handling, tests)
     import rclpy
-
-    from vesselbot_ros.nodes.graph_params import GraphParams
 
     roles = [r for r in LOOP_ROLES if r not in options.without]
     graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]
@@ -370,8 +376,6 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     series: dict[str, np.ndarray] = {}
     try:
         if options.record_dir is not None or options.live_port is not None:
-            from vesselbot_ros.nodes.recorder_node import recorder_command
-
             sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace,
                                                 compression=options.compression, live_port=options.live_port,
                                                 live_rate_Hz=options.live_rate_Hz))
@@ -397,7 +401,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             wait_for(mon.recorder_matched, options.wait_timeout_s, mon, sup,
                      "the recorder to match every publisher (else it drops their first messages)")
         if options.start_paused:
-            from simulation_interfaces.msg import SimulationState
+            from simulation_interfaces.msg import SimulationState  # deferred: a message package (see rclpy above)
 
             wait_for(mon.set_simulation_state.service_is_ready, options.wait_timeout_s, mon, sup,
                      "the plant's simulation_interfaces services")
@@ -408,7 +412,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
             if options.on_paused is not None:
                 options.on_paused()
         else:
-            from vesselbot_msgs.srv import RunControl
+            from vesselbot_msgs.srv import RunControl  # deferred: a message package (see rclpy above)
 
             fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
             wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
@@ -473,8 +477,6 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
     if scenario.physics.vessel.network:
-        from vesselbot_ros.control.route import navigation_metrics
-
         metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))
     for r, keys in diagnostic_counters().items():
         d = diagnostics.get(NODE_NAMES[r], {})
@@ -501,9 +503,6 @@ def _run_sim_s(mon: Monitor, diagnostics: Mapping[str, Mapping[str, str]], n: in
 
 def _bag_counts(bag_dir: Path) -> dict[str, int]:
     """Messages per topic in the finalised bag; raises RecordingMismatch if its metadata and MCAP disagree."""
-    from vesselbot_ros.bag.reader import open_bag
-    from vesselbot_ros.errors import BagError
-
     try:
         info = open_bag(bag_dir)
     except BagError as exc:
@@ -530,8 +529,6 @@ def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...]) -> bool:
 
 
 def _topics_by_name() -> tuple[Any, ...]:
-    from vesselbot_ros.graph_spec import TOPICS
-
     return TOPICS
 
 
@@ -570,8 +567,6 @@ def _watch(mon: Monitor, sup: Supervisor, roles: list[str], options: GraphOption
 
 
 def _safe_stop_roles() -> tuple[str, ...]:
-    from vesselbot_ros.graph_spec import ROLES
-
     return tuple(r.name for r in ROLES if r.safe_stop)
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from vesselbot_ros.errors import RunError
 from vesselbot_ros.graph_spec import (
     DEFAULT_NAMESPACE,
     LOOP_ROLES,
@@ -33,6 +34,8 @@ from vesselbot_ros.graph_spec import (
     service,
     topic,
 )
+from vesselbot_ros.nodes.process import make_executor
+from vesselbot_ros.nodes.recorder_node import LIVE_URL_KEY
 from vesselbot_ros.nodes.series import SeriesLog, empty_series, series_from_response
 from vesselbot_ros.nodes.wire import codec_for
 
@@ -62,10 +65,10 @@ class Monitor:
 
     def __init__(self, context: Any, n: int, dt: float, namespace: str | None = None,
                  user_roles: Sequence[str] = ()) -> None:
+        # deferred: rclpy and the message packages; launch.graph imports this module ROS-free (its exceptions, tests)
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from vesselbot_msgs.srv import GetSeries, RunControl
-        from vesselbot_ros.nodes.process import make_executor
 
         self.n = n
         self.dt = dt
@@ -74,7 +77,7 @@ class Monitor:
                                       cli_args=["--ros-args", *args] if args else None)
         self.ex = make_executor(context)
         self.ex.add_node(self.node)
-        from rclpy.task import Future
+        from rclpy.task import Future  # deferred: rclpy (see above)
 
         self._never = Future()  # spin() handles every event of its slice, then returns
         self.diag: dict[str, dict[str, str]] = {}
@@ -128,7 +131,7 @@ class Monitor:
         return on_message
 
     def _decode(self, key: str, data: bytes) -> Any:
-        from rclpy.serialization import deserialize_message
+        from rclpy.serialization import deserialize_message  # deferred: rclpy (see __init__)
 
         return deserialize_message(data, self._types[key])
 
@@ -170,7 +173,7 @@ class Monitor:
 
     def request_series(self) -> None:
         """Ask each of our nodes for its run series (after the run); :meth:`series_ready` tells when all came."""
-        from vesselbot_msgs.srv import GetSeries
+        from vesselbot_msgs.srv import GetSeries  # deferred: a message package (see __init__)
 
         self._series_futures = {r: c.call_async(GetSeries.Request()) for r, c in self.series_clients.items()}
 
@@ -184,8 +187,6 @@ class Monitor:
         Raises:
             RunError: a node's answer is malformed or says it has not finished.
         """
-        from vesselbot_ros.errors import RunError
-
         out = empty_series(self.n)
         for r, fut in self._series_futures.items():
             resp = fut.result()
@@ -268,8 +269,6 @@ class Monitor:
 
     def recorder_live_url(self) -> str | None:
         """The live view's address as the recorder reports it once its server accepts connections (else None)."""
-        from vesselbot_ros.nodes.recorder_node import LIVE_URL_KEY
-
         rec = self.diag.get(NODE_NAMES["recorder"])
         return None if rec is None else rec.get(LIVE_URL_KEY)
 

@@ -46,11 +46,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rosbags.typesys import Stores, get_typestore
 
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
+from vesselbot_ros.bag.replay import _import_type
+from vesselbot_ros.bag.writer import BagWriter, check_output_dir
 from vesselbot_ros.errors import BagError, VesselbotError
 from vesselbot_ros.graph_spec import REPLAY_PREFIX, TOPICS, qos_profile, resolve, role, tick_of_ns, topic
 from vesselbot_ros.launch.processes import ChildProcess
+from vesselbot_ros.nodes.graph_params import GraphParams
+from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
+from vesselbot_ros.nodes.process import make_executor
+from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 __all__ = [
     "ROLES",
@@ -245,8 +253,6 @@ def plan_feed(bag: str | Path | BagInfo, role: str) -> FeedPlan:
             or an input topic missing from the bag.
         ConfigError: the recorded config does not validate.
     """
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
-
     if role not in ROLES:
         raise BagError(f"cannot re-run {role!r}: --into must be one of {sorted(ROLES)}")
     info = bag if isinstance(bag, BagInfo) else open_bag(bag)
@@ -386,12 +392,10 @@ class _Feeder:
     """The replaying node: publishes the inputs, collects the answers."""
 
     def __init__(self, context: Any, plan: FeedPlan) -> None:
+        # deferred: rclpy and the message packages; the planning and comparing halves of this module run ROS-free
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rosgraph_msgs.msg import Clock
-
-        from vesselbot_ros.bag.replay import _import_type
-        from vesselbot_ros.nodes.process import make_executor
 
         self.plan = plan
         io = ROLES[plan.role]
@@ -415,7 +419,7 @@ class _Feeder:
                                       raw=True)
 
     def _on_output(self, data: bytes) -> None:
-        from rclpy.serialization import deserialize_message, serialize_message
+        from rclpy.serialization import deserialize_message, serialize_message  # deferred: rclpy (see __init__)
 
         msg = deserialize_message(data, self.out_cls)
         k = _tick_of_ns(_stamp_ns(msg), self.plan.dt_s)
@@ -425,6 +429,7 @@ class _Feeder:
         self.answers[k] = (serialize_message(msg), msg)  # re-serialised: no garbage padding bytes
 
     def _on_diag(self, data: bytes) -> None:
+        # deferred: rclpy and a message package (see __init__)
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.serialization import deserialize_message, serialize_message
 
@@ -449,7 +454,7 @@ class _Feeder:
         self.ex.spin_once(timeout_sec=timeout_s)
 
     def feed(self, tick: TickFeed) -> None:
-        from rosgraph_msgs.msg import Clock
+        from rosgraph_msgs.msg import Clock  # deferred: a message package (see __init__)
 
         self.current = tick.k
         if tick.clock is not None:
@@ -506,13 +511,7 @@ def reestimate(
         BagError: invalid bag, unusable output directory, bad arguments.
         VesselbotError: the node did not start or match within ``wait_timeout_s``.
     """
-    import rclpy
-
-    from vesselbot_ros.bag.writer import BagWriter, check_output_dir
-    from vesselbot_ros.nodes.graph_params import GraphParams
-    from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
-    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
+    import rclpy  # deferred: rclpy; the planning and comparing halves of this module run ROS-free
 
     if not answer_timeout_s > 0 or not wait_timeout_s > 0:
         raise BagError(f"timeouts must be > 0 s, got answer {answer_timeout_s}, wait {wait_timeout_s}")
@@ -611,8 +610,6 @@ def reestimate(
         lease.release()
 
     # ---- compare
-    from rosbags.typesys import Stores, get_typestore
-
     ts = get_typestore(Stores.ROS2_JAZZY)
     out_type = plan.recorded_types.get(_out_name(role)) or _out_type(role)
     recorded_vals = {t.k: output_values(role, ts.deserialize_cdr(t.recorded_output.data, out_type))

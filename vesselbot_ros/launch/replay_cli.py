@@ -67,6 +67,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Replay the bag (or re-run one node on it, ``--into``); Ctrl-C stops cleanly."""
+    # deferred: the bag reader pulls in numpy and yaml (~0.1 s); `vesselbot replay --help` imports this module
     from vesselbot_ros.bag.reader import open_bag
 
     info = open_bag(args.bag)  # fail on a broken bag before starting ROS
@@ -75,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     if args.node_cmd is not None or args.out is not None or args.tolerance is not None:
         raise BagError("--node-cmd, --out and --tolerance need --into observer|controller")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    # deferred: rclpy and the player load only when a bag is replayed, not for `vesselbot replay --help`
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -115,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _live_view(args: argparse.Namespace, info: Any) -> Any:
     """The live view of the replayed topics (``--live`` / ``--live-port``), or None."""
+    # deferred: the live view's modules (~20 ms) are not needed by `vesselbot replay --help`
     from vesselbot_ros.live import DEFAULT_LIVE_PORT, DEFAULT_LIVE_RATE_HZ, LiveView
 
     port = args.live_port if args.live_port is not None else (DEFAULT_LIVE_PORT if args.live else None)
@@ -122,7 +125,7 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
         return None
     if not 0 <= port <= 65535:
         raise BagError(f"--live-port must be in [0, 65535], got {port}")
-    from vesselbot_ros.bag.writer import make_typestore
+    from vesselbot_ros.bag.writer import make_typestore  # deferred: rosbags (~35 ms), only with a live view
 
     topics = [t for t in info.topics if args.topics is None or t.name in args.topics]
     ts = make_typestore([t.msgtype for t in topics])
@@ -138,6 +141,7 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
 
 
 def _run_into(args: argparse.Namespace, info: BagInfo) -> int:
+    # deferred: re-running a node pulls in the compiled core and rosbags; `vesselbot replay --help` imports this module
     from vesselbot_ros.launch.reestimate import ROLES, reestimate, replay_topic
 
     if args.tolerance is not None and not args.tolerance >= 0:

@@ -22,19 +22,24 @@ started or any directory is created: one line naming it); 130 interrupted
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import platform
 import re
 import signal
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
+from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
-from vesselbot_ros.config import ConfigError
+import vesselbot_ros
+from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
+from vesselbot_ros.config import ConfigError, load_yaml
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.graph_spec import LOOP_ROLES
+from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
+from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
 
 __all__ = ["register", "run", "apply_overrides"]
 
@@ -93,6 +98,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def _live_port(args: argparse.Namespace) -> int | None:
     """The live view's port, or None when the live view is off."""
+    # deferred: the live view's modules (sockets, views: ~10 ms) are not needed by `vesselbot run --help`
     from vesselbot_ros.live import DEFAULT_LIVE_PORT
 
     if args.live_port is not None:
@@ -101,8 +107,6 @@ def _live_port(args: argparse.Namespace) -> int | None:
 
 
 def _compression_choices() -> list[str]:
-    from vesselbot_ros.bag.writer import COMPRESSION_PRESETS
-
     return list(COMPRESSION_PRESETS)
 
 
@@ -115,8 +119,6 @@ def _check_number(flag: str, value: float | None, *, positive: bool = True) -> N
 
 def validate_args(args: argparse.Namespace) -> None:
     """Check every argument of ``vesselbot run`` that the scenario does not (raise ConfigError naming it)."""
-    from vesselbot_ros.ros_env import DOMAIN_MAX
-
     _check_number("--real-time-factor", args.real_time_factor)
     _check_number("--duration", args.duration)
     _check_number("--wait-timeout", args.wait_timeout)
@@ -157,21 +159,17 @@ def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int |
 
 
 def _versions() -> dict[str, str]:
-    from importlib import metadata
-
-    import vesselbot_ros
-
     out = {"vesselbot_ros": vesselbot_ros.__version__, "python": platform.python_version()}
     try:
-        out["rclpy"] = metadata.version("ros-rclpy")
-    except metadata.PackageNotFoundError:
+        out["rclpy"] = importlib_metadata.version("ros-rclpy")
+    except importlib_metadata.PackageNotFoundError:
         out["rclpy"] = "unknown"
     return out
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the graph (see module docstring)."""
-    from vesselbot_ros.config import load_yaml
+    # deferred: the scenario module pulls in the compiled core (numba); `vesselbot run --help` imports this module
     from vesselbot_ros.sim.scenario import check_resources, scenario_from_mapping
 
     # 1. validate everything before touching the disk or starting anything
@@ -182,31 +180,22 @@ def run(args: argparse.Namespace) -> int:
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
     if scenario.physics.vessel.network:
         # the network's CFD field is solved (or read from the cache) once, here, before any node starts
-        from vesselbot_ros.vessels.cfd import packed_params
+        from vesselbot_ros.vessels.cfd import packed_params  # deferred: the CFD stack, only for a network scenario
 
         packed_params(scenario.physics)
-    if record:
-        import importlib.util
-
-        if importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
-            raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "
-                                 "use --no-record")
-    from vesselbot_ros.ros_env import allocate_domain
-
+    if record and importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
+        raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "
+                             "use --no-record")
     try:  # a busy --domain-id is a bad argument too: lease before anything is created
-        from vesselbot_ros.graph_spec import namespace_of
-
         # a chosen domain may hold graphs in other namespaces; a leased one is ours alone
         lease = allocate_domain(args.domain_id, namespace_of(args.namespace) if args.domain_id is not None else None)
     except VesselbotError:
         raise  # our errors are RuntimeErrors too: only the lease's own RuntimeError is about --domain-id
     except RuntimeError as exc:
         raise ConfigError(f"--domain-id: {exc}") from None
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     run_dir = args.record_dir or Path("runs") / f"{stamp}_{scenario.name}"
     if record:
-        from vesselbot_ros.bag.writer import check_output_dir
-
         try:
             run_dir = check_output_dir(run_dir)  # clear error if unwritable or already a bag
         except BaseException:
@@ -214,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
             raise
     log_dir = (run_dir / "logs") if record else Path("runs") / "logs" / f"{stamp}_{scenario.name}"
 
-    from vesselbot_ros.graph_spec import namespace_of
+    # deferred: the launcher pulls in the compiled core and the node modules; `vesselbot run --help` imports this module
     from vesselbot_ros.launch.graph import GraphOptions, NodeDied, RecordingMismatch, run_graph
 
     metadata = {"scenario": scenario.name, "seed": scenario.seed, "mode": args.mode, "config": scenario.to_mapping(),
@@ -234,8 +223,6 @@ def run(args: argparse.Namespace) -> int:
               f"layout config/foxglove/vesselbot.json)", flush=True)
 
     def paused() -> None:  # printed once the run is paused and its services answer
-        from vesselbot_ros.graph_spec import SIMULATION_SERVICES, resolve, service
-
         print("paused at t = 0; simulation_interfaces: " + ", ".join(resolve(service(k).rel, args.namespace)
                                                                      for k in SIMULATION_SERVICES), flush=True)
 
@@ -275,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
     if record:
         print(f"bag: {run_dir}")
         if args.report:
+            # deferred: the report draws with matplotlib (heavy) and is an optional part of an install
             try:
                 from vesselbot_ros.bag.report import write_report
             except ImportError:

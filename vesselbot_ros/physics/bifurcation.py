@@ -152,7 +152,7 @@ class ProfileTable(NamedTuple):
     def params_at(self, theta_deg: float) -> npt.NDArray[np.float64]:
         """(7,) interpolated parameters at ``theta_deg`` (clamped to the table)."""
         th = float(np.clip(theta_deg, self.knots_deg[0], self.knots_deg[-1]))
-        from scipy.interpolate import PchipInterpolator  # lazy: 0.7 s to import, and a node's core may not need it
+        from scipy.interpolate import PchipInterpolator  # deferred: 0.5-0.7 s to import, and a node's core may not need it
 
         return np.array([PchipInterpolator(self.knots_deg, self.values[:, j])(th) for j in range(7)])
 
@@ -222,6 +222,7 @@ def fit_rational_profile(
     starts = [(p, q) for p in np.linspace(p_bounds[0] * 0.8, p_bounds[1] * 0.8, 7) for q in (0.15, 0.5, 1.5)]
     if initial_pq is not None:
         starts = [initial_pq] if local_only else [initial_pq, *starts]
+    # deferred: scipy.optimize takes ~0.4 s to import; only fitting profiles to samples needs it
     from scipy.optimize import least_squares
 
     best: tuple[float, npt.NDArray[np.float64]] | None = None
@@ -246,6 +247,7 @@ def _make_table(knots: npt.NDArray[np.float64], values: npt.NDArray[np.float64])
         raise ConfigError(f"profile table values must be finite with shape ({knots.size}, 7), got {values.shape}")
     if np.any(values[:, 6] <= 0):
         raise ConfigError("profile table column q must be > 0")
+    # deferred: scipy.interpolate takes 0.5-0.7 s to import; only building a profile table needs it
     from scipy.interpolate import PchipInterpolator
 
     slopes = np.column_stack([PchipInterpolator(knots, values[:, j]).derivative()(knots) for j in range(7)])

@@ -13,6 +13,7 @@ subprocesses under different OpenBLAS core types and compares the lines.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import hashlib
 import json
 import sys
@@ -63,9 +64,8 @@ def openblas_cores() -> dict[str, str]:
     process, so a caller can check which kernel family (``Haswell``,
     ``SkylakeX``, ...) ``OPENBLAS_CORETYPE`` actually selected.
     """
-    import ctypes
-
-    import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS copy)
+    # deferred: imported only to load scipy's own OpenBLAS copy (~0.3 s), which only this probe wants mapped
+    import scipy.linalg  # noqa: F401
 
     out: dict[str, str] = {}
     with open("/proc/self/maps", encoding="utf-8") as fh:

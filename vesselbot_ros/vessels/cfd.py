@@ -138,7 +138,7 @@ def mesh_network(net: VesselNetworkParams) -> MeshedNetwork:
     Each branch is a polygon around its smoothed centreline; each bifurcation
     node gets a disc of the parent's end radius so the branches join without gaps.
     """
-    import gmsh  # the wheel needs libGLU & co (tools/bootstrap.sh checks)
+    import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
 
     h = net.cfd.mesh_size_m
     caps: dict[str, tuple[Any, Any, float]] = {}

@@ -340,6 +340,7 @@ class NetworkGeometry:
         pts, rad, arc = self.branches[name]
         tree = self._trees.get(name)
         if tree is None:
+            # deferred: scipy.spatial takes ~0.4 s to import; only a distance query on a network pays it
             from scipy.spatial import cKDTree
 
             tree = self._trees[name] = cKDTree(pts)
