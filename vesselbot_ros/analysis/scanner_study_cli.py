@@ -120,10 +120,11 @@ def _figures(rows: list[dict], out: Path) -> None:
 
 def _plot(rows: list[dict], path: Path, xkey: str, xscale: float, xlabel: str, keep, fixed: str) -> None:  # type: ignore[no-untyped-def]
     """Tracking error (mean over seeds) against ``xkey``, one panel per hardware, one line per pair."""
+    # deferred: matplotlib (~0.5 s) loads only when the figures are drawn, not for `vesselbot scanner-study --help`
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
 
     hw = sorted({r["hardware"] for r in rows})
     fig, axes = plt.subplots(1, len(hw), figsize=(4.5 * len(hw), 3.6), squeeze=False, sharey=True)

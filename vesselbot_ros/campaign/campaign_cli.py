@@ -59,15 +59,18 @@ def _parse_sets(items: list[str]) -> dict[str, Any]:
 
 
 def _import_report_libraries() -> None:
+    # deferred: the whole point of this function: the report's heavy libraries load on a thread while the runs go
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: as above (matplotlib's pyplot, and scipy.special for the confidence intervals)
     import matplotlib.pyplot  # noqa: F401
     import scipy.special  # noqa: F401
 
 
 def report(root: Path) -> int:
     """Redraw the summary and figures of the campaign folder ``root``."""
+    # deferred: the store pulls in pyarrow (~0.3 s); `vesselbot campaign --help` imports this module
     from vesselbot_ros.campaign.store import CampaignStore
     from vesselbot_ros.campaign.summary import write_report
 
@@ -95,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
     if args.scheduler and args.workers is not None:
         raise ConfigError("--workers sizes the local cluster; it does not apply with --scheduler")
 
+    # deferred: the engine, the spec and the scenario pull in pyarrow and the compiled core (~0.7 s);
+    # `vesselbot campaign --help` imports this module
     from vesselbot_ros.campaign.engine import Progress, dask_client, execute, local_worker_count, pending, prepare
     from vesselbot_ros.campaign.spec import load_campaign_spec, merge_mapping
     from vesselbot_ros.campaign.store import CampaignStore

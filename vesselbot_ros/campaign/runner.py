@@ -41,7 +41,13 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
+import scipy
+
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.sim import closed_loop
+from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 __all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "run_chunk", "flatten_timeseries",
            "SCENARIO_CACHE"]
@@ -76,9 +82,6 @@ class RunTask(NamedTuple):
 @functools.lru_cache(maxsize=1)
 def code_version() -> str:
     """Hash (16 hex digits) of the run-relevant source files and library versions."""
-    import numba
-    import scipy
-
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     files = sorted({f for g in _CODE_GLOBS for f in root.glob(g) if f.is_file() and "__pycache__" not in f.parts})
@@ -97,8 +100,6 @@ def resolve_mapping(mapping: dict[str, Any]) -> dict[str, Any]:
     Raises:
         ConfigError: the mapping is not a valid scenario.
     """
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
-
     return scenario_from_mapping(mapping).to_mapping()
 
 
@@ -175,9 +176,6 @@ _SCENARIOS_LOCK = threading.Lock()
 
 def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
     """The task's :class:`Scenario` (or the ConfigError that building it raised), built once per mapping."""
-    from vesselbot_ros.config import ConfigError
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
-
     hit = local.get(id(task.mapping))
     if hit is not None:
         return hit
@@ -201,8 +199,6 @@ def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
 
 
 def _one(task: RunTask, local: dict[int, Any]) -> dict[str, Any]:
-    from vesselbot_ros.sim import closed_loop
-
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"run_id": task.run_id, "status": "ok", "error": None, "metrics": {}, "timeseries": None}
     try:
