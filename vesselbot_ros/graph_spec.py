@@ -110,7 +110,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = [
-    "DEFAULT_NAMESPACE", "FRAME_ID", "CHILD_FRAME_ID", "WIRE_STRINGS", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES", "RECORDER",
+    "DEFAULT_NAMESPACE", "FRAME_ID", "CHILD_FRAME_ID", "WIRE_STRINGS", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES",
+    "RECORDER",
     "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "series_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
@@ -353,8 +354,8 @@ SERVICES: tuple[ServiceSpec, ...] = (
 VIEW_CHANNELS: tuple[ViewSpec, ...] = (
     ViewSpec("view_markers", "view/markers", "visualization_msgs/msg/MarkerArray",
              ("truth", "estimate", "coil_state", "reference_path", "vessel_markers"),
-             "3D: the straight vessel's walls at +/- D(t)/2 as they pulse (a network's meshed wall: `vessel_markers`), the robot, its estimate, the applied gradient "
-             "(arrow, 2 mm at the coil limit), the reference path"),
+             "3D: the straight vessel's walls at +/- D(t)/2 as they pulse (a network's meshed wall: `vessel_markers`), "
+             "the robot, its estimate, the applied gradient (arrow, 2 mm at the coil limit), the reference path"),
     ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
              "plots: tracking and estimation error (m), the applied gradient norm against its limit U_sat (T/m)"),
 )

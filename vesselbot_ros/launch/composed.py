@@ -17,6 +17,7 @@ An invalid parameter exits with code 2 and one line naming it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 from collections.abc import Sequence
@@ -74,10 +75,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     finally:
         for n in nodes:
-            try:
+            with contextlib.suppress(Exception):  # best effort at shutdown
                 n.destroy_node()
-            except Exception:  # noqa: BLE001 - best effort at shutdown
-                pass
         rclpy.try_shutdown()
 
 

@@ -354,7 +354,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     import rclpy
 
     roles = [r for r in LOOP_ROLES if r not in options.without]
-    graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]
+    graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]  # mode: checked
                         stall_timeout_s=options.stall_timeout_s)
     lease = options.lease if options.lease is not None else allocate_domain(options.domain_id)
     log_dir = Path(options.log_dir) if options.log_dir else Path.cwd() / "runs" / "logs"
@@ -405,7 +405,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
 
             wait_for(mon.set_simulation_state.service_is_ready, options.wait_timeout_s, mon, sup,
                      "the plant's simulation_interfaces services")
-            req = mon.set_simulation_state.srv_type.Request()
+            req = mon.set_simulation_state.srv_type.Request()  # type: ignore[attr-defined]  # rclpy's SrvType stub has no Request
             req.state.state = SimulationState.STATE_PAUSED
             fut = mon.set_simulation_state.call_async(req)
             wait_for(fut.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")

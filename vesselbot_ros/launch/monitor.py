@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -158,7 +158,7 @@ class Monitor:
         t = topic("coil_state")
         self._types["coil_state"] = import_type(t.msgtype)
         self._raw["coil_state"] = []
-        store = self._raw["coil_state"].append
+        store: Callable[[Any], None] = self._raw["coil_state"].append  # raw=True: the callback gets the CDR bytes
         self.node.create_subscription(self._types["coil_state"], t.rel, lambda data: store(data), qos_profile(t),
                                       raw=True)
 
@@ -207,7 +207,7 @@ class Monitor:
             for key in keys:
                 codec = codec_for(self._types[key], WIRE_STRINGS)  # the series logs read flat forms
                 for data in self._raw[key]:
-                    log.add(key, codec.flatten(self._decode(key, data)))
+                    log.add(key, codec.flatten(self._decode(key, data)))  # type: ignore[union-attr]  # series types have codecs
             out.update(log.as_dict())
         return out
 

@@ -35,10 +35,7 @@ import contextlib
 import dataclasses
 import json
 import math
-import os
 import shlex
-import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -273,7 +270,7 @@ def plan_feed(bag: str | Path | BagInfo, role: str) -> FeedPlan:
     if missing:
         raise BagError(f"bag {info.path} has no {', '.join(missing)}; cannot feed a {role}")
     wanted = [t for t in (CLOCK, *in_names, out_name) if info.topic(t) is not None]
-    types = {t: info.topic(t).msgtype for t in wanted}  # type: ignore[union-attr]
+    types = {t: info.topic(t).msgtype for t in wanted}  # type: ignore[union-attr]  # wanted: topics the bag has
 
     by_tick: dict[str, dict[int, Recorded]] = {t: {} for t in wanted}
     n_meas = 0
@@ -296,11 +293,11 @@ def plan_feed(bag: str | Path | BagInfo, role: str) -> FeedPlan:
             j = k - 1 if (role == "observer" and key == "coil_applied") else k
             if j < 0:
                 continue
-            rec = by_tick[name].get(j)
-            if rec is None:
+            got = by_tick[name].get(j)
+            if got is None:
                 stop = f"the bag has no {name} for tick {j} (t = {j * dt:.6f} s)"
                 break
-            inputs.append(rec)
+            inputs.append(got)
         if stop:
             break
         ticks.append(TickFeed(k, by_tick.get(CLOCK, {}).get(k), tuple(inputs), by_tick.get(out_name, {}).get(k)))
@@ -637,7 +634,7 @@ def reestimate(
     entries: list[tuple[int, int, str, bytes]] = []  # (log time, order, topic, data)
     new_topic = replay_topic(role)
     tick_last_ns: dict[int, int] = {}
-    for i, t in enumerate(plan.ticks[:fed]):
+    for t in plan.ticks[:fed]:
         last = 0
         for rec in ((t.clock,) if t.clock is not None else ()) + t.inputs:
             entries.append((rec.log_time_ns, len(entries), rec.topic, rec.data))

@@ -46,11 +46,11 @@ from rclpy.node import Node
 
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.graph_spec import (
-    WIRE_STRINGS,
     DEFAULT_NAMESPACE,
     FRAME_ID,
     LOOP_ROLES,
     NODE_NAMES,
+    WIRE_STRINGS,
     ns_of_time,
     qos_profile,
     reset_service_key,
@@ -86,7 +86,7 @@ _IGNORED_OVERRIDES = ("use_sim_time", "start_type_description_service")
 _LOOP_READERS = frozenset(LOOP_ROLES)
 
 
-class VesselbotNode(Node):  # type: ignore[misc]
+class VesselbotNode(Node):
     """Base class: parameters, diagnostics and input checks (see module docstring).
 
     Args:
@@ -419,7 +419,7 @@ class VesselbotNode(Node):  # type: ignore[misc]
         if codec is not None and type(msg) is not codec.Flat:
             msg = codec.flatten(msg)  # a per-tick topic's messages travel in their flat form
         if key in self._pub_intra:
-            self._intra.post(key, msg)  # type: ignore[union-attr]
+            self._intra.post(key, msg)  # type: ignore[union-attr]  # _pub_intra is empty without the bus
         readers = self._readers.get(key)
         if readers is None or readers():
             self._pubs[key].publish(msg if codec is None else codec.pack(msg))

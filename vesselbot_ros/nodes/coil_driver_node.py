@@ -77,8 +77,8 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Header
-
 from vesselbot_msgs.msg import CoilState, SequencePhase
+
 from vesselbot_ros.control.actuator_limits import CoilOutput
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
@@ -101,7 +101,7 @@ class CoilDriverNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
-        seq, dbdt = self.scenario.sequence, self.scenario.dbdt
+        seq = self.scenario.sequence
         self.sequence = seq
         self._multiplexed = seq.mode == "multiplexed"
         self._latency = seq.latency_s if self._multiplexed else self.scenario.imager.latency_s

@@ -35,9 +35,9 @@ from geometry_msgs.msg import Point, PointStamped, PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
+from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
 from visualization_msgs.msg import Marker, MarkerArray
 
-from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
 from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for, message_builder
 from vesselbot_ros.physics.kernel import TERM_NAMES
@@ -107,7 +107,7 @@ def header(t_s: float) -> Header:
 
 def point(a: npt.ArrayLike) -> Point:
     """(2,) ``(x, z)`` -> Point with y = 0."""
-    return _point(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index]
+    return _point(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def codec(cls: Any) -> FlatCodec:
@@ -144,7 +144,7 @@ _make_plant_state = codec(PlantState).maker(
 
 def stamp_ns(v: Any) -> int:
     """Stamp (ns) of a per-tick message with a header, in its flat form."""
-    return v.header_stamp_sec * NS_PER_S + v.header_stamp_nanosec  # type: ignore[no-any-return]
+    return v.header_stamp_sec * NS_PER_S + v.header_stamp_nanosec
 
 
 def clock_flat(t_s: float) -> Any:
@@ -181,7 +181,7 @@ def coil_state_flat(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limi
     """CoilState (flat form) from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no limit)."""
     slew = out.slew_limited
     return _make_coil_state(
-        *divmod(ns_of_time(t_s), NS_PER_S), int(k), float(commanded[0]), float(commanded[1]),  # type: ignore[index]
+        *divmod(ns_of_time(t_s), NS_PER_S), int(k), float(commanded[0]), float(commanded[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
         float(out.applied[0]), float(out.applied[1]), float(out.k_scale), bool(out.saturated), bool(slew[0]),
         bool(slew[1]), bool(out.rejected), bool(watchdog), float(limits.saturation_T_per_m),
         float(limits.slew_rate_T_per_m_per_s), float(dbdt_limit_T_per_s), float(dbdt_radius_m))
@@ -193,10 +193,10 @@ def plant_state_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blo
     """The plant's ground truth of tick ``k`` (flat form): ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
     sec, nsec = divmod(ns_of_time(t_s), NS_PER_S)
     return _make_plant_state(
-        sec, nsec, int(k), float(p[0]), float(p[1]), float(v[0]), float(v[1]),  # type: ignore[index]
+        sec, nsec, int(k), float(p[0]), float(p[1]), float(v[0]), float(v[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
         float(blood_velocity[0]), float(blood_velocity[1]), float(diameter_m), float(gap_upper_m), float(gap_lower_m),
-        float(signed_wall_distance_m), bool(in_contact), int(contact_phase), float(applied[0]),  # type: ignore[index]
-        float(applied[1]), sec, nsec, *np.asarray(forces, dtype=np.float64).ravel().tolist())  # type: ignore[index]
+        float(signed_wall_distance_m), bool(in_contact), int(contact_phase), float(applied[0]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+        float(applied[1]), sec, nsec, *np.asarray(forces, dtype=np.float64).ravel().tolist())  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def clock_msg(t_s: float) -> Clock:

@@ -48,9 +48,9 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
-
 from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import InjectFault
+
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode

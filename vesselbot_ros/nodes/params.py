@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
@@ -81,7 +80,7 @@ def _walk(cls: type, prefix: str, value: Any, out: dict[str, ParamSpec]) -> None
         tp = hints[f.name]
         name = f"{prefix}{f.name}"
         v = getattr(value, f.name)
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             _walk(tp, name + ".", v, out)
         elif _is_scalar_type(tp):
             out[name] = ParamSpec(name, v, False)

@@ -74,12 +74,13 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
+from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
-from visualization_msgs.msg import MarkerArray
-
 from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import RunControl
+from visualization_msgs.msg import MarkerArray
+
 from vesselbot_ros.graph_spec import role
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
@@ -146,7 +147,7 @@ class PlantNode(VesselbotNode):
             markers = cv.vessel_markers(min(ref.anchors_x_m) - 1e-3, max(ref.anchors_x_m) + 1e-3,
                                         self.scenario.physics.vessel.diameter_m, self.scenario.physics.robot.radius_m)
         self.publish("vessel_markers", markers)
-        self._rt_timer = None
+        self._rt_timer: Timer | None = None
         self._poll = self.create_timer(0.05, self._housekeeping, clock=self._wall)
         if self.lockstep:
             slow = min(0.05, max(STALL_POLL_S, self.graph.stall_timeout_s / 10))
@@ -168,7 +169,7 @@ class PlantNode(VesselbotNode):
         self._stall_sent = -1  # lockstep: the last tick the coil driver was asked to answer itself
         self._commands_lost = False  # lockstep: the last tick asked for has not been followed by a tick answered in time
 
-    def destroy_node(self) -> None:  # noqa: D102
+    def destroy_node(self) -> None:
         self.simulation.close()
         super().destroy_node()
 

@@ -129,10 +129,8 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *,
         for sig in old:  # a second signal must not break the clean-up: it is on its way out already
             signal.signal(sig, signal.SIG_IGN)
         if node is not None:
-            try:
+            with contextlib.suppress(Exception):  # best effort during shutdown
                 node.destroy_node()
-            except Exception:  # noqa: BLE001 - best effort during shutdown
-                pass
         rclpy.try_shutdown()  # the whole public shutdown: the context, its shutdown callbacks, rcl logging
         if exit_process and sys.exc_info()[0] in (None, KeyboardInterrupt, ExternalShutdownException):
             # Everything of the node is shut down and rcl's log file is closed: end the process here, without the

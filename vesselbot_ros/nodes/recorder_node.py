@@ -54,7 +54,14 @@ from typing import Any
 
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import (
-    DEFAULT_NAMESPACE, NODE_NAMES, TOPICS, import_type, qos_profile, remap_args, service, topic,
+    DEFAULT_NAMESPACE,
+    NODE_NAMES,
+    TOPICS,
+    import_type,
+    qos_profile,
+    remap_args,
+    service,
+    topic,
 )
 from vesselbot_ros.live import DEFAULT_LIVE_RATE_HZ, LiveView
 

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
-
 from vesselbot_msgs.msg import ReferenceSample
+
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node

@@ -88,7 +88,7 @@ class SimulationControl:
         while not self._stop.is_set() and rclpy.ok(context=self.plant.context):
             try:
                 self._executor.spin_once(timeout_sec=0.1)
-            except Exception:  # noqa: BLE001 - shutting down: the context went away under the executor
+            except Exception:
                 if self._stop.is_set() or not rclpy.ok(context=self.plant.context):
                     return
                 raise
@@ -229,7 +229,7 @@ class SimulationControl:
                 return f"node {name} does not serve {client.srv_name} (a node of your own in its slot?)"
             fut = client.call_async(Trigger.Request())
             done = threading.Event()
-            fut.add_done_callback(lambda _f: done.set())
+            fut.add_done_callback(lambda _f, done=done: done.set())
             if not done.wait(RESET_TIMEOUT_S) or fut.result() is None or not fut.result().success:
                 msg = fut.result().message if fut.done() and fut.result() is not None else "no answer"
                 return f"node {name} did not reset: {msg}"

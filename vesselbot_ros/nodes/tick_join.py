@@ -35,7 +35,8 @@ class TickJoin:
                  windows: dict[str, int | None] | None = None) -> None:
         self.node = node
         self.lags = dict(inputs)
-        self.windows: dict[str, int | None] = {key: window for key in inputs} | dict(windows or {})
+        self.windows: dict[str, int | None] = dict.fromkeys(inputs, window)
+        self.windows.update(windows or {})
         self.k = 0  # the next tick to handle
         self._slots: dict[str, dict[int, Any]] = {key: {} for key in inputs}
 

@@ -115,7 +115,7 @@ class FlatCodec:
         build = self._walk(cls, "m", "", cls())
         self.size = 4 + self._off
         self._struct = struct.Struct("".join(self._fmt))
-        self.Flat = namedtuple(f"Flat{cls.__name__}", self._names)  # type: ignore[misc]  # noqa: PYI024
+        self.Flat = namedtuple(f"Flat{cls.__name__}", self._names)  # type: ignore[misc]  # fields known at run time only
         self.index = {name: i for i, name in enumerate(self._names)}
         packable = " and ".join(f"v[{i}] == {len(b)} and v[{j}] == {b!r}" for i, j, b in self._fixed) or "True"
         src = (f"def flatten(m):\n    return new(Flat, ({', '.join(self._flat)},))\n"
@@ -206,10 +206,10 @@ class FlatCodec:
         """The CDR of a flat form, as rclpy's ``serialize_message`` writes it."""
         raw = self._pack_fast(flat)
         if raw is not None:
-            return raw  # type: ignore[no-any-return]
+            return raw
         from rclpy.serialization import serialize_message
 
-        return serialize_message(self.to_message(flat))  # type: ignore[no-any-return]
+        return serialize_message(self.to_message(flat))
 
     def maker(self, *paths: str) -> Callable[..., Any]:
         """A builder of the flat form from the values of ``paths`` (positional, in that order).
@@ -231,9 +231,9 @@ class FlatCodec:
             idx[self.index[flat]] = f"a{i}"
         values = [idx.get(j, f"D[{j}]") for j in range(len(self._names))]
         args = ", ".join(f"a{i}" for i in range(len(paths)))
-        scope = {"new": tuple.__new__, "Flat": self.Flat, "D": tuple(self._defaults)}
-        exec(f"def make({args}):\n    return new(Flat, ({', '.join(values)},))\n", scope)  # noqa: S102
-        return scope["make"]  # type: ignore[no-any-return]
+        scope: dict[str, Any] = {"new": tuple.__new__, "Flat": self.Flat, "D": tuple(self._defaults)}
+        exec(f"def make({args}):\n    return new(Flat, ({', '.join(values)},))\n", scope)  # noqa: S102 - from the type's own fields
+        return scope["make"]
 
 
 @cache

@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.nodes import conversions as cv  # noqa: E402
+from vesselbot_ros.nodes import conversions as cv
 
 
 @pytest.mark.parametrize("rate", [1000.0, 50.0, 333.0, 1234.5])
@@ -22,7 +22,7 @@ def test_tick_recovered_from_stamp_and_time_is_bit_identical(rate):
 
 
 def test_off_grid_stamp_is_detected():
-    k, on_grid = cv.tick_of_ns(1_000_500_000, 1e-3)  # 1.0005 s on a 1 ms grid
+    _k, on_grid = cv.tick_of_ns(1_000_500_000, 1e-3)  # 1.0005 s on a 1 ms grid
     assert not on_grid
 
 
@@ -93,8 +93,8 @@ def _slow_references():
     from nav_msgs.msg import Odometry
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Header
-
     from vesselbot_msgs.msg import CoilState, ForceBreakdown, PlantState, ReferenceSample
+
     from vesselbot_ros.physics.kernel import TERM_NAMES
 
     t = 0.123

@@ -44,7 +44,7 @@ def _run(tmp_path: Path, sig: int | None, *args: str) -> tuple[int, str, str]:
             assert proc.stdout is not None and proc.stdout.readline().strip() == "READY"
             time.sleep(0.5)
             proc.send_signal(sig)
-        out, err = proc.communicate(timeout=60)
+        _out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
     logs = "".join(p.read_text() for p in tmp_path.glob("*.log"))

@@ -7,17 +7,17 @@ import pytest
 
 pytest.importorskip("vesselbot_msgs")
 
-from geometry_msgs.msg import PointStamped  # noqa: E402
-from nav_msgs.msg import Odometry  # noqa: E402
+from geometry_msgs.msg import PointStamped
+from nav_msgs.msg import Odometry
+from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample
+from vesselbot_msgs.srv import GetSeries
 
-from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample  # noqa: E402
-from vesselbot_msgs.srv import GetSeries  # noqa: E402
-from vesselbot_ros.graph_spec import TOPICS, ns_of_time, role, series_service_key, service  # noqa: E402
-from vesselbot_ros.nodes.conversions import codec  # noqa: E402
-from vesselbot_ros.nodes.series import (  # noqa: E402
+from vesselbot_ros.graph_spec import TOPICS, ns_of_time, role, series_service_key, service
+from vesselbot_ros.nodes.conversions import codec
+from vesselbot_ros.nodes.series import (
+    _HAS_TICK,
     READERS,
     SERIES_COLUMNS,
-    _HAS_TICK,
     SeriesLog,
     columns_of,
     empty_series,
