@@ -154,26 +154,26 @@ def clock_flat(t_s: float) -> Any:
 
 def measurement_flat(t_acq_s: float, p: npt.ArrayLike) -> Any:
     """An imager frame (flat form): stamp = acquisition time, point = measured position (m)."""
-    return _make_measurement(*divmod(ns_of_time(t_acq_s), NS_PER_S), float(p[0]), float(p[1]))  # type: ignore[index]
+    return _make_measurement(*divmod(ns_of_time(t_acq_s), NS_PER_S), float(p[0]), float(p[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def gradient_flat(t_s: float, g: npt.ArrayLike) -> Any:
     """A gradient (T/m) stamped ``t_s`` (flat form)."""
-    return _make_gradient(*divmod(ns_of_time(t_s), NS_PER_S), float(g[0]), float(g[1]))  # type: ignore[index]
+    return _make_gradient(*divmod(ns_of_time(t_s), NS_PER_S), float(g[0]), float(g[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def estimate_flat(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float, flow_scale: float = 1.0) -> Any:
     """Observer estimate at ``t_s`` (flat form): position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
     # inf age (no measurement yet) cannot travel as a finite number: clamp it
-    return _make_estimate(*divmod(ns_of_time(t_s), NS_PER_S), float(x_hat[0]), float(x_hat[1]),  # type: ignore[index]
-                          float(z_hat[0]), float(z_hat[1]), float(age_s) if math.isfinite(age_s) else 1e9,  # type: ignore[index]
+    return _make_estimate(*divmod(ns_of_time(t_s), NS_PER_S), float(x_hat[0]), float(x_hat[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+                          float(z_hat[0]), float(z_hat[1]), float(age_s) if math.isfinite(age_s) else 1e9,  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
                           float(flow_scale))
 
 
 def reference_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> Any:
     """Reference sample k (flat form): ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
-    return _make_reference(*divmod(ns_of_time(t_s), NS_PER_S), int(k), float(p[0]), float(p[1]),  # type: ignore[index]
-                           float(v[0]), float(v[1]), float(a[0]), float(a[1]))  # type: ignore[index]
+    return _make_reference(*divmod(ns_of_time(t_s), NS_PER_S), int(k), float(p[0]), float(p[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+                           float(v[0]), float(v[1]), float(a[0]), float(a[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def coil_state_flat(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
