@@ -111,8 +111,8 @@ def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
     seq = hw.sequence
     tracking = cell.tracking_window_s if cell.tracking_window_s is not None else (
         seq.tracking_window_s if seq.mode == "multiplexed" else 0.02)
-    m["sequence"] = {"mode": "multiplexed", "tracking_window_s": tracking, "dead_time_s": seq.dead_time_s, "propulsion_window_s": cell.propulsion_window_s,
-                     "latency_s": cell.latency_s}
+    m["sequence"] = {"mode": "multiplexed", "tracking_window_s": tracking, "dead_time_s": seq.dead_time_s,
+                     "propulsion_window_s": cell.propulsion_window_s, "latency_s": cell.latency_s}
     m["coil"].update(saturation_T_per_m=hw.saturation_T_per_m, slew_rate="custom",
                      custom_slew_rate_T_per_m_per_s=hw.slew_T_per_m_per_s)
     m["imager"]["latency_s"] = 0.0

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from vesselbot_ros.analysis.scanner_study import PAIRS, fmt_um, run_study, study_cells
@@ -118,7 +119,7 @@ def _figures(rows: list[dict], out: Path) -> None:
           lambda r: r["propulsion_window_s"] == w_mid, f"propulsion window {w_mid * 1e3:g} ms")
 
 
-def _plot(rows: list[dict], path: Path, xkey: str, xscale: float, xlabel: str, keep, fixed: str) -> None:  # type: ignore[no-untyped-def]
+def _plot(rows: list[dict], path: Path, xkey: str, xscale: float, xlabel: str, keep: Callable[[dict], bool], fixed: str) -> None:
     """Tracking error (mean over seeds) against ``xkey``, one panel per hardware, one line per pair."""
     # deferred: matplotlib (~0.5 s) loads only when the figures are drawn, not for `vesselbot scanner-study --help`
     import matplotlib

@@ -64,7 +64,7 @@ def _import_report_libraries() -> None:
 
     matplotlib.use("Agg")
     # deferred: as above (matplotlib's pyplot, and scipy.special for the confidence intervals)
-    import matplotlib.pyplot  # noqa: F401
+    import matplotlib.pyplot
     import scipy.special  # noqa: F401
 
 

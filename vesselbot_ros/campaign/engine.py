@@ -43,7 +43,8 @@ from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, unflatten
 from vesselbot_ros.errors import RunError
 
-__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute", "Progress"]
+__all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute",
+           "Progress"]
 
 
 @dataclasses.dataclass(frozen=True)

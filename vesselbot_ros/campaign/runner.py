@@ -71,7 +71,7 @@ class RunTask(NamedTuple):
             of one scenario build it once per worker.
     """
 
-    index: int
+    index: int  # type: ignore[assignment]  # the field's name shadows tuple.index on purpose
     run_id: str
     seed: int
     mapping: dict[str, Any]
@@ -243,7 +243,7 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[di
     out = []
     for task in tasks:
         if expected_code is not None and here != expected_code:
-            rec = {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
+            rec: dict[str, Any] = {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
                    "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
                             f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
         else:

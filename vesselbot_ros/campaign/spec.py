@@ -108,7 +108,7 @@ class Distribution:
             elif value is not None:
                 raise ConfigError(f"{name} does not apply to distribution {self.distribution!r}, got {value!r}")
         if self.distribution == "normal":
-            check_positive("std", self.std)  # type: ignore[arg-type]
+            check_positive("std", self.std)  # type: ignore[arg-type]  # required for normal: checked above
             return
         assert self.low is not None and self.high is not None
         if self.high <= self.low:
@@ -119,7 +119,7 @@ class Distribution:
     def centre(self) -> float:
         """A typical value (mean, midpoint or geometric mean), used to check the key."""
         if self.distribution == "normal":
-            return float(self.mean)  # type: ignore[arg-type]
+            return float(self.mean)  # type: ignore[arg-type]  # required for normal (__post_init__)
         assert self.low is not None and self.high is not None
         if self.distribution == "log_uniform":
             return math.sqrt(self.low * self.high)
@@ -128,6 +128,7 @@ class Distribution:
     def draw(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """``n`` draws from ``rng`` (float64)."""
         if self.distribution == "normal":
+            assert self.mean is not None and self.std is not None
             return rng.normal(self.mean, self.std, n)
         assert self.low is not None and self.high is not None
         if self.distribution == "log_uniform":
@@ -384,7 +385,7 @@ def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunP
     else:
         draws = [{}]
     keep_seeds, keep_runs = set(spec.keep_timeseries.seeds), set(spec.keep_timeseries.runs)
-    variants = list(spec.variants.items()) or [(None, {})]
+    variants: list[tuple[str | None, Any]] = list(spec.variants.items()) or [(None, {})]
     points: list[RunPoint] = []
     group = point = 0
     for vname, changes in variants:

@@ -193,7 +193,7 @@ class CampaignStore:
                 rows.append(row)
             if not rows:
                 return
-            name = hashlib.sha256("".join(r["run_id"] for r in rows).encode()).hexdigest()[:20]
+            name = hashlib.sha256("".join(str(r["run_id"]) for r in rows).encode()).hexdigest()[:20]
             self.parts.mkdir(parents=True, exist_ok=True)
             _atomic_write_table(_rows_to_table(rows, _PART_COLUMNS), self.parts / f"part-{name}.parquet")
         except OSError as exc:

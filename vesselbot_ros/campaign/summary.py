@@ -188,7 +188,7 @@ def draw_figures(rows: Sequence[dict[str, Any]], varied_keys: Sequence[str], gro
                    if _finite(r, "tracking_error_max_m")]
             if not pts:
                 continue
-            xs = [float(x) if numeric else cats.index(str(x)) for x, _ in pts]
+            xs = [float(x) if numeric else cats.index(str(x)) for x, _ in pts]  # type: ignore[arg-type]  # numeric: no None
             ax.plot(xs, [y for _, y in pts], "o", ms=4, alpha=0.7, label=name)
         if not numeric:
             ax.set_xticks(range(len(cats)), cats)
@@ -239,5 +239,5 @@ def write_report(rows: Sequence[dict[str, Any]], meta: dict[str, Any], root: Pat
 
 
 def _after(rows: Sequence[dict[str, Any]]) -> str:
-    vals = {r.get("after_s") for r in rows if r.get("after_s") is not None}
+    vals = {float(r["after_s"]) for r in rows if r.get("after_s") is not None}
     return "/".join(f"{v:g}" for v in sorted(vals)) or "-"

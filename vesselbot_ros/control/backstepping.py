@@ -30,8 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numba
 import numpy as np
@@ -58,7 +57,13 @@ __all__ = [
     "flow_scale_message",
 ]
 
-ForceFn = Callable[[float, npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+
+
+class ForceFn(Protocol):
+    """``F(t_s, X, Z[, flow_scale]) -> (2,)`` m/s^2 (:meth:`vesselbot_ros.control.model.DynamicsModel.F`'s shape)."""
+
+    def __call__(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64], flow_scale: float = 1.0, /
+                 ) -> npt.NDArray[np.float64]: ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +202,7 @@ def flow_scale_message(flow_scale: float) -> str:
 
 
 @numba.njit(cache=True, nogil=True)
-def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]
+def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     if prm[4] < 0.5:
         last[0] = 0.0
         last[1] = 0.0
@@ -209,7 +214,7 @@ def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]
+def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
                          pr0, pr1, vr0, vr1, ar0, ar1, out):
     """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model's packed parameters.
 
@@ -236,7 +241,7 @@ def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1,
 
 
 @numba.njit(cache=True, nogil=True)
-def _scaled_model(model_p, p_s, flow_scale):  # type: ignore[no-untyped-def]
+def _scaled_model(model_p, p_s, flow_scale):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """The model's packed parameters with ``V_f`` times ``flow_scale`` (``model_p`` itself for 1), as ``DynamicsModel.F``."""
     if flow_scale == 1.0:
         return model_p
@@ -247,7 +252,7 @@ def _scaled_model(model_p, p_s, flow_scale):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore[no-untyped-def]
+def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """``DynamicsModel.F`` at ``(X, Z)``, time ``t``, on packed parameters ``p`` (m/s^2): the same doubles."""
     forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, p, fbuf)
     m = model_p[I_MASS]
@@ -255,7 +260,7 @@ def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore
 
 
 @numba.njit(cache=True, nogil=True)
-def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1):  # type: ignore[no-untyped-def]
+def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) with ``F`` on ``p``, mapped by ``B^-1`` and the duty compensation: ``(g x, g z, U x, U z)``."""
     k1 = prm[0]
     k2 = prm[1]
@@ -283,7 +288,7 @@ def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]
+def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Write a command (or take the safe action if it is not finite); its status."""
     if not (math.isfinite(g0) and math.isfinite(g1)):
         return _safe_command(prm, last, out, STATUS_NONFINITE)
@@ -297,7 +302,7 @@ def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True)
-def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age,  # type: ignore[no-untyped-def]
+def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age,  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
                      pr0, pr1, vr0, vr1, ar0, ar1, out):
     """Adaptive backstepping (:mod:`vesselbot_ros.control.adaptive`): adapt, then law (24) at the adapted scales.
 
@@ -508,7 +513,7 @@ class BacksteppingController:
             if not (math.isfinite(flow_scale) and flow_scale > 0.0):
                 raise ModelInputError(flow_scale_message(flow_scale))
 
-            def force(t: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+            def force(t: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64], /) -> npt.NDArray[np.float64]:
                 return self._f(t, x, z, flow_scale)
         else:
             force = self._f

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 from pathlib import Path
 
 import pytest
@@ -34,7 +35,7 @@ def test_chunks_shrink_towards_the_end() -> None:
     # 6 ms runs: at most TASK_S (166 runs), shrinking by 1/(2w), never below MIN_TASK_S (8 runs)
     big = chunk_sizes(1000, 2, run_s=0.006)
     assert sum(big) == 1000 and big[0] == int(TASK_S / 0.006) and max(big) == big[0]
-    assert all(a >= b for a, b in zip(big, big[1:]))
+    assert all(a >= b for a, b in itertools.pairwise(big))
     assert min(big[:-1]) == int(MIN_TASK_S / 0.006)
     assert len(big) < 1000 / 50  # most runs travel in large chunks
     # 1 s runs: one run per task; 10 ms runs on 2 workers: 40 runs go as 10, 8, 6, 5, 5, 5, 1

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import yaml
 
-from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.campaign.spec import (
     Distribution,
     campaign_spec_from_mapping,
@@ -18,6 +17,7 @@ from vesselbot_ros.campaign.spec import (
     expand_points,
     load_campaign_spec,
 )
+from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.sim.scenario import load_scenario, scenario_from_mapping
 
