@@ -92,7 +92,8 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES", "PATHS", "REPLACEABLE"]
+__all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES",
+           "PATHS", "REPLACEABLE"]
 
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
@@ -431,7 +432,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     """The per-tick loop over the stages' methods (module docstring)."""
     n = scenario.sim.n_ticks
     dt = scenario.sim.dt_control_s
-    ts = np.arange(n) * dt
+    ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it
     p_ref, v_ref, a_ref = st.reference.sample_many(ts)
     rec_forces = scenario.sim.record_forces
 

@@ -60,9 +60,9 @@ from vesselbot_ros.control.high_gain_observer import (
 )
 from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
-from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 from vesselbot_ros.sim.plant import PlantSimulator
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
@@ -176,7 +176,7 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     bad = foreign_stages(stages)
     if bad:
         raise ModelInputError(f"compiled loop needs the built-in stages, got user stage(s) {bad}")
-    ts = np.arange(n) * dt
+    ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it for LoopInputs
     p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
     plant, observer, controller, coil, model = stages.plant, stages.observer, stages.controller, stages.coil, stages.model
     imager = stages.imager.inner if isinstance(stages.imager, SequencedImager) else stages.imager
@@ -207,15 +207,15 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
 
 
 @numba.njit(cache=True, nogil=True)
-def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]
+def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
                 imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, ctrl_aprm, ctrl_ast, coil_prm, seq_mode, sv,
                 hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
                 e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
                 e_vec, e_mat,
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
-                x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
-                slew_limited, cmd_status, err):
+                x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
+                saturated, slew_limited, cmd_status, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
 
     State arrays (``y``, ``contact``, ``obs_*``, the filter's ``e_*``,
@@ -367,7 +367,9 @@ _NO_EKF: tuple[npt.NDArray[Any], ...] = (
 )
 
 
-def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+def run_kernel(
+    inp: LoopInputs, rng: np.random.Generator
+) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """One run of :func:`loop_kernel` with fresh state; returns ``(columns, plant stats, model stats)``.
 
     Raises:
@@ -387,11 +389,11 @@ def run_kernel(inp: LoopInputs, rng: np.random.Generator) -> tuple[dict[str, npt
     err = np.zeros(8)
     if inp.ekf is not None:
         e = inp.ekf.copy()
-        ekf_arrays = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s, e.work,
-                      e.fbuf, e.vec, e.mat)
+        ekf_arrays: tuple[npt.NDArray[Any], ...] = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free,
+                                                    e.p, e.p_s, e.work, e.fbuf, e.vec, e.mat)
     else:
         ekf_arrays = _NO_EKF
-    code, tick = loop_kernel(
+    code, tick = loop_kernel(  # type: ignore[call-arg]  # *ekf_arrays is 16 long: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, inp.obs_ig, rng,
         inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl_prm, inp.ctrl_aprm,
         inp.ctrl_ast0.copy(), inp.coil_prm,

@@ -41,10 +41,10 @@ from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
 from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
-from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network, route_to_outlet
 
