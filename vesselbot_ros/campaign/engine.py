@@ -20,6 +20,12 @@ carries (``bench/bench_campaign.py`` measures the run phase against
 ``run_many``); the last ones are short, so a worker that the machine slows
 down, or a run that lasts longer than the others, leaves the other workers
 idle for a short time only.  A fixed ``chunk_size`` gives equal chunks.
+
+Run budget: with ``run_timeout_s`` each run has that much wall time on its
+worker; a run over it is stopped (its process killed:
+:class:`~vesselbot_ros.campaign.runner.RunProcess`) and recorded with status
+``timeout``, and the campaign goes on.  Without one, the runs run in the
+worker threads themselves, as before.
 """
 
 from __future__ import annotations
@@ -37,10 +43,10 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
 
-from vesselbot_ros.campaign.runner import RunTask, SeedHasher, code_version, resolve_mapping, run_chunk
+from vesselbot_ros.campaign.runner import TIMEOUT_STATUS, RunTask, SeedHasher, code_version, resolve_mapping, run_chunk
 from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping, merge_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError, unflatten
+from vesselbot_ros.config import ConfigError, check_positive, unflatten
 from vesselbot_ros.errors import RunError
 
 __all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute",
@@ -312,6 +318,7 @@ class Outcome:
         busy_s: Sum of the runs' own wall times on the workers (s).
         n_workers: Worker threads used.
         n_tasks: Dask tasks (chunks) used.
+        n_timeout: Runs executed now that were stopped at the run budget (counted in ``n_failed`` too).
     """
 
     n_ran: int
@@ -320,6 +327,7 @@ class Outcome:
     busy_s: float
     n_workers: int
     n_tasks: int
+    n_timeout: int = 0
 
 
 def _chunk_failed(chunk: Sequence[RunTask], exc: BaseException) -> list[dict[str, Any]]:
@@ -339,12 +347,15 @@ class _Chunk:
         self.tasks = tasks
 
 
-def _run_packed(chunk: _Chunk, code: str, chunk_fn: Callable[..., list[dict[str, Any]]]) -> list[dict[str, Any]]:
-    return chunk_fn(chunk.tasks, code)
+def _run_packed(chunk: _Chunk, code: str, chunk_fn: Callable[..., list[dict[str, Any]]],
+                run_timeout_s: float | None = None) -> list[dict[str, Any]]:
+    if run_timeout_s is None:  # the fast path: chunk_fn as it always was called
+        return chunk_fn(chunk.tasks, code)
+    return chunk_fn(chunk.tasks, code, run_timeout_s)
 
 
 def pending(tasks: Sequence[RunTask], store: CampaignStore, retry_failed: bool = False) -> list[RunTask]:
-    """The distinct runs of ``tasks`` that ``store`` does not hold yet (nor as failed, unless ``retry_failed``)."""
+    """The distinct runs of ``tasks`` that ``store`` does not hold yet (nor as failed or timed out, unless ``retry_failed``)."""
     finished = {rid for rid, status in store.statuses().items() if status == "ok" or not retry_failed}
     return [t for t in {t.run_id: t for t in tasks}.values() if t.run_id not in finished]
 
@@ -358,6 +369,7 @@ def execute(
     chunk_size: int = 0,
     progress: Progress | None = None,
     chunk_fn: Callable[..., list[dict[str, Any]]] = run_chunk,
+    run_timeout_s: float | None = None,
 ) -> Outcome:
     """Run ``todo`` (see :func:`pending`) on ``client`` and store every chunk as it completes.
 
@@ -368,15 +380,21 @@ def execute(
         code: The client's code version (checked by every worker).
         chunk_size: Runs per task, 0 = shrinking chunks (:func:`chunk_sizes`).
         progress: Progress bar to update.
-        chunk_fn: The function a task runs on a chunk (:func:`run_chunk`).
+        chunk_fn: The function a task runs on a chunk (:func:`run_chunk`), called as
+            ``chunk_fn(tasks, code)``, or ``chunk_fn(tasks, code, run_timeout_s)`` with a budget.
+        run_timeout_s: Wall-clock budget of each run on its worker (s); None = no budget.
+            A run over it is recorded with status ``timeout`` and the others go on.
 
     Raises:
+        ConfigError: ``run_timeout_s`` is not a number > 0.
         RunError: the cluster failed (lost scheduler, ...); stored runs are kept.
     """
     # deferred: distributed (see dask_client)
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
+    if run_timeout_s is not None:
+        check_positive("run_timeout_s", run_timeout_s)
     if todo and not client.nthreads():
         try:
             client.wait_for_workers(1, timeout=60)
@@ -396,12 +414,12 @@ def execute(
         chunk = list(todo[pos:pos + size])
         pos += size
         n_tasks += 1
-        fut = client.submit(_run_packed, _Chunk(chunk), code, chunk_fn, key=f"vesselbot-chunk-{chunk[0].run_id}-{size}",
-                            pure=False)
+        fut = client.submit(_run_packed, _Chunk(chunk), code, chunk_fn, run_timeout_s,
+                            key=f"vesselbot-chunk-{chunk[0].run_id}-{size}", pure=False)
         futures[fut] = chunk
         queue.add(fut)
 
-    n_failed = 0
+    n_failed = n_timeout = 0
     busy = 0.0
     try:
         while pos < len(todo) and len(futures) < IN_FLIGHT * n_workers:
@@ -424,6 +442,7 @@ def execute(
             store.write_records(records)
             bad = sum(1 for r in records if r["status"] != "ok")
             n_failed += bad
+            n_timeout += sum(1 for r in records if r["status"] == TIMEOUT_STATUS)
             busy += sum(times)
             if progress is not None:
                 progress.update(ok=len(records) - bad, failed=bad)
@@ -432,4 +451,4 @@ def execute(
             client.cancel(list(futures))
         if progress is not None:
             progress.close()
-    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, n_tasks)
+    return Outcome(len(todo), n_failed, time.perf_counter() - t0, busy, n_workers, n_tasks, n_timeout)

@@ -24,16 +24,29 @@ deterministic, the same numbers; new code gives new ids, so a resumed campaign
 never mixes results of two versions.  :class:`SeedHasher` gives the same ids
 as :func:`run_id` for every seed of one scenario while serialising the
 scenario once.
+
+A wall-clock budget per run (``run_timeout_s``) bounds a run that crawls (the
+plant's adaptive step collapsing while the bead rests on the wall).  The
+compiled loop holds its thread until the run ends, so no thread-level timeout
+can stop it: with a budget, each worker thread hands its runs, one at a time,
+to a process of its own (:class:`RunProcess`, forked from the worker, so the
+loaded code and the imports come along), waits for the record at most the
+budget, and on expiry kills that process, records the run with status
+``timeout`` and forks a new one for the next run.  Without a budget the runs
+run in the worker thread itself, as they always did.
 """
 
 from __future__ import annotations
 
 import collections
+import ctypes
 import functools
 import hashlib
 import json
+import multiprocessing.connection
 import os
 import platform
+import signal
 import socket
 import sys
 import threading
@@ -50,7 +63,7 @@ from vesselbot_ros.sim import closed_loop
 from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 __all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "run_chunk", "flatten_timeseries",
-           "SCENARIO_CACHE"]
+           "SCENARIO_CACHE", "RunProcess", "TIMEOUT_STATUS"]
 
 # Sources whose change can change a run's numbers (relative to the package folder).
 _CODE_GLOBS = ("config.py", "errors.py", "physics/**/*.py", "physics/data/*", "control/**/*.py", "sim/**/*.py")
@@ -219,7 +232,139 @@ def _one(task: RunTask, local: dict[int, Any]) -> dict[str, Any]:
     return rec
 
 
-def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[dict[str, Any]]:
+#: Status of a run stopped at its wall-clock budget (besides ``ok`` and ``error``).
+TIMEOUT_STATUS = "timeout"
+
+_PR_SET_PDEATHSIG = 1  # prctl(2): signal this process when the thread that forked it ends
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Have the kernel SIGKILL this process when the worker thread that forked it ends (Linux; elsewhere a no-op)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux: the closed pipe still ends the process
+        pass
+    if os.getppid() != parent_pid:  # the worker died between the fork and the prctl
+        os._exit(0)
+
+
+def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> None:
+    """A run process's loop: receive a :class:`RunTask`, send its record, until the worker closes the pipe."""
+    global _SCENARIOS, _SCENARIOS_LOCK
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the command; the worker then ends this process
+    # Another thread of the worker may have held the lock at the fork; this process starts its own cache.
+    _SCENARIOS = collections.OrderedDict()
+    _SCENARIOS_LOCK = threading.Lock()
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):  # the worker closed the pipe, or died
+            return
+        # a fresh local cache per task: each received mapping is a new object (its id may repeat)
+        conn.send(_one(task, {}))
+
+
+class RunProcess:
+    """A process forked from this worker that runs one :class:`RunTask` at a time, within a wall-clock budget.
+
+    The fork copies the worker's memory: the imported modules and the compiled
+    code it has loaded (a fresh worker's first run process loads numba's cache
+    once, then runs every run it is given).  The process keeps its own cache
+    of built scenarios, closes every file the worker had open but its pipe,
+    ignores Ctrl-C and is killed by the kernel when the thread that forked it
+    ends (``PR_SET_PDEATHSIG``); it ends by itself when the pipe closes.
+    """
+
+    def __init__(self) -> None:
+        parent_pid = os.getpid()
+        mine, theirs = multiprocessing.connection.Pipe(duplex=True)
+        pid = os.fork()
+        if pid == 0:  # the run process
+            code = 0
+            try:
+                keep = theirs.fileno()
+                os.closerange(3, keep)  # the worker's sockets, files and other run processes' pipes
+                os.closerange(keep + 1, os.sysconf("SC_OPEN_MAX"))
+                _serve(theirs, parent_pid)
+            except BaseException:  # noqa: BLE001 - nothing of the worker's may run in this process
+                code = 1
+            finally:
+                os._exit(code)
+        theirs.close()
+        self.pid = pid
+        self.conn = mine
+        self._owner = parent_pid
+
+    def run(self, task: RunTask, budget_s: float) -> dict[str, Any]:
+        """Run ``task`` in this process; its record, or a ``timeout`` / ``error`` record.
+
+        After a ``timeout`` or a process that died, this object is closed: make a new one.
+        """
+        t0 = time.perf_counter()
+        try:
+            self.conn.send(task)
+            if self.conn.poll(budget_s):
+                rec: dict[str, Any] = self.conn.recv()
+                return rec
+        except (EOFError, OSError):  # the process died (a crash in compiled code, the OOM killer)
+            status = self.close()
+            return {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None,
+                    "run_time_s": time.perf_counter() - t0,
+                    "error": f"RunProcessDied: the run's process ended ({status}) before returning the run"}
+        self.close()
+        return {"run_id": task.run_id, "status": TIMEOUT_STATUS, "metrics": {}, "timeseries": None,
+                "run_time_s": time.perf_counter() - t0,
+                "error": f"Timeout: over the budget of {budget_s:g} s of wall time (run_timeout_s); stopped"}
+
+    @property
+    def closed(self) -> bool:
+        """Whether the process was ended (:meth:`close`)."""
+        return self.conn.closed
+
+    def close(self) -> str:
+        """Kill the process (if alive) and reap it; how it ended (``signal N`` / ``exit code N``).
+
+        Only the worker that forked it does: a run process forked later inherits this object
+        (in another thread's locals, which the fork clears) and must leave it alone.
+        """
+        if os.getpid() != self._owner:
+            return "not this process's"
+        if self.conn.closed:
+            return "closed"
+        self.conn.close()
+        try:
+            os.kill(self.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        try:
+            _, status = os.waitpid(self.pid, 0)
+        except ChildProcessError:
+            return "reaped"
+        if os.WIFSIGNALED(status):
+            return f"signal {os.WTERMSIG(status)}"
+        return f"exit code {os.WEXITSTATUS(status)}"
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - at interpreter exit the os module may be gone
+            pass
+
+
+_THREAD = threading.local()  # each worker thread's RunProcess
+
+
+def _bounded(task: RunTask, budget_s: float) -> dict[str, Any]:
+    """Run ``task`` in this thread's :class:`RunProcess` (made on first use and after a timeout)."""
+    proc: RunProcess | None = getattr(_THREAD, "proc", None)
+    if proc is None or proc.closed:
+        proc = _THREAD.proc = RunProcess()
+    return proc.run(task, budget_s)
+
+
+def run_chunk(tasks: list[RunTask], expected_code: str | None = None,
+              run_timeout_s: float | None = None) -> list[dict[str, Any]]:
     """Run ``tasks`` one after the other; one record per task, in order.
 
     Each distinct scenario of the chunk is built once (see the module docstring);
@@ -230,13 +375,19 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[di
         expected_code: The client's :func:`code_version`.  A worker whose code
             differs (a remote cluster with another checkout) records every run
             as an error instead of producing numbers under a wrong address.
+        run_timeout_s: Wall-clock budget of each run (s), or None for none.
+            With a budget each run runs in this thread's :class:`RunProcess`
+            (building its scenario included); a run over the budget is stopped
+            and recorded with status ``timeout``, and the chunk goes on.
 
     Returns:
-        Per task: ``run_id``, ``status`` (``ok`` / ``error``), ``error``
+        Per task: ``run_id``, ``status`` (``ok`` / ``error`` / ``timeout``), ``error``
         (``"Type: message"`` or None), ``metrics`` (numeric metrics of
         :func:`run_closed_loop`), ``timeseries`` (flattened columns or None),
         ``run_time_s`` (wall time of the run on the worker) and ``worker``.
     """
+    if run_timeout_s is not None and not (run_timeout_s > 0 and run_timeout_s < float("inf")):
+        raise ValueError(f"run_timeout_s must be > 0 s, got {run_timeout_s!r}")
     worker = f"{socket.gethostname()}:{os.getpid()}"
     here = code_version()
     local: dict[int, Any] = {}
@@ -246,8 +397,10 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None) -> list[di
             rec: dict[str, Any] = {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
                    "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
                             f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
-        else:
+        elif run_timeout_s is None:
             rec = _one(task, local)
+        else:
+            rec = _bounded(task, run_timeout_s)
         rec["worker"] = worker
         out.append(rec)
     return out

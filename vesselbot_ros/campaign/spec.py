@@ -25,6 +25,8 @@ values that vary across runs::
         physics.robot.radius_m: {distribution: normal, mean: 250.0e-6, std: 5.0e-6}
     keep_timeseries: {seeds: [0], runs: []}   # per-run time series kept for these seeds / run indices
     chunk_size: 0                        # runs per Dask task; 0 = automatic
+    run_timeout_s: 300.0                 # wall-clock budget of one run (s); a run over it is recorded
+                                         #   with status ``timeout``; omitted or null = no budget
 
 The runs are every variant x grid point x every draw x every seed (or x the
 paired seed), in that nesting order; the position in that order is the run ``index``.  Keys
@@ -212,6 +214,8 @@ class CampaignSpec:
         keep_timeseries: Runs whose time series are kept (:class:`KeepSpec`).
         chunk_size: Runs per Dask task; 0 = shrinking chunks sized from the runs left, the workers and the
             measured run time (:class:`vesselbot_ros.campaign.engine.ChunkSizer`).
+        run_timeout_s: Wall-clock budget of each run (s), None = none: a run over it is
+            stopped and recorded with status ``timeout`` (:func:`vesselbot_ros.campaign.engine.execute`).
     """
 
     name: str
@@ -223,6 +227,7 @@ class CampaignSpec:
     samples: SampleSpec = dataclasses.field(default_factory=SampleSpec)
     keep_timeseries: KeepSpec = dataclasses.field(default_factory=KeepSpec)
     chunk_size: int = 0
+    run_timeout_s: float | None = None
 
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
@@ -258,6 +263,8 @@ class CampaignSpec:
                     raise ConfigError(f"variants.{vname}.{key} is also varied by grid or samples; vary a key in one place")
         if self.chunk_size < 0:
             raise ConfigError(f"chunk_size must be >= 0 (0 = automatic), got {self.chunk_size!r}")
+        if self.run_timeout_s is not None:
+            check_positive("run_timeout_s", self.run_timeout_s)
         for section, keys in (("overrides", self.overrides), ("grid", self.grid), ("samples.params", self.samples.params)):
             for key in keys:
                 try:

@@ -26,8 +26,8 @@ index                       run position in the campaign order (grid x draws x s
 run_id                      content hash of scenario + seed + code version
 seed                        imager noise seed
 <dotted.scenario.key>       value of each varied key (grid and sampled)
-status                      ``ok`` or ``error``
-error                       ``"Type: message"`` of a failed run, else null
+status                      ``ok``, ``error`` or ``timeout`` (stopped at the campaign's run budget)
+error                       ``"Type: message"`` of a failed or timed-out run, else null
 <metric>                    every numeric metric of ``run_closed_loop`` (SI units in the name)
 run_time_s                  wall time of the run on its worker (s)
 worker                      ``host:pid`` of the worker
@@ -160,7 +160,7 @@ class CampaignStore:
         return table.take(pa.array(sorted(chosen.values()), pa.int64()))
 
     def statuses(self) -> dict[str, str]:
-        """run_id -> ``ok`` / ``error`` of every finished run (reads only those two columns)."""
+        """run_id -> ``ok`` / ``error`` / ``timeout`` of every finished run (reads only those two columns)."""
         table = self._finished_table(("run_id", "status"))
         if table is None:
             return {}

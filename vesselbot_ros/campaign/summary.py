@@ -2,7 +2,8 @@
 
 :func:`summarize` computes, per group of grid values (one group when nothing
 is gridded) and per metric of :data:`SUMMARY_METRICS`, over the runs that
-finished without error: the number of runs, the mean with its 95 % confidence
+finished without error (status ``ok``; ``error`` and ``timeout`` runs count as
+failed): the number of runs, the mean with its 95 % confidence
 interval (Student t, ``mean +/- t(0.975, n-1) s / sqrt(n)``), the standard
 deviation, the 5th, 50th and 95th percentiles and the worst run (the largest
 value: every metric here is better smaller).
@@ -224,8 +225,11 @@ def write_report(rows: Sequence[dict[str, Any]], meta: dict[str, Any], root: Pat
     summary = summarize(rows, group_keys)
     n_ok = sum(1 for r in rows if r.get("status") == "ok")
     n_failed = sum(1 for r in rows if r.get("status") == "error")
+    n_timeout = sum(1 for r in rows if r.get("status") == "timeout")
+    budget = meta.get("run_timeout_s")
+    over = (f", {n_timeout} over the run budget" + (f" of {budget:g} s" if budget else "")) if n_timeout else ""
     head = (f"campaign {meta.get('name')}: {len(rows)} of {meta.get('n_runs', len(rows))} runs finished, "
-            f"{n_ok} ok, {n_failed} failed (metrics after t = {_after(rows)} s)\n\n")
+            f"{n_ok} ok, {n_failed} failed{over} (metrics after t = {_after(rows)} s)\n\n")
     text = head + format_markdown(summary)
     (root / "summary.md").write_text(text, encoding="utf-8")
     with (root / "summary.csv").open("w", newline="", encoding="utf-8") as fh:

@@ -1,9 +1,10 @@
-"""Tests of the campaign engine: chunking, progress, resume bookkeeping, execution on a Dask client."""
+"""Tests of the campaign engine: chunking, progress, resume bookkeeping, execution on a Dask client, the run budget."""
 
 from __future__ import annotations
 
 import io
 import itertools
+import re
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,7 @@ from vesselbot_ros.campaign.engine import (
     pending,
     prepare,
 )
-from vesselbot_ros.campaign.runner import resolve_mapping, run_id
+from vesselbot_ros.campaign.runner import resolve_mapping, run_chunk, run_id
 from vesselbot_ros.campaign.spec import expand_points, load_campaign_spec
 from vesselbot_ros.campaign.store import CampaignStore
 
@@ -138,3 +139,102 @@ def test_prepare_gives_each_run_the_address_of_its_resolved_scenario(name) -> No
     assert len(same) == (1 if spec.samples.paired_with_seeds else len(spec.seed_list()))
     assert len({t.scenario_key for t in same}) == 1
     assert len({t.scenario_key for t in prep.tasks}) == len(prep.tasks) // len(same)
+
+
+_CALLS: list[int] = []
+
+
+def _recording_chunk_fn(*args):  # the in-process cluster calls it in this process
+    _CALLS.append(len(args))
+    return run_chunk(*args)
+
+
+def _children_alive() -> list:
+    import psutil
+
+    return [c for c in psutil.Process().children() if c.status() != psutil.STATUS_ZOMBIE]
+
+
+def test_a_run_over_the_budget_is_a_timeout_and_the_others_complete(tmp_path, monkeypatch) -> None:
+    """A run that crawls (here: spins forever, as a collapsed adaptive step holds the compiled loop) is stopped
+    at the campaign's run budget and recorded as ``timeout``; the other runs give run_closed_loop's numbers."""
+    import time
+
+    from distributed import Client, LocalCluster
+
+    from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
+    from vesselbot_ros.campaign.summary import write_report
+    from vesselbot_ros.config import load_yaml
+    from vesselbot_ros.sim import closed_loop
+
+    base = load_yaml(ROOT / "config" / "sound_small_artery.yaml")
+    spec = campaign_spec_from_mapping({"name": "budget", "base": "-", "seeds": [0, 1, 2, 3, 4],
+                                       "overrides": {"sim.duration_s": 0.05, "sim.metrics_after_s": 0.0},
+                                       "run_timeout_s": 1.0})
+    assert spec.run_timeout_s == 1.0
+    from vesselbot_ros.campaign.spec import merge_mapping
+    from vesselbot_ros.config import unflatten
+
+    prep = prepare(spec, merge_mapping(base, unflatten(spec.overrides)))
+    # no budget: every run here, in the worker thread, called as chunk_fn(tasks, code): the numbers to compare with
+    # (this also loads the compiled loop in this process, which the run processes are forked from)
+    store0 = CampaignStore(tmp_path / "plain")
+    store0.write_manifest(prep.manifest, {"name": "plain", "n_runs": 5, "varied_keys": []}, "")
+    _CALLS.clear()
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        plain = execute(prep.tasks, store0, client, prep.code, chunk_size=2, chunk_fn=_recording_chunk_fn)
+    assert _CALLS == [2, 2, 2] and plain.n_failed == plain.n_timeout == 0
+    expected = {r["seed"]: r for r in store0.assemble().to_pylist()}
+
+    original = closed_loop.run_closed_loop
+
+    def crawl_at_seed_2(scenario, seed=None, **kw):  # noqa: ANN001, ANN202
+        while seed == 2:
+            pass
+        return original(scenario, seed, **kw)
+
+    monkeypatch.setattr(closed_loop, "run_closed_loop", crawl_at_seed_2)
+    store = CampaignStore(tmp_path / "out")
+    store.write_manifest(prep.manifest, {"name": "budget", "n_runs": 5, "varied_keys": [], "run_timeout_s": 1.0}, "")
+    _CALLS.clear()
+    t0 = time.monotonic()
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        out = execute(prep.tasks, store, client, prep.code, chunk_size=2, chunk_fn=_recording_chunk_fn,
+                      run_timeout_s=spec.run_timeout_s)
+    wall = time.monotonic() - t0
+    assert wall < 60.0  # the crawl never ends by itself: only the budget (1 s) stopped it
+    assert _CALLS == [3, 3, 3]  # chunk_fn(tasks, code, run_timeout_s)
+    assert (out.n_ran, out.n_failed, out.n_timeout) == (5, 1, 1)
+    rows = {r["seed"]: r for r in store.assemble().to_pylist()}
+    assert rows[2]["status"] == "timeout" and "over the budget of 1 s of wall time" in rows[2]["error"]
+    assert rows[2]["run_time_s"] >= 1.0
+    for seed in (0, 1, 3, 4):  # the others ran, in run processes, to the same numbers as without a budget
+        assert rows[seed]["status"] == "ok" and rows[seed]["error"] is None
+        for k, v in expected[seed].items():
+            if k not in ("run_time_s", "worker") and isinstance(v, float):
+                assert rows[seed][k] == v or (v != v and rows[seed][k] != rows[seed][k]), (seed, k)
+    # a timed-out run is done (not pending) unless failed runs are retried
+    assert pending(prep.tasks, store) == []
+    assert [t.seed for t in pending(prep.tasks, store, retry_failed=True)] == [2]
+    _, text = write_report(list(rows.values()), {"name": "budget", "n_runs": 5, "run_timeout_s": 1.0}, tmp_path / "out")
+    assert "5 of 5 runs finished, 4 ok, 0 failed, 1 over the run budget of 1 s" in text
+    # the run processes end with the worker threads that forked them
+    deadline = time.monotonic() + 10.0
+    while _children_alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _children_alive() == []
+
+
+def test_the_run_budget_must_be_positive(tmp_path) -> None:
+    from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
+    from vesselbot_ros.config import ConfigError
+
+    for bad, msg in ((0, "run_timeout_s must be > 0, got 0.0"), ("1 s", "run_timeout_s must be a number, got '1 s'"),
+                     (float("inf"), "run_timeout_s must be finite, got inf")):
+        with pytest.raises(ConfigError, match=re.escape(msg)):
+            campaign_spec_from_mapping({"name": "x", "base": "-", "run_timeout_s": bad})
+    assert campaign_spec_from_mapping({"name": "x", "base": "-"}).run_timeout_s is None
+    with pytest.raises(ConfigError, match=re.escape("run_timeout_s must be > 0, got -1.0")):
+        execute([], CampaignStore(tmp_path), None, "code", run_timeout_s=-1.0)

@@ -91,6 +91,37 @@ def test_a_failing_run_is_recorded_and_the_chunk_goes_on(monkeypatch) -> None:
     assert recs[1]["metrics"] == {} and recs[3]["metrics"]["seed"] == 3
 
 
+def test_with_a_budget_runs_run_in_a_process_of_their_own_and_a_crash_there_is_one_failed_run(monkeypatch) -> None:
+    """With a budget, a run that kills its process (compiled code crashing) fails alone; the others give
+    the numbers of the worker thread itself, keep_timeseries included."""
+    import concurrent.futures
+    import os
+
+    import vesselbot_ros.sim.closed_loop as cl
+
+    tasks = [_task(0, resolve_mapping(_mapping(0)), keep=True), _task(1, _mapping(1)), _task(2, _mapping(2))]
+    here = run_chunk(tasks, code_version())  # also loads the compiled loop that the run processes inherit
+    orig = cl.run_closed_loop
+
+    def crash_at_seed_1(scenario, seed=None):
+        if seed == 1:
+            os._exit(7)
+        return orig(scenario, seed)
+
+    monkeypatch.setattr(cl, "run_closed_loop", crash_at_seed_1)
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:  # a fresh thread: its run process is forked after the patch
+        recs = pool.submit(run_chunk, tasks, code_version(), 60.0).result()
+    assert [r["status"] for r in recs] == ["ok", "error", "ok"]
+    assert recs[1]["error"] == "RunProcessDied: the run's process ended (exit code 7) before returning the run"
+    for a, b in ((here[0], recs[0]), (here[2], recs[2])):
+        assert a["metrics"].keys() == b["metrics"].keys()
+        assert all(a["metrics"][k] == b["metrics"][k] or np.isnan(a["metrics"][k]) for k in a["metrics"])
+    np.testing.assert_array_equal(recs[0]["timeseries"]["p_true_x"], here[0]["timeseries"]["p_true_x"])
+    assert recs[0]["worker"] == here[0]["worker"] == f"{__import__('socket').gethostname()}:{os.getpid()}"
+    with pytest.raises(ValueError, match="run_timeout_s must be > 0 s, got 0.0"):
+        run_chunk(tasks, code_version(), 0.0)
+
+
 def test_a_worker_with_other_code_refuses_to_run() -> None:
     recs = run_chunk([_task(0, _mapping(0))], "ffffffffffffffff")
     assert recs[0]["status"] == "error"
