@@ -3,7 +3,8 @@
 ::
 
     vesselbot campaign SPEC.yaml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N]
-                                 [--chunk-size N] [--set KEY=VALUE ...] [--retry-failed] [--no-progress]
+                                 [--chunk-size N] [--run-timeout-s S] [--set KEY=VALUE ...] [--retry-failed]
+                                 [--no-progress]
     vesselbot campaign report DIR
 
 The spec format is in :mod:`vesselbot_ros.campaign.spec`, the folder layout and
@@ -23,7 +24,7 @@ from typing import Any
 
 import yaml
 
-from vesselbot_ros.config import ConfigError, unflatten
+from vesselbot_ros.config import ConfigError, check_positive, unflatten
 
 __all__ = ["register", "run"]
 
@@ -41,10 +42,14 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="parallel runs (threads of the local cluster's worker process; default: one per usable core)")
     parser.add_argument("--chunk-size", type=int, default=None,
                         help="runs per Dask task (default: the spec's chunk_size; 0 = automatic)")
+    parser.add_argument("--run-timeout-s", type=float, default=None, metavar="S",
+                        help="wall-clock budget of one run; a run over it is stopped and recorded with status "
+                             "'timeout' (default: the spec's run_timeout_s; none if it has none)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a base-scenario value for every run, dotted key, YAML value "
                              "(e.g. sim.duration_s=0.5); repeatable")
-    parser.add_argument("--retry-failed", action="store_true", help="run again the runs recorded as failed")
+    parser.add_argument("--retry-failed", action="store_true",
+                        help="run again the runs recorded as failed or timed out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -95,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be >= 1, got {args.workers!r}")
     if args.chunk_size is not None and args.chunk_size < 0:
         raise ConfigError(f"--chunk-size must be >= 0, got {args.chunk_size!r}")
+    if args.run_timeout_s is not None:
+        check_positive("--run-timeout-s", args.run_timeout_s)
     if args.scheduler and args.workers is not None:
         raise ConfigError("--workers sizes the local cluster; it does not apply with --scheduler")
 
@@ -118,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     prepared = prepare(spec, base)
     root = Path(args.out) if args.out else Path("out") / "campaigns" / spec.name
     store = CampaignStore(root)
+    budget = spec.run_timeout_s if args.run_timeout_s is None else args.run_timeout_s
     meta = {
         "name": spec.name,
         "spec": str(spec_path),
@@ -127,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         "n_seeds": len(spec.seed_list()),
         "grid_keys": list(spec.group_keys()),
         "varied_keys": list(spec.varied_keys()),
+        "run_timeout_s": budget,
         "written_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     store.write_manifest(prepared.manifest, meta, spec_path.read_text(encoding="utf-8"))
@@ -143,13 +152,15 @@ def run(args: argparse.Namespace) -> int:
         progress = Progress(f"campaign {spec.name}", meta["n_runs"], n_before, enabled=not args.no_progress)
         try:
             with dask_client(args.scheduler, args.workers, closing) as client:
-                outcome = execute(todo, store, client, prepared.code, chunk_size=chunk, progress=progress)
+                outcome = execute(todo, store, client, prepared.code, chunk_size=chunk, progress=progress,
+                                  run_timeout_s=budget)
         except KeyboardInterrupt:
             print(f"\ncampaign {spec.name}: interrupted; finished runs are saved in {root}: "
                   f"run the same command again to resume", file=sys.stderr)
             return 130
         rate = outcome.n_ran / outcome.wall_s if outcome.wall_s > 0 else float("nan")
-        ran = (f"ran {outcome.n_ran} runs ({outcome.n_failed} failed) in {outcome.wall_s:.1f} s on {outcome.n_workers} "
+        over = f", {outcome.n_timeout} of them over the run budget" if outcome.n_timeout else ""
+        ran = (f"ran {outcome.n_ran} runs ({outcome.n_failed} failed{over}) in {outcome.wall_s:.1f} s on {outcome.n_workers} "
                f"worker thread(s): {rate:.2f} runs/s in {outcome.n_tasks} Dask tasks")
     else:
         ran = "nothing to run"
@@ -162,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
     print(text, end="")
     print(f"{ran}; {n_before} run(s) were already done")
     print(f"-> {root}/results.parquet, summary.md, summary.csv, figures/")
-    n_failed_total = sum(1 for r in rows if r.get("status") == "error")
+    n_failed_total = sum(1 for r in rows if r.get("status") in ("error", "timeout"))
     if n_failed_total:
-        print(f"campaign {spec.name}: {n_failed_total} run(s) failed; their errors are in the 'error' column of "
-              f"results.parquet", file=sys.stderr)
+        print(f"campaign {spec.name}: {n_failed_total} run(s) failed or ran over the run budget; their errors are in "
+              f"the 'error' column of results.parquet", file=sys.stderr)
     return 1 if rows and n_failed_total == len(rows) else 0
