@@ -30,35 +30,45 @@ reference, say where the loop can be feasible before any controller runs:
   that drift on the reference still errs by half of it at one end of the coast.
   No controller does better than this floor, whatever its gains.
 
-Each cell runs in its own process with a wall-clock budget (``cell_timeout_s``):
-a cell whose plant integration crawls (the adaptive step collapsing while the
-bead rests on the wall) is recorded as ``timeout`` instead of stalling the study.
+The runs go through the campaign engine (:mod:`vesselbot_ros.campaign`): the
+grid is a :class:`~vesselbot_ros.campaign.spec.CampaignSpec` with one variant
+per cell (its hardware, sequence and pair as dotted scenario keys,
+:func:`cell_changes`) over the seeds, run on Dask (a local cluster by default,
+any scheduler on request) with the engine's wall-clock budget per run
+(``run_timeout_s``): a run whose plant integration crawls (the adaptive step
+collapsing while the bead rests on the wall) is stopped and its cell recorded
+as ``timeout`` instead of stalling the study.  The physical bounds of each cell
+are computed on the same cluster, beside the runs.  Every run is stored in a
+campaign folder (``results.parquet``), and the per-cell table is aggregated
+from it; a study run again into the same folder reuses its finished runs.
 """
 
 from __future__ import annotations
 
-import copy
+import contextlib
 import dataclasses
 import itertools
 import math
-import multiprocessing
-import multiprocessing.connection
-import time
-from collections.abc import Iterable, Sequence
+import tempfile
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vesselbot_ros.config import ConfigError
+from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
+from vesselbot_ros.campaign.spec import campaign_spec_from_mapping, merge_mapping
+from vesselbot_ros.campaign.store import CampaignStore
+from vesselbot_ros.config import ConfigError, to_mapping, unflatten
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
-from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.scanner.hardware import PRESETS
-from vesselbot_ros.scanner.sequence import duty_cycle
-from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
+from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
+from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
-__all__ = ["PAIRS", "StudyCell", "study_cells", "run_cell", "run_study", "hold_margin", "coast_floor", "feasibility"]
+__all__ = ["PAIRS", "StudyCell", "study_cells", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
+           "run_study", "hold_margin", "coast_floor", "feasibility"]
 
 PAIRS: dict[str, dict[str, Any]] = {
     "paper": {"observer": {"kind": "high_gain"},
@@ -96,28 +106,44 @@ def study_cells(hardware: Iterable[str], propulsion_windows_s: Iterable[float], 
             in itertools.product(hardware, tracking_windows_s, propulsion_windows_s, latencies_s, pairs)]
 
 
-def _deep_update(d: dict[str, Any], u: dict[str, Any]) -> None:
-    for k, v in u.items():
+def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in mapping.items():
         if isinstance(v, dict):
-            _deep_update(d.setdefault(k, {}), v)
+            out.update(_flat(f"{prefix}{k}.", v))
         else:
-            d[k] = v
+            out[f"{prefix}{k}"] = v
+    return out
 
 
-def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
-    """The base scenario with the cell's hardware, sequence and pair."""
+def cell_changes(cell: StudyCell) -> dict[str, Any]:
+    """The cell's changes to the base scenario as dotted keys (a campaign variant).
+
+    The whole sequence (the keys the cell does not set take their defaults), the
+    coil's saturation and slew, no imager latency (the sequence's latency is the
+    cell's), and the pair's observer and controller keys.
+    """
     hw = PRESETS[cell.hardware]
-    m = copy.deepcopy(base.to_mapping())
     seq = hw.sequence
     tracking = cell.tracking_window_s if cell.tracking_window_s is not None else (
         seq.tracking_window_s if seq.mode == "multiplexed" else 0.02)
-    m["sequence"] = {"mode": "multiplexed", "tracking_window_s": tracking, "dead_time_s": seq.dead_time_s,
-                     "propulsion_window_s": cell.propulsion_window_s, "latency_s": cell.latency_s}
-    m["coil"].update(saturation_T_per_m=hw.saturation_T_per_m, slew_rate="custom",
-                     custom_slew_rate_T_per_m_per_s=hw.slew_T_per_m_per_s)
-    m["imager"]["latency_s"] = 0.0
-    _deep_update(m, copy.deepcopy(PAIRS[cell.pair]))
-    return scenario_from_mapping(m)
+    sequence = {f.name: f.default for f in dataclasses.fields(SequenceParams)}
+    sequence.update(mode="multiplexed", tracking_window_s=tracking, dead_time_s=seq.dead_time_s,
+                    propulsion_window_s=cell.propulsion_window_s, latency_s=cell.latency_s)
+    return {**_flat("sequence.", sequence),
+            "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
+            "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
+            "imager.latency_s": 0.0,
+            **_flat("", PAIRS[cell.pair])}
+
+
+def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
+    """The base scenario with the cell's hardware, sequence and pair (:func:`cell_changes`).
+
+    Raises:
+        ConfigError: the scenario refuses the cell (e.g. observer (25) unstable at its frame rate).
+    """
+    return scenario_from_mapping(merge_mapping(base.to_mapping(), unflatten(cell_changes(cell))))
 
 
 def _reference(scenario: Scenario, step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -177,88 +203,118 @@ def feasibility(scenario: Scenario) -> dict[str, float]:
     return {"hold_margin_m_per_s2": hold_margin(scenario), "coast_floor_m": coast_floor(scenario)}
 
 
-def run_cell(args: tuple[Scenario, StudyCell, Sequence[int]]) -> dict[str, Any]:
-    """Run one cell over its seeds; one table row (mean / worst tracking and estimation errors)."""
-    base, cell, seeds = args
+def cell_name(index: int, cell: StudyCell) -> str:
+    """The cell's variant name in the campaign (its position first, so names never repeat)."""
+    tw = "preset" if cell.tracking_window_s is None else f"{cell.tracking_window_s:g}"
+    return (f"{index:03d}-{cell.hardware}-tw{tw}-pw{cell.propulsion_window_s:g}-lat{cell.latency_s:g}-{cell.pair}")
+
+
+def study_spec(cells: Sequence[StudyCell], runnable: Sequence[int], seeds: Sequence[int],
+               run_timeout_s: float | None) -> dict[str, Any]:
+    """The campaign spec mapping of the study: one variant per runnable cell (:func:`cell_changes`) x ``seeds``."""
+    return {"name": "scanner_study", "base": "-", "seeds": [int(s) for s in seeds],
+            "variants": {cell_name(i, cells[i]): cell_changes(cells[i]) for i in runnable},
+            "run_timeout_s": run_timeout_s}
+
+
+def cell_row(cell: StudyCell, scenario: Scenario, bounds: dict[str, float], records: Sequence[dict[str, Any]],
+             run_timeout_s: float | None) -> dict[str, Any]:
+    """One table row from the cell's run records (in seed order): mean / worst tracking and estimation errors.
+
+    The first run that did not finish (in seed order) gives the cell's status:
+    ``timeout: ...`` (over the run budget) or ``failed (seed N): Type: message``;
+    then the cell has no error columns, as none are over all its seeds.
+    """
     row: dict[str, Any] = dataclasses.asdict(cell)
-    try:
-        sc = cell_scenario(base, cell)
-    except ConfigError as exc:
-        row.update(status=f"refused: {exc}")
-        return row
-    row.update(tracking_window_s=sc.sequence.tracking_window_s, duty_cycle=duty_cycle(sc.sequence),
-               frame_rate_Hz=1.0 / sc.sequence.period_s, **feasibility(sc))
-    tr, es = [], []
-    for seed in seeds:
-        try:
-            m = run_closed_loop(sc, seed).metrics
-        except VesselbotError as exc:
-            row.update(status=f"failed (seed {seed}): {exc}")
+    row.update(tracking_window_s=scenario.sequence.tracking_window_s, duty_cycle=duty_cycle(scenario.sequence),
+               frame_rate_Hz=1.0 / scenario.sequence.period_s, **bounds)
+    for r in records:
+        if r.get("status") == "timeout":
+            row.update(status=f"timeout: seed {r['seed']} over {run_timeout_s:g} s of wall time "
+                              f"(plant integration crawling)")
             return row
-        tr.append(m["tracking_error_max_m"])
-        es.append(m["estimation_error_rms_m"])
+        if r.get("status") != "ok":
+            row.update(status=f"failed (seed {r['seed']}): {r.get('error')}")
+            return row
+    tr = [float(r["tracking_error_max_m"]) for r in records]
+    es = [float(r["estimation_error_rms_m"]) for r in records]
     row.update(status="ok", tracking_max_mean_m=float(np.mean(tr)), tracking_max_worst_m=float(np.max(tr)),
                estimation_rms_mean_m=float(np.mean(es)), estimation_rms_worst_m=float(np.max(es)))
     return row
 
 
-def _cell_process(job: tuple[Scenario, StudyCell, Sequence[int]], conn: Any) -> None:
-    try:
-        conn.send(run_cell(job))
-    except BaseException as exc:  # noqa: BLE001 - reported as the cell's status, never lost
-        conn.send({**dataclasses.asdict(job[1]), "status": f"failed: {type(exc).__name__}: {exc}"})
-    finally:
-        conn.close()
+@contextlib.contextmanager
+def _folder(runs_dir: str | Path | None) -> Iterator[Path]:
+    if runs_dir is not None:
+        yield Path(runs_dir)
+        return
+    with tempfile.TemporaryDirectory(prefix="vesselbot-scanner-study-") as tmp:
+        yield Path(tmp)
 
 
-def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], workers: int = 1,
-              cell_timeout_s: float = 300.0) -> list[dict[str, Any]]:
-    """Run every cell in its own process, at most ``workers`` at a time; rows in the cells' order.
+def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], workers: int | None = None,
+              run_timeout_s: float | None = 300.0, *, scheduler: str | None = None,
+              runs_dir: str | Path | None = None, progress: bool = False) -> list[dict[str, Any]]:
+    """Run every cell over ``seeds`` on the campaign engine; one row per cell, in the cells' order.
 
-    A cell that takes more than ``cell_timeout_s`` of wall time is killed and
-    recorded with status ``timeout``; the other cells go on.  (Processes are
-    forked from this one, so the compiled kernels are not loaded again.)
+    Args:
+        base: The base scenario.
+        cells: The grid (:func:`study_cells`).
+        seeds: Imager seeds of every cell.
+        workers: Parallel runs of the local cluster (default: one per usable core); not with ``scheduler``.
+        run_timeout_s: Wall-clock budget of each run (s), None = none; a run over it is stopped and
+            its cell recorded as ``timeout``, the other cells go on.
+        scheduler: ``tcp://HOST:PORT`` of a Dask scheduler to run on instead of a local cluster.
+        runs_dir: The campaign folder of the runs (``results.parquet``, ...); finished runs found
+            there are not run again.  None: a temporary folder.
+        progress: Draw the engine's progress bar on stderr.
+
+    Raises:
+        ConfigError: a budget that is not > 0, or ``workers`` with ``scheduler``.
+        RunError: the cluster cannot be started or reached.
     """
-    if not (math.isfinite(cell_timeout_s) and cell_timeout_s > 0):
-        raise ConfigError(f"cell_timeout_s must be > 0, got {cell_timeout_s!r}")
-    ctx = multiprocessing.get_context("fork")
+    if run_timeout_s is not None and not (math.isfinite(run_timeout_s) and run_timeout_s > 0):
+        raise ConfigError(f"run_timeout_s must be > 0, got {run_timeout_s!r}")
+    if scheduler and workers is not None:
+        raise ConfigError("workers sizes the local cluster; it does not apply with a scheduler")
+    seeds = [int(s) for s in seeds]
     rows: dict[int, dict[str, Any]] = {}
-    pending = list(range(len(cells)))
-    running: dict[int, tuple[Any, Any, float]] = {}  # cell -> (process, parent end, start)
-    try:
-        while pending or running:
-            while pending and len(running) < max(1, workers):
-                i = pending.pop(0)
-                parent, child = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_cell_process, args=((base, cells[i], tuple(seeds)), child), daemon=True)
-                proc.start()
-                child.close()
-                running[i] = (proc, parent, time.monotonic())
-            multiprocessing.connection.wait([r[1] for r in running.values()], timeout=0.5)
-            now = time.monotonic()
-            for i, (proc, conn, t0) in list(running.items()):
-                if conn.poll():
-                    try:
-                        rows[i] = conn.recv()
-                    except EOFError:
-                        rows[i] = {**dataclasses.asdict(cells[i]), "status": f"failed: worker exited ({proc.exitcode})"}
-                elif not proc.is_alive():
-                    rows[i] = {**dataclasses.asdict(cells[i]), "status": f"failed: worker exited ({proc.exitcode})"}
-                elif now - t0 > cell_timeout_s:
-                    proc.kill()
-                    rows[i] = {**dataclasses.asdict(cells[i]),
-                               "status": f"timeout: over {cell_timeout_s:g} s of wall time (plant integration crawling)"}
-                else:
-                    continue
-                proc.join(1.0)
-                conn.close()
-                del running[i]
-    finally:
-        for proc, conn, _ in running.values():
-            proc.kill()
-            proc.join(1.0)
-            conn.close()
+    scenarios: dict[int, Scenario] = {}
+    for i, cell in enumerate(cells):
+        try:
+            scenarios[i] = cell_scenario(base, cell)
+        except ConfigError as exc:
+            rows[i] = {**dataclasses.asdict(cell), "status": f"refused: {exc}"}
+    if scenarios:
+        spec_mapping = study_spec(cells, list(scenarios), seeds, run_timeout_s)
+        spec = campaign_spec_from_mapping(spec_mapping)
+        prep = prepare(spec, base.to_mapping())
+        with _folder(runs_dir) as root:
+            store = CampaignStore(root)
+            meta = {"name": spec.name, "n_runs": len({t.run_id for t in prep.tasks}), "n_seeds": len(seeds),
+                    "grid_keys": ["variant"], "varied_keys": ["variant"], "run_timeout_s": run_timeout_s,
+                    "code_version": prep.code}
+            store.write_manifest(prep.manifest, meta, _yaml(spec_mapping))
+            todo = pending(prep.tasks, store, retry_failed=True)  # runs that finished ok are kept
+            with dask_client(scheduler, workers) as client:
+                # the bounds (pure Python, a second or so per cell) run on the cluster beside the runs
+                bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()}
+                bar = Progress("scanner study", meta["n_runs"], meta["n_runs"] - len(todo), enabled=progress)
+                execute(todo, store, client, prep.code, progress=bar, run_timeout_s=run_timeout_s)
+                bounds = {i: f.result() for i, f in bounds_futures.items()}
+            results = {r["run_id"]: r for r in store.assemble().to_pylist()}
+        by_cell: dict[str, list[dict[str, Any]]] = {}
+        for task, entry in zip(prep.tasks, prep.manifest):
+            by_cell.setdefault(entry["variant"], []).append({**results[task.run_id], "seed": task.seed})
+        for i, sc in scenarios.items():
+            rows[i] = cell_row(cells[i], sc, bounds[i], by_cell[cell_name(i, cells[i])], run_timeout_s)
     return [rows[i] for i in range(len(cells))]
+
+
+def _yaml(mapping: dict[str, Any]) -> str:
+    import yaml
+
+    return str(yaml.safe_dump(to_mapping(mapping), sort_keys=False))
 
 
 def fmt_um(v: Any) -> str:

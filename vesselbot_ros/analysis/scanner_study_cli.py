@@ -2,20 +2,22 @@
 
 Writes ``table.csv`` (one row per cell), ``table.md`` (the same as Markdown,
 what docs/reproduction.md quotes), ``tracking_vs_duty.png`` and
-``tracking_vs_latency.png`` to ``--out`` and prints the table.
-See :mod:`vesselbot_ros.analysis.scanner_study`.
+``tracking_vs_latency.png`` to ``--out`` and prints the table.  The runs go
+through the campaign engine (a local Dask cluster, or ``--scheduler``), with a
+wall-clock budget per run (``--run-timeout-s``); they are kept in the campaign
+folder ``--out``/runs/ (``results.parquet``), from which a study run again
+reuses the finished runs.  See :mod:`vesselbot_ros.analysis.scanner_study`.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import os
 from collections.abc import Callable
 from pathlib import Path
 
 from vesselbot_ros.analysis.scanner_study import PAIRS, fmt_um, run_study, study_cells
-from vesselbot_ros.config import ConfigError
+from vesselbot_ros.config import ConfigError, check_positive
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
@@ -51,9 +53,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--latencies", type=_floats, default=[0.0, 0.02, 0.05], help="latencies in s")
     parser.add_argument("--pairs", default=",".join(PAIRS), help="observer/controller pairs (default: all)")
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per cell (default 3)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: all cores)")
-    parser.add_argument("--cell-timeout-s", type=float, default=300.0,
-                        help="wall-clock budget per cell; a cell over it is recorded as 'timeout' (default 300)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="parallel runs (threads of the local cluster's worker process; default: one per usable core)")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                        help="run on this existing Dask scheduler instead of a local cluster")
+    parser.add_argument("--run-timeout-s", "--cell-timeout-s", dest="run_timeout_s", type=float, default=300.0,
+                        metavar="S", help="wall-clock budget of each run; a run over it is stopped and its cell "
+                                          "recorded as 'timeout' (default 300; --cell-timeout-s is the former name)")
     parser.add_argument("--out", default="out/scanner-study", help="output folder")
 
 
@@ -64,9 +70,15 @@ def run(args: argparse.Namespace) -> int:
     base = load_scenario(args.config)
     cells = study_cells([h for h in args.hardware.split(",") if h], args.propulsion_windows, args.latencies,
                         [p for p in args.pairs.split(",") if p], args.tracking_windows)
-    rows = run_study(base, cells, range(args.seeds), max(1, args.workers), args.cell_timeout_s)
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers!r}")
+    if args.scheduler and args.workers is not None:
+        raise ConfigError("--workers sizes the local cluster; it does not apply with --scheduler")
+    check_positive("--run-timeout-s", args.run_timeout_s)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    rows = run_study(base, cells, range(args.seeds), args.workers, args.run_timeout_s, scheduler=args.scheduler,
+                     runs_dir=out / "runs", progress=True)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
             "pair", "status", "hold_margin_m_per_s2", "coast_floor_m", "tracking_max_mean_m", "tracking_max_worst_m",
             "estimation_rms_mean_m", "estimation_rms_worst_m"]
@@ -84,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
               f"{fmt_um(r.get('tracking_max_mean_m')):>14} / {fmt_um(r.get('tracking_max_worst_m')):<8}"
               f"{fmt_um(r.get('estimation_rms_mean_m')):>15}    {r['status'][:60]}")
     _figures(rows, out)
-    print(f"wrote {out / 'table.csv'}, {out / 'table.md'}, {out / 'tracking_vs_duty.png'}, {out / 'tracking_vs_latency.png'}")
+    print(f"wrote {out / 'table.csv'}, {out / 'table.md'}, {out / 'tracking_vs_duty.png'}, {out / 'tracking_vs_latency.png'}"
+          f"; every run in {out / 'runs' / 'results.parquet'}")
     return 0
 
 

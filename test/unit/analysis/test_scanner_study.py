@@ -1,4 +1,4 @@
-"""Tests of the scanner study: cells, physical bounds, the per-cell time budget, the CLI's outputs."""
+"""Tests of the scanner study: cells, physical bounds, the runs on the campaign engine with its run budget, the CLI's outputs."""
 
 from __future__ import annotations
 
@@ -65,19 +65,62 @@ def test_bounds_say_where_the_loop_can_be_feasible(base: Scenario) -> None:
     assert 200e-6 < floor_long < 800e-6
 
 
-def test_study_rows_in_order_and_a_cell_over_budget_is_a_timeout_not_a_stall(base: Scenario) -> None:
+def test_study_runs_on_the_campaign_engine_with_the_numbers_of_run_closed_loop(base: Scenario, tmp_path,
+                                                                                monkeypatch) -> None:
+    """A tiny study's cells hold the numbers of run_closed_loop on the same scenarios and seeds, bit for bit,
+    and the bounds of feasibility(); a run over the engine's budget makes its cell a timeout, not a stall."""
+    import time
+
+    import numpy as np
+    from distributed import LocalCluster
+
+    from vesselbot_ros.sim import closed_loop
+
     short = _short(base)
-    cells = ss.study_cells(["propulsion_insert"], [0.03], [0.0, 0.02], ["ekf"])
-    rows = ss.run_study(short, cells, [0], workers=2, cell_timeout_s=600.0)
+    cells = ss.study_cells(["propulsion_insert"], [0.03], [0.0, 0.02], ["ekf"], [0.004])
+    seeds = [0, 1]
+    scenarios = [ss.cell_scenario(short, c) for c in cells]
+    # also loads the compiled loop in this process, which the in-process cluster's run processes are forked from
+    direct = [[closed_loop.run_closed_loop(sc, s).metrics for s in seeds] for sc in scenarios]
+
+    def expected(i: int) -> dict:
+        tr = [m["tracking_error_max_m"] for m in direct[i]]
+        es = [m["estimation_error_rms_m"] for m in direct[i]]
+        return {"tracking_max_mean_m": float(np.mean(tr)), "tracking_max_worst_m": float(np.max(tr)),
+                "estimation_rms_mean_m": float(np.mean(es)), "estimation_rms_worst_m": float(np.max(es)),
+                **ss.feasibility(scenarios[i])}
+
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        rows = ss.run_study(short, cells, seeds, None, None, scheduler=cluster.scheduler_address,
+                            runs_dir=tmp_path / "runs")
     assert [(r["latency_s"], r["status"]) for r in rows] == [(0.0, "ok"), (0.02, "ok")]
-    assert all(r["tracking_max_mean_m"] > 0.0 and r["coast_floor_m"] > 0.0 for r in rows)
-    # the same cell again, in process: identical (deterministic, whichever process ran it)
-    assert ss.run_cell((short, cells[1], (0,)))["tracking_max_mean_m"] == rows[1]["tracking_max_mean_m"]
-    # 20 runs of the 2 s scenario take about 0.2 s compiled (far more under load): a 0.02 s budget is exceeded
-    timed = ss.run_study(base, cells[:1], list(range(20)), workers=1, cell_timeout_s=0.02)
-    assert timed[0]["status"].startswith("timeout: over 0.02 s")
-    with pytest.raises(ConfigError, match="cell_timeout_s must be > 0"):
-        ss.run_study(short, cells, [0], cell_timeout_s=0.0)
+    for i, row in enumerate(rows):
+        assert {k: row[k] for k in expected(i)} == expected(i)
+        assert row["tracking_window_s"] == 0.004 and row["duty_cycle"] == ss.duty_cycle(scenarios[i].sequence)
+    assert (tmp_path / "runs" / "results.parquet").is_file()
+
+    original = closed_loop.run_closed_loop
+
+    def crawl(scenario, seed=None, **kw):  # noqa: ANN001, ANN202 - the second cell's seed 1 never ends
+        while scenario.sequence.latency_s == 0.02 and seed == 1:
+            pass
+        return original(scenario, seed, **kw)
+
+    monkeypatch.setattr(closed_loop, "run_closed_loop", crawl)
+    t0 = time.monotonic()
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        timed = ss.run_study(short, cells, seeds, run_timeout_s=1.0, scheduler=cluster.scheduler_address,
+                             runs_dir=tmp_path / "budget")
+        # the first folder's runs finished: a study run again there reuses them (nothing runs, nothing crawls)
+        again = ss.run_study(short, cells, seeds, run_timeout_s=1.0, scheduler=cluster.scheduler_address,
+                             runs_dir=tmp_path / "runs")
+    assert time.monotonic() - t0 < 120.0  # the crawl never ends by itself: only the 1 s budget stopped it
+    assert timed[0]["status"] == "ok" and {k: timed[0][k] for k in expected(0)} == expected(0)
+    assert timed[1]["status"] == "timeout: seed 1 over 1 s of wall time (plant integration crawling)"
+    assert "tracking_max_mean_m" not in timed[1] and timed[1]["coast_floor_m"] == expected(1)["coast_floor_m"]
+    assert again == rows
+    with pytest.raises(ConfigError, match="run_timeout_s must be > 0"):
+        ss.run_study(short, cells, [0], run_timeout_s=0.0)
 
 
 def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> None:
@@ -87,7 +130,8 @@ def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> 
     cfg.write_text(text.replace("duration_s: 2.0", "duration_s: 0.3", 1))
     code = cli_main(["scanner-study", "--config", str(cfg), "--hardware", "propulsion_insert,clinical_3t",
                      "--tracking-windows", "0.004", "--propulsion-windows", "0.03", "--latencies", "0.02",
-                     "--pairs", "ekf", "--seeds", "1", "--workers", "2", "--out", str(out)])
+                     "--pairs", "ekf", "--seeds", "1", "--workers", "2", "--cell-timeout-s", "600",
+                     "--out", str(out)])
     assert code == 0
     rows = list(csv.DictReader((out / "table.csv").open()))
     assert [r["hardware"] for r in rows] == ["propulsion_insert", "clinical_3t"]
@@ -96,6 +140,10 @@ def test_cli_writes_the_table_the_markdown_and_the_figures(tmp_path, capsys) -> 
     assert md.count("\n") == 4 and "| propulsion_insert | 4 | 30 |" in md
     for name in ("tracking_vs_duty.png", "tracking_vs_latency.png"):
         assert (out / name).stat().st_size > 1000
+    import pyarrow.parquet as pq  # every run, in the campaign folder of the runs
+
+    runs = pq.read_table(out / "runs" / "results.parquet").to_pylist()
+    assert [r["status"] for r in runs] == ["ok", "ok"] and len({r["variant"] for r in runs}) == 2
     with pytest.raises(SystemExit) as exc:  # argparse: usage and one error line, exit 2
         cli_main(["scanner-study", "--tracking-windows", "-1", "--out", str(out)])
     assert exc.value.code == 2
