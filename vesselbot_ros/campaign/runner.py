@@ -60,7 +60,7 @@ import scipy
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.sim import closed_loop
-from vesselbot_ros.sim.scenario import scenario_from_mapping
+from vesselbot_ros.sim import scenario as scenario_module
 
 __all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "run_chunk", "flatten_timeseries",
            "SCENARIO_CACHE", "RunProcess", "TIMEOUT_STATUS"]
@@ -113,7 +113,7 @@ def resolve_mapping(mapping: dict[str, Any]) -> dict[str, Any]:
     Raises:
         ConfigError: the mapping is not a valid scenario.
     """
-    return scenario_from_mapping(mapping).to_mapping()
+    return scenario_module.scenario_from_mapping(mapping).to_mapping()
 
 
 def run_id(mapping: dict[str, Any], code: str) -> str:
@@ -199,7 +199,7 @@ def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
                 _SCENARIOS.move_to_end(task.scenario_key)
     if hit is None:
         try:
-            hit = scenario_from_mapping(task.mapping)
+            hit = scenario_module.scenario_from_mapping(task.mapping)
         except ConfigError as exc:
             hit = exc
         if task.scenario_key:
