@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("vesselbot_ros.sim.simulate_cli", "ROS-free closed loop of a scenario"),
     "run": ("vesselbot_ros.launch.run_cli", "run the ROS 2 node graph (recorded)"),
     "scenarios": ("vesselbot_ros.sim.scenarios_cli", "list the shipped scenarios (names for --config)"),
+    "kinds": ("vesselbot_ros.sim.kinds_cli", "list the stage kinds a scenario can name (controller, observer, ...)"),
     "bag": ("vesselbot_ros.bag.bag_cli", "inspect or repair a recorded bag (info, repair)"),
     "replay": ("vesselbot_ros.launch.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),

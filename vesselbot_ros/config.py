@@ -41,8 +41,13 @@ from vesselbot_ros.errors import ConfigError  # defined with the package's error
 
 T = TypeVar("T")
 
+#: Field metadata key of :func:`load_dataclass`: ``resolve(value, dotted_key) -> dataclass type`` picks the
+#: field's dataclass from its value (a stage's scenario section, by its ``kind``: :mod:`vesselbot_ros.sim.kinds`).
+RESOLVE_TYPE = "vesselbot_resolve_type"
+
 __all__ = [
     "ConfigError",
+    "RESOLVE_TYPE",
     "check_finite",
     "check_positive",
     "check_nonnegative",
@@ -185,7 +190,9 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
 
     Args:
         cls: A dataclass type whose fields are annotated with float, int, bool,
-            str, Literal, tuple, Optional or nested dataclasses.
+            str, Literal, tuple, Optional or nested dataclasses.  A field whose
+            metadata has :data:`RESOLVE_TYPE` gets the dataclass that resolver
+            returns for its value (a stage's section, chosen by its ``kind``).
         data: Mapping of field name to value (``None`` means "all defaults").
         path: Dotted prefix used in error messages (e.g. ``"robot"``).
 
@@ -215,7 +222,10 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
     kwargs: dict[str, Any] = {}
     for name, field in fields.items():
         if name in data:
-            kwargs[name] = _coerce(f"{prefix}{name}", hints[name], data[name])
+            # a field whose dataclass depends on its value (a stage's section, by its ``kind``) names a resolver
+            resolve = field.metadata.get(RESOLVE_TYPE)
+            tp = resolve(data[name], f"{prefix}{name}") if resolve is not None else hints[name]
+            kwargs[name] = _coerce(f"{prefix}{name}", tp, data[name])
         elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
             raise ConfigError(f"missing required key {prefix}{name}")
     try:

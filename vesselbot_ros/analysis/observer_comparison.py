@@ -23,7 +23,8 @@ import numpy as np
 from vesselbot_ros.control.high_gain_observer import ObserverParams
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.sim.closed_loop import build_stages, make_observer
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.kinds import make_observer
 from vesselbot_ros.sim.scenario import Scenario
 
 __all__ = ["ShadowResult", "compare_observers"]

@@ -88,6 +88,7 @@ class CoilLimits:
             last applied value, or ``ramp_to_zero`` within the slew limit.
         command_timeout_s: :meth:`CoilLimiter.watchdog` ramps to zero when no
             command arrived for longer than this (s).
+        kind: The coil's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``gradient_coil``.
     """
 
     saturation_T_per_m: float = PAPER_SATURATION_T_PER_M
@@ -96,6 +97,7 @@ class CoilLimits:
     custom_slew_rate_T_per_m_per_s: float = CLINICAL_SLEW_RATE_T_PER_M_PER_S
     on_reject: Literal["hold", "ramp_to_zero"] = "hold"
     command_timeout_s: float = 0.05
+    kind: Literal["gradient_coil"] = "gradient_coil"
 
     def __post_init__(self) -> None:
         check_positive("saturation_T_per_m", self.saturation_T_per_m)
@@ -103,6 +105,7 @@ class CoilLimits:
         check_choice("slew_rate", self.slew_rate, ("clinical", "paper_printed", "custom"))
         check_positive("custom_slew_rate_T_per_m_per_s", self.custom_slew_rate_T_per_m_per_s)
         check_choice("on_reject", self.on_reject, ("hold", "ramp_to_zero"))
+        check_choice("kind", self.kind, ("gradient_coil",))
         check_positive("command_timeout_s", self.command_timeout_s)
 
     @property

@@ -69,6 +69,7 @@ class ReferenceParams:
         route_anchor_spacing_m: Arc length between planned anchors (m).
         route_end_margin_m: The last planned anchor lies this far before the outlet (m).
         route_wall_margin_m: Margin of the planned height outside the observer's unstable band (m).
+        kind: The reference's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``bspline``.
     """
 
     anchors_x_m: tuple[float, ...] = (0.0, 3e-3, 6e-3, 9e-3)
@@ -78,6 +79,7 @@ class ReferenceParams:
     timing: Literal["constant", "rest_to_rest", "flow_synchronised"] = "constant"
     sync_ratio: float = 1.0
     route_outlet: str = ""
+    kind: Literal["bspline"] = "bspline"
     route_anchor_spacing_m: float = 2.5e-3
     route_end_margin_m: float = 2.0e-3
     route_wall_margin_m: float = 1.5e-4
@@ -102,6 +104,7 @@ class ReferenceParams:
         check_positive("duration_s", self.duration_s)
         check_nonnegative("start_s", self.start_s)
         check_choice("timing", self.timing, ("constant", "rest_to_rest", "flow_synchronised"))
+        check_choice("kind", self.kind, ("bspline",))
         check_positive("sync_ratio", self.sync_ratio)
         check_positive("route_anchor_spacing_m", self.route_anchor_spacing_m)
         check_nonnegative("route_end_margin_m", self.route_end_margin_m)

@@ -108,6 +108,7 @@ class ImagerParams:
         outliers: Scheduled outlier bursts.
         dropouts: Scheduled dropout windows.
         dropout_probability: Probability that any frame is lost, in [0, 1).
+        kind: The imager's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``mri``.
     """
 
     noise_sigma_m: float = 100e-6
@@ -116,8 +117,10 @@ class ImagerParams:
     outliers: tuple[OutlierBurst, ...] = ()
     dropouts: tuple[Dropout, ...] = ()
     dropout_probability: float = 0.0
+    kind: Literal["mri"] = "mri"
 
     def __post_init__(self) -> None:
+        check_choice("kind", self.kind, ("mri",))
         check_nonnegative("noise_sigma_m", self.noise_sigma_m)
         check_positive("frame_rate_Hz", self.frame_rate_Hz)
         check_nonnegative("latency_s", self.latency_s)

@@ -1,7 +1,10 @@
-"""Backstepping controller node: gradient command from the estimate and the reference.
+"""Controller node: gradient command from the estimate and the reference.
 
-Thin adapter over :class:`vesselbot_ros.control.backstepping.BacksteppingController`
-(eq. (24)), built by :func:`vesselbot_ros.sim.closed_loop.build_stage`.
+Thin adapter over the scenario's controller kind (``controller.kind``: the
+backstepping law (24) of :class:`vesselbot_ros.control.backstepping.BacksteppingController`
+by default, or a user's ``module:Class``), built by
+:func:`vesselbot_ros.sim.closed_loop.build_stage` and called through
+:func:`vesselbot_ros.sim.kinds.call_controller`, as the ROS-free loop calls it.
 
 Ports (frame ``vessel``):
 
@@ -34,19 +37,20 @@ from typing import Any
 
 from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
-
 from vesselbot_msgs.msg import ReferenceSample
+
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.tick_join import TickJoin
 from vesselbot_ros.sim.closed_loop import build_stage
+from vesselbot_ros.sim.kinds import call_controller
 
 __all__ = ["ControllerNode", "main"]
 
 
 class ControllerNode(VesselbotNode):
-    """The backstepping controller (see module docstring)."""
+    """The scenario's controller (see module docstring)."""
 
     ROLE = "controller"
 
@@ -111,8 +115,8 @@ class ControllerNode(VesselbotNode):
 
     def _command(self, k: int, est: tuple[Any, Any, float, float], ref: tuple[Any, Any, Any]) -> None:
         t = cv.tick_time(k, self.dt)
-        # the observer's blood-velocity scale, as the runner hands it (controller.flow_compensation: estimate)
-        cmd = self.controller.command_arrays(t, est[0], est[1], est[2], *ref, est[3])
+        # the estimate as the runner hands it, with the observer's blood-velocity scale
+        cmd = call_controller(self.controller, t, est[0], est[1], est[2], est[3], *ref)
         self.status[cmd.status] += 1
         self.publish("gradient_command", cv.gradient_flat(t, cmd.gradient_T_per_m))
         self.period_done(k)

@@ -33,12 +33,14 @@ from typing import Any
 
 import yaml
 
-from vesselbot_ros.config import ConfigError, parse_yaml_text, to_mapping, unflatten
+from vesselbot_ros.config import RESOLVE_TYPE, ConfigError, parse_yaml_text, to_mapping, unflatten
+from vesselbot_ros.sim.kinds import DEFAULT_KINDS, ROLES, SECTIONS, find
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
 __all__ = [
     "ParamSpec",
     "scenario_schema",
+    "kind_parameters",
     "scenario_to_parameters",
     "scenario_from_parameters",
     "write_params_file",
@@ -74,12 +76,29 @@ def _is_scalar_array(tp: Any) -> bool:
     return all(a is Ellipsis or a in (float, int, bool, str) for a in typing.get_args(tp))
 
 
-def _walk(cls: type, prefix: str, value: Any, out: dict[str, ParamSpec]) -> None:
+def _field_default(f: dataclasses.Field[Any]) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    raise ConfigError(f"parameter {f.name!r} has no default: a stage kind run in the graph gives every parameter one")
+
+
+def _walk(cls: type, prefix: str, value: Any, out: dict[str, ParamSpec], section_kinds: Mapping[str, type] | None = None) -> None:
+    """Declare ``cls``'s fields under ``prefix``, with ``value``'s values (None: the fields' defaults).
+
+    A stage's section (:mod:`vesselbot_ros.sim.kinds`) is walked as its kind's dataclass: the value's type, or
+    ``section_kinds[name]`` for a schema of defaults.
+    """
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
         name = f"{prefix}{f.name}"
-        v = getattr(value, f.name)
+        v = _field_default(f) if value is None else getattr(value, f.name)
+        if RESOLVE_TYPE in f.metadata:
+            tp = type(v) if value is not None else (section_kinds or {}).get(name, tp)
+            if value is None:
+                v = None
         if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             _walk(tp, name + ".", v, out)
         elif _is_scalar_type(tp):
@@ -95,17 +114,42 @@ def _encode(value: Any) -> str:
     return json.dumps(to_mapping(value), separators=(", ", ": "))
 
 
-_SCHEMA: dict[str, ParamSpec] | None = None
+_SCHEMAS: dict[tuple[tuple[str, str], ...], dict[str, ParamSpec]] = {}
 
 
-def scenario_schema() -> dict[str, ParamSpec]:
-    """Every scenario parameter, by dotted name, with its default (cached)."""
-    global _SCHEMA
-    if _SCHEMA is None:
-        out: dict[str, ParamSpec] = {}
-        _walk(Scenario, "", Scenario(), out)
-        _SCHEMA = out
-    return _SCHEMA
+def kind_parameters() -> dict[str, str]:
+    """The parameter naming each stage's kind (``controller.kind`` ...), with the built-in default kind.
+
+    A node declares these first: the kinds they name decide the rest of the schema (:func:`scenario_schema`).
+    """
+    return {f"{SECTIONS[role]}.kind": DEFAULT_KINDS[role] for role in ROLES}
+
+
+def scenario_schema(stage_kinds: Mapping[str, str] | None = None) -> dict[str, ParamSpec]:
+    """Every scenario parameter, by dotted name, with its default (cached per set of kinds).
+
+    Args:
+        stage_kinds: ``{"controller.kind": "my_mod:MyController", ...}`` (the values of
+            :func:`kind_parameters`); missing sections take the built-in default kind.
+
+    Raises:
+        ConfigError: a kind that cannot be found (named by its parameter).
+    """
+    given = dict(kind_parameters(), **(stage_kinds or {}))
+    key = tuple(sorted(given.items()))
+    hit = _SCHEMAS.get(key)
+    if hit is None:
+        classes = {}
+        for role in ROLES:
+            pname = f"{SECTIONS[role]}.kind"
+            classes[SECTIONS[role]] = find(role, given[pname], pname).params
+        hit = {}
+        _walk(Scenario, "", None, hit, classes)
+        for role in ROLES:  # the kind's own name is the section's kind
+            pname = f"{SECTIONS[role]}.kind"
+            hit[pname] = ParamSpec(pname, given[pname], False)
+        _SCHEMAS[key] = hit
+    return hit
 
 
 def scenario_to_parameters(scenario: Scenario) -> dict[str, Any]:
@@ -135,7 +179,7 @@ def scenario_from_parameters(values: Mapping[str, Any]) -> Scenario:
         ConfigError: unknown name, wrong type, or a value the dataclasses
             reject; the message names the dotted parameter and the value.
     """
-    schema = scenario_schema()
+    schema = scenario_schema({k: v for k, v in values.items() if k in kind_parameters() and isinstance(v, str)})
     flat: dict[str, Any] = {}
     for name, value in values.items():
         spec = schema.get(name)

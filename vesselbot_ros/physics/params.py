@@ -341,7 +341,10 @@ class DragParams:
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsParams:
-    """All parameters of the force model (eq. (1)), Table III small artery by default."""
+    """All parameters of the force model (eq. (1)), Table III small artery by default.
+
+    ``kind`` is the plant's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``vessel``.
+    """
 
     blood: BloodParams = dataclasses.field(default_factory=BloodParams)
     flow: FlowParams = dataclasses.field(default_factory=FlowParams)
@@ -350,8 +353,10 @@ class PhysicsParams:
     wall: WallParams = dataclasses.field(default_factory=WallParams)
     interactions: InteractionParams = dataclasses.field(default_factory=InteractionParams)
     drag: DragParams = dataclasses.field(default_factory=DragParams)
+    kind: Literal["vessel"] = "vessel"
 
     def __post_init__(self) -> None:
+        check_choice("kind", self.kind, ("vessel",))
         d_min = self.vessel.diameter_m * (1.0 - self.flow.diameter_pulsation)
         lam = 2.0 * self.robot.radius_m / d_min
         if lam >= 1.0:
@@ -380,7 +385,7 @@ class PhysicsParams:
             if not isinstance(values, dict) or section not in mapping:
                 raise ConfigError(f"unknown override key {section!r}; allowed sections: {sorted(mapping)}")
             _merge(mapping[section], values, section)
-        return load_dataclass(PhysicsParams, mapping, "physics")
+        return load_dataclass(type(self), mapping, "physics")  # a plant kind's params subclass PhysicsParams
 
 
 def _merge(base: dict[str, Any], upd: Mapping[str, Any], path: str) -> None:

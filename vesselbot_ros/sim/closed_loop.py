@@ -73,23 +73,13 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import CoilLimiter
 from vesselbot_ros.control.backstepping import BacksteppingController
-from vesselbot_ros.control.bspline_reference import RefSample, ReferenceTrajectory
-from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
-from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
-from vesselbot_ros.control.imager_model import ImagerModel
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import fluid_velocity_x
-from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.scanner.hardware import effective_coil_limits
-from vesselbot_ros.scanner.sequence import duty_cycle, phase_codes, sequence_vector
-from vesselbot_ros.control.route import navigation_metrics, planned_reference
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
-from vesselbot_ros.sim import compiled_loop
+from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
+from vesselbot_ros.sim import compiled_loop, kinds
 from vesselbot_ros.sim.metrics import compute_metrics
-from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import Scenario
 
 __all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES",
@@ -101,14 +91,19 @@ PATHS = ("compiled", "per_tick")
 
 
 class Stages(NamedTuple):
-    """The six stages of the loop, each owning its state."""
+    """The six stages of the loop, each owning its state, built through their kinds (:mod:`vesselbot_ros.sim.kinds`).
 
-    plant: PlantSimulator
-    imager: ImagerModel | SequencedImager
-    observer: HighGainObserver | ExtendedKalmanObserver
-    reference: ReferenceTrajectory
-    controller: BacksteppingController
-    coil: CoilLimiter | SequencedCoil
+    Each follows its role's protocol (:class:`~vesselbot_ros.sim.kinds.PlantStage` ...); the built-in kinds'
+    classes are ``PlantSimulator``, ``ImagerModel``/``SequencedImager``, ``HighGainObserver``/
+    ``ExtendedKalmanObserver``, ``ReferenceTrajectory``, ``BacksteppingController`` and ``CoilLimiter``/``SequencedCoil``.
+    """
+
+    plant: kinds.PlantStage
+    imager: kinds.ImagerStage
+    observer: kinds.ObserverStage
+    reference: kinds.ReferenceStage
+    controller: kinds.ControllerStage
+    coil: kinds.CoilStage
     model: DynamicsModel
 
 
@@ -135,16 +130,8 @@ class SimResult:
     path: str = "per_tick"
 
 
-def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike,
-                  tick_s: float) -> HighGainObserver | ExtendedKalmanObserver:
-    """The observer ``params.kind`` selects: high-gain (25) or the extended Kalman filter, prior at t = 0."""
-    if params.kind == "ekf":
-        return ExtendedKalmanObserver(params.ekf, model, x_hat0, z_hat0, 0.0, tick_s)
-    return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
-
-
 class _StageBuilder:
-    """Builds the stages of one scenario, each on first use, with only what it needs.
+    """Builds the stages of one scenario through their kinds (:mod:`vesselbot_ros.sim.kinds`), each on first use.
 
     A node process needs one stage; building the reference (a spline fit, and
     scipy.interpolate's 0.7 s import) or the model for a stage that uses neither
@@ -158,56 +145,14 @@ class _StageBuilder:
 
     def get(self, name: str) -> Any:
         if name not in self._built:
-            self._built[name] = getattr(self, "_" + name)()
+            if name == "model_physics":  # the model's own physics (blood-velocity error): the model and the reference
+                self._built[name] = self.s.model_physics()
+            elif name == "model":
+                self._built[name] = DynamicsModel(self.get("model_physics"), self.s.sim.integrator,
+                                                  self.s.model.input_mapping)
+            else:
+                self._built[name] = kinds.build(name, self)
         return self._built[name]
-
-    def _model_physics(self) -> Any:
-        return self.s.model_physics()  # the model's own physics (blood-velocity error): the model and the reference
-
-    def _model(self) -> DynamicsModel:
-        s = self.s
-        return DynamicsModel(self.get("model_physics"), s.sim.integrator, s.model.input_mapping)
-
-    def _reference(self) -> ReferenceTrajectory:
-        p_model = packed_params(self.get("model_physics"))
-
-        def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
-            return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
-
-        return ReferenceTrajectory(planned_reference(self.s), flow_velocity_x=flow_x)
-
-    def _plant(self) -> PlantSimulator:
-        s = self.s
-        return PlantSimulator(s.physics, s.sim.integrator, s.sim.dt_control_s, s.initial.p0_m, s.initial.v0_m_per_s)
-
-    def _imager(self) -> ImagerModel | SequencedImager:
-        s = self.s
-        imager = ImagerModel(s.imager, np.random.default_rng(self.seed))
-        if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
-            return SequencedImager(imager, s.sequence)
-        return imager
-
-    def _observer(self) -> HighGainObserver | ExtendedKalmanObserver:
-        s = self.s
-        return make_observer(s.observer, self.get("model"), self.get("reference").sample(0.0).p,
-                             s.initial.z_hat0_m_per_s, s.sim.dt_control_s)
-
-    def _controller(self) -> BacksteppingController:
-        s = self.s
-        model = self.get("model")
-        return BacksteppingController(s.controller, model.F, model.input_matrix, s.sim.dt_control_s,
-                                      duty_cycle(s.sequence))
-
-    def _coil(self) -> CoilLimiter | SequencedCoil:
-        s = self.s
-        # The coil was idle (zero) before t = 0 and ramps during the period before
-        # the first command, exactly as between any two later ticks: the first
-        # command may move S * dt, not 0 (which left the robot unactuated for the
-        # first 1 ms and cost ~350 um of start-up transient, docs/control.md).
-        coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt), -s.sim.dt_control_s)
-        if s.sequence.mode == "multiplexed":
-            return SequencedCoil(coil, s.sequence, s.sim.dt_control_s)
-        return coil
 
 
 def build_stages(scenario: Scenario, seed: int | None = None) -> Stages:
@@ -290,7 +235,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
             stage.sample(0.0)
         elif name == "controller":
             for t in ts:
-                stage.command_arrays(t, p0, v0, 0.0, p0, zero, zero, 1.0)
+                kinds.call_controller(stage, t, p0, v0, 0.0, 1.0, p0, zero, zero)
         elif name == "coil":
             for t in ts:
                 stage.apply(t, zero)
@@ -447,8 +392,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     forces = np.empty((n, 8, 2)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
-    arrays_port = hasattr(controller, "command_arrays")
-    builtin_controller = type(controller) is BacksteppingController  # takes the observer's flow scale
+    builtin_controller = type(controller) is BacksteppingController
     adapted = getattr(controller, "adapted", None) if builtin_controller else None  # adaptive backstepping
     g_prev = np.zeros(2)
     nan2 = np.array([np.nan, np.nan])
@@ -457,14 +401,9 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         truth = plant.output(rec_forces)
         meas = imager.frame(t, truth.p)
         est = observer.update(t, meas, g_prev)
-        ref = (p_ref[k], v_ref[k], a_ref[k])
-        if builtin_controller:
-            cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref,
-                                            getattr(est, "flow_scale", 1.0))
-        elif arrays_port:
-            cmd = controller.command_arrays(t, est.x_hat, est.z_hat, est.time_since_measurement_s, *ref)
-        else:
-            cmd = controller.command(t, est, RefSample(*ref))
+        # the controller gets what the graph carries between the nodes (kinds.call_controller: the same numbers)
+        cmd = kinds.call_controller(controller, t, est.x_hat, est.z_hat, est.time_since_measurement_s,
+                                    getattr(est, "flow_scale", 1.0), p_ref[k], v_ref[k], a_ref[k])
         out = coil.apply(t, cmd.gradient_T_per_m)
         plant.step(out.applied)
         g_prev = out.applied

@@ -50,7 +50,6 @@ from vesselbot_ros.control.backstepping import (
     flow_scale_message,
 )
 from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
-from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
 from vesselbot_ros.control.high_gain_observer import (
     HISTORY_LEN,
     HighGainObserver,
@@ -62,8 +61,8 @@ from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
-from vesselbot_ros.sim.plant import PlantSimulator
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
+from vesselbot_ros.sim import kinds
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
@@ -143,24 +142,20 @@ OBS_HIGH_GAIN, OBS_EKF = 0, 1
 
 
 def foreign_stages(stages: Any) -> list[str]:
-    """The stages :func:`prepare` cannot read (a user's object, or a built-in one over a user's part), by name."""
-    bad = []
-    if type(stages.plant) is not PlantSimulator:
-        bad.append("plant")
-    im = stages.imager
-    if not (type(im) is ImagerModel or (type(im) is SequencedImager and type(im.inner) is ImagerModel)):
+    """The stages :func:`prepare` cannot read, by name: of a kind the compiled loop does not run (a user's
+    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), or a built-in one over a user's part."""
+    bad = [role for role in kinds.ROLES
+           if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)]
+    im, ob, co = stages.imager, stages.observer, stages.coil
+    if type(im) is SequencedImager and type(im.inner) is not ImagerModel:
         bad.append("imager")
-    ob = stages.observer
-    if not ((type(ob) is HighGainObserver and getattr(ob, "_compiled", False)) or type(ob) is ExtendedKalmanObserver):
+    if type(ob) is HighGainObserver and not getattr(ob, "_compiled", False):
         bad.append("observer")
-    if type(stages.reference) is not ReferenceTrajectory:
-        bad.append("reference")
-    if type(stages.controller) is not BacksteppingController or stages.controller.model_params is None:
+    if type(stages.controller) is BacksteppingController and stages.controller.model_params is None:
         bad.append("controller")
-    co = stages.coil
-    if not (type(co) is CoilLimiter or (type(co) is SequencedCoil and type(co.inner) is CoilLimiter)):
+    if type(co) is SequencedCoil and type(co.inner) is not CoilLimiter:
         bad.append("coil")
-    return bad
+    return [role for role in kinds.ROLES if role in bad]
 
 
 def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:

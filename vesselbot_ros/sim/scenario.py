@@ -23,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vesselbot_ros.config import (
+    RESOLVE_TYPE,
     ConfigError,
     apply_overrides,
     check_choice,
@@ -34,6 +35,7 @@ from vesselbot_ros.config import (
     parse_set_items,
     shipped_config_dir,
     to_mapping,
+    unflatten,
 )
 from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.control.backstepping import ControllerParams
@@ -45,6 +47,7 @@ from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
+from vesselbot_ros.sim.kinds import section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network, route_to_outlet
 
@@ -162,6 +165,11 @@ class SimParams:
         return int(math.floor(self.duration_s * self.control_rate_Hz + 1e-9))
 
 
+def _stage_section(role: str, default: type) -> Any:
+    """A stage's section: its dataclass is the one of the kind its ``kind`` key names (:mod:`vesselbot_ros.sim.kinds`)."""
+    return dataclasses.field(default_factory=default, metadata={RESOLVE_TYPE: section_resolver(role)})
+
+
 @dataclasses.dataclass(frozen=True)
 class Scenario:
     """Everything one closed-loop run needs (see ``config/*.yaml``).
@@ -176,6 +184,12 @@ class Scenario:
         observer: High-gain observer.
         controller: Backstepping controller.
         reference: Reference trajectory.
+
+    The sections of the six stages (physics for the plant, imager, observer,
+    reference, controller, coil) each name their stage's ``kind``; the
+    annotated classes are the built-in kinds' parameters, and a section of
+    another kind (a user's ``module:Class``) holds that kind's parameters
+    (:mod:`vesselbot_ros.sim.kinds`).
         initial: Initial conditions.
         sim: Simulation settings.
         sequence: The scanner's imaging/propulsion sequence (``continuous``:
@@ -186,13 +200,13 @@ class Scenario:
 
     name: str = "scenario"
     seed: int = 0
-    physics: PhysicsParams = dataclasses.field(default_factory=PhysicsParams)
+    physics: PhysicsParams = _stage_section("plant", PhysicsParams)
     model: ModelParams = dataclasses.field(default_factory=ModelParams)
-    coil: CoilLimits = dataclasses.field(default_factory=CoilLimits)
-    imager: ImagerParams = dataclasses.field(default_factory=ImagerParams)
-    observer: ObserverParams = dataclasses.field(default_factory=ObserverParams)
-    controller: ControllerParams = dataclasses.field(default_factory=ControllerParams)
-    reference: ReferenceParams = dataclasses.field(default_factory=ReferenceParams)
+    coil: CoilLimits = _stage_section("coil", CoilLimits)
+    imager: ImagerParams = _stage_section("imager", ImagerParams)
+    observer: ObserverParams = _stage_section("observer", ObserverParams)
+    controller: ControllerParams = _stage_section("controller", ControllerParams)
+    reference: ReferenceParams = _stage_section("reference", ReferenceParams)
     initial: InitialConditions = dataclasses.field(default_factory=InitialConditions)
     sim: SimParams = dataclasses.field(default_factory=SimParams)
     sequence: SequenceParams = dataclasses.field(default_factory=SequenceParams)
@@ -203,13 +217,15 @@ class Scenario:
             raise ConfigError(f"name must be non-empty and use only letters, digits, '_', '-', '.', got {self.name!r}")
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
-        if self.imager.frame_rate_Hz > self.sim.control_rate_Hz * (1.0 + 1e-9):
+        # the checks below read the built-in kinds' parameters; a user's kind checks its own in its params class
+        mri = isinstance(self.imager, ImagerParams)
+        if mri and self.imager.frame_rate_Hz > self.sim.control_rate_Hz * (1.0 + 1e-9):
             raise ConfigError(
                 f"imager.frame_rate_Hz must be <= sim.control_rate_Hz ({self.sim.control_rate_Hz!r}), "
                 f"got {self.imager.frame_rate_Hz!r}"
             )
         if self.sequence.mode == "multiplexed":
-            if self.imager.latency_s != 0.0:
+            if mri and self.imager.latency_s != 0.0:
                 raise ConfigError(f"imager.latency_s must be 0 with sequence.mode 'multiplexed' (the sequence's "
                                   f"latency_s applies), got {self.imager.latency_s!r}")
             if self.sequence.tracking_window_s < self.sim.dt_control_s - 1e-12:
@@ -217,18 +233,20 @@ class Scenario:
                                   f"got {self.sequence.tracking_window_s!r}")
             _check_on_tick_grid(self.sequence, self.sim.dt_control_s)
         # observer (25)'s gains only matter when it is the observer (the EKF has none to check)
-        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if self.observer.kind == "high_gain" else 0.0
+        high_gain = mri and self.observer.kind == "high_gain"
+        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if high_gain else 0.0
         if rho >= 1.0:
             raise ConfigError(
                 f"observer gains are unstable at imager.frame_rate_Hz={self.imager.frame_rate_Hz!r}: "
                 f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
             )
+        bspline = isinstance(self.reference, ReferenceParams)
         if self.physics.vessel.network:
-            self._check_network()
-        elif self.reference.route_outlet:
+            self._check_network(bspline)
+        elif bspline and self.reference.route_outlet:
             raise ConfigError(f"reference.route_outlet needs physics.vessel.network, got route_outlet={self.reference.route_outlet!r}")
         half_d = 0.5 * self.physics.vessel.diameter_m
-        for i, z in (() if self.physics.vessel.network else enumerate(self.reference.anchors_z_m)):
+        for i, z in (() if self.physics.vessel.network or not bspline else enumerate(self.reference.anchors_z_m)):
             if abs(z) >= half_d:
                 raise ConfigError(f"reference.anchors_z_m[{i}] must lie inside the vessel (|z| < {half_d!r}), got {z!r}")
         if not self.physics.vessel.network and abs(self.initial.p0_m[1]) >= half_d:
@@ -238,13 +256,13 @@ class Scenario:
         except ConfigError as exc:
             raise ConfigError(f"model.overrides: {exc}") from None
 
-    def _check_network(self) -> None:
-        """Start point and anchors (given or planned) must lie inside the network's lumen."""
+    def _check_network(self, bspline: bool) -> None:
+        """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""
         try:
             net = load_network(self.physics.vessel.network)
         except ConfigError as exc:
             raise ConfigError(f"physics.vessel.network: {exc}") from None
-        if self.reference.route_outlet:
+        if bspline and self.reference.route_outlet:
             if self.reference.route_outlet not in net.outlets:
                 raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
                                   f"({net.outlets}), got {self.reference.route_outlet!r}")
@@ -255,6 +273,8 @@ class Scenario:
         if s0 <= 0.0:
             raise ConfigError(f"initial.p0_m must lie inside the vessel network {net.name!r}, got {list(self.initial.p0_m)} "
                               f"({-s0:.6g} m outside the wall)")
+        if not bspline:
+            return
         ref = planned_reference(self)
         sd = geom.query(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]))["sdist"]
         for i, v in enumerate(sd):
@@ -332,7 +352,9 @@ def load_scenario(
             and value).
     """
     mapping = load_yaml(path)
-    return scenario_from_mapping(apply_overrides(mapping, scenario_overrides(sets, duration, seed)))
+    overrides = scenario_overrides(sets, duration, seed)
+    merged = switch_sections(mapping, apply_overrides(mapping, overrides), unflatten(overrides))
+    return scenario_from_mapping(merged)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -149,3 +149,24 @@ def test_duration_and_seed_go_through_the_same_path(repo):
     s = load_scenario(repo / "config" / "paper_small_artery.yaml", sets=["sim.duration_s=1", "seed=4"],
                       duration=0.5, seed=9)
     assert (s.sim.duration_s, s.seed) == (0.5, 9)
+
+
+def test_a_users_kind_declares_its_own_section_and_round_trips(repo, monkeypatch):
+    """The schema follows the kinds the parameters name: a node builds a user's controller from its parameters."""
+    from vesselbot_ros.nodes.params import kind_parameters
+
+    monkeypatch.syspath_prepend(str(repo / "test" / "plugins"))
+    kind = "vesselbot_test_plugin:IntegralController"
+    assert kind_parameters()["controller.kind"] == "backstepping" and "physics.kind" in kind_parameters()
+    schema = scenario_schema({"controller.kind": kind})
+    assert {n for n in schema if n.startswith("controller.")} == {
+        "controller.kind", "controller.kp_per_s2", "controller.kd_per_s", "controller.ki_per_s3"}
+    assert schema["controller.kind"].default == kind and "controller.gains.k1" in scenario_schema()
+    s = load_scenario(repo / "config" / "sound_small_artery.yaml", sets=[f"controller.kind={kind}", "controller.ki_per_s3=5"])
+    params = scenario_to_parameters(s)
+    assert params["controller.kind"] == kind and params["controller.ki_per_s3"] == 5.0
+    assert scenario_from_parameters(params) == s
+    with pytest.raises(ConfigError, match=r"unknown parameter 'controller\.gains\.k1'"):
+        scenario_from_parameters({"controller.kind": kind, "controller.gains.k1": 1.0})
+    with pytest.raises(ConfigError, match=r"controller\.kind: unknown controller kind 'pid'"):
+        scenario_from_parameters({"controller.kind": "pid"})
