@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping, merge_mapping
@@ -312,8 +313,6 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
 
 
 def _yaml(mapping: dict[str, Any]) -> str:
-    import yaml
-
     return str(yaml.safe_dump(to_mapping(mapping), sort_keys=False))
 
 

@@ -34,7 +34,6 @@ from vesselbot_ros.graph_spec import (
     service,
     topic,
 )
-from vesselbot_ros.nodes.process import make_executor
 from vesselbot_ros.nodes.recorder_node import LIVE_URL_KEY
 from vesselbot_ros.nodes.series import SeriesLog, empty_series, series_from_response
 from vesselbot_ros.nodes.wire import codec_for
@@ -65,10 +64,13 @@ class Monitor:
 
     def __init__(self, context: Any, n: int, dt: float, namespace: str | None = None,
                  user_roles: Sequence[str] = ()) -> None:
-        # deferred: rclpy and the message packages; launch.graph imports this module ROS-free (its exceptions, tests)
+        # deferred: rclpy, the message packages and nodes.process (which imports rclpy); launch.graph imports this
+        # module ROS-free (its exceptions, tests)
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from vesselbot_msgs.srv import GetSeries, RunControl
+
+        from vesselbot_ros.nodes.process import make_executor
 
         self.n = n
         self.dt = dt

@@ -53,7 +53,6 @@ from vesselbot_ros.graph_spec import REPLAY_PREFIX, TOPICS, qos_profile, resolve
 from vesselbot_ros.launch.processes import ChildProcess
 from vesselbot_ros.nodes.graph_params import GraphParams
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
-from vesselbot_ros.nodes.process import make_executor
 from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 from vesselbot_ros.sim.scenario import scenario_from_mapping
 
@@ -389,10 +388,13 @@ class _Feeder:
     """The replaying node: publishes the inputs, collects the answers."""
 
     def __init__(self, context: Any, plan: FeedPlan) -> None:
-        # deferred: rclpy and the message packages; the planning and comparing halves of this module run ROS-free
+        # deferred: rclpy, the message packages and nodes.process (which imports rclpy); the planning and comparing
+        # halves of this module run ROS-free
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rosgraph_msgs.msg import Clock
+
+        from vesselbot_ros.nodes.process import make_executor
 
         self.plan = plan
         io = ROLES[plan.role]

@@ -42,7 +42,14 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_srvs.srv import Trigger
+from vesselbot_msgs.srv import GetSeries
 
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.graph_spec import (
@@ -107,9 +114,6 @@ class VesselbotNode(Node):
         cli_args: Sequence[str] | None = None,
         parameter_overrides: Sequence[Any] | None = None,
     ) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.parameter import Parameter
-
         overrides = list(parameter_overrides or []) + [Parameter("use_sim_time", Parameter.Type.BOOL, False)]
         super().__init__(
             NODE_NAMES[role], namespace=DEFAULT_NAMESPACE, context=context,
@@ -147,8 +151,6 @@ class VesselbotNode(Node):
         self._readers: dict[str, Callable[[], int]] = {}  # topic key -> its matched DDS readers (volatile topics)
         self._subs_intra: list[str] = []  # topic keys received intra-process
         self._diag_pub = self.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
-        from rclpy.clock import Clock, ClockType
-
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         # before the run starts the launcher polls our DDS matches: report fast
         self._diag_timer = self.create_timer(0.1, self._diag_tick, clock=self._wall)
@@ -178,16 +180,12 @@ class VesselbotNode(Node):
             self._network_clearance(float(p0[0]), float(p0[1]))
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
-            from std_srvs.srv import Trigger
-
             self.add_service(reset_key, Trigger, self._on_reset)
         #: the run series of this node's outputs (graph spec), served once the run is over
         self.series = SeriesLog(graph_role(role).outputs, self.n_ticks, self.dt)
         self._series_keys = frozenset(self.series.keys)
         series_key = series_service_key(role)
         if series_key in graph_role(role).services:
-            from vesselbot_msgs.srv import GetSeries
-
             self.add_service(series_key, GetSeries, self._on_series)
 
     def reset_state(self) -> None:
@@ -226,9 +224,7 @@ class VesselbotNode(Node):
         if self.lockstep:
             return
         if "clock" not in self._subs and "clock" not in self._subs_intra:
-            from rosgraph_msgs.msg import Clock
-
-            self.add_subscription("clock", Clock, self._on_realtime_clock)
+            self.add_subscription("clock", ClockMsg, self._on_realtime_clock)
         self.create_timer(0.1, self._realtime_end, clock=self._wall)
 
     def _on_realtime_clock(self, msg: Any) -> None:
@@ -305,8 +301,6 @@ class VesselbotNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _load_parameters(self) -> tuple[Scenario, GraphParams]:
-        from rcl_interfaces.msg import ParameterDescriptor
-
         # read-only: the core is built once from them, so `ros2 param set` is refused instead of ignored
         dyn = ParameterDescriptor(dynamic_typing=True, read_only=True)
         values: dict[str, Any] = {}
@@ -547,8 +541,6 @@ class VesselbotNode(Node):
 
     def publish_diagnostics(self) -> None:
         """Publish this node's DiagnosticStatus now."""
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-
         self._last_diag_wall = time.monotonic()
         kv: dict[str, str] = {}
         for t in sorted(set(self._published) | {topic(k).name for k in self._pubs}):

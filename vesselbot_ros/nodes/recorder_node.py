@@ -139,6 +139,8 @@ class RecorderNode:
     """
 
     def __init__(self, context: Any = None) -> None:
+        # deferred: rclpy and the message packages load in the recorder process only; the launcher imports this
+        # module ROS-free (launch.graph and monitor, for recorder_command and LIVE_URL_KEY)
         from rclpy.node import Node
         from rclpy.parameter import Parameter
 
@@ -162,7 +164,7 @@ class RecorderNode:
         self.live: Any = None  # the LiveView, when live_port >= 0
 
     def _param(self, name: str) -> Any:
-        from rclpy.exceptions import ParameterUninitializedException
+        from rclpy.exceptions import ParameterUninitializedException  # deferred: rclpy (see __init__)
 
         try:
             return self.node.get_parameter(name).value
@@ -171,6 +173,7 @@ class RecorderNode:
 
     def start(self) -> None:
         """Check the output directory, open the bag, subscribe; raise BagError/ValueError on bad input."""
+        # deferred: rclpy and a message package (see __init__)
         from rclpy.clock import Clock, ClockType
         from std_srvs.srv import Trigger
 
@@ -211,7 +214,7 @@ class RecorderNode:
         specs: list[tuple[str, str, str, Any, bool]] = [
             (s.name, s.rel, s.msgtype, qos_profile(s), s.qos == "reliable_latched") for s in TOPICS]
         known = {s[0] for s in specs}
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # deferred: rclpy (see __init__)
 
         for name, msgtype in extra:
             if name in known:
@@ -240,7 +243,7 @@ class RecorderNode:
             self._subs.append(n.create_subscription(cls, sub_name, cb, qos, raw=True))
             self._sub_names.append(name)
 
-        from diagnostic_msgs.msg import DiagnosticArray
+        from diagnostic_msgs.msg import DiagnosticArray  # deferred: a message package (see __init__)
 
         self._diag_pub = n.create_publisher(DiagnosticArray, topic("diagnostics").rel, qos_profile(topic("diagnostics")))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -298,7 +301,7 @@ class RecorderNode:
 
     def publish_counts(self) -> None:
         """Publish ``received:<topic>`` KeyValues on /diagnostics."""
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # deferred: a message package (see __init__)
 
         if self._diag_pub is None:
             return
@@ -352,6 +355,7 @@ class RecorderNode:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the recorder until SIGINT/SIGTERM; finalise the bag; exit 0 (1 on a setup error)."""
+    # deferred: rclpy (see RecorderNode.__init__)
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor

@@ -29,6 +29,15 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import rclpy
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from simulation_interfaces.action import SimulateSteps
+from simulation_interfaces.msg import Result, SimulationState, SimulatorFeatures
+from simulation_interfaces.srv import ResetSimulation, SetSimulationState
+from std_srvs.srv import Trigger
+
 from vesselbot_ros.graph_spec import ROLES, SIMULATION_NODE, import_type, reset_service_key, service
 
 __all__ = ["SimulationControl", "features", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
@@ -44,8 +53,7 @@ RESET_TIMEOUT_S = 30.0
 
 def features(lockstep: bool) -> list[int]:
     """The SimulatorFeatures this simulator supports (stepping and reset need a lockstep run)."""
-    from simulation_interfaces.msg import SimulatorFeatures as F
-
+    F = SimulatorFeatures
     out = [F.SIMULATION_STATE_GETTING, F.SIMULATION_STATE_SETTING, F.SIMULATION_STATE_PAUSE]
     if lockstep:
         out += [F.SIMULATION_RESET, F.STEP_SIMULATION_SINGLE, F.STEP_SIMULATION_MULTIPLE, F.STEP_SIMULATION_ACTION]
@@ -56,11 +64,6 @@ class SimulationControl:
     """The simulation_interfaces server of a :class:`~vesselbot_ros.nodes.plant_node.PlantNode` (see module doc)."""
 
     def __init__(self, plant: Any) -> None:
-        import rclpy
-        from rclpy.action import ActionServer, CancelResponse
-        from rclpy.callback_groups import ReentrantCallbackGroup
-        from rclpy.executors import MultiThreadedExecutor
-
         self.plant = plant
         self.node = rclpy.create_node(SIMULATION_NODE, namespace=plant.get_namespace(), context=plant.context)
         group = ReentrantCallbackGroup()
@@ -83,8 +86,6 @@ class SimulationControl:
         self._thread.start()
 
     def _spin(self) -> None:
-        import rclpy
-
         while not self._stop.is_set() and rclpy.ok(context=self.plant.context):
             try:
                 self._executor.spin_once(timeout_sec=0.1)
@@ -111,8 +112,6 @@ class SimulationControl:
         return resp
 
     def _state_msg(self) -> Any:
-        from simulation_interfaces.msg import SimulationState
-
         p = self.plant
         if p.finished:
             return SimulationState(state=SimulationState.STATE_STOPPED)
@@ -122,8 +121,6 @@ class SimulationControl:
 
     def _wait_ticks(self, target: int, on_progress: Any = None, cancelled: Any = None) -> bool:
         """Wait until the plant reached tick ``target`` (True), or the run ended / the goal was cancelled (False)."""
-        import rclpy
-
         p = self.plant
         while rclpy.ok(context=p.context) and not self._stop.is_set():
             reached = p.wait_for_tick(target, 0.1)
@@ -145,15 +142,10 @@ class SimulationControl:
         return response
 
     def _get_state(self, request: Any, response: Any) -> Any:
-        from simulation_interfaces.msg import Result
-
         response.state = self._state_msg()
         return self._result(response, Result.RESULT_OK)
 
     def _set_state(self, request: Any, response: Any) -> Any:
-        from simulation_interfaces.msg import Result, SimulationState
-        from simulation_interfaces.srv import SetSimulationState
-
         target = request.state.state
         p = self.plant
         if target == SimulationState.STATE_QUITTING:
@@ -185,8 +177,6 @@ class SimulationControl:
         return self._result(response, Result.RESULT_OK)
 
     def _step(self, request: Any, response: Any) -> Any:
-        from simulation_interfaces.msg import Result
-
         why, target = self.plant.step(int(request.steps))
         if why:
             return self._result(response, Result.RESULT_OPERATION_FAILED, why)
@@ -196,10 +186,8 @@ class SimulationControl:
         return self._result(response, Result.RESULT_OK)
 
     def _reset(self, request: Any, response: Any) -> Any:
-        from simulation_interfaces.msg import Result
-        from simulation_interfaces.srv import ResetSimulation as R
-
         scope = int(request.scope)
+        R = ResetSimulation
         both = R.Request.SCOPE_TIME | R.Request.SCOPE_STATE
         if scope != R.Request.SCOPE_DEFAULT and scope & both != both:
             return self._result(response, Result.RESULT_FEATURE_UNSUPPORTED,
@@ -222,8 +210,6 @@ class SimulationControl:
             p.hold()
         if not p.wait_idle(RESET_TIMEOUT_S):
             return f"the tick in flight did not complete within {RESET_TIMEOUT_S:g} s"
-        from std_srvs.srv import Trigger
-
         for name, client in self._reset_clients.items():
             if not client.wait_for_service(timeout_sec=2.0):
                 return f"node {name} does not serve {client.srv_name} (a node of your own in its slot?)"
@@ -238,9 +224,6 @@ class SimulationControl:
 
     # ------------------------------------------------------------------ action
     def _simulate(self, goal: Any) -> Any:
-        from simulation_interfaces.action import SimulateSteps
-        from simulation_interfaces.msg import Result
-
         result = SimulateSteps.Result()
         n = int(goal.request.steps)
         why, target = self.plant.step(n)

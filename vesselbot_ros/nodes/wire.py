@@ -38,6 +38,7 @@ serializer for every hot-path type, with random values (hypothesis).
 
 from __future__ import annotations
 
+import importlib
 import struct
 from collections import namedtuple
 from collections.abc import Callable
@@ -85,8 +86,6 @@ class _NotFlat(Exception):
 
 
 def _message_class(t: Any) -> Any:
-    import importlib
-
     return getattr(importlib.import_module(".".join(t.namespaces)), t.name)
 
 
@@ -140,6 +139,7 @@ class FlatCodec:
 
     def _walk(self, cls: Any, expr: str, path: str, default: Any) -> str:
         """Lay out ``cls`` (a message ``expr``; ``default`` its default); return the expression rebuilding it from ``v``."""
+        # deferred: ROS's IDL parser; the launcher's monitor imports this module ROS-free
         from rosidl_parser.definition import AbstractString, Array, BasicType, NamespacedType
 
         names = [s for s in cls.__slots__ if s != "_check_fields"]
@@ -198,7 +198,7 @@ class FlatCodec:
         """
         if self.on_layout(raw):
             return tuple.__new__(self.Flat, self._struct.unpack_from(raw))
-        from rclpy.serialization import deserialize_message
+        from rclpy.serialization import deserialize_message  # deferred: rclpy (the monitor imports this module ROS-free)
 
         return self.flatten(deserialize_message(raw, self.cls))
 
@@ -207,7 +207,7 @@ class FlatCodec:
         raw = self._pack_fast(flat)
         if raw is not None:
             return raw
-        from rclpy.serialization import serialize_message
+        from rclpy.serialization import serialize_message  # deferred: rclpy (the monitor imports this module ROS-free)
 
         return serialize_message(self.to_message(flat))
 
