@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
 
-from vesselbot_ros.campaign.runner import TIMEOUT_STATUS, RunTask, SeedHasher, code_version, resolve_mapping, run_chunk
+from vesselbot_ros.campaign.runner import TIMEOUT_STATUS, RunTask, SeedHasher, code_version, resolve_with_code, run_chunk
 from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping, merge_mapping
 from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, check_positive, unflatten
@@ -81,22 +81,23 @@ def prepare(spec: CampaignSpec, base_mapping: dict[str, Any]) -> Prepared:
     """
     code = code_version()
     tasks, manifest = [], []
-    groups: dict[int, dict[str, Any] | None] = {}
+    groups: dict[int, tuple[dict[str, Any], str] | None] = {}
     scenarios: dict[int, tuple[dict[str, Any], SeedHasher]] = {}
     for p in expand_points(spec, base_mapping):
         hit = scenarios.get(p.point)
         if hit is None:
             if p.group not in groups:
                 try:
-                    groups[p.group] = resolve_mapping(group_mapping(spec, base_mapping, p.values))
+                    groups[p.group] = resolve_with_code(group_mapping(spec, base_mapping, p.values), code)
                 except ConfigError:
                     groups[p.group] = None
-            resolved = groups[p.group]
-            if resolved is None:
-                mapping = p.mapping
+            group = groups[p.group]
+            if group is None:
+                mapping, id_code = p.mapping, code
             else:
+                resolved, id_code = group
                 mapping = merge_mapping(resolved, unflatten(p.draw)) if p.draw else resolved
-            hit = scenarios[p.point] = (mapping, SeedHasher(mapping, code))
+            hit = scenarios[p.point] = (mapping, SeedHasher(mapping, id_code))
         mapping, hasher = hit
         tasks.append(RunTask(p.index, hasher(p.seed), p.seed, mapping, p.keep_timeseries, hasher.key))
         manifest.append({"index": p.index, "run_id": tasks[-1].run_id, "seed": p.seed,

@@ -59,10 +59,10 @@ import numpy as np
 import scipy
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.sim import closed_loop
+from vesselbot_ros.sim import closed_loop, kinds
 from vesselbot_ros.sim import scenario as scenario_module
 
-__all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "run_chunk", "flatten_timeseries",
+__all__ = ["RunTask", "code_version", "run_id", "SeedHasher", "resolve_mapping", "resolve_with_code", "run_chunk", "flatten_timeseries",
            "SCENARIO_CACHE", "RunProcess", "TIMEOUT_STATUS"]
 
 # Sources whose change can change a run's numbers (relative to the package folder).
@@ -114,6 +114,21 @@ def resolve_mapping(mapping: dict[str, Any]) -> dict[str, Any]:
         ConfigError: the mapping is not a valid scenario.
     """
     return scenario_module.scenario_from_mapping(mapping).to_mapping()
+
+
+def resolve_with_code(mapping: dict[str, Any], code: str) -> tuple[dict[str, Any], str]:
+    """:func:`resolve_mapping`, and the code version its run ids hash.
+
+    That is ``code``, joined by the hash of the source of every stage kind of
+    the user's that the scenario names (:func:`vesselbot_ros.sim.kinds.fingerprint`):
+    editing a plug-in gives its runs new ids, so a resumed campaign reruns them.
+
+    Raises:
+        ConfigError: the mapping is not a valid scenario.
+    """
+    scenario = scenario_module.scenario_from_mapping(mapping)
+    fp = kinds.fingerprint(scenario)
+    return scenario.to_mapping(), f"{code}+{fp}" if fp else code
 
 
 def run_id(mapping: dict[str, Any], code: str) -> str:

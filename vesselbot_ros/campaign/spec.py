@@ -53,6 +53,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vesselbot_ros.config import (
+    RESOLVE_TYPE,
     ConfigError,
     check_choice,
     check_finite,
@@ -61,6 +62,7 @@ from vesselbot_ros.config import (
     load_yaml,
     unflatten,
 )
+from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
 __all__ = [
@@ -305,7 +307,10 @@ def check_scenario_key(key: str) -> None:
     """Raise ConfigError unless ``key`` is a dotted path to a :class:`Scenario` field.
 
     Inside a ``dict`` field (``model.overrides``) any sub-key is accepted here;
-    the scenario's own validation checks it when the run is built.
+    the scenario's own validation checks it when the run is built.  So is a key
+    of a stage's section that its built-in kind does not have: the section may
+    name another kind (``controller.kind: my_mod:MyController``), whose keys
+    :func:`load_campaign_spec` checks against the scenario it gives.
     """
     if key in ("seed", "name"):
         raise ConfigError(f"is set by the campaign itself (use seeds / name), got key {key!r}")
@@ -318,10 +323,14 @@ def check_scenario_key(key: str) -> None:
                 return
             raise ConfigError(f"{'.'.join(parts[:depth])} is a value, not a section (key {key!r})")
         hints = typing.get_type_hints(tp)
-        names = [f.name for f in dataclasses.fields(tp) if f.init]
-        if part not in names:
+        fields = {f.name: f for f in dataclasses.fields(tp) if f.init}
+        if part not in fields:
             where = ".".join(parts[:depth]) or "the scenario"
-            raise ConfigError(f"unknown scenario key {key!r}: {where} has keys {sorted(names)}")
+            raise ConfigError(f"unknown scenario key {key!r}: {where} has keys {sorted(fields)}")
+        if RESOLVE_TYPE in fields[part].metadata and depth + 1 < len(parts):
+            kind_fields = {f.name for f in dataclasses.fields(hints[part])}
+            if parts[depth + 1] not in kind_fields:
+                return  # a key of another kind's section: checked on the scenario (load_campaign_spec)
         tp = hints[part]
         # Optional[X] / X | None: follow X
         if typing.get_origin(tp) in (typing.Union, types.UnionType):
@@ -372,7 +381,9 @@ class RunPoint:
 
 
 def _with_values(base: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
-    return merge_mapping(base, unflatten(values))
+    """``base`` with the dotted ``values`` set; a stage switched to a kind with other parameters drops the old ones."""
+    update = unflatten(values)
+    return switch_sections(base, merge_mapping(base, update), update)
 
 
 def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunPoint]:

@@ -63,7 +63,7 @@ import numpy.typing as npt
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
-from vesselbot_ros.control.bspline_reference import ReferenceParams, RefSample, ReferenceTrajectory
+from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams

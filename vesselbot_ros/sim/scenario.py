@@ -165,9 +165,9 @@ class SimParams:
         return int(math.floor(self.duration_s * self.control_rate_Hz + 1e-9))
 
 
-def _stage_section(role: str, default: type) -> Any:
-    """A stage's section: its dataclass is the one of the kind its ``kind`` key names (:mod:`vesselbot_ros.sim.kinds`)."""
-    return dataclasses.field(default_factory=default, metadata={RESOLVE_TYPE: section_resolver(role)})
+def _stage_section(role: str) -> dict[str, Any]:
+    """A stage section's field metadata: its dataclass is the one of the kind its ``kind`` key names (:mod:`vesselbot_ros.sim.kinds`)."""
+    return {RESOLVE_TYPE: section_resolver(role)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,13 +200,13 @@ class Scenario:
 
     name: str = "scenario"
     seed: int = 0
-    physics: PhysicsParams = _stage_section("plant", PhysicsParams)
+    physics: PhysicsParams = dataclasses.field(default_factory=PhysicsParams, metadata=_stage_section("plant"))
     model: ModelParams = dataclasses.field(default_factory=ModelParams)
-    coil: CoilLimits = _stage_section("coil", CoilLimits)
-    imager: ImagerParams = _stage_section("imager", ImagerParams)
-    observer: ObserverParams = _stage_section("observer", ObserverParams)
-    controller: ControllerParams = _stage_section("controller", ControllerParams)
-    reference: ReferenceParams = _stage_section("reference", ReferenceParams)
+    coil: CoilLimits = dataclasses.field(default_factory=CoilLimits, metadata=_stage_section("coil"))
+    imager: ImagerParams = dataclasses.field(default_factory=ImagerParams, metadata=_stage_section("imager"))
+    observer: ObserverParams = dataclasses.field(default_factory=ObserverParams, metadata=_stage_section("observer"))
+    controller: ControllerParams = dataclasses.field(default_factory=ControllerParams, metadata=_stage_section("controller"))
+    reference: ReferenceParams = dataclasses.field(default_factory=ReferenceParams, metadata=_stage_section("reference"))
     initial: InitialConditions = dataclasses.field(default_factory=InitialConditions)
     sim: SimParams = dataclasses.field(default_factory=SimParams)
     sequence: SequenceParams = dataclasses.field(default_factory=SequenceParams)

@@ -185,3 +185,19 @@ def test_an_invalid_shared_scenario_fails_each_of_its_runs() -> None:
     recs = run_chunk(tasks, code_version())
     assert [r["status"] for r in recs] == ["error", "error"]
     assert all(r["error"] == "ConfigError: physics.robot.radius_m must be > 0, got -0.0001" for r in recs)
+
+
+def test_run_ids_of_a_users_kind_follow_its_source(tmp_path, monkeypatch) -> None:
+    """Editing a plug-in gives its runs new addresses (a resumed campaign reruns them); built-in runs keep theirs."""
+    from vesselbot_ros.campaign.runner import resolve_with_code
+
+    src = (Path(__file__).resolve().parents[3] / "test" / "plugins" / "vesselbot_test_plugin.py").read_text()
+    (tmp_path / "ids_plugin.py").write_text(src)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    m = _mapping(0)
+    assert resolve_with_code(m, "c0") == (resolve_mapping(m), "c0")
+    m["controller"] = {"kind": "ids_plugin:IntegralController"}
+    resolved, code = resolve_with_code(m, "c0")
+    assert code.startswith("c0+") and resolved["controller"]["kind"] == "ids_plugin:IntegralController"
+    (tmp_path / "ids_plugin.py").write_text(src + "\n# edited\n")
+    assert resolve_with_code(m, "c0")[1] != code

@@ -175,3 +175,21 @@ def test_spec_from_mapping_accepts_seed_list_or_range() -> None:
     a = campaign_spec_from_mapping({"name": "a", "base": "x.yaml", "seeds": {"start": 5, "count": 3}})
     b = campaign_spec_from_mapping({"name": "b", "base": "x.yaml", "seeds": [5, 6, 7]})
     assert a.seed_list() == b.seed_list() == (5, 6, 7)
+
+
+def test_a_variant_switches_a_stage_to_a_users_kind_and_grids_its_keys(tmp_path, monkeypatch) -> None:
+    """A variant naming another controller kind drops the base's backstepping keys; its own keys are checked."""
+    monkeypatch.syspath_prepend(str(ROOT / "test" / "plugins"))
+    kind = "vesselbot_test_plugin:IntegralController"
+    spec, base = load_campaign_spec(_write(tmp_path, seeds=[0], variants={
+        "law24": {}, "pid": {"controller.kind": kind, "controller.ki_per_s3": 300.0}}))
+    points = expand_points(spec, base)
+    pid = [p for p in points if p.values["variant"] == "pid"][0]
+    assert pid.mapping["controller"] == {"kind": kind, "ki_per_s3": 300.0}
+    assert scenario_from_mapping(pid.mapping).controller.ki_per_s3 == 300.0
+    law = [p for p in points if p.values["variant"] == "law24"][0]
+    assert "gains" in law.mapping["controller"]
+    with pytest.raises(ConfigError, match=r"variants\.pid gives an invalid scenario: unknown key controller\.kx"):
+        load_campaign_spec(_write(tmp_path, variants={"pid": {"controller.kind": kind, "controller.kx": 1.0}}))
+    with pytest.raises(ConfigError, match=r"unknown scenario key 'controler\.kind'"):  # outside the sections: static
+        campaign_spec_from_mapping({"name": "t", "base": str(SOUND), "grid": {"controler.kind": ["a"]}})
