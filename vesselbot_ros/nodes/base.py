@@ -69,7 +69,7 @@ from vesselbot_ros.graph_spec import (
 from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.nodes.graph_params import GRAPH_PREFIX, GraphParams
 from vesselbot_ros.nodes.intra_process import intra_process
-from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema
+from vesselbot_ros.nodes.params import kind_parameters, scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
 from vesselbot_ros.sim.closed_loop import warm_up
@@ -304,8 +304,13 @@ class VesselbotNode(Node):
         # read-only: the core is built once from them, so `ros2 param set` is refused instead of ignored
         dyn = ParameterDescriptor(dynamic_typing=True, read_only=True)
         values: dict[str, Any] = {}
-        for name, spec in scenario_schema().items():
-            values[name] = self.declare_parameter(name, spec.default, dyn).value
+        # the stages' kinds first: the parameters of each section are those of the kind it names
+        for name, default in kind_parameters().items():
+            values[name] = self.declare_parameter(name, default, dyn).value
+        stage_kinds = {k: v for k, v in values.items() if isinstance(v, str)}
+        for name, spec in scenario_schema(stage_kinds).items():
+            if name not in values:
+                values[name] = self.declare_parameter(name, spec.default, dyn).value
         graph_values: dict[str, Any] = {}
         for f in dataclasses.fields(GraphParams):
             graph_values[f.name] = self.declare_parameter(GRAPH_PREFIX + f.name, f.default, dyn).value
