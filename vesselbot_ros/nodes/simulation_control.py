@@ -89,7 +89,7 @@ class SimulationControl:
         while not self._stop.is_set() and rclpy.ok(context=self.plant.context):
             try:
                 self._executor.spin_once(timeout_sec=0.1)
-            except Exception:
+            except Exception:  # shutting down: the context went away under the executor (else re-raised)
                 if self._stop.is_set() or not rclpy.ok(context=self.plant.context):
                     return
                 raise
