@@ -28,11 +28,12 @@ scenario once.
 A wall-clock budget per run (``run_timeout_s``) bounds a run that crawls (the
 plant's adaptive step collapsing while the bead rests on the wall).  The
 compiled loop holds its thread until the run ends, so no thread-level timeout
-can stop it: with a budget, each worker thread hands its runs, one at a time,
-to a process of its own (:class:`RunProcess`, forked from the worker, so the
-loaded code and the imports come along), waits for the record at most the
+can stop it: with a budget, each worker thread hands its chunk to a process of
+its own (:class:`RunProcess`, forked from the worker, so the loaded code and
+the imports come along), which runs the chunk's runs back to back and sends
+each record as it finishes; the thread waits for each record at most the
 budget, and on expiry kills that process, records the run with status
-``timeout`` and forks a new one for the next run.  Without a budget the runs
+``timeout`` and forks a new one for the runs left.  Without a budget the runs
 run in the worker thread itself, as they always did.
 """
 
@@ -51,6 +52,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -264,7 +266,8 @@ def _die_with_parent(parent_pid: int) -> None:
 
 
 def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> None:
-    """A run process's loop: receive a :class:`RunTask`, send its record, until the worker closes the pipe."""
+    """A run process's loop: receive a list of :class:`RunTask`, send their records one by one as they finish,
+    until the worker closes the pipe."""
     global _SCENARIOS, _SCENARIOS_LOCK
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the command; the worker then ends this process
@@ -273,15 +276,18 @@ def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> None
     _SCENARIOS_LOCK = threading.Lock()
     while True:
         try:
-            task = conn.recv()
+            tasks = conn.recv()
         except (EOFError, OSError):  # the worker closed the pipe, or died
             return
-        # a fresh local cache per task: each received mapping is a new object (its id may repeat)
-        conn.send(_one(task, {}))
+        # a fresh local cache per batch: the batch's runs of one scenario share one mapping object, which
+        # lives as long as the batch (a later batch's mappings are new objects whose ids may repeat)
+        local: dict[int, Any] = {}
+        for task in tasks:
+            conn.send(_one(task, local))
 
 
 class RunProcess:
-    """A process forked from this worker that runs one :class:`RunTask` at a time, within a wall-clock budget.
+    """A process forked from this worker that runs lists of :class:`RunTask`, each run within a wall-clock budget.
 
     The fork copies the worker's memory: the imported modules and the compiled
     code it has loaded (a fresh worker's first run process loads numba's cache
@@ -311,26 +317,35 @@ class RunProcess:
         self.conn = mine
         self._owner = parent_pid
 
-    def run(self, task: RunTask, budget_s: float) -> dict[str, Any]:
-        """Run ``task`` in this process; its record, or a ``timeout`` / ``error`` record.
+    def run(self, tasks: Sequence[RunTask], budget_s: float) -> list[dict[str, Any]]:
+        """Run ``tasks`` in this process, one after the other; their records, up to the first that did not finish.
 
-        After a ``timeout`` or a process that died, this object is closed: make a new one.
+        The tasks go in one message and the process runs them back to back,
+        sending each record as it finishes; each run has ``budget_s`` from the
+        previous record's arrival (or from the send).  A run over it ends the
+        list with a ``timeout`` record, a process that died with an ``error``
+        record; this object is then closed (make a new one for the runs left).
         """
+        out: list[dict[str, Any]] = []
         t0 = time.perf_counter()
         try:
-            self.conn.send(task)
-            if self.conn.poll(budget_s):
-                rec: dict[str, Any] = self.conn.recv()
-                return rec
+            self.conn.send(list(tasks))
+            for task in tasks:
+                if not self.conn.poll(budget_s):
+                    self.close()
+                    out.append({"run_id": task.run_id, "status": TIMEOUT_STATUS, "metrics": {}, "timeseries": None,
+                                "run_time_s": time.perf_counter() - t0,
+                                "error": f"Timeout: over the budget of {budget_s:g} s of wall time (run_timeout_s); "
+                                         f"stopped"})
+                    return out
+                out.append(self.conn.recv())
+                t0 = time.perf_counter()
         except (EOFError, OSError):  # the process died (a crash in compiled code, the OOM killer)
             status = self.close()
-            return {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None,
-                    "run_time_s": time.perf_counter() - t0,
-                    "error": f"RunProcessDied: the run's process ended ({status}) before returning the run"}
-        self.close()
-        return {"run_id": task.run_id, "status": TIMEOUT_STATUS, "metrics": {}, "timeseries": None,
-                "run_time_s": time.perf_counter() - t0,
-                "error": f"Timeout: over the budget of {budget_s:g} s of wall time (run_timeout_s); stopped"}
+            out.append({"run_id": tasks[len(out)].run_id, "status": "error", "metrics": {}, "timeseries": None,
+                        "run_time_s": time.perf_counter() - t0,
+                        "error": f"RunProcessDied: the run's process ended ({status}) before returning the run"})
+        return out
 
     @property
     def closed(self) -> bool:
@@ -370,12 +385,15 @@ class RunProcess:
 _THREAD = threading.local()  # each worker thread's RunProcess
 
 
-def _bounded(task: RunTask, budget_s: float) -> dict[str, Any]:
-    """Run ``task`` in this thread's :class:`RunProcess` (made on first use and after a timeout)."""
-    proc: RunProcess | None = getattr(_THREAD, "proc", None)
-    if proc is None or proc.closed:
-        proc = _THREAD.proc = RunProcess()
-    return proc.run(task, budget_s)
+def _bounded(tasks: Sequence[RunTask], budget_s: float) -> list[dict[str, Any]]:
+    """Run ``tasks`` in this thread's :class:`RunProcess` (made on first use and after a timeout or a death)."""
+    out: list[dict[str, Any]] = []
+    while len(out) < len(tasks):
+        proc: RunProcess | None = getattr(_THREAD, "proc", None)
+        if proc is None or proc.closed:
+            proc = _THREAD.proc = RunProcess()
+        out.extend(proc.run(tasks[len(out):], budget_s))
+    return out
 
 
 def run_chunk(tasks: list[RunTask], expected_code: str | None = None,
@@ -406,16 +424,16 @@ def run_chunk(tasks: list[RunTask], expected_code: str | None = None,
     worker = f"{socket.gethostname()}:{os.getpid()}"
     here = code_version()
     local: dict[int, Any] = {}
-    out = []
-    for task in tasks:
-        if expected_code is not None and here != expected_code:
-            rec: dict[str, Any] = {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
-                   "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
-                            f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
-        elif run_timeout_s is None:
-            rec = _one(task, local)
-        else:
-            rec = _bounded(task, run_timeout_s)
+    if expected_code is not None and here != expected_code:
+        out: list[dict[str, Any]] = [
+            {"run_id": task.run_id, "status": "error", "metrics": {}, "timeseries": None, "run_time_s": 0.0,
+             "error": f"VersionMismatch: worker code version {here} differs from the client's {expected_code} "
+                      f"(install the same vesselbot_ros on the workers; python {sys.version.split()[0]})"}
+            for task in tasks]
+    elif run_timeout_s is None:
+        out = [_one(task, local) for task in tasks]
+    else:
+        out = _bounded(tasks, run_timeout_s)
+    for rec in out:
         rec["worker"] = worker
-        out.append(rec)
     return out
