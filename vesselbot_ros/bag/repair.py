@@ -226,7 +226,7 @@ def repair_bag(path: str | Path, force: bool = False) -> RepairResult:
                             handle(r)
                     else:
                         handle(rec)
-                    good_end = reader._stream.count  # bytes consumed up to the end of this record
+                    good_end = fh.tell()  # bytes consumed up to the end of this record (the reader reads exactly)
                     if isinstance(rec, Footer):
                         fh.seek(size - len(MCAP_MAGIC))
                         complete = good_end + len(MCAP_MAGIC) == size and fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC

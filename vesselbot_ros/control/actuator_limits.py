@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Literal, NamedTuple
 
 import numba
@@ -290,6 +291,17 @@ class CoilLimiter:
             raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
         self._dt(t_s)
         coil_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), self._out)
+        return self._output()
+
+    def step(self, t_s: float, update: Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], None]) -> CoilOutput:
+        """Advance the coil to ``t_s`` with ``update(state, out)``: a compiled step over the coil's state and output.
+
+        The scanner's gated coil (:class:`~vesselbot_ros.scanner.stages.SequencedCoil`) applies its command
+        this way (:func:`~vesselbot_ros.scanner.stages.seq_coil_apply` on this coil's state).  Time is
+        checked as in :meth:`apply`.
+        """
+        self._dt(t_s)  # time must be finite and not go back
+        update(self._state, self._out)
         return self._output()
 
     def hold(self, t_s: float) -> CoilOutput:

@@ -172,7 +172,7 @@ class ImagerModel:
         self._prm, self._outliers, self._dropouts = imager_arrays(params)
         # compiled state: next frame slot, last tick time, queue head, queue tail (imager_frame)
         self._state = np.array([0.0, -math.inf, 0.0, 0.0])
-        self._queue = np.empty((16, 4))
+        self._queue = new_queue()
         self._out = np.zeros(5)
 
     @property
@@ -183,6 +183,11 @@ class ImagerModel:
     def variates(self) -> npt.NDArray[np.float64]:
         """The variate buffer for one more acquisition (:class:`VariateBuffer`), for compiled callers."""
         return self._variates.ready()
+
+    @property
+    def frame_arrays(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """``(params, outliers, dropouts)`` of :func:`imager_acquire` now (injected bursts included), for compiled callers."""
+        return self._prm, self._outliers, self._dropouts
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float,
                         angle_rad: float | None = None) -> None:
@@ -233,14 +238,7 @@ class ImagerModel:
         """
         p = check_frame_inputs(t_s, p_true, self._state[1])
         st = self._state
-        waiting = int(st[3] - st[2])
-        if waiting + 1 >= self._queue.shape[0]:  # grow the ring, oldest first
-            cap = self._queue.shape[0]
-            order = (int(st[2]) + np.arange(waiting)) % cap
-            grown = np.empty((2 * cap, 4))
-            grown[:waiting] = self._queue[order]
-            self._queue = grown
-            st[2], st[3] = 0.0, float(waiting)
+        self._queue = queue_with_room(self._queue, st, 2, 3)
         imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._variates.ready(), float(t_s),
                      float(p[0]), float(p[1]), self._out)
         o = self._out
@@ -254,8 +252,64 @@ class ImagerModel:
 # outliers (m, 4): [start, end, magnitude, fixed angle (rad) or NaN for a random angle per frame];
 # dropouts (m, 2): [start, end]
 # state (4,): [index of the next frame slot, time of the last call, queue head, queue tail]
-# queue (cap, 4): [t_acq, p x, p z, outlier] of frames acquired and not yet delivered
+# queue (cap, 5): the frame queue (below)
 # out (5,): [delivered (0/1), t_acq, p x, p z, outlier]
+
+# The frame queue of every imager kind (this one and the scanner's, scanner/stages.py): frames acquired and not yet
+# delivered, a ring of rows [t_deliver, t_acq, p x, p z, outlier] whose head and tail counters live in the imager's
+# state array (at the indices the caller gives).  queue_push adds a frame, queue_deliver hands out the due ones,
+# queue_with_room grows the ring (Python, between ticks).
+QUEUE_COLUMNS = 5
+
+
+def new_queue() -> npt.NDArray[np.float64]:
+    """An empty frame queue (16 rows; :func:`queue_with_room` grows it)."""
+    return np.empty((16, QUEUE_COLUMNS))
+
+
+def queue_with_room(queue: npt.NDArray[np.float64], state: npt.NDArray[np.float64], head: int,
+                    tail: int) -> npt.NDArray[np.float64]:
+    """``queue``, or a twice larger copy (waiting frames first, oldest first) when one more frame would not fit.
+
+    ``state[head]`` and ``state[tail]`` count the frames taken out and put in; a copy resets them.
+    """
+    waiting = int(state[tail] - state[head])
+    cap = queue.shape[0]
+    if waiting + 1 < cap:
+        return queue
+    order = (int(state[head]) + np.arange(waiting)) % cap
+    grown = np.empty((2 * cap, QUEUE_COLUMNS))
+    grown[:waiting] = queue[order]
+    state[head], state[tail] = 0.0, float(waiting)
+    return grown
+
+
+@numba.njit(cache=True, nogil=True)
+def queue_push(queue, state, tail, t_deliver, t_acq, px, pz, outlier):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Put a frame at the ring's tail (the caller sized the ring: :func:`queue_with_room`)."""
+    j = int(state[tail]) % queue.shape[0]
+    queue[j, 0] = t_deliver
+    queue[j, 1] = t_acq
+    queue[j, 2] = px
+    queue[j, 3] = pz
+    queue[j, 4] = outlier
+    state[tail] += 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def queue_deliver(queue, state, head, tail, t, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Take every frame due at ``t`` off the ring's head; ``out`` = the newest ([delivered, t_acq, x, z, outlier])."""
+    out[0] = 0.0
+    while state[head] < state[tail]:
+        j = int(state[head]) % queue.shape[0]
+        if not queue[j, 0] <= t + _EPS_S:
+            break
+        out[0] = 1.0
+        out[1] = queue[j, 1]
+        out[2] = queue[j, 2]
+        out[3] = queue[j, 3]
+        out[4] = queue[j, 4]
+        state[head] += 1.0
 
 
 def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
@@ -395,20 +449,5 @@ def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  #
         state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
         imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out)
         if out[0] > 0.5:
-            j = int(state[3]) % queue.shape[0]
-            queue[j, 0] = t
-            queue[j, 1] = out[2]
-            queue[j, 2] = out[3]
-            queue[j, 3] = out[4]
-            state[3] += 1.0
-    out[0] = 0.0
-    while state[2] < state[3]:
-        j = int(state[2]) % queue.shape[0]
-        if not queue[j, 0] + prm[2] <= t + _EPS_S:
-            break
-        out[0] = 1.0
-        out[1] = queue[j, 0]
-        out[2] = queue[j, 1]
-        out[3] = queue[j, 2]
-        out[4] = queue[j, 3]
-        state[2] += 1.0
+            queue_push(queue, state, 3, t + prm[2], t, out[2], out[3], out[4])
+    queue_deliver(queue, state, 2, 3, t, out)

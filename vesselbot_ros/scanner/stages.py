@@ -29,7 +29,16 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput, coil_apply, coil_params, coil_saturate
-from vesselbot_ros.control.imager_model import ImagerModel, Measurement, check_frame_inputs, imager_acquire
+from vesselbot_ros.control.imager_model import (
+    ImagerModel,
+    Measurement,
+    check_frame_inputs,
+    imager_acquire,
+    new_queue,
+    queue_deliver,
+    queue_push,
+    queue_with_room,
+)
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import SequenceParams, limit_at, sequence_vector, target_for, tracking_window_at
 
@@ -66,13 +75,7 @@ def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz
         if st[3] > 0.0:
             imager_acquire(prm, outliers, dropouts, rng, st[4], st[1] / st[3], st[2] / st[3], acq)
             if acq[0] > 0.5:
-                j = int(st[7])
-                queue[j, 0] = st[5]
-                queue[j, 1] = st[4]
-                queue[j, 2] = acq[2]
-                queue[j, 3] = acq[3]
-                queue[j, 4] = acq[4]
-                st[7] += 1.0
+                queue_push(queue, st, 7, st[5], st[4], acq[2], acq[3], acq[4])
     if w >= 0:
         if st[0] < 0.0:
             st[0] = float(w)
@@ -84,17 +87,7 @@ def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, pz
         st[1] += px
         st[2] += pz
         st[3] += 1.0
-    out[0] = 0.0
-    while st[6] < st[7]:
-        j = int(st[6])
-        if not queue[j, 0] <= t + _EPS_S:
-            break
-        out[0] = 1.0
-        out[1] = queue[j, 1]
-        out[2] = queue[j, 2]
-        out[3] = queue[j, 3]
-        out[4] = queue[j, 4]
-        st[6] += 1.0
+    queue_deliver(queue, st, 6, 7, t, out)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -144,7 +137,7 @@ class SequencedImager:
         self.sequence = sequence
         self.sv = sequence_vector(sequence)
         self._st = new_seq_imager_state()
-        self._queue = np.empty((16, 5))
+        self._queue = new_queue()
         self._acq = np.zeros(5)
         self._out = np.zeros(5)
         self._t_last = -math.inf
@@ -171,15 +164,9 @@ class SequencedImager:
         p = check_frame_inputs(t_s, p_true, self._t_last)
         self._t_last = t_s
         st = self._st
-        if int(st[7]) + 1 >= self._queue.shape[0]:  # room for one more frame: move the waiting ones to the front
-            head, tail = int(st[6]), int(st[7])
-            grown = np.empty((max(16, 2 * (tail - head + 1)), 5))
-            grown[:tail - head] = self._queue[head:tail]
-            self._queue = grown
-            st[6], st[7] = 0.0, float(tail - head)
+        self._queue = queue_with_room(self._queue, st, 6, 7)
         inner = self.inner
-        seq_imager_frame(self.sv, inner._prm, inner._outliers, inner._dropouts, inner.variates(), st, self._queue,
-                         self._acq,
+        seq_imager_frame(self.sv, *inner.frame_arrays, inner.variates(), st, self._queue, self._acq,
                          float(t_s), float(p[0]), float(p[1]), self._out)
         o = self._out
         if o[0] < 0.5:
@@ -224,10 +211,8 @@ class SequencedCoil:
         g = np.asarray(commanded_T_per_m, dtype=np.float64)
         if g.shape != (2,):
             raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
-        inner = self.inner
-        inner._dt(t_s)  # time must be finite and not go back
-        seq_coil_apply(self._prm, self.sv, self.hold_s, inner._state, float(t_s), float(g[0]), float(g[1]), inner._out)
-        return inner._output()
+        prm, sv, hold_s, t, gx, gz = self._prm, self.sv, self.hold_s, float(t_s), float(g[0]), float(g[1])
+        return self.inner.step(t, lambda state, out: seq_coil_apply(prm, sv, hold_s, state, t, gx, gz, out))
 
     def hold(self, t_s: float) -> CoilOutput:
         """As :meth:`CoilLimiter.hold` (holding the output is always allowed: outside propulsion it is zero)."""
