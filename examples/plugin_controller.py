@@ -56,6 +56,9 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import ControlCommand
+from vesselbot_ros.control.bspline_reference import RefSample
+from vesselbot_ros.control.estimate import Estimate
+from vesselbot_ros.sim.kinds import BuildContext
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,12 +88,12 @@ class FeedforwardPD:
     ROLE = "controller"
     Params = FeedforwardPDParams
 
-    def __init__(self, params: FeedforwardPDParams, context) -> None:  # noqa: ANN001 - a BuildContext
+    def __init__(self, params: FeedforwardPDParams, context: BuildContext) -> None:
         self.params = params
         self.model = context.model
         self.b_inv = np.linalg.inv(self.model.input_matrix)  # acceleration (m/s^2) -> gradient (T/m)
 
-    def command(self, t_s: float, estimate, ref) -> ControlCommand:  # noqa: ANN001 - Estimate, RefSample
+    def command(self, t_s: float, estimate: Estimate, ref: RefSample) -> ControlCommand:
         x, z = estimate.x_hat, estimate.z_hat
         f = self.model.F(t_s, x, z, estimate.flow_scale)
         u = ref.a + self.params.kd_per_s * (ref.v - z) + self.params.kp_per_s2 * (ref.p - x) - f

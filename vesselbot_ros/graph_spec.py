@@ -404,7 +404,7 @@ ROLES: tuple[Role, ...] = (
           summary="high-gain observer (eq. 25): position and velocity estimate"),
     _node("controller", "ControllerNode", inputs=("reference", "estimate"), outputs=("gradient_command",),
           optional_inputs=("sequence_phase",),
-          safe_stop=True, stage="controller", summary="backstepping controller (eq. 24): gradient command"),
+          safe_stop=True, stage="controller", summary="controller of the scenario's kind (law (24) by default): gradient command"),
     _node("coil_driver", "CoilDriverNode", inputs=("gradient_command",), optional_inputs=("coil_stall",),
           outputs=("coil_applied", "coil_state", "sequence_phase"), stage="coil",
           summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),

@@ -39,6 +39,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
+from vesselbot_ros.control.compiled_stage import CONTROLLER_STEP, STEP_FLOW_SCALE_INVALID, CompiledController
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
 
@@ -180,7 +181,7 @@ def backstepping_u(
 # ---- compiled stage -------------------------------------------------------------------------------
 STATUS_OK, STATUS_STALE, STATUS_NONFINITE = 0, 1, 2
 #: :func:`backstepping_command` refused the observer's flow scale (not finite and > 0): an error, not a status.
-FLOW_SCALE_INVALID = 3
+FLOW_SCALE_INVALID = STEP_FLOW_SCALE_INVALID
 _STATUS_NAMES = ("ok", "stale", "nonfinite")
 
 
@@ -338,6 +339,32 @@ def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, 
     return _emit(prm, last, out, g0, g1, u0, u1)
 
 
+
+# ---- the compiled loop's form (control/compiled_stage.py): law (24) and the adaptive law behind one signature ----
+# state: [last command x, z (T/m), memoryless contact (4, zeros)] + (adaptive) [s_hat, m_hat, time of the last update];
+# prm: controller_params (11,) + (adaptive) adaptive_params (9,); work: the model's size (V_f-scaled copy)
+@numba.cfunc(CONTROLLER_STEP, cache=True)
+def backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+                      pr0, pr1, vr0, vr1, ar0, ar1, out):
+    """:func:`backstepping_command` as a compiled controller step (the observer's flow scale)."""
+    status = backstepping_command(prm, state[0:2], model_p, work, state[2:6], fbuf, t, x0, x1, z0, z1, age,
+                                  flow_scale, pr0, pr1, vr0, vr1, ar0, ar1, out)
+    out[4] = flow_scale
+    out[5] = 1.0
+    return status
+
+
+@numba.cfunc(CONTROLLER_STEP, cache=True)
+def adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+                  pr0, pr1, vr0, vr1, ar0, ar1, out):
+    """:func:`adaptive_command` as a compiled controller step (its own adapted scales)."""
+    status = adaptive_command(prm[0:11], prm[11:20], state[6:9], state[0:2], model_p, work, state[2:6], fbuf, t,
+                              x0, x1, z0, z1, age, pr0, pr1, vr0, vr1, ar0, ar1, out)
+    out[4] = state[6]  # the adapted scales after this tick's update
+    out[5] = state[7]
+    return status
+
+
 class BacksteppingController:
     """Eq. (24) on the observer's estimate, mapped to a coil gradient.
 
@@ -415,8 +442,22 @@ class BacksteppingController:
 
     @property
     def adaptive_vector(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
-        """``(aprm (9,), state (3,))`` of :func:`adaptive_command` for the compiled loop, or None (not adaptive)."""
+        """``(aprm (9,), state (3,))`` of :func:`adaptive_command`, or None (not adaptive)."""
         return None if self._ast is None else (self._aprm, self._ast)
+
+    def compiled(self) -> CompiledController:
+        """This controller in the compiled loop's form (:mod:`vesselbot_ros.control.compiled_stage`), now.
+
+        Raises:
+            ModelInputError: its ``F`` is not a model's compiled kernel (a user's force function).
+        """
+        if self.model_params is None:
+            raise ModelInputError("the compiled loop needs the controller's F from a DynamicsModel")
+        state = np.concatenate([self._last, self._free])
+        if self._ast is None:
+            return CompiledController(backstepping_step, self.params_vector, state, self.model_params.shape[0])
+        return CompiledController(adaptive_step, np.concatenate([self.params_vector, self._aprm]),
+                                  np.concatenate([state, self._ast]), self.model_params.shape[0])
 
     def _safe(self, status: str) -> ControlCommand:
         if self.params.stale_action != "hold":

@@ -68,7 +68,7 @@ import threading
 import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -307,7 +307,8 @@ def run_stages(
         raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
     if not foreign and path != "per_tick":
         inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
-        return _compiled_result(scenario, seed, inp, stages.imager.rng)
+        imager: Any = stages.imager  # a built-in imager (not foreign): it holds the run's generator
+        return _compiled_result(scenario, seed, inp, imager.rng)
     return _run_per_tick(scenario, seed, stages)
 
 
@@ -426,7 +427,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             f1["flow_scale_hat"][k] = est.flow_scale
             f1["magnetization_scale_hat"][k] = 1.0
         else:
-            adapted = controller.adapted  # reset() replaces it
+            adapted = cast(BacksteppingController, controller).adapted  # reset() replaces it
+            assert adapted is not None  # the adaptive law always has its scales
             f1["flow_scale_hat"][k] = adapted.flow_scale
             f1["magnetization_scale_hat"][k] = adapted.magnetization_scale
         b1["meas_used"][k] = est.used_measurement
@@ -452,7 +454,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     if forces is not None:
         series["forces"] = forces
     observer_stats = getattr(getattr(observer, "model", None), "stats", np.zeros(4, dtype=np.int64))
-    return SimResult(series, _metrics(scenario, seed, series, plant.stats, observer_stats), "per_tick")
+    plant_stats = getattr(plant, "stats", np.zeros(4, dtype=np.int64))  # a user's plant may count nothing
+    return SimResult(series, _metrics(scenario, seed, series, plant_stats, observer_stats), "per_tick")
 
 
 def run_many(

@@ -6,7 +6,7 @@ stages in the runner's order::
     plant output (wall_delta_xz, forces_into)
     -> imager_frame | seq_imager_frame (scanner)
     -> observer_update (25) | ekf_update (extended Kalman)
-    -> backstepping_command (24, any sample hold, flow and duty compensation) | adaptive_command
+    -> the controller's compiled step, of any kind (control/compiled_stage.py: law (24), its adaptive form, ...)
     -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate_dopri5_ws | integrate_rk4_ws)
 
 over explicit state arrays that :func:`prepare` builds from the same
@@ -42,13 +42,8 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
-from vesselbot_ros.control.backstepping import (
-    FLOW_SCALE_INVALID,
-    BacksteppingController,
-    adaptive_command,
-    backstepping_command,
-    flow_scale_message,
-)
+from vesselbot_ros.control.backstepping import BacksteppingController, flow_scale_message
+from vesselbot_ros.control.compiled_stage import CONTROLLER_OUT_SIZE, STEP_FLOW_SCALE_INVALID, CompiledController
 from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
 from vesselbot_ros.control.high_gain_observer import (
     HISTORY_LEN,
@@ -124,9 +119,7 @@ class LoopInputs:
     obs_kind: int
     obs_prm: npt.NDArray[np.float64]
     ekf: EkfState | None
-    ctrl_prm: npt.NDArray[np.float64]
-    ctrl_aprm: npt.NDArray[np.float64]
-    ctrl_ast0: npt.NDArray[np.float64]
+    ctrl: CompiledController
     coil_prm: npt.NDArray[np.float64]
     seq_mode: int
     sv: npt.NDArray[np.float64]
@@ -158,6 +151,13 @@ def foreign_stages(stages: Any) -> list[str]:
     return [role for role in kinds.ROLES if role in bad]
 
 
+def _read_only(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """A read-only view (the controller step's signature takes the packed model read-only)."""
+    v = np.ascontiguousarray(a).view()
+    v.flags.writeable = False
+    return v
+
+
 def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs.
 
@@ -187,13 +187,11 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     return LoopInputs(
         n=n, dt=dt, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
-        plant_p=plant.p, model_p=model.p, ig=integrator_vector(plant.integrator),
+        plant_p=plant.p, model_p=_read_only(model.p), ig=integrator_vector(plant.integrator),
         obs_ig=integrator_vector(model.integrator),
-        imager_prm=imager._prm, outliers=imager._outliers, dropouts=imager._dropouts,
+        imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
         obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf,
-        ctrl_prm=controller.params_vector,
-        ctrl_aprm=controller.adaptive_vector[0] if controller.adaptive_vector is not None else np.zeros(0),
-        ctrl_ast0=controller.adaptive_vector[1].copy() if controller.adaptive_vector is not None else np.zeros(0),
+        ctrl=kinds.compiled_controller(controller),
         coil_prm=coil_params(limiter.limits),
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
         plant_y0=plant.state, obs_y0=obs_y0, coil_state0=limiter.state,
@@ -203,7 +201,7 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
 
 @numba.njit(cache=True, nogil=True)
 def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
-                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_prm, ctrl_aprm, ctrl_ast, coil_prm, seq_mode, sv,
+                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_step, ctrl_prm, ctrl_state, ctrl_work, coil_prm, seq_mode, sv,
                 hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
                 e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
                 e_vec, e_mat,
@@ -219,15 +217,14 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the
     ``obs_*`` arrays) or the extended Kalman filter (:data:`OBS_EKF`, the
     ``e_*`` arrays); ``seq_mode`` 1 runs the scanner's imager and coil on the
-    sequence ``sv``.  ``ctrl_aprm`` empty: law (24); else the adaptive law
-    (:func:`~vesselbot_ros.control.backstepping.adaptive_command`) on the state ``ctrl_ast``.
+    sequence ``sv``.  The controller is ``ctrl_step``, a compiled step of any
+    kind (:mod:`vesselbot_ros.control.compiled_stage`) on ``ctrl_prm``, its state
+    ``ctrl_state`` and scratch ``ctrl_work``.
     All scratch is allocated once, before the first tick.
     """
     work, fbuf = new_workspace()
     obs_work, obs_fbuf = new_workspace()
     ctrl_fbuf = np.empty((8, 2))
-    ctrl_p_s = np.empty(model_p.shape[0])
-    free = np.zeros(4)
     queue = np.empty((n + 1, 5))
     img_state = np.zeros(4)
     img_state[1] = -math.inf
@@ -239,8 +236,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     hist_n = np.zeros(2, dtype=np.int64)
     obs_out = np.zeros(EKF_OUT_SIZE)
     obs_out[9] = 1.0  # observer (25) does not estimate the flow scale
-    ctrl_last = np.zeros(2)
-    ctrl_out = np.zeros(4)
+    ctrl_out = np.zeros(CONTROLLER_OUT_SIZE)
     coil_out = np.zeros(COIL_OUT_SIZE)
     gx_prev = 0.0
     gz_prev = 0.0
@@ -302,24 +298,14 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
                 and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
             return REFERENCE_NONFINITE, k
-        if ctrl_aprm.shape[0] > 0:
-            status = adaptive_command(ctrl_prm, ctrl_aprm, ctrl_ast, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t,
-                                      obs_out[0], obs_out[1], obs_out[2], obs_out[3], obs_out[4], p_ref[k, 0],
-                                      p_ref[k, 1], v_ref[k, 0], v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
-            flow_scale_hat[k] = ctrl_ast[0]  # the adapted scales after this tick's update
-            magnetization_scale_hat[k] = ctrl_ast[1]
-            if status == FLOW_SCALE_INVALID:
-                err[0] = ctrl_ast[0]
-                return FLOW_SCALE_FAILED, k
-        else:
-            status = backstepping_command(ctrl_prm, ctrl_last, model_p, ctrl_p_s, free, ctrl_fbuf, t, obs_out[0],
-                                          obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0],
-                                          p_ref[k, 1], v_ref[k, 0], v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
-            flow_scale_hat[k] = obs_out[9]
-            magnetization_scale_hat[k] = 1.0
-            if status == FLOW_SCALE_INVALID:
-                err[0] = obs_out[9]
-                return FLOW_SCALE_FAILED, k
+        status = ctrl_step(ctrl_prm, ctrl_state, model_p, ctrl_work, ctrl_fbuf, t, obs_out[0], obs_out[1], obs_out[2],
+                           obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0], v_ref[k, 1],
+                           a_ref[k, 0], a_ref[k, 1], ctrl_out)
+        flow_scale_hat[k] = ctrl_out[4]  # the scales the controller worked with (the observer's, or adapted)
+        magnetization_scale_hat[k] = ctrl_out[5]
+        if status == STEP_FLOW_SCALE_INVALID:
+            err[0] = ctrl_out[4]
+            return FLOW_SCALE_FAILED, k
         g_cmd[k, 0] = ctrl_out[0]
         g_cmd[k, 1] = ctrl_out[1]
         u_cmd[k, 0] = ctrl_out[2]
@@ -390,8 +376,8 @@ def run_kernel(
         ekf_arrays = _NO_EKF
     code, tick = loop_kernel(  # type: ignore[call-arg]  # *ekf_arrays is 16 long: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, inp.obs_ig, rng,
-        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl_prm, inp.ctrl_aprm,
-        inp.ctrl_ast0.copy(), inp.coil_prm,
+        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl.step, inp.ctrl.prm,
+        inp.ctrl.state0.copy(), np.empty(inp.ctrl.work_size), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s,
         y, contact, obs_y, obs_contact, obs_scal, coil_state, *ekf_arrays, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,

@@ -64,12 +64,14 @@ from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample
+from vesselbot_ros.control.compiled_stage import CompiledController
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
 from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import effective_coil_limits
@@ -80,8 +82,9 @@ from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
-    "kind_of", "kinds", "build", "params_type", "section_resolver", "switch_sections", "fingerprint", "controller_estimate",
-    "call_controller", "make_observer", "PlantStage", "ImagerStage", "ObserverStage", "ControllerStage", "CoilStage", "ReferenceStage",
+    "kind_of", "kinds", "build", "compiled_controller", "params_type", "section_resolver", "switch_sections",
+    "fingerprint", "controller_estimate", "call_controller", "make_observer", "PlantStage", "ImagerStage",
+    "ObserverStage", "ControllerStage", "CoilStage", "ReferenceStage",
 ]
 
 #: The loop's roles, in the order the loop calls them (the fields of ``closed_loop.Stages`` but the model).
@@ -159,11 +162,15 @@ class StageKind:
             params subclass :class:`~vesselbot_ros.physics.params.PhysicsParams` (the controller's
             model reads them).
         build: Makes the Python stage: ``build(context) -> stage``.
-        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).
+        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For a
+            controller: ``compile_controller`` gives its compiled form.
         stage_types: The classes the built stage may have, for :func:`kind_of` on a stage object.
         summary: One line for ``vesselbot kinds``.
         source: ``built-in``, ``entry point <distribution>`` or ``scenario``.
         module_file: The file the kind is defined in (its hash joins a campaign run's content address).
+        compile_controller: A controller kind's compiled form of a built stage
+            (:class:`~vesselbot_ros.control.compiled_stage.CompiledController`: a numba step of the one
+            signature the compiled loop calls), or None (the per-tick loop runs it).
     """
 
     role: str
@@ -175,6 +182,7 @@ class StageKind:
     summary: str = ""
     source: str = "built-in"
     module_file: str = ""
+    compile_controller: Callable[[Any], CompiledController] | None = None
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -184,6 +192,8 @@ class StageKind:
         if "kind" not in {f.name for f in dataclasses.fields(self.params)}:
             raise ConfigError(f"stage kind {self.name!r}: its params dataclass {self.params.__name__} needs a "
                               "'kind: str' field (the scenario's kind key)")
+        if self.role == "controller" and self.compiled and self.compile_controller is None:
+            raise ConfigError(f"stage kind {self.name!r}: a compiled controller kind needs compile_controller")
         if self.role == "plant" and not issubclass(self.params, PhysicsParams):
             raise ConfigError(f"stage kind {self.name!r}: a plant kind's params must subclass PhysicsParams "
                               f"(the controller's model reads them), got {self.params.__name__}")
@@ -281,9 +291,11 @@ def _as_kind(obj: Any, name: str, source: str, where: str) -> StageKind:
                if hasattr(needed, m) and not callable(getattr(obj, m, None))]
     if missing:
         raise ConfigError(f"{where}: class {obj.__name__} ({role}) lacks method(s) {missing} of the {role} protocol")
-    return StageKind(role=role, name=name, params=params, build=lambda ctx: obj(ctx.params, ctx),
+    compiled = role == "controller" and callable(getattr(obj, "compiled", None))  # its CompiledController
+    cls: Any = obj  # the user's class: called with (params, context) by the convention
+    return StageKind(role=role, name=name, params=params, build=lambda ctx: cls(ctx.params, ctx), compiled=compiled,
                      stage_types=(obj,), summary=(inspect.getdoc(obj) or "").split("\n")[0], source=source,
-                     module_file=_module_file(obj))
+                     module_file=_module_file(obj), compile_controller=(lambda stage: stage.compiled()) if compiled else None)
 
 
 def find(role: str, name: str, where: str = "") -> StageKind:
@@ -348,9 +360,21 @@ def kind_of(role: str, stage: object) -> StageKind | None:
     return None
 
 
+def compiled_controller(controller: Any) -> CompiledController:
+    """The compiled form of a controller stage, through its kind (:attr:`StageKind.compile_controller`).
+
+    Raises:
+        ModelInputError: the controller's kind has no compiled form.
+    """
+    kind = kind_of("controller", controller)
+    if kind is None or kind.compile_controller is None:
+        raise ModelInputError(f"controller {type(controller).__name__}: its kind has no compiled form")
+    return kind.compile_controller(controller)
+
+
 def params_type(role: str, section: Any, where: str = "") -> type:
     """The params dataclass of the kind that a scenario section names (its ``kind`` key, else the default)."""
-    name = section.kind if dataclasses.is_dataclass(section) and not isinstance(section, type) else (
+    name: Any = getattr(section, "kind", None) if dataclasses.is_dataclass(section) and not isinstance(section, type) else (
         section.get("kind", DEFAULT_KINDS[role]) if isinstance(section, Mapping) else DEFAULT_KINDS[role])
     return find(role, name, where).params
 
@@ -515,10 +539,12 @@ for _kind in (
     StageKind("reference", "bspline", ReferenceParams, _reference, compiled=True, stage_types=(ReferenceTrajectory,),
               summary="C2 cubic B-spline through the anchors (or the planned route of a network)"),
     StageKind("controller", "backstepping", ControllerParams, _controller, compiled=True,
-              stage_types=(BacksteppingController,), summary="backstepping law (24)"),
+              stage_types=(BacksteppingController,), summary="backstepping law (24)",
+              compile_controller=BacksteppingController.compiled),
     StageKind("controller", "adaptive_backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,),
-              summary="law (24) with on-line blood-velocity and magnetisation scales"),
+              summary="law (24) with on-line blood-velocity and magnetisation scales",
+              compile_controller=BacksteppingController.compiled),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True, stage_types=(CoilLimiter, SequencedCoil),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from vesselbot_ros.sim.kinds import ROLES, SECTIONS, find, kinds
+from vesselbot_ros.sim.kinds import ROLES, SECTIONS, StageKind, find, kinds
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -22,11 +22,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "parameters, exit 2 with the reason if it is refused; ROLE defaults to controller")
 
 
-def _describe(kind: object) -> str:
-    k = kind  # a StageKind
-    fields = ", ".join(f"{f.name}={f.default!r}" if f.default is not dataclasses.MISSING else f.name
-                       for f in dataclasses.fields(k.params) if f.name != "kind")  # type: ignore[attr-defined]
-    return fields
+def _describe(kind: StageKind) -> str:
+    """The kind's parameters with their defaults (``name`` alone for a required one)."""
+    return ", ".join(f"{f.name}={f.default!r}" if f.default is not dataclasses.MISSING else f.name
+                     for f in dataclasses.fields(kind.params) if f.name != "kind")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -174,3 +174,17 @@ def test_vesselbot_kinds_lists_and_checks(plugins) -> None:
     bad = subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "kinds", "--check", "observer=foo"],
                          capture_output=True, text=True, timeout=120, cwd=REPO)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "unknown observer kind 'foo'" in bad.stderr
+
+
+def test_a_users_compiled_controller_runs_in_the_compiled_loop_with_the_per_tick_numbers(plugins) -> None:
+    """One module with a numba step of the one signature: the compiled loop calls it, no branch of its own."""
+    sc = _scenario(0.3, controller={"kind": "vesselbot_test_plugin:CompiledPD"})
+    k = kinds.find("controller", "vesselbot_test_plugin:CompiledPD")
+    assert k.compiled and k.compile_controller is not None
+    fast = run_closed_loop(sc, seed=2)
+    slow = run_closed_loop(sc, seed=2, path="per_tick")
+    assert (fast.path, slow.path) == ("compiled", "per_tick")
+    assert fast.metrics == slow.metrics
+    for col in ("p_true", "x_hat", "g_cmd", "u_cmd", "g_applied", "flow_scale_hat"):
+        assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
+    assert fast.metrics["tracking_error_max_m"] < 1e-3
