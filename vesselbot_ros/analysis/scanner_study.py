@@ -292,7 +292,8 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
         prep = prepare(spec, base.to_mapping())
         with _folder(runs_dir) as root:
             store = CampaignStore(root)
-            meta = {"name": spec.name, "n_runs": len({t.run_id for t in prep.tasks}), "n_seeds": len(seeds),
+            n_runs = len({t.run_id for t in prep.tasks})
+            meta = {"name": spec.name, "n_runs": n_runs, "n_seeds": len(seeds),
                     "grid_keys": ["variant"], "varied_keys": ["variant"], "run_timeout_s": run_timeout_s,
                     "code_version": prep.code}
             store.write_manifest(prep.manifest, meta, _yaml(spec_mapping))
@@ -300,7 +301,7 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
             with dask_client(scheduler, workers) as client:
                 # the bounds (pure Python, a second or so per cell) run on the cluster beside the runs
                 bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()}
-                bar = Progress("scanner study", meta["n_runs"], meta["n_runs"] - len(todo), enabled=progress)
+                bar = Progress("scanner study", n_runs, n_runs - len(todo), enabled=progress)
                 execute(todo, store, client, prep.code, progress=bar, run_timeout_s=run_timeout_s)
                 bounds = {i: f.result() for i, f in bounds_futures.items()}
             results = {r["run_id"]: r for r in store.assemble().to_pylist()}

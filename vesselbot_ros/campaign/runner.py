@@ -40,6 +40,7 @@ run in the worker thread itself, as they always did.
 from __future__ import annotations
 
 import collections
+import contextlib
 import ctypes
 import functools
 import hashlib
@@ -257,10 +258,9 @@ _PR_SET_PDEATHSIG = 1  # prctl(2): signal this process when the thread that fork
 
 def _die_with_parent(parent_pid: int) -> None:
     """Have the kernel SIGKILL this process when the worker thread that forked it ends (Linux; elsewhere a no-op)."""
-    try:
+    # not Linux: the closed pipe still ends the process
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # pragma: no cover - not Linux: the closed pipe still ends the process
-        pass
     if os.getppid() != parent_pid:  # the worker died between the fork and the prctl
         os._exit(0)
 
@@ -363,10 +363,8 @@ class RunProcess:
         if self.conn.closed:
             return "closed"
         self.conn.close()
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(self.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
         try:
             _, status = os.waitpid(self.pid, 0)
         except ChildProcessError:
@@ -376,7 +374,7 @@ class RunProcess:
         return f"exit code {os.WEXITSTATUS(status)}"
 
     def __del__(self) -> None:
-        try:
+        try:  # noqa: SIM105 - at interpreter exit contextlib itself may be gone
             self.close()
         except Exception:  # noqa: BLE001 - at interpreter exit the os module may be gone
             pass
@@ -386,13 +384,23 @@ _THREAD = threading.local()  # each worker thread's RunProcess
 
 
 def _bounded(tasks: Sequence[RunTask], budget_s: float) -> list[dict[str, Any]]:
-    """Run ``tasks`` in this thread's :class:`RunProcess` (made on first use and after a timeout or a death)."""
+    """Run ``tasks`` in this thread's :class:`RunProcess` (made for the chunk, and again after a timeout or a death).
+
+    The process ends with the chunk: a worker whose threads outlive its cluster (an in-process cluster's
+    thread pool) leaves no run process behind.
+    """
     out: list[dict[str, Any]] = []
-    while len(out) < len(tasks):
-        proc: RunProcess | None = getattr(_THREAD, "proc", None)
-        if proc is None or proc.closed:
-            proc = _THREAD.proc = RunProcess()
-        out.extend(proc.run(tasks[len(out):], budget_s))
+    try:
+        while len(out) < len(tasks):
+            proc: RunProcess | None = getattr(_THREAD, "proc", None)
+            if proc is None or proc.closed:
+                proc = _THREAD.proc = RunProcess()
+            out.extend(proc.run(tasks[len(out):], budget_s))
+    finally:
+        proc = getattr(_THREAD, "proc", None)
+        if proc is not None:
+            proc.close()
+            _THREAD.proc = None
     return out
 
 

@@ -101,7 +101,7 @@ def test_study_runs_on_the_campaign_engine_with_the_numbers_of_run_closed_loop(b
 
     original = closed_loop.run_closed_loop
 
-    def crawl(scenario, seed=None, **kw):  # noqa: ANN001, ANN202 - the second cell's seed 1 never ends
+    def crawl(scenario, seed=None, **kw):
         while scenario.sequence.latency_s == 0.02 and seed == 1:
             pass
         return original(scenario, seed, **kw)

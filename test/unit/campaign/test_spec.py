@@ -184,10 +184,10 @@ def test_a_variant_switches_a_stage_to_a_users_kind_and_grids_its_keys(tmp_path,
     spec, base = load_campaign_spec(_write(tmp_path, seeds=[0], variants={
         "law24": {}, "pid": {"controller.kind": kind, "controller.ki_per_s3": 300.0}}))
     points = expand_points(spec, base)
-    pid = [p for p in points if p.values["variant"] == "pid"][0]
+    pid = next(p for p in points if p.values["variant"] == "pid")
     assert pid.mapping["controller"] == {"kind": kind, "ki_per_s3": 300.0}
     assert scenario_from_mapping(pid.mapping).controller.ki_per_s3 == 300.0
-    law = [p for p in points if p.values["variant"] == "law24"][0]
+    law = next(p for p in points if p.values["variant"] == "law24")
     assert "gains" in law.mapping["controller"]
     with pytest.raises(ConfigError, match=r"variants\.pid gives an invalid scenario: unknown key controller\.kx"):
         load_campaign_spec(_write(tmp_path, variants={"pid": {"controller.kind": kind, "controller.kx": 1.0}}))
