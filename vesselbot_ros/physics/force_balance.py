@@ -110,7 +110,7 @@ def force_terms(
         return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([-float(nx), -float(nz)]),  # type: ignore[misc]  # 8 rows
                           v_fluid_W=np.array([float(vfx), float(vfz)]), diameter_m=float(d_t))
     delta, wall = kernel.nearest_wall_delta(t, p[1], packed)
-    d_t = kernel._diameter(t, packed)
+    d_t = kernel.diameter_at(t, packed)
     vf = kernel.fluid_velocity_x(t, p[0], p[1], packed)
     return ForceTerms(*rows, delta_m=float(delta), wall=int(wall), normal_W=np.array([0.0, float(wall)]),  # type: ignore[misc]  # 8 rows
                       v_fluid_W=np.array([float(vf), 0.0]), diameter_m=float(d_t))

@@ -63,6 +63,7 @@ __all__ = [
     "forces_into",
     "update_contact",
     "nearest_wall_delta",
+    "diameter_at",
     "wall_delta_xz",
     "fluid_velocity_x",
     "fluid_velocity_xz",
@@ -203,7 +204,8 @@ def pack_network_params(params: PhysicsParams, fld: Any) -> npt.NDArray[np.float
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _diameter(t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def diameter_at(t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """D(t) of the straight vessel (eq. (3)'s pulsation) from the packed parameters ``p`` (m)."""
     return vessel_diameter(t, p[I_DIAMETER], p[I_D_PULSE], p[I_OMEGA_F], p[I_PHI_F])
 
 
@@ -307,7 +309,7 @@ def time_terms(t, p):  # type: ignore[no-untyped-def]  # numba kernel: argument 
     ``D(t)`` of eq. (13), ``1 + a_f sin(omega_f t + phi_f)`` of eq. (12) and the
     drag's wall factor (10)-(11) at ``lambda = min(2 r / D(t), 0.999)``.
     """
-    d_t = _diameter(t, p)
+    d_t = diameter_at(t, p)
     pulse = pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F])
     lam = min(2.0 * p[I_R] / d_t, _LAMBDA_MAX)
     return d_t, pulse, wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0])
@@ -350,7 +352,7 @@ def fluid_velocity_x(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kerne
     """Blood velocity v_f along +x (m/s) at (x, z) (m), time t (s)."""
     if p[I_NET_ON] > 0.5:
         return network_geometry(t, x, z, p)[5]
-    return _flow_x(x, z, _diameter(t, p), pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]), p)
+    return _flow_x(x, z, diameter_at(t, p), pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F]), p)
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -368,7 +370,7 @@ def wall_delta_at(z, d_t, p):  # type: ignore[no-untyped-def]  # numba kernel: a
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def nearest_wall_delta(t, z, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(delta (m), wall (+1 upper / -1 lower)) of the nearest wall for a robot centred at z."""
-    return wall_delta_at(z, _diameter(t, p), p)
+    return wall_delta_at(z, diameter_at(t, p), p)
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
