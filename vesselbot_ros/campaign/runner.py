@@ -265,9 +265,17 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(0)
 
 
-def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> None:
+#: A run process that has had no chunk for this long (s) ends by itself (exit code :data:`IDLE_EXIT_CODE`):
+#: a worker whose threads outlive its cluster (an in-process cluster's thread pool) leaves none behind for long,
+#: while the chunks of a campaign, which follow each other closely, keep one process and its loaded code.
+IDLE_EXIT_S = 20.0
+IDLE_EXIT_CODE = 75
+
+
+def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> int:
     """A run process's loop: receive a list of :class:`RunTask`, send their records one by one as they finish,
-    until the worker closes the pipe."""
+    until the worker closes the pipe (returns 0) or sends nothing for :data:`IDLE_EXIT_S` (returns
+    :data:`IDLE_EXIT_CODE`)."""
     global _SCENARIOS, _SCENARIOS_LOCK
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the command; the worker then ends this process
@@ -276,9 +284,11 @@ def _serve(conn: multiprocessing.connection.Connection, parent_pid: int) -> None
     _SCENARIOS_LOCK = threading.Lock()
     while True:
         try:
+            if not conn.poll(IDLE_EXIT_S):
+                return IDLE_EXIT_CODE  # nothing was received: the worker forks a new process for its next chunk
             tasks = conn.recv()
         except (EOFError, OSError):  # the worker closed the pipe, or died
-            return
+            return 0
         # a fresh local cache per batch: the batch's runs of one scenario share one mapping object, which
         # lives as long as the batch (a later batch's mappings are new objects whose ids may repeat)
         local: dict[int, Any] = {}
@@ -294,7 +304,8 @@ class RunProcess:
     once, then runs every run it is given).  The process keeps its own cache
     of built scenarios, closes every file the worker had open but its pipe,
     ignores Ctrl-C and is killed by the kernel when the thread that forked it
-    ends (``PR_SET_PDEATHSIG``); it ends by itself when the pipe closes.
+    ends (``PR_SET_PDEATHSIG``); it ends by itself when the pipe closes, or after
+    :data:`IDLE_EXIT_S` without a chunk.
     """
 
     def __init__(self) -> None:
@@ -307,7 +318,7 @@ class RunProcess:
                 keep = theirs.fileno()
                 os.closerange(3, keep)  # the worker's sockets, files and other run processes' pipes
                 os.closerange(keep + 1, os.sysconf("SC_OPEN_MAX"))
-                _serve(theirs, parent_pid)
+                code = _serve(theirs, parent_pid)
             except BaseException:  # noqa: BLE001 - nothing of the worker's may run in this process
                 code = 1
             finally:
@@ -342,6 +353,8 @@ class RunProcess:
                 t0 = time.perf_counter()
         except (EOFError, OSError):  # the process died (a crash in compiled code, the OOM killer)
             status = self.close()
+            if not out and status == f"exit code {IDLE_EXIT_CODE}":
+                return out  # it had ended idle before it took the chunk: nothing ran, the caller forks a new one
             out.append({"run_id": tasks[len(out)].run_id, "status": "error", "metrics": {}, "timeseries": None,
                         "run_time_s": time.perf_counter() - t0,
                         "error": f"RunProcessDied: the run's process ended ({status}) before returning the run"})
@@ -384,23 +397,19 @@ _THREAD = threading.local()  # each worker thread's RunProcess
 
 
 def _bounded(tasks: Sequence[RunTask], budget_s: float) -> list[dict[str, Any]]:
-    """Run ``tasks`` in this thread's :class:`RunProcess` (made for the chunk, and again after a timeout or a death).
+    """Run ``tasks`` in this thread's :class:`RunProcess`.
 
-    The process ends with the chunk: a worker whose threads outlive its cluster (an in-process cluster's
-    thread pool) leaves no run process behind.
+    The process is kept for the thread's next chunks, so the compiled code it
+    loaded is loaded once (a new process of a worker that never ran a run itself
+    loads numba's cache again, about 0.4 s); a new one is forked on first use,
+    after a timeout or a death, and after the process ended idle (:data:`IDLE_EXIT_S`).
     """
     out: list[dict[str, Any]] = []
-    try:
-        while len(out) < len(tasks):
-            proc: RunProcess | None = getattr(_THREAD, "proc", None)
-            if proc is None or proc.closed:
-                proc = _THREAD.proc = RunProcess()
-            out.extend(proc.run(tasks[len(out):], budget_s))
-    finally:
-        proc = getattr(_THREAD, "proc", None)
-        if proc is not None:
-            proc.close()
-            _THREAD.proc = None
+    while len(out) < len(tasks):
+        proc: RunProcess | None = getattr(_THREAD, "proc", None)
+        if proc is None or proc.closed:
+            proc = _THREAD.proc = RunProcess()
+        out.extend(proc.run(tasks[len(out):], budget_s))
     return out
 
 

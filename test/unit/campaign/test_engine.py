@@ -167,6 +167,9 @@ def test_a_run_over_the_budget_is_a_timeout_and_the_others_complete(tmp_path, mo
     from vesselbot_ros.config import load_yaml
     from vesselbot_ros.sim import closed_loop
 
+    from vesselbot_ros.campaign import runner
+
+    monkeypatch.setattr(runner, "IDLE_EXIT_S", 1.0)  # the run processes forked here end 1 s after their last chunk
     base = load_yaml(ROOT / "config" / "sound_small_artery.yaml")
     spec = campaign_spec_from_mapping({"name": "budget", "base": "-", "seeds": [0, 1, 2, 3, 4],
                                        "overrides": {"sim.duration_s": 0.05, "sim.metrics_after_s": 0.0},
@@ -221,7 +224,7 @@ def test_a_run_over_the_budget_is_a_timeout_and_the_others_complete(tmp_path, mo
     assert [t.seed for t in pending(prep.tasks, store, retry_failed=True)] == [2]
     _, text = write_report(list(rows.values()), {"name": "budget", "n_runs": 5, "run_timeout_s": 1.0}, tmp_path / "out")
     assert "5 of 5 runs finished, 4 ok, 0 failed, 1 over the run budget of 1 s" in text
-    # the run processes end with the worker threads that forked them
+    # the run processes end with the worker threads that forked them, or idle, whichever comes first
     deadline = time.monotonic() + 10.0
     while {c.pid for c in _children_alive()} - before and time.monotonic() < deadline:
         time.sleep(0.1)

@@ -122,6 +122,27 @@ def test_with_a_budget_runs_run_in_a_process_of_their_own_and_a_crash_there_is_o
         run_chunk(tasks, code_version(), 0.0)
 
 
+def test_a_run_process_kept_across_chunks_ends_idle_and_the_next_chunk_forks_a_new_one(monkeypatch) -> None:
+    import concurrent.futures
+    import time
+
+    import vesselbot_ros.campaign.runner as runner
+
+    monkeypatch.setattr(runner, "IDLE_EXIT_S", 0.5)
+    tasks = [_task(0, _mapping(0)), _task(1, _mapping(1))]
+    here = run_chunk(tasks, code_version())  # this process loads the compiled loop; the run processes inherit it
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        first = pool.submit(run_chunk, tasks[:1], code_version(), 60.0).result()
+        pid = pool.submit(lambda: runner._THREAD.proc.pid).result()
+        kept = pool.submit(run_chunk, tasks[1:], code_version(), 60.0).result()  # at once: the same process
+        assert pool.submit(lambda: runner._THREAD.proc.pid).result() == pid
+        time.sleep(2.0)  # the process ends idle; the chunk sent to it finds it gone and runs in a new one
+        again = pool.submit(run_chunk, tasks, code_version(), 60.0).result()
+        assert pool.submit(lambda: runner._THREAD.proc.pid).result() != pid
+    assert [r["status"] for r in first + kept + again] == ["ok"] * 4
+    assert [r["metrics"] for r in first + kept] == [r["metrics"] for r in here] == [r["metrics"] for r in again]
+
+
 def test_a_worker_with_other_code_refuses_to_run() -> None:
     recs = run_chunk([_task(0, _mapping(0))], "ffffffffffffffff")
     assert recs[0]["status"] == "error"
