@@ -75,6 +75,7 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import effective_coil_limits
+from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
@@ -516,6 +517,11 @@ def _controller(ctx: BuildContext) -> BacksteppingController:
     return BacksteppingController(s.controller, model.F, model.input_matrix, ctx.dt_s, duty_cycle(s.sequence))
 
 
+def _predictive(ctx: BuildContext) -> PredictiveController:
+    s = ctx.scenario
+    return PredictiveController(s.controller, ctx.model.p, effective_coil_limits(s.coil, s.dbdt), s.sequence, ctx.dt_s)
+
+
 def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
     s = ctx.scenario
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
@@ -545,6 +551,9 @@ for _kind in (
               stage_types=(BacksteppingController,),
               summary="law (24) with on-line blood-velocity and magnetisation scales",
               compile_controller=BacksteppingController.compiled),
+    StageKind("controller", "predictive", PredictiveParams, _predictive, compiled=True,
+              stage_types=(PredictiveController,), compile_controller=PredictiveController.compiled,
+              summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True, stage_types=(CoilLimiter, SequencedCoil),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):

@@ -162,12 +162,11 @@ def test_a_run_over_the_budget_is_a_timeout_and_the_others_complete(tmp_path, mo
 
     from distributed import Client, LocalCluster
 
+    from vesselbot_ros.campaign import runner
     from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
     from vesselbot_ros.campaign.summary import write_report
     from vesselbot_ros.config import load_yaml
     from vesselbot_ros.sim import closed_loop
-
-    from vesselbot_ros.campaign import runner
 
     monkeypatch.setattr(runner, "IDLE_EXIT_S", 1.0)  # the run processes forked here end 1 s after their last chunk
     base = load_yaml(ROOT / "config" / "sound_small_artery.yaml")

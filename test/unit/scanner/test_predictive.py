@@ -1,0 +1,115 @@
+"""The predictive controller kind: hardware limits, zero outside propulsion, both loops bit-identical, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.control.actuator_limits import CoilLimiter
+from vesselbot_ros.scanner.hardware import effective_coil_limits
+from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
+from vesselbot_ros.scanner.sequence import PHASE_CODES
+from vesselbot_ros.sim import kinds
+from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+
+PROPULSION = PHASE_CODES["propulsion"]
+
+
+def _insert(duration: float = 0.25, **controller) -> object:
+    return load_scenario(shipped_scenarios()["propulsion_insert_small_artery"], duration=duration,
+                         sets=["controller=" + repr({"kind": "predictive", **controller}).replace("'", '"')])
+
+
+def test_it_is_a_registered_compiled_controller_kind() -> None:
+    k = kinds.find("controller", "predictive")
+    assert k.compiled and k.source == "built-in" and k.params is PredictiveParams
+    sc = _insert()
+    assert isinstance(build_stages(sc).controller, PredictiveController)
+
+
+@settings(max_examples=6, deadline=None)
+@given(seed=st.integers(0, 50), pieces=st.integers(1, 3), reg=st.sampled_from([0.01, 0.1, 1.0]))
+def test_commands_are_zero_outside_propulsion_and_the_coil_keeps_every_limit(seed: int, pieces: int, reg: float) -> None:
+    """Through the real limiter: the command is exactly zero outside propulsion windows, the applied gradient
+    stays in the saturation disc, moves at most the (dB/dt-lowered) slew per tick, and is zero outside them."""
+    sc = _insert(pieces=pieces, regularization=reg)
+    r = run_closed_loop(sc, seed)
+    ts = r.timeseries
+    outside = ts["sequence_phase"] != PROPULSION
+    assert np.all(ts["g_cmd"][outside] == 0.0) and np.all(ts["g_applied"][outside] == 0.0)
+    assert np.all(np.isfinite(ts["g_cmd"]))
+    lim = effective_coil_limits(sc.coil, sc.dbdt)
+    assert np.all(np.hypot(*ts["g_applied"].T) <= lim.saturation_T_per_m * (1.0 + 1e-12))
+    step = np.abs(np.diff(np.vstack([np.zeros(2), ts["g_applied"]]), axis=0))
+    assert np.all(step <= lim.slew_rate_T_per_m_per_s * sc.sim.dt_control_s * (1.0 + 1e-9))
+    assert np.any(ts["g_cmd"][~outside] != 0.0)  # it does propel
+
+
+def test_compiled_and_per_tick_loops_are_bit_identical() -> None:
+    sc = _insert(0.4)
+    fast, slow = run_closed_loop(sc, 3), run_closed_loop(sc, 3, path="per_tick")
+    assert (fast.path, slow.path) == ("compiled", "per_tick")
+    assert fast.metrics == slow.metrics
+    for col in ("p_true", "x_hat", "g_cmd", "u_cmd", "g_applied", "cmd_status", "flow_scale_hat"):
+        assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
+
+
+def test_it_tracks_about_as_well_as_law_24_with_its_gains_near_the_drag_rate() -> None:
+    """On the 400 mT/m insert with its 60 ms windows: within 1.5x of law (24) with k1 = k2 = 150 (no worse by far)."""
+    law = load_scenario(shipped_scenarios()["propulsion_insert_small_artery"], duration=1.5)
+    pred = _insert(1.5)
+    a, b = run_closed_loop(law, 0).metrics, run_closed_loop(pred, 0).metrics
+    assert b["tracking_error_max_m"] < 1.5 * a["tracking_error_max_m"], (a["tracking_error_max_m"], b["tracking_error_max_m"])
+
+
+def test_a_stale_estimate_commands_zero_and_a_bad_flow_scale_is_an_error() -> None:
+    sc = _insert()
+    c = build_stages(sc).controller
+
+    class Est:
+        x_hat = np.array([1e-3, 0.0])
+        z_hat = np.zeros(2)
+        time_since_measurement_s = math.inf
+        flow_scale = 1.0
+
+    class Ref:
+        p = np.array([1e-3, 0.0])
+        v = np.zeros(2)
+        a = np.zeros(2)
+
+    cmd = c.command(0.021, Est(), Ref())
+    assert cmd.status == "stale" and np.all(cmd.gradient_T_per_m == 0.0)
+    Est.time_since_measurement_s = 0.0
+    Est.flow_scale = math.nan
+    with pytest.raises(Exception, match="flow scale must be finite and > 0"):
+        c.command(0.022, Est(), Ref())
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("pieces", 0, r"controller\.pieces must be in \[1, 8\], got 0"),
+    ("iterations", 50, r"controller\.iterations must be in \[1, 20\], got 50"),
+    ("regularization", -1.0, r"controller\.regularization must be > 0"),
+    ("velocity_weight_s", -1.0, r"controller\.velocity_weight_s must be finite and >= 0"),
+    ("max_horizon_ticks", 10, r"controller\.max_horizon_ticks must cover a propulsion window and its coast"),
+])
+def test_bad_parameters_are_one_line_naming_the_key(key: str, value: object, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        build_stages(_insert(**{key: value}))
+
+
+def test_the_coil_replica_is_the_coil() -> None:
+    """Fed the same commands, the controller's replica and the scenario's coil stage apply the same gradients."""
+    sc = _insert(0.1)
+    r = run_closed_loop(sc, 1, path="per_tick")
+    st_ = build_stages(sc, 1)
+    coil = st_.coil
+    for k, t in enumerate(r.timeseries["t_s"]):
+        out = coil.apply(float(t), r.timeseries["g_cmd"][k])
+        assert np.array_equal(out.applied, r.timeseries["g_applied"][k])
+    assert isinstance(getattr(coil, "inner", coil), CoilLimiter)

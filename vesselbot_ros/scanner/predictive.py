@@ -1,0 +1,501 @@
+"""A predictive controller built for the imaging/propulsion sequence (controller kind ``predictive``).
+
+Law (24) asks for the gradient that would track the reference if it were
+applied all the time; under the scanner's multiplexing it is applied in the
+propulsion windows only, and the bead coasts (drifts with the blood and sinks)
+through the tracking window and the dead times.  This controller plans each
+propulsion window for the coast that follows:
+
+* at the first tick of a propulsion window (and again when a new frame
+  corrected the estimate during the window), it predicts the bead from the
+  observer's estimate (position, velocity, blood-velocity scale) to the start
+  of the next propulsion window with the model's own force kernel
+  (:func:`~vesselbot_ros.physics.kernel.forces_into`, the controller's model
+  with the flow scale applied) and a replica of the coil (saturation, slew,
+  dB/dt, the sequence's gate: :func:`~vesselbot_ros.scanner.stages.seq_coil_apply`,
+  fed the very commands this controller sends, so in lockstep it is the coil);
+* the plan is ``pieces`` constant gradients over the rest of the window; it
+  minimises the squared tracking error at every tick of the window and of
+  the coast (the reference extrapolated from its sample with its velocity and
+  acceleration), the velocity error at the coast's end (over
+  ``velocity_weight_s``) and ``regularization`` times the squared gradient
+  (in units of the saturation), by ``iterations`` Gauss-Newton steps from the
+  last plan (finite-difference Jacobian, normal equations solved by Gaussian
+  elimination in a fixed order: no BLAS), each piece projected into the
+  saturation disc, each step halved until the cost falls (at most three
+  times; a step that never lowers it ends the iterations);
+* outside propulsion windows it commands exactly zero (the coil's gate gives
+  zero there anyway).
+
+In continuous mode (``sequence.mode: continuous``) it plans over
+``horizon_s`` and replans every ``replan_period_s``.
+
+Time budget and fallback.  The work per plan is bounded: at most
+``iterations`` x (1 + 2 ``pieces`` + 4) predictions of at most
+``max_horizon_ticks`` ticks (four force evaluations each), so its time is
+bounded by construction, not by a clock (the same numbers on every machine).  A plan that comes out non-finite
+(a prediction that blew up against a wall) is dropped: the controller commands
+zero for the window and reports the tick ``nonfinite`` (counted in the
+``cmd_status`` column and the controller node's diagnostics).  A stale
+estimate (older than ``stale_timeout_s``) commands zero (``stale``).
+
+The Python class and the compiled loop call the same compiled function
+(:func:`predictive_command`; :func:`predictive_step` is its form for the
+compiled loop's one controller signature), so both give the same doubles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Literal
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import ConfigError, check_choice, check_positive
+from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimits, coil_params
+from vesselbot_ros.control.backstepping import (
+    FLOW_SCALE_INVALID,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_STALE,
+    ControlCommand,
+    flow_scale_message,
+)
+from vesselbot_ros.control.compiled_stage import CONTROLLER_STEP, CompiledController
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_V_F, forces_into, network_geometry, wall_delta_xz
+from vesselbot_ros.scanner.sequence import SequenceParams, phase_code, sequence_vector
+from vesselbot_ros.scanner.stages import seq_coil_apply
+
+__all__ = ["PredictiveParams", "PredictiveController", "predictive_command", "predictive_step", "STATUS_NAMES"]
+
+STATUS_NAMES = ("ok", "stale", "nonfinite")
+_CODE_PROPULSION = 3  # scanner.sequence.PHASE_CODES["propulsion"]
+_EPS_S = 1e-9
+_ERR_SCALE_M = 1e-4  # residuals in units of 100 um (the imager's noise): a well-scaled least-squares problem
+
+
+@dataclasses.dataclass(frozen=True)
+class PredictiveParams:
+    """Parameters of the predictive controller (``controller: {kind: predictive, ...}``).
+
+    Attributes:
+        kind: ``predictive``.
+        pieces: Constant gradients per propulsion window (2 gives the window's
+            end position and velocity, hence the coast, to the plan).
+        iterations: Gauss-Newton steps per plan (fixed: the time budget).
+        regularization: Weight of the squared gradient, in units of the
+            saturation, against the squared tracking error in units of 100 um.
+        horizon_s: Continuous mode: prediction horizon (s).
+        replan_period_s: Continuous mode: time between plans (s).
+        max_horizon_ticks: Longest prediction (ticks); a sequence whose window
+            and coast are longer is refused.
+        velocity_weight_s: Weight of the velocity error at the horizon's end,
+            as the time over which it would carry the bead (s): the next window
+            starts from that velocity.
+        stale_timeout_s: Estimate age beyond which the controller commands zero (s).
+    """
+
+    kind: Literal["predictive"] = "predictive"
+    pieces: int = 2
+    iterations: int = 2
+    regularization: float = 0.1
+    horizon_s: float = 0.02
+    replan_period_s: float = 0.005
+    max_horizon_ticks: int = 400
+    velocity_weight_s: float = 0.005
+    stale_timeout_s: float = 0.2
+
+    def __post_init__(self) -> None:
+        check_choice("kind", self.kind, ("predictive",))
+        for name in ("pieces", "iterations", "max_horizon_ticks"):
+            value = getattr(self, name)
+            if not 1 <= value <= (8 if name == "pieces" else 20 if name == "iterations" else 5000):
+                raise ConfigError(f"{name} must be in [1, {8 if name == 'pieces' else 20 if name == 'iterations' else 5000}], "
+                                  f"got {value!r}")
+        check_positive("regularization", self.regularization)
+        check_positive("horizon_s", self.horizon_s)
+        check_positive("replan_period_s", self.replan_period_s)
+        check_positive("stale_timeout_s", self.stale_timeout_s)
+        if not (math.isfinite(self.velocity_weight_s) and self.velocity_weight_s >= 0.0):
+            raise ConfigError(f"velocity_weight_s must be finite and >= 0, got {self.velocity_weight_s!r}")
+
+
+# ---- parameter and state vectors -----------------------------------------------------------------------------------
+# prm: [pieces, iterations, horizon ticks (continuous), replan ticks (continuous), regularization, stale timeout,
+#       dt, max horizon ticks, finite-difference step (T/m), saturation (T/m), terminal velocity weight (s),
+#       coil prm (4), sequence sv (7)]
+_P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15)
+_PRM_SIZE = 22
+# state: [coil replica (4), plan start time, ticks per piece, last age, has plan (0/1), ticks planned for the window,
+#         contact (4, zeros: the model's memoryless contact), plan: pieces x (gx, gz)]
+_S_COIL, _S_T0, _S_LEN, _S_AGE, _S_PLAN, _S_R, _S_CONTACT, _S_G = 0, 4, 5, 6, 7, 8, 9, 13
+
+
+def _sizes(prm: npt.NDArray[np.float64], n_model: int) -> tuple[int, int]:
+    n, hmax = int(prm[_P_N]), int(prm[_P_HMAX])
+    rows = 2 * hmax + 2 + 2 * n
+    # work: scaled model | residual | 2n columns | normal matrix (2n x 2n) | rhs | trial plan | coil out | replica
+    return rows, n_model + rows * (1 + 2 * n) + 4 * n * n + 2 * n + 2 * n + COIL_OUT_SIZE + 4
+
+
+@numba.njit(cache=True, nogil=True)
+def _accel(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The prediction's acceleration: magnetic, drag and apparent weight (the wall is a constraint: :func:`_onto_lumen`).
+
+    The contact and the surface forces are stiff (microseconds); at the prediction's one step per tick they
+    would blow up, so the prediction keeps the bead in the lumen instead, where a wall carries it.
+    """
+    forces_into(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf)
+    m = p[I_MASS]
+    return (fbuf[0, 0] + fbuf[1, 0] + fbuf[2, 0]) / m, (fbuf[0, 1] + fbuf[1, 1] + fbuf[2, 1]) / m
+
+
+@numba.njit(cache=True, nogil=True)
+def _onto_lumen(t, x0, x1, z0, z1, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """A predicted bead that crossed into the wall, put back on it with no velocity into it."""
+    delta, wall = wall_delta_xz(t, x0, x1, p)
+    if not delta > 0.0:
+        return x0, x1, z0, z1
+    if p[I_NET_ON] > 0.5:
+        _s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x0, x1, p)  # the wall's inward normal
+    else:
+        nx = 0.0
+        nz = -wall  # the upper wall (+1) pushes down
+    x0 = x0 + delta * nx
+    x1 = x1 + delta * nz
+    vn = z0 * nx + z1 * nz
+    if vn < 0.0:
+        z0 = z0 - vn * nx
+        z1 = z1 - vn * nz
+    return x0, x1, z0, z1
+
+
+@numba.njit(cache=True, nogil=True)
+def _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+             plan, n_win, n_hor, piece_len):
+    """Predict ``n_hor`` ticks under ``plan`` (pieces over the first ``n_win`` ticks, zero after); residuals at ``off_r``."""
+    n = int(prm[_P_N])
+    dt = prm[_P_DT]
+    coil = prm[_P_COIL:_P_COIL + 4]
+    sv = prm[_P_SV:_P_SV + 7]
+    rep = work[off_rep:off_rep + 4]
+    cout = work[off_cout:off_cout + 7]
+    contact = state[_S_CONTACT:_S_CONTACT + 4]
+    for i in range(4):
+        rep[i] = state[_S_COIL + i]
+    h = dt
+    for k in range(n_hor):
+        tk = t + k * dt
+        c0 = 0.0
+        c1 = 0.0
+        if k < n_win:
+            j = k // piece_len
+            if j > n - 1:
+                j = n - 1
+            c0 = plan[2 * j]
+            c1 = plan[2 * j + 1]
+        seq_coil_apply(coil, sv, dt, rep, tk, c0, c1, cout)
+        g0 = cout[0]
+        g1 = cout[1]
+        # RK4 over [tk, tk + dt] under the gradient the coil applies over it
+        a0, a1 = _accel(tk, x0, x1, z0, z1, g0, g1, contact, p, fbuf)
+        b0, b1 = _accel(tk + 0.5 * h, x0 + 0.5 * h * z0, x1 + 0.5 * h * z1, z0 + 0.5 * h * a0, z1 + 0.5 * h * a1,
+                        g0, g1, contact, p, fbuf)
+        c0_, c1_ = _accel(tk + 0.5 * h, x0 + 0.5 * h * (z0 + 0.5 * h * a0), x1 + 0.5 * h * (z1 + 0.5 * h * a1),
+                          z0 + 0.5 * h * b0, z1 + 0.5 * h * b1, g0, g1, contact, p, fbuf)
+        d0, d1 = _accel(tk + h, x0 + h * (z0 + 0.5 * h * b0), x1 + h * (z1 + 0.5 * h * b1), z0 + h * c0_, z1 + h * c1_,
+                        g0, g1, contact, p, fbuf)
+        nx0 = x0 + h * (z0 + h * (a0 + b0 + c0_) / 6.0)
+        nx1 = x1 + h * (z1 + h * (a1 + b1 + c1_) / 6.0)
+        z0 = z0 + h * (a0 + 2.0 * b0 + 2.0 * c0_ + d0) / 6.0
+        z1 = z1 + h * (a1 + 2.0 * b1 + 2.0 * c1_ + d1) / 6.0
+        x0, x1, z0, z1 = _onto_lumen(tk + h, nx0, nx1, z0, z1, p)
+        tau = (k + 1) * dt
+        work[off_r + 2 * k] = (x0 - (pr0 + vr0 * tau + 0.5 * ar0 * tau * tau)) / _ERR_SCALE_M
+        work[off_r + 2 * k + 1] = (x1 - (pr1 + vr1 * tau + 0.5 * ar1 * tau * tau)) / _ERR_SCALE_M
+    # the velocity at the horizon's end (the next window starts from it), as the distance it carries the bead in
+    # the velocity weight's time
+    tau = n_hor * dt
+    work[off_r + 2 * n_hor] = prm[_P_VW] * (z0 - (vr0 + ar0 * tau)) / _ERR_SCALE_M
+    work[off_r + 2 * n_hor + 1] = prm[_P_VW] * (z1 - (vr1 + ar1 * tau)) / _ERR_SCALE_M
+    w = math.sqrt(prm[_P_LAM]) / prm[_P_SAT]
+    for i in range(2 * n):
+        work[off_r + 2 * n_hor + 2 + i] = w * plan[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _solve(a, b, m, x):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Solve ``a[:m, :m] x = b[:m]`` by Gaussian elimination with partial pivoting (in place; fixed order)."""
+    for c in range(m):
+        piv = c
+        for r in range(c + 1, m):
+            if abs(a[r, c]) > abs(a[piv, c]):
+                piv = r
+        if piv != c:
+            for k in range(m):
+                tmp = a[c, k]
+                a[c, k] = a[piv, k]
+                a[piv, k] = tmp
+            tmp = b[c]
+            b[c] = b[piv]
+            b[piv] = tmp
+        d = a[c, c]
+        if d == 0.0 or not math.isfinite(d):
+            return False
+        for r in range(c + 1, m):
+            f = a[r, c] / d
+            for k in range(c, m):
+                a[r, k] -= f * a[c, k]
+            b[r] -= f * b[c]
+    for c in range(m - 1, -1, -1):
+        s = b[c]
+        for k in range(c + 1, m):
+            s -= a[c, k] * x[k]
+        x[c] = s / a[c, c]
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, n_win, n_hor):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Gauss-Newton on the plan in ``state`` (``n_win`` window ticks, ``n_hor`` predicted); False if it is not finite."""
+    n = int(prm[_P_N])
+    m = 2 * n
+    hmax = int(prm[_P_HMAX])
+    rows = 2 * hmax + 2 + m
+    used = 2 * n_hor + 2 + m
+    off_r = n_model
+    off_cols = off_r + rows
+    off_a = off_cols + rows * m
+    off_b = off_a + m * m
+    off_x = off_b + m
+    off_cout = off_x + m
+    off_rep = off_cout + 7
+    piece_len = (n_win + n - 1) // n
+    if piece_len < 1:
+        piece_len = 1
+    plan = state[_S_G:_S_G + m]
+    a = work[off_a:off_a + m * m].reshape((m, m))
+    b = work[off_b:off_b + m]
+    x = work[off_x:off_x + m]
+    sat = prm[_P_SAT]
+    step = prm[_P_H]
+    for _it in range(int(prm[_P_IT])):
+        _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
+                 plan, n_win, n_hor, piece_len)
+        for j in range(m):
+            keep = plan[j]
+            plan[j] = keep + step
+            _rollout(prm, state, p, work, off_cols + j * rows, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1,
+                     vr0, vr1, ar0, ar1, plan, n_win, n_hor, piece_len)
+            plan[j] = keep
+            for i in range(used):
+                work[off_cols + j * rows + i] = (work[off_cols + j * rows + i] - work[off_r + i]) / step
+        for j in range(m):
+            s = 0.0
+            for i in range(used):
+                s += work[off_cols + j * rows + i] * work[off_r + i]
+            b[j] = -s
+            for k in range(m):
+                s = 0.0
+                for i in range(used):
+                    s += work[off_cols + j * rows + i] * work[off_cols + k * rows + i]
+                a[j, k] = s
+        if not _solve(a, b, m, x):
+            return False
+        cost0 = 0.0
+        for i in range(used):
+            cost0 += work[off_r + i] * work[off_r + i]
+        # the step, halved until the cost falls (the coil's gate and saturation make the problem non-smooth:
+        # a full Gauss-Newton step can overshoot); none falls: the plan stands and the iterations end
+        trial = work[off_cols:off_cols + m]  # the first column's storage is free again
+        accepted = False
+        alpha = 1.0
+        for _half in range(4):
+            for j in range(n):
+                g0 = plan[2 * j] + alpha * x[2 * j]
+                g1 = plan[2 * j + 1] + alpha * x[2 * j + 1]
+                norm = math.sqrt(g0 * g0 + g1 * g1)
+                if norm > sat:
+                    g0 = g0 * (sat / norm)
+                    g1 = g1 * (sat / norm)
+                trial[2 * j] = g0
+                trial[2 * j + 1] = g1
+            _rollout(prm, state, p, work, off_cols + rows, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0,
+                     vr1, ar0, ar1, trial, n_win, n_hor, piece_len)
+            cost = 0.0
+            for i in range(used):
+                cost += work[off_cols + rows + i] * work[off_cols + rows + i]
+            if cost < cost0:
+                accepted = True
+                break
+            alpha *= 0.5
+        if not accepted:
+            break
+        for i in range(m):
+            plan[i] = trial[i]
+    for i in range(m):
+        if not math.isfinite(plan[i]):
+            return False
+    state[_S_T0] = t
+    state[_S_LEN] = piece_len
+    state[_S_R] = n_win
+    state[_S_PLAN] = 1.0
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+                       pr0, pr1, vr0, vr1, ar0, ar1, out):
+    """One tick of the predictive controller (module docstring); writes ``out`` as a compiled controller step.
+
+    Returns ``STATUS_OK``, ``STATUS_STALE``, ``STATUS_NONFINITE`` (a plan that came out non-finite: zero
+    for the window) or :data:`~vesselbot_ros.control.backstepping.FLOW_SCALE_INVALID`.
+    """
+    dt = prm[_P_DT]
+    n = int(prm[_P_N])
+    n_model = model_p.shape[0]
+    sv = prm[_P_SV:_P_SV + 7]
+    out[4] = flow_scale
+    out[5] = 1.0
+    status = STATUS_OK
+    c0 = 0.0
+    c1 = 0.0
+    if not age <= prm[_P_STALE]:
+        status = STATUS_STALE
+        state[_S_PLAN] = 0.0
+    elif not (math.isfinite(flow_scale) and flow_scale > 0.0):
+        return FLOW_SCALE_INVALID
+    else:
+        p = work[0:n_model]  # the model, its V_f scaled by the observer's estimate (a copy: the same doubles at 1)
+        for i in range(n_model):
+            p[i] = model_p[i]
+        if flow_scale != 1.0:
+            p[I_V_F] = model_p[I_V_F] * flow_scale
+        new_frame = age < state[_S_AGE] - 0.5 * dt  # a frame corrected the estimate since the last tick
+        multiplexed = sv[0] > 0.5
+        in_window = (not multiplexed) or phase_code(sv, t) == _CODE_PROPULSION
+        if not in_window:
+            state[_S_PLAN] = 0.0  # the window ended: the next one is planned afresh
+        else:
+            elapsed = int(math.floor((t - state[_S_T0]) / dt + 0.5)) if state[_S_PLAN] > 0.5 else 0
+            if multiplexed:
+                period = sv[6]
+                rel = t - sv[5]
+                tau = rel - math.floor((rel + _EPS_S) / period) * period
+                n_win = int(math.floor((sv[1] + sv[2] + sv[3] - tau) / dt + 0.5))
+                n_hor = n_win + int(math.floor((sv[1] + 2.0 * sv[2]) / dt + 0.5))
+                replan = state[_S_PLAN] < 0.5 or new_frame
+            else:
+                n_win = int(prm[_P_HZ])
+                n_hor = n_win
+                replan = state[_S_PLAN] < 0.5 or new_frame or elapsed >= int(prm[_P_RE])
+            if n_hor > int(prm[_P_HMAX]):
+                n_hor = int(prm[_P_HMAX])
+            if n_win > n_hor:
+                n_win = n_hor
+            if replan:  # from the last plan's gradients (kept in the state)
+                if not _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
+                             n_win, n_hor):
+                    for i in range(2 * n):
+                        state[_S_G + i] = 0.0
+                    state[_S_PLAN] = 0.0
+                    status = STATUS_NONFINITE
+                elapsed = 0
+            if status == STATUS_OK:
+                j = elapsed // int(state[_S_LEN])
+                if j > n - 1:
+                    j = n - 1
+                c0 = state[_S_G + 2 * j]
+                c1 = state[_S_G + 2 * j + 1]
+    state[_S_AGE] = age
+    # the coil replica takes the command the coil takes (the compiled sequence gate, saturation and slew)
+    cout = work[work.shape[0] - 11:work.shape[0] - 4]
+    seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[_S_COIL:_S_COIL + 4], t, c0, c1, cout)
+    out[0] = c0
+    out[1] = c1
+    if c0 == 0.0 and c1 == 0.0:
+        out[2] = 0.0
+        out[3] = 0.0
+    else:  # the motive acceleration the command asks for at the estimate: the magnetic term over the mass
+        forces_into(t, x0, x1, z0, z1, c0, c1, state[_S_CONTACT:_S_CONTACT + 4], model_p, fbuf)
+        out[2] = fbuf[0, 0] / model_p[I_MASS]
+        out[3] = fbuf[0, 1] / model_p[I_MASS]
+    return status
+
+
+@numba.cfunc(CONTROLLER_STEP, cache=True)
+def predictive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+                    pr0, pr1, vr0, vr1, ar0, ar1, out):
+    """:func:`predictive_command` as the compiled loop's controller step."""
+    return predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,
+                              pr0, pr1, vr0, vr1, ar0, ar1, out)
+
+
+def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: SequenceParams,
+                      dt_s: float) -> npt.NDArray[np.float64]:
+    """The (21,) parameter vector of :func:`predictive_command`.
+
+    Raises:
+        ConfigError: a propulsion window and its coast longer than ``max_horizon_ticks``.
+    """
+    sv = sequence_vector(sequence)
+    if sequence.mode == "multiplexed":
+        ticks = sequence.period_s / dt_s  # a whole window and the coast after it
+        if ticks > params.max_horizon_ticks + 0.5:
+            raise ConfigError(f"controller.max_horizon_ticks must cover a propulsion window and its coast "
+                              f"({ticks:.0f} ticks of {dt_s!r} s), got {params.max_horizon_ticks!r}")
+    sat = float(coil.saturation_T_per_m)
+    return np.array([
+        float(params.pieces), float(params.iterations), float(max(1, round(params.horizon_s / dt_s))),
+        float(max(1, round(params.replan_period_s / dt_s))), float(params.regularization),
+        float(params.stale_timeout_s), float(dt_s), float(params.max_horizon_ticks), 1e-3 * sat, sat,
+        float(params.velocity_weight_s), *coil_params(coil), *sv,
+    ])
+
+
+class PredictiveController:
+    """The predictive controller's stage (module docstring): ``command(t, estimate, ref)`` and its compiled form.
+
+    Args:
+        params: Its parameters.
+        model_p: The controller's model of the plant, packed.
+        coil: The coil's effective limits (dB/dt applied), as the coil stage has them.
+        sequence: The scanner's sequence.
+        dt_s: The control period (s).
+    """
+
+    def __init__(self, params: PredictiveParams, model_p: npt.NDArray[np.float64], coil: CoilLimits,
+                 sequence: SequenceParams, dt_s: float) -> None:
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ModelInputError(f"dt_s must be finite and > 0, got {dt_s!r}")
+        self.params = params
+        self.prm = predictive_params(params, coil, sequence, dt_s)
+        self.model_p = model_p
+        self.state = np.zeros(_S_G + 2 * params.pieces)
+        self.state[_S_COIL:_S_COIL + 4] = (0.0, 0.0, -dt_s, -dt_s)  # the coil stage's start (idle before t = 0)
+        self.state[_S_AGE] = math.inf
+        _rows, size = _sizes(self.prm, model_p.shape[0])
+        self.work = np.zeros(size)
+        self.fbuf = np.empty((8, 2))
+        self._out = np.zeros(6)
+
+    def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
+        """The gradient for ``[t_s, t_s + dt]`` from the estimate and the reference sample."""
+        x, z = estimate.x_hat, estimate.z_hat
+        status = predictive_command(self.prm, self.state, self.model_p, self.work, self.fbuf, float(t_s),
+                                    float(x[0]), float(x[1]), float(z[0]), float(z[1]),
+                                    float(estimate.time_since_measurement_s), float(estimate.flow_scale),
+                                    float(ref.p[0]), float(ref.p[1]), float(ref.v[0]), float(ref.v[1]),
+                                    float(ref.a[0]), float(ref.a[1]), self._out)
+        if status == FLOW_SCALE_INVALID:
+            raise ModelInputError(flow_scale_message(float(estimate.flow_scale)))
+        return ControlCommand(self._out[0:2].copy(), self._out[2:4].copy(), STATUS_NAMES[status])
+
+    def compiled(self) -> CompiledController:
+        """This controller in the compiled loop's form, now."""
+        return CompiledController(predictive_step, self.prm, self.state, self.work.shape[0])
