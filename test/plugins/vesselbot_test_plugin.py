@@ -16,7 +16,7 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import ControlCommand
-from vesselbot_ros.control.compiled_stage import CONTROLLER_STEP, CompiledController
+from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.physics.kernel import accel_no_motive
 
 
@@ -87,11 +87,13 @@ def _pd(prm, model_p, free, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, out
     return 0
 
 
-@numba.cfunc(CONTROLLER_STEP, cache=True)
-def pd_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel
+def _pd_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel
             pr0, pr1, vr0, vr1, ar0, ar1, out):
     """The compiled loop's form of :class:`CompiledPD` (the same function as its Python ``command``)."""
     return _pd(prm, model_p, state, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, out)
+
+
+pd_step = lazy_step(_pd_step)  # the numba cfunc, made on first use
 
 
 class CompiledPD:
@@ -114,4 +116,4 @@ class CompiledPD:
         return ControlCommand(self.out[0:2].copy(), self.out[2:4].copy(), "ok")
 
     def compiled(self) -> CompiledController:
-        return CompiledController(pd_step, self.prm, self.state, 0)
+        return CompiledController(pd_step(), self.prm, self.state, 0)

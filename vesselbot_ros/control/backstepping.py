@@ -39,7 +39,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
-from vesselbot_ros.control.compiled_stage import CONTROLLER_STEP, STEP_FLOW_SCALE_INVALID, CompiledController
+from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
 
@@ -343,8 +343,7 @@ def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, 
 # ---- the compiled loop's form (control/compiled_stage.py): law (24) and the adaptive law behind one signature ----
 # state: [last command x, z (T/m), memoryless contact (4, zeros)] + (adaptive) [s_hat, m_hat, time of the last update];
 # prm: controller_params (11,) + (adaptive) adaptive_params (9,); work: the model's size (V_f-scaled copy)
-@numba.cfunc(CONTROLLER_STEP, cache=True)
-def backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+def _backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
                       pr0, pr1, vr0, vr1, ar0, ar1, out):
     """:func:`backstepping_command` as a compiled controller step (the observer's flow scale)."""
     status = backstepping_command(prm, state[0:2], model_p, work, state[2:6], fbuf, t, x0, x1, z0, z1, age,
@@ -354,8 +353,7 @@ def backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, f
     return status
 
 
-@numba.cfunc(CONTROLLER_STEP, cache=True)
-def adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+def _adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
                   pr0, pr1, vr0, vr1, ar0, ar1, out):
     """:func:`adaptive_command` as a compiled controller step (its own adapted scales)."""
     status = adaptive_command(prm[0:11], prm[11:20], state[6:9], state[0:2], model_p, work, state[2:6], fbuf, t,
@@ -363,6 +361,10 @@ def adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_
     out[4] = state[6]  # the adapted scales after this tick's update
     out[5] = state[7]
     return status
+
+
+backstepping_step = lazy_step(_backstepping_step)
+adaptive_step = lazy_step(_adaptive_step)
 
 
 class BacksteppingController:
@@ -455,8 +457,8 @@ class BacksteppingController:
             raise ModelInputError("the compiled loop needs the controller's F from a DynamicsModel")
         state = np.concatenate([self._last, self._free])
         if self._ast is None:
-            return CompiledController(backstepping_step, self.params_vector, state, self.model_params.shape[0])
-        return CompiledController(adaptive_step, np.concatenate([self.params_vector, self._aprm]),
+            return CompiledController(backstepping_step(), self.params_vector, state, self.model_params.shape[0])
+        return CompiledController(adaptive_step(), np.concatenate([self.params_vector, self._aprm]),
                                   np.concatenate([state, self._ast]), self.model_params.shape[0])
 
     def _safe(self, status: str) -> ControlCommand:

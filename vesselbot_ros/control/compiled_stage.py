@@ -34,13 +34,16 @@ the nodes call it): the built-in law calls the very same compiled functions.
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 from numba import types
 
-__all__ = ["CONTROLLER_STEP", "CONTROLLER_OUT_SIZE", "STEP_FLOW_SCALE_INVALID", "CompiledController"]
+__all__ = ["CONTROLLER_STEP", "CONTROLLER_OUT_SIZE", "STEP_FLOW_SCALE_INVALID", "CompiledController", "lazy_step"]
 
 _F = types.float64
 _V = types.float64[::1]
@@ -73,3 +76,19 @@ class CompiledController:
     def __post_init__(self) -> None:  # own writable copies, in the layout the signature names
         object.__setattr__(self, "prm", np.array(self.prm, dtype=np.float64, order="C"))
         object.__setattr__(self, "state0", np.array(self.state0, dtype=np.float64, order="C"))
+
+
+def lazy_step(py_func: Callable[..., int]) -> Callable[[], Any]:
+    """``py_func`` (a module-level function of the step's arguments) as a :data:`CONTROLLER_STEP` ``cfunc``, made
+    on the first call of the returned function and kept.
+
+    Making a ``cfunc`` loads it from numba's cache (or compiles it): about 0.1 s that a process which never
+    runs the compiled loop (a node, a ``--help``) should not pay at import.
+    """
+
+    @functools.cache
+    def step() -> Any:
+        return numba.cfunc(CONTROLLER_STEP, cache=True)(py_func)
+
+    step.__doc__ = f"The compiled step of ``{py_func.__name__}`` (made on first use)."
+    return step

@@ -64,7 +64,7 @@ from vesselbot_ros.control.backstepping import (
     ControlCommand,
     flow_scale_message,
 )
-from vesselbot_ros.control.compiled_stage import CONTROLLER_STEP, CompiledController
+from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_V_F, forces_into, network_geometry, wall_delta_xz
 from vesselbot_ros.scanner.sequence import SequenceParams, phase_code, sequence_vector
@@ -428,12 +428,14 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
     return status
 
 
-@numba.cfunc(CONTROLLER_STEP, cache=True)
-def predictive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
+def _predictive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
                     pr0, pr1, vr0, vr1, ar0, ar1, out):
     """:func:`predictive_command` as the compiled loop's controller step."""
     return predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,
                               pr0, pr1, vr0, vr1, ar0, ar1, out)
+
+
+predictive_step = lazy_step(_predictive_step)
 
 
 def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: SequenceParams,
@@ -498,4 +500,4 @@ class PredictiveController:
 
     def compiled(self) -> CompiledController:
         """This controller in the compiled loop's form, now."""
-        return CompiledController(predictive_step, self.prm, self.state, self.work.shape[0])
+        return CompiledController(predictive_step(), self.prm, self.state, self.work.shape[0])
