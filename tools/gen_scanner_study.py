@@ -26,7 +26,7 @@ DATA = ROOT / "docs" / "scanner_study"
 MARK = re.compile(r"(<!-- BEGIN scanner_study -->\n)(?:.*?\n)?(<!-- END scanner_study -->)", re.S)
 #: The grid quoted in docs/reproduction.md.
 ARGS = ["--hardware", "clinical_3t,propulsion_insert", "--tracking-windows", "0.004,0.02",
-        "--propulsion-windows", "0.01,0.03,0.06", "--latencies", "0.0,0.02", "--pairs", "paper,ekf,ekf_k300",
+        "--propulsion-windows", "0.01,0.03,0.06", "--latencies", "0.0,0.02", "--pairs", "paper,ekf,ekf_k300,ekf_predictive",
         "--seeds", "3", "--cell-timeout-s", "600"]
 
 

@@ -14,7 +14,9 @@ Pairs:
 * ``ekf``: the extended Kalman observer (delay compensation, flow scale)
   with law (24), Table III's gains, flow and duty-cycle compensation;
 * ``ekf_k300``: the same with k1 = k2 = 150 (k1 + k2 near the drag rate, as
-  ``sound_small_artery_ekf`` in continuous mode).
+  ``sound_small_artery_ekf`` in continuous mode);
+* ``ekf_predictive``: the extended Kalman observer with the predictive
+  controller built for the sequence (:mod:`vesselbot_ros.scanner.predictive`).
 
 Two physical bounds per cell, computed from the true plant along the
 reference, say where the loop can be feasible before any controller runs:
@@ -66,6 +68,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
@@ -80,6 +83,7 @@ PAIRS: dict[str, dict[str, Any]] = {
     "ekf_k300": {"observer": {"kind": "ekf"},
                  "controller": {"gains": {"k1": 150.0, "k2": 150.0}, "flow_compensation": "estimate",
                                 "duty_compensation": "sequence"}},
+    "ekf_predictive": {"observer": {"kind": "ekf"}, "controller": {"kind": "predictive"}},
 }
 
 
@@ -144,7 +148,9 @@ def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
     Raises:
         ConfigError: the scenario refuses the cell (e.g. observer (25) unstable at its frame rate).
     """
-    return scenario_from_mapping(merge_mapping(base.to_mapping(), unflatten(cell_changes(cell))))
+    mapping, changes = base.to_mapping(), unflatten(cell_changes(cell))
+    # a pair of another controller kind (predictive) drops the base's keys of law (24), as a campaign variant does
+    return scenario_from_mapping(switch_sections(mapping, merge_mapping(mapping, changes), changes))
 
 
 def _reference(scenario: Scenario, step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -101,7 +101,7 @@ class PredictiveParams:
 
     kind: Literal["predictive"] = "predictive"
     pieces: int = 2
-    iterations: int = 2
+    iterations: int = 4
     regularization: float = 0.1
     horizon_s: float = 0.02
     replan_period_s: float = 0.005
@@ -398,7 +398,10 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
                 n_hor = int(prm[_P_HMAX])
             if n_win > n_hor:
                 n_win = n_hor
-            if replan:  # from the last plan's gradients (kept in the state)
+            if replan:
+                if state[_S_PLAN] < 0.5:  # a new window starts from no gradient (the last window's plan is a poor
+                    for i in range(2 * n):  # start: the problem is not convex, and Gauss-Newton stays near it)
+                        state[_S_G + i] = 0.0
                 if not _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
                              n_win, n_hor):
                     for i in range(2 * n):

@@ -164,7 +164,7 @@ def test_reproduction_doc_quotes_the_stored_study_table() -> None:
     table = (root / "docs" / "scanner_study" / "table.md").read_text()
     assert mod.render(doc, table) == doc, "run tools/gen_scanner_study.py --render"
     rows = list(csv.DictReader((root / "docs" / "scanner_study" / "table.csv").open()))
-    assert len(rows) == table.count("\n") - 2 == 72
+    assert len(rows) == table.count("\n") - 2 == 96  # 2 hardware x 2 tracking x 3 propulsion windows x 2 latencies x 4 pairs
     assert {r["status"] for r in rows} == {"ok"}
     # the bounds the prose quotes
     assert all(float(r["hold_margin_m_per_s2"]) < 0 for r in rows if r["hardware"] == "clinical_3t")
