@@ -327,6 +327,9 @@ class RunProcess:
         self.pid = pid
         self.conn = mine
         self._owner = parent_pid
+        # a handle on this very process: killing and reaping by pid could hit another process (or a thread of this
+        # one) that reused the pid if something else reaped ours after it ended idle
+        self._pidfd = os.pidfd_open(pid) if hasattr(os, "pidfd_open") else -1
 
     def run(self, tasks: Sequence[RunTask], budget_s: float) -> list[dict[str, Any]]:
         """Run ``tasks`` in this process, one after the other; their records, up to the first that did not finish.
@@ -376,15 +379,31 @@ class RunProcess:
         if self.conn.closed:
             return "closed"
         self.conn.close()
-        with contextlib.suppress(ProcessLookupError):
+        if self._pidfd >= 0:  # Linux: signal and reap through the process's own handle
+            try:
+                with contextlib.suppress(ProcessLookupError):
+                    signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
+                try:
+                    info = os.waitid(os.P_PIDFD, self._pidfd, os.WEXITED)
+                except ChildProcessError:
+                    return "reaped"
+            finally:
+                os.close(self._pidfd)
+                self._pidfd = -1
+            if info is None:  # pragma: no cover - WEXITED without WNOHANG always reports
+                return "reaped"
+            if info.si_code in (os.CLD_KILLED, os.CLD_DUMPED):
+                return f"signal {info.si_status}"
+            return f"exit code {info.si_status}"
+        with contextlib.suppress(ProcessLookupError):  # pragma: no cover - elsewhere: by pid
             os.kill(self.pid, signal.SIGKILL)
-        try:
+        try:  # pragma: no cover
             _, status = os.waitpid(self.pid, 0)
-        except ChildProcessError:
+        except ChildProcessError:  # pragma: no cover
             return "reaped"
-        if os.WIFSIGNALED(status):
+        if os.WIFSIGNALED(status):  # pragma: no cover
             return f"signal {os.WTERMSIG(status)}"
-        return f"exit code {os.WEXITSTATUS(status)}"
+        return f"exit code {os.WEXITSTATUS(status)}"  # pragma: no cover
 
     def __del__(self) -> None:
         try:  # noqa: SIM105 - at interpreter exit contextlib itself may be gone
