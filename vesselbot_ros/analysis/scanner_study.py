@@ -26,6 +26,10 @@ reference, say where the loop can be feasible before any controller runs:
   apparent weight, the drag of the flow and the wall forces), averaged over a
   period by the duty cycle, against what the saturated coil gives.  Negative:
   no controller can follow the reference.
+* ``gradient_to_fly_T_per_m = max_t |Xdd_ref - F| / (duty * a_unit)``: the
+  smallest gradient amplitude that makes the hold margin zero at the cell's
+  duty cycle (``a_unit``: the acceleration of 1 T/m), the design answer where
+  the margin is negative.
 * ``coast_floor_m = max_t |X_coast(t + T_c) - X_ref(t + T_c)| / 2``: with no
   propulsion for ``T_c`` = tracking window + 2 dead times, the bead released
   on the reference drifts with the flow and sinks; a controller that centres
@@ -72,7 +76,7 @@ from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
-           "run_study", "hold_margin", "coast_floor", "feasibility"]
+           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "feasibility"]
 
 PAIRS: dict[str, dict[str, Any]] = {
     "paper": {"observer": {"kind": "high_gain"},
@@ -167,11 +171,26 @@ def required_accel(scenario: Scenario, step_s: float = 1e-3) -> float:
     return float(max(need))
 
 
-def hold_margin(scenario: Scenario) -> float:
-    """``duty * a_sat - required_accel`` (m/s^2): negative means no controller can follow the reference."""
+def hold_margin(scenario: Scenario, need_m_per_s2: float | None = None) -> float:
+    """``duty * a_sat - required_accel`` (m/s^2): negative means no controller can follow the reference.
+
+    ``need_m_per_s2``: :func:`required_accel` if already computed.
+    """
     b = input_matrix(scenario.physics)
     a_sat = abs(float(b[1, 1])) * scenario.coil.saturation_T_per_m
-    return duty_cycle(scenario.sequence) * a_sat - required_accel(scenario)
+    need = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
+    return duty_cycle(scenario.sequence) * a_sat - need
+
+
+def gradient_to_fly(scenario: Scenario, need_m_per_s2: float | None = None) -> float:
+    """The smallest gradient amplitude (T/m) whose duty-averaged acceleration covers :func:`required_accel`.
+
+    The design answer for a cell whose hold margin is negative: the saturation the
+    coil would need at the cell's duty cycle (the bead and the sequence unchanged).
+    """
+    b = input_matrix(scenario.physics)
+    need = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
+    return need / (duty_cycle(scenario.sequence) * abs(float(b[1, 1])))
 
 
 def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-4) -> float:
@@ -206,8 +225,11 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
 
 
 def feasibility(scenario: Scenario) -> dict[str, float]:
-    """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m`` (module docstring)."""
-    return {"hold_margin_m_per_s2": hold_margin(scenario), "coast_floor_m": coast_floor(scenario)}
+    """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m`` (module docstring) and the
+    gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`)."""
+    need = required_accel(scenario)
+    return {"hold_margin_m_per_s2": hold_margin(scenario, need), "coast_floor_m": coast_floor(scenario),
+            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, need)}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:

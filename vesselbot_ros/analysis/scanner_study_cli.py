@@ -80,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     rows = run_study(base, cells, range(args.seeds), args.workers, args.run_timeout_s, scheduler=args.scheduler,
                      runs_dir=out / "runs", progress=True)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
-            "pair", "status", "hold_margin_m_per_s2", "coast_floor_m", "tracking_max_mean_m", "tracking_max_worst_m",
+            "pair", "status", "hold_margin_m_per_s2", "gradient_to_fly_T_per_m", "coast_floor_m", "tracking_max_mean_m",
+            "tracking_max_worst_m",
             "estimation_rms_mean_m", "estimation_rms_worst_m"]
     with (out / "table.csv").open("w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
@@ -101,6 +102,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _mt(v: object) -> str:
+    """T/m as whole mT/m (``-`` if absent)."""
+    return f"{v * 1e3:.0f}" if isinstance(v, float) else "-"
+
+
 def _f(v: object, digits: int, width: int) -> str:
     return f"{v:>{width}.{digits}f}" if isinstance(v, float) else f"{'-':>{width}}"
 
@@ -108,15 +114,16 @@ def _f(v: object, digits: int, width: int) -> str:
 def markdown_table(rows: list[dict]) -> str:
     """The study's rows as a Markdown table (micrometres; ``-`` where a cell did not run)."""
     lines = ["| hardware | tracking window (ms) | propulsion window (ms) | duty | frames/s | latency (ms) | pair | "
-             "hold margin (m/s^2) | coast floor (um) | tracking max, mean / worst (um) | estimation rms, mean (um) | status |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "hold margin (m/s^2) | gradient to fly (mT/m) | coast floor (um) | tracking max, mean / worst (um) | "
+             "estimation rms, mean (um) | status |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         tw = r.get("tracking_window_s")
         lines.append(
             f"| {r['hardware']} | {'-' if tw is None else f'{tw * 1e3:g}'} | {r['propulsion_window_s'] * 1e3:g} | "
             f"{_f(r.get('duty_cycle'), 2, 0).strip()} | {_f(r.get('frame_rate_Hz'), 1, 0).strip()} | "
             f"{r['latency_s'] * 1e3:g} | {r['pair']} | {_f(r.get('hold_margin_m_per_s2'), 1, 0).strip()} | "
-            f"{fmt_um(r.get('coast_floor_m'))} | {fmt_um(r.get('tracking_max_mean_m'))} / "
+            f"{_mt(r.get('gradient_to_fly_T_per_m'))} | {fmt_um(r.get('coast_floor_m'))} | {fmt_um(r.get('tracking_max_mean_m'))} / "
             f"{fmt_um(r.get('tracking_max_worst_m'))} | {fmt_um(r.get('estimation_rms_mean_m'))} | "
             f"{r['status'].split(':')[0]} |")
     return "\n".join(lines) + "\n"

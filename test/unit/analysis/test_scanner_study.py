@@ -169,3 +169,21 @@ def test_reproduction_doc_quotes_the_stored_study_table() -> None:
     # the bounds the prose quotes
     assert all(float(r["hold_margin_m_per_s2"]) < 0 for r in rows if r["hardware"] == "clinical_3t")
     assert all(float(r["hold_margin_m_per_s2"]) > 0 for r in rows if r["hardware"] == "propulsion_insert")
+
+
+def test_the_gradient_to_fly_makes_the_hold_margin_zero() -> None:
+    """The design answer of a cell with a negative margin: at that amplitude the margin is zero, above it positive."""
+    import dataclasses
+
+    from vesselbot_ros.analysis import scanner_study as ss
+    from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+
+    base = load_scenario(shipped_scenarios()["sound_small_artery_ekf"], duration=0.8)
+    sc = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.06, 0.0, "ekf_k300", 0.004))
+    need = ss.required_accel(sc)
+    g = ss.gradient_to_fly(sc, need)
+    assert ss.hold_margin(sc, need) < 0.0 and g > sc.coil.saturation_T_per_m
+    at = dataclasses.replace(sc, coil=dataclasses.replace(sc.coil, saturation_T_per_m=g))
+    assert abs(ss.hold_margin(at, need)) < 1e-9 * need
+    above = dataclasses.replace(sc, coil=dataclasses.replace(sc.coil, saturation_T_per_m=1.01 * g))
+    assert ss.hold_margin(above, need) > 0.0
