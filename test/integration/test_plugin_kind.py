@@ -100,17 +100,17 @@ def test_plugin_controller_gives_the_same_numbers_in_simulate_campaign_and_run(p
 
 
 def test_the_predictive_controller_in_a_lockstep_graph_equals_the_runner(tmp_path) -> None:
-    """The built-in predictive kind (planned windows, coil replica) runs in the controller node bit for bit."""
-    doc = load_yaml(REPO / "config" / "propulsion_insert_small_artery.yaml")
-    doc["name"] = "insert_predictive"
-    doc["controller"] = {"kind": "predictive"}
-    doc["sim"].update(duration_s=0.3, metrics_after_s=0.1)
-    path = tmp_path / "insert_predictive.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    pure = run_closed_loop(load_scenario(path, seed=2))
+    """The built-in predictive kind (planned windows, coil replica) runs in the controller node bit for bit,
+    switched on by ``vesselbot run --set`` (the one override path, as ``vesselbot simulate`` has it)."""
+    sets = ["controller.kind=predictive", "controller.pieces=3", "sim.metrics_after_s=0.1"]
+    config = REPO / "config" / "propulsion_insert_small_artery.yaml"
+    scenario = load_scenario(config, sets=sets, duration=0.3, seed=2)
+    assert scenario.controller.pieces == 3
+    pure = run_closed_loop(scenario)
     assert pure.path == "compiled" and any(pure.timeseries["g_cmd"][:, 0] != 0.0)
     out = tmp_path / "run.json"
-    run = _cli("run", "--config", str(path), "--seed", "2", "--no-record", "--quiet", "--metrics-json", str(out))
+    run = _cli("run", "--config", str(config), "--duration", "0.3", "--seed", "2", *(a for s in sets for a in ("--set", s)),
+               "--no-record", "--quiet", "--metrics-json", str(out))
     assert run.returncode == 0, run.stdout + run.stderr
     ros = json.loads(out.read_text())
     for k, v in pure.metrics.items():

@@ -36,7 +36,8 @@ from typing import Any
 
 import vesselbot_ros
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
-from vesselbot_ros.config import ConfigError, load_yaml
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.config import apply_overrides as config_apply_overrides
 from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
 from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
@@ -56,6 +57,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="lockstep: deterministic, as fast as the graph allows; realtime: wall-clock plant")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="override sim.duration_s (s)")
     parser.add_argument("--seed", type=int, default=None, metavar="N", help="override the scenario seed")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario value, dotted key, YAML value (as vesselbot simulate; e.g. "
+                             "controller.kind=predictive); repeatable")
     parser.add_argument("--real-time-factor", type=float, default=1.0, metavar="F",
                         help="sim seconds per wall second in realtime mode (default 1)")
     parser.add_argument("--without", action="append", default=[], choices=ROLES_CHOICES, metavar="NODE",
@@ -149,13 +153,17 @@ def validate_args(args: argparse.Namespace) -> None:
 
 
 def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int | None) -> dict[str, Any]:
-    """Apply ``--duration`` / ``--seed`` to a scenario mapping (validated later)."""
-    out = json.loads(json.dumps(mapping))
+    """``--duration`` / ``--seed`` applied to a scenario mapping (validated later), through the one override path.
+
+    For callers that hold a mapping (tests, benches); ``vesselbot run`` itself loads with
+    :func:`vesselbot_ros.sim.scenario.load_scenario`, which applies the same keys and ``--set``.
+    """
+    overrides: dict[str, Any] = {}
     if duration is not None:
-        out.setdefault("sim", {})["duration_s"] = duration
+        overrides["sim.duration_s"] = duration
     if seed is not None:
-        out["seed"] = seed
-    return out
+        overrides["seed"] = seed
+    return config_apply_overrides(mapping, overrides)
 
 
 def _versions() -> dict[str, str]:
@@ -170,11 +178,12 @@ def _versions() -> dict[str, str]:
 def run(args: argparse.Namespace) -> int:
     """Run the graph (see module docstring)."""
     # deferred: the scenario module pulls in the compiled core (numba); `vesselbot run --help` imports this module
-    from vesselbot_ros.sim.scenario import check_resources, scenario_from_mapping
+    from vesselbot_ros.sim.scenario import check_resources, load_scenario
 
     # 1. validate everything before touching the disk or starting anything
     validate_args(args)
-    scenario = scenario_from_mapping(apply_overrides(load_yaml(args.config), args.duration, args.seed))
+    # the one config path of every command: --set, --duration and --seed as vesselbot simulate applies them
+    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
     record = not args.no_record
     # a run that does not fit in memory or on disk is refused here, one line naming the keys
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
