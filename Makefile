@@ -26,8 +26,13 @@ run: bootstrap
 ## bound wall time tightly (marker `wallclock`: real-time runs, process-exit deadlines, replay timing) run alone, last.
 INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not wallclock" --durations=8 $(PYTEST_ARGS) \
 	&& $(PY) -m pytest test/integration -q -m wallclock --durations=4 $(PYTEST_ARGS)
+## The live view's unit tests (a Foxglove server, native code) run in a fresh process of their own, as the
+## live view does in use (the recorder node, `vesselbot replay --live`): after half the unit suite in one
+## worker, that worker was seen to die at the server's first test (2 of 6 clean-clone runs; never alone).
+UNIT = $(PY) -m pytest test/unit -q -n 2 --ignore=test/unit/test_live.py $(PYTEST_ARGS) \
+	&& $(PY) -m pytest test/unit/test_live.py -q $(PYTEST_ARGS)
 test: bootstrap lint
-	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS) && $(INTEGRATION)
+	@$(UNIT) && $(INTEGRATION)
 
 ## Static checks (configuration in pyproject.toml): ruff over the code, tests and tools, then mypy over the
 ## package (incremental, cache in .mypy_cache: a few seconds when little changed).  `make test` runs it first.
@@ -35,7 +40,7 @@ lint: bootstrap
 	@$(PY) -m ruff check --quiet vesselbot_ros test tools bench examples && $(PY) -m mypy
 
 test-unit: bootstrap
-	@$(PY) -m pytest test/unit -q -n 2 $(PYTEST_ARGS)
+	@$(UNIT)
 
 test-integration: bootstrap
 	@$(INTEGRATION)
