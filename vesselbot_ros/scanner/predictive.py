@@ -54,7 +54,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.config import ConfigError, check_choice, check_positive
+from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
 from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimits, coil_params
 from vesselbot_ros.control.backstepping import (
     FLOW_SCALE_INVALID,
@@ -67,14 +67,13 @@ from vesselbot_ros.control.backstepping import (
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_V_F, forces_into, network_geometry, wall_delta_xz
-from vesselbot_ros.scanner.sequence import SequenceParams, phase_code, sequence_vector
+from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
 
 __all__ = ["PredictiveParams", "PredictiveController", "predictive_command", "predictive_step", "STATUS_NAMES"]
 
 STATUS_NAMES = ("ok", "stale", "nonfinite")
 _CODE_PROPULSION = 3  # scanner.sequence.PHASE_CODES["propulsion"]
-_EPS_S = 1e-9
 _ERR_SCALE_M = 1e-4  # residuals in units of 100 um (the imager's noise): a well-scaled least-squares problem
 
 
@@ -111,11 +110,9 @@ class PredictiveParams:
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("predictive",))
-        for name in ("pieces", "iterations", "max_horizon_ticks"):
-            value = getattr(self, name)
-            if not 1 <= value <= (8 if name == "pieces" else 20 if name == "iterations" else 5000):
-                raise ConfigError(f"{name} must be in [1, {8 if name == 'pieces' else 20 if name == 'iterations' else 5000}], "
-                                  f"got {value!r}")
+        check_range("pieces", self.pieces, 1, 8)
+        check_range("iterations", self.iterations, 1, 20)
+        check_range("max_horizon_ticks", self.max_horizon_ticks, 1, 5000)
         check_positive("regularization", self.regularization)
         check_positive("horizon_s", self.horizon_s)
         check_positive("replan_period_s", self.replan_period_s)
@@ -130,17 +127,28 @@ class PredictiveParams:
 #       coil prm (4), sequence sv (7)]
 _P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV = (
     0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15)
-_PRM_SIZE = 22
-# state: [coil replica (4), plan start time, ticks per piece, last age, has plan (0/1), ticks planned for the window,
+# state: [coil replica (4), plan start time, ticks per piece, last age, has plan (0/1),
 #         contact (4, zeros: the model's memoryless contact), plan: pieces x (gx, gz)]
-_S_COIL, _S_T0, _S_LEN, _S_AGE, _S_PLAN, _S_R, _S_CONTACT, _S_G = 0, 4, 5, 6, 7, 8, 9, 13
+_S_COIL, _S_T0, _S_LEN, _S_AGE, _S_PLAN, _S_CONTACT, _S_G = 0, 4, 5, 6, 7, 8, 12
 
 
-def _sizes(prm: npt.NDArray[np.float64], n_model: int) -> tuple[int, int]:
-    n, hmax = int(prm[_P_N]), int(prm[_P_HMAX])
-    rows = 2 * hmax + 2 + 2 * n
-    # work: scaled model | residual | 2n columns | normal matrix (2n x 2n) | rhs | trial plan | coil out | replica
-    return rows, n_model + rows * (1 + 2 * n) + 4 * n * n + 2 * n + 2 * n + COIL_OUT_SIZE + 4
+@numba.njit(cache=True, nogil=True)
+def _layout(prm, n_model):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The work array's layout: ``(rows, residual, columns, normal matrix, rhs, step, coil out, replica, size)``.
+
+    work: scaled model (``n_model``) | residual (``rows``) | 2n columns (``rows`` each) | normal matrix
+    (2n x 2n) | rhs (2n) | step (2n) | coil out | coil replica (4).
+    """
+    m = 2 * int(prm[_P_N])
+    rows = 2 * int(prm[_P_HMAX]) + 2 + m
+    off_r = n_model
+    off_cols = off_r + rows
+    off_a = off_cols + rows * m
+    off_b = off_a + m * m
+    off_x = off_b + m
+    off_cout = off_x + m
+    off_rep = off_cout + COIL_OUT_SIZE
+    return rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_rep + 4
 
 
 @numba.njit(cache=True, nogil=True)
@@ -184,7 +192,7 @@ def _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0,
     coil = prm[_P_COIL:_P_COIL + 4]
     sv = prm[_P_SV:_P_SV + 7]
     rep = work[off_rep:off_rep + 4]
-    cout = work[off_cout:off_cout + 7]
+    cout = work[off_cout:off_cout + COIL_OUT_SIZE]
     contact = state[_S_CONTACT:_S_CONTACT + 4]
     for i in range(4):
         rep[i] = state[_S_COIL + i]
@@ -265,16 +273,8 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
     """Gauss-Newton on the plan in ``state`` (``n_win`` window ticks, ``n_hor`` predicted); False if it is not finite."""
     n = int(prm[_P_N])
     m = 2 * n
-    hmax = int(prm[_P_HMAX])
-    rows = 2 * hmax + 2 + m
     used = 2 * n_hor + 2 + m
-    off_r = n_model
-    off_cols = off_r + rows
-    off_a = off_cols + rows * m
-    off_b = off_a + m * m
-    off_x = off_b + m
-    off_cout = off_x + m
-    off_rep = off_cout + 7
+    rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, _size = _layout(prm, n_model)
     piece_len = (n_win + n - 1) // n
     if piece_len < 1:
         piece_len = 1
@@ -343,7 +343,6 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
             return False
     state[_S_T0] = t
     state[_S_LEN] = piece_len
-    state[_S_R] = n_win
     state[_S_PLAN] = 1.0
     return True
 
@@ -384,9 +383,7 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
         else:
             elapsed = int(math.floor((t - state[_S_T0]) / dt + 0.5)) if state[_S_PLAN] > 0.5 else 0
             if multiplexed:
-                period = sv[6]
-                rel = t - sv[5]
-                tau = rel - math.floor((rel + _EPS_S) / period) * period
+                _period, tau = cycle_at(sv, t)  # in a propulsion window: after start_s
                 n_win = int(math.floor((sv[1] + sv[2] + sv[3] - tau) / dt + 0.5))
                 n_hor = n_win + int(math.floor((sv[1] + 2.0 * sv[2]) / dt + 0.5))
                 replan = state[_S_PLAN] < 0.5 or new_frame
@@ -417,7 +414,8 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
                 c1 = state[_S_G + 2 * j + 1]
     state[_S_AGE] = age
     # the coil replica takes the command the coil takes (the compiled sequence gate, saturation and slew)
-    cout = work[work.shape[0] - 11:work.shape[0] - 4]
+    off_cout = _layout(prm, n_model)[6]
+    cout = work[off_cout:off_cout + COIL_OUT_SIZE]
     seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[_S_COIL:_S_COIL + 4], t, c0, c1, cout)
     out[0] = c0
     out[1] = c1
@@ -443,7 +441,7 @@ predictive_step = lazy_step(_predictive_step)
 
 def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: SequenceParams,
                       dt_s: float) -> npt.NDArray[np.float64]:
-    """The (21,) parameter vector of :func:`predictive_command`.
+    """The (22,) parameter vector of :func:`predictive_command`.
 
     Raises:
         ConfigError: a propulsion window and its coast longer than ``max_horizon_ticks``.
@@ -484,8 +482,7 @@ class PredictiveController:
         self.state = np.zeros(_S_G + 2 * params.pieces)
         self.state[_S_COIL:_S_COIL + 4] = (0.0, 0.0, -dt_s, -dt_s)  # the coil stage's start (idle before t = 0)
         self.state[_S_AGE] = math.inf
-        _rows, size = _sizes(self.prm, model_p.shape[0])
-        self.work = np.zeros(size)
+        self.work = np.zeros(_layout(self.prm, model_p.shape[0])[8])
         self.fbuf = np.empty((8, 2))
         self._out = np.zeros(6)
 

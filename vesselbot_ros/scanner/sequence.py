@@ -49,6 +49,7 @@ __all__ = [
     "sequence_vector",
     "phase_code",
     "phase_codes",
+    "cycle_at",
     "tracking_window_at",
     "PhaseWindow",
     "window_at",
@@ -134,7 +135,8 @@ def sequence_vector(params: SequenceParams) -> npt.NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _cycle_c(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def cycle_at(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(period index, time into that period (s))`` at ``t_s``; index -1 before ``start_s``."""
     rel = t_s - sv[5]
     if rel < -_EPS_S:
         return -1, rel
@@ -147,7 +149,7 @@ def phase_code(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel: argume
     """:data:`PHASE_CODES` of the phase at ``t_s`` (finite); see :func:`phase_at`."""
     if sv[0] < 0.5:
         return _CODE_CONTINUOUS
-    n, tau = _cycle_c(sv, t_s)
+    n, tau = cycle_at(sv, t_s)
     if n < 0:
         return _CODE_DEAD
     t_t = sv[1]
@@ -176,7 +178,7 @@ def tracking_window_at(sv, t_s):  # type: ignore[no-untyped-def]  # numba kernel
     """``(index, start, end, t_acq, t_deliver)`` of the tracking window containing ``t_s``; index -1 if none."""
     if sv[0] < 0.5 or phase_code(sv, t_s) != _CODE_TRACKING:
         return -1, 0.0, 0.0, 0.0, 0.0
-    n, _tau = _cycle_c(sv, t_s)
+    n, _tau = cycle_at(sv, t_s)
     start = sv[5] + n * sv[6]
     end = start + sv[1]
     return n, start, end, 0.5 * (start + end), end + sv[4]
@@ -187,7 +189,7 @@ def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]  # num
     """:func:`propulsion_limit` for valid arguments (compiled)."""
     if sv[0] < 0.5:
         return sat
-    n, tau = _cycle_c(sv, t_s)
+    n, tau = cycle_at(sv, t_s)
     if n < 0:
         return 0.0
     p0 = sv[1] + sv[2]
@@ -269,7 +271,7 @@ def window_at(params: SequenceParams, t_s: float) -> PhaseWindow:
     if params.mode == "continuous":
         return PhaseWindow("continuous", -1, 0.0, math.inf)
     _check_time(t_s)
-    n, tau = _cycle_c(sequence_vector(params), float(t_s))
+    n, tau = cycle_at(sequence_vector(params), float(t_s))
     if n < 0:
         return PhaseWindow("dead", -1, -math.inf, params.start_s)
     t0 = params.start_s + n * params.period_s
