@@ -358,6 +358,7 @@ class SteppedOurs:
         from simulation_interfaces.msg import SimulationState
 
         from vesselbot_ros.graph_spec import import_type, resolve, service
+        from vesselbot_ros.nodes.calls import prime
         from vesselbot_ros.ros_env import allocate_domain, apply_to_process, ros_environment
 
         with allocate_domain() as lease:  # the launcher leases it again for the run; our client joins it
@@ -388,6 +389,10 @@ class SteppedOurs:
                 if state is not None and state.state.state == SimulationState.STATE_PAUSED:
                     break
             self._ex.spin_once(timeout_sec=0.1)
+        # the step client's first call is a refused one (0 steps): a loaded machine can drop a fresh client's answer
+        if prime(self._step, self._step.srv_type.Request(steps=0), 60.0,
+                 spin=lambda dt: self._ex.spin_once(timeout_sec=dt)) is None:
+            raise SystemExit("bench: StepSimulation never answered")
 
     def _call(self, cli, req, timeout: float):
         fut = cli.call_async(req)

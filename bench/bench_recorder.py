@@ -34,7 +34,7 @@ from vesselbot_ros.bag.reader import open_bag
 from vesselbot_ros.bag.synthetic import tick_messages
 from vesselbot_ros.graph_spec import TOPICS, qos_profile, topic
 from vesselbot_ros.nodes.recorder_node import FLUSH_SERVICE, recorder_command
-from vesselbot_ros.testing import NodeProcess, isolated_ros, spin_until
+from vesselbot_ros.testing import NodeProcess, call_service, isolated_ros, spin_until
 
 DIAGNOSTICS = topic("diagnostics").name
 
@@ -77,9 +77,8 @@ def bench_rate(ros, work: Path, rate_hz: float, duration_s: float, compression: 
         recorded = -1
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
-            fut = client.call_async(Trigger.Request())
-            spin_until(ex, fut.done, 10)
-            counts = json.loads(fut.result().message)
+            answer = call_service(ex, client, Trigger.Request(), 10)  # a flush again changes nothing
+            counts = json.loads(answer.message) if answer is not None else {}
             recorded = sum(v for k, v in counts.items() if k in pubs and k != DIAGNOSTICS)
             if recorded >= published:
                 break

@@ -7,6 +7,10 @@
   domain and stops it cleanly (SIGINT, then SIGKILL after a deadline).
 * :func:`spin_until` spins an executor until a predicate holds or a deadline
   passes: every wait in a test is bounded.
+* :func:`call_service` calls a service and spins until the answer: a
+  request whose repetition changes nothing is sent again until answered (a
+  loaded machine can drop a fresh client's first answer:
+  :mod:`vesselbot_ros.nodes.calls`).
 * :func:`fill_message` sets every field of a message to a distinct,
   non-default value, for round-trip tests.
 
@@ -31,9 +35,10 @@ from pathlib import Path
 from typing import Any
 
 from vesselbot_ros.launch.processes import ChildProcess
+from vesselbot_ros.nodes.calls import Resend
 from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 
-__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "spin_node", "fill_message"]
+__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "call_service", "spin_node", "fill_message"]
 
 
 @dataclass
@@ -93,6 +98,24 @@ def spin_until(executor: Any, predicate: Callable[[], bool], timeout: float, ste
             return True
         executor.spin_once(timeout_sec=step)
     return predicate()
+
+
+def call_service(executor: Any, client: Any, request: Any, timeout: float, idempotent: bool = True) -> Any:
+    """Call ``client`` with ``request`` and spin ``executor`` until the answer; return it (``None`` after ``timeout``).
+
+    ``idempotent`` (the request may run twice: a query, a refused request, a
+    state the server is in): sent again until one answer arrives.  Else sent
+    once: make the client's first call an idempotent one
+    (:func:`vesselbot_ros.nodes.calls.prime`), or its answer can be lost.
+    """
+    if idempotent:
+        call = Resend.service(client, request)
+        return call.result() if spin_until(executor, call.done, timeout) else None
+    fut = client.call_async(request)
+    if spin_until(executor, fut.done, timeout):
+        return fut.result()
+    client.remove_pending_request(fut)
+    return None
 
 
 def spin_node(node: Any) -> int:

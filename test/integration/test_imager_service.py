@@ -35,7 +35,7 @@ def imager_session(tmp_path_factory):
     from vesselbot_msgs.srv import InjectFault
 
     from vesselbot_ros.graph_spec import qos_profile, topic
-    from vesselbot_ros.testing import isolated_ros, spin_until
+    from vesselbot_ros.testing import call_service, isolated_ros, spin_until
 
     tmp = tmp_path_factory.mktemp("imager_srv")
     with isolated_ros(tmp) as ros:
@@ -62,10 +62,13 @@ def imager_session(tmp_path_factory):
                 assert spin_until(ex, lambda: len(meas) == k + 1, timeout=10), (k, proc.output())
 
             def call(kind: int, start: float, duration: float, magnitude: float) -> object:
-                fut = cli.call_async(InjectFault.Request(kind=kind, start_time=start, duration=duration,
-                                                         magnitude=magnitude))
-                assert spin_until(ex, fut.done, timeout=10)
-                return fut.result()
+                answer = call_service(ex, cli, InjectFault.Request(kind=kind, start_time=start, duration=duration,
+                                                                   magnitude=magnitude), 10, idempotent=False)
+                assert answer is not None
+                return answer
+
+            # the client's first call: a refused fault, harmless if sent twice (a fresh client's answer can be lost)
+            assert not call_service(ex, cli, InjectFault.Request(kind=7, start_time=0.0, duration=0.01), 10).accepted
 
             for k in range(BURST_TICKS[0]):
                 tick(k)

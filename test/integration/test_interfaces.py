@@ -12,7 +12,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from vesselbot_msgs import msg as vm  # noqa: E402
 from vesselbot_msgs import srv as vs  # noqa: E402
 
-from vesselbot_ros.testing import NodeProcess, fill_message, spin_until  # noqa: E402
+from vesselbot_ros.testing import NodeProcess, call_service, fill_message, spin_until  # noqa: E402
 
 PEER = Path(__file__).with_name("echo_peer.py")
 MESSAGES = ["PlantState", "ForceBreakdown", "ReferenceSample", "CoilState"]
@@ -51,16 +51,12 @@ def test_every_custom_message_and_service_round_trips_between_processes(ros, tmp
             assert received[name][0] == sent[name], name
 
         req = vs.InjectFault.Request(kind=vs.InjectFault.Request.DROPOUT, start_time=0.5, duration=0.25, magnitude=1e-3)
-        fut = inject.call_async(req)
-        assert spin_until(ex, fut.done, timeout=20)
-        resp = fut.result()
+        resp = call_service(ex, inject, req, timeout=20)  # the peer echoes: sending it again changes nothing
         assert resp.accepted is True
         assert resp.effective_start_time == pytest.approx(1.5)
         assert resp.message == "kind=1 duration=0.25 magnitude=0.001"
 
-        fut = control.call_async(vs.RunControl.Request(command=vs.RunControl.Request.STATUS))
-        assert spin_until(ex, fut.done, timeout=20)
-        resp = fut.result()
+        resp = call_service(ex, control, vs.RunControl.Request(command=vs.RunControl.Request.STATUS), timeout=20)
         assert (resp.success, resp.tick, resp.finished, resp.sim_time) == (True, 1500, True, 1.5)
         assert resp.message == "command=4"
     node.destroy_node()

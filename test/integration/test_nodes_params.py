@@ -62,7 +62,7 @@ def test_parameters_are_read_only_after_start(ros, tmp_path):
     from rcl_interfaces.srv import SetParameters
 
     from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, NODE_NAMES
-    from vesselbot_ros.testing import NodeProcess, spin_until
+    from vesselbot_ros.testing import NodeProcess, call_service, spin_until
 
     node = rclpy.create_node("param_probe", context=ros.context)
     ex = rclpy.executors.SingleThreadedExecutor(context=ros.context)
@@ -72,9 +72,10 @@ def test_parameters_are_read_only_after_start(ros, tmp_path):
         assert spin_until(ex, client.service_is_ready, 60), ctl.output()
         for name, value in (("controller.gains.k1", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=9.0)),
                             ("graph.mode", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="realtime"))):
-            fut = client.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
-            assert spin_until(ex, fut.done, 30)
-            result = fut.result().results[0]
+            answer = call_service(ex, client, SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]),
+                                  30)  # refused: sending it again changes nothing
+            assert answer is not None
+            result = answer.results[0]
             assert not result.successful, name
             assert "read-only" in result.reason.lower() or "read only" in result.reason.lower(), result.reason
     ex.shutdown()

@@ -16,7 +16,7 @@ from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
 from vesselbot_ros.bag.repair import repair_bag  # noqa: E402
 from vesselbot_ros.errors import BagError  # noqa: E402
 from vesselbot_ros.nodes.recorder_node import FLUSH_SERVICE, recorder_command  # noqa: E402
-from vesselbot_ros.testing import NodeProcess, spin_until  # noqa: E402
+from vesselbot_ros.testing import NodeProcess, call_service, spin_until  # noqa: E402
 
 PEER = Path(__file__).with_name("graph_publisher_peer.py")
 META = {"scenario": "synthetic", "seed": 3, "mode": "lockstep", "config": {"a": {"b": "it's quoted"}},
@@ -31,10 +31,8 @@ def _probe(ros):
 
 
 def _flush(ex, client) -> dict[str, int]:
-    fut = client.call_async(Trigger.Request())
-    assert spin_until(ex, fut.done, timeout=10)
-    resp = fut.result()
-    assert resp.success, resp.message
+    resp = call_service(ex, client, Trigger.Request(), timeout=10)  # a flush again changes nothing
+    assert resp is not None and resp.success, resp
     return json.loads(resp.message)
 
 

@@ -58,6 +58,7 @@ from vesselbot_ros.graph_spec import (
 )
 from vesselbot_ros.launch.monitor import Monitor
 from vesselbot_ros.launch.supervision import NodeDied, Supervisor, wait_for
+from vesselbot_ros.nodes.calls import Resend
 from vesselbot_ros.nodes.graph_params import GraphParams
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
 from vesselbot_ros.nodes.recorder_node import recorder_command
@@ -407,15 +408,15 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
                      "the plant's simulation_interfaces services")
             req = mon.set_simulation_state.srv_type.Request()  # type: ignore[attr-defined]  # rclpy's SrvType stub has no Request
             req.state.state = SimulationState.STATE_PAUSED
-            fut = mon.set_simulation_state.call_async(req)
-            wait_for(fut.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")
+            paused = Resend.service(mon.set_simulation_state, req)  # already paused: the same answer
+            wait_for(paused.done, options.wait_timeout_s, mon, sup, "SetSimulationState PAUSED")
             if options.on_paused is not None:
                 options.on_paused()
         else:
             from vesselbot_msgs.srv import RunControl  # deferred: a message package (see rclpy above)
 
-            fut = mon.run_control.call_async(RunControl.Request(command=RunControl.Request.START))
-            wait_for(fut.done, options.wait_timeout_s, mon, sup, "RunControl START")
+            started = Resend.service(mon.run_control, RunControl.Request(command=RunControl.Request.START))
+            wait_for(started.done, options.wait_timeout_s, mon, sup, "RunControl START")  # again: 'already started'
         t_start = time.monotonic()
         _watch(mon, sup, roles, options, scenario, t_start)
         t_end = time.monotonic()

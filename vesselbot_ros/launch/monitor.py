@@ -34,6 +34,7 @@ from vesselbot_ros.graph_spec import (
     service,
     topic,
 )
+from vesselbot_ros.nodes.calls import Resend
 from vesselbot_ros.nodes.recorder_node import LIVE_URL_KEY
 from vesselbot_ros.nodes.series import SeriesLog, empty_series, series_from_response
 from vesselbot_ros.nodes.wire import codec_for
@@ -113,7 +114,7 @@ class Monitor:
         self.series_clients = {
             r: self.node.create_client(GetSeries, service(series_service_key(r)).rel)
             for r in LOOP_ROLES if r not in self.user_roles and series_service_key(r) in role(r).services}
-        self._series_futures: dict[str, Any] = {}
+        self._series_futures: dict[str, Resend] = {}
 
     def _user_callback(self, key: str) -> Any:
         name = topic(key).name
@@ -177,7 +178,7 @@ class Monitor:
         """Ask each of our nodes for its run series (after the run); :meth:`series_ready` tells when all came."""
         from vesselbot_msgs.srv import GetSeries  # deferred: a message package (see __init__)
 
-        self._series_futures = {r: c.call_async(GetSeries.Request()) for r, c in self.series_clients.items()}
+        self._series_futures = {r: Resend.service(c, GetSeries.Request()) for r, c in self.series_clients.items()}
 
     def series_ready(self) -> bool:
         """True once every node asked by :meth:`request_series` answered."""

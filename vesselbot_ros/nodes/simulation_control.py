@@ -39,6 +39,7 @@ from simulation_interfaces.srv import ResetSimulation, SetSimulationState
 from std_srvs.srv import Trigger
 
 from vesselbot_ros.graph_spec import ROLES, SIMULATION_NODE, import_type, reset_service_key, service
+from vesselbot_ros.nodes.calls import Resend
 
 __all__ = ["SimulationControl", "features", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
 
@@ -213,11 +214,10 @@ class SimulationControl:
         for name, client in self._reset_clients.items():
             if not client.wait_for_service(timeout_sec=2.0):
                 return f"node {name} does not serve {client.srv_name} (a node of your own in its slot?)"
-            fut = client.call_async(Trigger.Request())
-            done = threading.Event()
-            fut.add_done_callback(lambda _f, done=done: done.set())
-            if not done.wait(RESET_TIMEOUT_S) or fut.result() is None or not fut.result().success:
-                msg = fut.result().message if fut.done() and fut.result() is not None else "no answer"
+            call = Resend.service(client, Trigger.Request())  # a second reset of a held node changes nothing
+            answered = call.wait(RESET_TIMEOUT_S)  # this executor's other threads spin the answer in
+            if not answered or call.result() is None or not call.result().success:
+                msg = call.result().message if answered and call.result() is not None else "no answer"
                 return f"node {name} did not reset: {msg}"
         p.restart(then)
         return ""
