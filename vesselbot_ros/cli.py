@@ -37,6 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("vesselbot_ros.launch.replay_cli", "republish a recorded bag"),
     "report": ("vesselbot_ros.bag.report_cli", "figures and metrics from a bag"),
     "campaign": ("vesselbot_ros.campaign.campaign_cli", "Monte-Carlo runs and parameter sweeps on Dask (campaign report DIR: redraw)"),
+    "plan": ("vesselbot_ros.analysis.plan_cli",
+             "a reference the scanner can fly: re-timed, at the height the coil can hold, with its margins"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
                       "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
 }

@@ -75,7 +75,7 @@ from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
-__all__ = ["PAIRS", "StudyCell", "study_cells", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
+__all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
            "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "feasibility"]
 
 PAIRS: dict[str, dict[str, Any]] = {
@@ -125,6 +125,20 @@ def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def preset_changes(name: str, **sequence: Any) -> dict[str, Any]:
+    """A hardware preset as dotted-key changes to a scenario: its coil, its whole sequence (``sequence`` keys
+    replace the preset's), no imager latency of its own (the sequence's latency is the scanner's)."""
+    if name not in PRESETS:
+        raise ConfigError(f"hardware must be one of {sorted(PRESETS)}, got {name!r}")
+    hw = PRESETS[name]
+    seq = {f.name: getattr(hw.sequence, f.name) for f in dataclasses.fields(SequenceParams)}
+    seq.update(sequence)
+    return {**_flat("sequence.", seq),
+            "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
+            "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
+            "imager.latency_s": 0.0}
+
+
 def cell_changes(cell: StudyCell) -> dict[str, Any]:
     """The cell's changes to the base scenario as dotted keys (a campaign variant).
 
@@ -132,17 +146,14 @@ def cell_changes(cell: StudyCell) -> dict[str, Any]:
     coil's saturation and slew, no imager latency (the sequence's latency is the
     cell's), and the pair's observer and controller keys.
     """
-    hw = PRESETS[cell.hardware]
-    seq = hw.sequence
+    seq = PRESETS[cell.hardware].sequence
     tracking = cell.tracking_window_s if cell.tracking_window_s is not None else (
         seq.tracking_window_s if seq.mode == "multiplexed" else 0.02)
-    sequence = {f.name: f.default for f in dataclasses.fields(SequenceParams)}
-    sequence.update(mode="multiplexed", tracking_window_s=tracking, dead_time_s=seq.dead_time_s,
-                    propulsion_window_s=cell.propulsion_window_s, latency_s=cell.latency_s)
-    return {**_flat("sequence.", sequence),
-            "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
-            "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
-            "imager.latency_s": 0.0,
+    defaults = {f.name: f.default for f in dataclasses.fields(SequenceParams)}
+    return {**preset_changes(cell.hardware, **{**defaults, "mode": "multiplexed", "tracking_window_s": tracking,
+                                               "dead_time_s": seq.dead_time_s,
+                                               "propulsion_window_s": cell.propulsion_window_s,
+                                               "latency_s": cell.latency_s}),
             **_flat("", PAIRS[cell.pair])}
 
 

@@ -17,7 +17,17 @@ which is how the paper "rescales the reference velocity along this path":
   ``F_m/F_tot < 1``.  The ODE is integrated once on a 2 ms grid by the
   classical fourth-order Runge-Kutta method (scipy's RK45 computes its stages
   with BLAS ``gemv``, whose rounding depends on the CPU's kernel) and ``u(t)``
-  is interpolated by FITPACK's not-a-knot cubic spline, so it is C2 too.
+  is interpolated by FITPACK's not-a-knot cubic spline, so it is C2 too;
+* ``planned``: ``u(t)`` given as a table (``planned_t_s``, ``planned_u_m``),
+  interpolated the same way: what ``vesselbot plan``
+  (:mod:`vesselbot_ros.analysis.plan`) writes, a timing the coil can fly.
+
+``wall_follow`` (one weight in [0, 1] per anchor) lets the reference ride
+the lower wall of the pulsating straight vessel: the point moves down by
+``m(u) (D(t) - D) / 2`` where ``m`` blends the anchors' weights by the quintic
+smoothstep between consecutive anchors (C2, never outside the two weights).
+With weight 1 and the anchor at ``z = -(D/2 - r - gap)`` the reference rests
+on the wall at every phase, where the wall carries the bead's weight.
 
 ``X_ref = P(u)``, ``Xd_ref = P'(u) u'``, ``Xdd_ref = P''(u) u'^2 + P'(u) u''``.
 Outside ``[t_start, t_start + T]`` the reference holds its end point with zero
@@ -29,7 +39,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -46,9 +56,33 @@ __all__ = [
     "RefSample",
     "ReferenceTrajectory",
     "propose_anchors",
+    "lower_wall_shift",
+    "wall_shift_of",
 ]
 
 FlowVelocityFn = Callable[[float, npt.NDArray[np.float64]], float]
+#: ``t (n,) -> (h, dh/dt, d2h/dt2)``: how far the straight vessel's lower wall moved down, ``(D(t) - D) / 2`` (m).
+WallShiftFn = Callable[[npt.NDArray[np.float64]], tuple[npt.NDArray[np.float64], ...]]
+
+
+def lower_wall_shift(diameter_m: float, pulsation: float, omega_rad_per_s: float, phase_rad: float) -> WallShiftFn:
+    """The lower wall's displacement of eq. (13)'s pulsating vessel, ``D(t) = D (1 + A sin(w t + phi))``."""
+    amp = 0.5 * diameter_m * pulsation
+
+    def shift(t: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+        arg = omega_rad_per_s * t + phase_rad
+        s, c = np.sin(arg), np.cos(arg)
+        return amp * s, amp * omega_rad_per_s * c, -amp * omega_rad_per_s**2 * s
+
+    return shift
+
+
+def wall_shift_of(physics: Any) -> WallShiftFn | None:
+    """:func:`lower_wall_shift` of a ``PhysicsParams``'s straight vessel; ``None`` in a network (no one lower wall)."""
+    if physics.vessel.network:
+        return None
+    f = physics.flow
+    return lower_wall_shift(physics.vessel.diameter_m, f.diameter_pulsation, f.angular_frequency_rad_per_s, f.phase_rad)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,8 +94,12 @@ class ReferenceParams:
         anchors_z_m: z of the anchor points (m), same length (0 = centreline).
         duration_s: Time ``T`` to run along the whole path (s).
         start_s: Time at which the reference leaves the first anchor (s).
-        timing: ``constant``, ``rest_to_rest`` or ``flow_synchronised``.
+        timing: ``constant``, ``rest_to_rest``, ``flow_synchronised`` or ``planned``.
         sync_ratio: ``c`` in ``dx_ref/dt = c v_f`` (flow_synchronised only).
+        planned_t_s: ``planned`` timing: times from ``start_s`` (s), from 0 to ``duration_s``, increasing.
+        planned_u_m: ``planned`` timing: the path parameter at those times (m), from 0 to the path's length.
+        wall_follow: Per anchor, the share of the lower wall's pulsation the
+            reference follows, in [0, 1] (straight vessel only); ``()``: none.
         route_outlet: In a vessel network (``physics.vessel.network``): the
             target outlet branch; the anchors are then planned along the route
             from the start point (:mod:`vesselbot_ros.control.route`) and
@@ -76,8 +114,11 @@ class ReferenceParams:
     anchors_z_m: tuple[float, ...] = (1e-3, 0.9e-3, 1e-3, 0.9e-3)
     duration_s: float = 2.0
     start_s: float = 0.0
-    timing: Literal["constant", "rest_to_rest", "flow_synchronised"] = "constant"
+    timing: Literal["constant", "rest_to_rest", "flow_synchronised", "planned"] = "constant"
     sync_ratio: float = 1.0
+    planned_t_s: tuple[float, ...] = ()
+    planned_u_m: tuple[float, ...] = ()
+    wall_follow: tuple[float, ...] = ()
     route_outlet: str = ""
     kind: Literal["bspline"] = "bspline"
     route_anchor_spacing_m: float = 2.5e-3
@@ -103,12 +144,45 @@ class ReferenceParams:
             raise ConfigError(f"anchors must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
         check_positive("duration_s", self.duration_s)
         check_nonnegative("start_s", self.start_s)
-        check_choice("timing", self.timing, ("constant", "rest_to_rest", "flow_synchronised"))
+        check_choice("timing", self.timing, ("constant", "rest_to_rest", "flow_synchronised", "planned"))
+        self._check_planned()
+        if self.wall_follow and len(self.wall_follow) != len(self.anchors_x_m):
+            raise ConfigError(f"wall_follow must have one weight per anchor ({len(self.anchors_x_m)}), "
+                              f"got {len(self.wall_follow)}")
+        for i, w in enumerate(self.wall_follow):
+            if not (math.isfinite(w) and 0.0 <= w <= 1.0):
+                raise ConfigError(f"wall_follow[{i}] must be in [0, 1], got {w!r}")
         check_choice("kind", self.kind, ("bspline",))
         check_positive("sync_ratio", self.sync_ratio)
         check_positive("route_anchor_spacing_m", self.route_anchor_spacing_m)
         check_nonnegative("route_end_margin_m", self.route_end_margin_m)
         check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
+
+    def _check_planned(self) -> None:
+        t, u = self.planned_t_s, self.planned_u_m
+        if self.timing != "planned":
+            if t or u:
+                raise ConfigError(f"planned_t_s / planned_u_m apply to timing 'planned' only, got timing {self.timing!r}")
+            return
+        if len(t) < 4 or len(u) != len(t):
+            raise ConfigError(f"timing 'planned' needs planned_t_s and planned_u_m of one length >= 4, got {len(t)} "
+                              f"and {len(u)}")
+        for name, vals in (("planned_t_s", t), ("planned_u_m", u)):
+            for i, v in enumerate(vals):
+                check_finite(f"{name}[{i}]", v)
+        if t[0] != 0.0 or u[0] != 0.0:
+            raise ConfigError(f"planned_t_s and planned_u_m must start at 0, got {float(t[0])!r} and {float(u[0])!r}")
+        dt, du = np.diff(t), np.diff(u)
+        if np.any(dt <= 0.0):
+            i = int(np.argmin(dt)) + 1
+            raise ConfigError(f"planned_t_s must increase, got {float(t[i])!r} after {float(t[i - 1])!r} at index {i}")
+        if np.any(du < 0.0):
+            i = int(np.argmin(du)) + 1
+            raise ConfigError(f"planned_u_m must not decrease, got {float(u[i])!r} after {float(u[i - 1])!r} "
+                              f"at index {i}")
+        if abs(t[-1] - self.duration_s) > 1e-9 * max(1.0, self.duration_s):
+            raise ConfigError(f"timing 'planned': duration_s must equal planned_t_s[-1] ({t[-1]!r}), "
+                              f"got {self.duration_s!r}")
 
 
 class RefSample(NamedTuple):
@@ -132,12 +206,17 @@ class ReferenceTrajectory:
         params: Anchors and timing.
         flow_velocity_x: ``v_f(t_s, p_W) -> m/s``, axial blood velocity at a
             point; required for ``timing == "flow_synchronised"``.
+        wall_shift: The lower wall's displacement (:func:`lower_wall_shift`);
+            required when a ``wall_follow`` weight is not 0.
 
     Raises:
-        ConfigError: if ``flow_synchronised`` is asked without a flow function.
+        ConfigError: if ``flow_synchronised`` is asked without a flow function, a
+            wall to follow without its displacement, or a ``planned`` timing that
+            does not end at the path's end.
     """
 
-    def __init__(self, params: ReferenceParams, flow_velocity_x: FlowVelocityFn | None = None) -> None:
+    def __init__(self, params: ReferenceParams, flow_velocity_x: FlowVelocityFn | None = None,
+                 wall_shift: WallShiftFn | None = None) -> None:
         self.params = params
         pts = np.column_stack([params.anchors_x_m, params.anchors_z_m]).astype(np.float64)
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -154,6 +233,18 @@ class ReferenceTrajectory:
             if flow_velocity_x is None:
                 raise ConfigError("reference.timing 'flow_synchronised' needs the blood-flow velocity function")
             self._timing_spline = self._synchronised_timing(flow_velocity_x)
+        elif params.timing == "planned":
+            u_end = params.planned_u_m[-1]
+            if abs(u_end - self.length_m) > 1e-9 * max(self.length_m, 1e-3):
+                raise ConfigError(f"reference.planned_u_m must end at the path's length {self.length_m!r} m, "
+                                  f"got {float(u_end)!r}")
+            self._timing_spline = interp_spline_fitpack(np.asarray(params.planned_t_s, dtype=np.float64),
+                                                        np.asarray(params.planned_u_m, dtype=np.float64))
+        self._follow = np.asarray(params.wall_follow, dtype=np.float64) if any(params.wall_follow) else None
+        if self._follow is not None and wall_shift is None:
+            raise ConfigError("reference.wall_follow needs a straight vessel whose wall pulsates "
+                              "(physics.vessel.network must be empty)")
+        self._wall_shift = wall_shift
 
     def _synchronised_timing(self, vf: FlowVelocityFn) -> BSpline:
         c = self.params.sync_ratio
@@ -204,6 +295,8 @@ class ReferenceTrajectory:
         else:
             assert self._timing_spline is not None
             u = self._timing_spline(tc)
+            if timing == "planned":  # the table's spline may overshoot its ends by rounding
+                u = np.clip(u, 0.0, U)
             du = self._timing_spline(tc, 1)
             ddu = self._timing_spline(tc, 2)
         du = np.where(inside, du, 0.0)
@@ -224,12 +317,40 @@ class ReferenceTrajectory:
         if not np.all(np.isfinite(t)):
             raise ModelInputError("reference times must be finite")
         u, du, ddu = self._timing(t)
+        return self.state(t, u, du, ddu)
+
+    def state(self, t: npt.NDArray[np.float64], u: npt.NDArray[np.float64], du: npt.NDArray[np.float64],
+              ddu: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+        """``(p, v, a)`` (n, 2) at times ``t`` for path parameter ``u`` and its derivatives (what a timing gives)."""
         p = self._path(u)
         d1 = self._d1(u)
         d2 = self._d2(u) if self._d2 is not None else np.zeros_like(d1)
         v = d1 * du[:, None]
         a = d2 * (du**2)[:, None] + d1 * ddu[:, None]
+        if self._follow is not None:
+            assert self._wall_shift is not None
+            m, m_u, m_uu = self.follow_weight(u)
+            h, hd, hdd = self._wall_shift(t)
+            p[:, 1] -= m * h
+            v[:, 1] -= m_u * du * h + m * hd
+            a[:, 1] -= (m_uu * du**2 + m_u * ddu) * h + 2.0 * m_u * du * hd + m * hdd
         return p, v, a
+
+    def follow_weight(self, u: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+        """``(m, dm/du, d2m/du2)`` of the wall-follow weight at path parameter ``u`` (zeros without ``wall_follow``)."""
+        u = np.asarray(u, dtype=np.float64)
+        if self._follow is None:
+            z = np.zeros_like(u)
+            return z, z.copy(), z.copy()
+        knots, w = self.anchor_u_m, self._follow
+        i = np.clip(np.searchsorted(knots, u, side="right") - 1, 0, len(knots) - 2)
+        span = knots[i + 1] - knots[i]
+        s = np.clip((u - knots[i]) / span, 0.0, 1.0)
+        dw = w[i + 1] - w[i]
+        m = w[i] + dw * s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+        m_u = dw * 30.0 * s**2 * (1.0 - s) ** 2 / span
+        m_uu = dw * 60.0 * s * (1.0 - s) * (1.0 - 2.0 * s) / span**2
+        return m, m_u, m_uu
 
     def sample(self, t_s: float) -> RefSample:
         """Reference at time ``t_s`` (s): position, velocity, acceleration.
@@ -241,6 +362,14 @@ class ReferenceTrajectory:
             raise ModelInputError(f"reference time must be finite, got {t_s!r}")
         p, v, a = self.sample_many(np.array([t_s]))
         return RefSample(p[0], v[0], a[0])
+
+    def parameter_at(self, t_s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The path parameter ``u`` (m) at times ``t_s`` (s)."""
+        return np.asarray(self._timing(np.atleast_1d(np.asarray(t_s, dtype=np.float64)))[0])
+
+    def path_point(self, u_m: float) -> npt.NDArray[np.float64]:
+        """The path's point at parameter ``u_m`` (m), without the wall's pulsation."""
+        return np.asarray(self._path(float(u_m)))
 
     def path(self, n: int = 200) -> npt.NDArray[np.float64]:
         """(n, 2) points evenly spaced in the path parameter, m (for a Path message)."""

@@ -63,7 +63,7 @@ import numpy.typing as npt
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
-from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample
+from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
 from vesselbot_ros.control.compiled_stage import CompiledController
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
@@ -503,12 +503,13 @@ def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver:
 
 
 def _reference(ctx: BuildContext) -> ReferenceTrajectory:
-    p_model = packed_params(ctx.get("model_physics"))
+    phys = ctx.get("model_physics")
+    p_model = packed_params(phys)
 
     def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
         return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
 
-    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity_x=flow_x)
+    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity_x=flow_x, wall_shift=wall_shift_of(phys))
 
 
 def _controller(ctx: BuildContext) -> BacksteppingController:

@@ -124,3 +124,63 @@ def test_propose_anchors_picks_best_delta() -> None:
     assert prm.anchors_z_m == pytest.approx((0.0,) * 4, abs=1e-18)
     with pytest.raises(ConfigError, match="n_anchors must be >= 2"):
         propose_anchors(0.0, 1.0, 1, grid, lambda d: 1.0)
+
+
+# ------------------------------------------------------------------ planned timing and wall follow
+def _planned(**kw):
+    ref = ReferenceTrajectory(PARAMS)
+    ts = np.linspace(0.0, 3.0, 61)
+    us = ref.length_m * (ts / 3.0) ** 2 * (3.0 - 2.0 * ts / 3.0)  # a smooth rest-to-rest table
+    return ReferenceParams(**{**PARAMS.__dict__, "timing": "planned", "duration_s": 3.0,
+                              "planned_t_s": tuple(ts), "planned_u_m": tuple(us), **kw})
+
+
+def test_planned_timing_follows_its_table_and_ends_at_the_last_anchor() -> None:
+    params = _planned()
+    ref = ReferenceTrajectory(params)
+    u = ref.parameter_at(np.asarray(params.planned_t_s))
+    np.testing.assert_allclose(u, params.planned_u_m, atol=1e-12)
+    np.testing.assert_allclose(ref.sample(3.0).p, [PARAMS.anchors_x_m[-1], PARAMS.anchors_z_m[-1]], atol=1e-12)
+    np.testing.assert_allclose(ref.sample(3.5).v, 0.0)  # holds its end after the table
+
+
+@pytest.mark.parametrize("follow", [(0.0, 1.0, 1.0, 0.5, 0.0), (1.0,) * 5])
+def test_wall_follow_moves_with_the_wall_and_its_derivatives_are_exact(follow) -> None:
+    from vesselbot_ros.control.bspline_reference import lower_wall_shift
+
+    shift = lower_wall_shift(3e-3, 0.1, 2.0 * math.pi, math.pi / 2.0)
+    still = ReferenceTrajectory(_planned())
+    ref = ReferenceTrajectory(_planned(wall_follow=follow), wall_shift=shift)
+    ts = np.linspace(0.05, 2.95, 30)
+    p0, _, _ = still.sample_many(ts)
+    p, _, _ = ref.sample_many(ts)
+    m, _, _ = ref.follow_weight(ref.parameter_at(ts))
+    h, _, _ = shift(ts)
+    np.testing.assert_allclose(p[:, 0], p0[:, 0])
+    np.testing.assert_allclose(p[:, 1], p0[:, 1] - m * h, atol=1e-15)  # down by the weight times the wall's shift
+    assert np.all((m >= 0.0) & (m <= 1.0))
+    hstep = 1e-5
+    for t in (0.31, 1.27, 2.2):
+        s0, sp, sm = ref.sample(t), ref.sample(t + hstep), ref.sample(t - hstep)
+        np.testing.assert_allclose((sp.p - sm.p) / (2 * hstep), s0.v, rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose((sp.v - sm.v) / (2 * hstep), s0.a, rtol=1e-4, atol=1e-6)
+
+
+def test_planned_timing_and_wall_follow_bad_input() -> None:
+    with pytest.raises(ConfigError, match="duration_s must equal planned_t_s"):
+        _planned(duration_s=2.0)
+    with pytest.raises(ConfigError, match="planned_u_m must not decrease"):
+        ReferenceParams(**{**_planned().__dict__, "planned_u_m": (0.0, 2e-3, 1e-3, 3e-3)[:4],
+                           "planned_t_s": (0.0, 1.0, 2.0, 3.0)})
+    with pytest.raises(ConfigError, match="timing 'planned' only"):
+        ReferenceParams(**{**PARAMS.__dict__, "planned_t_s": (0.0, 1.0)})
+    with pytest.raises(ConfigError, match=r"wall_follow\[1\] must be in \[0, 1\]"):
+        ReferenceParams(**{**PARAMS.__dict__, "wall_follow": (0.0, 1.5, 0.0, 0.0, 0.0)})
+    with pytest.raises(ConfigError, match="one weight per anchor"):
+        ReferenceParams(**{**PARAMS.__dict__, "wall_follow": (0.0, 1.0)})
+    with pytest.raises(ConfigError, match="needs a straight vessel"):
+        ReferenceTrajectory(_planned(wall_follow=(1.0,) * 5))  # no wall displacement given
+    short = _planned()
+    with pytest.raises(ConfigError, match="must end at the path's length"):
+        ReferenceTrajectory(ReferenceParams(**{**short.__dict__,
+                                               "planned_u_m": tuple(0.9 * u for u in short.planned_u_m)}))

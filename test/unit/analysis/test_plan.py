@@ -1,0 +1,128 @@
+"""The planner: its margins hold against an independent evaluation of the force model, and an infeasible path
+is refused with the segment and the acceleration missing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.analysis.plan import PlanInfeasible, PlanOptions, evaluate, make_plan, plan_scenario
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.physics.kernel import diameter_at
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.scenario import load_scenario
+from vesselbot_ros.vessels.cfd import packed_params
+
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def clinical():
+    return load_scenario("clinical_3t_small_artery")
+
+
+@pytest.fixture(scope="module")
+def plans(clinical):
+    return {h: make_plan(clinical, PlanOptions(height=h)) for h in ("wall", "free_insert")
+            if h == "wall"} | {"free_insert": make_plan(
+                load_scenario("clinical_3t_small_artery", sets=["coil.saturation_T_per_m=0.4"]),
+                PlanOptions(height="free"))}
+
+
+def _coil_accel(scenario) -> float:
+    """The duty-averaged acceleration of the saturated coil, from eq. (2) written out here (not input_matrix)."""
+    ph = scenario.physics
+    r = ph.robot
+    rho = r.magnetic_ratio * r.magnetic_density_kg_per_m3 + (1 - r.magnetic_ratio) * r.polymer_density_kg_per_m3
+    seq = scenario.sequence
+    duty = seq.propulsion_window_s / (seq.tracking_window_s + 2 * seq.dead_time_s + seq.propulsion_window_s)
+    return duty * r.magnetic_ratio * r.magnetization_A_per_m * scenario.coil.saturation_T_per_m / rho
+
+
+def _independent_need(scenario, ts):
+    """|a_ref - F| at the reference, evaluated here: a point below the resting height sits on the lower wall
+    (moved there, with the wall's velocity), and the wall takes any upward push."""
+    ref = build_stages(scenario).reference
+    model = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    ph = scenario.physics
+    pk = packed_params(ph)
+    out = []
+    for t in ts:
+        s = ref.sample(float(t))
+        p, v = s.p.copy(), s.v.copy()
+        d = float(diameter_at(float(t), pk))
+        z_rest = -(0.5 * d - ph.robot.radius_m - ph.interactions.brush_length_m)
+        on_wall = p[1] <= z_rest + 1e-9
+        if on_wall:
+            dd = 1e-7  # the wall's velocity by a central difference of D(t)
+            p[1] = z_rest
+            v[1] = -0.5 * (float(diameter_at(float(t) + dd, pk)) - float(diameter_at(float(t) - dd, pk))) / (2 * dd)
+        f = model.F(float(t), p, v)
+        dx, dz = s.a[0] - f[0], s.a[1] - f[1]
+        if on_wall:
+            dz = min(dz, 0.0)
+        out.append(math.hypot(dx, dz))
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize("name", ["wall", "free_insert"])
+def test_margins_agree_with_an_independent_evaluation_of_the_force_model(plans, clinical, name):
+    plan = plans[name]
+    base = clinical if name == "wall" else load_scenario("clinical_3t_small_artery",
+                                                         sets=["coil.saturation_T_per_m=0.4"])
+    scenario = plan_scenario(base, plan.reference)
+    assert plan.a_avail_m_per_s2 == pytest.approx(_coil_accel(scenario), rel=1e-12)
+    rng = np.random.default_rng(7)
+    ts = np.sort(rng.uniform(0.0, plan.end_s, 400))
+    needs = _independent_need(scenario, ts)
+    assert np.all(needs <= plan.a_avail_m_per_s2)  # every sampled point within the coil's budget
+    for seg in plan.segments:  # each segment's need is the largest there (the plan samples every ms)
+        inside = (ts >= seg.t_from_s) & (ts <= seg.t_to_s)
+        if inside.any():
+            assert needs[inside].max() <= seg.need_m_per_s2 * 1.05 + 0.05
+        assert seg.margin_m_per_s2 == pytest.approx(plan.a_avail_m_per_s2 - seg.need_m_per_s2)
+        assert seg.margin_m_per_s2 >= 0.0
+    # at the segment's worst time the independent need is the plan's
+    for seg in plan.segments[::3]:
+        assert _independent_need(scenario, [seg.t_worst_s])[0] == pytest.approx(seg.need_m_per_s2, rel=1e-6, abs=1e-9)
+
+
+def test_clinical_3t_rests_on_the_wall_where_the_coil_cannot_hold_the_weight(plans, clinical):
+    """At 45 mT/m and 56 % duty the coil gives 5.2 m/s^2 against 8.2 of apparent weight: the plan rides the wall."""
+    r = clinical.physics.robot
+    rho = r.magnetic_ratio * r.magnetic_density_kg_per_m3 + (1 - r.magnetic_ratio) * r.polymer_density_kg_per_m3
+    weight = G * (1.0 - clinical.physics.blood.density_kg_per_m3 / rho)
+    plan = plans["wall"]
+    assert plan.a_avail_m_per_s2 < weight
+    assert [s.mode for s in plan.segments][-3:] == ["wall"] * 3
+    assert plan.end_s < 3.0 and plan.margin_m_per_s2 > 0.0
+    planned = plan_scenario(clinical, plan.reference)
+    assert planned.sim.duration_s == pytest.approx(plan.end_s)
+    np.testing.assert_allclose(build_stages(planned).reference.sample(plan.end_s).p[0], 9e-3, atol=1e-9)
+    # evaluate() on the written scenario gives the plan's own segments back
+    assert evaluate(planned) == plan.segments
+
+
+def test_free_flight_where_the_coil_holds_the_weight(plans):
+    plan = plans["free_insert"]
+    assert all(s.mode == "free" for s in plan.segments)
+    assert plan.coast_floor_m > 0.0
+
+
+def test_an_infeasible_path_names_the_segment_and_the_missing_acceleration():
+    weak = load_scenario("clinical_3t_small_artery", sets=["coil.saturation_T_per_m=0.01"])
+    with pytest.raises(PlanInfeasible, match=r"segment \d+ of \d+ \(x .* mm.*\) needs .* m/s\^2 .* m/s\^2 missing") as e:
+        make_plan(weak, PlanOptions(height="free", retries=1))
+    assert e.value.missing_m_per_s2 > 0.0 and e.value.segment is not None
+
+
+def test_options_name_their_bad_values():
+    with pytest.raises(ConfigError, match="budget_fraction"):
+        PlanOptions(budget_fraction=1.5)
+    with pytest.raises(ConfigError, match="height"):
+        PlanOptions(height="ceiling")
+    with pytest.raises(ConfigError, match="table_step_s must be >= step_s"):
+        PlanOptions(table_step_s=1e-4)

@@ -1,0 +1,571 @@
+"""Plans the scanner can fly: a reference re-timed and re-placed so that the coil can hold it (``vesselbot plan``).
+
+The scanner study's hold margin (:mod:`vesselbot_ros.analysis.scanner_study`)
+says whether the coil, on average over the sequence, gives the acceleration a
+reference needs.  The planner turns that bound into a reference:
+
+* **Budget.**  Over a period, the coil gives ``a_avail = duty * a_sat``
+  (``a_sat``: the acceleration of the saturated gradient, eq. (2)).  The
+  acceleration a reference point needs is ``|Xdd_ref - F(t, X_ref, Xd_ref)|``
+  with the true plant's ``F`` (drag of the flow with the wall effect, the
+  apparent weight, the wall's interaction forces) -- except on the lower
+  wall, which carries any push into it: there the upward share of the need
+  is the wall's (the contact's normal force), and the coil supplies the rest.
+* **Where in the lumen.**  Along the path (anchors every ``anchor_spacing_m``)
+  each anchor takes the height with the least need over a cardiac period:
+  ``free_heights`` heights across the free lumen, or resting on the lower
+  wall (the reference then follows the wall's pulsation,
+  ``reference.wall_follow``), where the wall carries the weight and the blood
+  is slowest.  The first anchor stays where the scenario starts.  In a vessel
+  network the route's own anchors are kept (heights are not re-placed).
+* **When.**  A forward pass in steps of ``step_s`` takes, at each step, the
+  largest path speed (up to ``max_speed_m_per_s``, with a tangential
+  acceleration within ``tangential_accel_m_per_s2`` and a stop at the end)
+  whose need stays within ``budget_fraction * a_avail``: it advances where and
+  when the flow allows (diastole, near a wall) and holds where it does not
+  (systole).  The speed is then smoothed (a Hann window of ``smooth_s``) and
+  tabulated every ``table_step_s`` (``reference.timing: planned``, a C2 spline).
+* **Checked.**  The planned reference is sampled every ``step_s`` and every
+  segment (between two anchors) gets its margin ``a_avail - max need`` and its
+  coast floor (half the largest drift from the reference over one coast,
+  released on the reference with no gradient: the plant's own integrator, so
+  a bead on the wall coasts on the wall).  A negative margin makes the pass
+  run again with a budget fraction 0.85 times smaller (at most
+  ``retries`` times); still negative: :class:`PlanInfeasible`, which names the
+  segment and the acceleration missing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
+from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, wall_shift_of
+from vesselbot_ros.control.input_mapping import input_matrix
+from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.physics.kernel import diameter_at
+from vesselbot_ros.scanner.sequence import duty_cycle
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
+from vesselbot_ros.vessels.cfd import packed_params
+
+__all__ = ["PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
+           "evaluate", "plan_scenario", "coast_time_s"]
+
+
+class PlanInfeasible(VesselbotError):
+    """No reference along this path is within the coil's budget: names the segment and the acceleration missing."""
+
+    def __init__(self, message: str, segment: Segment | None = None, missing_m_per_s2: float = math.inf) -> None:
+        super().__init__(message)
+        self.segment, self.missing_m_per_s2 = segment, missing_m_per_s2
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanOptions:
+    """How the planner searches (module docstring)."""
+
+    budget_fraction: float = 0.8
+    free_heights: int = 9
+    height: str = "auto"
+    anchor_spacing_m: float = 1.0e-3
+    step_s: float = 1.0e-3
+    check_step_s: float = 2.5e-4
+    smooth_s: float = 0.02
+    table_step_s: float = 0.005
+    max_speed_m_per_s: float = 0.0
+    max_path_speed_m_per_s: float = 0.05
+    tangential_accel_m_per_s2: float = 0.5
+    wall_press_m: float = 25e-6
+    wall_clearance_m: float = 50e-6
+    landing_s: float = 0.01
+    slide_s: float = 0.08
+    max_duration_s: float = 60.0
+    coast_every_s: float = 0.01
+    retries: int = 4
+
+    def __post_init__(self) -> None:
+        check_range("budget_fraction", self.budget_fraction, 0.05, 1.0)
+        check_choice("height", self.height, ("auto", "free", "wall"))
+        check_range("free_heights", self.free_heights, 1, 101)
+        for name in ("check_step_s", "anchor_spacing_m", "wall_clearance_m", "max_path_speed_m_per_s", "slide_s",
+                     "landing_s", "step_s", "smooth_s", "table_step_s", "tangential_accel_m_per_s2",
+                     "max_duration_s", "coast_every_s"):
+            check_positive(name, getattr(self, name))
+        if not (math.isfinite(self.wall_press_m) and 0.0 <= self.wall_press_m <= 1e-4):
+            raise ConfigError(f"wall_press_m must be in [0, 1e-4] m, got {self.wall_press_m!r}")
+        if not (math.isfinite(self.max_speed_m_per_s) and self.max_speed_m_per_s >= 0.0):
+            raise ConfigError(f"max_speed_m_per_s must be >= 0 (0: the scenario's own speed), "
+                              f"got {self.max_speed_m_per_s!r}")
+        check_range("retries", self.retries, 0, 20)
+        if self.table_step_s < self.step_s:
+            raise ConfigError(f"table_step_s must be >= step_s ({self.step_s!r}), got {self.table_step_s!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Segment:
+    """One stretch of the plan between two anchors."""
+
+    index: int
+    x_from_m: float
+    x_to_m: float
+    mode: str  # "wall" (every sample on the lower wall), "free" (none) or "mixed"
+    height_m: float  # mean lateral position (z) over the segment
+    t_from_s: float
+    t_to_s: float
+    need_m_per_s2: float  # the largest need along the segment
+    t_worst_s: float
+    margin_m_per_s2: float  # a_avail - need
+    coast_floor_m: float
+
+    def describe(self, n: int) -> str:
+        where = {"wall": "on the lower wall", "free": f"at z = {self.height_m * 1e3:+.2f} mm",
+                 "mixed": "partly on the lower wall"}[self.mode]
+        return f"segment {self.index + 1} of {n} (x {self.x_from_m * 1e3:.1f}-{self.x_to_m * 1e3:.1f} mm, {where})"
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """A planned reference and its margins."""
+
+    reference: ReferenceParams
+    segments: tuple[Segment, ...]
+    a_avail_m_per_s2: float
+    a_sat_m_per_s2: float
+    duty: float
+    budget_fraction: float
+    end_s: float
+
+    @property
+    def margin_m_per_s2(self) -> float:
+        return min(s.margin_m_per_s2 for s in self.segments)
+
+    @property
+    def coast_floor_m(self) -> float:
+        return max(s.coast_floor_m for s in self.segments)
+
+
+def available_accel(scenario: Scenario) -> tuple[float, float, float]:
+    """``(a_avail, a_sat, duty)``: the duty-averaged acceleration the saturated coil gives (m/s^2)."""
+    a_sat = abs(float(input_matrix(scenario.physics)[1, 1])) * scenario.coil.saturation_T_per_m
+    duty = duty_cycle(scenario.sequence)
+    return duty * a_sat, a_sat, duty
+
+
+def coast_time_s(scenario: Scenario) -> float:
+    """How long the bead coasts between two propulsion windows (s): 0 with continuous propulsion."""
+    seq = scenario.sequence
+    return 0.0 if seq.mode == "continuous" else seq.tracking_window_s + 2.0 * seq.dead_time_s
+
+
+def need(model: DynamicsModel, t: npt.ArrayLike, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike,
+         rest: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None) -> npt.NDArray[np.float64]:
+    """The coil's acceleration each point needs (m/s^2): ``|a - F(t, p, v)|``, the lower wall's share removed.
+
+    ``rest``: ``(z, dz/dt)`` of a bead resting on the lower wall at each
+    point's time (:func:`wall_rest`).  A point at or below it is a bead on
+    the wall: it is evaluated there, moving with the wall, and the contact
+    supplies any upward push (the vertical component of ``a - F`` counts only
+    when it points down).
+    """
+    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    p, v, a = (np.atleast_2d(np.asarray(x, dtype=np.float64)).copy() for x in (p, v, a))
+    wall = np.zeros(t.shape, dtype=bool)
+    if rest is not None:
+        z_rest, vz_rest = (np.broadcast_to(np.asarray(x, dtype=np.float64), t.shape) for x in rest)
+        wall = p[:, 1] <= z_rest + 1e-9
+        p[wall, 1] = z_rest[wall]
+        v[wall, 1] = vz_rest[wall]
+    out = np.empty(t.shape)
+    for k in range(t.size):
+        f = model.F(float(t[k]), p[k], v[k])
+        dx, dz = a[k, 0] - f[0], a[k, 1] - f[1]
+        if wall[k] and dz > 0.0:
+            dz = 0.0
+        out[k] = math.hypot(dx, dz)
+    return out
+
+
+def wall_rest(scenario: Scenario, t: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+    """``(z, dz/dt)`` of a bead resting on the straight vessel's lower wall at times ``t``; ``None`` in a network."""
+    shift = wall_shift_of(scenario.physics)
+    if shift is None:
+        return None
+    h, hd, _ = shift(np.atleast_1d(np.asarray(t, dtype=np.float64)))
+    return _resting_z(scenario) - h, -hd
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+def _resting_z(scenario: Scenario) -> float:
+    """z of the bead's centre resting on the lower wall of the nominal vessel (m): one brush length of gap."""
+    ph = scenario.physics
+    return -(0.5 * ph.vessel.diameter_m - ph.robot.radius_m - ph.interactions.brush_length_m)
+
+
+def _pressed_z(scenario: Scenario, options: PlanOptions) -> float:
+    """z of a reference that rides the lower wall: ``wall_press_m`` into it, so that its spline never lifts off."""
+    return _resting_z(scenario) - options.wall_press_m
+
+
+@dataclasses.dataclass(frozen=True)
+class _Fall:
+    """The bead released at the start with no gradient, until it rests on the lower wall (1 ms samples)."""
+
+    t: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
+    v: npt.NDArray[np.float64]
+
+
+def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: float, x_end: float,
+          options: PlanOptions) -> tuple[_Fall, int] | None:
+    """The fall from ``p0`` at rest to the lower wall with no gradient, then sliding on it for ``slide_s``; and the
+    sample where it touched.  ``None`` if it passes ``x_end`` first (1 s at most).
+
+    The bead hits the wall at its sinking speed (no coil within the budget
+    could slow it: the drag keeps it near its terminal speed), and the wall
+    stops it at once.  A smooth reference cannot turn that sharply, so after
+    the touch the reference dips into the wall and comes back: ``z = rest -
+    press S(tau / T) - v_s tau exp(-(tau / T)^2)`` (``T = landing_s``, ``v_s``
+    the sinking speed at the touch, ``S`` the quintic smoothstep; at most
+    ``0.43 v_s T`` deep): continuous in position, velocity and acceleration at
+    the touch, and every upward acceleration of the landing inside the wall,
+    which carries it.
+    """
+    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    y = np.array([p0[0], p0[1], 0.0, 0.0])
+    contact = plant.new_contact_state()
+    t, ts, ps, vs = t0, [t0], [y[:2].copy()], [y[2:].copy()]
+    touched, v_s = -1, 0.0
+    T = options.landing_s
+    for _ in range(int(round((1.0 + options.slide_s) / step_s))):
+        plant.propagate(t, t + step_s, y, np.zeros(2), contact)
+        t += step_s
+        if y[0] > x_end:
+            return None
+        rest = wall_rest(scenario, t)
+        assert rest is not None
+        z_rest, vz_rest = rest[0][0], rest[1][0]
+        if touched < 0 and y[1] <= z_rest + 2e-6:  # on the wall (within 2 um)
+            touched, v_s = len(ts), max(0.0, vz_rest - float(vs[-1][1]))
+        ts.append(t)
+        if touched >= 0:
+            tau = t - ts[touched]
+            s = min(tau / T, 1.0)
+            z = (z_rest - options.wall_press_m * s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+                 - v_s * tau * math.exp(-((tau / T) ** 2)))
+            ps.append(np.array([y[0], z]))
+            vs.append(np.array([y[2], vz_rest]))
+            if tau >= options.slide_s - 1e-12:
+                return _Fall(np.asarray(ts), np.asarray(ps), np.asarray(vs)), touched
+        else:
+            ps.append(y[:2].copy())
+            vs.append(y[2:].copy())
+    return None
+
+
+def _heights(scenario: Scenario, options: PlanOptions) -> list[tuple[float, bool]]:
+    """Candidate heights ``(z, on the wall)``: across the free lumen at its narrowest (``wall_clearance_m`` from
+    either wall), and resting on the lower wall."""
+    ph = scenario.physics
+    p_pack = packed_params(ph)
+    phases = np.linspace(0.0, 2.0 * math.pi / ph.flow.angular_frequency_rad_per_s, 48, endpoint=False)
+    d_min = min(float(diameter_at(float(t), p_pack)) for t in phases)
+    z_free = 0.5 * d_min - ph.robot.radius_m - options.wall_clearance_m
+    out: list[tuple[float, bool]] = []
+    if options.free_heights == 1 or z_free <= 0.0:
+        out.append((0.0, False))
+    else:
+        out += [(float(z), False) for z in np.linspace(-z_free, z_free, options.free_heights)]
+    if options.height != "free":
+        out.append((_pressed_z(scenario, options), True))
+    return out
+
+
+def _best_height(scenario: Scenario, model: DynamicsModel, x: float, heights: list[tuple[float, bool]],
+                 v_cap: float) -> tuple[float, bool]:
+    """The height with the least need at ``x``: at each phase the least over a few speeds, the worst phase."""
+    ph = scenario.physics
+    phases = np.linspace(0.0, 2.0 * math.pi / ph.flow.angular_frequency_rad_per_s, 48, endpoint=False)
+    rest = wall_rest(scenario, phases)
+    assert rest is not None
+    best = (math.inf, 0.0, False)
+    for z, on_wall in heights:
+        p = np.column_stack([np.full_like(phases, x), rest[0] if on_wall else np.full_like(phases, z)])
+        per_speed = [need(model, phases, p, np.column_stack([np.full_like(phases, speed), np.zeros_like(phases)]),
+                          np.zeros_like(p), rest) for speed in (0.0, 0.5 * v_cap, v_cap)]
+        worst = float(np.max(np.min(per_speed, axis=0)))
+        if worst < best[0] - 1e-12:
+            best = (worst, z, on_wall)
+    return best[1], best[2]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Geometry:
+    anchors: npt.NDArray[np.float64]  # (k, 2)
+    follow: npt.NDArray[np.float64]  # (k,)
+    fall: _Fall | None  # the path's first anchors are the fall's, flown at the fall's own timing
+    fall_picks: tuple[int, ...]  # the fall's samples that are anchors (the last one rests on the wall)
+
+
+def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_cap: float) -> _Geometry:
+    """Anchors, wall-follow weights and the fall to the wall if any (module docstring: where in the lumen)."""
+    ref = planned_reference(scenario)
+    first = np.array([ref.anchors_x_m[0], ref.anchors_z_m[0]])
+    if scenario.physics.vessel.network:  # a route: its own anchors and heights
+        return _Geometry(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]), np.zeros(len(ref.anchors_x_m)), None, ())
+    x0, x1 = float(ref.anchors_x_m[0]), float(ref.anchors_x_m[-1])
+    heights = _heights(scenario, options)
+    _, wall_next = _best_height(scenario, model, min(x1, x0 + options.anchor_spacing_m), heights, v_cap)
+    if wall_next:  # sink to the wall as the bead falls by itself: no gradient needed on the way down
+        got = _fall(scenario, float(ref.start_s), first, options.step_s, x1 - 0.5 * options.anchor_spacing_m, options)
+        if got is not None:
+            fall, touched = got
+            arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(fall.p, axis=0).T))])
+            # anchors along the fall every quarter spacing, and at every sample around the landing (its kink would
+            # ring through a sparse spline)
+            dense = int(round(0.004 / options.step_s))
+            picks = [0]
+            for k in range(1, len(arc) - 1):
+                near = touched - dense <= k <= touched or (k > touched and (k - touched) % max(1, dense // 2) == 0)
+                if near or (arc[k] - arc[picks[-1]] >= 0.25 * options.anchor_spacing_m and arc[-1] - arc[k] >= 0.1e-3):
+                    picks.append(k)
+            picks.append(len(arc) - 1)
+            x_last = float(fall.p[-1, 0])
+            n = max(1, int(math.ceil((x1 - x_last) / options.anchor_spacing_m - 1e-9)))
+            xs = np.linspace(x_last, x1, n + 1)[1:]
+            # every anchor follows the wall (weight 1), so the fall's anchors are given in the nominal vessel: the
+            # reference passes each at its time in the fall, when the wall has moved down by h(t); from the
+            # landing on, pressed into the wall
+            h, _, _ = wall_shift_of(scenario.physics)(fall.t[list(picks)])  # type: ignore[misc]  # straight vessel
+            landed = fall.p[picks] + np.column_stack([np.zeros(len(picks)), h])
+            anchors = np.vstack([landed, np.column_stack([xs, np.full_like(xs, _pressed_z(scenario, options))])])
+            follow = np.ones(len(picks) + len(xs))
+            return _Geometry(anchors, follow, dataclasses.replace(fall, t=fall.t - fall.t[0]), tuple(picks))
+    n = max(2, int(math.ceil((x1 - x0) / options.anchor_spacing_m - 1e-9)) + 1)
+    xs = np.linspace(x0, x1, n)
+    # the first anchor after the start comes soon: the bead changes height before it advances
+    xs = np.concatenate([[x0, x0 + min(0.25 * options.anchor_spacing_m, 0.5 * (xs[1] - x0))], xs[1:]])
+    zs, weights = [float(first[1])], [0.0]
+    for x in xs[1:]:
+        z, on_wall = _best_height(scenario, model, float(x), heights, v_cap)
+        zs.append(z)
+        weights.append(1.0 if on_wall else 0.0)
+    return _Geometry(np.column_stack([xs, zs]), np.asarray(weights), None, ())
+
+
+def _fall_timing(fall: _Fall, picks: Sequence[int], anchor_u: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """The path parameter along the fall at its samples: its arc length mapped onto the anchors' chords."""
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(fall.p, axis=0).T))])
+    return np.interp(arc, arc[list(picks)], anchor_u[:len(picks)])
+
+
+# ---------------------------------------------------------------------------------------------- timing
+def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsModel, t0: float, u0: float,
+                 du0: float, budget: float, options: PlanOptions,
+                 v_cap: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Greedy forward pass from ``(t0, u0, du0)``: times, path parameters and their speeds (module docstring: when)."""
+    h, a_t, U = options.step_s, options.tangential_accel_m_per_s2, traj.length_m
+    steps = np.linspace(-a_t, a_t, 9) * h
+    t, u, du = t0, u0, du0
+    ts, us, dus = [t], [u], [du]
+    for _ in range(int(options.max_duration_s / h)):
+        if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
+            break
+        stop = math.sqrt(2.0 * a_t * max(U - u, 0.0))
+        # the cap is on the axial speed: a change of height goes as fast as the need allows
+        slope = abs(float(traj.state(np.array([t]), np.array([u]), np.ones(1), np.zeros(1))[1][0, 0]))
+        cap = min(v_cap / max(slope, v_cap / options.max_path_speed_m_per_s), stop)
+        cand = np.unique(np.clip(du + steps, 0.0, max(cap, du - a_t * h)))[::-1]
+        un = np.minimum(u + 0.5 * (du + cand) * h, U)
+        tn = np.full(cand.shape, t + h)
+        p, v, a = traj.state(tn, un, cand, (cand - du) / h)
+        need_c = need(model, tn, p, v, a, wall_rest(scenario, tn))
+        ok = np.flatnonzero(need_c <= budget)
+        pick = int(ok[0]) if ok.size else int(np.argmin(need_c))
+        du, u, t = float(cand[pick]), float(un[pick]), t + h
+        ts.append(t)
+        us.append(u)
+        dus.append(du)
+    else:
+        raise PlanInfeasible(f"the plan does not reach the end of the path within {options.max_duration_s:g} s "
+                             f"(stuck at {u * 1e3:.2f} of {U * 1e3:.2f} mm): the coil cannot move the bead on")
+    dus[-1] = 0.0
+    return np.asarray(ts), np.asarray(us), np.asarray(dus)
+
+
+def _smooth(dus: npt.NDArray[np.float64], options: PlanOptions) -> npt.NDArray[np.float64]:
+    """The speeds smoothed by a centred Hann window of ``smooth_s`` (edges held); never negative."""
+    w = max(3, int(round(options.smooth_s / options.step_s)) | 1)
+    win = np.hanning(w + 2)[1:-1]
+    win /= win.sum()
+    pad = w // 2
+    return np.convolve(np.pad(dus, pad, mode="edge"), win, mode="valid")
+
+
+def _table(ts: npt.NDArray[np.float64], us: npt.NDArray[np.float64], U: float, options: PlanOptions,
+           keep: int = 0) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(planned_t_s, planned_u_m)`` from 0, ending at ``U``: the first ``keep`` samples, then every ``table_step_s``."""
+    every = max(1, int(round(options.table_step_s / options.step_s)))
+    idx = np.concatenate([np.arange(keep), np.arange(keep, ts.size, every)]).astype(int)
+    if idx[-1] != ts.size - 1:
+        idx = np.append(idx, ts.size - 1)
+    t_tab, u_tab = ts[idx] - ts[0], np.maximum.accumulate(np.clip(us[idx], 0.0, U))
+    u_tab[-1] = U
+    return tuple(float(v) for v in t_tab), tuple(float(v) for v in u_tab)
+
+
+# ---------------------------------------------------------------------------------------------- check
+def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Segment, ...]:
+    """Margins and coast floors of ``scenario``'s reference, segment by segment (module docstring: checked).
+
+    A segment is ``anchor_spacing_m`` of the path (its parameter), the last
+    one up to 1.5 times that; every sample of the reference between its start
+    and its end time counts (every ``check_step_s``).
+    """
+    options = options or PlanOptions()
+    traj = build_stages(scenario).reference
+    if not isinstance(traj, ReferenceTrajectory):
+        raise ConfigError(f"the planner checks the bspline reference kind only, got reference.kind "
+                          f"{scenario.reference.kind!r}")
+    model = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    a_avail, _, _ = available_accel(scenario)
+    ts = np.arange(0.0, traj.end_time_s + 0.5 * options.check_step_s, options.check_step_s)
+    p, v, a = traj.sample_many(ts)
+    u = traj.parameter_at(ts)
+    rest = wall_rest(scenario, ts)
+    needs = need(model, ts, p, v, a, rest)
+    on_wall = np.zeros(ts.shape, dtype=bool) if rest is None else p[:, 1] <= rest[0] + 1e-9
+    n_seg = max(1, int(math.floor(traj.length_m / options.anchor_spacing_m + 0.5)))
+    bounds = np.append(options.anchor_spacing_m * np.arange(n_seg), traj.length_m)
+    seg = np.clip(np.searchsorted(bounds, u, side="right") - 1, 0, n_seg - 1)
+    t_c = coast_time_s(scenario)
+    out = []
+    for i in range(n_seg):
+        sel = np.flatnonzero(seg == i)
+        if sel.size == 0:
+            continue
+        k = sel[int(np.argmax(needs[sel]))]
+        mode = "wall" if np.all(on_wall[sel]) else ("free" if not np.any(on_wall[sel]) else "mixed")
+        floor = _coast_floor(scenario, traj, ts[sel[0]], ts[sel[-1]], t_c, options.coast_every_s)
+        out.append(Segment(i, float(traj.path_point(bounds[i])[0]), float(traj.path_point(bounds[i + 1])[0]), mode,
+                           float(np.mean(p[sel, 1])), float(ts[sel[0]]), float(ts[sel[-1]]), float(needs[k]),
+                           float(ts[k]), a_avail - float(needs[k]), floor))
+    return tuple(out)
+
+
+def _reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64],
+               v: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """A reference point inside the lower wall moved onto it (where the bead is), with the wall's velocity."""
+    rest = wall_rest(scenario, t)
+    if rest is None or p[1] > rest[0][0]:
+        return p, v
+    return np.array([p[0], rest[0][0]]), np.array([v[0], rest[1][0]])
+
+
+def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t_to: float, t_c: float,
+                 every_s: float) -> float:
+    """Half the largest drift over one coast released on the (reachable) reference within ``[t_from, t_to]`` (m)."""
+    if t_c <= 0.0:
+        return 0.0
+    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    worst = 0.0
+    for t0 in np.arange(t_from, t_to + 1e-12, every_s):
+        s0 = traj.sample(float(t0))
+        p0, v0 = _reachable(scenario, float(t0), s0.p, s0.v)
+        y = np.concatenate([p0, v0]).astype(np.float64)
+        plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(2), plant.new_contact_state())
+        s1 = traj.sample(float(t0) + t_c)
+        p1, _ = _reachable(scenario, float(t0) + t_c, s1.p, s1.v)
+        worst = max(worst, float(np.hypot(*(y[:2] - p1))))
+    return 0.5 * worst
+
+
+# ---------------------------------------------------------------------------------------------- plan
+def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
+    """Plan a reference the scanner can fly along ``scenario``'s path (module docstring).
+
+    ``height``: ``free`` never rests on the lower wall; ``wall`` takes the
+    least need at each anchor, the wall included; ``auto`` plans both and keeps
+    the feasible one with the lower coast floor (then the shorter).
+
+    Raises:
+        PlanInfeasible: no budget fraction gives a non-negative margin on every
+            segment (the message names the worst segment and the acceleration
+            missing), or the bead cannot be moved on to the end of the path.
+    """
+    options = options or PlanOptions()
+    if options.height != "auto":
+        return _make_plan(scenario, options)
+    plans, why = [], []
+    for height in ("free", "wall"):
+        try:
+            plans.append(_make_plan(scenario, dataclasses.replace(options, height=height)))
+        except PlanInfeasible as exc:
+            why.append(exc)
+    if not plans:
+        raise min(why, key=lambda e: e.missing_m_per_s2)
+    return min(plans, key=lambda p: (round(p.coast_floor_m, 7), p.end_s))
+
+
+def _make_plan(scenario: Scenario, options: PlanOptions) -> Plan:
+    model = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    a_avail, a_sat, duty = available_accel(scenario)
+    ref0 = planned_reference(scenario)
+    t0 = float(ref0.start_s)
+    v_cap = options.max_speed_m_per_s or ReferenceTrajectory(ref0).length_m / ref0.duration_s
+    g = _geometry(scenario, model, options, v_cap)
+    geom = dataclasses.replace(ref0, anchors_x_m=tuple(float(v) for v in g.anchors[:, 0]),
+                               anchors_z_m=tuple(float(v) for v in g.anchors[:, 1]),
+                               wall_follow=tuple(float(v) for v in g.follow) if np.any(g.follow) else (),
+                               route_outlet="", timing="constant", planned_t_s=(), planned_u_m=())
+    traj = ReferenceTrajectory(geom, wall_shift=wall_shift_of(scenario.physics))
+    if g.fall is not None:  # the fall's own timing, then the pass from where it rests on the wall
+        u_fall = _fall_timing(g.fall, g.fall_picks, traj.anchor_u_m)
+        t_pre, u_pre = g.fall.t + t0, u_fall
+        du_end = float(np.gradient(u_fall, g.fall.t)[-1])
+    else:
+        t_pre, u_pre, du_end = np.array([t0]), np.array([0.0]), 0.0
+    fraction = options.budget_fraction
+    worst: tuple[Segment, ...] = ()
+    for _ in range(options.retries + 1):
+        ts, us, dus = _timing_pass(scenario, traj, model, float(t_pre[-1]), float(u_pre[-1]), du_end,
+                                   fraction * a_avail, options, v_cap)
+        sm = _smooth(dus, options)
+        us = us[0] + np.concatenate([[0.0], np.cumsum(0.5 * (sm[1:] + sm[:-1]) * np.diff(ts))])
+        if us[-1] > us[0]:
+            us = us[0] + (us - us[0]) * (traj.length_m - us[0]) / (us[-1] - us[0])
+        t_tab, u_tab = _table(np.concatenate([t_pre, ts[1:]]), np.concatenate([u_pre, us[1:]]), traj.length_m,
+                              options, keep=t_pre.size)  # the fall at its own samples: its landing is sudden
+        planned = dataclasses.replace(geom, timing="planned", duration_s=t_tab[-1], planned_t_s=t_tab,
+                                      planned_u_m=u_tab)
+        segs = evaluate(plan_scenario(scenario, planned), options)
+        if min(s.margin_m_per_s2 for s in segs) >= 0.0:
+            return Plan(planned, segs, a_avail, a_sat, duty, fraction, t0 + t_tab[-1])
+        worst = segs
+        fraction *= 0.85
+    bad = min(worst, key=lambda s: s.margin_m_per_s2)
+    raise PlanInfeasible(
+        f"infeasible: {bad.describe(len(worst))} needs {bad.need_m_per_s2:.2f} m/s^2 at t = {bad.t_worst_s:.3f} s; "
+        f"the coil gives {a_avail:.2f} m/s^2 ({a_sat:.2f} at {duty:.0%} duty): "
+        f"{-bad.margin_m_per_s2:.2f} m/s^2 missing", segment=bad, missing_m_per_s2=-bad.margin_m_per_s2)
+
+
+def plan_scenario(scenario: Scenario, reference: ReferenceParams) -> Scenario:
+    """``scenario`` with ``reference`` as its reference, run until the reference ends."""
+    mapping = scenario.to_mapping()
+    mapping["reference"] = dataclasses.asdict(reference)
+    mapping["sim"] = dict(mapping["sim"], duration_s=float(reference.start_s + reference.duration_s))
+    return scenario_from_mapping(mapping)
+
+
+def segments_table(segments: Sequence[Segment]) -> list[dict[str, Any]]:
+    """The segments as rows (SI units)."""
+    return [dataclasses.asdict(s) for s in segments]

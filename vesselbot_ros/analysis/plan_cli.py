@@ -1,0 +1,151 @@
+"""``vesselbot plan``: a reference the scanner can fly, with the margin and coast floor of every segment.
+
+Writes to ``--out``: ``plan.yaml`` (the scenario with the planned reference,
+run until it ends: ``vesselbot simulate --config <out>/plan.yaml`` flies it),
+``segments.csv`` (one row per segment, SI units) and ``plan.png`` (the path in
+the lumen coloured by margin; the speed and the flow; the need against the
+budget), and prints the segments and the time the path takes beside the same
+hardware with continuous propulsion.  A path no reference can fly within the
+coil's budget: one line naming the segment and the acceleration missing, exit 2.
+See :mod:`vesselbot_ros.analysis.plan`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, make_plan, need, plan_scenario, segments_table, wall_rest
+from vesselbot_ros.analysis.scanner_study import preset_changes
+from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.physics.kernel import fluid_velocity_x
+from vesselbot_ros.scanner.hardware import PRESETS
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
+from vesselbot_ros.vessels.cfd import packed_params
+
+DEFAULT = "clinical_3t_small_artery"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``vesselbot plan``."""
+    parser.add_argument("--config", default=str(shipped_scenarios()[DEFAULT]),
+                        help=f"the scenario whose path, bead, coil and sequence are planned for (default {DEFAULT})")
+    parser.add_argument("--hardware", default=None, choices=sorted(PRESETS),
+                        help="a scanner preset's coil and sequence instead of the scenario's")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario value, dotted key (applied after --hardware); repeatable")
+    parser.add_argument("--budget-fraction", type=float, default=PlanOptions.budget_fraction,
+                        help="share of the duty-averaged coil acceleration the plan may use at first "
+                             f"(default {PlanOptions.budget_fraction:g}; lowered by itself where the check fails)")
+    parser.add_argument("--max-speed-m-per-s", type=float, default=0.0,
+                        help="largest axial speed of the plan (m/s; default 0: the scenario's own mean speed)")
+    parser.add_argument("--height", choices=("auto", "free", "wall"), default="auto",
+                        help="free: never rest on the lower wall; wall: the least need, the wall included; auto "
+                             "(default): both, the lower coast floor wins")
+    parser.add_argument("--out", default="out/plan", help="output folder (default out/plan)")
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    sets = list(args.set)
+    if args.hardware:
+        sets = [f"{k}={yaml.safe_dump(v, default_flow_style=True).strip()}"
+                for k, v in preset_changes(args.hardware).items()] + sets
+    return load_scenario(args.config, sets=sets)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Plan, write, print; exit 0 (PlanInfeasible: the caller's one line and exit 2)."""
+    scenario = _scenario(args)
+    options = PlanOptions(budget_fraction=args.budget_fraction, height=args.height,
+                          max_speed_m_per_s=args.max_speed_m_per_s)
+    plan = make_plan(scenario, options)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    planned = plan_scenario(scenario, plan.reference)
+    mapping = dict(planned.to_mapping(), name=f"{scenario.name}_plan")
+    (out / "plan.yaml").write_text(
+        "# written by vesselbot plan: the scenario with a reference its coil can fly (vesselbot simulate --config this)\n"
+        + yaml.safe_dump(mapping, sort_keys=False), encoding="utf-8")
+    rows = segments_table(plan.segments)
+    with (out / "segments.csv").open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    continuous = _continuous_end(scenario, options)
+    _print(scenario, plan, continuous)
+    _figure(planned, plan, out / "plan.png")
+    print(f"wrote {out / 'plan.yaml'}, {out / 'segments.csv'}, {out / 'plan.png'}")
+    return 0
+
+
+def _continuous_end(scenario: Scenario, options: PlanOptions) -> float | None:
+    """When the same path ends with the same coil propelling all the time (``None``: infeasible even so)."""
+    if scenario.sequence.mode == "continuous":
+        return None
+    cont = dataclasses.replace(scenario, sequence=dataclasses.replace(scenario.sequence, mode="continuous"))
+    try:
+        return make_plan(cont, options).end_s
+    except PlanInfeasible:
+        return None
+
+
+def _print(scenario: Scenario, plan: Plan, continuous: float | None) -> None:
+    n = len(plan.segments)
+    print(f"{'segment':>8}{'x from-to (mm)':>18}  {'where':<24}{'t (s)':>15}{'need':>8}{'margin':>8}{'floor um':>10}")
+    for s in plan.segments:
+        where = s.describe(n).split(", ", 1)[1].rstrip(")")
+        print(f"{s.index + 1:>8}{s.x_from_m * 1e3:>9.2f}-{s.x_to_m * 1e3:<8.2f}  {where:<24}"
+              f"{s.t_from_s:>7.3f}-{s.t_to_s:<7.3f}{s.need_m_per_s2:>8.2f}{s.margin_m_per_s2:>8.2f}"
+              f"{s.coast_floor_m * 1e6:>10.0f}")
+    cont = ("" if scenario.sequence.mode == "continuous" else
+            f" (continuous propulsion on the same coil: {continuous:.2f} s)" if continuous is not None else
+            " (continuous propulsion on the same coil: infeasible too)")
+    print(f"{scenario.name}: the path takes {plan.end_s:.2f} s{cont}; margin >= {plan.margin_m_per_s2:.2f} m/s^2 "
+          f"of {plan.a_avail_m_per_s2:.2f} ({plan.a_sat_m_per_s2:.2f} at {plan.duty:.0%} duty, budget fraction "
+          f"{plan.budget_fraction:.2f}); coast floor {plan.coast_floor_m * 1e6:.0f} um")
+
+
+def _figure(planned: Scenario, plan: Plan, path: Path) -> None:
+    # deferred: matplotlib (~0.5 s) loads only when the figure is drawn, not for `vesselbot plan --help`
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
+
+    ref = build_stages(planned).reference
+    ts = np.arange(0.0, plan.end_s + 5e-4, 1e-3)
+    p, v, a = ref.sample_many(ts)
+    needs = need(DynamicsModel(planned.physics, planned.sim.integrator), ts, p, v, a, wall_rest(planned, ts))
+    pk = packed_params(planned.physics)
+    flow = np.array([fluid_velocity_x(float(t), float(x), 0.0, pk) for t, (x, _) in zip(ts, p, strict=True)])
+    fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(8.0, 8.5))
+    d = planned.physics.vessel.diameter_m
+    if not planned.physics.vessel.network:
+        for sgn in (-1.0, 1.0):
+            ax0.axhline(sgn * 0.5 * d * 1e3, color="k", lw=1.0)
+    sc = ax0.scatter(p[:, 0] * 1e3, p[:, 1] * 1e3, c=plan.a_avail_m_per_s2 - needs, s=3, cmap="RdYlGn",
+                     vmin=-1.0, vmax=plan.a_avail_m_per_s2)
+    fig.colorbar(sc, ax=ax0, label="margin (m/s^2)")
+    ax0.set_xlabel("x (mm)")
+    ax0.set_ylabel("z (mm)")
+    ax0.set_title(f"{planned.name}: the planned path (walls at the nominal diameter)")
+    ax1.plot(ts, v[:, 0] * 1e3, label="reference axial speed")
+    ax1.plot(ts, flow * 1e3, label="blood at the centreline", alpha=0.6)
+    ax1.set_ylabel("mm/s")
+    ax1.legend(loc="upper right")
+    ax2.plot(ts, needs, label="need |Xdd_ref - F|")
+    ax2.axhline(plan.a_avail_m_per_s2, color="r", ls="--", label="coil, duty-averaged")
+    ax2.set_xlabel("t (s)")
+    ax2.set_ylabel("m/s^2")
+    ax2.legend(loc="upper right")
+    for ax in (ax0, ax1, ax2):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
