@@ -58,6 +58,7 @@ from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
+           "flying_changes",
            "evaluate", "plan_scenario", "coast_time_s"]
 
 
@@ -564,6 +565,23 @@ def plan_scenario(scenario: Scenario, reference: ReferenceParams) -> Scenario:
     mapping["reference"] = dataclasses.asdict(reference)
     mapping["sim"] = dict(mapping["sim"], duration_s=float(reference.start_s + reference.duration_s))
     return scenario_from_mapping(mapping)
+
+
+def flying_changes(scenario: Scenario, plan: Plan) -> dict[str, str]:
+    """The loop's options a plan that rests on the lower wall needs (dotted keys; none for a plan that stays free).
+
+    Law (24) then leaves the vertical to the weight and the wall
+    (``controller.wall_contact: carried``), and the extended Kalman filter
+    keeps its estimate out of the wall (``observer.ekf.wall_projection: lumen``).
+    """
+    if all(s.mode == "free" for s in plan.segments):
+        return {}
+    out = {}
+    if scenario.controller.kind in ("backstepping", "adaptive_backstepping"):
+        out["controller.wall_contact"] = "carried"
+    if scenario.observer.kind == "ekf":
+        out["observer.ekf.wall_projection"] = "lumen"
+    return out
 
 
 def segments_table(segments: Sequence[Segment]) -> list[dict[str, Any]]:

@@ -1,7 +1,9 @@
 """``vesselbot plan``: a reference the scanner can fly, with the margin and coast floor of every segment.
 
 Writes to ``--out``: ``plan.yaml`` (the scenario with the planned reference,
-run until it ends: ``vesselbot simulate --config <out>/plan.yaml`` flies it),
+run until it ends, and the loop's options for a plan that rests on the lower
+wall, :func:`~vesselbot_ros.analysis.plan.flying_changes`: ``vesselbot
+simulate --config <out>/plan.yaml`` flies it),
 ``segments.csv`` (one row per segment, SI units) and ``plan.png`` (the path in
 the lumen coloured by margin; the speed and the flow; the need against the
 budget), and prints the segments and the time the path takes beside the same
@@ -20,13 +22,25 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, make_plan, need, plan_scenario, segments_table, wall_rest
+from vesselbot_ros.analysis.plan import (
+    Plan,
+    PlanInfeasible,
+    PlanOptions,
+    flying_changes,
+    make_plan,
+    need,
+    plan_scenario,
+    segments_table,
+    wall_rest,
+)
 from vesselbot_ros.analysis.scanner_study import preset_changes
+from vesselbot_ros.campaign.spec import merge_mapping
+from vesselbot_ros.config import unflatten
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.closed_loop import build_stages
-from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping, shipped_scenarios
 from vesselbot_ros.vessels.cfd import packed_params
 
 DEFAULT = "clinical_3t_small_artery"
@@ -68,6 +82,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     planned = plan_scenario(scenario, plan.reference)
+    changes = flying_changes(planned, plan)
+    if changes:  # the plan rides the lower wall: the loop's options for it
+        planned = scenario_from_mapping(merge_mapping(planned.to_mapping(), unflatten(changes)))
+        print(f"{scenario.name}: the plan rests on the lower wall; flown with "
+              + ", ".join(f"{k}: {v}" for k, v in changes.items()))
     mapping = dict(planned.to_mapping(), name=f"{scenario.name}_plan")
     (out / "plan.yaml").write_text(
         "# written by vesselbot plan: the scenario with a reference its coil can fly (vesselbot simulate --config this)\n"

@@ -41,7 +41,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into
+from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_R, I_V_F, diameter_at, forces_into
 
 __all__ = [
     "BacksteppingGains",
@@ -112,6 +112,17 @@ class ControllerParams:
             of time the gradient may be on, :mod:`vesselbot_ros.scanner.sequence`),
             so that the gradient averaged over a sequence period is the one (24)
             asks for (then saturated as usual).
+        wall_contact: ``model``: (24) as printed, cancelling every force of
+            the model at the estimate, the walls' included.  ``carried``: where
+            the reference rests on the straight vessel's lower wall (at or
+            below the height where the bead touches it), the vertical command
+            is dropped: the weight holds the bead on the wall and the wall
+            carries any push into it, so the whole coil goes to the axial
+            command (a plan that rides the wall, ``vesselbot plan``).  As
+            printed, (24) cancels the weight (and the contact force at an
+            estimate inside the wall), saturates the coil vertically, and the
+            saturation's scaling leaves almost nothing for the axis along the
+            vessel.
     """
 
     kind: Literal["backstepping", "adaptive_backstepping"] = "backstepping"
@@ -122,6 +133,7 @@ class ControllerParams:
     sample_hold: Literal["none", "midpoint"] = "none"
     flow_compensation: Literal["none", "estimate"] = "none"
     duty_compensation: Literal["none", "sequence"] = "none"
+    wall_contact: Literal["model", "carried"] = "model"
 
     def __post_init__(self) -> None:
         check_positive("stale_timeout_s", self.stale_timeout_s)
@@ -129,6 +141,7 @@ class ControllerParams:
         check_choice("sample_hold", self.sample_hold, ("none", "midpoint"))
         check_choice("flow_compensation", self.flow_compensation, ("none", "estimate"))
         check_choice("duty_compensation", self.duty_compensation, ("none", "sequence"))
+        check_choice("wall_contact", self.wall_contact, ("model", "carried"))
         check_choice("kind", self.kind, ("backstepping", "adaptive_backstepping"))
         if self.kind == "adaptive_backstepping" and self.flow_compensation != "none":
             raise ConfigError("flow_compensation must be 'none' with kind 'adaptive_backstepping' (the controller "
@@ -187,14 +200,15 @@ _STATUS_NAMES = ("ok", "stale", "nonfinite")
 
 def controller_params(params: ControllerParams, b_inv: tuple[float, float, float, float], half_hold_s: float,
                       inv_duty: float = 1.0) -> npt.NDArray[np.float64]:
-    """(11,) parameter vector of :func:`backstepping_command`.
+    """(12,) parameter vector of :func:`backstepping_command`.
 
     ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), B^-1 (4, row-major),
-    flow compensation (1 = estimate), 1 / duty cycle (1 = none)]``.
+    flow compensation (1 = estimate), 1 / duty cycle (1 = none), wall contact carried (1) / model (0)]``.
     """
     return np.array([float(params.gains.k1), float(params.gains.k2), float(half_hold_s), float(params.stale_timeout_s),
                      1.0 if params.stale_action == "hold" else 0.0, *b_inv,
-                     1.0 if params.flow_compensation == "estimate" else 0.0, float(inv_duty)])
+                     1.0 if params.flow_compensation == "estimate" else 0.0, float(inv_duty),
+                     1.0 if params.wall_contact == "carried" else 0.0])
 
 
 def flow_scale_message(flow_scale: float) -> str:
@@ -219,7 +233,7 @@ def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1,
                          pr0, pr1, vr0, vr1, ar0, ar1, out):
     """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model's packed parameters.
 
-    Args: prm (11,) from :func:`controller_params`; last (2,) last command (T/m),
+    Args: prm (12,) from :func:`controller_params`; last (2,) last command (T/m),
     updated; model_p packed model physics; p_s scratch of its size (``V_f``
     scaled by ``flow_scale`` with flow compensation); free_contact (4,) zeros
     (memoryless contact of ``F``); fbuf (8, 2) scratch; t (s); estimate x, z
@@ -280,6 +294,8 @@ def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
         f0, f1 = _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1)
         u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
         u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
+    if prm[11] > 0.5 and pr1 <= model_p[I_R] - 0.5 * diameter_at(t, model_p):
+        u1 = 0.0  # the reference rests on the lower wall: the weight and the wall hold the bead there
     g0 = prm[5] * u0 + prm[6] * u1
     g1 = prm[7] * u0 + prm[8] * u1
     if prm[10] != 1.0:  # duty compensation
@@ -342,7 +358,7 @@ def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, 
 
 # ---- the compiled loop's form (control/compiled_stage.py): law (24) and the adaptive law behind one signature ----
 # state: [last command x, z (T/m), memoryless contact (4, zeros)] + (adaptive) [s_hat, m_hat, time of the last update];
-# prm: controller_params (11,) + (adaptive) adaptive_params (9,); work: the model's size (V_f-scaled copy)
+# prm: controller_params (12,) + (adaptive) adaptive_params (9,); work: the model's size (V_f-scaled copy)
 def _backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
                       pr0, pr1, vr0, vr1, ar0, ar1, out):
     """:func:`backstepping_command` as a compiled controller step (the observer's flow scale)."""
@@ -356,7 +372,7 @@ def _backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
 def _adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
                   pr0, pr1, vr0, vr1, ar0, ar1, out):
     """:func:`adaptive_command` as a compiled controller step (its own adapted scales)."""
-    status = adaptive_command(prm[0:11], prm[11:20], state[6:9], state[0:2], model_p, work, state[2:6], fbuf, t,
+    status = adaptive_command(prm[0:12], prm[12:21], state[6:9], state[0:2], model_p, work, state[2:6], fbuf, t,
                               x0, x1, z0, z1, age, pr0, pr1, vr0, vr1, ar0, ar1, out)
     out[4] = state[6]  # the adapted scales after this tick's update
     out[5] = state[7]
@@ -424,6 +440,9 @@ class BacksteppingController:
             model_p if (getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray)) else None
         )
         self.params_vector = controller_params(params, b_inv, self._half, self._inv_duty)
+        if params.wall_contact == "carried" and (self.model_params is None or self.model_params[I_NET_ON] > 0.5):
+            raise ConfigError("controller.wall_contact 'carried' needs the model's F of a straight vessel "
+                              "(physics.vessel.network empty)")
         self._p_s = np.empty_like(model_p) if self.model_params is not None else np.empty(0)
         self._out = np.zeros(4)
         self._free = np.zeros(4)

@@ -66,7 +66,7 @@ from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, integrate_dopri5_ws, new_workspace
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_tc
+from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_MASS, I_V_F, forces_tc, onto_lumen
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
            "EKF_OUT_SIZE", "PREDICTION_FAILED"]
@@ -218,7 +218,8 @@ def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any)
                      q.measurement_sigma_m**2, float(q.gate_chi2), float(q.max_consecutive_rejections),
                      1.0 if q.delay_compensation else 0.0, q.position_sigma0_m**2, q.velocity_sigma0_m_per_s**2,
                      q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0,
-                     ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0, 0.0])
+                     ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s,
+                     1.0 if q.wall_projection == "lumen" else 0.0, 0.0])
 
 
 def ekf_history_len(params: EkfParams, tick_s: float) -> int:
@@ -273,6 +274,19 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf,
         _ekf_reset_covariance(prm, P)
         ist[4] += 1
     return OK
+
+
+@numba.njit(cache=True, nogil=True)
+def _project(prm, t, y, p, free):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``wall_projection: lumen``: an estimate closer to a wall than the brush length put there (:func:`onto_lumen`: where
+    the steric force starts, not at contact, where it throws the estimate off), with a fresh
+    contact state (the one carried along belongs to the estimate before the jump); else nothing."""
+    if prm[18] > 0.5:
+        x0, x1, z0, z1 = onto_lumen(t, y[0], y[1], y[2], y[3], p, p[I_BRUSH_L0])
+        if x0 != y[0] or x1 != y[1]:
+            for i in range(free.shape[0]):
+                free[i] = 0.0
+        y[0], y[1], y[2], y[3] = x0, x1, z0, z1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -358,6 +372,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
                     Pc[:, :] = hist_P[i]
                     yc[0] = m0
                     yc[1] = m1
+                    _project(prm, hist_t[i], yc, p, free)
                     for j in range(N):
                         Pc[0, j] = 0.0
                         Pc[j, 0] = 0.0
@@ -373,6 +388,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
             if not done:
                 y[0] = m0
                 y[1] = m1
+                _project(prm, scal[0], y, p, free)
                 P[0, 0] = prm[10]
                 P[1, 1] = prm[10]
                 hist_y[ist[1], :] = y
@@ -384,6 +400,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
             # the robot really is elsewhere (the filter lost it): restart the track on this frame
             y[0] = m0
             y[1] = m1
+            _project(prm, scal[0], y, p, free)
             _ekf_reset_covariance(prm, P)
             ist[5] += 1
             ist[2] = 0
@@ -403,12 +420,15 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
                     Pc[:, :] = hist_P[i]
                     ok, nx, nz, _d2 = _correct(yc, Pc, m0, m1, prm[6], prm[7], KK, mat[2])
                     if ok:
+                        _project(prm, hist_t[i], yc, p, free)
                         code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free,
                                               p, p_s, work, fbuf, vec, mat, stats, err)
                         if code != OK:
                             return code
             if not found:
                 ok, nx, nz, _d2 = _correct(y, P, m0, m1, prm[6], prm[7], KK, mat[2])
+                if ok:
+                    _project(prm, scal[0], y, p, free)
             if ok:
                 i0 = -nx  # X_hat - Y, as Estimate documents
                 i1 = -nz

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Literal
 
-from vesselbot_ros.config import check_nonnegative, check_positive
+from vesselbot_ros.config import check_choice, check_nonnegative, check_positive
 
 __all__ = ["EkfParams", "CHI2_2DOF_999"]
 
@@ -35,6 +36,15 @@ class EkfParams:
         delay_compensation: Correct at the acquisition time and re-predict.
         history_s: How far back frames can be fused at their acquisition time (s).
         estimate_flow_scale: Estimate ``s``; False freezes it at ``flow_scale0``.
+        wall_projection: ``none``: a corrected estimate may lie inside a wall
+            (a frame's noise puts it there when the bead rests on the wall),
+            and the next prediction's contact force throws it out.  ``lumen``:
+            a corrected estimate inside a wall is put back by it with no
+            velocity into it (:func:`~vesselbot_ros.physics.kernel.onto_lumen`,
+            the projection of a constrained Kalman filter); the prediction
+            and the covariance are unchanged.  Put back one brush length
+            ``L_0`` from the wall, where the steric force starts: at contact
+            the brush would throw the estimate off.
     """
 
     measurement_sigma_m: float = 100e-6
@@ -49,8 +59,10 @@ class EkfParams:
     delay_compensation: bool = True
     history_s: float = 0.25
     estimate_flow_scale: bool = True
+    wall_projection: Literal["none", "lumen"] = "none"
 
     def __post_init__(self) -> None:
+        check_choice("wall_projection", self.wall_projection, ("none", "lumen"))
         check_positive("measurement_sigma_m", self.measurement_sigma_m)
         check_nonnegative("accel_noise_m_per_s2_sqrt_s", self.accel_noise_m_per_s2_sqrt_s)
         check_nonnegative("flow_scale_noise_per_sqrt_s", self.flow_scale_noise_per_sqrt_s)

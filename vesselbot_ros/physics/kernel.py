@@ -67,6 +67,7 @@ __all__ = [
     "wall_delta_xz",
     "fluid_velocity_x",
     "fluid_velocity_xz",
+    "onto_lumen",
     "network_geometry",
     "time_terms",
     "time_terms_into",
@@ -291,6 +292,32 @@ def wall_delta_xz(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kernel: 
         s_t, _gx, gz, _d_t, _eta, _vx, _vz = network_geometry(t, x, z, p)
         return p[I_R] - s_t, (1.0 if gz <= 0.0 else -1.0)
     return nearest_wall_delta(t, z, p)
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def onto_lumen(t, x0, x1, z0, z1, p, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """A robot closer to a wall than ``gap`` (m; 0: in it) put ``gap`` from it, its velocity into the wall removed:
+    ``(x0, x1, z0, z1)``.
+
+    The wall as a constraint, for estimators and predictions that step too
+    coarsely for the stiff contact (a constrained filter's projection).
+    """
+    delta, wall = wall_delta_xz(t, x0, x1, p)
+    delta = delta + gap
+    if not delta > 0.0:
+        return x0, x1, z0, z1
+    if p[I_NET_ON] > 0.5:
+        _s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x0, x1, p)  # the wall's inward normal
+    else:
+        nx = 0.0
+        nz = -wall  # the upper wall (+1) pushes down
+    x0 = x0 + delta * nx
+    x1 = x1 + delta * nz
+    vn = z0 * nx + z1 * nz
+    if vn < 0.0:
+        z0 = z0 - vn * nx
+        z1 = z1 - vn * nz
+    return x0, x1, z0, z1
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit

@@ -66,7 +66,7 @@ from vesselbot_ros.control.backstepping import (
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_V_F, forces_into, network_geometry, wall_delta_xz
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into, onto_lumen
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
 
@@ -153,7 +153,7 @@ def _layout(prm, n_model):  # type: ignore[no-untyped-def]  # numba kernel: argu
 
 @numba.njit(cache=True, nogil=True)
 def _accel(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The prediction's acceleration: magnetic, drag and apparent weight (the wall is a constraint: :func:`_onto_lumen`).
+    """The prediction's acceleration: magnetic, drag and apparent weight (the wall is a constraint: ``onto_lumen``).
 
     The contact and the surface forces are stiff (microseconds); at the prediction's one step per tick they
     would blow up, so the prediction keeps the bead in the lumen instead, where a wall carries it.
@@ -161,26 +161,6 @@ def _accel(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf):  # type: ignore[no-unty
     forces_into(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf)
     m = p[I_MASS]
     return (fbuf[0, 0] + fbuf[1, 0] + fbuf[2, 0]) / m, (fbuf[0, 1] + fbuf[1, 1] + fbuf[2, 1]) / m
-
-
-@numba.njit(cache=True, nogil=True)
-def _onto_lumen(t, x0, x1, z0, z1, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """A predicted bead that crossed into the wall, put back on it with no velocity into it."""
-    delta, wall = wall_delta_xz(t, x0, x1, p)
-    if not delta > 0.0:
-        return x0, x1, z0, z1
-    if p[I_NET_ON] > 0.5:
-        _s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x0, x1, p)  # the wall's inward normal
-    else:
-        nx = 0.0
-        nz = -wall  # the upper wall (+1) pushes down
-    x0 = x0 + delta * nx
-    x1 = x1 + delta * nz
-    vn = z0 * nx + z1 * nz
-    if vn < 0.0:
-        z0 = z0 - vn * nx
-        z1 = z1 - vn * nz
-    return x0, x1, z0, z1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -222,7 +202,7 @@ def _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0,
         nx1 = x1 + h * (z1 + h * (a1 + b1 + c1_) / 6.0)
         z0 = z0 + h * (a0 + 2.0 * b0 + 2.0 * c0_ + d0) / 6.0
         z1 = z1 + h * (a1 + 2.0 * b1 + 2.0 * c1_ + d1) / 6.0
-        x0, x1, z0, z1 = _onto_lumen(tk + h, nx0, nx1, z0, z1, p)
+        x0, x1, z0, z1 = onto_lumen(tk + h, nx0, nx1, z0, z1, p, 0.0)
         tau = (k + 1) * dt
         work[off_r + 2 * k] = (x0 - (pr0 + vr0 * tau + 0.5 * ar0 * tau * tau)) / _ERR_SCALE_M
         work[off_r + 2 * k + 1] = (x1 - (pr1 + vr1 * tau + 0.5 * ar1 * tau * tau)) / _ERR_SCALE_M

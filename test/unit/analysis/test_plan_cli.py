@@ -20,6 +20,8 @@ def test_plan_writes_a_scenario_that_flies_its_reference_to_the_end(tmp_path, ca
     assert (tmp_path / "plan.png").stat().st_size > 10_000
     planned = load_scenario(tmp_path / "plan.yaml")
     assert planned.reference.timing == "planned" and planned.sequence.propulsion_window_s == pytest.approx(0.022)
+    assert "the plan rests on the lower wall" in out  # and the loop is set to fly it there
+    assert planned.controller.wall_contact == "carried" and planned.observer.ekf.wall_projection == "lumen"
     result = run_closed_loop(planned)  # the written scenario runs as it is, until its reference ends
     t = result.timeseries["t_s"]
     assert t[-1] == pytest.approx(planned.sim.duration_s, abs=2e-3)

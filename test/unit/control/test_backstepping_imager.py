@@ -203,3 +203,32 @@ def test_the_imager_per_tick_and_its_generator_handed_on_continue_one_stream():
     ref = np.random.default_rng(3)
     fill_variates(ref, np.zeros(1 + 4 * 10))
     assert a_next == ref.standard_normal()
+
+
+def test_carried_wall_contact_drops_the_vertical_command_where_the_reference_rests_on_the_lower_wall() -> None:
+    """``wall_contact: carried``: a reference on the lower wall leaves the weight and the wall to hold the bead
+    (U z = 0, U x as printed); above the contact height the law is (24) as printed."""
+    from vesselbot_ros.config import ConfigError
+    from vesselbot_ros.control.model import DynamicsModel
+    from vesselbot_ros.physics.kernel import diameter_at
+    from vesselbot_ros.physics.params import VesselParams
+
+    ph = PhysicsParams()
+    model = DynamicsModel(ph)
+    b = input_matrix(ph)
+    printed = BacksteppingController(ControllerParams(), model.F, b)
+    carried = BacksteppingController(ControllerParams(wall_contact="carried"), model.F, b)
+    t = 0.3
+    touch = -(0.5 * float(diameter_at(t, model.p)) - ph.robot.radius_m)
+    est = dict(x_hat=np.array([1e-3, touch + 20e-6]), z_hat=np.array([2e-3, 0.0]), time_since_measurement_s=0.0,
+               flow_scale=1.0)
+    for z_ref, dropped in ((touch - 25e-6, True), (touch, True), (touch + 1e-6, False), (0.0, False)):
+        args = (t, est["x_hat"], est["z_hat"], 0.0, np.array([1.2e-3, z_ref]), np.array([4.5e-3, 0.0]), np.zeros(2))
+        a, c = printed.command_arrays(*args), carried.command_arrays(*args)
+        assert c.u_m_per_s2[0] == a.u_m_per_s2[0]
+        assert (c.u_m_per_s2[1] == 0.0) if dropped else (c.u_m_per_s2[1] == a.u_m_per_s2[1])
+    with pytest.raises(ConfigError, match="straight vessel"):
+        net = PhysicsParams(vessel=VesselParams(network="paper_iiic_artery"))
+        BacksteppingController(ControllerParams(wall_contact="carried"), DynamicsModel(net).F, input_matrix(net))
+    with pytest.raises(ConfigError, match="straight vessel"):  # a user's F: the law cannot see the wall
+        BacksteppingController(ControllerParams(wall_contact="carried"), lambda t, x, z, s=1.0: np.zeros(2), b)

@@ -129,3 +129,29 @@ def test_track_restarts_after_too_many_rejections() -> None:
     e = obs.update(4e-3, _meas(4e-3, far), np.zeros(2))
     assert e.used_measurement and obs.track_resets == 1
     np.testing.assert_allclose(e.x_hat, far, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("projection", ["none", "lumen"])
+def test_wall_projection_puts_an_estimate_inside_the_wall_back_one_brush_length_from_it(projection: str) -> None:
+    """A frame below the lower wall (noise, the bead resting on it): with ``lumen`` the corrected estimate sits
+    one brush length L0 from the wall with no velocity into it; with ``none`` the correction is left in the wall."""
+    from vesselbot_ros.physics.kernel import diameter_at
+
+    ph = EKF_SCENARIO.model_physics()
+    model = DynamicsModel(ph, EKF_SCENARIO.sim.integrator)
+    r, l0 = ph.robot.radius_m, ph.interactions.brush_length_m
+    wall = -(0.5 * float(diameter_at(0.0, model.p)) - r)  # the centre of a bead touching the lower wall at t = 0
+    obs = ExtendedKalmanObserver(dataclasses.replace(EkfParams(), wall_projection=projection), model,
+                                 (0.0, wall + 50e-6), tick_s=1e-3)
+    obs.update(0.0, _meas(0.0, (0.0, wall + 50e-6)), np.zeros(2))
+    e = obs.update(0.0, _meas(0.0, (0.0, wall - 300e-6)), np.zeros(2))
+    assert e.used_measurement
+    if projection == "lumen":
+        assert e.x_hat[1] == pytest.approx(wall + l0, abs=1e-12) and e.z_hat[1] >= 0.0
+    else:
+        assert e.x_hat[1] < wall
+
+
+def test_wall_projection_is_validated() -> None:
+    with pytest.raises(ConfigError, match="wall_projection"):
+        EkfParams(wall_projection="sky")

@@ -95,3 +95,22 @@ def test_brush_limited_vdw_no_longer_traps_but_atomic_floor_does():
     kernel.forces_into(t, 0.0, z, 0.0, 0.0, 0.0, 0.0, np.zeros(4), atomic, out)
     assert out[4, 1] == pytest.approx(vdw_hand(0.4e-9), rel=1e-6)
     assert out[4, 1] > 10 * bp_max  # ~1e-4 N: the robot sticks
+
+
+def test_onto_lumen_puts_a_centre_in_or_near_the_wall_gap_from_it_and_drops_the_velocity_into_it() -> None:
+    from vesselbot_ros.physics.kernel import diameter_at, onto_lumen
+    from vesselbot_ros.physics.params import PhysicsParams
+    from vesselbot_ros.vessels.cfd import packed_params
+
+    ph = PhysicsParams()
+    p = packed_params(ph)
+    t = 0.2
+    touch = 0.5 * float(diameter_at(t, p)) - ph.robot.radius_m
+    # lower wall: in it, or within the gap -> gap from it; the velocity into it (down) goes, along it stays
+    for z in (-touch - 1e-4, -touch + 0.5e-7):
+        x0, x1, z0, z1 = onto_lumen(t, 1e-3, z, 3e-3, -5e-3, p, 1e-7)
+        assert (x0, z0, z1) == (1e-3, 3e-3, 0.0) and x1 == pytest.approx(-touch + 1e-7, abs=1e-15)
+    # upper wall, moving away from it: only the position moves
+    assert onto_lumen(t, 0.0, touch + 1e-5, 0.0, -1e-3, p, 0.0)[1:] == pytest.approx((touch, 0.0, -1e-3), abs=1e-15)
+    # clear of both walls: untouched
+    assert onto_lumen(t, 0.0, 0.0, 1.0, 2.0, p, 1e-7) == (0.0, 0.0, 1.0, 2.0)

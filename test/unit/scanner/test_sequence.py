@@ -85,7 +85,9 @@ def test_continuous_mode_is_the_saturation() -> None:
 
 
 def test_presets_and_dbdt() -> None:
-    assert set(PRESETS) == {"paper", "clinical_3t", "propulsion_insert"}
+    assert set(PRESETS) == {"paper", "clinical_3t", "clinical_3t_mfde", "propulsion_insert"}
+    mfde = PRESETS["clinical_3t_mfde"].sequence  # Zhai 2026: TR 30 ms, at most 77 % driving, on whole ticks
+    assert mfde.period_s == pytest.approx(0.030) and 0.70 < duty_cycle(mfde) <= 0.77
     assert PRESETS["paper"].sequence.mode == "continuous" and PRESETS["paper"].saturation_T_per_m == 0.08
     assert PRESETS["propulsion_insert"].saturation_T_per_m > 5 * PRESETS["clinical_3t"].saturation_T_per_m
     assert iec_normal_mode_dbdt(0.36) == pytest.approx(32.0, rel=1e-12)  # 0.8 * 20 * (1 + 1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses as dc
+import functools
 import math
 import os
 import subprocess
@@ -18,6 +19,7 @@ from vesselbot_ros.control.imager_model import Dropout
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
+from vesselbot_ros.scanner.predictive import PredictiveParams
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint
@@ -82,6 +84,18 @@ def _short(s: Scenario, duration: float = 0.25) -> Scenario:
     return dc.replace(s, sim=dc.replace(s.sim, duration_s=duration, metrics_after_s=0.4 * duration))
 
 
+@functools.lru_cache(maxsize=1)
+def _wall_plan() -> Scenario:
+    """The clinical 3 T plan (it falls to the lower wall and rides it), flown with the wall-contact options."""
+    from vesselbot_ros.analysis.plan import PlanOptions, make_plan, plan_scenario
+
+    base = load_scenario(shipped_scenarios()["clinical_3t_small_artery"])
+    planned = plan_scenario(base, make_plan(base, PlanOptions(height="wall")).reference)
+    return _short(dc.replace(
+        planned, controller=dc.replace(planned.controller, wall_contact="carried"),
+        observer=dc.replace(planned.observer, ekf=dc.replace(planned.observer.ekf, wall_projection="lumen"))), 0.3)
+
+
 def _variants() -> dict[str, Scenario]:
     """Branches the shipped scenarios do not take: forces, per-axis saturation, hold, 50 Hz + latency + dropouts + gate
     + delay compensation, fixed-step RK4, flow-synchronised reference; the extended Kalman filter with latency (delay
@@ -123,6 +137,8 @@ def _variants() -> dict[str, Scenario]:
             sound, imager=dc.replace(sound.imager, frame_rate_Hz=50.0, latency_s=0.03, dropout_probability=0.2,
                                      outliers=(dc.replace(sound.imager.outliers[0], start_s=0.1, duration_s=0.05),)),
             observer=dc.replace(sound.observer, delay_compensation=True, innovation_gate_m=5e-4)),
+        "planned_wall_carried_projected": _wall_plan(),
+        "planned_wall_predictive_projected": dc.replace(_wall_plan(), controller=PredictiveParams()),
         "rk4_flow_sync": dc.replace(
             sound, sim=dc.replace(sound.sim, integrator=IntegratorParams(method="rk4", fixed_step_s=2e-4)),
             reference=dc.replace(sound.reference, timing="flow_synchronised", duration_s=0.25)),
@@ -147,6 +163,8 @@ def test_compiled_equals_per_tick_on_other_branches(variant: str) -> None:
     if variant.startswith("scanner_"):
         assert set(np.unique(ts["sequence_phase"])) == {1, 2, 3}
         assert np.all(ts["g_applied"][ts["sequence_phase"] == 1] == 0.0)  # no propulsion while imaging
+    if variant.startswith("planned_wall"):  # it lands on the wall and rides it; the carried law drops the vertical
+        assert np.any(ts["in_contact"]) and res.metrics["tracking_error_max_m"] < 1e-3
     if variant == "ekf_track_restart":
         st = build_stages(scenario, 0)
         run_stages(scenario, st, 0, path="per_tick")
