@@ -126,3 +126,14 @@ def test_options_name_their_bad_values():
         PlanOptions(height="ceiling")
     with pytest.raises(ConfigError, match="table_step_s must be >= step_s"):
         PlanOptions(table_step_s=1e-4)
+
+
+def test_the_docs_quote_the_stored_plan_study():
+    """docs/reproduction.md's plan table is tools/gen_plan_study.py's last output (docs/plan_study/table.md)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    text = (root / "docs" / "reproduction.md").read_text()
+    table = (root / "docs" / "plan_study" / "table.md").read_text()
+    assert "<!-- BEGIN plan_study -->\n" + table + "<!-- END plan_study -->" in text
+    assert table.count("\n") >= 6 and "clinical_3t" in table

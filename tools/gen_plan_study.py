@@ -1,0 +1,152 @@
+"""Regenerate the planned-navigation table of docs/reproduction.md ("Plans the scanner can fly").
+
+Usage::
+
+    .venv/bin/python tools/gen_plan_study.py            # plan, fly, write docs/plan_study/ and the docs section
+    .venv/bin/python tools/gen_plan_study.py --render   # only re-render the docs from docs/plan_study/table.md
+
+For each scanner preset, ``vesselbot plan`` plans the Section III-C path of
+``clinical_3t_small_artery`` (its bead and vessel) on that preset's coil and
+sequence (heights ``auto``, and ``free`` for comparison), then flies the
+written plan over seeds 0-4 with the extended Kalman filter and law (24)
+(the plan's own options) and with the predictive controller, and prints and
+writes per row: the plan (where in the lumen, time beside continuous
+propulsion, margin, coast floor) and the tracking error after 0.6 s (mean /
+worst) with its ratio to the coast floor against the target (2x).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vesselbot_ros.analysis.plan import PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
+from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
+from vesselbot_ros.campaign.spec import merge_mapping  # noqa: E402
+from vesselbot_ros.config import unflatten  # noqa: E402
+from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
+from vesselbot_ros.sim.kinds import switch_sections  # noqa: E402
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping  # noqa: E402
+
+DOC = ROOT / "docs" / "reproduction.md"
+DATA = ROOT / "docs" / "plan_study"
+MARK = re.compile(r"(<!-- BEGIN plan_study -->\n)(?:.*?\n)?(<!-- END plan_study -->)", re.S)
+BASE = "clinical_3t_small_artery"
+CELLS = (("clinical_3t", "auto"), ("clinical_3t_mfde", "auto"), ("propulsion_insert", "auto"),
+         ("propulsion_insert", "free"))
+SEEDS = range(5)
+TARGET = 2.0
+
+
+def _with(scenario: Scenario, changes: dict) -> Scenario:
+    """``scenario`` with dotted-key changes; a switched kind drops the old kind's keys, as a campaign variant does."""
+    mapping, nested = scenario.to_mapping(), unflatten(changes)
+    return scenario_from_mapping(switch_sections(mapping, merge_mapping(mapping, nested), nested))
+
+
+def _fly(scenario: Scenario) -> tuple[float, float, float]:
+    rs = run_many(scenario, SEEDS)
+    track = np.array([r.metrics["tracking_error_max_m"] for r in rs])
+    est = np.array([r.metrics["estimation_error_rms_m"] for r in rs])
+    return float(track.mean()), float(track.max()), float(est.mean())
+
+
+def rows() -> list[dict]:
+    out = []
+    for hardware, height in CELLS:
+        base = _with(load_scenario(BASE), preset_changes(hardware))
+        row = {"hardware": hardware, "height": height}
+        try:
+            plan = make_plan(base, PlanOptions(height=height))
+        except PlanInfeasible as exc:
+            out.append({**row, "status": str(exc)})
+            continue
+        cont = dataclasses.replace(base, sequence=dataclasses.replace(base.sequence, mode="continuous"))
+        try:
+            t_cont = make_plan(cont, PlanOptions(height=height)).end_s
+        except PlanInfeasible:
+            t_cont = float("nan")
+        planned = plan_scenario(base, plan.reference)
+        flown = _with(planned, flying_changes(planned, plan))
+        wall = any(s.mode != "free" for s in plan.segments)
+        row.update(status="ok", where="lower wall" if wall else "free lumen", end_s=plan.end_s, continuous_s=t_cont,
+                   margin_m_per_s2=plan.margin_m_per_s2, a_avail_m_per_s2=plan.a_avail_m_per_s2,
+                   coast_floor_m=plan.coast_floor_m)
+        for pair, scenario in (("law24", flown),
+                               ("predictive", _with(flown, {"controller.kind": "predictive"}))):
+            mean, worst, est = _fly(scenario)
+            row.update({f"{pair}_mean_m": mean, f"{pair}_worst_m": worst, f"{pair}_est_rms_m": est})
+        out.append(row)
+        print(_line(row), flush=True)
+    return out
+
+
+def _line(r: dict) -> str:
+    return (f"{r['hardware']:<18}{r['height']:<6}{r['where']:<12}{r['end_s']:6.2f} s (cont. {r['continuous_s']:.2f})"
+            f" margin {r['margin_m_per_s2']:6.2f} floor {r['coast_floor_m'] * 1e6:5.0f} um | law24 "
+            f"{r['law24_mean_m'] * 1e6:5.0f}/{r['law24_worst_m'] * 1e6:5.0f} | predictive "
+            f"{r['predictive_mean_m'] * 1e6:5.0f}/{r['predictive_worst_m'] * 1e6:5.0f}")
+
+
+def _um(v: float) -> str:
+    return f"{v * 1e6:.0f}"
+
+
+def markdown(rs: list[dict]) -> str:
+    lines = ["| scanner preset | heights | plan rests | path takes (s) | continuous propulsion (s) | "
+             "margin / coil (m/s^2) | coast floor (um) | EKF + law (24): tracking mean / worst (um) | worst / floor | "
+             "EKF + predictive: mean / worst (um) | worst / floor | estimation rms, law (24) (um) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rs:
+        if r["status"] != "ok":
+            lines.append(f"| {r['hardware']} | {r['height']} | {r['status']} |" + " - |" * 9)
+            continue
+        f = r["coast_floor_m"]
+
+        def ratio(w: float, f: float = f) -> str:
+            q = w / f
+            return f"{q:.2f}x {'(meets 2x)' if q <= TARGET else '(misses 2x)'}"
+
+        lines.append(
+            f"| {r['hardware']} | {r['height']} | {r['where']} | {r['end_s']:.2f} | {r['continuous_s']:.2f} | "
+            f"{r['margin_m_per_s2']:.2f} / {r['a_avail_m_per_s2']:.2f} | {_um(f)} | "
+            f"{_um(r['law24_mean_m'])} / {_um(r['law24_worst_m'])} | {ratio(r['law24_worst_m'])} | "
+            f"{_um(r['predictive_mean_m'])} / {_um(r['predictive_worst_m'])} | {ratio(r['predictive_worst_m'])} | "
+            f"{_um(r['law24_est_rms_m'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def render(text: str, table: str) -> str:
+    if not MARK.search(text):
+        raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN plan_study --> / <!-- END plan_study --> markers")
+    return MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--render", action="store_true", help="only re-render the docs from docs/plan_study/table.md")
+    args = ap.parse_args()
+    DATA.mkdir(parents=True, exist_ok=True)
+    if not args.render:
+        rs = rows()
+        keys = sorted({k for r in rs for k in r})
+        with (DATA / "table.csv").open("w", newline="", encoding="utf-8") as fh:
+            w = csv.DictWriter(fh, fieldnames=keys)
+            w.writeheader()
+            w.writerows(rs)
+        (DATA / "table.md").write_text(markdown(rs), encoding="utf-8")
+    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text()))
+    print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
+
+
+if __name__ == "__main__":
+    main()
