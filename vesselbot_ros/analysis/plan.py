@@ -327,6 +327,8 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
     _, wall_next = _best_height(scenario, model, min(x1, x0 + options.anchor_spacing_m), heights, v_cap)
     if wall_next:  # sink to the wall as the bead falls by itself: no gradient needed on the way down
         got = _fall(scenario, float(ref.start_s), first, options.step_s, x1 - 0.5 * options.anchor_spacing_m, options)
+        if got is not None and got[0].p[-1, 0] - got[0].p[0, 0] < 0.25 * options.anchor_spacing_m:
+            got = None  # it falls (or rests) about where it starts: the path starts on the wall below it instead
         if got is not None:
             fall, touched = got
             arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(fall.p, axis=0).T))])
@@ -359,6 +361,9 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
         z, on_wall = _best_height(scenario, model, float(x), heights, v_cap)
         zs.append(z)
         weights.append(1.0 if on_wall else 0.0)
+    rest = wall_rest(scenario, float(ref.start_s)) if not scenario.physics.vessel.network else None
+    if weights[1] == 1.0 and rest is not None and first[1] <= rest[0][0] + 5e-6:
+        zs[0], weights[0] = zs[1], 1.0  # it starts on the wall: the path rides it from the start
     return _Geometry(np.column_stack([xs, zs]), np.asarray(weights), None, ())
 
 

@@ -137,3 +137,25 @@ def test_the_docs_quote_the_stored_plan_study():
     table = (root / "docs" / "plan_study" / "table.md").read_text()
     assert "<!-- BEGIN plan_study -->\n" + table + "<!-- END plan_study -->" in text
     assert table.count("\n") >= 6 and "clinical_3t" in table
+
+
+def test_the_docs_quote_the_stored_published_experiments():
+    """docs/reproduction.md's published-experiments table is tools/gen_published_experiments.py's last output."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    text = (root / "docs" / "reproduction.md").read_text()
+    table = (root / "docs" / "published_experiments" / "table.md").read_text()
+    assert "<!-- BEGIN published_experiments -->\n" + table + "<!-- END published_experiments -->" in text
+    for name in ("Folio", "Zhai", "Tamaz", "Martel"):
+        assert name in table
+
+
+def test_folio_2017_is_flyable_only_on_the_channel_floor():
+    """15 mT/m lifts nothing: the plan of the Folio and Ferreira emulation rides the lower wall from the start."""
+    scenario = load_scenario("folio_2017_tro")
+    plan = make_plan(scenario)
+    assert all(s.mode == "wall" for s in plan.segments) and plan.margin_m_per_s2 > 0.0
+    assert plan.end_s == pytest.approx(scenario.reference.duration_s, rel=0.05)  # about 4 mm/s over 9 mm
+    with pytest.raises(PlanInfeasible, match="missing"):
+        make_plan(load_scenario("folio_2017_tro", sets=["physics.flow.centreline_velocity_m_per_s=0.025"]))
