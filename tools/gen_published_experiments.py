@@ -95,7 +95,7 @@ def rows() -> list[dict]:
 
 
 def markdown(rs: list[dict]) -> str:
-    lines = ["| experiment | conditions (source) | published | our emulation, seeds 0–4: tracking rms, mean / worst "
+    lines = ["| experiment | conditions (source) | published | our emulation, seeds 0-4: tracking rms, mean / worst "
              "(µm) | tracking max after 0.6 s, mean / worst (µm) | what differs | max / path length |",
              "|---|---|---|---|---|---|---|"]
     for r in rs:
