@@ -2,8 +2,16 @@
 
 Usage::
 
-    .venv/bin/python tools/gen_plan_study.py            # plan, fly, write docs/plan_study/ and the docs section
-    .venv/bin/python tools/gen_plan_study.py --render   # only re-render the docs from docs/plan_study/table.md
+    .venv/bin/python tools/gen_plan_study.py              # plan, fly, write docs/plan_study/, config/plans/, docs
+    .venv/bin/python tools/gen_plan_study.py --campaigns  # and the 100-seed campaigns of the planned scenarios
+    .venv/bin/python tools/gen_plan_study.py --render     # only re-render the docs from docs/plan_study/
+
+The auto-height plans are also written as scenarios, ``config/plans/<preset>.yaml``
+(with the loop's options for a plan on the wall), the bases of the campaigns
+``config/campaigns/plans/<preset>.yaml``: 100 seeds each, with law (24) and with
+the predictive controller; ``--campaigns`` runs them (``vesselbot campaign``)
+and tabulates, per preset and controller, the tracking error's mean, worst and
+share of seeds within 2x the plan's coast floor.
 
 For each scanner preset, ``vesselbot plan`` plans the Section III-C path of
 ``clinical_3t_small_artery`` (its bead and vessel) on that preset's coil and
@@ -29,7 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vesselbot_ros.analysis.plan import PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
+from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
 from vesselbot_ros.campaign.spec import merge_mapping  # noqa: E402
 from vesselbot_ros.config import unflatten  # noqa: E402
@@ -40,6 +48,9 @@ from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_ma
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "plan_study"
 MARK = re.compile(r"(<!-- BEGIN plan_study -->\n)(?:.*?\n)?(<!-- END plan_study -->)", re.S)
+MARK_CAMPAIGNS = re.compile(r"(<!-- BEGIN plan_campaigns -->\n)(?:.*?\n)?(<!-- END plan_campaigns -->)", re.S)
+PLANS = ROOT / "config" / "plans"
+CAMPAIGNS = ROOT / "config" / "campaigns" / "plans"
 BASE = "clinical_3t_small_artery"
 CELLS = (("clinical_3t", "auto"), ("clinical_3t_mfde", "auto"), ("propulsion_insert", "auto"),
          ("propulsion_insert", "free"))
@@ -77,6 +88,8 @@ def rows() -> list[dict]:
             t_cont = float("nan")
         planned = plan_scenario(base, plan.reference)
         flown = _with(planned, flying_changes(planned, plan))
+        if height == "auto":
+            _write_plan(hardware, flown, plan)
         wall = any(s.mode != "free" for s in plan.segments)
         row.update(status="ok", where="lower wall" if wall else "free lumen", end_s=plan.end_s, continuous_s=t_cont,
                    margin_m_per_s2=plan.margin_m_per_s2, a_avail_m_per_s2=plan.a_avail_m_per_s2,
@@ -88,6 +101,53 @@ def rows() -> list[dict]:
         out.append(row)
         print(_line(row), flush=True)
     return out
+
+
+def _write_plan(hardware: str, flown: Scenario, plan: Plan) -> None:
+    import yaml
+
+    PLANS.mkdir(parents=True, exist_ok=True)
+    mapping = dict(flown.to_mapping(), name=f"{hardware}_plan")
+    (PLANS / f"{hardware}.yaml").write_text(
+        f"# written by tools/gen_plan_study.py: vesselbot plan of {BASE} on the {hardware} preset, its coil and\n"
+        f"# sequence; {plan.end_s:.2f} s, margin {plan.margin_m_per_s2:.2f} m/s^2, coast floor "
+        f"{plan.coast_floor_m * 1e6:.0f} um (COAST_FLOOR_M below: the campaigns' target).  Do not edit: regenerate.\n"
+        f"# COAST_FLOOR_M: {plan.coast_floor_m!r}\n" + yaml.safe_dump(mapping, sort_keys=False), encoding="utf-8")
+
+
+def floor_of(path: Path) -> float:
+    """The coast floor written in a plan scenario's header (m)."""
+    for line in path.read_text().splitlines():
+        if line.startswith("# COAST_FLOOR_M:"):
+            return float(line.split(":", 1)[1])
+    raise SystemExit(f"{path} has no '# COAST_FLOOR_M:' line: regenerate it with tools/gen_plan_study.py")
+
+
+def campaigns() -> str:
+    """Run the plan campaigns (or resume them) and tabulate them against 2x each plan's coast floor."""
+    import subprocess
+
+    import pyarrow.parquet as pq
+
+    lines = ["| scanner preset | controller | runs | tracking max after 0.6 s: mean / worst (um) | p95 (um) | "
+             "coast floor (um) | share within 2x the floor |", "|---|---|---|---|---|---|---|"]
+    for spec in sorted(CAMPAIGNS.glob("*.yaml")):
+        out = ROOT / "out" / "campaigns" / "plans" / spec.stem
+        subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "campaign", str(spec), "--out", str(out),
+                        "--no-progress"], cwd=ROOT, check=True)
+        floor = floor_of(PLANS / f"{spec.stem}.yaml")
+        rows = pq.read_table(out / "results.parquet").to_pylist()
+        dest = DATA / "campaigns" / spec.stem
+        dest.mkdir(parents=True, exist_ok=True)
+        (dest / "results.parquet").write_bytes((out / "results.parquet").read_bytes())
+        for variant in sorted({r["variant"] for r in rows}):
+            vals = np.array([r["tracking_error_max_m"] for r in rows if r["variant"] == variant and r["status"] == "ok"])
+            n_all = sum(1 for r in rows if r["variant"] == variant)
+            within = np.count_nonzero(vals <= TARGET * floor) / n_all
+            lines.append(f"| {spec.stem} | {variant} | {vals.size} of {n_all} | {vals.mean() * 1e6:.0f} / "
+                         f"{vals.max() * 1e6:.0f} | {np.percentile(vals, 95) * 1e6:.0f} | {floor * 1e6:.0f} | "
+                         f"{within:.0%} |")
+    return "\n".join(lines) + "\n"
 
 
 def _line(r: dict) -> str:
@@ -125,15 +185,21 @@ def markdown(rs: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render(text: str, table: str) -> str:
+def render(text: str, table: str, campaign_table: str | None = None) -> str:
     if not MARK.search(text):
         raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN plan_study --> / <!-- END plan_study --> markers")
-    return MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
+    text = MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
+    if campaign_table is not None:
+        if not MARK_CAMPAIGNS.search(text):
+            raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN plan_campaigns --> / END markers")
+        text = MARK_CAMPAIGNS.sub(lambda m: m.group(1) + campaign_table + m.group(2), text)
+    return text
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--render", action="store_true", help="only re-render the docs from docs/plan_study/table.md")
+    ap.add_argument("--render", action="store_true", help="only re-render the docs from docs/plan_study/")
+    ap.add_argument("--campaigns", action="store_true", help="also run the 100-seed campaigns of the plans")
     args = ap.parse_args()
     DATA.mkdir(parents=True, exist_ok=True)
     if not args.render:
@@ -144,7 +210,11 @@ def main() -> None:
             w.writeheader()
             w.writerows(rs)
         (DATA / "table.md").write_text(markdown(rs), encoding="utf-8")
-    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text()))
+    if args.campaigns:
+        (DATA / "campaigns.md").write_text(campaigns(), encoding="utf-8")
+    stored = DATA / "campaigns.md"
+    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(),
+                          stored.read_text() if stored.is_file() else None))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 
 

@@ -159,3 +159,31 @@ def test_folio_2017_is_flyable_only_on_the_channel_floor():
     assert plan.end_s == pytest.approx(scenario.reference.duration_s, rel=0.05)  # about 4 mm/s over 9 mm
     with pytest.raises(PlanInfeasible, match="missing"):
         make_plan(load_scenario("folio_2017_tro", sets=["physics.flow.centreline_velocity_m_per_s=0.025"]))
+
+
+@pytest.mark.parametrize("preset", ["clinical_3t", "clinical_3t_mfde", "propulsion_insert"])
+def test_the_shipped_plans_are_what_the_planner_makes_and_their_campaigns_load(preset):
+    """config/plans/<preset>.yaml (tools/gen_plan_study.py) is today's plan, flown with its wall options; its
+    100-seed campaign spec loads with it as base."""
+    from pathlib import Path
+
+    from vesselbot_ros.analysis.plan import flying_changes
+    from vesselbot_ros.analysis.scanner_study import preset_changes
+    from vesselbot_ros.campaign.spec import load_campaign_spec
+
+    root = Path(__file__).resolve().parents[3]
+    shipped = load_scenario(root / "config" / "plans" / f"{preset}.yaml")
+    base = load_scenario("clinical_3t_small_artery",
+                         sets=[f"{k}={v}" for k, v in preset_changes(preset).items()])
+    plan = make_plan(base)
+    assert shipped.reference == plan.reference
+    assert shipped.sim.duration_s == pytest.approx(plan.end_s)
+    for key, value in flying_changes(shipped, plan).items():
+        section, _, field = key.partition(".")
+        obj = getattr(shipped, section)
+        for part in field.split("."):
+            obj = getattr(obj, part)
+        assert obj == value, key
+    spec, base_mapping = load_campaign_spec(root / "config" / "campaigns" / "plans" / f"{preset}.yaml")
+    assert spec.seeds.count == 100 and set(spec.variants) == {"law24", "predictive"}
+    assert base_mapping["reference"]["timing"] == "planned"
