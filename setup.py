@@ -32,6 +32,8 @@ setup(
         # finds them here when installed (vesselbot_ros.config.shipped_config_dir)
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/campaigns", glob("config/campaigns/*.yaml")),
+        (f"share/{PACKAGE}/config/campaigns/plans", glob("config/campaigns/plans/*.yaml")),
+        (f"share/{PACKAGE}/config/plans", glob("config/plans/*.yaml")),
         (f"share/{PACKAGE}/config/vessels", glob("config/vessels/*.yaml")),
         # the sampled CFD fields of the shipped networks (vesselbot_ros.vessels.cfd, "Shipped fields")
         (f"share/{PACKAGE}/config/cfd", glob("config/cfd/*.npz")),
