@@ -83,32 +83,38 @@ def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argumen
 
 
 @numba.njit(cache=True, nogil=True)
-def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles).
 
     ``tc`` memoises the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
-    which do not depend on ``V_f``, the only parameter ``s`` scales.
+    which do not depend on ``V_f``, the only parameter ``s`` scales.  ``constrained`` (``wall_projection:
+    lumen``): the drag and the apparent weight only, the wall being a constraint (its stiff contact and
+    surface forces would give the covariance a Jacobian of microsecond modes).
     """
     _scaled(p, y[4], p_s)
     forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, free, p_s, fbuf, tc)
     out[0] = y[2]
     out[1] = y[3]
-    out[2] = fbuf[7, 0] / p_s[I_MASS] + ux
-    out[3] = fbuf[7, 1] / p_s[I_MASS] + uz
+    if constrained:
+        out[2] = (fbuf[1, 0] + fbuf[2, 0]) / p_s[I_MASS] + ux
+        out[3] = (fbuf[1, 1] + fbuf[2, 1]) / p_s[I_MASS] + uz
+    else:
+        out[2] = fbuf[7, 0] / p_s[I_MASS] + ux
+        out[3] = fbuf[7, 1] / p_s[I_MASS] + uz
     out[4] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)
-def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
     tc[0] = np.nan  # p (the model) may differ from the last call's
-    _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc)
+    _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc, constrained)
     for j in range(N):
         d = 1e-7 * max(abs(y[j]), 1e-3) if j < 2 else (1e-7 * max(abs(y[j]), 1e-2) if j < 4 else 1e-7)
         for i in range(N):
             yp[i] = y[i]
         yp[j] = y[j] + d
-        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf, tc)
+        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf, tc, constrained)
         for i in range(N):
             A[i, j] = (f1[i] - f0[i]) / d
     # Phi = exp(A h) by scaling and squaring: Phi_s = I + M + M^2/2 with M = A h / 2^s, ||M||_inf <= 0.5,
@@ -243,7 +249,7 @@ def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]  # numba kern
 def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
     _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
-                 mat[2], fbuf, vec[5])
+                 mat[2], fbuf, vec[5], prm[18] > 0.5)
     _scaled(p, y[4], p_s)
     ys = vec[3]
     ys[0] = y[0]
@@ -301,8 +307,15 @@ def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]  # numba kern
 @numba.njit(cache=True, nogil=True)
 def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
         prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat, stats, err):
-    """``(yc, Pc)`` is the state ``back`` ticks ago: rewrite the history to now, set ``(y, P)``; code."""
+    """``(yc, Pc)`` is the state ``back`` ticks ago: rewrite the history to now, set ``(y, P)``; code.
+
+    With ``wall_projection: lumen`` the contact state starts afresh: the one carried along is now's, not
+    the past state's, and on a wall the difference throws the re-prediction off.
+    """
     n = hist_t.shape[0]
+    if prm[18] > 0.5:
+        for i in range(free.shape[0]):
+            free[i] = 0.0
     for step in range(back, 0, -1):
         j = (ist[1] - step + n) % n
         k = (j + 1) % n

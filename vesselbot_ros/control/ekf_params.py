@@ -41,10 +41,13 @@ class EkfParams:
             and the next prediction's contact force throws it out.  ``lumen``:
             a corrected estimate inside a wall is put back by it with no
             velocity into it (:func:`~vesselbot_ros.physics.kernel.onto_lumen`,
-            the projection of a constrained Kalman filter); the prediction
-            and the covariance are unchanged.  Put back one brush length
-            ``L_0`` from the wall, where the steric force starts: at contact
-            the brush would throw the estimate off.
+            the projection of a constrained Kalman filter), one brush length
+            ``L_0`` from the wall, where the steric force starts (at contact
+            the brush would throw the estimate off); and the covariance's
+            Jacobian leaves out the wall's contact and surface forces (their
+            microsecond modes give the velocity a gain that throws a delayed
+            frame's re-prediction off the wall).  The mean is predicted with
+            every force, as before.
     """
 
     measurement_sigma_m: float = 100e-6
