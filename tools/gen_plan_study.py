@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import re
 import sys
 from pathlib import Path
 
@@ -36,6 +35,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
@@ -47,8 +49,6 @@ from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_ma
 
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "plan_study"
-MARK = re.compile(r"(<!-- BEGIN plan_study -->\n)(?:.*?\n)?(<!-- END plan_study -->)", re.S)
-MARK_CAMPAIGNS = re.compile(r"(<!-- BEGIN plan_campaigns -->\n)(?:.*?\n)?(<!-- END plan_campaigns -->)", re.S)
 PLANS = ROOT / "config" / "plans"
 CAMPAIGNS = ROOT / "config" / "campaigns" / "plans"
 BASE = "clinical_3t_small_artery"
@@ -186,14 +186,8 @@ def markdown(rs: list[dict]) -> str:
 
 
 def render(text: str, table: str, campaign_table: str | None = None) -> str:
-    if not MARK.search(text):
-        raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN plan_study --> / <!-- END plan_study --> markers")
-    text = MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
-    if campaign_table is not None:
-        if not MARK_CAMPAIGNS.search(text):
-            raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN plan_campaigns --> / END markers")
-        text = MARK_CAMPAIGNS.sub(lambda m: m.group(1) + campaign_table + m.group(2), text)
-    return text
+    text = replace_section(text, "plan_study", table)
+    return text if campaign_table is None else replace_section(text, "plan_campaigns", campaign_table)
 
 
 def main() -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import re
 import sys
 from pathlib import Path
 
@@ -24,6 +23,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
@@ -35,7 +37,6 @@ from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_ma
 
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "published_experiments"
-MARK = re.compile(r"(<!-- BEGIN published_experiments -->\n)(?:.*?\n)?(<!-- END published_experiments -->)", re.S)
 SEEDS = range(5)
 
 
@@ -111,9 +112,7 @@ def markdown(rs: list[dict]) -> str:
 
 
 def render(text: str, table: str) -> str:
-    if not MARK.search(text):
-        raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN published_experiments --> / END markers")
-    return MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
+    return replace_section(text, "published_experiments", table)
 
 
 def main() -> None:

@@ -15,15 +15,17 @@ that the section is the stored table.
 from __future__ import annotations
 
 import argparse
-import re
 import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))  # loaded by file location in the tests too
+
+from doc_sections import replace_section  # noqa: E402
+
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "scanner_study"
-MARK = re.compile(r"(<!-- BEGIN scanner_study -->\n)(?:.*?\n)?(<!-- END scanner_study -->)", re.S)
 #: The grid quoted in docs/reproduction.md.
 ARGS = ["--hardware", "clinical_3t,propulsion_insert", "--tracking-windows", "0.004,0.02",
         "--propulsion-windows", "0.01,0.03,0.06", "--latencies", "0.0,0.02", "--pairs", "paper,ekf,ekf_k300,ekf_predictive",
@@ -32,9 +34,7 @@ ARGS = ["--hardware", "clinical_3t,propulsion_insert", "--tracking-windows", "0.
 
 def render(text: str, table: str) -> str:
     """``text`` (docs/reproduction.md) with the scanner-study section replaced by ``table``."""
-    if not MARK.search(text):
-        raise SystemExit("docs/reproduction.md lacks the <!-- BEGIN scanner_study --> / <!-- END scanner_study --> markers")
-    return MARK.sub(lambda m: m.group(1) + table + m.group(2), text)
+    return replace_section(text, "scanner_study", table)
 
 
 def main() -> None:
