@@ -4,6 +4,7 @@ Usage::
 
     .venv/bin/python tools/gen_plan_study.py              # plan, fly, write docs/plan_study/, config/plans/, docs
     .venv/bin/python tools/gen_plan_study.py --campaigns  # and the 100-seed campaigns of the planned scenarios
+    .venv/bin/python tools/gen_plan_study.py --design     # and the bead design grid on clinical 3 T
     .venv/bin/python tools/gen_plan_study.py --render     # only re-render the docs from docs/plan_study/
 
 The auto-height plans are also written as scenarios, ``config/plans/<preset>.yaml``
@@ -56,6 +57,7 @@ CELLS = (("clinical_3t", "auto"), ("clinical_3t_mfde", "auto"), ("propulsion_ins
          ("propulsion_insert", "free"))
 SEEDS = range(5)
 TARGET = 2.0
+DESIGN_RADII_M = (175e-6, 250e-6, 375e-6, 500e-6)
 
 
 def _with(scenario: Scenario, changes: dict) -> Scenario:
@@ -185,15 +187,36 @@ def markdown(rs: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render(text: str, table: str, campaign_table: str | None = None) -> str:
+def design() -> str:
+    """``vesselbot plan-design`` on the clinical 3 T preset: the grid's Markdown (and design.png, design.csv)."""
+    from vesselbot_ros.analysis.plan_design import MATERIALS, design_grid
+    from vesselbot_ros.analysis.plan_design import rows as design_rows
+    from vesselbot_ros.analysis.plan_design_cli import _figure
+    from vesselbot_ros.analysis.plan_design_cli import markdown as design_markdown
+
+    base = _with(load_scenario(BASE), preset_changes("clinical_3t"))
+    cells = design_grid(base, DESIGN_RADII_M, list(MATERIALS))
+    table = design_rows(cells)
+    with (DATA / "design.csv").open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(table[0]))
+        w.writeheader()
+        w.writerows(table)
+    _figure(cells, DATA / "design.png", f"{BASE} on clinical_3t")
+    return design_markdown(cells)
+
+
+def render(text: str, table: str, campaign_table: str | None = None, design_table: str | None = None) -> str:
     text = replace_section(text, "plan_study", table)
-    return text if campaign_table is None else replace_section(text, "plan_campaigns", campaign_table)
+    if campaign_table is not None:
+        text = replace_section(text, "plan_campaigns", campaign_table)
+    return text if design_table is None else replace_section(text, "plan_design", design_table)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--render", action="store_true", help="only re-render the docs from docs/plan_study/")
     ap.add_argument("--campaigns", action="store_true", help="also run the 100-seed campaigns of the plans")
+    ap.add_argument("--design", action="store_true", help="also plan the bead design grid on clinical 3 T")
     args = ap.parse_args()
     DATA.mkdir(parents=True, exist_ok=True)
     if not args.render:
@@ -206,9 +229,12 @@ def main() -> None:
         (DATA / "table.md").write_text(markdown(rs), encoding="utf-8")
     if args.campaigns:
         (DATA / "campaigns.md").write_text(campaigns(), encoding="utf-8")
-    stored = DATA / "campaigns.md"
+    if args.design:
+        (DATA / "design.md").write_text(design(), encoding="utf-8")
+    stored, designed = DATA / "campaigns.md", DATA / "design.md"
     DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(),
-                          stored.read_text() if stored.is_file() else None))
+                          stored.read_text() if stored.is_file() else None,
+                          designed.read_text() if designed.is_file() else None))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 
 

@@ -39,6 +39,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "campaign": ("vesselbot_ros.campaign.campaign_cli", "Monte-Carlo runs and parameter sweeps on Dask (campaign report DIR: redraw)"),
     "plan": ("vesselbot_ros.analysis.plan_cli",
              "a reference the scanner can fly: re-timed, at the height the coil can hold, with its margins"),
+    "plan-design": ("vesselbot_ros.analysis.plan_design_cli",
+                    "which bead (radius, material) a scanner can fly along a path, and its coast floor"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
                       "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
 }

@@ -91,7 +91,10 @@ def _assert_ramp_to_zero(r, victim):
     last_cmd = int(np.flatnonzero(np.any(cmd != 0.0, axis=1))[-1])
     t_cmd = ts["command.t_s"]
     answered = np.isin(np.round(t / DT_S), np.round(t_cmd / DT_S))
-    assert int(np.flatnonzero(answered)[-1]) <= last_cmd  # the recorded commands end at or before it
+    # the recorded commands end at or before it, or one tick after: SIGKILL can land between the deliveries of
+    # the victim's last message to its two subscribers (seen once in a clean-clone CI run: the recorder got
+    # tick 669's command, the driver did not and its watchdog answered that tick)
+    assert int(np.flatnonzero(answered)[-1]) <= last_cmd + 1
     g0 = np.abs(g[last_cmd]).max()
     assert g0 > 0.005, "the coil was nearly idle when the node died: the ramp would not be measured"
     after = np.arange(last_cmd + 1, len(t))

@@ -233,18 +233,20 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
     The bead hits the wall at its sinking speed (no coil within the budget
     could slow it: the drag keeps it near its terminal speed), and the wall
     stops it at once.  A smooth reference cannot turn that sharply, so after
-    the touch the reference dips into the wall and comes back: ``z = rest -
-    press S(tau / T) - v_s tau exp(-(tau / T)^2)`` (``T = landing_s``, ``v_s``
-    the sinking speed at the touch, ``S`` the quintic smoothstep; at most
-    ``0.43 v_s T`` deep): continuous in position, velocity and acceleration at
-    the touch, and every upward acceleration of the landing inside the wall,
-    which carries it.
+    the touch (the last sample before it hits the wall, ``g0`` above it) the
+    reference dips into the wall and comes back: ``z = rest + g0 (1 - S) -
+    press S - v_s tau exp(-(tau / T)^2)`` with ``S = S(tau / T)`` the quintic
+    smoothstep (``T = landing_s``, ``v_s`` the sinking speed at the touch; at
+    most ``0.43 v_s T`` deep): continuous in position, velocity and
+    acceleration at the touch, and every upward acceleration of the landing
+    inside the wall, which carries it.  The plant's bead bounces on the wall
+    after it; the reference does not.
     """
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     y = np.array([p0[0], p0[1], 0.0, 0.0])
     contact = plant.new_contact_state()
     t, ts, ps, vs = t0, [t0], [y[:2].copy()], [y[2:].copy()]
-    touched, v_s = -1, 0.0
+    touched, v_s, g0 = -1, 0.0, 0.0
     T = options.landing_s
     for _ in range(int(round((1.0 + options.slide_s) / step_s))):
         plant.propagate(t, t + step_s, y, np.zeros(2), contact)
@@ -254,14 +256,17 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
         rest = wall_rest(scenario, t)
         assert rest is not None
         z_rest, vz_rest = rest[0][0], rest[1][0]
-        if touched < 0 and y[1] <= z_rest + 2e-6:  # on the wall (within 2 um)
-            touched, v_s = len(ts), max(0.0, vz_rest - float(vs[-1][1]))
+        gap, sink = y[1] - z_rest, vz_rest - y[3]
+        if touched < 0 and gap <= 2e-6 + max(sink, 0.0) * step_s:
+            # it hits the wall within the next step (the plant's bead then bounces on it, which no smooth
+            # reference follows): the reference lands from here, from where the bead is and as fast as it sinks
+            touched, v_s, g0 = len(ts), max(sink, 0.0), max(gap, 0.0)
         ts.append(t)
         if touched >= 0:
             tau = t - ts[touched]
             s = min(tau / T, 1.0)
-            z = (z_rest - options.wall_press_m * s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
-                 - v_s * tau * math.exp(-((tau / T) ** 2)))
+            S = s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+            z = z_rest + g0 * (1.0 - S) - options.wall_press_m * S - v_s * tau * math.exp(-((tau / T) ** 2))
             ps.append(np.array([y[0], z]))
             vs.append(np.array([y[2], vz_rest]))
             if tau >= options.slide_s - 1e-12:
