@@ -94,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    stopped = False
     try:
         stats = replay(info, node, rate=args.rate, topics=args.topics, start_s=args.start, loop=args.loop,
                        clock=args.clock, wait_subscribers_s=args.wait_subscribers,
@@ -101,11 +102,15 @@ def run(args: argparse.Namespace) -> int:
                        on_message=live.log if live is not None else None,
                        on_clock=live.set_time if live is not None else None)
     except KeyboardInterrupt:  # the signals above; nothing else shuts this context down during the replay
+        stopped = True
         print("vesselbot replay: stopped", file=sys.stderr)
         return 0
     finally:
+        # once stopped by a signal, a second one (or one still pending) changes nothing: restoring Python's
+        # default handler here let it raise KeyboardInterrupt during the exit, and the process died of SIGINT
+        # after it had said "stopped" (exit -2 in two clean-clone CI runs, once per signal)
         for sig, handler in old.items():
-            signal.signal(sig, handler)
+            signal.signal(sig, signal.SIG_IGN if stopped else handler)
         node.destroy_node()
         rclpy.try_shutdown()
         if live is not None:
