@@ -63,10 +63,11 @@ from typing import Any
 import numpy as np
 import yaml
 
+from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, flying_changes, make_plan
 from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping, merge_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError, to_mapping, unflatten
+from vesselbot_ros.config import ConfigError, check_choice, to_mapping, unflatten
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.scanner.hardware import PRESETS
@@ -75,7 +76,8 @@ from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
-__all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "cell_scenario", "cell_name", "study_spec", "cell_row",
+__all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
+           "cell_scenario", "cell_name", "study_spec", "cell_row",
            "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "feasibility"]
 
 PAIRS: dict[str, dict[str, Any]] = {
@@ -250,11 +252,26 @@ def cell_name(index: int, cell: StudyCell) -> str:
 
 
 def study_spec(cells: Sequence[StudyCell], runnable: Sequence[int], seeds: Sequence[int],
-               run_timeout_s: float | None) -> dict[str, Any]:
-    """The campaign spec mapping of the study: one variant per runnable cell (:func:`cell_changes`) x ``seeds``."""
+               run_timeout_s: float | None, extra: dict[int, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The campaign spec mapping of the study: one variant per runnable cell (:func:`cell_changes`, then the cell's
+    ``extra`` changes: its planned reference) x ``seeds``."""
+    extra = extra or {}
     return {"name": "scanner_study", "base": "-", "seeds": [int(s) for s in seeds],
-            "variants": {cell_name(i, cells[i]): cell_changes(cells[i]) for i in runnable},
+            "variants": {cell_name(i, cells[i]): {**cell_changes(cells[i]), **extra.get(i, {})} for i in runnable},
             "run_timeout_s": run_timeout_s}
+
+
+def planned_changes(scenario: Scenario, plan: Plan) -> dict[str, Any]:
+    """A cell's changes that fly ``plan`` instead of its reference: the planned reference, the run until it ends,
+    and the loop's options for a plan on the wall (:func:`~vesselbot_ros.analysis.plan.flying_changes`)."""
+    return {**_flat("reference.", to_mapping(plan.reference)), "sim.duration_s": float(plan.end_s),
+            **flying_changes(scenario, plan)}
+
+
+def plan_bounds(plan: Plan) -> dict[str, float]:
+    """A planned cell's bounds: the plan's own margin and coast floor (:mod:`vesselbot_ros.analysis.plan`)."""
+    return {"hold_margin_m_per_s2": plan.margin_m_per_s2, "coast_floor_m": plan.coast_floor_m,
+            "gradient_to_fly_T_per_m": math.nan}
 
 
 def cell_row(cell: StudyCell, scenario: Scenario, bounds: dict[str, float], records: Sequence[dict[str, Any]],
@@ -294,7 +311,8 @@ def _folder(runs_dir: str | Path | None) -> Iterator[Path]:
 
 def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], workers: int | None = None,
               run_timeout_s: float | None = 300.0, *, scheduler: str | None = None,
-              runs_dir: str | Path | None = None, progress: bool = False) -> list[dict[str, Any]]:
+              runs_dir: str | Path | None = None, progress: bool = False,
+              reference: str = "scenario") -> list[dict[str, Any]]:
     """Run every cell over ``seeds`` on the campaign engine; one row per cell, in the cells' order.
 
     Args:
@@ -308,6 +326,10 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
         runs_dir: The campaign folder of the runs (``results.parquet``, ...); finished runs found
             there are not run again.  None: a temporary folder.
         progress: Draw the engine's progress bar on stderr.
+        reference: ``scenario``: every cell flies the base scenario's reference.  ``planned``: every cell
+            flies the plan of its own hardware and sequence (``vesselbot plan``; one plan per hardware
+            and windows, shared by the pairs and latencies), and its bounds are the plan's margin and
+            coast floor; a cell with no feasible plan is recorded with the planner's line.
 
     Raises:
         ConfigError: a budget that is not > 0, or ``workers`` with ``scheduler``.
@@ -317,6 +339,7 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
         raise ConfigError(f"run_timeout_s must be > 0, got {run_timeout_s!r}")
     if scheduler and workers is not None:
         raise ConfigError("workers sizes the local cluster; it does not apply with a scheduler")
+    check_choice("reference", reference, ("scenario", "planned"))
     seeds = [int(s) for s in seeds]
     rows: dict[int, dict[str, Any]] = {}
     scenarios: dict[int, Scenario] = {}
@@ -325,8 +348,25 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
             scenarios[i] = cell_scenario(base, cell)
         except ConfigError as exc:
             rows[i] = {**dataclasses.asdict(cell), "status": f"refused: {exc}"}
+    plans: dict[int, Plan] = {}
+    if reference == "planned":
+        by_key: dict[tuple[str, float | None, float], Plan | PlanInfeasible] = {}
+        for i, sc in list(scenarios.items()):
+            key = (cells[i].hardware, cells[i].tracking_window_s, cells[i].propulsion_window_s)
+            if key not in by_key:
+                try:
+                    by_key[key] = make_plan(sc)
+                except PlanInfeasible as exc:
+                    by_key[key] = exc
+            got = by_key[key]
+            if isinstance(got, PlanInfeasible):
+                rows[i] = {**dataclasses.asdict(cells[i]), "status": str(got)}
+                del scenarios[i]
+            else:
+                plans[i] = got
     if scenarios:
-        spec_mapping = study_spec(cells, list(scenarios), seeds, run_timeout_s)
+        extra = {i: planned_changes(scenarios[i], plans[i]) for i in plans}
+        spec_mapping = study_spec(cells, list(scenarios), seeds, run_timeout_s, extra)
         spec = campaign_spec_from_mapping(spec_mapping)
         prep = prepare(spec, base.to_mapping())
         with _folder(runs_dir) as root:
@@ -339,10 +379,11 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
             todo = pending(prep.tasks, store, retry_failed=True)  # runs that finished ok are kept
             with dask_client(scheduler, workers) as client:
                 # the bounds (pure Python, a second or so per cell) run on the cluster beside the runs
-                bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()}
+                bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()
+                                  if i not in plans}
                 bar = Progress("scanner study", n_runs, n_runs - len(todo), enabled=progress)
                 execute(todo, store, client, prep.code, progress=bar, run_timeout_s=run_timeout_s)
-                bounds = {i: f.result() for i, f in bounds_futures.items()}
+                bounds = {i: f.result() for i, f in bounds_futures.items()} | {i: plan_bounds(p) for i, p in plans.items()}
             results = {r["run_id"]: r for r in store.assemble().to_pylist()}
         by_cell: dict[str, list[dict[str, Any]]] = {}
         for task, entry in zip(prep.tasks, prep.manifest):

@@ -60,6 +60,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-timeout-s", "--cell-timeout-s", dest="run_timeout_s", type=float, default=300.0,
                         metavar="S", help="wall-clock budget of each run; a run over it is stopped and its cell "
                                           "recorded as 'timeout' (default 300; --cell-timeout-s is the former name)")
+    parser.add_argument("--reference", choices=("scenario", "planned"), default="scenario",
+                        help="scenario: every cell flies the base scenario's reference; planned: the plan of its own "
+                             "hardware and sequence (vesselbot plan), against the plan's coast floor")
     parser.add_argument("--out", default="out/scanner-study", help="output folder")
 
 
@@ -78,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = run_study(base, cells, range(args.seeds), args.workers, args.run_timeout_s, scheduler=args.scheduler,
-                     runs_dir=out / "runs", progress=True)
+                     runs_dir=out / "runs", progress=True, reference=args.reference)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
             "pair", "status", "hold_margin_m_per_s2", "gradient_to_fly_T_per_m", "coast_floor_m", "tracking_max_mean_m",
             "tracking_max_worst_m",

@@ -162,7 +162,9 @@ def test_reproduction_doc_quotes_the_stored_study_table() -> None:
     spec.loader.exec_module(mod)
     doc = (root / "docs" / "reproduction.md").read_text()
     table = (root / "docs" / "scanner_study" / "table.md").read_text()
-    assert mod.render(doc, table) == doc, "run tools/gen_scanner_study.py --render"
+    planned = (root / "docs" / "scanner_study_planned" / "table.md").read_text()
+    assert mod.render(doc, table, planned) == doc, "run tools/gen_scanner_study.py --render"
+    assert planned.count("\n") - 2 == 96 and "lower wall" not in planned  # the same grid, its own plans
     rows = list(csv.DictReader((root / "docs" / "scanner_study" / "table.csv").open()))
     assert len(rows) == table.count("\n") - 2 == 96  # 2 hardware x 2 tracking x 3 propulsion windows x 2 latencies x 4 pairs
     assert {r["status"] for r in rows} == {"ok"}
@@ -187,3 +189,27 @@ def test_the_gradient_to_fly_makes_the_hold_margin_zero() -> None:
     assert abs(ss.hold_margin(at, need)) < 1e-9 * need
     above = dataclasses.replace(sc, coil=dataclasses.replace(sc.coil, saturation_T_per_m=1.01 * g))
     assert ss.hold_margin(above, need) > 0.0
+
+
+def test_planned_cells_fly_their_own_plan_against_its_coast_floor(tmp_path) -> None:
+    """``reference: planned``: a clinical 3 T cell flies the plan of its hardware and sequence (on the wall, with
+    the loop's wall options), its bounds are the plan's, and its numbers are the planned scenario's own runs."""
+    from vesselbot_ros.analysis.plan import flying_changes, make_plan, plan_scenario
+    from vesselbot_ros.campaign.spec import merge_mapping
+    from vesselbot_ros.config import unflatten
+    from vesselbot_ros.sim.closed_loop import run_closed_loop
+    from vesselbot_ros.sim.scenario import scenario_from_mapping
+
+    base = load_scenario(shipped_scenarios()["clinical_3t_small_artery"])
+    cells = ss.study_cells(["clinical_3t"], [0.03], [0.02], ["ekf_k300"])
+    (row,) = ss.run_study(base, cells, [0], workers=1, runs_dir=tmp_path / "runs", reference="planned")
+    cell = ss.cell_scenario(base, cells[0])
+    plan = make_plan(cell)
+    assert row["status"] == "ok"
+    assert row["coast_floor_m"] == plan.coast_floor_m and row["hold_margin_m_per_s2"] == plan.margin_m_per_s2
+    planned = plan_scenario(cell, plan.reference)
+    flown = scenario_from_mapping(merge_mapping(planned.to_mapping(), unflatten(flying_changes(planned, plan))))
+    assert flown.controller.wall_contact == "carried"
+    assert row["tracking_max_mean_m"] == run_closed_loop(flown, 0).metrics["tracking_error_max_m"]
+    with pytest.raises(ConfigError, match="reference"):
+        ss.run_study(base, cells, [0], reference="imagined")
