@@ -5,6 +5,7 @@ Usage::
     .venv/bin/python tools/gen_plan_study.py              # plan, fly, write docs/plan_study/, config/plans/, docs
     .venv/bin/python tools/gen_plan_study.py --campaigns  # and the 100-seed campaigns of the planned scenarios
     .venv/bin/python tools/gen_plan_study.py --design     # and the bead design grid on clinical 3 T
+    .venv/bin/python tools/gen_plan_study.py --network    # and which III-C network branch each preset reaches
     .venv/bin/python tools/gen_plan_study.py --render     # only re-render the docs from docs/plan_study/
 
 The auto-height plans are also written as scenarios, ``config/plans/<preset>.yaml``
@@ -205,11 +206,34 @@ def design() -> str:
     return design_markdown(cells)
 
 
-def render(text: str, table: str, campaign_table: str | None = None, design_table: str | None = None) -> str:
+def network() -> str:
+    """Which branch of the III-C network each preset can reach along its route, and if not, why."""
+    from vesselbot_ros.analysis.plan import PlanInfeasible, PlanOptions, make_plan
+
+    lines = ["| outlet | scanner preset | reachable | path takes (s) | margin (m/s^2) | coast floor (um) | why not |",
+             "|---|---|---|---|---|---|---|"]
+    for outlet in ("upper", "lower"):
+        for hardware in ("paper", "clinical_3t", "clinical_3t_mfde", "propulsion_insert"):
+            scenario = _with(load_scenario(f"paper_iiic_network_{outlet}"), preset_changes(hardware))
+            try:
+                plan = make_plan(scenario, PlanOptions(height="free"))
+            except PlanInfeasible as exc:
+                lines.append(f"| {outlet} | {hardware} | no | - | - | - | {str(exc).removeprefix('infeasible: ')} |")
+                continue
+            lines.append(f"| {outlet} | {hardware} | yes | {plan.end_s:.2f} | {plan.margin_m_per_s2:.2f} | "
+                         f"{plan.coast_floor_m * 1e6:.0f} | - |")
+    return "\n".join(lines) + "\n"
+
+
+SECTIONS = (("plan_campaigns", "campaigns.md"), ("plan_design", "design.md"), ("plan_network", "network.md"))
+
+
+def render(text: str, table: str, stored: dict[str, str] | None = None) -> str:
+    """``text`` with the plan table and every stored section (``{section name: Markdown}``) replaced."""
     text = replace_section(text, "plan_study", table)
-    if campaign_table is not None:
-        text = replace_section(text, "plan_campaigns", campaign_table)
-    return text if design_table is None else replace_section(text, "plan_design", design_table)
+    for name, body in (stored or {}).items():
+        text = replace_section(text, name, body)
+    return text
 
 
 def main() -> None:
@@ -217,6 +241,7 @@ def main() -> None:
     ap.add_argument("--render", action="store_true", help="only re-render the docs from docs/plan_study/")
     ap.add_argument("--campaigns", action="store_true", help="also run the 100-seed campaigns of the plans")
     ap.add_argument("--design", action="store_true", help="also plan the bead design grid on clinical 3 T")
+    ap.add_argument("--network", action="store_true", help="also plan the III-C network's branches per preset")
     args = ap.parse_args()
     DATA.mkdir(parents=True, exist_ok=True)
     if not args.render:
@@ -231,10 +256,10 @@ def main() -> None:
         (DATA / "campaigns.md").write_text(campaigns(), encoding="utf-8")
     if args.design:
         (DATA / "design.md").write_text(design(), encoding="utf-8")
-    stored, designed = DATA / "campaigns.md", DATA / "design.md"
-    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(),
-                          stored.read_text() if stored.is_file() else None,
-                          designed.read_text() if designed.is_file() else None))
+    if args.network:
+        (DATA / "network.md").write_text(network(), encoding="utf-8")
+    stored = {name: (DATA / f).read_text() for name, f in SECTIONS if (DATA / f).is_file()}
+    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(), stored))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 
 

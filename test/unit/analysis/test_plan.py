@@ -187,3 +187,13 @@ def test_the_shipped_plans_are_what_the_planner_makes_and_their_campaigns_load(p
     spec, base_mapping = load_campaign_spec(root / "config" / "campaigns" / "plans" / f"{preset}.yaml")
     assert spec.seeds.count == 100 and set(spec.variants) == {"law24", "predictive"}
     assert base_mapping["reference"]["timing"] == "planned"
+
+
+def test_the_docs_quote_the_stored_network_and_design_sections():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    text = (root / "docs" / "reproduction.md").read_text()
+    for name, stored in (("plan_network", "network.md"), ("plan_design", "design.md"), ("plan_campaigns", "campaigns.md")):
+        body = (root / "docs" / "plan_study" / stored).read_text()
+        assert f"<!-- BEGIN {name} -->\n" + body + f"<!-- END {name} -->" in text, name
