@@ -104,17 +104,22 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:  # the signals above; nothing else shuts this context down during the replay
         stopped = True
         print("vesselbot replay: stopped", file=sys.stderr)
-        return 0
     finally:
-        # once stopped by a signal, a second one (or one still pending) changes nothing: restoring Python's
-        # default handler here let it raise KeyboardInterrupt during the exit, and the process died of SIGINT
-        # after it had said "stopped" (exit -2 in two clean-clone CI runs, once per signal)
+        # once stopped by a signal, a second one changes nothing while the player cleans up
         for sig, handler in old.items():
             signal.signal(sig, signal.SIG_IGN if stopped else handler)
         node.destroy_node()
         rclpy.try_shutdown()
         if live is not None:
             live.close()
+    if stopped:
+        # the process ends here, as a node process does (nodes/process.py): after a signal, the interpreter's
+        # own shutdown sometimes ended in an uncaught KeyboardInterrupt, so the process died of SIGINT (exit -2)
+        # after it had said "stopped" (three clean-clone CI runs, with SIGINT and with SIGTERM; not reproduced
+        # alone), whatever handler was set; the player has nothing left to do but flush its streams
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     print(f"vesselbot replay: published {sum(stats.published.values())} messages in {stats.wall_s:.2f} s "
           f"({stats.loops} pass(es)); max lateness {stats.max_lateness_s * 1e3:.2f} ms", flush=True)
     return 0
