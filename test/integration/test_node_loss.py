@@ -138,9 +138,13 @@ def test_plant_killed_run_exits_naming_the_plant_and_bag_is_intact(killed_runs):
     assert len(t_truth) > 10
     np.testing.assert_allclose(np.diff(t_truth), DT_S, atol=1e-9)  # every tick up to the death is there
     # the driver answered ticks the plant announced, never one beyond: with the clock gone it publishes
-    # nothing.  The plant's very last `truth` may be in flight when it is SIGKILLed: DDS delivers to each
-    # reader separately, so it can reach the imager (and so lead to an answer) but not the recorder.
-    assert ts["coil.t_s"][-1] <= t_truth[-1] + DT_S + 1e-12
+    # nothing.  The plant's own last messages may be missing from the bag: DDS delivers to each reader
+    # separately and a recorder that lags on a loaded machine cannot get them from a SIGKILLed writer (127
+    # ticks of `truth` in a clean-clone CI run; docs/faults_and_safety.md).  The witness of what the plant
+    # announced is the loop downstream, alive: a tick has an estimate only if the plant's truth reached the
+    # imager, and the driver answers a tick only after the controller's command for it.
+    assert ts["coil.t_s"][-1] <= ts["estimate.t_s"][-1] + 1e-12
+    assert t_truth[-1] <= ts["coil.t_s"][-1] + DT_S + 1e-12  # the bag's truth never runs ahead of the answers
     assert_coil_invariants(ts, U_SAT, SLEW, DT_S)
     assert not ts["coil.watchdog"].any()
     if r["wall_s"] >= 60:  # it ended (within the launcher's own stop bounds); the 60 s is judged on a free machine
