@@ -27,17 +27,9 @@ from typing import Any
 import numpy as np
 
 from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop, run_stages
-from vesselbot_ros.sim.kinds import switch_sections
-from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _predictive(s: Scenario) -> Scenario:
-    mapping = s.to_mapping()
-    change = {"controller": {"kind": "predictive"}}
-    merged = {**mapping, "controller": {**mapping["controller"], "kind": "predictive"}}
-    return scenario_from_mapping(switch_sections(mapping, merged, change))
 
 
 class _Timed:
@@ -70,7 +62,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     law = load_scenario(args.config)
-    mpc = _predictive(law)
+    mpc = scenario_with(law, {"controller.kind": "predictive"})
     for s in (law, mpc):  # compile and warm both
         run_closed_loop(s, 0)
     times: dict[str, list[float]] = {"law24": [], "predictive": []}

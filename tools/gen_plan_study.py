@@ -43,11 +43,8 @@ from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
-from vesselbot_ros.campaign.spec import merge_mapping  # noqa: E402
-from vesselbot_ros.config import unflatten  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
-from vesselbot_ros.sim.kinds import switch_sections  # noqa: E402
-from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping  # noqa: E402
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with  # noqa: E402
 
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "plan_study"
@@ -61,12 +58,6 @@ TARGET = 2.0
 DESIGN_RADII_M = (175e-6, 250e-6, 375e-6, 500e-6)
 
 
-def _with(scenario: Scenario, changes: dict) -> Scenario:
-    """``scenario`` with dotted-key changes; a switched kind drops the old kind's keys, as a campaign variant does."""
-    mapping, nested = scenario.to_mapping(), unflatten(changes)
-    return scenario_from_mapping(switch_sections(mapping, merge_mapping(mapping, nested), nested))
-
-
 def _fly(scenario: Scenario) -> tuple[float, float, float]:
     rs = run_many(scenario, SEEDS)
     track = np.array([r.metrics["tracking_error_max_m"] for r in rs])
@@ -77,7 +68,7 @@ def _fly(scenario: Scenario) -> tuple[float, float, float]:
 def rows() -> list[dict]:
     out = []
     for hardware, height in CELLS:
-        base = _with(load_scenario(BASE), preset_changes(hardware))
+        base = scenario_with(load_scenario(BASE), preset_changes(hardware))
         row = {"hardware": hardware, "height": height}
         try:
             plan = make_plan(base, PlanOptions(height=height))
@@ -90,7 +81,7 @@ def rows() -> list[dict]:
         except PlanInfeasible:
             t_cont = float("nan")
         planned = plan_scenario(base, plan.reference)
-        flown = _with(planned, flying_changes(planned, plan))
+        flown = scenario_with(planned, flying_changes(planned, plan))
         if height == "auto":
             _write_plan(hardware, flown, plan)
         wall = any(s.mode != "free" for s in plan.segments)
@@ -98,7 +89,7 @@ def rows() -> list[dict]:
                    margin_m_per_s2=plan.margin_m_per_s2, a_avail_m_per_s2=plan.a_avail_m_per_s2,
                    coast_floor_m=plan.coast_floor_m)
         for pair, scenario in (("law24", flown),
-                               ("predictive", _with(flown, {"controller.kind": "predictive"}))):
+                               ("predictive", scenario_with(flown, {"controller.kind": "predictive"}))):
             mean, worst, est = _fly(scenario)
             row.update({f"{pair}_mean_m": mean, f"{pair}_worst_m": worst, f"{pair}_est_rms_m": est})
         out.append(row)
@@ -195,7 +186,7 @@ def design() -> str:
     from vesselbot_ros.analysis.plan_design_cli import _figure
     from vesselbot_ros.analysis.plan_design_cli import markdown as design_markdown
 
-    base = _with(load_scenario(BASE), preset_changes("clinical_3t"))
+    base = scenario_with(load_scenario(BASE), preset_changes("clinical_3t"))
     cells = design_grid(base, DESIGN_RADII_M, list(MATERIALS))
     table = design_rows(cells)
     with (DATA / "design.csv").open("w", newline="", encoding="utf-8") as fh:
@@ -214,7 +205,7 @@ def network() -> str:
              "|---|---|---|---|---|---|---|"]
     for outlet in ("upper", "lower"):
         for hardware in ("paper", "clinical_3t", "clinical_3t_mfde", "propulsion_insert"):
-            scenario = _with(load_scenario(f"paper_iiic_network_{outlet}"), preset_changes(hardware))
+            scenario = scenario_with(load_scenario(f"paper_iiic_network_{outlet}"), preset_changes(hardware))
             try:
                 plan = make_plan(scenario, PlanOptions(height="free"))
             except PlanInfeasible as exc:

@@ -29,20 +29,12 @@ from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
-from vesselbot_ros.campaign.spec import merge_mapping  # noqa: E402
-from vesselbot_ros.config import unflatten  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
-from vesselbot_ros.sim.kinds import switch_sections  # noqa: E402
-from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping  # noqa: E402
+from vesselbot_ros.sim.scenario import load_scenario, scenario_with  # noqa: E402
 
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "published_experiments"
 SEEDS = range(5)
-
-
-def _with(scenario: Scenario, changes: dict) -> Scenario:
-    mapping, nested = scenario.to_mapping(), unflatten(changes)
-    return scenario_from_mapping(switch_sections(mapping, merge_mapping(mapping, nested), nested))
 
 
 #: (experiment, its source's conditions, the published figure, scenario, changes to it, what differs)
@@ -77,10 +69,10 @@ NOT_FOUND = (
 def rows() -> list[dict]:
     out = []
     for name, conditions, published, scenario_name, changes, differs in EXPERIMENTS:
-        base = _with(load_scenario(scenario_name), changes)
+        base = scenario_with(load_scenario(scenario_name), changes)
         plan = make_plan(base)
         planned = plan_scenario(base, plan.reference)
-        flown = _with(planned, flying_changes(planned, plan))
+        flown = scenario_with(planned, flying_changes(planned, plan))
         rs = run_many(flown, SEEDS)
         mx = np.array([r.metrics["tracking_error_max_m"] for r in rs])
         rms = np.array([r.metrics["tracking_error_rms_m"] for r in rs])

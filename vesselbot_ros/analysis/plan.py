@@ -113,7 +113,7 @@ class PlanOptions:
 
 @dataclasses.dataclass(frozen=True)
 class Segment:
-    """One stretch of the plan between two anchors."""
+    """One stretch of the plan: ``anchor_spacing_m`` of its path parameter (:func:`evaluate`)."""
 
     index: int
     x_from_m: float
@@ -277,13 +277,17 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
     return None
 
 
+def _phases(scenario: Scenario) -> npt.NDArray[np.float64]:
+    """48 times over one cardiac period (s): where a height is judged at every phase of the flow and the wall."""
+    return np.linspace(0.0, 2.0 * math.pi / scenario.physics.flow.angular_frequency_rad_per_s, 48, endpoint=False)
+
+
 def _heights(scenario: Scenario, options: PlanOptions) -> list[tuple[float, bool]]:
     """Candidate heights ``(z, on the wall)``: across the free lumen at its narrowest (``wall_clearance_m`` from
     either wall), and resting on the lower wall."""
     ph = scenario.physics
     p_pack = packed_params(ph)
-    phases = np.linspace(0.0, 2.0 * math.pi / ph.flow.angular_frequency_rad_per_s, 48, endpoint=False)
-    d_min = min(float(diameter_at(float(t), p_pack)) for t in phases)
+    d_min = min(float(diameter_at(float(t), p_pack)) for t in _phases(scenario))
     z_free = 0.5 * d_min - ph.robot.radius_m - options.wall_clearance_m
     out: list[tuple[float, bool]] = []
     if options.free_heights == 1 or z_free <= 0.0:
@@ -298,8 +302,7 @@ def _heights(scenario: Scenario, options: PlanOptions) -> list[tuple[float, bool
 def _best_height(scenario: Scenario, model: DynamicsModel, x: float, heights: list[tuple[float, bool]],
                  v_cap: float) -> tuple[float, bool]:
     """The height with the least need at ``x``: at each phase the least over a few speeds, the worst phase."""
-    ph = scenario.physics
-    phases = np.linspace(0.0, 2.0 * math.pi / ph.flow.angular_frequency_rad_per_s, 48, endpoint=False)
+    phases = _phases(scenario)
     rest = wall_rest(scenario, phases)
     assert rest is not None
     best = (math.inf, 0.0, False)
@@ -366,7 +369,7 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
         z, on_wall = _best_height(scenario, model, float(x), heights, v_cap)
         zs.append(z)
         weights.append(1.0 if on_wall else 0.0)
-    rest = wall_rest(scenario, float(ref.start_s)) if not scenario.physics.vessel.network else None
+    rest = wall_rest(scenario, float(ref.start_s))  # a straight vessel here: a network returned above
     if weights[1] == 1.0 and rest is not None and first[1] <= rest[0][0] + 5e-6:
         zs[0], weights[0] = zs[1], 1.0  # it starts on the wall: the path rides it from the start
     return _Geometry(np.column_stack([xs, zs]), np.asarray(weights), None, ())

@@ -34,13 +34,11 @@ from vesselbot_ros.analysis.plan import (
     wall_rest,
 )
 from vesselbot_ros.analysis.scanner_study import preset_changes
-from vesselbot_ros.campaign.spec import merge_mapping
-from vesselbot_ros.config import unflatten
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.closed_loop import build_stages
-from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_from_mapping, shipped_scenarios
+from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with, shipped_scenarios
 from vesselbot_ros.vessels.cfd import packed_params
 
 DEFAULT = "clinical_3t_small_artery"
@@ -65,17 +63,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/plan", help="output folder (default out/plan)")
 
 
-def _scenario(args: argparse.Namespace) -> Scenario:
-    sets = list(args.set)
-    if args.hardware:
-        sets = [f"{k}={yaml.safe_dump(v, default_flow_style=True).strip()}"
-                for k, v in preset_changes(args.hardware).items()] + sets
-    return load_scenario(args.config, sets=sets)
-
-
 def run(args: argparse.Namespace) -> int:
     """Plan, write, print; exit 0 (PlanInfeasible: the caller's one line and exit 2)."""
-    scenario = _scenario(args)
+    scenario = load_scenario(args.config, sets=args.set,
+                             changes=preset_changes(args.hardware) if args.hardware else None)
     options = PlanOptions(budget_fraction=args.budget_fraction, height=args.height,
                           max_speed_m_per_s=args.max_speed_m_per_s)
     plan = make_plan(scenario, options)
@@ -84,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     planned = plan_scenario(scenario, plan.reference)
     changes = flying_changes(planned, plan)
     if changes:  # the plan rides the lower wall: the loop's options for it
-        planned = scenario_from_mapping(merge_mapping(planned.to_mapping(), unflatten(changes)))
+        planned = scenario_with(planned, changes)
         print(f"{scenario.name}: the plan rests on the lower wall; flown with "
               + ", ".join(f"{k}: {v}" for k, v in changes.items()))
     mapping = dict(planned.to_mapping(), name=f"{scenario.name}_plan")

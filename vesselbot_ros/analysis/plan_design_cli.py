@@ -15,7 +15,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from vesselbot_ros.analysis.plan import PlanOptions
 from vesselbot_ros.analysis.plan_design import MATERIALS, DesignCell, design_grid, rows
@@ -58,9 +57,7 @@ def run(args: argparse.Namespace) -> int:
     for m in materials:
         if m not in MATERIALS:
             raise ConfigError(f"--materials: each must be one of {sorted(MATERIALS)}, got {m!r}")
-    sets = [f"{k}={yaml.safe_dump(v, default_flow_style=True).strip()}"
-            for k, v in preset_changes(args.hardware).items()] + list(args.set)
-    base = load_scenario(args.config, sets=sets)
+    base = load_scenario(args.config, sets=args.set, changes=preset_changes(args.hardware))
     cells = design_grid(base, args.radii_um, materials, PlanOptions())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -63,18 +63,17 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, flying_changes, make_plan
+from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, available_accel, flying_changes, make_plan, need
 from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
-from vesselbot_ros.campaign.spec import campaign_spec_from_mapping, merge_mapping
+from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError, check_choice, to_mapping, unflatten
+from vesselbot_ros.config import ConfigError, check_choice, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
-from vesselbot_ros.sim.kinds import switch_sections
-from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
+from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
            "cell_scenario", "cell_name", "study_spec", "cell_row",
@@ -165,9 +164,8 @@ def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
     Raises:
         ConfigError: the scenario refuses the cell (e.g. observer (25) unstable at its frame rate).
     """
-    mapping, changes = base.to_mapping(), unflatten(cell_changes(cell))
     # a pair of another controller kind (predictive) drops the base's keys of law (24), as a campaign variant does
-    return scenario_from_mapping(switch_sections(mapping, merge_mapping(mapping, changes), changes))
+    return scenario_with(base, cell_changes(cell))
 
 
 def _reference(scenario: Scenario, step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -177,11 +175,11 @@ def _reference(scenario: Scenario, step_s: float) -> tuple[np.ndarray, np.ndarra
 
 
 def required_accel(scenario: Scenario, step_s: float = 1e-3) -> float:
-    """``max_t |Xdd_ref - F(t, X_ref, Xd_ref)|`` (m/s^2) with the true plant's ``F``, over the run."""
+    """``max_t |Xdd_ref - F(t, X_ref, Xd_ref)|`` (m/s^2) with the true plant's ``F``, over the run (no wall carries
+    it: :func:`~vesselbot_ros.analysis.plan.need` without a resting height)."""
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     ts, p, v, a = _reference(scenario, step_s)
-    need = [math.hypot(*(a[k] - plant.F(float(t), p[k], v[k]))) for k, t in enumerate(ts)]
-    return float(max(need))
+    return float(np.max(need(plant, ts, p, v, a)))
 
 
 def hold_margin(scenario: Scenario, need_m_per_s2: float | None = None) -> float:
@@ -189,10 +187,8 @@ def hold_margin(scenario: Scenario, need_m_per_s2: float | None = None) -> float
 
     ``need_m_per_s2``: :func:`required_accel` if already computed.
     """
-    b = input_matrix(scenario.physics)
-    a_sat = abs(float(b[1, 1])) * scenario.coil.saturation_T_per_m
-    need = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
-    return duty_cycle(scenario.sequence) * a_sat - need
+    a_avail, _, _ = available_accel(scenario)
+    return a_avail - (required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2)
 
 
 def gradient_to_fly(scenario: Scenario, need_m_per_s2: float | None = None) -> float:
@@ -202,8 +198,8 @@ def gradient_to_fly(scenario: Scenario, need_m_per_s2: float | None = None) -> f
     coil would need at the cell's duty cycle (the bead and the sequence unchanged).
     """
     b = input_matrix(scenario.physics)
-    need = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
-    return need / (duty_cycle(scenario.sequence) * abs(float(b[1, 1])))
+    req = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
+    return req / (duty_cycle(scenario.sequence) * abs(float(b[1, 1])))
 
 
 def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-4) -> float:
@@ -240,9 +236,9 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
 def feasibility(scenario: Scenario) -> dict[str, float]:
     """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m`` (module docstring) and the
     gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`)."""
-    need = required_accel(scenario)
-    return {"hold_margin_m_per_s2": hold_margin(scenario, need), "coast_floor_m": coast_floor(scenario),
-            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, need)}
+    req = required_accel(scenario)
+    return {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
+            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req)}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:

@@ -16,7 +16,7 @@ import dataclasses
 import math
 import os
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -58,6 +58,8 @@ __all__ = [
     "SimParams",
     "Scenario",
     "load_scenario",
+    "with_overrides",
+    "scenario_with",
     "scenario_from_mapping",
     "scenario_overrides",
     "estimate_resources",
@@ -334,7 +336,8 @@ def scenario_overrides(
 
 
 def load_scenario(
-    path: str | Path, *, sets: Iterable[str] = (), duration: float | None = None, seed: int | None = None
+    path: str | Path, *, sets: Iterable[str] = (), duration: float | None = None, seed: int | None = None,
+    changes: Mapping[str, Any] | None = None,
 ) -> Scenario:
     """Load a scenario YAML file, with the command line's overrides applied (one path for every command).
 
@@ -344,6 +347,8 @@ def load_scenario(
             parser; a mapping value replaces the mapping at KEY.
         duration: ``--duration`` (``sim.duration_s``), s.
         seed: ``--seed``.
+        changes: Dotted-key values a command sets (a scanner preset's coil
+            and sequence); ``sets``, ``duration`` and ``seed`` win over them.
 
     Raises:
         ConfigError: missing or unreadable file, not a scenario (empty, binary,
@@ -351,10 +356,22 @@ def load_scenario(
             wrong type or out-of-range value (the message names the dotted key
             and value).
     """
-    mapping = load_yaml(path)
-    overrides = scenario_overrides(sets, duration, seed)
-    merged = switch_sections(mapping, apply_overrides(mapping, overrides), unflatten(overrides))
-    return scenario_from_mapping(merged)
+    return with_overrides(load_yaml(path), {**(changes or {}), **scenario_overrides(sets, duration, seed)})
+
+
+def with_overrides(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> Scenario:
+    """The scenario of ``mapping`` with each dotted key of ``overrides`` set to its value, validated.
+
+    A section whose ``kind`` an override switches drops the old kind's keys
+    (:func:`~vesselbot_ros.sim.kinds.switch_sections`), as ``--set`` and a
+    campaign variant do.
+    """
+    return scenario_from_mapping(switch_sections(mapping, apply_overrides(mapping, overrides), unflatten(overrides)))
+
+
+def scenario_with(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:
+    """``scenario`` with dotted-key ``overrides`` (:func:`with_overrides`)."""
+    return with_overrides(scenario.to_mapping(), overrides)
 
 
 @dataclasses.dataclass(frozen=True)
