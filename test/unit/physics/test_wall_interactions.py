@@ -2,12 +2,15 @@
 
 import math
 
+import numba
 import numpy as np
 import pytest
 from scipy.integrate import quad
 
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M
 from vesselbot_ros.physics.wall_interactions import (
+    EXP_ZERO_BELOW,
+    decaying_exp,
     electrostatic_force,
     interaction_forces_along_n,
     max_charge,
@@ -86,3 +89,33 @@ def test_contact_modes_hold_vs_paper_heaviside():
     np.testing.assert_allclose(hold, at_zero, rtol=1e-12, atol=1e-18)  # continuous at delta = 0
     paper = interaction_forces_along_n(1e-9, R, A, 0.4e-9, q, EPS, 0.25, 1e-7, 100e-9, 1.0)
     assert paper == (0.0, 0.0, 0.0) or np.allclose(paper, 0.0)
+
+
+@numba.njit
+def _compiled_steric(gap, coefficient, brush_length):
+    return steric_force(gap, coefficient, brush_length)
+
+
+def test_compiled_decaying_exp_is_exp_bit_for_bit():
+    # around the cut, through the subnormal results, far below it, and the ordinary range
+    xs = np.concatenate([np.linspace(-800.0, -700.0, 20001), [EXP_ZERO_BELOW, np.nextafter(EXP_ZERO_BELOW, 0.0),
+                         -745.13321910194122, -1e6, -np.inf, -1.0, 0.0, 3.0]])
+    for x in xs:
+        assert decaying_exp(x) == np.exp(x)
+        assert _compiled_exp(x) == _compiled_plain_exp(x), x  # what the kernels computed before
+    assert np.exp(EXP_ZERO_BELOW) == 0.0  # the cut is where exp is already exactly zero
+
+
+@numba.njit
+def _compiled_exp(x):
+    return decaying_exp(x)
+
+
+@numba.njit
+def _compiled_plain_exp(x):
+    return np.exp(x)
+
+
+@pytest.mark.parametrize("gap", [0.0, 5e-9, 50e-9, 2e-6, 1e-4, 3e-3])
+def test_compiled_steric_force_is_the_numpy_one(gap):
+    assert _compiled_steric(gap, 1e-7, 100e-9) == steric_force(np.float64(gap), 1e-7, 100e-9)
