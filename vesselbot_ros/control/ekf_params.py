@@ -43,11 +43,13 @@ class EkfParams:
             velocity into it (:func:`~vesselbot_ros.physics.kernel.onto_lumen`,
             the projection of a constrained Kalman filter), one brush length
             ``L_0`` from the wall, where the steric force starts (at contact
-            the brush would throw the estimate off); and the covariance's
-            Jacobian leaves out the wall's contact and surface forces (their
+            the brush would throw the estimate off); and where the estimate
+            rests on a wall (within a bead radius of it, pressed towards it by
+            the other forces and the control), the covariance's Jacobian
+            leaves out the wall's contact and surface forces (their
             microsecond modes give the velocity a gain that throws a delayed
-            frame's re-prediction off the wall).  The mean is predicted with
-            every force, as before.
+            frame's re-prediction off the wall); elsewhere it holds every
+            force.  The mean is predicted with every force, as before.
     """
 
     measurement_sigma_m: float = 100e-6
