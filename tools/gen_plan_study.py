@@ -88,8 +88,9 @@ def rows() -> list[dict]:
         row.update(status="ok", where="lower wall" if wall else "free lumen", end_s=plan.end_s, continuous_s=t_cont,
                    margin_m_per_s2=plan.margin_m_per_s2, a_avail_m_per_s2=plan.a_avail_m_per_s2,
                    coast_floor_m=plan.coast_floor_m)
+        predictive = scenario_with(planned, {"controller.kind": "predictive"})
         for pair, scenario in (("law24", flown),
-                               ("predictive", scenario_with(flown, {"controller.kind": "predictive"}))):
+                               ("predictive", scenario_with(predictive, flying_changes(predictive, plan)))):
             mean, worst, est = _fly(scenario)
             row.update({f"{pair}_mean_m": mean, f"{pair}_worst_m": worst, f"{pair}_est_rms_m": est})
         out.append(row)

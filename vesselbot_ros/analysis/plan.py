@@ -583,14 +583,14 @@ def plan_scenario(scenario: Scenario, reference: ReferenceParams) -> Scenario:
 def flying_changes(scenario: Scenario, plan: Plan) -> dict[str, str]:
     """The loop's options a plan that rests on the lower wall needs (dotted keys; none for a plan that stays free).
 
-    Law (24) then leaves the vertical to the weight and the wall
+    Law (24) and the predictive controller then leave the vertical to the weight and the wall
     (``controller.wall_contact: carried``), and the extended Kalman filter
     keeps its estimate out of the wall (``observer.ekf.wall_projection: lumen``).
     """
     if all(s.mode == "free" for s in plan.segments):
         return {}
     out = {}
-    if scenario.controller.kind in ("backstepping", "adaptive_backstepping"):
+    if scenario.controller.kind in ("backstepping", "adaptive_backstepping", "predictive"):
         out["controller.wall_contact"] = "carried"
     if scenario.observer.kind == "ekf":
         out["observer.ekf.wall_projection"] = "lumen"

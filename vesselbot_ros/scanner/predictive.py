@@ -66,7 +66,7 @@ from vesselbot_ros.control.backstepping import (
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into, onto_lumen
+from vesselbot_ros.physics.kernel import I_MASS, I_R, I_V_F, diameter_at, forces_into, onto_lumen
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
 
@@ -96,6 +96,13 @@ class PredictiveParams:
             as the time over which it would carry the bead (s): the next window
             starts from that velocity.
         stale_timeout_s: Estimate age beyond which the controller commands zero (s).
+        wall_contact: ``none``: the plan shapes both gradient components
+            everywhere.  ``carried``: where the reference rests on the lower
+            wall (as law (24)'s option of that name decides it), the plan's
+            vertical gradient is held at zero and only the axial one is
+            planned: the weight and the wall hold the bead there, and a
+            vertical push only lifts it off the wall (``vesselbot plan`` sets it
+            for a plan that rests there).
     """
 
     kind: Literal["predictive"] = "predictive"
@@ -107,9 +114,11 @@ class PredictiveParams:
     max_horizon_ticks: int = 400
     velocity_weight_s: float = 0.005
     stale_timeout_s: float = 0.2
+    wall_contact: Literal["none", "carried"] = "none"
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("predictive",))
+        check_choice("wall_contact", self.wall_contact, ("none", "carried"))
         check_range("pieces", self.pieces, 1, 8)
         check_range("iterations", self.iterations, 1, 20)
         check_range("max_horizon_ticks", self.max_horizon_ticks, 1, 5000)
@@ -124,9 +133,9 @@ class PredictiveParams:
 # ---- parameter and state vectors -----------------------------------------------------------------------------------
 # prm: [pieces, iterations, horizon ticks (continuous), replan ticks (continuous), regularization, stale timeout,
 #       dt, max horizon ticks, finite-difference step (T/m), saturation (T/m), terminal velocity weight (s),
-#       coil prm (4), sequence sv (7)]
-_P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV = (
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15)
+#       coil prm (4), sequence sv (7), wall contact carried (0/1)]
+_P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV, _P_WALL = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 22)
 # state: [coil replica (4), plan start time, ticks per piece, last age, has plan (0/1),
 #         contact (4, zeros: the model's memoryless contact), plan: pieces x (gx, gz)]
 _S_COIL, _S_T0, _S_LEN, _S_AGE, _S_PLAN, _S_CONTACT, _S_G = 0, 4, 5, 6, 7, 8, 12
@@ -264,10 +273,17 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
     x = work[off_x:off_x + m]
     sat = prm[_P_SAT]
     step = prm[_P_H]
+    # wall_contact carried and the reference on the lower wall: the vertical components stay zero
+    pinned = prm[_P_WALL] > 0.5 and pr1 <= p[I_R] - 0.5 * diameter_at(t, p)
+    if pinned:
+        for j in range(n):
+            plan[2 * j + 1] = 0.0
     for _it in range(int(prm[_P_IT])):
         _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
                  plan, n_win, n_hor, piece_len)
         for j in range(m):
+            if pinned and j % 2 == 1:
+                continue  # its row and column of the normal equations are the identity's (below): no step
             keep = plan[j]
             plan[j] = keep + step
             _rollout(prm, state, p, work, off_cols + j * rows, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1,
@@ -276,11 +292,19 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
             for i in range(used):
                 work[off_cols + j * rows + i] = (work[off_cols + j * rows + i] - work[off_r + i]) / step
         for j in range(m):
+            if pinned and j % 2 == 1:
+                b[j] = 0.0
+                for k in range(m):
+                    a[j, k] = 1.0 if k == j else 0.0
+                continue
             s = 0.0
             for i in range(used):
                 s += work[off_cols + j * rows + i] * work[off_r + i]
             b[j] = -s
             for k in range(m):
+                if pinned and k % 2 == 1:
+                    a[j, k] = 0.0
+                    continue
                 s = 0.0
                 for i in range(used):
                     s += work[off_cols + j * rows + i] * work[off_cols + k * rows + i]
@@ -421,7 +445,7 @@ predictive_step = lazy_step(_predictive_step)
 
 def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: SequenceParams,
                       dt_s: float) -> npt.NDArray[np.float64]:
-    """The (22,) parameter vector of :func:`predictive_command`.
+    """The (23,) parameter vector of :func:`predictive_command`.
 
     Raises:
         ConfigError: a propulsion window and its coast longer than ``max_horizon_ticks``.
@@ -437,7 +461,7 @@ def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: Sequ
         float(params.pieces), float(params.iterations), float(max(1, round(params.horizon_s / dt_s))),
         float(max(1, round(params.replan_period_s / dt_s))), float(params.regularization),
         float(params.stale_timeout_s), float(dt_s), float(params.max_horizon_ticks), 1e-3 * sat, sat,
-        float(params.velocity_weight_s), *coil_params(coil), *sv,
+        float(params.velocity_weight_s), *coil_params(coil), *sv, 1.0 if params.wall_contact == "carried" else 0.0,
     ])
 
 
