@@ -11,14 +11,15 @@ observer (25) unstable at that frame rate) is recorded with the reason.
 Pairs:
 
 * ``paper``: observer (25) and law (24) with Table III's gains, no compensation;
-* ``ekf``: the extended Kalman observer (delay compensation, flow scale)
-  with law (24), Table III's gains, flow and duty-cycle compensation;
+* ``ekf``: the extended Kalman observer (delay compensation, flow scale, the
+  wall as a constraint: ``wall_projection: lumen``) with law (24), Table III's
+  gains, flow and duty-cycle compensation;
 * ``ekf_k300``: the same with k1 = k2 = 150 (k1 + k2 near the drag rate, as
   ``sound_small_artery_ekf`` in continuous mode);
 * ``ekf_predictive``: the extended Kalman observer with the predictive
   controller built for the sequence (:mod:`vesselbot_ros.scanner.predictive`).
 
-Two physical bounds per cell, computed from the true plant along the
+Four physical bounds per cell, computed from the true plant along the
 reference, say where the loop can be feasible before any controller runs:
 
 * ``hold_margin_m_per_s2 = duty * a_sat - max_t |Xdd_ref - F(t, X_ref, Xd_ref)|``:
@@ -35,6 +36,20 @@ reference, say where the loop can be feasible before any controller runs:
   on the reference drifts with the flow and sinks; a controller that centres
   that drift on the reference still errs by half of it at one end of the coast.
   No controller does better than this floor, whatever its gains.
+* ``estimation_floor_m``: the least rms position error any estimator holds
+  on the reference with the cell's imager (its noise, frame times and
+  latency), the true model known exactly and no process noise: the Kalman
+  filter of the true plant linearised along the reference
+  (:func:`estimation_floor`).  The reference is known, so the tracking
+  error's mean square is at least the best estimate's error's: no
+  controller that holds the bead on the reference has a smaller tracking
+  rms (an estimate's own rms can be smaller where the bead strays to where
+  the plant is less unstable).  Where the plant is
+  unstable across the lumen (the image-charge attraction pulls the bead to
+  the nearer wall, a growth rate ``lambda`` of 5-20 1/s at the paper's
+  height) the floor stays near ``sigma sqrt(1 - exp(-2 lambda T))`` per
+  unstable mode for frames ``T`` apart; where it is stable or neutral,
+  averaging frames lowers it over the run.
 
 The runs go through the campaign engine (:mod:`vesselbot_ros.campaign`): the
 grid is a :class:`~vesselbot_ros.campaign.spec.CampaignSpec` with one variant
@@ -61,6 +76,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 import yaml
 
 from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, available_accel, flying_changes, make_plan, need
@@ -77,18 +93,19 @@ from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
            "cell_scenario", "cell_name", "study_spec", "cell_row",
-           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "feasibility"]
+           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "feasibility"]
 
 PAIRS: dict[str, dict[str, Any]] = {
     "paper": {"observer": {"kind": "high_gain"},
               "controller": {"gains": {"k1": 5.0, "k2": 10.0}, "flow_compensation": "none", "duty_compensation": "none"}},
-    "ekf": {"observer": {"kind": "ekf"},
+    "ekf": {"observer": {"kind": "ekf", "ekf": {"wall_projection": "lumen"}},
             "controller": {"gains": {"k1": 5.0, "k2": 10.0}, "flow_compensation": "estimate",
                            "duty_compensation": "sequence"}},
-    "ekf_k300": {"observer": {"kind": "ekf"},
+    "ekf_k300": {"observer": {"kind": "ekf", "ekf": {"wall_projection": "lumen"}},
                  "controller": {"gains": {"k1": 150.0, "k2": 150.0}, "flow_compensation": "estimate",
                                 "duty_compensation": "sequence"}},
-    "ekf_predictive": {"observer": {"kind": "ekf"}, "controller": {"kind": "predictive"}},
+    "ekf_predictive": {"observer": {"kind": "ekf", "ekf": {"wall_projection": "lumen"}},
+                       "controller": {"kind": "predictive"}},
 }
 
 
@@ -233,12 +250,71 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
     return 0.5 * worst
 
 
+def _jacobian(plant: DynamicsModel, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """d(X', Z')/d(X, Z) of the plant at ``(t, X, Z)`` without gradient (4 x 4, forward differences)."""
+    f0 = plant.F(t, x, v)
+    jac = np.zeros((4, 4))
+    jac[0, 2] = jac[1, 3] = 1.0
+    for j in range(4):
+        y = np.concatenate([x, v])
+        d = 1e-8 if j < 2 else 1e-7  # 10 nm, 0.1 um/s: far below the wall's and the flow's scales
+        y[j] += d
+        jac[2:, j] = (plant.F(t, y[:2], y[2:]) - f0) / d
+    return jac
+
+
+def estimation_floor(scenario: Scenario) -> float:
+    """The least rms position error (m) any estimator holds on the reference after ``sim.metrics_after_s``.
+
+    The Kalman filter of the true plant linearised along the reference (each
+    tick's transition ``exp(J dt)``), fed frames at the cell's imager's
+    acquisition and delivery times (its sequence and latency) with its noise,
+    with the true model known exactly and no process noise: the covariance
+    at every tick given the frames delivered by then, its position part's
+    trace averaged over the metrics window.  No estimator of this plant and
+    imager errs less in the mean square (the linear-Gaussian filter is the
+    optimal one; for the nonlinear plant this is its linearised bound), and
+    with a known reference no controller's tracking error has a smaller rms
+    (module docstring).
+    """
+    stages = build_stages(scenario)
+    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    dt = scenario.sim.dt_control_s
+    n = int(round(scenario.sim.duration_s / dt))
+    ts = np.arange(n, dtype=np.float64) * dt
+    p_ref, v_ref, _ = stages.reference.sample_many(ts)
+    phi = np.array([scipy.linalg.expm(_jacobian(plant, float(t), p_ref[k], v_ref[k]) * dt) for k, t in enumerate(ts)])
+    r = scenario.imager.noise_sigma_m ** 2 * np.eye(2)
+    h = np.hstack([np.eye(2), np.zeros((2, 2))])
+    p_acq = np.diag([1e-6, 1e-6, 1e-4, 1e-4])  # before the first frame: 1 mm, 10 mm/s
+    k_acq = 0
+    p_now = p_acq.copy()
+    trace = np.empty(n)
+    for k, t in enumerate(ts):
+        frame = stages.imager.frame(float(t), p_ref[k])
+        if frame is not None:  # fuse at its acquisition tick, then bring the covariance to now
+            j = min(k, max(k_acq, int(round(frame.t_acq_s / dt))))
+            for i in range(k_acq, j):
+                p_acq = phi[i] @ p_acq @ phi[i].T
+            gain = p_acq @ h.T @ np.linalg.inv(h @ p_acq @ h.T + r)
+            ikh = np.eye(4) - gain @ h
+            p_acq = ikh @ p_acq @ ikh.T + gain @ r @ gain.T  # Joseph form: symmetric and positive
+            k_acq = j
+            p_now = p_acq.copy()
+            for i in range(j, k):
+                p_now = phi[i] @ p_now @ phi[i].T
+        trace[k] = p_now[0, 0] + p_now[1, 1]
+        p_now = phi[k] @ p_now @ phi[k].T  # to the next tick
+    return float(math.sqrt(np.mean(trace[ts >= scenario.sim.metrics_after_s])))
+
+
 def feasibility(scenario: Scenario) -> dict[str, float]:
-    """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m`` (module docstring) and the
-    gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`)."""
+    """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m``, ``estimation_floor_m`` (module
+    docstring) and the gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`)."""
     req = required_accel(scenario)
     return {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
-            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req)}
+            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req),
+            "estimation_floor_m": estimation_floor(scenario)}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:
@@ -265,7 +341,8 @@ def planned_changes(scenario: Scenario, plan: Plan) -> dict[str, Any]:
 
 
 def plan_bounds(plan: Plan) -> dict[str, float]:
-    """A planned cell's bounds: the plan's own margin and coast floor (:mod:`vesselbot_ros.analysis.plan`)."""
+    """A planned cell's bounds: the plan's own margin and coast floor (:mod:`vesselbot_ros.analysis.plan`); its
+    estimation floor is the flown scenario's (:func:`estimation_floor`)."""
     return {"hold_margin_m_per_s2": plan.margin_m_per_s2, "coast_floor_m": plan.coast_floor_m,
             "gradient_to_fly_T_per_m": math.nan}
 
@@ -291,7 +368,9 @@ def cell_row(cell: StudyCell, scenario: Scenario, bounds: dict[str, float], reco
             return row
     tr = [float(r["tracking_error_max_m"]) for r in records]
     es = [float(r["estimation_error_rms_m"]) for r in records]
+    rms = [float(r["tracking_error_rms_m"]) for r in records]
     row.update(status="ok", tracking_max_mean_m=float(np.mean(tr)), tracking_max_worst_m=float(np.max(tr)),
+               tracking_rms_mean_m=float(np.mean(rms)),
                estimation_rms_mean_m=float(np.mean(es)), estimation_rms_worst_m=float(np.max(es)))
     return row
 
@@ -377,9 +456,12 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
                 # the bounds (pure Python, a second or so per cell) run on the cluster beside the runs
                 bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()
                                   if i not in plans}
+                floor_futures = {i: client.submit(estimation_floor, scenario_with(scenarios[i], extra[i]), pure=False)
+                                 for i in plans}
                 bar = Progress("scanner study", n_runs, n_runs - len(todo), enabled=progress)
                 execute(todo, store, client, prep.code, progress=bar, run_timeout_s=run_timeout_s)
-                bounds = {i: f.result() for i, f in bounds_futures.items()} | {i: plan_bounds(p) for i, p in plans.items()}
+                bounds = {i: f.result() for i, f in bounds_futures.items()} | {
+                    i: {**plan_bounds(p), "estimation_floor_m": floor_futures[i].result()} for i, p in plans.items()}
             results = {r["run_id"]: r for r in store.assemble().to_pylist()}
         by_cell: dict[str, list[dict[str, Any]]] = {}
         for task, entry in zip(prep.tasks, prep.manifest):

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import csv
 import dataclasses as dc
+import sys
+from pathlib import Path
 
 import pytest
 
 from vesselbot_ros.analysis import scanner_study as ss
 from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
 
 
@@ -213,3 +216,35 @@ def test_planned_cells_fly_their_own_plan_against_its_coast_floor(tmp_path) -> N
     assert row["tracking_max_mean_m"] == run_closed_loop(flown, 0).metrics["tracking_error_max_m"]
     with pytest.raises(ConfigError, match="reference"):
         ss.run_study(base, cells, [0], reference="imagined")
+
+
+def test_estimation_floor_bounds_the_tracking_rms_and_follows_the_imager(base: Scenario) -> None:
+    """The estimation floor (the linearised true plant's Kalman filter, no model error, no process noise): no run
+    that holds the bead on the reference tracks with a smaller rms; it grows with the frame noise (about in
+    proportion), with the latency and with the period between frames."""
+    def cell(tw: float, lat: float, pair: str = "ekf_k300") -> Scenario:
+        return ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.01, lat, pair, tw))
+
+    floor = ss.estimation_floor(cell(0.004, 0.0))
+    assert 40e-6 < floor < 90e-6  # the image charge's instability near the upper wall: far from zero
+    for seed in (0, 1):
+        assert run_closed_loop(cell(0.004, 0.0), seed).metrics["tracking_error_rms_m"] > floor
+    noisy = ss.estimation_floor(dc.replace(cell(0.004, 0.0), imager=dc.replace(base.imager, noise_sigma_m=200e-6)))
+    assert 1.8 < noisy / floor < 2.2
+    assert ss.estimation_floor(cell(0.004, 0.02)) > 1.1 * floor
+    assert ss.estimation_floor(cell(0.02, 0.0)) > 1.3 * floor
+
+
+def test_the_targets_section_is_the_stored_targets_table() -> None:
+    """docs/reproduction.md's targets section is tools/gen_targets.py's last output (docs/targets/table.md)."""
+    root = Path(__file__).resolve().parents[3]
+    sys.path.insert(0, str(root / "tools"))
+    from doc_sections import replace_section
+
+    doc = (root / "docs" / "reproduction.md").read_text(encoding="utf-8")
+    table = (root / "docs" / "targets" / "table.md").read_text(encoding="utf-8")
+    assert replace_section(doc, "targets", table) == doc, "run tools/gen_targets.py --render"
+    rows = list(csv.DictReader((root / "docs" / "targets" / "targets.csv").open(encoding="utf-8")))
+    assert len(rows) == 5 and all(float(r["estimation_floor_m"]) > 0 for r in rows)
+    for r in rows:  # each verdict follows from its numbers
+        assert (r["met"] == "True") == (float(r["worst_m"]) <= float(r["bound_m"]) and float(r["outside_s"]) == 0.0)
