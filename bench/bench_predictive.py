@@ -62,7 +62,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     law = load_scenario(args.config)
-    mpc = scenario_with(law, {"controller.kind": "predictive"})
+    carried = getattr(law.controller, "wall_contact", "none")  # a plan on the wall: the predictive kind carries it too
+    mpc = scenario_with(law, {"controller.kind": "predictive", "controller.wall_contact": carried})
     for s in (law, mpc):  # compile and warm both
         run_closed_loop(s, 0)
     times: dict[str, list[float]] = {"law24": [], "predictive": []}
