@@ -33,6 +33,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/campaigns", glob("config/campaigns/*.yaml")),
         (f"share/{PACKAGE}/config/campaigns/plans", glob("config/campaigns/plans/*.yaml")),
+        (f"share/{PACKAGE}/config/campaigns/targets", glob("config/campaigns/targets/*.yaml")),
         (f"share/{PACKAGE}/config/plans", glob("config/plans/*.yaml")),
         (f"share/{PACKAGE}/config/vessels", glob("config/vessels/*.yaml")),
         # the sampled CFD fields of the shipped networks (vesselbot_ros.vessels.cfd, "Shipped fields")

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from vesselbot_ros.analysis import scanner_study as ss
+from vesselbot_ros.campaign.spec import load_campaign_spec
 from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.sim.closed_loop import run_closed_loop
@@ -248,3 +249,5 @@ def test_the_targets_section_is_the_stored_targets_table() -> None:
     assert len(rows) == 5 and all(float(r["estimation_floor_m"]) > 0 for r in rows)
     for r in rows:  # each verdict follows from its numbers
         assert (r["met"] == "True") == (float(r["worst_m"]) <= float(r["bound_m"]) and float(r["outside_s"]) == 0.0)
+    spec, _base = load_campaign_spec(root / "config" / "campaigns" / "targets" / "insert_paper_reference.yaml")
+    assert len(spec.variants) == 6 and (spec.seeds.start, spec.seeds.count) == (0, 100)  # the 100-seed table
