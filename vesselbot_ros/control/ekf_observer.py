@@ -34,9 +34,11 @@ form ``P <- (I - K H) P (I - K H)^T + K R K^T``.  The chi-square gate rejects
 the frame when ``nu^T S^-1 nu > gate_chi2`` (13.82 = 99.9 % for 2 degrees of
 freedom): an aberrant frame (Section III-C, t = 0.5 s) is refused instead of
 pulling the estimate by a millimetre.  After ``max_consecutive_rejections``
-rejected frames in a row the filter restarts its track on the next frame
-(position from the frame, prior covariance): it must not lock itself out when
-the robot really is elsewhere.  A covariance that became non-finite or
+rejected frames in a row, or rejections for longer than ``max_rejection_s``
+since the last accepted frame, the filter restarts its track on the next frame
+(position from the frame at its acquisition time, re-predicted to now like
+the first frame, prior covariance): it must not lock itself out when the robot
+really is elsewhere.  A covariance that became non-finite or
 larger than 1 m is reset to the prior (counted in ``covariance_resets``).
 
 Delay compensation.  A frame acquired at ``t_a`` and delivered at
@@ -220,8 +222,9 @@ def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]  # 
 # ---- compiled stage -------------------------------------------------------------------------------
 # prm (20,): [B (4, row-major), q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2, max_consecutive_rejections,
 #   delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2, flow_scale_sigma0^2 (0 if frozen),
-#   rtol, atol_pos, atol_vel, min_step, max_step, (unused), (unused)]
-# scal (4,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1)]
+#   rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1), max_rejection_s (inf: off)]
+# scal (5,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1),
+#   acquisition time of the first frame of the current run of rejections (s; inf: none)]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
 # y (5,), P (5, 5); history: hist_t (n,), hist_y (n, 5), hist_P (n, 5, 5), hist_u (n, 2)
 # free (4,) the model's contact state; p the model's packed params, p_s (same size) scratch;
@@ -243,7 +246,7 @@ def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any)
                      1.0 if q.delay_compensation else 0.0, q.position_sigma0_m**2, q.velocity_sigma0_m_per_s**2,
                      q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0,
                      ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s,
-                     1.0 if q.wall_projection == "lumen" else 0.0, 0.0])
+                     1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf])
 
 
 def ekf_history_len(params: EkfParams, tick_s: float) -> int:
@@ -351,6 +354,62 @@ def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument ty
 
 
 @numba.njit(cache=True, nogil=True)
+def _start_track(prm, scal, ist, restart, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+                 vec, mat, stats, err):
+    """Start the track on a frame: its position at its acquisition time, re-predicted to now; code.
+
+    The first frame keeps the prior's velocity and scale covariance; a ``restart`` (the filter lost the robot)
+    starts from the whole prior covariance and is counted.
+    """
+    n = hist_t.shape[0]
+    yc = vec[4]
+    Pc = mat[3]
+    done = False
+    if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
+        back = _ekf_find(ist, hist_t, t_acq)
+        if back >= 0:
+            i = (ist[1] - back + n) % n
+            yc[:] = hist_y[i]
+            Pc[:, :] = hist_P[i]
+            yc[0] = m0
+            yc[1] = m1
+            _project(prm, hist_t[i], yc, p, free)
+            if restart:
+                _ekf_reset_covariance(prm, Pc)
+            else:
+                for j in range(N):
+                    Pc[0, j] = 0.0
+                    Pc[j, 0] = 0.0
+                    Pc[1, j] = 0.0
+                    Pc[j, 1] = 0.0
+                Pc[0, 0] = prm[10]
+                Pc[1, 1] = prm[10]
+            code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p,
+                                  p_s, work, fbuf, vec, mat, stats, err)
+            if code != OK:
+                return code
+            done = True
+    if not done:
+        y[0] = m0
+        y[1] = m1
+        _project(prm, scal[0], y, p, free)
+        if restart:
+            _ekf_reset_covariance(prm, P)
+        else:
+            P[0, 0] = prm[10]
+            P[1, 1] = prm[10]
+        hist_y[ist[1], :] = y
+        hist_P[ist[1], :, :] = P
+    if restart:
+        ist[5] += 1
+        ist[2] = 0
+    scal[4] = math.inf
+    scal[1] = t_acq
+    scal[3] = 1.0
+    return OK
+
+
+@numba.njit(cache=True, nogil=True)
 def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                stats, t, gx, gz, has_meas, t_acq, m0, m1, out, err):
     """:meth:`ExtendedKalmanObserver.update` over explicit state: predict to ``t``, fuse a delivered frame.
@@ -392,50 +451,11 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
     if has_meas:
         if not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(t_acq)) or t_acq > scal[0] + 1e-9:
             rejected = 1.0
-        elif scal[3] < 0.5:
-            # the first frame sets the position at its acquisition time (then re-predicted to now)
-            done = False
-            if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
-                back = _ekf_find(ist, hist_t, t_acq)
-                if back >= 0:
-                    i = (ist[1] - back + n) % n
-                    yc[:] = hist_y[i]
-                    Pc[:, :] = hist_P[i]
-                    yc[0] = m0
-                    yc[1] = m1
-                    _project(prm, hist_t[i], yc, p, free)
-                    for j in range(N):
-                        Pc[0, j] = 0.0
-                        Pc[j, 0] = 0.0
-                        Pc[1, j] = 0.0
-                        Pc[j, 1] = 0.0
-                    Pc[0, 0] = prm[10]
-                    Pc[1, 1] = prm[10]
-                    code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p,
-                                          p_s, work, fbuf, vec, mat, stats, err)
-                    if code != OK:
-                        return code
-                    done = True
-            if not done:
-                y[0] = m0
-                y[1] = m1
-                _project(prm, scal[0], y, p, free)
-                P[0, 0] = prm[10]
-                P[1, 1] = prm[10]
-                hist_y[ist[1], :] = y
-                hist_P[ist[1], :, :] = P
-            scal[1] = t_acq
-            scal[3] = 1.0
-            used = 1.0
-        elif ist[2] >= prm[8]:
-            # the robot really is elsewhere (the filter lost it): restart the track on this frame
-            y[0] = m0
-            y[1] = m1
-            _project(prm, scal[0], y, p, free)
-            _ekf_reset_covariance(prm, P)
-            ist[5] += 1
-            ist[2] = 0
-            scal[1] = t_acq
+        elif scal[3] < 0.5 or ist[2] >= prm[8]:
+            code = _start_track(prm, scal, ist, scal[3] > 0.5, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                p, p_s, work, fbuf, vec, mat, stats, err)
+            if code != OK:
+                return code
             used = 1.0
         else:
             found = False
@@ -466,9 +486,19 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
                 scal[1] = t_acq
                 used = 1.0
                 ist[2] = 0
+                scal[4] = math.inf
+            elif ist[2] >= 1 and t_acq - scal[4] >= prm[19]:
+                # frames rejected in a row for max_rejection_s, and this one too: the filter lost the robot
+                code = _start_track(prm, scal, ist, True, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                    p, p_s, work, fbuf, vec, mat, stats, err)
+                if code != OK:
+                    return code
+                used = 1.0
             else:
                 rejected = 1.0
                 ist[2] += 1
+                if ist[2] == 1:
+                    scal[4] = t_acq
         if rejected > 0.5:
             ist[3] += 1
     write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
@@ -498,7 +528,7 @@ class EkfState:
         self.prm = ekf_params(params, mat2(model.input_matrix), model.integrator)
         self.p = np.asarray(model.p, dtype=np.float64)
         self.p_s = np.empty_like(self.p)
-        self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0])
+        self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0, math.inf])
         self.ist = np.zeros(6, dtype=np.int64)
         self.ist[1] = -1
         self.y = np.array([x_hat0[0], x_hat0[1], z_hat0[0], z_hat0[1], params.flow_scale0])

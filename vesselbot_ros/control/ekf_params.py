@@ -33,6 +33,12 @@ class EkfParams:
         max_consecutive_rejections: After this many rejections in a row the
             filter restarts its track on the next frame (position from the
             frame, prior covariance).
+        max_rejection_s: The same once the frames rejected in a row span this
+            long (s, from the first one's acquisition to the current frame's);
+            0: off.  At a few frames per second a count of 50 is
+            seconds of a filter that rejects every frame because it lost the
+            bead (the scanner study sets 0.03 s: the paper's 20 ms burst of
+            aberrant frames is shorter).
         delay_compensation: Correct at the acquisition time and re-predict.
         history_s: How far back frames can be fused at their acquisition time (s).
         estimate_flow_scale: Estimate ``s``; False freezes it at ``flow_scale0``.
@@ -61,6 +67,7 @@ class EkfParams:
     velocity_sigma0_m_per_s: float = 5e-3
     gate_chi2: float = CHI2_2DOF_999
     max_consecutive_rejections: int = 50
+    max_rejection_s: float = 0.0
     delay_compensation: bool = True
     history_s: float = 0.25
     estimate_flow_scale: bool = True
@@ -77,4 +84,5 @@ class EkfParams:
         check_positive("velocity_sigma0_m_per_s", self.velocity_sigma0_m_per_s)
         check_nonnegative("gate_chi2", self.gate_chi2)
         check_positive("max_consecutive_rejections", self.max_consecutive_rejections)
+        check_nonnegative("max_rejection_s", self.max_rejection_s)
         check_positive("history_s", self.history_s)

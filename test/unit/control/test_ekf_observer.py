@@ -37,6 +37,8 @@ def test_params_are_validated() -> None:
         EkfParams(measurement_sigma_m=0.0)
     with pytest.raises(ConfigError, match="gate_chi2"):
         EkfParams(gate_chi2=-1.0)
+    with pytest.raises(ConfigError, match=r"max_rejection_s must be >= 0"):
+        EkfParams(max_rejection_s=-0.1)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -180,3 +182,24 @@ def test_wall_projection_away_from_a_wall_keeps_every_force_in_the_covariance() 
         rms[projection] = run_closed_loop(sc, 0).metrics["estimation_error_rms_m"]
     assert rms["none"] < 30e-6
     assert rms["lumen"] < 1.1 * rms["none"]
+
+
+def test_track_restarts_once_the_rejected_frames_span_max_rejection_s() -> None:
+    """At a few frames per second a count of rejections is seconds of a locked-out filter: the time rule restarts
+    the track once the frames rejected in a row span ``max_rejection_s`` (a shorter burst of aberrant frames is
+    refused and the track kept), on the frame's position at its acquisition time."""
+    model = DynamicsModel(EKF_SCENARIO.model_physics(), EKF_SCENARIO.sim.integrator)
+    params = EkfParams(max_rejection_s=0.03)  # the count rule (50) never fires here
+    obs = ExtendedKalmanObserver(params, model, (0.0, 1e-3), tick_s=1e-3)
+    obs.update(0.0, _meas(0.0, (0.0, 1e-3)), np.zeros(2))
+    far = (0.0, -1e-3)  # 2 mm away: gated
+    for t in (0.016, 0.032):  # two rejected frames 16 ms apart: a 20 ms burst, kept out
+        assert obs.update(t, _meas(t, far), np.zeros(2)).rejected and obs.track_resets == 0
+    here = obs.update(0.047, None, np.zeros(2)).x_hat  # where the filter has the bead (it moves with the blood)
+    back = obs.update(0.048, _meas(0.048, tuple(here)), np.zeros(2))  # the burst is over: the track goes on
+    assert back.used_measurement and obs.track_resets == 0
+    for t in (0.064, 0.080):
+        assert obs.update(t, _meas(t, far), np.zeros(2)).rejected
+    e = obs.update(0.096, _meas(0.096, far), np.zeros(2))  # rejected frames span 32 ms >= 30 ms: restart on it
+    assert e.used_measurement and obs.track_resets == 1
+    np.testing.assert_allclose(e.x_hat, far, rtol=0, atol=1e-12)
