@@ -133,7 +133,7 @@ def fly() -> list[dict]:
             if best is None or got["worst_m"] < best[1]["worst_m"]:
                 best = (pair, got)
         assert best is not None
-        note = f"path takes {took.group(1)} s (continuous propulsion: the same)" if took else ""
+        note = f"the plan takes {took.group(1)} s (beside continuous propulsion: docs/plan_study/table.md)" if took else ""
         row = _row(label, name, best[0], best[1], coast, 2.0, estimation_floor(flown), note)
         rows.append(row)
         print(_line(row), flush=True)
