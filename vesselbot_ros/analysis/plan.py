@@ -599,7 +599,7 @@ def flying_changes(scenario: Scenario, plan: Plan) -> dict[str, str | float]:
     if all(s.mode == "free" for s in plan.segments):
         return {}
     out: dict[str, str | float] = {}
-    if scenario.controller.kind in ("backstepping", "adaptive_backstepping", "predictive"):
+    if any(f.name == "wall_contact" for f in dataclasses.fields(scenario.controller)):  # the kinds that take the option
         out["controller.wall_contact"] = "carried"
     if scenario.observer.kind == "ekf":
         out["observer.ekf.wall_projection"] = "lumen"
