@@ -56,6 +56,7 @@ __all__ = [
     "STATUS_NONFINITE",
     "FLOW_SCALE_INVALID",
     "flow_scale_message",
+    "rests_on_lower_wall",
 ]
 
 
@@ -275,6 +276,14 @@ def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore
 
 
 @numba.njit(cache=True, nogil=True)
+def rests_on_lower_wall(t, pz, p):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    """Whether a reference at height ``pz`` (m) rests on the straight vessel's lower wall at ``t``: what
+    ``wall_contact: carried`` asks before it leaves the vertical to the weight and the wall (law (24), the
+    predictive controller)."""
+    return pz <= p[I_R] - 0.5 * diameter_at(t, p)
+
+
+@numba.njit(cache=True, nogil=True)
 def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) with ``F`` on ``p``, mapped by ``B^-1`` and the duty compensation: ``(g x, g z, U x, U z)``."""
     k1 = prm[0]
@@ -294,7 +303,7 @@ def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
         f0, f1 = _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1)
         u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
         u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
-    if prm[11] > 0.5 and pr1 <= model_p[I_R] - 0.5 * diameter_at(t, model_p):
+    if prm[11] > 0.5 and rests_on_lower_wall(t, pr1, model_p):
         u1 = 0.0  # the reference rests on the lower wall: the weight and the wall hold the bead there
     g0 = prm[5] * u0 + prm[6] * u1
     g1 = prm[7] * u0 + prm[8] * u1

@@ -63,10 +63,11 @@ from vesselbot_ros.control.backstepping import (
     STATUS_STALE,
     ControlCommand,
     flow_scale_message,
+    rests_on_lower_wall,
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_R, I_V_F, diameter_at, forces_into, onto_lumen
+from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into, onto_lumen
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
 
@@ -274,7 +275,7 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
     sat = prm[_P_SAT]
     step = prm[_P_H]
     # wall_contact carried and the reference on the lower wall: the vertical components stay zero
-    pinned = prm[_P_WALL] > 0.5 and pr1 <= p[I_R] - 0.5 * diameter_at(t, p)
+    pinned = prm[_P_WALL] > 0.5 and rests_on_lower_wall(t, pr1, p)
     if pinned:
         for j in range(n):
             plan[2 * j + 1] = 0.0
