@@ -90,7 +90,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
-from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.closed_loop import build_stage, build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
@@ -291,12 +291,12 @@ def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SI
     is its linearised bound), and a controller that holds the bead on the
     (known) reference tracks with no smaller rms (module docstring).
     """
-    stages = build_stages(scenario)
+    imager = build_stage(scenario, "imager")  # its frame times (the noise is R below)
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     dt = scenario.sim.dt_control_s
     n = int(round(scenario.sim.duration_s / dt))
     ts = np.arange(n, dtype=np.float64) * dt
-    p_ref, v_ref, _ = stages.reference.sample_many(ts)
+    p_ref, v_ref, _ = build_stage(scenario, "reference").sample_many(ts)
     phi = np.array([scipy.linalg.expm(_jacobian(plant, float(t), p_ref[k], v_ref[k]) * dt) for k, t in enumerate(ts)])
     r = scenario.imager.noise_sigma_m ** 2 * np.eye(2)
     h = np.hstack([np.eye(2), np.zeros((2, 3))])
@@ -305,7 +305,7 @@ def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SI
     p_now = p_acq.copy()
     trace = np.empty(n)
     for k, t in enumerate(ts):
-        frame = stages.imager.frame(float(t), p_ref[k])
+        frame = imager.frame(float(t), p_ref[k])
         if frame is not None:  # fuse at its acquisition tick, then bring the covariance to now
             j = min(k, max(k_acq, int(round(frame.t_acq_s / dt))))
             for i in range(k_acq, j):
