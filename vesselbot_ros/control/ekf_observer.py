@@ -34,11 +34,11 @@ form ``P <- (I - K H) P (I - K H)^T + K R K^T``.  The chi-square gate rejects
 the frame when ``nu^T S^-1 nu > gate_chi2`` (13.82 = 99.9 % for 2 degrees of
 freedom): an aberrant frame (Section III-C, t = 0.5 s) is refused instead of
 pulling the estimate by a millimetre.  After ``max_consecutive_rejections``
-rejected frames in a row, or rejections for longer than ``max_rejection_s``
-since the last accepted frame, the filter restarts its track on the next frame
-(position from the frame at its acquisition time, re-predicted to now like
-the first frame, prior covariance): it must not lock itself out when the robot
-really is elsewhere.  A covariance that became non-finite or
+rejected frames in a row the filter restarts its track on the next frame, and
+once the frames rejected in a row span ``max_rejection_s`` on the next frame
+the gate refuses too (position from the frame at its acquisition time,
+re-predicted to now like the first frame, prior covariance): it must not lock
+itself out when the robot really is elsewhere.  A covariance that became non-finite or
 larger than 1 m is reset to the prior (counted in ``covariance_resets``).
 
 Delay compensation.  A frame acquired at ``t_a`` and delivered at
