@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
-from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
+from vesselbot_ros.analysis.scanner_study import fmt_um, preset_changes  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with  # noqa: E402
 
@@ -152,10 +152,6 @@ def _line(r: dict) -> str:
             f"{r['predictive_mean_m'] * 1e6:5.0f}/{r['predictive_worst_m'] * 1e6:5.0f}")
 
 
-def _um(v: float) -> str:
-    return f"{v * 1e6:.0f}"
-
-
 def markdown(rs: list[dict]) -> str:
     lines = ["| scanner preset | heights | plan rests | path takes (s) | continuous propulsion (s) | "
              "margin / coil (m/s^2) | coast floor (um) | EKF + law (24): tracking mean / worst (um) | worst / floor | "
@@ -173,10 +169,10 @@ def markdown(rs: list[dict]) -> str:
 
         lines.append(
             f"| {r['hardware']} | {r['height']} | {r['where']} | {r['end_s']:.2f} | {r['continuous_s']:.2f} | "
-            f"{r['margin_m_per_s2']:.2f} / {r['a_avail_m_per_s2']:.2f} | {_um(f)} | "
-            f"{_um(r['law24_mean_m'])} / {_um(r['law24_worst_m'])} | {ratio(r['law24_worst_m'])} | "
-            f"{_um(r['predictive_mean_m'])} / {_um(r['predictive_worst_m'])} | {ratio(r['predictive_worst_m'])} | "
-            f"{_um(r['law24_est_rms_m'])} |")
+            f"{r['margin_m_per_s2']:.2f} / {r['a_avail_m_per_s2']:.2f} | {fmt_um(f)} | "
+            f"{fmt_um(r['law24_mean_m'])} / {fmt_um(r['law24_worst_m'])} | {ratio(r['law24_worst_m'])} | "
+            f"{fmt_um(r['predictive_mean_m'])} / {fmt_um(r['predictive_worst_m'])} | {ratio(r['predictive_worst_m'])} | "
+            f"{fmt_um(r['law24_est_rms_m'])} |")
     return "\n".join(lines) + "\n"
 
 

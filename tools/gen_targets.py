@@ -46,6 +46,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from doc_sections import replace_section  # noqa: E402
+from gen_plan_study import floor_of  # noqa: E402
 
 from vesselbot_ros.analysis.scanner_study import (  # noqa: E402
     StudyCell,
@@ -53,9 +54,10 @@ from vesselbot_ros.analysis.scanner_study import (  # noqa: E402
     cell_scenario,
     coast_floor,
     estimation_floor,
+    fmt_um,
 )
 from vesselbot_ros.physics.kernel import diameter_at  # noqa: E402
-from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop  # noqa: E402
+from vesselbot_ros.sim.closed_loop import build_stage, run_closed_loop  # noqa: E402
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with, shipped_scenarios  # noqa: E402
 
 DOC = ROOT / "docs" / "reproduction.md"
@@ -74,22 +76,21 @@ PLAN_TARGETS = (("clinical 3 T, preset sequence, planned path", "clinical_3t"),
                 ("clinical 3 T, MFDE sequence (73 % duty), planned path", "clinical_3t_mfde"))
 
 
-def _outside_lumen_s(scenario: Scenario, ts: dict) -> float:
-    """Time (s) the bead's centre spent beyond a wall of the straight vessel."""
-    p = build_stages(scenario).plant.p
-    half = 0.5 * np.array([diameter_at(float(t), p) for t in ts["t_s"]])
-    return float(np.count_nonzero(np.abs(ts["p_true"][:, 1]) > half) * scenario.sim.dt_control_s)
-
-
 def _fly(scenario: Scenario) -> dict:
     worst = rms = est = 0.0
     outside = 0.0
+    p = build_stage(scenario, "plant").p
+    half = None  # the straight vessel's half diameter at every tick (the same ticks every seed)
     for seed in SEEDS:
         r = run_closed_loop(scenario, seed)
         worst = max(worst, r.metrics["tracking_error_max_m"])
         rms += r.metrics["tracking_error_rms_m"] / len(SEEDS)
         est += r.metrics["estimation_error_rms_m"] / len(SEEDS)
-        outside = max(outside, _outside_lumen_s(scenario, r.timeseries))
+        if half is None:
+            half = 0.5 * np.array([diameter_at(float(t), p) for t in r.timeseries["t_s"]])
+        # time (s) the bead's centre spent beyond a wall
+        beyond = np.count_nonzero(np.abs(r.timeseries["p_true"][:, 1]) > half)
+        outside = max(outside, float(beyond * scenario.sim.dt_control_s))
     return {"worst_m": worst, "rms_m": rms, "est_rms_m": est, "outside_s": outside}
 
 
@@ -121,14 +122,13 @@ def fly() -> list[dict]:
         print(_line(row), flush=True)
     for label, name in PLAN_TARGETS:
         path = ROOT / "config" / "plans" / f"{name}.yaml"
-        text = path.read_text(encoding="utf-8")
-        coast = float(re.search(r"COAST_FLOOR_M: (\S+)", text).group(1))  # type: ignore[union-attr]  # written by gen_plan_study
-        took = re.search(r"; ([0-9.]+) s, margin", text)
+        coast = floor_of(path)
+        took = re.search(r"; ([0-9.]+) s, margin", path.read_text(encoding="utf-8"))
         flown = load_scenario(path)
         best = None
         for pair, sc in (("law (24)", flown),
-                         ("predictive", scenario_with(flown, {"controller.kind": "predictive",
-                                                              "controller.wall_contact": "carried"}))):
+                         ("predictive", scenario_with(flown, {"controller.kind": "predictive",  # the plan's wall option
+                                                              "controller.wall_contact": flown.controller.wall_contact}))):
             got = _fly(sc)
             if best is None or got["worst_m"] < best[1]["worst_m"]:
                 best = (pair, got)
@@ -186,8 +186,7 @@ def campaigns() -> list[dict]:
     """The 100-seed campaigns of the plans against 2x each plan's coast floor."""
     out = []
     for _label, name in PLAN_TARGETS:
-        text = (ROOT / "config" / "plans" / f"{name}.yaml").read_text(encoding="utf-8")
-        coast = float(re.search(r"COAST_FLOOR_M: (\S+)", text).group(1))  # type: ignore[union-attr]  # written by gen_plan_study
+        coast = floor_of(ROOT / "config" / "plans" / f"{name}.yaml")
         table = pq.read_table(ROOT / "docs" / "plan_study" / "campaigns" / name / "results.parquet",
                               columns=["variant", "status", "tracking_error_max_m"]).to_pylist()
         for variant in sorted({r["variant"] for r in table}):
@@ -198,14 +197,10 @@ def campaigns() -> list[dict]:
     return out
 
 
-def _um(v: float) -> str:
-    return f"{v * 1e6:.0f}"
-
-
 def _line(r: dict) -> str:
     verdict = "MET" if r["met"] else "missed"
-    return (f"{r['target']:<52} {r['pair']:<15} worst {_um(r['worst_m']):>5} um  bound {_um(r['bound_m']):>5} um "
-            f"({r['ratio']:.2f}x the coast floor, target {r['factor']:g}x)  estimation floor {_um(r['estimation_floor_m'])} "
+    return (f"{r['target']:<52} {r['pair']:<15} worst {fmt_um(r['worst_m']):>5} um  bound {fmt_um(r['bound_m']):>5} um "
+            f"({r['ratio']:.2f}x the coast floor, target {r['factor']:g}x)  estimation floor {fmt_um(r['estimation_floor_m'])} "
             f"um rms  {verdict}")
 
 
@@ -216,21 +211,21 @@ def render_table(rows: list[dict], camp: list[dict], insert: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         verdict = "met" if r["met"] else "missed"
-        lines.append(f"| {r['target']} | {r['cell']} | {r['pair']} | {_um(r['worst_m'])} | "
-                     f"{_um(r['bound_m'])} ({r['factor']:g}x {_um(r['coast_floor_m'])}) | {r['ratio']:.3f}x | "
-                     f"{_um(r['rms_m'])} | {_um(r['estimation_floor_m'])} | {_um(r['est_rms_m'])} | "
+        lines.append(f"| {r['target']} | {r['cell']} | {r['pair']} | {fmt_um(r['worst_m'])} | "
+                     f"{fmt_um(r['bound_m'])} ({r['factor']:g}x {fmt_um(r['coast_floor_m'])}) | {r['ratio']:.3f}x | "
+                     f"{fmt_um(r['rms_m'])} | {fmt_um(r['estimation_floor_m'])} | {fmt_um(r['est_rms_m'])} | "
                      f"{r['outside_s']:g} | {verdict} |")
     lines += ["", "| plan, 100 seeds | controller | runs | tracking max, mean / worst (um) | within 2x the coast "
               "floor |", "|---|---|---|---|---|"]
     for c in camp:
-        lines.append(f"| {c['plan']} | {c['variant']} | {c['runs']} | {_um(c['mean_m'])} / {_um(c['worst_m'])} | "
+        lines.append(f"| {c['plan']} | {c['variant']} | {c['runs']} | {fmt_um(c['mean_m'])} / {fmt_um(c['worst_m'])} | "
                      f"{c['within'] * 100:.0f} % |")
     if insert:
         lines += ["", "| insert cell, paper's reference, 100 seeds | pair | runs (ok) | tracking max, mean / worst (um) | "
                   "target (um) | within the target |", "|---|---|---|---|---|---|"]
         for c in insert:
-            lines.append(f"| {c['cell']} | {c['pair']} | {c['runs']} ({c['ok']}) | {_um(c['mean_m'])} / "
-                         f"{_um(c['worst_m'])} | {_um(c['bound_m'])} | {c['within'] * 100:.0f} % |")
+            lines.append(f"| {c['cell']} | {c['pair']} | {c['runs']} ({c['ok']}) | {fmt_um(c['mean_m'])} / "
+                         f"{fmt_um(c['worst_m'])} | {fmt_um(c['bound_m'])} | {c['within'] * 100:.0f} % |")
     return "\n".join(lines) + "\n"
 
 
@@ -246,10 +241,10 @@ def main() -> None:
         rows, camp = fly(), campaigns()
         insert = insert_campaign(rows)
         for c in insert:
-            print(f"{c['cell']:<28} {c['pair']:<15} 100 seeds: mean {_um(c['mean_m'])} worst {_um(c['worst_m'])} um, "
-                  f"{c['within'] * 100:.0f} % within the target ({_um(c['bound_m'])} um)")
+            print(f"{c['cell']:<28} {c['pair']:<15} 100 seeds: mean {fmt_um(c['mean_m'])} worst {fmt_um(c['worst_m'])} um, "
+                  f"{c['within'] * 100:.0f} % within the target ({fmt_um(c['bound_m'])} um)")
         for c in camp:
-            print(f"{c['plan']:<18} {c['variant']:<12} 100 seeds: mean {_um(c['mean_m'])} worst {_um(c['worst_m'])} um, "
+            print(f"{c['plan']:<18} {c['variant']:<12} 100 seeds: mean {fmt_um(c['mean_m'])} worst {fmt_um(c['worst_m'])} um, "
                   f"{c['within'] * 100:.0f} % within 2x the coast floor")
         with (DATA / "targets.csv").open("w", newline="", encoding="utf-8") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
