@@ -59,7 +59,7 @@ from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
            "flying_changes", "WALL_FLOW_SCALE_SIGMA0",
-           "evaluate", "plan_scenario", "coast_time_s"]
+           "evaluate", "plan_scenario", "coast_time_s", "reachable"]
 
 
 class PlanInfeasible(VesselbotError):
@@ -475,7 +475,7 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
     return tuple(out)
 
 
-def _reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64],
+def reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64],
                v: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """A reference point inside the lower wall moved onto it (where the bead is), with the wall's velocity."""
     rest = wall_rest(scenario, t)
@@ -493,11 +493,11 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
     worst = 0.0
     for t0 in np.arange(t_from, t_to + 1e-12, every_s):
         s0 = traj.sample(float(t0))
-        p0, v0 = _reachable(scenario, float(t0), s0.p, s0.v)
+        p0, v0 = reachable(scenario, float(t0), s0.p, s0.v)
         y = np.concatenate([p0, v0]).astype(np.float64)
         plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(2), plant.new_contact_state())
         s1 = traj.sample(float(t0) + t_c)
-        p1, _ = _reachable(scenario, float(t0) + t_c, s1.p, s1.v)
+        p1, _ = reachable(scenario, float(t0) + t_c, s1.p, s1.v)
         worst = max(worst, float(np.hypot(*(y[:2] - p1))))
     return 0.5 * worst
 

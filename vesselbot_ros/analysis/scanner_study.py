@@ -53,6 +53,12 @@ reference, say where the loop can be feasible before any controller runs:
   unstable mode for frames ``T`` apart; where it is stable or neutral,
   averaging frames lowers it over the run.
 
+Beside them, per seed, the ``tracking_floor`` (:func:`tracking_floor`): the
+coast floor played with the best estimate's error on the seed's own frame
+noise, the worst a loop that straddles each coast with that estimate errs.
+A target below it on (nearly) every seed is infeasible as set, the number
+that makes it so (``tools/gen_targets.py``).
+
 The runs go through the campaign engine (:mod:`vesselbot_ros.campaign`): the
 grid is a :class:`~vesselbot_ros.campaign.spec.CampaignSpec` with one variant
 per cell (its hardware, sequence and pair as dotted scenario keys,
@@ -75,13 +81,22 @@ import math
 import tempfile
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg
 import yaml
 
-from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, available_accel, flying_changes, make_plan, need
+from vesselbot_ros.analysis.plan import (
+    Plan,
+    PlanInfeasible,
+    available_accel,
+    flying_changes,
+    make_plan,
+    need,
+    reachable,
+)
 from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
@@ -89,13 +104,14 @@ from vesselbot_ros.config import ConfigError, check_choice, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.scanner.hardware import PRESETS
-from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
+from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
            "cell_scenario", "cell_name", "study_spec", "cell_row",
-           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "feasibility"]
+           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "tracking_floor",
+           "feasibility"]
 
 #: The EKF pairs' filter: the wall as a constraint, and a lost track restarted once 30 ms of frames were rejected in a
 #: row (the count rule's 50 frames are 0.8 s at 62.5 frames/s; the base scenario's aberrant burst lasts 20 ms).
@@ -275,6 +291,77 @@ def _jacobian(plant: DynamicsModel, t: float, x: np.ndarray, v: np.ndarray) -> n
     return jac
 
 
+class _Linearised(NamedTuple):
+    """The true plant linearised along a scenario's reference, tick by tick, and its imager's frame schedule."""
+
+    ts: npt.NDArray[np.float64]  # (n,) control ticks (s)
+    p_ref: npt.NDArray[np.float64]  # (n, 2)
+    v_ref: npt.NDArray[np.float64]  # (n, 2)
+    phi: npt.NDArray[np.float64]  # (n, 5, 5) transition from tick k to k + 1 of (X, Z, s)
+    frames: list[tuple[int, int]]  # (delivery tick, acquisition tick) of every frame, in delivery order
+
+
+def _linearise(scenario: Scenario) -> _Linearised:
+    imager = build_stage(scenario, "imager")  # its frame times (the noise is R below)
+    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    dt = scenario.sim.dt_control_s
+    n = int(round(scenario.sim.duration_s / dt))
+    ts = np.arange(n, dtype=np.float64) * dt
+    p_ref, v_ref, _ = build_stage(scenario, "reference").sample_many(ts)
+    phi = np.array([scipy.linalg.expm(_jacobian(plant, float(t), p_ref[k], v_ref[k]) * dt) for k, t in enumerate(ts)])
+    frames = []
+    for k, t in enumerate(ts):
+        frame = imager.frame(float(t), p_ref[k])
+        if frame is not None:
+            frames.append((k, int(round(frame.t_acq_s / dt))))
+    return _Linearised(ts, p_ref, v_ref, phi, frames)
+
+
+_H = np.hstack([np.eye(2), np.zeros((2, 3))])
+
+
+def _filter(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float,
+            noise: Sequence[npt.NDArray[np.float64] | None] | None = None,
+            e0: npt.NDArray[np.float64] | None = None) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The linearised Kalman filter over the run: (n,) trace of its position covariance at every tick (given the frames
+    delivered by then) and, with ``noise`` (each frame's (2,) noise, None: a frame no estimator would use) and the
+    start error ``e0``, (n, 5) its error ``true - estimate`` at every tick (zeros without)."""
+    ts, phi = lin.ts, lin.phi
+    r = scenario.imager.noise_sigma_m ** 2 * np.eye(2)
+    h = _H
+    p_acq = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])  # before the first frame: 1 mm, 10 mm/s
+    e_acq = np.zeros(5) if e0 is None else np.array(e0, dtype=np.float64)
+    k_acq = 0
+    p_now, e_now = p_acq.copy(), e_acq.copy()
+    trace = np.empty(len(ts))
+    err = np.zeros((len(ts), 5))
+    fi = 0
+    for k in range(len(ts)):
+        while fi < len(lin.frames) and lin.frames[fi][0] == k:  # fuse at its acquisition tick, then bring it to now
+            j = min(k, max(k_acq, lin.frames[fi][1]))
+            v = None if noise is None else noise[fi]
+            fi += 1
+            for i in range(k_acq, j):
+                p_acq = phi[i] @ p_acq @ phi[i].T
+                e_acq = phi[i] @ e_acq
+            k_acq = j
+            if noise is None or v is not None:
+                gain = p_acq @ h.T @ np.linalg.inv(h @ p_acq @ h.T + r)
+                ikh = np.eye(5) - gain @ h
+                p_acq = ikh @ p_acq @ ikh.T + gain @ r @ gain.T  # Joseph form: symmetric and positive
+                if v is not None:
+                    e_acq = e_acq - gain @ (h @ e_acq + v)
+            p_now, e_now = p_acq.copy(), e_acq.copy()
+            for i in range(j, k):
+                p_now = phi[i] @ p_now @ phi[i].T
+                e_now = phi[i] @ e_now
+        trace[k] = p_now[0, 0] + p_now[1, 1]
+        err[k] = e_now
+        p_now = phi[k] @ p_now @ phi[k].T  # to the next tick
+        e_now = phi[k] @ e_now
+    return trace, err
+
+
 def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SIGMA) -> float:
     """The least rms position error (m) any estimator holds on the reference after ``sim.metrics_after_s``.
 
@@ -291,35 +378,80 @@ def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SI
     is its linearised bound), and a controller that holds the bead on the
     (known) reference tracks with no smaller rms (module docstring).
     """
-    imager = build_stage(scenario, "imager")  # its frame times (the noise is R below)
-    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    lin = _linearise(scenario)
+    trace, _ = _filter(scenario, lin, flow_scale_sigma)
+    return float(math.sqrt(np.mean(trace[lin.ts >= scenario.sim.metrics_after_s])))
+
+
+def _frame_noise(scenario: Scenario, lin: _Linearised, seed: int) -> list[npt.NDArray[np.float64] | None]:
+    """Each frame's noise in the run of ``seed`` (the imager fed a bead at rest at the origin delivers exactly its
+    noise); None for an aberrant frame (the floor lets the estimator know it, and drop it)."""
+    imager = build_stage(scenario, "imager", seed)
+    out: list[npt.NDArray[np.float64] | None] = []
+    zero = np.zeros(2)
+    for t in lin.ts:
+        frame = imager.frame(float(t), zero)
+        if frame is not None:
+            out.append(None if frame.outlier else np.array(frame.p, dtype=np.float64))
+    return out
+
+
+def tracking_floor(scenario: Scenario, seeds: Iterable[int],
+                   flow_scale_sigma: float = FLOW_SCALE_SIGMA) -> list[float]:
+    """The least worst tracking error (m) after ``sim.metrics_after_s`` of each seed's run: the coast floor played
+    with the best estimate's error.
+
+    The linearised Kalman filter of :func:`estimation_floor` is fed the very
+    noise the seed's imager draws (an aberrant frame dropped, as if known),
+    from a start error drawn from its prior (the seed's own generator), and
+    its error ``e = true - estimate`` is kept at every tick.  A controller can
+    at best hold its estimate on the reference: in a propulsion window the
+    bead is then ``e`` away.  Over each coast (propulsion window's end to the
+    next one's start, ``T_c``), no gradient: released on the (reachable)
+    reference the bead drifts by ``D`` (the plant's own integrator, the walls
+    included; :func:`coast_floor`'s drift), so a controller that starts the
+    coast half a drift behind (the coast floor's straddle) leaves the bead at
+    ``-D/2 + e(t0)`` at its start and ``D/2 + (Phi e(t0))`` at its end
+    (``Phi`` the coast's linearised transition; the frames during the coast
+    correct the estimate, not the bead).  The floor is the largest of these
+    over the run.  Like the coast floor it assumes the straddle; like the
+    estimation floor it is the linearised, Gaussian bound (no outliers).
+    Continuous propulsion has no coast: the estimate's error alone.
+    """
+    lin = _linearise(scenario)
+    seq = scenario.sequence
     dt = scenario.sim.dt_control_s
-    n = int(round(scenario.sim.duration_s / dt))
-    ts = np.arange(n, dtype=np.float64) * dt
-    p_ref, v_ref, _ = build_stage(scenario, "reference").sample_many(ts)
-    phi = np.array([scipy.linalg.expm(_jacobian(plant, float(t), p_ref[k], v_ref[k]) * dt) for k, t in enumerate(ts)])
-    r = scenario.imager.noise_sigma_m ** 2 * np.eye(2)
-    h = np.hstack([np.eye(2), np.zeros((2, 3))])
-    p_acq = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])  # before the first frame: 1 mm, 10 mm/s
-    k_acq = 0
-    p_now = p_acq.copy()
-    trace = np.empty(n)
-    for k, t in enumerate(ts):
-        frame = imager.frame(float(t), p_ref[k])
-        if frame is not None:  # fuse at its acquisition tick, then bring the covariance to now
-            j = min(k, max(k_acq, int(round(frame.t_acq_s / dt))))
-            for i in range(k_acq, j):
-                p_acq = phi[i] @ p_acq @ phi[i].T
-            gain = p_acq @ h.T @ np.linalg.inv(h @ p_acq @ h.T + r)
-            ikh = np.eye(5) - gain @ h
-            p_acq = ikh @ p_acq @ ikh.T + gain @ r @ gain.T  # Joseph form: symmetric and positive
-            k_acq = j
-            p_now = p_acq.copy()
-            for i in range(j, k):
-                p_now = phi[i] @ p_now @ phi[i].T
-        trace[k] = p_now[0, 0] + p_now[1, 1]
-        p_now = phi[k] @ p_now @ phi[k].T  # to the next tick
-    return float(math.sqrt(np.mean(trace[ts >= scenario.sim.metrics_after_s])))
+    after = lin.ts >= scenario.sim.metrics_after_s
+    coasts: list[tuple[int, npt.NDArray[np.float64], npt.NDArray[np.float64]]] = []
+    if seq.mode == "multiplexed":
+        plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+        m = int(round((seq.tracking_window_s + 2.0 * seq.dead_time_s) / dt))
+        codes = phase_codes(sequence_vector(seq), lin.ts)
+        ends = np.flatnonzero((codes[:-1] == PHASE_CODES["propulsion"]) & (codes[1:] != PHASE_CODES["propulsion"])) + 1
+        for ke in ends:
+            if not after[ke] or ke + m >= len(lin.ts):
+                continue
+            t0, t1 = float(lin.ts[ke]), float(lin.ts[ke + m])
+            p0, v0 = reachable(scenario, t0, lin.p_ref[ke], lin.v_ref[ke])
+            y = np.concatenate([p0, v0]).astype(np.float64)
+            plant.propagate(t0, t1, y, np.zeros(2), plant.new_contact_state())
+            p1, _ = reachable(scenario, t1, lin.p_ref[ke + m], lin.v_ref[ke + m])
+            phi_c = np.eye(5)
+            for i in range(ke, ke + m):
+                phi_c = lin.phi[i] @ phi_c
+            coasts.append((int(ke), y[:2] - p1, phi_c))
+    p_prior = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])
+    out = []
+    for seed in seeds:
+        e0 = np.random.default_rng(seed).multivariate_normal(np.zeros(5), p_prior)
+        _, err = _filter(scenario, lin, flow_scale_sigma, _frame_noise(scenario, lin, seed), e0)
+        worst = float(np.max(np.hypot(err[after, 0], err[after, 1]), initial=0.0))
+        for k0, drift, phi_c in coasts:
+            e_end = phi_c @ err[k0]
+            worst = max(worst, float(np.hypot(*(err[k0, :2] - 0.5 * drift))),
+                        float(np.hypot(*(e_end[:2] + 0.5 * drift))))
+        out.append(worst)
+    return out
 
 
 def feasibility(scenario: Scenario) -> dict[str, float]:

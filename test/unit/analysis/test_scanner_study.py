@@ -236,6 +236,27 @@ def test_estimation_floor_bounds_the_tracking_rms_and_follows_the_imager(base: S
     assert ss.estimation_floor(cell(0.02, 0.0)) > 1.3 * floor
 
 
+def test_tracking_floor_is_the_coast_floor_played_with_the_seeds_own_estimate(base: Scenario) -> None:
+    """The tracking floor: with (almost) no frame noise it is the coast floor's straddle (half the largest drift over
+    a coast); with the paper's noise it is above it by the best estimate's error, on the seed's own frame noise (the
+    same seed, the same floor; another seed, another); without coasts (continuous propulsion) it is that error alone,
+    and it grows with the noise."""
+    def cell(tw: float, lat: float, sigma: float) -> Scenario:
+        sc = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.01, lat, "ekf_k300", tw))
+        return dc.replace(sc, imager=dc.replace(sc.imager, noise_sigma_m=sigma))
+
+    coast = ss.coast_floor(cell(0.02, 0.0, 100e-6))
+    quiet = ss.tracking_floor(cell(0.02, 0.0, 1e-9), [0])[0]
+    assert 0.95 * coast < quiet < 1.01 * coast  # the same drift; the coasts start on the sequence's ticks
+    floors = ss.tracking_floor(cell(0.02, 0.0, 100e-6), [0, 1, 2])
+    assert all(f > 1.1 * coast for f in floors) and len(set(floors)) == 3
+    assert ss.tracking_floor(cell(0.02, 0.0, 100e-6), [1]) == floors[1:2]
+    continuous = ss.tracking_floor(base, [0, 1])
+    loud = ss.tracking_floor(dc.replace(base, imager=dc.replace(base.imager, noise_sigma_m=200e-6)), [0, 1])
+    assert all(20e-6 < c < 100e-6 for c in continuous)  # the noise floor of the continuous loop, no drift
+    assert all(1.6 < x / c < 2.4 for x, c in zip(loud, continuous))
+
+
 def test_the_targets_section_is_the_stored_targets_table() -> None:
     """docs/reproduction.md's targets section is tools/gen_targets.py's last output (docs/targets/table.md)."""
     root = Path(__file__).resolve().parents[3]
@@ -249,5 +270,10 @@ def test_the_targets_section_is_the_stored_targets_table() -> None:
     assert len(rows) == 5 and all(float(r["estimation_floor_m"]) > 0 for r in rows)
     for r in rows:  # each verdict follows from its numbers
         assert (r["met"] == "True") == (float(r["worst_m"]) <= float(r["bound_m"]) and float(r["outside_s"]) == 0.0)
+        infeasible = float(r["floor_within"]) ** 5 < 0.05  # the floor meets the target on seeds 0-4 by chance only
+        assert r["verdict"].startswith("met" if r["met"] == "True" else "infeasible" if infeasible else "missed")
+        assert ("met against the tracking floor" in r["verdict"]) == (
+            r["verdict"].startswith("infeasible") and float(r["worst_m"]) <= float(r["factor"]) * float(
+                r["floor_worst_m"]) and float(r["outside_s"]) == 0.0)
     spec, _base = load_campaign_spec(root / "config" / "campaigns" / "targets" / "insert_paper_reference.yaml")
     assert len(spec.variants) == 6 and (spec.seeds.start, spec.seeds.count) == (0, 100)  # the 100-seed table
