@@ -7,13 +7,14 @@ import dataclasses as dc
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vesselbot_ros.analysis import scanner_study as ss
 from vesselbot_ros.campaign.spec import load_campaign_spec
 from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.closed_loop import build_stage, run_closed_loop
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, shipped_scenarios
 
 
@@ -255,6 +256,26 @@ def test_tracking_floor_is_the_coast_floor_played_with_the_seeds_own_estimate(ba
     loud = ss.tracking_floor(dc.replace(base, imager=dc.replace(base.imager, noise_sigma_m=200e-6)), [0, 1])
     assert all(20e-6 < c < 100e-6 for c in continuous)  # the noise floor of the continuous loop, no drift
     assert all(1.6 < x / c < 2.4 for x, c in zip(loud, continuous))
+
+
+def test_the_floors_frame_noise_is_the_runs(base: Scenario) -> None:
+    """The tracking floor's frames carry the seed's own noise: the imager's noise adds to the (blurred) bead, so a frame
+    of a run minus the frame of a bead at rest at the origin (the floor's noise) is the same for every seed."""
+    sc = ss.cell_scenario(base, ss.StudyCell("propulsion_insert", 0.01, 0.0, "ekf_k300", 0.02))
+    series = run_closed_loop(sc, 3).timeseries
+    blurred = []
+    for seed in (3, 4):
+        moving, still = build_stage(sc, "imager", seed), build_stage(sc, "imager", seed)
+        frames = [(moving.frame(float(t), p), still.frame(float(t), np.zeros(2)))
+                  for t, p in zip(series["t_s"], series["p_true"])]
+        blurred.append(np.array([f.p - g.p for f, g in frames if f is not None]))
+        if seed == 3:  # the run's own frames, and the floor's noise
+            measured = series["meas_p"][np.all(np.isfinite(series["meas_p"]), axis=1)]
+            assert np.array_equal(measured, np.array([f.p for f, _ in frames if f is not None]))
+            noise = ss._frame_noise(sc, ss._linearise(sc), seed)
+            assert all(n is None or np.array_equal(n, g.p) for n, (f, g) in
+                       zip(noise, [fg for fg in frames if fg[0] is not None]))
+    np.testing.assert_allclose(blurred[0], blurred[1], rtol=0, atol=1e-15)
 
 
 def test_the_targets_section_is_the_stored_targets_table() -> None:
