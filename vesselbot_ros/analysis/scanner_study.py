@@ -103,6 +103,7 @@ from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, check_choice, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
@@ -414,18 +415,22 @@ def tracking_floor(scenario: Scenario, seeds: Iterable[int],
     ``-D/2 + e(t0)`` at its start and ``D/2 + (Phi e(t0))`` at its end
     (``Phi`` the coast's linearised transition; the frames during the coast
     correct the estimate, not the bead).  The floor is the largest of these
-    over the run.  Like the coast floor it assumes the straddle; like the
-    estimation floor it is the linearised, Gaussian bound (no outliers).
-    Continuous propulsion has no coast: the estimate's error alone.
+    over the run, each deviation cut where it would take the bead's centre
+    through the straight vessel's wall (the wall stops the bead; the
+    linearisation does not know it).  Like the coast floor it assumes the
+    straddle; like the estimation floor it is the linearised, Gaussian bound
+    (no outliers).  Continuous propulsion has no coast: the estimate's error
+    alone.
     """
     lin = _linearise(scenario)
     seq = scenario.sequence
     dt = scenario.sim.dt_control_s
     after = lin.ts >= scenario.sim.metrics_after_s
     coasts: list[tuple[int, npt.NDArray[np.float64], npt.NDArray[np.float64]]] = []
+    m = 0
     if seq.mode == "multiplexed":
         plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
-        m = int(round((seq.tracking_window_s + 2.0 * seq.dead_time_s) / dt))
+        m = int(round((seq.tracking_window_s + 2.0 * seq.dead_time_s) / dt))  # ticks of a coast
         codes = phase_codes(sequence_vector(seq), lin.ts)
         ends = np.flatnonzero((codes[:-1] == PHASE_CODES["propulsion"]) & (codes[1:] != PHASE_CODES["propulsion"])) + 1
         for ke in ends:
@@ -440,27 +445,46 @@ def tracking_floor(scenario: Scenario, seeds: Iterable[int],
             for i in range(ke, ke + m):
                 phi_c = lin.phi[i] @ phi_c
             coasts.append((int(ke), y[:2] - p1, phi_c))
+    if scenario.physics.vessel.network:
+        half = np.full(len(lin.ts), np.inf)
+    else:  # the straight vessel's walls, where the bead's centre stops
+        p = build_stage(scenario, "plant").p
+        half = np.array([0.5 * diameter_at(float(t), p) for t in lin.ts]) - scenario.physics.robot.radius_m
+
+    def off(k: int, dev: npt.NDArray[np.float64]) -> float:  # the bead's distance from the reference, in the lumen
+        z = min(max(float(lin.p_ref[k, 1] + dev[1]), -half[k]), half[k])
+        return float(np.hypot(dev[0], z - lin.p_ref[k, 1]))
+
     p_prior = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])
     out = []
     for seed in seeds:
         e0 = np.random.default_rng(seed).multivariate_normal(np.zeros(5), p_prior)
         _, err = _filter(scenario, lin, flow_scale_sigma, _frame_noise(scenario, lin, seed), e0)
-        worst = float(np.max(np.hypot(err[after, 0], err[after, 1]), initial=0.0))
+        worst = max((off(int(k), err[k]) for k in np.flatnonzero(after)), default=0.0)
         for k0, drift, phi_c in coasts:
             e_end = phi_c @ err[k0]
-            worst = max(worst, float(np.hypot(*(err[k0, :2] - 0.5 * drift))),
-                        float(np.hypot(*(e_end[:2] + 0.5 * drift))))
+            worst = max(worst, off(k0, err[k0, :2] - 0.5 * drift), off(k0 + m, e_end[:2] + 0.5 * drift))
         out.append(worst)
     return out
 
 
-def feasibility(scenario: Scenario) -> dict[str, float]:
+def feasibility(scenario: Scenario, seeds: Iterable[int] = ()) -> dict[str, float]:
     """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m``, ``estimation_floor_m`` (module
-    docstring) and the gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`)."""
+    docstring), the gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`), and with
+    ``seeds`` the worst of their tracking floors, ``tracking_floor_m`` (:func:`tracking_floor`)."""
     req = required_accel(scenario)
-    return {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
-            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req),
-            "estimation_floor_m": estimation_floor(scenario)}
+    out = {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
+           "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req),
+           "estimation_floor_m": estimation_floor(scenario)}
+    seeds = list(seeds)
+    if seeds:
+        out["tracking_floor_m"] = max(tracking_floor(scenario, seeds))
+    return out
+
+
+def _flown_floors(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
+    """A planned cell's estimation floor and worst tracking floor over ``seeds``, on the flown scenario."""
+    return {"estimation_floor_m": estimation_floor(scenario), "tracking_floor_m": max(tracking_floor(scenario, seeds))}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:
@@ -488,7 +512,7 @@ def planned_changes(scenario: Scenario, plan: Plan) -> dict[str, Any]:
 
 def plan_bounds(plan: Plan) -> dict[str, float]:
     """A planned cell's bounds: the plan's own margin and coast floor (:mod:`vesselbot_ros.analysis.plan`); its
-    estimation floor is the flown scenario's (:func:`estimation_floor`)."""
+    estimation and tracking floors are the flown scenario's (:func:`estimation_floor`, :func:`tracking_floor`)."""
     return {"hold_margin_m_per_s2": plan.margin_m_per_s2, "coast_floor_m": plan.coast_floor_m,
             "gradient_to_fly_T_per_m": math.nan}
 
@@ -600,14 +624,14 @@ def run_study(base: Scenario, cells: Sequence[StudyCell], seeds: Sequence[int], 
             todo = pending(prep.tasks, store, retry_failed=True)  # runs that finished ok are kept
             with dask_client(scheduler, workers) as client:
                 # the bounds (pure Python, a second or so per cell) run on the cluster beside the runs
-                bounds_futures = {i: client.submit(feasibility, sc, pure=False) for i, sc in scenarios.items()
-                                  if i not in plans}
-                floor_futures = {i: client.submit(estimation_floor, scenario_with(scenarios[i], extra[i]), pure=False)
-                                 for i in plans}
+                bounds_futures = {i: client.submit(feasibility, sc, list(seeds), pure=False)
+                                  for i, sc in scenarios.items() if i not in plans}
+                floor_futures = {i: client.submit(_flown_floors, scenario_with(scenarios[i], extra[i]), list(seeds),
+                                                  pure=False) for i in plans}
                 bar = Progress("scanner study", n_runs, n_runs - len(todo), enabled=progress)
                 execute(todo, store, client, prep.code, progress=bar, run_timeout_s=run_timeout_s)
                 bounds = {i: f.result() for i, f in bounds_futures.items()} | {
-                    i: {**plan_bounds(p), "estimation_floor_m": floor_futures[i].result()} for i, p in plans.items()}
+                    i: {**plan_bounds(p), **floor_futures[i].result()} for i, p in plans.items()}
             results = {r["run_id"]: r for r in store.assemble().to_pylist()}
         by_cell: dict[str, list[dict[str, Any]]] = {}
         for task, entry in zip(prep.tasks, prep.manifest):

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                      runs_dir=out / "runs", progress=True, reference=args.reference)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
             "pair", "status", "hold_margin_m_per_s2", "gradient_to_fly_T_per_m", "coast_floor_m", "estimation_floor_m",
-            "tracking_max_mean_m", "tracking_max_worst_m", "tracking_rms_mean_m",
+            "tracking_floor_m", "tracking_max_mean_m", "tracking_max_worst_m", "tracking_rms_mean_m",
             "estimation_rms_mean_m", "estimation_rms_worst_m"]
     with (out / "table.csv").open("w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
@@ -92,13 +92,13 @@ def run(args: argparse.Namespace) -> int:
         w.writerows(rows)
     (out / "table.md").write_text(markdown_table(rows), encoding="utf-8")
     print(f"{'hardware':<18}{'T win':>7}{'P win':>7}{'duty':>6}{'fps':>6}{'lat':>6}  {'pair':<9}{'hold':>7}{'floor':>7}"
-          f"{'est fl':>7}"
+          f"{'est fl':>7}{'trk fl':>7}"
           f"{'track max mean/worst um':>25}{'est rms mean um':>17}  status")
     for r in rows:
         print(f"{r['hardware']:<18}{_f(r.get('tracking_window_s'), 3, 7)}{r['propulsion_window_s']:>7.3f}"
               f"{_f(r.get('duty_cycle'), 2, 6)}{_f(r.get('frame_rate_Hz'), 1, 6)}{r['latency_s']:>6.3f}  {r['pair']:<9}"
               f"{_f(r.get('hold_margin_m_per_s2'), 2, 7)}{fmt_um(r.get('coast_floor_m')):>7}"
-              f"{fmt_um(r.get('estimation_floor_m')):>7}"
+              f"{fmt_um(r.get('estimation_floor_m')):>7}{fmt_um(r.get('tracking_floor_m')):>7}"
               f"{fmt_um(r.get('tracking_max_mean_m')):>14} / {fmt_um(r.get('tracking_max_worst_m')):<8}"
               f"{fmt_um(r.get('estimation_rms_mean_m')):>15}    {r['status'][:60]}")
     _figures(rows, out)
@@ -116,12 +116,17 @@ def _f(v: object, digits: int, width: int) -> str:
     return f"{v:>{width}.{digits}f}" if isinstance(v, float) else f"{'-':>{width}}"
 
 
+def _ratio(a: object, b: object) -> str:
+    return f"{a / b:.2f}x" if isinstance(a, float) and isinstance(b, float) and b > 0 else "-"
+
+
 def markdown_table(rows: list[dict]) -> str:
     """The study's rows as a Markdown table (micrometres; ``-`` where a cell did not run)."""
     lines = ["| hardware | tracking window (ms) | propulsion window (ms) | duty | frames/s | latency (ms) | pair | "
              "hold margin (m/s^2) | gradient to fly (mT/m) | coast floor (um) | estimation floor, rms (um) | "
-             "tracking max, mean / worst (um) | tracking rms, mean (um) | estimation rms, mean (um) | status |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "tracking floor, worst of the seeds (um) | tracking max, mean / worst (um) | worst / tracking floor | "
+             "tracking rms, mean (um) | estimation rms, mean (um) | status |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         tw = r.get("tracking_window_s")
         lines.append(
@@ -129,8 +134,9 @@ def markdown_table(rows: list[dict]) -> str:
             f"{_f(r.get('duty_cycle'), 2, 0).strip()} | {_f(r.get('frame_rate_Hz'), 1, 0).strip()} | "
             f"{r['latency_s'] * 1e3:g} | {r['pair']} | {_f(r.get('hold_margin_m_per_s2'), 1, 0).strip()} | "
             f"{_mt(r.get('gradient_to_fly_T_per_m'))} | {fmt_um(r.get('coast_floor_m'))} | "
-            f"{fmt_um(r.get('estimation_floor_m'))} | {fmt_um(r.get('tracking_max_mean_m'))} / "
-            f"{fmt_um(r.get('tracking_max_worst_m'))} | {fmt_um(r.get('tracking_rms_mean_m'))} | "
+            f"{fmt_um(r.get('estimation_floor_m'))} | {fmt_um(r.get('tracking_floor_m'))} | "
+            f"{fmt_um(r.get('tracking_max_mean_m'))} / {fmt_um(r.get('tracking_max_worst_m'))} | "
+            f"{_ratio(r.get('tracking_max_worst_m'), r.get('tracking_floor_m'))} | {fmt_um(r.get('tracking_rms_mean_m'))} | "
             f"{fmt_um(r.get('estimation_rms_mean_m'))} | "
             f"{r['status'].split(':')[0]} |")
     return "\n".join(lines) + "\n"
