@@ -657,6 +657,7 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
                                  u0=fb.interpolate(u[0]), u1=fb.interpolate(u[1]), u2=fb.interpolate(u[2])))
     meta = {"tree": tree.name, "n_vertices": int(m.p.shape[1]), "n_tets": int(m.t.shape[1]),
             "n_dofs": int(3 * ns + npr), "mesh_size_m": settings.mesh_size_m,
+            "inlet_centreline_velocity_m_per_s": vc_in,
             "wall_elements_per_circle": settings.wall_elements_per_circle, "outlets": settings.outlets,
             "free_outlets": free, "picard_iterations": it, "picard_change": change, "gmres_iterations": gmres_its,
             "discrete_inlet_flux_m3_per_s": q_in, "mesh_s": meshed.elapsed_s,
