@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's package, not an installed one
 
-from vesselbot_ros.config import load_dataclass  # noqa: E402
-from vesselbot_ros.physics.blood_viscosity import viscosity_for  # noqa: E402
-from vesselbot_ros.physics.params import BloodParams  # noqa: E402
-from vesselbot_ros.vessels import cfd3d  # noqa: E402
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network  # noqa: E402
+from vesselbot_ros.config import load_dataclass
+from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.vessels import cfd3d
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
 
 NEWTONIAN = BloodParams(viscosity_model="constant")
 RESULTS: list[tuple[str, bool]] = []
@@ -234,7 +234,7 @@ def iiic(h: float, n_circle: int) -> None:
         check(f"III-C ({outlets}) wall time", wall / 60.0, 10.0, "min")
         if outlets == "natural":
             t0 = time.perf_counter()
-            origin, sp, vel, inside = cfd3d.sample_grid(sol, 1e-4, 3e-4)
+            _origin, _h, vel, inside = cfd3d.sample_grid(sol, 1e-4, 3e-4)
             print(f"   sample_grid at 0.1 mm: {vel.shape[:3]} nodes, {int(inside.sum())} inside, "
                   f"{time.perf_counter() - t0:.1f} s")
 

@@ -298,7 +298,7 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
                 com = np.array(occ.getCenterOfMass(2, s))
                 name = None
                 if gmsh.model.getType(2, s) == "Plane":
-                    for k, (c, n, r) in caps.items():
+                    for k, (c, _n, r) in caps.items():
                         if np.linalg.norm(com - c) < 1e-3 * r:
                             name = k
                             break
@@ -337,7 +337,7 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
                 tris[k] = np.concatenate(parts).reshape(-1, 3)
         except ConfigError:
             raise
-        except Exception as exc:  # gmsh raises a bare Exception with its last error
+        except Exception as exc:  # noqa: BLE001 - gmsh raises a bare Exception with its last error
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ConfigError(f"3-D tree {tree.name!r}: gmsh could not build the mesh: {msg}") from None
     finally:
@@ -632,7 +632,7 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
         res: list[float] = []
         x, _info = pyamg.krylov.fgmres(K, rhs, x0=x, tol=settings.linear_tol, restart=100,
                                       maxiter=max(1, settings.linear_max_iterations // 100), M=prec, residuals=res)
-        rel = float(np.linalg.norm(rhs - K @ x) / max(np.linalg.norm(rhs), 1e-300))
+        rel = float(np.linalg.norm(rhs - K @ x)) / max(float(np.linalg.norm(rhs)), 1e-300)
         gmres_its.append(len(res) - 1)
         if not (rel <= 10 * settings.linear_tol):
             raise RunError(f"3-D tree {tree.name!r}: the Oseen solve of Picard iteration {it} did not converge "
@@ -691,9 +691,21 @@ class _Locator:
             raise RunError("cannot identify the P2 tetrahedron's edge dofs")
         self.pairs = pairs
 
-    def locate(self, q: npt.NDArray[np.float64], k: int = 16, chunk: int = 50000
-               ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
-        """(element (m,), -1 outside; barycentric coordinates (m, 4)) of points q (m, 3)."""
+    def locate(self, q: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+        """(element (m,), -1 outside; barycentric coordinates (m, 4)) of points q (m, 3).
+
+        The 16 elements of the nearest centroids first, then the 128 nearest for the points not found
+        (a point beside a long thin tetrahedron).
+        """
+        el, lam = self._locate(q, 16)
+        miss = np.flatnonzero(el < 0)
+        if len(miss):
+            el2, lam2 = self._locate(q[miss], 128, 5000)
+            el[miss], lam[miss] = el2, lam2
+        return el, lam
+
+    def _locate(self, q: npt.NDArray[np.float64], k: int, chunk: int = 50000
+                ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
         el = np.full(len(q), -1, dtype=np.int64)
         lam = np.zeros((len(q), 4))
         k = min(k, len(self.t))
