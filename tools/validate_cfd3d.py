@@ -165,7 +165,7 @@ def validate(quick: bool) -> None:
     print("   Murray share r^3/sum r^3; Poiseuille share (r^4/(eta(2r) L)) / sum; 2-D: cfd.solve_flow imposes the")
     print("   Murray share on every outlet but the widest (it has no natural mode), so its split IS Murray's; a")
     print("   2-D channel left to itself splits by w^3/L (plane Poiseuille per unit depth) = r^3 for equal lengths,")
-    print("   while a tube splits by r^4/L: the 2-D channel cannot carry the 3-D split (issue 31).")
+    print("   while a tube splits by r^4/L: the 2-D channel cannot carry the 3-D split.")
     blood = BloodParams()
     for tree, sol in ((y_sym, sol_sym), (y_asym, sol_asym)):
         r = {b.name: float(b.radii()[0]) for b in tree.branches if b.parent}

@@ -1,4 +1,4 @@
-"""Steady 3-D blood flow through a vessel tree: gmsh solid mesh + scikit-fem Navier-Stokes (issue 31, item 2).
+"""Steady 3-D blood flow through a vessel tree: gmsh solid mesh + scikit-fem Navier-Stokes.
 
 The 3-D counterpart of :mod:`vesselbot_ros.vessels.cfd` (which solves in the XZ plane and imposes
 Murray shares because a planar channel cannot keep the 3-D flux balance).  Here the lumen is a
@@ -360,6 +360,13 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
     neg = vol < 0
     tet[neg] = tet[neg][:, [0, 2, 1, 3]]
     bnd = {k: remap[lookup[v]] for k, v in tris.items()}
+    # each cap's normal from its own (flat) triangles: OCC's spline ends where the chord-length spline does, but
+    # its end tangent follows OCC's end conditions, and the swept disc is normal to OCC's curve
+    for k, (c, n, r) in list(caps.items()):
+        tri = pts3[bnd[k]]
+        nn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0)
+        nn = _unit(nn) * (1.0 if float(np.dot(nn, n)) > 0 else -1.0)
+        caps[k] = (c, nn, r)
     return Meshed3D(pts3, tet, bnd, caps, time.perf_counter() - t0)
 
 

@@ -158,3 +158,32 @@ def test_cache_reuses_a_solution_and_never_stores_a_failure(tmp_path, monkeypatc
     assert key != cfd3d.solution_key(tree, st, BloodParams())
     assert key != cfd3d.solution_key(tree, cfd3d.Flow3DSettings(mesh_size_m=1e-3, wall_elements_per_circle=12,
                                                                  outlets="area"), NEWTONIAN)
+
+
+def _volume_m3(ms: cfd3d.Meshed3D) -> float:
+    a, b, c, d = (ms.points[ms.tets[:, i]] for i in range(4))
+    return float(np.sum(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)) / 6.0)
+
+
+def test_tapered_and_curved_branches_mesh_to_their_volume() -> None:
+    st = cfd3d.Flow3DSettings(mesh_size_m=5e-4, wall_elements_per_circle=24)
+    cone = cfd3d.Tree3D("cone", (cfd3d.Branch3D("a", "", ((0, 0, 0), (6e-3, 0, 0)), (1.5e-3, 1.0e-3)),))
+    th = np.linspace(0.0, np.pi / 2, 6)
+    arc = tuple((5e-3 * math.sin(t), 0.0, 5e-3 * (1 - math.cos(t))) for t in th)
+    bend = cfd3d.Tree3D("bend", (cfd3d.Branch3D("a", "", arc, (1e-3,)),))
+    # the polygonal section is short of the circle by (2 pi / 24)^2 / 6 = 1.1 %
+    v_cone = math.pi * 6e-3 * (1.5e-3 ** 2 + 1.5e-3 * 1.0e-3 + 1.0e-3 ** 2) / 3
+    assert _volume_m3(cfd3d.mesh_tree(cone, st)) == pytest.approx(v_cone, rel=0.02)
+    v_bend = math.pi * 1e-3 ** 2 * 5e-3 * math.pi / 2
+    assert _volume_m3(cfd3d.mesh_tree(bend, st)) == pytest.approx(v_bend, rel=0.02)
+    # a non-planar Y: fused into one lumen with its three caps
+    y3 = cfd3d.Tree3D("y3", (
+        cfd3d.Branch3D("p", "", ((0, 0, 0), (3e-3, 0, 0)), (1.2e-3,)),
+        cfd3d.Branch3D("d1", "p", ((3e-3, 0, 0), (5e-3, 1e-3, 1e-3), (7e-3, 2e-3, 1.5e-3), (9e-3, 3e-3, 1.5e-3)), (0.9e-3,)),
+        cfd3d.Branch3D("d2", "p", ((3e-3, 0, 0), (6e-3, -1e-3, -1.5e-3)), (0.8e-3,))))
+    ms = cfd3d.mesh_tree(y3, st)
+    assert sorted(ms.boundaries) == ["inlet", "outlet:d1", "outlet:d2", "wall"]
+    for name, (centre, normal, r) in ms.caps.items():
+        tri = ms.points[ms.boundaries[name]]  # (k, 3, 3): every cap vertex in the cap's plane, within its circle
+        np.testing.assert_allclose((tri - centre) @ normal, 0.0, atol=1e-9)
+        assert np.linalg.norm(tri - centre, axis=2).max() <= r * (1 + 1e-9)
