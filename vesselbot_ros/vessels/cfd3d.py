@@ -680,8 +680,11 @@ class _Locator:
 
         self.p = mesh.p.T.copy()
         self.t = mesh.t.T.copy()
-        self.tree = cKDTree(self.p[self.t].mean(axis=1))
         P = self.p[self.t]  # (t, 4, 3)
+        cent = P.mean(axis=1)
+        self.tree = cKDTree(cent)
+        # a point farther than this from every centroid is in no element
+        self.reach = float(np.max(np.linalg.norm(P - cent[:, None, :], axis=2)))
         T = np.transpose(P[:, 1:] - P[:, :1], (0, 2, 1))  # (t, 3, 3) columns b-a, c-a, d-a
         self.Tinv = np.linalg.inv(T)
         self.a = P[:, 0]
@@ -704,22 +707,28 @@ class _Locator:
         The 16 elements of the nearest centroids first, then the 128 nearest for the points not found
         (a point beside a long thin tetrahedron).
         """
-        el, lam = self._locate(q, 16)
-        miss = np.flatnonzero(el < 0)
+        dmin, _i = self.tree.query(q)
+        near = np.flatnonzero(dmin <= self.reach)
+        el = np.full(len(q), -1, dtype=np.int64)
+        lam = np.zeros((len(q), 4))
+        el[near], lam[near], _d = self._locate(q[near], 16)
+        miss = near[el[near] < 0]
         if len(miss):
-            el2, lam2 = self._locate(q[miss], 128, 5000)
+            el2, lam2, _d = self._locate(q[miss], 128, 5000)
             el[miss], lam[miss] = el2, lam2
         return el, lam
 
     def _locate(self, q: npt.NDArray[np.float64], k: int, chunk: int = 50000
-                ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+                ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         el = np.full(len(q), -1, dtype=np.int64)
         lam = np.zeros((len(q), 4))
+        dmin = np.zeros(len(q))
         k = min(k, len(self.t))
         for s in range(0, len(q), chunk):
             qq = q[s:s + chunk]
-            _d, cand = self.tree.query(qq, k=k)
+            dist, cand = self.tree.query(qq, k=k)
             cand = cand.reshape(len(qq), k)
+            dmin[s:s + chunk] = dist.reshape(len(qq), k)[:, 0]
             rel = qq[:, None, :] - self.a[cand]
             l123 = np.einsum("nkij,nkj->nki", self.Tinv[cand], rel)
             l0 = 1.0 - l123.sum(axis=2)
@@ -730,7 +739,7 @@ class _Locator:
             el[s:s + chunk][ok] = cand[rows, best[ok]]
             lam[s:s + chunk][ok, 0] = l0[rows, best[ok]]
             lam[s:s + chunk][ok, 1:] = l123[rows, best[ok]]
-        return el, lam
+        return el, lam, dmin
 
 
 def _locator(sol: FlowSolution3D) -> _Locator:
