@@ -475,10 +475,12 @@ def write_network_yaml(net: VesselNetworkParams, path: str | os.PathLike[str], h
     text = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
     text += yaml.dump(m, Dumper=_Dumper, sort_keys=False, width=120)
     out = Path(path)
+    mode = out.stat().st_mode & 0o777 if out.is_file() else 0o644  # mkstemp's file is 0600: give the usual mode
     fd, tmp = tempfile.mkstemp(dir=out.parent if str(out.parent) else ".", prefix=f".{out.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+        os.chmod(tmp, mode)
         os.replace(tmp, out)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -250,3 +250,65 @@ def test_3d_spline_through_a_helix() -> None:
     assert q["branch"][0] == 0 and 0.19e-3 < q["sdist"][0] <= 0.3e-3
     x0, x1, y0, y1, z0, z1 = g.bbox
     assert x0 < -R and x1 > R and y0 < -R and y1 > R and z0 < 0.0 and z1 > pitch
+
+
+# --- the shipped 3-D trees -------------------------------------------------------------------------
+
+SHIPPED_3D = ("paper_iiic_artery_3d", "carotid_bifurcation_3d", "synthetic_tree_3d")
+
+
+def test_paper_iiic_artery_3d_is_the_planar_network() -> None:
+    planar, tree = load_network("paper_iiic_artery"), load_network("paper_iiic_artery_3d")
+    assert tree.is_planar and all(len(b.y_m) == len(b.x_m) for b in tree.branches)  # y_m given, all 0
+    g2, g3 = NetworkGeometry(planar), NetworkGeometry3D(tree)
+    assert g3.names == g2.names
+    for name in g2.names:
+        p2, r2, s2 = g2.branches[name]
+        p3 = g3.centreline_3d(name)
+        assert np.array_equal(p3[:, 0], p2[:, 0]) and np.array_equal(p3[:, 2], p2[:, 1]) and not p3[:, 1].any()
+        assert np.array_equal(g3.radius(name), r2) and np.array_equal(g3.arc_length(name), s2)
+    assert [(b.name, b.parent) for b in tree.branches] == [(b.name, b.parent) for b in planar.branches]
+
+
+def test_carotid_bifurcation_has_the_models_dimensions_and_leaves_the_plane() -> None:
+    net = load_network("carotid_bifurcation_3d")
+    g = NetworkGeometry3D(net)
+    assert not net.is_planar and net.outlets == ["ica", "eca"]
+    D = 8.0e-3
+    assert g.radius("cca").min() == g.radius("cca").max() == pytest.approx(0.5 * D)
+    assert g.radius("ica").max() == pytest.approx(0.5 * 1.10 * D, rel=2e-4)  # the sinus (between two samples)
+    assert g.radius("ica")[-1] == pytest.approx(0.5 * 0.70 * D)
+    assert g.radius("eca").max() == pytest.approx(0.5 * 0.58 * D)
+    d_ica = g.centreline_3d("ica")[-1] / np.linalg.norm(g.centreline_3d("ica")[-1])
+    d_eca = g.centreline_3d("eca")[-1] / np.linalg.norm(g.centreline_3d("eca")[-1])
+    # 25 deg each side of the CCA's axis in the model's plane, each turned 15 deg about it
+    assert np.degrees(np.arccos(d_ica[0])) == pytest.approx(25.0, abs=1e-6)
+    assert np.degrees(np.arccos(d_eca[0])) == pytest.approx(25.0, abs=1e-6)
+    assert np.degrees(np.arccos(d_ica @ d_eca)) == pytest.approx(48.19, abs=0.01)
+    n = np.cross(d_ica, d_eca)
+    assert np.degrees(np.arcsin(abs(n[0]) / np.linalg.norm(n))) == pytest.approx(6.9, abs=0.05)  # planarity angle
+    with pytest.raises(ConfigError, match="vessel network 'carotid_bifurcation_3d' is not planar"):
+        NetworkGeometry(net)
+
+
+@pytest.mark.parametrize("name", SHIPPED_3D)
+def test_shipped_3d_trees_let_the_bead_pass(name: str) -> None:
+    # Table III's bead has r = 250 um: every lumen radius is at least 0.35 mm (the III-C side branches)
+    g = NetworkGeometry3D(load_network(name))
+    assert min(float(g.radius(b).min()) for b in g.names) >= 0.35e-3
+
+
+def test_synthetic_tree_obeys_murrays_law_over_four_generations() -> None:
+    net = load_network("synthetic_tree_3d")
+    assert not net.is_planar and len(net.branches) == 15 and len(net.outlets) == 8
+    depth = {b.name: b.name.count("_") for b in net.branches}
+    assert max(depth.values()) == 3  # generations 0-3
+    for b in net.branches:
+        kids = net.children(b.name)
+        if kids:
+            # r^3 = r_a^3 + r_b^3 with r_a^3 / r^3 = 0.6 (radii rounded to 1 nm: 3 nm / 0.6 mm in r^3)
+            r, ra, rb = b.radius_m[-1], kids[0].radius_m[-1], kids[1].radius_m[-1]
+            assert ra ** 3 + rb ** 3 == pytest.approx(r ** 3, rel=1e-5)
+            assert ra ** 3 / r ** 3 == pytest.approx(0.6, rel=1e-5)
+    g = NetworkGeometry3D(net)
+    assert g.radius("b0").max() == pytest.approx(1.5e-3) and min(g.radius(n).min() for n in g.names) == pytest.approx(0.6e-3)

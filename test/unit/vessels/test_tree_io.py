@@ -194,3 +194,31 @@ def test_symmetric_bifurcation_splits_at_its_node(angle: float, length: float, r
     assert m["branches"][0]["x_m"][-1] == pytest.approx(8e-3, abs=1e-12)  # the node is the true one
     for b, (p, _r) in zip(m["branches"][1:], paths, strict=True):
         np.testing.assert_allclose([b["x_m"][-1], b["y_m"][-1], b["z_m"][-1]], p[-1], atol=1e-12)
+
+
+def test_shipped_synthetic_tree_is_its_vtp_imported() -> None:
+    root = Path(__file__).resolve().parents[3]
+    vtp = root / "config" / "vessels" / "sources" / "synthetic_tree_3d.vtp"
+    shipped = load_network(str(root / "config" / "vessels" / "synthetic_tree_3d.yaml"))
+    assert import_vmtk_centerlines(vtp, name="synthetic_tree_3d") == shipped
+    f = read_vmtk_centerlines(vtp)
+    assert len(f.lines) == 8 and not f.branch_split  # the raw form: one path per outlet
+
+
+def test_the_generator_writes_the_shipped_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+    import sys
+
+    root = Path(__file__).resolve().parents[3]
+    spec = importlib.util.spec_from_file_location("make_synthetic_tree_3d", root / "tools" / "make_synthetic_tree_3d.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "make_synthetic_tree_3d", mod)
+    spec.loader.exec_module(mod)
+    monkeypatch.setattr(mod, "VTP", tmp_path / "synthetic_tree_3d.vtp")
+    monkeypatch.setattr(mod, "YAML", tmp_path / "synthetic_tree_3d.yaml")
+    monkeypatch.setattr(mod, "ROOT", tmp_path)
+    assert mod.main() == 0
+    shipped = root / "config" / "vessels"
+    assert (tmp_path / "synthetic_tree_3d.yaml").read_bytes() == (shipped / "synthetic_tree_3d.yaml").read_bytes()
+    assert (tmp_path / "synthetic_tree_3d.vtp").read_bytes() == (shipped / "sources" / "synthetic_tree_3d.vtp").read_bytes()
