@@ -1,4 +1,4 @@
-"""The plant's forces in three dimensions, from the local wall geometry and flow (issue 31's 3-D plant).
+"""The plant's forces in three dimensions, from the local wall geometry and flow (the 3-D vessel trees' plant).
 
 The planar kernel (:mod:`vesselbot_ros.physics.kernel`) works in the paper's
 XZ plane.  In a 3-D vessel tree the same terms act along 3-vectors: the bead's
