@@ -270,8 +270,10 @@ def _triangle_data(v, tri, crease_cos, vnormal_override):  # type: ignore[no-unt
                 s = inc_t[e]
                 if fn[s] @ fn[t] >= crease_cos:
                     cn += ang[s, inc_k[e]] * fn[s]
-            if vnormal_override.shape[0] == n and (vnormal_override[i] @ fn[t]) >= crease_cos:
-                cn = vnormal_override[i].copy()
+            if vnormal_override.shape[0] == n:
+                ov = vnormal_override[i] if vnormal_override[i] @ vn[i] >= 0.0 else -vnormal_override[i]
+                if ov @ fn[t] >= crease_cos:
+                    cn = ov.copy()
             L = math.sqrt(cn @ cn)
             for d in range(3):
                 out[b0 + 35 + 3 * k + d] = cn[d] / L
@@ -340,8 +342,9 @@ def wall_surface(vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequen
             the wall must lie on one cap's rim (in its plane, within its radius).
         extension_m: Length (m) of each cap rim's extrusion along the cap's outward normal.
         crease_deg: Corner normals average the faces within this angle (deg) of the corner's face only.
-        vertex_normals: Optional (n, 3) exact unit normals (outward or inward) of the smooth wall at the
-            vertices (e.g. from the CAD), used for the smooth normal where within ``crease_deg`` of the face.
+        vertex_normals: Optional (n, 3) exact unit normals (either sign, each) of the smooth wall at the
+            vertices (e.g. from the CAD: :func:`gmsh_wall`), used for the smooth normal where within
+            ``crease_deg`` of the face (elsewhere, at a crease, the crease-aware mesh normal).
         patch_m: Side (m) of the cubes grouping the triangles in patches (the candidate lists hold patches).
 
     Returns:
@@ -390,10 +393,7 @@ def wall_surface(vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequen
     tri_all = np.ascontiguousarray(np.concatenate([tri, np.array(ext, dtype=np.int64).reshape(-1, 3)]))
     over = np.zeros((0, 3))
     if vertex_normals is not None:
-        vn = np.asarray(vertex_normals, dtype=np.float64)
-        fn0 = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
-        if np.einsum("ij,ij->i", vn[tri[:, 0]], fn0).sum() < 0:
-            vn = -vn  # given inward: made outward like the triangles
+        vn = np.asarray(vertex_normals, dtype=np.float64)  # either sign: each made outward like its vertex's faces
         over = np.zeros((len(v_all), 3))
         over[:len(v)] = vn
         over[len(v):] = vn[np.array(list(far.keys()), dtype=np.int64)]
@@ -1013,7 +1013,7 @@ class Wall3D:
 # reference surfaces (gmsh, OpenCASCADE), for validation
 
 
-def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) -> tuple[Array, IArray]:
+def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) -> tuple[Array, IArray, Array]:
     """The wall of a solid built with gmsh's OpenCASCADE kernel: a surface mesh, planar faces (caps) left out.
 
     Args:
@@ -1022,7 +1022,8 @@ def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) ->
         unit_m: The length unit ``build`` works in (m).
 
     Returns:
-        ``(vertices (n, 3) m, triangles (t, 3))`` of every non-planar face.
+        ``(vertices (n, 3) m, triangles (t, 3), normals (n, 3))`` of every non-planar face; normals: the CAD
+        surface's unit normal at each vertex (sign as the CAD has it; at a vertex shared by faces, one face's).
     """
     import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
 
@@ -1043,9 +1044,13 @@ def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) ->
         gmsh.model.mesh.generate(2)
         node_tags, coords, _ = gmsh.model.mesh.getNodes()
         tris = []
+        normals = {}
         for _dim, tag in gmsh.model.getEntities(2):
             if gmsh.model.getType(2, tag) == "Plane":
                 continue
+            ntags, _xyz, par = gmsh.model.mesh.getNodes(2, tag, includeBoundary=True, returnParametricCoord=True)
+            nrm = np.asarray(gmsh.model.getNormal(tag, par), dtype=np.float64).reshape(-1, 3)
+            normals.update(zip(np.asarray(ntags, dtype=np.int64).tolist(), nrm))
             types, _et, enodes = gmsh.model.mesh.getElements(2, tag)
             for ty, en in zip(types, enodes):
                 if ty == 2:
@@ -1060,37 +1065,38 @@ def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) ->
     used = np.unique(tri)
     remap = np.full(len(tags), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
-    return np.ascontiguousarray(xyz[used]), np.ascontiguousarray(remap[tri])
+    nv = np.array([normals[int(g)] for g in tags[used]])
+    return np.ascontiguousarray(xyz[used]), np.ascontiguousarray(remap[tri]), nv
 
 
 def cylinder_wall(radius_m: float = 1.5e-3, length_m: float = 8e-3, h_m: float = 0.1e-3
-                  ) -> tuple[Array, IArray, list[Cap]]:
-    """A straight cylinder along +x from the origin: (vertices, triangles, caps)."""
+                  ) -> tuple[Array, IArray, list[Cap], Array]:
+    """A straight cylinder along +x from the origin: (vertices, triangles, caps, CAD vertex normals)."""
     r, L = radius_m * 1e3, length_m * 1e3
 
     def build(occ: Any) -> None:
         occ.addCylinder(0, 0, 0, L, 0, 0, r)
 
-    v, t = gmsh_wall(build, h_m)
+    v, t, nv = gmsh_wall(build, h_m)
     caps: list[Cap] = [(np.zeros(3), np.array([-1.0, 0, 0]), radius_m),
                        (np.array([length_m, 0, 0]), np.array([1.0, 0, 0]), radius_m)]
-    return v, t, caps
+    return v, t, caps, nv
 
 
 def bent_tube_wall(radius_m: float = 1.5e-3, bend_m: float = 6e-3, angle_rad: float = 0.5 * math.pi,
-                   h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap]]:
+                   h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap], Array]:
     """A torus section: tube radius ``radius_m`` round a centreline circle of radius ``bend_m`` about +z
-    through the origin, from azimuth 0 to ``angle_rad``: (vertices, triangles, caps)."""
+    through the origin, from azimuth 0 to ``angle_rad``: (vertices, triangles, caps, CAD vertex normals)."""
     r, rb = radius_m * 1e3, bend_m * 1e3
 
     def build(occ: Any) -> None:
         occ.addTorus(0, 0, 0, rb, r, -1, angle_rad)
 
-    v, t = gmsh_wall(build, h_m)
+    v, t, nv = gmsh_wall(build, h_m)
     caps: list[Cap] = [(np.array([bend_m, 0, 0]), np.array([0, -1.0, 0]), radius_m),
                        (bend_m * np.array([math.cos(angle_rad), math.sin(angle_rad), 0]),
                         np.array([-math.sin(angle_rad), math.cos(angle_rad), 0]), radius_m)]
-    return v, t, caps
+    return v, t, caps, nv
 
 
 #: The Y's branches: (start (3,) m, unit direction, length m, radius m): a parent along +x ending at the
@@ -1102,9 +1108,9 @@ Y_BRANCHES = (
 )
 
 
-def y_wall(h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap]]:
+def y_wall(h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap], Array]:
     """A Y: :data:`Y_BRANCHES`' cylinders and a ball of the parent's radius at the node, fused:
-    (vertices, triangles, caps)."""
+    (vertices, triangles, caps, CAD vertex normals)."""
 
     def build(occ: Any) -> None:
         vols = []
@@ -1113,7 +1119,7 @@ def y_wall(h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap]]:
         vols.append((3, occ.addSphere(0, 0, 0, Y_BRANCHES[0][3] * 1e3)))
         occ.fuse(vols[:1], vols[1:])
 
-    v, t = gmsh_wall(build, h_m)
+    v, t, nv = gmsh_wall(build, h_m)
     caps: list[Cap] = [(Y_BRANCHES[0][0], -Y_BRANCHES[0][1], Y_BRANCHES[0][3])]
     caps += [(s + L * u, u, r) for s, u, L, r in Y_BRANCHES[1:]]
-    return v, t, caps
+    return v, t, caps, nv
