@@ -124,7 +124,7 @@ def y_points(n: int, rng: np.random.Generator) -> tuple[Array, Array, Array]:
     # away from the crease: the nearest analytic wall point 0.5 mm or more from the other solids
     keep = np.ones(len(q), dtype=bool)
     foot = q - s_true[:, None] * n_true
-    for k, (s, u, L, r) in enumerate(mw.Y_BRANCHES):
+    for s, u, L, r in mw.Y_BRANCHES:
         d, _t = _axis_dist(foot, s, u, L)
         keep &= ~((d < r + 0.5e-3) & (np.abs(d - r) > 1e-9) & (np.linalg.norm(foot, axis=1) < 3.5e-3))
     return q[keep], s_true[keep], n_true[keep]
@@ -189,7 +189,7 @@ def _diameter(name: str, w: mw.Wall3D) -> dict[str, float]:
         dd = w.local_diameter(o, h, shape)
         p = _grid(o, h, shape)
         s = w.query(p)["sdist"]
-        s_true, _n = y_reference(p)
+        lumen = s > 0
         lumen = s > 0
         d = dd.ravel()
         out = {}

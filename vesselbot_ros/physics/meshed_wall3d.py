@@ -1044,7 +1044,7 @@ def gmsh_wall(build: Callable[[Any], None], h_m: float, unit_m: float = 1e-3) ->
         gmsh.model.mesh.generate(2)
         node_tags, coords, _ = gmsh.model.mesh.getNodes()
         tris = []
-        normals = {}
+        normals: dict[int, Array] = {}
         for _dim, tag in gmsh.model.getEntities(2):
             if gmsh.model.getType(2, tag) == "Plane":
                 continue

@@ -132,7 +132,7 @@ def test_y_branches_meet_the_standard_away_from_the_crease(y: mw.Wall3D) -> None
 def test_local_diameter_is_2r_in_a_cylinder_and_follows_the_branch_in_the_y(cylinder: mw.Wall3D, y: mw.Wall3D) -> None:
     h = 0.15e-3
     d = cylinder.local_diameter([2e-3, -1.8e-3, -1.8e-3], h, (25, 25, 9))
-    Z, Y, X = np.meshgrid(-1.8e-3 + h * np.arange(25), -1.8e-3 + h * np.arange(25), 2e-3 + h * np.arange(9), indexing="ij")
+    Z, Y, _X = np.meshgrid(-1.8e-3 + h * np.arange(25), -1.8e-3 + h * np.arange(25), 2e-3 + h * np.arange(9), indexing="ij")
     lumen = np.hypot(Y, Z) < R - 1e-5
     assert np.abs(d[lumen] - 2 * R).max() < 5e-6
     assert np.abs(d[~lumen] - 2 * R).max() < 5e-6  # outside: the nearest lumen node's
