@@ -49,7 +49,14 @@ from its corner normals (angle-weighted vertex normals, averaged only over the t
 lies in the triangle offset along its corner normals, q = P(u, v) + t N(u, v) (a cubic in t, 2-4 Newton steps
 from the flat distance), and returns -N(u, v) / |N(u, v)| (barycentrics clamped to the triangle).  On a
 cylinder with radial corner normals the line P + t N passes through the axis, so the normal is exactly radial
-whatever the facet; the measured error (tools/validate_wall3d.py) is ~0.1 deg against 1-2 deg for the facets.
+whatever the facet.  Measured (tools/validate_wall3d.py, h = 0.1 mm, within 1 mm of the wall): max 0.64 /
+1.05 / 2.19 deg (cylinder / torus / Y; 99th percentile 0.41 / 0.42 / 0.55) against 1.78 / 3.27 / 4.72 deg for
+the facets; the Y's 2.19 is a point 0.27 mm off a daughter's axis (ill-conditioned there), 1 in 10^5.  Exact
+CAD vertex normals (``vertex_normals``) change these by < 0.2 deg: the rest comes from barycentrics clamped
+where q's normal line leaves the flat-nearest triangle (not yet followed into the neighbour).
+
+Speed (bench/bench_wall3d.py): 1.3-2.9 us per query against 0.05-0.11 us for the 2-D one (18-31 x; the issue's
+target is 2 x): most of it is testing the bounds of the ~50-100 triangles of the opened patches.
 
 Local diameter (:func:`local_diameter3d`): the 2-D definition carried to 3-D: the diameter of the largest ball
 inscribed in the lumen that touches the wall at the point's nearest wall point F (along the inward normal n
