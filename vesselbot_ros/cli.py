@@ -41,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
              "a reference the scanner can fly: re-timed, at the height the coil can hold, with its margins"),
     "plan-design": ("vesselbot_ros.analysis.plan_design_cli",
                     "which bead (radius, material) a scanner can fly along a path, and its coast floor"),
+    "vessels": ("vesselbot_ros.vessels.vessels_cli", "vessel networks: import a VMTK centreline file (.vtp) as a network YAML"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
                       "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
 }

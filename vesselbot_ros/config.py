@@ -45,9 +45,15 @@ T = TypeVar("T")
 #: field's dataclass from its value (a stage's scenario section, by its ``kind``: :mod:`vesselbot_ros.sim.kinds`).
 RESOLVE_TYPE = "vesselbot_resolve_type"
 
+#: Field metadata key of :func:`to_mapping`: ``omit(value) -> bool``; a field whose value it calls omittable is
+#: left out of the mapping (an optional key added later, e.g. a branch's ``y_m``, so that the mappings -- and the
+#: hashes taken of them -- of files without it stay what they were).
+OMIT_IF = "vesselbot_omit_if"
+
 __all__ = [
     "ConfigError",
     "RESOLVE_TYPE",
+    "OMIT_IF",
     "check_finite",
     "check_positive",
     "check_nonnegative",
@@ -238,9 +244,13 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
 
 
 def to_mapping(obj: Any) -> Any:
-    """Inverse of :func:`load_dataclass`: dataclass -> plain YAML-able mapping."""
+    """Inverse of :func:`load_dataclass`: dataclass -> plain YAML-able mapping.
+
+    A field whose metadata's :data:`OMIT_IF` calls its value omittable is left out.
+    """
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_mapping(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.name: to_mapping(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not (OMIT_IF in f.metadata and f.metadata[OMIT_IF](getattr(obj, f.name)))}
     if isinstance(obj, (list, tuple)):
         return [to_mapping(v) for v in obj]
     if isinstance(obj, Mapping):

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import make_interp_spline
 
-from vesselbot_ros.blas_free import hypot2, interp_spline, interp_spline_fitpack, mat2, mat2_apply, mat2_inverse, solve
+from vesselbot_ros.blas_free import hypot2, hypot3, interp_spline, interp_spline_fitpack, mat2, mat2_apply, mat2_inverse, solve
 from vesselbot_ros.errors import ModelInputError
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
@@ -114,3 +114,28 @@ def test_hypot2_is_cpythons_math_hypot_double_for_double() -> None:
     want = np.array([math.hypot(a, b) for a, b in zip(xs.tolist(), ys.tolist())])
     np.testing.assert_array_equal(_hypot2_many(xs, ys), want)
     assert np.count_nonzero(_numba_hypot_many(x, y) != want[:n]) > 0  # the trap is real on this machine
+
+
+@numba.njit(cache=True)
+def _hypot3_many(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = hypot3(x[i], y[i], z[i])
+    return out
+
+
+def test_hypot3_is_cpythons_math_hypot_and_hypot2_in_a_plane() -> None:
+    """Three coordinates, double for double with CPython (wide and similar magnitudes, specials); with one coordinate
+    zero it is hypot2 of the other two, so a 3-D stage in the plane keeps the planar doubles."""
+    rng = np.random.default_rng(19)
+    n = 200_000
+    x, y, z = (rng.standard_normal(n) * 10.0 ** rng.integers(-300, 300, n) for _ in range(3))
+    near = rng.integers(0, 2, n).astype(bool)
+    y[near] = x[near] * rng.uniform(-3.0, 3.0, np.count_nonzero(near))
+    z[near] = x[near] * rng.uniform(-3.0, 3.0, np.count_nonzero(near))
+    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, math.inf, math.nan, 3.0, 4.0]
+    grid = np.array(np.meshgrid(special, special, special)).reshape(3, -1)
+    xs, ys, zs = (np.concatenate([a, g]) for a, g in zip((x, y, z), grid))
+    want = np.array([math.hypot(a, b, c) for a, b, c in zip(xs.tolist(), ys.tolist(), zs.tolist())])
+    np.testing.assert_array_equal(_hypot3_many(xs, ys, zs), want)
+    np.testing.assert_array_equal(_hypot3_many(x, np.zeros(n), z), _hypot2_many(x, z))

@@ -6,7 +6,7 @@ import pytest
 
 from vesselbot_ros.cli import COMMANDS, main
 
-NESTED = {"bag": ("info", "repair")}
+NESTED = {"bag": ("info", "repair"), "vessels": ("import",)}
 
 
 def _help_argvs() -> list[list[str]]:

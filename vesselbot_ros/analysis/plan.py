@@ -48,7 +48,7 @@ import numpy.typing as npt
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, wall_shift_of
 from vesselbot_ros.control.input_mapping import input_matrix
-from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.physics.kernel import diameter_at
@@ -583,7 +583,7 @@ def plan_scenario(scenario: Scenario, reference: ReferenceParams) -> Scenario:
 #: The filter's prior on the blood-velocity scale for a plan on the wall: the paper's 5 % blood-velocity error
 #: (the filter's default, 10 %, let the scale wander to 1.07-1.14 on the clinical plan, truth 0.95: 82 % of 100
 #: seeds within 2x the coast floor against 92 % with this prior).
-WALL_FLOW_SCALE_SIGMA0 = 0.05
+WALL_FLOW_SCALE_SIGMA0 = BLOOD_VELOCITY_ERROR
 
 
 def flying_changes(scenario: Scenario, plan: Plan) -> dict[str, str | float]:

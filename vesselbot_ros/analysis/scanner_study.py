@@ -102,7 +102,7 @@ from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, check_choice, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
-from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
@@ -274,7 +274,7 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
 
 
 #: The prior of :func:`estimation_floor`'s unknown flow scale: the paper's 5 % blood-velocity error.
-FLOW_SCALE_SIGMA = 0.05
+FLOW_SCALE_SIGMA = BLOOD_VELOCITY_ERROR
 
 
 def _jacobian(plant: DynamicsModel, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:

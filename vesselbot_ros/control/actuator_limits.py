@@ -46,7 +46,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import hypot2
+from vesselbot_ros.blas_free import hypot2, hypot3
 from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ModelInputError
 
@@ -62,6 +62,10 @@ __all__ = [
     "coil_apply",
     "coil_slew_to",
     "COIL_OUT_SIZE",
+    "coil3d_saturate",
+    "coil3d_slew_to",
+    "coil3d_apply",
+    "COIL3D_OUT_SIZE",
 ]
 
 #: Section III-C: ``U_sat = 80 mT/m``.
@@ -223,6 +227,89 @@ def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]  # n
     out[2] = k
     out[3] = 1.0 if k > 1.0 else 0.0
     out[6] = 0.0
+
+
+# ---- three gradient axes (3-D vessel trees) -------------------------------------------------------
+# The same coil on x, y and z: params as above; state (5,): [applied x, y, z (T/m), t_prev, t_last_command (s)];
+# out (9,): [applied x, y, z, k_scale, saturated, slew_limited x, y, z, rejected].  With every y command 0 it gives
+# coil_apply's doubles in x and z and 0 in y (hypot3(x, 0, z) == hypot2(x, z)).
+COIL3D_OUT_SIZE = 9
+
+
+@numba.njit(cache=True, nogil=True)
+def coil3d_slew_to(prm, state, tx, ty, tz, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`coil_slew_to` on three axes: towards ``(tx, ty, tz)`` (T/m) within ``S * dt`` on every axis, the step
+    scaled uniformly; flags into ``out[5:8]``."""
+    s0 = tx - state[0]
+    s1 = ty - state[1]
+    s2 = tz - state[2]
+    max_step = prm[1] * dt
+    a0 = abs(s0)
+    a1 = abs(s1)
+    a2 = abs(s2)
+    out[5] = 1.0 if a0 > max_step else 0.0
+    out[6] = 1.0 if a1 > max_step else 0.0
+    out[7] = 1.0 if a2 > max_step else 0.0
+    biggest = a0 if a0 >= a2 else a2
+    biggest = biggest if biggest >= a1 else a1
+    if biggest > max_step:
+        f = max_step / biggest
+        s0 = s0 * f
+        s1 = s1 * f
+        s2 = s2 * f
+    state[0] = state[0] + s0
+    state[1] = state[1] + s1
+    state[2] = state[2] + s2
+    out[0] = state[0]
+    out[1] = state[1]
+    out[2] = state[2]
+
+
+@numba.njit(cache=True, nogil=True)
+def coil3d_saturate(prm, gx, gy, gz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(sx, sy, sz, k)``: :func:`coil_saturate` on three axes (the Euclidean norm of the three, or each axis)."""
+    g_sat = prm[0]
+    if prm[2] < 0.5:
+        k = hypot3(gx, gy, gz) / g_sat
+        if not k > 1.0:
+            k = 1.0
+        return gx / k, gy / k, gz / k, k
+    kx = abs(gx) / g_sat
+    if not kx > 1.0:
+        kx = 1.0
+    ky = abs(gy) / g_sat
+    if not ky > 1.0:
+        ky = 1.0
+    kz = abs(gz) / g_sat
+    if not kz > 1.0:
+        kz = 1.0
+    k = kx if kx >= kz else kz
+    return gx / kx, gy / ky, gz / kz, (k if k >= ky else ky)
+
+
+@numba.njit(cache=True, nogil=True)
+def coil3d_apply(prm, state, t, gx, gy, gz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`coil_apply` on three axes: saturate, then slew-limit ``(gx, gy, gz)`` (T/m) at time ``t`` (s); writes
+    ``out`` (:data:`COIL3D_OUT_SIZE`,), updates ``state``, allocates nothing; a non-finite command is rejected."""
+    dt = t - state[3]
+    if dt < 0.0:
+        dt = 0.0
+    state[3] = t
+    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+        if prm[3] > 0.5:
+            coil3d_slew_to(prm, state, 0.0, 0.0, 0.0, dt, out)
+        else:
+            coil3d_slew_to(prm, state, state[0], state[1], state[2], dt, out)
+        out[3] = 1.0
+        out[4] = 0.0
+        out[8] = 1.0
+        return
+    state[4] = t
+    sx, sy, sz, k = coil3d_saturate(prm, gx, gy, gz)
+    coil3d_slew_to(prm, state, sx, sy, sz, dt, out)
+    out[3] = k
+    out[4] = 1.0 if k > 1.0 else 0.0
+    out[8] = 0.0
 
 
 class CoilLimiter:

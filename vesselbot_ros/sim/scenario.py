@@ -49,7 +49,7 @@ from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import load_network, route_to_outlet
+from vesselbot_ros.vessels.network import load_network, require_planar, route_to_outlet
 
 __all__ = [
     "ModelParams",
@@ -262,6 +262,7 @@ class Scenario:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""
         try:
             net = load_network(self.physics.vessel.network)
+            require_planar(net, "the 2-D plant")
         except ConfigError as exc:
             raise ConfigError(f"physics.vessel.network: {exc}") from None
         if bspline and self.reference.route_outlet:

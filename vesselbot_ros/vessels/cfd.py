@@ -75,7 +75,13 @@ from vesselbot_ros.physics.meshed_wall import (
     wall_segments,
 )
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
-from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, smooth_centreline
+from vesselbot_ros.vessels.network import (
+    NetworkGeometry,
+    VesselNetworkParams,
+    load_network,
+    require_planar,
+    smooth_centreline,
+)
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
            "network_field", "network_wall", "packed_params", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES",
@@ -137,7 +143,11 @@ def mesh_network(net: VesselNetworkParams) -> MeshedNetwork:
 
     Each branch is a polygon around its smoothed centreline; each bifurcation
     node gets a disc of the parent's end radius so the branches join without gaps.
+
+    Raises:
+        ConfigError: if ``net`` is not planar (the mesh is of the XZ plane).
     """
+    require_planar(net, "the 2-D CFD")
     import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
 
     h = net.cfd.mesh_size_m
@@ -527,7 +537,11 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
     """The sampled field of ``net`` for ``blood``: shipped, cached, or solved, sampled and cached.
 
     ``refresh`` solves again whatever is shipped or cached (and caches the result).
+
+    Raises:
+        ConfigError: if ``net`` is not planar (this solve is 2-D).
     """
+    require_planar(net, "the 2-D CFD")
     name = field_file(net, blood)
     path = cache_dir() / name
     for found in () if refresh else (shipped_field_dir() / name, path):

@@ -1,16 +1,24 @@
-"""Vessel networks in the paper's XZ plane: format, validation and pure geometry.
+"""Vessel networks (trees of tubes, planar or in 3-D): format, validation and pure geometry.
 
 A network is a tree of branches (YAML in ``config/vessels/``, format in
-``docs/vessels.md``).  Each branch is a centreline polyline ``(x_m, z_m)`` with a
+``docs/vessels.md``).  Each branch is a centreline polyline ``(x_m, y_m, z_m)`` with a
 radius at each point (linear in arc length between points; one value means a
-constant radius).  The root branch (``parent: ""``) starts at the inlet; a
+constant radius).  ``y_m`` is optional: without it (or with every y zero) the
+branch lies in the paper's XZ plane, and a network whose branches all do is
+*planar* (:attr:`VesselNetworkParams.is_planar`) -- the only kind the 2-D
+consumers (:class:`NetworkGeometry`, the 2-D CFD, the plant) accept
+(:func:`require_planar`).  A planar network's mapping, and so every hash of it
+(the CFD fields' names), leaves ``y_m`` out: it is the file it was before
+``y_m`` existed.  The root branch (``parent: ""``) starts at the inlet; a
 daughter starts at its parent's last point (the bifurcation node); branches
 without daughters end at the outlets.  Gravity acts along -z, as everywhere.
 
 Smoothing: the polyline is replaced by the C2 cubic interpolating spline
 through its points in the chord-length parameter (``smoothing: spline``; a
 straight 2-point branch stays straight), sampled every ``sample_spacing_m``;
-``smoothing: none`` keeps the polyline.
+``smoothing: none`` keeps the polyline.  :func:`smooth_centreline_3d` does the
+same in 3-D (its x and z of a planar branch are :func:`smooth_centreline`'s
+bit for bit); :class:`NetworkGeometry3D` holds every branch's 3-D samples.
 
 Centreline-tube queries (:class:`NetworkGeometry`, numpy, never rclpy): the
 branch that holds a point, the arc length along it, the branch's diameter 2 r_b,
@@ -40,6 +48,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import interp_spline
 from vesselbot_ros.config import (
+    OMIT_IF,
     ConfigError,
     check_choice,
     check_finite,
@@ -57,13 +66,32 @@ __all__ = [
     "CfdParams",
     "VesselNetworkParams",
     "NetworkGeometry",
+    "NetworkGeometry3D",
     "load_network",
+    "require_planar",
+    "smooth_centreline",
+    "smooth_centreline_3d",
     "resolve_network_path",
     "route_to_outlet",
 ]
 
 #: Folder of the shipped vessel networks.
 VESSELS_DIR = Path(__file__).resolve().parents[2] / "config" / "vessels"
+
+
+def _all_zero(values: tuple[float, ...]) -> bool:
+    """True if ``values`` is empty or all zero (a branch's ``y_m`` that keeps it in the plane y = 0)."""
+    return not any(values)
+
+
+def _norm(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Euclidean norm of the rows of ``d`` ((..., 2) as (x, z) or (..., 3) as (x, y, z)).
+
+    In 3-D: ``hypot(hypot(x, z), y)``, which is the planar ``hypot(x, z)`` bit for bit when y = 0.
+    """
+    if d.shape[-1] == 2:
+        return np.hypot(d[..., 0], d[..., 1])
+    return np.hypot(np.hypot(d[..., 0], d[..., 2]), d[..., 1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +105,9 @@ class BranchParams:
         x_m: x of the centreline points (m), >= 2 points.
         z_m: z of the centreline points (m), same length.
         radius_m: Lumen radius at each point (m), same length, or one value.
+        y_m: y of the centreline points (m), same length; empty (the default)
+            means the plane y = 0.  Left out of :func:`~vesselbot_ros.config.to_mapping`
+            (and so of every hash) when empty or all zero.
     """
 
     name: str
@@ -84,6 +115,7 @@ class BranchParams:
     z_m: tuple[float, ...]
     radius_m: tuple[float, ...]
     parent: str = ""
+    y_m: tuple[float, ...] = dataclasses.field(default=(), metadata={OMIT_IF: _all_zero})
 
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c == "_" for c in self.name):
@@ -98,13 +130,34 @@ class BranchParams:
             check_finite(f"x_m[{i}]", v)
         for i, v in enumerate(self.z_m):
             check_finite(f"z_m[{i}]", v)
+        if self.y_m and len(self.y_m) != len(self.x_m):
+            raise ConfigError(f"y_m must have as many points as x_m ({len(self.x_m)}) or none (the plane y = 0), "
+                              f"got {len(self.y_m)}")
+        for i, v in enumerate(self.y_m):
+            check_finite(f"y_m[{i}]", v)
         for i, v in enumerate(self.radius_m):
             check_positive(f"radius_m[{i}]", v)
-        pts = np.column_stack([self.x_m, self.z_m])
-        seg = np.hypot(*np.diff(pts, axis=0).T)
+        if self.is_planar:
+            pts = np.column_stack([self.x_m, self.z_m])
+            seg = np.hypot(*np.diff(pts, axis=0).T)
+            keys = "x_m, z_m"
+        else:
+            pts = self.points_3d()
+            seg = _norm(np.diff(pts, axis=0))
+            keys = "x_m, y_m, z_m"
         if np.any(seg <= 0.0):
             i = int(np.argmin(seg))
-            raise ConfigError(f"x_m, z_m: points must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
+            raise ConfigError(f"{keys}: points must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
+
+    @property
+    def is_planar(self) -> bool:
+        """True if the branch lies in the plane y = 0 (``y_m`` empty or all zero)."""
+        return _all_zero(self.y_m)
+
+    def points_3d(self) -> npt.NDArray[np.float64]:
+        """(n, 3) centreline points (x, y, z) (m); y = 0 without ``y_m``."""
+        y = self.y_m if self.y_m else (0.0,) * len(self.x_m)
+        return np.column_stack([self.x_m, y, self.z_m]).astype(np.float64)
 
     def radii(self) -> npt.NDArray[np.float64]:
         """(n,) radius at each point (m)."""
@@ -188,16 +241,22 @@ class VesselNetworkParams:
         if len(roots) != 1:
             raise ConfigError(f"exactly one branch must have parent '' (the inlet branch), got {[names[i] for i in roots]}")
         by_name = {b.name: b for b in self.branches}
+        planar = self.is_planar
         for i, b in enumerate(self.branches):
             if b.parent == "":
                 continue
             if b.parent not in by_name:
                 raise ConfigError(f"branches[{i}].parent {b.parent!r} is not a branch name; names: {names}")
             par = by_name[b.parent]
-            gap = math.hypot(b.x_m[0] - par.x_m[-1], b.z_m[0] - par.z_m[-1])
+            if planar:
+                gap = math.hypot(b.x_m[0] - par.x_m[-1], b.z_m[0] - par.z_m[-1])
+                end, start = [par.x_m[-1], par.z_m[-1]], [b.x_m[0], b.z_m[0]]
+            else:
+                end, start = par.points_3d()[-1].tolist(), b.points_3d()[0].tolist()
+                gap = math.dist(end, start)
             if gap > 1e-9:
                 raise ConfigError(f"branches[{i}] ({b.name!r}) must start at the last point of its parent {b.parent!r} "
-                                  f"({[par.x_m[-1], par.z_m[-1]]}), got {[b.x_m[0], b.z_m[0]]}")
+                                  f"({end}), got {start}")
         # cycles: every branch must reach the root
         for i, b in enumerate(self.branches):
             seen, cur = set(), b
@@ -207,6 +266,11 @@ class VesselNetworkParams:
                 seen.add(cur.name)
                 cur = by_name[cur.parent]
         _check_overlaps(self)
+
+    @property
+    def is_planar(self) -> bool:
+        """True if every branch lies in the plane y = 0: the network the 2-D consumers take."""
+        return all(b.is_planar for b in self.branches)
 
     @property
     def root(self) -> BranchParams:
@@ -229,8 +293,13 @@ class VesselNetworkParams:
 
 
 def _check_overlaps(net: VesselNetworkParams) -> None:
-    """Raise ConfigError naming two branches whose tubes overlap away from their common node."""
-    cl = {b.name: smooth_centreline(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
+    """Raise ConfigError naming two branches whose tubes overlap away from their common node.
+
+    Planar networks are checked in the XZ plane (as before ``y_m``), others on their 3-D centrelines.
+    """
+    planar = net.is_planar
+    smooth = smooth_centreline if planar else smooth_centreline_3d
+    cl = {b.name: smooth(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
     by_name = {b.name: b for b in net.branches}
     for i, a in enumerate(net.branches):
         for b in net.branches[i + 1:]:
@@ -243,27 +312,36 @@ def _check_overlaps(net: VesselNetworkParams) -> None:
                 # near the shared node the tubes meet by construction: skip one junction length
                 node = pa[-1] if b.parent == a.name else (pb[-1] if a.parent == b.name else pa[0])
                 reach = 3.0 * (ra.max() + rb.max())
-                ma = np.hypot(*(pa - node).T) > reach
-                mb = np.hypot(*(pb - node).T) > reach
+                ma = _norm(pa - node) > reach
+                mb = _norm(pb - node) > reach
                 if b.parent == a.name or a.parent == b.name:
                     continue  # a parent and its daughter only meet at the node (the daughter leaves it)
             if not ma.any() or not mb.any():
                 continue
             qa, qb = pa[ma], pb[mb]
-            d = np.hypot(qa[:, None, 0] - qb[None, :, 0], qa[:, None, 1] - qb[None, :, 1])
+            d = _norm(qa[:, None, :] - qb[None, :, :])
             need = ra[ma][:, None] + rb[mb][None, :]
             bad = d < need
             if bad.any():
                 ia, ib = np.unravel_index(int(np.argmax(need - d)), d.shape)
                 where = (0.5 * (qa[ia] + qb[ib])).tolist()
-                raise ConfigError(f"branches {a.name!r} and {by_name[b.name].name!r} overlap near (x, z) = "
-                                  f"({where[0]:.6g}, {where[1]:.6g}) m: centrelines {d[ia, ib]:.6g} m apart, "
+                axes = "x, z" if planar else "x, y, z"
+                at = ", ".join(f"{v:.6g}" for v in where)
+                raise ConfigError(f"branches {a.name!r} and {by_name[b.name].name!r} overlap near ({axes}) = "
+                                  f"({at}) m: centrelines {d[ia, ib]:.6g} m apart, "
                                   f"radii sum {need[ia, ib]:.6g} m")
 
 
 def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
                       ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """(points (n, 2) m, radius (n,) m, arc length (n,) m) of the smoothed centreline of ``b``."""
+    """(points (n, 2) m, radius (n,) m, arc length (n,) m) of the smoothed centreline of ``b`` in the XZ plane.
+
+    Raises:
+        ConfigError: if ``b`` leaves the plane y = 0 (use :func:`smooth_centreline_3d`).
+    """
+    if not b.is_planar:
+        raise ConfigError(f"branch {b.name!r} is not planar (y_m = {list(b.y_m)}): its centreline is 3-D "
+                          "(smooth_centreline_3d)")
     pts = np.column_stack([b.x_m, b.z_m]).astype(np.float64)
     rad = b.radii()
     chord = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
@@ -278,6 +356,48 @@ def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
     r = np.interp(u, chord, rad)
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(out, axis=0).T))])
     return out, r, s
+
+
+def smooth_centreline_3d(b: BranchParams, smoothing: str, spacing_m: float
+                         ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(points (n, 3) (x, y, z) m, radius (n,) m, arc length (n,) m) of the smoothed 3-D centreline of ``b``.
+
+    The 2-D rule in 3-D: the C2 cubic (natural) interpolating spline through the points in the
+    chord-length parameter (quadratic through 3 points, the polyline for 2 points or
+    ``smoothing: none``), sampled at ``ceil(chord / spacing_m) + 1`` equal steps of the chord
+    parameter; the radius linear in it.  For a planar branch the x and z columns, the radius and the
+    arc length are :func:`smooth_centreline`'s bit for bit (chord lengths as ``hypot(hypot(dx, dz), dy)``).
+    """
+    pts = b.points_3d()
+    rad = b.radii()
+    chord = np.concatenate([[0.0], np.cumsum(_norm(np.diff(pts, axis=0)))])
+    n = max(2, int(math.ceil(chord[-1] / spacing_m)) + 1)
+    u = np.linspace(0.0, chord[-1], n)
+    if smoothing == "spline" and len(pts) >= 3:
+        k = 3 if len(pts) >= 4 else 2
+        out = interp_spline(chord, pts, k=k)(u)
+    else:
+        out = np.column_stack([np.interp(u, chord, pts[:, j]) for j in range(3)])
+    r = np.interp(u, chord, rad)
+    s = np.concatenate([[0.0], np.cumsum(_norm(np.diff(out, axis=0)))])
+    return out, r, s
+
+
+def require_planar(net: VesselNetworkParams, consumer: str) -> None:
+    """Refuse a network that leaves the plane y = 0 in a 2-D consumer, in one line.
+
+    Args:
+        net: The network.
+        consumer: What refuses it (``"the 2-D CFD"``, ``"the 2-D plant"``).
+
+    Raises:
+        ConfigError: naming the network, its first non-planar branch and ``consumer``.
+    """
+    for b in net.branches:
+        if not b.is_planar:
+            y = max(b.y_m, key=abs)
+            raise ConfigError(f"vessel network {net.name!r} is not planar (branch {b.name!r} leaves the plane y = 0, "
+                              f"|y| up to {abs(y):.6g} m): {consumer} takes XZ networks only, until the 3-D plant exists")
 
 
 def resolve_network_path(source: str) -> Path:
@@ -319,6 +439,7 @@ class NetworkGeometry:
     """
 
     def __init__(self, net: VesselNetworkParams) -> None:
+        require_planar(net, "NetworkGeometry (the 2-D centreline tubes)")
         self.net = net
         self.branches = {b.name: smooth_centreline(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
         self.names = [b.name for b in net.branches]
@@ -457,6 +578,113 @@ def _point_clearance(px, pz, xs, zs, rad, starts):  # type: ignore[no-untyped-de
             best_s = r - dist
             best_r = r
     return best_s, 2.0 * best_r
+
+
+class NetworkGeometry3D:
+    """Pure 3-D geometry of a network, planar or not: smoothed centrelines, radii, arc lengths, tubes.
+
+    The 3-D counterpart of :class:`NetworkGeometry` for the 3-D consumers (a planar network's x and z
+    are :class:`NetworkGeometry`'s bit for bit, y = 0).  Points are (x, y, z) in metres.
+
+    Args:
+        net: The validated network.
+    """
+
+    def __init__(self, net: VesselNetworkParams) -> None:
+        self.net = net
+        self.branches = {b.name: smooth_centreline_3d(b, net.smoothing, net.sample_spacing_m) for b in net.branches}
+        self.names = [b.name for b in net.branches]
+        self._trees: dict[str, Any] = {}  # scipy.spatial.cKDTree (scipy has no types here)
+
+    @property
+    def is_planar(self) -> bool:
+        """True if the network lies in the plane y = 0."""
+        return self.net.is_planar
+
+    def centreline_3d(self, branch: str) -> npt.NDArray[np.float64]:
+        """(n, 3) smoothed centreline samples (x, y, z) of ``branch`` (m)."""
+        return self._branch(branch)[0]
+
+    def radius(self, branch: str) -> npt.NDArray[np.float64]:
+        """(n,) lumen radius at the samples of ``branch`` (m)."""
+        return self._branch(branch)[1]
+
+    def arc_length(self, branch: str) -> npt.NDArray[np.float64]:
+        """(n,) arc length of the samples of ``branch`` from its first point (m)."""
+        return self._branch(branch)[2]
+
+    def length_m(self, branch: str) -> float:
+        """Arc length of the smoothed centreline of ``branch`` (m)."""
+        return float(self._branch(branch)[2][-1])
+
+    def _branch(self, branch: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        if branch not in self.branches:
+            raise ConfigError(f"branch {branch!r} is not a branch of network {self.net.name!r}; branches: {self.names}")
+        return self.branches[branch]
+
+    @cached_property
+    def bbox(self) -> tuple[float, float, float, float, float, float]:
+        """(x_min, x_max, y_min, y_max, z_min, z_max) of the lumen (m)."""
+        lo = np.full(3, np.inf)
+        hi = -lo
+        for pts, r, _s in self.branches.values():
+            lo = np.minimum(lo, (pts - r[:, None]).min(axis=0))
+            hi = np.maximum(hi, (pts + r[:, None]).max(axis=0))
+        return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]), float(lo[2]), float(hi[2])
+
+    def centreline_path(self, branch_names: list[str]) -> npt.NDArray[np.float64]:
+        """(n, 3) concatenated smoothed centreline through ``branch_names`` (m)."""
+        parts = [self._branch(n)[0] for n in branch_names]
+        return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
+
+    def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
+        """Centreline-tube distance at points (m, 3): the tube the point is deepest in, and where along it.
+
+        Returns a dict: ``sdist`` (m,) max over branches of r_b - |p - foot_b| (m, > 0 inside a tube;
+        like :meth:`NetworkGeometry.query`, exact away from the junctions, a lower bound of the
+        lumen's in one), ``foot`` (m, 3) nearest centreline point of that branch, ``radius`` (m,)
+        there, ``branch`` (m,) index into ``names``, ``arc`` (m,) arc length of the foot (m).
+        """
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        if q.shape[1] != 3:
+            raise ValueError(f"points_m must be (m, 3), got shape {q.shape}")
+        out_s = np.full(len(q), -np.inf)
+        out_f = np.zeros_like(q)
+        out_r = np.zeros(len(q))
+        out_b = np.zeros(len(q), dtype=np.int64)
+        out_a = np.zeros(len(q))
+        for k, name in enumerate(self.names):
+            pts, rad, arc = self.branches[name]
+            tree = self._trees.get(name)
+            if tree is None:
+                # deferred: scipy.spatial takes ~0.4 s to import; only a distance query on a network pays it
+                from scipy.spatial import cKDTree
+
+                tree = self._trees[name] = cKDTree(pts)
+            _d, j = tree.query(q)
+            best = np.full(len(q), np.inf)
+            foot = np.zeros_like(q)
+            rf = np.zeros(len(q))
+            sf = np.zeros(len(q))
+            for seg in (np.maximum(j - 1, 0), np.minimum(j, len(pts) - 2)):
+                a = pts[seg]
+                d = pts[seg + 1] - a
+                t = np.clip(((q - a) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-300), 0.0, 1.0)
+                f = a + t[:, None] * d
+                dist = _norm(q - f)
+                better = dist < best
+                best[better] = dist[better]
+                foot[better] = f[better]
+                rf[better] = (rad[seg] + t * (rad[seg + 1] - rad[seg]))[better]
+                sf[better] = (arc[seg] + t * (arc[seg + 1] - arc[seg]))[better]
+            s = rf - best
+            better = s > out_s
+            out_s[better] = s[better]
+            out_f[better] = foot[better]
+            out_r[better] = rf[better]
+            out_b[better] = k
+            out_a[better] = sf[better]
+        return {"sdist": out_s, "foot": out_f, "radius": out_r, "branch": out_b, "arc": out_a}
 
 
 def route_to_outlet(net: VesselNetworkParams, outlet: str) -> list[str]:

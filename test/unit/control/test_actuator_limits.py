@@ -12,9 +12,14 @@ from hypothesis import strategies as st
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.actuator_limits import (
     CLINICAL_SLEW_RATE_T_PER_M_PER_S,
+    COIL3D_OUT_SIZE,
+    COIL_OUT_SIZE,
     PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S,
     CoilLimiter,
     CoilLimits,
+    coil3d_apply,
+    coil_apply,
+    coil_params,
 )
 from vesselbot_ros.errors import ModelInputError
 
@@ -153,3 +158,54 @@ def test_property_limits_never_exceeded(seq, norm, slew) -> None:  # type: ignor
             assert np.all(np.abs(a) <= 0.08 * (1 + 1e-12))
         assert np.all(np.abs(a - prev) <= slew * dt * (1 + 1e-9) + 1e-15)
         prev = a
+
+
+# ---- three axes --------------------------------------------------------------------------------------------------
+def _coil_runs(limits: CoilLimits, commands: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 2-D coil on (x, z) and the 3-D coil on (x, y, z) over the same command sequence: their outputs."""
+    prm = coil_params(limits)
+    s2, s3 = np.zeros(4), np.zeros(5)
+    o2, o3 = np.zeros(COIL_OUT_SIZE), np.zeros(COIL3D_OUT_SIZE)
+    out2, out3 = [], []
+    for i, (gx, gy, gz) in enumerate(commands):
+        coil_apply(prm, s2, (i + 1) * dt, gx, gz, o2)
+        coil3d_apply(prm, s3, (i + 1) * dt, gx, gy, gz, o3)
+        out2.append(o2.copy())
+        out3.append(o3.copy())
+    return np.array(out2), np.array(out3)
+
+
+@pytest.mark.parametrize("norm", ["euclidean", "per_axis"])
+@pytest.mark.parametrize("reject", ["hold", "ramp_to_zero"])
+def test_the_3d_coil_in_the_plane_is_the_planar_coil(norm: str, reject: str) -> None:
+    """Every y command 0: the three-axis coil applies the planar coil's doubles on x and z, 0 on y, with the same
+    saturation factor and flags (saturating, slewing and non-finite commands included)."""
+    rng = np.random.default_rng(3)
+    cmd = rng.normal(0.0, 0.08, (400, 3))
+    cmd[:, 1] = 0.0
+    cmd[rng.integers(0, 400, 20), 2] = np.nan
+    cmd[rng.integers(0, 400, 10), 0] = np.inf
+    limits = CoilLimits(saturation_norm=norm, on_reject=reject, slew_rate="custom", custom_slew_rate_T_per_m_per_s=20.0)
+    o2, o3 = _coil_runs(limits, cmd, 1e-3)
+    np.testing.assert_array_equal(o3[:, [0, 2]], o2[:, [0, 1]])
+    assert np.all(o3[:, 1] == 0.0) and np.all(o3[:, 6] == 0.0)
+    np.testing.assert_array_equal(o3[:, [3, 4, 5, 7, 8]], o2[:, [2, 3, 4, 5, 6]])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["euclidean", "per_axis"]), st.floats(1.0, 200.0))
+def test_the_3d_coil_keeps_saturation_and_slew_on_every_axis(seed: int, norm: str, slew: float) -> None:
+    """Any finite command sequence: the applied gradient stays in the saturation set (norm or box) and no axis moves
+    more than S dt per call."""
+    rng = np.random.default_rng(seed)
+    cmd = rng.normal(0.0, 0.2, (200, 3))
+    limits = CoilLimits(saturation_norm=norm, slew_rate="custom", custom_slew_rate_T_per_m_per_s=slew)
+    _o2, o3 = _coil_runs(limits, cmd, 1e-3)
+    applied = o3[:, :3]
+    sat = limits.saturation_T_per_m
+    if norm == "euclidean":
+        assert np.all(np.linalg.norm(applied, axis=1) <= sat * (1 + 1e-12))
+    else:
+        assert np.all(np.abs(applied) <= sat * (1 + 1e-12))
+    steps = np.abs(np.diff(np.vstack([np.zeros(3), applied]), axis=0))
+    assert np.all(steps <= slew * 1e-3 * (1 + 1e-12))

@@ -65,3 +65,13 @@ def test_leaving_the_lumen_is_a_recorded_event() -> None:
     assert out["outside_lumen_time_s"] == pytest.approx(2e-3)
     assert out["outside_lumen_first_s"] == pytest.approx(2e-3)
     assert out["branch_final"] == "trunk_a" and out["reached_target"] == 0
+
+
+def test_a_scenario_refuses_a_non_planar_network_in_one_line() -> None:
+    from vesselbot_ros.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^physics\.vessel\.network: vessel network 'carotid_bifurcation_3d' is not "
+                                          r"planar .*: the 2-D plant takes XZ networks only") as ei:
+        load_scenario(shipped_scenarios()["paper_iiic_network_upper"],
+                      sets=["physics.vessel.network=carotid_bifurcation_3d"])
+    assert "\n" not in str(ei.value)

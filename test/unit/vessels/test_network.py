@@ -8,7 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import (
+    NetworkGeometry,
+    NetworkGeometry3D,
+    VesselNetworkParams,
+    load_network,
+    route_to_outlet,
+)
 
 
 def _net(branches, **kw):  # type: ignore[no-untyped-def]
@@ -86,3 +92,223 @@ def test_point_clearance_equals_the_vectorised_query_bit_for_bit(name: str, u: f
     x, z = x0 + u * (x1 - x0), z0 + v * (z1 - z0)
     q = g.query(np.array([[x, z]]))
     assert g.clearance(x, z) == (q["sdist"][0], q["diameter"][0])
+
+
+# --- three-dimensional trees (y_m) -----------------------------------------------------------------
+
+def _rot_x(branches, theta):  # type: ignore[no-untyped-def]
+    """The branches rotated by ``theta`` about the x axis: (y, z) = (-z sin, z cos) of the planar ones."""
+    out = []
+    for b in branches:
+        z = np.asarray(b["z_m"], dtype=float)
+        out.append(dict(b, y_m=(-z * np.sin(theta)).tolist(), z_m=(z * np.cos(theta)).tolist()))
+    return out
+
+
+def test_planar_networks_map_and_hash_as_before_y_m() -> None:
+    from vesselbot_ros.config import to_mapping
+
+    plain = _net(Y)
+    zeros = _net([dict(b, y_m=[0.0] * len(b["x_m"])) for b in Y])
+    assert plain.is_planar and zeros.is_planar
+    assert all("y_m" not in b for b in to_mapping(plain)["branches"])
+    assert all("y_m" not in b for b in to_mapping(zeros)["branches"])
+    assert plain.geometry_hash() == zeros.geometry_hash()
+    # a branch that leaves the plane is in the mapping, so in every hash
+    tilted = _net(_rot_x(Y, 0.3))
+    assert not tilted.is_planar
+    assert any("y_m" in b for b in to_mapping(tilted)["branches"])
+    assert tilted.geometry_hash() != plain.geometry_hash()
+
+
+def test_shipped_cfd_fields_keep_their_names() -> None:
+    from vesselbot_ros.physics.params import BloodParams
+    from vesselbot_ros.vessels.cfd import field_file
+
+    # the shipped fields (config/cfd) are named by field_key: y_m must not have moved them
+    assert field_file(load_network("paper_iiic_artery"), BloodParams()) == "paper_iiic_artery-4ad5cdaaef7b33dc1ee13a11.npz"
+    assert field_file(load_network("small_artery_4gen"), BloodParams()) == "small_artery_4gen-3366ae647ac05fd7c63f6ad9.npz"
+
+
+def test_2d_consumers_refuse_a_non_planar_network_in_one_line() -> None:
+    from vesselbot_ros.physics.params import BloodParams
+    from vesselbot_ros.vessels.cfd import mesh_network, network_field
+
+    net = _net(_rot_x(Y, 0.3))
+    for call in (lambda: NetworkGeometry(net), lambda: network_field(net, BloodParams()), lambda: mesh_network(net)):
+        with pytest.raises(ConfigError, match=r"^vessel network 't' is not planar \(branch 'b' leaves the plane y = 0") as ei:
+            call()
+        assert "\n" not in str(ei.value)
+    g = NetworkGeometry3D(net)  # the 3-D geometry takes it
+    assert g.centreline_3d("b").shape[1] == 3 and not g.is_planar
+
+
+def test_y_m_validation_names_the_key_and_the_value() -> None:
+    with pytest.raises(ConfigError, match=r"branches\[0\]\.y_m must have as many points as x_m \(2\) or none .* got 3"):
+        _net([dict(Y[0], y_m=[0.0, 1e-3, 2e-3])])
+    with pytest.raises(ConfigError, match=r"branches\[0\]\.y_m\[1\] must be finite, got nan"):
+        _net([dict(Y[0], y_m=[0.0, float("nan")])])
+    # the same (x, z) at two heights y is two points in 3-D, a repeated (x, y, z) is not
+    _net([dict(Y[0], x_m=[0.0, 0.0], z_m=[0.0, 0.0], y_m=[0.0, 5e-3])])
+    with pytest.raises(ConfigError, match=r"branches\[0\]\.x_m, y_m, z_m: points must be distinct, got a repeated point "
+                                          r"at index 2: \[0\.005, 0\.001, 0\.0\]"):
+        _net([dict(Y[0], x_m=[0.0, 5e-3, 5e-3], z_m=[0.0, 0.0, 0.0], y_m=[0.0, 1e-3, 1e-3])])
+
+
+def test_3d_daughter_must_start_at_its_parents_end_and_tree_rules_hold() -> None:
+    tilted = _rot_x(Y, 0.5)
+    off = dict(tilted[1], y_m=[1e-4] + tilted[1]["y_m"][1:])  # right x and z, wrong y
+    with pytest.raises(ConfigError, match=r"branches\[1\] \('b'\) must start at the last point of its parent 'a' "
+                                          r"\(\[0\.005, -?0\.0, 0\.0\]\), got \[0\.005, 0\.0001, 0\.0\]"):
+        _net([tilted[0], off, tilted[2]])
+    with pytest.raises(ConfigError, match=r"exactly one branch must have parent ''"):
+        _net([tilted[0], dict(tilted[1], parent=""), tilted[2]])
+    cyc = [tilted[0], dict(tilted[1], parent="c", x_m=[12e-3, 14e-3], y_m=[tilted[2]["y_m"][-1], 0.0],
+                                     z_m=[tilted[2]["z_m"][-1], -9e-3]),
+           dict(tilted[2], parent="b")]
+    with pytest.raises(ConfigError, match="must start at the last point|cycle"):
+        _net(cyc)
+
+
+def test_3d_overlap_is_measured_in_3d() -> None:
+    # two siblings that run parallel 1 mm apart along y (radii 0.8 mm each): they overlap in 3-D
+    a = dict(Y[0], y_m=[0.0, 0.0])
+    b = dict(Y[1], x_m=[5e-3, 8e-3, 20e-3], y_m=[0.0, 0.5e-3, 0.5e-3], z_m=[0.0, 0.0, 0.0])
+    c = dict(Y[2], x_m=[5e-3, 8e-3, 20e-3], y_m=[0.0, -0.5e-3, -0.5e-3], z_m=[0.0, 0.0, 0.0])
+    with pytest.raises(ConfigError, match=r"branches 'b' and 'c' overlap near \(x, y, z\) = .* radii sum 0\.0016"):
+        _net([a, b, c])
+    # siblings whose XZ projections cross but which pass 4 mm apart in y do not
+    b2 = dict(b, y_m=[0.0, 2e-3, 2e-3], z_m=[0.0, 1e-3, -1e-3])
+    c2 = dict(c, y_m=[0.0, -2e-3, -2e-3], z_m=[0.0, -1e-3, 1e-3])
+    assert not _net([a, b2, c2]).is_planar
+
+
+@settings(max_examples=40, deadline=None)
+@given(theta=st.floats(0.0, 2.0 * np.pi), gap=st.floats(0.2, 3.0))
+def test_overlap_of_rotated_parallel_siblings_follows_their_3d_gap(theta: float, gap: float) -> None:
+    # parent along x, two siblings that diverge within the node's reach (3 radii sums, 2.4 mm) then run
+    # parallel at +/- dy (polylines), the whole tree turned about x: they overlap iff dy < r
+    r = 0.4e-3
+    dy = gap * r
+    base = [
+        {"name": "a", "parent": "", "x_m": [0.0, 5e-3], "z_m": [0.0, 0.0], "radius_m": [1e-3]},
+        {"name": "b", "parent": "a", "x_m": [5e-3, 5.5e-3, 20e-3], "z_m": [0.0, dy, dy], "radius_m": [r]},
+        {"name": "c", "parent": "a", "x_m": [5e-3, 5.5e-3, 20e-3], "z_m": [0.0, -dy, -dy], "radius_m": [r]},
+    ]
+    branches = _rot_x(base, theta)
+    if gap < 0.97:
+        with pytest.raises(ConfigError, match="branches 'b' and 'c' overlap near"):
+            _net(branches, smoothing="none")
+    elif gap > 1.03:
+        _net(branches, smoothing="none")
+
+
+@settings(max_examples=30, deadline=None)
+@given(theta=st.floats(0.0, 2.0 * np.pi), name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen"]))
+def test_rotated_planar_network_keeps_its_lengths_and_radii(theta: float, name: str) -> None:
+    from vesselbot_ros.config import to_mapping
+
+    planar = load_network(name)
+    m = to_mapping(planar)
+    m["branches"] = _rot_x(m["branches"], theta)
+    net = load_dataclass(VesselNetworkParams, m, "")
+    g2, g3 = NetworkGeometry(planar), NetworkGeometry3D(net)
+    for b in planar.branches:
+        p2, r2, s2 = g2.branches[b.name]
+        p3, s3 = g3.centreline_3d(b.name), g3.arc_length(b.name)
+        assert abs(s3[-1] - s2[-1]) < 1e-12 * s2[-1]
+        # (a chord that is a whole number of sample spacings may round to one sample more or fewer)
+        assert abs(len(s3) - len(s2)) <= 1
+        # the 3-D spline of the turned points is the turned 2-D spline (compared at equal arc length)
+        x2, z2 = np.interp(s3, s2, p2[:, 0]), np.interp(s3, s2, p2[:, 1])
+        np.testing.assert_allclose(p3[:, 0], x2, atol=1e-7)
+        np.testing.assert_allclose(p3[:, 1], -z2 * np.sin(theta), atol=1e-7)
+        np.testing.assert_allclose(p3[:, 2], z2 * np.cos(theta), atol=1e-7)
+        np.testing.assert_allclose(g3.radius(b.name), np.interp(s3, s2, r2), rtol=1e-12)
+
+
+def test_3d_spline_through_a_helix() -> None:
+    # 17 points on a helix of radius 4 mm and pitch 6 mm per turn, one turn: C2 spline in chord length
+    R, pitch = 4e-3, 6e-3
+    t = np.linspace(0.0, 2.0 * np.pi, 17)
+    x, y, z = R * np.cos(t), R * np.sin(t), pitch * t / (2.0 * np.pi)
+    net = _net([{"name": "h", "parent": "", "x_m": x.tolist(), "y_m": y.tolist(), "z_m": z.tolist(),
+                 "radius_m": [0.5e-3] + [0.3e-3] * 16}])
+    g = NetworkGeometry3D(net)
+    p = g.centreline_3d("h")
+    np.testing.assert_allclose(p[0], [x[0], y[0], z[0]], atol=1e-15)
+    np.testing.assert_allclose(p[-1], [x[-1], y[-1], z[-1]], atol=1e-15)
+    # on the helix's cylinder within 1 % of R (0.76 %: the natural ends), 0.2 % away from the ends
+    # (0.12 %); the length the helix's within 0.05 % (-0.035 %)
+    off = np.abs(np.hypot(p[:, 0], p[:, 1]) - R)
+    inner = (p[:, 2] > 0.1 * pitch) & (p[:, 2] < 0.9 * pitch)
+    assert off.max() < 0.01 * R and off[inner].max() < 0.002 * R
+    exact = np.hypot(2.0 * np.pi * R, pitch)
+    assert abs(g.length_m("h") - exact) < 5e-4 * exact
+    assert g.radius("h")[0] == 0.5e-3 and g.radius("h")[-1] == 0.3e-3
+    q = g.query(np.array([p[400] + [0.0, 0.0, 0.1e-3]]))  # 0.1 mm above a sample where r = 0.3 mm
+    assert q["branch"][0] == 0 and 0.19e-3 < q["sdist"][0] <= 0.3e-3
+    x0, x1, y0, y1, z0, z1 = g.bbox
+    assert x0 < -R and x1 > R and y0 < -R and y1 > R and z0 < 0.0 and z1 > pitch
+
+
+# --- the shipped 3-D trees -------------------------------------------------------------------------
+
+SHIPPED_3D = ("paper_iiic_artery_3d", "carotid_bifurcation_3d", "synthetic_tree_3d")
+
+
+def test_paper_iiic_artery_3d_is_the_planar_network() -> None:
+    planar, tree = load_network("paper_iiic_artery"), load_network("paper_iiic_artery_3d")
+    assert tree.is_planar and all(len(b.y_m) == len(b.x_m) for b in tree.branches)  # y_m given, all 0
+    g2, g3 = NetworkGeometry(planar), NetworkGeometry3D(tree)
+    assert g3.names == g2.names
+    for name in g2.names:
+        p2, r2, s2 = g2.branches[name]
+        p3 = g3.centreline_3d(name)
+        assert np.array_equal(p3[:, 0], p2[:, 0]) and np.array_equal(p3[:, 2], p2[:, 1]) and not p3[:, 1].any()
+        assert np.array_equal(g3.radius(name), r2) and np.array_equal(g3.arc_length(name), s2)
+    assert [(b.name, b.parent) for b in tree.branches] == [(b.name, b.parent) for b in planar.branches]
+
+
+def test_carotid_bifurcation_has_the_models_dimensions_and_leaves_the_plane() -> None:
+    net = load_network("carotid_bifurcation_3d")
+    g = NetworkGeometry3D(net)
+    assert not net.is_planar and net.outlets == ["ica", "eca"]
+    D = 8.0e-3
+    assert g.radius("cca").min() == g.radius("cca").max() == pytest.approx(0.5 * D)
+    assert g.radius("ica").max() == pytest.approx(0.5 * 1.10 * D, rel=2e-4)  # the sinus (between two samples)
+    assert g.radius("ica")[-1] == pytest.approx(0.5 * 0.70 * D)
+    assert g.radius("eca").max() == pytest.approx(0.5 * 0.58 * D)
+    d_ica = g.centreline_3d("ica")[-1] / np.linalg.norm(g.centreline_3d("ica")[-1])
+    d_eca = g.centreline_3d("eca")[-1] / np.linalg.norm(g.centreline_3d("eca")[-1])
+    # 25 deg each side of the CCA's axis in the model's plane, each turned 15 deg about it
+    assert np.degrees(np.arccos(d_ica[0])) == pytest.approx(25.0, abs=1e-6)
+    assert np.degrees(np.arccos(d_eca[0])) == pytest.approx(25.0, abs=1e-6)
+    assert np.degrees(np.arccos(d_ica @ d_eca)) == pytest.approx(48.19, abs=0.01)
+    n = np.cross(d_ica, d_eca)
+    assert np.degrees(np.arcsin(abs(n[0]) / np.linalg.norm(n))) == pytest.approx(6.9, abs=0.05)  # planarity angle
+    with pytest.raises(ConfigError, match="vessel network 'carotid_bifurcation_3d' is not planar"):
+        NetworkGeometry(net)
+
+
+@pytest.mark.parametrize("name", SHIPPED_3D)
+def test_shipped_3d_trees_let_the_bead_pass(name: str) -> None:
+    # Table III's bead has r = 250 um: every lumen radius is at least 0.35 mm (the III-C side branches)
+    g = NetworkGeometry3D(load_network(name))
+    assert min(float(g.radius(b).min()) for b in g.names) >= 0.35e-3
+
+
+def test_synthetic_tree_obeys_murrays_law_over_four_generations() -> None:
+    net = load_network("synthetic_tree_3d")
+    assert not net.is_planar and len(net.branches) == 15 and len(net.outlets) == 8
+    depth = {b.name: b.name.count("_") for b in net.branches}
+    assert max(depth.values()) == 3  # generations 0-3
+    for b in net.branches:
+        kids = net.children(b.name)
+        if kids:
+            # r^3 = r_a^3 + r_b^3 with r_a^3 / r^3 = 0.6 (radii rounded to 1 nm: 3 nm / 0.6 mm in r^3)
+            r, ra, rb = b.radius_m[-1], kids[0].radius_m[-1], kids[1].radius_m[-1]
+            assert ra ** 3 + rb ** 3 == pytest.approx(r ** 3, rel=1e-5)
+            assert ra ** 3 / r ** 3 == pytest.approx(0.6, rel=1e-5)
+    g = NetworkGeometry3D(net)
+    assert g.radius("b0").max() == pytest.approx(1.5e-3) and min(g.radius(n).min() for n in g.names) == pytest.approx(0.6e-3)
