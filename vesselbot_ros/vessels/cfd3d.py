@@ -7,15 +7,16 @@ be left traction-free so the tree splits the flow by itself.
 
 Input (library-independent, :class:`Tree3D`): per branch a name, a parent (``""`` for the inlet
 branch), centreline points ``(n, 3)`` m and radii ``(n,)`` m (or one value).  A daughter starts
-at its parent's last point.  :func:`tree_from_network` turns today's planar
-:class:`~vesselbot_ros.vessels.network.VesselNetworkParams` into one (its smoothed centreline,
-``y = 0``).
+at its parent's last point.  :func:`tree_from_network` turns a
+:class:`~vesselbot_ros.vessels.network.VesselNetworkParams` into one (its smoothed 3-D centreline;
+y = 0 for a planar network).
 
-Mesh (:func:`mesh_tree`, gmsh OpenCASCADE): a branch whose points are collinear is a cylinder (a
-truncated cone if its end radii differ: linear taper, exact); a curved branch of constant radius is
+Mesh (:func:`mesh_tree`, gmsh OpenCASCADE): a branch whose points are collinear is a cylinder, or,
+if its radius varies, a chain of truncated cones between its points (the radius linear between
+points, as the network format defines it: exact); a curved branch of constant radius is
 a disc swept along the interpolating spline through its points (``occ.addPipe``); a curved branch
-whose radius varies is a chain of truncated cones between consecutive points with a sphere at each
-interior point (piecewise-linear taper along the polyline).  A node whose daughters all turn away
+whose radius varies is a smooth loft through the circles at its points, each normal to the spline
+(``occ.addThruSections``).  A node whose daughters all turn away
 from the parent gets a sphere of the parent's end radius (the 3-D version of the 2-D solve's
 disc) so the tubes join without a gap.  Everything is fused (``occ.fuse``) into one volume;
 physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.  Linear tetrahedra; the
@@ -67,7 +68,7 @@ from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.errors import RunError
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels.network import VesselNetworkParams, smooth_centreline
+from vesselbot_ros.vessels.network import VesselNetworkParams, smooth_centreline_3d
 
 __all__ = [
     "Branch3D",
@@ -189,25 +190,30 @@ class Flow3DSettings:
 
 
 def tree_from_network(net: VesselNetworkParams) -> Tree3D:
-    """The planar network ``net`` as a 3-D tree in y = 0: each branch's smoothed centreline (x, 0, z).
+    """The network ``net`` as a 3-D tree: each branch's smoothed 3-D centreline (y = 0 for a planar network).
 
-    The smoothed centreline (:func:`~vesselbot_ros.vessels.network.smooth_centreline`, sampled every
-    ``net.sample_spacing_m``) is thinned to about one point per half radius (a straight branch keeps
-    its two ends), enough for the mesher's spline to follow it to well below a micrometre.
+    A straight branch keeps its own points and radii (its centreline is the line; a radius profile
+    along it, such as a sinus, is kept point by point).  A curved branch is its smoothed centreline
+    (:func:`~vesselbot_ros.vessels.network.smooth_centreline_3d`, sampled every
+    ``net.sample_spacing_m``; for a planar branch the x and z of the 2-D solve's centreline bit for
+    bit) thinned to about one point per half radius, enough for the mesher's spline to follow it
+    to well below a micrometre.
     """
     out = []
     for b in net.branches:
-        pts, rad, s = smooth_centreline(b, net.smoothing, net.sample_spacing_m)
-        if len(b.x_m) == 2 or _collinear(np.column_stack([pts[:, 0], np.zeros(len(pts)), pts[:, 1]])):
-            keep = np.array([0, len(pts) - 1])
+        own = b.points_3d()
+        if len(own) == 2 or _collinear(own):
+            p3 = tuple((float(x), float(y), float(z)) for x, y, z in own)
+            r = b.radii()
         else:
+            pts, rad, s = smooth_centreline_3d(b, net.smoothing, net.sample_spacing_m)
             step = max(1, int(0.5 * float(rad.min()) / max(float(s[1] - s[0]), 1e-12)))
             keep = np.unique(np.concatenate([np.arange(0, len(pts), step), [len(pts) - 1]]))
             if len(keep) >= 3 and s[keep[-1]] - s[keep[-2]] < 0.25 * step * (s[1] - s[0]):
                 keep = np.delete(keep, -2)  # no sliver of a last segment
-        p3 = tuple((float(pts[i, 0]), 0.0, float(pts[i, 1])) for i in keep)
-        r = rad[keep]
-        radius = (float(r[0]),) if np.all(r == r[0]) else tuple(float(v) for v in r)
+            p3 = tuple((float(pts[i, 0]), float(pts[i, 1]), float(pts[i, 2])) for i in keep)
+            r = rad[keep]
+        radius = (float(r[0]),) if _constant(r) else tuple(float(v) for v in r)
         out.append(Branch3D(b.name, b.parent, p3, radius))
     return Tree3D(net.name, tuple(out))
 
@@ -227,7 +233,12 @@ def settings_from_network(net: VesselNetworkParams, *, outlets: str | None = Non
                           picard_max_iterations=c.picard_max_iterations)
 
 
-def _collinear(pts: npt.NDArray[np.float64], rel_tol: float = 1e-9) -> bool:
+def _constant(rad: npt.NDArray[np.float64]) -> bool:
+    """True if the radii are equal (to 1e-9 of the largest: a file's rounding)."""
+    return bool(np.ptp(rad) <= 1e-9 * float(np.max(rad)))
+
+
+def _collinear(pts: npt.NDArray[np.float64], rel_tol: float = 1e-6) -> bool:
     """True if every point lies on the line through the first and last (to ``rel_tol`` of its length)."""
     d = pts[-1] - pts[0]
     length = float(np.linalg.norm(d))
@@ -392,14 +403,12 @@ def _spline(pts: npt.NDArray[np.float64]) -> Any:
 
 
 def _branch_solid(occ: Any, pts: npt.NDArray[np.float64], rad: npt.NDArray[np.float64]) -> list[tuple[int, int]]:
-    """OCC volumes of one branch (cylinder/cone; swept disc; or a cone chain with spheres)."""
-    if len(pts) == 2 or _collinear(pts):
-        a, b = pts[0], pts[-1]
-        d = b - a
-        if rad[0] == rad[-1]:
-            return [(3, occ.addCylinder(*map(float, a), *map(float, d), float(rad[0])))]
-        return [(3, occ.addCone(*map(float, a), *map(float, d), float(rad[0]), float(rad[-1])))]
-    if np.all(rad == rad[0]):
+    """OCC volumes of one branch: a cylinder or a cone chain (straight), a swept disc or a loft (curved)."""
+    straight = len(pts) == 2 or _collinear(pts)
+    if straight and _constant(rad):
+        d = pts[-1] - pts[0]
+        return [(3, occ.addCylinder(*map(float, pts[0]), *map(float, d), float(rad[0])))]
+    if not straight and _constant(rad):
         ptags = [occ.addPoint(*map(float, p)) for p in pts]
         curve = occ.addSpline(ptags)
         wire = occ.addWire([curve])
@@ -408,11 +417,25 @@ def _branch_solid(occ: Any, pts: npt.NDArray[np.float64], rad: npt.NDArray[np.fl
                            xAxis=list(map(float, _any_normal(t0))))
         out = occ.addPipe([(2, disk)], wire, "DiscreteTrihedron")
         return [(d, t) for d, t in out if d == 3]
+    if not straight:
+        # a curved, tapering branch: a smooth loft through the circles at its points, normal to its spline
+        spl = _spline(pts)
+        wires = []
+        for i, sv in enumerate(spl.x):
+            t = _unit(np.asarray(spl(sv, 1), dtype=np.float64))
+            circ = occ.addCircle(*map(float, pts[i]), float(rad[i]), zAxis=list(map(float, t)),
+                                 xAxis=list(map(float, _any_normal(t))))
+            wires.append(occ.addCurveLoop([circ]))
+        out = occ.addThruSections(wires, makeSolid=True, makeRuled=False)
+        return [(d, t) for d, t in out if d == 3]
     vols = []
     for i in range(len(pts) - 1):
         a, d = pts[i], pts[i + 1] - pts[i]
-        vols.append((3, occ.addCone(*map(float, a), *map(float, d), float(rad[i]), float(rad[i + 1]))))
-        if 0 < i:
+        if abs(rad[i + 1] - rad[i]) <= 1e-9 * float(rad[i]):  # OCC refuses a cone of equal radii
+            vols.append((3, occ.addCylinder(*map(float, a), *map(float, d), float(rad[i]))))
+        else:
+            vols.append((3, occ.addCone(*map(float, a), *map(float, d), float(rad[i]), float(rad[i + 1]))))
+        if 0 < i and not straight:  # a kink: the sphere fills the wedge between the two cones
             vols.append((3, occ.addSphere(*map(float, a), float(rad[i]))))
     return vols
 

@@ -187,3 +187,13 @@ def test_tapered_and_curved_branches_mesh_to_their_volume() -> None:
         tri = ms.points[ms.boundaries[name]]  # (k, 3, 3): every cap vertex in the cap's plane, within its circle
         np.testing.assert_allclose((tri - centre) @ normal, 0.0, atol=1e-9)
         assert np.linalg.norm(tri - centre, axis=2).max() <= r * (1 + 1e-9)
+
+
+def test_a_shipped_non_planar_tree_with_a_sinus_meshes_into_one_lumen() -> None:
+    net = load_network("carotid_bifurcation_3d")
+    tree = cfd3d.tree_from_network(net)
+    ica = next(b for b in tree.branches if b.name == "ica")
+    assert len(ica.radius_m) > 1 and max(ica.radius_m) == pytest.approx(4.4e-3)  # the sinus profile is kept
+    ms = cfd3d.mesh_tree(tree, cfd3d.settings_from_network(net, mesh_size_m=1.5e-3, wall_elements_per_circle=16))
+    assert sorted(ms.boundaries) == ["inlet", "outlet:eca", "outlet:ica", "wall"]
+    assert ms.caps["outlet:ica"][2] == pytest.approx(2.8e-3)
