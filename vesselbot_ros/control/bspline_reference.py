@@ -45,7 +45,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.blas_free import interp_spline, interp_spline_fitpack
-from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
+from vesselbot_ros.config import OMIT_IF, ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
 
 if TYPE_CHECKING:  # the splines come from blas_free, which imports scipy.interpolate when it builds one
@@ -92,6 +92,11 @@ class ReferenceParams:
     Attributes:
         anchors_x_m: x of the anchor points along the vessel (m), >= 2 points.
         anchors_z_m: z of the anchor points (m), same length (0 = centreline).
+        anchors_y_m: y of the anchor points (m), same length, for a path in
+            three dimensions (a 3-D vessel tree); ``()`` (the default): the
+            paper's XZ plane, and the trajectory's vectors have two components
+            (x, z); with it, three (x, y, z).  Left out of
+            :func:`~vesselbot_ros.config.to_mapping` (and of every hash) when empty.
         duration_s: Time ``T`` to run along the whole path (s).
         start_s: Time at which the reference leaves the first anchor (s).
         timing: ``constant``, ``rest_to_rest``, ``flow_synchronised`` or ``planned``.
@@ -124,6 +129,7 @@ class ReferenceParams:
     route_anchor_spacing_m: float = 2.5e-3
     route_end_margin_m: float = 2.0e-3
     route_wall_margin_m: float = 1.5e-4
+    anchors_y_m: tuple[float, ...] = dataclasses.field(default=(), metadata={OMIT_IF: lambda v: not v})
 
     def __post_init__(self) -> None:
         if len(self.anchors_x_m) < 2:
@@ -137,7 +143,12 @@ class ReferenceParams:
             check_finite(f"anchors_x_m[{i}]", v)
         for i, v in enumerate(self.anchors_z_m):
             check_finite(f"anchors_z_m[{i}]", v)
-        pts = np.column_stack([self.anchors_x_m, self.anchors_z_m])
+        if self.anchors_y_m and len(self.anchors_y_m) != len(self.anchors_x_m):
+            raise ConfigError(f"anchors_y_m must be empty or have as many points as anchors_x_m "
+                              f"({len(self.anchors_x_m)}), got {len(self.anchors_y_m)}")
+        for i, v in enumerate(self.anchors_y_m):
+            check_finite(f"anchors_y_m[{i}]", v)
+        pts = self.anchor_points()
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         if np.any(seg <= 0.0):
             i = int(np.argmin(seg))
@@ -157,6 +168,12 @@ class ReferenceParams:
         check_positive("route_anchor_spacing_m", self.route_anchor_spacing_m)
         check_nonnegative("route_end_margin_m", self.route_end_margin_m)
         check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
+
+    def anchor_points(self) -> npt.NDArray[np.float64]:
+        """(n, 2) anchors (x, z) in the plane, or (n, 3) (x, y, z) with ``anchors_y_m`` (m)."""
+        cols = [self.anchors_x_m, self.anchors_y_m, self.anchors_z_m] if self.anchors_y_m else [self.anchors_x_m,
+                                                                                               self.anchors_z_m]
+        return np.column_stack(cols).astype(np.float64)
 
     def _check_planned(self) -> None:
         t, u = self.planned_t_s, self.planned_u_m
@@ -189,7 +206,7 @@ class RefSample(NamedTuple):
     """Reference at one time: ``X_ref``, ``Xd_ref``, ``Xdd_ref`` of eq. (24).
 
     Attributes:
-        p: (2,) position, m, frame W.
+        p: (2,) position (x, z), m, frame W; (3,) (x, y, z) for a 3-D path.
         v: (2,) velocity, m/s.
         a: (2,) acceleration, m/s^2.
     """
@@ -218,7 +235,7 @@ class ReferenceTrajectory:
     def __init__(self, params: ReferenceParams, flow_velocity_x: FlowVelocityFn | None = None,
                  wall_shift: WallShiftFn | None = None) -> None:
         self.params = params
-        pts = np.column_stack([params.anchors_x_m, params.anchors_z_m]).astype(np.float64)
+        pts = params.anchor_points()
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         self.anchor_u_m = np.concatenate([[0.0], np.cumsum(seg)])
         self.length_m = float(self.anchor_u_m[-1])
@@ -310,7 +327,7 @@ class ReferenceTrajectory:
             t_s: (n,) times (s).
 
         Returns:
-            ``(p, v, a)``, each (n, 2): position (m), velocity (m/s) and
+            ``(p, v, a)``, each (n, 2) (or (n, 3) for a 3-D path): position (m), velocity (m/s) and
             acceleration (m/s^2) in frame W.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
@@ -321,7 +338,7 @@ class ReferenceTrajectory:
 
     def state(self, t: npt.NDArray[np.float64], u: npt.NDArray[np.float64], du: npt.NDArray[np.float64],
               ddu: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
-        """``(p, v, a)`` (n, 2) at times ``t`` for path parameter ``u`` and its derivatives (what a timing gives)."""
+        """``(p, v, a)`` (n, 2) (3-D path: (n, 3)) at times ``t`` for path parameter ``u`` and its derivatives (what a timing gives)."""
         p = self._path(u)
         d1 = self._d1(u)
         d2 = self._d2(u) if self._d2 is not None else np.zeros_like(d1)
@@ -331,9 +348,9 @@ class ReferenceTrajectory:
             assert self._wall_shift is not None
             m, m_u, m_uu = self.follow_weight(u)
             h, hd, hdd = self._wall_shift(t)
-            p[:, 1] -= m * h
-            v[:, 1] -= m_u * du * h + m * hd
-            a[:, 1] -= (m_uu * du**2 + m_u * ddu) * h + 2.0 * m_u * du * hd + m * hdd
+            p[:, -1] -= m * h  # z, the last component in the plane and in 3-D
+            v[:, -1] -= m_u * du * h + m * hd
+            a[:, -1] -= (m_uu * du**2 + m_u * ddu) * h + 2.0 * m_u * du * hd + m * hdd
         return p, v, a
 
     def follow_weight(self, u: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
@@ -372,7 +389,7 @@ class ReferenceTrajectory:
         return np.asarray(self._path(float(u_m)))
 
     def path(self, n: int = 200) -> npt.NDArray[np.float64]:
-        """(n, 2) points evenly spaced in the path parameter, m (for a Path message)."""
+        """(n, 2) (3-D path: (n, 3)) points evenly spaced in the path parameter, m (for a Path message)."""
         if n < 2:
             raise ModelInputError(f"path needs n >= 2 points, got {n}")
         return np.asarray(self._path(np.linspace(0.0, self.length_m, n)))

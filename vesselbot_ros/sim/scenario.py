@@ -243,6 +243,9 @@ class Scenario:
                 f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
             )
         bspline = isinstance(self.reference, ReferenceParams)
+        if bspline and self.reference.anchors_y_m:
+            raise ConfigError(f"reference.anchors_y_m: a path in three dimensions needs the 3-D plant, which this loop "
+                              f"is not; the loop's plant is planar (XZ), got anchors_y_m={list(self.reference.anchors_y_m)}")
         if self.physics.vessel.network:
             self._check_network(bspline)
         elif bspline and self.reference.route_outlet:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from vesselbot_ros.config import ConfigError, load_dataclass
+from vesselbot_ros.config import ConfigError, load_dataclass, to_mapping
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, propose_anchors
 from vesselbot_ros.errors import ModelInputError
 
@@ -184,3 +185,49 @@ def test_planned_timing_and_wall_follow_bad_input() -> None:
     with pytest.raises(ConfigError, match="must end at the path's length"):
         ReferenceTrajectory(ReferenceParams(**{**short.__dict__,
                                                "planned_u_m": tuple(0.9 * u for u in short.planned_u_m)}))
+
+
+# ---- a path in three dimensions ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("timing", ["constant", "rest_to_rest"])
+def test_a_3d_path_in_the_plane_is_the_planar_paths_doubles(timing: str) -> None:
+    """Anchors with y = 0 given: the trajectory's x and z are the planar trajectory's doubles, y is 0."""
+    base = ReferenceParams(anchors_x_m=(0.0, 2e-3, 5e-3, 7e-3, 9e-3), anchors_z_m=(1e-3, 0.5e-3, 0.8e-3, 0.2e-3, 0.0),
+                           duration_s=1.5, timing=timing)
+    flat = ReferenceTrajectory(base)
+    spatial = ReferenceTrajectory(dataclasses.replace(base, anchors_y_m=(0.0,) * 5))
+    ts = np.linspace(-0.1, 1.7, 901)
+    for two, three in zip(flat.sample_many(ts), spatial.sample_many(ts)):
+        assert three.shape == (901, 3)
+        np.testing.assert_array_equal(three[:, [0, 2]], two)
+        assert np.all(three[:, 1] == 0.0)
+    assert "anchors_y_m" not in to_mapping(base) and to_mapping(spatial.params)["anchors_y_m"] == [0.0] * 5
+
+
+def test_a_3d_path_is_c2_through_its_anchors_and_its_derivatives_are_consistent() -> None:
+    """A helix-like path: it passes through its anchors, v and a are the time derivatives of p (central differences),
+    and a is continuous across the anchors (C2)."""
+    ang = np.linspace(0.0, 3.0, 7)
+    params = ReferenceParams(anchors_x_m=tuple(2e-3 * ang), anchors_y_m=tuple(1e-3 * np.sin(ang)),
+                             anchors_z_m=tuple(1e-3 * np.cos(ang)), duration_s=2.0, timing="rest_to_rest")
+    ref = ReferenceTrajectory(params)
+    u = ref.anchor_u_m
+    np.testing.assert_allclose(np.array([ref.path_point(float(v)) for v in u]), params.anchor_points(), atol=1e-15)
+    ts = np.linspace(0.05, 1.95, 381)
+    h = 1e-5
+    _p0, v0, a0 = ref.sample_many(ts)
+    pp, vp, _ = ref.sample_many(ts + h)
+    pm, vm, _ = ref.sample_many(ts - h)
+    np.testing.assert_allclose((pp - pm) / (2 * h), v0, atol=1e-9 * np.abs(v0).max() + 1e-12, rtol=1e-6)
+    np.testing.assert_allclose((vp - vm) / (2 * h), a0, atol=1e-6 * np.abs(a0).max(), rtol=1e-5)
+    dense = np.linspace(0.0, 2.0, 200_001)
+    t_anchor = np.interp(u[1:-1], ref.parameter_at(dense), dense)  # u(t) increases
+    _p1, _v1, a_left = ref.sample_many(t_anchor - 1e-7)
+    _p2, _v2, a_right = ref.sample_many(t_anchor + 1e-7)
+    np.testing.assert_allclose(a_left, a_right, atol=1e-4 * np.abs(a0).max())
+
+
+def test_anchors_y_m_of_another_length_or_non_finite_is_one_line_naming_it() -> None:
+    with pytest.raises(ConfigError, match=r"anchors_y_m must be empty or have as many points as anchors_x_m \(4\), got 2"):
+        ReferenceParams(anchors_y_m=(0.0, 1e-3))
+    with pytest.raises(ConfigError, match=r"anchors_y_m\[1\]"):
+        ReferenceParams(anchors_y_m=(0.0, math.nan, 0.0, 0.0))

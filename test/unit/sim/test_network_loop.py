@@ -75,3 +75,11 @@ def test_a_scenario_refuses_a_non_planar_network_in_one_line() -> None:
         load_scenario(shipped_scenarios()["paper_iiic_network_upper"],
                       sets=["physics.vessel.network=carotid_bifurcation_3d"])
     assert "\n" not in str(ei.value)
+
+
+def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_one_line() -> None:
+    from vesselbot_ros.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^reference\.anchors_y_m: a path in three dimensions needs the 3-D plant") as ei:
+        load_scenario(shipped_scenarios()["sound_small_artery"], sets=["reference.anchors_y_m=[0.0, 1.0e-4, 0.0, 0.0]"])
+    assert "\n" not in str(ei.value)
