@@ -30,7 +30,7 @@ interpolated) when
 
 * its corners' normals span more than ``spread_deg`` (a jump of the nearest feature; anywhere), or
 * at one of its 19 test points (the midpoints of its edges and faces and its centre: the lattice of spacing
-  h / 2) within ``band_m`` of the wall, the interpolated distance is more than ``tol_dist_m`` off the exact
+  h / 2) within ``band_m`` + h of the wall (a cell reaching into the band is tested whole), the interpolated distance is more than ``tol_dist_m`` off the exact
   one or the normal more than ``tol_normal_deg``.  A medial surface with a jump of more than twice
   ``tol_normal_deg`` that crosses an edge puts an edge midpoint or a face centre on the wrong side, so it
   is caught wherever it crosses the cell; the interpolation errors of smooth fields peak at those points.
@@ -194,7 +194,7 @@ def _sub_lattice(head, field, m0, m1, band, d, pbox, pstart, grid, nodes, index)
     """Exact (s, n) on the planes m0..m1 of the lattice of spacing h / 2 (plane m at z0 + m h / 2).
 
     (m1 - m0 + 1, 2 ny - 1, 2 nx - 1, 4); NaN at the nodes themselves and where every node of the
-    point's cell(s) is farther than ``band`` + h from the wall (no test there).
+    point's cell(s) is farther than ``band`` + 2 h from the wall (no test there).
     """
     h = head[3]
     nx = int(head[4])
@@ -216,7 +216,7 @@ def _sub_lattice(head, field, m0, m1, band, d, pbox, pstart, grid, nodes, index)
                 bj = jj // 2 + (((c >> 1) & 1) if jj % 2 else 0)
                 bk = m // 2 + ((c >> 2) if m % 2 else 0)
                 near = min(near, abs(float(field[((bk * ny + bj) * nx + a) * NODE_STRIDE])))
-            if near > band + h:
+            if near > band + 2.0 * h:
                 continue
             s, gx, gy, gz = smooth_wall3d(head[0] + 0.5 * ii * h, head[1] + 0.5 * jj * h, head[2] + 0.5 * m * h, d, pbox,
                                           pstart, grid, nodes, index)
@@ -268,7 +268,7 @@ def _flag_layers(head, field, planes, m0, k0, k1, band, tol_s, cos_tol, cos_spre
                 if di % 2 == 0 and dj % 2 == 0 and dk % 2 == 0:
                     continue
                 e = planes[2 * k + dk - m0, 2 * j + dj, 2 * i + di]
-                if not (abs(e[0]) <= band):
+                if not (abs(e[0]) <= band + h):
                     continue
                 tested = True
                 s, gx, gy, gz, _dd = _interp(field, base, sy, sz, 0.5 * di, 0.5 * dj, 0.5 * dk, h)
