@@ -114,16 +114,22 @@ def test_y_sign_is_the_analytic_unions(y: wf.WallField3D) -> None:
 
 
 def test_flagged_cells_and_points_off_the_grid_answer_exactly(y: wf.WallField3D) -> None:
-    flags = y.flags()
-    kk, jj, ii = np.nonzero(flags)
+    """Where the lookup says it falls back (flagged cells, flagged sub-cells, off the grid), the answer is the
+    exact query's bit for bit; refined blocks hold some cells and leave some sub-cells exact."""
     rng = np.random.default_rng(5)
-    pick = rng.choice(len(kk), size=min(2000, len(kk)), replace=False)
+    kk, jj, ii = np.nonzero(y.flags() != 0)
+    pick = rng.choice(len(kk), size=min(4000, len(kk)), replace=False)
     h = y.head[3]
     q = y.head[:3] + h * (np.column_stack([ii[pick], jj[pick], kk[pick]]) + rng.uniform(0.01, 0.99, size=(len(pick), 3)))
     q = np.concatenate([q, [[-20e-3, 0.0, 0.0], [0.0, 0.0, 9e-3]]])
-    r, e = y.query(q), y.wall.query(q)
+    ex = y.exact_mask(q)
+    assert ex[-2:].all() and 0 < ex.sum() < len(q)
+    assert y.stats["refined_blocks"] > 0 and y.stats["exact_subcells"] > 0
+    r, e = y.query(q[ex]), y.wall.query(q[ex])
     np.testing.assert_array_equal(r["sdist"], e["sdist"])
     np.testing.assert_array_equal(r["normal"], e["normal"])
+    r = y.query(q[~ex])
+    assert not np.array_equal(r["sdist"], y.wall.query(q[~ex])["sdist"])  # interpolated there
 
 
 def test_grid_nodes_lie_on_multiples_of_the_spacing_and_must_stay_in_the_candidate_tree() -> None:
