@@ -14,7 +14,7 @@ points: uniform in each geometry's lumen, and within 0.3 mm of the wall inside i
 
 and the ratios 3-D field / 2-D (target <= 2).  Also the fraction of the points answered exactly.
 
-Usage: ``.venv/bin/python bench/bench_wall_field3d.py [--h-mm 0.1]``
+Usage: ``.venv/bin/python bench/bench_wall_field3d.py [--h-mm 0.1] [--refine 1]``
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ def main() -> None:
     """Print the side-by-side table."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--h-mm", type=float, default=0.1, help="3-D grid spacing (mm)")
+    ap.add_argument("--refine", type=int, default=1, help="sub-cells per axis in flagged cells (1: none)")
     a = ap.parse_args()
     h3 = a.h_mm * 1e-3
     rng = np.random.default_rng(0)
@@ -111,7 +112,7 @@ def main() -> None:
         lo2, hi2 = np.array([x0, z0]), np.array([x0 + h * (nx - 1), z0 + h * (nz - 1)])
         v, t, caps, _n = make3()
         w3 = mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * h3)
-        f3 = wf.build_wall_field3d(w3, h_m=h3)
+        f3 = wf.build_wall_field3d(w3, h_m=h3, refine=a.refine)
         wv = w3.surface.wall_vertices()
         lo3, hi3 = wv.min(axis=0), wv.max(axis=0)
         for band in (None, 0.3e-3):

@@ -40,13 +40,16 @@ cell's corners), each flagged by the same two rules at spacing h / ``refine``; t
 a good sub-cell and asks the exact query in a flagged one (and in a flagged cell with no good sub-cell).
 Outside the grid the exact query answers (the diameter from the nearest edge cell).
 
-Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, refine 2; 2 x 10^5 points within 1 mm of
-the wall each): against the exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.4 deg (cylinder / bent
+Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, no refinement; 2 x 10^5 points within 1 mm
+of the wall each): against the exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.4 deg (cylinder / bent
 tube / Y, junction included), no sign error; against the analytic wall 0.7 / 1.2 um and 0.58 / 0.64 deg
 (cylinder / bent tube: the facets' 0.66 / 1.05 deg are smoothed).  Flagged cells 0.15 / 0.43 / 2.4 %.
+With ``refine`` = 2 the Y's worst normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge
+(the foot on a crease edge) the exact smooth normal takes one face's side, jumping at the facets' scale,
+which 19 test points per sub-cell do not see; so refinement is off by default.
 Speed (bench/bench_wall_field3d.py): cylinder 83 / 42 ns (lumen / within 0.3 mm of the wall) against the
-2-D wall's 128 / 73 ns; the Y 472 / 148 ns against 94 / 62 ns: 4 % of its lumen (the junction's ball and
-its creases) still goes to the exact query.
+2-D wall's 128 / 73 ns; the Y 795 / 103 ns against 115 / 68 ns (472 / 148 ns with ``refine`` = 2): 4-8 %
+of its lumen (the junction's ball and creases) goes to the exact query.
 """
 
 from __future__ import annotations
@@ -462,7 +465,7 @@ class WallField3D:
 
 def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05e-3, band_m: float = 1.0e-3,
                        tol_dist_m: float = 2e-6, tol_normal_deg: float = 1.0, spread_deg: float = 60.0,
-                       refine: int = 2, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
+                       refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 

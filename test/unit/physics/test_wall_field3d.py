@@ -33,8 +33,8 @@ def _near_wall(field: wf.WallField3D, n: int, seed: int) -> Array:
     return np.ascontiguousarray(q[np.abs(field.wall.query(q)["sdist"]) <= 1e-3])
 
 
-def _build(v: Array, t: npt.NDArray[np.int64], caps: list[mw.Cap]) -> wf.WallField3D:
-    return wf.build_wall_field3d(mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * H), h_m=H)
+def _build(v: Array, t: npt.NDArray[np.int64], caps: list[mw.Cap], refine: int = 1) -> wf.WallField3D:
+    return wf.build_wall_field3d(mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * H), h_m=H, refine=refine)
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def torus() -> wf.WallField3D:
 @pytest.fixture(scope="module")
 def y() -> wf.WallField3D:
     v, t, caps, _n = mw.y_wall()
-    return _build(v, t, caps)
+    return _build(v, t, caps, refine=2)
 
 
 def test_cylinder_meets_the_standard_against_the_analytic_wall(cylinder: wf.WallField3D) -> None:
