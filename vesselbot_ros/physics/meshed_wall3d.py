@@ -81,7 +81,8 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = ["STRIDE", "Cap", "WallSurface", "CandidateTree", "wall_surface", "candidate_tree",
-           "nearest_wall3d", "smooth_wall3d", "query_points3d", "brute_force3d", "local_diameter3d", "Wall3D",
+           "nearest_wall3d", "smooth_wall3d", "query_points3d", "brute_force3d", "ball_diameters3d", "local_diameter3d",
+           "Wall3D",
            "gmsh_wall", "cylinder_wall", "bent_tube_wall", "y_wall"]
 
 #: Floats stored per triangle: the bound (centroid 0-2, radius of its disc 3, unit outward face normal 4-6;
@@ -930,6 +931,12 @@ def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol):  # 
                 lo = r
         out[k] = 2.0 * lo
     return out
+
+
+#: The per-point inscribed-ball diameters (compiled; :func:`local_diameter3d` without the grid and the fill):
+#: ``ball_diameters3d(pts (m, 3) m, q (m, 4) their smooth query rows, d, pbox, pstart, grid, nodes, index,
+#: rmax m, tol m)`` -> (m,) diameters (m), 0 where ``q``'s distance is <= 0 (outside the lumen).
+ball_diameters3d = _ball_diameters
 
 
 def local_diameter3d(surface: WallSurface, tree: CandidateTree, origin_m: npt.ArrayLike, h: float,
