@@ -19,7 +19,12 @@ whose radius varies is a smooth loft through the circles at its points, each nor
 (``occ.addThruSections``).  A node whose daughters all turn away
 from the parent gets a sphere of the parent's end radius (the 3-D version of the 2-D solve's
 disc) so the tubes join without a gap.  Everything is fused (``occ.fuse``) into one volume;
-physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.  Linear tetrahedra; the
+if that fuse of all the solids at once is not one whole lumen (one volume, a flat face at every
+cap, every branch's mid-point inside: OpenCASCADE can drop a swept tube, and gmsh cannot mesh some
+trimmed periodic pipe walls -- both seen on ``synthetic_tree_3d``), the solids are built again with
+each swept disc bounded by three 120-degree arcs (a wall of three faces, none periodic: the same
+surface) and fused branch by branch, in tree order (trees whose one fuse is whole are meshed as
+before); physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.  Linear tetrahedra; the
 wall is resolved by ``wall_elements_per_circle`` elements around every circumference (gmsh's
 curvature sizing) and the interior by ``mesh_size_m``.
 
