@@ -19,7 +19,12 @@ whose radius varies is a smooth loft through the circles at its points, each nor
 (``occ.addThruSections``).  A node whose daughters all turn away
 from the parent gets a sphere of the parent's end radius (the 3-D version of the 2-D solve's
 disc) so the tubes join without a gap.  Everything is fused (``occ.fuse``) into one volume;
-physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.  Linear tetrahedra; the
+if that fuse of all the solids at once is not one whole lumen (one volume, a flat face at every
+cap, every branch's mid-point inside: OpenCASCADE can drop a swept tube, and gmsh cannot mesh some
+trimmed periodic pipe walls -- both seen on ``synthetic_tree_3d``), the solids are built again with
+each swept disc bounded by three 120-degree arcs (a wall of three faces, none periodic: the same
+surface) and fused branch by branch, in tree order (trees whose one fuse is whole are meshed as
+before); physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.  Linear tetrahedra; the
 wall is resolved by ``wall_elements_per_circle`` elements around every circumference (gmsh's
 curvature sizing) and the interior by ``mesh_size_m``.
 
@@ -282,45 +287,28 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add(tree.name)
         occ = gmsh.model.occ
-        vols: list[tuple[int, int]] = []
         try:
-            for b in tree.branches:
-                pts, rad = b.points(), b.radii()
-                vols.extend(_branch_solid(occ, pts, rad))
-                if b.parent == "":
-                    caps["inlet"] = (pts[0].copy(), -_unit(_end_tangent(pts, 0)), float(rad[0]))
-                kids = tree.children(b.name)
-                if not kids:
-                    caps[f"outlet:{b.name}"] = (pts[-1].copy(), _unit(_end_tangent(pts, -1)), float(rad[-1]))
-                else:
-                    t_end = _unit(_end_tangent(pts, -1))
-                    straight_on = any(float(np.dot(_unit(_end_tangent(k.points(), 0)), t_end)) > math.cos(math.radians(1.0))
-                                      and float(k.radii()[0]) >= float(rad[-1]) * (1 - 1e-9) for k in kids)
-                    if not straight_on:
-                        c = pts[-1]
-                        vols.append((3, occ.addSphere(float(c[0]), float(c[1]), float(c[2]), float(rad[-1]))))
+            pieces = _tree_solids(occ, tree, caps)
+            vols = [v for piece in pieces for v in piece]
             if len(vols) > 1:
                 occ.fuse(vols[:1], vols[1:])
             occ.synchronize()
+            if len(pieces) > 1 and not _fused_lumen(gmsh, tree, caps):
+                # OpenCASCADE's fuse of all the solids at once can drop a swept tube, and gmsh cannot mesh
+                # some trimmed periodic (seamed) pipe walls: again with seamless swept tubes, branch by branch
+                gmsh.model.remove()
+                gmsh.model.add(tree.name)
+                occ = gmsh.model.occ
+                pieces = _tree_solids(occ, tree, caps, seamless=True)
+                whole = pieces[0]
+                for piece in pieces[1:]:
+                    whole, _map = occ.fuse(whole, piece)
+                occ.synchronize()
             volumes = gmsh.model.getEntities(3)
             if len(volumes) != 1:
                 raise ConfigError(f"3-D tree {tree.name!r}: the fused tubes make {len(volumes)} volumes, not one "
                                   "(branches that do not touch, or an OpenCASCADE boolean failure)")
-            surf = [t for _d, t in gmsh.model.getBoundary(volumes, oriented=False)]
-            assigned: dict[str, list[int]] = {k: [] for k in caps}
-            wall: list[int] = []
-            for s in surf:
-                com = np.array(occ.getCenterOfMass(2, s))
-                name = None
-                if gmsh.model.getType(2, s) == "Plane":
-                    for k, (c, _n, r) in caps.items():
-                        if np.linalg.norm(com - c) < 1e-3 * r:
-                            name = k
-                            break
-                if name is None:
-                    wall.append(s)
-                else:
-                    assigned[name].append(s)
+            assigned, wall = _assign_caps(gmsh, caps)
             missing = [k for k, v in assigned.items() if not v]
             if missing:
                 raise ConfigError(f"3-D tree {tree.name!r}: no flat cap found for {missing} after the union "
@@ -385,6 +373,69 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
     return Meshed3D(pts3, tet, bnd, caps, time.perf_counter() - t0)
 
 
+def _tree_solids(occ: Any, tree: Tree3D, caps: dict[str, tuple[Any, Any, float]],
+                 seamless: bool = False) -> list[list[tuple[int, int]]]:
+    """Per branch its OCC volumes (its tube, and its node's sphere if any); fills ``caps``.
+
+    ``seamless``: a swept disc's profile is three arcs, so its wall is three faces, none periodic.
+    """
+    pieces = []
+    for b in tree.branches:
+        pts, rad = b.points(), b.radii()
+        vols = _branch_solid(occ, pts, rad, seamless)
+        if b.parent == "":
+            caps["inlet"] = (pts[0].copy(), -_unit(_end_tangent(pts, 0)), float(rad[0]))
+        kids = tree.children(b.name)
+        if not kids:
+            caps[f"outlet:{b.name}"] = (pts[-1].copy(), _unit(_end_tangent(pts, -1)), float(rad[-1]))
+        else:
+            t_end = _unit(_end_tangent(pts, -1))
+            straight_on = any(float(np.dot(_unit(_end_tangent(k.points(), 0)), t_end)) > math.cos(math.radians(1.0))
+                              and float(k.radii()[0]) >= float(rad[-1]) * (1 - 1e-9) for k in kids)
+            if not straight_on:
+                c = pts[-1]
+                vols.append((3, occ.addSphere(float(c[0]), float(c[1]), float(c[2]), float(rad[-1]))))
+        pieces.append(vols)
+    return pieces
+
+
+def _assign_caps(gmsh: Any, caps: dict[str, tuple[Any, Any, float]]) -> tuple[dict[str, list[int]], list[int]]:
+    """The fused volume's boundary surfaces: the flat ones at each cap (by cap name), and the rest (wall)."""
+    occ = gmsh.model.occ
+    surf = [t for _d, t in gmsh.model.getBoundary(gmsh.model.getEntities(3), oriented=False)]
+    assigned: dict[str, list[int]] = {k: [] for k in caps}
+    wall: list[int] = []
+    for s in surf:
+        com = np.array(occ.getCenterOfMass(2, s))
+        name = None
+        if gmsh.model.getType(2, s) == "Plane":
+            for k, (c, _n, r) in caps.items():
+                if np.linalg.norm(com - c) < 1e-3 * r:
+                    name = k
+                    break
+        if name is None:
+            wall.append(s)
+        else:
+            assigned[name].append(s)
+    return assigned, wall
+
+
+def _fused_lumen(gmsh: Any, tree: Tree3D, caps: dict[str, tuple[Any, Any, float]]) -> bool:
+    """True if the fuse made one volume with a flat face at every cap and every branch's mid-point inside it."""
+    volumes = gmsh.model.getEntities(3)
+    if len(volumes) != 1:
+        return False
+    assigned, _wall = _assign_caps(gmsh, caps)
+    if not all(assigned.values()):
+        return False
+    for b in tree.branches:
+        pts = b.points()
+        mid = pts[len(pts) // 2] if len(pts) > 2 else 0.5 * (pts[0] + pts[-1])
+        if not gmsh.model.isInside(3, volumes[0][1], [float(x) for x in mid]):
+            return False
+    return True
+
+
 def _end_tangent(pts: npt.NDArray[np.float64], end: int) -> npt.NDArray[np.float64]:
     """Forward tangent at the first (``end`` 0) or last (-1) point: of the end segment, or of the spline's end."""
     if len(pts) == 2 or _collinear(pts):
@@ -402,8 +453,12 @@ def _spline(pts: npt.NDArray[np.float64]) -> Any:
     return CubicSpline(chord, pts, bc_type="natural" if len(pts) >= 4 else "not-a-knot")
 
 
-def _branch_solid(occ: Any, pts: npt.NDArray[np.float64], rad: npt.NDArray[np.float64]) -> list[tuple[int, int]]:
-    """OCC volumes of one branch: a cylinder or a cone chain (straight), a swept disc or a loft (curved)."""
+def _branch_solid(occ: Any, pts: npt.NDArray[np.float64], rad: npt.NDArray[np.float64],
+                  seamless: bool = False) -> list[tuple[int, int]]:
+    """OCC volumes of one branch: a cylinder or a cone chain (straight), a swept disc or a loft (curved).
+
+    ``seamless``: the swept disc is bounded by three 120-degree arcs (a wall of three faces, none periodic).
+    """
     straight = len(pts) == 2 or _collinear(pts)
     if straight and _constant(rad):
         d = pts[-1] - pts[0]
@@ -413,8 +468,17 @@ def _branch_solid(occ: Any, pts: npt.NDArray[np.float64], rad: npt.NDArray[np.fl
         curve = occ.addSpline(ptags)
         wire = occ.addWire([curve])
         t0 = _unit(_end_tangent(pts, 0))
-        disk = occ.addDisk(*map(float, pts[0]), float(rad[0]), float(rad[0]), zAxis=list(map(float, t0)),
-                           xAxis=list(map(float, _any_normal(t0))))
+        e1 = _any_normal(t0)
+        if seamless:
+            e2 = np.cross(t0, e1)
+            centre = occ.addPoint(*map(float, pts[0]))
+            ring = [occ.addPoint(*map(float, pts[0] + rad[0] * (math.cos(a) * e1 + math.sin(a) * e2)))
+                    for a in (0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0)]
+            arcs = [occ.addCircleArc(ring[i], centre, ring[(i + 1) % 3]) for i in range(3)]
+            disk = occ.addPlaneSurface([occ.addCurveLoop(arcs)])
+        else:
+            disk = occ.addDisk(*map(float, pts[0]), float(rad[0]), float(rad[0]), zAxis=list(map(float, t0)),
+                               xAxis=list(map(float, e1)))
         out = occ.addPipe([(2, disk)], wire, "DiscreteTrihedron")
         return [(d, t) for d, t in out if d == 3]
     if not straight:

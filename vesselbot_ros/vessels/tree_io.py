@@ -22,6 +22,16 @@ point (point array ``MaximumInscribedSphereRadius``), in the units of the image
   at its parent's end and runs through its centreline's blanked tract to its
   own tract.
 
+Junctions (both forms): near a bifurcation a maximum inscribed sphere touches the walls of the
+parent and of both daughters, so its radius is the junction's, not a branch's lumen radius (on the
+shared segment up to the node it is the parent's; just past the node it is still about the
+parent's, not the daughter's).  VMTK's own ``vmtkbranchextractor`` blanks that region, and
+centreline-based tools take a branch's radius from outside the junction's sphere; so does the
+importer: a daughter's points closer to its node than ``junction_factor`` (1.0) times the radius
+there (the parent's end radius: the junction's maximum inscribed sphere) take the radius of the
+daughter's first point at or beyond that distance (its last point's if it has none); its
+centreline points are kept.  ``junction_factor`` 0 keeps the file's radii.
+
 Coordinates are scaled by ``length_unit_m`` (1e-3: the file is in mm) and
 rounded to 1 nm, and consecutive points closer than that are dropped, so a
 written network reloads to the same numbers.  The file's x, y, z are the
@@ -231,12 +241,34 @@ def _parting(a: Path3, sa: int, b: Path3, sb: int, tol: float) -> int | None:
     return sa + (int(near[-1]) if len(near) else 0)
 
 
+def _junction_radii(pts: npt.NDArray[np.float64], rad: npt.NDArray[np.float64], node_radius: float,
+                    factor: float) -> npt.NDArray[np.float64]:
+    """A daughter's radii (its first point the node) with those within the junction's sphere replaced.
+
+    Points closer to the node than ``factor * node_radius`` take the radius of the first point at or
+    beyond that distance (the last point's if none is).
+    """
+    if factor <= 0.0 or len(pts) < 2:
+        return rad
+    dist = np.linalg.norm(pts - pts[0], axis=1)
+    beyond = np.nonzero(dist >= factor * node_radius)[0]
+    j = int(beyond[0]) if len(beyond) else len(pts) - 1
+    out = rad.copy()
+    out[:j] = rad[j]
+    return out
+
+
+def _check_junction_factor(junction_factor: float) -> None:
+    if not (math.isfinite(junction_factor) and 0.0 <= junction_factor <= 10.0):
+        raise ConfigError(f"junction_factor must be in [0, 10], got {junction_factor!r}")
+
+
 def _nearest_index(path: Path3, point: npt.NDArray[np.float64], start: int) -> int:
     return start + int(np.argmin(np.linalg.norm(path[0][start:] - point, axis=1)))
 
 
 def network_mapping_from_paths(paths: Sequence[Path3], name: str, split_tolerance: float = 0.5,
-                               source: str = "paths") -> dict[str, Any]:
+                               source: str = "paths", junction_factor: float = 1.0) -> dict[str, Any]:
     """The network mapping (``VesselNetworkParams``' keys) of inlet-to-outlet paths sharing their inlet.
 
     Args:
@@ -244,31 +276,40 @@ def network_mapping_from_paths(paths: Sequence[Path3], name: str, split_toleranc
         name: The network's name.
         split_tolerance: Two paths part where one leaves the tube of this fraction of the other's radius.
         source: What the paths came from, for error messages.
+        junction_factor: A daughter's points closer to its node than this times the parent's end
+            radius take the daughter's radius just beyond (module docstring); 0 keeps the paths' radii.
 
     Returns:
         ``{"name", "branches": [...]}``: branch names spell the route from the root ``b0``
         (``b0_1_0``: the root's second daughter's first daughter); a branch's points are its
-        representative path's (the longest of the paths through it) between its nodes.
+        representative path's (the longest of the paths through it) between its nodes, its radii
+        theirs but within the junction at its start.
 
     Raises:
         ConfigError: if a path ends on another one (not an outlet).
     """
     if not 0.0 < split_tolerance <= 10.0:
         raise ConfigError(f"split_tolerance must be in (0, 10], got {split_tolerance!r}")
+    _check_junction_factor(junction_factor)
     branches: list[dict[str, Any]] = []
 
     def arc_to_end(k: int, start: int) -> float:
         return float(np.linalg.norm(np.diff(paths[k][0][start:], axis=0), axis=1).sum())
 
     def emit(bname: str, parent: str, node: npt.NDArray[np.float64], pts: npt.NDArray[np.float64],
-             rad: npt.NDArray[np.float64]) -> None:
+             rad: npt.NDArray[np.float64], node_r: float) -> float:
+        """Append the branch; its end radius."""
         pts = np.vstack([node, pts[1:]])
         keep = np.concatenate([[True], np.abs(pts[1:] - node).max(axis=1) > 0.0])
         pts, rad = pts[keep], rad[keep]
+        if parent:
+            rad = _junction_radii(pts, rad, node_r, junction_factor)
         branches.append({"name": bname, "parent": parent, "x_m": pts[:, 0].tolist(), "y_m": pts[:, 1].tolist(),
                          "z_m": pts[:, 2].tolist(), "radius_m": rad.tolist()})
+        return float(rad[-1])
 
-    def grow(group: list[int], starts: dict[int, int], node: npt.NDArray[np.float64], parent: str, bname: str) -> None:
+    def grow(group: list[int], starts: dict[int, int], node: npt.NDArray[np.float64], node_r: float, parent: str,
+             bname: str) -> None:
         """Branch ``bname`` shared by ``group`` from ``node``, then its daughters."""
         group = sorted(group, key=lambda k: -arc_to_end(k, starts[k]))
         a = group[0]
@@ -288,7 +329,7 @@ def network_mapping_from_paths(paths: Sequence[Path3], name: str, split_toleranc
                               "the split tolerance")
         if end - sa < 1:
             end = min(sa + 1, len(pa) - 1)
-        emit(bname, parent, node, pa[sa:end + 1], ra[sa:end + 1])
+        end_r = emit(bname, parent, node, pa[sa:end + 1], ra[sa:end + 1], node_r)
         if not parts:
             return
         nxt = pa[end]
@@ -302,7 +343,7 @@ def network_mapping_from_paths(paths: Sequence[Path3], name: str, split_toleranc
             clusters.append(together)
             left = [c for c in left if c not in together]
         for i, cl in enumerate(clusters):
-            grow(cl, sub_starts, nxt, bname, f"{bname}_{i}")
+            grow(cl, sub_starts, nxt, end_r, bname, f"{bname}_{i}")
 
     def _shared(c0: int, c: int, starts: dict[int, int]) -> bool:
         """True if paths ``c0`` and ``c`` run together beyond their starts (one within the other's tube)."""
@@ -310,7 +351,7 @@ def network_mapping_from_paths(paths: Sequence[Path3], name: str, split_toleranc
         return m is None or m > starts[c0]
 
     root = np.asarray(paths[0][0][0])
-    grow(list(range(len(paths))), dict.fromkeys(range(len(paths)), 0), root, "", "b0")
+    grow(list(range(len(paths))), dict.fromkeys(range(len(paths)), 0), root, float(paths[0][1][0]), "", "b0")
     return {"name": name, "branches": branches}
 
 
@@ -327,7 +368,8 @@ def _orient(lines: list[Path3]) -> list[Path3]:
     return lines
 
 
-def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str) -> dict[str, Any]:
+def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str,
+                        junction_factor: float = 1.0) -> dict[str, Any]:
     """Network mapping of ``vmtkbranchextractor``'s branch-split form."""
     a = f.cell_arrays
     cl, tract, group, blank = a["CenterlineIds"], a["TractIds"], a["GroupIds"], a["Blanking"]
@@ -360,6 +402,7 @@ def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str)
     names = {g: f"g{g}" for g in rep}
     branches = []
     ends: dict[int, npt.NDArray[np.float64]] = {}
+    end_radius: dict[int, float] = {}
     order = [roots[0]]
     for g in order:  # breadth first: a parent's end is known before its daughters
         order.extend(sorted(d for d, p in parent_of.items() if p == g))
@@ -378,7 +421,9 @@ def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str)
                 pts, rad = np.vstack([ends[p], pts]), np.concatenate([rad[:1], rad])
             keep = np.concatenate([[True], np.abs(pts[1:] - pts[0]).max(axis=1) > 0.0])
             pts, rad = pts[keep], rad[keep]
+            rad = _junction_radii(pts, rad, end_radius[p], junction_factor)
         ends[g] = pts[-1]
+        end_radius[g] = float(rad[-1])
         branches.append({"name": names[g], "parent": names[p] if p is not None else "",
                          "x_m": pts[:, 0].tolist(), "y_m": pts[:, 1].tolist(), "z_m": pts[:, 2].tolist(),
                          "radius_m": rad.tolist()})
@@ -392,7 +437,8 @@ def _network_name(path: Path, name: str | None) -> str:
 
 
 def import_vmtk_centerlines(path: str | os.PathLike[str], *, name: str | None = None, length_unit_m: float = 1.0e-3,
-                            split_tolerance: float = 0.5, radius_array: str = RADIUS_ARRAY,
+                            split_tolerance: float = 0.5, junction_factor: float = 1.0,
+                            radius_array: str = RADIUS_ARRAY,
                             smoothing: str = "spline", sample_spacing_m: float = 2.0e-5,
                             cfd: CfdParams | None = None) -> VesselNetworkParams:
     """A validated network from a VMTK centreline file (raw or branch-split form: module docstring).
@@ -403,6 +449,9 @@ def import_vmtk_centerlines(path: str | os.PathLike[str], *, name: str | None = 
         length_unit_m: The file's length unit in metres (VMTK works in mm: 1e-3).
         split_tolerance: Raw form: two paths part where one leaves the tube of this fraction of the
             other's radius.
+        junction_factor: A daughter's points closer to its node than this times the parent's end
+            radius (the junction's maximum inscribed sphere) take the daughter's radius just beyond
+            it; 0 keeps the file's radii (module docstring).
         radius_array: Point array of radii.
         smoothing: The network's ``smoothing``.
         sample_spacing_m: The network's ``sample_spacing_m``.
@@ -416,16 +465,17 @@ def import_vmtk_centerlines(path: str | os.PathLike[str], *, name: str | None = 
     """
     if not (math.isfinite(length_unit_m) and length_unit_m > 0.0):
         raise ConfigError(f"length_unit_m must be > 0, got {length_unit_m!r}")
+    _check_junction_factor(junction_factor)
     p = Path(path)
     f = read_vmtk_centerlines(p, radius_array)
     nm = _network_name(p, name)
     src = f"VMTK centreline file {str(path)!r}"
     try:
         if f.branch_split:
-            mapping = _split_form_mapping(f, length_unit_m, nm, src)
+            mapping = _split_form_mapping(f, length_unit_m, nm, src, junction_factor)
         else:
             lines = _orient([_clean(pts, r, length_unit_m) for pts, r in f.lines])
-            mapping = network_mapping_from_paths(lines, nm, split_tolerance, src)
+            mapping = network_mapping_from_paths(lines, nm, split_tolerance, src, junction_factor)
         for br in mapping["branches"]:
             if not any(br["y_m"]):  # a branch in the plane y = 0 is written without y_m: reloads equal
                 del br["y_m"]

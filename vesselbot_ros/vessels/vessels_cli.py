@@ -19,6 +19,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--unit-m", type=float, default=1.0e-3, help="the file's length unit in metres (default 1e-3: mm)")
     p.add_argument("--split-tolerance", type=float, default=0.5,
                    help="raw paths part where one leaves the tube of this fraction of the other's radius (0.5)")
+    p.add_argument("--junction-factor", type=float, default=1.0,
+                   help="a daughter's points closer to its node than this times the parent's end radius take the "
+                        "daughter's radius just beyond (1.0; 0 keeps the file's radii)")
     p.add_argument("--radius-array", default="MaximumInscribedSphereRadius", help="point array of radii")
 
 
@@ -30,9 +33,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     name = args.name or out.stem
     net = import_vmtk_centerlines(args.file, name=name, length_unit_m=args.unit_m,
-                                  split_tolerance=args.split_tolerance, radius_array=args.radius_array)
+                                  split_tolerance=args.split_tolerance, junction_factor=args.junction_factor,
+                                  radius_array=args.radius_array)
     write_network_yaml(net, out, header=f"Imported from {Path(args.file).name} by `vesselbot vessels import` "
-                                        f"(unit {args.unit_m!r} m, split tolerance {args.split_tolerance!r}).\n"
+                                        f"(unit {args.unit_m!r} m, split tolerance {args.split_tolerance!r}, "
+                                        f"junction factor {args.junction_factor!r}).\n"
                                         "Format: docs/vessels.md.")
     planar = "planar" if net.is_planar else "3-D"
     print(f"{out}: network {net.name!r}, {len(net.branches)} branches ({len(net.outlets)} outlets), {planar}")

@@ -101,6 +101,9 @@ def test_branch_split_form(tmp_path: Path) -> None:
     # the daughters run through the blanked zone from their parent's end
     by = {b.name: b for b in net.branches}
     assert by["g2"].points_3d()[0].tolist() == by["g0"].points_3d()[-1].tolist()
+    # ... with their own radius through it (the parent's radius there is the junction's, not theirs)
+    assert set(by["g2"].radius_m) == set(by["g6"].radius_m) == {1.2e-3}
+    assert set(by["g4"].radius_m) == set(by["g5"].radius_m) == {0.9e-3}
 
 
 def test_written_yaml_reloads_to_the_same_network(tmp_path: Path) -> None:
@@ -222,3 +225,31 @@ def test_the_generator_writes_the_shipped_files(tmp_path: Path, monkeypatch: pyt
     shipped = root / "config" / "vessels"
     assert (tmp_path / "synthetic_tree_3d.yaml").read_bytes() == (shipped / "synthetic_tree_3d.yaml").read_bytes()
     assert (tmp_path / "synthetic_tree_3d.vtp").read_bytes() == (shipped / "sources" / "synthetic_tree_3d.vtp").read_bytes()
+
+
+def test_daughters_take_their_radius_from_beyond_the_junctions_sphere(tmp_path: Path) -> None:
+    # as VMTK writes it: the inscribed sphere is inflated near the node (1.5 mm at N1, 1.2 mm from 2 mm on)
+    def inflated(path):  # type: ignore[no-untyped-def]
+        p, r = path
+        d = np.linalg.norm(p - np.asarray(N1), axis=1)
+        beyond_n1 = np.arange(len(p)) > 50
+        return p, np.where(beyond_n1 & (d < 2.0), 1.5 - 0.15 * d, r)
+
+    write_vmtk_centerlines([inflated(p) for p in RAW], tmp_path / "t.vtp")
+    by = {b.name: b for b in import_vmtk_centerlines(tmp_path / "t.vtp").branches}
+    for name in ("b0_0", "b0_1"):
+        r = np.asarray(by[name].radius_m)
+        p = by[name].points_3d()
+        d = np.linalg.norm(p - p[0], axis=1)
+        first_beyond = int(np.argmax(d >= 1.5e-3))  # the junction's sphere: the trunk's end radius
+        assert r[0] == r[first_beyond] == pytest.approx(1.5e-3 - 0.15 * d[first_beyond], abs=1e-9)
+        assert (r[:first_beyond] == r[first_beyond]).all() and r[-1] == pytest.approx(1.2e-3)
+    assert by["b0"].radius_m == (1.5e-3,) * 51  # the parent keeps its radii
+    kept = {b.name: b for b in import_vmtk_centerlines(tmp_path / "t.vtp", junction_factor=0.0).branches}
+    assert kept["b0_0"].radius_m[0] == pytest.approx(1.5e-3) and kept["b0_0"].radius_m[1] > 1.4e-3
+    # the same tree without inflation: a daughter starts at its own radius, not its parent's
+    write_vmtk_centerlines(RAW, tmp_path / "plain.vtp")
+    plain = {b.name: b for b in import_vmtk_centerlines(tmp_path / "plain.vtp").branches}
+    assert set(plain["b0_0"].radius_m) == {1.2e-3} and set(plain["b0_0_0"].radius_m) == {0.9e-3}
+    with pytest.raises(ConfigError, match=r"junction_factor must be in \[0, 10\], got -1.0"):
+        import_vmtk_centerlines(tmp_path / "plain.vtp", junction_factor=-1.0)
