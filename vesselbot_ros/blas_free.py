@@ -214,77 +214,14 @@ def _two_square(x):  # type: ignore[no-untyped-def]  # numba kernel: argument ty
 
 
 @numba.njit(cache=True, nogil=True)
-def hypot2(x, y):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``math.hypot(x, y)`` of CPython 3.11+, double for double, for compiled code.
-
-    numba's ``math.hypot`` calls the C library's ``hypot``, which gives a
-    different double than CPython's own algorithm for about 0.3 % of inputs,
-    so a compiled stage that must equal its Python twin calls this instead.
-    It transcribes CPython's ``vector_norm`` for two coordinates: lossless
-    power-of-two scaling, exact squares, Neumaier-compensated sum around 1.0,
-    square root with one differential correction.  Pinned against
-    ``math.hypot`` by ``test/unit/test_blas_free.py``.
-    """
-    ax = abs(x)
-    ay = abs(y)
-    if math.isinf(ax) or math.isinf(ay):
-        return math.inf
-    if math.isnan(ax) or math.isnan(ay):
-        return math.nan
-    mx = ax if ax > ay else ay
-    if mx == 0.0:
-        return mx
-    _m, max_e = math.frexp(mx)
-    if max_e < -1023:  # subnormal: scale up as CPython does (DBL_MIN)
-        dmin = 2.2250738585072014e-308
-        return dmin * hypot2(ax / dmin, ay / dmin)
-    scale = math.ldexp(1.0, -max_e)
-    csum = 1.0
-    frac1 = 0.0
-    frac2 = 0.0
-    for v in (ax, ay):
-        v = v * scale
-        phi, plo = _two_square(v)
-        s = csum + phi
-        slo = (csum - s) + phi
-        csum = s
-        frac1 += plo
-        frac2 += slo
-    h = math.sqrt(csum - 1.0 + (frac1 + frac2))
-    phi, plo = _two_square(h)
-    phi = -phi
-    plo = -plo
-    s = csum + phi
-    slo = (csum - s) + phi
-    csum = s
-    frac1 += plo
-    frac2 += slo
-    r = csum - 1.0 + (frac1 + frac2)
-    h += r / (2.0 * h)
-    return h / scale
-
-
-@numba.njit(cache=True, nogil=True)
-def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``math.hypot(x, y, z)`` of CPython 3.11+, double for double, for compiled code (:func:`hypot2`'s algorithm
-    over three coordinates).  A zero coordinate adds exactly nothing to its sums: ``hypot3(x, 0, z) == hypot2(x, z)``,
-    so a 3-D stage in the plane y = 0 keeps the planar stage's doubles.  Pinned against ``math.hypot`` by
-    ``test/unit/test_blas_free.py``."""
-    ax = abs(x)
-    ay = abs(y)
-    az = abs(z)
-    if math.isinf(ax) or math.isinf(ay) or math.isinf(az):
-        return math.inf
-    if math.isnan(ax) or math.isnan(ay) or math.isnan(az):
-        return math.nan
+def _vector_norm(ax, ay, az):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """CPython's ``vector_norm`` of three finite non-negative coordinates, not all 0 (a 0 adds exactly nothing)."""
     mx = ax if ax > ay else ay
     mx = mx if mx > az else az
-    if mx == 0.0:
-        return mx
     _m, max_e = math.frexp(mx)
     if max_e < -1023:  # subnormal: scale up as CPython does (DBL_MIN)
         dmin = 2.2250738585072014e-308
-        return dmin * hypot3(ax / dmin, ay / dmin, az / dmin)
+        return dmin * _vector_norm(ax / dmin, ay / dmin, az / dmin)
     scale = math.ldexp(1.0, -max_e)
     csum = 1.0
     frac1 = 0.0
@@ -309,3 +246,45 @@ def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument t
     r = csum - 1.0 + (frac1 + frac2)
     h += r / (2.0 * h)
     return h / scale
+
+
+@numba.njit(cache=True, nogil=True)
+def hypot2(x, y):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``math.hypot(x, y)`` of CPython 3.11+, double for double, for compiled code.
+
+    numba's ``math.hypot`` calls the C library's ``hypot``, which gives a
+    different double than CPython's own algorithm for about 0.3 % of inputs,
+    so a compiled stage that must equal its Python twin calls this instead.
+    It transcribes CPython's ``vector_norm``: lossless power-of-two scaling,
+    exact squares, Neumaier-compensated sum around 1.0, square root with one
+    differential correction (:func:`_vector_norm`, whose third coordinate 0
+    adds exactly nothing).  Pinned against ``math.hypot`` by
+    ``test/unit/test_blas_free.py``.
+    """
+    ax = abs(x)
+    ay = abs(y)
+    if math.isinf(ax) or math.isinf(ay):
+        return math.inf
+    if math.isnan(ax) or math.isnan(ay):
+        return math.nan
+    if ax == 0.0 and ay == 0.0:
+        return 0.0
+    return _vector_norm(ax, ay, 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``math.hypot(x, y, z)`` of CPython 3.11+, double for double, for compiled code (:func:`hypot2`'s algorithm
+    over three coordinates).  A zero coordinate adds exactly nothing to its sums: ``hypot3(x, 0, z) == hypot2(x, z)``,
+    so a 3-D stage in the plane y = 0 keeps the planar stage's doubles.  Pinned against ``math.hypot`` by
+    ``test/unit/test_blas_free.py``."""
+    ax = abs(x)
+    ay = abs(y)
+    az = abs(z)
+    if math.isinf(ax) or math.isinf(ay) or math.isinf(az):
+        return math.inf
+    if math.isnan(ax) or math.isnan(ay) or math.isnan(az):
+        return math.nan
+    if ax == 0.0 and ay == 0.0 and az == 0.0:
+        return 0.0
+    return _vector_norm(ax, ay, az)
