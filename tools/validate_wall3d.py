@@ -90,19 +90,7 @@ def y_reference(q: Array) -> tuple[Array, Array]:
 
 def y_solids_sdf(q: Array) -> tuple[Array, Array]:
     """(inside the analytic union, min over the solids of |their signed distance| (m)): cylinders and ball."""
-    inside = np.zeros(len(q), dtype=bool)
-    near = np.full(len(q), np.inf)
-    for s, u, L, r in mw.Y_BRANCHES:
-        t = (q - s) @ u
-        rho = np.linalg.norm(q - s - t[:, None] * u, axis=1)
-        dx = rho - r
-        dy = np.abs(t - 0.5 * L) - 0.5 * L
-        sdf = np.minimum(np.maximum(dx, dy), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
-        inside |= sdf < 0
-        near = np.minimum(near, np.abs(sdf))
-    sb = np.linalg.norm(q, axis=1) - mw.Y_BRANCHES[0][3]
-    inside |= sb < 0
-    near = np.minimum(near, np.abs(sb))
+    inside, near, _beyond = mw.y_solids(q)
     return inside, near
 
 

@@ -107,15 +107,7 @@ def y_reference(q: Array) -> tuple[Array, Array, Array]:
 
 def y_union(q: Array) -> tuple[Array, Array]:
     """(inside the analytic union of the Y's cylinders and ball, min over the solids of |signed distance| m)."""
-    inside = np.linalg.norm(q, axis=1) < mw.Y_BRANCHES[0][3]
-    near = np.abs(np.linalg.norm(q, axis=1) - mw.Y_BRANCHES[0][3])
-    for s, u, L, r in mw.Y_BRANCHES:
-        t = (q - s) @ u
-        rho = np.linalg.norm(q - s - t[:, None] * u, axis=1)
-        dx, dy = rho - r, np.abs(t - 0.5 * L) - 0.5 * L
-        sdf = np.minimum(np.maximum(dx, dy), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
-        inside |= sdf < 0
-        near = np.minimum(near, np.abs(sdf))
+    inside, near, _beyond = mw.y_solids(q)
     return inside, near
 
 

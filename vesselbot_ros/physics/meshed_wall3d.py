@@ -83,7 +83,7 @@ import numpy.typing as npt
 __all__ = ["STRIDE", "Cap", "WallSurface", "CandidateTree", "wall_surface", "candidate_tree",
            "nearest_wall3d", "smooth_wall3d", "query_points3d", "brute_force3d", "ball_diameters3d", "local_diameter3d",
            "Wall3D",
-           "gmsh_wall", "cylinder_wall", "bent_tube_wall", "y_wall"]
+           "gmsh_wall", "cylinder_wall", "bent_tube_wall", "y_wall", "y_solids"]
 
 #: Floats stored per triangle: the bound (centroid 0-2, radius of its disc 3, unit outward face normal 4-6;
 #: one cache line), corners A, B, C (8-16), edge pseudonormals AB, BC, CA (17-25), vertex pseudonormals A, B, C
@@ -1137,3 +1137,22 @@ def y_wall(h_m: float = 0.1e-3) -> tuple[Array, IArray, list[Cap], Array]:
     caps: list[Cap] = [(Y_BRANCHES[0][0], -Y_BRANCHES[0][1], Y_BRANCHES[0][3])]
     caps += [(s + L * u, u, r) for s, u, L, r in Y_BRANCHES[1:]]
     return v, t, caps, nv
+
+
+def y_solids(q: Array, cap_margin_m: float = 5e-5) -> tuple[npt.NDArray[np.bool_], Array, npt.NDArray[np.bool_]]:
+    """The analytic Y of :func:`y_wall` at points ``q`` (n, 3) (m): ``(inside, near, beyond)``: inside the union of
+    :data:`Y_BRANCHES`' cylinders and the node's ball, the least |signed distance| to any of those solids (m), and
+    beyond a cap by more than ``-cap_margin_m`` along its branch (where the meshed lumen continues as a tube and the
+    union ends)."""
+    inside = np.linalg.norm(q, axis=1) < Y_BRANCHES[0][3]
+    near = np.abs(np.linalg.norm(q, axis=1) - Y_BRANCHES[0][3])
+    beyond = np.zeros(len(q), dtype=bool)
+    for s, u, length, r in Y_BRANCHES:
+        t = (q - s) @ u
+        rho = np.linalg.norm(q - s - t[:, None] * u, axis=1)
+        dx, dy = rho - r, np.abs(t - 0.5 * length) - 0.5 * length
+        sdf = np.minimum(np.maximum(dx, dy), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
+        inside |= sdf < 0
+        near = np.minimum(near, np.abs(sdf))
+        beyond |= (t > length - cap_margin_m) if s[0] >= 0 else (t < cap_margin_m)
+    return inside, near, beyond

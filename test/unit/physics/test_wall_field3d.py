@@ -97,17 +97,7 @@ def test_y_meets_the_standard_against_the_exact_query_junction_included(y: wf.Wa
 def test_y_sign_is_the_analytic_unions(y: wf.WallField3D) -> None:
     rng = np.random.default_rng(4)
     q = rng.uniform([-5.8e-3, -4.5e-3, -2.0e-3], [4.5e-3, 4.5e-3, 2.0e-3], size=(20000, 3))
-    inside = np.linalg.norm(q, axis=1) < mw.Y_BRANCHES[0][3]
-    near = np.abs(np.linalg.norm(q, axis=1) - mw.Y_BRANCHES[0][3])
-    beyond = np.zeros(len(q), dtype=bool)
-    for s, u, L, r in mw.Y_BRANCHES:
-        t = (q - s) @ u
-        rho = np.linalg.norm(q - s - t[:, None] * u, axis=1)
-        dx, dy = rho - r, np.abs(t - 0.5 * L) - 0.5 * L
-        sdf = np.minimum(np.maximum(dx, dy), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
-        inside |= sdf < 0
-        near = np.minimum(near, np.abs(sdf))
-        beyond |= (t > L - 5e-5) if s[0] >= 0 else (t < 5e-5)
+    inside, near, beyond = mw.y_solids(q)
     ok = (near > 5e-6) & ~beyond
     s = y.query(q)["sdist"]
     np.testing.assert_array_equal(s[ok] > 0, inside[ok])
