@@ -1,0 +1,64 @@
+"""Route anchors in 3-D: the planar route's anchors in a tree in the plane, the cross-section's vertical in space."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vesselbot_ros.control import route
+from vesselbot_ros.control.reference_design import wall_safe_delta_m
+from vesselbot_ros.control.route3d import VERTICAL_SINE, route_anchors_3d, up_directions
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+
+
+def test_in_the_plane_the_3d_route_is_the_planar_route() -> None:
+    """The III-C tree given in 3-D (y = 0): the anchors are the planar route's, x and z, to rounding; y = 0."""
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper"])
+    ref = sc.reference
+    base = dataclasses.replace(sc.physics, vessel=dataclasses.replace(sc.physics.vessel, network=""))
+
+    def height_of(d: float) -> float:
+        pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
+        return wall_safe_delta_m(pd, sc.observer, ref.route_wall_margin_m)
+
+    planar = route._anchors(sc)
+    p0 = np.array([sc.initial.p0_m[0], 0.0, sc.initial.p0_m[1]])
+    spatial = route_anchors_3d(load_network("paper_iiic_artery_3d"), ref.route_outlet, p0, ref.route_anchor_spacing_m,
+                               ref.route_end_margin_m, height_of)
+    assert spatial.shape == (len(planar), 3)
+    np.testing.assert_allclose(spatial[:, [0, 2]], planar, rtol=0, atol=1e-12)
+    assert np.all(spatial[:, 1] == 0.0)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0, 2 * math.pi), st.floats(-1.0, 1.0))
+def test_up_is_the_cross_sections_vertical(azimuth: float, sz: float) -> None:
+    """Up is a unit vector across the centreline, with the most +z of any such; none along a vertical centreline."""
+    t = np.array([math.sqrt(1 - sz * sz) * math.cos(azimuth), math.sqrt(1 - sz * sz) * math.sin(azimuth), sz])
+    up, ok = up_directions(t)
+    if math.sqrt(1 - sz * sz) <= VERTICAL_SINE:
+        assert not ok[0] and np.all(up == 0.0)
+        return
+    assert ok[0]
+    assert abs(np.linalg.norm(up[0]) - 1.0) < 1e-12 and abs(up[0] @ t) < 1e-12
+    assert abs(up[0, 2] - math.sqrt(1 - sz * sz)) < 1e-12  # the largest vertical component across t
+
+
+def test_a_tree_in_space_puts_every_anchor_inside_its_tube_above_the_centreline() -> None:
+    """The synthetic 4-generation tree: every anchor lies inside the lumen's tubes, at the wall-safe height above the
+    centreline's cross-section vertical (or on it near a node), and the route ends near its outlet."""
+    net = load_network("synthetic_tree_3d")
+    geom = NetworkGeometry3D(net)
+    outlet = [b.name for b in net.branches if not any(c.parent == b.name for c in net.branches)][-1]
+    root = next(b for b in net.branches if not b.parent)
+    p0 = geom.centreline_3d(root.name)[0]
+    anchors = route_anchors_3d(net, outlet, p0, 2.0e-3, 1.0e-3, lambda d: 0.25 * d)
+    q = geom.query(anchors)
+    assert np.all(q["sdist"] > 0.2 * q["radius"])  # inside, a quarter diameter off the axis at most
+    end = geom.centreline_3d(outlet)[-1]
+    assert np.linalg.norm(anchors[-1] - end) < 3.5e-3

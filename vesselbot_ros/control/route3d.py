@@ -1,0 +1,88 @@
+"""Route anchors through a 3-D vessel tree (pure): the planar route's rule along a route in space.
+
+The planar route (:mod:`vesselbot_ros.control.route`) puts anchors every
+``spacing_m`` of centreline arc length from the point of the route nearest the
+start to ``end_margin_m`` before the outlet, each one the wall-safe height of
+the local diameter (Section III-A's design map) above the centreline on the
+side whose normal points up, ramped down to the centreline within one local
+diameter of a bifurcation node.  In a tree in space the same rule needs one
+new notion, *up*: at a centreline point of unit tangent ``t`` it is the
+scanner's vertical ``+z`` with its component along ``t`` removed,
+``(z - (z . t) t) / |...|``, the direction in the vessel's cross-section in
+which the upper wall lies (where the blood is slowest and the bead's weight
+lifts it least); along a vertical stretch (``|z x t|`` below
+``VERTICAL_SINE``) there is no upper wall and the anchor is on the centreline.
+So the design map's height becomes a distance from the centreline along the
+cross-section's vertical, hence from the upper wall along its normal: the
+wall-safe gap of the 2-D rule.  In a tree in the plane y = 0 this is the
+planar route's up (tested).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.vessels.network import NetworkGeometry3D, VesselNetworkParams, route_to_outlet
+
+__all__ = ["VERTICAL_SINE", "up_directions", "route_anchors_3d"]
+
+#: Below this sine of the angle between the centreline and the vertical, the cross-section has no up.
+VERTICAL_SINE = 0.05
+
+
+def up_directions(tangents: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """Unit up direction in the cross-section at each unit tangent (k, 3), and where it exists (k,) (see module
+    docstring; where the centreline is within ``VERTICAL_SINE`` of vertical the direction is 0)."""
+    t = np.atleast_2d(np.asarray(tangents, dtype=np.float64))
+    up = np.zeros_like(t)
+    up[:, 2] = 1.0
+    up -= t[:, 2:3] * t
+    norm = np.linalg.norm(up, axis=1)
+    ok = norm > VERTICAL_SINE
+    up[ok] /= norm[ok, None]
+    up[~ok] = 0.0
+    return up, ok
+
+
+def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, spacing_m: float,
+                     end_margin_m: float, height_of: Callable[[float], float]) -> npt.NDArray[np.float64]:
+    """The anchors (k, 3) (m) of a reference from the start point ``p0_m`` (3,) to ``outlet``.
+
+    Args:
+        net: The tree (planar or not).
+        outlet: The target outlet branch.
+        p0_m: The start (injection) point (m); the first anchor.
+        spacing_m: Arc length between anchors (m).
+        end_margin_m: The last anchor lies this far before the outlet (m).
+        height_of: The wall-safe height above the centreline of a vessel of diameter ``d`` (m -> m; negative
+            or zero: on the centreline), e.g. Section III-A's design map
+            (:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m`).
+    """
+    geom = NetworkGeometry3D(net)
+    names = route_to_outlet(net, outlet)
+    path = geom.centreline_path(names)
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    p0 = np.asarray(p0_m, dtype=np.float64)
+    s0 = float(arc[int(np.argmin(np.linalg.norm(path - p0, axis=1)))])
+    s_end = arc[-1] - end_margin_m
+    n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
+    s_list = s0 + spacing_m * np.arange(1, n + 1)
+    tang = np.gradient(path, axis=0)
+    tang /= np.linalg.norm(tang, axis=1)[:, None]
+    up, _has_up = up_directions(tang)
+    diam = 2.0 * geom.query(path)["radius"]
+    nodes = np.cumsum([geom.length_m(b) for b in names])[:-1]  # the route's bifurcation nodes (arc length)
+    heights: dict[float, float] = {}
+    out = [p0]
+    for s in s_list:
+        i = int(np.clip(np.searchsorted(arc, s), 0, len(path) - 1))
+        d = float(np.round(diam[i], 9))
+        if d not in heights:
+            heights[d] = max(0.0, float(height_of(d)))
+        ramp = 1.0 if nodes.size == 0 else min(1.0, float(np.min(np.abs(nodes - s))) / d)
+        out.append(path[i] + ramp * heights[d] * up[i])
+    return np.array(out)
