@@ -94,6 +94,43 @@ def _norm(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return np.hypot(np.hypot(d[..., 0], d[..., 2]), d[..., 1])
 
 
+def _nearest_on_polyline(trees: dict[str, Any], name: str,
+                         branch: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]],
+                         q: npt.NDArray[np.float64]
+                         ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+                                    npt.NDArray[np.float64]]:
+    """The tube of one branch at points ``q`` (m, 2 or 3): (``r - |q - foot|`` (m,), foot on the centreline (m, d),
+    radius there (m,), arc length there (m,)).
+
+    ``branch`` is the branch's (centreline points, radii, arc lengths); ``trees`` caches each branch's
+    ``cKDTree`` by ``name``.  The nearest point of the polyline lies on a segment next to the nearest vertex.
+    """
+    pts, rad, arc = branch
+    tree = trees.get(name)
+    if tree is None:
+        # deferred: scipy.spatial takes ~0.4 s to import; only a distance query on a network pays it
+        from scipy.spatial import cKDTree
+
+        tree = trees[name] = cKDTree(pts)
+    _d, j = tree.query(q)
+    best = np.full(len(q), np.inf)
+    foot = np.zeros_like(q)
+    rfoot = np.zeros(len(q))
+    sfoot = np.zeros(len(q))
+    for seg in (np.maximum(j - 1, 0), np.minimum(j, len(pts) - 2)):
+        a = pts[seg]
+        d = pts[seg + 1] - a
+        t = np.clip(((q - a) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-300), 0.0, 1.0)
+        f = a + t[:, None] * d
+        dist = _norm(q - f)
+        better = dist < best
+        best[better] = dist[better]
+        foot[better] = f[better]
+        rfoot[better] = (rad[seg] + t * (rad[seg + 1] - rad[seg]))[better]
+        sfoot[better] = (arc[seg] + t * (arc[seg + 1] - arc[seg]))[better]
+    return rfoot - best, foot, rfoot, sfoot
+
+
 @dataclasses.dataclass(frozen=True)
 class BranchParams:
     """One branch: a centreline polyline with a radius at each point.
@@ -458,32 +495,7 @@ class NetworkGeometry:
     def _branch_query(self, name: str, q: npt.NDArray[np.float64]
                       ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """(signed distance (m,), foot point (m, 2), radius at the foot (m,), arc length (m,)) to branch ``name``."""
-        pts, rad, arc = self.branches[name]
-        tree = self._trees.get(name)
-        if tree is None:
-            # deferred: scipy.spatial takes ~0.4 s to import; only a distance query on a network pays it
-            from scipy.spatial import cKDTree
-
-            tree = self._trees[name] = cKDTree(pts)
-        _d, j = tree.query(q)
-        best = np.full(len(q), np.inf)
-        foot = np.zeros_like(q)
-        rfoot = np.zeros(len(q))
-        sfoot = np.zeros(len(q))
-        # the nearest point of the polyline lies on a segment next to the nearest vertex
-        for seg in (np.maximum(j - 1, 0), np.minimum(j, len(pts) - 2)):
-            a = pts[seg]
-            d = pts[seg + 1] - a
-            L2 = np.maximum((d * d).sum(axis=1), 1e-300)
-            t = np.clip(((q - a) * d).sum(axis=1) / L2, 0.0, 1.0)
-            f = a + t[:, None] * d
-            dist = np.hypot(q[:, 0] - f[:, 0], q[:, 1] - f[:, 1])
-            better = dist < best
-            best[better] = dist[better]
-            foot[better] = f[better]
-            rfoot[better] = (rad[seg] + t * (rad[seg + 1] - rad[seg]))[better]
-            sfoot[better] = (arc[seg] + t * (arc[seg + 1] - arc[seg]))[better]
-        return rfoot - best, foot, rfoot, sfoot
+        return _nearest_on_polyline(self._trees, name, self.branches[name], q)
 
     def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
         """Signed distance, inward normal, diameter and branch index at points (m, 2).
@@ -654,30 +666,7 @@ class NetworkGeometry3D:
         out_b = np.zeros(len(q), dtype=np.int64)
         out_a = np.zeros(len(q))
         for k, name in enumerate(self.names):
-            pts, rad, arc = self.branches[name]
-            tree = self._trees.get(name)
-            if tree is None:
-                # deferred: scipy.spatial takes ~0.4 s to import; only a distance query on a network pays it
-                from scipy.spatial import cKDTree
-
-                tree = self._trees[name] = cKDTree(pts)
-            _d, j = tree.query(q)
-            best = np.full(len(q), np.inf)
-            foot = np.zeros_like(q)
-            rf = np.zeros(len(q))
-            sf = np.zeros(len(q))
-            for seg in (np.maximum(j - 1, 0), np.minimum(j, len(pts) - 2)):
-                a = pts[seg]
-                d = pts[seg + 1] - a
-                t = np.clip(((q - a) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), 1e-300), 0.0, 1.0)
-                f = a + t[:, None] * d
-                dist = _norm(q - f)
-                better = dist < best
-                best[better] = dist[better]
-                foot[better] = f[better]
-                rf[better] = (rad[seg] + t * (rad[seg + 1] - rad[seg]))[better]
-                sf[better] = (arc[seg] + t * (arc[seg + 1] - arc[seg]))[better]
-            s = rf - best
+            s, foot, rf, sf = _nearest_on_polyline(self._trees, name, self.branches[name], q)
             better = s > out_s
             out_s[better] = s[better]
             out_f[better] = foot[better]
