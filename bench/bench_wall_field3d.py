@@ -20,28 +20,20 @@ Usage: ``.venv/bin/python bench/bench_wall_field3d.py [--h-mm 0.1] [--refine 1]`
 from __future__ import annotations
 
 import argparse
-import time
 
 import numba
 import numpy as np
 
+# the 2-D loop, the exact 3-D loop, the timer and the sampler of the exact-query bench (bench/ is on the path of a
+# script run from it)
+from bench_wall3d import N, _loop2d, _loop3d, _sample, best
+
 from vesselbot_ros.physics import meshed_wall3d as mw
 from vesselbot_ros.physics import wall_field3d as wf
 from vesselbot_ros.physics.kernel import network_geometry
-from vesselbot_ros.physics.meshed_wall import nearest_wall
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import network_wall, packed_params
 from vesselbot_ros.vessels.network import load_network
-
-N = 200_000
-
-
-@numba.njit(cache=False)
-def _loop2d(q, segs, off, idx, x0, z0, h, nx, nz):  # type: ignore[no-untyped-def]
-    acc = 0.0
-    for k in range(q.shape[0]):
-        acc += nearest_wall(q[k, 0], q[k, 1], segs, off, idx, x0, z0, h, nx, nz)[0]
-    return acc
 
 
 @numba.njit(cache=False)
@@ -58,34 +50,6 @@ def _loop3d_field(q, head, field, fine, d, pbox, pstart, grid, nodes, index):  #
     for k in range(q.shape[0]):
         acc += wf.wall_field3d(q[k, 0], q[k, 1], q[k, 2], head, field, fine, d, pbox, pstart, grid, nodes, index)[0]
     return acc
-
-
-@numba.njit(cache=False)
-def _loop3d_exact(q, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]
-    acc = 0.0
-    for k in range(q.shape[0]):
-        acc += mw.smooth_wall3d(q[k, 0], q[k, 1], q[k, 2], d, pbox, pstart, grid, nodes, index)[0]
-    return acc
-
-
-def best(f, reps=5):  # type: ignore[no-untyped-def]
-    ts = []
-    for _ in range(reps):
-        t = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t)
-    return min(ts)
-
-
-def _sample(query, lo, hi, band, rng):  # type: ignore[no-untyped-def]
-    """N points uniform in the lumen (band None) or within ``band`` of the wall inside it."""
-    out = []
-    while sum(len(o) for o in out) < N:
-        q = rng.uniform(lo, hi, size=(4 * N, len(lo)))
-        s = query(q)
-        ok = (s > 0) if band is None else (s > 0) & (s < band)
-        out.append(q[ok])
-    return np.ascontiguousarray(np.concatenate(out)[:N])
 
 
 def _exact(field: wf.WallField3D, q: np.ndarray) -> float:
@@ -121,11 +85,11 @@ def main() -> None:
             _loop2d(q2[:10], *a2)
             _loop2d_geometry(q2[:10], p2)
             _loop3d_field(q3[:10], *f3.args)
-            _loop3d_exact(q3[:10], *w3._args)
+            _loop3d(q3[:10], *w3._args, True)
             t2 = best(lambda q=q2, a=a2: _loop2d(q, *a)) / N * 1e9
             t2g = best(lambda q=q2, p=p2: _loop2d_geometry(q, p)) / N * 1e9
             t3 = best(lambda q=q3, f=f3: _loop3d_field(q, *f.args)) / N * 1e9
-            t3x = best(lambda q=q3, w=w3: _loop3d_exact(q, *w._args)) / N * 1e9
+            t3x = best(lambda q=q3, w=w3: _loop3d(q, *w._args, True)) / N * 1e9
             rows.append((name2, "lumen" if band is None else "wall<0.3mm", t2, t2g, t3, t3x, _exact(f3, q3)))
         st = f3.stats
         print(f"{name2}: 3-D field {int(st['nodes'])} nodes ({f3.shape}), h = {a.h_mm} mm, {st['MB']:.1f} MB, "
