@@ -57,9 +57,8 @@ from vesselbot_ros.analysis.scanner_study import (  # noqa: E402
     cell_changes,
     cell_scenario,
     coast_floor,
-    estimation_floor,
+    floors,
     fmt_um,
-    tracking_floor,
 )
 from vesselbot_ros.physics.kernel import diameter_at  # noqa: E402
 from vesselbot_ros.sim.closed_loop import build_stage, run_closed_loop  # noqa: E402
@@ -157,10 +156,10 @@ def fly() -> list[dict]:
                 best = (pair, got, sc)
         assert best is not None
         pair, got, sc = best
-        floors = tracking_floor(sc, FLOOR_SEEDS)
-        _write_floors(label, floors)
+        est_floor, per_seed = floors(sc, FLOOR_SEEDS)
+        _write_floors(label, per_seed)
         row = _row(label, f"{tw * 1e3:g} / {pw * 1e3:g} ms, latency {lat * 1e3:g} ms", pair, got, coast_floor(sc),
-                   factor, estimation_floor(sc), floors)
+                   factor, est_floor, per_seed)
         rows.append(row)
         print(_line(row), flush=True)
     for label, name in PLAN_TARGETS:
@@ -177,9 +176,9 @@ def fly() -> list[dict]:
                 best = (pair, got)
         assert best is not None
         note = f"the plan takes {took.group(1)} s (beside continuous propulsion: docs/plan_study/table.md)" if took else ""
-        floors = tracking_floor(flown, FLOOR_SEEDS)
-        _write_floors(label, floors)
-        row = _row(label, name, best[0], best[1], coast, 2.0, estimation_floor(flown), floors, note)
+        est_floor, per_seed = floors(flown, FLOOR_SEEDS)
+        _write_floors(label, per_seed)
+        row = _row(label, name, best[0], best[1], coast, 2.0, est_floor, per_seed, note)
         rows.append(row)
         print(_line(row), flush=True)
     return rows

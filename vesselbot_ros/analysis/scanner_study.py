@@ -111,7 +111,7 @@ from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
            "cell_scenario", "cell_name", "study_spec", "cell_row",
-           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "tracking_floor",
+           "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "tracking_floor", "floors",
            "feasibility"]
 
 #: The EKF pairs' filter: the wall as a constraint, and a lost track restarted once 30 ms of frames were rejected in a
@@ -379,7 +379,10 @@ def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SI
     is its linearised bound), and a controller that holds the bead on the
     (known) reference tracks with no smaller rms (module docstring).
     """
-    lin = _linearise(scenario)
+    return _estimation_floor(scenario, _linearise(scenario), flow_scale_sigma)
+
+
+def _estimation_floor(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float) -> float:
     trace, _ = _filter(scenario, lin, flow_scale_sigma)
     return float(math.sqrt(np.mean(trace[lin.ts >= scenario.sim.metrics_after_s])))
 
@@ -422,7 +425,19 @@ def tracking_floor(scenario: Scenario, seeds: Iterable[int],
     (no outliers).  Continuous propulsion has no coast: the estimate's error
     alone.
     """
+    return _tracking_floor(scenario, _linearise(scenario), seeds, flow_scale_sigma)
+
+
+def floors(scenario: Scenario, seeds: Iterable[int], flow_scale_sigma: float = FLOW_SCALE_SIGMA
+           ) -> tuple[float, list[float]]:
+    """:func:`estimation_floor` and :func:`tracking_floor` of ``seeds`` on one linearisation of the plant."""
     lin = _linearise(scenario)
+    return (_estimation_floor(scenario, lin, flow_scale_sigma),
+            _tracking_floor(scenario, lin, seeds, flow_scale_sigma))
+
+
+def _tracking_floor(scenario: Scenario, lin: _Linearised, seeds: Iterable[int],
+                    flow_scale_sigma: float) -> list[float]:
     seq = scenario.sequence
     dt = scenario.sim.dt_control_s
     after = lin.ts >= scenario.sim.metrics_after_s
@@ -474,17 +489,19 @@ def feasibility(scenario: Scenario, seeds: Iterable[int] = ()) -> dict[str, floa
     ``seeds`` the worst of their tracking floors, ``tracking_floor_m`` (:func:`tracking_floor`)."""
     req = required_accel(scenario)
     out = {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
-           "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req),
-           "estimation_floor_m": estimation_floor(scenario)}
+           "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req)}
     seeds = list(seeds)
     if seeds:
-        out["tracking_floor_m"] = max(tracking_floor(scenario, seeds))
+        out.update(_flown_floors(scenario, seeds))
+    else:
+        out["estimation_floor_m"] = estimation_floor(scenario)
     return out
 
 
 def _flown_floors(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
     """A planned cell's estimation floor and worst tracking floor over ``seeds``, on the flown scenario."""
-    return {"estimation_floor_m": estimation_floor(scenario), "tracking_floor_m": max(tracking_floor(scenario, seeds))}
+    est, track = floors(scenario, seeds)
+    return {"estimation_floor_m": est, "tracking_floor_m": max(track)}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:
