@@ -76,8 +76,13 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
         ex.shutdown()
 
 
+#: Set by :func:`_interrupt`: a signal has asked the node process to stop (reset by :func:`run_node`).
+_SIGNALLED = [False]
+
+
 def _interrupt(signum: int, frame: Any) -> None:
     """SIGINT / SIGTERM of a node process: stop it as Ctrl-C does, between two Python steps."""
+    _SIGNALLED[0] = True
     raise KeyboardInterrupt
 
 
@@ -110,6 +115,7 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *,
     node = None
     code = 0
     # SIGINT too is set here: a shell starts a background job with SIGINT ignored, which rclpy's handler overrode
+    _SIGNALLED[0] = False
     old = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -124,6 +130,12 @@ def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *,
         spin_nodes([node], stop=lambda: node.done)
         return code
     except (KeyboardInterrupt, ExternalShutdownException):
+        return code
+    except Exception:
+        # a signal's KeyboardInterrupt raised while a C extension had called back into Python (rclpy deserialising
+        # a message) comes out as that call's error: after a signal, it is the signal's stop
+        if not _SIGNALLED[0]:
+            raise
         return code
     finally:
         for sig in old:  # a second signal must not break the clean-up: it is on its way out already
