@@ -58,6 +58,7 @@ __all__ = [
     "CoilLimits",
     "CoilOutput",
     "CoilLimiter",
+    "CoilLimiter3D",
     "coil_params",
     "coil_apply",
     "coil_slew_to",
@@ -346,12 +347,16 @@ class CoilLimiter:
         """Zero the coil at time ``t0_s``."""
         self._state[:] = (0.0, 0.0, float(t0_s), float(t0_s))
 
+    #: Axes, and the state's slot of the last call's time (the command's is the next).
+    dims = 2
+    _ti = 2
+
     def _dt(self, t_s: float) -> float:
         if not math.isfinite(t_s):
             raise ModelInputError(f"coil time must be finite, got {t_s!r}")
-        dt = t_s - self._state[2]
+        dt = t_s - self._state[self._ti]
         if dt < -1e-12:
-            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {float(self._state[2])!r}")
+            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {float(self._state[self._ti])!r}")
         return max(dt, 0.0)
 
     def _output(self) -> CoilOutput:
@@ -426,4 +431,73 @@ class CoilLimiter:
         self._out[2] = 1.0
         self._out[3] = 0.0
         self._out[6] = 0.0
+        return self._output()
+
+
+class CoilLimiter3D(CoilLimiter):
+    """:class:`CoilLimiter` on three axes (3-D vessel trees): the same ports on (3,) gradients.
+
+    Saturation of ``|G|`` over the three axes (``euclidean``) or of each (``per_axis``), then the slew limit
+    (:func:`coil3d_apply`); a tree in the plane y = 0 commanded with y = 0 gets the planar coil's doubles in x
+    and z.
+    """
+
+    dims = 3
+    _ti = 3
+
+    def __init__(self, limits: CoilLimits, t0_s: float = 0.0) -> None:
+        if not math.isfinite(t0_s):
+            raise ModelInputError(f"t0_s must be finite, got {t0_s!r}")
+        self.limits = limits
+        self._prm = coil_params(limits)
+        self._state = np.array([0.0, 0.0, 0.0, float(t0_s), float(t0_s)])  # applied x, y, z, t_prev, t_last_command
+        self._out = np.zeros(COIL3D_OUT_SIZE)
+
+    @property
+    def applied(self) -> npt.NDArray[np.float64]:
+        """(3,) last applied gradient, T/m (a copy)."""
+        return self._state[:3].copy()
+
+    def reset(self, t0_s: float = 0.0) -> None:
+        """Zero the coil at time ``t0_s``."""
+        self._state[:] = (0.0, 0.0, 0.0, float(t0_s), float(t0_s))
+
+    def _output(self) -> CoilOutput:
+        o = self._out
+        return CoilOutput(o[:3].copy(), float(o[3]), bool(o[4] > 0.5), o[5:8] > 0.5, bool(o[8] > 0.5))
+
+    def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
+        """:meth:`CoilLimiter.apply` on a (3,) command (:func:`coil3d_apply`)."""
+        g = np.asarray(commanded_T_per_m, dtype=np.float64)
+        if g.shape != (3,):
+            raise ModelInputError(f"commanded gradient must have shape (3,), got {g.shape}")
+        self._dt(t_s)
+        coil3d_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), float(g[2]), self._out)
+        return self._output()
+
+    def step(self, t_s: float, update: Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], None]) -> CoilOutput:
+        """Not on three axes: the scanner's gated coil is planar."""
+        raise ModelInputError("the scanner's multiplexed sequence is not on three gradient axes yet")
+
+    def hold(self, t_s: float) -> CoilOutput:
+        """:meth:`CoilLimiter.hold` on three axes."""
+        self._dt(t_s)
+        self._state[3] = float(t_s)
+        return CoilOutput(self._state[:3].copy(), 1.0, False, np.zeros(3, dtype=bool), False)
+
+    def watchdog(self, t_now_s: float) -> CoilOutput | None:
+        """:meth:`CoilLimiter.watchdog` on three axes."""
+        if not math.isfinite(t_now_s):
+            raise ModelInputError(f"watchdog time must be finite, got {t_now_s!r}")
+        t_last_command = float(self._state[4])
+        if t_now_s - t_last_command <= self.limits.command_timeout_s:
+            return None
+        self._dt(t_now_s)
+        ramp_start = max(float(self._state[3]), t_last_command + self.limits.command_timeout_s)
+        dt = max(float(t_now_s) - ramp_start, 0.0)
+        self._state[3] = float(t_now_s)
+        coil3d_slew_to(self._prm, self._state, 0.0, 0.0, 0.0, dt, self._out)
+        self._out[3] = 1.0
+        self._out[4] = 0.0
+        self._out[8] = 0.0
         return self._output()

@@ -29,9 +29,12 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
+from vesselbot_ros.control.route3d import route_anchors_3d
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
+from vesselbot_ros.physics.wall_field3d import field_points3d
+from vesselbot_ros.vessels.network import NetworkGeometry, NetworkGeometry3D, load_network, route_to_outlet
+from vesselbot_ros.vessels.plant_field3d import wall_arrays
 
 __all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
 
@@ -47,8 +50,19 @@ def _anchors(scenario) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-de
 
 @functools.lru_cache(maxsize=64)
 def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The planned anchors (k, 2) (m); cached per (frozen) inputs: the wall-safe heights cost ~0.3 s each."""
+    """The planned anchors (k, 2) (m), or (k, 3) in a 3-D tree; cached per (frozen) inputs: the wall-safe heights
+    cost ~0.3 s each."""
     net = load_network(phys.vessel.network)
+    base = dataclasses.replace(phys, vessel=dataclasses.replace(phys.vessel, network=""))
+    if net.is_3d:  # the same rule along a route in space (control/route3d.py): up is the cross-section's vertical
+
+        def height_of(d: float) -> float:
+            pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
+            return wall_safe_delta_m(pd, observer, ref.route_wall_margin_m)
+
+        arr3 = route_anchors_3d(net, ref.route_outlet, p0_m, ref.route_anchor_spacing_m, ref.route_end_margin_m, height_of)
+        arr3.setflags(write=False)
+        return arr3
     geom = NetworkGeometry(net)
     names = route_to_outlet(net, ref.route_outlet)
     path = geom.centreline_path(names)
@@ -67,7 +81,6 @@ def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # ty
     # arc lengths of the bifurcation nodes the route passes (the ends of all but its last branch)
     lengths = [geom.branches[n][2][-1] for n in names]
     nodes = np.cumsum(lengths)[:-1]
-    base = dataclasses.replace(phys, vessel=dataclasses.replace(phys.vessel, network=""))
     heights: dict[float, float] = {}
     out = [p0]
     for s in s_list:
@@ -91,6 +104,10 @@ def planned_reference(scenario):  # type: ignore[no-untyped-def]  # numba kernel
     if not ref.route_outlet:
         return ref
     a = _anchors(scenario)
+    if a.shape[1] == 3:
+        return dataclasses.replace(ref, anchors_x_m=tuple(float(v) for v in a[:, 0]),
+                                   anchors_y_m=tuple(float(v) for v in a[:, 1]),
+                                   anchors_z_m=tuple(float(v) for v in a[:, 2]))
     return dataclasses.replace(ref, anchors_x_m=tuple(float(v) for v in a[:, 0]),
                                anchors_z_m=tuple(float(v) for v in a[:, 1]))
 
@@ -133,10 +150,16 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
-    geom = NetworkGeometry(net)
-    q = geom.query(p)
-    # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
-    out = network_wall(net, blood).query(p)["sdist"] < 0.0
+    geom: NetworkGeometry | NetworkGeometry3D
+    if net.is_3d:  # the 3-D plant's wall (its compiled lookup) and the tree's centreline tubes
+        geom = NetworkGeometry3D(net)
+        q = geom.query(p)
+        out = field_points3d(np.ascontiguousarray(p), *wall_arrays(net, blood).args)[:, 0] < 0.0
+    else:
+        geom = NetworkGeometry(net)
+        q = geom.query(p)
+        # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
+        out = network_wall(net, blood).query(p)["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
     reached = False

@@ -27,7 +27,8 @@ are bit-identical on every column, metric and run statistic;
 over seeds and scenario variants on several cores, each row equal to the
 single run.
 
-Time-series columns (``SimResult.timeseries``; vectors are (n, 2) over (x, z)):
+Time-series columns (``SimResult.timeseries``; vectors are (n, 2) over (x, z), or (n, 3) over (x, y, z) in a
+3-D vessel tree (``Scenario.dims``), which runs the per-tick loop: the compiled kernel is planar):
 
 ===================  =======  ==============================================
 key                  unit     meaning
@@ -75,6 +76,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.model3d import DynamicsModel3D
 from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
@@ -148,8 +150,9 @@ class _StageBuilder:
             if name == "model_physics":  # the model's own physics (blood-velocity error): the model and the reference
                 self._built[name] = self.s.model_physics()
             elif name == "model":
-                self._built[name] = DynamicsModel(self.get("model_physics"), self.s.sim.integrator,
-                                                  self.s.model.input_mapping)
+                model_cls = DynamicsModel3D if self.s.dims == 3 else DynamicsModel
+                self._built[name] = model_cls(self.get("model_physics"), self.s.sim.integrator,
+                                              self.s.model.input_mapping)
             else:
                 self._built[name] = kinds.build(name, self)
         return self._built[name]
@@ -215,7 +218,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
     ts = [k * dt for k in range(WARM_TICKS)]
     p0 = np.asarray(short.initial.p0_m, dtype=np.float64)
     v0 = np.asarray(short.initial.v0_m_per_s, dtype=np.float64)
-    zero = np.zeros(2)
+    zero = np.zeros(short.dims)
     for name in names:
         stage = b.get(name)
         if name == "plant":
@@ -382,21 +385,22 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     p_ref, v_ref, a_ref = st.reference.sample_many(ts)
     rec_forces = scenario.sim.record_forces
 
-    f2 = {k: np.empty((n, 2)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
+    d = scenario.dims
+    f2 = {k: np.empty((n, d)) for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied")}
     f1 = {k: np.empty(n) for k in ("delta_m", "meas_t_acq_s", "k_scale", "flow_scale_hat",
                                       "magnetization_scale_hat")}
     b1 = {k: np.zeros(n, dtype=bool) for k in ("in_contact", "meas_outlier", "meas_used", "meas_rejected", "saturated")}
-    slew = np.zeros((n, 2), dtype=bool)
+    slew = np.zeros((n, d), dtype=bool)
     phase = np.zeros(n, dtype=np.int8)
     seq_phase = _sequence_phase(scenario, ts)
     status = np.zeros(n, dtype=np.int8)
-    forces = np.empty((n, 8, 2)) if rec_forces else None
+    forces = np.empty((n, 8, d)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
     builtin_controller = type(controller) is BacksteppingController
     adapted = getattr(controller, "adapted", None) if builtin_controller else None  # adaptive backstepping
-    g_prev = np.zeros(2)
-    nan2 = np.array([np.nan, np.nan])
+    g_prev = np.zeros(d)
+    nan2 = np.full(d, np.nan)
     for k in range(n):
         t = float(ts[k])
         truth = plant.output(rec_forces)

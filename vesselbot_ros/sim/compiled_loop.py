@@ -138,7 +138,8 @@ def foreign_stages(stages: Any) -> list[str]:
     """The stages :func:`prepare` cannot read, by name: of a kind the compiled loop does not run (a user's
     object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), or a built-in one over a user's part."""
     bad = [role for role in kinds.ROLES
-           if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)]
+           if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)
+           or getattr(getattr(stages, role), "dims", 2) != 2]  # the kernel's stages are planar
     im, ob, co = stages.imager, stages.observer, stages.coil
     if type(im) is SequencedImager and type(im.inner) is not ImagerModel:
         bad.append("imager")

@@ -61,14 +61,16 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
+from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimiter3D, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
 from vesselbot_ros.control.compiled_stage import CompiledController
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
+from vesselbot_ros.control.imager3d import Imager3D
 from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
+from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError
@@ -78,7 +80,7 @@ from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
-from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
+from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator, PlantSimulator3D
 from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = [
@@ -476,13 +478,20 @@ def call_controller(controller: Any, t_s: float, x_hat: npt.NDArray[np.float64],
 
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------
-def _plant(ctx: BuildContext) -> PlantSimulator:
+# In a 3-D vessel tree (Scenario.dims == 3) each built-in kind builds its stage on three axes
+# (control/loop3d_stages.py, control/imager3d.py, PlantSimulator3D, CoilLimiter3D); the scenario refuses the
+# kinds and options that have no 3-D form yet, in one line.
+def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
     s = ctx.scenario
+    if s.dims == 3:
+        return PlantSimulator3D(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
     return PlantSimulator(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
 
 
-def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager:
+def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager | Imager3D:
     s = ctx.scenario
+    if s.dims == 3:
+        return Imager3D(s.imager, ctx.rng())
     imager = ImagerModel(s.imager, ctx.rng())
     if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
         return SequencedImager(imager, s.sequence)
@@ -497,12 +506,16 @@ def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.Arra
     return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
 
 
-def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver:
+def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver | HighGainObserver3D:
     s = ctx.scenario
+    if s.dims == 3:
+        return HighGainObserver3D(s.observer, ctx.model, ctx.get("reference").sample(0.0).p, s.initial.z_hat0_m_per_s)
     return make_observer(s.observer, ctx.model, ctx.get("reference").sample(0.0).p, s.initial.z_hat0_m_per_s, ctx.dt_s)
 
 
 def _reference(ctx: BuildContext) -> ReferenceTrajectory:
+    if ctx.scenario.dims == 3:  # no flow-synchronised timing nor wall following in a tree (the scenario checks)
+        return ReferenceTrajectory(planned_reference(ctx.scenario))
     phys = ctx.get("model_physics")
     p_model = packed_params(phys)
 
@@ -512,9 +525,11 @@ def _reference(ctx: BuildContext) -> ReferenceTrajectory:
     return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity_x=flow_x, wall_shift=wall_shift_of(phys))
 
 
-def _controller(ctx: BuildContext) -> BacksteppingController:
+def _controller(ctx: BuildContext) -> BacksteppingController | Backstepping3D:
     s = ctx.scenario
     model = ctx.model
+    if s.dims == 3:
+        return Backstepping3D(s.controller, model, ctx.dt_s)
     return BacksteppingController(s.controller, model.F, model.input_matrix, ctx.dt_s, duty_cycle(s.sequence))
 
 
@@ -523,8 +538,10 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
     return PredictiveController(s.controller, ctx.model.p, effective_coil_limits(s.coil, s.dbdt), s.sequence, ctx.dt_s)
 
 
-def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
+def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D:
     s = ctx.scenario
+    if s.dims == 3:
+        return CoilLimiter3D(s.coil, -ctx.dt_s)
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
     # between any two later ticks: the first command may move S * dt, not 0 (which left the robot unactuated for
     # the first 1 ms and cost ~350 um of start-up transient, docs/control.md).
@@ -535,18 +552,18 @@ def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
 
 
 for _kind in (
-    StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator,),
+    StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator, PlantSimulator3D),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
-    StageKind("imager", "mri", ImagerParams, _imager, compiled=True, stage_types=(ImagerModel, SequencedImager),
+    StageKind("imager", "mri", ImagerParams, _imager, compiled=True, stage_types=(ImagerModel, SequencedImager, Imager3D),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
-    StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
+    StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver, HighGainObserver3D),
               summary="high-gain observer (25)"),
     StageKind("observer", "ekf", ObserverParams, _observer, compiled=True, stage_types=(ExtendedKalmanObserver,),
               summary="extended Kalman filter: delay compensation, blood-velocity scale estimate"),
     StageKind("reference", "bspline", ReferenceParams, _reference, compiled=True, stage_types=(ReferenceTrajectory,),
               summary="C2 cubic B-spline through the anchors (or the planned route of a network)"),
     StageKind("controller", "backstepping", ControllerParams, _controller, compiled=True,
-              stage_types=(BacksteppingController,), summary="backstepping law (24)",
+              stage_types=(BacksteppingController, Backstepping3D), summary="backstepping law (24)",
               compile_controller=BacksteppingController.compiled),
     StageKind("controller", "adaptive_backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,),
@@ -555,7 +572,7 @@ for _kind in (
     StageKind("controller", "predictive", PredictiveParams, _predictive, compiled=True,
               stage_types=(PredictiveController,), compile_controller=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
-    StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True, stage_types=(CoilLimiter, SequencedCoil),
+    StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True, stage_types=(CoilLimiter, SequencedCoil, CoilLimiter3D),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):
     register(_kind)

@@ -18,11 +18,14 @@ import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
-from vesselbot_ros.physics.kernel import TERM_NAMES, forces_into, wall_delta_xz
+from vesselbot_ros.control.high_gain_observer import integrator_vector
+from vesselbot_ros.physics.kernel import I_R, TERM_NAMES, forces_into, wall_delta_xz
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
 from vesselbot_ros.vessels.cfd import packed_params
+from vesselbot_ros.vessels.plant_field3d import packed3d
 
-__all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
+__all__ = ["PlantOutput", "PlantSimulator", "PlantSimulator3D", "TERM_NAMES"]
 
 
 class PlantOutput(NamedTuple):
@@ -140,6 +143,94 @@ class PlantSimulator:
         else:
             code = integrate_rk4_ws(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s,
                                     self.stats, self._work, self._fbuf)
+        if code != OK:
+            raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
+        self._k += 1
+
+
+class PlantSimulator3D:
+    """:class:`PlantSimulator` in a 3-D vessel tree: state ``(x, y, z, vx, vy, vz)``, three gradient axes.
+
+    The same ports on 3-vectors (:class:`PlantOutput` with (3,) ``p``, ``v`` and (8, 3) forces); the kernel is
+    :mod:`vesselbot_ros.physics.plant3d`.  ``wall`` is +1 when the nearest wall lies above the centre (its inward
+    normal points down), else -1, as in the planar network.
+
+    Args:
+        physics: True physics parameters (``vessel.network`` a 3-D tree).
+        integrator: Integrator settings.
+        dt_control_s: Control period (s).
+        p0_m: (3,) initial position (m).
+        v0_m_per_s: (3,) initial velocity (m/s).
+        t0_s: Initial time (s).
+    """
+
+    dims = 3
+
+    def __init__(self, physics: PhysicsParams, integrator: IntegratorParams, dt_control_s: float, p0_m: npt.ArrayLike,
+                 v0_m_per_s: npt.ArrayLike = (0.0, 0.0, 0.0), t0_s: float = 0.0) -> None:
+        if not (math.isfinite(dt_control_s) and dt_control_s > 0.0):
+            raise ModelInputError(f"dt_control_s must be finite and > 0, got {dt_control_s!r}")
+        y = np.concatenate([np.asarray(p0_m, dtype=np.float64), np.asarray(v0_m_per_s, dtype=np.float64)])
+        if y.shape != (6,) or not np.all(np.isfinite(y)):
+            raise ModelInputError(f"initial state must be finite (3,) + (3,), got {p0_m!r}, {v0_m_per_s!r}")
+        self.physics = physics
+        self.integrator = integrator
+        self.packed = packed3d(physics)
+        self.p = self.packed.p
+        self._ig = integrator_vector(integrator)
+        self._dt = float(dt_control_s)
+        self._t0 = float(t0_s)
+        self._k = 0
+        self._y = y
+        self._contact = np.zeros(4)
+        self._g = np.zeros(3)
+        self._zero3 = np.zeros(3)
+        self._h = integrator.max_step_s
+        self._forces = np.empty((8, 3))
+        self._work, self._fbuf, self._sc = new_workspace3d()
+        self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
+
+    @property
+    def t_s(self) -> float:
+        """Current tick time (s)."""
+        return self._t0 + self._k * self._dt
+
+    @property
+    def state(self) -> npt.NDArray[np.float64]:
+        """(6,) copy of ``(x, y, z, vx, vy, vz)`` (m, m/s)."""
+        return self._y.copy()
+
+    @property
+    def contact_state(self) -> npt.NDArray[np.float64]:
+        """(4,) copy of the contact state [phase, delta_max, F_max, delta_0]."""
+        return self._contact.copy()
+
+    def output(self, with_forces: bool = False) -> PlantOutput:
+        """Ground truth at the current tick (see :class:`PlantOutput`)."""
+        t = self.t_s
+        y = self._y
+        k = self.packed
+        s_t = forces3d_at(t, y, self._g, self._contact, self.p, k.W, k.F, k.fh, self._forces, self._sc)
+        delta = self.p[I_R] - s_t
+        wall = 1.0 if self._sc[2, 2] <= 0.0 else -1.0
+        return PlantOutput(t, y[:3].copy(), y[3:].copy(), float(delta), wall, bool(delta > 0.0), int(self._contact[0]),
+                           self._forces.copy() if with_forces else None)
+
+    def step(self, applied_gradient_T_per_m: npt.ArrayLike) -> None:
+        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (3,)).
+
+        Raises:
+            ModelInputError: on a non-finite or wrongly shaped gradient, or if the integration fails.
+        """
+        g = np.asarray(applied_gradient_T_per_m, dtype=np.float64)
+        if g.shape != (3,) or not (math.isfinite(g[0]) and math.isfinite(g[1]) and math.isfinite(g[2])):
+            raise ModelInputError(f"plant: applied gradient must be a finite (3,) array, got {applied_gradient_T_per_m!r}")
+        self._g = g.copy()
+        t0 = self.t_s
+        t1 = self._t0 + (self._k + 1) * self._dt
+        k = self.packed
+        code, self._h = integrate3d(t0, t1, self._y, self._g, self._zero3, self._contact, self.p, k.W, k.F, k.fh, self._h,
+                                    self._ig, self.stats, self._work, self._fbuf, self._sc)
         if code != OK:
             raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
         self._k += 1

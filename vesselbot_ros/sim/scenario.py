@@ -49,7 +49,7 @@ from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import load_network, require_planar, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, require_planar, route_to_outlet
 
 __all__ = [
     "ModelParams",
@@ -111,18 +111,21 @@ class InitialConditions:
     """Initial state (Table III: ``X0 = (0, 0.001)``, ``Z0 = (0, 0)``).
 
     Attributes:
-        p0_m: (x, z) initial true position (m).
-        v0_m_per_s: (x, z) initial true velocity (m/s).
-        z_hat0_m_per_s: (x, z) observer's prior velocity (m/s).
+        p0_m: (x, z) initial true position (m); (x, y, z) in a 3-D vessel tree (``Scenario.dims``).
+        v0_m_per_s: (x, z) initial true velocity (m/s); (x, y, z) in a 3-D tree.
+        z_hat0_m_per_s: (x, z) observer's prior velocity (m/s); (x, y, z) in a 3-D tree.
     """
 
-    p0_m: tuple[float, float] = (0.0, 1e-3)
-    v0_m_per_s: tuple[float, float] = (0.0, 0.0)
-    z_hat0_m_per_s: tuple[float, float] = (0.0, 0.0)
+    p0_m: tuple[float, ...] = (0.0, 1e-3)
+    v0_m_per_s: tuple[float, ...] = (0.0, 0.0)
+    z_hat0_m_per_s: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         for name in ("p0_m", "v0_m_per_s", "z_hat0_m_per_s"):
-            for i, v in enumerate(getattr(self, name)):
+            vals = getattr(self, name)
+            if len(vals) not in (2, 3):
+                raise ConfigError(f"{name} must have 2 values (x, z) or 3 (x, y, z, in a 3-D vessel tree), got {list(vals)}")
+            for i, v in enumerate(vals):
                 check_finite(f"{name}[{i}]", v)
 
 
@@ -243,9 +246,18 @@ class Scenario:
                 f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
             )
         bspline = isinstance(self.reference, ReferenceParams)
-        if bspline and self.reference.anchors_y_m:
-            raise ConfigError(f"reference.anchors_y_m: a path in three dimensions needs the 3-D plant, which this loop "
-                              f"is not; the loop's plant is planar (XZ), got anchors_y_m={list(self.reference.anchors_y_m)}")
+        d = self.dims
+        for name in ("p0_m", "v0_m_per_s", "z_hat0_m_per_s"):
+            vals = getattr(self.initial, name)
+            if len(vals) != d:
+                raise ConfigError(f"initial.{name} must have {d} values ({'x, y, z' if d == 3 else 'x, z'}: the vessel is "
+                                  f"{'a 3-D tree' if d == 3 else 'planar'}), got {list(vals)}")
+        if bspline and self.reference.anchors_y_m and d != 3:
+            raise ConfigError(f"reference.anchors_y_m: a path in three dimensions needs a 3-D vessel tree "
+                              f"(physics.vessel.network giving y_m); this vessel is planar (XZ), "
+                              f"got anchors_y_m={list(self.reference.anchors_y_m)}")
+        if d == 3:
+            self._check_3d(bspline)
         if self.physics.vessel.network:
             self._check_network(bspline)
         elif bspline and self.reference.route_outlet:
@@ -261,13 +273,48 @@ class Scenario:
         except ConfigError as exc:
             raise ConfigError(f"model.overrides: {exc}") from None
 
+    @property
+    def dims(self) -> int:
+        """3 when ``physics.vessel.network`` is a 3-D tree (its file gives ``y_m``): the loop runs on (x, y, z);
+        else 2, the paper's plane (x, z)."""
+        if not self.physics.vessel.network:
+            return 2
+        try:
+            return 3 if load_network(self.physics.vessel.network).is_3d else 2
+        except ConfigError:
+            return 2  # the network check names the file and the cause
+
+    def _check_3d(self, bspline: bool) -> None:
+        """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
+        missing = []
+        if isinstance(self.observer, ObserverParams) and self.observer.kind != "high_gain":
+            missing.append(f"observer.kind {self.observer.kind!r} (the 3-D loop has observer (25), 'high_gain')")
+        if isinstance(self.controller, ControllerParams) and self.controller.kind != "backstepping":
+            missing.append(f"controller.kind {self.controller.kind!r} (the 3-D loop has law (24), 'backstepping')")
+        elif isinstance(self.controller, ControllerParams) and self.controller.duty_compensation != "none":
+            missing.append("controller.duty_compensation 'sequence'")
+        if self.sequence.mode != "continuous":
+            missing.append(f"sequence.mode {self.sequence.mode!r} (the 3-D loop images and propels continuously)")
+        if self.dbdt.mode != "off":
+            missing.append(f"dbdt.mode {self.dbdt.mode!r}")
+        if bspline and self.reference.timing == "flow_synchronised":
+            missing.append("reference.timing 'flow_synchronised'")
+        if bspline and any(self.reference.wall_follow):
+            missing.append("reference.wall_follow")
+        if missing:
+            raise ConfigError(f"a 3-D vessel tree ({self.physics.vessel.network}) does not take {missing[0]} yet")
+
     def _check_network(self, bspline: bool) -> None:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""
         try:
             net = load_network(self.physics.vessel.network)
-            require_planar(net, "the 2-D plant")
+            if not net.is_3d:
+                require_planar(net, "the 2-D plant")
         except ConfigError as exc:
             raise ConfigError(f"physics.vessel.network: {exc}") from None
+        if net.is_3d:
+            self._check_tree(net, bspline)
+            return
         if bspline and self.reference.route_outlet:
             if self.reference.route_outlet not in net.outlets:
                 raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
@@ -287,6 +334,30 @@ class Scenario:
             if v <= 0.0:
                 raise ConfigError(f"reference anchor {i} ({ref.anchors_x_m[i]!r}, {ref.anchors_z_m[i]!r}) must lie inside the "
                                   f"vessel network {net.name!r} ({-v:.6g} m outside the wall)")
+
+    def _check_tree(self, net: Any, bspline: bool) -> None:
+        """:meth:`_check_network` in a 3-D tree, against its centreline tubes (the meshed wall's lumen is theirs
+        up to the mesh's facets and the junctions' fillets; building its exact query costs tens of seconds)."""
+        if bspline and self.reference.route_outlet:
+            if self.reference.route_outlet not in net.outlets:
+                raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
+                                  f"({net.outlets}), got {self.reference.route_outlet!r}")
+            route_to_outlet(net, self.reference.route_outlet)
+        geom = NetworkGeometry3D(net)
+        s0 = float(geom.query(np.asarray(self.initial.p0_m))["sdist"][0])
+        if s0 <= 0.0:
+            raise ConfigError(f"initial.p0_m must lie inside the vessel network {net.name!r}, got {list(self.initial.p0_m)} "
+                              f"({-s0:.6g} m outside the wall)")
+        if not bspline:
+            return
+        pts = planned_reference(self).anchor_points()
+        if pts.shape[1] != 3:
+            raise ConfigError("reference.anchors_y_m must be given in a 3-D vessel tree (or reference.route_outlet set)")
+        sd = geom.query(pts)["sdist"]
+        for i, v in enumerate(sd):
+            if v <= 0.0:
+                raise ConfigError(f"reference anchor {i} {pts[i].tolist()} must lie inside the vessel network {net.name!r} "
+                                  f"({-v:.6g} m outside the wall)")
 
     def model_physics(self) -> PhysicsParams:
         """The controller's physics: ``physics`` with ``model.overrides`` applied."""

@@ -84,6 +84,10 @@ def _all_zero(values: tuple[float, ...]) -> bool:
     return not any(values)
 
 
+def _is_zero(value: float) -> bool:
+    return bool(value == 0)
+
+
 def _norm(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Euclidean norm of the rows of ``d`` ((..., 2) as (x, z) or (..., 3) as (x, y, z)).
 
@@ -222,6 +226,12 @@ class CfdParams:
             moves out by D eps / 2.
         picard_max_iterations: Cap on the Picard (Oseen) iterations.
         picard_tol: Relative change of the velocity at which Picard stops.
+        mesh_size_3d_m: A 3-D tree's solve (:mod:`vesselbot_ros.vessels.cfd3d`): largest tetrahedron edge in
+            the lumen (m); 0 (the default): 1.2 ``mesh_size_m``.
+        wall_elements_per_circle_3d: ... elements around a circumference of its wall; 0: 32.
+        grid_spacing_3d_m: ... spacing of the 3-D plant's grid of wall and flow samples
+            (:mod:`vesselbot_ros.vessels.plant_field3d`, m); 0: 0.1 mm.
+        The three 3-D keys are left out of :func:`~vesselbot_ros.config.to_mapping` (and every hash) at 0.
     """
 
     inlet_centreline_velocity_m_per_s: float = 0.025
@@ -232,9 +242,17 @@ class CfdParams:
     diameter_smoothing_m: float = 2.5e-4
     picard_max_iterations: int = 30
     picard_tol: float = 1.0e-9
+    mesh_size_3d_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: _is_zero})
+    wall_elements_per_circle_3d: int = dataclasses.field(default=0, metadata={OMIT_IF: _is_zero})
+    grid_spacing_3d_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: _is_zero})
 
     def __post_init__(self) -> None:
         check_positive("inlet_centreline_velocity_m_per_s", self.inlet_centreline_velocity_m_per_s)
+        check_range("mesh_size_3d_m", self.mesh_size_3d_m, 0.0, 0.01)
+        check_range("grid_spacing_3d_m", self.grid_spacing_3d_m, 0.0, 0.002)
+        if self.wall_elements_per_circle_3d != 0 and not 6 <= self.wall_elements_per_circle_3d <= 128:
+            raise ConfigError(f"wall_elements_per_circle_3d must be 0 (32) or in [6, 128], "
+                              f"got {self.wall_elements_per_circle_3d!r}")
         check_positive("mesh_size_m", self.mesh_size_m)
         check_positive("grid_spacing_m", self.grid_spacing_m)
         check_range("grid_margin_m", self.grid_margin_m, 0.0, 0.1)
@@ -308,6 +326,12 @@ class VesselNetworkParams:
     def is_planar(self) -> bool:
         """True if every branch lies in the plane y = 0: the network the 2-D consumers take."""
         return all(b.is_planar for b in self.branches)
+
+    @property
+    def is_3d(self) -> bool:
+        """True if the file writes the tree in three dimensions (some branch gives ``y_m``, even all zero): the
+        network the 3-D plant takes (:mod:`vesselbot_ros.vessels.plant_field3d`); the planar plant takes the others."""
+        return any(b.y_m for b in self.branches)
 
     @property
     def root(self) -> BranchParams:

@@ -1,0 +1,310 @@
+"""What the 3-D plant reads of a vessel tree: the meshed wall and the steady 3-D flow, on one regular grid.
+
+A 3-D network (:attr:`~vesselbot_ros.vessels.network.VesselNetworkParams.is_3d`: its file gives ``y_m``) is
+solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries viscosity, the network's
+``cfd.outlet_split`` imposed at the outlets) and sampled for the plant:
+
+* the wall: the solve's tetrahedral mesh's boundary without its inlet and outlet caps, a triangulated surface
+  whose exact signed distance, smooth inward normal and local (ball) diameter
+  :mod:`vesselbot_ros.physics.meshed_wall3d` answers, sampled on the grid by
+  :mod:`vesselbot_ros.physics.wall_field3d` (within 1 mm of the wall: 5 um and 2 deg, the exact query in the
+  cells interpolation cannot answer);
+* the flow: the P2 velocity at the grid's nodes, normalised to an inlet centreline velocity of 1 (the plant
+  scales it by ``physics.flow.centreline_velocity_m_per_s`` and the pulse (12), as the planar network's),
+  zero outside the mesh; the blood viscosity at each node is Pries' at the node's local diameter.
+
+Grid: spacing ``cfd.grid_spacing_3d_m`` (0: 0.1 mm), nodes on multiples of it, round the wall with a margin
+of 0.3 mm plus two spacings.
+
+Shipped, cached, or solved.  The samples (wall triangles, caps, grid, flow) of a tree and blood model are one
+file, ``<network>-<key>.3d.npz``: shipped with the scenarios' networks in ``config/cfd/``, else cached in
+:func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
+them (tens of seconds) is cached beside them (``.wall.npz``, not shipped: tens of megabytes).  A torn or
+foreign file is solved or built again; a failed solve caches nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import ConfigError, to_mapping
+from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.kernel import pack_params
+from vesselbot_ros.physics.meshed_wall3d import Wall3D
+from vesselbot_ros.physics.params import BloodParams, PhysicsParams
+from vesselbot_ros.physics.wall_field3d import build_wall_field3d, grid_box
+from vesselbot_ros.vessels import cfd3d
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
+
+__all__ = ["PlantField3D", "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
+           "WallArrays",
+           "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
+
+#: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
+FIELD3D_VERSION = 1
+#: The grid's margin round the wall (m), plus two spacings.
+GRID_MARGIN_M = 3.0e-4
+#: Default spacing of the plant's grid (m).
+DEFAULT_SPACING_M = 1.0e-4
+
+Array = npt.NDArray[np.float64]
+
+
+def flow_settings(net: VesselNetworkParams) -> cfd3d.Flow3DSettings:
+    """The 3-D solve of ``net`` as its ``cfd`` block sets it (module docstring)."""
+    c = net.cfd
+    return cfd3d.Flow3DSettings(
+        inlet_centreline_velocity_m_per_s=c.inlet_centreline_velocity_m_per_s,
+        mesh_size_m=c.mesh_size_3d_m if c.mesh_size_3d_m > 0.0 else 1.2 * c.mesh_size_m,
+        wall_elements_per_circle=c.wall_elements_per_circle_3d or 32,
+        outlets=c.outlet_split,
+        picard_max_iterations=c.picard_max_iterations)
+
+
+def grid_spacing_m(net: VesselNetworkParams) -> float:
+    """Spacing (m) of the plant's grid of ``net``."""
+    return net.cfd.grid_spacing_3d_m if net.cfd.grid_spacing_3d_m > 0.0 else DEFAULT_SPACING_M
+
+
+def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
+    """The samples' key: sha256 of the tree, its solve settings, the grid, the blood model and the version."""
+    tree = cfd3d.tree_from_network(net)
+    text = json.dumps({"tree": dataclasses.asdict(tree), "settings": dataclasses.asdict(flow_settings(net)),
+                       "h": grid_spacing_m(net), "blood": to_mapping(blood), "v": FIELD3D_VERSION}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+@dataclasses.dataclass
+class WallArrays:
+    """The compiled wall lookup's arrays (:func:`~vesselbot_ros.physics.wall_field3d.wall_field3d`'s ``args``)."""
+
+    args: tuple[npt.NDArray[Any], ...]
+    stats: dict[str, float]
+
+
+@dataclasses.dataclass
+class PlantField3D:
+    """The samples of one tree (module docstring).
+
+    Attributes:
+        name: The network's name.  key: :func:`field_key`.
+        vertices: (n, 3) wall vertices (m).  triangles: (k, 3) wall triangles (caps excluded).
+        caps: cap name -> (centre (3,), unit outward normal (3,), radius m).
+        origin: (3,) grid origin (m).  h: spacing (m).  shape: (nx, ny, nz) nodes.
+        velocity: (nz, ny, nx, 3) float32 velocity per unit inlet centreline velocity (-).
+        meta: the solve's figures.
+    """
+
+    name: str
+    key: str
+    vertices: Array
+    triangles: npt.NDArray[np.int64]
+    caps: dict[str, tuple[Array, Array, float]]
+    origin: Array
+    h: float
+    shape: tuple[int, int, int]
+    velocity: npt.NDArray[np.float32]
+    meta: dict[str, Any]
+
+    def save(self, path: Path) -> None:
+        """Write atomically (temporary file, then rename)."""
+        caps = {k: [c.tolist(), n.tolist(), r] for k, (c, n, r) in self.caps.items()}
+        info = {"name": self.name, "key": self.key, "h": self.h, "shape": list(self.shape), "caps": caps,
+                "meta": self.meta, "v": FIELD3D_VERSION}
+        _atomic_savez(path, True, vertices=self.vertices, triangles=self.triangles.astype(np.int32),
+                      origin=self.origin, velocity=self.velocity, info=np.array(json.dumps(info)))
+
+    @classmethod
+    def load(cls, path: Path) -> PlantField3D:
+        """Read a file :meth:`save` wrote (ValueError / KeyError / OSError if it is not one)."""
+        with np.load(path) as z:
+            info = json.loads(str(z["info"]))
+            if info.get("v") != FIELD3D_VERSION:
+                raise ValueError(f"{path}: version {info.get('v')!r}, not {FIELD3D_VERSION}")
+            shape = tuple(int(v) for v in info["shape"])
+            vel = np.ascontiguousarray(z["velocity"], dtype=np.float32)
+            if vel.shape != (shape[2], shape[1], shape[0], 3):
+                raise ValueError(f"{path}: velocity {vel.shape} does not fit the grid {shape}")
+            caps = {k: (np.array(c, dtype=np.float64), np.array(n, dtype=np.float64), float(r))
+                    for k, (c, n, r) in info["caps"].items()}
+            return cls(info["name"], info["key"], np.asarray(z["vertices"], dtype=np.float64),
+                       np.asarray(z["triangles"], dtype=np.int64), caps, np.asarray(z["origin"], dtype=np.float64),
+                       float(info["h"]), (shape[0], shape[1], shape[2]), vel, info["meta"])
+
+    @functools.cached_property
+    def wall(self) -> Wall3D:
+        """The exact wall, its candidate tree covering the grid."""
+        return Wall3D(self.vertices, self.triangles, list(self.caps.values()), margin_m=GRID_MARGIN_M + 4.0 * self.h)
+
+    def viscosity(self, blood: BloodParams, diameter_m: Array) -> Array:
+        """Pries' viscosity (Pa s) of ``blood`` at local diameters (m)."""
+        d = np.asarray(diameter_m, dtype=np.float64)
+        uniq, inv = np.unique(np.round(d, 7), return_inverse=True)
+        return np.array([viscosity_for(blood, float(max(v, 1e-6))) for v in uniq])[inv].reshape(d.shape)
+
+
+def _atomic_savez(path: Path, compressed: bool, **arrays: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    os.close(fd)
+    try:
+        with open(tmp, "wb") as fh:
+            (np.savez_compressed if compressed else np.savez)(fh, **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def shipped_dir() -> Path:
+    """Where the shipped networks' samples live (the 2-D fields' folder, ``config/cfd``)."""
+    from vesselbot_ros.vessels.cfd import shipped_field_dir  # deferred: cfd imports the planar kernel; only its folder is needed
+
+    return shipped_field_dir()
+
+
+def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
+    """The mesh's boundary triangles that are not on a cap (a cap: in its plane, within 1.05 of its radius)."""
+    m = sol.mesh
+    tri = np.asarray(m.facets[:, m.boundary_facets()].T, dtype=np.int64)
+    cen = m.p.T[tri].mean(axis=1)
+    on_cap = np.zeros(len(tri), dtype=bool)
+    for c, n, r in sol.caps.values():
+        d = cen - c
+        along = d @ n
+        rad = np.sqrt(np.maximum(np.einsum("ij,ij->i", d, d) - along ** 2, 0.0))
+        on_cap |= (np.abs(along) < 1e-3 * r) & (rad < 1.05 * r)
+    return tri[~on_cap]
+
+
+def _sample(net: VesselNetworkParams, blood: BloodParams, key: str) -> PlantField3D:
+    """Solve (or read the cached solve) and sample (module docstring)."""
+    t0 = time.perf_counter()
+    settings = flow_settings(net)
+    sol, _path = cfd3d.solve_tree_cached(cfd3d.tree_from_network(net), settings, blood)
+    tri = _wall_triangles(sol)
+    used, inv = np.unique(tri, return_inverse=True)
+    verts = np.ascontiguousarray(sol.mesh.p.T[used])
+    tri = inv.reshape(-1, 3).astype(np.int64)
+    h = grid_spacing_m(net)
+    origin, shape = grid_box(verts.min(axis=0), verts.max(axis=0), h, GRID_MARGIN_M + 2.0 * h)
+    nx, ny, nz = shape
+    g = np.stack(np.meshgrid(origin[0] + h * np.arange(nx), origin[1] + h * np.arange(ny),
+                             origin[2] + h * np.arange(nz), indexing="ij"), axis=-1)  # (nx, ny, nz, 3)
+    pts = g.transpose(2, 1, 0, 3).reshape(-1, 3)  # x fastest
+    vel, _p, _ok = cfd3d.evaluate(sol, pts)
+    vel = (vel / settings.inlet_centreline_velocity_m_per_s).reshape(nz, ny, nx, 3).astype(np.float32)
+    meta = {"solve": sol.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
+            "nodes": int(nx * ny * nz)}
+    return PlantField3D(net.name, key, verts, tri, dict(sol.caps), origin, h, (nx, ny, nz), vel, meta)
+
+
+@functools.lru_cache(maxsize=8)
+def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, refresh: bool = False) -> PlantField3D:
+    """The samples of ``net`` for ``blood`` (default: the shipped scenarios' blood): shipped, cached, or solved.
+
+    Raises:
+        ConfigError: ``net`` is not written in 3-D (the planar plant takes it).
+    """
+    if not net.is_3d:
+        raise ConfigError(f"vessel network {net.name!r} gives no y_m: the planar plant takes it, not the 3-D one")
+    blood = blood if blood is not None else BloodParams()
+    key = field_key(net, blood)
+    name = f"{net.name}-{key}.3d.npz"
+    cached = cfd3d.cache_dir() / name
+    for found in () if refresh else (shipped_dir() / name, cached):
+        if found.is_file():
+            try:
+                return PlantField3D.load(found)
+            except (OSError, ValueError, KeyError):
+                pass  # a torn or foreign file: solve again
+    fld = _sample(net, blood, key)
+    fld.save(cached)
+    return fld
+
+
+@functools.lru_cache(maxsize=8)
+def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> WallArrays:
+    """The compiled wall lookup's arrays of ``net``: read from the cache, or built (tens of seconds) and cached."""
+    fld = plant_field(net, blood)
+    path = cfd3d.cache_dir() / f"{fld.name}-{fld.key}.wall.npz"
+    names = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
+    if path.is_file():
+        try:
+            with np.load(path) as z:
+                args = tuple(np.ascontiguousarray(z[n]) for n in names)
+                stats = json.loads(str(z["stats"]))
+            return WallArrays(args, stats)
+        except (OSError, ValueError, KeyError):
+            pass  # a torn or foreign file: build again
+    wf = build_wall_field3d(fld.wall, h_m=fld.h, origin_m=fld.origin, shape=fld.shape)
+    _atomic_savez(path, False, stats=np.array(json.dumps(wf.stats)), **dict(zip(names, wf.args, strict=True)))
+    return WallArrays(tuple(wf.args), wf.stats)
+
+
+def wall_mesh(net: VesselNetworkParams, blood: BloodParams | None = None) -> tuple[Array, npt.NDArray[np.int64]]:
+    """(vertices (n, 3) m, triangles (k, 3)) of the wall the 3-D plant sees (caps excluded): what a view draws."""
+    fld = plant_field(net, blood)
+    return fld.vertices, fld.triangles
+
+
+@dataclasses.dataclass(frozen=True)
+class Packed3D:
+    """The 3-D plant's compiled inputs (:mod:`vesselbot_ros.physics.plant3d`): physics, wall, flow.
+
+    Attributes:
+        p: The packed physical parameters (:func:`~vesselbot_ros.physics.kernel.pack_params` of the physics
+            with the network left out: the geometry comes from ``W``, ``F``).
+        W: The wall lookup's nine arrays.  F: (nz, ny, nx, 4) ``(vx, vy, vz, eta)`` per node (-, Pa s).
+        fh: (7,) ``(x0, y0, z0, h, nx, ny, nz)``.
+    """
+
+    p: Array
+    W: tuple[npt.NDArray[Any], ...]
+    F: Array
+    fh: Array
+
+
+def planar_twin(params: PhysicsParams) -> PhysicsParams:
+    """``params`` without its network: what the kernel's packed head and the input matrix read."""
+    return dataclasses.replace(params, vessel=dataclasses.replace(params.vessel, network=""))
+
+
+@functools.lru_cache(maxsize=16)
+def _flow_grid(net: VesselNetworkParams, blood: BloodParams) -> tuple[Array, Array]:
+    fld = plant_field(net, blood)
+    wa = wall_arrays(net, blood)
+    nx, ny, nz = fld.shape
+    diam = np.asarray(wa.args[1], dtype=np.float64).reshape(nz, ny, nx, -1)[..., 4]
+    F = np.empty((nz, ny, nx, 4))
+    F[..., :3] = fld.velocity
+    F[..., 3] = fld.viscosity(blood, diam)
+    F.setflags(write=False)
+    fh = np.array([*fld.origin, fld.h, nx, ny, nz], dtype=np.float64)
+    return F, fh
+
+
+@functools.lru_cache(maxsize=64)
+def packed3d(params: PhysicsParams) -> Packed3D:
+    """The compiled inputs of ``params``, whose ``vessel.network`` is a 3-D tree (cached per frozen params).
+
+    Raises:
+        ConfigError: the network is not written in 3-D.
+    """
+    net = load_network(params.vessel.network)
+    if not net.is_3d:
+        raise ConfigError(f"physics.vessel.network: {net.name!r} gives no y_m: the planar plant takes it")
+    wa = wall_arrays(net, params.blood)
+    F, fh = _flow_grid(net, params.blood)
+    return Packed3D(pack_params(planar_twin(params)), wa.args, F, fh)
