@@ -211,3 +211,90 @@ def test_tracking_windows_come_from_the_phase_rows_clipped_to_the_run():
     assert tracking_windows({"phase.phase": np.array([0]), "phase.window_start_s": np.array([0.0]),
                              "phase.window_end_s": np.array([np.inf])}, 1.0) == []  # continuous: nothing to shade
     assert tracking_windows({}, 1.0) == []  # a bag from before the scanner
+
+
+# -- a 3-D vessel tree: Fig. 9a as two projections ------------------------------------------------------------------
+
+def _y(t):
+    """The 3-D bag's robot y (m): a swing out of the plane."""
+    return 1.5e-3 * np.sin(2 * np.pi * t)
+
+
+def _write_3d_bag(path, n_ticks, network="carotid_bifurcation_3d", outlet="ica"):
+    """The synthetic graph's ticks with y: the robot at y(t), the reference at 0.9 y(t), the estimate at y(t) + 6 um."""
+    from rclpy.serialization import serialize_message
+
+    from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
+    from vesselbot_ros.bag.writer import BagWriter
+    from vesselbot_ros.graph_spec import TOPICS, topic
+
+    meta = {"scenario": "synthetic_3d", "seed": 1, "mode": "lockstep",
+            "config": {"sim": {"control_rate_Hz": 1000.0}, "physics": {"vessel": {"network": network}},
+                       "reference": {"route_outlet": outlet}}}
+    bag = BagWriter(path, run_metadata=meta).open()
+    conns = {s.name: bag.add_topic(s.name, s.msgtype, latched=s.qos == "reliable_latched", depth=s.depth)
+             for s in TOPICS}
+    t0 = 1_700_000_000_000_000_000
+    for name, msg in latched_messages():
+        bag.write(conns[name], serialize_message(msg), t0)
+    for k in range(n_ticks):
+        y = _y(k * 1e-3)
+        for name, msg in tick_messages(k):
+            if name == topic("truth").name:
+                msg.position.y = y
+            elif name == topic("reference").name:
+                msg.position.y = 0.9 * y
+            elif name == topic("estimate").name:
+                msg.pose.pose.position.y = y + 6e-6
+            bag.write(conns[name], serialize_message(msg), t0 + k * 1_000_000)
+    bag.finish()
+
+
+def test_a_3d_tree_run_gets_xz_and_xy_projections_of_its_tubes_and_paths(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from vesselbot_ros.bag.reader import read_timeseries
+    from vesselbot_ros.bag.report import metrics_timeseries, positions_3d, tree_trajectory
+
+    _write_3d_bag(tmp_path / "b", 400)
+    metrics = write_report(tmp_path / "b", tmp_path / "rep")
+    assert (tmp_path / "rep" / FIGURES[0]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "navigation_note" in metrics and "branch_final" not in metrics  # the planar wall cannot hold the carotid
+    ts = read_timeseries(tmp_path / "b")
+    m, p = metrics_timeseries(ts, dt_s=1e-3), positions_3d(ts)
+    # the same ticks; (x, z) as the metrics take them, y besides
+    assert np.array_equal(p["p_true"][:, [0, 2]], m["p_true"]) and np.array_equal(p["p_ref"][:, [0, 2]], m["p_ref"])
+    assert np.array_equal(p["p_true"][:, 1], _y(m["t_s"])) and np.array_equal(p["x_hat"][:, 1], _y(m["t_s"]) + 6e-6)
+    fig = tree_trajectory(m["t_s"], p, "carotid_bifurcation_3d", metrics)
+    xz, xy = fig.axes
+    assert (xz.get_ylabel(), xy.get_ylabel()) == ("z (mm)", "y (mm)")
+    assert "projected on XZ" in xz.get_title() and "XY" in xy.get_title()
+    for ax, col in ((xz, 2), (xy, 1)):
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        assert set(lines) >= {"robot", "reference", "estimate", "every 0.25 s"}
+        assert np.array_equal(lines["robot"].get_xdata(), p["p_true"][:, 0] * 1e3)
+        assert np.array_equal(lines["robot"].get_ydata(), p["p_true"][:, col] * 1e3)
+        assert np.array_equal(lines["reference"].get_ydata(), p["p_ref"][:, col] * 1e3)
+        assert {a.get_text() for a in ax.texts} == {"cca", "ica", "eca"}  # every branch's tube, named
+        x_lo, x_hi = ax.get_xlim()
+        assert x_lo < -40.0 and x_hi > 30.0  # the whole tree: the CCA from x = -40 mm, the ICA to 29 mm
+    # the XY panel shows the tree leaving the plane: the ICA's and ECA's tubes reach y = -3.5 mm - 2.8 mm
+    assert xy.dataLim.y0 < -6.0
+
+
+def test_a_planar_network_given_with_y_keeps_its_navigation_outcome(tmp_path, monkeypatch):
+    """paper_iiic_artery_3d (y_m all 0) is a 3-D tree in the plane: both projections, and the planar wall's outcome."""
+    from vesselbot_ros.bag import report
+
+    seen = {}
+
+    def outcome(network, outlet, t, p_true, blood=None):
+        seen["args"] = (network, outlet, p_true.shape)
+        return {"branch_final": "trunk_a", "reached_target": False, "route_outlet": outlet}
+
+    monkeypatch.setattr(report, "navigation_outcome", outcome)  # the planar field would be a CFD solve
+    _write_3d_bag(tmp_path / "b", 300, network="paper_iiic_artery_3d", outlet="lower")
+    metrics = write_report(tmp_path / "b", tmp_path / "rep")
+    assert seen["args"] == ("paper_iiic_artery_3d", "lower", (300, 2)) and metrics["branch_final"] == "trunk_a"
+    assert "navigation_note" not in metrics
