@@ -222,32 +222,23 @@ def _y(t):
 
 def _write_3d_bag(path, n_ticks, network="carotid_bifurcation_3d", outlet="ica"):
     """The synthetic graph's ticks with y: the robot at y(t), the reference at 0.9 y(t), the estimate at y(t) + 6 um."""
-    from rclpy.serialization import serialize_message
+    import conftest
 
-    from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
-    from vesselbot_ros.bag.writer import BagWriter
-    from vesselbot_ros.graph_spec import TOPICS, topic
+    from vesselbot_ros.graph_spec import topic
+
+    def with_y(k, name, msg):
+        y = _y(k * 1e-3)
+        if name == topic("truth").name:
+            msg.position.y = y
+        elif name == topic("reference").name:
+            msg.position.y = 0.9 * y
+        elif name == topic("estimate").name:
+            msg.pose.pose.position.y = y + 6e-6
 
     meta = {"scenario": "synthetic_3d", "seed": 1, "mode": "lockstep",
             "config": {"sim": {"control_rate_Hz": 1000.0}, "physics": {"vessel": {"network": network}},
                        "reference": {"route_outlet": outlet}}}
-    bag = BagWriter(path, run_metadata=meta).open()
-    conns = {s.name: bag.add_topic(s.name, s.msgtype, latched=s.qos == "reliable_latched", depth=s.depth)
-             for s in TOPICS}
-    t0 = 1_700_000_000_000_000_000
-    for name, msg in latched_messages():
-        bag.write(conns[name], serialize_message(msg), t0)
-    for k in range(n_ticks):
-        y = _y(k * 1e-3)
-        for name, msg in tick_messages(k):
-            if name == topic("truth").name:
-                msg.position.y = y
-            elif name == topic("reference").name:
-                msg.position.y = 0.9 * y
-            elif name == topic("estimate").name:
-                msg.pose.pose.position.y = y + 6e-6
-            bag.write(conns[name], serialize_message(msg), t0 + k * 1_000_000)
-    bag.finish()
+    conftest.write_synthetic_bag(path, n_ticks, run_metadata=meta, edit=with_y)
 
 
 def test_a_3d_tree_run_gets_xz_and_xy_projections_of_its_tubes_and_paths(tmp_path):
