@@ -10,7 +10,9 @@ latest bytes are kept, and decoded only when a view update is due):
 * ``view/markers`` (``visualization_msgs/MarkerArray``, a standard message
   Foxglove's 3D panel draws): in the straight vessel both walls at +/- D(t)/2
   as they pulse (a vessel network's meshed wall is the plant's latched
-  ``vessel_markers``, drawn once, so the view adds no straight walls there),
+  ``vessel_markers``, drawn once, so the view adds no straight walls there,
+  and deletes those it drew before the plant's markers came: they arrive on
+  a topic of their own, a large 3-D mesh after the first ticks' messages),
   the robot (its true radius, from the wall gaps), the estimate, the applied
   gradient as an arrow from the robot (2 mm at the coil limit), and the
   reference path, each where its message puts it: in the plane y = 0 in a
@@ -125,6 +127,7 @@ class DerivedView:
         self._path_wall = -math.inf
         #: True once the plant's vessel markers show a vessel network (then the view draws no straight walls).
         self.network = False
+        self._walls_drawn = False  # straight walls sent (a viewer keeps them until they are deleted)
 
     def offer(self, name: str, data: bytes, t_ns: int) -> None:
         """A message of topic ``name`` (canonical name) arrived; maybe emit a view update."""
@@ -169,7 +172,11 @@ class DerivedView:
         with_path = now - self._path_wall >= PATH_PERIOD_S
         if with_path:
             self._path_wall = now
-        self._send("view_markers", serialize_message(self.markers(sn, truth.header, with_path)), t_ns)
+        scene = self.markers(sn, truth.header, with_path)
+        if self.network and self._walls_drawn:  # drawn before the plant's markers showed a network: delete them
+            scene.markers[:0] = [self._deleted(name, truth.header) for name in ("upper_wall", "lower_wall")]
+        self._walls_drawn = not self.network
+        self._send("view_markers", serialize_message(scene), t_ns)
         errors = {"t_s": sn.t_s, "gradient_norm_T_per_m": math.hypot(*sn.gradient)}
         if not math.isnan(sn.gradient_limit):
             errors["gradient_limit_T_per_m"] = sn.gradient_limit
@@ -178,6 +185,16 @@ class DerivedView:
         if sn.estimation_error_m is not None:
             errors["estimation_error_m"] = sn.estimation_error_m
         self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
+
+    @staticmethod
+    def _deleted(ns: str, header: Any) -> Any:
+        """A marker that deletes the view's marker ``ns`` (id 0) from a viewer."""
+        # deferred: ROS message packages (see _decode)
+        from visualization_msgs.msg import Marker
+
+        m = Marker(header=header, ns=ns, id=0, action=Marker.DELETE)
+        m.header.frame_id = FRAME_ID
+        return m
 
     def markers(self, sn: SceneNumbers, header: Any, with_path: bool = True) -> Any:
         """The MarkerArray of one view update (the reference path only ``with_path``)."""

@@ -42,6 +42,7 @@ RUN_NETWORK_3D = "carotid_bifurcation_3d"
 #: What view/markers must show in a network (no straight walls).
 VIEW_NAMESPACES = ("robot", "estimate", "gradient", "reference_path")
 TRIANGLE_LIST, LINE_STRIP, SPHERE, ARROW = 11, 4, 2, 0  # visualization_msgs/Marker types
+DELETE = 2  # visualization_msgs/Marker action
 
 
 def _peer_scene(ros: Any, tmp: Path, network: str) -> tuple[Any, Path]:
@@ -128,9 +129,11 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
     lines = {b.name: scene["vessel"][f"{b.name}/centreline"] for b in net.branches}
     assert all(c["type"] == LINE_STRIP and c["frame_id"] == FRAME_ID for c in lines.values())
     assert [c["y_abs_max"] > 0 for c in lines.values()] == [not b.is_planar for b in net.branches]
-    # the view: no straight walls in a network; the route in 3-D, every point as recorded
+    # the view: no straight walls in a network (those drawn before the plant's markers came, deleted); the
+    # route in 3-D, every point as recorded
     view = scene["view"]
-    assert set(VIEW_NAMESPACES) <= set(view) and not {"upper_wall", "lower_wall"} & set(view)
+    assert set(VIEW_NAMESPACES) <= set(view)
+    assert all(view[ns]["action"] == DELETE for ns in {"upper_wall", "lower_wall"} & set(view))
     path = view["reference_path"]
     assert (path["type"], path["frame_id"], path["n_points"]) == (LINE_STRIP, FRAME_ID, len(rec["path"]))
     assert path["points_sum"] == _sums(rec["path"]) and path["y_abs_max"] > 1e-4

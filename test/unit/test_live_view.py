@@ -193,3 +193,30 @@ def test_layout_opens_a_side_view_that_orbits_and_shows_a_networks_wall():
     vessel = panel["topics"][topic("vessel_markers").name]
     assert vessel["visible"] is True
     assert {ns for ns, s in vessel["namespaces"].items() if not s["visible"]} == {"upper_wall", "lower_wall"}
+
+
+def test_straight_walls_drawn_before_the_plants_markers_show_a_network_are_deleted_once():
+    """The plant's markers come on a topic of their own (a 3-D tree's mesh is large): updates before them draw
+    the straight walls, which a viewer keeps until deleted."""
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import deserialize_message, serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from vesselbot_ros.live_view import DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+
+    sent = []
+    view = DerivedView(lambda key, data, t: sent.append(deserialize_message(data, MarkerArray))
+                       if key == "view_markers" else None)
+    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0),
+                                                                  3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
+                                                                  [(0.0, 0.0)] * 8))
+    view.emit(5)
+    mesh = MarkerArray(markers=[cv.wall_mesh_marker([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0, 1, 2]])])
+    view.offer(topic("vessel_markers").name, serialize_message(mesh), 0)
+    view.emit(5)
+    view.emit(5)
+    walls = [[(m.ns, m.action) for m in arr.markers if m.ns.endswith("_wall")] for arr in sent]
+    assert walls == [[("upper_wall", Marker.ADD), ("lower_wall", Marker.ADD)],
+                     [("upper_wall", Marker.DELETE), ("lower_wall", Marker.DELETE)], []]
+    assert all(m.header.frame_id == "vessel" for m in sent[1].markers)
