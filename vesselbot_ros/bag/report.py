@@ -642,18 +642,17 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
 
     net = _run_network(run)
     tree = load_network(net[0]) if net is not None else None
-    if net is not None and tree is not None and tree.is_planar:
-        # the meshed wall, read from the run's own field (no solve for another blood model)
-        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"], blood=_run_blood(run)))
-    elif tree is not None:
-        metrics["navigation_note"] = ("a tree that leaves the plane y = 0: branch reached and time outside the lumen "
-                                      "are not computed (the planar network's wall does not hold it)")
+    p3 = positions_3d(ts) if tree is not None and tree.is_3d else None
+    if net is not None:
+        # the meshed wall, read from the run's own field (no solve for another blood model); a 3-D tree's in 3-D
+        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"] if p3 is None else p3["p_true"],
+                                          blood=_run_blood(run)))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
     recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
     slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)
     figures = {
         FIGURES[0]: (fig9a_trajectory(t, m) if net is None
-                     else tree_trajectory(t, positions_3d(ts), net[0], metrics) if tree is not None and tree.is_3d
+                     else tree_trajectory(t, p3, net[0], metrics) if p3 is not None
                      else network_trajectory(t, m, net[0], metrics)),
         FIGURES[1]: fig9b_errors(t, m, spans, after_s),
         FIGURES[2]: fig10a_gradients(t, m, spans, slew_limit),
