@@ -20,6 +20,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
@@ -28,11 +29,11 @@ from _runs import free_port, last_json, node_client, run_cmd  # noqa: E402
 from vesselbot_ros.bag.reader import iter_messages, open_bag  # noqa: E402
 from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS, topic  # noqa: E402
 from vesselbot_ros.live_view import ARROW_AT_LIMIT_M  # noqa: E402
-from vesselbot_ros.nodes.plant_node import _wall_mesh_3d  # noqa: E402
 from vesselbot_ros.nodes.recorder_node import recorder_command  # noqa: E402
 from vesselbot_ros.physics.params import BloodParams  # noqa: E402
 from vesselbot_ros.testing import NodeProcess  # noqa: E402
 from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network  # noqa: E402
+from vesselbot_ros.vessels.plant_field3d import wall_mesh  # noqa: E402
 
 PEER = Path(__file__).with_name("scene3d_peer.py")
 #: A scenario whose vessel network is a 3-D tree, for ``vesselbot run --config`` (None: the peer stands in).
@@ -96,6 +97,18 @@ def _recorded(bag: Path) -> dict[str, Any]:
     return out
 
 
+def _near(by_stamp: dict[int, Any], stamp: int, ticks: int = 2) -> list[Any]:
+    """The messages within ``ticks`` ticks of ``stamp``, nearest first.
+
+    The view takes the latest message of each topic when the coil state closes a tick, and the recorder's
+    subscriptions are one per topic: the reference or coil state it holds may be of the tick before or after
+    the truth's (and the peer, stopped, may not have sent the truth's own).
+    """
+    stamps = sorted(by_stamp)
+    tick_ns = int(np.diff(stamps).min())
+    return [by_stamp[s] for s in sorted(stamps, key=lambda s: abs(s - stamp)) if abs(s - stamp) <= ticks * tick_ns]
+
+
 def _xyz(p: Any) -> list[float]:
     return [p.x, p.y, p.z]
 
@@ -117,7 +130,7 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
     assert net.is_3d
     # the plant's wall: one TRIANGLE_LIST of the expected triangles, translucent, every point as recorded
     wall, wall_rec = scene["vessel"][NETWORK_WALL_NS], rec["vessel"][NETWORK_WALL_NS]
-    n_tris = len(_wall_mesh_3d(net, BloodParams())[1])
+    n_tris = len(wall_mesh(net, BloodParams())[1])  # the wall the 3-D plant computes with
     assert (wall["type"], wall["frame_id"], wall["n_colors"]) == (TRIANGLE_LIST, FRAME_ID, 0)
     assert wall["n_points"] == 3 * n_tris == len(wall_rec.points)
     assert wall["points_head"] == [_xyz(p) for p in wall_rec.points[:6]]
@@ -152,24 +165,26 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
     assert view["estimate"]["type"] == SPHERE and len(view["estimate"]["position"]) == 3
     arrow = view["gradient"]
     stamp = int(arrow["stamp"])
-    g, limit = _xyz(rec["truth"][stamp].applied_gradient), rec["coil"][stamp].max_gradient
+    g = _xyz(rec["truth"][stamp].applied_gradient)
     a, b = arrow["points_head"]
     assert arrow["type"] == ARROW and a == _xyz(rec["truth"][stamp].position)
-    assert [bi - ai for ai, bi in zip(a, b)] == pytest.approx([ARROW_AT_LIMIT_M * gi / limit for gi in g], rel=1e-9)
+    assert any([bi - ai for ai, bi in zip(a, b)] == pytest.approx([ARROW_AT_LIMIT_M * gi / c.max_gradient for gi in g],
+                                                                  rel=1e-9) for c in _near(rec["coil"], stamp))
     # the errors are 3-D norms (the reference's y counts)
     errors = [e for e in got["views"]["errors"] if "tracking_error_m" in e]
     assert errors
     for e in errors:
         stamp = round(e["t_s"] * 1e9)
-        p, ref = rec["truth"][stamp].position, rec["reference"][stamp].position
-        assert e["tracking_error_m"] == pytest.approx(math.dist(_xyz(p), _xyz(ref)), rel=1e-12)
+        p = _xyz(rec["truth"][stamp].position)
+        assert any(e["tracking_error_m"] == pytest.approx(math.dist(p, _xyz(r.position)), rel=1e-12)
+                   for r in _near(rec["reference"], stamp))
         assert e["gradient_norm_T_per_m"] == pytest.approx(math.hypot(*_xyz(rec["truth"][stamp].applied_gradient)),
                                                            rel=1e-12)
 
 
 @pytest.mark.parametrize("network", ["carotid_bifurcation_3d", "synthetic_tree_3d"])
 def test_foxglove_client_sees_the_3d_wall_route_and_robot(ros, tmp_path, network):
-    """A 3-D tree's scene, as Foxglove receives it (synthetic_tree_3d: the largest wall, 11 000 triangles, 0.8 MB)."""
+    """A 3-D tree's scene, as Foxglove receives it (synthetic_tree_3d: the largest wall, 22 958 triangles, 1.7 MB)."""
     if RUN_SCENARIO_3D is not None:
         if network != RUN_NETWORK_3D:
             pytest.skip(f"the real run's network is {RUN_NETWORK_3D}")

@@ -212,14 +212,16 @@ def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
     from visualization_msgs.msg import Marker
 
     from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
-    from vesselbot_ros.nodes.plant_node import _wall_mesh_3d
-    from vesselbot_ros.physics.params import BloodParams
+    from vesselbot_ros.vessels import cfd3d
     from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
 
     net = load_network("carotid_bifurcation_3d")
     geom = NetworkGeometry3D(net)
-    v, t = _wall_mesh_3d(net, BloodParams())
-    assert v.shape[1] == 3 and t.shape[1] == 3 and len(np.unique(t)) == len(v)  # only the wall's vertices
+    # a coarse mesh of the tree's lumen (a second: no flow solve), its wall's triangles
+    meshed = cfd3d.mesh_tree(cfd3d.tree_from_network(net), cfd3d.settings_from_network(
+        net, mesh_size_m=1.5e-3, wall_elements_per_circle=16))
+    used, local = np.unique(meshed.boundaries["wall"], return_inverse=True)
+    v, t = meshed.points[used], local.reshape(-1, 3)
     ms = cv.network_markers_3d(geom, v, t, 2.5e-4).markers
     wall = ms[0]
     assert (wall.ns, wall.type, wall.header.frame_id) == (NETWORK_WALL_NS, Marker.TRIANGLE_LIST, FRAME_ID)

@@ -153,7 +153,12 @@ def test_a_network_with_y_gets_its_wall_mesh_and_a_planar_one_its_meshed_wall_se
     assert (wall.ns, wall.type) == (NETWORK_WALL_NS, Marker.TRIANGLE_LIST)
     y = np.array([p.y for p in wall.points])
     assert y.min() == pytest.approx(-1.5e-3, rel=1e-6) and y.max() == pytest.approx(1.5e-3, rel=1e-6)  # the trunk
-    # a tree that leaves the plane: centrelines with y
-    carotid = network_scene_markers(load_network("carotid_bifurcation_3d"), blood, r).markers
+    # a tree that leaves the plane: the wall its plant computes with, centrelines with y
+    from vesselbot_ros.vessels.plant_field3d import wall_mesh
+
+    net = load_network("carotid_bifurcation_3d")
+    carotid = network_scene_markers(net, blood, r).markers
+    v, t = wall_mesh(net, blood)
     assert carotid[0].type == Marker.TRIANGLE_LIST
+    assert np.array_equal([[p.x, p.y, p.z] for p in carotid[0].points], v[t].reshape(-1, 3))
     assert min(p.y for m in carotid[1:] for p in m.points) < -3e-3
