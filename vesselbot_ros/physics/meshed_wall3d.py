@@ -15,7 +15,10 @@ was cut from would continue.  ``extension_m`` should reach past the candidate gr
 Per triangle the query stores (flat, ``STRIDE`` floats): its corners, its unit face normal, the
 pseudonormals of its three edges (the sum of the two faces' normals, normalised) and of its three vertices
 (angle-weighted: Baerentzen & Aanaes 2005, "Signed distance computation using the angle weighted
-pseudonormal"), three crease-aware corner normals for the smooth normal, and a bounding sphere.
+pseudonormal"), three crease-aware corner normals for the smooth normal, and a bounding disc.  Triangles are
+grouped in patches (the candidate lists hold patches, each with an oriented bounding box) and, within a
+patch, in chunks of at most ``CHUNK`` (halving along the centroids' longest extent), each bounded as a thick
+disc (centre, normal, in-plane radius, half thickness), so the query skips a chunk of a fine mesh at once.
 
 Candidate tree (:func:`candidate_tree`): a regular root grid of cubes over the surface's bounding box plus a
 margin, each refined as an octree.  Every node stores the triangles whose distance to the node's centre c is at
@@ -26,10 +29,18 @@ d(c) + 2 w ball lies in the parent's: the child centre is w_child from the paren
 2 w_child), so children are filtered from their parent's list only.  A node is split while its list is longer
 than ``max_leaf`` and it is shallower than ``max_depth``; only leaves keep their list (CSR), sorted by the
 triangles' distance to the leaf centre, so the query meets the nearest first and rejects most of the others by
-their bounding sphere.  (A uniform grid fine enough for short lists near the wall would not fit in memory:
+their bounds.  (A uniform grid fine enough for short lists near the wall would not fit in memory:
 deep in a round lumen the d(c) + 2 w band holds a ring of triangles whose area grows as w d, and on the axis
 of a cylinder every triangle of a ring is equally far, so no rule can make those lists short; the octree
-refines only where it pays.)
+refines only where it pays.)  The exact signed distance of a node's centre (from its seed) bounds its points'
+within +-w, which the optional rules use: a node within ``near_m`` of the wall is split as above, one deeper
+or farther only while larger than ``deep_leaf_m`` (its list stays a ring's whatever its size; 8^k more
+leaves would hold k-fold shorter copies of it), and one wholly outside the lumen by more than ``far_out_m``
+is sealed: no list, the query answering from its seed and signing it outside.  The lists are filtered with
+the patches' boxes as lower bounds (a patch whose box lies beyond the limit is never measured), in parallel.
+:func:`pruned_arrays` keeps a tree's lists only in the leaves a caller needs (its other leaves emptied, their
+subtrees collapsed, only the triangles those lists name kept, int32 indices): bit for bit the same answers
+there; :func:`split_leaves` splits chosen leaves further.
 
 Exact query (:func:`nearest_wall3d`, compiled, allocation-free): the leaf of the point, then the nearest
 candidate triangle by Ericson's closest-point method (Real-Time Collision Detection, 5.1.5), which also says
@@ -55,13 +66,21 @@ the facets; the Y's 2.19 is a point 0.27 mm off a daughter's axis (ill-condition
 CAD vertex normals (``vertex_normals``) change these by < 0.2 deg: the rest comes from barycentrics clamped
 where q's normal line leaves the flat-nearest triangle (not yet followed into the neighbour).
 
-Speed (bench/bench_wall3d.py): 1.3-2.9 us per query against 0.05-0.11 us for the 2-D one (18-31 x; the issue's
-target is 2 x): most of it is testing the bounds of the ~50-100 triangles of the opened patches.
+Speed (bench/bench_wall3d.py): 1.3-2.9 us per query against 0.05-0.11 us for the 2-D one (18-31 x) with 0.1 mm
+triangles: most of it is testing the bounds of the ~50-100 triangles of the opened patches.  On the 3-D plant's
+walls (0.5 um sag: 40-60 um triangles, ~40 per patch) at the points the shipped scenarios' beads ask it (a
+junction's medial surface, about 1 mm deep): 1.4 us (III-C) to 2.5 us (synthetic tree), of which ~55 list
+boxes, ~50 chunk discs, ~140 triangle discs and ~25 exact closest points.
 
 Local diameter (:func:`local_diameter3d`): the 2-D definition carried to 3-D: the diameter of the largest ball
 inscribed in the lumen that touches the wall at the point's nearest wall point F (along the inward normal n
-there).  g(r) = r - s(F + r n) is 0 while the ball of radius r centred at F + r n fits and nondecreasing
-(s is 1-Lipschitz), so its largest radius is found by bisection, per grid node (no splat).  2 R in a straight
+there), found per grid node (no splat) by growing and shrinking the ball: the ball of radius r centred at
+c = F + r n fits (within ``tol``) while s(c) >= r - tol; radii double from 2 s until one does not fit, then each
+failure shrinks r to the largest radius the wall point W nearest c allows, the root of |F + r n - W| = r - tol:
+r' = (|W - F|^2 - tol^2) / (2 (n . (W - F) - tol)) (the "shrinking ball" of Ma, Bai & Bhatt 2012, medial axis
+points from nearest neighbours, with the fit tolerance); the first r' that fits is the largest (bisection of
+the bracket where W says nothing).  One step on a straight tube (W is the opposite wall point: r' = R + tol / 2,
+bisection's limit), a few in a junction, where bisection took about 20 exact queries.  2 R in a straight
 branch of radius R; in a junction it follows the nearest wall: the parent's width beside the parent's wall, a
 daughter's beside the daughter's, and near the crease (the apex) the ball that fits between the crease's two
 walls along the crease's normal (the junction's inscribed ball at its middle).  Outside the lumen a node takes
@@ -72,7 +91,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -80,15 +98,20 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["STRIDE", "Cap", "WallSurface", "CandidateTree", "wall_surface", "candidate_tree",
+__all__ = ["STRIDE", "CHUNK", "Cap", "WallSurface", "CandidateTree", "wall_surface", "candidate_tree", "centre_distances",
+           "leaves3d", "node_boxes", "pruned_arrays", "split_leaves",
            "nearest_wall3d", "smooth_wall3d", "query_points3d", "brute_force3d", "ball_diameters3d", "local_diameter3d",
            "Wall3D",
            "gmsh_wall", "cylinder_wall", "bent_tube_wall", "y_wall", "y_solids"]
 
 #: Floats stored per triangle: the bound (centroid 0-2, radius of its disc 3, unit outward face normal 4-6;
 #: one cache line), corners A, B, C (8-16), edge pseudonormals AB, BC, CA (17-25), vertex pseudonormals A, B, C
-#: (26-34), smooth corner normals A, B, C (35-43); 7 and 44-47 unused (a multiple of 64 bytes).
+#: (26-34), smooth corner normals A, B, C (35-43); the chunk's (see :func:`wall_surface`): its length at its
+#: first triangle (7, else 0), its centre and in-plane radius (44-47 of its first), its normal and half
+#: thickness (44-47 of its second) (a multiple of 64 bytes).
 STRIDE = 48
+#: Triangles per chunk: each patch's triangles are split in compact chunks, each bounded as a thick disc.
+CHUNK = 8
 
 #: A cap: (centre (3,) m, unit outward normal (3,), radius m).
 Cap = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]
@@ -164,8 +187,7 @@ def _orient(tri: IArray) -> IArray:
     m = len(tri)
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     owner = np.tile(np.arange(m), 3)
-    key = np.sort(e, axis=1)
-    _u, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _u, inv, cnt = np.unique(_edge_keys(e), return_inverse=True, return_counts=True)
     inv = inv.ravel()
     if cnt.max() > 2:
         raise ValueError("wall_surface: an edge is shared by more than two triangles (non-manifold surface)")
@@ -174,42 +196,77 @@ def _orient(tri: IArray) -> IArray:
     pair = np.nonzero(sinv[1:] == sinv[:-1])[0]
     h1, h2 = order[pair], order[pair + 1]
     same = np.all(e[h1] == e[h2], axis=1)  # equally directed half-edges: the two triangles disagree
-    t1, t2 = owner[h1], owner[h2]
-    adj: list[list[tuple[int, bool]]] = [[] for _ in range(m)]
-    for a, b, s in zip(t1.tolist(), t2.tolist(), same.tolist()):
-        adj[a].append((b, s))
-        adj[b].append((a, s))
-    flip = np.zeros(m, dtype=bool)
-    seen = np.zeros(m, dtype=bool)
+    flip, ok = _flips(m, owner[h1], owner[h2], same)
+    if not ok:
+        raise ValueError("wall_surface: the surface is not orientable")
+    tri[flip] = tri[flip][:, [0, 2, 1]]
+    return tri
+
+
+@numba.njit(cache=True)
+def _flips(m, t1, t2, same):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(flip (m,), orientable): which of m triangles to flip so that every adjacent pair (t1, t2) agrees
+    (``same``: their shared edge runs the same way in both, they disagree), breadth first from each
+    component's first triangle."""
+    deg = np.zeros(m + 1, dtype=np.int64)
+    for e in range(t1.size):
+        deg[t1[e] + 1] += 1
+        deg[t2[e] + 1] += 1
+    for i in range(m):
+        deg[i + 1] += deg[i]
+    fill = deg[:-1].copy()
+    nb = np.empty(2 * t1.size, dtype=np.int64)
+    sm = np.empty(2 * t1.size, dtype=np.bool_)
+    for e in range(t1.size):
+        nb[fill[t1[e]]] = t2[e]
+        sm[fill[t1[e]]] = same[e]
+        fill[t1[e]] += 1
+        nb[fill[t2[e]]] = t1[e]
+        sm[fill[t2[e]]] = same[e]
+        fill[t2[e]] += 1
+    flip = np.zeros(m, dtype=np.bool_)
+    seen = np.zeros(m, dtype=np.bool_)
+    queue = np.empty(m, dtype=np.int64)
+    ok = True
     for start in range(m):
         if seen[start]:
             continue
         seen[start] = True
-        queue = deque([start])
-        while queue:
-            t = queue.popleft()
-            for nb, s in adj[t]:
-                want = flip[t] ^ s
-                if not seen[nb]:
-                    seen[nb] = True
-                    flip[nb] = want
-                    queue.append(nb)
-                elif flip[nb] != want:
-                    raise ValueError("wall_surface: the surface is not orientable")
-    tri[flip] = tri[flip][:, [0, 2, 1]]
-    return tri
+        head = 0
+        tail = 1
+        queue[0] = start
+        while head < tail:
+            t = queue[head]
+            head += 1
+            for e in range(deg[t], deg[t + 1]):
+                want = flip[t] ^ sm[e]
+                o = nb[e]
+                if not seen[o]:
+                    seen[o] = True
+                    flip[o] = want
+                    queue[tail] = o
+                    tail += 1
+                elif flip[o] != want:
+                    ok = False
+    return flip, ok
 
 
 def _boundary_edges(tri: IArray) -> IArray:
     """(b, 2) directed boundary edges (as their triangle runs them)."""
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _u, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _u, inv, cnt = np.unique(_edge_keys(e), return_inverse=True, return_counts=True)
     return e[cnt[inv.ravel()] == 1]
 
 
+def _edge_keys(e: IArray) -> IArray:
+    """One int64 per undirected edge (k, 2) of vertex indices."""
+    lo = np.minimum(e[:, 0], e[:, 1]).astype(np.int64)
+    hi = np.maximum(e[:, 0], e[:, 1]).astype(np.int64)
+    return lo * (int(e.max(initial=0)) + 1) + hi
+
+
 @numba.njit(cache=True)
-def _triangle_data(v, tri, crease_cos, vnormal_override):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     m = tri.shape[0]
     n = v.shape[0]
     out = np.zeros(m * 48)
@@ -295,7 +352,82 @@ def _triangle_data(v, tri, crease_cos, vnormal_override):  # type: ignore[no-unt
         for d in range(3):
             out[b0 + d] = cen[d]
         out[b0 + 3] = r * (1.0 + 1e-9) + 1e-15  # a little larger: the sphere test never rejects a tie
+    # chunks: at a chunk's first triangle its length (7), centre (44-46) and in-plane radius (47); at its second
+    # the chunk's unit normal (44-46) and half thickness (47) (both padded: the bound never rejects a tie)
+    for t in range(m):
+        L = chunk_len[t]
+        out[48 * t + 7] = L
+        if L < 2:
+            continue
+        c = np.zeros(3)
+        nsum = np.zeros(3)
+        for u in range(t, t + L):
+            for k in range(3):
+                c += v[tri[u, k]] / (3.0 * L)
+            nsum += np.cross(v[tri[u, 1]] - v[tri[u, 0]], v[tri[u, 2]] - v[tri[u, 0]])
+        nn = nsum / max(math.sqrt(nsum @ nsum), 1e-300)
+        rad = 0.0
+        thick = 0.0
+        for u in range(t, t + L):
+            for k in range(3):
+                dv = v[tri[u, k]] - c
+                hn = dv @ nn
+                thick = max(thick, abs(hn))
+                rad = max(rad, math.sqrt(max(dv @ dv - hn * hn, 0.0)))
+        pad = 1e-9 * math.sqrt(c @ c) + 1e-15
+        for d in range(3):
+            out[48 * t + 44 + d] = c[d]
+            out[48 * (t + 1) + 44 + d] = nn[d]
+        out[48 * t + 47] = rad * (1.0 + 1e-9) + pad
+        out[48 * (t + 1) + 47] = thick * (1.0 + 1e-9) + pad
     return out
+
+
+@numba.njit(cache=True)
+def _chunks(cen, pstart, size):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(order, chunk length at each chunk's first position): each patch's triangles (centroids ``cen`` in patch
+    order) split in chunks of at most ``size`` by halving along the centroids' longest extent."""
+    m = cen.shape[0]
+    order = np.arange(m)
+    length = np.zeros(m, dtype=np.int64)
+    stack = np.empty((64, 2), dtype=np.int64)
+    for p in range(pstart.size - 1):
+        top = 0
+        stack[0, 0] = pstart[p]
+        stack[0, 1] = pstart[p + 1]
+        top = 1
+        while top > 0:
+            top -= 1
+            lo = stack[top, 0]
+            hi = stack[top, 1]
+            n = hi - lo
+            if n <= size:
+                if n > 0:
+                    length[lo] = n
+                continue
+            ext = np.zeros(3)
+            for a in range(3):
+                mn = np.inf
+                mx = -np.inf
+                for u in range(lo, hi):
+                    mn = min(mn, cen[order[u], a])
+                    mx = max(mx, cen[order[u], a])
+                ext[a] = mx - mn
+            ax = int(np.argmax(ext))
+            sub = order[lo:hi].copy()
+            keys = np.empty(n)
+            for u in range(n):
+                keys[u] = cen[sub[u], ax]
+            idx = np.argsort(keys, kind="mergesort")
+            for u in range(n):
+                order[lo + u] = sub[idx[u]]
+            mid = lo + ((n + size - 1) // size // 2) * size
+            stack[top, 0] = lo
+            stack[top, 1] = mid
+            stack[top + 1, 0] = mid
+            stack[top + 1, 1] = hi
+            top += 2
+    return order, length
 
 
 @numba.njit(cache=True)
@@ -415,7 +547,10 @@ def wall_surface(vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequen
     ck = cube[order]
     new = np.concatenate([[True], np.any(ck[1:] != ck[:-1], axis=1)])
     pstart = np.concatenate([np.nonzero(new)[0], [len(tri_all)]]).astype(np.int64)
-    data = _triangle_data(v_all, tri_all, math.cos(math.radians(crease_deg)), over)
+    corder, clen = _chunks(np.ascontiguousarray(v_all[tri_all].mean(axis=1)), pstart, CHUNK)
+    tri_all = np.ascontiguousarray(tri_all[corder])
+    is_wall = is_wall[corder]
+    data = _triangle_data(v_all, tri_all, math.cos(math.radians(crease_deg)), over, clen)
     return WallSurface(v_all, tri_all, is_wall, data, pstart, _patch_boxes(v_all, tri_all, pstart), caps_t)
 
 
@@ -548,28 +683,53 @@ def _scan(px, py, pz, d, pbox, pstart, index, lo, hi, seed):  # type: ignore[no-
                 g2 += (pr - pbox[o + 12 + a]) ** 2
         if g2 > best:
             continue
-        for t in range(pstart[p], pstart[p + 1]):
-            b = 48 * t
-            # lower bound: the triangle lies in the disc of radius r round its centroid in its plane
-            sx = px - d[b]
-            sy = py - d[b + 1]
-            sz = pz - d[b + 2]
-            hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
-            h2 = hn * hn
-            if h2 > best:
+        t0 = pstart[p]
+        t1 = pstart[p + 1]
+        while t0 < t1:
+            b = 48 * t0
+            L = int(d[b + 7])
+            if L >= 2 and _chunk_far(px, py, pz, d, b, best):
+                t0 += L
                 continue
-            rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
-            if rin > 0.0 and h2 + rin * rin > best:
-                continue
-            d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
-            if d2 < best or (d2 == best and t < tbest):
-                best = d2
-                fx = gx
-                fy = gy
-                fz = gz
-                feat = f
-                tbest = t
+            for t in range(t0, t0 + L):
+                b = 48 * t
+                # lower bound: the triangle lies in the disc of radius r round its centroid in its plane
+                sx = px - d[b]
+                sy = py - d[b + 1]
+                sz = pz - d[b + 2]
+                hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
+                h2 = hn * hn
+                if h2 > best:
+                    continue
+                rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
+                if rin > 0.0 and h2 + rin * rin > best:
+                    continue
+                d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
+                if d2 < best or (d2 == best and t < tbest):
+                    best = d2
+                    fx = gx
+                    fy = gy
+                    fz = gz
+                    feat = f
+                    tbest = t
+            t0 += L
     return best, fx, fy, fz, feat, tbest
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _chunk_far(px, py, pz, d, b, best):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """True if the chunk starting at record ``b`` lies farther than sqrt(best) from the point: its triangles lie in
+    the slab of its half thickness round its plane, within its in-plane radius of its centre."""
+    sx = px - d[b + 44]
+    sy = py - d[b + 45]
+    sz = pz - d[b + 46]
+    hn = abs(sx * d[b + 92] + sy * d[b + 93] + sz * d[b + 94])
+    a = max(hn - d[b + 95], 0.0)
+    h2 = a * a
+    if h2 > best:
+        return True
+    rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - hn * hn, 0.0)) - d[b + 47]
+    return rin > 0.0 and h2 + rin * rin > best
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -606,7 +766,10 @@ def nearest_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type: ig
     """
     leaf = _leaf(px, py, pz, grid, nodes)
     best, fx, fy, fz, feat, t = _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])
-    return _signed(px, py, pz, d, best, fx, fy, fz, feat, t)
+    s, nx, ny, nz = _signed(px, py, pz, d, best, fx, fy, fz, feat, t)
+    if nodes[leaf, 1] < 0 and s > 0.0:  # a sealed leaf: wholly outside, its seed's answer signed so
+        return -s, -nx, -ny, -nz
+    return s, nx, ny, nz
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -708,6 +871,10 @@ def smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type: ign
     s, nx, ny, nz = _signed(px, py, pz, d, best, fx, fy, fz, feat, t)
     if t < 0:
         return s, nx, ny, nz
+    if nodes[leaf, 1] < 0:  # a sealed leaf: wholly outside, its seed's answer signed so (exact normal)
+        if s > 0.0:
+            return -s, -nx, -ny, -nz
+        return s, nx, ny, nz
     gx, gy, gz = _smooth_normal(px, py, pz, d, t, s, nx, ny, nz)
     return s, gx, gy, gz
 
@@ -767,60 +934,146 @@ def brute_force3d(pts, d, smooth):  # type: ignore[no-untyped-def]  # numba kern
 # candidate tree
 
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _box_dist2(px, py, pz, pbox, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Squared distance (m^2) of a point to patch ``p``'s oriented box (a lower bound of its triangles')."""
+    o = 15 * p
+    g2 = 0.0
+    for a in range(3):
+        pr = pbox[o + 3 * a] * px + pbox[o + 3 * a + 1] * py + pbox[o + 3 * a + 2] * pz
+        if pr < pbox[o + 9 + a]:
+            g2 += (pbox[o + 9 + a] - pr) ** 2
+        elif pr > pbox[o + 12 + a]:
+            g2 += (pr - pbox[o + 12 + a]) ** 2
+    return g2
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _patch_dist2(px, py, pz, d, pstart, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(squared distance m^2, triangle): the nearest triangle of patch ``p`` to a point (disc bounds prune)."""
+    best = np.inf
+    tb = pstart[p]
+    t0 = pstart[p]
+    while t0 < pstart[p + 1]:
+        L = int(d[48 * t0 + 7])
+        if L >= 2 and _chunk_far(px, py, pz, d, 48 * t0, best):
+            t0 += L
+            continue
+        for t in range(t0, t0 + L):
+            b = 48 * t
+            sx = px - d[b]
+            sy = py - d[b + 1]
+            sz = pz - d[b + 2]
+            hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
+            h2 = hn * hn
+            if h2 > best:
+                continue
+            rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
+            if rin > 0.0 and h2 + rin * rin > best:
+                continue
+            d2, _x, _y, _z, _f = _closest(px, py, pz, d, b + 8)
+            if d2 < best:
+                best = d2
+                tb = t
+        t0 += L
+    return best, tb
+
+
 @numba.njit(cache=True)
-def _filter(d, pstart, centres, w, poff, pidx, parent, slack):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _select(cx, cy, cz, w, lo, hi, pidx, d, pstart, pbox, slack, out, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The patches of ``pidx[lo:hi]`` within d(c) + 2 w of the centre c, nearest first, written to ``out[o:]``
+    if ``out`` is long enough; returns (count, seed triangle).  Box lower bounds spare most exact distances."""
+    m = hi - lo
+    lb = np.empty(m)
+    ex = np.full(m, np.inf)
+    e0 = 0
+    for e in range(m):
+        lb[e] = math.sqrt(_box_dist2(cx, cy, cz, pbox, pidx[lo + e]))
+        if lb[e] < lb[e0]:
+            e0 = e
+    d2, seed = _patch_dist2(cx, cy, cz, d, pstart, pidx[lo + e0])
+    ex[e0] = math.sqrt(d2)
+    dmin = ex[e0]
+    for e in range(m):
+        if e != e0 and lb[e] < dmin:
+            d2, t = _patch_dist2(cx, cy, cz, d, pstart, pidx[lo + e])
+            ex[e] = math.sqrt(d2)
+            if ex[e] < dmin:
+                dmin = ex[e]
+                seed = t
+    lim = dmin + 2.0 * w + slack
+    cnt = 0
+    for e in range(m):
+        if lb[e] <= lim:
+            if ex[e] == np.inf and e != e0:
+                d2, _t = _patch_dist2(cx, cy, cz, d, pstart, pidx[lo + e])
+                ex[e] = math.sqrt(d2)
+            if ex[e] <= lim:
+                cnt += 1
+    if out.size >= o + cnt and cnt > 0:
+        sel = np.empty(cnt, dtype=np.int64)
+        k = 0
+        for e in range(m):
+            if lb[e] <= lim and ex[e] <= lim:
+                sel[k] = e
+                k += 1
+        order = np.argsort(ex[sel], kind="mergesort")
+        for k in range(cnt):
+            out[o + k] = pidx[lo + sel[order[k]]]
+    return cnt, seed
+
+
+@numba.njit(cache=True, parallel=True)
+def _filter(d, pstart, pbox, centres, w, poff, pidx, parent, slack):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """CSR lists of the cells (centres (k, 3), half-diagonals w): the parent's patches within d(c) + 2 w.
 
-    A patch's distance is its nearest triangle's.
-
-    Two passes (count, then fill: the distances are computed twice, memory stays the lists' own).  Each list
-    is sorted by the triangles' distance to the cell centre.
+    A patch's distance is its nearest triangle's; its oriented box's distance bounds it from below, so a patch
+    whose box is beyond the limit (or, while d(c) is sought, beyond the nearest so far) is never measured.
+    Two passes (count, then fill: the distances are computed twice, memory stays the lists' own), each in
+    parallel over the cells.  Each list is sorted by the patches' distance to the cell centre.
     """
     n = centres.shape[0]
-    maxlen = 0
-    for i in range(n):
-        maxlen = max(maxlen, poff[parent[i] + 1] - poff[parent[i]])
-    off = np.zeros(n + 1, dtype=np.int64)
+    cnt = np.zeros(n, dtype=np.int64)
     seed = np.zeros(n, dtype=np.int64)
-    dist = np.empty(maxlen)
-    sel = np.empty(maxlen, dtype=np.int64)
-    out = np.empty(0, dtype=np.int64)
-    for rep in range(2):
-        if rep == 1:
-            out = np.empty(off[n], dtype=np.int64)
-        for i in range(n):
-            p = parent[i]
-            lo = poff[p]
-            hi = poff[p + 1]
-            dmin = np.inf
-            for e in range(lo, hi):
-                pm = np.inf
-                for t in range(pstart[pidx[e]], pstart[pidx[e] + 1]):
-                    d2, _x, _y, _z, _f = _closest(centres[i, 0], centres[i, 1], centres[i, 2], d, 48 * t + 8)
-                    if d2 < pm:
-                        pm = d2
-                        if rep == 0 and math.sqrt(d2) < dmin:
-                            seed[i] = t
-                dist[e - lo] = math.sqrt(pm)
-                dmin = min(dmin, dist[e - lo])
-            lim = dmin + 2.0 * w[i] + slack
-            cnt = 0
-            for e in range(hi - lo):
-                if dist[e] <= lim:
-                    sel[cnt] = e
-                    cnt += 1
-            if rep == 0:
-                off[i + 1] = off[i] + cnt
-            else:
-                order = np.argsort(dist[sel[:cnt]], kind="mergesort")
-                for k in range(cnt):
-                    out[off[i] + k] = pidx[lo + sel[order[k]]]
+    none = np.empty(0, dtype=np.int64)
+    for i in numba.prange(n):
+        p = parent[i]
+        cnt[i], seed[i] = _select(centres[i, 0], centres[i, 1], centres[i, 2], w[i], poff[p], poff[p + 1], pidx, d,
+                                  pstart, pbox, slack, none, 0)
+    off = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        off[i + 1] = off[i] + cnt[i]
+    out = np.empty(off[n], dtype=np.int64)
+    for i in numba.prange(n):
+        p = parent[i]
+        _select(centres[i, 0], centres[i, 1], centres[i, 2], w[i], poff[p], poff[p + 1], pidx, d, pstart, pbox, slack,
+                out, off[i])
     return off, out, seed
 
 
+@numba.njit(cache=True, parallel=True)
+def centre_distances(d, centres, seed):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(k,) signed distances (m, > 0 in the lumen) of points (k, 3) (m) from their seeds (k,) (a point's nearest
+    triangle: exact, else the distance to that triangle, signed by its feature's pseudonormal)."""
+    out = np.empty(centres.shape[0])
+    for i in numba.prange(centres.shape[0]):
+        t = seed[i]
+        best, fx, fy, fz, feat = _closest(centres[i, 0], centres[i, 1], centres[i, 2], d, 48 * t + 8)
+        out[i] = _signed(centres[i, 0], centres[i, 1], centres[i, 2], d, best, fx, fy, fz, feat, t)[0]
+    return out
+
+
 def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3, max_leaf: int = 8,
-                   max_depth: int = 2, min_depth: int = 1) -> CandidateTree:
+                   max_depth: int = 2, min_depth: int = 1, near_m: float = math.inf, deep_leaf_m: float = 0.0,
+                   far_out_m: float = math.inf) -> CandidateTree:
     """The candidate octree of ``surface`` over its bounding box plus ``margin_m`` (see the module docstring).
+
+    Each node's centre distance s_c (signed, from its seed) bounds its points' s within +-w (w: half-diagonal):
+    a node within ``near_m`` of the wall (|s_c| - w <= near_m) is split while its list is longer than
+    ``max_leaf`` (and at least ``min_depth`` times) down to ``max_depth``; a node farther in or out only while
+    its cube is larger than ``deep_leaf_m`` (its list is long whatever the size: a ring of the lumen); a node
+    wholly outside the lumen by more than ``far_out_m`` (s_c + w < -far_out_m) is a sealed leaf: no list, and
+    the query answers from its seed, signed outside (see :func:`nearest_wall3d`).
 
     Args:
         surface: The wall.  Its extensions beyond the caps count for the bounding box only within the margin.
@@ -828,7 +1081,8 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
         root_m: Root cube side (m).
         max_leaf: A node with a longer candidate list is split (until ``max_depth``).
         max_depth: Deepest level (the finest cube is ``root_m / 2**max_depth``).
-        min_depth: Every root is split at least this many times.
+        min_depth: Every root within ``near_m`` is split at least this many times.
+        near_m, deep_leaf_m, far_out_m: The rules above (m); the defaults split everywhere and seal nothing.
 
     Returns:
         The :class:`CandidateTree`.
@@ -840,56 +1094,59 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
     d = surface.data
     m = surface.patch_start.size - 1
     kk, jj, ii = np.meshgrid(np.arange(n[2]), np.arange(n[1]), np.arange(n[0]), indexing="ij")
-    centres = lo + (np.column_stack([ii.ravel(), jj.ravel(), kk.ravel()]) + 0.5) * root_m
+    centres = np.ascontiguousarray(lo + (np.column_stack([ii.ravel(), jj.ravel(), kk.ravel()]) + 0.5) * root_m)
     half = 0.5 * root_m
     slack = 1e-9 * max(1.0, float(np.abs(hi).max() + np.abs(lo).max()))
-    off, idx, seed = _filter(d, surface.patch_start, np.ascontiguousarray(centres), np.full(len(centres), half * math.sqrt(3.0)),
-                       np.array([0, m], dtype=np.int64), np.arange(m, dtype=np.int64), np.zeros(len(centres), dtype=np.int64),
-                       slack)
-    # levels: per level its nodes' centres, lists; children appended level by level
-    level_centres = [centres]
-    level_off = [off]
-    level_idx = [idx]
-    level_seed = [seed]
-    level_child: list[IArray] = []
+    off, idx, seed = _filter(d, surface.patch_start, surface.patch_box, centres, np.full(len(centres), half * math.sqrt(3.0)),
+                             np.array([0, m], dtype=np.int64), np.arange(m, dtype=np.int64), np.zeros(len(centres), dtype=np.int64),
+                             slack)
     octs = np.array([[(o & 1) * 2 - 1, ((o >> 1) & 1) * 2 - 1, ((o >> 2) & 1) * 2 - 1] for o in range(8)], dtype=np.float64)
-    for depth in range(1, max_depth + 1):
-        cnt = np.diff(level_off[-1])
-        split = np.nonzero((cnt > max_leaf) | (depth <= min_depth))[0]
+    # per level: child pointers (relative to the next level), leaf lists (CSR over the level's nodes), seeds
+    level_child: list[IArray] = []
+    level_off: list[IArray] = []
+    level_idx: list[IArray] = []
+    level_seed: list[IArray] = []
+    level_sealed: list[npt.NDArray[np.bool_]] = []
+    for depth in range(0, max_depth + 1):
+        w = half * math.sqrt(3.0)
+        sc = centre_distances(d, centres, seed)
+        cnt = np.diff(off)
+        sealed = sc + w < -far_out_m
+        near = np.abs(sc) - w <= near_m
+        split = ~sealed & (depth < max_depth) & np.where(near, (cnt > max_leaf) | (depth < min_depth),
+                                                         (cnt > max_leaf) & (2.0 * half > deep_leaf_m))
         child = np.full(len(cnt), -1, dtype=np.int64)
-        if split.size == 0:
-            level_child.append(child)
-            break
-        child[split] = 8 * np.arange(split.size)  # relative to the next level's first node
+        sp = np.nonzero(split)[0]
+        child[sp] = 8 * np.arange(sp.size)
+        leaf = ~split & ~sealed
+        keep = np.repeat(leaf, cnt)
+        lcnt = np.where(leaf, cnt, 0)
         level_child.append(child)
-        half *= 0.5
-        cc = (level_centres[-1][split][:, None, :] + half * octs[None, :, :]).reshape(-1, 3)
-        par = np.repeat(split, 8)
-        off, idx, seed = _filter(d, surface.patch_start, np.ascontiguousarray(cc), np.full(len(cc), half * math.sqrt(3.0)), level_off[-1],
-                           level_idx[-1], par, slack)
-        level_centres.append(cc)
-        level_off.append(off)
-        level_idx.append(idx)
+        level_off.append(np.concatenate([[0], np.cumsum(lcnt)]).astype(np.int64))
+        level_idx.append(idx[keep])
         level_seed.append(seed)
-    if len(level_child) < len(level_centres):
-        level_child.append(np.full(len(level_centres[-1]), -1, dtype=np.int64))
-    starts = np.cumsum([0] + [len(c) for c in level_centres])
+        level_sealed.append(sealed)
+        if sp.size == 0:
+            break
+        half *= 0.5
+        cc = np.ascontiguousarray((centres[sp][:, None, :] + half * octs[None, :, :]).reshape(-1, 3))
+        off, idx, seed = _filter(d, surface.patch_start, surface.patch_box, cc, np.full(len(cc), half * math.sqrt(3.0)),
+                                 off, idx, np.repeat(sp, 8), slack)
+        centres = cc
+    starts = np.cumsum([0] + [len(c) for c in level_child])
     nodes_l = []
     index_l = []
-    pos = 0
     depth_l = []
-    for lev, (child, off, idx, sd) in enumerate(zip(level_child, level_off, level_idx, level_seed)):
+    pos = 0
+    for lev, (child, loff, lidx, sd, sealed) in enumerate(zip(level_child, level_off, level_idx, level_seed, level_sealed)):
         nd = np.empty((len(child), 4), dtype=np.int64)
         nd[:, 3] = sd
-        leaf = child < 0
-        nd[:, 0] = np.where(leaf, -1, child + starts[lev + 1])
-        cnt = np.where(leaf, np.diff(off), 0)
-        st = pos + np.concatenate([[0], np.cumsum(cnt)[:-1]])
-        nd[:, 1] = st
-        nd[:, 2] = st + cnt
-        pos += int(cnt.sum())
-        keep = np.repeat(leaf, np.diff(off))
-        index_l.append(idx[keep])
+        nd[:, 0] = np.where(child < 0, -1, child + starts[min(lev + 1, len(starts) - 1)])
+        nd[:, 1] = pos + loff[:-1]
+        nd[:, 2] = pos + loff[1:]
+        nd[sealed, 1:3] = -1
+        pos += int(loff[-1])
+        index_l.append(lidx)
         nodes_l.append(nd)
         depth_l.append(np.full(len(child), lev, dtype=np.int8))
     grid = np.array([lo[0], lo[1], lo[2], root_m, n[0], n[1], n[2]], dtype=np.float64)
@@ -897,12 +1154,162 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
                          np.ascontiguousarray(np.concatenate(index_l)), np.concatenate(depth_l))
 
 
+@numba.njit(cache=True)
+def leaves3d(pts, grid, nodes):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(m,) the leaf of the candidate tree holding each point (m, 3) (m) (outside its grid: the nearest edge leaf)."""
+    out = np.empty(pts.shape[0], dtype=np.int64)
+    for k in range(pts.shape[0]):
+        out[k] = _leaf(pts[k, 0], pts[k, 1], pts[k, 2], grid, nodes)
+    return out
+
+
+def node_boxes(tree: CandidateTree) -> tuple[Array, Array]:
+    """(centres (k, 3) m, half sides (k,) m) of the tree's nodes."""
+    g = tree.grid
+    nx, ny, nz = int(g[4]), int(g[5]), int(g[6])
+    k = len(tree.nodes)
+    centre = np.zeros((k, 3))
+    half = np.zeros(k)
+    r = np.arange(nx * ny * nz)
+    centre[r] = g[0:3] + (np.column_stack([r % nx, (r // nx) % ny, r // (nx * ny)]) + 0.5) * g[3]
+    half[r] = 0.5 * g[3]
+    octs = np.array([[(o & 1) * 2 - 1, ((o >> 1) & 1) * 2 - 1, ((o >> 2) & 1) * 2 - 1] for o in range(8)], dtype=np.float64)
+    for lev in range(int(tree.depth.max())):
+        par = np.nonzero((tree.depth == lev) & (tree.nodes[:, 0] >= 0))[0]
+        ch = tree.nodes[par, 0][:, None] + np.arange(8)[None, :]
+        half[ch] = 0.5 * half[par][:, None]
+        centre[ch] = centre[par][:, None, :] + half[ch][:, :, None] * octs[None, :, :]
+    return centre, half
+
+
+def _ranges(starts: IArray, lengths: IArray) -> IArray:
+    """The concatenated ranges ``starts[i] : starts[i] + lengths[i]``."""
+    lengths = np.asarray(lengths, dtype=np.int64)
+    prev = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    return np.repeat(np.asarray(starts, dtype=np.int64) - prev, lengths) + np.arange(int(lengths.sum()), dtype=np.int64)
+
+
+def pruned_arrays(surface: WallSurface, tree: CandidateTree, needed: npt.NDArray[np.bool_],
+                  seal: npt.NDArray[np.bool_] | None = None
+                  ) -> tuple[Array, Array, IArray, Array, npt.NDArray[np.int32], npt.NDArray[np.int32]]:
+    """The exact query's arrays ``(d, pbox, pstart, grid, nodes, index)`` answering only in the ``needed`` leaves.
+
+    A needed leaf keeps its list and seed (a sealed one stays sealed); every other leaf is emptied and a
+    subtree with no needed leaf collapses into one empty leaf, so the query is bit-identical to the full tree's
+    at every point of a needed leaf and meaningless elsewhere.  Only the patches the kept lists and seeds name
+    are kept, renumbered in order (so ties still go to the same triangle); ``nodes`` and ``index`` are int32.
+
+    Args:
+        surface, tree: The wall and its candidate tree.
+        needed: (k,) per node of ``tree``: the leaves the query must answer in (internal nodes ignored).
+        seal: (k,) needed leaves to seal instead (their list dropped, their seed's answer signed outside: only
+            for leaves wholly outside the lumen).
+    """
+    nodes = tree.nodes.copy()
+    if seal is not None:
+        nodes[np.asarray(seal, dtype=bool) & (nodes[:, 0] < 0), 1:3] = -1
+    leaf = nodes[:, 0] < 0
+    need = np.asarray(needed, dtype=bool) & leaf
+    # a node is kept whole when a needed leaf lies beneath it: mark upwards, level by level
+    keep = need.copy()
+    for lev in range(int(tree.depth.max()) - 1, -1, -1):
+        par = np.nonzero((tree.depth == lev) & ~leaf)[0]
+        keep[par] = keep[nodes[par, 0][:, None] + np.arange(8)[None, :]].any(axis=1)
+    roots = int(np.prod(tree.grid[4:7]))
+    # new numbering, level order: roots, then the children blocks of the kept internal nodes in order
+    order = [np.arange(roots)]
+    front = order[0]
+    while True:
+        inner = front[~leaf[front] & keep[front]]
+        if inner.size == 0:
+            break
+        front = (nodes[inner, 0][:, None] + np.arange(8)[None, :]).ravel()
+        order.append(front)
+    old = np.concatenate(order)
+    new_of = np.full(len(nodes), -1, dtype=np.int64)
+    new_of[old] = np.arange(len(old))
+    listed = need & (nodes[:, 1] >= 0)
+    # patches named by the kept lists and seeds
+    ent = _ranges(nodes[listed, 1], nodes[listed, 2] - nodes[listed, 1])
+    tri_patch = np.repeat(np.arange(surface.patch_start.size - 1), np.diff(surface.patch_start))
+    used = np.zeros(surface.patch_start.size - 1, dtype=bool)
+    used[tree.index[ent]] = True
+    used[tri_patch[nodes[need, 3]]] = True
+    pk = np.nonzero(used)[0]
+    pnew = np.full(used.size, -1, dtype=np.int64)
+    pnew[pk] = np.arange(pk.size)
+    cnt = np.diff(surface.patch_start)[pk]
+    pstart = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
+    tk = _ranges(surface.patch_start[pk], cnt)
+    tnew = np.full(len(tri_patch), -1, dtype=np.int64)
+    tnew[tk] = np.arange(tk.size)
+    d = np.ascontiguousarray(surface.data.reshape(-1, STRIDE)[tk].ravel())
+    pbox = np.ascontiguousarray(surface.patch_box.reshape(-1, 15)[pk].ravel())
+    # nodes and lists in the new order
+    on = nodes[old]
+    out = np.zeros((len(old), 4), dtype=np.int64)
+    internal = (on[:, 0] >= 0) & keep[old]
+    out[:, 0] = -1
+    out[internal, 0] = new_of[on[internal, 0]]
+    ol = listed[old]
+    ln = np.where(ol, on[:, 2] - on[:, 1], 0)
+    st = np.concatenate([[0], np.cumsum(ln)[:-1]])
+    out[:, 1] = np.where(ol, st, 0)
+    out[:, 2] = np.where(ol, st + ln, 0)
+    sealed = need[old] & (on[:, 1] < 0)
+    out[sealed, 1:3] = -1
+    out[:, 3] = np.where(need[old], tnew[on[:, 3]], 0)
+    src = _ranges(on[ol, 1], ln[ol])
+    index = pnew[tree.index[src]]
+    if (index < 0).any() or (out[need[old], 3] < 0).any():
+        raise AssertionError("pruned_arrays: a kept list names a dropped patch")
+    return (d, pbox, pstart, tree.grid.copy(), np.ascontiguousarray(out.astype(np.int32)),
+            np.ascontiguousarray(index.astype(np.int32)))
+
+
+def split_leaves(surface: WallSurface, tree: CandidateTree, which: npt.NDArray[np.bool_], max_leaf: int,
+                 max_depth: int) -> CandidateTree:
+    """``tree`` with the leaves ``which`` (a mask over its nodes; sealed ones excepted) split further by the rule of
+    :func:`candidate_tree` (while the list is longer than ``max_leaf``, down to ``max_depth``).  The new nodes
+    are appended (children blocks stay consecutive); a split leaf's old list is left unreferenced."""
+    nodes = tree.nodes.copy()
+    depth = tree.depth.copy()
+    index = tree.index
+    centre, half = node_boxes(tree)
+    g = tree.grid
+    slack = 1e-9 * max(1.0, float(np.abs(g[0:3] + g[3] * g[4:7]).max() + np.abs(g[0:3]).max()))
+    octs = np.array([[(o & 1) * 2 - 1, ((o >> 1) & 1) * 2 - 1, ((o >> 2) & 1) * 2 - 1] for o in range(8)], dtype=np.float64)
+    cur = np.nonzero(np.asarray(which, dtype=bool) & (nodes[:, 0] < 0) & (nodes[:, 1] >= 0)
+                     & (nodes[:, 2] - nodes[:, 1] > max_leaf) & (depth < max_depth))[0]
+    cur_c, cur_h = centre[cur], half[cur]
+    while cur.size:
+        lens = nodes[cur, 2] - nodes[cur, 1]
+        pidx = np.ascontiguousarray(index[_ranges(nodes[cur, 1], lens)])
+        poff = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        h2 = 0.5 * cur_h
+        cc = np.ascontiguousarray((cur_c[:, None, :] + h2[:, None, None] * octs[None, :, :]).reshape(-1, 3))
+        hc = np.repeat(h2, 8)
+        off, idx, seed = _filter(surface.data, surface.patch_start, surface.patch_box, cc, hc * math.sqrt(3.0), poff,
+                                 pidx, np.repeat(np.arange(cur.size, dtype=np.int64), 8), slack)
+        new_ids = len(nodes) + np.arange(cc.shape[0])
+        nodes[cur, 0] = new_ids[::8]
+        nodes[cur, 1:3] = 0
+        block = np.column_stack([np.full(cc.shape[0], -1, dtype=np.int64), index.size + off[:-1], index.size + off[1:], seed])
+        bdepth = np.repeat(depth[cur] + 1, 8).astype(np.int8)
+        nxt = np.nonzero((np.diff(off) > max_leaf) & (bdepth < max_depth))[0]
+        nodes = np.concatenate([nodes, block])
+        depth = np.concatenate([depth, bdepth])
+        index = np.concatenate([index, idx])
+        cur, cur_c, cur_h = new_ids[nxt], cc[nxt], hc[nxt]
+    return CandidateTree(g.copy(), np.ascontiguousarray(nodes), np.ascontiguousarray(index), depth)
+
+
 # ---------------------------------------------------------------------------------------------------------
 # local diameter
 
 
 @numba.njit(cache=True)
-def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol, r0, grow):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     out = np.zeros(pts.shape[0])
     for k in range(pts.shape[0]):
         s = q[k, 0]
@@ -914,28 +1321,44 @@ def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol):  # 
         fx = pts[k, 0] - s * nx  # the nearest wall point (along the normal the query gives)
         fy = pts[k, 1] - s * ny
         fz = pts[k, 2] - s * nz
-        lo = 0.0
-        hi = max(2.0 * s, tol)
-        while hi < rmax:
-            sc, _a, _b, _c = smooth_wall3d(fx + hi * nx, fy + hi * ny, fz + hi * nz, d, pbox, pstart, grid, nodes, index)
-            if hi - sc > tol:
-                break
-            lo = hi
-            hi *= 2.0
-        while hi - lo > 0.05 * tol:
-            r = 0.5 * (lo + hi)
-            sc, _a, _b, _c = smooth_wall3d(fx + r * nx, fy + r * ny, fz + r * nz, d, pbox, pstart, grid, nodes, index)
-            if r - sc > tol:
-                hi = r
-            else:
+        lo = s  # the ball of radius s round the point fits
+        hi = np.inf  # the least radius known not to fit
+        rn = np.inf  # the largest radius W (the wall point nearest the last centre that did not fit) allows
+        r = max(r0[k] if r0.size else 2.0 * s, s + tol)
+        for _it in range(200):
+            cx = fx + r * nx
+            cy = fy + r * ny
+            cz = fz + r * nz
+            sc, ex, ey, ez = nearest_wall3d(cx, cy, cz, d, pbox, pstart, grid, nodes, index)
+            if sc >= r - tol:  # fits
                 lo = r
+                if r >= rn or r >= rmax:
+                    break  # W's limit itself fits: the largest
+            else:
+                hi = r
+                # W within r - tol of the centre: a ball through F fits W only up to the root of
+                # |F + r n - W| = r - tol
+                wx = cx - sc * ex - fx
+                wy = cy - sc * ey - fy
+                wz = cz - sc * ez - fz
+                a = wx * nx + wy * ny + wz * nz
+                rn = (wx * wx + wy * wy + wz * wz - tol * tol) / (2.0 * (a - tol)) if a > tol else np.inf
+            if hi - lo <= 0.05 * tol:
+                break
+            if hi == np.inf:
+                r = grow * r  # grow until a ball does not fit
+            elif lo < rn < hi:
+                r = rn
+            else:
+                r = 0.5 * (lo + hi)  # W says nothing (F off the wall by rounding): bisect
         out[k] = 2.0 * lo
     return out
 
 
 #: The per-point inscribed-ball diameters (compiled; :func:`local_diameter3d` without the grid and the fill):
 #: ``ball_diameters3d(pts (m, 3) m, q (m, 4) their smooth query rows, d, pbox, pstart, grid, nodes, index,
-#: rmax m, tol m)`` -> (m,) diameters (m), 0 where ``q``'s distance is <= 0 (outside the lumen).
+#: rmax m, tol m, r0 (m,) first radii to try (m; empty: 2 s), grow)`` -> (m,) diameters (m), 0 where ``q``'s
+#: distance is <= 0 (outside the lumen); radii grow by ``grow`` until one does not fit.
 ball_diameters3d = _ball_diameters
 
 
@@ -945,8 +1368,8 @@ def local_diameter3d(surface: WallSurface, tree: CandidateTree, origin_m: npt.Ar
 
     A lumen node's diameter is that of the largest ball inscribed in the lumen touching the wall at the
     node's nearest wall point F, centred on the (smooth) inward normal there: the largest r with
-    s(F + r n) >= r - ``tol_m``, by doubling then bisection (to ``tol_m`` / 20); so a straight branch of radius
-    R reads 2 R + about ``tol_m``.  Nodes outside the lumen take the value of the nearest lumen node.
+    s(F + r n) >= r - ``tol_m``, by doubling then shrinking through the nearest wall point (module docstring);
+    so a straight branch of radius R reads 2 R to the facets' sag.  Nodes outside the lumen take the value of the nearest lumen node.
 
     Args:
         surface: The wall.  tree: Its candidate tree (covering the grid).
@@ -965,7 +1388,7 @@ def local_diameter3d(surface: WallSurface, tree: CandidateTree, origin_m: npt.Ar
     args = (surface.data, surface.patch_box, surface.patch_start, tree.grid, tree.nodes, tree.index)
     q = query_points3d(pts, *args, True)
     span = float(np.ptp(surface.wall_vertices(), axis=0).max())
-    diam = _ball_diameters(pts, q, *args, 2.0 * span, tol_m)
+    diam = _ball_diameters(pts, q, *args, 2.0 * span, tol_m, np.zeros(0), 2.0)
     out = diam.reshape(nz, ny, nx)
     empty = out <= 0.0
     if empty.all():
@@ -987,19 +1410,21 @@ class Wall3D:
         vertices, triangles, caps, crease_deg, vertex_normals: As :func:`wall_surface`.
         margin_m: Margin (m) of the candidate tree around the wall; the extensions reach 2 (R + margin) past
             each cap (R: the largest cap radius).
-        root_m, max_leaf, max_depth: As :func:`candidate_tree`.
+        root_m, max_leaf, max_depth, near_m, deep_leaf_m, far_out_m: As :func:`candidate_tree`.
         patch_m: As :func:`wall_surface`.
     """
 
     def __init__(self, vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequence[Cap], margin_m: float = 1.2e-3,
                  crease_deg: float = 30.0, vertex_normals: npt.ArrayLike | None = None, root_m: float = 0.8e-3,
-                 max_leaf: int = 8, max_depth: int = 2, patch_m: float = 0.25e-3) -> None:
+                 max_leaf: int = 8, max_depth: int = 2, patch_m: float = 0.25e-3, near_m: float = math.inf,
+                 deep_leaf_m: float = 0.0, far_out_m: float = math.inf) -> None:
         rmax = max(float(c[2]) for c in caps)
         #: The oriented wall and its extensions.
         self.surface = wall_surface(vertices, triangles, caps, 2.0 * (rmax + margin_m) + root_m, crease_deg,
                                     vertex_normals, patch_m)
         #: Its candidate tree.
-        self.tree = candidate_tree(self.surface, margin_m, root_m, max_leaf, max_depth)
+        self.tree = candidate_tree(self.surface, margin_m, root_m, max_leaf, max_depth, near_m=near_m,
+                                   deep_leaf_m=deep_leaf_m, far_out_m=far_out_m)
         self._args = (self.surface.data, self.surface.patch_box, self.surface.patch_start, self.tree.grid,
                       self.tree.nodes, self.tree.index)
 

@@ -75,6 +75,37 @@ def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _velocity_at(F, fh, x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Channels 0-2 of the flow grid (the velocity), trilinear at (x, y, z) (m) in one pass over the cell
+    (each channel summed as :func:`_flow_at` sums it: the same doubles)."""
+    h = fh[3]
+    nx = int(fh[4])
+    ny = int(fh[5])
+    nz = int(fh[6])
+    fx = (x - fh[0]) / h
+    fy = (y - fh[1]) / h
+    fz = (z - fh[2]) / h
+    i = min(max(int(math.floor(fx)), 0), nx - 2)
+    j = min(max(int(math.floor(fy)), 0), ny - 2)
+    k = min(max(int(math.floor(fz)), 0), nz - 2)
+    tx = min(1.0, max(0.0, fx - i))
+    ty = min(1.0, max(0.0, fy - j))
+    tz = min(1.0, max(0.0, fz - k))
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for cc in range(8):
+        cx = cc & 1
+        cy = (cc >> 1) & 1
+        cz = cc >> 2
+        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        v0 += w * float(F[k + cz, j + cy, i + cx, 0])
+        v1 += w * float(F[k + cz, j + cy, i + cx, 1])
+        v2 += w * float(F[k + cz, j + cy, i + cx, 2])
+    return v0, v1, v2
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def geometry3d(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(s_t, nx, ny, nz, D_t, eta, vfx, vfy, vfz)`` at (x, y, z) (m), time t (s) (module docstring)."""
     s, n0, n1, n2, d = wall_field3d(x, y, z, W[0], W[1], W[2], W[3], W[4], W[5], W[6], W[7], W[8])
@@ -87,8 +118,8 @@ def geometry3d(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numb
     qz = z + n2 * shift
     scale = p[I_V_F] * pulse_factor(t, p[I_A_F], p[I_OMEGA_F], p[I_PHI_F])
     eta = _flow_at(F, fh, x, y, z, 3)
-    return (s_t, n0, n1, n2, d_t, eta, scale * _flow_at(F, fh, qx, qy, qz, 0), scale * _flow_at(F, fh, qx, qy, qz, 1),
-            scale * _flow_at(F, fh, qx, qy, qz, 2))
+    v0, v1, v2 = _velocity_at(F, fh, qx, qy, qz)
+    return s_t, n0, n1, n2, d_t, eta, scale * v0, scale * v1, scale * v2
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit

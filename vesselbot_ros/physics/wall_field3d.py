@@ -4,7 +4,8 @@ The exact query of :mod:`vesselbot_ros.physics.meshed_wall3d` costs microseconds
 per point); the plant asks it at every force evaluation.  This module samples it once on a regular 3-D grid
 (the plant's grid, the flow's: nodes ``origin + h (i, j, k)``) and answers by interpolation, falling back to
 the exact query only in the cells where interpolation cannot meet the standard (within 1 mm of a wall,
-distance within 5 um and normal within 2 deg of the true wall).
+distance within 5 um and normal within 2 deg of the true wall), or a straight round tube fitted to a cell
+answers where it meets it.
 
 Samples (per node, ``NODE_STRIDE`` floats, float32 by default): the exact signed distance s (m, > 0 in the
 lumen), the smooth unit inward normal n (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), the
@@ -25,20 +26,37 @@ w_c of its eight corners c, and
 
 Flags (computed at build time): interpolation breaks where the nearest wall feature jumps inside a cell
 (the medial surface: a tube's axis, the bisector beside a junction's crease, the apex) and, within the
-band, where curvature is high.  A cell is flagged when
+band, where curvature is high.  The band is ``band_m`` in the lumen and ``out_band_m`` outside it (the 3-D
+plant: 1 mm and 0.1 mm, :mod:`vesselbot_ros.vessels.plant_field3d` says why).  A cell whose eight corners all
+lie beyond the band by half its diagonal (s is 1-Lipschitz, so every point of it lies beyond the band) is
+interpolated whatever the error: deep in a vessel, far outside it.  Any other cell is flagged when
 
-* its corners' normals span more than ``spread_deg`` (a jump of the nearest feature; anywhere), or
+* its corners' normals span more than ``spread_deg`` (a jump of the nearest feature), or
 * at one of its 19 test points (the midpoints of its edges and faces and its centre: the lattice of
-  spacing h / 2) within ``band_m`` + h of the wall (a cell reaching into the band is tested whole), the
-  interpolated distance is more than ``tol_dist_m`` off the exact one or the normal more than
-  ``tol_normal_deg``.  A medial surface with a jump of more than twice ``tol_normal_deg`` that crosses an
-  edge puts an edge midpoint or a face centre on the wrong side, so it is caught wherever it crosses the
-  cell; the interpolation errors of smooth fields peak at those points.
+  spacing h / 2) within the band or h beyond it, the interpolated distance is more than ``tol_dist_m`` off the exact one
+  or the normal more than ``tol_normal_deg``.  A medial surface with a jump of more than twice
+  ``tol_normal_deg`` that crosses an edge puts an edge midpoint or a face centre on the wrong side, so it is
+  caught wherever it crosses the cell; the interpolation errors of smooth fields peak at those points.
 
-A flagged cell is refined once: ``refine``^3 sub-cells sampled exactly (the diameter interpolated from the
-cell's corners), each flagged by the same two rules at spacing h / ``refine``; the lookup interpolates in
-a good sub-cell and asks the exact query in a flagged one (and in a flagged cell with no good sub-cell).
-Outside the grid the exact query answers (the diameter from the nearest edge cell).
+Tube cells (``tube``): a flagged cell wholly in the lumen is fitted a straight round tube from its corners --
+the axis along the least eigenvector of sum n_c n_c^T (a tube's normals all lie across its axis), through
+the point nearest the corners' normal lines, the radius the corners' mean s + their distance from the axis
+-- and if the tube meets the tolerances at the cell's 19 test points, its corners and its eight sub-cell
+centres (the normal not within ``axis_m`` of the axis, where it is undefined to the facets' scale), the
+lookup answers by the tube: ``R - rho`` and the direction to the axis, exact for a straight round vessel,
+where the interpolation of the cone s = R - rho fails near the axis of a vessel narrower than the band.
+
+A flagged cell that reaches into the lumen is then refined once: ``refine``^3 sub-cells sampled exactly (the
+diameter interpolated from the cell's corners), each flagged by the same rules at spacing h / ``refine``;
+the lookup interpolates in a good sub-cell and asks the exact query in a flagged one (and in a flagged cell
+with no good sub-cell).  Outside the grid the exact query answers (the diameter from the nearest edge cell).
+
+Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells and off the grid, so
+the lookup carries the wall's candidate tree cut down to the leaves holding a point of those (split there
+to ``exact_max_depth`` for short lists), the other leaves emptied and their subtrees collapsed, and only the
+triangles those lists name (int32 lists and nodes); off the grid a leaf wholly outside the lumen, save near
+a cap's extension, is sealed (no list: its seed's answer signed outside; only a bead far outside the lumen
+goes there).  Bit for bit the whole tree's answer wherever the lookup asks it.
 
 Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, no refinement; 2 x 10^5 points within 1 mm
 of the wall each): against the exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.4 deg (cylinder / bent
@@ -62,13 +80,25 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.physics.meshed_wall3d import Wall3D, ball_diameters3d, smooth_wall3d
+from vesselbot_ros.physics.meshed_wall3d import (
+    CandidateTree,
+    Wall3D,
+    ball_diameters3d,
+    centre_distances,
+    leaves3d,
+    node_boxes,
+    pruned_arrays,
+    smooth_wall3d,
+    split_leaves,
+)
 
 __all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d"]
 
 #: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5),
 #: 6-7 unused (32 bytes in float32: two nodes per cache line).
 NODE_STRIDE = 8
+#: Every point of a cell of side h lies within this many h of one of its corners (half its diagonal).
+_HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
 
 Array = npt.NDArray[np.float64]
 
@@ -156,8 +186,31 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
         if fine[fb + 5] == 0.0:
             s, gx, gy, gz, _d = _interp(fine, fb, NODE_STRIDE * r1, NODE_STRIDE * r1 * r1, ux - a, uy - b, uz - c, h / r)
             return s, gx, gy, gz, dd
+    if inside and flag <= -2.0:
+        s, gx, gy, gz = _tube(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * NODE_STRIDE)
+        return s, gx, gy, gz, dd
     s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
     return s, gx, gy, gz, dd
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _tube(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(s, inward normal) of the straight round tube of record ``rec[o:o + 7]`` (axis point, unit axis direction,
+    radius) at (px, py, pz): ``R - rho`` and the direction to the axis (rho: the distance from it)."""
+    dx = px - float(rec[o])
+    dy = py - float(rec[o + 1])
+    dz = pz - float(rec[o + 2])
+    ax = float(rec[o + 3])
+    ay = float(rec[o + 4])
+    az = float(rec[o + 5])
+    a = dx * ax + dy * ay + dz * az
+    dx -= a * ax
+    dy -= a * ay
+    dz -= a * az
+    rho = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not (rho > 0.0):
+        return float(rec[o + 6]), 0.0, 0.0, -1.0
+    return float(rec[o + 6]) - rho, -dx / rho, -dy / rho, -dz / rho
 
 
 @numba.njit(cache=True)
@@ -201,25 +254,76 @@ def _sample_nodes(head, field, d, pbox, pstart, grid, nodes, index):  # type: ig
     return out
 
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _s_at(x, y, z, head, field):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The sampled distance (m) interpolated at (x, y, z) (m), flags ignored (clamped to the grid)."""
+    h = head[3]
+    nx = int(head[4])
+    ny = int(head[5])
+    nz = int(head[6])
+    fx = (x - head[0]) / h
+    fy = (y - head[1]) / h
+    fz = (z - head[2]) / h
+    i = min(max(int(math.floor(fx)), 0), nx - 2)
+    j = min(max(int(math.floor(fy)), 0), ny - 2)
+    k = min(max(int(math.floor(fz)), 0), nz - 2)
+    base = ((k * ny + j) * nx + i) * NODE_STRIDE
+    return _interp(field, base, NODE_STRIDE * nx, NODE_STRIDE * nx * ny, min(1.0, max(0.0, fx - i)),
+                   min(1.0, max(0.0, fy - j)), min(1.0, max(0.0, fz - k)), h)[0]
+
+
 @numba.njit(cache=True, parallel=True)
-def _diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol, chunk):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`~vesselbot_ros.physics.meshed_wall3d.ball_diameters3d` in parallel chunks."""
+def _diameters(pts, q, head, field, d, pbox, pstart, grid, nodes, index, rmax, tol, chunk):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`~vesselbot_ros.physics.meshed_wall3d.ball_diameters3d` in parallel chunks, each ball first sized on the
+    sampled distances (its largest radius by bisection on the interpolated s, a few um off near the medial
+    surface where the ball's centre lies), so the exact queries start 2 % above it and grow by 5 %: most
+    balls take two (one that does not fit and the shrink through its nearest wall point), against about six
+    from 2 s."""
     n = pts.shape[0]
+    r0 = np.zeros(n)
+    for k in numba.prange(n):
+        s = q[k, 0]
+        if s <= 0.0:
+            continue
+        fx = pts[k, 0] - s * q[k, 1]
+        fy = pts[k, 1] - s * q[k, 2]
+        fz = pts[k, 2] - s * q[k, 3]
+        lo = s
+        hi = 2.0 * s
+        while hi < rmax and _s_at(fx + hi * q[k, 1], fy + hi * q[k, 2], fz + hi * q[k, 3], head, field) >= hi - tol:
+            lo = hi
+            hi *= 2.0
+        for _it in range(40):
+            if hi - lo <= tol:
+                break
+            r = 0.5 * (lo + hi)
+            if _s_at(fx + r * q[k, 1], fy + r * q[k, 2], fz + r * q[k, 3], head, field) >= r - tol:
+                lo = r
+            else:
+                hi = r
+        r0[k] = 1.02 * hi
     out = np.zeros(n)
     nch = (n + chunk - 1) // chunk
     for c in numba.prange(nch):
         a = c * chunk
         b = min(n, a + chunk)
-        out[a:b] = ball_diameters3d(pts[a:b], q[a:b], d, pbox, pstart, grid, nodes, index, rmax, tol)
+        out[a:b] = ball_diameters3d(pts[a:b], q[a:b], d, pbox, pstart, grid, nodes, index, rmax, tol, r0[a:b], 1.05)
     return out
 
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _beyond(s, band, out_band, margin):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """True if a signed distance (m) lies beyond the band by more than ``margin``: deeper in the lumen than
+    ``band`` or farther outside it than ``out_band``."""
+    return s > band + margin if s >= 0.0 else -s > out_band + margin
+
+
 @numba.njit(cache=True, parallel=True)
-def _sub_lattice(head, field, m0, m1, band, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _sub_lattice(head, field, m0, m1, band, out_band, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Exact (s, n) on the planes m0..m1 of the lattice of spacing h / 2 (plane m at z0 + m h / 2).
 
     (m1 - m0 + 1, 2 ny - 1, 2 nx - 1, 4); NaN at the nodes themselves and where every node of the
-    point's cell(s) is farther than ``band`` + 2 h from the wall (no test there).
+    point's cell(s) lies beyond the band by more than 2 h (:func:`_beyond`: no test there).
     """
     h = head[3]
     nx = int(head[4])
@@ -235,13 +339,13 @@ def _sub_lattice(head, field, m0, m1, band, d, pbox, pstart, grid, nodes, index)
         for ii in range(mx):
             if (ii % 2 == 0) and (jj % 2 == 0) and (m % 2 == 0):
                 continue
-            near = np.inf
+            far = True
             for c in range(8):
                 a = ii // 2 + ((c & 1) if ii % 2 else 0)
                 bj = jj // 2 + (((c >> 1) & 1) if jj % 2 else 0)
                 bk = m // 2 + ((c >> 2) if m % 2 else 0)
-                near = min(near, abs(float(field[((bk * ny + bj) * nx + a) * NODE_STRIDE])))
-            if near > band + 2.0 * h:
+                far = far and _beyond(float(field[((bk * ny + bj) * nx + a) * NODE_STRIDE]), band, out_band, 2.0 * h)
+            if far:
                 continue
             s, gx, gy, gz = smooth_wall3d(head[0] + 0.5 * ii * h, head[1] + 0.5 * jj * h, head[2] + 0.5 * m * h, d, pbox,
                                           pstart, grid, nodes, index)
@@ -253,7 +357,7 @@ def _sub_lattice(head, field, m0, m1, band, d, pbox, pstart, grid, nodes, index)
 
 
 @numba.njit(cache=True, parallel=True)
-def _flag_layers(head, field, planes, m0, k0, k1, band, tol_s, cos_tol, cos_spread):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _flag_layers(head, field, planes, m0, k0, k1, band, out_band, tol_s, cos_tol, cos_spread):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Flag the cells of layers k0..k1-1 (``planes``: :func:`_sub_lattice` from plane m0 = 2 k0).
 
     Returns per layer (flagged by the spread, flagged by a test point, cells tested).
@@ -271,6 +375,12 @@ def _flag_layers(head, field, planes, m0, k0, k1, band, tol_s, cos_tol, cos_spre
         k = k0 + kk
         for i in range(nx - 1):
             base = ((k * ny + j) * nx + i) * NODE_STRIDE
+            deep = True
+            for a in range(8):
+                deep = deep and _beyond(float(field[base + (a & 1) * NODE_STRIDE + ((a >> 1) & 1) * sy + (a >> 2) * sz]),
+                                        band, out_band, _HALF_DIAGONAL * h)
+            if deep:
+                continue  # every point of the cell is beyond the band (s is 1-Lipschitz): interpolated
             spread = False
             for a in range(8):
                 ba = base + (a & 1) * NODE_STRIDE + ((a >> 1) & 1) * sy + (a >> 2) * sz
@@ -293,7 +403,7 @@ def _flag_layers(head, field, planes, m0, k0, k1, band, tol_s, cos_tol, cos_spre
                 if di % 2 == 0 and dj % 2 == 0 and dk % 2 == 0:
                     continue
                 e = planes[2 * k + dk - m0, 2 * j + dj, 2 * i + di]
-                if not (abs(e[0]) <= band + h):
+                if e[0] != e[0] or _beyond(e[0], band, out_band, h):  # NaN: no test point there
                     continue
                 tested = True
                 s, gx, gy, gz, _dd = _interp(field, base, sy, sz, 0.5 * di, 0.5 * dj, 0.5 * dk, h)
@@ -315,7 +425,7 @@ def _flag_layers(head, field, planes, m0, k0, k1, band, tol_s, cos_tol, cos_spre
 
 
 @numba.njit(cache=True, parallel=True)
-def _refine(head, field, cells, r, band, tol_s, cos_tol, cos_spread, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _refine(head, field, cells, r, band, out_band, tol_s, cos_tol, cos_spread, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Blocks of (r + 1)^3 sub-nodes (spacing h / r) in the flagged cells ``cells`` (m, 3) ``(i, j, k)``.
 
     Sub-nodes: exact s and normal, D trilinear from the cell's corners; each sub-cell flagged (-1 in its
@@ -359,6 +469,13 @@ def _refine(head, field, cells, r, band, tol_s, cos_tol, cos_spread, d, pbox, ps
             for b in range(r):
                 for a in range(r):
                     fb = ob + ((c * r1 + b) * r1 + a) * NODE_STRIDE
+                    deep = True
+                    for p in range(8):
+                        deep = deep and _beyond(out[fb + (p & 1) * NODE_STRIDE + ((p >> 1) & 1) * fy + (p >> 2) * fz], band,
+                                                out_band, _HALF_DIAGONAL * hr)
+                    if deep:
+                        good[e] += 1  # beyond the band (as a coarse cell)
+                        continue
                     bad = False
                     for p in range(8):
                         bp = fb + (p & 1) * NODE_STRIDE + ((p >> 1) & 1) * fy + (p >> 2) * fz
@@ -375,7 +492,7 @@ def _refine(head, field, cells, r, band, tol_s, cos_tol, cos_spread, d, pbox, ps
                                 continue
                             es, ex, ey, ez = smooth_wall3d(x0 + (a + 0.5 * di) * hr, y0 + (b + 0.5 * dj) * hr,
                                                            z0 + (c + 0.5 * dk) * hr, d, pbox, pstart, grid, nodes, index)
-                            if not (abs(es) <= band + h):
+                            if _beyond(es, band, out_band, h):
                                 continue
                             s, gx, gy, gz, _dd = _interp(out, fb, fy, fz, 0.5 * di, 0.5 * dj, 0.5 * dk, hr)
                             if abs(s - es) > tol_s or gx * ex + gy * ey + gz * ez < cos_tol:
@@ -386,6 +503,154 @@ def _refine(head, field, cells, r, band, tol_s, cos_tol, cos_spread, d, pbox, ps
                     else:
                         good[e] += 1
     return out, good
+
+
+def _lumen_diameters(head: Array, field: npt.NDArray[Any], q: Array, wargs: tuple[npt.NDArray[Any], ...], rmax: float,
+                     tol: float) -> tuple[Array, int]:
+    """(nodes,) the lumen nodes' ball diameters (m; 0 outside), and how many balls were sized exactly.
+
+    Coarse to fine with the error checked: the nodes of even (i, j, k) and the centres of the cubes of 2 h they
+    span are sized exactly; a cube whose eight corners are lumen nodes and whose trilinear interpolant is
+    within ``tol`` of the exact diameter at its centre (a straight or evenly tapering stretch) fills its
+    other nodes by interpolation; every other lumen node is sized exactly.
+    """
+    h = float(head[3])
+    nx, ny, nz = int(head[4]), int(head[5]), int(head[6])
+    lumen = (q[:, 0] > 0.0).reshape(nz, ny, nx)
+    diam = np.zeros((nz, ny, nx))
+    done = np.zeros_like(lumen)
+
+    def size(mask: npt.NDArray[np.bool_]) -> int:
+        flat = np.nonzero(mask.ravel())[0]
+        kk, rem = np.divmod(flat, nx * ny)
+        jj, ii = np.divmod(rem, nx)
+        pts = np.ascontiguousarray(head[:3] + h * np.column_stack([ii, jj, kk]))
+        diam.ravel()[flat] = _diameters(pts, np.ascontiguousarray(q[flat]), head, field, *wargs, rmax, tol,  # type: ignore[call-arg]  # numba dispatcher: mypy sees the wrapper's signature
+                                        256)
+        done.ravel()[flat] = True
+        return int(flat.size)
+
+    # cubes (a, b, c): corners at even indices 2a .. 2a + 2 (z, y, x), centre at 2a + 1
+    cz, cy, cx = (nz - 1) // 2, (ny - 1) // 2, (nx - 1) // 2
+    first = np.zeros_like(lumen)
+    first[::2, ::2, ::2] = lumen[::2, ::2, ::2]
+    first[1:2 * cz:2, 1:2 * cy:2, 1:2 * cx:2] = lumen[1:2 * cz:2, 1:2 * cy:2, 1:2 * cx:2]
+    n = size(first)
+    ev = diam[0:2 * cz + 1:2, 0:2 * cy + 1:2, 0:2 * cx + 1:2]
+    evl = lumen[0:2 * cz + 1:2, 0:2 * cy + 1:2, 0:2 * cx + 1:2]
+    corners_in = np.ones((cz, cy, cx), dtype=bool)
+    mean = np.zeros((cz, cy, cx))
+    for c in range(8):
+        sl = (slice(c >> 2, cz + (c >> 2)), slice((c >> 1) & 1, cy + ((c >> 1) & 1)), slice(c & 1, cx + (c & 1)))
+        corners_in &= evl[sl]
+        mean += 0.125 * ev[sl]
+    centre = diam[1:2 * cz:2, 1:2 * cy:2, 1:2 * cx:2]
+    good = corners_in & lumen[1:2 * cz:2, 1:2 * cy:2, 1:2 * cx:2] & (np.abs(mean - centre) <= tol)
+    kk, jj, ii = np.nonzero(lumen & ~done)
+    a, b, c0 = kk // 2, jj // 2, ii // 2
+    inside = (a < cz) & (b < cy) & (c0 < cx)
+    ok = np.zeros(len(kk), dtype=bool)
+    ok[inside] = good[a[inside], b[inside], c0[inside]]
+    k2, j2, i2 = kk[ok], jj[ok], ii[ok]
+    tz, ty, tx = (k2 % 2) * 0.5, (j2 % 2) * 0.5, (i2 % 2) * 0.5
+    val = np.zeros(len(k2))
+    for c in range(8):
+        w = (tx if c & 1 else 1.0 - tx) * (ty if (c >> 1) & 1 else 1.0 - ty) * (tz if c >> 2 else 1.0 - tz)
+        val += w * diam[2 * (k2 // 2 + (c >> 2)), 2 * (j2 // 2 + ((c >> 1) & 1)), 2 * (i2 // 2 + (c & 1))]
+    diam[k2, j2, i2] = val
+    rest = np.zeros_like(lumen)
+    rest[kk[~ok], jj[~ok], ii[~ok]] = True
+    n += size(rest)
+    return diam.ravel(), n
+
+
+@numba.njit(cache=True, parallel=True)
+def _tubes(head, field, cells, band, out_band, tol_s, cos_tol, cos_min, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fit a straight round tube to each cell of ``cells`` (m, 3) ``(i, j, k)`` from its corners' distances and
+    normals (module docstring) and test it at the cell's test points (the coarse rule); returns
+    (records (m, NODE_STRIDE) float64: axis point, unit direction, radius; passed (m,) bool).  The normal is
+    not tested within ``axis_m`` of the axis, where the wall's direction is undefined to the facets' scale."""
+    h = head[3]
+    nx = int(head[4])
+    ny = int(head[5])
+    m = cells.shape[0]
+    rec = np.zeros((m, NODE_STRIDE))
+    ok = np.zeros(m, dtype=np.bool_)
+    for e in numba.prange(m):
+        i = cells[e, 0]
+        j = cells[e, 1]
+        k = cells[e, 2]
+        xs = np.empty((8, 3))
+        ns = np.empty((8, 3))
+        ss = np.empty(8)
+        mm = np.zeros((3, 3))
+        spread = 1.0
+        for c in range(8):
+            b = (((k + (c >> 2)) * ny + j + ((c >> 1) & 1)) * nx + i + (c & 1)) * NODE_STRIDE
+            xs[c, 0] = head[0] + (i + (c & 1)) * h
+            xs[c, 1] = head[1] + (j + ((c >> 1) & 1)) * h
+            xs[c, 2] = head[2] + (k + (c >> 2)) * h
+            ss[c] = field[b]
+            for a in range(3):
+                ns[c, a] = field[b + 1 + a]
+            for a in range(3):
+                for q in range(3):
+                    mm[a, q] += ns[c, a] * ns[c, q]
+            for c2 in range(c):
+                spread = min(spread, ns[c, 0] * ns[c2, 0] + ns[c, 1] * ns[c2, 1] + ns[c, 2] * ns[c2, 2])
+        if spread > cos_min:
+            continue  # the corners' normals nearly parallel: no axis to fit
+        _w, v = np.linalg.eigh(mm)
+        t = v[:, 0].copy()  # the normals' least direction: the tube's axis
+        # the point nearest to the corners' normal lines (and to the cell's centre along the axis)
+        am = np.zeros((3, 3))
+        bm = np.zeros(3)
+        cen = np.zeros(3)
+        for c in range(8):
+            for a in range(3):
+                cen[a] += 0.125 * xs[c, a]
+        for c in range(8):
+            for a in range(3):
+                for q in range(3):
+                    pr = (1.0 if a == q else 0.0) - ns[c, a] * ns[c, q]
+                    am[a, q] += pr
+                    bm[a] += pr * xs[c, q]
+        for a in range(3):
+            for q in range(3):
+                am[a, q] += t[a] * t[q]
+                bm[a] += t[a] * t[q] * cen[q]
+        pt = np.linalg.solve(am, bm)
+        rad = 0.0
+        for c in range(8):
+            dv = xs[c] - pt
+            al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
+            rad += 0.125 * (ss[c] + math.sqrt(max((dv ** 2).sum() - al * al, 0.0)))
+        for a in range(3):
+            rec[e, a] = pt[a]
+            rec[e, 3 + a] = t[a]
+        rec[e, 6] = rad
+        good = True
+        for tp in range(35):  # the 19 test points of the coarse rule and the 8 corners, and the 8 sub-cell centres
+            if tp < 27:
+                di = 0.5 * (tp % 3)
+                dj = 0.5 * ((tp // 3) % 3)
+                dk = 0.5 * (tp // 9)
+            else:
+                di = 0.25 + 0.5 * ((tp - 27) & 1)
+                dj = 0.25 + 0.5 * (((tp - 27) >> 1) & 1)
+                dk = 0.25 + 0.5 * ((tp - 27) >> 2)
+            qx = head[0] + (i + di) * h
+            qy = head[1] + (j + dj) * h
+            qz = head[2] + (k + dk) * h
+            es, ex, ey, ez = smooth_wall3d(qx, qy, qz, d, pbox, pstart, grid, nodes, index)
+            if _beyond(es, band, out_band, h):
+                continue
+            ms, mx, my, mz = _tube(qx, qy, qz, rec[e], 0)
+            if abs(ms - es) > tol_s or (rad - ms > axis_m and mx * ex + my * ey + mz * ez < cos_tol):
+                good = False
+                break
+        ok[e] = good
+    return rec, ok
 
 
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
@@ -417,14 +682,15 @@ class WallField3D:
     """
 
     def __init__(self, wall: Wall3D, head: Array, field: npt.NDArray[Any], fine: npt.NDArray[Any],
-                 stats: dict[str, float]) -> None:
+                 stats: dict[str, float], exact: tuple[npt.NDArray[Any], ...] | None = None) -> None:
         self.wall = wall
         self.head = head
         self.field = field
         self.fine = fine
         self.stats = stats
-        #: The compiled lookup's array arguments after the point: ``wall_field3d(x, y, z, *args)``.
-        self.args = (head, field, fine, *wall._args)
+        #: The compiled lookup's array arguments after the point: ``wall_field3d(x, y, z, *args)`` (the exact
+        #: query's arrays pruned to where the lookup asks it, or the wall's own).
+        self.args = (head, field, fine, *(exact if exact is not None else wall._args))
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -454,7 +720,7 @@ class WallField3D:
         blk = np.maximum(flag, 1).astype(np.int64) - 1
         fb = (blk * r1 ** 3 + (abc[:, 2] * r1 + abc[:, 1]) * r1 + abc[:, 0]) * NODE_STRIDE
         sub_exact = self.fine[np.minimum(fb, max(self.fine.size - NODE_STRIDE, 0)) + 5] != 0 if self.fine.size else np.ones(len(q), bool)
-        return np.asarray(~inside | (flag < 0) | ((flag > 0) & sub_exact))
+        return np.asarray(~inside | (flag == -1.0) | ((flag > 0) & sub_exact))
 
     def query(self, points_m: npt.ArrayLike) -> dict[str, Array]:
         """``sdist`` (m,) m (> 0 inside), ``normal`` (m, 3) unit inward and ``diameter`` (m,) m at points (m, 3) (m)."""
@@ -463,10 +729,59 @@ class WallField3D:
         return {"sdist": r[:, 0], "normal": r[:, 1:4], "diameter": r[:, 4]}
 
 
+def _pruned(wall: Wall3D, head: Array, cells: npt.NDArray[np.int64], max_leaf: int,
+            max_depth: int) -> tuple[npt.NDArray[Any], ...]:
+    """The wall's exact-query arrays kept only in the leaves holding a point of ``cells`` (flat indices of their
+    lowest node) or a point outside the grid's cells, those leaves split down to ``max_depth`` (short lists
+    where the lookup asks) (:func:`~vesselbot_ros.physics.meshed_wall3d.split_leaves`,
+    :func:`~vesselbot_ros.physics.meshed_wall3d.pruned_arrays`).  Beyond the grid a leaf wholly outside the
+    lumen is sealed: only a bead far outside it goes there."""
+    tree = wall.tree
+    need, seal, at_cells = _needed(tree, wall, head, cells)
+    tree = split_leaves(wall.surface, tree, at_cells, max_leaf, max_depth)
+    need, seal, _at = _needed(tree, wall, head, cells)
+    return pruned_arrays(wall.surface, tree, need, seal)
+
+
+def _needed(tree: CandidateTree, wall: Wall3D, head: Array, cells: npt.NDArray[np.int64]
+            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """(needed, sealed, at the cells) leaves of ``tree`` for :func:`_pruned`."""
+    h = head[3]
+    nx, ny, nz = int(head[4]), int(head[5]), int(head[6])
+    centre, half = node_boxes(tree)
+    leaf = tree.nodes[:, 0] < 0
+    lo = head[:3]
+    hi = head[:3] + h * (np.array([nx, ny, nz]) - 1)
+    need = leaf & ((centre - half[:, None] < lo).any(axis=1) | (centre + half[:, None] >= hi).any(axis=1))
+    sc = centre_distances(wall.surface.data, centre, tree.nodes[:, 3])
+    seal = need & (sc + math.sqrt(3.0) * half < 0.0)
+    # a point beyond the tree's box falls in an edge leaf (its answer approximate: the lists hold for points in
+    # the leaf): none within two root cubes of a cap's axis beyond it is sealed, for a bead gone down an outlet
+    g = tree.grid
+    edge = ((centre - half[:, None] <= g[0:3] + 1e-12) | (centre + half[:, None] >= g[0:3] + g[3] * g[4:7] - 1e-12)).any(axis=1)
+    for c, n, r in wall.surface.caps:
+        rel = centre - c
+        t = np.maximum(rel @ n, 0.0)
+        seal &= ~(edge & (np.linalg.norm(rel - t[:, None] * n, axis=1) <= r + 2.0 * g[3]))
+    m = int(math.ceil(h / (2.0 * float(half[leaf].min())) - 1e-9)) + 1  # points per axis: leaves no finer
+    u = np.linspace(0.0, 1.0, m)
+    off = np.stack(np.meshgrid(u, u, u, indexing="ij"), axis=-1).reshape(-1, 3) * h
+    kk, rem = np.divmod(cells, nx * ny)
+    jj, ii = np.divmod(rem, nx)
+    base = lo + h * np.column_stack([ii, jj, kk]).astype(np.float64)
+    at_cells = np.zeros_like(need)
+    if cells.size:
+        for o in off:
+            at_cells[leaves3d(np.ascontiguousarray(base + o), tree.grid, tree.nodes)] = True
+    return need | at_cells, seal & ~at_cells, at_cells
+
+
 def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05e-3, band_m: float = 1.0e-3,
                        tol_dist_m: float = 2e-6, tol_normal_deg: float = 1.0, spread_deg: float = 60.0,
                        refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
-                       shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4) -> WallField3D:
+                       shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
+                       prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
+                       exact_max_depth: int = 0, tube: bool = True, axis_m: float = 50e-6) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -484,6 +799,15 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         dtype: Storage (np.float32 or np.float64).
         origin_m, shape: An explicit grid: origin (3,) m and ``(nx, ny, nz)`` nodes (e.g. the flow's).
         layers_per_chunk: Cell layers whose test points are held at once (memory of the build).
+        out_band_m: The band outside the lumen (m) where the standard is kept (default ``band_m``); beyond
+            it, as beyond ``band_m`` inside, cells are interpolated whatever the error.
+        prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
+            lookup carries the wall's whole candidate tree.
+        tube: A flagged cell wholly in the lumen whose straight round tube (fitted to its corners) meets the
+            tolerances at its test points is answered by the tube.
+        axis_m: ... the normal not tested within this (m) of the tube's axis (its direction is undefined there).
+        exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
+            ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
 
     Returns:
         The :class:`WallField3D`.
@@ -494,6 +818,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     from scipy.ndimage import distance_transform_edt  # deferred: scipy.ndimage is heavy, needed only to build
 
     t0 = time.perf_counter()
+    out_band = band_m if out_band_m is None else float(out_band_m)
     if origin_m is not None and shape is not None:
         origin = np.asarray(origin_m, dtype=np.float64)
         nx, ny, nz = (int(v) for v in shape)
@@ -507,23 +832,17 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     if (origin < tlo - 1e-12).any() or (top > thi + 1e-12).any():
         raise ValueError(f"build_wall_field3d: the grid {origin} .. {top} leaves the candidate tree's box {tlo} .. {thi}: "
                          "build the Wall3D with a larger margin_m")
-    head = np.array([origin[0], origin[1], origin[2], h_m, nx, ny, nz, max(1, int(refine))], dtype=np.float64)
+    head = np.array([origin[0], origin[1], origin[2], h_m, nx, ny, nz, max(1, int(refine)), 0.0], dtype=np.float64)
     field: npt.NDArray[Any] = np.zeros(nx * ny * nz * NODE_STRIDE, dtype=dtype)
     wargs = wall._args
     q = _sample_nodes(head, field, *wargs)
     t1 = time.perf_counter()
-    # local diameter: lumen nodes by the ball rule, the others from the nearest lumen node
-    lumen = np.nonzero(q[:, 0] > 0.0)[0]
-    if lumen.size == 0:
+    # local diameter: lumen nodes by the ball rule (:func:`_lumen_diameters`), the others from the nearest lumen node
+    if not (q[:, 0] > 0.0).any():
         raise ValueError("build_wall_field3d: no grid node lies in the lumen")
-    kk, rem = np.divmod(lumen, nx * ny)
-    jj, ii = np.divmod(rem, nx)
-    pts = np.ascontiguousarray(origin + h_m * np.column_stack([ii, jj, kk]))
     span = float(np.ptp(wall.surface.wall_vertices(), axis=0).max())
-    diam_l = _diameters(pts, np.ascontiguousarray(q[lumen]), *wargs, 2.0 * span, 2e-6, 256)
-    del q, pts
-    diam = np.zeros(nx * ny * nz)
-    diam[lumen] = diam_l
+    diam, n_balls = _lumen_diameters(head, field, q, wargs, 2.0 * span, 2e-6)
+    del q
     diam3 = diam.reshape(nz, ny, nx)
     empty = diam3 <= 0.0
     if empty.any():
@@ -537,20 +856,45 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     cos_spread = math.cos(math.radians(spread_deg))
     for k0 in range(0, nz - 1, layers_per_chunk):
         k1 = min(nz - 1, k0 + layers_per_chunk)
-        planes = _sub_lattice(head, field, 2 * k0, 2 * k1, band_m, *wargs)
-        counts += _flag_layers(head, field, planes, 2 * k0, k0, k1, band_m, tol_dist_m, cos_tol, cos_spread).sum(axis=0)
+        planes = _sub_lattice(head, field, 2 * k0, 2 * k1, band_m, out_band, *wargs)
+        counts += _flag_layers(head, field, planes, 2 * k0, k0, k1, band_m, out_band, tol_dist_m, cos_tol,
+                               cos_spread).sum(axis=0)
     t3 = time.perf_counter()
-    # one level of refinement in the flagged cells; blocks with no good sub-cell are dropped (exact)
+    # one level of refinement in the flagged cells that reach into the lumen (a bead's centre is never
+    # outside); blocks with no good sub-cell are dropped (exact)
     rec = field.reshape(-1, NODE_STRIDE)
-    flagged = np.nonzero(rec[:, 5] != 0)[0]
+    s3 = rec[:, 0].reshape(nz, ny, nx)
+    reach = np.zeros((nz - 1, ny - 1, nx - 1), dtype=bool)
+    for c in range(8):
+        reach |= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
+    cell_of = np.zeros((nz, ny, nx), dtype=bool)
+    cell_of[:-1, :-1, :-1] = reach
+    # first the flagged cells wholly in the lumen that a straight round tube answers (a vessel's axis)
+    inner = np.ones((nz - 1, ny - 1, nx - 1), dtype=bool)
+    for c in range(8):
+        inner &= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
+    cell_in = np.zeros((nz, ny, nx), dtype=bool)
+    cell_in[:-1, :-1, :-1] = inner
+    cand = np.nonzero((rec[:, 5] != 0) & cell_in.ravel())[0]
+    tubes = np.zeros((0, NODE_STRIDE))
+    if tube and cand.size:
+        kk, rem = np.divmod(cand, nx * ny)
+        jj, ii = np.divmod(rem, nx)
+        trec, passed = _tubes(head, field, np.ascontiguousarray(np.column_stack([ii, jj, kk])), band_m, out_band, tol_dist_m,
+                              cos_tol, math.cos(math.radians(5.0)), axis_m, *wargs)
+        tubes = trec[passed]
+        rec[cand[passed], 5] = -2.0 - np.arange(tubes.shape[0])
+    t3b = time.perf_counter()
+    flagged = np.nonzero((rec[:, 5] > -2.0) & (rec[:, 5] != 0) & cell_of.ravel())[0]
     kk, rem = np.divmod(flagged, nx * ny)
     jj, ii = np.divmod(rem, nx)
     r = int(head[7])
     fine: npt.NDArray[Any] = np.zeros(0, dtype=dtype)
     sub_exact = 0
     n_blocks = 0
+    exact_blocks = np.zeros(0, dtype=np.int64)
     if r > 1 and flagged.size:
-        blocks, good = _refine(head, field, np.ascontiguousarray(np.column_stack([ii, jj, kk])), r, band_m, tol_dist_m, cos_tol,
+        blocks, good = _refine(head, field, np.ascontiguousarray(np.column_stack([ii, jj, kk])), r, band_m, out_band, tol_dist_m, cos_tol,
                                cos_spread, *wargs)
         per = (r + 1) ** 3 * NODE_STRIDE
         keep = np.nonzero(good > 0)[0]
@@ -558,14 +902,29 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         fine = np.ascontiguousarray(blocks.reshape(-1, per)[keep].ravel().astype(dtype))
         rec[flagged[keep], 5] = np.arange(1, keep.size + 1)
         sub_exact = int(keep.size * r ** 3 - good[keep].sum())
+        exact_blocks = flagged[keep[good[keep] < r ** 3]]
+    head[8] = fine.size
+    fine = np.ascontiguousarray(np.concatenate([fine, tubes.ravel().astype(dtype)]))
     t4 = time.perf_counter()
+    # the exact query's arrays, pruned to the leaves the lookup can ask: those of the cells it answers
+    # exactly and those reaching outside the grid
+    exact: tuple[npt.NDArray[Any], ...] = wall._args
+    exact_max_depth = exact_max_depth or int(wall.tree.depth.max())
+    if prune:
+        exact = _pruned(wall, head, np.concatenate([np.nonzero(rec[:, 5] == -1.0)[0], exact_blocks]), exact_max_leaf,
+                        exact_max_depth)
+    t5 = time.perf_counter()
     cells = (nx - 1) * (ny - 1) * (nz - 1)
-    n_exact = int((rec[:, 5] < 0).sum())
+    n_exact = int((rec[:, 5] == -1.0).sum())
     stats = {"nodes": float(nx * ny * nz), "cells": float(cells), "flagged_spread": float(counts[0]),
              "flagged_test": float(counts[1]), "tested_cells": float(counts[2]),
              "flagged_fraction": float(counts[0] + counts[1]) / cells, "refined_blocks": float(n_blocks),
              "exact_cells": float(n_exact), "exact_subcells": float(sub_exact),
-             "exact_fraction": (n_exact + sub_exact / max(r, 1) ** 3) / cells, "lumen_nodes": float(lumen.size),
-             "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6, "sample_s": t1 - t0,
-             "diameter_s": t2 - t1, "flag_s": t3 - t2, "refine_s": t4 - t3, "build_s": t4 - t0}
-    return WallField3D(wall, head, field, fine, stats)
+             "exact_fraction": (n_exact + sub_exact / max(r, 1) ** 3) / cells, "lumen_nodes": float((diam > 0).sum()),
+             "exact_balls": float(n_balls),
+             "tube_cells": float(tubes.shape[0]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
+             "exact_MB": sum(a.nbytes for a in exact) / 1e6, "exact_index": float(exact[5].size),
+             "exact_nodes": float(len(exact[4])), "exact_triangles": float(exact[0].size // 48),
+             "sample_s": t1 - t0, "diameter_s": t2 - t1, "flag_s": t3 - t2, "tube_s": t3b - t3, "refine_s": t4 - t3b, "prune_s": t5 - t4,
+             "build_s": t5 - t0}
+    return WallField3D(wall, head, field, fine, stats, exact)

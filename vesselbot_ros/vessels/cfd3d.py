@@ -28,6 +28,12 @@ before); physical groups ``inlet``, ``outlet:<branch>``, ``wall`` and ``lumen``.
 wall is resolved by ``wall_elements_per_circle`` elements around every circumference (gmsh's
 curvature sizing) and the interior by ``mesh_size_m``.
 
+Wall (:func:`mesh_wall`): the surface of the same solid meshed alone, for the 3-D plant's wall, far finer than
+the flow needs: sized by the surface's curvature so that a facet sags about ``sag_m`` off the CAD surface
+(0.5 um: 67 um triangles on a 1.5 mm tube, 110 um on the carotid's 4 mm one, 0.2-0.45 million triangles for
+the shipped trees, 5-30 s), the caps (the solid's flat faces at the branch ends) meshed for their normals and
+left out.  The measured sag (each triangle's centroid against the CAD surface) is returned with it.
+
 Equations: ``rho (u . grad) u = -grad p + div(mu grad u)``, ``div u = 0``, Taylor-Hood P2/P1, mu the
 Pries viscosity (the blood model) at the local branch diameter, element by element (the diameter of
 the branch tube whose capsule ``r - |x - c|`` is largest at the element's centroid, as the 2-D
@@ -84,6 +90,8 @@ __all__ = [
     "tree_from_network",
     "settings_from_network",
     "mesh_tree",
+    "WallMesh3D",
+    "mesh_wall",
     "solve_tree",
     "evaluate",
     "sample_grid",
@@ -286,33 +294,8 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add(tree.name)
-        occ = gmsh.model.occ
         try:
-            pieces = _tree_solids(occ, tree, caps)
-            vols = [v for piece in pieces for v in piece]
-            if len(vols) > 1:
-                occ.fuse(vols[:1], vols[1:])
-            occ.synchronize()
-            if len(pieces) > 1 and not _fused_lumen(gmsh, tree, caps):
-                # OpenCASCADE's fuse of all the solids at once can drop a swept tube, and gmsh cannot mesh
-                # some trimmed periodic (seamed) pipe walls: again with seamless swept tubes, branch by branch
-                gmsh.model.remove()
-                gmsh.model.add(tree.name)
-                occ = gmsh.model.occ
-                pieces = _tree_solids(occ, tree, caps, seamless=True)
-                whole = pieces[0]
-                for piece in pieces[1:]:
-                    whole, _map = occ.fuse(whole, piece)
-                occ.synchronize()
-            volumes = gmsh.model.getEntities(3)
-            if len(volumes) != 1:
-                raise ConfigError(f"3-D tree {tree.name!r}: the fused tubes make {len(volumes)} volumes, not one "
-                                  "(branches that do not touch, or an OpenCASCADE boolean failure)")
-            assigned, wall = _assign_caps(gmsh, caps)
-            missing = [k for k, v in assigned.items() if not v]
-            if missing:
-                raise ConfigError(f"3-D tree {tree.name!r}: no flat cap found for {missing} after the union "
-                                  "(an end inside another tube?)")
+            volumes, assigned, wall = _lumen(gmsh, tree, caps)
             groups = {k: gmsh.model.addPhysicalGroup(2, v) for k, v in assigned.items()}
             groups["wall"] = gmsh.model.addPhysicalGroup(2, wall)
             for k, g in groups.items():
@@ -363,14 +346,153 @@ def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
     neg = vol < 0
     tet[neg] = tet[neg][:, [0, 2, 1, 3]]
     bnd = {k: remap[lookup[v]] for k, v in tris.items()}
-    # each cap's normal from its own (flat) triangles: OCC's spline ends where the chord-length spline does, but
-    # its end tangent follows OCC's end conditions, and the swept disc is normal to OCC's curve
-    for k, (c, n, r) in list(caps.items()):
-        tri = pts3[bnd[k]]
+    return Meshed3D(pts3, tet, bnd, _cap_normals(caps, pts3, bnd), time.perf_counter() - t0)
+
+
+@dataclasses.dataclass
+class WallMesh3D:
+    """A fine triangulation of a tree's wall (its lumen's boundary without the caps), for the plant.
+
+    Attributes:
+        vertices: (n, 3) vertices (m).  triangles: (k, 3) vertex indices (gmsh's orientation).
+        caps: ``inlet`` / ``outlet:<branch>`` -> (centre (3,) m, unit outward normal (3,), radius m).
+        meta: sizes, the facets' measured sag (um: max and 99th percentile of each triangle's centroid's distance
+            to the CAD surface), the meshing time (s).
+    """
+
+    vertices: npt.NDArray[np.float64]
+    triangles: npt.NDArray[np.int64]
+    caps: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]]
+    meta: dict[str, Any]
+
+
+#: Elements per 2 pi radians of curvature of the curvature sizing :func:`mesh_wall` reads the curvature through.
+_CURVATURE_PROBE = 64
+
+
+def mesh_wall(tree: Tree3D, sag_m: float = 0.5e-6, max_size_m: float = 1.0e-3) -> WallMesh3D:
+    """Mesh only the surface of ``tree``'s lumen (the solid :func:`mesh_tree` fills): triangles whose sag off the
+    CAD surface is about ``sag_m``.
+
+    Size: gmsh's curvature sizing gives each point its radius of curvature rho (the larger principal curvature:
+    around a tube, its radius); a chord c over a radius rho sags c^2 / (8 rho) (c^2 / (6 rho) over a triangle
+    whose corners lie on a sphere), so the size is sqrt(6 rho sag_m), at most ``max_size_m`` (a tube of 1.5 mm:
+    67 um, 140 around; 4 mm: 110 um).  The caps are meshed (their triangles give their normals) and left out.
+
+    Raises:
+        ConfigError: gmsh cannot build the solid or mesh it.
+    """
+    import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
+
+    t0 = time.perf_counter()
+    caps: dict[str, tuple[Any, Any, float]] = {}
+    gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add(tree.name)
+        try:
+            _volumes, assigned, wall = _lumen(gmsh, tree, caps)
+            gmsh.option.setNumber("Mesh.MeshSizeMax", max_size_m)
+            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.01 * math.sqrt(sag_m * max_size_m))
+            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", _CURVATURE_PROBE)
+            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+            gmsh.option.setNumber("Mesh.Algorithm", 6)
+
+            def size(_dim: int, _tag: int, _x: float, _y: float, _z: float, lc: float) -> float:
+                rho = lc * _CURVATURE_PROBE / (2.0 * math.pi)  # the curvature sizing's lc = 2 pi rho / N
+                return min(lc, math.sqrt(6.0 * rho * sag_m))
+
+            gmsh.model.mesh.setSizeCallback(size)
+            gmsh.model.mesh.generate(2)
+            node_tags, coords, _ = gmsh.model.mesh.getNodes()
+            tags = np.asarray(node_tags, dtype=np.int64)
+            xyz = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+            lookup = np.full(tags.max() + 1, -1, dtype=np.int64)
+            lookup[tags] = np.arange(len(tags))
+
+            def triangles(surfaces: list[int]) -> npt.NDArray[np.int64]:
+                parts = []
+                for sf in surfaces:
+                    ty, _e, en = gmsh.model.mesh.getElements(2, int(sf))
+                    parts += [np.asarray(e, dtype=np.int64) for t, e in zip(ty, en) if t == 2]
+                return lookup[np.concatenate(parts).reshape(-1, 3)]
+
+            wall_tri = triangles(wall)
+            cap_tri = {k: triangles(v) for k, v in assigned.items()}
+            sag = []
+            for sf in wall:  # each triangle's centroid against its CAD surface
+                tri = triangles([sf])
+                cen = xyz[tri].mean(axis=1)
+                foot, _par = gmsh.model.getClosestPoint(2, int(sf), cen.ravel().tolist())
+                sag.append(np.linalg.norm(np.asarray(foot).reshape(-1, 3) - cen, axis=1))
+        except ConfigError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - gmsh raises a bare Exception with its last error
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ConfigError(f"3-D tree {tree.name!r}: gmsh could not mesh the wall: {msg}") from None
+    finally:
+        gmsh.finalize()
+    caps = _cap_normals(caps, xyz, cap_tri)
+    used, inv = np.unique(wall_tri, return_inverse=True)
+    sags = np.concatenate(sag)
+    meta = {"vertices": int(len(used)), "triangles": int(len(wall_tri)), "sag_target_um": sag_m * 1e6,
+            "sag_max_um": float(sags.max() * 1e6), "sag_p99_um": float(np.percentile(sags, 99) * 1e6),
+            "mesh_s": time.perf_counter() - t0}
+    return WallMesh3D(np.ascontiguousarray(xyz[used]), np.ascontiguousarray(inv.reshape(-1, 3).astype(np.int64)), caps, meta)
+
+
+def _lumen(gmsh: Any, tree: Tree3D, caps: dict[str, tuple[Any, Any, float]]
+           ) -> tuple[list[tuple[int, int]], dict[str, list[int]], list[int]]:
+    """Build the tree's lumen as one OCC volume in the current gmsh model (module docstring: the fuse, and the
+    seamless branch-by-branch one if that is not whole); fills ``caps``.
+
+    Returns:
+        (the volumes (one), cap name -> its flat surfaces, the wall's surfaces).
+
+    Raises:
+        ConfigError: the union is not one volume, or a cap has no flat face.
+    """
+    occ = gmsh.model.occ
+    pieces = _tree_solids(occ, tree, caps)
+    vols = [v for piece in pieces for v in piece]
+    if len(vols) > 1:
+        occ.fuse(vols[:1], vols[1:])
+    occ.synchronize()
+    if len(pieces) > 1 and not _fused_lumen(gmsh, tree, caps):
+        # OpenCASCADE's fuse of all the solids at once can drop a swept tube, and gmsh cannot mesh
+        # some trimmed periodic (seamed) pipe walls: again with seamless swept tubes, branch by branch
+        gmsh.model.remove()
+        gmsh.model.add(tree.name)
+        occ = gmsh.model.occ
+        pieces = _tree_solids(occ, tree, caps, seamless=True)
+        whole = pieces[0]
+        for piece in pieces[1:]:
+            whole, _map = occ.fuse(whole, piece)
+        occ.synchronize()
+    volumes = gmsh.model.getEntities(3)
+    if len(volumes) != 1:
+        raise ConfigError(f"3-D tree {tree.name!r}: the fused tubes make {len(volumes)} volumes, not one "
+                          "(branches that do not touch, or an OpenCASCADE boolean failure)")
+    assigned, wall = _assign_caps(gmsh, caps)
+    missing = [k for k, v in assigned.items() if not v]
+    if missing:
+        raise ConfigError(f"3-D tree {tree.name!r}: no flat cap found for {missing} after the union "
+                          "(an end inside another tube?)")
+    return volumes, assigned, wall
+
+
+def _cap_normals(caps: dict[str, tuple[Any, Any, float]], points: npt.NDArray[np.float64],
+                 cap_triangles: dict[str, npt.NDArray[np.int64]]) -> dict[str, tuple[Any, Any, float]]:
+    """Each cap's unit outward normal from its own (flat) triangles (OCC's spline ends where the chord-length
+    spline does, but its end tangent follows OCC's end conditions, and the swept disc is normal to OCC's curve)."""
+    out = {}
+    for k, (c, n, r) in caps.items():
+        tri = points[cap_triangles[k]]
         nn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0)
-        nn = _unit(nn) * (1.0 if float(np.dot(nn, n)) > 0 else -1.0)
-        caps[k] = (c, nn, r)
-    return Meshed3D(pts3, tet, bnd, caps, time.perf_counter() - t0)
+        out[k] = (c, _unit(nn) * (1.0 if float(np.dot(nn, n)) > 0 else -1.0), r)
+    return out
 
 
 def _tree_solids(occ: Any, tree: Tree3D, caps: dict[str, tuple[Any, Any, float]],

@@ -4,23 +4,40 @@ A 3-D network (:attr:`~vesselbot_ros.vessels.network.VesselNetworkParams.is_3d`:
 solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries viscosity, the network's
 ``cfd.outlet_split`` imposed at the outlets) and sampled for the plant:
 
-* the wall: the solve's tetrahedral mesh's boundary without its inlet and outlet caps, a triangulated surface
-  whose exact signed distance, smooth inward normal and local (ball) diameter
+* the wall: the surface of the same fused solid the flow is solved in, meshed alone
+  (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`: facets sagging about ``WALL_SAG_M`` = 0.5 um off the CAD
+  surface, where the flow mesh's 0.3-0.8 mm facets sag up to 7.5-20 um; its caps, flat faces of the solid,
+  left out), whose exact signed distance, smooth inward normal and local (ball) diameter
   :mod:`vesselbot_ros.physics.meshed_wall3d` answers, sampled on the grid by
-  :mod:`vesselbot_ros.physics.wall_field3d` (within 1 mm of the wall: 5 um and 2 deg, the exact query in the
-  cells interpolation cannot answer);
+  :mod:`vesselbot_ros.physics.wall_field3d`;
 * the flow: the P2 velocity at the grid's nodes, normalised to an inlet centreline velocity of 1 (the plant
   scales it by ``physics.flow.centreline_velocity_m_per_s`` and the pulse (12), as the planar network's),
   zero outside the mesh; the blood viscosity at each node is Pries' at the node's local diameter.
 
+The flow mesh's own wall (10-23 thousand triangles) is kept for views to draw (:func:`wall_mesh`); the plant's
+has 0.2-0.45 million.
+
 Grid: spacing ``cfd.grid_spacing_3d_m`` (0: 0.1 mm), nodes on multiples of it, round the wall with a margin
 of 0.3 mm plus two spacings.
 
-Shipped, cached, or solved.  The samples (wall triangles, caps, grid, flow) of a tree and blood model are one
-file, ``<network>-<key>.3d.npz``: shipped with the scenarios' networks in ``config/cfd/``, else cached in
+Standard of the sampled wall: within ``BAND_M`` (1 mm) of the wall in the lumen and ``OUT_BAND_M`` (0.1 mm)
+outside it, distance within 5 um and normal within 2 deg of the exact query (the cells interpolation cannot
+answer go to it), but for the normal within 50 um of a medial surface (a vessel's axis; the exact normal
+itself is defined there only to the facets' scale).  Outside the lumen by more, where a bead's centre never is
+(a run counts that time as outside the lumen), and deeper in it, the lookup interpolates whatever the error
+(the sign is kept): the wall's net force there -- the near and the far wall's electrostatic pull, the other
+terms being nil across such gaps; the drag's wall factor reads the diameter -- is at most 2-4.5 % of the
+bead's weight at 1 mm (D = 2.4-8 mm, the shipped physics) and vanishes towards the medial surface, where the
+normal is undefined; the flow's dilation shift along the normal vanishes there too (D / 2 = s).
+
+Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, caps, grid, flow) of a tree and
+blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
+:meth:`PlantField3D.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
-them (tens of seconds) is cached beside them (``.wall.npz``, not shipped: tens of megabytes).  A torn or
-foreign file is solved or built again; a failed solve caches nothing.
+them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine): III-C 11 s, 111 MB;
+carotid 44 s, 120 MB; synthetic tree 23 s, 399 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
+it) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
+tree.  A torn, foreign or older file is solved or built again; a failed solve caches nothing.
 """
 
 from __future__ import annotations
@@ -52,11 +69,27 @@ __all__ = ["PlantField3D", "flow_settings", "grid_spacing_m", "field_key", "plan
            "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
 
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
-FIELD3D_VERSION = 1
+FIELD3D_VERSION = 2
+#: Bumped when the wall field built from the samples changes (a cached ``.wall.npz`` of another is built again).
+WALL_VERSION = 1
 #: The grid's margin round the wall (m), plus two spacings.
 GRID_MARGIN_M = 3.0e-4
 #: Default spacing of the plant's grid (m).
 DEFAULT_SPACING_M = 1.0e-4
+#: The plant's wall: the facets' sag off the CAD surface (m) (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`).
+WALL_SAG_M = 0.5e-6
+#: The wall field's standard holds within this of the wall in the lumen (m) ...
+BAND_M = 1.0e-3
+#: ... and within this outside it (m): a bead's centre is in the lumen (module docstring).
+OUT_BAND_M = 1.0e-4
+#: Sub-cells per axis of a flagged cell that reaches into the lumen.
+REFINE = 2
+#: The wall's candidate tree is finest (0.2 mm) within this of the wall (m) ...
+NEAR_M = 0.6e-3
+#: ... and the lookup's, kept where it asks the exact query, down to 0.1 mm (depth 5 under 3.2 mm roots).
+EXACT_DEPTH = 5
+#: Vertices are stored in the samples' file on this lattice (m).
+_QUANTUM_M = 1.0e-9
 
 Array = npt.NDArray[np.float64]
 
@@ -81,7 +114,8 @@ def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
     """The samples' key: sha256 of the tree, its solve settings, the grid, the blood model and the version."""
     tree = cfd3d.tree_from_network(net)
     text = json.dumps({"tree": dataclasses.asdict(tree), "settings": dataclasses.asdict(flow_settings(net)),
-                       "h": grid_spacing_m(net), "blood": to_mapping(blood), "v": FIELD3D_VERSION}, sort_keys=True)
+                       "h": grid_spacing_m(net), "sag": WALL_SAG_M, "blood": to_mapping(blood), "v": FIELD3D_VERSION},
+                      sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
@@ -99,11 +133,14 @@ class PlantField3D:
 
     Attributes:
         name: The network's name.  key: :func:`field_key`.
-        vertices: (n, 3) wall vertices (m).  triangles: (k, 3) wall triangles (caps excluded).
+        vertices: (n, 3) the plant's wall vertices (m), on a 1 nm lattice.  triangles: (k, 3) its triangles (caps
+            excluded): the solid's surface meshed alone (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`).
         caps: cap name -> (centre (3,), unit outward normal (3,), radius m).
         origin: (3,) grid origin (m).  h: spacing (m).  shape: (nx, ny, nz) nodes.
         velocity: (nz, ny, nx, 3) float32 velocity per unit inlet centreline velocity (-).
-        meta: the solve's figures.
+        meta: the solve's and the wall mesh's figures.
+        view_vertices, view_triangles: The flow mesh's wall (caps excluded; coarser, within its facets' sag of
+            the same solid): what a view draws.
     """
 
     name: str
@@ -116,13 +153,25 @@ class PlantField3D:
     shape: tuple[int, int, int]
     velocity: npt.NDArray[np.float32]
     meta: dict[str, Any]
+    view_vertices: Array
+    view_triangles: npt.NDArray[np.int64]
 
     def save(self, path: Path) -> None:
-        """Write atomically (temporary file, then rename)."""
+        """Write atomically (temporary file, then rename).
+
+        The plant's wall (in :func:`_canonical_wall`'s order) is written compactly, being most of the file:
+        vertices as integer nanometres from the grid's origin differenced along the rows, triangles as their
+        first vertex differenced along the rows and the other two less the first (small numbers, which
+        deflate well); :meth:`load` restores them exactly.
+        """
         caps = {k: [c.tolist(), n.tolist(), r] for k, (c, n, r) in self.caps.items()}
         info = {"name": self.name, "key": self.key, "h": self.h, "shape": list(self.shape), "caps": caps,
                 "meta": self.meta, "v": FIELD3D_VERSION}
-        _atomic_savez(path, True, vertices=self.vertices, triangles=self.triangles.astype(np.int32),
+        q = np.rint((self.vertices - self.origin) / _QUANTUM_M).astype(np.int64)
+        t = self.triangles
+        _atomic_savez(path, True, wall_q=np.diff(q, axis=0, prepend=0).astype(np.int32),
+                      wall_t=np.column_stack([np.diff(t[:, 0], prepend=0), t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]]).astype(np.int32),
+                      vertices=self.view_vertices, triangles=self.view_triangles.astype(np.int32),
                       origin=self.origin, velocity=self.velocity, info=np.array(json.dumps(info)))
 
     @classmethod
@@ -138,14 +187,22 @@ class PlantField3D:
                 raise ValueError(f"{path}: velocity {vel.shape} does not fit the grid {shape}")
             caps = {k: (np.array(c, dtype=np.float64), np.array(n, dtype=np.float64), float(r))
                     for k, (c, n, r) in info["caps"].items()}
-            return cls(info["name"], info["key"], np.asarray(z["vertices"], dtype=np.float64),
-                       np.asarray(z["triangles"], dtype=np.int64), caps, np.asarray(z["origin"], dtype=np.float64),
-                       float(info["h"]), (shape[0], shape[1], shape[2]), vel, info["meta"])
+            origin = np.asarray(z["origin"], dtype=np.float64)
+            verts = origin + _QUANTUM_M * np.cumsum(z["wall_q"].astype(np.int64), axis=0).astype(np.float64)
+            wt = z["wall_t"].astype(np.int64)
+            first = np.cumsum(wt[:, 0])
+            tri = np.column_stack([first, first + wt[:, 1], first + wt[:, 2]])
+            return cls(info["name"], info["key"], np.ascontiguousarray(verts), np.ascontiguousarray(tri), caps, origin,
+                       float(info["h"]), (shape[0], shape[1], shape[2]), vel, info["meta"],
+                       np.asarray(z["vertices"], dtype=np.float64), np.asarray(z["triangles"], dtype=np.int64))
 
     @functools.cached_property
     def wall(self) -> Wall3D:
-        """The exact wall, its candidate tree covering the grid."""
-        return Wall3D(self.vertices, self.triangles, list(self.caps.values()), margin_m=GRID_MARGIN_M + 4.0 * self.h)
+        """The exact wall, its candidate tree covering the grid (what the build asks): leaves of 0.2 mm within
+        ``NEAR_M`` of the wall (most of the build's queries), of 0.4 to 0.8 mm deeper in the lumen, sealed (no
+        list) wholly outside it beyond the outer band and 3 h."""
+        return Wall3D(self.vertices, self.triangles, list(self.caps.values()), margin_m=GRID_MARGIN_M + 4.0 * self.h,
+                      root_m=3.2e-3, max_depth=4, near_m=NEAR_M, deep_leaf_m=0.8e-3, far_out_m=OUT_BAND_M + 3.0 * self.h)
 
     def viscosity(self, blood: BloodParams, diameter_m: Array) -> Array:
         """Pries' viscosity (Pa s) of ``blood`` at local diameters (m)."""
@@ -174,6 +231,27 @@ def shipped_dir() -> Path:
     return shipped_field_dir()
 
 
+def _canonical_wall(vertices: Array, triangles: npt.NDArray[np.int64], origin: Array
+                    ) -> tuple[Array, npt.NDArray[np.int64]]:
+    """The wall in the order its file keeps: vertices on the 1 nm lattice from ``origin``, sorted along a Morton
+    curve of 20 um cells; each triangle rotated (orientation kept) to start at its least vertex, the triangles
+    sorted.  Near vertices get near numbers, so the file's differences are small."""
+    q = np.rint((vertices - origin) / _QUANTUM_M).astype(np.int64)
+    cell = ((q - q.min(axis=0)) // 20_000).astype(np.uint64)
+    code = np.zeros(len(q), dtype=np.uint64)
+    for bit in range(21):
+        for ax in range(3):
+            code |= ((cell[:, ax] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + ax)
+    order = np.argsort(code, kind="stable")
+    new = np.empty_like(order)
+    new[order] = np.arange(len(order))
+    t = new[triangles]
+    roll = np.argmin(t, axis=1)
+    t = np.take_along_axis(t, (roll[:, None] + np.arange(3)[None, :]) % 3, axis=1)
+    t = t[np.lexsort((t[:, 2], t[:, 1], t[:, 0]))]
+    return origin + _QUANTUM_M * q[order].astype(np.float64), np.ascontiguousarray(t.astype(np.int64))
+
+
 def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
     """The mesh's boundary triangles that are not on a cap (a cap: in its plane, within 1.05 of its radius)."""
     m = sol.mesh
@@ -189,25 +267,28 @@ def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
 
 
 def _sample(net: VesselNetworkParams, blood: BloodParams, key: str) -> PlantField3D:
-    """Solve (or read the cached solve) and sample (module docstring)."""
+    """Solve (or read the cached solve), mesh the wall and sample (module docstring)."""
     t0 = time.perf_counter()
     settings = flow_settings(net)
-    sol, _path = cfd3d.solve_tree_cached(cfd3d.tree_from_network(net), settings, blood)
-    tri = _wall_triangles(sol)
-    used, inv = np.unique(tri, return_inverse=True)
-    verts = np.ascontiguousarray(sol.mesh.p.T[used])
-    tri = inv.reshape(-1, 3).astype(np.int64)
+    tree = cfd3d.tree_from_network(net)
+    sol, _path = cfd3d.solve_tree_cached(tree, settings, blood)
+    vtri = _wall_triangles(sol)
+    used, inv = np.unique(vtri, return_inverse=True)
+    view_verts = np.ascontiguousarray(sol.mesh.p.T[used])
+    vtri = inv.reshape(-1, 3).astype(np.int64)
+    wm = cfd3d.mesh_wall(tree, WALL_SAG_M)
     h = grid_spacing_m(net)
-    origin, shape = grid_box(verts.min(axis=0), verts.max(axis=0), h, GRID_MARGIN_M + 2.0 * h)
+    origin, shape = grid_box(wm.vertices.min(axis=0), wm.vertices.max(axis=0), h, GRID_MARGIN_M + 2.0 * h)
+    verts, tri = _canonical_wall(wm.vertices, wm.triangles, origin)
     nx, ny, nz = shape
     g = np.stack(np.meshgrid(origin[0] + h * np.arange(nx), origin[1] + h * np.arange(ny),
                              origin[2] + h * np.arange(nz), indexing="ij"), axis=-1)  # (nx, ny, nz, 3)
     pts = g.transpose(2, 1, 0, 3).reshape(-1, 3)  # x fastest
     vel, _p, _ok = cfd3d.evaluate(sol, pts)
     vel32: npt.NDArray[np.float32] = (vel / settings.inlet_centreline_velocity_m_per_s).reshape(nz, ny, nx, 3).astype(np.float32)
-    meta = {"solve": sol.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
-            "nodes": int(nx * ny * nz)}
-    return PlantField3D(net.name, key, verts, tri, dict(sol.caps), origin, h, (nx, ny, nz), vel32, meta)
+    meta = {"solve": sol.meta, "wall": wm.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
+            "view_triangles": int(len(vtri)), "nodes": int(nx * ny * nz)}
+    return PlantField3D(net.name, key, verts, tri, dict(wm.caps), origin, h, (nx, ny, nz), vel32, meta, view_verts, vtri)
 
 
 @functools.lru_cache(maxsize=8)
@@ -243,20 +324,26 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
     if path.is_file():
         try:
             with np.load(path) as z:
-                args = tuple(np.ascontiguousarray(z[n]) for n in names)
                 stats = json.loads(str(z["stats"]))
+                if stats.get("v") != WALL_VERSION:
+                    raise ValueError(f"{path}: wall version {stats.get('v')!r}, not {WALL_VERSION}")
+                args = tuple(np.ascontiguousarray(z[n]) for n in names)
             return WallArrays(args, stats)
         except (OSError, ValueError, KeyError):
-            pass  # a torn or foreign file: build again
-    wf = build_wall_field3d(fld.wall, h_m=fld.h, origin_m=fld.origin, shape=fld.shape)
-    _atomic_savez(path, False, stats=np.array(json.dumps(wf.stats)), **dict(zip(names, wf.args, strict=True)))
-    return WallArrays(tuple(wf.args), wf.stats)
+            pass  # a torn, foreign or older file: build again
+    wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
+                            origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH)
+    stats = {**wf.stats, "v": WALL_VERSION}
+    _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
+    return WallArrays(tuple(wf.args), stats)
 
 
 def wall_mesh(net: VesselNetworkParams, blood: BloodParams | None = None) -> tuple[Array, npt.NDArray[np.int64]]:
-    """(vertices (n, 3) m, triangles (k, 3)) of the wall the 3-D plant sees (caps excluded): what a view draws."""
+    """(vertices (n, 3) m, triangles (k, 3)) of the tree's wall (caps excluded) to draw: the flow mesh's (tens of
+    thousands of triangles), within its facets' sag (up to about 20 um on the carotid's 4 mm trunk) of the
+    finer one the plant computes with (:attr:`PlantField3D.vertices`: hundreds of thousands)."""
     fld = plant_field(net, blood)
-    return fld.vertices, fld.triangles
+    return fld.view_vertices, fld.view_triangles
 
 
 @dataclasses.dataclass(frozen=True)

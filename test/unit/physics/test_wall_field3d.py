@@ -111,7 +111,7 @@ def test_flagged_cells_and_points_off_the_grid_answer_exactly(y: wf.WallField3D)
     pick = rng.choice(len(kk), size=min(4000, len(kk)), replace=False)
     h = y.head[3]
     q = y.head[:3] + h * (np.column_stack([ii[pick], jj[pick], kk[pick]]) + rng.uniform(0.01, 0.99, size=(len(pick), 3)))
-    q = np.concatenate([q, [[-20e-3, 0.0, 0.0], [0.0, 0.0, 9e-3]]])
+    q = np.concatenate([q, [[-20e-3, 0.0, 0.0], [7.37e-3, 5.16e-3, 0.0]]])  # off the grid, in the lumen beyond two caps
     ex = y.exact_mask(q)
     assert ex[-2:].all() and 0 < ex.sum() < len(q)
     assert y.stats["refined_blocks"] > 0 and y.stats["exact_subcells"] > 0
@@ -120,6 +120,27 @@ def test_flagged_cells_and_points_off_the_grid_answer_exactly(y: wf.WallField3D)
     np.testing.assert_array_equal(r["normal"], e["normal"])
     r = y.query(q[~ex])
     assert not np.array_equal(r["sdist"], y.wall.query(q[~ex])["sdist"])  # interpolated there
+
+
+def test_the_pruned_exact_query_answers_as_the_whole_tree_wherever_the_lookup_asks_it(y: wf.WallField3D) -> None:
+    """The lookup carries the exact query pruned to the leaves of its exact cells and off the grid (split finer
+    there, a fraction of the wall's tree): bit for bit the whole tree's answer everywhere in the grid and off it
+    but far outside the lumen, where it is signed outside and no nearer than the wall."""
+    full = (*y.args[:3], *y.wall._args)
+    assert y.args[8].dtype == np.int32 and y.args[7].dtype == np.int32
+    assert y.args[8].size < 0.5 * y.wall.tree.index.size
+    rng = np.random.default_rng(8)
+    o, h = y.head[:3], y.head[3]
+    top = o + h * (np.array(y.shape) - 1)
+    q = np.ascontiguousarray(rng.uniform(o, top, size=(40000, 3)))
+    np.testing.assert_array_equal(wf.field_points3d(q, *y.args), wf.field_points3d(q, *full))
+    g = y.wall.tree.grid  # off the grid, in the tree's box (beyond it the lists do not hold)
+    off = np.ascontiguousarray(rng.uniform(g[0:3], g[0:3] + g[3] * g[4:7], size=(40000, 3)))
+    off = off[((off < o) | (off >= top)).any(axis=1)]
+    a, b = wf.field_points3d(off, *y.args), wf.field_points3d(off, *full)
+    same = (a == b).all(axis=1)
+    assert same.any() and (b[~same, 0] < 0).all()  # sealed leaves: wholly outside the lumen
+    assert (a[~same, 0] <= b[~same, 0] + 1e-12).all()
 
 
 def test_grid_nodes_lie_on_multiples_of_the_spacing_and_must_stay_in_the_candidate_tree() -> None:

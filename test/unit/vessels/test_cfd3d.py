@@ -189,6 +189,29 @@ def test_tapered_and_curved_branches_mesh_to_their_volume() -> None:
         assert np.linalg.norm(tri - centre, axis=2).max() <= r * (1 + 1e-9)
 
 
+def test_the_wall_alone_is_meshed_to_its_sag_without_its_caps() -> None:
+    """mesh_wall: the solid's surface, caps left out (every boundary edge on a cap's rim), vertices on the
+    cylinder, facets sagging about the target (0.5 um here, 67 um triangles on 1.5 mm); the caps' normals."""
+    wm = cfd3d.mesh_wall(_tube(), sag_m=0.5e-6)
+    v, t = wm.vertices, wm.triangles
+    rho = np.hypot(v[:, 1], v[:, 2])
+    assert np.abs(rho - R).max() < 1e-9 * L  # on the CAD surface
+    cen = v[t].mean(axis=1)
+    sag = R - np.hypot(cen[:, 1], cen[:, 2])
+    assert 0.2e-6 < np.percentile(sag, 99) < 0.6e-6 and sag.max() < 1.0e-6
+    assert wm.meta["sag_max_um"] == pytest.approx(sag.max() * 1e6, rel=0.05)
+    assert sorted(wm.caps) == ["inlet", "outlet:a"]
+    np.testing.assert_allclose(wm.caps["inlet"][1], [-1.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(wm.caps["outlet:a"][1], [1.0, 0.0, 0.0], atol=1e-9)
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _u, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    rim = np.unique(key[cnt[inv.ravel()] == 1])
+    assert np.isin(np.round(v[rim, 0] / L, 9), [0.0, 1.0]).all()  # boundary edges only at the two ends
+    assert (cen[:, 0] > 1e-9).all() and (cen[:, 0] < L - 1e-9).all()  # no cap triangle
+    assert cnt.max() == 2
+
+
 def test_a_shipped_non_planar_tree_with_a_sinus_meshes_into_one_lumen() -> None:
     net = load_network("carotid_bifurcation_3d")
     tree = cfd3d.tree_from_network(net)

@@ -23,12 +23,31 @@ def test_every_shipped_tree_ships_its_samples(name: str) -> None:
     fld = pf.PlantField3D.load(path)
     assert fld.key == pf.field_key(net, BloodParams()) and fld.h == pf.grid_spacing_m(net)
     assert fld.velocity.shape == (fld.shape[2], fld.shape[1], fld.shape[0], 3)
-    # the wall: no triangle on a cap, every vertex on its branch's tube (the mesh's resolution aside)
-    cen = fld.vertices[fld.triangles].mean(axis=1)
-    for c, n, r in fld.caps.values():
-        assert np.min(np.abs((cen - c) @ n)) > 1e-4 * r
-    sd = NetworkGeometry3D(net).query(fld.vertices)["sdist"]
-    assert np.max(np.abs(sd)) < 0.15e-3  # fillets at the junctions, facets elsewhere
+    # the plant's wall: no triangle on a cap, every vertex on its branch's tube (up to the junctions' creases),
+    # facets sagging 0.5 um or so, 0.2-0.45 million of them; the view's wall: the flow mesh's, tens of thousands
+    for v, t in ((fld.vertices, fld.triangles), (fld.view_vertices, fld.view_triangles)):
+        cen = v[t].mean(axis=1)
+        for c, n, r in fld.caps.values():  # in a cap's plane only a sliver of the tube between rim vertices
+            in_plane = np.abs((cen - c) @ n) < 1e-4 * r
+            assert (np.linalg.norm(cen[in_plane] - c, axis=1) > r * (1 - 1e-3)).all()
+        sd = NetworkGeometry3D(net).query(v)["sdist"]
+        assert np.max(np.abs(sd)) < 0.15e-3  # the smoothed centrelines' tubes against the solid's (junctions)
+    assert 2e5 < len(fld.triangles) < 5e5 and 5e3 < len(fld.view_triangles) < 3e4
+    assert fld.meta["wall"]["sag_p99_um"] < 0.5 and fld.meta["wall"]["sag_max_um"] < 1.0
+    assert path.stat().st_size < 7e6
+    q = np.rint((fld.vertices - fld.origin) / 1e-9)  # on the file's 1 nm lattice
+    np.testing.assert_allclose(fld.origin + 1e-9 * q, fld.vertices, rtol=0, atol=1e-15)
+
+
+def test_the_wall_arrays_are_the_lookup_with_the_exact_query_pruned() -> None:
+    """The cached wall arrays: the lookup's field and the exact query kept only where the lookup asks it (int32
+    lists and nodes, a fraction of the triangles); the carotid's well under 200 MB."""
+    net = load_network("config/vessels/carotid_bifurcation_3d.yaml")
+    wa = pf.wall_arrays(net)
+    assert len(wa.args) == 9 and wa.args[7].dtype == np.int32 and wa.args[8].dtype == np.int32
+    assert sum(a.nbytes for a in wa.args) < 150e6
+    assert wa.stats["exact_triangles"] < 0.5 * len(pf.plant_field(net).triangles)
+    assert wa.stats["v"] == pf.WALL_VERSION
 
 
 def test_the_flow_is_normalised_to_the_inlet_and_zero_outside() -> None:
