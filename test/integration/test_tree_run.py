@@ -2,9 +2,10 @@
 
 paper_iiic_network_upper_3d.yaml (the III-C artery written as a 3-D tree; the imager is noisy in y, so y is real
 everywhere downstream of it) over 0.6 s (the outlier burst at 0.5 s included), lockstep, seed 0: once with one
-process per node (the default) and once composed in one process.  Each run's metrics equal the ROS-free loop's
-bit for bit, and its bag holds every per-tick vector on three axes, each equal to the pure runner's column:
-truth, measurement, estimate, reference, coil state (slew flags of all three axes), forces.
+process per node (the default) and once composed in one process (with ``--report``).  Each run's metrics equal
+the ROS-free loop's bit for bit, and its bag holds every per-tick vector on three axes, each equal to the pure
+runner's column: truth, measurement, estimate, reference, coil state (slew flags of all three axes), forces; the
+report computed from the bag alone has the same metrics (errors in space).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ def run(request, tmp_path_factory):  # type: ignore[no-untyped-def]
            "--duration", str(DURATION_S), "--record-dir", str(bag), "--metrics-json", str(metrics),
            "--wait-timeout", "120", "--run-timeout", "240"]
     if request.param == "single_process":
-        cmd.append("--single-process")
+        cmd += ["--single-process", "--report"]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=420)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return bag, json.loads(metrics.read_text())["metrics"]
@@ -87,3 +88,14 @@ def test_the_bag_holds_every_vector_on_three_axes_as_the_pure_runner_has_it(run,
     # y is real: the imager's noise in y reaches the estimate, the command and the robot
     for got in ("measurement.p_meas", "estimate.p_hat", "coil.applied", "truth.p_WR"):
         assert np.abs(ts[got][:, 1]).max() > 0.0, got
+
+
+@pytest.mark.parametrize("run", ["single_process"], indirect=True)  # the run that wrote the report
+def test_the_report_from_the_bag_alone_has_the_same_metrics(run, pure) -> None:  # type: ignore[no-untyped-def]
+    bag, m = run
+    rep = json.loads((bag / "report" / "metrics.json").read_text())
+    _scenario, res = pure
+    for k in ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m", "estimation_error_rms_m",
+              "velocity_estimation_error_max_m_per_s", "saturation_time_s", "slew_limited_time_s", "contact_time_s",
+              "max_gradient_T_per_m", "n_ticks"):
+        assert rep[k] == m[k] == res.metrics[k], k
