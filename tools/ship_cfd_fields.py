@@ -1,6 +1,9 @@
 #!/usr/bin/env python3
 """Solve the flow of every shipped scenario's vessel network afresh and ship the sampled fields in config/cfd/.
 
+Planar networks ship their 2-D fields (:mod:`vesselbot_ros.vessels.cfd`); 3-D trees ship the 3-D plant's samples
+(``<tree>-<key>.3d.npz``: :mod:`vesselbot_ros.vessels.plant_field3d`).
+
 Run it (``.venv/bin/python tools/ship_cfd_fields.py``) after a change of a shipped
 network, of the CFD settings or code (``cfd.CACHE_VERSION``) or of a shipped
 scenario's blood model, then ``tools/gen_reference_metrics.py``, and commit
@@ -16,16 +19,21 @@ import sys
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import field_file, network_field, shipped_field_dir
 from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.plant_field3d import field_key, plant_field
 
 
-def shipped_networks() -> dict[str, tuple[object, object]]:
-    """``{field file name: (network, blood)}`` of every shipped scenario that runs in a vessel network."""
+def shipped_networks(three_d: bool = False) -> dict[str, tuple[object, object]]:
+    """``{field file name: (network, blood)}`` of every shipped scenario that runs in a planar vessel network
+    (``three_d``: in a 3-D tree, its samples' file name)."""
     out: dict[str, tuple[object, object]] = {}
     for path in shipped_scenarios().values():
         phys = load_scenario(path).physics
         if phys.vessel.network:
             net = load_network(phys.vessel.network)
-            out[field_file(net, phys.blood)] = (net, phys.blood)
+            if net.is_3d and three_d:
+                out[f"{net.name}-{field_key(net, phys.blood)}.3d.npz"] = (net, phys.blood)
+            elif not net.is_3d and not three_d:
+                out[field_file(net, phys.blood)] = (net, phys.blood)
     return out
 
 
@@ -37,8 +45,13 @@ def main() -> int:
         field = network_field(net, blood, refresh=True)  # type: ignore[arg-type]
         field.save(dest / name)
         print(f"wrote {dest / name} ({field.nz} x {field.nx} grid, solved in {field.meta.get('total_s', 0.0):.1f} s)")
+    wanted_3d = shipped_networks(three_d=True)
+    for name, (net, blood) in sorted(wanted_3d.items()):
+        fld = plant_field(net, blood, refresh=True)  # type: ignore[arg-type]
+        fld.save(dest / name)
+        print(f"wrote {dest / name} ({fld.shape} grid, {len(fld.triangles)} wall triangles)")
     for old in sorted(dest.glob("*.npz")):
-        if old.name not in wanted:
+        if old.name not in wanted and old.name not in wanted_3d:
             old.unlink()
             print(f"removed {old} (no shipped scenario uses it)")
     return 0

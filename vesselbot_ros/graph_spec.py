@@ -361,8 +361,9 @@ SERVICES: tuple[ServiceSpec, ...] = (
 VIEW_CHANNELS: tuple[ViewSpec, ...] = (
     ViewSpec("view_markers", "view/markers", "visualization_msgs/msg/MarkerArray",
              ("truth", "estimate", "coil_state", "reference_path", "vessel_markers"),
-             "3D: the straight vessel's walls at +/- D(t)/2 as they pulse (a network's meshed wall: `vessel_markers`), "
-             "the robot, its estimate, the applied gradient (arrow, 2 mm at the coil limit), the reference path"),
+             "3D: the straight vessel's walls at +/- D(t)/2 as they pulse (a network's meshed wall, a 3-D tree's wall "
+             "mesh: `vessel_markers`), the robot, its estimate, the applied gradient (arrow, 2 mm at the coil limit), "
+             "the reference path, with the messages' y (in 3-D in a 3-D tree)"),
     ViewSpec("view_errors", "view/errors", "json", ("truth", "reference", "estimate", "coil_state"),
              "plots: tracking and estimation error (m), the applied gradient norm against its limit U_sat (T/m)"),
 )

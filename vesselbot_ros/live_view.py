@@ -10,10 +10,13 @@ latest bytes are kept, and decoded only when a view update is due):
 * ``view/markers`` (``visualization_msgs/MarkerArray``, a standard message
   Foxglove's 3D panel draws): in the straight vessel both walls at +/- D(t)/2
   as they pulse (a vessel network's meshed wall is the plant's latched
-  ``vessel_markers``, drawn once, so the view adds no straight walls there),
+  ``vessel_markers``, drawn once, so the view adds no straight walls there,
+  and deletes those it drew before the plant's markers came: they arrive on
+  a topic of their own, a large 3-D mesh after the first ticks' messages),
   the robot (its true radius, from the wall gaps), the estimate, the applied
   gradient as an arrow from the robot (2 mm at the coil limit), and the
-  reference path;
+  reference path, each where its message puts it: in the plane y = 0 in a
+  planar run, in 3-D in a 3-D vessel tree (the messages carry their y);
 * ``view/errors`` (JSON): ``t_s``, ``tracking_error_m`` (|p - p_ref|),
   ``estimation_error_m`` (|p - p_hat|), ``gradient_norm_T_per_m`` (|G|
   applied) and ``gradient_limit_T_per_m`` (U_sat in force), for Foxglove's
@@ -53,34 +56,53 @@ ERRORS_SCHEMA = {
 }
 
 
+#: A point or vector of the scene: ``(x, y, z)``, or ``(x, z)`` for one in the plane y = 0.
+Vec = tuple[float, float, float] | tuple[float, float]
+Vec3 = tuple[float, float, float]
+
+
+def _xyz(v: Vec) -> Vec3:
+    """``(x, y, z)`` of a scene point given as ``(x, y, z)`` or as ``(x, z)`` (y = 0)."""
+    if len(v) == 2:
+        return (float(v[0]), 0.0, float(v[1]))
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
 @dataclass(frozen=True)
 class SceneNumbers:
-    """One view update in numbers (SI units, frame ``vessel``, XZ plane)."""
+    """One view update in numbers (SI units, frame ``vessel``; points ``(x, y, z)``, y = 0 in a planar run)."""
 
     t_s: float
-    robot_xz: tuple[float, float]
+    robot: Vec3
     robot_radius_m: float
     wall_z_m: float  # the walls at +/- wall_z_m
-    estimate_xz: tuple[float, float] | None
-    gradient_xz: tuple[float, float]
+    estimate: Vec3 | None
+    gradient: Vec3
     gradient_limit: float
     tracking_error_m: float | None
     estimation_error_m: float | None
 
 
-def scene_numbers(t_s: float, robot_xz: tuple[float, float], diameter_m: float, gap_upper_m: float,
-                  gap_lower_m: float, gradient_xz: tuple[float, float], gradient_limit: float,
-                  estimate_xz: tuple[float, float] | None, reference_xz: tuple[float, float] | None) -> SceneNumbers:
-    """The view of one moment: robot radius from the two wall gaps, errors as Euclidean norms.
+def scene_numbers(t_s: float, robot: Vec, diameter_m: float, gap_upper_m: float, gap_lower_m: float,
+                  gradient: Vec, gradient_limit: float, estimate: Vec | None, reference: Vec | None) -> SceneNumbers:
+    """The view of one moment: robot radius from the two wall gaps, errors as Euclidean norms (in 3-D).
 
-    The gaps to the two walls and the robot's diameter fill the local lumen diameter D(t), in the straight
-    vessel (D/2 - z - r and z + D/2 - r) as in a network (the nearest wall and the opposite one), so
-    ``r = (D - gap_upper - gap_lower) / 2`` holds in both.
+    Points and the gradient are ``(x, y, z)`` or, in the plane, ``(x, z)``.  The gaps to the two walls and
+    the robot's diameter fill the local lumen diameter D(t), in the straight vessel (D/2 - z - r and
+    z + D/2 - r) as in a network (the nearest wall and the opposite one), so
+    ``r = (D - gap_upper - gap_lower) / 2`` holds in both.  (A norm with y = 0 is the planar norm bit for bit.)
     """
+    p = _xyz(robot)
+    est_p = _xyz(estimate) if estimate is not None else None
     radius = 0.5 * (diameter_m - gap_upper_m - gap_lower_m)
-    track = math.dist(robot_xz, reference_xz) if reference_xz is not None else None
-    est = math.dist(robot_xz, estimate_xz) if estimate_xz is not None else None
-    return SceneNumbers(t_s, robot_xz, radius, 0.5 * diameter_m, estimate_xz, gradient_xz, gradient_limit, track, est)
+    track = math.dist(p, _xyz(reference)) if reference is not None else None
+    est = math.dist(p, est_p) if est_p is not None else None
+    return SceneNumbers(t_s, p, radius, 0.5 * diameter_m, est_p, _xyz(gradient), gradient_limit, track, est)
+
+
+def _vec(v: Any) -> Vec3:
+    """``(x, y, z)`` of a ``geometry_msgs`` Point or Vector3."""
+    return (v.x, v.y, v.z)
 
 
 class DerivedView:
@@ -105,6 +127,7 @@ class DerivedView:
         self._path_wall = -math.inf
         #: True once the plant's vessel markers show a vessel network (then the view draws no straight walls).
         self.network = False
+        self._walls_drawn = False  # straight walls sent (a viewer keeps them until they are deleted)
 
     def offer(self, name: str, data: bytes, t_ns: int) -> None:
         """A message of topic ``name`` (canonical name) arrived; maybe emit a view update."""
@@ -139,10 +162,9 @@ class DerivedView:
         coil = self._decode("coil_state") if "coil_state" in self._latest else None
         t = truth.header.stamp.sec + truth.header.stamp.nanosec * 1e-9
         sn = scene_numbers(
-            t, (truth.position.x, truth.position.z), truth.vessel_diameter, truth.wall_gap_upper, truth.wall_gap_lower,
-            (truth.applied_gradient.x, truth.applied_gradient.z), coil.max_gradient if coil is not None else math.nan,
-            (est.pose.pose.position.x, est.pose.pose.position.z) if est is not None else None,
-            (ref.position.x, ref.position.z) if ref is not None else None)
+            t, _vec(truth.position), truth.vessel_diameter, truth.wall_gap_upper, truth.wall_gap_lower,
+            _vec(truth.applied_gradient), coil.max_gradient if coil is not None else math.nan,
+            _vec(est.pose.pose.position) if est is not None else None, _vec(ref.position) if ref is not None else None)
         # deferred: rclpy (see _decode)
         from rclpy.serialization import serialize_message
 
@@ -150,8 +172,12 @@ class DerivedView:
         with_path = now - self._path_wall >= PATH_PERIOD_S
         if with_path:
             self._path_wall = now
-        self._send("view_markers", serialize_message(self.markers(sn, truth.header, with_path)), t_ns)
-        errors = {"t_s": sn.t_s, "gradient_norm_T_per_m": math.hypot(*sn.gradient_xz)}
+        scene = self.markers(sn, truth.header, with_path)
+        if self.network and self._walls_drawn:  # drawn before the plant's markers showed a network: delete them
+            scene.markers[:0] = [self._deleted(name, truth.header) for name in ("upper_wall", "lower_wall")]
+        self._walls_drawn = not self.network
+        self._send("view_markers", serialize_message(scene), t_ns)
+        errors = {"t_s": sn.t_s, "gradient_norm_T_per_m": math.hypot(*sn.gradient)}
         if not math.isnan(sn.gradient_limit):
             errors["gradient_limit_T_per_m"] = sn.gradient_limit
         if sn.tracking_error_m is not None:
@@ -159,6 +185,16 @@ class DerivedView:
         if sn.estimation_error_m is not None:
             errors["estimation_error_m"] = sn.estimation_error_m
         self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
+
+    @staticmethod
+    def _deleted(ns: str, header: Any) -> Any:
+        """A marker that deletes the view's marker ``ns`` (id 0) from a viewer."""
+        # deferred: ROS message packages (see _decode)
+        from visualization_msgs.msg import Marker
+
+        m = Marker(header=header, ns=ns, id=0, action=Marker.DELETE)
+        m.header.frame_id = FRAME_ID
+        return m
 
     def markers(self, sn: SceneNumbers, header: Any, with_path: bool = True) -> Any:
         """The MarkerArray of one view update (the reference path only ``with_path``)."""
@@ -174,7 +210,7 @@ class DerivedView:
             return m
 
         out = MarkerArray()
-        xs = [p.x for p in self._path_points] or [sn.robot_xz[0] - 5e-3, sn.robot_xz[0] + 5e-3]
+        xs = [p.x for p in self._path_points] or [sn.robot[0] - 5e-3, sn.robot[0] + 5e-3]
         x0, x1 = min(xs) - 1e-3, max(xs) + 1e-3
         r = max(sn.robot_radius_m, 1e-6)
         for name, z in () if self.network else (("upper_wall", sn.wall_z_m), ("lower_wall", -sn.wall_z_m)):
@@ -183,27 +219,27 @@ class DerivedView:
             m.scale.x, m.scale.y, m.scale.z = x1 - x0, 4 * r, 0.5 * r
             out.markers.append(m)
         robot = marker("robot", Marker.SPHERE, (0.9, 0.7, 0.1, 1.0))
-        robot.pose.position.x, robot.pose.position.z = sn.robot_xz
+        robot.pose.position.x, robot.pose.position.y, robot.pose.position.z = sn.robot
         robot.scale.x = robot.scale.y = robot.scale.z = 2 * r
         out.markers.append(robot)
-        if sn.estimate_xz is not None:
+        if sn.estimate is not None:
             est = marker("estimate", Marker.SPHERE, (0.2, 0.5, 1.0, 0.5))
-            est.pose.position.x, est.pose.position.z = sn.estimate_xz
+            est.pose.position.x, est.pose.position.y, est.pose.position.z = sn.estimate
             est.scale.x = est.scale.y = est.scale.z = 2 * r
             out.markers.append(est)
-        g = math.hypot(*sn.gradient_xz)
+        g = math.hypot(*sn.gradient)
         if g > 0 and sn.gradient_limit > 0:
             arrow = marker("gradient", Marker.ARROW, (0.1, 0.8, 0.3, 1.0))
             scale = ARROW_AT_LIMIT_M / sn.gradient_limit
-            arrow.points = [Point(x=sn.robot_xz[0], z=sn.robot_xz[1]),
-                            Point(x=sn.robot_xz[0] + scale * sn.gradient_xz[0], z=sn.robot_xz[1] + scale * sn.gradient_xz[1])]
+            (x, y, z), (gx, gy, gz) = sn.robot, sn.gradient
+            arrow.points = [Point(x=x, y=y, z=z), Point(x=x + scale * gx, y=y + scale * gy, z=z + scale * gz)]
             arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.2 * r, 0.4 * r, 0.4 * r
             out.markers.append(arrow)
         if with_path and self._path_points:
             key = (id(self._path_points), round(r, 8))  # r comes from the wall gaps: equal to ~1e-12
             if self._path_key != key:
                 path = marker("reference_path", Marker.LINE_STRIP, (0.3, 0.3, 0.3, 1.0))
-                path.points = [Point(x=p.x, z=p.z) for p in self._path_points]
+                path.points = [Point(x=p.x, y=p.y, z=p.z) for p in self._path_points]
                 path.scale.x = 0.1 * r
                 self._path_marker, self._path_key = path, key
             self._path_marker.header = header

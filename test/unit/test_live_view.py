@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from vesselbot_ros.graph_spec import TOPICS, VIEW_CHANNELS
+from vesselbot_ros.graph_spec import TOPICS, VIEW_CHANNELS, topic
 from vesselbot_ros.live_view import ARROW_AT_LIMIT_M, scene_numbers
 
 REPO = Path(__file__).resolve().parents[2]
@@ -121,3 +121,102 @@ def test_a_network_run_gets_no_straight_walls_and_the_radius_from_both_gaps():
     straight = cv.vessel_markers(0.0, 0.01, 3e-3, r)
     view.offer(topic("vessel_markers").name, serialize_message(straight), 0)
     assert not view.network
+
+
+def test_scene_numbers_in_3d_and_a_planar_point_is_one_with_y_zero():
+    d, r = 3e-3, 2.5e-4
+    sn = scene_numbers(0.5, (1e-3, 2e-4, 3e-4), d, 1e-3, 1e-3, (0.03, 0.04, 0.0), 0.08, (1e-3, 2e-4 + 3e-6, 3e-4 + 4e-6),
+                       (1e-3 + 2e-5, 2e-4 + 2e-5, 3e-4 + 1e-5))
+    assert sn.robot == (1e-3, 2e-4, 3e-4) and sn.gradient == (0.03, 0.04, 0.0)
+    assert sn.estimation_error_m == pytest.approx(5e-6, rel=1e-9)  # the y offset counts
+    assert sn.tracking_error_m == pytest.approx(3e-5, rel=1e-9)
+    # (x, z) is (x, 0, z): the same numbers, bit for bit
+    plane = scene_numbers(0.5, (1e-3, 3e-4), d, 0.5 * d - 3e-4 - r, 3e-4 + 0.5 * d - r, (0.03, -0.04), 0.08,
+                          (1e-3 + 3e-6, 3e-4 + 4e-6), (1e-3 - 6e-5, 3e-4 + 8e-5))
+    space = scene_numbers(0.5, (1e-3, 0.0, 3e-4), d, 0.5 * d - 3e-4 - r, 3e-4 + 0.5 * d - r, (0.03, 0.0, -0.04), 0.08,
+                          (1e-3 + 3e-6, 0.0, 3e-4 + 4e-6), (1e-3 - 6e-5, 0.0, 3e-4 + 8e-5))
+    assert plane == space and plane.robot == (1e-3, 0.0, 3e-4)
+
+
+def test_a_3d_scene_draws_robot_estimate_arrow_and_path_where_the_messages_put_them():
+    pytest.importorskip("rclpy")
+    from geometry_msgs.msg import Point, Vector3
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message, serialize_message
+    from vesselbot_msgs.msg import CoilState, PlantState
+    from visualization_msgs.msg import MarkerArray
+
+    from vesselbot_ros.live_view import DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+
+    sent = []
+    view = DerivedView(lambda key, data, t: sent.append((key, data)))
+    # the plant's markers of a 3-D tree: a wall mesh (no straight walls in the view then)
+    cube = [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]
+    markers = MarkerArray(markers=[cv.wall_mesh_marker(cube, [[0, 1, 2], [1, 3, 2]])])
+    view.offer(topic("vessel_markers").name, serialize_message(markers), 0)
+    assert view.network
+    route = [(0.0, 0.0, 0.0), (1e-3, -5e-4, 2e-4), (2e-3, -1e-3, 4e-4)]
+    view.offer(topic("reference_path").name, serialize_message(cv.path_msg(route)), 0)
+    p, r, lumen = Point(x=1e-3, y=-5e-4, z=2e-4), 2.5e-4, 1e-3
+    truth = PlantState(header=cv.header(0.25), position=p, vessel_diameter=2 * lumen, wall_gap_upper=lumen - r,
+                       wall_gap_lower=lumen - r, applied_gradient=Vector3(x=0.03, y=-0.04, z=0.0))
+    est = Odometry(header=cv.header(0.25))
+    est.pose.pose.position = Point(x=p.x + 3e-6, y=p.y + 4e-6, z=p.z)
+    view._latest = {"truth": serialize_message(truth), "estimate": serialize_message(est),
+                    "coil_state": serialize_message(CoilState(header=cv.header(0.25), max_gradient=0.1)),
+                    **{k: v for k, v in view._latest.items() if k in ("vessel_markers", "reference_path")}}
+    view.emit(250_000_000)
+    ms = {m.ns: m for m in deserialize_message(dict(sent)["view_markers"], MarkerArray).markers}
+    assert set(ms) == {"robot", "estimate", "gradient", "reference_path"}  # no straight walls
+    pos = lambda q: (q.x, q.y, q.z)  # noqa: E731 - a one-line accessor
+    assert pos(ms["robot"].pose.position) == pos(p) and ms["robot"].scale.x == pytest.approx(2 * r)
+    assert pos(ms["estimate"].pose.position) == (p.x + 3e-6, p.y + 4e-6, p.z)
+    a, b = ms["gradient"].points
+    assert pos(a) == pos(p)
+    assert (b.x - a.x, b.y - a.y, b.z - a.z) == pytest.approx((0.6e-3, -0.8e-3, 0.0), rel=1e-12)  # 2 mm * G / U_sat
+    assert [pos(q) for q in ms["reference_path"].points] == route
+    errors = json.loads(dict(sent)["view_errors"])
+    assert errors["estimation_error_m"] == pytest.approx(5e-6, rel=1e-9)
+    assert errors["gradient_norm_T_per_m"] == pytest.approx(0.05, rel=1e-12)
+
+
+def test_layout_opens_a_side_view_that_orbits_and_shows_a_networks_wall():
+    """Foxglove's 2D mode (``perspective: false``) is an orthographic view from above, onto XY: the planar
+    scene is a line there.  The 3D panel opens on the XZ side view (phi 90, theta 0: camera on -y, z up) in
+    3D mode, which a 3-D tree's user can orbit, and shows the plant's vessel markers (a network's wall, a
+    3-D tree's mesh) but the straight vessel's nominal wall lines (the view draws its pulsing walls)."""
+    layout = json.loads((REPO / "config" / "foxglove" / "vesselbot.json").read_text())
+    panel = layout["configById"]["3D!vessel"]
+    cam = panel["cameraState"]
+    assert (cam["perspective"], cam["phi"], cam["thetaOffset"]) == (True, 90, 0)
+    vessel = panel["topics"][topic("vessel_markers").name]
+    assert vessel["visible"] is True
+    assert {ns for ns, s in vessel["namespaces"].items() if not s["visible"]} == {"upper_wall", "lower_wall"}
+
+
+def test_straight_walls_drawn_before_the_plants_markers_show_a_network_are_deleted_once():
+    """The plant's markers come on a topic of their own (a 3-D tree's mesh is large): updates before them draw
+    the straight walls, which a viewer keeps until deleted."""
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import deserialize_message, serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from vesselbot_ros.live_view import DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+
+    sent = []
+    view = DerivedView(lambda key, data, t: sent.append(deserialize_message(data, MarkerArray))
+                       if key == "view_markers" else None)
+    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0),
+                                                                  3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
+                                                                  [(0.0, 0.0)] * 8))
+    view.emit(5)
+    mesh = MarkerArray(markers=[cv.wall_mesh_marker([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0, 1, 2]])])
+    view.offer(topic("vessel_markers").name, serialize_message(mesh), 0)
+    view.emit(5)
+    view.emit(5)
+    walls = [[(m.ns, m.action) for m in arr.markers if m.ns.endswith("_wall")] for arr in sent]
+    assert walls == [[("upper_wall", Marker.ADD), ("lower_wall", Marker.ADD)],
+                     [("upper_wall", Marker.DELETE), ("lower_wall", Marker.DELETE)], []]
+    assert all(m.header.frame_id == "vessel" for m in sent[1].markers)

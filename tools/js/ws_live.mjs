@@ -8,8 +8,15 @@
 //    "log_times": {topic: [each message's timestamp (ns)]}, "times": [the server's time broadcasts (ns)],
 //    "views": {"errors": [view/errors messages], "marker_namespaces": [namespaces seen on view/markers]}}
 // (ns values as decimal strings, in the order received.)  JSON channels (view/errors) are parsed as JSON.
+// With --scene, also "scene": the markers as a 3D panel would draw them, the last of each namespace
+//   {"view": {ns: summary} (view/markers), "vessel": {ns: summary} (vessel_markers),
+//    "robot": [[stamp_ns, x, y, z], ...] (each view update's robot), "truth": [[stamp_ns, x, y, z], ...]}
+//   where a summary is {type, id, action, frame_id, stamp (ns), n_points, n_colors, position: [x, y, z], scale: [x, y, z],
+//   color: [r, g, b, a], points_head: the first 6 points [x, y, z], points_sum: [sum x, sum y, sum z] (in order),
+//   y_abs_max: max |y| of its points}; and --until-scene NS,NS,... ends it ("scene") once view/markers showed
+//   every namespace NS, vessel_markers came and 5 view updates were seen.
 // usage: node ws_live.mjs PORT [CONNECT_TIMEOUT_S=60] [IDLE_S=20] [--subprotocol NAME] [--no-retry]
-//                         [--max-messages N]
+//                         [--max-messages N] [--scene] [--until-scene NS,NS,...]
 // The client offers exactly one WebSocket subprotocol, NAME: by default ws-protocol's
 // FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.websocket.v1" (the protocol specification's name);
 // "foxglove.sdk.v1" is the name the Foxglove SDK's server uses.  Without --no-retry it retries a refused
@@ -22,12 +29,15 @@ import WebSocket from "ws";
 const { FoxgloveClient } = wsProtocol;
 
 const positional = [];
-const flags = { subprotocol: FoxgloveClient.SUPPORTED_SUBPROTOCOL, retry: true, maxMessages: Infinity };
+const flags = { subprotocol: FoxgloveClient.SUPPORTED_SUBPROTOCOL, retry: true, maxMessages: Infinity, scene: false,
+  untilScene: null };
 for (let i = 2; i < process.argv.length; i++) {
   const a = process.argv[i];
   if (a === "--subprotocol") flags.subprotocol = process.argv[++i];
   else if (a === "--no-retry") flags.retry = false;
   else if (a === "--max-messages") flags.maxMessages = Number(process.argv[++i]);
+  else if (a === "--scene") flags.scene = true;
+  else if (a === "--until-scene") { flags.scene = true; flags.untilScene = process.argv[++i].split(","); }
   else positional.push(a);
 }
 const [port, connectTimeoutS = "60", idleS = "20"] = positional;
@@ -46,15 +56,44 @@ let subprotocol = null;
 let received = 0;
 let lastMessage = Date.now();
 let done = false;
+const scene = { view: {}, vessel: {}, robot: [], truth: [] };
+let viewUpdates = 0;
+
+function stampNs(st) { return BigInt(st.sec) * 1000000000n + BigInt(st.nanosec); }
+
+function summary(m) {
+  const sum = [0, 0, 0];
+  let yAbsMax = 0;
+  for (const p of m.points) {
+    sum[0] += p.x; sum[1] += p.y; sum[2] += p.z;
+    yAbsMax = Math.max(yAbsMax, Math.abs(p.y));
+  }
+  const v = (p) => [p.x, p.y, p.z];
+  return { type: m.type, id: m.id, action: m.action, frame_id: m.header.frame_id,
+    stamp: stampNs(m.header.stamp).toString(), n_points: m.points.length,
+    n_colors: m.colors.length, position: v(m.pose.position), scale: v(m.scale),
+    color: [m.color.r, m.color.g, m.color.b, m.color.a], points_head: m.points.slice(0, 6).map(v),
+    points_sum: sum, y_abs_max: yAbsMax };
+}
+
+function sceneComplete() {
+  return flags.untilScene !== null && viewUpdates >= 5 && Object.keys(scene.vessel).length > 0 &&
+    flags.untilScene.every((ns) => ns in scene.view);
+}
 
 function finish(reason) {
   if (done) return;
   done = true;
-  process.stdout.write(JSON.stringify({ reason, subprotocol, capabilities, advertised, counts,
+  const out = { reason, subprotocol, capabilities, advertised, counts,
     decode_errors: decodeErrors, views, times: times.map(String),
     log_times: Object.fromEntries(Object.entries(logTimes).map(([k, v]) => [k, v.map(String)])),
-    positions: positions.map(([t, x, z, lt]) => [t.toString(), x, z, lt.toString()]) }) + "\n",
-  () => process.exit(0));
+    positions: positions.map(([t, x, z, lt]) => [t.toString(), x, z, lt.toString()]) };
+  if (flags.scene) {
+    const withStamp = ([t, ...xyz]) => [t.toString(), ...xyz];
+    out.scene = { view: scene.view, vessel: scene.vessel, robot: scene.robot.map(withStamp),
+      truth: scene.truth.map(withStamp) };
+  }
+  process.stdout.write(JSON.stringify(out) + "\n", () => process.exit(0));
 }
 
 function connect() {
@@ -103,13 +142,28 @@ function connect() {
     if (ch.topic.endsWith("/view/errors")) views.errors.push(msg);
     if (ch.topic.endsWith("/view/markers")) {
       for (const m of msg.markers) if (!views.marker_namespaces.includes(m.ns)) views.marker_namespaces.push(m.ns);
+      if (flags.scene) {
+        viewUpdates += 1;
+        for (const m of msg.markers) {
+          scene.view[m.ns] = summary(m);
+          if (m.ns === "robot") {
+            const p = m.pose.position;
+            scene.robot.push([stampNs(m.header.stamp), p.x, p.y, p.z]);
+          }
+        }
+      }
+    }
+    if (flags.scene && ch.topic.endsWith("/vessel_markers")) {
+      for (const m of msg.markers) scene.vessel[m.ns] = summary(m);
     }
     if (ch.topic.endsWith("/truth")) {
       const st = msg.header.stamp;
-      positions.push([BigInt(st.sec) * 1000000000n + BigInt(st.nanosec), msg.position.x, msg.position.z, timestamp]);
+      positions.push([stampNs(st), msg.position.x, msg.position.z, timestamp]);
+      if (flags.scene) scene.truth.push([stampNs(st), msg.position.x, msg.position.y, msg.position.z]);
     }
     received += 1;
     if (received >= flags.maxMessages) finish("max messages");
+    if (sceneComplete()) finish("scene");
   });
 }
 

@@ -8,7 +8,9 @@ aligns the per-tick topics on their stamps, computes the metrics with the
 
 * ``fig9a_trajectory.png``: XZ trajectory, reference, estimate, the vessel's
   wall envelope over the run and its walls at the narrowest moment, time
-  marks every 0.25 s;
+  marks every 0.25 s (in a vessel network: the network, the branch reached;
+  in a 3-D tree, :func:`tree_trajectory`: two projections, XZ as the paper's
+  and XY from above, of its tubes and the three paths, y included);
 * ``fig9b_errors.png``: tracking and estimation error (um, log scale) with the
   paper's 150 um and 10 um bounds and the start of the metrics window;
 * ``fig10a_gradients.png``: |U| commanded and applied against U_sat (the
@@ -57,8 +59,10 @@ from vesselbot_ros.graph_spec import NODE_NAMES
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
+from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
 
-__all__ = ["write_report", "metrics_timeseries", "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
+__all__ = ["write_report", "metrics_timeseries", "positions_3d", "tree_trajectory",
+           "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
            "DIAGNOSTIC_COUNTERS", "FIGURES", "fig9a_trajectory", "fig9b_errors", "fig10a_gradients",
            "fig10b_velocities", "fig10c_velocity_error", "forces_figure"]
 
@@ -155,6 +159,16 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, 
                             ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic",
                              "steric", "total")], axis=1),
     }
+
+
+def positions_3d(ts: Mapping[str, np.ndarray]) -> dict[str, npt.NDArray[np.float64]]:
+    """(n, 3) positions (x, y, z) of the robot, the reference and the estimate on :func:`metrics_timeseries`'s ticks.
+
+    The same rows as its ``p_true``, ``p_ref`` and ``x_hat``, which keep (x, z): a 3-D run's y is here.
+    """
+    idx = _align(ts, ("truth", "reference", "estimate", "coil"))
+    return {"p_true": ts["truth.p_WR"][idx["truth"]], "p_ref": ts["reference.p_ref"][idx["reference"]],
+            "x_hat": ts["estimate.p_hat"][idx["estimate"]]}
 
 
 def detect_outlier_frames(ts: Mapping[str, np.ndarray], dims: int = 2) -> tuple[npt.NDArray[np.float64], float]:
@@ -499,6 +513,64 @@ def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], 
     return fig
 
 
+def _draw_tree_projection(ax: Any, geom: NetworkGeometry3D, axis: int, mm: float) -> None:
+    """A 3-D tree's tubes projected on the plane of x and coordinate ``axis`` (1: y, 2: z): each a grey band.
+
+    A tube's projection is its projected centreline widened by its radius on either side, across the projected
+    direction (exact for a circular section; where a branch runs along the viewing direction the band
+    narrows to its centreline, which is drawn dotted).
+    """
+    for name in geom.names:
+        q = geom.centreline_3d(name)[:, [0, axis]]
+        rad = geom.radius(name)
+        tan = np.gradient(q, axis=0)
+        length = np.hypot(tan[:, 0], tan[:, 1])
+        nrm = np.column_stack([-tan[:, 1], tan[:, 0]]) / np.maximum(length, 1e-300)[:, None]
+        poly = np.concatenate([q + rad[:, None] * nrm, (q - rad[:, None] * nrm)[::-1]]) * mm
+        ax.fill(poly[:, 0], poly[:, 1], color="0.88", lw=0, zorder=0)
+        ax.plot(poly[:, 0], poly[:, 1], color="0.55", lw=0.5, zorder=1)
+        ax.plot(*(q * mm).T, color="0.6", lw=0.5, ls=":", zorder=1)
+        ax.annotate(name, tuple(q[-1] * mm), fontsize=7, color="0.3")
+
+
+def tree_trajectory(t: npt.NDArray[np.float64], p: Mapping[str, np.ndarray], network: str,
+                    metrics: Mapping[str, Any]) -> Any:
+    """Fig. 9a in a 3-D vessel tree: XZ (the paper's plane) and XY (from above) projections of the tree and paths.
+
+    ``p`` holds (n, 3) ``p_true``, ``p_ref`` and ``x_hat`` (:func:`positions_3d`).  Each panel draws the
+    tubes (:func:`_draw_tree_projection`), the reference, the estimate and the robot, with dots every
+    0.25 s, at equal scales on both axes and the tree's x range in both panels.
+    """
+    import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
+
+    mm = 1e3
+    geom = NetworkGeometry3D(load_network(network))
+    fig, axs = plt.subplots(2, 1, figsize=(9, 9))
+    idx = _time_marks(t)
+    x_lo, x_hi = geom.bbox[0] * mm, geom.bbox[1] * mm
+    for ax, axis in zip(axs, (2, 1)):
+        _draw_tree_projection(ax, geom, axis, mm)
+        ax.plot(p["p_ref"][:, 0] * mm, p["p_ref"][:, axis] * mm, "k--", lw=1.0, label="reference")
+        ax.plot(p["x_hat"][:, 0] * mm, p["x_hat"][:, axis] * mm, color="tab:orange", lw=0.6, alpha=0.8,
+                label="estimate")
+        ax.plot(p["p_true"][:, 0] * mm, p["p_true"][:, axis] * mm, color="tab:blue", lw=1.2, label="robot")
+        ax.plot(p["p_true"][idx, 0] * mm, p["p_true"][idx, axis] * mm, "o", color="tab:blue", ms=3,
+                label="every 0.25 s")
+        ax.set_xlim(x_lo - 0.02 * (x_hi - x_lo), x_hi + 0.02 * (x_hi - x_lo))
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set(xlabel="x (mm)", ylabel=f"{'xyz'[axis]} (mm)")
+        ax.legend(loc="lower left", fontsize=7)
+    outcome = ""
+    if "branch_final" in metrics:
+        target = metrics.get("route_outlet") or "-"
+        ok = "reached" if metrics.get("reached_target") else "NOT reached"
+        outcome = f"; branch reached: {metrics.get('branch_final')} (target {target}: {ok})"
+    axs[0].set_title(f"Fig. 9a: trajectory in the 3-D tree {geom.net.name}, projected on XZ{outcome}", fontsize=9)
+    axs[1].set_title("the same, projected on XY (from above)", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
 def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float | None:
     try:
         v = float(run["config"][section][key])
@@ -592,14 +664,19 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     })
 
     net = _run_network(run)
+    tree = load_network(net[0]) if net is not None else None
+    p3 = positions_3d(ts) if tree is not None and tree.is_3d else None
     if net is not None:
-        # the meshed wall, read from the run's own field (no solve for another blood model)
-        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"], blood=_run_blood(run)))
+        # the meshed wall, read from the run's own field (no solve for another blood model); a 3-D tree's in 3-D
+        metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"] if p3 is None else p3["p_true"],
+                                          blood=_run_blood(run)))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
     recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
     slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)
     figures = {
-        FIGURES[0]: fig9a_trajectory(t, m) if net is None else network_trajectory(t, m, net[0], metrics),
+        FIGURES[0]: (fig9a_trajectory(t, m) if net is None
+                     else tree_trajectory(t, p3, net[0], metrics) if p3 is not None
+                     else network_trajectory(t, m, net[0], metrics)),
         FIGURES[1]: fig9b_errors(t, m, spans, after_s),
         FIGURES[2]: fig10a_gradients(t, m, spans, slew_limit),
         FIGURES[3]: fig10b_velocities(t, m, spans),

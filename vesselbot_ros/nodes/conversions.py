@@ -9,9 +9,10 @@ works on (3,) arrays ``(x, y, z)`` and y is real.  Every helper that packs or
 unpacks a vector takes that one switch, ``dims`` (2 unless given), so a node
 passes its scenario's and holds no condition of its own; a planar message is
 byte for byte what it was before 3-D trees existed.  In a 3-D tree the coil
-state also carries ``slew_limited_y`` (false in planar scenarios).  Times are
-float seconds in the core and integer nanoseconds (``builtin_interfaces/Time``)
-on the wire.
+state also carries ``slew_limited_y`` (false in planar scenarios), and its
+scene (wall mesh, centrelines and route: :func:`network_markers_3d`,
+:func:`path_msg` of (n, 3) points) its real y.  Times are float seconds in the
+core and integer nanoseconds (``builtin_interfaces/Time``) on the wire.
 
 Tick times.  Tick ``k`` holds at ``t_k = k * dt`` with ``dt = 1 / control_rate_Hz``
 (float, the pure runner's ``np.arange(n) * dt``).  A stamp is ``round(t_k * 1e9)`` ns; receivers do not
@@ -62,6 +63,7 @@ __all__ = [
     "ns_of_stamp",
     "header",
     "point",
+    "point3",
     "codec",
     "stamp_ns",
     "clock_flat",
@@ -85,6 +87,10 @@ __all__ = [
     "message_builder",
     "path_msg",
     "vessel_markers",
+    "network_markers",
+    "network_markers_3d",
+    "wall_mesh_marker",
+    "WALL_MESH_RGBA",
 ]
 
 _time = message_builder(Time)
@@ -97,6 +103,9 @@ AGE_COVARIANCE_INDEX = 35
 #: estimate it, a bag recorded before it travelled), or any value not finite and > 0, reads as 1.
 FLOW_SCALE_COVARIANCE_INDEX = 35
 NS_PER_S = 1_000_000_000
+#: Colour (r, g, b, a) of a 3-D vessel's wall mesh: translucent, so the robot, its estimate and the route inside
+#: the lumen show through it.
+WALL_MESH_RGBA = (0.8, 0.2, 0.2, 0.3)
 
 
 def stamp_of_ns(ns: int) -> Time:
@@ -118,6 +127,11 @@ def header(t_s: float) -> Header:
 def point(a: npt.ArrayLike) -> Point:
     """(2,) ``(x, z)`` -> Point with y = 0."""
     return _point(x=float(a[0]), y=0.0, z=float(a[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+
+
+def point3(a: npt.ArrayLike) -> Point:
+    """(3,) ``(x, y, z)`` -> Point."""
+    return _point(x=float(a[0]), y=float(a[1]), z=float(a[2]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
 
 
 def codec(cls: Any) -> FlatCodec:
@@ -327,14 +341,15 @@ def sequence_phase_msg(t_s: float, window: Any, latency_s: float, duty_cycle: fl
 
 
 def path_msg(points_m: npt.ArrayLike, t_s: float = 0.0) -> Path:
-    """(n, 2) points ``(x, z)`` (y = 0) or (n, 3) points ``(x, y, z)`` (a 3-D tree) (m) -> nav_msgs/Path in frame vessel."""
+    """(n, 2) points ``(x, z)`` (m; y = 0) or (n, 3) points ``(x, y, z)`` (a 3-D route) -> nav_msgs/Path in frame vessel."""
     pts = np.asarray(points_m, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] not in AXES:
-        raise TypeError(f"path points must be (n, 2) or (n, 3), got {pts.shape}")
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+        raise ValueError(f"points_m must be (n, 2) or (n, 3), got shape {pts.shape}")
+    to_point = point if pts.shape[1] == 2 else point3
     msg = Path(header=header(t_s))
-    for row in pts.tolist():
+    for p in pts:
         ps = PoseStamped(header=header(t_s))
-        ps.pose.position = _point(**dict.fromkeys(("x", "y", "z"), 0.0) | dict(zip(AXES[len(row)], row)))
+        ps.pose.position = to_point(p)
         ps.pose.orientation.w = 1.0
         msg.poses.append(ps)
     return msg
@@ -370,15 +385,67 @@ def network_markers(geom: Any, wall_segments_m: npt.NDArray[np.float64], robot_r
     segs = np.asarray(wall_segments_m, dtype=np.float64).reshape(-1, 2)
     wall.points = [point((float(x), float(z))) for x, z in segs]
     out.markers.append(wall)
-    mid = 1
-    for name, (pts, _rad, _arc) in geom.branches.items():
-        stride = max(1, int(round(step_m / geom.net.sample_spacing_m)))
-        idx = np.unique(np.r_[np.arange(0, len(pts), stride), len(pts) - 1])
+    _centreline_markers(out, ((name, pts[:, 0], np.zeros(len(pts)), pts[:, 1]) for name, (pts, _r, _s) in
+                              geom.branches.items()), geom.net.sample_spacing_m, robot_radius_m, step_m)
+    return out
+
+
+def _centreline_markers(out: MarkerArray, branches: Any, spacing_m: float, robot_radius_m: float,
+                        step_m: float) -> None:
+    """Append one LINE_STRIP per branch (``(name, x, y, z)`` sample arrays, m), a point every ``step_m`` and the last."""
+    stride = max(1, int(round(step_m / spacing_m)))
+    for mid, (name, xs, ys, zs) in enumerate(branches, start=len(out.markers)):
+        idx = np.unique(np.r_[np.arange(0, len(xs), stride), len(xs) - 1])
         m = Marker(header=header(0.0), ns=f"{name}/centreline", id=mid, type=Marker.LINE_STRIP, action=Marker.ADD)
-        mid += 1
         m.scale.x = 0.1 * robot_radius_m
         m.color.r, m.color.g, m.color.b, m.color.a = 0.5, 0.5, 0.5, 1.0
         m.pose.orientation.w = 1.0
-        m.points = [point((float(x), float(z))) for x, z in pts[idx]]
+        m.points = [_point(x=x, y=y, z=z) for x, y, z in zip(xs[idx].tolist(), ys[idx].tolist(), zs[idx].tolist())]
         out.markers.append(m)
+
+
+def wall_mesh_marker(vertices_m: npt.ArrayLike, triangles: npt.ArrayLike,
+                     rgba: tuple[float, float, float, float] = WALL_MESH_RGBA) -> Marker:
+    """A triangle mesh (a 3-D vessel's lumen wall) as one TRIANGLE_LIST marker in frame ``vessel``.
+
+    ``vertices_m`` (n, 3) (m) and ``triangles`` (k, 3) (vertex indices) give 3 k points: triangle i's vertices
+    are points 3 i, 3 i + 1, 3 i + 2, in the triangles' order and each triangle's own vertex order (its
+    winding, hence the side a viewer takes as its front).  One colour for the whole marker (``rgba``,
+    translucent by default; no per-vertex colours); namespace :data:`~vesselbot_ros.graph_spec.NETWORK_WALL_NS`,
+    id 0, which tells the live view it is a network's wall (it adds no straight walls then).
+
+    Raises:
+        ValueError: not (n, 3) vertices and (k, 3) triangles, an index outside the vertices, a vertex not finite.
+    """
+    v = np.asarray(vertices_m, dtype=np.float64)
+    t = np.asarray(triangles)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices_m must be (n, 3), got shape {v.shape}")
+    if t.ndim != 2 or t.shape[1] != 3 or not np.issubdtype(t.dtype, np.integer):
+        raise ValueError(f"triangles must be (k, 3) integer vertex indices, got shape {t.shape}, dtype {t.dtype}")
+    if t.size and (int(t.min()) < 0 or int(t.max()) >= len(v)):
+        raise ValueError(f"triangles index vertices 0..{len(v) - 1}, got {int(t.min())}..{int(t.max())}")
+    if not np.isfinite(v).all():
+        raise ValueError(f"vertices_m must be finite, got {int((~np.isfinite(v)).any(axis=1).sum())} vertices that are not")
+    m = Marker(header=header(0.0), ns=NETWORK_WALL_NS, id=0, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
+    m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = 1.0  # a TRIANGLE_LIST's points are scaled by it
+    m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in rgba)
+    m.points = [_point(x=x, y=y, z=z) for x, y, z in v[t.reshape(-1)].tolist()]
+    return m
+
+
+def network_markers_3d(geom: Any, vertices_m: npt.ArrayLike, triangles: npt.ArrayLike, robot_radius_m: float,
+                       step_m: float = 2.0e-4) -> MarkerArray:
+    """A 3-D vessel tree for viewers: its wall mesh (one TRIANGLE_LIST, :func:`wall_mesh_marker`) and each branch's centreline.
+
+    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry3D` (the 3-D centrelines, a LINE_STRIP
+    per branch with its real y, a point every ``step_m``); ``vertices_m`` (n, 3) and ``triangles`` (k, 3)
+    are the meshed lumen wall (open ends, the inlet and outlet caps, left out).  The same namespaces and
+    ids as :func:`network_markers` (the planar network's), so a viewer's settings apply to both.
+    """
+    out = MarkerArray()
+    out.markers.append(wall_mesh_marker(vertices_m, triangles))
+    _centreline_markers(out, ((name, pts[:, 0], pts[:, 1], pts[:, 2]) for name, (pts, _r, _s) in
+                              geom.branches.items()), geom.net.sample_spacing_m, robot_radius_m, step_m)
     return out

@@ -20,7 +20,7 @@ Forces: :func:`~vesselbot_ros.physics.kernel3d.forces3d_into` (the planar networ
 The contact state advances after every accepted step with ``delta = r - s_t``.
 
 Arguments that describe the tree: ``W``, the wall lookup's nine arrays (``wall_field3d(x, y, z, *W)``), ``F``
-(nz, ny, nx, 4) float64 ``(vx, vy, vz, eta)`` per node and ``fh`` (7,) ``(x0, y0, z0, h, nx, ny, nz)``.
+(nz, ny, nx, 4) ``(vx, vy, vz, eta)`` (float32 or float64) per node and ``fh`` (7,) ``(x0, y0, z0, h, nx, ny, nz)``.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel
         cy = (cc >> 1) & 1
         cz = cc >> 2
         w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
-        v += w * F[k + cz, j + cy, i + cx, c]
+        v += w * float(F[k + cz, j + cy, i + cx, c])
     return v
 
 

@@ -16,9 +16,9 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
-from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.physics.kernel import I_R, TERM_NAMES, forces_into, wall_delta_xz
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d

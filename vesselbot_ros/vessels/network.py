@@ -458,7 +458,7 @@ def require_planar(net: VesselNetworkParams, consumer: str) -> None:
         if not b.is_planar:
             y = max(b.y_m, key=abs)
             raise ConfigError(f"vessel network {net.name!r} is not planar (branch {b.name!r} leaves the plane y = 0, "
-                              f"|y| up to {abs(y):.6g} m): {consumer} takes XZ networks only, until the 3-D plant exists")
+                              f"|y| up to {abs(y):.6g} m): {consumer} takes XZ networks only (the 3-D plant takes this tree)")
 
 
 def resolve_network_path(source: str) -> Path:

@@ -19,15 +19,21 @@ RUN_METADATA = {
 
 
 def write_synthetic_bag(path: Path, n_ticks: int, dt_s: float = 1e-3, flush_every: int = 0,
-                        t0_ns: int = 1_700_000_000_000_000_000, finish: bool = True, compression: str = "none"):
-    """Write ``n_ticks`` of the synthetic graph (1 ms apart in log time); return (writer, sent list)."""
+                        t0_ns: int = 1_700_000_000_000_000_000, finish: bool = True, compression: str = "none",
+                        run_metadata: dict | None = None, edit=None):
+    """Write ``n_ticks`` of the synthetic graph (1 ms apart in log time); return (writer, sent list).
+
+    ``run_metadata`` replaces :data:`RUN_METADATA`; ``edit(k, topic name, message)``, if given, may change
+    each tick's messages before they are written.
+    """
     from rclpy.serialization import serialize_message
 
     from vesselbot_ros.bag.synthetic import latched_messages, tick_messages
     from vesselbot_ros.bag.writer import BagWriter
     from vesselbot_ros.graph_spec import TOPICS
 
-    bag = BagWriter(path, run_metadata=RUN_METADATA, compression=compression).open()
+    bag = BagWriter(path, run_metadata=RUN_METADATA if run_metadata is None else run_metadata,
+                    compression=compression).open()
     conns = {s.name: bag.add_topic(s.name, s.msgtype, latched=s.qos == "reliable_latched", depth=s.depth)
              for s in TOPICS}
     sent = []
@@ -38,6 +44,8 @@ def write_synthetic_bag(path: Path, n_ticks: int, dt_s: float = 1e-3, flush_ever
     for k in range(n_ticks):
         t_ns = t0_ns + int(round(k * dt_s * 1e9))
         for name, msg in tick_messages(k, dt_s):
+            if edit is not None:
+                edit(k, name, msg)
             bag.write(conns[name], serialize_message(msg), t_ns)
             sent.append((name, msg))
         if flush_every and (k + 1) % flush_every == 0:

@@ -211,3 +211,81 @@ def test_tracking_windows_come_from_the_phase_rows_clipped_to_the_run():
     assert tracking_windows({"phase.phase": np.array([0]), "phase.window_start_s": np.array([0.0]),
                              "phase.window_end_s": np.array([np.inf])}, 1.0) == []  # continuous: nothing to shade
     assert tracking_windows({}, 1.0) == []  # a bag from before the scanner
+
+
+# -- a 3-D vessel tree: Fig. 9a as two projections ------------------------------------------------------------------
+
+def _y(t):
+    """The 3-D bag's robot y (m): a swing out of the plane."""
+    return 1.5e-3 * np.sin(2 * np.pi * t)
+
+
+def _write_3d_bag(path, n_ticks, network="carotid_bifurcation_3d", outlet="ica"):
+    """The synthetic graph's ticks with y: the robot at y(t), the reference at 0.9 y(t), the estimate at y(t) + 6 um."""
+    import conftest
+
+    from vesselbot_ros.graph_spec import topic
+
+    def with_y(k, name, msg):
+        y = _y(k * 1e-3)
+        if name == topic("truth").name:
+            msg.position.y = y
+        elif name == topic("reference").name:
+            msg.position.y = 0.9 * y
+        elif name == topic("estimate").name:
+            msg.pose.pose.position.y = y + 6e-6
+
+    meta = {"scenario": "synthetic_3d", "seed": 1, "mode": "lockstep",
+            "config": {"sim": {"control_rate_Hz": 1000.0}, "physics": {"vessel": {"network": network}},
+                       "reference": {"route_outlet": outlet}}}
+    conftest.write_synthetic_bag(path, n_ticks, run_metadata=meta, edit=with_y)
+
+
+def _fake_navigation(monkeypatch):
+    """navigation_outcome stand-in (its wall is the 3-D plant's compiled lookup: tens of seconds to build)."""
+    from vesselbot_ros.bag import report
+
+    seen = {}
+
+    def outcome(network, outlet, t, p_true, blood=None):
+        seen.update(network=network, outlet=outlet, p_true=np.asarray(p_true))
+        return {"branch_final": "cca", "reached_target": False, "route_outlet": outlet}
+
+    monkeypatch.setattr(report, "navigation_outcome", outcome)
+    return seen
+
+
+def test_a_3d_tree_run_gets_xz_and_xy_projections_of_its_tubes_and_paths(tmp_path, monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from vesselbot_ros.bag.reader import read_timeseries
+    from vesselbot_ros.bag.report import metrics_timeseries, positions_3d, tree_trajectory
+
+    seen = _fake_navigation(monkeypatch)
+    _write_3d_bag(tmp_path / "b", 400)
+    metrics = write_report(tmp_path / "b", tmp_path / "rep")
+    assert (tmp_path / "rep" / FIGURES[0]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ts = read_timeseries(tmp_path / "b")
+    # the branch reached and the time outside the lumen from the 3-D positions (the 3-D plant's wall)
+    assert seen["network"] == "carotid_bifurcation_3d" and np.array_equal(seen["p_true"], positions_3d(ts)["p_true"])
+    assert metrics["branch_final"] == "cca"
+    m, p = metrics_timeseries(ts, dt_s=1e-3), positions_3d(ts)
+    # the same ticks; (x, z) as the metrics take them, y besides
+    assert np.array_equal(p["p_true"][:, [0, 2]], m["p_true"]) and np.array_equal(p["p_ref"][:, [0, 2]], m["p_ref"])
+    assert np.array_equal(p["p_true"][:, 1], _y(m["t_s"])) and np.array_equal(p["x_hat"][:, 1], _y(m["t_s"]) + 6e-6)
+    fig = tree_trajectory(m["t_s"], p, "carotid_bifurcation_3d", metrics)
+    xz, xy = fig.axes
+    assert (xz.get_ylabel(), xy.get_ylabel()) == ("z (mm)", "y (mm)")
+    assert "projected on XZ; branch reached: cca (target ica: NOT reached)" in xz.get_title() and "XY" in xy.get_title()
+    for ax, col in ((xz, 2), (xy, 1)):
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        assert set(lines) >= {"robot", "reference", "estimate", "every 0.25 s"}
+        assert np.array_equal(lines["robot"].get_xdata(), p["p_true"][:, 0] * 1e3)
+        assert np.array_equal(lines["robot"].get_ydata(), p["p_true"][:, col] * 1e3)
+        assert np.array_equal(lines["reference"].get_ydata(), p["p_ref"][:, col] * 1e3)
+        assert {a.get_text() for a in ax.texts} == {"cca", "ica", "eca"}  # every branch's tube, named
+        x_lo, x_hi = ax.get_xlim()
+        assert x_lo < -40.0 and x_hi > 30.0  # the whole tree: the CCA from x = -40 mm, the ICA to 29 mm
+    # the XY panel shows the tree leaving the plane: the ICA's and ECA's tubes reach y = -3.5 mm - 2.8 mm
+    assert xy.dataLim.y0 < -6.0

@@ -16,6 +16,7 @@ from vesselbot_ros.control.actuator_limits import (
     COIL_OUT_SIZE,
     PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S,
     CoilLimiter,
+    CoilLimiter3D,
     CoilLimits,
     coil3d_apply,
     coil_apply,
@@ -209,3 +210,32 @@ def test_the_3d_coil_keeps_saturation_and_slew_on_every_axis(seed: int, norm: st
         assert np.all(np.abs(applied) <= sat * (1 + 1e-12))
     steps = np.abs(np.diff(np.vstack([np.zeros(3), applied]), axis=0))
     assert np.all(steps <= slew * 1e-3 * (1 + 1e-12))
+
+
+# ---- three axes ---------------------------------------------------------------------------------------
+def test_coil3d_in_the_plane_is_the_planar_coil() -> None:
+    lim = CoilLimits(slew_rate="clinical")
+    c2, c3 = CoilLimiter(lim, -1e-3), CoilLimiter3D(lim, -1e-3)
+    rng = np.random.default_rng(0)
+    for k in range(200):
+        g = rng.normal(0.0, 0.1, 2)
+        o2 = c2.apply(k * 1e-3, g)
+        o3 = c3.apply(k * 1e-3, np.array([g[0], 0.0, g[1]]))
+        assert o3.applied[0] == o2.applied[0] and o3.applied[2] == o2.applied[1] and o3.applied[1] == 0.0
+        assert o3.k_scale == o2.k_scale and o3.saturated == o2.saturated
+        assert list(o3.slew_limited[[0, 2]]) == list(o2.slew_limited)
+
+
+def test_coil3d_saturates_the_norm_over_three_axes_and_ramps_down() -> None:
+    lim = CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=1e6, command_timeout_s=0.01)
+    c = CoilLimiter3D(lim, 0.0)
+    out = c.apply(1e-3, np.array([0.1, 0.1, 0.1]))
+    assert np.linalg.norm(out.applied) == pytest.approx(lim.saturation_T_per_m, rel=1e-12)
+    assert out.saturated and out.k_scale == pytest.approx(np.sqrt(0.03) / lim.saturation_T_per_m)
+    assert c.watchdog(5e-3) is None
+    ramp = c.watchdog(0.5)
+    assert ramp is not None and not ramp.applied.any()
+    rej = c.apply(0.6, np.array([np.nan, 0.0, 0.0]))
+    assert rej.rejected
+    with pytest.raises(ModelInputError, match=r"\(3,\)"):
+        c.apply(0.7, np.zeros(2))

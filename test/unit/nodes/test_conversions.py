@@ -160,3 +160,96 @@ def test_builder_needs_every_field():
     with pytest.raises(TypeError):
         build(x=1.0, z=2.0)
     assert build(x=1.0, y=0.0, z=2.0) == Vector3(x=1.0, z=2.0)
+
+
+# --- a 3-D vessel's scene -------------------------------------------------------------------------
+
+#: A unit cube's surface: 8 vertices, 12 triangles, each wound counter-clockwise seen from outside.
+CUBE_V = np.array([[x, y, z] for x in (0.0, 1e-3) for y in (0.0, 2e-3) for z in (0.0, 3e-3)])
+CUBE_T = np.array([[0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                   [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5]])
+
+
+def test_wall_mesh_marker_keeps_every_triangle_and_its_winding():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from visualization_msgs.msg import Marker
+
+    from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
+
+    m = cv.wall_mesh_marker(CUBE_V, CUBE_T)
+    assert (m.type, m.action, m.ns, m.id, m.header.frame_id) == (Marker.TRIANGLE_LIST, Marker.ADD, NETWORK_WALL_NS, 0,
+                                                                  FRAME_ID)
+    assert len(m.points) == 3 * len(CUBE_T) and not m.colors
+    got = np.array([[p.x, p.y, p.z] for p in m.points]).reshape(-1, 3, 3)
+    assert np.array_equal(got, CUBE_V[CUBE_T])  # triangle i is points 3i..3i+2, in its own vertex order
+    # each triangle's winding still gives the outward normal: the normals point away from the cube's centre
+    n = np.cross(got[:, 1] - got[:, 0], got[:, 2] - got[:, 0])
+    assert (np.einsum("ij,ij->i", n, got.mean(axis=1) - CUBE_V.mean(axis=0)) > 0).all()
+    assert 0 < m.color.a < 1 and (m.scale.x, m.scale.y, m.scale.z) == (1.0, 1.0, 1.0)
+    assert m.pose.orientation.w == 1.0
+    # over the wire: every vertex as given
+    back = deserialize_message(serialize_message(m), Marker)
+    assert np.array_equal(np.array([[p.x, p.y, p.z] for p in back.points]), CUBE_V[CUBE_T].reshape(-1, 3))
+    # a reversed triangle stays reversed: the order is the caller's
+    flipped = cv.wall_mesh_marker(CUBE_V, CUBE_T[:, ::-1])
+    assert [(p.x, p.y, p.z) for p in flipped.points[:3]] == [tuple(CUBE_V[i]) for i in CUBE_T[0, ::-1]]
+
+
+@pytest.mark.parametrize("vertices, triangles, match", [
+    (CUBE_V[:, :2], CUBE_T, "vertices_m must be"),
+    (CUBE_V, CUBE_T[:, :2], "triangles must be"),
+    (CUBE_V, CUBE_T.astype(float), "integer"),
+    (CUBE_V, np.r_[CUBE_T, [[0, 1, 8]]], "index vertices 0..7"),
+    (CUBE_V, np.r_[CUBE_T, [[0, -1, 2]]], "index vertices 0..7"),
+    (np.r_[CUBE_V[:7], [[np.nan, 0.0, 0.0]]], CUBE_T, "finite, got 1 vertices"),
+])
+def test_wall_mesh_marker_refuses_a_malformed_mesh(vertices, triangles, match):
+    with pytest.raises(ValueError, match=match):
+        cv.wall_mesh_marker(vertices, triangles)
+
+
+def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
+    from visualization_msgs.msg import Marker
+
+    from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
+    from vesselbot_ros.vessels import cfd3d
+    from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+
+    net = load_network("carotid_bifurcation_3d")
+    geom = NetworkGeometry3D(net)
+    # a coarse mesh of the tree's lumen (a second: no flow solve), its wall's triangles
+    meshed = cfd3d.mesh_tree(cfd3d.tree_from_network(net), cfd3d.settings_from_network(
+        net, mesh_size_m=1.5e-3, wall_elements_per_circle=16))
+    used, local = np.unique(meshed.boundaries["wall"], return_inverse=True)
+    v, t = meshed.points[used], local.reshape(-1, 3)
+    ms = cv.network_markers_3d(geom, v, t, 2.5e-4).markers
+    wall = ms[0]
+    assert (wall.ns, wall.type, wall.header.frame_id) == (NETWORK_WALL_NS, Marker.TRIANGLE_LIST, FRAME_ID)
+    pts = np.array([[p.x, p.y, p.z] for p in wall.points])
+    assert len(pts) == 3 * len(t) and np.isfinite(pts).all() and np.array_equal(pts, v[t].reshape(-1, 3))
+    # the wall is the lumen's: every vertex on a branch's tube (caps left out), the tree leaves the plane
+    assert np.abs(geom.query(v)["sdist"]).max() < 1e-5
+    assert np.abs(pts[:, 1]).max() > 3e-3
+    # a LINE_STRIP per branch, through its 3-D centreline samples (first and last included)
+    assert [m.ns for m in ms[1:]] == [f"{b.name}/centreline" for b in net.branches]
+    assert [m.id for m in ms] == list(range(len(ms)))
+    for b, m in zip(net.branches, ms[1:]):
+        c = np.array([[p.x, p.y, p.z] for p in m.points])
+        samples = geom.centreline_3d(b.name)
+        every = round(2e-4 / net.sample_spacing_m)  # step_m's default
+        assert m.type == Marker.LINE_STRIP and m.header.frame_id == FRAME_ID
+        assert np.array_equal(c, samples[np.unique(np.r_[np.arange(0, len(samples), every), len(samples) - 1])])
+        assert bool(np.abs(c[:, 1]).max() > 0) == (not b.is_planar)
+
+
+def test_a_path_of_3d_points_keeps_its_y_and_a_planar_one_has_y_zero():
+    pts3 = np.array([[0.0, 1e-3, 2e-3], [1e-3, -2e-3, 3e-3]])
+    got = cv.path_msg(pts3, 0.5)
+    assert [(p.pose.position.x, p.pose.position.y, p.pose.position.z) for p in got.poses] == [tuple(p) for p in pts3]
+    assert all(p.header.frame_id == "vessel" for p in got.poses)
+    flat = cv.path_msg(pts3[:, [0, 2]], 0.5)
+    assert [(p.pose.position.x, p.pose.position.y, p.pose.position.z) for p in flat.poses] == \
+        [(x, 0.0, z) for x, _, z in pts3]
+    assert cv.point3((1.0, 2.0, 3.0)) == cv.point((1.0, 3.0)).__class__(x=1.0, y=2.0, z=3.0)
+    with pytest.raises(ValueError, match=r"\(n, 2\) or \(n, 3\)"):
+        cv.path_msg(np.zeros((3, 4)))

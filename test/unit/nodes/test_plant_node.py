@@ -127,3 +127,38 @@ def test_a_late_tick_is_asked_for_once_then_after_the_grace_and_a_held_tick_neve
     node._last_emit_wall -= 10.0
     node._stall_check()
     assert asked == [0, 1] and node.k == 4 and node.idle
+
+
+def test_a_network_with_y_gets_its_wall_mesh_and_a_planar_one_its_meshed_wall_segments():
+    """The vessel markers the plant publishes once: a 3-D tree (branches with ``y_m``) as a triangle mesh."""
+    import numpy as np
+    from visualization_msgs.msg import Marker
+
+    from vesselbot_ros.graph_spec import NETWORK_WALL_NS
+    from vesselbot_ros.nodes import conversions as cv
+    from vesselbot_ros.nodes.plant_node import network_scene_markers
+    from vesselbot_ros.physics.params import BloodParams
+    from vesselbot_ros.vessels.cfd import network_wall
+    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+
+    blood, r = BloodParams(), 2.5e-4
+    planar = load_network("paper_iiic_artery")
+    assert not planar.is_3d
+    assert network_scene_markers(planar, blood, r) == cv.network_markers(NetworkGeometry(planar),
+                                                                          network_wall(planar, blood).segments, r)
+    # the same tree given with y_m (all 0): 3-D tubes, in the plane y = 0 but with a wall all round
+    tree = load_network("paper_iiic_artery_3d")
+    assert tree.is_3d and tree.is_planar
+    wall = network_scene_markers(tree, blood, r).markers[0]
+    assert (wall.ns, wall.type) == (NETWORK_WALL_NS, Marker.TRIANGLE_LIST)
+    y = np.array([p.y for p in wall.points])
+    assert y.min() == pytest.approx(-1.5e-3, rel=1e-6) and y.max() == pytest.approx(1.5e-3, rel=1e-6)  # the trunk
+    # a tree that leaves the plane: the wall its plant computes with, centrelines with y
+    from vesselbot_ros.vessels.plant_field3d import wall_mesh
+
+    net = load_network("carotid_bifurcation_3d")
+    carotid = network_scene_markers(net, blood, r).markers
+    v, t = wall_mesh(net, blood)
+    assert carotid[0].type == Marker.TRIANGLE_LIST
+    assert np.array_equal([[p.x, p.y, p.z] for p in carotid[0].points], v[t].reshape(-1, 3))
+    assert min(p.y for m in carotid[1:] for p in m.points) < -3e-3

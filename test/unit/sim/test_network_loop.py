@@ -67,19 +67,58 @@ def test_leaving_the_lumen_is_a_recorded_event() -> None:
     assert out["branch_final"] == "trunk_a" and out["reached_target"] == 0
 
 
-def test_a_scenario_refuses_a_non_planar_network_in_one_line() -> None:
+def test_a_planar_scenario_switched_to_a_3d_tree_asks_for_its_third_axis_in_one_line() -> None:
     from vesselbot_ros.config import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^physics\.vessel\.network: vessel network 'carotid_bifurcation_3d' is not "
-                                          r"planar .*: the 2-D plant takes XZ networks only") as ei:
+    with pytest.raises(ConfigError, match=r"^initial\.p0_m must have 3 values \(x, y, z: the vessel is a 3-D tree\)") as ei:
         load_scenario(shipped_scenarios()["paper_iiic_network_upper"],
                       sets=["physics.vessel.network=carotid_bifurcation_3d"])
     assert "\n" not in str(ei.value)
 
 
-def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_one_line() -> None:
+def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_a_planar_vessel_in_one_line() -> None:
     from vesselbot_ros.config import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^reference\.anchors_y_m: a path in three dimensions needs the 3-D plant") as ei:
+    with pytest.raises(ConfigError, match=r"^reference\.anchors_y_m: a path in three dimensions needs a 3-D vessel tree") as ei:
         load_scenario(shipped_scenarios()["sound_small_artery"], sets=["reference.anchors_y_m=[0.0, 1.0e-4, 0.0, 0.0]"])
     assert "\n" not in str(ei.value)
+
+
+@pytest.mark.parametrize(("key", "value", "what"), [
+    ("observer.kind", "ekf", "observer.kind 'ekf'"), ("controller.kind", "predictive", "controller.kind 'predictive'"),
+    ("sequence.mode", "multiplexed", "sequence.mode 'multiplexed'"), ("dbdt.mode", "iec_normal_mode", "dbdt.mode"),
+    ("reference.timing", "flow_synchronised", "reference.timing 'flow_synchronised'")])
+def test_a_3d_tree_refuses_what_its_loop_has_not_yet_in_one_line(key: str, value: str, what: str) -> None:
+    from vesselbot_ros.config import ConfigError
+
+    sets = [f"{key}={value}"]
+    if key == "sequence.mode":
+        sets += ["imager.frame_rate_Hz=50.0"]
+    with pytest.raises(ConfigError, match=r"does not take " + what.replace("(", r"\(").replace(".", r"\.")) as ei:
+        load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=sets)
+    assert "\n" not in str(ei.value)
+
+
+@pytest.mark.parametrize("name", ["paper_iiic_network_upper_3d", "carotid_bifurcation_3d_eca", "synthetic_tree_3d_deep"])
+def test_3d_trees_run_on_three_axes_reproducibly(name: str) -> None:
+    sc = load_scenario(shipped_scenarios()[name], sets=["sim.duration_s=0.3"])
+    assert sc.dims == 3
+    a, b = run_closed_loop(sc, 1), run_closed_loop(sc, 1)
+    assert a.path == "per_tick"
+    for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied", "slew_limited"):
+        assert a.timeseries[k].shape == (300, 3), k
+        assert np.array_equal(a.timeseries[k], b.timeseries[k], equal_nan=True), k
+    assert np.nanstd(a.timeseries["meas_p"][:, 1] - a.timeseries["p_true"][:, 1]) == pytest.approx(1e-4, rel=0.2)
+    assert a.metrics["outside_lumen_time_s"] == 0.0
+
+
+def test_the_3d_trees_reach_their_outlets_on_seeds_0_to_4() -> None:
+    """The stored reference runs (test_reference_metrics.py checks them against fresh runs, number for number)."""
+    from vesselbot_ros.sim.reference_metrics import load_reference
+
+    runs = load_reference()["runs"]
+    for name in ("paper_iiic_network_upper_3d", "carotid_bifurcation_3d_eca", "synthetic_tree_3d_deep"):
+        for seed in range(5):
+            m = runs[f"{name}/{seed}"]
+            assert m["reached_target"] == 1, (name, seed)  # the final point in the route's outlet branch
+            assert m["outside_lumen_time_s"] == 0.0, (name, seed)

@@ -270,6 +270,14 @@ def test_paper_iiic_artery_3d_is_the_planar_network() -> None:
     assert [(b.name, b.parent) for b in tree.branches] == [(b.name, b.parent) for b in planar.branches]
 
 
+def test_a_network_is_3d_when_any_branch_gives_y_m_even_all_zero() -> None:
+    assert not any(load_network(n).is_3d for n in ("paper_iiic_artery", "small_artery_4gen", "straight_table3"))
+    assert all(load_network(n).is_3d for n in SHIPPED_3D)  # paper_iiic_artery_3d: y_m all 0, planar and 3-D
+    assert not _net(Y).is_3d
+    one = [dict(b, y_m=[0.0] * len(b["x_m"])) if i == 0 else b for i, b in enumerate(Y)]
+    assert _net(one).is_3d and _net(one).is_planar
+
+
 def test_carotid_bifurcation_has_the_models_dimensions_and_leaves_the_plane() -> None:
     net = load_network("carotid_bifurcation_3d")
     g = NetworkGeometry3D(net)
