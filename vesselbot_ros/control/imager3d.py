@@ -11,24 +11,148 @@ delivered at the first tick at or after ``t_acq + latency_s``, the newest of the
 * draws per acquired frame, always, in this order: three standard normals (x, y, z), one uniform (the
   direction's azimuth), one uniform (random dropout) and one uniform (the direction's polar cosine), so one
   seed gives one stream whatever the bursts and the dropouts.
+
+The stage (:class:`Imager3D`) and the compiled 3-D loop (:mod:`vesselbot_ros.sim.compiled_loop3d`) call the same
+compiled :func:`imager3d_frame`; the stage draws through a
+:class:`~vesselbot_ros.control.imager_model.VariateBuffer` (the same stream, drawn ahead in blocks).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 
+import numba
 import numpy as np
 import numpy.typing as npt
+from numba import types
+from numba.extending import overload
 
-from vesselbot_ros.control.imager_model import ImagerParams, Measurement
+from vesselbot_ros.control.imager_model import ImagerParams, Measurement, VariateBuffer, imager_arrays
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["Imager3D", "DRAWS_PER_FRAME"]
+__all__ = ["Imager3D", "DRAWS_PER_FRAME", "imager3d_frame", "imager3d_acquire", "fill_variates3d", "draw_variates3d",
+           "queue_rows"]
 
 _EPS_S = 1e-9  # the planar imager's tick-grid tolerance
 #: Variates drawn per acquired frame.
 DRAWS_PER_FRAME = 6
+
+
+def draw_variates3d(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The six variates of one acquisition (module docstring); compiled code only, from a Generator or a buffer."""
+    raise NotImplementedError("draw_variates3d runs in compiled code only")
+
+
+@overload(draw_variates3d, jit_options={"nogil": True})
+def _draw_variates3d(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(src, types.NumPyRandomGeneratorType):
+        def from_generator(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+            n0 = src.standard_normal()
+            n1 = src.standard_normal()
+            n2 = src.standard_normal()
+            u0 = src.random()
+            u1 = src.random()
+            u2 = src.random()
+            return n0, n1, n2, u0, u1, u2
+        return from_generator
+    if isinstance(src, types.Array):
+        def from_buffer(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+            i = int(src[0])
+            src[0] = i + 6
+            return src[i + 1], src[i + 2], src[i + 3], src[i + 4], src[i + 5], src[i + 6]
+        return from_buffer
+    return None
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_variates3d(rng, buf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Draw ``buf[1:]`` from ``rng`` in :func:`draw_variates3d`'s order; ``buf[0] = 0`` (none used)."""
+    for i in range(1, buf.shape[0] - 5, 6):
+        buf[i] = rng.standard_normal()
+        buf[i + 1] = rng.standard_normal()
+        buf[i + 2] = rng.standard_normal()
+        buf[i + 3] = rng.random()
+        buf[i + 4] = rng.random()
+        buf[i + 5] = rng.random()
+    buf[0] = 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def imager3d_acquire(prm, outliers, dropouts, rng, t, px, py, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Acquire one frame of ``(px, py, pz)`` at ``t``: ``out[0]`` 1 if kept, ``out[2:6]`` = (x, y, z, outlier).
+
+    ``prm``, ``outliers``, ``dropouts``: :func:`~vesselbot_ros.control.imager_model.imager_arrays`.  Six draws, always.
+    """
+    n0, n1, n2, u_dir, u_drop, u_pol = draw_variates3d(rng)
+    m0 = px + prm[1] * n0
+    m1 = py + prm[1] * n1
+    m2 = pz + prm[1] * n2
+    outlier = 0.0
+    for i in range(outliers.shape[0]):
+        if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
+            if math.isnan(outliers[i, 3]):
+                phi = 2.0 * math.pi * u_dir
+                c = 2.0 * u_pol - 1.0
+                s = math.sqrt(max(0.0, 1.0 - c * c))
+                d0 = s * math.cos(phi)
+                d1 = s * math.sin(phi)
+                d2 = c
+            else:
+                d0 = math.cos(outliers[i, 3])
+                d1 = 0.0
+                d2 = math.sin(outliers[i, 3])
+            m0 = m0 + outliers[i, 2] * d0
+            m1 = m1 + outliers[i, 2] * d1
+            m2 = m2 + outliers[i, 2] * d2
+            outlier = 1.0
+            break
+    dropped = u_drop < prm[3]
+    if not dropped:
+        for i in range(dropouts.shape[0]):
+            if dropouts[i, 0] - _EPS_S <= t < dropouts[i, 1] - _EPS_S:
+                dropped = True
+                break
+    out[0] = 0.0 if dropped else 1.0
+    out[1] = t
+    out[2] = m0
+    out[3] = m1
+    out[4] = m2
+    out[5] = outlier
+
+
+@numba.njit(cache=True, nogil=True)
+def imager3d_frame(prm, outliers, dropouts, state, queue, rng, t, px, py, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:meth:`Imager3D.frame` over explicit state: acquire if due, queue, deliver the newest frame due.
+
+    ``state`` (4,): [next frame slot, last tick time, queue head, queue tail]; ``queue`` (rows, 6) ring of
+    [t_deliver, t_acq, x, y, z, outlier] (:func:`queue_rows` rows); ``out`` (6,) [delivered, t_acq, x, y, z,
+    outlier].  The caller checks that ``t`` and the position are finite and that time does not go back.
+    """
+    state[1] = t
+    period = prm[0]
+    if t + _EPS_S >= state[0] * period:
+        state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
+        imager3d_acquire(prm, outliers, dropouts, rng, t, px, py, pz, out)
+        if out[0] > 0.5:
+            j = int(state[3]) % queue.shape[0]
+            queue[j, 0] = t + prm[2]
+            for c in range(1, 6):
+                queue[j, c] = out[c]
+            state[3] += 1.0
+    out[0] = 0.0
+    while state[2] < state[3]:
+        j = int(state[2]) % queue.shape[0]
+        if not queue[j, 0] <= t + _EPS_S:
+            break
+        out[0] = 1.0
+        for c in range(1, 6):
+            out[c] = queue[j, c]
+        state[2] += 1.0
+
+
+def queue_rows(params: ImagerParams) -> int:
+    """Rows of the delivery ring: every frame that can wait for its delivery, and some."""
+    return int(math.ceil(params.latency_s * params.frame_rate_Hz)) + 4
 
 
 class Imager3D:
@@ -43,45 +167,39 @@ class Imager3D:
 
     def __init__(self, params: ImagerParams, rng: np.random.Generator) -> None:
         self.params = params
-        self.rng = rng
-        self._period = 1.0 / params.frame_rate_Hz
-        self._next = 0
-        self._t_last = -math.inf
-        self._queue: deque[tuple[float, float, npt.NDArray[np.float64], bool]] = deque()
-        self._outliers = [(o.start_s, o.start_s + o.duration_s, o.magnitude_m,
-                           o.angle_rad if o.direction == "fixed" else math.nan) for o in params.outliers]
-        self._dropouts = [(d.start_s, d.start_s + d.duration_s) for d in params.dropouts]
+        self._variates = VariateBuffer(rng, DRAWS_PER_FRAME, fill_variates3d)
+        self._prm, self._outliers, self._dropouts = imager_arrays(params)
+        self._state = np.array([0.0, -math.inf, 0.0, 0.0])
+        self._queue = np.zeros((queue_rows(params), 6))
+        self._out = np.zeros(6)
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator the imager draws from, exactly where its draws so far left it."""
+        return self._variates.generator()
+
+    @property
+    def frame_arrays(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """``(params, outliers, dropouts)`` now (injected bursts included), for compiled callers."""
+        return self._prm, self._outliers, self._dropouts
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float, angle_rad: float | None = None) -> None:
         """Add an outlier burst at run time (``angle_rad`` None: a random direction per frame)."""
-        self._outliers.append((start_s, start_s + duration_s, magnitude_m, math.nan if angle_rad is None else angle_rad))
+        row = np.array([[start_s, start_s + duration_s, magnitude_m, math.nan if angle_rad is None else angle_rad]])
+        self._outliers = np.concatenate([self._outliers, row])
 
     def inject_dropout(self, start_s: float, duration_s: float) -> None:
         """Add a dropout window at run time."""
-        self._dropouts.append((start_s, start_s + duration_s))
+        self._dropouts = np.concatenate([self._dropouts, np.array([[start_s, start_s + duration_s]])])
 
     def acquire(self, t_acq_s: float, p: npt.NDArray[np.float64]) -> Measurement | None:
         """One frame of ``p`` (3,) acquired at ``t_acq_s`` (s), or None if it is dropped (the six draws always)."""
-        v = self.rng.standard_normal(3)
-        u_dir, u_drop, u_pol = self.rng.random(3)
-        sig = self.params.noise_sigma_m
-        m = np.array([p[0] + sig * v[0], p[1] + sig * v[1], p[2] + sig * v[2]])
-        outlier = False
-        for t0, t1, mag, ang in self._outliers:
-            if t0 - _EPS_S <= t_acq_s < t1 - _EPS_S:
-                if math.isnan(ang):
-                    phi = 2.0 * math.pi * u_dir
-                    c = 2.0 * u_pol - 1.0
-                    s = math.sqrt(max(0.0, 1.0 - c * c))
-                    d = (s * math.cos(phi), s * math.sin(phi), c)
-                else:
-                    d = (math.cos(ang), 0.0, math.sin(ang))
-                m = m + mag * np.asarray(d)
-                outlier = True
-                break
-        dropped = u_drop < self.params.dropout_probability or any(
-            t0 - _EPS_S <= t_acq_s < t1 - _EPS_S for t0, t1 in self._dropouts)
-        return None if dropped else Measurement(float(t_acq_s), m, outlier)
+        o = self._out
+        imager3d_acquire(self._prm, self._outliers, self._dropouts, self._variates.ready(), float(t_acq_s), float(p[0]),
+                         float(p[1]), float(p[2]), o)
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(t_acq_s), o[2:5].copy(), bool(o[5] > 0.5))
 
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
         """Acquire (if due) and deliver (if due) at tick ``t_s``: the newest frame delivered, or None.
@@ -90,18 +208,13 @@ class Imager3D:
             ModelInputError: on a non-finite time or position, a wrong shape or time going backwards.
         """
         p = np.asarray(p_true, dtype=np.float64)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
+        if p.shape != (3,) or not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
             raise ModelInputError(f"imager: true position must be a finite (3,) array, got {p_true!r}")
-        if not math.isfinite(t_s) or t_s < self._t_last:
+        if not math.isfinite(t_s) or t_s < self._state[1]:
             raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
-        self._t_last = t_s
-        if t_s + _EPS_S >= self._next * self._period:
-            self._next = int(math.floor((t_s + _EPS_S) / self._period)) + 1
-            m = self.acquire(t_s, p)
-            if m is not None:
-                self._queue.append((t_s + self.params.latency_s, m.t_acq_s, m.p, m.outlier))
-        out = None
-        while self._queue and self._queue[0][0] <= t_s + _EPS_S:
-            _td, ta, pm, ol = self._queue.popleft()
-            out = Measurement(ta, pm, ol)
-        return out
+        o = self._out
+        imager3d_frame(self._prm, self._outliers, self._dropouts, self._state, self._queue, self._variates.ready(),
+                       float(t_s), float(p[0]), float(p[1]), float(p[2]), o)
+        if o[0] < 0.5:
+            return None
+        return Measurement(float(o[1]), o[2:5].copy(), bool(o[5] > 0.5))

@@ -376,18 +376,20 @@ class VariateBuffer:
     #: Acquisitions per block.
     BLOCK = 256
 
-    def __init__(self, rng: np.random.Generator) -> None:
+    def __init__(self, rng: np.random.Generator, per: int = 4, fill: Any = None) -> None:
         self._rng = rng
-        self.buf = np.zeros(1 + 4 * self.BLOCK)
+        self._per = int(per)  # variates per acquisition (the 3-D imager draws 6: control/imager3d.py)
+        self._fill = fill_variates if fill is None else fill  # draws them in the imager's order
+        self.buf = np.zeros(1 + self._per * self.BLOCK)
         self.buf[0] = float(self.buf.shape[0] - 1)  # empty: the first use fills
         self._state_at_fill: Mapping[str, Any] | None = None
 
     def ready(self) -> npt.NDArray[np.float64]:
         """The buffer, with at least one acquisition's variates left."""
         b = self.buf
-        if b[0] + 4.0 > b.shape[0] - 1:
+        if b[0] + self._per > b.shape[0] - 1:
             self._state_at_fill = self._rng.bit_generator.state
-            fill_variates(self._rng, b)
+            self._fill(self._rng, b)
         return b
 
     def generator(self) -> np.random.Generator:
@@ -396,7 +398,7 @@ class VariateBuffer:
             used = int(self.buf[0])
             self._rng.bit_generator.state = self._state_at_fill
             if used:
-                fill_variates(self._rng, np.zeros(1 + used))
+                self._fill(self._rng, np.zeros(1 + used))
             self._state_at_fill = None
             self.buf[0] = float(self.buf.shape[0] - 1)
         return self._rng

@@ -28,7 +28,7 @@ over seeds and scenario variants on several cores, each row equal to the
 single run.
 
 Time-series columns (``SimResult.timeseries``; vectors are (n, 2) over (x, z), or (n, 3) over (x, y, z) in a
-3-D vessel tree (``Scenario.dims``), which runs the per-tick loop: the compiled kernel is planar):
+3-D vessel tree (``Scenario.dims``; its compiled loop is :mod:`vesselbot_ros.sim.compiled_loop3d`)):
 
 ===================  =======  ==============================================
 key                  unit     meaning
@@ -80,7 +80,7 @@ from vesselbot_ros.control.model3d import DynamicsModel3D
 from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
-from vesselbot_ros.sim import compiled_loop, kinds
+from vesselbot_ros.sim import compiled_loop, compiled_loop3d, kinds
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 
@@ -305,11 +305,11 @@ def run_stages(
     """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    foreign = compiled_loop.foreign_stages(stages)
+    foreign = _foreign_stages(scenario, stages)
     if path == "compiled" and foreign:
         raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
     if not foreign and path != "per_tick":
-        inp = compiled_loop.prepare(stages, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
+        inp = _prepare(scenario, stages)
         imager: Any = stages.imager  # a built-in imager (not foreign): it holds the run's generator
         return _compiled_result(scenario, seed, inp, imager.rng)
     return _run_per_tick(scenario, seed, stages)
@@ -318,12 +318,14 @@ def run_stages(
 # Prepared kernel inputs per scenario object (a frozen Scenario: the same object is the same scenario), so that
 # repeated runs of one scenario over seeds build the stages and sample the reference once.  Keyed on id() and
 # checked through a weak reference (the dict never keeps a scenario alive, and a recycled id is detected).
-_PREPARED: dict[int, tuple[weakref.ref[Scenario], compiled_loop.LoopInputs | None]] = {}
+#: The compiled loops' inputs: planar, or of a 3-D tree.
+Inputs = compiled_loop.LoopInputs | compiled_loop3d.LoopInputs3D
+_PREPARED: dict[int, tuple[weakref.ref[Scenario], Inputs | None]] = {}
 _PREPARED_LOCK = threading.Lock()
 _PREPARED_MAX = 64
 
 
-def prepared(scenario: Scenario) -> compiled_loop.LoopInputs | None:
+def prepared(scenario: Scenario) -> Inputs | None:
     """The compiled loop's inputs for ``scenario`` (None if its stages are not all built in), cached per object."""
     key = id(scenario)
     with _PREPARED_LOCK:
@@ -331,8 +333,7 @@ def prepared(scenario: Scenario) -> compiled_loop.LoopInputs | None:
         if hit is not None and hit[0]() is scenario:
             return hit[1]
     st = build_stages(scenario, None)
-    inp = None if compiled_loop.foreign_stages(st) else compiled_loop.prepare(
-        st, scenario.sim.n_ticks, scenario.sim.dt_control_s, scenario.sim.record_forces)
+    inp = None if _foreign_stages(scenario, st) else _prepare(scenario, st)
     with _PREPARED_LOCK:
         if len(_PREPARED) >= _PREPARED_MAX:
             _PREPARED.clear()
@@ -340,9 +341,26 @@ def prepared(scenario: Scenario) -> compiled_loop.LoopInputs | None:
     return inp
 
 
-def _compiled_result(scenario: Scenario, seed: int | None, inp: compiled_loop.LoopInputs, rng: np.random.Generator,
+def _foreign_stages(scenario: Scenario, stages: Stages) -> list[str]:
+    """The stages the compiled loop of the scenario's geometry (planar, or a 3-D tree) cannot read."""
+    if scenario.dims == 3:
+        return compiled_loop3d.foreign_stages3d(stages)
+    return compiled_loop.foreign_stages(stages)
+
+
+def _prepare(scenario: Scenario, stages: Stages) -> Inputs:
+    sim = scenario.sim
+    if scenario.dims == 3:
+        return compiled_loop3d.prepare3d(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
+    return compiled_loop.prepare(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
+
+
+def _compiled_result(scenario: Scenario, seed: int | None, inp: Inputs, rng: np.random.Generator,
                      keep_timeseries: bool = True) -> SimResult:
-    cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
+    if isinstance(inp, compiled_loop3d.LoopInputs3D):
+        cols, plant_stats, model_stats = compiled_loop3d.run_kernel3d(inp, rng)
+    else:
+        cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
     # copies: the prepared inputs are shared by every run of the scenario and must not be written through a result
     series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts.copy(), "p_ref": inp.p_ref.copy(), "v_ref": inp.v_ref.copy(),
                                            "a_ref": inp.a_ref.copy()}
@@ -501,14 +519,14 @@ def run_many(
     """
     variants = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
     seed_list = None if seeds is None else [int(x) for x in seeds]
-    jobs: list[tuple[Scenario, int | None, compiled_loop.LoopInputs | None]] = []
+    jobs: list[tuple[Scenario, int | None, Inputs | None]] = []
     for sc in variants:
         # a variant with stages the compiled loop does not have runs the per-tick loop
         inp = prepared(sc)
         for seed in seed_list if seed_list is not None else [None]:
             jobs.append((sc, seed, inp))
 
-    def one(job: tuple[Scenario, int | None, compiled_loop.LoopInputs | None]) -> SimResult:
+    def one(job: tuple[Scenario, int | None, Inputs | None]) -> SimResult:
         sc, seed, inp = job
         if inp is None:
             res = _run_per_tick(sc, seed, build_stages(sc, seed))

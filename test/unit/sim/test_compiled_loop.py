@@ -312,21 +312,23 @@ ALLOCATIONS = """
 import sys
 import numpy as np
 from numba.core.runtime import rtsys
-from vesselbot_ros.sim import compiled_loop
+from vesselbot_ros.sim import compiled_loop, compiled_loop3d
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 sc = load_scenario(shipped_scenarios()[sys.argv[1]])
+prepare, run = ((compiled_loop3d.prepare3d, compiled_loop3d.run_kernel3d) if sc.dims == 3 else
+                (compiled_loop.prepare, compiled_loop.run_kernel))
 for n in (50, 500):
-    inp = compiled_loop.prepare(build_stages(sc, 0), n, sc.sim.dt_control_s, False)
-    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    inp = prepare(build_stages(sc, 0), n, sc.sim.dt_control_s, False)
+    run(inp, np.random.default_rng(0))
     a = rtsys.get_allocation_stats()
-    compiled_loop.run_kernel(inp, np.random.default_rng(0))
+    run(inp, np.random.default_rng(0))
     b = rtsys.get_allocation_stats()
     print(b.alloc - a.alloc, b.mi_alloc - a.mi_alloc)
 """
 
 
-@pytest.mark.parametrize("name", ["sound_small_artery", "paper_iiic_network_upper"])
+@pytest.mark.parametrize("name", ["sound_small_artery", "paper_iiic_network_upper", "paper_iiic_network_upper_3d"])
 def test_the_compiled_loop_allocates_nothing_per_tick(name: str) -> None:
     # numba's runtime counts its allocations when NUMBA_NRT_STATS=1: a run of 500 ticks makes exactly as many
     # as a run of 50 (the scratch arrays allocated once before the first tick), so no tick allocates
