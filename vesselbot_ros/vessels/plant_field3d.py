@@ -25,6 +25,7 @@ foreign file is solved or built again; a failed solve caches nothing.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -230,10 +231,8 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
     fld = _sample(net, blood, key)
-    try:
+    with contextlib.suppress(OSError):  # a full or read-only cache: the run goes on with the samples in memory
         fld.save(cached)
-    except OSError:
-        pass  # a full or read-only cache: the run goes on with the samples in memory (solved again next time)
     return fld
 
 
@@ -252,10 +251,8 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
         except (OSError, ValueError, KeyError):
             pass  # a torn or foreign file: build again
     wf = build_wall_field3d(fld.wall, h_m=fld.h, origin_m=fld.origin, shape=fld.shape)
-    try:
+    with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
         _atomic_savez(path, False, stats=np.array(json.dumps(wf.stats)), **dict(zip(names, wf.args, strict=True)))
-    except OSError:
-        pass  # a full or read-only cache: built again next time (the temporary file is removed)
     return WallArrays(tuple(wf.args), wf.stats)
 
 
