@@ -182,18 +182,24 @@ def _model_f3(p, W, F, fh, free, fbuf, sc, ys, z3, t, x0, x1, x2, v0, v1, v2):  
 
 
 @numba.njit(cache=True, nogil=True)
+def _safe3(prm, last, out, status):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The safe action: hold the last command (``stale_action: hold``) or zero; no acceleration; ``status``."""
+    if prm[4] < 0.5:
+        last[0] = 0.0
+        last[1] = 0.0
+        last[2] = 0.0
+    for c in range(3):
+        out[c] = last[c]
+        out[3 + c] = 0.0
+    return status
+
+
+@numba.njit(cache=True, nogil=True)
 def law3d_command(prm, last, model_p, p_s, W, F, fh, free, fbuf, sc, ys, z3, t, x0, x1, x2, z0, z1, z2, age,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                   flow_scale, pr0, pr1, pr2, vr0, vr1, vr2, ar0, ar1, ar2, out):
     """:meth:`Backstepping3D.command_arrays` over explicit state; returns a status code (or ``FLOW_SCALE_INVALID``)."""
     if not age <= prm[3]:
-        if prm[4] < 0.5:
-            last[0] = 0.0
-            last[1] = 0.0
-            last[2] = 0.0
-        for c in range(3):
-            out[c] = last[c]
-            out[3 + c] = 0.0
-        return STATUS_STALE
+        return _safe3(prm, last, out, STATUS_STALE)
     p = model_p
     if prm[5] > 0.5:
         if not (math.isfinite(flow_scale) and flow_scale > 0.0):
@@ -224,14 +230,7 @@ def law3d_command(prm, last, model_p, p_s, W, F, fh, free, fbuf, sc, ys, z3, t, 
     g1 = u1 * prm[6]
     g2 = u2 * prm[6]
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
-        if prm[4] < 0.5:
-            last[0] = 0.0
-            last[1] = 0.0
-            last[2] = 0.0
-        for cc in range(3):
-            out[cc] = last[cc]
-            out[3 + cc] = 0.0
-        return STATUS_NONFINITE
+        return _safe3(prm, last, out, STATUS_NONFINITE)
     last[0] = g0
     last[1] = g1
     last[2] = g2

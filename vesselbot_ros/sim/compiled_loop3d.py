@@ -35,37 +35,22 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, failure_message
 from vesselbot_ros.physics.kernel import I_R
 from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns and stop codes
+    COLUMNS,
+    ESTIMATE_NONFINITE,
+    FLOW_SCALE_FAILED,
+    OBSERVER_FAILED,
+    PLANT_FAILED,
+    REFERENCE_NONFINITE,
+)
 from vesselbot_ros.sim.plant import PlantSimulator3D
 
 __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "run_kernel3d", "COLUMNS3D"]
 
-# codes (as sim/compiled_loop.py's)
-PLANT_FAILED, OBSERVER_FAILED, ESTIMATE_NONFINITE, REFERENCE_NONFINITE, FLOW_SCALE_FAILED = 1, 2, 3, 4, 6
-
-#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order.
-COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
-    ("p_true", np.float64, (3,)),
-    ("v_true", np.float64, (3,)),
-    ("delta_m", np.float64, ()),
-    ("in_contact", np.bool_, ()),
-    ("contact_phase", np.int8, ()),
-    ("meas_p", np.float64, (3,)),
-    ("meas_t_acq_s", np.float64, ()),
-    ("meas_outlier", np.bool_, ()),
-    ("x_hat", np.float64, (3,)),
-    ("z_hat", np.float64, (3,)),
-    ("flow_scale_hat", np.float64, ()),
-    ("magnetization_scale_hat", np.float64, ()),
-    ("meas_used", np.bool_, ()),
-    ("meas_rejected", np.bool_, ()),
-    ("u_cmd", np.float64, (3,)),
-    ("g_cmd", np.float64, (3,)),
-    ("g_applied", np.float64, (3,)),
-    ("k_scale", np.float64, ()),
-    ("saturated", np.bool_, ()),
-    ("slew_limited", np.bool_, (3,)),
-    ("cmd_status", np.int8, ()),
-)
+#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order: the planar kernel's, on
+#: three axes.
+COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = tuple((name, dt, (3,) if shape == (2,) else shape)
+                                                                for name, dt, shape in COLUMNS)
 
 _BUILT_IN = {"plant": PlantSimulator3D, "imager": Imager3D, "observer": HighGainObserver3D, "controller": Backstepping3D,
              "coil": CoilLimiter3D}
