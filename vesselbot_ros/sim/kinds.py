@@ -540,8 +540,8 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
 
 def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D:
     s = ctx.scenario
-    if s.dims == 3:
-        return CoilLimiter3D(s.coil, -ctx.dt_s)
+    if s.dims == 3:  # dB/dt of three axes slewing at once
+        return CoilLimiter3D(effective_coil_limits(s.coil, s.dbdt, axes=3), -ctx.dt_s)
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
     # between any two later ticks: the first command may move S * dt, not 0 (which left the robot unactuated for
     # the first 1 ms and cost ~350 um of start-up transient, docs/control.md).

@@ -296,8 +296,6 @@ class Scenario:
             missing.append("controller.duty_compensation 'sequence' yet")
         if self.sequence.mode != "continuous":
             missing.append(f"sequence.mode {self.sequence.mode!r} yet (the 3-D loop images and propels continuously)")
-        if self.dbdt.mode != "off":
-            missing.append(f"dbdt.mode {self.dbdt.mode!r} yet")
         if bspline and self.reference.timing == "flow_synchronised":
             missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):
