@@ -22,7 +22,8 @@ compiled step (:func:`hgo3d_update`, :func:`law3d_command`), the very function t
 user's ``propagate`` and ``F``) the same rules run in Python.
 
 Not on three axes yet (a scenario that names them over a 3-D tree is refused in one line): the extended Kalman
-observer, the adaptive law, the predictive controller, the scanner's multiplexed sequence and the dB/dt limit.
+observer, the adaptive law and the predictive controller (the scanner's sequence and the dB/dt limit are:
+``scanner/stages.py``, ``scanner/hardware.py``).
 """
 
 from __future__ import annotations
@@ -157,15 +158,16 @@ def hgo3d_update(prm, scal, y, contact, hist, hist_n, ig, model_p, W, F, fh, sta
     return OK
 
 
-# law3d_command: prm (7,) [k1, k2, T/2 (midpoint hold, 0: none), stale timeout (s), hold (1) / zero (0),
-# flow compensation (1: estimate), 1 / b]; last (3,) last command; the model's p, a scratch p_s of its size, W, F,
+# law3d_command: prm (8,) [k1, k2, T/2 (midpoint hold, 0: none), stale timeout (s), hold (1) / zero (0),
+# flow compensation (1: estimate), 1 / b, 1 / duty cycle (1: no duty compensation)]; last (3,) last command;
+# the model's p, a scratch p_s of its size, W, F,
 # fh; free (4,) zeros; fbuf (8, 3), sc (4, 3), ys (6,) and z3 (3,) scratch; out (6,) [G (3) T/m, U (3) m/s^2].
-def law3d_params(params: ControllerParams, b: float, hold_period_s: float) -> npt.NDArray[np.float64]:
-    """(7,) parameter vector of :func:`law3d_command`."""
+def law3d_params(params: ControllerParams, b: float, hold_period_s: float, inv_duty: float = 1.0) -> npt.NDArray[np.float64]:
+    """(8,) parameter vector of :func:`law3d_command`."""
     half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
     return np.array([float(params.gains.k1), float(params.gains.k2), half, float(params.stale_timeout_s),
                      1.0 if params.stale_action == "hold" else 0.0, 1.0 if params.flow_compensation == "estimate" else 0.0,
-                     1.0 / float(b)])
+                     1.0 / float(b), float(inv_duty)])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -229,6 +231,10 @@ def law3d_command(prm, last, model_p, p_s, W, F, fh, free, fbuf, sc, ys, z3, t, 
     g0 = u0 * prm[6]
     g1 = u1 * prm[6]
     g2 = u2 * prm[6]
+    if prm[7] != 1.0:  # duty compensation
+        g0 = g0 * prm[7]
+        g1 = g1 * prm[7]
+        g2 = g2 * prm[7]
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
         return _safe3(prm, last, out, STATUS_NONFINITE)
     last[0] = g0
@@ -389,9 +395,12 @@ class Backstepping3D:
 
     dims = 3
 
-    def __init__(self, params: ControllerParams, model: Any, hold_period_s: float = 0.0) -> None:
+    def __init__(self, params: ControllerParams, model: Any, hold_period_s: float = 0.0, duty_cycle: float = 1.0) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
+        if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
+            raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
+        self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
         self.params = params
         self.model = model
         self._inv_b = 1.0 / float(model.input_gain)
@@ -402,7 +411,7 @@ class Backstepping3D:
         self._last = np.zeros(3)
         self._compiled = hasattr(model, "packed")  # the model of a 3-D tree: the compiled step
         if self._compiled:
-            self.params_vector = law3d_params(params, float(model.input_gain), hold_period_s)
+            self.params_vector = law3d_params(params, float(model.input_gain), hold_period_s, self._inv_duty)
             self._p_s = np.empty_like(model.p)
             self._free = np.zeros(4)
             self._fbuf = np.empty((8, 3))
@@ -468,6 +477,8 @@ class Backstepping3D:
             f = self.model.F(t_s, x_hat, z_hat, scale)
         u = a - f
         g = u * self._inv_b
+        if self._inv_duty != 1.0:
+            g = g * self._inv_duty
         if not _finite3(g):
             return self._safe("nonfinite")
         self._last[:] = g

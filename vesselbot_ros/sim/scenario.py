@@ -292,10 +292,6 @@ class Scenario:
         ckind = getattr(self.controller, "kind", "")
         if ckind in ("adaptive_backstepping", "predictive"):  # built in, planar yet (a user's kind gets 3-vectors)
             missing.append(f"controller.kind {ckind!r} yet (the 3-D loop has law (24), 'backstepping')")
-        elif isinstance(self.controller, ControllerParams) and self.controller.duty_compensation != "none":
-            missing.append("controller.duty_compensation 'sequence' yet")
-        if self.sequence.mode != "continuous":
-            missing.append(f"sequence.mode {self.sequence.mode!r} yet (the 3-D loop images and propels continuously)")
         if bspline and self.reference.timing == "flow_synchronised":
             missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):
