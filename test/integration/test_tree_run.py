@@ -99,3 +99,21 @@ def test_the_report_from_the_bag_alone_has_the_same_metrics(run, pure) -> None: 
               "velocity_estimation_error_max_m_per_s", "saturation_time_s", "slew_limited_time_s", "contact_time_s",
               "max_gradient_T_per_m", "n_ticks"):
         assert rep[k] == m[k] == res.metrics[k], k
+
+
+@pytest.mark.parametrize("role", ["observer", "controller"])
+def test_replay_into_a_role_reproduces_the_3d_run_bit_for_bit(run, role, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """`vesselbot replay --into` a fresh observer or controller of the tree's run: every output on three axes
+    as recorded (no tolerance)."""
+    bag, _m = run
+    if "single_process" not in str(bag):
+        pytest.skip("replayed from the single-process run's bag (the other bag holds the same messages)")
+    out = tmp_path / role
+    proc = subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "replay", str(bag), "--into", role, "--out", str(out),
+                           "--tolerance", "0"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    n = int(round(DURATION_S * 1000))
+    assert f"{n} bit-identical" in proc.stdout, proc.stdout
+    summary = json.loads((out / "comparison.json").read_text())
+    diffs = summary["max_abs_difference"]
+    assert set(diffs.values()) == {0.0} and any(k.endswith("_y_m") or "_y_" in k for k in diffs), diffs
