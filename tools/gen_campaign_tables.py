@@ -4,6 +4,7 @@ Usage::
 
     .venv/bin/python tools/gen_campaign_tables.py --run   # run (or resume) every config/campaigns/*.yaml, then
     .venv/bin/python tools/gen_campaign_tables.py         # only copy and render what out/campaigns/ holds
+    .venv/bin/python tools/gen_campaign_tables.py --run --only trees_3d   # one campaign (the others as stored)
 
 For every spec in ``config/campaigns/`` it takes ``out/campaigns/<name>/``
 (``results.parquet``, ``campaign.json``, the figures), copies them
@@ -62,8 +63,12 @@ def render(text: str, data: Path = DATA) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--run", action="store_true", help="run (or resume) the example campaigns first")
+    ap.add_argument("--only", action="append", default=[], metavar="NAME",
+                    help="this campaign only (repeatable); the others' stored results are rendered as they are")
     args = ap.parse_args()
     for spec in sorted(SPECS.glob("*.yaml")):
+        if args.only and spec.stem not in args.only:
+            continue
         name = spec.stem
         out = ROOT / "out" / "campaigns" / name
         if args.run:

@@ -21,8 +21,14 @@ always store the canonical names (:attr:`TopicSpec.name`, i.e. the default
 namespace); the namespace a run used is in its run metadata.
 
 Frame ``vessel``: x along the vessel axis (blood flows towards +x), z vertical
-(gravity along -z), centreline at z = 0, walls at z = +/- D(t)/2.  y is unused
-and always 0.
+(gravity along -z), centreline at z = 0, walls at z = +/- D(t)/2; y the
+scanner's horizontal axis across the bore.  Every
+vector travels with its three components.  In a planar scenario (a straight
+vessel or a network in the XZ plane) y is 0 in every message and a non-zero y
+is rejected; in a 3-D vessel tree (``Scenario.dims`` 3: its network file gives
+``y_m``) y is a coordinate like x and z in every position, velocity,
+acceleration, gradient and force, and ``coil/state`` carries the y axis's slew
+flag (``slew_limited_y``, false in planar runs).
 
 Lockstep protocol (the default mode; deterministic)
 ---------------------------------------------------
@@ -54,12 +60,13 @@ helper does the stamp <-> tick bookkeeping for every node
 (:class:`vesselbot_ros.nodes.tick_join.TickJoin`): inputs keyed by tick, off-grid,
 stale and future ticks rejected without moving any state.
 
-The estimate is a ``nav_msgs/Odometry`` in the XZ plane; its otherwise unused
-yaw-yaw variance ``pose.covariance[35]`` carries the observer's time since the
-last fresh measurement (s), which the controller's stale-estimate safe
-behaviour reads, and its yaw-rate variance ``twist.covariance[35]`` the
-observer's blood-velocity scale ``s_hat`` (-; 1 for observer (25), 0 read as 1),
-which the flow-compensating law reads.
+The estimate is a ``nav_msgs/Odometry`` (in the XZ plane, y = 0, in a planar
+scenario; in space in a 3-D tree); its otherwise unused yaw-yaw variance
+``pose.covariance[35]`` carries the observer's time since the last fresh
+measurement (s), which the controller's stale-estimate safe behaviour reads,
+and its yaw-rate variance ``twist.covariance[35]`` the observer's
+blood-velocity scale ``s_hat`` (-; 1 for observer (25), 0 read as 1), which
+the flow-compensating law reads.
 
 The scanner (``sequence:`` of the scenario).  ``scanner/phase`` says which
 window of the MRI sequence holds: ``TRACKING`` (the gradients image; the coil

@@ -6,6 +6,7 @@ whole file stays well under a minute of run time; every wait is bounded.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -164,3 +165,32 @@ def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path) -> None:
     assert res.returncode == 2
     lines = [ln for ln in res.stderr.splitlines() if "error:" in ln]
     assert len(lines) == 1 and "cannot connect to the Dask scheduler 'tcp://127.0.0.1:9'" in lines[0]
+
+
+def test_a_3d_tree_campaign_gives_the_pure_loops_numbers(tmp_path) -> None:
+    """The shipped 3-D trees' campaign, shortened: every row is run_closed_loop's run of its variant and seed,
+    bit for bit, and a kept time series has the three axes."""
+    from vesselbot_ros.sim.closed_loop import run_closed_loop
+    from vesselbot_ros.sim.scenario import load_scenario
+
+    doc = yaml.safe_load((REPO / "config" / "campaigns" / "trees_3d.yaml").read_text())
+    doc["base"] = str(REPO / "config" / "paper_iiic_network_upper_3d.yaml")
+    doc["seeds"] = [1]
+    doc["overrides"] = {"sim.duration_s": 0.3, "sim.metrics_after_s": 0.1}
+    for v in doc["variants"].values():
+        v.pop("sim.duration_s", None)
+    doc["keep_timeseries"] = {"runs": [0]}
+    spec = tmp_path / "trees.yaml"
+    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
+    out = _campaign(str(spec), "--out", str(tmp_path / "out"))
+    assert out.returncode == 0, out.stderr
+    rows = _rows(tmp_path / "out")
+    assert len(rows) == 3 and all(r["status"] == "ok" for r in rows)
+    for r in rows:
+        sets = {**doc["overrides"], **doc["variants"][r["variant"]]}
+        sc = load_scenario(doc["base"], sets=[f"{k}={json.dumps(v)}" for k, v in sets.items()])
+        m = run_closed_loop(sc, r["seed"]).metrics
+        for k in ("tracking_error_max_m", "estimation_error_max_m", "plant_steps", "outside_lumen_time_s"):
+            assert r[k] == m[k], (r["variant"], r["seed"], k)
+    ts = pq.read_table(tmp_path / "out" / rows[0]["timeseries"])
+    assert {"p_true_x", "p_true_y", "p_true_z"} <= set(ts.column_names) and ts.num_rows == 300

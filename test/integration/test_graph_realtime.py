@@ -68,7 +68,8 @@ def _assert_verdict_follows_from_the_figures(proc: subprocess.CompletedProcess[s
     assert f"average real-time factor held {rt['factor_held']:.4f} of {asked:g} asked" in proc.stdout, proc.stdout
     for n in rt["nodes"]:
         assert re.search(rf"{n['role']}\s+missed\s+{n['missed']} of {n_ticks} periods \(\s*"
-                         rf"{100 * n['missed'] / n_ticks:.2f} %\)", proc.stdout), (n, proc.stdout[-3000:])
+                         rf"{100 * (n['missed'] / n_ticks):.2f} %\)", proc.stdout), (n, proc.stdout[-3000:])  # as printed:
+        # 100 times the fraction (109 / 800: 13.625000000000002 -> '13.63', where 100 * 109 / 800 = 13.625 -> '13.62')
     if rt["failed"]:
         assert f"vesselbot run: error: {rt['verdict']}" in proc.stderr, proc.stderr[-3000:]
         why = " and ".join((["deadlines missed"] if late else []) + (["average factor short"] if short else []))

@@ -5,12 +5,11 @@ Foxglove's ROS 2 deserializer) and is checked against the run's bag: the plant's
 (the lumen wall as one TRIANGLE_LIST of the expected triangle count, the 3-D centrelines), and the derived
 ``view/markers`` (the reference route, the robot, its estimate and the gradient arrow) with their real y.
 
-Source of the scene: the 3-D closed loop does not run yet, so a peer (``scene3d_peer.py``) publishes
-what its nodes will, on the graph's topics (the plant's own vessel markers; truth, reference, estimate
-and coil state with y), to a recorder serving the live view and writing the bag, as ``vesselbot run
---live`` does.  Once ``vesselbot run`` runs a 3-D scenario through its nodes, set :data:`RUN_SCENARIO_3D`
-to it and :data:`RUN_NETWORK_3D` to its network: the same checks then run on a real run
-(``test_live.py``'s way); in a tree that leaves the plane they want the robot off y = 0 within 0.5 s.
+Source of the scene: ``vesselbot run`` of a 3-D tree's scenario with its live view (``test_live.py``'s way):
+the carotid bifurcation's, started in the external carotid, 0.55 mm off the plane y = 0 (the robot's y is
+then real from the first tick); and a peer (``scene3d_peer.py``) that publishes the synthetic tree's scene on
+the graph's topics to a recorder serving the live view, for the largest wall marker (22 958 triangles,
+1.7 MB) through DDS, the bag and the WebSocket without a 5 s run.
 """
 
 from __future__ import annotations
@@ -36,8 +35,9 @@ from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network  # noq
 from vesselbot_ros.vessels.plant_field3d import wall_mesh  # noqa: E402
 
 PEER = Path(__file__).with_name("scene3d_peer.py")
-#: A scenario whose vessel network is a 3-D tree, for ``vesselbot run --config`` (None: the peer stands in).
-RUN_SCENARIO_3D: str | None = None  # e.g. "config/paper_iiic_network_upper_3d.yaml" (network paper_iiic_artery_3d)
+#: The real run: the carotid scenario started 5 mm into the external carotid (y = -0.55 mm), routed to its end.
+RUN_SCENARIO_3D = "config/carotid_bifurcation_3d_eca.yaml"
+RUN_SETS_3D = ("initial.p0_m=[4.52e-3, -0.545e-3, -2.04e-3]",)
 #: Its network (the expected wall's triangle count is computed from it).
 RUN_NETWORK_3D = "carotid_bifurcation_3d"
 #: What view/markers must show in a network (no straight walls).
@@ -70,8 +70,9 @@ def _run_scene(tmp: Path, scenario: str) -> tuple[Any, Path]:
     port, bag = free_port(), tmp / "bag"
     client = node_client("ws_live.mjs", str(port), "120", "60", "--scene")
     try:
+        sets = [a for kv in RUN_SETS_3D for a in ("--set", kv)]
         run = subprocess.run(run_cmd("--config", scenario, "--duration", "0.5", "--live-port", str(port),
-                                     "--live-rate", "0", "--record-dir", str(bag), "--quiet"),
+                                     "--live-rate", "0", "--record-dir", str(bag), "--quiet", *sets),
                              cwd=tmp, capture_output=True, text=True, timeout=600)
         assert run.returncode == 0, run.stderr[-3000:]
         got = last_json(client, timeout=120)  # the server stops with the recorder: the client ends
@@ -187,9 +188,7 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
 @pytest.mark.parametrize("network", ["carotid_bifurcation_3d", "synthetic_tree_3d"])
 def test_foxglove_client_sees_the_3d_wall_route_and_robot(ros, tmp_path, network):
     """A 3-D tree's scene, as Foxglove receives it (synthetic_tree_3d: the largest wall, 22 958 triangles, 1.7 MB)."""
-    if RUN_SCENARIO_3D is not None:
-        if network != RUN_NETWORK_3D:
-            pytest.skip(f"the real run's network is {RUN_NETWORK_3D}")
+    if network == RUN_NETWORK_3D:  # a real run
         got, bag = _run_scene(tmp_path, RUN_SCENARIO_3D)
     else:
         got, bag = _peer_scene(ros, tmp_path, network)

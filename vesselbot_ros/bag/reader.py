@@ -338,7 +338,8 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
     """Arrays of the graph's recorded topics, keyed ``"<topic key>.<field>"``.
 
     Times ``*.t_s`` are the header stamps (sim time, s).  Vectors are (N, 3)
-    in frame ``vessel``.  Keys (present when the topic was recorded):
+    ``(x, y, z)`` in frame ``vessel`` (y is 0 in a planar scenario's bag).  Keys
+    (present when the topic was recorded):
 
     * ``truth.t_s, truth.p_WR`` (m), ``truth.v_WR`` (m/s), ``truth.v_blood``
       (m/s), ``truth.diameter_m``, ``truth.in_contact`` (bool),
@@ -351,8 +352,9 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
       (bool: stamp newer than the previous one);
     * ``command.t_s, command.u_cmd`` (T/m);
     * ``coil.t_s, coil.commanded, coil.applied`` (T/m), ``coil.saturated,
-      coil.slew_limited_x, coil.slew_limited_z, coil.rejected, coil.watchdog``
-      (bool), ``coil.max_gradient`` (T/m), ``coil.saturation_scale``,
+      coil.slew_limited_x, coil.slew_limited_y, coil.slew_limited_z, coil.rejected,
+      coil.watchdog`` (bool; ``slew_limited_y`` false in planar runs and in bags
+      recorded before 3-D trees), ``coil.max_gradient`` (T/m), ``coil.saturation_scale``,
       ``coil.slew_rate`` (T/m/s, the per-axis slew limit in force),
       ``coil.dbdt_limit`` (T/s, 0: none), ``coil.dbdt_radius`` (m);
     * ``phase.t_s`` (first tick the phase applies to), ``phase.phase`` (0
@@ -412,6 +414,7 @@ def read_timeseries(bag: str | Path | BagInfo) -> dict[str, np.ndarray]:
         elif key == "coil_state":
             add(key, t_s=_stamp_s(msg.header), commanded=_v3(msg.commanded), applied=_v3(msg.applied),
                 saturated=bool(msg.saturated), slew_limited_x=bool(msg.slew_limited_x),
+                slew_limited_y=bool(getattr(msg, "slew_limited_y", False)),  # bags from before 3-D trees lack it
                 slew_limited_z=bool(msg.slew_limited_z), rejected=bool(msg.command_rejected),
                 watchdog=bool(msg.watchdog_active), max_gradient=float(msg.max_gradient),
                 saturation_scale=float(msg.saturation_scale), slew_rate=float(msg.slew_rate),

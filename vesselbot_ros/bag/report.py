@@ -21,6 +21,10 @@ aligns the per-tick topics on their stamps, computes the metrics with the
 * ``metrics.json``: the metrics plus bag facts (scenario, seed, counts,
   intervals of saturation, slew limiting and faults).
 
+A 3-D tree's bag (its run metadata says ``dims: 3``, as ``vesselbot run``
+records it) is read on (x, y, z): its metrics are the launcher's (errors in
+space) and its per-axis plots have y.
+
 Every time plot shades saturated intervals (red, full height), and marks
 slew-limited (orange strip along the bottom) and fault (grey strip along the
 top) intervals, so that no shading hides another.  With a multiplexed
@@ -66,7 +70,8 @@ TRACKING_BOUND_M = 150e-6  # paper Fig. 9b: tracking error bound after 0.6 s
 ESTIMATION_BOUND_M = 10e-6  # paper Fig. 9b: estimation error bound
 FIGURES = ("fig9a_trajectory.png", "fig9b_errors.png", "fig10a_gradients.png", "fig10b_velocities.png",
            "fig10c_velocity_error.png", "forces.png")
-_XZ = [0, 2]
+#: Columns of the bag's (x, y, z) vectors the run's own arrays hold: a planar run's (x, z), a 3-D tree's all three
+_AXES = {2: [0, 2], 3: [0, 1, 2]}
 
 
 def bool_intervals(t_s: npt.NDArray[np.float64], flag: npt.NDArray[np.bool_]) -> list[tuple[float, float]]:
@@ -112,17 +117,18 @@ def _align(ts: Mapping[str, np.ndarray], prefixes: tuple[str, ...]) -> dict[str,
     return out
 
 
-def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None) -> dict[str, np.ndarray]:
+def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, dims: int = 2) -> dict[str, np.ndarray]:
     """The per-tick series :func:`vesselbot_ros.sim.metrics.compute_metrics` takes, from bag arrays.
 
     Ticks are the stamps present on ``truth``, ``reference``, ``estimate`` and
-    ``coil`` state; vectors keep (x, z).
+    ``coil`` state; vectors keep (x, z), or (x, y, z) for a 3-D tree (``dims`` 3).
 
     Args:
         ts: Arrays from :func:`~vesselbot_ros.bag.reader.read_timeseries`.
         dt_s: Control period (s).  Given, tick times are rebuilt as ``k * dt_s``
             with ``k`` recovered from the stamp (the graph's convention, so the
             metrics equal the launcher's bit for bit); None: ``stamp * 1e-9``.
+        dims: Axes of the run (``Scenario.dims``).
 
     Raises:
         BagError: if one of those topics is missing or empty.
@@ -133,21 +139,23 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None) 
         t_s = np.round(idx["_ns"] * 1e-9 / dt_s).astype(np.int64) * dt_s
     else:
         t_s = idx["_ns"].astype(np.float64) * 1e-9
+    ax = _AXES[dims]
+    slew = ("x", "y", "z") if dims == 3 else ("x", "z")
     return {
         "t_s": t_s,
-        "p_true": ts["truth.p_WR"][tr][:, _XZ],
-        "v_true": ts["truth.v_WR"][tr][:, _XZ],
-        "p_ref": ts["reference.p_ref"][rf][:, _XZ],
-        "x_hat": ts["estimate.p_hat"][es][:, _XZ],
-        "z_hat": ts["estimate.v_hat"][es][:, _XZ],
-        "g_applied": ts["coil.applied"][co][:, _XZ],
-        "g_cmd": ts["coil.commanded"][co][:, _XZ],
+        "p_true": ts["truth.p_WR"][tr][:, ax],
+        "v_true": ts["truth.v_WR"][tr][:, ax],
+        "p_ref": ts["reference.p_ref"][rf][:, ax],
+        "x_hat": ts["estimate.p_hat"][es][:, ax],
+        "z_hat": ts["estimate.v_hat"][es][:, ax],
+        "g_applied": ts["coil.applied"][co][:, ax],
+        "g_cmd": ts["coil.commanded"][co][:, ax],
         "saturated": ts["coil.saturated"][co].astype(bool),
-        "slew_limited": np.stack([ts["coil.slew_limited_x"][co], ts["coil.slew_limited_z"][co]], axis=1).astype(bool),
+        "slew_limited": np.stack([ts[f"coil.slew_limited_{c}"][co] for c in slew], axis=1).astype(bool),
         "in_contact": ts["truth.in_contact"][tr].astype(bool),
         "diameter_m": ts["truth.diameter_m"][tr],
         "max_gradient": ts["coil.max_gradient"][co],
-        "forces": np.stack([ts[f"truth.F_{k}"][tr][:, _XZ] for k in
+        "forces": np.stack([ts[f"truth.F_{k}"][tr][:, ax] for k in
                             ("magnetic", "drag", "apparent_weight", "contact", "van_der_waals", "electrostatic",
                              "steric", "total")], axis=1),
     }
@@ -163,10 +171,10 @@ def positions_3d(ts: Mapping[str, np.ndarray]) -> dict[str, npt.NDArray[np.float
             "x_hat": ts["estimate.p_hat"][idx["estimate"]]}
 
 
-def detect_outlier_frames(ts: Mapping[str, np.ndarray]) -> tuple[npt.NDArray[np.float64], float]:
+def detect_outlier_frames(ts: Mapping[str, np.ndarray], dims: int = 2) -> tuple[npt.NDArray[np.float64], float]:
     """Acquisition times (s) of fresh measurements far from the truth, and the threshold used (m).
 
-    The distance is ``|p_meas - p_true(t_acq)|`` in the xz plane, the truth
+    The distance is ``|p_meas - p_true(t_acq)|`` in the xz plane (in space for a 3-D tree, ``dims`` 3), the truth
     interpolated at the acquisition stamp; the threshold is
     ``max(10 um, median + 10 * MAD)`` over all fresh frames.
     """
@@ -174,10 +182,10 @@ def detect_outlier_frames(ts: Mapping[str, np.ndarray]) -> tuple[npt.NDArray[np.
         return np.zeros(0), float("nan")
     fresh = ts["measurement.fresh"].astype(bool)
     t_m = ts["measurement.t_s"][fresh]
-    p_m = ts["measurement.p_meas"][fresh][:, _XZ]
+    p_m = ts["measurement.p_meas"][fresh][:, _AXES[dims]]
     t_tr = ts["truth.t_s"]
     order = np.argsort(t_tr, kind="stable")
-    p_tr = np.stack([np.interp(t_m, t_tr[order], ts["truth.p_WR"][order][:, a]) for a in _XZ], axis=1)
+    p_tr = np.stack([np.interp(t_m, t_tr[order], ts["truth.p_WR"][order][:, a]) for a in _AXES[dims]], axis=1)
     d = np.linalg.norm(p_m - p_tr, axis=1)
     if d.size == 0:
         return np.zeros(0), float("nan")
@@ -187,7 +195,8 @@ def detect_outlier_frames(ts: Mapping[str, np.ndarray]) -> tuple[npt.NDArray[np.
     return t_m[d > thr], thr
 
 
-def _fault_intervals(ts: Mapping[str, np.ndarray], run: Mapping[str, Any], dt: float) -> list[dict[str, Any]]:
+def _fault_intervals(ts: Mapping[str, np.ndarray], run: Mapping[str, Any], dt: float,
+                     dims: int = 2) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     imager = (run.get("config") or {}).get("imager") or {}
     for o in imager.get("outliers") or []:
@@ -199,7 +208,7 @@ def _fault_intervals(ts: Mapping[str, np.ndarray], run: Mapping[str, Any], dt: f
     for t0, kind, dur in zip(ts.get("faults.t_s", []), ts.get("faults.kind", []), ts.get("faults.duration_s", [])):
         out.append({"kind": str(kind), "source": "diagnostics", "start_s": float(t0),
                     "end_s": float(t0) + (float(dur) if math.isfinite(float(dur)) else dt)})
-    t_out, _thr = detect_outlier_frames(ts)
+    t_out, _thr = detect_outlier_frames(ts, dims)
     for a, b in bool_intervals(t_out, np.ones(t_out.size, bool)) if t_out.size > 1 else [
             (float(t), float(t) + dt) for t in t_out]:
         out.append({"kind": "outlier_frames", "source": "detected", "start_s": a, "end_s": max(b, a + dt)})
@@ -365,7 +374,7 @@ def fig10a_gradients(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     _shade(b, spans)
     dt = np.diff(t)
     rate = np.abs(np.diff(m["g_applied"], axis=0)) / dt[:, None] * mm
-    for i, axis in enumerate("xz"):
+    for i, axis in enumerate(_axis_names(m)):
         b.plot(t[1:], rate[:, i], lw=0.8, label=f"|dU_{axis}/dt| applied")
     if slew_limit_T_per_m_per_s is not None:
         b.axhline(slew_limit_T_per_m_per_s * mm, color="k", ls=":", lw=1.0,
@@ -383,8 +392,9 @@ def fig10b_velocities(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
-    fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
-    for i, axis in enumerate("xz"):
+    names = _axis_names(m)
+    fig, axs = plt.subplots(len(names), 1, sharex=True, figsize=(8, 2.5 * len(names)))
+    for i, axis in enumerate(names):
         a = axs[i]
         _shade(a, spans)
         a.plot(t, m["v_true"][:, i] * mm, "tab:blue", lw=1.0, label="true")
@@ -392,7 +402,7 @@ def fig10b_velocities(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
         a.set_ylabel(f"v_{axis} (mm/s)")
     axs[0].set_title("Fig. 10b: true and estimated velocity")
     axs[0].legend(loc="best", fontsize=8)
-    axs[1].set_xlabel("t (s)")
+    axs[-1].set_xlabel("t (s)")
     fig.tight_layout()
     return fig
 
@@ -405,7 +415,7 @@ def fig10c_velocity_error(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray
     mm = 1e3
     fig, ax = plt.subplots(figsize=(8, 3.5))
     _shade(ax, spans)
-    for i, axis in enumerate("xz"):
+    for i, axis in enumerate(_axis_names(m)):
         ax.plot(t, (m["z_hat"][:, i] - m["v_true"][:, i]) * mm, lw=1.0, label=f"v_hat_{axis} - v_{axis}")
     ax.set(xlabel="t (s)", ylabel="mm/s", title="Fig. 10c: velocity estimation error")
     ax.legend(loc="best", fontsize=8)
@@ -456,6 +466,17 @@ def forces_figure(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
 DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = graph_spec.diagnostic_counters()
 
 
+def _axis_names(m: Mapping[str, np.ndarray]) -> str:
+    """The axes of a run's vectors: ``xz`` (planar) or ``xyz`` (a 3-D tree)."""
+    return "xyz" if m["g_applied"].shape[1] == 3 else "xz"
+
+
+def _run_dims(run: Mapping[str, Any]) -> int:
+    """The axes of the run's vectors as ``vesselbot run`` recorded them (``dims``: 3 in a 3-D tree); 2 when the bag
+    does not say (a planar run, or a bag from before 3-D trees)."""
+    return 3 if run.get("dims") == 3 else 2
+
+
 def _run_network(run: Mapping[str, Any]) -> tuple[str, str] | None:
     """(network file, target outlet) of a run in a vessel network, else None."""
     try:
@@ -476,9 +497,10 @@ def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], 
     mm = 1e3
     fig, ax = plt.subplots(figsize=(9, 5))
     draw_network(ax, network, mm)
-    ax.plot(m["p_ref"][:, 0] * mm, m["p_ref"][:, 1] * mm, "k--", lw=1.0, label="reference")
-    ax.plot(m["x_hat"][:, 0] * mm, m["x_hat"][:, 1] * mm, color="tab:orange", lw=0.6, alpha=0.8, label="estimate")
-    ax.plot(m["p_true"][:, 0] * mm, m["p_true"][:, 1] * mm, color="tab:blue", lw=1.2, label="robot")
+    # x and z (the last column, also of a 3-D run's (x, y, z))
+    ax.plot(m["p_ref"][:, 0] * mm, m["p_ref"][:, -1] * mm, "k--", lw=1.0, label="reference")
+    ax.plot(m["x_hat"][:, 0] * mm, m["x_hat"][:, -1] * mm, color="tab:orange", lw=0.6, alpha=0.8, label="estimate")
+    ax.plot(m["p_true"][:, 0] * mm, m["p_true"][:, -1] * mm, color="tab:blue", lw=1.2, label="robot")
     target = metrics.get("route_outlet") or "-"
     ok = "reached" if metrics.get("reached_target") else "NOT reached"
     ax.set_title(f"branch reached: {metrics.get('branch_final')} (target {target}: {ok}); "
@@ -606,7 +628,8 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if not (math.isfinite(after_s) and after_s >= 0):
         raise BagError(f"--after must be a finite time >= 0 s, got {after_s!r}")
     ts = read_timeseries(info)
-    m = metrics_timeseries(ts, dt_s=1.0 / rate if rate else None)
+    dims = _run_dims(run)
+    m = metrics_timeseries(ts, dt_s=1.0 / rate if rate else None, dims=dims)
     t = m["t_s"]
     if t.size < 2:
         raise BagError(f"bag {info.path} holds {t.size} complete tick(s); the report needs at least 2")
@@ -617,11 +640,11 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         metrics["metrics_window_note"] = note
     sat = bool_intervals(t, m["saturated"])
     slew = bool_intervals(t, np.asarray(m["slew_limited"].any(axis=1), dtype=np.bool_))
-    faults = _fault_intervals(ts, info.run_metadata, dt)
+    faults = _fault_intervals(ts, info.run_metadata, dt, dims)
     tracking = tracking_windows(ts, float(t[-1]) + dt)
     spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults],
              "tracking window": tracking}
-    t_out, thr = detect_outlier_frames(ts)
+    t_out, thr = detect_outlier_frames(ts, dims)
     metrics.update(diagnostic_counters(info))
     metrics.update({
         "bag": str(info.path),

@@ -178,20 +178,23 @@ class SeedHasher:
 
 
 def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Time-series columns as 1-D arrays: (n, 2) vectors -> ``<key>_x``, ``<key>_z``.
+    """Time-series columns as 1-D arrays: (n, 2) vectors -> ``<key>_x``, ``<key>_z``; (n, 3) vectors of a 3-D tree
+    -> ``<key>_x``, ``<key>_y``, ``<key>_z``.
 
-    Higher ranks (the (n, 8, 2) force breakdown) become ``<key>_<i>_x`` / ``_z``.
+    Higher ranks (the (n, 8, 2) or (n, 8, 3) force breakdown) become ``<key>_<i>_x`` / ... / ``_z``.
     """
     out: dict[str, np.ndarray] = {}
     for key, a in series.items():
         a = np.asarray(a)
+        names = {2: "xz", 3: "xyz"}.get(a.shape[-1]) if a.ndim > 1 else None
         if a.ndim == 1:
             out[key] = a
-        elif a.ndim == 2 and a.shape[1] == 2:
-            out[f"{key}_x"], out[f"{key}_z"] = a[:, 0], a[:, 1]
+        elif a.ndim == 2 and names:
+            for j, ax in enumerate(names):
+                out[f"{key}_{ax}"] = a[:, j]
         else:
             flat = a.reshape(a.shape[0], -1, a.shape[-1])
-            axes = "xz" if a.shape[-1] == 2 else [str(j) for j in range(a.shape[-1])]
+            axes = names or [str(j) for j in range(a.shape[-1])]
             for i in range(flat.shape[1]):
                 for j, ax in enumerate(axes):
                     out[f"{key}_{i}_{ax}"] = flat[:, i, j]

@@ -475,10 +475,6 @@ class CoilLimiter3D(CoilLimiter):
         coil3d_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), float(g[2]), self._out)
         return self._output()
 
-    def step(self, t_s: float, update: Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], None]) -> CoilOutput:
-        """Not on three axes: the scanner's gated coil is planar."""
-        raise ModelInputError("the scanner's multiplexed sequence is not on three gradient axes yet")
-
     def hold(self, t_s: float) -> CoilOutput:
         """:meth:`CoilLimiter.hold` on three axes."""
         self._dt(t_s)

@@ -178,6 +178,10 @@ class Imager3D:
         """The generator the imager draws from, exactly where its draws so far left it."""
         return self._variates.generator()
 
+    def variates(self) -> npt.NDArray[np.float64]:
+        """The variate buffer for one more acquisition, for compiled callers (the scanner's imager)."""
+        return self._variates.ready()
+
     @property
     def frame_arrays(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """``(params, outliers, dropouts)`` now (injected bursts included), for compiled callers."""

@@ -22,7 +22,8 @@ compiled step (:func:`hgo3d_update`, :func:`law3d_command`), the very function t
 user's ``propagate`` and ``F``) the same rules run in Python.
 
 Not on three axes yet (a scenario that names them over a 3-D tree is refused in one line): the extended Kalman
-observer, the adaptive law, the predictive controller, the scanner's multiplexed sequence and the dB/dt limit.
+observer, the adaptive law and the predictive controller (the scanner's sequence and the dB/dt limit are:
+``scanner/stages.py``, ``scanner/hardware.py``).
 """
 
 from __future__ import annotations
@@ -157,15 +158,16 @@ def hgo3d_update(prm, scal, y, contact, hist, hist_n, ig, model_p, W, F, fh, sta
     return OK
 
 
-# law3d_command: prm (7,) [k1, k2, T/2 (midpoint hold, 0: none), stale timeout (s), hold (1) / zero (0),
-# flow compensation (1: estimate), 1 / b]; last (3,) last command; the model's p, a scratch p_s of its size, W, F,
+# law3d_command: prm (8,) [k1, k2, T/2 (midpoint hold, 0: none), stale timeout (s), hold (1) / zero (0),
+# flow compensation (1: estimate), 1 / b, 1 / duty cycle (1: no duty compensation)]; last (3,) last command;
+# the model's p, a scratch p_s of its size, W, F,
 # fh; free (4,) zeros; fbuf (8, 3), sc (4, 3), ys (6,) and z3 (3,) scratch; out (6,) [G (3) T/m, U (3) m/s^2].
-def law3d_params(params: ControllerParams, b: float, hold_period_s: float) -> npt.NDArray[np.float64]:
-    """(7,) parameter vector of :func:`law3d_command`."""
+def law3d_params(params: ControllerParams, b: float, hold_period_s: float, inv_duty: float = 1.0) -> npt.NDArray[np.float64]:
+    """(8,) parameter vector of :func:`law3d_command`."""
     half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
     return np.array([float(params.gains.k1), float(params.gains.k2), half, float(params.stale_timeout_s),
                      1.0 if params.stale_action == "hold" else 0.0, 1.0 if params.flow_compensation == "estimate" else 0.0,
-                     1.0 / float(b)])
+                     1.0 / float(b), float(inv_duty)])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -182,18 +184,24 @@ def _model_f3(p, W, F, fh, free, fbuf, sc, ys, z3, t, x0, x1, x2, v0, v1, v2):  
 
 
 @numba.njit(cache=True, nogil=True)
+def _safe3(prm, last, out, status):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The safe action: hold the last command (``stale_action: hold``) or zero; no acceleration; ``status``."""
+    if prm[4] < 0.5:
+        last[0] = 0.0
+        last[1] = 0.0
+        last[2] = 0.0
+    for c in range(3):
+        out[c] = last[c]
+        out[3 + c] = 0.0
+    return status
+
+
+@numba.njit(cache=True, nogil=True)
 def law3d_command(prm, last, model_p, p_s, W, F, fh, free, fbuf, sc, ys, z3, t, x0, x1, x2, z0, z1, z2, age,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                   flow_scale, pr0, pr1, pr2, vr0, vr1, vr2, ar0, ar1, ar2, out):
     """:meth:`Backstepping3D.command_arrays` over explicit state; returns a status code (or ``FLOW_SCALE_INVALID``)."""
     if not age <= prm[3]:
-        if prm[4] < 0.5:
-            last[0] = 0.0
-            last[1] = 0.0
-            last[2] = 0.0
-        for c in range(3):
-            out[c] = last[c]
-            out[3 + c] = 0.0
-        return STATUS_STALE
+        return _safe3(prm, last, out, STATUS_STALE)
     p = model_p
     if prm[5] > 0.5:
         if not (math.isfinite(flow_scale) and flow_scale > 0.0):
@@ -223,15 +231,12 @@ def law3d_command(prm, last, model_p, p_s, W, F, fh, free, fbuf, sc, ys, z3, t, 
     g0 = u0 * prm[6]
     g1 = u1 * prm[6]
     g2 = u2 * prm[6]
+    if prm[7] != 1.0:  # duty compensation
+        g0 = g0 * prm[7]
+        g1 = g1 * prm[7]
+        g2 = g2 * prm[7]
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
-        if prm[4] < 0.5:
-            last[0] = 0.0
-            last[1] = 0.0
-            last[2] = 0.0
-        for cc in range(3):
-            out[cc] = last[cc]
-            out[3 + cc] = 0.0
-        return STATUS_NONFINITE
+        return _safe3(prm, last, out, STATUS_NONFINITE)
     last[0] = g0
     last[1] = g1
     last[2] = g2
@@ -390,9 +395,12 @@ class Backstepping3D:
 
     dims = 3
 
-    def __init__(self, params: ControllerParams, model: Any, hold_period_s: float = 0.0) -> None:
+    def __init__(self, params: ControllerParams, model: Any, hold_period_s: float = 0.0, duty_cycle: float = 1.0) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
+        if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
+            raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
+        self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
         self.params = params
         self.model = model
         self._inv_b = 1.0 / float(model.input_gain)
@@ -403,7 +411,7 @@ class Backstepping3D:
         self._last = np.zeros(3)
         self._compiled = hasattr(model, "packed")  # the model of a 3-D tree: the compiled step
         if self._compiled:
-            self.params_vector = law3d_params(params, float(model.input_gain), hold_period_s)
+            self.params_vector = law3d_params(params, float(model.input_gain), hold_period_s, self._inv_duty)
             self._p_s = np.empty_like(model.p)
             self._free = np.zeros(4)
             self._fbuf = np.empty((8, 3))
@@ -469,6 +477,8 @@ class Backstepping3D:
             f = self.model.F(t_s, x_hat, z_hat, scale)
         u = a - f
         g = u * self._inv_b
+        if self._inv_duty != 1.0:
+            g = g * self._inv_duty
         if not _finite3(g):
             return self._safe("nonfinite")
         self._last[:] = g

@@ -369,7 +369,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     n = scenario.sim.n_ticks
     dt = scenario.sim.dt_control_s
-    mon = Monitor(context, n, dt, options.namespace, options.without)
+    mon = Monitor(context, n, dt, options.namespace, options.without, scenario.dims)
     sup = Supervisor(env, log_dir, lease.fds)
     finished_ok = False
     recorded: dict[str, int] = {}

@@ -61,10 +61,11 @@ class Monitor:
         dt: Control period (s).
         namespace: The graph's namespace (None: default).
         user_roles: Roles left to users' nodes; their outputs are counted.
+        dims: Axes of the scenario's vectors (``Scenario.dims``): the width of the run's vector series.
     """
 
     def __init__(self, context: Any, n: int, dt: float, namespace: str | None = None,
-                 user_roles: Sequence[str] = ()) -> None:
+                 user_roles: Sequence[str] = (), dims: int = 2) -> None:
         # deferred: rclpy, the message packages and nodes.process (which imports rclpy); launch.graph imports this
         # module ROS-free (its exceptions, tests)
         import rclpy
@@ -75,6 +76,7 @@ class Monitor:
 
         self.n = n
         self.dt = dt
+        self.dims = dims
         args = remap_args(namespace)
         self.node = rclpy.create_node("vesselbot_launcher", namespace=DEFAULT_NAMESPACE, context=context,
                                       cli_args=["--ros-args", *args] if args else None)
@@ -166,13 +168,13 @@ class Monitor:
                                       raw=True)
 
     @property
-    def last_coil(self) -> tuple[int, tuple[float, float], bool] | None:
-        """The latest coil state since :meth:`watch_coil`: (tick, applied (x, z), watchdog_active)."""
+    def last_coil(self) -> tuple[int, tuple[float, float, float], bool] | None:
+        """The latest coil state since :meth:`watch_coil`: (tick, applied (x, y, z), watchdog_active)."""
         raw = self._raw.get("coil_state")
         if not raw:
             return None
         m = self._decode("coil_state", raw[-1])
-        return int(m.tick), (float(m.applied.x), float(m.applied.z)), bool(m.watchdog_active)
+        return int(m.tick), (float(m.applied.x), float(m.applied.y), float(m.applied.z)), bool(m.watchdog_active)
 
     def request_series(self) -> None:
         """Ask each of our nodes for its run series (after the run); :meth:`series_ready` tells when all came."""
@@ -190,7 +192,7 @@ class Monitor:
         Raises:
             RunError: a node's answer is malformed or says it has not finished.
         """
-        out = empty_series(self.n)
+        out = empty_series(self.n, self.dims)
         for r, fut in self._series_futures.items():
             resp = fut.result()
             if resp is None or not resp.success:
@@ -206,7 +208,7 @@ class Monitor:
                 out[name] = arr
         keys = self._user_series_keys
         if keys:
-            log = SeriesLog(keys, self.n, self.dt)
+            log = SeriesLog(keys, self.n, self.dt, self.dims)
             for key in keys:
                 codec = codec_for(self._types[key], WIRE_STRINGS)  # the series logs read flat forms
                 for data in self._raw[key]:

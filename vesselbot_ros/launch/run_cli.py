@@ -187,7 +187,12 @@ def run(args: argparse.Namespace) -> int:
     record = not args.no_record
     # a run that does not fit in memory or on disk is refused here, one line naming the keys
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
-    if scenario.physics.vessel.network:
+    if scenario.dims == 3:
+        # a 3-D tree's flow and wall samples are built (or read from the cache) once, here, before any node starts
+        from vesselbot_ros.vessels.plant_field3d import packed3d  # deferred: the 3-D CFD stack, only for a 3-D tree
+
+        packed3d(scenario.physics)
+    elif scenario.physics.vessel.network:
         # the network's CFD field is solved (or read from the cache) once, here, before any node starts
         from vesselbot_ros.vessels.cfd import packed_params  # deferred: the CFD stack, only for a network scenario
 
@@ -217,7 +222,7 @@ def run(args: argparse.Namespace) -> int:
 
     metadata = {"scenario": scenario.name, "seed": scenario.seed, "mode": args.mode, "config": scenario.to_mapping(),
                 "versions": _versions(), "command": list(sys.argv), "namespace": namespace_of(args.namespace),
-                "compression": args.compression}
+                "compression": args.compression, "dims": scenario.dims}
 
     def progress(t_sim: float, duration: float, wall: float, status: str = "") -> None:
         if not args.quiet:

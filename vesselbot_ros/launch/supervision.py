@@ -103,7 +103,7 @@ class Supervisor:
             mon.spin(0.05)
             self.check_alive(others)
             lc = mon.last_coil
-            if lc is not None and lc[0] > k_death and lc[2] and lc[1] == (0.0, 0.0):
+            if lc is not None and lc[0] > k_death and lc[2] and lc[1] == (0.0, 0.0, 0.0):
                 raise NodeDied(f"{died}\ncoil output ramped to zero by the driver's watchdog at tick {lc[0]} "
                                f"(t = {lc[0] * dt:.3f} s)") from None
             if mon.diag.get(plant_name, {}).get("finished") == "true":

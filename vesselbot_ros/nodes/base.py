@@ -23,8 +23,10 @@
   matches, used by the launcher to know the graph is wired), ``finished``,
   plus node-specific entries;
 * validates every input message with one helper, :meth:`VesselbotNode.check`:
-  non-finite numbers, a frame_id other than ``vessel``, a non-zero ``y``, a
-  position more than ``graph.position_margin_m`` outside the vessel, and (in
+  non-finite numbers, a frame_id other than ``vessel``, a non-zero ``y`` in a
+  planar scenario (in a 3-D vessel tree, ``Scenario.dims`` 3, y is a
+  coordinate like x and z), a position more than ``graph.position_margin_m``
+  outside the vessel (a 3-D tree's wall in space), and (in
   real-time mode) stamps older than ``graph.input_max_age_s`` or in the future
   by more than ``graph.future_tolerance_s`` are rejected: the message is
   dropped, a warning is logged (at most once per second per topic and
@@ -72,10 +74,12 @@ from vesselbot_ros.nodes.intra_process import intra_process
 from vesselbot_ros.nodes.params import kind_parameters, scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
+from vesselbot_ros.physics.wall_field3d import wall_field3d
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.plant_field3d import wall_arrays
 
 __all__ = ["VesselbotNode"]
 
@@ -127,6 +131,9 @@ class VesselbotNode(Node):
         self.dt = float(self.scenario.sim.dt_control_s)
         self.n_ticks = int(self.scenario.sim.n_ticks)
         self.lockstep = self.graph.mode == "lockstep"
+        #: axes of the scenario's vectors (2: planar (x, z), messages' y = 0; 3: a 3-D tree (x, y, z)), the one
+        #: switch every vector packed or unpacked by this node follows (nodes/conversions.py)
+        self.dims = self.scenario.dims
         self.finished = False
         self._published: Counter[str] = Counter()
         self._received: Counter[str] = Counter()
@@ -177,12 +184,12 @@ class VesselbotNode(Node):
         warm_up(self.scenario, (self.stage,) if self.stage else None)
         if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
             p0 = self.scenario.initial.p0_m
-            self._network_clearance(float(p0[0]), float(p0[1]))
+            self._network_clearance(float(p0[0]), float(p0[-1]), float(p0[1]) if self.dims == 3 else 0.0)
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             self.add_service(reset_key, Trigger, self._on_reset)
         #: the run series of this node's outputs (graph spec), served once the run is over
-        self.series = SeriesLog(graph_role(role).outputs, self.n_ticks, self.dt)
+        self.series = SeriesLog(graph_role(role).outputs, self.n_ticks, self.dt, self.dims)
         self._series_keys = frozenset(self.series.keys)
         series_key = series_service_key(role)
         if series_key in graph_role(role).services:
@@ -457,15 +464,21 @@ class VesselbotNode(Node):
         if now - self._last_diag_wall >= 0.2:
             self.publish_diagnostics()
 
-    def _network_clearance(self, x: float, z: float) -> float:
-        """Signed distance (m) of (x, z) to the network's meshed wall (the plant's) at its widest (diameter
-        pulsation), > 0 inside."""
+    def _network_clearance(self, x: float, z: float, y: float = 0.0) -> float:
+        """Signed distance (m) of (x, z) (a 3-D tree: (x, y, z)) to the network's meshed wall (the plant's) at its
+        widest (diameter pulsation), > 0 inside."""
         geom = getattr(self, "_net_geom", None)
+        phys = self.scenario.physics
         if geom is None:
-            phys = self.scenario.physics
-            geom = self._net_geom = network_wall(load_network(phys.vessel.network), phys.blood)
-        s, diameter = geom.clearance(x, z)
-        return s + 0.5 * diameter * self.scenario.physics.flow.diameter_pulsation
+            net = load_network(phys.vessel.network)
+            if self.dims == 3:  # the 3-D plant's own compiled lookup of its meshed wall
+                args = wall_arrays(net, phys.blood).args
+                geom = self._net_geom = lambda x_, y_, z_: wall_field3d(x_, y_, z_, *args)[::4]
+            else:
+                wall = network_wall(net, phys.blood)
+                geom = self._net_geom = lambda x_, _y, z_: wall.clearance(x_, z_)
+        s, diameter = geom(x, y, z)
+        return float(s + 0.5 * diameter * phys.flow.diameter_pulsation)
 
     def check(
         self,
@@ -477,6 +490,7 @@ class VesselbotNode(Node):
         y_values: Iterable[float] = (),
         z_position: float | None = None,
         x_position: float | None = None,
+        y_position: float = 0.0,
         extra_age_s: float = 0.0,
     ) -> bool:
         """Validate one input message; on failure call :meth:`reject` and return False.
@@ -488,12 +502,15 @@ class VesselbotNode(Node):
             stamp_ns: The message's stamp (ns); checked against the sim clock
                 in real-time mode only (lockstep checks ticks instead).
             values: Every float of the message (must be finite).
-            y_values: Components along the unused y axis (must be 0).
+            y_values: The message's y components: must be 0 in a planar scenario
+                (``dims`` 2); in a 3-D tree they are coordinates, checked by ``values``.
             z_position: A position's z (m): must lie within the vessel walls
                 plus ``graph.position_margin_m``.
             x_position: The position's x (m); in a vessel network the point
                 (x, z) must lie within the network's walls (dilated by the
                 diameter pulsation) plus ``graph.position_margin_m``.
+            y_position: The position's y (m), in a 3-D tree: the point (x, y, z) must lie within its wall
+                (as above); ignored in a planar scenario.
             extra_age_s: Allowed extra age (e.g. the imager latency), s.
         """
         if frame_id is not None and frame_id != FRAME_ID and frame_id != _FRAME_CDR:
@@ -503,15 +520,17 @@ class VesselbotNode(Node):
         if not all(map(math.isfinite, values)):
             self.reject(key, "non_finite", f"values {list(values)}")
             return False
-        for y in y_values:
-            if y != 0.0:
-                self.reject(key, "nonzero_y", f"y components {list(y_values)} (frame vessel has no y)")
-                return False
+        if self.dims == 2:
+            for y in y_values:
+                if y != 0.0:
+                    self.reject(key, "nonzero_y", f"y components {list(y_values)} (a planar scenario's y is 0)")
+                    return False
         if z_position is not None and self.scenario.physics.vessel.network and x_position is not None:
-            s = self._network_clearance(x_position, z_position)
+            s = self._network_clearance(x_position, z_position, y_position)
             if s < -self.graph.position_margin_m:
-                self.reject(key, "outside_vessel", f"(x, z) = ({x_position!r}, {z_position!r}) m lies {-s!r} m outside "
-                                                   f"the vessel network's walls")
+                where = (f"(x, y, z) = ({x_position!r}, {y_position!r}, {z_position!r})" if self.dims == 3
+                         else f"(x, z) = ({x_position!r}, {z_position!r})")
+                self.reject(key, "outside_vessel", f"{where} m lies {-s!r} m outside the vessel network's walls")
                 return False
         elif z_position is not None:
             half = self._half_walls

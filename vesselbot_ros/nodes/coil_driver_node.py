@@ -31,7 +31,7 @@ out ``/diagnostics``                   diagnostic_msgs/DiagnosticArray   1 Hz wa
 
 The output is ALWAYS limited, whatever arrives: every accepted command goes
 through ``CoilLimiter.apply``.  A command that is non-finite or malformed
-(wrong frame_id, non-zero y) is *not dropped*: it is passed to the limiter as
+(wrong frame_id, non-zero y in a planar scenario) is *not dropped*: it is passed to the limiter as
 non-finite, which rejects it (``command_rejected = true``) and holds or ramps
 to zero within the slew limit per ``coil.on_reject``.  Nothing non-finite is
 ever published.
@@ -89,9 +89,6 @@ from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["CoilDriverNode", "main"]
-
-_NAN2 = np.array([np.nan, np.nan])
-_ZERO2 = (0.0, 0.0)
 
 
 class CoilDriverNode(VesselbotNode):
@@ -160,7 +157,7 @@ class CoilDriverNode(VesselbotNode):
         self.get_logger().warning(
             f"no gradient command for tick {k} within {self.graph.stall_timeout_s} s (wall): "
             + ("ramping to zero" if active else "holding"), throttle_duration_sec=1.0)
-        self._emit(k, t, np.zeros(2), out, watchdog=active)
+        self._emit(k, t, np.zeros(self.dims), out, watchdog=active)
 
     def _on_command(self, msg: Any) -> None:
         """A gradient command, in its flat form (``Vector3Stamped``: ``header_stamp_sec``, ``vector_x`` ...)."""
@@ -188,7 +185,8 @@ class CoilDriverNode(VesselbotNode):
         x, y, z = msg.vector_x, msg.vector_y, msg.vector_z
         ok = self.check("gradient_command", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
                         y_values=(y,))
-        g = np.array([x, z]) if ok else _NAN2  # malformed -> the limiter's reject rule, never dropped
+        # malformed -> the limiter's reject rule, never dropped
+        g = cv.vector_array(x, y, z, self.dims) if ok else np.full(self.dims, np.nan)
         if ok:
             self.count_received("gradient_command")
         self.commands_lost = False
@@ -199,7 +197,7 @@ class CoilDriverNode(VesselbotNode):
             self.reject("gradient_command", "stale_stamp", str(exc))
             return
         self.rejected_commands += int(out.rejected)
-        self._emit(k, t, g if ok else np.zeros(2), out, watchdog=False)
+        self._emit(k, t, g if ok else np.zeros(self.dims), out, watchdog=False)
 
     # ------------------------------------------------------------------ outputs
     def _publish_phase(self, k: int) -> None:
@@ -217,10 +215,10 @@ class CoilDriverNode(VesselbotNode):
         self._t_last = t
         if self._multiplexed and k + 1 < self.n_ticks:
             self._publish_phase(k + 1)  # the phase of the next tick, before anything of that tick
-        self.publish("coil_applied", cv.gradient_flat(t, out.applied))
+        self.publish("coil_applied", cv.gradient_flat(t, out.applied, self.dims))
         # what was commanded (zero for a rejected command or a watchdog tick: never a non-finite value)
-        cmd = commanded if math.isfinite(commanded[0]) and math.isfinite(commanded[1]) else _ZERO2
-        self.publish("coil_state", cv.coil_state_flat(k, t, cmd, out, self.limits, watchdog, *self._dbdt))
+        cmd = commanded if all(map(math.isfinite, commanded)) else np.zeros(self.dims)
+        self.publish("coil_state", cv.coil_state_flat(k, t, cmd, out, self.limits, watchdog, *self._dbdt, self.dims))
         self.period_done(k)
         if self.lockstep:
             self.k = k + 1
@@ -245,7 +243,7 @@ class CoilDriverNode(VesselbotNode):
         out = self.limiter.watchdog(t)
         if out is not None:
             self.watchdog_ticks += 1
-            self._emit(k, t, np.zeros(2), out, watchdog=True)
+            self._emit(k, t, np.zeros(self.dims), out, watchdog=True)
 
     def diagnostic_values(self) -> dict[str, str]:
         return {
@@ -253,9 +251,8 @@ class CoilDriverNode(VesselbotNode):
             "watchdog_ticks": str(self.watchdog_ticks),
             "rejected_commands": str(self.rejected_commands),
             "commands_lost": "true" if self.commands_lost else "false",
-            "applied_x_T_per_m": repr(float(self.limiter.applied[0])),
-            "applied_z_T_per_m": repr(float(self.limiter.applied[1])),
-        }
+        } | {f"applied_{axis}_T_per_m": repr(float(g))
+             for axis, g in zip(cv.AXES[self.dims], self.limiter.applied, strict=True)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,7 +21,7 @@ Lockstep: tick k is computed once ``estimate`` k and ``reference`` k are in;
 the command is stamped t_k.  Real-time: every estimate triggers a command with
 the latest reference sample (stamp = the estimate's).
 
-Input checks: wrong frame_id, non-finite, non-zero y, positions outside the
+Input checks: wrong frame_id, non-finite, non-zero y (planar scenarios), positions outside the
 vessel (+ margin), off-grid or stale/future ticks (lockstep) or stamps
 (real-time) are rejected (WARN diagnostics).  In lockstep a rejected input
 leaves its tick open; the coil driver's watchdog then keeps the loop going.
@@ -71,14 +71,14 @@ class ControllerNode(VesselbotNode):
 
     def _on_estimate(self, msg: Any) -> None:
         """An estimate, in its flat form (``Odometry``: ``pose_pose_position_x`` ...)."""
-        x, z, age = cv.estimate_arrays(msg)
+        x, z, age = cv.estimate_arrays(msg, self.dims)
         flow_scale = cv.estimate_flow_scale(msg)
         px, py, pz = msg.pose_pose_position_x, msg.pose_pose_position_y, msg.pose_pose_position_z
         vy = msg.twist_twist_linear_y
         stamp = cv.stamp_ns(msg)
         if not self.check("estimate", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp,
                           values=(px, py, pz, msg.twist_twist_linear_x, vy, msg.twist_twist_linear_z, age),
-                          y_values=(py, vy), z_position=pz, x_position=px):
+                          y_values=(py, vy), z_position=pz, x_position=px, y_position=py):
             return
         k = self.join.tick_of("estimate", stamp)
         if k is None:
@@ -94,13 +94,13 @@ class ControllerNode(VesselbotNode):
 
     def _on_reference(self, msg: Any) -> None:
         """A reference sample, in its flat form (``ReferenceSample``: ``tick``, ``position_x`` ...)."""
-        p, v, a = cv.reference_arrays(msg)
+        p, v, a = cv.reference_arrays(msg, self.dims)
         stamp = cv.stamp_ns(msg)
         vals = (msg.position_x, msg.position_y, msg.position_z, msg.velocity_x, msg.velocity_y, msg.velocity_z,
                 msg.acceleration_x, msg.acceleration_y, msg.acceleration_z)
         if not self.check("reference", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=vals,
                           y_values=(msg.position_y, msg.velocity_y, msg.acceleration_y), z_position=msg.position_z,
-                          x_position=msg.position_x):
+                          x_position=msg.position_x, y_position=msg.position_y):
             return
         k = self.join.tick_of("reference", stamp, int(msg.tick))
         if k is None:
@@ -118,7 +118,7 @@ class ControllerNode(VesselbotNode):
         # the estimate as the runner hands it, with the observer's blood-velocity scale
         cmd = call_controller(self.controller, t, est[0], est[1], est[2], est[3], *ref)
         self.status[cmd.status] += 1
-        self.publish("gradient_command", cv.gradient_flat(t, cmd.gradient_T_per_m))
+        self.publish("gradient_command", cv.gradient_flat(t, cmd.gradient_T_per_m, self.dims))
         self.period_done(k)
 
     def _drain(self) -> None:

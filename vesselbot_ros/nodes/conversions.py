@@ -1,10 +1,17 @@
 """Every message <-> numpy conversion of the node graph, in one place.
 
 Conventions (see :mod:`vesselbot_ros.graph_spec`): frame ``vessel`` with x along
-the vessel axis and z vertical; the pure core works on (2,) arrays ``(x, z)``,
-messages carry 3-D vectors with ``y = 0``.  A 3-D vessel tree's scene (its
-wall mesh, centrelines and route: :func:`network_markers_3d`, :func:`path_msg` of
-(n, 3) points) carries its real y.  Times are float seconds in the
+the vessel axis, z vertical and y the scanner's horizontal axis across the
+bore.  Messages carry 3-D vectors; the core's arrays have one entry per axis
+of the scenario (``Scenario.dims``, :data:`AXES`): a planar scenario works on
+(2,) arrays ``(x, z)`` and its messages carry ``y = 0``; a 3-D vessel tree
+works on (3,) arrays ``(x, y, z)`` and y is real.  Every helper that packs or
+unpacks a vector takes that one switch, ``dims`` (2 unless given), so a node
+passes its scenario's and holds no condition of its own; a planar message is
+byte for byte what it was before 3-D trees existed.  In a 3-D tree the coil
+state also carries ``slew_limited_y`` (false in planar scenarios), and its
+scene (wall mesh, centrelines and route: :func:`network_markers_3d`,
+:func:`path_msg` of (n, 3) points) its real y.  Times are float seconds in the
 core and integer nanoseconds (``builtin_interfaces/Time``) on the wire.
 
 Tick times.  Tick ``k`` holds at ``t_k = k * dt`` with ``dt = 1 / control_rate_Hz``
@@ -46,6 +53,7 @@ from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
 __all__ = [
+    "AXES",
     "AGE_COVARIANCE_INDEX",
     "FLOW_SCALE_COVARIANCE_INDEX",
     "tick_time",
@@ -70,6 +78,7 @@ __all__ = [
     "estimate_msg",
     "estimate_arrays",
     "estimate_flow_scale",
+    "vector_array",
     "reference_msg",
     "reference_arrays",
     "gradient_msg",
@@ -135,26 +144,61 @@ def codec(cls: Any) -> FlatCodec:
 
 # The per-tick messages are built in their flat form (nodes/wire.py: a named tuple of the CDR's values, which one
 # struct call turns into the CDR); ``*_msg`` turns one into the rclpy message, for tools and tests.
+#: The core's axes per dimension of the scenario (``Scenario.dims``): a planar scenario's (2,) arrays are
+#: ``(x, z)`` (the messages' y stays 0), a 3-D tree's (3,) arrays ``(x, y, z)``.
+AXES: dict[int, tuple[str, ...]] = {2: ("x", "z"), 3: ("x", "y", "z")}
 _STAMP = ("header.stamp.sec", "header.stamp.nanosec")
-_XZ = (".x", ".z")
 _make_clock = codec(Clock).maker("clock.sec", "clock.nanosec")
-_make_measurement = codec(PointStamped).maker(*_STAMP, "point.x", "point.z")
-_make_gradient = codec(Vector3Stamped).maker(*_STAMP, "vector.x", "vector.z")
-_make_estimate = codec(Odometry).maker(*_STAMP, "pose.pose.position.x", "pose.pose.position.z",
-                                       "twist.twist.linear.x", "twist.twist.linear.z",
-                                       f"pose.covariance_{AGE_COVARIANCE_INDEX}",
-                                       f"twist.covariance_{FLOW_SCALE_COVARIANCE_INDEX}")
-_make_reference = codec(ReferenceSample).maker(*_STAMP, "tick", *(f"{v}{c}" for v in ("position", "velocity",
-                                                                                     "acceleration") for c in _XZ))
-_make_coil_state = codec(CoilState).maker(
-    *_STAMP, "tick", "commanded.x", "commanded.z", "applied.x", "applied.z", "saturation_scale", "saturated",
-    "slew_limited_x", "slew_limited_z", "command_rejected", "watchdog_active", "max_gradient", "slew_rate",
-    "dbdt_limit", "dbdt_radius")
-_make_plant_state = codec(PlantState).maker(
-    *_STAMP, "tick", "position.x", "position.z", "velocity.x", "velocity.z", "blood_velocity.x", "blood_velocity.z",
-    "vessel_diameter", "wall_gap_upper", "wall_gap_lower", "signed_wall_distance", "in_contact", "contact_phase",
-    "applied_gradient.x", "applied_gradient.z", "forces.header.stamp.sec", "forces.header.stamp.nanosec",
-    *(f"forces.{name}{c}" for name in TERM_NAMES for c in _XZ))
+
+
+def _axes(prefix: str, dims: int) -> tuple[str, ...]:
+    """The paths of vector ``prefix``'s components the core's (dims,) arrays fill (``point.x``, ``point.z``...)."""
+    return tuple(f"{prefix}.{c}" for c in AXES[dims])
+
+
+def _makers(d: int) -> dict[str, Any]:
+    """The flat-form builders of the per-tick messages for ``d``-axis vectors (the others' components stay 0)."""
+    return {
+        "measurement": codec(PointStamped).maker(*_STAMP, *_axes("point", d)),
+        "gradient": codec(Vector3Stamped).maker(*_STAMP, *_axes("vector", d)),
+        "estimate": codec(Odometry).maker(*_STAMP, *_axes("pose.pose.position", d), *_axes("twist.twist.linear", d),
+                                          f"pose.covariance_{AGE_COVARIANCE_INDEX}",
+                                          f"twist.covariance_{FLOW_SCALE_COVARIANCE_INDEX}"),
+        "reference": codec(ReferenceSample).maker(*_STAMP, "tick", *_axes("position", d), *_axes("velocity", d),
+                                                  *_axes("acceleration", d)),
+        "coil_state": codec(CoilState).maker(
+            *_STAMP, "tick", *_axes("commanded", d), *_axes("applied", d), "saturation_scale", "saturated",
+            *(f"slew_limited_{c}" for c in AXES[d]), "command_rejected", "watchdog_active", "max_gradient",
+            "slew_rate", "dbdt_limit", "dbdt_radius"),
+        "plant_state": codec(PlantState).maker(
+            *_STAMP, "tick", *_axes("position", d), *_axes("velocity", d), *_axes("blood_velocity", d),
+            "vessel_diameter", "wall_gap_upper", "wall_gap_lower", "signed_wall_distance", "in_contact",
+            "contact_phase", *_axes("applied_gradient", d), "forces.header.stamp.sec", "forces.header.stamp.nanosec",
+            *(p for name in TERM_NAMES for p in _axes(f"forces.{name}", d))),
+    }
+
+
+#: per message, dims -> its flat-form builder; a vector of another length than ``dims`` is refused (TypeError: the
+#: builder takes exactly ``dims`` components per vector)
+_MAKE = {d: _makers(d) for d in AXES}
+_MAKE_MEASUREMENT, _MAKE_GRADIENT, _MAKE_ESTIMATE, _MAKE_REFERENCE, _MAKE_COIL_STATE, _MAKE_PLANT_STATE = (
+    {d: _MAKE[d][name] for d in AXES}
+    for name in ("measurement", "gradient", "estimate", "reference", "coil_state", "plant_state"))
+
+
+def _xs(a: Any) -> list[float]:
+    """A vector's components as Python floats: a float64 array's exactly, in one ``tolist`` call (iterating the
+    array costs five times more on the hot path)."""
+    if type(a) is np.ndarray and a.dtype.char == "d":
+        return a.tolist()
+    return [float(v) for v in a]
+
+
+def _flags(a: Any) -> list[bool]:
+    """A per-axis flag array's components as Python bools (one ``tolist`` call for a bool array)."""
+    if type(a) is np.ndarray and a.dtype.char == "?":
+        return a.tolist()
+    return [bool(v) for v in a]
 
 
 def stamp_ns(v: Any) -> int:
@@ -167,51 +211,55 @@ def clock_flat(t_s: float) -> Any:
     return _make_clock(*divmod(ns_of_time(t_s), NS_PER_S))
 
 
-def measurement_flat(t_acq_s: float, p: npt.ArrayLike) -> Any:
-    """An imager frame (flat form): stamp = acquisition time, point = measured position (m)."""
-    return _make_measurement(*divmod(ns_of_time(t_acq_s), NS_PER_S), float(p[0]), float(p[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+def measurement_flat(t_acq_s: float, p: npt.ArrayLike, dims: int = 2) -> Any:
+    """An imager frame (flat form): stamp = acquisition time, point = measured position (m), ``(dims,)``."""
+    return _MAKE_MEASUREMENT[dims](*divmod(ns_of_time(t_acq_s), NS_PER_S), *_xs(p))
 
 
-def gradient_flat(t_s: float, g: npt.ArrayLike) -> Any:
-    """A gradient (T/m) stamped ``t_s`` (flat form)."""
-    return _make_gradient(*divmod(ns_of_time(t_s), NS_PER_S), float(g[0]), float(g[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+def gradient_flat(t_s: float, g: npt.ArrayLike, dims: int = 2) -> Any:
+    """A gradient (T/m, ``(dims,)``) stamped ``t_s`` (flat form)."""
+    return _MAKE_GRADIENT[dims](*divmod(ns_of_time(t_s), NS_PER_S), *_xs(g))
 
 
-def estimate_flat(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float, flow_scale: float = 1.0) -> Any:
-    """Observer estimate at ``t_s`` (flat form): position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
+def estimate_flat(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float, flow_scale: float = 1.0,
+                  dims: int = 2) -> Any:
+    """Observer estimate at ``t_s`` (flat form): position (m), velocity (m/s), each ``(dims,)``, measurement age (s),
+    blood-velocity scale (-)."""
     # inf age (no measurement yet) cannot travel as a finite number: clamp it
-    return _make_estimate(*divmod(ns_of_time(t_s), NS_PER_S), float(x_hat[0]), float(x_hat[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-                          float(z_hat[0]), float(z_hat[1]), float(age_s) if math.isfinite(age_s) else 1e9,  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-                          float(flow_scale))
+    return _MAKE_ESTIMATE[dims](*divmod(ns_of_time(t_s), NS_PER_S), *_xs(x_hat), *_xs(z_hat),
+                                float(age_s) if math.isfinite(age_s) else 1e9, float(flow_scale))
 
 
-def reference_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> Any:
-    """Reference sample k (flat form): ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
-    return _make_reference(*divmod(ns_of_time(t_s), NS_PER_S), int(k), float(p[0]), float(p[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-                           float(v[0]), float(v[1]), float(a[0]), float(a[1]))  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+def reference_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike, dims: int = 2) -> Any:
+    """Reference sample k (flat form): ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2), each ``(dims,)``."""
+    return _MAKE_REFERENCE[dims](*divmod(ns_of_time(t_s), NS_PER_S), int(k), *_xs(p), *_xs(v), *_xs(a))
 
 
 def coil_state_flat(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
-                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> Any:
-    """CoilState (flat form) from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no limit)."""
-    slew = out.slew_limited
-    return _make_coil_state(
-        *divmod(ns_of_time(t_s), NS_PER_S), int(k), float(commanded[0]), float(commanded[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-        float(out.applied[0]), float(out.applied[1]), float(out.k_scale), bool(out.saturated), bool(slew[0]),
-        bool(slew[1]), bool(out.rejected), bool(watchdog), float(limits.saturation_T_per_m),
-        float(limits.slew_rate_T_per_m_per_s), float(dbdt_limit_T_per_s), float(dbdt_radius_m))
+                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0, dims: int = 2) -> Any:
+    """CoilState (flat form) from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no limit);
+    vectors and slew flags ``(dims,)``."""
+    return _MAKE_COIL_STATE[dims](
+        *divmod(ns_of_time(t_s), NS_PER_S), int(k), *_xs(commanded), *_xs(out.applied),
+        float(out.k_scale), bool(out.saturated), *_flags(out.slew_limited), bool(out.rejected), bool(watchdog),
+        float(limits.saturation_T_per_m), float(limits.slew_rate_T_per_m_per_s), float(dbdt_limit_T_per_s),
+        float(dbdt_radius_m))
 
 
-def plant_state_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
+def plant_state_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, ...],
                      diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
-                     in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> Any:
-    """The plant's ground truth of tick ``k`` (flat form): ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
+                     in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike,
+                     dims: int = 2) -> Any:
+    """The plant's ground truth of tick ``k`` (flat form): vectors ``(dims,)``, ``forces`` (8, dims), rows in the
+    kernel's ``TERM_NAMES`` order (N)."""
     sec, nsec = divmod(ns_of_time(t_s), NS_PER_S)
-    return _make_plant_state(
-        sec, nsec, int(k), float(p[0]), float(p[1]), float(v[0]), float(v[1]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-        float(blood_velocity[0]), float(blood_velocity[1]), float(diameter_m), float(gap_upper_m), float(gap_lower_m),
-        float(signed_wall_distance_m), bool(in_contact), int(contact_phase), float(applied[0]),  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
-        float(applied[1]), sec, nsec, *np.asarray(forces, dtype=np.float64).ravel().tolist())  # type: ignore[index, arg-type]  # ArrayLike: callers pass arrays or tuples
+    f = np.asarray(forces, dtype=np.float64)
+    if f.shape != (len(TERM_NAMES), dims):
+        raise TypeError(f"forces must be ({len(TERM_NAMES)}, {dims}), got {f.shape}")
+    return _MAKE_PLANT_STATE[dims](
+        sec, nsec, int(k), *_xs(p), *_xs(v), *_xs(blood_velocity), float(diameter_m),
+        float(gap_upper_m), float(gap_lower_m), float(signed_wall_distance_m), bool(in_contact), int(contact_phase),
+        *_xs(applied), sec, nsec, *f.ravel().tolist())
 
 
 def clock_msg(t_s: float) -> Clock:
@@ -219,15 +267,15 @@ def clock_msg(t_s: float) -> Clock:
     return codec(Clock).to_message(clock_flat(t_s))
 
 
-def measurement_msg(t_acq_s: float, p: npt.ArrayLike) -> PointStamped:
-    """An imager frame: stamp = acquisition time, point = measured position (m)."""
-    return codec(PointStamped).to_message(measurement_flat(t_acq_s, p))
+def measurement_msg(t_acq_s: float, p: npt.ArrayLike, dims: int = 2) -> PointStamped:
+    """An imager frame: stamp = acquisition time, point = measured position (m), ``(dims,)``."""
+    return codec(PointStamped).to_message(measurement_flat(t_acq_s, p, dims))
 
 
 def estimate_msg(t_s: float, x_hat: npt.ArrayLike, z_hat: npt.ArrayLike, age_s: float,
-                 flow_scale: float = 1.0) -> Odometry:
+                 flow_scale: float = 1.0, dims: int = 2) -> Odometry:
     """Observer estimate at ``t_s``: position (m), velocity (m/s), measurement age (s), blood-velocity scale (-)."""
-    return codec(Odometry).to_message(estimate_flat(t_s, x_hat, z_hat, age_s, flow_scale))
+    return codec(Odometry).to_message(estimate_flat(t_s, x_hat, z_hat, age_s, flow_scale, dims))
 
 
 def estimate_flow_scale(v: Any) -> float:
@@ -236,42 +284,53 @@ def estimate_flow_scale(v: Any) -> float:
     return s if math.isfinite(s) and s > 0.0 else 1.0
 
 
-def estimate_arrays(v: Any) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
-    """Estimate (flat form) -> ``(x_hat (2,) m, z_hat (2,) m/s, age s)``."""
-    return (np.array([v.pose_pose_position_x, v.pose_pose_position_z]),
-            np.array([v.twist_twist_linear_x, v.twist_twist_linear_z]), float(v.pose_covariance_35))
+def vector_array(x: float, y: float, z: float, dims: int = 2) -> npt.NDArray[np.float64]:
+    """A message's vector -> the core's array: ``(x, z)`` in a planar scenario (y is 0 there), ``(x, y, z)`` in a
+    3-D tree (``dims`` 3)."""
+    return np.array([x, y, z] if dims == 3 else [x, z])
 
 
-def reference_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike) -> ReferenceSample:
-    """Reference sample k: ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2)."""
-    return codec(ReferenceSample).to_message(reference_flat(k, t_s, p, v, a))
+def estimate_arrays(v: Any, dims: int = 2) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:
+    """Estimate (flat form) -> ``(x_hat (dims,) m, z_hat (dims,) m/s, age s)``."""
+    return (vector_array(v.pose_pose_position_x, v.pose_pose_position_y, v.pose_pose_position_z, dims),
+            vector_array(v.twist_twist_linear_x, v.twist_twist_linear_y, v.twist_twist_linear_z, dims),
+            float(v.pose_covariance_35))
 
 
-def reference_arrays(v: Any) -> tuple[npt.NDArray[np.float64], ...]:
-    """Reference sample (flat form) -> ``(p, v, a)``, each (2,)."""
-    return (np.array([v.position_x, v.position_z]), np.array([v.velocity_x, v.velocity_z]),
-            np.array([v.acceleration_x, v.acceleration_z]))
+def reference_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike,
+                  dims: int = 2) -> ReferenceSample:
+    """Reference sample k: ``X_ref`` (m), ``Xd_ref`` (m/s), ``Xdd_ref`` (m/s^2), each ``(dims,)``."""
+    return codec(ReferenceSample).to_message(reference_flat(k, t_s, p, v, a, dims))
 
 
-def gradient_msg(t_s: float, g: npt.ArrayLike) -> Vector3Stamped:
-    """A gradient (T/m) stamped ``t_s``."""
-    return codec(Vector3Stamped).to_message(gradient_flat(t_s, g))
+def reference_arrays(v: Any, dims: int = 2) -> tuple[npt.NDArray[np.float64], ...]:
+    """Reference sample (flat form) -> ``(p, v, a)``, each (dims,)."""
+    return (vector_array(v.position_x, v.position_y, v.position_z, dims),
+            vector_array(v.velocity_x, v.velocity_y, v.velocity_z, dims),
+            vector_array(v.acceleration_x, v.acceleration_y, v.acceleration_z, dims))
+
+
+def gradient_msg(t_s: float, g: npt.ArrayLike, dims: int = 2) -> Vector3Stamped:
+    """A gradient (T/m, ``(dims,)``) stamped ``t_s``."""
+    return codec(Vector3Stamped).to_message(gradient_flat(t_s, g, dims))
 
 
 def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
-                   dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0) -> CoilState:
+                   dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0, dims: int = 2) -> CoilState:
     """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
     return codec(CoilState).to_message(coil_state_flat(k, t_s, commanded, out, limits, watchdog, dbdt_limit_T_per_s,
-                                                       dbdt_radius_m))
+                                                       dbdt_radius_m, dims))
 
 
-def plant_state_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, float],
+def plant_state_msg(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, blood_velocity: tuple[float, ...],
                     diameter_m: float, gap_upper_m: float, gap_lower_m: float, signed_wall_distance_m: float,
-                    in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike) -> PlantState:
-    """The plant's ground truth of tick ``k``: ``forces`` is (8, 2), rows in the kernel's ``TERM_NAMES`` order (N)."""
+                    in_contact: bool, contact_phase: int, applied: npt.ArrayLike, forces: npt.ArrayLike,
+                    dims: int = 2) -> PlantState:
+    """The plant's ground truth of tick ``k``: vectors ``(dims,)``, ``forces`` (8, dims), rows in the kernel's
+    ``TERM_NAMES`` order (N)."""
     return codec(PlantState).to_message(plant_state_flat(k, t_s, p, v, blood_velocity, diameter_m, gap_upper_m,
                                                          gap_lower_m, signed_wall_distance_m, in_contact,
-                                                         contact_phase, applied, forces))
+                                                         contact_phase, applied, forces, dims))
 
 
 def sequence_phase_msg(t_s: float, window: Any, latency_s: float, duty_cycle: float) -> SequencePhase:

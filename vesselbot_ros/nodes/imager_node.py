@@ -15,7 +15,7 @@ out ``/diagnostics``           diagnostic_msgs/DiagnosticArray   1 Hz wall      
 =============================  ================================  ===============================  =====
 
 Measurement stamp = the frame's *acquisition* time (s); ``point`` = measured
-position (y = 0).  Lockstep: exactly one message per truth tick: the frame
+position (y = 0 in a planar scenario; a 3-D tree's frames are noisy in y too).  Lockstep: exactly one message per truth tick: the frame
 delivered at t_k, else the last delivered frame again (same stamp: consumers
 see it is not fresh).  Before the first frame is ever delivered (latency, or a
 dropout at t = 0) the placeholder has an *empty* ``frame_id`` and stamp 0:
@@ -36,7 +36,7 @@ is reached (scheduled), with the KeyValues ``fault_kind`` (``outlier_burst`` /
 (ticks inside a dropout window).  ``vesselbot report`` shades these intervals.
 
 Input checks: a truth message with a wrong frame_id, non-finite numbers,
-non-zero y, a position outside the vessel (+ ``graph.position_margin_m``), a
+non-zero y (planar scenarios), a position outside the vessel (+ ``graph.position_margin_m``), a
 stale/future tick (lockstep) or stamp (real-time) is rejected; no frame is
 taken from it.
 """
@@ -46,7 +46,6 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-import numpy as np
 from geometry_msgs.msg import PointStamped
 from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import InjectFault
@@ -96,7 +95,7 @@ class ImagerNode(VesselbotNode):
         x, y, z = msg.position_x, msg.position_y, msg.position_z
         stamp = cv.stamp_ns(msg)
         if not self.check("truth", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
-                          y_values=(y,), z_position=z, x_position=x):
+                          y_values=(y,), z_position=z, x_position=x, y_position=y):
             return
         k = msg.tick
         if cv.ns_of_time(cv.tick_time(k, self.dt)) != stamp:
@@ -113,11 +112,11 @@ class ImagerNode(VesselbotNode):
             self._announce(kind, start, duration, magnitude, "schedule")
         if any(a - 1e-9 <= t_k < b - 1e-9 for a, b in self._windows):
             self.dropout_frames += 1
-        meas = self.imager.frame(t_k, np.array([x, z]))
+        meas = self.imager.frame(t_k, cv.vector_array(x, y, z, self.dims))
         if meas is not None:
             self.frames += 1
             self.outlier_frames += int(meas.outlier)
-            self._last_msg = cv.measurement_flat(meas.t_acq_s, meas.p)
+            self._last_msg = cv.measurement_flat(meas.t_acq_s, meas.p, self.dims)
             self.publish("measurement", self._last_msg)
         elif self.lockstep:
             if self._last_msg is None:

@@ -40,7 +40,7 @@ imager latency (at least 2 ticks), the loss is flagged at once on
 frame.  Downstream, ``pose.covariance[35]`` carries the age, which the
 controller's stale-estimate safe behaviour reads.
 
-Input checks: wrong frame_id, non-finite, non-zero y, measured position
+Input checks: wrong frame_id, non-finite, non-zero y (planar scenarios), measured position
 farther than ``graph.position_margin_m`` outside the vessel, off-grid or
 stale/future ticks (lockstep) or stamps (real-time), and (lockstep) an
 acquisition stamp after the tick the message belongs to (``future_stamp``):
@@ -94,7 +94,7 @@ class ObserverNode(VesselbotNode):
         self.join = TickJoin(self, {"measurement": 0, "coil_applied": 1}, windows={"measurement": None, "coil_applied": 3})
         self.n_meas = 0  # measurement messages received (lockstep: = ticks)
         self._last_stamp_ns = -1
-        self._g_prev = np.zeros(2)
+        self._g_prev = np.zeros(self.dims)
         self.used = 0
         self.rejected_by_core = 0
         self.measurement_age_s = float("inf")
@@ -110,7 +110,8 @@ class ObserverNode(VesselbotNode):
         x, y, z = msg.point_x, msg.point_y, msg.point_z
         stamp = cv.stamp_ns(msg)
         if not self.check("measurement", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(x, y, z),
-                          y_values=(y,), z_position=z, x_position=x, extra_age_s=self.scenario.imager.latency_s):
+                          y_values=(y,), z_position=z, x_position=x, y_position=y,
+                          extra_age_s=self.scenario.imager.latency_s):
             return None
         j, on_grid = cv.tick_of_ns(stamp, self.dt)
         if not on_grid:
@@ -126,7 +127,7 @@ class ObserverNode(VesselbotNode):
             self.reject("measurement", "stale_stamp", f"frame stamp {stamp} ns not newer than {self._last_stamp_ns} ns")
             return None
         self._last_stamp_ns = stamp
-        return Measurement(cv.tick_time(j, self.dt), np.array([x, z]), False)
+        return Measurement(cv.tick_time(j, self.dt), cv.vector_array(x, y, z, self.dims), False)
 
     def _on_measurement(self, msg: Any) -> None:
         meas = self._parse_measurement(msg)
@@ -151,9 +152,9 @@ class ObserverNode(VesselbotNode):
             return
         if not self.lockstep:
             self.count_received("coil_applied")
-            self._g_prev = np.array([x, z])
+            self._g_prev = cv.vector_array(x, y, z, self.dims)
             return
-        if self.join.put("coil_applied", k, np.array([x, z])):
+        if self.join.put("coil_applied", k, cv.vector_array(x, y, z, self.dims)):
             self.count_received("coil_applied")
             self._drain()
 
@@ -161,7 +162,7 @@ class ObserverNode(VesselbotNode):
     def _drain(self) -> None:
         while (inputs := self.join.pop_ready()) is not None:
             k = self.join.k - 1
-            g_prev = np.zeros(2) if inputs["coil_applied"] is None else inputs["coil_applied"]
+            g_prev = np.zeros(self.dims) if inputs["coil_applied"] is None else inputs["coil_applied"]
             self._publish(self.observer.update(cv.tick_time(k, self.dt), inputs["measurement"], g_prev))
             self.period_done(k)
             if self.join.k >= self.n_ticks:
@@ -172,7 +173,7 @@ class ObserverNode(VesselbotNode):
         self.used += int(est.used_measurement)
         self.rejected_by_core += int(est.rejected)
         self.publish("estimate", cv.estimate_flat(est.t_s, est.x_hat, est.z_hat, est.time_since_measurement_s,
-                                                  getattr(est, "flow_scale", 1.0)))
+                                                  getattr(est, "flow_scale", 1.0), self.dims))
         self.measurement_age_s = float(est.time_since_measurement_s)
         lost = est.t_s > self.lost_after_s and self.measurement_age_s > self.lost_after_s + 1e-9
         if lost != self.measurement_lost:

@@ -65,7 +65,7 @@ the plant computes) and centrelines; a 3-D tree's (a network whose branches give
 TRIANGLE_LIST and its 3-D centrelines (:func:`network_scene_markers`).
 
 Input checks (see :meth:`VesselbotNode.check`): ``coil/applied`` with a wrong
-frame_id, a non-finite value or non-zero y, or (lockstep) a tick other than
+frame_id, a non-finite value or (planar scenarios) non-zero y, or (lockstep) a tick other than
 the current one is rejected (WARN diagnostics); the plant then keeps waiting
 (lockstep) or keeps the previous gradient (real-time).  It warns every
 ``graph.plant_wait_warn_s`` of wall time while waiting.
@@ -94,6 +94,7 @@ from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.simulation_control import ALREADY, PAUSED, PLAYING, STOPPED, SimulationControl
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
+from vesselbot_ros.physics.plant3d import geometry3d
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
 from vesselbot_ros.vessels import plant_field3d
@@ -181,7 +182,7 @@ class PlantNode(VesselbotNode):
         """The plant as built from the scenario, at tick 0, nothing published for it yet."""
         self.plant = build_stage(self.scenario, self.stage)
         self.k = 0
-        self._g = np.zeros(2)
+        self._g = np.zeros(self.dims)
         self._budget = 0  # ticks a paused plant may still publish (steps asked for)
         self._held = True  # tick k is computed but not published
         self._stall_sent = -1  # lockstep: the last tick the coil driver was asked to answer itself
@@ -405,20 +406,31 @@ class PlantNode(VesselbotNode):
         self.period_done(self.k)  # real time: tick k is due at wall start + k * dt / real_time_factor
 
     def _truth(self, out: Any) -> Any:
-        """The truth of the current tick, in its flat form (``PlantState``)."""
+        """The truth of the current tick, in its flat form (``PlantState``).
+
+        In a network (and a 3-D tree) the gaps are to the nearest wall and the one across the local diameter,
+        ``wall_gap_upper`` the one whose inward normal points down (``PlantOutput.wall``).
+        """
         t = out.t_s
         r = self.scenario.physics.robot.radius_m
-        x, z = float(out.p[0]), float(out.p[1])
+        blood: tuple[float, ...]
+        if self.dims == 3:
+            k = self.plant.packed
+            s_t, *_n, d, _eta, vfx, vfy, vfz = geometry3d(t, *out.p.tolist(), self.plant.p, k.W, k.F, k.fh)
+            blood = (float(vfx), float(vfy), float(vfz))
+        elif self._network:
+            s_t, _nx, _nz, d, _eta, vfx, vfz = network_geometry(t, float(out.p[0]), float(out.p[1]), self.plant.p)
+            blood = (float(vfx), float(vfz))
+        else:
+            x, z = float(out.p[0]), float(out.p[1])
+            d = self._vessel.diameter(t)
+            blood = (float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0)
+            gap_up, gap_lo = 0.5 * d - z - r, z + 0.5 * d - r
         if self._network:
-            s_t, _nx, _nz, d, _eta, vfx, vfz = network_geometry(t, x, z, self.plant.p)
             near, far = s_t - r, d - s_t - r  # gaps to the nearest wall and the opposite one
             gap_up, gap_lo = (near, far) if out.wall > 0 else (far, near)
-        else:
-            d = self._vessel.diameter(t)
-            vfx, vfz = float(fluid_velocity_x(t, x, z, self.plant.p)), 0.0
-            gap_up, gap_lo = 0.5 * d - z - r, z + 0.5 * d - r
-        return cv.plant_state_flat(self.k, t, out.p, out.v, (float(vfx), float(vfz)), d, gap_up, gap_lo, out.delta_m,
-                                  out.in_contact, out.contact_phase, self._g, out.forces)
+        return cv.plant_state_flat(self.k, t, out.p, out.v, blood, d, gap_up, gap_lo, out.delta_m, out.in_contact,
+                                   out.contact_phase, self._g, out.forces, self.dims)
 
     def _advance(self, g: np.ndarray) -> None:
         self.plant.step(g)
@@ -473,7 +485,7 @@ class PlantNode(VesselbotNode):
         if not self.check("coil_applied", frame_id=msg.header_frame_id_cdr, values=(x, y, z), y_values=(y,),
                           stamp_ns=None if self.lockstep else stamp):
             return
-        g = np.array([x, z])
+        g = cv.vector_array(x, y, z, self.dims)
         if not self.lockstep:
             self.count_received("coil_applied")
             self._g_latest = g

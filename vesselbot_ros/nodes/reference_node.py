@@ -68,7 +68,7 @@ class ReferenceNode(VesselbotNode):
             k = self.accept_clock(msg)  # real time: a garbage /clock moves nothing
             if k is not None and k < self.n_ticks:
                 self.publish("reference", cv.reference_flat(k, cv.tick_time(k, self.dt), self._p[k], self._v[k],
-                                                            self._a[k]))
+                                                            self._a[k], self.dims))
                 self.period_done(k)
             return
         ns = msg.clock_sec * cv.NS_PER_S + msg.clock_nanosec  # flat form
@@ -80,13 +80,13 @@ class ReferenceNode(VesselbotNode):
         k, on_grid = cv.tick_of_ns(ns, self.dt)
         if on_grid and 0 <= k < self.n_ticks:
             t = cv.tick_time(k, self.dt)
-            self.publish("reference", cv.reference_flat(k, t, self._p[k], self._v[k], self._a[k]))
+            self.publish("reference", cv.reference_flat(k, t, self._p[k], self._v[k], self._a[k], self.dims))
             self.period_done(k)
             if k + 1 >= self.n_ticks:
                 self.mark_finished()
         elif on_grid:
             s = self.reference.sample(ns * 1e-9)
-            self.publish("reference", cv.reference_flat(k, ns * 1e-9, s.p, s.v, s.a))
+            self.publish("reference", cv.reference_flat(k, ns * 1e-9, s.p, s.v, s.a, self.dims))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,10 +21,10 @@ import numpy as np
 
 from vesselbot_ros.graph_spec import tick_of_ns, topic
 
-__all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "columns_of", "series_from_response",
-           "split_series", "empty_series"]
+__all__ = ["SERIES_COLUMNS", "SERIES_COLUMNS_3D", "READERS", "READERS_3D", "SeriesLog", "series_columns", "columns_of",
+           "readers", "series_from_response", "split_series", "empty_series"]
 
-#: series name -> its columns (x and z of a vector, or one flag)
+#: series name -> its columns (x and z of a vector, or one flag), in a planar scenario
 SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
     "p_true": ("p_true_x_m", "p_true_z_m"),
     "v_true": ("v_true_x_m_per_s", "v_true_z_m_per_s"),
@@ -35,6 +35,12 @@ SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
     "g_applied": ("g_applied_x_T_per_m", "g_applied_z_T_per_m"),
     "saturated": ("saturated",),
     "slew_limited": ("slew_limited_x", "slew_limited_z"),
+}
+
+#: :data:`SERIES_COLUMNS` of a 3-D vessel tree (``Scenario.dims`` 3): every vector has its y column
+SERIES_COLUMNS_3D: dict[str, tuple[str, ...]] = {
+    name: cols if len(cols) == 1 else (cols[0], cols[0].replace("_x", "_y", 1), cols[1])
+    for name, cols in SERIES_COLUMNS.items()
 }
 
 #: Flags (stored as 0.0 / 1.0, returned as bool).
@@ -50,14 +56,36 @@ READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
                              float(m.slew_limited_x), float(m.slew_limited_z)),
 }
 
+#: :data:`READERS` of a 3-D vessel tree, in the order of :data:`SERIES_COLUMNS_3D`
+READERS_3D: dict[str, Callable[[Any], tuple[float, ...]]] = {
+    "truth": lambda m: (m.position_x, m.position_y, m.position_z, m.velocity_x, m.velocity_y, m.velocity_z,
+                        float(m.in_contact)),
+    "estimate": lambda m: (m.pose_pose_position_x, m.pose_pose_position_y, m.pose_pose_position_z,
+                           m.twist_twist_linear_x, m.twist_twist_linear_y, m.twist_twist_linear_z),
+    "reference": lambda m: (m.position_x, m.position_y, m.position_z),
+    "coil_state": lambda m: (m.applied_x, m.applied_y, m.applied_z, float(m.saturated),
+                             float(m.slew_limited_x), float(m.slew_limited_y), float(m.slew_limited_z)),
+}
+
 
 #: topic key -> its messages carry the tick (else: their stamp on the tick grid gives it)
 _HAS_TICK: dict[str, bool] = {"truth": True, "estimate": False, "reference": True, "coil_state": True}
 
 
-def columns_of(key: str) -> tuple[str, ...]:
-    """The columns topic ``key`` carries (empty: none)."""
-    return tuple(c for name in topic(key).series for c in SERIES_COLUMNS[name])
+def series_columns(dims: int = 2) -> dict[str, tuple[str, ...]]:
+    """Series name -> its columns, for a scenario of ``dims`` axes (``Scenario.dims``)."""
+    return SERIES_COLUMNS_3D if dims == 3 else SERIES_COLUMNS
+
+
+def readers(dims: int = 2) -> dict[str, Callable[[Any], tuple[float, ...]]]:
+    """Topic key -> one message's series floats, for a scenario of ``dims`` axes."""
+    return READERS_3D if dims == 3 else READERS
+
+
+def columns_of(key: str, dims: int = 2) -> tuple[str, ...]:
+    """The columns topic ``key`` carries (empty: none), for a scenario of ``dims`` axes."""
+    cols = series_columns(dims)
+    return tuple(c for name in topic(key).series for c in cols[name])
 
 
 class SeriesLog:
@@ -67,20 +95,22 @@ class SeriesLog:
         keys: Topic keys the node publishes (those without series are ignored).
         n: Ticks of the run.
         dt: Control period (s).
+        dims: Axes of the scenario's vectors (``Scenario.dims``: 2 planar, 3 a 3-D tree).
     """
 
-    def __init__(self, keys: Iterable[str], n: int, dt: float) -> None:
+    def __init__(self, keys: Iterable[str], n: int, dt: float, dims: int = 2) -> None:
         self.keys = tuple(k for k in keys if topic(k).series)
-        self.columns = tuple(c for k in self.keys for c in columns_of(k))
+        self.columns = tuple(c for k in self.keys for c in columns_of(k, dims))
         self.n = int(n)
         self.dt = float(dt)
         # per topic: (tick or stamp ns, floats) as published; the table is built when asked for (:attr:`values`)
         self._rows: dict[str, list[tuple[int, tuple[float, ...]]]] = {k: [] for k in self.keys}
         self._slot: dict[str, tuple[int, int, Callable[[Any], tuple[float, ...]], bool]] = {}
         col = 0
+        read = readers(dims)
         for k in self.keys:
-            w = len(columns_of(k))
-            self._slot[k] = (col, col + w, READERS[k], _HAS_TICK[k])
+            w = len(columns_of(k, dims))
+            self._slot[k] = (col, col + w, read[k], _HAS_TICK[k])
             col += w
 
     def add(self, key: str, msg: Any) -> None:
@@ -141,26 +171,40 @@ def series_from_response(response: Any) -> dict[str, np.ndarray]:
 
 
 def split_series(cols: list[str], table: np.ndarray) -> dict[str, np.ndarray]:
-    """Columns of a (rows, columns) table -> ``{series name: array}`` (flags as bool, width-1 series 1-D)."""
+    """Columns of a (rows, columns) table -> ``{series name: array}`` (flags as bool, width-1 series 1-D).
+
+    A vector is (rows, 3) when its y column is there (a 3-D tree), else (rows, 2).
+
+    Raises:
+        ValueError: a column is unknown, or a vector has its y column without its x and z.
+    """
     out: dict[str, np.ndarray] = {}
     for name, names in SERIES_COLUMNS.items():
         if names[0] not in cols:
             continue
+        names3 = SERIES_COLUMNS_3D[name]
+        if len(names3) == 3 and names3[1] in cols:
+            names = names3
         idx = [cols.index(c) for c in names]
         block = table[:, idx]
         if name in FLAGS:
             block = np.nan_to_num(block) != 0.0
         out[name] = block[:, 0] if len(names) == 1 else block
-    unknown = set(cols) - {c for names in SERIES_COLUMNS.values() for c in names}
+    known = {c for table_ in (SERIES_COLUMNS, SERIES_COLUMNS_3D) for names in table_.values() for c in names}
+    unknown = set(cols) - known
     if unknown:
         raise ValueError(f"unknown series columns {sorted(unknown)}")
+    lone = [c for names in SERIES_COLUMNS_3D.values() if len(names) == 3 and names[1] in cols
+            for c in (names[0], names[2]) if c not in cols]
+    if lone:
+        raise ValueError(f"series columns {sorted(lone)} missing next to their y column")
     return out
 
 
-def empty_series(n: int) -> dict[str, np.ndarray]:
-    """Every series of a run of ``n`` ticks, unknown (NaN; flags False)."""
+def empty_series(n: int, dims: int = 2) -> dict[str, np.ndarray]:
+    """Every series of a run of ``n`` ticks (vectors over ``dims`` axes), unknown (NaN; flags False)."""
     out: dict[str, np.ndarray] = {}
-    for name, names in SERIES_COLUMNS.items():
+    for name, names in series_columns(dims).items():
         shape = (n,) if len(names) == 1 else (n, len(names))
         out[name] = np.zeros(shape, dtype=bool) if name in FLAGS else np.full(shape, np.nan)
     return out

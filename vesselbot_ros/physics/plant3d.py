@@ -31,7 +31,42 @@ import numba
 import numpy as np
 
 from vesselbot_ros.physics.blood_flow import pulse_factor
-from vesselbot_ros.physics.integrator import MAX_STEPS_PER_CALL, NON_FINITE, OK, STEP_TOO_SMALL
+from vesselbot_ros.physics.integrator import (  # the planar integrator's Dormand-Prince 5(4) tableau and codes
+    _A21,
+    _A31,
+    _A32,
+    _A41,
+    _A42,
+    _A43,
+    _A51,
+    _A52,
+    _A53,
+    _A54,
+    _A61,
+    _A62,
+    _A63,
+    _A64,
+    _A65,
+    _B1,
+    _B3,
+    _B4,
+    _B5,
+    _B6,
+    _C2,
+    _C3,
+    _C4,
+    _C5,
+    _E1,
+    _E3,
+    _E4,
+    _E5,
+    _E6,
+    _E7,
+    MAX_STEPS_PER_CALL,
+    NON_FINITE,
+    OK,
+    STEP_TOO_SMALL,
+)
 from vesselbot_ros.physics.kernel import I_A_F, I_D_PULSE, I_MASS, I_OMEGA_F, I_PHI_F, I_R, I_V_F, update_contact
 from vesselbot_ros.physics.kernel3d import forces3d_into
 from vesselbot_ros.physics.wall_field3d import wall_field3d
@@ -156,17 +191,6 @@ def _rhs3d(t, y, g, u, contact, p, W, F, fh, out, fbuf, sc):  # type: ignore[no-
 def _contact3d(t, y, contact, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     s_t = geometry3d(t, y[0], y[1], y[2], p, W, F, fh)[0]
     update_contact(contact, p[I_R] - s_t, p)
-
-
-# Dormand-Prince 5(4) tableau (as physics/integrator.py)
-_C2, _C3, _C4, _C5 = 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0
-_A21 = 1.0 / 5.0
-_A31, _A32 = 3.0 / 40.0, 9.0 / 40.0
-_A41, _A42, _A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
-_A51, _A52, _A53, _A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
-_A61, _A62, _A63, _A64, _A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0
-_B1, _B3, _B4, _B5, _B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
-_E1, _E3, _E4, _E5, _E6, _E7 = 71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit

@@ -42,7 +42,9 @@ duration is the full-scale ramp at that slew, ``t_eff = G_sat / S`` (in ms,
 (:func:`dbdt_axis_slew_limit`; no bound when the denominator is <= 0: the
 allowance then grows faster with a shorter ramp than dB/dt does).  The coil
 slews at the smaller of its hardware rate and that bound
-(:func:`effective_coil_limits`).
+(:func:`effective_coil_limits`).  In a 3-D vessel tree the three axes share the field,
+``B_z = G_x x + G_y y + G_z z``, and the norm can reach ``sqrt(3) S``: the same rule with ``sqrt(3)``
+(``axes=3``).
 """
 
 from __future__ import annotations
@@ -131,12 +133,15 @@ class DbdtLimit:
             raise ConfigError(f"radius_m must be <= 2 m (inside the bore), got {self.radius_m!r}")
 
 
-def dbdt_axis_slew_limit(saturation_T_per_m: float, radius_m: float) -> float:
-    """Per-axis slew (T/m/s) that keeps dB/dt within the IEC normal-mode limit inside ``radius_m``; inf if none binds."""
+def dbdt_axis_slew_limit(saturation_T_per_m: float, radius_m: float, axes: int = 2) -> float:
+    """Per-axis slew (T/m/s) that keeps dB/dt within the IEC normal-mode limit inside ``radius_m`` when ``axes`` gradient
+    axes slew at once (2: the paper's plane; 3: a 3-D tree); inf if none binds."""
     check_positive("saturation_T_per_m", saturation_T_per_m)
     check_positive("radius_m", radius_m)
+    if axes not in (2, 3):
+        raise ConfigError(f"axes must be 2 or 3, got {axes!r}")
     a = 0.8 * RHEOBASE_T_PER_S
-    den = math.sqrt(2.0) * radius_m - a * 0.36e-3 / saturation_T_per_m
+    den = math.sqrt(float(axes)) * radius_m - a * 0.36e-3 / saturation_T_per_m
     return a / den if den > 0.0 else math.inf
 
 
@@ -146,11 +151,12 @@ def dbdt_at(limit: DbdtLimit, saturation_T_per_m: float, slew_T_per_m_per_s: flo
     return iec_normal_mode_dbdt(1e3 * saturation_T_per_m / slew_T_per_m_per_s)
 
 
-def effective_coil_limits(coil: CoilLimits, limit: DbdtLimit) -> CoilLimits:
-    """``coil`` with its slew lowered to the dB/dt bound when that binds (``coil`` itself when ``mode: off``)."""
+def effective_coil_limits(coil: CoilLimits, limit: DbdtLimit, axes: int = 2) -> CoilLimits:
+    """``coil`` with its slew lowered to the dB/dt bound of ``axes`` axes when that binds (``coil`` itself when
+    ``mode: off``)."""
     if limit.mode == "off":
         return coil
-    s_db = dbdt_axis_slew_limit(coil.saturation_T_per_m, limit.radius_m)
+    s_db = dbdt_axis_slew_limit(coil.saturation_T_per_m, limit.radius_m, axes)
     if s_db >= coil.slew_rate_T_per_m_per_s:
         return coil
     return dataclasses.replace(coil, slew_rate="custom", custom_slew_rate_T_per_m_per_s=s_db)

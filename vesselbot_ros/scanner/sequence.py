@@ -33,7 +33,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import hypot2
+from vesselbot_ros.blas_free import hypot2, hypot3
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive
 
 __all__ = [
@@ -55,6 +55,7 @@ __all__ = [
     "window_at",
     "limit_at",
     "target_for",
+    "target3_for",
 ]
 
 _EPS_S = 1e-9
@@ -237,6 +238,41 @@ def target_for(px, pz, cx, cz, limit, max_step):  # type: ignore[no-untyped-def]
     if m <= limit or m == 0.0:
         return px, pz
     return px * (limit / m), pz * (limit / m)
+
+
+@numba.njit(cache=True, nogil=True)
+def target3_for(px, py, pz, cx, cy, cz, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`target_for` on three gradient axes (a 3-D vessel tree's coil): ``(gx, gy, gz)``."""
+    n = hypot3(cx, cy, cz)
+    if n > limit:
+        if limit <= 0.0:
+            cx = 0.0
+            cy = 0.0
+            cz = 0.0
+        else:
+            cx = cx * (limit / n)
+            cy = cy * (limit / n)
+            cz = cz * (limit / n)
+    sx = cx - px
+    sy = cy - py
+    sz = cz - pz
+    biggest = max(abs(sx), abs(sy), abs(sz))
+    step = max_step * (1.0 - 1e-9)
+    if biggest > step:
+        f = step / biggest
+        ex = px + sx * f
+        ey = py + sy * f
+        ez = pz + sz * f
+    else:
+        ex = cx
+        ey = cy
+        ez = cz
+    if hypot3(ex, ey, ez) <= limit:
+        return cx, cy, cz
+    m = hypot3(px, py, pz)
+    if m <= limit or m == 0.0:
+        return px, py, pz
+    return px * (limit / m), py * (limit / m), pz * (limit / m)
 
 
 def _check_time(t_s: float) -> None:

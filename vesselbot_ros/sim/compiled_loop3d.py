@@ -3,8 +3,8 @@
 :func:`loop3d_kernel` runs every tick of one run in numba, calling the compiled steps of the 3-D stages in the
 per-tick runner's order (:mod:`vesselbot_ros.sim.closed_loop`)::
 
-    plant output (forces3d_at) -> imager3d_frame -> hgo3d_update (25) -> law3d_command (24)
-    -> coil3d_apply -> plant step (integrate3d)
+    plant output (forces3d_at) -> imager3d_frame | seq_imager3d_frame (scanner) -> hgo3d_update (25)
+    -> law3d_command (24) -> coil3d_apply | seq_coil3d_apply (scanner) -> plant step (integrate3d)
 
 The stages' Python classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`,
 :class:`~vesselbot_ros.control.imager3d.Imager3D`, :class:`~vesselbot_ros.control.loop3d_stages.HighGainObserver3D`,
@@ -35,45 +35,37 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, failure_message
 from vesselbot_ros.physics.kernel import I_R
 from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.scanner.stages import SequencedCoil3D, SequencedImager3D, seq_coil3d_apply, seq_imager3d_frame
+from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns and stop codes
+    COLUMNS,
+    ESTIMATE_NONFINITE,
+    FLOW_SCALE_FAILED,
+    OBSERVER_FAILED,
+    PLANT_FAILED,
+    REFERENCE_NONFINITE,
+)
 from vesselbot_ros.sim.plant import PlantSimulator3D
 
 __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "run_kernel3d", "COLUMNS3D"]
 
-# codes (as sim/compiled_loop.py's)
-PLANT_FAILED, OBSERVER_FAILED, ESTIMATE_NONFINITE, REFERENCE_NONFINITE, FLOW_SCALE_FAILED = 1, 2, 3, 4, 6
+#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order: the planar kernel's, on
+#: three axes.
+COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = tuple((name, dt, (3,) if shape == (2,) else shape)
+                                                                for name, dt, shape in COLUMNS)
 
-#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order.
-COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
-    ("p_true", np.float64, (3,)),
-    ("v_true", np.float64, (3,)),
-    ("delta_m", np.float64, ()),
-    ("in_contact", np.bool_, ()),
-    ("contact_phase", np.int8, ()),
-    ("meas_p", np.float64, (3,)),
-    ("meas_t_acq_s", np.float64, ()),
-    ("meas_outlier", np.bool_, ()),
-    ("x_hat", np.float64, (3,)),
-    ("z_hat", np.float64, (3,)),
-    ("flow_scale_hat", np.float64, ()),
-    ("magnetization_scale_hat", np.float64, ()),
-    ("meas_used", np.bool_, ()),
-    ("meas_rejected", np.bool_, ()),
-    ("u_cmd", np.float64, (3,)),
-    ("g_cmd", np.float64, (3,)),
-    ("g_applied", np.float64, (3,)),
-    ("k_scale", np.float64, ()),
-    ("saturated", np.bool_, ()),
-    ("slew_limited", np.bool_, (3,)),
-    ("cmd_status", np.int8, ()),
-)
-
-_BUILT_IN = {"plant": PlantSimulator3D, "imager": Imager3D, "observer": HighGainObserver3D, "controller": Backstepping3D,
-             "coil": CoilLimiter3D}
+_BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator3D,), "imager": (Imager3D, SequencedImager3D),
+                                          "observer": (HighGainObserver3D,), "controller": (Backstepping3D,),
+                                          "coil": (CoilLimiter3D, SequencedCoil3D)}
 
 
 def foreign_stages3d(stages: Any) -> list[str]:
-    """The roles whose stage :func:`prepare3d` cannot read: not exactly the built-in 3-D class, or over a user's model."""
-    bad = [role for role, cls in _BUILT_IN.items() if type(getattr(stages, role)) is not cls]
+    """The roles whose stage :func:`prepare3d` cannot read: not exactly a built-in 3-D class, or over a user's model."""
+    bad = [role for role, cls in _BUILT_IN.items() if type(getattr(stages, role)) not in cls]
+    im, co = stages.imager, stages.coil
+    if "imager" not in bad and type(im) is SequencedImager3D and type(im.inner) is not Imager3D:
+        bad.append("imager")
+    if "coil" not in bad and type(co) is SequencedCoil3D and type(co.inner) is not CoilLimiter3D:
+        bad.append("coil")
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
             bad.append(role)
@@ -106,6 +98,9 @@ class LoopInputs3D:
     obs_prm: npt.NDArray[np.float64]
     ctrl_prm: npt.NDArray[np.float64]
     coil_prm: npt.NDArray[np.float64]
+    seq_mode: int
+    sv: npt.NDArray[np.float64]
+    hold_s: float
     plant_y0: npt.NDArray[np.float64]
     obs_y0: npt.NDArray[np.float64]
     coil_state0: npt.NDArray[np.float64]
@@ -124,20 +119,27 @@ def prepare3d(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)
     p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
     plant, imager, observer, controller, coil = stages.plant, stages.imager, stages.observer, stages.controller, stages.coil
+    seq = isinstance(coil, SequencedCoil3D) or isinstance(imager, SequencedImager3D)
+    if seq and not (isinstance(coil, SequencedCoil3D) and isinstance(imager, SequencedImager3D)
+                    and np.array_equal(coil.sv, imager.sv)):
+        raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
+    rows = imager._queue.shape[0] if seq else queue_rows(imager.params)
     k = plant.packed
     return LoopInputs3D(
         n=n, dt=dt, ts=ts, p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref),
         a_ref=np.ascontiguousarray(a_ref), plant_p=plant.p, model_p=observer.model.p, W=k.W, F=k.F, fh=k.fh,
         ig=integrator_vector(plant.integrator), obs_ig=integrator_vector(observer.model.integrator),
         imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
-        queue_rows=queue_rows(imager.params), obs_prm=observer.params_vector, ctrl_prm=controller.params_vector,
-        coil_prm=coil_params(coil.limits), plant_y0=plant.state, obs_y0=observer.state, coil_state0=coil.state,
+        queue_rows=rows, obs_prm=observer.params_vector, ctrl_prm=controller.params_vector,
+        coil_prm=coil_params(coil.limits), seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7),
+        hold_s=coil.hold_s if seq else 0.0, plant_y0=plant.state, obs_y0=observer.state, coil_state0=coil.state,
         record_forces=record_forces)
 
 
 @numba.njit(cache=True, nogil=True)
 def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
-                  imager_prm, outliers, dropouts, queue, obs_prm, ctrl_prm, coil_prm, y, contact, obs_y, obs_contact,
+                  imager_prm, outliers, dropouts, queue, obs_prm, ctrl_prm, coil_prm, seq_mode, sv, hold_s, y, contact,
+                  obs_y, obs_contact,
                   obs_scal, coil_state, plant_stats, model_stats, record_forces, forces,
                   p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat,
                   flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
@@ -157,6 +159,9 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
     img_state = np.zeros(4)
     img_state[1] = -math.inf
     img_out = np.zeros(6)
+    seq_st = np.zeros(9)
+    seq_st[0] = -1.0
+    acq = np.zeros(6)
     hist = np.empty((HISTORY_LEN, 4))
     hist_n = np.zeros(2, dtype=np.int64)
     obs_out = np.zeros(12)
@@ -181,7 +186,10 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
                 for c in range(3):
                     forces[k, i, c] = fk[i, c]
         # imager
-        imager3d_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], y[2], img_out)
+        if seq_mode == 1:
+            seq_imager3d_frame(sv, imager_prm, outliers, dropouts, rng, seq_st, queue, acq, t, y[0], y[1], y[2], img_out)
+        else:
+            imager3d_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], y[2], img_out)
         has_meas = img_out[0] > 0.5
         if has_meas:
             for c in range(3):
@@ -227,7 +235,10 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
             u_cmd[k, c] = ctrl_out[3 + c]
         cmd_status[k] = status
         # coil
-        coil3d_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], ctrl_out[2], coil_out)
+        if seq_mode == 1:
+            seq_coil3d_apply(coil_prm, sv, hold_s, coil_state, t, ctrl_out[0], ctrl_out[1], ctrl_out[2], coil_out)
+        else:
+            coil3d_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], ctrl_out[2], coil_out)
         for c in range(3):
             g[c] = coil_out[c]
             g_applied[k, c] = coil_out[c]
@@ -268,7 +279,8 @@ def run_kernel3d(inp: LoopInputs3D, rng: np.random.Generator
     code, tick = loop3d_kernel(  # type: ignore[call-arg]  # *columns is 21 long: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.W, inp.F, inp.fh, inp.ig,
         inp.obs_ig, rng, inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((inp.queue_rows, 6)), inp.obs_prm,
-        inp.ctrl_prm, inp.coil_prm, y, contact, obs_y, obs_contact, obs_scal, coil_state, plant_stats, model_stats,
+        inp.ctrl_prm, inp.coil_prm, inp.seq_mode, inp.sv, inp.hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
+        plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS3D), err)
     if code == PLANT_FAILED:
         raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))

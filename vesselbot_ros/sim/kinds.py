@@ -79,7 +79,7 @@ from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import duty_cycle
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedCoil3D, SequencedImager, SequencedImager3D
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator, PlantSimulator3D
 from vesselbot_ros.vessels.cfd import packed_params
 
@@ -488,10 +488,11 @@ def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
     return PlantSimulator(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
 
 
-def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager | Imager3D:
+def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager | Imager3D | SequencedImager3D:
     s = ctx.scenario
     if s.dims == 3:
-        return Imager3D(s.imager, ctx.rng())
+        im3 = Imager3D(s.imager, ctx.rng())
+        return SequencedImager3D(im3, s.sequence) if s.sequence.mode == "multiplexed" else im3
     imager = ImagerModel(s.imager, ctx.rng())
     if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
         return SequencedImager(imager, s.sequence)
@@ -529,7 +530,7 @@ def _controller(ctx: BuildContext) -> BacksteppingController | Backstepping3D:
     s = ctx.scenario
     model = ctx.model
     if s.dims == 3:
-        return Backstepping3D(s.controller, model, ctx.dt_s)
+        return Backstepping3D(s.controller, model, ctx.dt_s, duty_cycle(s.sequence))
     return BacksteppingController(s.controller, model.F, model.input_matrix, ctx.dt_s, duty_cycle(s.sequence))
 
 
@@ -538,10 +539,11 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
     return PredictiveController(s.controller, ctx.model.p, effective_coil_limits(s.coil, s.dbdt), s.sequence, ctx.dt_s)
 
 
-def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D:
+def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D | SequencedCoil3D:
     s = ctx.scenario
-    if s.dims == 3:
-        return CoilLimiter3D(s.coil, -ctx.dt_s)
+    if s.dims == 3:  # dB/dt of three axes slewing at once
+        c3 = CoilLimiter3D(effective_coil_limits(s.coil, s.dbdt, axes=3), -ctx.dt_s)
+        return SequencedCoil3D(c3, s.sequence, ctx.dt_s) if s.sequence.mode == "multiplexed" else c3
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
     # between any two later ticks: the first command may move S * dt, not 0 (which left the robot unactuated for
     # the first 1 ms and cost ~350 um of start-up transient, docs/control.md).
@@ -554,7 +556,8 @@ def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D:
 for _kind in (
     StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator, PlantSimulator3D),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
-    StageKind("imager", "mri", ImagerParams, _imager, compiled=True, stage_types=(ImagerModel, SequencedImager, Imager3D),
+    StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
+              stage_types=(ImagerModel, SequencedImager, Imager3D, SequencedImager3D),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver, HighGainObserver3D),
               summary="high-gain observer (25)"),
@@ -572,7 +575,8 @@ for _kind in (
     StageKind("controller", "predictive", PredictiveParams, _predictive, compiled=True,
               stage_types=(PredictiveController,), compile_controller=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
-    StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True, stage_types=(CoilLimiter, SequencedCoil, CoilLimiter3D),
+    StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
+              stage_types=(CoilLimiter, SequencedCoil, CoilLimiter3D, SequencedCoil3D),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):
     register(_kind)

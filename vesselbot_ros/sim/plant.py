@@ -148,7 +148,7 @@ class PlantSimulator:
         self._k += 1
 
 
-class PlantSimulator3D:
+class PlantSimulator3D(PlantSimulator):
     """:class:`PlantSimulator` in a 3-D vessel tree: state ``(x, y, z, vx, vy, vz)``, three gradient axes.
 
     The same ports on 3-vectors (:class:`PlantOutput` with (3,) ``p``, ``v`` and (8, 3) forces); the kernel is
@@ -190,20 +190,7 @@ class PlantSimulator3D:
         self._work, self._fbuf, self._sc = new_workspace3d()
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
 
-    @property
-    def t_s(self) -> float:
-        """Current tick time (s)."""
-        return self._t0 + self._k * self._dt
-
-    @property
-    def state(self) -> npt.NDArray[np.float64]:
-        """(6,) copy of ``(x, y, z, vx, vy, vz)`` (m, m/s)."""
-        return self._y.copy()
-
-    @property
-    def contact_state(self) -> npt.NDArray[np.float64]:
-        """(4,) copy of the contact state [phase, delta_max, F_max, delta_0]."""
-        return self._contact.copy()
+    # t_s, state ((6,): (x, y, z, vx, vy, vz)) and contact_state are the planar plant's
 
     def output(self, with_forces: bool = False) -> PlantOutput:
         """Ground truth at the current tick (see :class:`PlantOutput`)."""

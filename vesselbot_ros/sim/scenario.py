@@ -288,22 +288,16 @@ class Scenario:
         """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
         missing = []
         if isinstance(self.observer, ObserverParams) and self.observer.kind != "high_gain":
-            missing.append(f"observer.kind {self.observer.kind!r} (the 3-D loop has observer (25), 'high_gain')")
+            missing.append(f"observer.kind {self.observer.kind!r} yet (the 3-D loop has observer (25), 'high_gain')")
         ckind = getattr(self.controller, "kind", "")
         if ckind in ("adaptive_backstepping", "predictive"):  # built in, planar yet (a user's kind gets 3-vectors)
-            missing.append(f"controller.kind {ckind!r} (the 3-D loop has law (24), 'backstepping')")
-        elif isinstance(self.controller, ControllerParams) and self.controller.duty_compensation != "none":
-            missing.append("controller.duty_compensation 'sequence'")
-        if self.sequence.mode != "continuous":
-            missing.append(f"sequence.mode {self.sequence.mode!r} (the 3-D loop images and propels continuously)")
-        if self.dbdt.mode != "off":
-            missing.append(f"dbdt.mode {self.dbdt.mode!r}")
+            missing.append(f"controller.kind {ckind!r} yet (the 3-D loop has law (24), 'backstepping')")
         if bspline and self.reference.timing == "flow_synchronised":
-            missing.append("reference.timing 'flow_synchronised'")
+            missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):
-            missing.append("reference.wall_follow")
+            missing.append("reference.wall_follow yet")
         if missing:
-            raise ConfigError(f"a 3-D vessel tree ({self.physics.vessel.network}) does not take {missing[0]} yet")
+            raise ConfigError(f"a 3-D vessel tree ({self.physics.vessel.network}) does not take {missing[0]}")
 
     def _check_network(self, bspline: bool) -> None:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""

@@ -22,8 +22,9 @@ __all__ = ["warm"]
 def warm() -> None:
     """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly."""
     scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
+    planar = next(sc for sc in scenarios if sc.dims == 2)
     # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
-    scenarios.append(dc.replace(scenarios[0], sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
+    scenarios.append(dc.replace(planar, sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
                                                                       dead_time_s=0.001, propulsion_window_s=0.003,
                                                                       latency_s=0.001)))
     for sc in scenarios:
@@ -31,5 +32,6 @@ def warm() -> None:
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
         run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
         run_many(sc, [0, 1], workers=2)
-        if sc.physics.vessel.network:  # the nodes' input check (VesselbotNode.check)
+        if sc.physics.vessel.network and sc.dims == 2:  # the nodes' input check (VesselbotNode.check)
             network_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(0.0, 0.0)
+        # a 3-D tree's run above built (or read) its wall lookup and cached it: the nodes and tests read it

@@ -42,6 +42,7 @@ tree.  A torn, foreign or older file is solved or built again; a failed solve ca
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -311,7 +312,8 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
     fld = _sample(net, blood, key)
-    fld.save(cached)
+    with contextlib.suppress(OSError):  # a full or read-only cache: the run goes on with the samples in memory
+        fld.save(cached)
     return fld
 
 
@@ -334,7 +336,8 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
     wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
                             origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH)
     stats = {**wf.stats, "v": WALL_VERSION}
-    _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
+    with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
+        _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
     return WallArrays(tuple(wf.args), stats)
 
 

@@ -112,3 +112,37 @@ def test_final_diagnostics_keeps_the_last_status_of_every_name(synthetic_bag):
     final = final_diagnostics(synthetic_bag[0])
     # the synthetic graph publishes a status every 100 ticks over 1000 ticks: the last is tick 900
     assert final == {"synthetic_graph": {"tick": "900"}}
+
+
+def test_a_bag_from_before_3d_trees_reads_with_its_own_coil_state_and_no_y_slew_flag(tmp_path):
+    """A planar bag recorded before CoilState carried slew_limited_y decodes with its embedded definition."""
+    from rosbags.typesys import get_types_from_msg
+
+    from vesselbot_ros.bag.writer import BagWriter, _msg_dirs, make_typestore
+    from vesselbot_ros.graph_spec import topic
+
+    name = "vesselbot_msgs/msg/CoilState"
+    text = next(d / "CoilState.msg" for d in _msg_dirs("vesselbot_msgs") if (d / "CoilState.msg").is_file()).read_text()
+    old_text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("bool slew_limited_y"))
+    assert old_text != text  # the installed definition has the field this bag's lacks
+    ts = make_typestore()
+    ts.fielddefs.pop(name)
+    ts.register(get_types_from_msg(old_text, name))
+    old = ts.types[name]
+    hdr = ts.types["std_msgs/msg/Header"]
+    stamp = ts.types["builtin_interfaces/msg/Time"]
+    vec = ts.types["geometry_msgs/msg/Vector3"]
+    with BagWriter(tmp_path / "old", typestore=ts) as bag:
+        conn = bag.add_topic(topic("coil_state").name, name)
+        for k in range(3):
+            msg = old(header=hdr(stamp=stamp(sec=0, nanosec=k * 1_000_000), frame_id="vessel"), tick=k,
+                      commanded=vec(x=0.1, y=0.0, z=-0.2), applied=vec(x=0.05 * k, y=0.0, z=-0.1),
+                      saturation_scale=1.0, saturated=False, slew_limited_x=k == 1, slew_limited_z=k == 2,
+                      command_rejected=False, watchdog_active=False, max_gradient=0.08, slew_rate=100.0,
+                      dbdt_limit=0.0, dbdt_radius=0.0)
+            bag.write(conn, ts.serialize_cdr(msg, name), 1_000 + k)
+    out = read_timeseries(tmp_path / "old")
+    assert out["coil.slew_limited_x"].tolist() == [False, True, False]
+    assert out["coil.slew_limited_z"].tolist() == [False, False, True]
+    assert out["coil.slew_limited_y"].tolist() == [False, False, False]
+    assert out["coil.applied"][:, 0].tolist() == [0.0, 0.05, 0.1] and (out["coil.applied"][:, 1] == 0.0).all()

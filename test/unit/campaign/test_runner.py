@@ -156,6 +156,9 @@ def test_flatten_timeseries_splits_vectors() -> None:
     assert set(flat) == {"t_s", "p_x", "p_z", "b_x", "b_z"} | {f"f_{i}_{a}" for i in range(8) for a in "xz"}
     assert all(v.shape == (n,) for v in flat.values())
     assert flat["b_x"].dtype == bool
+    flat3 = flatten_timeseries({"p": np.arange(3 * n).reshape(n, 3), "f": np.zeros((n, 8, 3))})  # a 3-D tree's
+    assert set(flat3) == {"p_x", "p_y", "p_z"} | {f"f_{i}_{a}" for i in range(8) for a in "xyz"}
+    assert list(flat3["p_y"]) == [1, 4, 7, 10]
 
 
 @pytest.mark.parametrize("seed", [0, 7])

@@ -39,3 +39,36 @@ def test_a_volatile_message_no_reader_can_get_is_counted_but_not_serialized(monk
         peer.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+def test_the_input_check_takes_y_as_a_coordinate_in_a_3d_tree_and_as_zero_in_a_planar_scenario() -> None:
+    """VesselbotNode.check with its scenario's one switch: a planar node rejects any y; a 3-D tree's node checks
+    (x, y, z) against the tree's meshed wall, so a y that leaves the lumen is rejected and one inside is not."""
+    pytest.importorskip("rclpy")
+    from types import SimpleNamespace
+
+    from vesselbot_ros.nodes.base import VesselbotNode
+    from vesselbot_ros.nodes.graph_params import GraphParams
+    from vesselbot_ros.sim.scenario import load_scenario
+
+    def node(config: str) -> SimpleNamespace:
+        s = load_scenario(config)
+        n = SimpleNamespace(scenario=s, dims=s.dims, graph=GraphParams(), lockstep=True, rejected=[])
+        n.reject = lambda key, reason, detail="": n.rejected.append(reason)
+        n._network_clearance = lambda x, z, y=0.0: VesselbotNode._network_clearance(n, x, z, y)
+        return n
+
+    tree = node("config/paper_iiic_network_upper_3d.yaml")
+    assert tree.dims == 3
+    ok = VesselbotNode.check(tree, "truth", values=(1e-3, 2e-4, 1e-3), y_values=(2e-4,), x_position=1e-3,
+                             y_position=2e-4, z_position=1e-3)
+    assert ok and tree.rejected == []
+    # 12 mm across a 3 mm lumen: 10.5 mm outside its wall, beyond the 5 mm margin (GraphParams.position_margin_m)
+    out = VesselbotNode.check(tree, "truth", values=(1e-3, 12e-3, 1e-3), y_values=(12e-3,), x_position=1e-3,
+                              y_position=12e-3, z_position=1e-3)
+    assert not out and tree.rejected == ["outside_vessel"]
+    planar = node("config/paper_iiic_network_upper.yaml")
+    assert planar.dims == 2
+    assert not VesselbotNode.check(planar, "truth", values=(1e-3, 2e-4, 1e-3), y_values=(2e-4,), x_position=1e-3,
+                                   z_position=1e-3)
+    assert planar.rejected == ["nonzero_y"]

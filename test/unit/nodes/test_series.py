@@ -120,3 +120,41 @@ def test_a_point_message_has_no_series():
     assert SeriesLog(("measurement",), 3, DT).keys == ()
     assert columns_of("measurement") == ()
     assert PointStamped  # the imager's output carries no run series
+
+
+def test_a_three_d_log_has_y_columns_and_answers_its_floats_as_three_axis_series():
+    from vesselbot_ros.nodes.series import READERS_3D, SERIES_COLUMNS_3D
+
+    for t in (t for t in TOPICS if t.series):  # each 3-D reader fills exactly its columns
+        assert len(READERS_3D[t.key](_flat(TYPES[t.key]()))) == len(columns_of(t.key, 3))
+    assert SERIES_COLUMNS_3D["p_true"] == ("p_true_x_m", "p_true_y_m", "p_true_z_m")
+    assert SERIES_COLUMNS_3D["slew_limited"] == ("slew_limited_x", "slew_limited_y", "slew_limited_z")
+    log = SeriesLog(role("plant").outputs, 3, DT, dims=3)
+    m = PlantState(tick=1)
+    _stamp(m, 1)
+    m.position.x, m.position.y, m.position.z = 1e-3, np.nextafter(-2e-4, 0.0), 3e-4
+    m.velocity.y = 5e-3
+    log.add("truth", _flat(m))
+    got = series_from_response(log.fill(GetSeries.Response()))
+    assert got["p_true"].shape == (3, 3) and got["p_true"][1].tolist() == [1e-3, np.nextafter(-2e-4, 0.0), 3e-4]
+    assert got["v_true"][1, 1] == 5e-3
+    c = CoilState(tick=0, slew_limited_y=True)
+    coil = SeriesLog(("coil_state",), 1, DT, dims=3)
+    coil.add("coil_state", _flat(c))
+    got = coil.as_dict()
+    assert got["slew_limited"].tolist() == [[False, True, False]] and got["g_applied"].shape == (1, 3)
+    e = empty_series(2, dims=3)
+    assert e["x_hat"].shape == (2, 3) and e["slew_limited"].shape == (2, 3) and e["in_contact"].shape == (2,)
+
+
+def test_a_planar_log_is_unchanged_by_the_three_d_columns():
+    log = SeriesLog(("coil_state",), 1, DT)
+    assert log.columns == ("g_applied_x_T_per_m", "g_applied_z_T_per_m", "saturated", "slew_limited_x", "slew_limited_z")
+    log.add("coil_state", _flat(CoilState(tick=0, slew_limited_y=True)))  # a planar coil never sets it; not read
+    assert log.as_dict()["slew_limited"].tolist() == [[False, False]]
+
+
+def test_a_y_column_without_its_x_and_z_is_malformed():
+    r = GetSeries.Response(rows=1, columns=["p_true_x_m", "p_true_y_m"], values=[0.0] * 2)
+    with pytest.raises(ValueError, match="p_true_z_m"):
+        series_from_response(r)

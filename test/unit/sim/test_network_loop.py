@@ -86,7 +86,6 @@ def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_a_planar_ves
 
 @pytest.mark.parametrize(("key", "value", "what"), [
     ("observer.kind", "ekf", "observer.kind 'ekf'"), ("controller.kind", "predictive", "controller.kind 'predictive'"),
-    ("sequence.mode", "multiplexed", "sequence.mode 'multiplexed'"), ("dbdt.mode", "iec_normal_mode", "dbdt.mode"),
     ("reference.timing", "flow_synchronised", "reference.timing 'flow_synchronised'")])
 def test_a_3d_tree_refuses_what_its_loop_has_not_yet_in_one_line(key: str, value: str, what: str) -> None:
     from vesselbot_ros.config import ConfigError
@@ -104,12 +103,23 @@ def test_3d_trees_run_on_three_axes_reproducibly(name: str) -> None:
     sc = load_scenario(shipped_scenarios()[name], sets=["sim.duration_s=0.3"])
     assert sc.dims == 3
     a, b = run_closed_loop(sc, 1), run_closed_loop(sc, 1)
-    assert a.path == "per_tick"
+    assert a.path == "compiled"  # the compiled 3-D loop (bit-identical to the per-tick one: test_compiled_loop.py)
     for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "u_cmd", "g_cmd", "g_applied", "slew_limited"):
         assert a.timeseries[k].shape == (300, 3), k
         assert np.array_equal(a.timeseries[k], b.timeseries[k], equal_nan=True), k
     assert np.nanstd(a.timeseries["meas_p"][:, 1] - a.timeseries["p_true"][:, 1]) == pytest.approx(1e-4, rel=0.2)
     assert a.metrics["outside_lumen_time_s"] == 0.0
+
+
+def test_a_3d_trees_coil_takes_the_db_dt_of_three_axes() -> None:
+    from vesselbot_ros.scanner.hardware import dbdt_axis_slew_limit
+    from vesselbot_ros.sim.closed_loop import build_stage
+
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=["dbdt.mode=iec_normal_mode"])
+    coil = build_stage(sc, "coil")
+    s3 = dbdt_axis_slew_limit(sc.coil.saturation_T_per_m, sc.dbdt.radius_m, axes=3)
+    assert coil.limits.slew_rate_T_per_m_per_s == s3 < dbdt_axis_slew_limit(sc.coil.saturation_T_per_m, sc.dbdt.radius_m)
+    assert s3 < sc.coil.slew_rate_T_per_m_per_s  # it binds: 58 T/m/s against the clinical 100
 
 
 def test_the_3d_trees_reach_their_outlets_on_seeds_0_to_4() -> None:
