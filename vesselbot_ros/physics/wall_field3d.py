@@ -58,16 +58,21 @@ triangles those lists name (int32 lists and nodes); off the grid a leaf wholly o
 a cap's extension, is sealed (no list: its seed's answer signed outside; only a bead far outside the lumen
 goes there).  Bit for bit the whole tree's answer wherever the lookup asks it.
 
-Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, no refinement; 2 x 10^5 points within 1 mm
-of the wall each): against the exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.4 deg (cylinder / bent
-tube / Y, junction included), no sign error; against the analytic wall 0.7 / 1.2 um and 0.58 / 0.64 deg
-(cylinder / bent tube: the facets' 0.66 / 1.05 deg are smoothed).  Flagged cells 0.15 / 0.43 / 2.4 %.
-With ``refine`` = 2 the Y's worst normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge
-(the foot on a crease edge) the exact smooth normal takes one face's side, jumping at the facets' scale,
-which 19 test points per sub-cell do not see; so refinement is off by default.
-Speed (bench/bench_wall_field3d.py): cylinder 83 / 42 ns (lumen / within 0.3 mm of the wall) against the
-2-D wall's 128 / 73 ns; the Y 795 / 103 ns against 115 / 68 ns (472 / 148 ns with ``refine`` = 2): 4-8 %
-of its lumen (the junction's ball and creases) goes to the exact query.
+Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, no refinement, no tubes, the band 1 mm
+inside and outside; 0.1 mm reference triangles; 2 x 10^5 points within 1 mm of the wall each): against the
+exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.7 deg (cylinder / bent tube / Y, junction included),
+no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylinder / bent tube: the facets'
+0.66 / 0.99 deg are smoothed).  Flagged cells 0.003 / 0.03 / 1.9 %.  With ``refine`` = 2 the Y's worst
+normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
+smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
+see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and tubes on, the
+band 1 mm in and 0.1 mm out, ``--shipped``): distance within 1.9 um, normal within 1.5 / 1.2 / 1.8 deg
+(III-C / carotid / synthetic tree) wherever the exact normal itself is defined (does not turn by more than
+2 deg within 5 um); within micrometres of a medial surface 12 / 0 / 11 points in 2 x 10^5 are off by more,
+up to 113 deg (a sub-cell the surface bulges into between its test points, taking the other wall's side).
+Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
+2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
+creases) goes to the exact query.
 """
 
 from __future__ import annotations
@@ -781,7 +786,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
-                       exact_max_depth: int = 0, tube: bool = True, axis_m: float = 50e-6) -> WallField3D:
+                       exact_max_depth: int = 0, tube: bool = False, axis_m: float = 50e-6) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -804,7 +809,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
             lookup carries the wall's whole candidate tree.
         tube: A flagged cell wholly in the lumen whose straight round tube (fitted to its corners) meets the
-            tolerances at its test points is answered by the tube.
+            tolerances at its test points is answered by the tube (for fine walls: on 0.1 mm facets the exact
+            normal's facet-scale wiggle between the test points can take a tube cell's error past 2 deg).
         axis_m: ... the normal not tested within this (m) of the tube's axis (its direction is undefined there).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
