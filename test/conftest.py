@@ -21,6 +21,15 @@ def ros(tmp_path):
 
 
 @pytest.fixture
+def peer_domain():
+    """A domain id held for the test's own nodes until it ends; ``vesselbot run --domain-id`` joins it."""
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
+
+    with allocate_domain_for_peers() as lease:
+        yield lease.domain_id
+
+
+@pytest.fixture
 def repo() -> Path:
     """The repository root."""
     return REPO

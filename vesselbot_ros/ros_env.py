@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-__all__ = ["DomainLease", "allocate_domain", "ros_environment", "apply_to_process", "restore_process_env"]
+__all__ = ["DomainLease", "allocate_domain", "allocate_domain_for_peers", "ros_environment", "apply_to_process", "restore_process_env"]
 
 # Linux-safe domain ids are 0..101 (higher ones may collide with ephemeral
 # ports).  0 is the default that other programs use: never take it.
@@ -98,6 +98,35 @@ def allocate_domain(preferred: int | None = None, namespace: str | None = None) 
         return DomainLease(dom, fh)
     if preferred is not None:
         raise RuntimeError(f"ROS domain id {preferred} is in use by another vesselbot run")
+    raise RuntimeError("every ROS domain id in [1, 101] is in use by other vesselbot runs")
+
+
+def allocate_domain_for_peers() -> DomainLease:
+    """Lease a free domain id for your own nodes, that a run started later can join.
+
+    The id is held shared (as ``vesselbot run --domain-id D`` holds it, under
+    a name no namespace can take): ``vesselbot run --domain-id D`` then joins it, while no automatically leased run can take it.  Start your
+    peer nodes on it before the run, and keep the lease until the run ends.
+    (``allocate_domain()`` then ``release()`` would leave a gap in which
+    another run may lease the id first.)
+    """
+    for _ in range(DOMAIN_MAX):
+        lease = allocate_domain()
+        assert lease._fh is not None
+        try:
+            # a conversion is not atomic: an exclusive taker may slip in between, then take another id
+            fcntl.flock(lease._fh, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            ns_fh = open(_LOCK_DIR / f"{lease.domain_id}.ns_peers.{os.getpid()}.lock", "a+")  # noqa: SIM115 - held with the lease
+            try:
+                fcntl.flock(ns_fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                ns_fh.close()
+                raise
+        except OSError:
+            lease.release()
+            continue
+        lease._ns_fh = ns_fh
+        return lease
     raise RuntimeError("every ROS domain id in [1, 101] is in use by other vesselbot runs")
 
 

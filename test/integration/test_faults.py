@@ -36,7 +36,7 @@ TRACK_DEV_BOUND_M = 250e-6  # measured peak deviation after a 1 mm, 20 ms burst:
 def fault_run(tmp_path_factory):
     from vesselbot_ros.bag.reader import open_bag, read_timeseries
     from vesselbot_ros.config import load_yaml
-    from vesselbot_ros.ros_env import allocate_domain
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
     from vesselbot_ros.sim.closed_loop import run_closed_loop
     from vesselbot_ros.sim.scenario import scenario_from_mapping
 
@@ -44,15 +44,15 @@ def fault_run(tmp_path_factory):
     cfg = write_config(tmp, sim__duration_s=1.2, imager__outliers=[
         {"start_s": 0.2, "duration_s": 0.02, "magnitude_m": 1e-3}, {"start_s": 0.5, "duration_s": 0.02, "magnitude_m": 1e-3}],
         imager__dropouts=[{"start_s": 0.62, "duration_s": 0.3}])
-    with allocate_domain() as lease:
-        dom = lease.domain_id
     bag = tmp / "bag"
-    run = popen_run("--config", str(cfg), "--record-dir", str(bag), "--domain-id", str(dom), "--quiet", cwd=tmp)
-    try:
-        out, err = run.communicate(timeout=300)
-    finally:
-        if run.poll() is None:
-            run.kill()
+    with allocate_domain_for_peers() as lease:
+        run = popen_run("--config", str(cfg), "--record-dir", str(bag), "--domain-id", str(lease.domain_id), "--quiet",
+                        cwd=tmp)
+        try:
+            out, err = run.communicate(timeout=300)
+        finally:
+            if run.poll() is None:
+                run.kill()
     assert run.returncode == 0, out + err
     info = open_bag(bag)
     assert info.consistent, info.problems

@@ -49,12 +49,11 @@ def test_run_reports_which_node_died_and_exits_nonzero(repo, tmp_path):
         pytest.fail(f"the run ended {took:.0f} s after the node died, on a free machine (spin got {share:.2f})")
 
 
-def test_user_controller_takes_the_controller_slot(repo, tmp_path):
-    # the user's node and the run must share a domain: pick a free one, then pass it with --domain-id
-    from vesselbot_ros.ros_env import allocate_domain, ros_environment
+def test_user_controller_takes_the_controller_slot(repo, tmp_path, peer_domain):
+    # the user's node and the run share a domain: one held for the test's nodes, passed with --domain-id
+    from vesselbot_ros.ros_env import ros_environment
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    dom = peer_domain
     env = ros_environment(dom, tmp_path / "ros_log")
     user = subprocess.Popen([sys.executable, str(repo / "examples" / "my_controller.py"), "--ros-args", "-p",
                              "use_sim_time:=true"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

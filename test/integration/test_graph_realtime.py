@@ -184,12 +184,10 @@ def test_realtime_run_that_cannot_keep_up_exits_nonzero_with_the_held_factor(tmp
 
 
 @pytest.mark.timeout(240)
-def test_future_stamped_command_and_garbage_clock_change_nothing(tmp_path):
+def test_future_stamped_command_and_garbage_clock_change_nothing(tmp_path, peer_domain):
     from vesselbot_ros.bag.reader import read_timeseries
-    from vesselbot_ros.ros_env import allocate_domain
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    dom = peer_domain
     peer = subprocess.Popen([sys.executable, str(HERE / "realtime_hostile_peer.py"), "--at", "0.2"],
                             env=hostile_env(dom, tmp_path / "ros_log"), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

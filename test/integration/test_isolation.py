@@ -11,7 +11,7 @@ rclpy = pytest.importorskip("rclpy")
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from vesselbot_ros.ros_env import allocate_domain, ros_environment  # noqa: E402
+from vesselbot_ros.ros_env import allocate_domain, allocate_domain_for_peers, ros_environment  # noqa: E402
 from vesselbot_ros.testing import NodeProcess, spin_until  # noqa: E402
 
 TALKER = Path(__file__).with_name("talker_peer.py")
@@ -26,6 +26,27 @@ def test_leased_domains_are_exclusive():
     # released: can be taken again
     with allocate_domain(a.domain_id) as again:
         assert again.domain_id == a.domain_id
+
+
+def test_a_domain_held_for_peers_admits_a_chosen_run_and_no_leased_one():
+    with allocate_domain_for_peers() as peers:
+        dom = peers.domain_id
+        # no automatically leased run takes it, nor an exclusive request for it
+        taken = [allocate_domain() for _ in range(20)]
+        try:
+            assert dom not in {t.domain_id for t in taken}
+        finally:
+            for t in taken:
+                t.release()
+        with pytest.raises(RuntimeError, match=f"domain id {dom} is in use"):
+            allocate_domain(dom)
+        # a run given --domain-id joins it (shared, in its namespace), twice in two namespaces
+        with allocate_domain(dom, "/vesselbot") as run, allocate_domain(dom, "/robot2") as other:
+            assert run.domain_id == other.domain_id == dom
+        with allocate_domain_for_peers() as more:
+            assert more.domain_id != dom
+    with allocate_domain(dom) as again:
+        assert again.domain_id == dom
 
 
 def test_two_concurrent_graphs_on_different_domains_do_not_cross_talk(ros, tmp_path):

@@ -26,13 +26,11 @@ DURATION = 0.2
 
 
 @pytest.mark.timeout(300)
-def test_two_namespaced_graphs_on_one_domain_do_not_cross(tmp_path):
+def test_two_namespaced_graphs_on_one_domain_do_not_cross(tmp_path, peer_domain):
     from vesselbot_ros.bag.reader import open_bag
     from vesselbot_ros.graph_spec import TOPICS
-    from vesselbot_ros.ros_env import allocate_domain
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    dom = peer_domain
     runs = {}
     for ns, seed in ((None, 1), ("robot2", 2)):
         label = ns or "default"

@@ -47,7 +47,7 @@ def _per_tick_messages(bag):
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("composed", [[], ["--single-process"]], ids=["processes", "single_process"])
-def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, composed):
+def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, composed, peer_domain):
     """Driven run: one process per node, or composed (steps then arrive from the services' thread)."""
     import rclpy
     from rclpy.action import ActionClient
@@ -56,10 +56,9 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
     from simulation_interfaces.srv import ResetSimulation, SetSimulationState, StepSimulation
     from std_srvs.srv import Trigger
 
-    from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
+    from vesselbot_ros.ros_env import apply_to_process, restore_process_env, ros_environment
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    dom = peer_domain
     common = ["--config", "sound_small_artery", "--duration", str(DURATION), "--seed", "3", "--quiet"]
     driven = subprocess.Popen(run_cmd(*common, *composed, "--start-paused", "--domain-id", str(dom),
                                       "--record-dir", str(tmp_path / "driven")),
@@ -78,7 +77,12 @@ def test_paused_stepped_reset_and_played_run_equals_an_unpaused_run(tmp_path, co
     try:
         # a fresh client's first call is one that may run twice (a loaded machine can drop its answer:
         # vesselbot_ros.nodes.calls); the calls that must run once come after the client's first answer
-        features = _call(ex, client("get_simulator_features"), client("get_simulator_features").srv_type.Request())
+        first = client("get_simulator_features")
+        deadline = time.monotonic() + 120
+        while not first.wait_for_service(timeout_sec=1.0):  # the run's stderr if it ended before serving
+            assert driven.poll() is None, f"the run ended (exit {driven.returncode}): {driven.communicate()}"
+            assert time.monotonic() < deadline, "the run's services did not appear within 120 s"
+        features = _call(ex, first, first.srv_type.Request())
         f = set(features.features.features)
         assert {SimulatorFeatures.STEP_SIMULATION_SINGLE, SimulatorFeatures.STEP_SIMULATION_MULTIPLE,
                 SimulatorFeatures.STEP_SIMULATION_ACTION, SimulatorFeatures.SIMULATION_RESET,

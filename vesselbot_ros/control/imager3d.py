@@ -31,7 +31,7 @@ from vesselbot_ros.control.imager_model import ImagerParams, Measurement, Variat
 from vesselbot_ros.errors import ModelInputError
 
 __all__ = ["Imager3D", "DRAWS_PER_FRAME", "imager3d_frame", "imager3d_acquire", "fill_variates3d", "draw_variates3d",
-           "queue_rows"]
+           "queue_rows", "queue3d_push", "queue3d_deliver"]
 
 _EPS_S = 1e-9  # the planar imager's tick-grid tolerance
 #: Variates drawn per acquired frame.
@@ -134,20 +134,32 @@ def imager3d_frame(prm, outliers, dropouts, state, queue, rng, t, px, py, pz, ou
         state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
         imager3d_acquire(prm, outliers, dropouts, rng, t, px, py, pz, out)
         if out[0] > 0.5:
-            j = int(state[3]) % queue.shape[0]
-            queue[j, 0] = t + prm[2]
-            for c in range(1, 6):
-                queue[j, c] = out[c]
-            state[3] += 1.0
+            queue3d_push(queue, state, 3, t + prm[2], out)
+    queue3d_deliver(queue, state, 2, 3, t, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def queue3d_push(queue, state, tail, t_deliver, frame):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Put ``frame[1:6]`` (t_acq, x, y, z, outlier), due at ``t_deliver``, at the ring's tail (``state[tail]``)."""
+    j = int(state[tail]) % queue.shape[0]
+    queue[j, 0] = t_deliver
+    for c in range(1, 6):
+        queue[j, c] = frame[c]
+    state[tail] += 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def queue3d_deliver(queue, state, head, tail, t, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Take every frame due at ``t`` off the ring's head; ``out`` = the newest ([delivered, t_acq, x, y, z, outlier])."""
     out[0] = 0.0
-    while state[2] < state[3]:
-        j = int(state[2]) % queue.shape[0]
+    while state[head] < state[tail]:
+        j = int(state[head]) % queue.shape[0]
         if not queue[j, 0] <= t + _EPS_S:
             break
         out[0] = 1.0
         for c in range(1, 6):
             out[c] = queue[j, c]
-        state[2] += 1.0
+        state[head] += 1.0
 
 
 def queue_rows(params: ImagerParams) -> int:

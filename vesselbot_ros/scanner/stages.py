@@ -43,7 +43,7 @@ from vesselbot_ros.control.actuator_limits import (
     coil_params,
     coil_saturate,
 )
-from vesselbot_ros.control.imager3d import Imager3D, imager3d_acquire
+from vesselbot_ros.control.imager3d import Imager3D, imager3d_acquire, queue3d_deliver, queue3d_push
 from vesselbot_ros.control.imager_model import (
     ImagerModel,
     Measurement,
@@ -268,11 +268,7 @@ def seq_imager3d_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, 
         if st[4] > 0.0:
             imager3d_acquire(prm, outliers, dropouts, rng, st[5], st[1] / st[4], st[2] / st[4], st[3] / st[4], acq)
             if acq[0] > 0.5:
-                j = int(st[8]) % queue.shape[0]
-                queue[j, 0] = st[6]
-                for c in range(1, 6):
-                    queue[j, c] = acq[c]
-                st[8] += 1.0
+                queue3d_push(queue, st, 8, st[6], acq)
     if w >= 0:
         if st[0] < 0.0:
             st[0] = float(w)
@@ -286,15 +282,7 @@ def seq_imager3d_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, px, 
         st[2] += py
         st[3] += pz
         st[4] += 1.0
-    out[0] = 0.0
-    while st[7] < st[8]:
-        j = int(st[7]) % queue.shape[0]
-        if not queue[j, 0] <= t + _EPS_S:
-            break
-        out[0] = 1.0
-        for c in range(1, 6):
-            out[c] = queue[j, c]
-        st[7] += 1.0
+    queue3d_deliver(queue, st, 7, 8, t, out)
 
 
 @numba.njit(cache=True, nogil=True)
