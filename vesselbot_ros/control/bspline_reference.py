@@ -110,7 +110,15 @@ class ReferenceParams:
             from the start point (:mod:`vesselbot_ros.control.route`) and
             ``anchors_x_m``/``anchors_z_m`` are not used.  ``""``: the anchors as given.
         route_anchor_spacing_m: Arc length between planned anchors (m).
-        route_end_margin_m: The last planned anchor lies this far before the outlet (m).
+        route_end_margin_m: The planned anchors end this far before the outlet (m).
+        route_end: Where the last planned anchor lies.  ``spaced`` (the default):
+            anchors every ``route_anchor_spacing_m`` from the start, the last
+            between ``route_end_margin_m`` and that plus one spacing before the
+            outlet (in a short outlet branch it can lie short of the branch's
+            entrance).  ``at_margin``: the fewest anchors evenly spaced at most
+            ``route_anchor_spacing_m`` apart, the last exactly
+            ``route_end_margin_m`` before the outlet.  Left out of
+            :func:`~vesselbot_ros.config.to_mapping` (and of every hash) when ``spaced``.
         route_wall_margin_m: Margin of the planned height outside the observer's unstable band (m).
         kind: The reference's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``bspline``.
     """
@@ -130,6 +138,8 @@ class ReferenceParams:
     route_end_margin_m: float = 2.0e-3
     route_wall_margin_m: float = 1.5e-4
     anchors_y_m: tuple[float, ...] = dataclasses.field(default=(), metadata={OMIT_IF: lambda v: not v})
+    route_end: Literal["spaced", "at_margin"] = dataclasses.field(default="spaced",
+                                                                  metadata={OMIT_IF: lambda v: v == "spaced"})
 
     def __post_init__(self) -> None:
         if len(self.anchors_x_m) < 2:
@@ -168,6 +178,7 @@ class ReferenceParams:
         check_positive("route_anchor_spacing_m", self.route_anchor_spacing_m)
         check_nonnegative("route_end_margin_m", self.route_end_margin_m)
         check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
+        check_choice("route_end", self.route_end, ("spaced", "at_margin"))
 
     def anchor_points(self) -> npt.NDArray[np.float64]:
         """(n, 2) anchors (x, z) in the plane, or (n, 3) (x, y, z) with ``anchors_y_m`` (m)."""

@@ -5,7 +5,9 @@ outlet, the branch sequence is the path over the centreline tree from the inlet
 branch to that outlet (:func:`~vesselbot_ros.vessels.network.route_to_outlet`).
 Anchors are placed every ``reference.route_anchor_spacing_m`` of centreline
 arc length from the point of the route nearest the start to
-``reference.route_end_margin_m`` before the outlet, with the design-map rule of
+``reference.route_end_margin_m`` before the outlet (``reference.route_end``:
+the last one exactly there, the spacing shortened evenly to fit, or up to one
+spacing short of it), with the design-map rule of
 Section III-A (docs/control.md): in an artery the robot rides near the *upper*
 wall, where the flow is slow, at the wall-safe height
 :func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m` of the local
@@ -29,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
-from vesselbot_ros.control.route3d import route_anchors_3d
+from vesselbot_ros.control.route3d import anchor_arcs, route_anchors_3d
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.physics.wall_field3d import field_points3d
 from vesselbot_ros.vessels.cfd import network_wall
@@ -60,7 +62,8 @@ def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # ty
             pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
             return wall_safe_delta_m(pd, observer, ref.route_wall_margin_m)
 
-        arr3 = route_anchors_3d(net, ref.route_outlet, p0_m, ref.route_anchor_spacing_m, ref.route_end_margin_m, height_of)
+        arr3 = route_anchors_3d(net, ref.route_outlet, p0_m, ref.route_anchor_spacing_m, ref.route_end_margin_m, height_of,
+                                end=ref.route_end)
         arr3.setflags(write=False)
         return arr3
     geom = NetworkGeometry(net)
@@ -70,9 +73,7 @@ def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # ty
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     p0 = np.asarray(p0_m, dtype=np.float64)
     s0 = float(arc[int(np.argmin(np.hypot(*(path - p0).T)))])
-    s_end = arc[-1] - ref.route_end_margin_m
-    n = max(1, int(np.floor((s_end - s0) / ref.route_anchor_spacing_m + 1e-9)))
-    s_list = s0 + ref.route_anchor_spacing_m * np.arange(1, n + 1)
+    s_list = anchor_arcs(s0, arc[-1] - ref.route_end_margin_m, ref.route_anchor_spacing_m, ref.route_end)
     tang = np.gradient(path, axis=0)
     tang /= np.hypot(tang[:, 0], tang[:, 1])[:, None]
     up = np.column_stack([-tang[:, 1], tang[:, 0]])

@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.vessels.network import NetworkGeometry3D, VesselNetworkParams, route_to_outlet
 
-__all__ = ["VERTICAL_SINE", "up_directions", "route_anchors_3d"]
+__all__ = ["VERTICAL_SINE", "up_directions", "anchor_arcs", "route_anchors_3d"]
 
 #: Below this sine of the angle between the centreline and the vertical, the cross-section has no up.
 VERTICAL_SINE = 0.05
@@ -47,8 +47,22 @@ def up_directions(tangents: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt
     return up, ok
 
 
+def anchor_arcs(s0: float, s_end: float, spacing_m: float, end: str = "spaced") -> npt.NDArray[np.float64]:
+    """Arc lengths of the anchors after the start ``s0`` along a route planned to ``s_end`` (m).
+
+    ``spaced``: every ``spacing_m`` from ``s0``, the last in ``(s_end - spacing_m, s_end]`` (at least one).
+    ``at_margin``: the fewest evenly spaced anchors at most ``spacing_m`` apart, the last at ``s_end``.
+    """
+    if end == "at_margin":
+        n = max(1, int(np.ceil((s_end - s0) / spacing_m - 1e-9)))
+        return s0 + (s_end - s0) * np.arange(1, n + 1) / n
+    n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
+    return s0 + spacing_m * np.arange(1, n + 1)
+
+
 def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, spacing_m: float,
-                     end_margin_m: float, height_of: Callable[[float], float]) -> npt.NDArray[np.float64]:
+                     end_margin_m: float, height_of: Callable[[float], float], *,
+                     end: str = "spaced") -> npt.NDArray[np.float64]:
     """The anchors (k, 3) (m) of a reference from the start point ``p0_m`` (3,) to ``outlet``.
 
     Args:
@@ -60,6 +74,7 @@ def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike,
         height_of: The wall-safe height above the centreline of a vessel of diameter ``d`` (m -> m; negative
             or zero: on the centreline), e.g. Section III-A's design map
             (:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m`).
+        end: Where the last anchor lies (:func:`anchor_arcs`: ``spaced`` or ``at_margin``).
     """
     geom = NetworkGeometry3D(net)
     names = route_to_outlet(net, outlet)
@@ -68,9 +83,7 @@ def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike,
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     p0 = np.asarray(p0_m, dtype=np.float64)
     s0 = float(arc[int(np.argmin(np.linalg.norm(path - p0, axis=1)))])
-    s_end = arc[-1] - end_margin_m
-    n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
-    s_list = s0 + spacing_m * np.arange(1, n + 1)
+    s_list = anchor_arcs(s0, arc[-1] - end_margin_m, spacing_m, end)
     tang = np.gradient(path, axis=0)
     tang /= np.linalg.norm(tang, axis=1)[:, None]
     up, _has_up = up_directions(tang)

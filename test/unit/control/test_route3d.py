@@ -6,12 +6,13 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.control import route
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
-from vesselbot_ros.control.route3d import VERTICAL_SINE, route_anchors_3d, up_directions
+from vesselbot_ros.control.route3d import VERTICAL_SINE, anchor_arcs, route_anchors_3d, up_directions
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
 
@@ -62,3 +63,30 @@ def test_a_tree_in_space_puts_every_anchor_inside_its_tube_above_the_centreline(
     assert np.all(q["sdist"] > 0.2 * q["radius"])  # inside, a quarter diameter off the axis at most
     end = geom.centreline_3d(outlet)[-1]
     assert np.linalg.norm(anchors[-1] - end) < 3.5e-3
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 5e-3), st.floats(1e-4, 30e-3), st.floats(0.5e-3, 4e-3))
+def test_the_route_ends_at_its_margin_or_up_to_one_spacing_short(s0: float, length: float, spacing: float) -> None:
+    """``spaced``: every spacing from the start, the last within one spacing of the end; ``at_margin``: evenly
+    spaced at most one spacing apart, the last exactly at the end."""
+    s_end = s0 + length
+    spaced = anchor_arcs(s0, s_end, spacing, "spaced")
+    assert np.allclose(np.diff(np.concatenate([[s0], spaced])), spacing)
+    if length >= spacing:
+        assert s_end - spacing - 1e-12 < spaced[-1] <= s_end + 1e-12
+    at = anchor_arcs(s0, s_end, spacing, "at_margin")
+    gaps = np.diff(np.concatenate([[s0], at]))
+    assert at[-1] == pytest.approx(s_end, abs=1e-15) and np.allclose(gaps, gaps[0])
+    assert gaps[0] <= spacing * (1 + 1e-9)
+    assert gaps[0] >= spacing * (at.size - 1) / at.size * (1 - 1e-9)  # one anchor fewer would space them wider
+
+
+def test_route_end_is_validated_and_left_out_of_the_mapping_when_spaced() -> None:
+    from vesselbot_ros.config import ConfigError, to_mapping
+    from vesselbot_ros.control.bspline_reference import ReferenceParams
+
+    with pytest.raises(ConfigError, match="route_end.*'last'"):
+        ReferenceParams(route_end="last")  # type: ignore[arg-type]
+    assert "route_end" not in to_mapping(ReferenceParams())
+    assert to_mapping(ReferenceParams(route_end="at_margin"))["route_end"] == "at_margin"
