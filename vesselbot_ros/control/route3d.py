@@ -55,7 +55,7 @@ def anchor_arcs(s0: float, s_end: float, spacing_m: float, end: str = "spaced") 
     """
     if end == "at_margin":
         n = max(1, int(np.ceil((s_end - s0) / spacing_m - 1e-9)))
-        return s0 + (s_end - s0) * np.arange(1, n + 1) / n
+        return s0 + (s_end - s0) * np.arange(1, n + 1, dtype=np.float64) / n
     n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
     return s0 + spacing_m * np.arange(1, n + 1)
 
