@@ -57,7 +57,7 @@ def anchor_arcs(s0: float, s_end: float, spacing_m: float, end: str = "spaced") 
         n = max(1, int(np.ceil((s_end - s0) / spacing_m - 1e-9)))
         return s0 + (s_end - s0) * np.arange(1, n + 1, dtype=np.float64) / n
     n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
-    return s0 + spacing_m * np.arange(1, n + 1)
+    return np.asarray(s0 + spacing_m * np.arange(1, n + 1), dtype=np.float64)
 
 
 def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, spacing_m: float,
