@@ -84,8 +84,9 @@ def new_workspace3d():  # type: ignore[no-untyped-def]  # numba kernel: argument
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Channel ``c`` of the flow grid, trilinear at (x, y, z) (m); clamped to the grid's edge cells."""
+def _cell(fh, x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The flow grid's cell (i, j, k) holding (x, y, z) (m) and the point's place in it (tx, ty, tz) in [0, 1]
+    (clamped to the grid's edge cells)."""
     h = fh[3]
     nx = int(fh[4])
     ny = int(fh[5])
@@ -99,6 +100,13 @@ def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel
     tx = min(1.0, max(0.0, fx - i))
     ty = min(1.0, max(0.0, fy - j))
     tz = min(1.0, max(0.0, fz - k))
+    return i, j, k, tx, ty, tz
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Channel ``c`` of the flow grid, trilinear at (x, y, z) (m); clamped to the grid's edge cells."""
+    i, j, k, tx, ty, tz = _cell(fh, x, y, z)
     v = 0.0
     for cc in range(8):
         cx = cc & 1
@@ -113,19 +121,7 @@ def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel
 def _velocity_at(F, fh, x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Channels 0-2 of the flow grid (the velocity), trilinear at (x, y, z) (m) in one pass over the cell
     (each channel summed as :func:`_flow_at` sums it: the same doubles)."""
-    h = fh[3]
-    nx = int(fh[4])
-    ny = int(fh[5])
-    nz = int(fh[6])
-    fx = (x - fh[0]) / h
-    fy = (y - fh[1]) / h
-    fz = (z - fh[2]) / h
-    i = min(max(int(math.floor(fx)), 0), nx - 2)
-    j = min(max(int(math.floor(fy)), 0), ny - 2)
-    k = min(max(int(math.floor(fz)), 0), nz - 2)
-    tx = min(1.0, max(0.0, fx - i))
-    ty = min(1.0, max(0.0, fy - j))
-    tz = min(1.0, max(0.0, fz - k))
+    i, j, k, tx, ty, tz = _cell(fh, x, y, z)
     v0 = 0.0
     v1 = 0.0
     v2 = 0.0

@@ -62,6 +62,7 @@ inputs (written atomically; never on failure).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -69,6 +70,7 @@ import math
 import os
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
 
@@ -283,51 +285,59 @@ def _unit(v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return np.asarray(v / np.linalg.norm(v), dtype=np.float64)
 
 
-def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
-    """Mesh ``tree`` as one solid (see the module docstring); raises ConfigError if gmsh cannot."""
+@contextlib.contextmanager
+def _gmsh_model(name: str, what: str) -> Iterator[Any]:
+    """A gmsh session holding one model ``name`` (quiet, one thread); any gmsh error inside becomes one
+    ConfigError line naming the tree and ``what`` gmsh could not do; gmsh is finalized on the way out."""
     import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
 
-    t0 = time.perf_counter()
-    caps: dict[str, tuple[Any, Any, float]] = {}
     gmsh.initialize(interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add(tree.name)
+        gmsh.model.add(name)
         try:
-            volumes, assigned, wall = _lumen(gmsh, tree, caps)
-            groups = {k: gmsh.model.addPhysicalGroup(2, v) for k, v in assigned.items()}
-            groups["wall"] = gmsh.model.addPhysicalGroup(2, wall)
-            for k, g in groups.items():
-                gmsh.model.setPhysicalName(2, g, k)
-            gmsh.model.setPhysicalName(3, gmsh.model.addPhysicalGroup(3, [volumes[0][1]]), "lumen")
-            h = settings.mesh_size_m
-            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.01 * h)
-            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", settings.wall_elements_per_circle)
-            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
-            gmsh.option.setNumber("Mesh.Algorithm", 6)
-            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-            gmsh.option.setNumber("Mesh.Optimize", 1)
-            gmsh.model.mesh.generate(3)
-            node_tags, coords, _ = gmsh.model.mesh.getNodes()
-            types, _et, enodes = gmsh.model.mesh.getElements(3)
-            tets_raw = np.concatenate([np.asarray(en, dtype=np.int64) for ty, en in zip(types, enodes) if ty == 4])
-            tris: dict[str, npt.NDArray[np.int64]] = {}
-            for k, g in groups.items():
-                parts = []
-                for s in gmsh.model.getEntitiesForPhysicalGroup(2, g):
-                    ty2, _e2, en2 = gmsh.model.mesh.getElements(2, int(s))
-                    parts += [np.asarray(en, dtype=np.int64) for ty, en in zip(ty2, en2) if ty == 2]
-                tris[k] = np.concatenate(parts).reshape(-1, 3)
+            yield gmsh
         except ConfigError:
             raise
         except Exception as exc:  # noqa: BLE001 - gmsh raises a bare Exception with its last error
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ConfigError(f"3-D tree {tree.name!r}: gmsh could not build the mesh: {msg}") from None
+            raise ConfigError(f"3-D tree {name!r}: gmsh could not {what}: {msg}") from None
     finally:
         gmsh.finalize()
+
+
+def mesh_tree(tree: Tree3D, settings: Flow3DSettings) -> Meshed3D:
+    """Mesh ``tree`` as one solid (see the module docstring); raises ConfigError if gmsh cannot."""
+    t0 = time.perf_counter()
+    caps: dict[str, tuple[Any, Any, float]] = {}
+    with _gmsh_model(tree.name, "build the mesh") as gmsh:
+        volumes, assigned, wall = _lumen(gmsh, tree, caps)
+        groups = {k: gmsh.model.addPhysicalGroup(2, v) for k, v in assigned.items()}
+        groups["wall"] = gmsh.model.addPhysicalGroup(2, wall)
+        for k, g in groups.items():
+            gmsh.model.setPhysicalName(2, g, k)
+        gmsh.model.setPhysicalName(3, gmsh.model.addPhysicalGroup(3, [volumes[0][1]]), "lumen")
+        h = settings.mesh_size_m
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.01 * h)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", settings.wall_elements_per_circle)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+        gmsh.option.setNumber("Mesh.Optimize", 1)
+        gmsh.model.mesh.generate(3)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        types, _et, enodes = gmsh.model.mesh.getElements(3)
+        tets_raw = np.concatenate([np.asarray(en, dtype=np.int64) for ty, en in zip(types, enodes) if ty == 4])
+        tris: dict[str, npt.NDArray[np.int64]] = {}
+        for k, g in groups.items():
+            parts = []
+            for s in gmsh.model.getEntitiesForPhysicalGroup(2, g):
+                ty2, _e2, en2 = gmsh.model.mesh.getElements(2, int(s))
+                parts += [np.asarray(en, dtype=np.int64) for ty, en in zip(ty2, en2) if ty == 2]
+            tris[k] = np.concatenate(parts).reshape(-1, 3)
     tags = np.asarray(node_tags, dtype=np.int64)
     xyz = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
     lookup = np.full(tags.max() + 1, -1, dtype=np.int64)
@@ -382,58 +392,44 @@ def mesh_wall(tree: Tree3D, sag_m: float = 0.5e-6, max_size_m: float = 1.0e-3) -
     Raises:
         ConfigError: gmsh cannot build the solid or mesh it.
     """
-    import gmsh  # deferred: heavy, and its wheel needs libGLU & co (tools/bootstrap.sh checks); only meshing needs it
-
     t0 = time.perf_counter()
     caps: dict[str, tuple[Any, Any, float]] = {}
-    gmsh.initialize(interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add(tree.name)
-        try:
-            _volumes, assigned, wall = _lumen(gmsh, tree, caps)
-            gmsh.option.setNumber("Mesh.MeshSizeMax", max_size_m)
-            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.01 * math.sqrt(sag_m * max_size_m))
-            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", _CURVATURE_PROBE)
-            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
-            gmsh.option.setNumber("Mesh.Algorithm", 6)
+    with _gmsh_model(tree.name, "mesh the wall") as gmsh:
+        _volumes, assigned, wall = _lumen(gmsh, tree, caps)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", max_size_m)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.01 * math.sqrt(sag_m * max_size_m))
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", _CURVATURE_PROBE)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
 
-            def size(_dim: int, _tag: int, _x: float, _y: float, _z: float, lc: float) -> float:
-                rho = lc * _CURVATURE_PROBE / (2.0 * math.pi)  # the curvature sizing's lc = 2 pi rho / N
-                return min(lc, math.sqrt(6.0 * rho * sag_m))
+        def size(_dim: int, _tag: int, _x: float, _y: float, _z: float, lc: float) -> float:
+            rho = lc * _CURVATURE_PROBE / (2.0 * math.pi)  # the curvature sizing's lc = 2 pi rho / N
+            return min(lc, math.sqrt(6.0 * rho * sag_m))
 
-            gmsh.model.mesh.setSizeCallback(size)
-            gmsh.model.mesh.generate(2)
-            node_tags, coords, _ = gmsh.model.mesh.getNodes()
-            tags = np.asarray(node_tags, dtype=np.int64)
-            xyz = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
-            lookup = np.full(tags.max() + 1, -1, dtype=np.int64)
-            lookup[tags] = np.arange(len(tags))
+        gmsh.model.mesh.setSizeCallback(size)
+        gmsh.model.mesh.generate(2)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        tags = np.asarray(node_tags, dtype=np.int64)
+        xyz = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+        lookup = np.full(tags.max() + 1, -1, dtype=np.int64)
+        lookup[tags] = np.arange(len(tags))
 
-            def triangles(surfaces: list[int]) -> npt.NDArray[np.int64]:
-                parts = []
-                for sf in surfaces:
-                    ty, _e, en = gmsh.model.mesh.getElements(2, int(sf))
-                    parts += [np.asarray(e, dtype=np.int64) for t, e in zip(ty, en) if t == 2]
-                return lookup[np.concatenate(parts).reshape(-1, 3)]
+        def triangles(surfaces: list[int]) -> npt.NDArray[np.int64]:
+            parts = []
+            for sf in surfaces:
+                ty, _e, en = gmsh.model.mesh.getElements(2, int(sf))
+                parts += [np.asarray(e, dtype=np.int64) for t, e in zip(ty, en) if t == 2]
+            return lookup[np.concatenate(parts).reshape(-1, 3)]
 
-            wall_tri = triangles(wall)
-            cap_tri = {k: triangles(v) for k, v in assigned.items()}
-            sag = []
-            for sf in wall:  # each triangle's centroid against its CAD surface
-                tri = triangles([sf])
-                cen = xyz[tri].mean(axis=1)
-                foot, _par = gmsh.model.getClosestPoint(2, int(sf), cen.ravel().tolist())
-                sag.append(np.linalg.norm(np.asarray(foot).reshape(-1, 3) - cen, axis=1))
-        except ConfigError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - gmsh raises a bare Exception with its last error
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ConfigError(f"3-D tree {tree.name!r}: gmsh could not mesh the wall: {msg}") from None
-    finally:
-        gmsh.finalize()
+        wall_tri = triangles(wall)
+        cap_tri = {k: triangles(v) for k, v in assigned.items()}
+        sag = []
+        for sf in wall:  # each triangle's centroid against its CAD surface
+            tri = triangles([sf])
+            cen = xyz[tri].mean(axis=1)
+            foot, _par = gmsh.model.getClosestPoint(2, int(sf), cen.ravel().tolist())
+            sag.append(np.linalg.norm(np.asarray(foot).reshape(-1, 3) - cen, axis=1))
     caps = _cap_normals(caps, xyz, cap_tri)
     used, inv = np.unique(wall_tri, return_inverse=True)
     sags = np.concatenate(sag)
