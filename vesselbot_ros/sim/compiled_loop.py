@@ -384,15 +384,15 @@ def run_kernel(
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,
     )
     if code != OK:
-        raise_for_code(code, tick, inp, y, ekf_arrays[3][:4].copy() if inp.ekf is not None else obs_y, err)
+        raise_for_code(code, tick, y, ekf_arrays[3][:4].copy() if inp.ekf is not None else obs_y, err)
     if inp.record_forces:
         cols["forces"] = forces
     return cols, plant_stats, model_stats
 
 
-def raise_for_code(code: int, tick: int, inp: LoopInputs, y: npt.NDArray[np.float64], obs_y: npt.NDArray[np.float64],
-                   err: npt.NDArray[np.float64]) -> None:
-    """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``.
+def raise_for_code(code: int, tick: int, y: npt.NDArray[np.float64], obs_y: npt.NDArray[np.float64],
+                   err: npt.NDArray[np.float64], axes: int = 2) -> None:
+    """Raise the per-tick loop's error for a kernel (planar, or on ``axes`` = 3) that stopped at ``tick`` with ``code``.
 
     ``y`` is the plant's state, ``obs_y`` the observer's ``(X, Z)`` when the kernel stopped.
     """
@@ -403,7 +403,8 @@ def raise_for_code(code: int, tick: int, inp: LoopInputs, y: npt.NDArray[np.floa
     if code == EKF_FAILED:
         raise ModelInputError(ekf_failure_message(err))
     if code == ESTIMATE_NONFINITE:
-        raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:2].copy()!r}, z_hat={obs_y[2:].copy()!r}")
+        raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:axes].copy()!r}, "
+                              f"z_hat={obs_y[axes:2 * axes].copy()!r}")
     if code == REFERENCE_NONFINITE:
         raise ModelInputError("controller: non-finite reference sample")
     if code == FLOW_SCALE_FAILED:

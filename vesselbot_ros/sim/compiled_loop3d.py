@@ -32,17 +32,18 @@ from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, integrator_vec
 from vesselbot_ros.control.imager3d import Imager3D, imager3d_frame, queue_rows
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D, hgo3d_update, law3d_command
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, failure_message
+from vesselbot_ros.physics.integrator import OK
 from vesselbot_ros.physics.kernel import I_R
 from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
 from vesselbot_ros.scanner.stages import SequencedCoil3D, SequencedImager3D, seq_coil3d_apply, seq_imager3d_frame
-from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns and stop codes
+from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop codes and errors
     COLUMNS,
     ESTIMATE_NONFINITE,
     FLOW_SCALE_FAILED,
     OBSERVER_FAILED,
     PLANT_FAILED,
     REFERENCE_NONFINITE,
+    raise_for_code,
 )
 from vesselbot_ros.sim.plant import PlantSimulator3D
 
@@ -282,16 +283,8 @@ def run_kernel3d(inp: LoopInputs3D, rng: np.random.Generator
         inp.ctrl_prm, inp.coil_prm, inp.seq_mode, inp.sv, inp.hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
         plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS3D), err)
-    if code == PLANT_FAILED:
-        raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))
-    if code == OBSERVER_FAILED:
-        raise ModelInputError(failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), obs_y.tolist()))
-    if code == ESTIMATE_NONFINITE:
-        raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:3].copy()!r}, z_hat={obs_y[3:].copy()!r}")
-    if code == REFERENCE_NONFINITE:
-        raise ModelInputError("controller: non-finite reference sample")
     if code != OK:
-        raise ModelInputError(f"compiled loop stopped at tick {tick} with code {code}")
+        raise_for_code(code, tick, y, obs_y, err, axes=3)
     if inp.record_forces:
         cols["forces"] = forces
     return cols, plant_stats, model_stats

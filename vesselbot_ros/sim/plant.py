@@ -174,10 +174,9 @@ class PlantSimulator3D(PlantSimulator):
         if y.shape != (6,) or not np.all(np.isfinite(y)):
             raise ModelInputError(f"initial state must be finite (3,) + (3,), got {p0_m!r}, {v0_m_per_s!r}")
         self.physics = physics
-        self.integrator = integrator
+        self.integrator = integrator  # and its packed vector (the setter)
         self.packed = packed3d(physics)
         self.p = self.packed.p
-        self._ig = integrator_vector(integrator)
         self._dt = float(dt_control_s)
         self._t0 = float(t0_s)
         self._k = 0
@@ -191,6 +190,16 @@ class PlantSimulator3D(PlantSimulator):
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
 
     # t_s, state ((6,): (x, y, z, vx, vy, vz)) and contact_state are the planar plant's
+
+    @property
+    def integrator(self) -> IntegratorParams:
+        """Integrator settings; setting them takes effect from the next step (as the planar plant's)."""
+        return self._integrator
+
+    @integrator.setter
+    def integrator(self, value: IntegratorParams) -> None:
+        self._integrator = value
+        self._ig = integrator_vector(value)
 
     def output(self, with_forces: bool = False) -> PlantOutput:
         """Ground truth at the current tick (see :class:`PlantOutput`)."""
