@@ -19,7 +19,7 @@ Standard: distance <= 5 um, normal <= 2 deg within 1 mm of the wall.
 
 ``--shipped`` validates the shipped trees' walls instead, as the 3-D plant builds them
 (:func:`vesselbot_ros.vessels.plant_field3d.wall_arrays`: the standard held within 1 mm of the wall in the lumen
-and 0.1 mm outside it; tube cells; the exact query pruned), per tree:
+and 0.1 mm outside it; model cells; the exact query pruned), per tree:
 
 * at random points in the band, inside and outside, the lookup against the exact query of the same (fine)
   surface: max distance error, max normal error (all points, and leaving out the ill-conditioned ones, where
@@ -237,8 +237,8 @@ def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
     wa = pf.wall_arrays(net, BloodParams())
     row: dict[str, float] = {"wall_arrays_s": time.perf_counter() - t0, "wall_triangles": float(len(fld.triangles)),
                              "wall_MB": sum(a.nbytes for a in wa.args) / 1e6}
-    row.update({k: float(v) for k, v in wa.stats.items() if k in ("build_s", "tube_cells", "exact_cells", "exact_fraction",
-                                                                  "exact_MB", "exact_triangles")})
+    row.update({k: float(v) for k, v in wa.stats.items() if k in ("build_s", "tube_cells", "model_cells_2", "model_cells_3",
+                                                                  "exact_cells", "exact_fraction", "exact_MB", "exact_triangles")})
     field = wf.WallField3D.__new__(wf.WallField3D)
     field.head, field.field, field.fine = wa.args[0], wa.args[1], wa.args[2]
     wall = fld.wall

@@ -4,8 +4,8 @@ The exact query of :mod:`vesselbot_ros.physics.meshed_wall3d` costs microseconds
 per point); the plant asks it at every force evaluation.  This module samples it once on a regular 3-D grid
 (the plant's grid, the flow's: nodes ``origin + h (i, j, k)``) and answers by interpolation, falling back to
 the exact query only in the cells where interpolation cannot meet the standard (within 1 mm of a wall,
-distance within 5 um and normal within 2 deg of the true wall), or a straight round tube fitted to a cell
-answers where it meets it.
+distance within 5 um and normal within 2 deg of the true wall), or the least of a few smooth models fitted
+to a cell (straight round tubes, ridges, planes) answers where it meets it.
 
 Samples (per node, ``NODE_STRIDE`` floats, float32 by default): the exact signed distance s (m, > 0 in the
 lumen), the smooth unit inward normal n (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), the
@@ -38,13 +38,24 @@ interpolated whatever the error: deep in a vessel, far outside it.  Any other ce
   ``tol_normal_deg`` that crosses an edge puts an edge midpoint or a face centre on the wrong side, so it is
   caught wherever it crosses the cell; the interpolation errors of smooth fields peak at those points.
 
-Tube cells (``tube``): a flagged cell wholly in the lumen is fitted a straight round tube from its corners --
-the axis along the least eigenvector of sum n_c n_c^T (a tube's normals all lie across its axis), through
-the point nearest the corners' normal lines, the radius the corners' mean s + their distance from the axis
--- and if the tube meets the tolerances at the cell's 19 test points, its corners and its eight sub-cell
-centres (the normal not within ``axis_m`` of the axis, where it is undefined to the facets' scale), the
-lookup answers by the tube: ``R - rho`` and the direction to the axis, exact for a straight round vessel,
-where the interpolation of the cone s = R - rho fails near the axis of a vessel narrower than the band.
+Model cells (``tube``): a flagged cell wholly in the lumen is answered, where it can be, by the least of one to
+``MODELS`` (3) local smooth models, each a straight round cylinder with a sign, ``s = sigma (rho - R)`` (rho: the
+distance from its axis; sigma = -1: a lumen's wall seen from within, the normal towards the axis; sigma = +1: a
+ridge -- a junction's crease, R = 0 -- or convex edge seen from outside, the normal away from it) or a plane,
+with the inward normal of the model that attains the least.  Fitted at build time from the exact query on the
+cell's lattice of spacing h / 4 (125 points: its corners, its 19 test points, its eight sub-cell centres among
+them): one model to all the points (a vessel's axis: the straight round tube of the old "tube cells"), else
+the points grouped in two, then three, by k-means on their normals and on their feet (q - s n), each group
+fitted a model -- the axis along the least eigenvector of its sum n n^T (a cylinder's normals lie across its
+axis), through the point nearest its normal lines, sigma by which side of the points that lies on, R the mean of
+``rho - sigma s``; or the plane of its mean normal, whichever is nearer its distances -- and the points
+regrouped by the model nearest their s and normal (twice).  The first that meets the tolerances at every
+lattice point within the band or h beyond it is kept (the models rounded to the storage's precision first); the
+normal is not tested within ``axis_m`` of the attaining model's axis: 5 um / tan(2 deg) = 0.14 mm, where the
+exact normal itself turns by more than 2 deg within 5 um (undefined to the standard; on the plant's walls the
+facets' wiggle of the exact smooth normal reaches 1-2.5 deg near a vessel's axis, where the tube's is radial).
+Exact for a straight round vessel, where the interpolation of the cone s = R - rho fails near the axis of a
+vessel narrower than the band.
 
 A flagged cell that reaches into the lumen is then refined once: ``refine``^3 sub-cells sampled exactly (the
 diameter interpolated from the cell's corners), each flagged by the same rules at spacing h / ``refine``;
@@ -65,11 +76,17 @@ no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylin
 0.66 / 0.99 deg are smoothed).  Flagged cells 0.003 / 0.03 / 1.9 %.  With ``refine`` = 2 the Y's worst
 normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
 smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
-see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and tubes on, the
-band 1 mm in and 0.1 mm out, ``--shipped``): distance within 1.9 um, normal within 1.5 / 1.2 / 1.8 deg
+see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
+the band 1 mm in and 0.1 mm out, ``--shipped``): distance within 1.9 um, normal within 1.5 / 1.2 / 1.7 deg
 (III-C / carotid / synthetic tree) wherever the exact normal itself is defined (does not turn by more than
-2 deg within 5 um); within micrometres of a medial surface 12 / 0 / 11 points in 2 x 10^5 are off by more,
-up to 113 deg (a sub-cell the surface bulges into between its test points, taking the other wall's side).
+2 deg within 5 um); within micrometres of a medial surface 17 / 0 / 31 points in 2 x 10^5 are off by more,
+up to 113 deg (a sub-cell the surface bulges into between its test points, taking the other wall's side; near
+a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with one tube per cell and
+the normal tested beyond 50 um of its axis, 13 / 0 / 14).  Model cells: 6147 / 194 / 19280 (of which 2 or 3
+models: 312 / 186 / 803), 3245 / 2204 / 9062 cells left exact (3386 / 2204 / 10510 with tubes only); the
+synthetic tree's bead (bench/bench_loop3d.py) meets the exact query at 17 % of its points (28 % with tubes
+only): where it is left, at junctions, its wall is no straight round tube, ridge or plane within 2 um over a
+cell, nor over a quarter of one, and in a crease's wedge the exact smooth normal takes one face's side.
 Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
 2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
 creases) goes to the exact query.
@@ -104,6 +121,11 @@ __all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_poin
 NODE_STRIDE = 8
 #: Every point of a cell of side h lies within this many h of one of its corners (half its diagonal).
 _HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
+#: Models per model cell; floats per model cell's record: ``MODELS`` models of ``NODE_STRIDE`` floats each (axis point, unit axis
+#: direction, radius, sign sigma; sigma = 0: a plane, 9: no model).
+MODELS = 3
+MODEL_REC = MODELS * NODE_STRIDE
+_NO_MODEL = 9.0
 
 Array = npt.NDArray[np.float64]
 
@@ -192,16 +214,18 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
             s, gx, gy, gz, _d = _interp(fine, fb, NODE_STRIDE * r1, NODE_STRIDE * r1 * r1, ux - a, uy - b, uz - c, h / r)
             return s, gx, gy, gz, dd
     if inside and flag <= -2.0:
-        s, gx, gy, gz = _tube(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * NODE_STRIDE)
+        s, gx, gy, gz, _rho = _models(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * MODEL_REC)
         return s, gx, gy, gz, dd
     s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
     return s, gx, gy, gz, dd
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _tube(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(s, inward normal) of the straight round tube of record ``rec[o:o + 7]`` (axis point, unit axis direction,
-    radius) at (px, py, pz): ``R - rho`` and the direction to the axis (rho: the distance from it)."""
+def _model(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(s, inward normal, rho) of the model of record ``rec[o:o + 8]`` (axis point, unit axis direction, radius R,
+    sign sigma) at (px, py, pz): ``sigma (rho - R)`` and ``sigma`` times the direction from the axis (rho: the
+    distance from it); sigma = 0: the plane through the point with unit normal the direction, ``R + a . (q - p)``
+    (rho: infinite)."""
     dx = px - float(rec[o])
     dy = py - float(rec[o + 1])
     dz = pz - float(rec[o + 2])
@@ -209,13 +233,32 @@ def _tube(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: 
     ay = float(rec[o + 4])
     az = float(rec[o + 5])
     a = dx * ax + dy * ay + dz * az
+    sg = float(rec[o + 7])
+    if sg == 0.0:
+        return float(rec[o + 6]) + a, ax, ay, az, np.inf
     dx -= a * ax
     dy -= a * ay
     dz -= a * az
     rho = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (rho > 0.0):
-        return float(rec[o + 6]), 0.0, 0.0, -1.0
-    return float(rec[o + 6]) - rho, -dx / rho, -dy / rho, -dz / rho
+        return -sg * float(rec[o + 6]), 0.0, 0.0, -1.0, 0.0
+    return sg * (rho - float(rec[o + 6])), sg * dx / rho, sg * dy / rho, sg * dz / rho, rho
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _models(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(s, inward normal, rho) of the model cell of record ``rec[o:o + MODEL_REC]``: the least of its models' s,
+    the normal (and distance from the axis) of the model that attains it (the first of equals)."""
+    s, gx, gy, gz, rho = _model(px, py, pz, rec, o)
+    for m in range(1, MODELS):
+        b = o + m * NODE_STRIDE
+        if float(rec[b + 7]) == _NO_MODEL:
+            break
+        s2, hx, hy, hz, r2 = _model(px, py, pz, rec, b)
+        if s2 < s:
+            s, gx, gy, gz, rho = s2, hx, hy, hz, r2
+    return s, gx, gy, gz, rho
+
 
 
 @numba.njit(cache=True)
@@ -569,93 +612,226 @@ def _lumen_diameters(head: Array, field: npt.NDArray[Any], q: Array, wargs: tupl
     return diam.ravel(), n
 
 
-@numba.njit(cache=True, parallel=True)
-def _tubes(head, field, cells, band, out_band, tol_s, cos_tol, cos_min, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fit a straight round tube to each cell of ``cells`` (m, 3) ``(i, j, k)`` from its corners' distances and
-    normals (module docstring) and test it at the cell's test points (the coarse rule); returns
-    (records (m, NODE_STRIDE) float64: axis point, unit direction, radius; passed (m,) bool).  The normal is
-    not tested within ``axis_m`` of the axis, where the wall's direction is undefined to the facets' scale."""
-    h = head[3]
-    nx = int(head[4])
-    ny = int(head[5])
-    m = cells.shape[0]
-    rec = np.zeros((m, NODE_STRIDE))
-    ok = np.zeros(m, dtype=np.bool_)
-    for e in numba.prange(m):
-        i = cells[e, 0]
-        j = cells[e, 1]
-        k = cells[e, 2]
-        xs = np.empty((8, 3))
-        ns = np.empty((8, 3))
-        ss = np.empty(8)
-        mm = np.zeros((3, 3))
-        spread = 1.0
-        for c in range(8):
-            b = (((k + (c >> 2)) * ny + j + ((c >> 1) & 1)) * nx + i + (c & 1)) * NODE_STRIDE
-            xs[c, 0] = head[0] + (i + (c & 1)) * h
-            xs[c, 1] = head[1] + (j + ((c >> 1) & 1)) * h
-            xs[c, 2] = head[2] + (k + (c >> 2)) * h
-            ss[c] = field[b]
-            for a in range(3):
-                ns[c, a] = field[b + 1 + a]
-            for a in range(3):
-                for q in range(3):
-                    mm[a, q] += ns[c, a] * ns[c, q]
-            for c2 in range(c):
-                spread = min(spread, ns[c, 0] * ns[c2, 0] + ns[c, 1] * ns[c2, 1] + ns[c, 2] * ns[c2, 2])
-        if spread > cos_min:
-            continue  # the corners' normals nearly parallel: no axis to fit
-        _w, v = np.linalg.eigh(mm)
-        t = v[:, 0].copy()  # the normals' least direction: the tube's axis
-        # the point nearest to the corners' normal lines (and to the cell's centre along the axis)
-        am = np.zeros((3, 3))
-        bm = np.zeros(3)
-        cen = np.zeros(3)
-        for c in range(8):
-            for a in range(3):
-                cen[a] += 0.125 * xs[c, a]
-        for c in range(8):
-            for a in range(3):
-                for q in range(3):
-                    pr = (1.0 if a == q else 0.0) - ns[c, a] * ns[c, q]
-                    am[a, q] += pr
-                    bm[a] += pr * xs[c, q]
+@numba.njit(cache=True)
+def _fit_model(qs, ss, ns, lab, c, f32, out, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fit ``out[o:o + NODE_STRIDE]`` to the points labelled ``c`` (positions ``qs``, exact s ``ss``, inward normals
+    ``ns``): a straight round cylinder (the axis along the least eigenvector of their sum n n^T, through the point
+    nearest their normal lines; sigma -1 if that lies ahead along the inward normals -- a lumen's wall seen from
+    within -- else +1: a ridge seen from outside; R the mean of their ``rho - sigma s``) or a plane (their mean
+    normal), whichever is nearer their distances.  Rounded to float32 if ``f32``.  Returns False if none."""
+    npt = 0
+    cen = np.zeros(3)
+    mm = np.zeros((3, 3))
+    nm = np.zeros(3)
+    for p in range(qs.shape[0]):
+        if lab[p] != c:
+            continue
+        npt += 1
         for a in range(3):
-            for q in range(3):
-                am[a, q] += t[a] * t[q]
-                bm[a] += t[a] * t[q] * cen[q]
-        pt = np.linalg.solve(am, bm)
-        rad = 0.0
-        for c in range(8):
-            dv = xs[c] - pt
-            al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
-            rad += 0.125 * (ss[c] + math.sqrt(max((dv ** 2).sum() - al * al, 0.0)))
-        for a in range(3):
-            rec[e, a] = pt[a]
-            rec[e, 3 + a] = t[a]
-        rec[e, 6] = rad
-        good = True
-        for tp in range(35):  # the 19 test points of the coarse rule and the 8 corners, and the 8 sub-cell centres
-            if tp < 27:
-                di = 0.5 * (tp % 3)
-                dj = 0.5 * ((tp // 3) % 3)
-                dk = 0.5 * (tp // 9)
-            else:
-                di = 0.25 + 0.5 * ((tp - 27) & 1)
-                dj = 0.25 + 0.5 * (((tp - 27) >> 1) & 1)
-                dk = 0.25 + 0.5 * ((tp - 27) >> 2)
-            qx = head[0] + (i + di) * h
-            qy = head[1] + (j + dj) * h
-            qz = head[2] + (k + dk) * h
-            es, ex, ey, ez = smooth_wall3d(qx, qy, qz, d, pbox, pstart, grid, nodes, index)
-            if _beyond(es, band, out_band, h):
+            cen[a] += qs[p, a]
+            nm[a] += ns[p, a]
+            for b in range(3):
+                mm[a, b] += ns[p, a] * ns[p, b]
+    if npt < 2:
+        return False
+    cen /= npt
+    L = math.sqrt((nm ** 2).sum())
+    if not (L > 0.0):
+        return False
+    nm /= L
+    best = np.inf
+    cand = np.zeros(NODE_STRIDE)
+    # the plane
+    r0 = 0.0
+    for p in range(qs.shape[0]):
+        if lab[p] == c:
+            r0 += (ss[p] - ((qs[p, 0] - cen[0]) * nm[0] + (qs[p, 1] - cen[1]) * nm[1] + (qs[p, 2] - cen[2]) * nm[2])) / npt
+    for a in range(3):
+        cand[a] = cen[a]
+        cand[3 + a] = nm[a]
+    cand[6] = r0
+    cand[7] = 0.0
+    for tr in range(2):
+        if tr == 1:  # the cylinder
+            _w, v = np.linalg.eigh(mm)
+            t = v[:, 0].copy()
+            am = np.zeros((3, 3))
+            bm = np.zeros(3)
+            off = 0.0
+            for p in range(qs.shape[0]):
+                if lab[p] != c:
+                    continue
+                for a in range(3):
+                    for b in range(3):
+                        pr = (1.0 if a == b else 0.0) - ns[p, a] * ns[p, b]
+                        am[a, b] += pr
+                        bm[a] += pr * qs[p, b]
+            for a in range(3):
+                for b in range(3):
+                    am[a, b] += t[a] * t[b]
+                    bm[a] += t[a] * t[b] * cen[b]
+            if abs(np.linalg.det(am)) < 1e-12 * npt ** 3:
                 continue
-            ms, mx, my, mz = _tube(qx, qy, qz, rec[e], 0)
-            if abs(ms - es) > tol_s or (rad - ms > axis_m and mx * ex + my * ey + mz * ez < cos_tol):
-                good = False
+            pt = np.linalg.solve(am, bm)
+            for p in range(qs.shape[0]):
+                if lab[p] == c:
+                    off += (pt[0] - qs[p, 0]) * ns[p, 0] + (pt[1] - qs[p, 1]) * ns[p, 1] + (pt[2] - qs[p, 2]) * ns[p, 2]
+            sg = -1.0 if off > 0.0 else 1.0
+            rad = 0.0
+            for p in range(qs.shape[0]):
+                if lab[p] != c:
+                    continue
+                dv = qs[p] - pt
+                al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
+                rad += (math.sqrt(max((dv ** 2).sum() - al * al, 0.0)) - sg * ss[p]) / npt
+            for a in range(3):
+                cand[a] = pt[a]
+                cand[3 + a] = t[a]
+            cand[6] = rad
+            cand[7] = sg
+        if f32:
+            for a in range(NODE_STRIDE):
+                cand[a] = float(np.float32(cand[a]))
+        err = 0.0
+        for p in range(qs.shape[0]):
+            if lab[p] == c:
+                ms, _x, _y, _z, _r = _model(qs[p, 0], qs[p, 1], qs[p, 2], cand, 0)
+                err = max(err, abs(ms - ss[p]))
+        if err < best:
+            best = err
+            for a in range(NODE_STRIDE):
+                out[o + a] = cand[a]
+    return best < np.inf
+
+
+@numba.njit(cache=True)
+def _kmeans(vec, k, lab):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Label the rows of ``vec`` (n, 3) with k clusters (farthest-point start, Lloyd's steps); False if one empties."""
+    n = vec.shape[0]
+    cen = np.zeros((k, 3))
+    mean = np.zeros(3)
+    for p in range(n):
+        mean += vec[p] / n
+    dmin = np.full(n, np.inf)
+    ref = mean.copy()
+    for c in range(k):
+        far = -1.0
+        arg = 0
+        for p in range(n):
+            dd = ((vec[p] - ref) ** 2).sum()
+            if c > 0:
+                dmin[p] = min(dmin[p], dd)
+                dd = dmin[p]
+            if dd > far:
+                far = dd
+                arg = p
+        cen[c] = vec[arg]
+        ref = vec[arg].copy()
+        if c == 0:
+            for p in range(n):
+                dmin[p] = ((vec[p] - ref) ** 2).sum()
+    for _it in range(12):
+        for p in range(n):
+            bd = np.inf
+            for c in range(k):
+                dd = ((vec[p] - cen[c]) ** 2).sum()
+                if dd < bd:
+                    bd = dd
+                    lab[p] = c
+        cnt = np.zeros(k)
+        cen[:] = 0.0
+        for p in range(n):
+            cnt[lab[p]] += 1.0
+            cen[lab[p]] += vec[p]
+        for c in range(k):
+            if cnt[c] == 0.0:
+                return False
+            cen[c] /= cnt[c]
+    return True
+
+
+@numba.njit(cache=True)
+def _check_models(rec, o, qs, ss, ns, use, tol_s, cos_tol, axis_m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the model cell ``rec[o:]`` answers within the tolerances at the points ``use`` (the normal not
+    tested within ``axis_m`` of the attaining model's axis)."""
+    for p in range(qs.shape[0]):
+        if not use[p]:
+            continue
+        ms, mx, my, mz, rho = _models(qs[p, 0], qs[p, 1], qs[p, 2], rec, o)
+        if abs(ms - ss[p]) > tol_s or (rho > axis_m and mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2] < cos_tol):
+            return False
+    return True
+
+
+@numba.njit(cache=True, parallel=True)
+def _model_cells(head, cells, nmax, lat, band, out_band, tol_s, cos_tol, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (module docstring) from the
+    exact query on its lattice of ``lat``^3 points (spacing h / (lat - 1): its corners, the 19 test points and
+    the sub-cell centres among them for lat = 5), and test it there (the points within the band or h beyond it).
+    Returns (records (m, MODEL_REC) float64, models used (m,) int64: 0 failed)."""
+    h = head[3]
+    m = cells.shape[0]
+    rec = np.zeros((m, MODEL_REC))
+    used = np.zeros(m, dtype=np.int64)
+    npt = lat * lat * lat
+    for e in numba.prange(m):
+        qs = np.empty((npt, 3))
+        ss = np.empty(npt)
+        ns = np.empty((npt, 3))
+        ft = np.empty((npt, 3))
+        use = np.zeros(npt, dtype=np.bool_)
+        lab = np.zeros(npt, dtype=np.int64)
+        for p in range(npt):
+            a = p % lat
+            b = (p // lat) % lat
+            c = p // (lat * lat)
+            qs[p, 0] = head[0] + (cells[e, 0] + a / (lat - 1)) * h
+            qs[p, 1] = head[1] + (cells[e, 1] + b / (lat - 1)) * h
+            qs[p, 2] = head[2] + (cells[e, 2] + c / (lat - 1)) * h
+            s, gx, gy, gz = smooth_wall3d(qs[p, 0], qs[p, 1], qs[p, 2], d, pbox, pstart, grid, nodes, index)
+            ss[p] = s
+            ns[p, 0] = gx
+            ns[p, 1] = gy
+            ns[p, 2] = gz
+            ft[p, 0] = qs[p, 0] - s * gx
+            ft[p, 1] = qs[p, 1] - s * gy
+            ft[p, 2] = qs[p, 2] - s * gz
+            use[p] = not _beyond(s, band, out_band, h)
+        r = rec[e]
+        done = False
+        for k in range(1, nmax + 1):
+            for how in range(2 if k > 1 else 1):
+                if k > 1 and not _kmeans(ns if how == 0 else ft, k, lab):
+                    continue
+                if k == 1:
+                    lab[:] = 0
+                for _it in range(3):  # fit, then give each point to the model nearest its s and normal
+                    ok = True
+                    for c in range(MODELS):
+                        r[c * NODE_STRIDE + 7] = _NO_MODEL
+                    for c in range(k):
+                        ok = ok and _fit_model(qs, ss, ns, lab, c, f32, r, c * NODE_STRIDE)
+                    if not ok:
+                        break
+                    if _check_models(r, 0, qs, ss, ns, use, tol_s, cos_tol, axis_m):
+                        done = True
+                        break
+                    if k == 1:
+                        break
+                    for p in range(npt):
+                        bd = np.inf
+                        for c in range(k):
+                            ms, mx, my, mz, _rho = _model(qs[p, 0], qs[p, 1], qs[p, 2], r, c * NODE_STRIDE)
+                            dd = abs(ms - ss[p]) / tol_s + (1.0 - (mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2])) / (1.0 - cos_tol)
+                            if dd < bd:
+                                bd = dd
+                                lab[p] = c
+                if done:
+                    break
+            if done:
+                used[e] = k
                 break
-        ok[e] = good
-    return rec, ok
+    return rec, used
 
 
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
@@ -679,9 +855,10 @@ class WallField3D:
         wall: The exact wall (:class:`~vesselbot_ros.physics.meshed_wall3d.Wall3D`).
         head: (8,) ``(x0, y0, z0, h, nx, ny, nz, r)``: origin (m), spacing (m), nodes per axis, refinement.
         field: (nx ny nz NODE_STRIDE,) node records, x fastest (float32 or float64); slot 5 of a cell's lowest
-            corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``.
+            corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``, -2 - m model cell m (its
+            ``MODEL_REC`` floats at ``fine[head[8] + m MODEL_REC]``).
         fine: Refined blocks, (r + 1)^3 records each (sub-nodes of spacing h / r, x fastest); slot 5 of a
-            sub-cell's lowest sub-node: 0 interpolate, -1 exact.
+            sub-cell's lowest sub-node: 0 interpolate, -1 exact; then the model cells' records.
         stats: Build figures: cells, flagged cells (by spread, by test point), refined blocks, sub-cells left
             exact, tested cells, seconds per stage, megabytes.
     """
@@ -703,7 +880,8 @@ class WallField3D:
         return int(self.head[4]), int(self.head[5]), int(self.head[6])
 
     def flags(self) -> npt.NDArray[np.float64]:
-        """(nz - 1, ny - 1, nx - 1) the cells' flags: 0 interpolated, -1 exact, b > 0 refined (block b)."""
+        """(nz - 1, ny - 1, nx - 1) the cells' flags: 0 interpolated, -1 exact, b > 0 refined (block b), <= -2 model
+        cell."""
         nx, ny, nz = self.shape
         f = self.field.reshape(nz, ny, nx, NODE_STRIDE)[:, :, :, 5]
         return np.asarray(f[:-1, :-1, :-1], dtype=np.float64)
@@ -786,7 +964,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
-                       exact_max_depth: int = 0, tube: bool = False, axis_m: float = 50e-6) -> WallField3D:
+                       exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
+                       models: int = MODELS) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -808,10 +987,13 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
             it, as beyond ``band_m`` inside, cells are interpolated whatever the error.
         prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
             lookup carries the wall's whole candidate tree.
-        tube: A flagged cell wholly in the lumen whose straight round tube (fitted to its corners) meets the
-            tolerances at its test points is answered by the tube (for fine walls: on 0.1 mm facets the exact
-            normal's facet-scale wiggle between the test points can take a tube cell's error past 2 deg).
-        axis_m: ... the normal not tested within this (m) of the tube's axis (its direction is undefined there).
+        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (module docstring)
+            meets the tolerances at its lattice of 125 points is answered by them (for fine walls: on 0.1 mm
+            facets the exact normal's facet-scale wiggle between the test points can take a model cell's error
+            past 2 deg).
+        axis_m: ... the normal not tested within this (m) of the attaining model's axis (the exact normal turns
+            by more than 2 deg within 5 um there).
+        models: The most models per model cell (1: one straight round tube per cell).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
 
@@ -875,21 +1057,24 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         reach |= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_of = np.zeros((nz, ny, nx), dtype=bool)
     cell_of[:-1, :-1, :-1] = reach
-    # first the flagged cells wholly in the lumen that a straight round tube answers (a vessel's axis)
+    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (module docstring)
     inner = np.ones((nz - 1, ny - 1, nx - 1), dtype=bool)
     for c in range(8):
         inner &= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_in = np.zeros((nz, ny, nx), dtype=bool)
     cell_in[:-1, :-1, :-1] = inner
     cand = np.nonzero((rec[:, 5] != 0) & cell_in.ravel())[0]
-    tubes = np.zeros((0, NODE_STRIDE))
+    mrec = np.zeros((0, MODEL_REC))
+    n_used = np.zeros(MODELS + 1, dtype=np.int64)
     if tube and cand.size:
         kk, rem = np.divmod(cand, nx * ny)
         jj, ii = np.divmod(rem, nx)
-        trec, passed = _tubes(head, field, np.ascontiguousarray(np.column_stack([ii, jj, kk])), band_m, out_band, tol_dist_m,
-                              cos_tol, math.cos(math.radians(5.0)), axis_m, *wargs)
-        tubes = trec[passed]
-        rec[cand[passed], 5] = -2.0 - np.arange(tubes.shape[0])
+        allrec, used = _model_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), min(max(1, int(models)), MODELS),
+                                    5, band_m, out_band, tol_dist_m, cos_tol, axis_m, np.dtype(dtype) == np.float32, *wargs)
+        passed = used > 0
+        mrec = allrec[passed]
+        n_used = np.bincount(used, minlength=MODELS + 1)
+        rec[cand[passed], 5] = -2.0 - np.arange(mrec.shape[0])
     t3b = time.perf_counter()
     flagged = np.nonzero((rec[:, 5] > -2.0) & (rec[:, 5] != 0) & cell_of.ravel())[0]
     kk, rem = np.divmod(flagged, nx * ny)
@@ -910,7 +1095,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         sub_exact = int(keep.size * r ** 3 - good[keep].sum())
         exact_blocks = flagged[keep[good[keep] < r ** 3]]
     head[8] = fine.size
-    fine = np.ascontiguousarray(np.concatenate([fine, tubes.ravel().astype(dtype)]))
+    fine = np.ascontiguousarray(np.concatenate([fine, mrec.ravel().astype(dtype)]))
     t4 = time.perf_counter()
     # the exact query's arrays, pruned to the leaves the lookup can ask: those of the cells it answers
     # exactly and those reaching outside the grid
@@ -928,7 +1113,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
              "exact_cells": float(n_exact), "exact_subcells": float(sub_exact),
              "exact_fraction": (n_exact + sub_exact / max(r, 1) ** 3) / cells, "lumen_nodes": float((diam > 0).sum()),
              "exact_balls": float(n_balls),
-             "tube_cells": float(tubes.shape[0]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
+             "tube_cells": float(mrec.shape[0]), "model_cells_1": float(n_used[1]), "model_cells_2": float(n_used[2]),
+             "model_cells_3": float(n_used[3]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
              "exact_MB": sum(a.nbytes for a in exact) / 1e6, "exact_index": float(exact[5].size),
              "exact_nodes": float(len(exact[4])), "exact_triangles": float(exact[0].size // 48),
              "sample_s": t1 - t0, "diameter_s": t2 - t1, "flag_s": t3 - t2, "tube_s": t3b - t3, "refine_s": t4 - t3b, "prune_s": t5 - t4,
