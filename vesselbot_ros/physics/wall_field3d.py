@@ -62,7 +62,24 @@ diameter interpolated from the cell's corners), each flagged by the same rules a
 the lookup interpolates in a good sub-cell and asks the exact query in a flagged one (and in a flagged cell
 with no good sub-cell).  Outside the grid the exact query answers (the diameter from the nearest edge cell).
 
-Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells and off the grid, so
+List cells (``list_max``): the exact query is slow at a medial point because many triangles are nearly as
+near as the nearest (a ring round a vessel's axis, a strip along a crease), and its candidate lists must hold
+them all for every point of a 0.1 mm leaf; yet over one cell only a few triangles are ever the nearest.  So an
+exact cell (or one with exact sub-cells) wholly in the lumen is given the triangles the exact query finds
+nearest at its lattice of ``list_lattice``^3 points (17^3: spacing h / 16), nearest its centre first, if they
+are at most ``list_max``, and kept if the scan over them -- the exact query's bounds, closest points and tie
+rule (the lowest index), so bit for bit its answer wherever the list holds the nearest triangle -- answers as
+the exact query, bit for bit, at the centres of the cell's 1000 sub-cubes; the lookup then scans the list (its
+triangle indices stored after the model records in ``fine``, its offset and length in the cell's lowest node's
+slots 6 and 7) instead of asking the candidate tree.  Not a proof: a point between the lattice points whose
+nearest triangle is missing gets the nearest of the list, a triangle beside it.  This keeps the exact
+query's own normal where no smooth model can: in a crease's wedge (the foot on a crease edge) the exact smooth
+normal takes one face's side: where the shipped runs' beads met the exact query it was up to 94 / 54 / 102 deg
+(III-C / carotid / synthetic tree; median 39 / 39 / 12 deg) off the distance's gradient, the direction from the
+crease.
+
+Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells (list cells
+included: their triangles are the pruned arrays') and off the grid, so
 the lookup carries the wall's candidate tree cut down to the leaves holding a point of those (split there
 to ``exact_max_depth`` for short lists), the other leaves emptied and their subtrees collapsed, and only the
 triangles those lists name (int32 lists and nodes); off the grid a leaf wholly outside the lumen, save near
@@ -77,16 +94,22 @@ no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylin
 normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
 smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
 see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
-the band 1 mm in and 0.1 mm out, ``--shipped``): distance within 1.9 um, normal within 1.5 / 1.2 / 1.7 deg
-(III-C / carotid / synthetic tree) wherever the exact normal itself is defined (does not turn by more than
-2 deg within 5 um); within micrometres of a medial surface 17 / 0 / 31 points in 2 x 10^5 are off by more,
-up to 113 deg (a sub-cell the surface bulges into between its test points, taking the other wall's side; near
-a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with one tube per cell and
-the normal tested beyond 50 um of its axis, 13 / 0 / 14).  Model cells: 6147 / 194 / 19280 (of which 2 or 3
-models: 312 / 186 / 803), 3245 / 2204 / 9062 cells left exact (3386 / 2204 / 10510 with tubes only); the
-synthetic tree's bead (bench/bench_loop3d.py) meets the exact query at 17 % of its points (28 % with tubes
-only): where it is left, at junctions, its wall is no straight round tube, ridge or plane within 2 um over a
-cell, nor over a quarter of one, and in a crease's wedge the exact smooth normal takes one face's side.
+the band 1 mm in and 0.1 mm out, list cells of up to 256 triangles, ``--shipped``): distance within 1.9 um,
+normal within 1.5 / 1.2 / 1.7 deg (III-C / carotid / synthetic tree) wherever the exact normal itself is defined
+(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 18 / 0 / 31 points in
+2 x 10^5 are off by more, up to 113 deg (a sub-cell the surface bulges into between its test points, taking the
+other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with
+one tube per cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  Model cells:
+6147 / 194 / 19276 (of which 2 or 3 models: 312 / 186 / 803); exact cells 3245 / 2204 / 9062 (3386 / 2204 /
+10510 with tubes only), of which, with those with exact sub-cells, 5204 / 3532 / 13643 are list cells (28 / 31
+/ 32 triangles on average); the exact query answers 0.3 / 0.3 / 0.6 % of the points in the band (2.1 / 1.7 /
+4.1 % before).  At the points the shipped runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5
+/ 0.0 / 5.1 % and list cells 4.0 / 0.9 / 12.5 % (exact 4.5 / 0.9 / 27.5 % with tubes only); where the exact
+query is left, at the synthetic tree's junctions, the wall is no straight round tube, ridge or plane within
+2 um over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss
+the check.  Build
+(a loaded 2-core machine): 130 / 51 / 61 s, of which the model cells 31 / 2 / 12 s and the list cells 52 / 5 /
+33 s.
 Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
 2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
 creases) goes to the exact query.
@@ -105,6 +128,11 @@ import numpy.typing as npt
 from vesselbot_ros.physics.meshed_wall3d import (
     CandidateTree,
     Wall3D,
+    _closest,
+    _leaf,
+    _scan,
+    _signed,
+    _smooth_normal,
     ball_diameters3d,
     centre_distances,
     leaves3d,
@@ -116,8 +144,9 @@ from vesselbot_ros.physics.meshed_wall3d import (
 
 __all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d"]
 
-#: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5),
-#: 6-7 unused (32 bytes in float32: two nodes per cache line).
+#: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5), its
+#: triangle list's offset in ``fine`` and length if it is a list cell (6-7; 0: none) (32 bytes in float32: two nodes
+#: per cache line).
 NODE_STRIDE = 8
 #: Every point of a cell of side h lies within this many h of one of its corners (half its diagonal).
 _HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
@@ -216,6 +245,9 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
     if inside and flag <= -2.0:
         s, gx, gy, gz, _rho = _models(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * MODEL_REC)
         return s, gx, gy, gz, dd
+    if inside and field[base + 7] > 0.0:
+        s, gx, gy, gz = _scan_list(px, py, pz, d, fine, int(field[base + 6]), int(field[base + 7]))
+        return s, gx, gy, gz, dd
     s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
     return s, gx, gy, gz, dd
 
@@ -259,6 +291,83 @@ def _models(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel
             s, gx, gy, gz, rho = s2, hx, hy, hz, r2
     return s, gx, gy, gz, rho
 
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d` over the triangles ``lst[o:o + n]`` (their indices,
+    nearest the cell's centre first) of a list cell: the same bounds, closest points and tie rule (the lowest
+    index), so bit for bit its answer wherever the list holds the nearest triangle."""
+    tbest = int(lst[o])
+    best, fx, fy, fz, feat = _closest(px, py, pz, d, 48 * tbest + 8)
+    for e in range(o + 1, o + n):
+        t = int(lst[e])
+        b = 48 * t
+        sx = px - d[b]
+        sy = py - d[b + 1]
+        sz = pz - d[b + 2]
+        hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
+        h2 = hn * hn
+        if h2 > best:
+            continue
+        rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
+        if rin > 0.0 and h2 + rin * rin > best:
+            continue
+        d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
+        if d2 < best or (d2 == best and t < tbest):
+            best = d2
+            fx = gx
+            fy = gy
+            fz = gz
+            feat = f
+            tbest = t
+    s, nx, ny, nz = _signed(px, py, pz, d, best, fx, fy, fz, feat, tbest)
+    gx, gy, gz = _smooth_normal(px, py, pz, d, tbest, s, nx, ny, nz)
+    return s, gx, gy, gz
+
+
+@numba.njit(cache=True, parallel=True)
+def _list_cells(head, cells, lat, nver, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Per cell of ``cells`` (m, 3) ``(i, j, k)``: the triangles nearest its ``lat``^3 lattice points (the exact
+    query's), nearest its centre first, kept if at most ``maxlen`` and if the scan over them
+    (:func:`_scan_list`) answers as the exact query, bit for bit, at the ``nver``^3 centres of the cell's
+    sub-cubes of side h / ``nver``.  Returns (lists (m, maxlen) int64, lengths (m,) int64: 0 none)."""
+    h = head[3]
+    m = cells.shape[0]
+    out = np.zeros((m, maxlen), dtype=np.int64)
+    ln = np.zeros(m, dtype=np.int64)
+    for e in numba.prange(m):
+        x0 = head[0] + cells[e, 0] * h
+        y0 = head[1] + cells[e, 1] * h
+        z0 = head[2] + cells[e, 2] * h
+        ts = np.empty(lat * lat * lat, dtype=np.int64)
+        for p in range(lat * lat * lat):
+            px = x0 + h * (p % lat) / (lat - 1)
+            py = y0 + h * ((p // lat) % lat) / (lat - 1)
+            pz = z0 + h * (p // (lat * lat)) / (lat - 1)
+            leaf = _leaf(px, py, pz, grid, nodes)
+            ts[p] = _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])[5]
+        u = np.unique(ts)
+        if u.size > maxlen or u[0] < 0:
+            continue
+        dc = np.empty(u.size)
+        for a in range(u.size):
+            dc[a] = _closest(x0 + 0.5 * h, y0 + 0.5 * h, z0 + 0.5 * h, d, 48 * u[a] + 8)[0]
+        lst = u[np.argsort(dc, kind="mergesort")]
+        ok = True
+        for p in range(nver * nver * nver):
+            px = x0 + h * (p % nver + 0.5) / nver
+            py = y0 + h * ((p // nver) % nver + 0.5) / nver
+            pz = z0 + h * (p // (nver * nver) + 0.5) / nver
+            r1 = _scan_list(px, py, pz, d, lst, 0, lst.size)
+            r2 = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
+            if r1[0] != r2[0] or r1[1] != r2[1] or r1[2] != r2[2] or r1[3] != r2[3]:
+                ok = False
+                break
+        if ok:
+            out[e, :lst.size] = lst
+            ln[e] = lst.size
+    return out, ln
 
 
 @numba.njit(cache=True)
@@ -858,7 +967,8 @@ class WallField3D:
             corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``, -2 - m model cell m (its
             ``MODEL_REC`` floats at ``fine[head[8] + m MODEL_REC]``).
         fine: Refined blocks, (r + 1)^3 records each (sub-nodes of spacing h / r, x fastest); slot 5 of a
-            sub-cell's lowest sub-node: 0 interpolate, -1 exact; then the model cells' records.
+            sub-cell's lowest sub-node: 0 interpolate, -1 exact; then the model cells' records, then the list
+            cells' triangle indices.
         stats: Build figures: cells, flagged cells (by spread, by test point), refined blocks, sub-cells left
             exact, tested cells, seconds per stage, megabytes.
     """
@@ -887,7 +997,27 @@ class WallField3D:
         return np.asarray(f[:-1, :-1, :-1], dtype=np.float64)
 
     def exact_mask(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-        """(m,) whether the lookup answers each point (m, 3) (m) by the exact query (outside the grid included)."""
+        """(m,) whether the lookup answers each point (m, 3) (m) by the exact query (outside the grid included; not
+        a list cell's scan)."""
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        return np.asarray(self.exact_mask_raw(q) & ~self._listed(q))
+
+    def list_mask(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(m,) whether the lookup answers each point (m, 3) (m) by a list cell's short scan."""
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        return np.asarray(self.exact_mask_raw(q) & self._listed(q))
+
+    def _listed(self, q: Array) -> npt.NDArray[np.bool_]:
+        """(m,) whether each point lies in a list cell (in the grid)."""
+        n = np.array(self.shape)
+        ijk = np.floor((q - self.head[:3]) / self.head[3]).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < n - 1)).all(axis=1)
+        ijk = np.clip(ijk, 0, n - 2)
+        rec = self.field.reshape(n[2], n[1], n[0], NODE_STRIDE)
+        return np.asarray(inside & (rec[ijk[:, 2], ijk[:, 1], ijk[:, 0], 7] > 0))
+
+    def exact_mask_raw(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(m,) whether each point (m, 3) (m) lies off the grid or in an exact cell or sub-cell (list cells included)."""
         q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
         h = self.head[3]
         n = np.array(self.shape)
@@ -965,7 +1095,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
                        exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
-                       models: int = MODELS) -> WallField3D:
+                       models: int = MODELS, list_max: int = 0, list_lattice: int = 17) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -994,6 +1124,9 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         axis_m: ... the normal not tested within this (m) of the attaining model's axis (the exact normal turns
             by more than 2 deg within 5 um there).
         models: The most models per model cell (1: one straight round tube per cell).
+        list_max: An exact cell (or one with exact sub-cells) wholly in the lumen whose nearest triangles at its
+            ``list_lattice``^3 lattice points are at most this many, and whose scan over them answers as the exact
+            query at the centres of its 1000 sub-cubes, is answered by that scan (module docstring).  0: none.
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
 
@@ -1105,6 +1238,26 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         exact = _pruned(wall, head, np.concatenate([np.nonzero(rec[:, 5] == -1.0)[0], exact_blocks]), exact_max_leaf,
                         exact_max_depth)
     t5 = time.perf_counter()
+    # list cells: the exact cells and those with exact sub-cells, wholly in the lumen, whose few nearest triangles
+    # a short scan answers as the exact query
+    n_lists = 0
+    list_len = 0
+    if list_max > 0:
+        lcells = np.concatenate([np.nonzero((rec[:, 5] == -1.0) & cell_in.ravel())[0], exact_blocks[cell_in.ravel()[exact_blocks]]])
+        if lcells.size:
+            kk, rem = np.divmod(lcells, nx * ny)
+            jj, ii = np.divmod(rem, nx)
+            lists, lens = _list_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), int(list_lattice), 10,
+                                      int(list_max), *exact)
+            off = fine.size + np.concatenate([[0], np.cumsum(lens)[:-1]])
+            ok = (lens > 0) & (off + lens < (2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52))
+            rec[lcells[ok], 6] = off[ok]
+            rec[lcells[ok], 7] = lens[ok]
+            flat = np.concatenate([lists[e, :lens[e]] for e in np.nonzero(ok)[0]]) if ok.any() else np.zeros(0, np.int64)
+            fine = np.ascontiguousarray(np.concatenate([fine, flat.astype(dtype)]))
+            n_lists = int(ok.sum())
+            list_len = int(lens[ok].sum())
+    t6 = time.perf_counter()
     cells = (nx - 1) * (ny - 1) * (nz - 1)
     n_exact = int((rec[:, 5] == -1.0).sum())
     stats = {"nodes": float(nx * ny * nz), "cells": float(cells), "flagged_spread": float(counts[0]),
@@ -1117,6 +1270,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
              "model_cells_3": float(n_used[3]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
              "exact_MB": sum(a.nbytes for a in exact) / 1e6, "exact_index": float(exact[5].size),
              "exact_nodes": float(len(exact[4])), "exact_triangles": float(exact[0].size // 48),
+             "list_cells": float(n_lists), "list_mean_len": list_len / max(n_lists, 1),
              "sample_s": t1 - t0, "diameter_s": t2 - t1, "flag_s": t3 - t2, "tube_s": t3b - t3, "refine_s": t4 - t3b, "prune_s": t5 - t4,
-             "build_s": t5 - t0}
+             "list_s": t6 - t5, "build_s": t6 - t0}
     return WallField3D(wall, head, field, fine, stats, exact)
