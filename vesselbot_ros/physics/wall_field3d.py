@@ -54,6 +54,12 @@ lattice point within the band or h beyond it is kept (the models rounded to the 
 normal is not tested within ``axis_m`` of the attaining model's axis: 5 um / tan(2 deg) = 0.14 mm, where the
 exact normal itself turns by more than 2 deg within 5 um (undefined to the standard; on the plant's walls the
 facets' wiggle of the exact smooth normal reaches 1-2.5 deg near a vessel's axis, where the tube's is radial).
+The cell is then checked against the standard itself on its finer lattice of 9^3 points (spacing h / 8): the
+distance within ``tol_dist_m``, the normal within 1.5 deg, but within ``axis_m`` of the axis where the exact
+normal turns by more than 8 deg to a lattice neighbour (12.5 um away); else it is left exact.  (Without that
+check, at random points of the model cells, the normal was off by up to 5.5 deg at 11 well-conditioned points
+in 2 x 10^4 of the carotid's bulb, split between two nearly tangent wide cylinders, and by up to 16 deg at 3 in
+7 x 10^4 of the synthetic tree's, 46-67 um from a tube's axis where the wall is no round tube.)
 Exact for a straight round vessel, where the interpolation of the cone s = R - rho fails near the axis of a
 vessel narrower than the band.
 
@@ -96,20 +102,21 @@ smooth normal takes one face's side, jumping at the facets' scale, which 19 test
 see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
 the band 1 mm in and 0.1 mm out, list cells of up to 256 triangles, ``--shipped``): distance within 1.9 um,
 normal within 1.5 / 1.2 / 1.7 deg (III-C / carotid / synthetic tree) wherever the exact normal itself is defined
-(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 18 / 0 / 31 points in
+(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 15 / 0 / 15 points in
 2 x 10^5 are off by more, up to 113 deg (a sub-cell the surface bulges into between its test points, taking the
 other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with
-one tube per cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  Model cells:
-6147 / 194 / 19276 (of which 2 or 3 models: 312 / 186 / 803); exact cells 3245 / 2204 / 9062 (3386 / 2204 /
-10510 with tubes only), of which, with those with exact sub-cells, 5204 / 3532 / 13643 are list cells (28 / 31
-/ 32 triangles on average); the exact query answers 0.3 / 0.3 / 0.6 % of the points in the band (2.1 / 1.7 /
-4.1 % before).  At the points the shipped runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5
-/ 0.0 / 5.1 % and list cells 4.0 / 0.9 / 12.5 % (exact 4.5 / 0.9 / 27.5 % with tubes only); where the exact
-query is left, at the synthetic tree's junctions, the wall is no straight round tube, ridge or plane within
-2 um over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss
-the check.  Build
-(a loaded 2-core machine): 130 / 51 / 61 s, of which the model cells 31 / 2 / 12 s and the list cells 52 / 5 /
-33 s.
+one tube per cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  At 10^5 random
+points of the model cells themselves: distance within 1.2 um, normal within 1.2 / 1.8 / 1.4 deg where the exact
+one is defined.  Model cells: 5307 / 133 / 16861 (of which 2 or 3 models: 196 / 125 / 549); exact cells 3316 /
+2204 / 10194 (3386 / 2204 / 10510 with tubes only), of which, with those with exact sub-cells, 5748 / 3580 /
+15358 are list cells (36 / 32 / 44 triangles on average); the exact query answers 0.3 / 0.3 / 0.7 % of the
+points in the band (2.1 / 1.7 / 4.1 % with tubes only), list cells 1.8 / 1.4 / 3.4 %.  At the points the shipped
+runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5 / 0.0 / 9.7 % and list cells 4.1 / 0.9 /
+15.6 % (exact 4.5 / 0.9 / 27.5 % with tubes only); where the exact query is left, at the synthetic tree's
+junctions and near its vessels' axes, the wall is no straight round tube, ridge or plane within the standard
+over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss the
+check.  Build (a loaded 2-core machine): 33 / 61 / 89 s, of which the model cells 10 / 12 / 25 s and the list
+cells 16 / 10 / 48 s.
 Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
 2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
 creases) goes to the exact query.
@@ -873,10 +880,11 @@ def _check_models(rec, o, qs, ss, ns, use, tol_s, cos_tol, axis_m):  # type: ign
 
 
 @numba.njit(cache=True, parallel=True)
-def _model_cells(head, cells, nmax, lat, band, out_band, tol_s, cos_tol, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _model_cells(head, cells, nmax, lat, vlat, band, out_band, tol_s, cos_tol, cos_std, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (module docstring) from the
     exact query on its lattice of ``lat``^3 points (spacing h / (lat - 1): its corners, the 19 test points and
     the sub-cell centres among them for lat = 5), and test it there (the points within the band or h beyond it).
+    Kept only if it meets the standard on the finer lattice of ``vlat``^3 points too (:func:`_verify_models`).
     Returns (records (m, MODEL_REC) float64, models used (m,) int64: 0 failed)."""
     h = head[3]
     m = cells.shape[0]
@@ -940,7 +948,60 @@ def _model_cells(head, cells, nmax, lat, band, out_band, tol_s, cos_tol, axis_m,
             if done:
                 used[e] = k
                 break
+        if used[e] > 0 and not _verify_models(r, head, cells[e], vlat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart,
+                                               grid, nodes, index):
+            used[e] = 0
     return rec, used
+
+
+@numba.njit(cache=True)
+def _verify_models(r, head, cell, lat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the model cell ``r`` meets the standard on the cell's finer lattice of ``lat``^3 points: the distance
+    within ``tol_s`` and the normal within ``cos_std`` of the exact query's, but where the attaining model's axis is
+    within ``axis_m`` and the exact normal turns by more than 8 deg to a lattice neighbour (h / (lat - 1) away:
+    more than 3 deg within 5 um at h = 0.1 mm, lat = 9 -- undefined to the standard)."""
+    h = head[3]
+    n = lat * lat * lat
+    es = np.empty(n)
+    en = np.empty((n, 3))
+    for p in range(n):
+        x = head[0] + (cell[0] + (p % lat) / (lat - 1)) * h
+        y = head[1] + (cell[1] + ((p // lat) % lat) / (lat - 1)) * h
+        z = head[2] + (cell[2] + (p // (lat * lat)) / (lat - 1)) * h
+        s, gx, gy, gz = smooth_wall3d(x, y, z, d, pbox, pstart, grid, nodes, index)
+        es[p] = s
+        en[p, 0] = gx
+        en[p, 1] = gy
+        en[p, 2] = gz
+    cos_ill = math.cos(math.radians(8.0))
+    for p in range(n):
+        if _beyond(es[p], band, out_band, h):
+            continue
+        a = p % lat
+        b = (p // lat) % lat
+        c = p // (lat * lat)
+        x = head[0] + (cell[0] + a / (lat - 1)) * h
+        y = head[1] + (cell[1] + b / (lat - 1)) * h
+        z = head[2] + (cell[2] + c / (lat - 1)) * h
+        ms, mx, my, mz, rho = _models(x, y, z, r, 0)
+        if abs(ms - es[p]) > tol_s:
+            return False
+        if mx * en[p, 0] + my * en[p, 1] + mz * en[p, 2] >= cos_std:
+            continue
+        if rho > axis_m:
+            return False
+        ill = False
+        for nb in range(6):
+            da = (1 if nb == 0 else -1 if nb == 1 else 0)
+            db = (1 if nb == 2 else -1 if nb == 3 else 0)
+            dc = (1 if nb == 4 else -1 if nb == 5 else 0)
+            if 0 <= a + da < lat and 0 <= b + db < lat and 0 <= c + dc < lat:
+                o = ((c + dc) * lat + b + db) * lat + a + da
+                if en[o, 0] * en[p, 0] + en[o, 1] * en[p, 1] + en[o, 2] * en[p, 2] < cos_ill:
+                    ill = True
+        if not ill:
+            return False
+    return True
 
 
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
@@ -1203,7 +1264,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         kk, rem = np.divmod(cand, nx * ny)
         jj, ii = np.divmod(rem, nx)
         allrec, used = _model_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), min(max(1, int(models)), MODELS),
-                                    5, band_m, out_band, tol_dist_m, cos_tol, axis_m, np.dtype(dtype) == np.float32, *wargs)
+                                    5, 9, band_m, out_band, tol_dist_m, cos_tol, math.cos(math.radians(1.5)), axis_m,
+                                    np.dtype(dtype) == np.float32, *wargs)
         passed = used > 0
         mrec = allrec[passed]
         n_used = np.bincount(used, minlength=MODELS + 1)

@@ -25,7 +25,7 @@ outside it, distance within 5 um and normal within 2 deg of the exact query (the
 answer go to it -- over the cell's few nearest triangles where they are few, ``LIST_MAX`` -- a vessel's axis or a
 junction's medial cell to the least of a few tubes, ridges or planes fitted to the cell), but for the normal within micrometres of a
 medial surface (a vessel's axis, a junction's bisector), where the exact normal itself jumps
-(tools/validate_wall_field3d.py ``--shipped``: 18 / 0 / 31 points in 2 x 10^5 off by more than 2 deg there).
+(tools/validate_wall_field3d.py ``--shipped``: 15 / 0 / 15 points in 2 x 10^5 off by more than 2 deg there).
 Outside the lumen by more, where a bead's centre never is (a run counts that time as outside the lumen), and
 deeper in it, the lookup interpolates whatever the error
 (the sign is kept): the wall's net force there -- the near and the far wall's electrostatic pull, the other
@@ -37,8 +37,8 @@ Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, cap
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
 :meth:`PlantField3D.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
-them is cached beside them (``.wall.npz``, not shipped); measured (a loaded 2-core machine): III-C 130 s, 112 MB;
-carotid 51 s, 123 MB; synthetic tree 61 s, 402 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
+them is cached beside them (``.wall.npz``, not shipped); measured (a loaded 2-core machine): III-C 33 s, 114 MB;
+carotid 61 s, 123 MB; synthetic tree 89 s, 405 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
 it) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
 tree.  A torn, foreign or older file is solved or built again; a failed solve caches nothing.
 """
@@ -75,7 +75,7 @@ __all__ = ["PlantField3D", "flow_settings", "grid_spacing_m", "field_key", "plan
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
 FIELD3D_VERSION = 2
 #: Bumped when the wall field built from the samples changes (a cached ``.wall.npz`` of another is built again).
-WALL_VERSION = 5
+WALL_VERSION = 6
 #: The grid's margin round the wall (m), plus two spacings.
 GRID_MARGIN_M = 3.0e-4
 #: Default spacing of the plant's grid (m).
