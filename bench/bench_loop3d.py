@@ -95,10 +95,11 @@ def main() -> int:
         field = WallField3D.__new__(WallField3D)  # the lookup's own mask of exact cells, on the packed arrays
         field.head, field.field, field.fine = k3.W[0], k3.W[1], k3.W[2]
         exact = float(np.mean(field.exact_mask(q3)))
+        listed = float(np.mean(field.list_mask(q3)))
         a3 = ns_per_call(_loop3d, q3, k3.p, k3.W, k3.F, k3.fh)
         mb = sum(a.nbytes for a in k3.W) / 1e6
         print(f"  {name:32s} 3-D    {a3:7.1f}   {a3 / a2:5.2f} x (target <= 2); exact share {exact:.1%}; "
-              f"wall arrays {mb:.0f} MB")
+              f"list cells {listed:.1%}; wall arrays {mb:.0f} MB")
     k3 = packed3d(load_scenario(shipped_scenarios()[TREES[0]]).physics)
     rng = np.random.default_rng(0)
     q3 = visited[TREES[0]]

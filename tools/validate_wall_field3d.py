@@ -19,13 +19,14 @@ Standard: distance <= 5 um, normal <= 2 deg within 1 mm of the wall.
 
 ``--shipped`` validates the shipped trees' walls instead, as the 3-D plant builds them
 (:func:`vesselbot_ros.vessels.plant_field3d.wall_arrays`: the standard held within 1 mm of the wall in the lumen
-and 0.1 mm outside it; tube cells; the exact query pruned), per tree:
+and 0.1 mm outside it; model cells; the exact query pruned), per tree:
 
 * at random points in the band, inside and outside, the lookup against the exact query of the same (fine)
   surface: max distance error, max normal error (all points, and leaving out the ill-conditioned ones, where
   the exact normal itself turns by more than 2 deg within 5 um -- a point on or within micrometres of a
   medial surface: a vessel's axis, a junction's bisector -- and how many points exceed 2 deg there), sign
-  mismatches more than 5 um from the wall, the share of the points the exact query answers;
+  mismatches more than 5 um from the wall, the share of the points the exact query answers (and a list cell's
+  scan);
 * the fine surface against the analytic one where the tree gives it, its straight round branches (1.5 radii or
   more from their ends, the vertices and triangle centroids nearest that branch): the vertices' radius error
   and the centroids' (the facets' sag);
@@ -237,7 +238,8 @@ def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
     wa = pf.wall_arrays(net, BloodParams())
     row: dict[str, float] = {"wall_arrays_s": time.perf_counter() - t0, "wall_triangles": float(len(fld.triangles)),
                              "wall_MB": sum(a.nbytes for a in wa.args) / 1e6}
-    row.update({k: float(v) for k, v in wa.stats.items() if k in ("build_s", "tube_cells", "exact_cells", "exact_fraction",
+    row.update({k: float(v) for k, v in wa.stats.items() if k in ("build_s", "tube_cells", "model_cells_2", "model_cells_3",
+                                                                  "list_cells", "list_mean_len", "exact_cells", "exact_fraction",
                                                                   "exact_MB", "exact_triangles")})
     field = wf.WallField3D.__new__(wf.WallField3D)
     field.head, field.field, field.fine = wa.args[0], wa.args[1], wa.args[2]
@@ -265,6 +267,7 @@ def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
     ill = turn > 2.0
     row["points"] = float(len(q))
     row["exact_share_points"] = float(field.exact_mask(q).mean())
+    row["list_share_points"] = float(field.list_mask(q).mean())
     row["vs_exact_dist_um"] = float(np.abs(r[:, 0] - e["sdist"]).max() * 1e6)
     row["vs_exact_normal_deg_well_conditioned"] = float(ang[~ill].max())
     row["vs_exact_normal_deg_p99"] = float(np.percentile(ang, 99))

@@ -4,8 +4,8 @@ The exact query of :mod:`vesselbot_ros.physics.meshed_wall3d` costs microseconds
 per point); the plant asks it at every force evaluation.  This module samples it once on a regular 3-D grid
 (the plant's grid, the flow's: nodes ``origin + h (i, j, k)``) and answers by interpolation, falling back to
 the exact query only in the cells where interpolation cannot meet the standard (within 1 mm of a wall,
-distance within 5 um and normal within 2 deg of the true wall), or a straight round tube fitted to a cell
-answers where it meets it.
+distance within 5 um and normal within 2 deg of the true wall), or the least of a few smooth models fitted
+to a cell (straight round tubes, ridges, planes) answers where it meets it.
 
 Samples (per node, ``NODE_STRIDE`` floats, float32 by default): the exact signed distance s (m, > 0 in the
 lumen), the smooth unit inward normal n (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), the
@@ -38,20 +38,54 @@ interpolated whatever the error: deep in a vessel, far outside it.  Any other ce
   ``tol_normal_deg`` that crosses an edge puts an edge midpoint or a face centre on the wrong side, so it is
   caught wherever it crosses the cell; the interpolation errors of smooth fields peak at those points.
 
-Tube cells (``tube``): a flagged cell wholly in the lumen is fitted a straight round tube from its corners --
-the axis along the least eigenvector of sum n_c n_c^T (a tube's normals all lie across its axis), through
-the point nearest the corners' normal lines, the radius the corners' mean s + their distance from the axis
--- and if the tube meets the tolerances at the cell's 19 test points, its corners and its eight sub-cell
-centres (the normal not within ``axis_m`` of the axis, where it is undefined to the facets' scale), the
-lookup answers by the tube: ``R - rho`` and the direction to the axis, exact for a straight round vessel,
-where the interpolation of the cone s = R - rho fails near the axis of a vessel narrower than the band.
+Model cells (``tube``): a flagged cell wholly in the lumen is answered, where it can be, by the least of one to
+``MODELS`` (3) local smooth models, each a straight round cylinder with a sign, ``s = sigma (rho - R)`` (rho: the
+distance from its axis; sigma = -1: a lumen's wall seen from within, the normal towards the axis; sigma = +1: a
+ridge -- a junction's crease, R = 0 -- or convex edge seen from outside, the normal away from it) or a plane,
+with the inward normal of the model that attains the least.  Fitted at build time from the exact query on the
+cell's lattice of spacing h / 4 (125 points: its corners, its 19 test points, its eight sub-cell centres among
+them): one model to all the points (a vessel's axis: the straight round tube of the old "tube cells"), else
+the points grouped in two, then three, by k-means on their normals and on their feet (q - s n), each group
+fitted a model -- the axis along the least eigenvector of its sum n n^T (a cylinder's normals lie across its
+axis), through the point nearest its normal lines, sigma by which side of the points that lies on, R the mean of
+``rho - sigma s``; or the plane of its mean normal, whichever is nearer its distances -- and the points
+regrouped by the model nearest their s and normal (twice).  The first that meets the tolerances at every
+lattice point within the band or h beyond it is kept (the models rounded to the storage's precision first); the
+normal is not tested within ``axis_m`` of the attaining model's axis: 5 um / tan(2 deg) = 0.14 mm, where the
+exact normal itself turns by more than 2 deg within 5 um (undefined to the standard; on the plant's walls the
+facets' wiggle of the exact smooth normal reaches 1-2.5 deg near a vessel's axis, where the tube's is radial).
+The cell is then checked against the standard itself on its finer lattice of 9^3 points (spacing h / 8): the
+distance within ``tol_dist_m``, the normal within 1.5 deg, but within ``axis_m`` of the axis where the exact
+normal turns by more than 8 deg to a lattice neighbour (12.5 um away); else it is left exact.  (Without that
+check, at random points of the model cells, the normal was off by up to 5.5 deg at 11 well-conditioned points
+in 2 x 10^4 of the carotid's bulb, split between two nearly tangent wide cylinders, and by up to 16 deg at 3 in
+7 x 10^4 of the synthetic tree's, 46-67 um from a tube's axis where the wall is no round tube.)
+Exact for a straight round vessel, where the interpolation of the cone s = R - rho fails near the axis of a
+vessel narrower than the band.
 
 A flagged cell that reaches into the lumen is then refined once: ``refine``^3 sub-cells sampled exactly (the
 diameter interpolated from the cell's corners), each flagged by the same rules at spacing h / ``refine``;
 the lookup interpolates in a good sub-cell and asks the exact query in a flagged one (and in a flagged cell
 with no good sub-cell).  Outside the grid the exact query answers (the diameter from the nearest edge cell).
 
-Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells and off the grid, so
+List cells (``list_max``): the exact query is slow at a medial point because many triangles are nearly as
+near as the nearest (a ring round a vessel's axis, a strip along a crease), and its candidate lists must hold
+them all for every point of a 0.1 mm leaf; yet over one cell only a few triangles are ever the nearest.  So an
+exact cell (or one with exact sub-cells) wholly in the lumen is given the triangles the exact query finds
+nearest at its lattice of ``list_lattice``^3 points (17^3: spacing h / 16), nearest its centre first, if they
+are at most ``list_max``, and kept if the scan over them -- the exact query's bounds, closest points and tie
+rule (the lowest index), so bit for bit its answer wherever the list holds the nearest triangle -- answers as
+the exact query, bit for bit, at the centres of the cell's 1000 sub-cubes; the lookup then scans the list (its
+triangle indices stored after the model records in ``fine``, its offset and length in the cell's lowest node's
+slots 6 and 7) instead of asking the candidate tree.  Not a proof: a point between the lattice points whose
+nearest triangle is missing gets the nearest of the list, a triangle beside it.  This keeps the exact
+query's own normal where no smooth model can: in a crease's wedge (the foot on a crease edge) the exact smooth
+normal takes one face's side: where the shipped runs' beads met the exact query it was up to 94 / 54 / 102 deg
+(III-C / carotid / synthetic tree; median 39 / 39 / 12 deg) off the distance's gradient, the direction from the
+crease.
+
+Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells (list cells
+included: their triangles are the pruned arrays') and off the grid, so
 the lookup carries the wall's candidate tree cut down to the leaves holding a point of those (split there
 to ``exact_max_depth`` for short lists), the other leaves emptied and their subtrees collapsed, and only the
 triangles those lists name (int32 lists and nodes); off the grid a leaf wholly outside the lumen, save near
@@ -65,11 +99,24 @@ no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylin
 0.66 / 0.99 deg are smoothed).  Flagged cells 0.003 / 0.03 / 1.9 %.  With ``refine`` = 2 the Y's worst
 normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
 smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
-see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and tubes on, the
-band 1 mm in and 0.1 mm out, ``--shipped``): distance within 1.9 um, normal within 1.5 / 1.2 / 1.8 deg
-(III-C / carotid / synthetic tree) wherever the exact normal itself is defined (does not turn by more than
-2 deg within 5 um); within micrometres of a medial surface 12 / 0 / 11 points in 2 x 10^5 are off by more,
-up to 113 deg (a sub-cell the surface bulges into between its test points, taking the other wall's side).
+see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
+the band 1 mm in and 0.1 mm out, list cells of up to 256 triangles, ``--shipped``): distance within 1.9 um,
+normal within 1.5 / 1.2 / 1.7 deg (III-C / carotid / synthetic tree) wherever the exact normal itself is defined
+(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 15 / 0 / 15 points in
+2 x 10^5 are off by more, up to 113 deg (a sub-cell the surface bulges into between its test points, taking the
+other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with
+one tube per cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  At 10^5 random
+points of the model cells themselves: distance within 1.2 um, normal within 1.2 / 1.8 / 1.4 deg where the exact
+one is defined.  Model cells: 5307 / 133 / 16861 (of which 2 or 3 models: 196 / 125 / 549); exact cells 3316 /
+2204 / 10194 (3386 / 2204 / 10510 with tubes only), of which, with those with exact sub-cells, 5748 / 3580 /
+15358 are list cells (36 / 32 / 44 triangles on average); the exact query answers 0.3 / 0.3 / 0.7 % of the
+points in the band (2.1 / 1.7 / 4.1 % with tubes only), list cells 1.8 / 1.4 / 3.4 %.  At the points the shipped
+runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5 / 0.0 / 9.7 % and list cells 4.1 / 0.9 /
+15.6 % (exact 4.5 / 0.9 / 27.5 % with tubes only); where the exact query is left, at the synthetic tree's
+junctions and near its vessels' axes, the wall is no straight round tube, ridge or plane within the standard
+over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss the
+check.  Build (a loaded 2-core machine): 33 / 61 / 89 s, of which the model cells 10 / 12 / 25 s and the list
+cells 16 / 10 / 48 s.
 Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
 2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
 creases) goes to the exact query.
@@ -88,6 +135,11 @@ import numpy.typing as npt
 from vesselbot_ros.physics.meshed_wall3d import (
     CandidateTree,
     Wall3D,
+    _closest,
+    _leaf,
+    _scan,
+    _signed,
+    _smooth_normal,
     ball_diameters3d,
     centre_distances,
     leaves3d,
@@ -99,11 +151,17 @@ from vesselbot_ros.physics.meshed_wall3d import (
 
 __all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d"]
 
-#: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5),
-#: 6-7 unused (32 bytes in float32: two nodes per cache line).
+#: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5), its
+#: triangle list's offset in ``fine`` and length if it is a list cell (6-7; 0: none) (32 bytes in float32: two nodes
+#: per cache line).
 NODE_STRIDE = 8
 #: Every point of a cell of side h lies within this many h of one of its corners (half its diagonal).
 _HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
+#: Models per model cell; floats per model cell's record: ``MODELS`` models of ``NODE_STRIDE`` floats each (axis point, unit axis
+#: direction, radius, sign sigma; sigma = 0: a plane, 9: no model).
+MODELS = 3
+MODEL_REC = MODELS * NODE_STRIDE
+_NO_MODEL = 9.0
 
 Array = npt.NDArray[np.float64]
 
@@ -192,16 +250,21 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
             s, gx, gy, gz, _d = _interp(fine, fb, NODE_STRIDE * r1, NODE_STRIDE * r1 * r1, ux - a, uy - b, uz - c, h / r)
             return s, gx, gy, gz, dd
     if inside and flag <= -2.0:
-        s, gx, gy, gz = _tube(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * NODE_STRIDE)
+        s, gx, gy, gz, _rho = _models(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * MODEL_REC)
+        return s, gx, gy, gz, dd
+    if inside and field[base + 7] > 0.0:
+        s, gx, gy, gz = _scan_list(px, py, pz, d, fine, int(field[base + 6]), int(field[base + 7]))
         return s, gx, gy, gz, dd
     s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
     return s, gx, gy, gz, dd
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _tube(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(s, inward normal) of the straight round tube of record ``rec[o:o + 7]`` (axis point, unit axis direction,
-    radius) at (px, py, pz): ``R - rho`` and the direction to the axis (rho: the distance from it)."""
+def _model(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(s, inward normal, rho) of the model of record ``rec[o:o + 8]`` (axis point, unit axis direction, radius R,
+    sign sigma) at (px, py, pz): ``sigma (rho - R)`` and ``sigma`` times the direction from the axis (rho: the
+    distance from it); sigma = 0: the plane through the point with unit normal the direction, ``R + a . (q - p)``
+    (rho: infinite)."""
     dx = px - float(rec[o])
     dy = py - float(rec[o + 1])
     dz = pz - float(rec[o + 2])
@@ -209,13 +272,109 @@ def _tube(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: 
     ay = float(rec[o + 4])
     az = float(rec[o + 5])
     a = dx * ax + dy * ay + dz * az
+    sg = float(rec[o + 7])
+    if sg == 0.0:
+        return float(rec[o + 6]) + a, ax, ay, az, np.inf
     dx -= a * ax
     dy -= a * ay
     dz -= a * az
     rho = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (rho > 0.0):
-        return float(rec[o + 6]), 0.0, 0.0, -1.0
-    return float(rec[o + 6]) - rho, -dx / rho, -dy / rho, -dz / rho
+        return -sg * float(rec[o + 6]), 0.0, 0.0, -1.0, 0.0
+    return sg * (rho - float(rec[o + 6])), sg * dx / rho, sg * dy / rho, sg * dz / rho, rho
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _models(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(s, inward normal, rho) of the model cell of record ``rec[o:o + MODEL_REC]``: the least of its models' s,
+    the normal (and distance from the axis) of the model that attains it (the first of equals)."""
+    s, gx, gy, gz, rho = _model(px, py, pz, rec, o)
+    for m in range(1, MODELS):
+        b = o + m * NODE_STRIDE
+        if float(rec[b + 7]) == _NO_MODEL:
+            break
+        s2, hx, hy, hz, r2 = _model(px, py, pz, rec, b)
+        if s2 < s:
+            s, gx, gy, gz, rho = s2, hx, hy, hz, r2
+    return s, gx, gy, gz, rho
+
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d` over the triangles ``lst[o:o + n]`` (their indices,
+    nearest the cell's centre first) of a list cell: the same bounds, closest points and tie rule (the lowest
+    index), so bit for bit its answer wherever the list holds the nearest triangle."""
+    tbest = int(lst[o])
+    best, fx, fy, fz, feat = _closest(px, py, pz, d, 48 * tbest + 8)
+    for e in range(o + 1, o + n):
+        t = int(lst[e])
+        b = 48 * t
+        sx = px - d[b]
+        sy = py - d[b + 1]
+        sz = pz - d[b + 2]
+        hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
+        h2 = hn * hn
+        if h2 > best:
+            continue
+        rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
+        if rin > 0.0 and h2 + rin * rin > best:
+            continue
+        d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
+        if d2 < best or (d2 == best and t < tbest):
+            best = d2
+            fx = gx
+            fy = gy
+            fz = gz
+            feat = f
+            tbest = t
+    s, nx, ny, nz = _signed(px, py, pz, d, best, fx, fy, fz, feat, tbest)
+    gx, gy, gz = _smooth_normal(px, py, pz, d, tbest, s, nx, ny, nz)
+    return s, gx, gy, gz
+
+
+@numba.njit(cache=True, parallel=True)
+def _list_cells(head, cells, lat, nver, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Per cell of ``cells`` (m, 3) ``(i, j, k)``: the triangles nearest its ``lat``^3 lattice points (the exact
+    query's), nearest its centre first, kept if at most ``maxlen`` and if the scan over them
+    (:func:`_scan_list`) answers as the exact query, bit for bit, at the ``nver``^3 centres of the cell's
+    sub-cubes of side h / ``nver``.  Returns (lists (m, maxlen) int64, lengths (m,) int64: 0 none)."""
+    h = head[3]
+    m = cells.shape[0]
+    out = np.zeros((m, maxlen), dtype=np.int64)
+    ln = np.zeros(m, dtype=np.int64)
+    for e in numba.prange(m):
+        x0 = head[0] + cells[e, 0] * h
+        y0 = head[1] + cells[e, 1] * h
+        z0 = head[2] + cells[e, 2] * h
+        ts = np.empty(lat * lat * lat, dtype=np.int64)
+        for p in range(lat * lat * lat):
+            px = x0 + h * (p % lat) / (lat - 1)
+            py = y0 + h * ((p // lat) % lat) / (lat - 1)
+            pz = z0 + h * (p // (lat * lat)) / (lat - 1)
+            leaf = _leaf(px, py, pz, grid, nodes)
+            ts[p] = _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])[5]
+        u = np.unique(ts)
+        if u.size > maxlen or u[0] < 0:
+            continue
+        dc = np.empty(u.size)
+        for a in range(u.size):
+            dc[a] = _closest(x0 + 0.5 * h, y0 + 0.5 * h, z0 + 0.5 * h, d, 48 * u[a] + 8)[0]
+        lst = u[np.argsort(dc, kind="mergesort")]
+        ok = True
+        for p in range(nver * nver * nver):
+            px = x0 + h * (p % nver + 0.5) / nver
+            py = y0 + h * ((p // nver) % nver + 0.5) / nver
+            pz = z0 + h * (p // (nver * nver) + 0.5) / nver
+            r1 = _scan_list(px, py, pz, d, lst, 0, lst.size)
+            r2 = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
+            if r1[0] != r2[0] or r1[1] != r2[1] or r1[2] != r2[2] or r1[3] != r2[3]:
+                ok = False
+                break
+        if ok:
+            out[e, :lst.size] = lst
+            ln[e] = lst.size
+    return out, ln
 
 
 @numba.njit(cache=True)
@@ -569,93 +728,280 @@ def _lumen_diameters(head: Array, field: npt.NDArray[Any], q: Array, wargs: tupl
     return diam.ravel(), n
 
 
-@numba.njit(cache=True, parallel=True)
-def _tubes(head, field, cells, band, out_band, tol_s, cos_tol, cos_min, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fit a straight round tube to each cell of ``cells`` (m, 3) ``(i, j, k)`` from its corners' distances and
-    normals (module docstring) and test it at the cell's test points (the coarse rule); returns
-    (records (m, NODE_STRIDE) float64: axis point, unit direction, radius; passed (m,) bool).  The normal is
-    not tested within ``axis_m`` of the axis, where the wall's direction is undefined to the facets' scale."""
-    h = head[3]
-    nx = int(head[4])
-    ny = int(head[5])
-    m = cells.shape[0]
-    rec = np.zeros((m, NODE_STRIDE))
-    ok = np.zeros(m, dtype=np.bool_)
-    for e in numba.prange(m):
-        i = cells[e, 0]
-        j = cells[e, 1]
-        k = cells[e, 2]
-        xs = np.empty((8, 3))
-        ns = np.empty((8, 3))
-        ss = np.empty(8)
-        mm = np.zeros((3, 3))
-        spread = 1.0
-        for c in range(8):
-            b = (((k + (c >> 2)) * ny + j + ((c >> 1) & 1)) * nx + i + (c & 1)) * NODE_STRIDE
-            xs[c, 0] = head[0] + (i + (c & 1)) * h
-            xs[c, 1] = head[1] + (j + ((c >> 1) & 1)) * h
-            xs[c, 2] = head[2] + (k + (c >> 2)) * h
-            ss[c] = field[b]
-            for a in range(3):
-                ns[c, a] = field[b + 1 + a]
-            for a in range(3):
-                for q in range(3):
-                    mm[a, q] += ns[c, a] * ns[c, q]
-            for c2 in range(c):
-                spread = min(spread, ns[c, 0] * ns[c2, 0] + ns[c, 1] * ns[c2, 1] + ns[c, 2] * ns[c2, 2])
-        if spread > cos_min:
-            continue  # the corners' normals nearly parallel: no axis to fit
-        _w, v = np.linalg.eigh(mm)
-        t = v[:, 0].copy()  # the normals' least direction: the tube's axis
-        # the point nearest to the corners' normal lines (and to the cell's centre along the axis)
-        am = np.zeros((3, 3))
-        bm = np.zeros(3)
-        cen = np.zeros(3)
-        for c in range(8):
-            for a in range(3):
-                cen[a] += 0.125 * xs[c, a]
-        for c in range(8):
-            for a in range(3):
-                for q in range(3):
-                    pr = (1.0 if a == q else 0.0) - ns[c, a] * ns[c, q]
-                    am[a, q] += pr
-                    bm[a] += pr * xs[c, q]
+@numba.njit(cache=True)
+def _fit_model(qs, ss, ns, lab, c, f32, out, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fit ``out[o:o + NODE_STRIDE]`` to the points labelled ``c`` (positions ``qs``, exact s ``ss``, inward normals
+    ``ns``): a straight round cylinder (the axis along the least eigenvector of their sum n n^T, through the point
+    nearest their normal lines; sigma -1 if that lies ahead along the inward normals -- a lumen's wall seen from
+    within -- else +1: a ridge seen from outside; R the mean of their ``rho - sigma s``) or a plane (their mean
+    normal), whichever is nearer their distances.  Rounded to float32 if ``f32``.  Returns False if none."""
+    npt = 0
+    cen = np.zeros(3)
+    mm = np.zeros((3, 3))
+    nm = np.zeros(3)
+    for p in range(qs.shape[0]):
+        if lab[p] != c:
+            continue
+        npt += 1
         for a in range(3):
-            for q in range(3):
-                am[a, q] += t[a] * t[q]
-                bm[a] += t[a] * t[q] * cen[q]
-        pt = np.linalg.solve(am, bm)
-        rad = 0.0
-        for c in range(8):
-            dv = xs[c] - pt
-            al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
-            rad += 0.125 * (ss[c] + math.sqrt(max((dv ** 2).sum() - al * al, 0.0)))
-        for a in range(3):
-            rec[e, a] = pt[a]
-            rec[e, 3 + a] = t[a]
-        rec[e, 6] = rad
-        good = True
-        for tp in range(35):  # the 19 test points of the coarse rule and the 8 corners, and the 8 sub-cell centres
-            if tp < 27:
-                di = 0.5 * (tp % 3)
-                dj = 0.5 * ((tp // 3) % 3)
-                dk = 0.5 * (tp // 9)
-            else:
-                di = 0.25 + 0.5 * ((tp - 27) & 1)
-                dj = 0.25 + 0.5 * (((tp - 27) >> 1) & 1)
-                dk = 0.25 + 0.5 * ((tp - 27) >> 2)
-            qx = head[0] + (i + di) * h
-            qy = head[1] + (j + dj) * h
-            qz = head[2] + (k + dk) * h
-            es, ex, ey, ez = smooth_wall3d(qx, qy, qz, d, pbox, pstart, grid, nodes, index)
-            if _beyond(es, band, out_band, h):
+            cen[a] += qs[p, a]
+            nm[a] += ns[p, a]
+            for b in range(3):
+                mm[a, b] += ns[p, a] * ns[p, b]
+    if npt < 2:
+        return False
+    cen /= npt
+    L = math.sqrt((nm ** 2).sum())
+    if not (L > 0.0):
+        return False
+    nm /= L
+    best = np.inf
+    cand = np.zeros(NODE_STRIDE)
+    # the plane
+    r0 = 0.0
+    for p in range(qs.shape[0]):
+        if lab[p] == c:
+            r0 += (ss[p] - ((qs[p, 0] - cen[0]) * nm[0] + (qs[p, 1] - cen[1]) * nm[1] + (qs[p, 2] - cen[2]) * nm[2])) / npt
+    for a in range(3):
+        cand[a] = cen[a]
+        cand[3 + a] = nm[a]
+    cand[6] = r0
+    cand[7] = 0.0
+    for tr in range(2):
+        if tr == 1:  # the cylinder
+            _w, v = np.linalg.eigh(mm)
+            t = v[:, 0].copy()
+            am = np.zeros((3, 3))
+            bm = np.zeros(3)
+            off = 0.0
+            for p in range(qs.shape[0]):
+                if lab[p] != c:
+                    continue
+                for a in range(3):
+                    for b in range(3):
+                        pr = (1.0 if a == b else 0.0) - ns[p, a] * ns[p, b]
+                        am[a, b] += pr
+                        bm[a] += pr * qs[p, b]
+            for a in range(3):
+                for b in range(3):
+                    am[a, b] += t[a] * t[b]
+                    bm[a] += t[a] * t[b] * cen[b]
+            if abs(np.linalg.det(am)) < 1e-12 * npt ** 3:
                 continue
-            ms, mx, my, mz = _tube(qx, qy, qz, rec[e], 0)
-            if abs(ms - es) > tol_s or (rad - ms > axis_m and mx * ex + my * ey + mz * ez < cos_tol):
-                good = False
+            pt = np.linalg.solve(am, bm)
+            for p in range(qs.shape[0]):
+                if lab[p] == c:
+                    off += (pt[0] - qs[p, 0]) * ns[p, 0] + (pt[1] - qs[p, 1]) * ns[p, 1] + (pt[2] - qs[p, 2]) * ns[p, 2]
+            sg = -1.0 if off > 0.0 else 1.0
+            rad = 0.0
+            for p in range(qs.shape[0]):
+                if lab[p] != c:
+                    continue
+                dv = qs[p] - pt
+                al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
+                rad += (math.sqrt(max((dv ** 2).sum() - al * al, 0.0)) - sg * ss[p]) / npt
+            for a in range(3):
+                cand[a] = pt[a]
+                cand[3 + a] = t[a]
+            cand[6] = rad
+            cand[7] = sg
+        if f32:
+            for a in range(NODE_STRIDE):
+                cand[a] = float(np.float32(cand[a]))
+        err = 0.0
+        for p in range(qs.shape[0]):
+            if lab[p] == c:
+                ms, _x, _y, _z, _r = _model(qs[p, 0], qs[p, 1], qs[p, 2], cand, 0)
+                err = max(err, abs(ms - ss[p]))
+        if err < best:
+            best = err
+            for a in range(NODE_STRIDE):
+                out[o + a] = cand[a]
+    return best < np.inf
+
+
+@numba.njit(cache=True)
+def _kmeans(vec, k, lab):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Label the rows of ``vec`` (n, 3) with k clusters (farthest-point start, Lloyd's steps); False if one empties."""
+    n = vec.shape[0]
+    cen = np.zeros((k, 3))
+    mean = np.zeros(3)
+    for p in range(n):
+        mean += vec[p] / n
+    dmin = np.full(n, np.inf)
+    ref = mean.copy()
+    for c in range(k):
+        far = -1.0
+        arg = 0
+        for p in range(n):
+            dd = ((vec[p] - ref) ** 2).sum()
+            if c > 0:
+                dmin[p] = min(dmin[p], dd)
+                dd = dmin[p]
+            if dd > far:
+                far = dd
+                arg = p
+        cen[c] = vec[arg]
+        ref = vec[arg].copy()
+        if c == 0:
+            for p in range(n):
+                dmin[p] = ((vec[p] - ref) ** 2).sum()
+    for _it in range(12):
+        for p in range(n):
+            bd = np.inf
+            for c in range(k):
+                dd = ((vec[p] - cen[c]) ** 2).sum()
+                if dd < bd:
+                    bd = dd
+                    lab[p] = c
+        cnt = np.zeros(k)
+        cen[:] = 0.0
+        for p in range(n):
+            cnt[lab[p]] += 1.0
+            cen[lab[p]] += vec[p]
+        for c in range(k):
+            if cnt[c] == 0.0:
+                return False
+            cen[c] /= cnt[c]
+    return True
+
+
+@numba.njit(cache=True)
+def _check_models(rec, o, qs, ss, ns, use, tol_s, cos_tol, axis_m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the model cell ``rec[o:]`` answers within the tolerances at the points ``use`` (the normal not
+    tested within ``axis_m`` of the attaining model's axis)."""
+    for p in range(qs.shape[0]):
+        if not use[p]:
+            continue
+        ms, mx, my, mz, rho = _models(qs[p, 0], qs[p, 1], qs[p, 2], rec, o)
+        if abs(ms - ss[p]) > tol_s or (rho > axis_m and mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2] < cos_tol):
+            return False
+    return True
+
+
+@numba.njit(cache=True, parallel=True)
+def _model_cells(head, cells, nmax, lat, vlat, band, out_band, tol_s, cos_tol, cos_std, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (module docstring) from the
+    exact query on its lattice of ``lat``^3 points (spacing h / (lat - 1): its corners, the 19 test points and
+    the sub-cell centres among them for lat = 5), and test it there (the points within the band or h beyond it).
+    Kept only if it meets the standard on the finer lattice of ``vlat``^3 points too (:func:`_verify_models`).
+    Returns (records (m, MODEL_REC) float64, models used (m,) int64: 0 failed)."""
+    h = head[3]
+    m = cells.shape[0]
+    rec = np.zeros((m, MODEL_REC))
+    used = np.zeros(m, dtype=np.int64)
+    npt = lat * lat * lat
+    for e in numba.prange(m):
+        qs = np.empty((npt, 3))
+        ss = np.empty(npt)
+        ns = np.empty((npt, 3))
+        ft = np.empty((npt, 3))
+        use = np.zeros(npt, dtype=np.bool_)
+        lab = np.zeros(npt, dtype=np.int64)
+        for p in range(npt):
+            a = p % lat
+            b = (p // lat) % lat
+            c = p // (lat * lat)
+            qs[p, 0] = head[0] + (cells[e, 0] + a / (lat - 1)) * h
+            qs[p, 1] = head[1] + (cells[e, 1] + b / (lat - 1)) * h
+            qs[p, 2] = head[2] + (cells[e, 2] + c / (lat - 1)) * h
+            s, gx, gy, gz = smooth_wall3d(qs[p, 0], qs[p, 1], qs[p, 2], d, pbox, pstart, grid, nodes, index)
+            ss[p] = s
+            ns[p, 0] = gx
+            ns[p, 1] = gy
+            ns[p, 2] = gz
+            ft[p, 0] = qs[p, 0] - s * gx
+            ft[p, 1] = qs[p, 1] - s * gy
+            ft[p, 2] = qs[p, 2] - s * gz
+            use[p] = not _beyond(s, band, out_band, h)
+        r = rec[e]
+        done = False
+        for k in range(1, nmax + 1):
+            for how in range(2 if k > 1 else 1):
+                if k > 1 and not _kmeans(ns if how == 0 else ft, k, lab):
+                    continue
+                if k == 1:
+                    lab[:] = 0
+                for _it in range(3):  # fit, then give each point to the model nearest its s and normal
+                    ok = True
+                    for c in range(MODELS):
+                        r[c * NODE_STRIDE + 7] = _NO_MODEL
+                    for c in range(k):
+                        ok = ok and _fit_model(qs, ss, ns, lab, c, f32, r, c * NODE_STRIDE)
+                    if not ok:
+                        break
+                    if _check_models(r, 0, qs, ss, ns, use, tol_s, cos_tol, axis_m):
+                        done = True
+                        break
+                    if k == 1:
+                        break
+                    for p in range(npt):
+                        bd = np.inf
+                        for c in range(k):
+                            ms, mx, my, mz, _rho = _model(qs[p, 0], qs[p, 1], qs[p, 2], r, c * NODE_STRIDE)
+                            dd = abs(ms - ss[p]) / tol_s + (1.0 - (mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2])) / (1.0 - cos_tol)
+                            if dd < bd:
+                                bd = dd
+                                lab[p] = c
+                if done:
+                    break
+            if done:
+                used[e] = k
                 break
-        ok[e] = good
-    return rec, ok
+        if used[e] > 0 and not _verify_models(r, head, cells[e], vlat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart,
+                                               grid, nodes, index):
+            used[e] = 0
+    return rec, used
+
+
+@numba.njit(cache=True)
+def _verify_models(r, head, cell, lat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the model cell ``r`` meets the standard on the cell's finer lattice of ``lat``^3 points: the distance
+    within ``tol_s`` and the normal within ``cos_std`` of the exact query's, but where the attaining model's axis is
+    within ``axis_m`` and the exact normal turns by more than 8 deg to a lattice neighbour (h / (lat - 1) away:
+    more than 3 deg within 5 um at h = 0.1 mm, lat = 9 -- undefined to the standard)."""
+    h = head[3]
+    n = lat * lat * lat
+    es = np.empty(n)
+    en = np.empty((n, 3))
+    for p in range(n):
+        x = head[0] + (cell[0] + (p % lat) / (lat - 1)) * h
+        y = head[1] + (cell[1] + ((p // lat) % lat) / (lat - 1)) * h
+        z = head[2] + (cell[2] + (p // (lat * lat)) / (lat - 1)) * h
+        s, gx, gy, gz = smooth_wall3d(x, y, z, d, pbox, pstart, grid, nodes, index)
+        es[p] = s
+        en[p, 0] = gx
+        en[p, 1] = gy
+        en[p, 2] = gz
+    cos_ill = math.cos(math.radians(8.0))
+    for p in range(n):
+        if _beyond(es[p], band, out_band, h):
+            continue
+        a = p % lat
+        b = (p // lat) % lat
+        c = p // (lat * lat)
+        x = head[0] + (cell[0] + a / (lat - 1)) * h
+        y = head[1] + (cell[1] + b / (lat - 1)) * h
+        z = head[2] + (cell[2] + c / (lat - 1)) * h
+        ms, mx, my, mz, rho = _models(x, y, z, r, 0)
+        if abs(ms - es[p]) > tol_s:
+            return False
+        if mx * en[p, 0] + my * en[p, 1] + mz * en[p, 2] >= cos_std:
+            continue
+        if rho > axis_m:
+            return False
+        ill = False
+        for nb in range(6):
+            da = (1 if nb == 0 else -1 if nb == 1 else 0)
+            db = (1 if nb == 2 else -1 if nb == 3 else 0)
+            dc = (1 if nb == 4 else -1 if nb == 5 else 0)
+            if 0 <= a + da < lat and 0 <= b + db < lat and 0 <= c + dc < lat:
+                o = ((c + dc) * lat + b + db) * lat + a + da
+                if en[o, 0] * en[p, 0] + en[o, 1] * en[p, 1] + en[o, 2] * en[p, 2] < cos_ill:
+                    ill = True
+        if not ill:
+            return False
+    return True
 
 
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
@@ -679,9 +1025,11 @@ class WallField3D:
         wall: The exact wall (:class:`~vesselbot_ros.physics.meshed_wall3d.Wall3D`).
         head: (8,) ``(x0, y0, z0, h, nx, ny, nz, r)``: origin (m), spacing (m), nodes per axis, refinement.
         field: (nx ny nz NODE_STRIDE,) node records, x fastest (float32 or float64); slot 5 of a cell's lowest
-            corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``.
+            corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``, -2 - m model cell m (its
+            ``MODEL_REC`` floats at ``fine[head[8] + m MODEL_REC]``).
         fine: Refined blocks, (r + 1)^3 records each (sub-nodes of spacing h / r, x fastest); slot 5 of a
-            sub-cell's lowest sub-node: 0 interpolate, -1 exact.
+            sub-cell's lowest sub-node: 0 interpolate, -1 exact; then the model cells' records, then the list
+            cells' triangle indices.
         stats: Build figures: cells, flagged cells (by spread, by test point), refined blocks, sub-cells left
             exact, tested cells, seconds per stage, megabytes.
     """
@@ -703,13 +1051,34 @@ class WallField3D:
         return int(self.head[4]), int(self.head[5]), int(self.head[6])
 
     def flags(self) -> npt.NDArray[np.float64]:
-        """(nz - 1, ny - 1, nx - 1) the cells' flags: 0 interpolated, -1 exact, b > 0 refined (block b)."""
+        """(nz - 1, ny - 1, nx - 1) the cells' flags: 0 interpolated, -1 exact, b > 0 refined (block b), <= -2 model
+        cell."""
         nx, ny, nz = self.shape
         f = self.field.reshape(nz, ny, nx, NODE_STRIDE)[:, :, :, 5]
         return np.asarray(f[:-1, :-1, :-1], dtype=np.float64)
 
     def exact_mask(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-        """(m,) whether the lookup answers each point (m, 3) (m) by the exact query (outside the grid included)."""
+        """(m,) whether the lookup answers each point (m, 3) (m) by the exact query (outside the grid included; not
+        a list cell's scan)."""
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        return np.asarray(self.exact_mask_raw(q) & ~self._listed(q))
+
+    def list_mask(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(m,) whether the lookup answers each point (m, 3) (m) by a list cell's short scan."""
+        q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        return np.asarray(self.exact_mask_raw(q) & self._listed(q))
+
+    def _listed(self, q: Array) -> npt.NDArray[np.bool_]:
+        """(m,) whether each point lies in a list cell (in the grid)."""
+        n = np.array(self.shape)
+        ijk = np.floor((q - self.head[:3]) / self.head[3]).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < n - 1)).all(axis=1)
+        ijk = np.clip(ijk, 0, n - 2)
+        rec = self.field.reshape(n[2], n[1], n[0], NODE_STRIDE)
+        return np.asarray(inside & (rec[ijk[:, 2], ijk[:, 1], ijk[:, 0], 7] > 0))
+
+    def exact_mask_raw(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(m,) whether each point (m, 3) (m) lies off the grid or in an exact cell or sub-cell (list cells included)."""
         q = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
         h = self.head[3]
         n = np.array(self.shape)
@@ -786,7 +1155,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
-                       exact_max_depth: int = 0, tube: bool = False, axis_m: float = 50e-6) -> WallField3D:
+                       exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
+                       models: int = MODELS, list_max: int = 0, list_lattice: int = 17) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -808,10 +1178,16 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
             it, as beyond ``band_m`` inside, cells are interpolated whatever the error.
         prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
             lookup carries the wall's whole candidate tree.
-        tube: A flagged cell wholly in the lumen whose straight round tube (fitted to its corners) meets the
-            tolerances at its test points is answered by the tube (for fine walls: on 0.1 mm facets the exact
-            normal's facet-scale wiggle between the test points can take a tube cell's error past 2 deg).
-        axis_m: ... the normal not tested within this (m) of the tube's axis (its direction is undefined there).
+        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (module docstring)
+            meets the tolerances at its lattice of 125 points is answered by them (for fine walls: on 0.1 mm
+            facets the exact normal's facet-scale wiggle between the test points can take a model cell's error
+            past 2 deg).
+        axis_m: ... the normal not tested within this (m) of the attaining model's axis (the exact normal turns
+            by more than 2 deg within 5 um there).
+        models: The most models per model cell (1: one straight round tube per cell).
+        list_max: An exact cell (or one with exact sub-cells) wholly in the lumen whose nearest triangles at its
+            ``list_lattice``^3 lattice points are at most this many, and whose scan over them answers as the exact
+            query at the centres of its 1000 sub-cubes, is answered by that scan (module docstring).  0: none.
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
 
@@ -875,21 +1251,25 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         reach |= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_of = np.zeros((nz, ny, nx), dtype=bool)
     cell_of[:-1, :-1, :-1] = reach
-    # first the flagged cells wholly in the lumen that a straight round tube answers (a vessel's axis)
+    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (module docstring)
     inner = np.ones((nz - 1, ny - 1, nx - 1), dtype=bool)
     for c in range(8):
         inner &= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_in = np.zeros((nz, ny, nx), dtype=bool)
     cell_in[:-1, :-1, :-1] = inner
     cand = np.nonzero((rec[:, 5] != 0) & cell_in.ravel())[0]
-    tubes = np.zeros((0, NODE_STRIDE))
+    mrec = np.zeros((0, MODEL_REC))
+    n_used = np.zeros(MODELS + 1, dtype=np.int64)
     if tube and cand.size:
         kk, rem = np.divmod(cand, nx * ny)
         jj, ii = np.divmod(rem, nx)
-        trec, passed = _tubes(head, field, np.ascontiguousarray(np.column_stack([ii, jj, kk])), band_m, out_band, tol_dist_m,
-                              cos_tol, math.cos(math.radians(5.0)), axis_m, *wargs)
-        tubes = trec[passed]
-        rec[cand[passed], 5] = -2.0 - np.arange(tubes.shape[0])
+        allrec, used = _model_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), min(max(1, int(models)), MODELS),
+                                    5, 9, band_m, out_band, tol_dist_m, cos_tol, math.cos(math.radians(1.5)), axis_m,
+                                    np.dtype(dtype) == np.float32, *wargs)
+        passed = used > 0
+        mrec = allrec[passed]
+        n_used = np.bincount(used, minlength=MODELS + 1)
+        rec[cand[passed], 5] = -2.0 - np.arange(mrec.shape[0])
     t3b = time.perf_counter()
     flagged = np.nonzero((rec[:, 5] > -2.0) & (rec[:, 5] != 0) & cell_of.ravel())[0]
     kk, rem = np.divmod(flagged, nx * ny)
@@ -910,7 +1290,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         sub_exact = int(keep.size * r ** 3 - good[keep].sum())
         exact_blocks = flagged[keep[good[keep] < r ** 3]]
     head[8] = fine.size
-    fine = np.ascontiguousarray(np.concatenate([fine, tubes.ravel().astype(dtype)]))
+    fine = np.ascontiguousarray(np.concatenate([fine, mrec.ravel().astype(dtype)]))
     t4 = time.perf_counter()
     # the exact query's arrays, pruned to the leaves the lookup can ask: those of the cells it answers
     # exactly and those reaching outside the grid
@@ -920,6 +1300,26 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         exact = _pruned(wall, head, np.concatenate([np.nonzero(rec[:, 5] == -1.0)[0], exact_blocks]), exact_max_leaf,
                         exact_max_depth)
     t5 = time.perf_counter()
+    # list cells: the exact cells and those with exact sub-cells, wholly in the lumen, whose few nearest triangles
+    # a short scan answers as the exact query
+    n_lists = 0
+    list_len = 0
+    if list_max > 0:
+        lcells = np.concatenate([np.nonzero((rec[:, 5] == -1.0) & cell_in.ravel())[0], exact_blocks[cell_in.ravel()[exact_blocks]]])
+        if lcells.size:
+            kk, rem = np.divmod(lcells, nx * ny)
+            jj, ii = np.divmod(rem, nx)
+            lists, lens = _list_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), int(list_lattice), 10,
+                                      int(list_max), *exact)
+            off = fine.size + np.concatenate([[0], np.cumsum(lens)[:-1]])
+            ok = (lens > 0) & (off + lens < (2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52))
+            rec[lcells[ok], 6] = off[ok]
+            rec[lcells[ok], 7] = lens[ok]
+            flat = np.concatenate([lists[e, :lens[e]] for e in np.nonzero(ok)[0]]) if ok.any() else np.zeros(0, np.int64)
+            fine = np.ascontiguousarray(np.concatenate([fine, flat.astype(dtype)]))
+            n_lists = int(ok.sum())
+            list_len = int(lens[ok].sum())
+    t6 = time.perf_counter()
     cells = (nx - 1) * (ny - 1) * (nz - 1)
     n_exact = int((rec[:, 5] == -1.0).sum())
     stats = {"nodes": float(nx * ny * nz), "cells": float(cells), "flagged_spread": float(counts[0]),
@@ -928,9 +1328,11 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
              "exact_cells": float(n_exact), "exact_subcells": float(sub_exact),
              "exact_fraction": (n_exact + sub_exact / max(r, 1) ** 3) / cells, "lumen_nodes": float((diam > 0).sum()),
              "exact_balls": float(n_balls),
-             "tube_cells": float(tubes.shape[0]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
+             "tube_cells": float(mrec.shape[0]), "model_cells_1": float(n_used[1]), "model_cells_2": float(n_used[2]),
+             "model_cells_3": float(n_used[3]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
              "exact_MB": sum(a.nbytes for a in exact) / 1e6, "exact_index": float(exact[5].size),
              "exact_nodes": float(len(exact[4])), "exact_triangles": float(exact[0].size // 48),
+             "list_cells": float(n_lists), "list_mean_len": list_len / max(n_lists, 1),
              "sample_s": t1 - t0, "diameter_s": t2 - t1, "flag_s": t3 - t2, "tube_s": t3b - t3, "refine_s": t4 - t3b, "prune_s": t5 - t4,
-             "build_s": t5 - t0}
+             "list_s": t6 - t5, "build_s": t6 - t0}
     return WallField3D(wall, head, field, fine, stats, exact)

@@ -22,9 +22,10 @@ of 0.3 mm plus two spacings.
 
 Standard of the sampled wall: within ``BAND_M`` (1 mm) of the wall in the lumen and ``OUT_BAND_M`` (0.1 mm)
 outside it, distance within 5 um and normal within 2 deg of the exact query (the cells interpolation cannot
-answer go to it, a vessel's axis to a tube fitted to the cell), but for the normal within micrometres of a
+answer go to it -- over the cell's few nearest triangles where they are few, ``LIST_MAX`` -- a vessel's axis or a
+junction's medial cell to the least of a few tubes, ridges or planes fitted to the cell), but for the normal within micrometres of a
 medial surface (a vessel's axis, a junction's bisector), where the exact normal itself jumps
-(tools/validate_wall_field3d.py ``--shipped``: 12 / 0 / 11 points in 2 x 10^5 off by more than 2 deg there).
+(tools/validate_wall_field3d.py ``--shipped``: 15 / 0 / 15 points in 2 x 10^5 off by more than 2 deg there).
 Outside the lumen by more, where a bead's centre never is (a run counts that time as outside the lumen), and
 deeper in it, the lookup interpolates whatever the error
 (the sign is kept): the wall's net force there -- the near and the far wall's electrostatic pull, the other
@@ -36,8 +37,8 @@ Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, cap
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
 :meth:`PlantField3D.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
-them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine): III-C 12 s, 112 MB;
-carotid 44 s, 123 MB; synthetic tree 25 s, 400 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
+them is cached beside them (``.wall.npz``, not shipped); measured (a loaded 2-core machine): III-C 33 s, 114 MB;
+carotid 61 s, 123 MB; synthetic tree 89 s, 405 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
 it) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
 tree.  A torn, foreign or older file is solved or built again; a failed solve caches nothing.
 """
@@ -74,7 +75,7 @@ __all__ = ["PlantField3D", "flow_settings", "grid_spacing_m", "field_key", "plan
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
 FIELD3D_VERSION = 2
 #: Bumped when the wall field built from the samples changes (a cached ``.wall.npz`` of another is built again).
-WALL_VERSION = 3
+WALL_VERSION = 6
 #: The grid's margin round the wall (m), plus two spacings.
 GRID_MARGIN_M = 3.0e-4
 #: Default spacing of the plant's grid (m).
@@ -91,6 +92,8 @@ REFINE = 2
 NEAR_M = 0.6e-3
 #: ... and the lookup's, kept where it asks the exact query, down to 0.1 mm (depth 5 under 3.2 mm roots).
 EXACT_DEPTH = 5
+#: The longest triangle list of a list cell (:func:`~vesselbot_ros.physics.wall_field3d.build_wall_field3d`).
+LIST_MAX = 256
 #: Vertices are stored in the samples' file on this lattice (m).
 _QUANTUM_M = 1.0e-9
 
@@ -336,7 +339,8 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
         except (OSError, ValueError, KeyError):
             pass  # a torn, foreign or older file: build again
     wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
-                            origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True)
+                            origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True,
+                            list_max=LIST_MAX)
     stats = {**wf.stats, "v": WALL_VERSION}
     with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
         _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))

@@ -177,3 +177,111 @@ def test_tube_cells_answer_a_narrow_vessel_s_axis() -> None:
     assert _angle(r["normal"], e["normal"])[off_axis].max() < 2.0
     radial = -np.column_stack([0 * x, np.cos(th), np.sin(th)])
     assert _angle(r["normal"], radial)[off_axis].max() < 2.0
+
+
+def test_a_model_cell_answers_the_least_of_its_models_with_the_normal_of_the_one_that_attains_it() -> None:
+    """Two straight round tubes (sigma -1: a lumen's wall seen from within) crossing, and a ridge (sigma +1):
+    the answer is the least of their s, the normal the attaining model's; an unused slot ends the list."""
+    rec = np.zeros(wf.MODEL_REC + 4)
+    o = 4
+    rec[o:o + 8] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0e-3, -1.0]  # tube along x, R = 1 mm
+    rec[o + 8:o + 16] = [0.0, 0.5e-3, 0.0, 0.0, 0.0, 1.0, 0.8e-3, -1.0]  # tube along z through y = 0.5 mm
+    rec[o + 16:o + 24] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, wf._NO_MODEL]
+    for q in ([0.2e-3, 0.1e-3, 0.3e-3], [0.0, 0.9e-3, 0.0], [0.1e-3, -0.6e-3, 0.2e-3]):
+        s1 = 1.0e-3 - math.hypot(q[1], q[2])
+        s2 = 0.8e-3 - math.hypot(q[0], q[1] - 0.5e-3)
+        s, nx, ny, nz, _rho = wf._models(q[0], q[1], q[2], rec, o)
+        assert s == pytest.approx(min(s1, s2), abs=1e-15)
+        n_true = (np.array([0.0, -q[1], -q[2]]) / math.hypot(q[1], q[2]) if s1 <= s2
+                  else np.array([-q[0], 0.5e-3 - q[1], 0.0]) / math.hypot(q[0], q[1] - 0.5e-3))
+        np.testing.assert_allclose([nx, ny, nz], n_true, atol=1e-12)
+    rec[o + 16:o + 24] = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0]  # a crease line along z seen from outside (R = 0)
+    s, nx, ny, nz, rho = wf._models(0.3e-4, 0.4e-4, 0.0, rec, o)
+    assert s == pytest.approx(0.5e-4, abs=1e-15) and rho == pytest.approx(0.5e-4)
+    np.testing.assert_allclose([nx, ny, nz], [0.6, 0.8, 0.0], atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def y_fast() -> tuple[wf.WallField3D, wf.WallField3D]:
+    """The Y refined, without and with model cells and list cells (their lattice coarser than the plant's, for
+    speed)."""
+    v, t, caps, _n = mw.y_wall()
+    wall = mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * H)
+    return (wf.build_wall_field3d(wall, h_m=H, refine=2),
+            wf.build_wall_field3d(wall, h_m=H, refine=2, tube=True, list_max=64, list_lattice=9))
+
+
+def test_model_cells_answer_the_y_s_medial_cells_within_the_standard(y_fast: tuple[wf.WallField3D, wf.WallField3D]) -> None:
+    """The Y built with model cells: flagged cells wholly in the lumen answered by the least of a few fitted
+    tubes, ridges or planes (some by more than one), fewer left to the exact query; at random points in the
+    model cells the lookup is within 5 um of the exact query and within 2 deg of its normal wherever that is
+    defined (it does not turn by more than 2 deg within 5 um: off a medial surface)."""
+    plain, mod = y_fast
+    wall = mod.wall
+    assert mod.stats["tube_cells"] > 0 and mod.stats["exact_cells"] < plain.stats["exact_cells"]
+    assert mod.stats["model_cells_2"] + mod.stats["model_cells_3"] > 0  # some answered by two or three models
+    flags = mod.flags()
+    kk, jj, ii = np.nonzero(flags <= -2.0)
+    rng = np.random.default_rng(11)
+    pick = rng.integers(0, len(kk), 30000)
+    q = np.ascontiguousarray(mod.head[:3] + H * (np.column_stack([ii[pick], jj[pick], kk[pick]]) + rng.uniform(0, 1, (len(pick), 3))))
+    assert not mod.exact_mask(q).any()
+    r, e = mod.query(q), wall.query(q)
+    band = e["sdist"] <= 1e-3
+    assert band.sum() > 1000
+    assert np.abs(r["sdist"] - e["sdist"])[band].max() < 5e-6
+    ang = _angle(r["normal"], e["normal"])
+    turn = np.zeros(len(q))
+    for _ in range(6):
+        step = rng.normal(size=q.shape)
+        step *= 5e-6 / np.linalg.norm(step, axis=1)[:, None]
+        turn = np.maximum(turn, _angle(wall.query(q + step)["normal"], e["normal"]))
+    assert ang[band & (turn <= 2.0)].max() < 2.0
+
+
+def _well_conditioned(wall: mw.Wall3D, q: Array, n: Array, rng: np.random.Generator) -> npt.NDArray[np.bool_]:
+    turn = np.zeros(len(q))
+    for _ in range(6):
+        step = rng.normal(size=q.shape)
+        step *= 5e-6 / np.linalg.norm(step, axis=1)[:, None]
+        turn = np.maximum(turn, _angle(wall.query(q + step)["normal"], n))
+    return turn <= 2.0
+
+
+def test_the_list_scan_is_the_exact_query_over_the_whole_list() -> None:
+    """The list cells' scan over every triangle of the wall (nearest the point first, or not) answers as the
+    exact query, bit for bit: the same bounds, closest points and tie rule."""
+    v, t, caps, _n = mw.y_wall(h_m=0.3e-3)
+    wall = mw.Wall3D(v, t, caps, margin_m=1.0e-3)
+    d = wall._args[0]
+    n = d.size // mw.STRIDE
+    rng = np.random.default_rng(12)
+    q = rng.uniform([-4e-3, -2e-3, -1.5e-3], [3e-3, 2e-3, 1.5e-3], size=(300, 3))
+    e = mw.query_points3d(np.ascontiguousarray(q), *wall._args, True)
+    for order in (np.arange(n), rng.permutation(n)):
+        lst = order.astype(np.float32)
+        for k in range(len(q)):
+            assert wf._scan_list(q[k, 0], q[k, 1], q[k, 2], d, lst, 0, n) == tuple(e[k])
+
+
+def test_list_cells_answer_as_the_exact_query(y_fast: tuple[wf.WallField3D, wf.WallField3D]) -> None:
+    """Exact cells wholly in the lumen whose nearest triangles are few: the lookup scans the cell's list (checked
+    at build against the exact query at 1000 points per cell), not the candidate tree; at random points of those
+    cells it answers as the exact query bit for bit almost everywhere, and within the standard everywhere."""
+    _plain, y = y_fast
+    assert y.stats["list_cells"] > 0 and 0 < y.stats["list_mean_len"] <= 64
+    nx, ny, nz = y.shape
+    rec = y.field.reshape(nz, ny, nx, wf.NODE_STRIDE)[:-1, :-1, :-1]
+    kk, jj, ii = np.nonzero(rec[:, :, :, 7] > 0)
+    rng = np.random.default_rng(13)
+    pick = rng.integers(0, len(kk), 20000)
+    q = np.ascontiguousarray(y.head[:3] + H * (np.column_stack([ii[pick], jj[pick], kk[pick]]) + rng.uniform(0, 1, (len(pick), 3))))
+    listed = y.list_mask(q)
+    assert listed.mean() > 0.3 and not y.exact_mask(q[listed]).any()
+    q = q[listed]
+    r, e = y.query(q), y.wall.query(q)
+    same = (r["sdist"] == e["sdist"]) & (r["normal"] == e["normal"]).all(axis=1)
+    assert same.mean() > 0.99
+    assert np.abs(r["sdist"] - e["sdist"]).max() < 5e-6
+    ok = _well_conditioned(y.wall, q, e["normal"], rng)
+    assert _angle(r["normal"], e["normal"])[ok].max() < 2.0
