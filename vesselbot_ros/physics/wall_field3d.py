@@ -113,7 +113,8 @@ one is defined.  Model cells: 5307 / 133 / 16861 (of which 2 or 3 models: 196 / 
 15358 are list cells (36 / 32 / 44 triangles on average); the exact query answers 0.3 / 0.3 / 0.7 % of the
 points in the band (2.1 / 1.7 / 4.1 % with tubes only), list cells 1.8 / 1.4 / 3.4 %.  At the points the shipped
 runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5 / 0.0 / 5.9 % and list cells 4.1 / 0.9 /
-15.0 % (exact 4.5 / 0.9 / 27.5 % with tubes only, the synthetic tree's figure on its earlier route); where the exact query is left, at the synthetic tree's
+15.0 % (exact 4.5 / 0.9 / 27.5 % with tubes only, the synthetic tree's figure on its earlier route); where
+the exact query is left, at the synthetic tree's
 junctions and near its vessels' axes, the wall is no straight round tube, ridge or plane within the standard
 over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss the
 check.  Build (a loaded 2-core machine): 33 / 61 / 89 s, of which the model cells 10 / 12 / 25 s and the list
