@@ -693,16 +693,7 @@ def _scan(px, py, pz, d, pbox, pstart, index, lo, hi, seed):  # type: ignore[no-
                 continue
             for t in range(t0, t0 + L):
                 b = 48 * t
-                # lower bound: the triangle lies in the disc of radius r round its centroid in its plane
-                sx = px - d[b]
-                sy = py - d[b + 1]
-                sz = pz - d[b + 2]
-                hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
-                h2 = hn * hn
-                if h2 > best:
-                    continue
-                rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
-                if rin > 0.0 and h2 + rin * rin > best:
+                if _triangle_far(px, py, pz, d, b, best):
                     continue
                 d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
                 if d2 < best or (d2 == best and t < tbest):
@@ -714,6 +705,21 @@ def _scan(px, py, pz, d, pbox, pstart, index, lo, hi, seed):  # type: ignore[no-
                     tbest = t
             t0 += L
     return best, fx, fy, fz, feat, tbest
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _triangle_far(px, py, pz, d, b, best):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """True if the triangle of record ``b`` lies farther than sqrt(best) from the point: a lower bound, the triangle
+    lying in the disc of radius r round its centroid in its plane."""
+    sx = px - d[b]
+    sy = py - d[b + 1]
+    sz = pz - d[b + 2]
+    hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
+    h2 = hn * hn
+    if h2 > best:
+        return True
+    rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
+    return rin > 0.0 and h2 + rin * rin > best
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -961,15 +967,7 @@ def _patch_dist2(px, py, pz, d, pstart, p):  # type: ignore[no-untyped-def]  # n
             continue
         for t in range(t0, t0 + L):
             b = 48 * t
-            sx = px - d[b]
-            sy = py - d[b + 1]
-            sz = pz - d[b + 2]
-            hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
-            h2 = hn * hn
-            if h2 > best:
-                continue
-            rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
-            if rin > 0.0 and h2 + rin * rin > best:
+            if _triangle_far(px, py, pz, d, b, best):
                 continue
             d2, _x, _y, _z, _f = _closest(px, py, pz, d, b + 8)
             if d2 < best:

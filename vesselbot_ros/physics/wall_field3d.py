@@ -142,6 +142,7 @@ from vesselbot_ros.physics.meshed_wall3d import (
     _scan,
     _signed,
     _smooth_normal,
+    _triangle_far,
     ball_diameters3d,
     centre_distances,
     leaves3d,
@@ -312,15 +313,7 @@ def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # num
     for e in range(o + 1, o + n):
         t = int(lst[e])
         b = 48 * t
-        sx = px - d[b]
-        sy = py - d[b + 1]
-        sz = pz - d[b + 2]
-        hn = sx * d[b + 4] + sy * d[b + 5] + sz * d[b + 6]
-        h2 = hn * hn
-        if h2 > best:
-            continue
-        rin = math.sqrt(max(sx * sx + sy * sy + sz * sz - h2, 0.0)) - d[b + 3]
-        if rin > 0.0 and h2 + rin * rin > best:
+        if _triangle_far(px, py, pz, d, b, best):
             continue
         d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
         if d2 < best or (d2 == best and t < tbest):
