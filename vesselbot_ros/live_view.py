@@ -142,9 +142,8 @@ class DerivedView:
             self.network = any(m.ns == NETWORK_WALL_NS for m in self._decode(key).markers)
         now = time.monotonic()
         # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
-        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
-            self._last_wall = now
-            self.emit(t_ns)
+        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted() and self.emit(t_ns):
+            self._last_wall = now  # an update that could not be sent (no truth yet) does not use up the slot
 
     def _decode(self, key: str) -> Any:
         # deferred: rclpy; the module's scene numbers are used and tested ROS-free, and live imports it for its defaults
@@ -152,10 +151,11 @@ class DerivedView:
 
         return deserialize_message(self._latest[key], self._types[key])
 
-    def emit(self, t_ns: int) -> None:
-        """Send one update of every view channel from the latest messages (needs a truth message)."""
+    def emit(self, t_ns: int) -> bool:
+        """Send one update of every view channel from the latest messages; False (nothing sent) before a truth
+        message arrived."""
         if "truth" not in self._latest:
-            return
+            return False
         truth = self._decode("truth")
         est = self._decode("estimate") if "estimate" in self._latest else None
         ref = self._decode("reference") if "reference" in self._latest else None
@@ -169,7 +169,8 @@ class DerivedView:
         from rclpy.serialization import serialize_message
 
         now = time.monotonic()
-        with_path = now - self._path_wall >= PATH_PERIOD_S
+        # the path's period starts when it is sent: an update before the path arrived does not use up the period
+        with_path = bool(self._path_points) and now - self._path_wall >= PATH_PERIOD_S
         if with_path:
             self._path_wall = now
         scene = self.markers(sn, truth.header, with_path)
@@ -185,6 +186,7 @@ class DerivedView:
         if sn.estimation_error_m is not None:
             errors["estimation_error_m"] = sn.estimation_error_m
         self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
+        return True
 
     @staticmethod
     def _deleted(ns: str, header: Any) -> Any:

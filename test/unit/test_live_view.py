@@ -220,3 +220,26 @@ def test_straight_walls_drawn_before_the_plants_markers_show_a_network_are_delet
     assert walls == [[("upper_wall", Marker.ADD), ("lower_wall", Marker.ADD)],
                      [("upper_wall", Marker.DELETE), ("lower_wall", Marker.DELETE)], []]
     assert all(m.header.frame_id == "vessel" for m in sent[1].markers)
+
+
+def test_an_update_before_the_path_arrived_does_not_use_up_the_paths_period():
+    """The first updates of a short run come before the reference's path: the path rides on the first update after
+    it arrives, not a period later (a 0.3 s run may end within one period)."""
+    pytest.importorskip("rclpy")
+    from geometry_msgs.msg import Point
+    from rclpy.serialization import deserialize_message, serialize_message
+    from visualization_msgs.msg import MarkerArray
+
+    from vesselbot_ros.live_view import DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+
+    view = DerivedView(lambda *a: None)
+    sent = []
+    view._send = lambda key, data, t: sent.append(deserialize_message(data, MarkerArray)) if key == "view_markers" else None
+    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3,
+                                                                  1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0), [(0.0, 0.0)] * 8))
+    view.emit(5)  # no path yet
+    view._path_points = [Point(x=1e-5 * i, z=0.0) for i in range(50)]
+    view.emit(6)  # within the period of the first update: the path rides along now
+    view.emit(7)
+    assert [any(m.ns == "reference_path" for m in arr.markers) for arr in sent] == [False, True, False]
