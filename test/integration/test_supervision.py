@@ -73,17 +73,10 @@ def _fd_holders(domain_id: int) -> dict[int, str]:
     return out
 
 
-def _free_domain() -> int:
-    from vesselbot_ros.ros_env import allocate_domain
-
-    with allocate_domain() as lease:
-        return lease.domain_id
-
-
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
-def test_killing_the_launcher_leaves_no_node_and_frees_the_domain_after(repo, tmp_path, sig):
-    dom = _free_domain()
+def test_killing_the_launcher_leaves_no_node_and_frees_the_domain_after(repo, tmp_path, sig, peer_domain):
+    dom = peer_domain  # held by this test too (shared): no other run leases it before the launcher does
     bag = tmp_path / "bag"
     launcher, nodes = _start_and_wait_running(repo, "--domain-id", str(dom), "--record-dir", str(bag))
     unjudged = ""
