@@ -673,15 +673,7 @@ def _scan(px, py, pz, d, pbox, pstart, index, lo, hi, seed):  # type: ignore[no-
     best, fx, fy, fz, feat = _closest(px, py, pz, d, 48 * seed + 8)
     for e in range(lo, hi):
         p = index[e]
-        o = 15 * p
-        g2 = 0.0
-        for a in range(3):
-            pr = pbox[o + 3 * a] * px + pbox[o + 3 * a + 1] * py + pbox[o + 3 * a + 2] * pz
-            if pr < pbox[o + 9 + a]:
-                g2 += (pbox[o + 9 + a] - pr) ** 2
-            elif pr > pbox[o + 12 + a]:
-                g2 += (pr - pbox[o + 12 + a]) ** 2
-        if g2 > best:
+        if _box_dist2(px, py, pz, pbox, p) > best:
             continue
         t0 = pstart[p]
         t1 = pstart[p + 1]
