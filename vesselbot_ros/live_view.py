@@ -142,8 +142,9 @@ class DerivedView:
             self.network = any(m.ns == NETWORK_WALL_NS for m in self._decode(key).markers)
         now = time.monotonic()
         # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
-        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted() and self.emit(t_ns):
-            self._last_wall = now  # an update that could not be sent (no truth yet) does not use up the slot
+        if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
+            self._last_wall = now
+            self.emit(t_ns)
 
     def _decode(self, key: str) -> Any:
         # deferred: rclpy; the module's scene numbers are used and tested ROS-free, and live imports it for its defaults
@@ -151,11 +152,10 @@ class DerivedView:
 
         return deserialize_message(self._latest[key], self._types[key])
 
-    def emit(self, t_ns: int) -> bool:
-        """Send one update of every view channel from the latest messages; False (nothing sent) before a truth
-        message arrived."""
+    def emit(self, t_ns: int) -> None:
+        """Send one update of every view channel from the latest messages (needs a truth message)."""
         if "truth" not in self._latest:
-            return False
+            return
         truth = self._decode("truth")
         est = self._decode("estimate") if "estimate" in self._latest else None
         ref = self._decode("reference") if "reference" in self._latest else None
@@ -186,7 +186,6 @@ class DerivedView:
         if sn.estimation_error_m is not None:
             errors["estimation_error_m"] = sn.estimation_error_m
         self._send("view_errors", json.dumps(errors).encode("utf-8"), t_ns)
-        return True
 
     @staticmethod
     def _deleted(ns: str, header: Any) -> Any:
