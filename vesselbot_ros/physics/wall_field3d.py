@@ -165,6 +165,9 @@ _HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
 MODELS = 3
 MODEL_REC = MODELS * NODE_STRIDE
 _NO_MODEL = 9.0
+#: A list cell's lists start at ``fine[hi _LIST_BASE + lo]`` (the first two floats of its directory): each part
+#: exact in float32.
+_LIST_BASE = 1 << 20
 
 Array = npt.NDArray[np.float64]
 
@@ -206,6 +209,19 @@ def _interp(field, base, sy, sz, tx, ty, tz, h):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _diameter(field, base, sy, sz, tx, ty, tz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """D of :func:`_interp` alone (the same doubles), for the cells whose distance and normal come from elsewhere."""
+    dd = 0.0
+    for c in range(8):
+        cx = c & 1
+        cy = (c >> 1) & 1
+        cz = c >> 2
+        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        dd += w * float(field[base + cx * NODE_STRIDE + cy * sy + cz * sz + 4])
+    return dd
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(s, nx, ny, nz, D)`` at (px, py, pz) (m): signed distance (m, > 0 in the lumen), unit inward normal and
     local diameter (m).
@@ -235,10 +251,13 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
     sy = NODE_STRIDE * nx
     sz = sy * ny
     base = ((k * ny + j) * nx + i) * NODE_STRIDE
-    s, gx, gy, gz, dd = _interp(field, base, sy, sz, tx, ty, tz, h)
     flag = field[base + 5]
-    if inside and flag == 0.0:
-        return s, gx, gy, gz, dd
+    if flag == 0.0 or not inside:
+        s, gx, gy, gz, dd = _interp(field, base, sy, sz, tx, ty, tz, h)
+        if inside:
+            return s, gx, gy, gz, dd
+    else:
+        dd = _diameter(field, base, sy, sz, tx, ty, tz)
     if inside and flag > 0.0:
         r = int(head[7])
         r1 = r + 1
@@ -256,10 +275,21 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
         s, gx, gy, gz, _rho = _models(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * MODEL_REC)
         return s, gx, gy, gz, dd
     if inside and field[base + 7] > 0.0:
-        s, gx, gy, gz = _scan_list(px, py, pz, d, fine, int(field[base + 6]), int(field[base + 7]))
-        return s, gx, gy, gz, dd
+        o, n = _sub_list(tx, ty, tz, fine, int(field[base + 6]), int(field[base + 7]))
+        if n > 0:
+            s, gx, gy, gz = _scan_list(px, py, pz, d, fine, o, n)
+            return s, gx, gy, gz, dd
     s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
     return s, gx, gy, gz, dd
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _sub_list(tx, ty, tz, fine, o, sub):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(offset in ``fine``, length) of the triangle list of the sub-cube holding (tx, ty, tz) in [0, 1]^3 of the
+    list cell whose directory starts at ``fine[o]`` (``sub``^3 sub-cubes; length 0: none, the exact query)."""
+    c = (min(int(tz * sub), sub - 1) * sub + min(int(ty * sub), sub - 1)) * sub + min(int(tx * sub), sub - 1)
+    a = int(fine[o + 2 + c])
+    return int(fine[o]) * _LIST_BASE + int(fine[o + 1]) + a, int(fine[o + 3 + c]) - a
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -328,47 +358,86 @@ def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # num
     return s, gx, gy, gz
 
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _nearest_triangle(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The triangle the exact query finds nearest (px, py, pz) (-1: none, a sealed leaf)."""
+    leaf = _leaf(px, py, pz, grid, nodes)
+    return _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])[5]
+
+
+@numba.njit(cache=True)
+def _list_agrees(x0, y0, z0, a, n, lst, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the scan over ``lst`` answers as the exact query, bit for bit, at the centres of the ``n``^3 cubes
+    of the cube of side ``a`` (m) with lowest corner (x0, y0, z0)."""
+    for p in range(n * n * n):
+        px = x0 + a * (p % n + 0.5) / n
+        py = y0 + a * ((p // n) % n + 0.5) / n
+        pz = z0 + a * (p // (n * n) + 0.5) / n
+        r1 = _scan_list(px, py, pz, d, lst, 0, lst.size)
+        r2 = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
+        if r1[0] != r2[0] or r1[1] != r2[1] or r1[2] != r2[2] or r1[3] != r2[3]:
+            return False
+    return True
+
+
 @numba.njit(cache=True, parallel=True)
-def _list_cells(head, cells, lat, nver, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Per cell of ``cells`` (m, 3) ``(i, j, k)``: the triangles nearest its ``lat``^3 lattice points (the exact
-    query's), nearest its centre first, kept if at most ``maxlen`` and if the scan over them
-    (:func:`_scan_list`) answers as the exact query, bit for bit, at the ``nver``^3 centres of the cell's
-    sub-cubes of side h / ``nver``.  Returns (lists (m, maxlen) int64, lengths (m,) int64: 0 none)."""
+def _list_cells(head, cells, lat, sub, halo, nver, naug, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Per cell of ``cells`` (m, 3) ``(i, j, k)`` and per sub-cube of its ``sub``^3 (side h / ``sub``, x fastest):
+    the fewest triangles, nearest the sub-cube's centre first, whose scan (:func:`_scan_list`) answers as the
+    exact query, bit for bit, at the centres of the sub-cube's ``nver``^3 cubes, tried in turn: those the exact
+    query finds nearest at the cell's ``lat``^3 lattice points in the sub-cube, then within 1 .. ``halo``
+    lattice spacings of it, then with those nearest the centres of its ``naug``^3 and (2 ``naug``)^3 cubes added
+    (a sliver's small region of nearest points that the lattice missed); none if more than ``maxlen``.  Returns
+    (lists (m, sub^3, maxlen) int32, lengths (m, sub^3) int64: 0 none)."""
     h = head[3]
     m = cells.shape[0]
-    out = np.zeros((m, maxlen), dtype=np.int64)
-    ln = np.zeros(m, dtype=np.int64)
+    ns = sub * sub * sub
+    step = (lat - 1) // sub
+    a = h / sub
+    out = np.zeros((m, ns, maxlen), dtype=np.int32)
+    ln = np.zeros((m, ns), dtype=np.int64)
     for e in numba.prange(m):
         x0 = head[0] + cells[e, 0] * h
         y0 = head[1] + cells[e, 1] * h
         z0 = head[2] + cells[e, 2] * h
         ts = np.empty(lat * lat * lat, dtype=np.int64)
         for p in range(lat * lat * lat):
-            px = x0 + h * (p % lat) / (lat - 1)
-            py = y0 + h * ((p // lat) % lat) / (lat - 1)
-            pz = z0 + h * (p // (lat * lat)) / (lat - 1)
-            leaf = _leaf(px, py, pz, grid, nodes)
-            ts[p] = _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])[5]
-        u = np.unique(ts)
-        if u.size > maxlen or u[0] < 0:
-            continue
-        dc = np.empty(u.size)
-        for a in range(u.size):
-            dc[a] = _closest(x0 + 0.5 * h, y0 + 0.5 * h, z0 + 0.5 * h, d, 48 * u[a] + 8)[0]
-        lst = u[np.argsort(dc, kind="mergesort")]
-        ok = True
-        for p in range(nver * nver * nver):
-            px = x0 + h * (p % nver + 0.5) / nver
-            py = y0 + h * ((p // nver) % nver + 0.5) / nver
-            pz = z0 + h * (p // (nver * nver) + 0.5) / nver
-            r1 = _scan_list(px, py, pz, d, lst, 0, lst.size)
-            r2 = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
-            if r1[0] != r2[0] or r1[1] != r2[1] or r1[2] != r2[2] or r1[3] != r2[3]:
-                ok = False
-                break
-        if ok:
-            out[e, :lst.size] = lst
-            ln[e] = lst.size
+            ts[p] = _nearest_triangle(x0 + h * (p % lat) / (lat - 1), y0 + h * ((p // lat) % lat) / (lat - 1),
+                                      z0 + h * (p // (lat * lat)) / (lat - 1), d, pbox, pstart, grid, nodes, index)
+        buf = np.empty(lat * lat * lat + 9 * naug * naug * naug, dtype=np.int64)
+        for c in range(ns):
+            ci = c % sub
+            cj = (c // sub) % sub
+            ck = c // (sub * sub)
+            sx = x0 + ci * a
+            sy = y0 + cj * a
+            sz = z0 + ck * a
+            cnt = 0
+            for attempt in range(halo + 3):
+                if attempt <= halo:  # the lattice points in the sub-cube, then within ``attempt`` spacings of it
+                    cnt = 0
+                    for kz in range(max(ck * step - attempt, 0), min((ck + 1) * step + attempt, lat - 1) + 1):
+                        for ky in range(max(cj * step - attempt, 0), min((cj + 1) * step + attempt, lat - 1) + 1):
+                            for kx in range(max(ci * step - attempt, 0), min((ci + 1) * step + attempt, lat - 1) + 1):
+                                buf[cnt] = ts[(kz * lat + ky) * lat + kx]
+                                cnt += 1
+                else:  # and the triangles nearest the centres of the sub-cube's naug^3, then (2 naug)^3 cubes
+                    na = naug * (attempt - halo)
+                    for p in range(na * na * na):
+                        buf[cnt] = _nearest_triangle(sx + a * (p % na + 0.5) / na, sy + a * ((p // na) % na + 0.5) / na,
+                                                     sz + a * (p // (na * na) + 0.5) / na, d, pbox, pstart, grid, nodes, index)
+                        cnt += 1
+                u = np.unique(buf[:cnt])
+                if u.size > maxlen or u[0] < 0:
+                    break
+                dc = np.empty(u.size)
+                for t in range(u.size):
+                    dc[t] = _closest(sx + 0.5 * a, sy + 0.5 * a, sz + 0.5 * a, d, 48 * u[t] + 8)[0]
+                lst = u[np.argsort(dc, kind="mergesort")]
+                if _list_agrees(sx, sy, sz, a, nver, lst, d, pbox, pstart, grid, nodes, index):
+                    out[e, c, :lst.size] = lst
+                    ln[e, c] = lst.size
+                    break
     return out, ln
 
 
@@ -1064,13 +1133,22 @@ class WallField3D:
         return np.asarray(self.exact_mask_raw(q) & self._listed(q))
 
     def _listed(self, q: Array) -> npt.NDArray[np.bool_]:
-        """(m,) whether each point lies in a list cell (in the grid)."""
+        """(m,) whether each point lies in a list cell's sub-cube that has a list (in the grid)."""
         n = np.array(self.shape)
-        ijk = np.floor((q - self.head[:3]) / self.head[3]).astype(np.int64)
+        f = (q - self.head[:3]) / self.head[3]
+        ijk = np.floor(f).astype(np.int64)
         inside = ((ijk >= 0) & (ijk < n - 1)).all(axis=1)
         ijk = np.clip(ijk, 0, n - 2)
-        rec = self.field.reshape(n[2], n[1], n[0], NODE_STRIDE)
-        return np.asarray(inside & (rec[ijk[:, 2], ijk[:, 1], ijk[:, 0], 7] > 0))
+        t = np.clip(f - ijk, 0.0, 1.0)
+        rec = self.field.reshape(n[2], n[1], n[0], NODE_STRIDE)[ijk[:, 2], ijk[:, 1], ijk[:, 0]]
+        sub = rec[:, 7].astype(np.int64)
+        listed = inside & (sub > 0)
+        o = rec[listed, 6].astype(np.int64)
+        sb = sub[listed]
+        abc = np.minimum((t[listed] * sb[:, None]).astype(np.int64), sb[:, None] - 1)
+        c = (abc[:, 2] * sb + abc[:, 1]) * sb + abc[:, 0]
+        listed[listed] = self.fine[o + 3 + c] > self.fine[o + 2 + c]
+        return listed
 
     def exact_mask_raw(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """(m,) whether each point (m, 3) (m) lies off the grid or in an exact cell or sub-cell (list cells included)."""
@@ -1145,13 +1223,77 @@ def _needed(tree: CandidateTree, wall: Wall3D, head: Array, cells: npt.NDArray[n
     return need | at_cells, seal & ~at_cells, at_cells
 
 
+def _cell_lists(head: Array, ijk: npt.NDArray[np.int64], lat: int, sub: int, nver: int, maxlen: int,
+                exact: tuple[npt.NDArray[Any], ...]) -> tuple[npt.NDArray[np.int64], list[npt.NDArray[np.int32]]]:
+    """:func:`_list_cells` over the cells ``ijk`` (m, 3) in chunks: (lengths (m, sub^3), per cell its lists in a row)."""
+    ns = sub ** 3
+    lens_all = np.zeros((len(ijk), ns), dtype=np.int64)
+    rows: list[npt.NDArray[np.int32]] = []
+    chunk = max(1, (1 << 25) // (ns * maxlen * 4))  # a chunk's lists: at most 128 MB
+    for c0 in range(0, len(ijk), chunk):
+        lists, lens = _list_cells(head, np.ascontiguousarray(ijk[c0:c0 + chunk]), lat, sub, 1, nver, 6, maxlen, *exact)
+        lens_all[c0:c0 + chunk] = lens
+        keep = np.arange(maxlen)[None, :] < lens[:, :, None]
+        rows.extend(lists[e][keep[e]] for e in range(len(lens)))  # per sub-cube, its list
+    return lens_all, rows
+
+
+def _store_lists(head: Array, rec: npt.NDArray[Any], fine: npt.NDArray[Any], lcells: npt.NDArray[np.int64],
+                 lat: int, sub: int, split_len: float, maxlen: int, exact: tuple[npt.NDArray[Any], ...], dtype: type
+                 ) -> tuple[npt.NDArray[Any], dict[str, float]]:
+    """Give the cells ``lcells`` (flat indices) whose sub-cubes have lists their directories and lists in ``fine``.
+
+    Each cell is divided in ``sub``^3 sub-cubes, or in (2 ``sub``)^3 where the lists of those are longer than
+    ``split_len`` on average (near a vessel's axis: a ring of triangles nearly as near) and the finer ones
+    leave no more of it to the exact query.  A list cell's lowest node's slot 6 holds its directory's offset in
+    ``fine``, slot 7 its division n; the directory is ``(hi, lo, start_0 .. start_{n^3})``: sub-cube c's
+    triangles are ``fine[base + start_c:base + start_{c+1}]`` with ``base = hi _LIST_BASE + lo`` (none: the
+    exact query).  The directories come first, so their offsets stay exact in float32.  Returns (fine, stats).
+    """
+    stats = {"list_cells": 0.0, "list_cells_fine": 0.0, "list_sub_cells": 0.0, "list_mean_len": 0.0}
+    if lcells.size == 0:
+        return fine, stats
+    nx, ny = int(head[4]), int(head[5])
+    kk, rem = np.divmod(lcells, nx * ny)
+    jj, ii = np.divmod(rem, nx)
+    ijk = np.column_stack([ii, jj, kk])
+    lens, rows = _cell_lists(head, ijk, lat, sub, 3, maxlen, exact)
+    subs = [sub] * len(lcells)
+    per = [ln for ln in lens]
+    used = (lens > 0).sum(axis=1)
+    heavy = np.nonzero(lens.sum(axis=1) > split_len * np.maximum(used, 1))[0]
+    if heavy.size and 2 * sub <= lat - 1 and (lat - 1) % (2 * sub) == 0:
+        lens2, rows2 = _cell_lists(head, ijk[heavy], lat, 2 * sub, 2, maxlen, exact)
+        for e, c in enumerate(heavy):
+            if (lens2[e] > 0).sum() >= 8 * used[c]:  # no more of the cell left to the exact query
+                subs[c], per[c], rows[c] = 2 * sub, lens2[e], rows2[e]
+    has = np.array([ln.sum() > 0 for ln in per])
+    size = np.array([n ** 3 + 3 for n in subs])
+    limit = 2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52
+    has &= fine.size + np.cumsum(np.where(has, size, 0)) < limit  # the directory's end exact
+    cells = np.nonzero(has)[0]
+    dir_off = fine.size + np.concatenate([[0], np.cumsum(size[cells])[:-1]])
+    total = np.array([int(per[c].sum()) for c in cells])
+    base = fine.size + int(size[cells].sum()) + np.concatenate([[0], np.cumsum(total)[:-1]])
+    dirs = [np.concatenate([np.divmod(b, _LIST_BASE), [0], np.cumsum(per[c])]) for b, c in zip(base, cells, strict=True)]
+    rec[lcells[cells], 6] = dir_off
+    rec[lcells[cells], 7] = np.array(subs)[cells]
+    parts = [np.zeros(0)] + dirs + [rows[c] for c in cells]
+    fine = np.ascontiguousarray(np.concatenate([fine] + [p_.astype(dtype) for p_ in parts]))
+    n_sub = sum(int((per[c] > 0).sum()) for c in cells)
+    stats.update(list_cells=float(cells.size), list_cells_fine=float(sum(subs[c] > sub for c in cells)),
+                 list_sub_cells=float(n_sub), list_mean_len=float(total.sum()) / max(n_sub, 1))
+    return fine, stats
+
+
 def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05e-3, band_m: float = 1.0e-3,
                        tol_dist_m: float = 2e-6, tol_normal_deg: float = 1.0, spread_deg: float = 60.0,
                        refine: int = 1, dtype: type = np.float32, origin_m: npt.ArrayLike | None = None,
                        shape: tuple[int, int, int] | None = None, layers_per_chunk: int = 4,
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
                        exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
-                       models: int = MODELS, list_max: int = 0, list_lattice: int = 17) -> WallField3D:
+                       models: int = MODELS, list_max: int = 0, list_lattice: int = 17, list_sub: int = 4,
+                       list_split: float = 12.0) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -1180,9 +1322,12 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         axis_m: ... the normal not tested within this (m) of the attaining model's axis (the exact normal turns
             by more than 2 deg within 5 um there).
         models: The most models per model cell (1: one straight round tube per cell).
-        list_max: An exact cell (or one with exact sub-cells) wholly in the lumen whose nearest triangles at its
-            ``list_lattice``^3 lattice points are at most this many, and whose scan over them answers as the exact
-            query at the centres of its 1000 sub-cubes, is answered by that scan (module docstring).  0: none.
+        list_max: An exact cell (or one with exact sub-cells) wholly in the lumen is divided in ``list_sub``^3
+            sub-cubes; one whose nearest triangles at the cell's ``list_lattice``^3 lattice points in it and next
+            to it are at most this many, and whose scan over them answers as the exact query at the centres of its
+            27 cubes, is answered by that scan (module docstring).  0: none.
+        list_split: ... a cell whose sub-cubes' lists are longer on average is divided in (2 ``list_sub``)^3 instead
+            (their lists checked at 8 points each).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
 
@@ -1194,6 +1339,8 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     """
     from scipy.ndimage import distance_transform_edt  # deferred: scipy.ndimage is heavy, needed only to build
 
+    if list_max > 0 and (list_sub < 1 or (list_lattice - 1) % list_sub):
+        raise ValueError(f"list_lattice - 1 = {list_lattice - 1} is not a multiple of list_sub = {list_sub}")
     t0 = time.perf_counter()
     out_band = band_m if out_band_m is None else float(out_band_m)
     if origin_m is not None and shape is not None:
@@ -1297,23 +1444,11 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     t5 = time.perf_counter()
     # list cells: the exact cells and those with exact sub-cells, wholly in the lumen, whose few nearest triangles
     # a short scan answers as the exact query
-    n_lists = 0
-    list_len = 0
+    lcells = np.zeros(0, dtype=np.int64)
     if list_max > 0:
         lcells = np.concatenate([np.nonzero((rec[:, 5] == -1.0) & cell_in.ravel())[0], exact_blocks[cell_in.ravel()[exact_blocks]]])
-        if lcells.size:
-            kk, rem = np.divmod(lcells, nx * ny)
-            jj, ii = np.divmod(rem, nx)
-            lists, lens = _list_cells(head, np.ascontiguousarray(np.column_stack([ii, jj, kk])), int(list_lattice), 10,
-                                      int(list_max), *exact)
-            off = fine.size + np.concatenate([[0], np.cumsum(lens)[:-1]])
-            ok = (lens > 0) & (off + lens < (2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52))
-            rec[lcells[ok], 6] = off[ok]
-            rec[lcells[ok], 7] = lens[ok]
-            flat = np.concatenate([lists[e, :lens[e]] for e in np.nonzero(ok)[0]]) if ok.any() else np.zeros(0, np.int64)
-            fine = np.ascontiguousarray(np.concatenate([fine, flat.astype(dtype)]))
-            n_lists = int(ok.sum())
-            list_len = int(lens[ok].sum())
+    fine, list_stats = _store_lists(head, rec, fine, lcells, int(list_lattice), int(list_sub), float(list_split),
+                                    int(list_max), exact, dtype)
     t6 = time.perf_counter()
     cells = (nx - 1) * (ny - 1) * (nz - 1)
     n_exact = int((rec[:, 5] == -1.0).sum())
@@ -1327,7 +1462,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
              "model_cells_3": float(n_used[3]), "MB": (field.nbytes + fine.nbytes) / 1e6, "fine_MB": fine.nbytes / 1e6,
              "exact_MB": sum(a.nbytes for a in exact) / 1e6, "exact_index": float(exact[5].size),
              "exact_nodes": float(len(exact[4])), "exact_triangles": float(exact[0].size // 48),
-             "list_cells": float(n_lists), "list_mean_len": list_len / max(n_lists, 1),
+             **list_stats,
              "sample_s": t1 - t0, "diameter_s": t2 - t1, "flag_s": t3 - t2, "tube_s": t3b - t3, "refine_s": t4 - t3b, "prune_s": t5 - t4,
              "list_s": t6 - t5, "build_s": t6 - t0}
     return WallField3D(wall, head, field, fine, stats, exact)
