@@ -70,16 +70,24 @@ with no good sub-cell).  Outside the grid the exact query answers (the diameter 
 
 List cells (``list_max``): the exact query is slow at a medial point because many triangles are nearly as
 near as the nearest (a ring round a vessel's axis, a strip along a crease), and its candidate lists must hold
-them all for every point of a 0.1 mm leaf; yet over one cell only a few triangles are ever the nearest.  So an
-exact cell (or one with exact sub-cells) wholly in the lumen is given the triangles the exact query finds
-nearest at its lattice of ``list_lattice``^3 points (17^3: spacing h / 16), nearest its centre first, if they
-are at most ``list_max``, and kept if the scan over them -- the exact query's bounds, closest points and tie
-rule (the lowest index), so bit for bit its answer wherever the list holds the nearest triangle -- answers as
-the exact query, bit for bit, at the centres of the cell's 1000 sub-cubes; the lookup then scans the list (its
-triangle indices stored after the model records in ``fine``, its offset and length in the cell's lowest node's
-slots 6 and 7) instead of asking the candidate tree.  Not a proof: a point between the lattice points whose
-nearest triangle is missing gets the nearest of the list, a triangle beside it (at 10^5 random points of the
-shipped trees' list cells: bit for bit at 99.985-99.998 % of them, the distance within 0.03 um).  This keeps the exact
+them all for every point of a 0.1 mm leaf; yet over a small cube only a few triangles are ever the nearest.
+So an exact cell (or one with exact sub-cells) wholly in the lumen is divided in ``list_sub``^3 sub-cubes
+(4^3: side 25 um), or in (2 ``list_sub``)^3 (12.5 um) where the coarser lists average more than
+``list_split`` (12) triangles (near a vessel's axis, where half the ring is nearly as near) and the finer ones
+leave no more to the exact query; each sub-cube is given the fewest triangles, nearest its centre first, whose
+scan -- the exact query's bounds, closest points and tie rule (the lowest index), so bit for bit its answer
+wherever the list holds the nearest triangle -- answers as the exact query, bit for bit, at the centres of its
+27 (finer: 8) cubes, tried in turn: the triangles the exact query finds nearest at the cell's lattice of
+``list_lattice``^3 points (17^3: spacing h / 16) in the sub-cube, then within one spacing of it, then with
+those nearest the centres of its 6^3 and 12^3 cubes added; none (the exact query) if no try passes or more
+than ``list_max``.  The lookup then finds the point's sub-cube in the cell's directory (stored after the model
+records in ``fine``; its offset and division in the cell's lowest node's slots 6 and 7) and scans its list,
+7 triangles on average (at the points the shipped runs' beads visit in list cells: 9 on the synthetic tree,
+against 98 over a whole cell), instead of asking the candidate tree.  Not a proof: a point between the
+checked points whose nearest triangle is missing gets the nearest of the list, a triangle beside it (at 10^5
+random points of the shipped trees' list cells: bit for bit at 99.70 / 99.92 / 99.75 % of them, the distance
+within 0.1 um; the normal off by more than 2 deg at 175 / 39 / 90 of them, every one where the exact normal
+itself turns by more than 2 deg within 5 um: within micrometres of a medial surface).  This keeps the exact
 query's own normal where no smooth model can: in a crease's wedge (the foot on a crease edge) the exact smooth
 normal takes one face's side: where the shipped runs' beads met the exact query it was up to 94 / 54 / 102 deg
 (III-C / carotid / synthetic tree; median 39 / 39 / 12 deg) off the distance's gradient, the direction from the
@@ -101,24 +109,24 @@ no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylin
 normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
 smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
 see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
-the band 1 mm in and 0.1 mm out, list cells of up to 256 triangles, ``--shipped``): distance within 1.9 um,
+the band 1 mm in and 0.1 mm out, lists of up to 256 triangles, ``--shipped``): distance within 1.9 um,
 normal within 1.5 / 1.2 / 1.7 deg (III-C / carotid / synthetic tree) wherever the exact normal itself is defined
-(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 15 / 0 / 15 points in
-2 x 10^5 are off by more, up to 113 deg (a sub-cell the surface bulges into between its test points, taking the
-other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles; with
-one tube per cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  At 10^5 random
+(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 20 / 1 / 21 points in
+2 x 10^5 are off by more, up to 114 deg (a sub-cell the surface bulges into between its test points, taking the
+other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles, or a
+list misses one of two nearly equidistant triangles; with whole-cell lists, 15 / 0 / 15; with one tube per
+cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  At 10^5 random
 points of the model cells themselves: distance within 1.2 um, normal within 1.2 / 1.8 / 1.4 deg where the exact
 one is defined.  Model cells: 5307 / 133 / 16861 (of which 2 or 3 models: 196 / 125 / 549); exact cells 3316 /
-2204 / 10194 (3386 / 2204 / 10510 with tubes only), of which, with those with exact sub-cells, 5748 / 3580 /
-15358 are list cells (36 / 32 / 44 triangles on average); the exact query answers 0.3 / 0.3 / 0.7 % of the
-points in the band (2.1 / 1.7 / 4.1 % with tubes only), list cells 1.8 / 1.4 / 3.4 %.  At the points the shipped
-runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.5 / 0.0 / 5.9 % and list cells 4.1 / 0.9 /
-15.0 % (exact 4.5 / 0.9 / 27.5 % with tubes only, the synthetic tree's figure on its earlier route); where
-the exact query is left, at the synthetic tree's
-junctions and near its vessels' axes, the wall is no straight round tube, ridge or plane within the standard
-over a cell, nor over a quarter of one, and the nearest triangles over a cell are more than 256 or miss the
-check.  Build (a loaded 2-core machine): 33 / 61 / 89 s, of which the model cells 10 / 12 / 25 s and the list
-cells 16 / 10 / 48 s.
+2204 / 10194 (3386 / 2204 / 10510 with tubes only), of which, with those with exact sub-cells, 6114 / 3623 /
+16761 are list cells (787 / 0 / 2975 of them divided in 8^3; 6.1 / 5.2 / 7.1 triangles per sub-cube on average,
+against 36 / 32 / 44 per cell with whole-cell lists); the exact query answers 0.2 / 0.3 / 0.4 % of the points
+in the band (2.1 / 1.7 / 4.1 % with tubes only: what is left are cells the wall crosses), list cells 1.9 / 1.4 /
+3.8 %.  At the points the shipped runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.0 / 0.0 /
+0.0 % and list cells 4.6 / 0.9 / 21.0 % (with whole-cell lists the exact query 0.5 / 0.0 / 5.9 %: their
+nearest triangles over a cell were more than 256 or missed the check; with tubes only 4.5 / 0.9 / 27.5 %).
+Build (a 2-core machine, otherwise quiet): 50 / 38 / 165 s, of which the model cells 10 / 2 / 25 s and the list
+cells 33 / 7 / 123 s.
 Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
 2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
 creases) goes to the exact query.

@@ -22,7 +22,7 @@ of 0.3 mm plus two spacings.
 
 Standard of the sampled wall: within ``BAND_M`` (1 mm) of the wall in the lumen and ``OUT_BAND_M`` (0.1 mm)
 outside it, distance within 5 um and normal within 2 deg of the exact query (the cells interpolation cannot
-answer go to it -- over the cell's few nearest triangles where they are few, ``LIST_MAX`` -- a vessel's axis or a
+answer go to it -- over the few triangles nearest the point's 25 or 12.5 um part of the cell, ``LIST_MAX`` -- a vessel's axis or a
 junction's medial cell to the least of a few tubes, ridges or planes fitted to the cell), but for the normal within micrometres of a
 medial surface (a vessel's axis, a junction's bisector), where the exact normal itself jumps
 (tools/validate_wall_field3d.py ``--shipped``: 15 / 0 / 15 points in 2 x 10^5 off by more than 2 deg there).
@@ -37,9 +37,10 @@ Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, cap
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
 :meth:`PlantField3D.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
-them is cached beside them (``.wall.npz``, not shipped); measured (a loaded 2-core machine): III-C 33 s, 114 MB;
-carotid 61 s, 123 MB; synthetic tree 89 s, 405 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
-it) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
+them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine, otherwise quiet): III-C 50 s, 134 MB;
+carotid 38 s, 128 MB; synthetic tree 165 s, 480 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
+it; most of the time goes to the list cells' sub-cube lists, which make its lookup 1.9x the planar one's
+instead of 4.1x) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
 tree.  A torn, foreign or older file is solved or built again; a failed solve caches nothing.
 """
 
