@@ -69,7 +69,7 @@ from vesselbot_ros.physics.integrator import (  # the planar integrator's Dorman
 )
 from vesselbot_ros.physics.kernel import I_A_F, I_D_PULSE, I_MASS, I_OMEGA_F, I_PHI_F, I_R, I_V_F, update_contact
 from vesselbot_ros.physics.kernel3d import forces3d_into
-from vesselbot_ros.physics.wall_field3d import wall_field3d
+from vesselbot_ros.physics.wall_field3d import corner_weight, wall_field3d
 
 __all__ = ["geometry3d", "forces3d_at", "integrate3d", "new_workspace3d", "FLOW_CHANNELS"]
 
@@ -109,10 +109,7 @@ def _flow_at(F, fh, x, y, z, c):  # type: ignore[no-untyped-def]  # numba kernel
     i, j, k, tx, ty, tz = _cell(fh, x, y, z)
     v = 0.0
     for cc in range(8):
-        cx = cc & 1
-        cy = (cc >> 1) & 1
-        cz = cc >> 2
-        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        cx, cy, cz, w = corner_weight(cc, tx, ty, tz)
         v += w * float(F[k + cz, j + cy, i + cx, c])
     return v
 
@@ -126,10 +123,7 @@ def _velocity_at(F, fh, x, y, z):  # type: ignore[no-untyped-def]  # numba kerne
     v1 = 0.0
     v2 = 0.0
     for cc in range(8):
-        cx = cc & 1
-        cy = (cc >> 1) & 1
-        cz = cc >> 2
-        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        cx, cy, cz, w = corner_weight(cc, tx, ty, tz)
         v0 += w * float(F[k + cz, j + cy, i + cx, 0])
         v1 += w * float(F[k + cz, j + cy, i + cx, 1])
         v2 += w * float(F[k + cz, j + cy, i + cx, 2])

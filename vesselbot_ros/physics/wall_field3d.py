@@ -160,7 +160,7 @@ from vesselbot_ros.physics.meshed_wall3d import (
     split_leaves,
 )
 
-__all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d"]
+__all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d", "corner_weight"]
 
 #: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5), its
 #: triangle list's offset in ``fine`` and length if it is a list cell (6-7; 0: none) (32 bytes in float32: two nodes
@@ -185,6 +185,16 @@ Array = npt.NDArray[np.float64]
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def corner_weight(c, tx, ty, tz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(cx, cy, cz, w): corner ``c`` (0-7, x fastest) of a cell as offsets 0/1 per axis and its trilinear weight at
+    (tx, ty, tz) in [0, 1]^3."""
+    cx = c & 1
+    cy = (c >> 1) & 1
+    cz = c >> 2
+    return cx, cy, cz, (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def _interp(field, base, sy, sz, tx, ty, tz, h):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(s, nx, ny, nz, D) interpolated in the cell whose lowest corner's record starts at ``base``.
 
@@ -197,10 +207,7 @@ def _interp(field, base, sy, sz, tx, ty, tz, h):  # type: ignore[no-untyped-def]
     gz = 0.0
     dd = 0.0
     for c in range(8):
-        cx = c & 1
-        cy = (c >> 1) & 1
-        cz = c >> 2
-        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        cx, cy, cz, w = corner_weight(c, tx, ty, tz)
         b = base + cx * NODE_STRIDE + cy * sy + cz * sz
         n0 = float(field[b + 1])
         n1 = float(field[b + 2])
@@ -221,10 +228,7 @@ def _diameter(field, base, sy, sz, tx, ty, tz):  # type: ignore[no-untyped-def] 
     """D of :func:`_interp` alone (the same doubles), for the cells whose distance and normal come from elsewhere."""
     dd = 0.0
     for c in range(8):
-        cx = c & 1
-        cy = (c >> 1) & 1
-        cz = c >> 2
-        w = (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
+        cx, cy, cz, w = corner_weight(c, tx, ty, tz)
         dd += w * float(field[base + cx * NODE_STRIDE + cy * sy + cz * sz + 4])
     return dd
 
