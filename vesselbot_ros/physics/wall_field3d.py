@@ -392,22 +392,67 @@ def _list_agrees(x0, y0, z0, a, n, lst, d, pbox, pstart, grid, nodes, index):  #
     return True
 
 
+@numba.njit(cache=True)
+def _sub_lists(ts, x0, y0, z0, h, lat, sub, halo, nver, naug, maxlen, out, ln, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fill ``out`` (sub^3, maxlen) and ``ln`` (sub^3,) with the lists of the ``sub``^3 sub-cubes of the cell with
+    lowest corner (x0, y0, z0) and side h, from the nearest triangles ``ts`` at its ``lat``^3 lattice points
+    (:func:`_list_cells`)."""
+    step = (lat - 1) // sub
+    a = h / sub
+    buf = np.empty(lat * lat * lat + 9 * naug * naug * naug, dtype=np.int64)
+    for c in range(sub * sub * sub):
+        ci = c % sub
+        cj = (c // sub) % sub
+        ck = c // (sub * sub)
+        sx = x0 + ci * a
+        sy = y0 + cj * a
+        sz = z0 + ck * a
+        cnt = 0
+        for attempt in range(halo + 3):
+            if attempt <= halo:  # the lattice points in the sub-cube, then within ``attempt`` spacings of it
+                cnt = 0
+                for kz in range(max(ck * step - attempt, 0), min((ck + 1) * step + attempt, lat - 1) + 1):
+                    for ky in range(max(cj * step - attempt, 0), min((cj + 1) * step + attempt, lat - 1) + 1):
+                        for kx in range(max(ci * step - attempt, 0), min((ci + 1) * step + attempt, lat - 1) + 1):
+                            buf[cnt] = ts[(kz * lat + ky) * lat + kx]
+                            cnt += 1
+            else:  # and the triangles nearest the centres of the sub-cube's naug^3, then (2 naug)^3 cubes
+                na = naug * (attempt - halo)
+                for p in range(na * na * na):
+                    buf[cnt] = _nearest_triangle(sx + a * (p % na + 0.5) / na, sy + a * ((p // na) % na + 0.5) / na,
+                                                 sz + a * (p // (na * na) + 0.5) / na, d, pbox, pstart, grid, nodes, index)
+                    cnt += 1
+            u = np.unique(buf[:cnt])
+            if u.size > maxlen or u[0] < 0:
+                break
+            dc = np.empty(u.size)
+            for t in range(u.size):
+                dc[t] = _closest(sx + 0.5 * a, sy + 0.5 * a, sz + 0.5 * a, d, 48 * u[t] + 8)[0]
+            lst = u[np.argsort(dc, kind="mergesort")]
+            if _list_agrees(sx, sy, sz, a, nver, lst, d, pbox, pstart, grid, nodes, index):
+                out[c, :lst.size] = lst
+                ln[c] = lst.size
+                break
+
+
 @numba.njit(cache=True, parallel=True)
-def _list_cells(head, cells, lat, sub, halo, nver, naug, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _list_cells(head, cells, lat, sub, split_len, maxlen, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Per cell of ``cells`` (m, 3) ``(i, j, k)`` and per sub-cube of its ``sub``^3 (side h / ``sub``, x fastest):
     the fewest triangles, nearest the sub-cube's centre first, whose scan (:func:`_scan_list`) answers as the
-    exact query, bit for bit, at the centres of the sub-cube's ``nver``^3 cubes, tried in turn: those the exact
-    query finds nearest at the cell's ``lat``^3 lattice points in the sub-cube, then within 1 .. ``halo``
-    lattice spacings of it, then with those nearest the centres of its ``naug``^3 and (2 ``naug``)^3 cubes added
-    (a sliver's small region of nearest points that the lattice missed); none if more than ``maxlen``.  Returns
-    (lists (m, sub^3, maxlen) int32, lengths (m, sub^3) int64: 0 none)."""
+    exact query, bit for bit, at the centres of the sub-cube's 3^3 cubes, tried in turn: those the exact query
+    finds nearest at the cell's ``lat``^3 lattice points in the sub-cube, then within one lattice spacing of it,
+    then with those nearest the centres of its 6^3 and 12^3 cubes added (a sliver's small region of nearest
+    points that the lattice missed); none if more than ``maxlen``.  Where those lists average more than
+    ``split_len`` triangles, the same for the cell's (2 ``sub``)^3 sub-cubes, checked at 2^3 points each.
+    Returns (lists (m, sub^3, maxlen) int32, lengths (m, sub^3) int64: 0 none; the finer ones, (m, 8 sub^3,
+    maxlen) and (m, 8 sub^3): all 0 where not tried)."""
     h = head[3]
     m = cells.shape[0]
     ns = sub * sub * sub
-    step = (lat - 1) // sub
-    a = h / sub
     out = np.zeros((m, ns, maxlen), dtype=np.int32)
     ln = np.zeros((m, ns), dtype=np.int64)
+    out2 = np.zeros((m, 8 * ns, maxlen), dtype=np.int32)
+    ln2 = np.zeros((m, 8 * ns), dtype=np.int64)
     for e in numba.prange(m):
         x0 = head[0] + cells[e, 0] * h
         y0 = head[1] + cells[e, 1] * h
@@ -416,41 +461,13 @@ def _list_cells(head, cells, lat, sub, halo, nver, naug, maxlen, d, pbox, pstart
         for p in range(lat * lat * lat):
             ts[p] = _nearest_triangle(x0 + h * (p % lat) / (lat - 1), y0 + h * ((p // lat) % lat) / (lat - 1),
                                       z0 + h * (p // (lat * lat)) / (lat - 1), d, pbox, pstart, grid, nodes, index)
-        buf = np.empty(lat * lat * lat + 9 * naug * naug * naug, dtype=np.int64)
+        _sub_lists(ts, x0, y0, z0, h, lat, sub, 1, 3, 6, maxlen, out[e], ln[e], d, pbox, pstart, grid, nodes, index)
+        used = 0
         for c in range(ns):
-            ci = c % sub
-            cj = (c // sub) % sub
-            ck = c // (sub * sub)
-            sx = x0 + ci * a
-            sy = y0 + cj * a
-            sz = z0 + ck * a
-            cnt = 0
-            for attempt in range(halo + 3):
-                if attempt <= halo:  # the lattice points in the sub-cube, then within ``attempt`` spacings of it
-                    cnt = 0
-                    for kz in range(max(ck * step - attempt, 0), min((ck + 1) * step + attempt, lat - 1) + 1):
-                        for ky in range(max(cj * step - attempt, 0), min((cj + 1) * step + attempt, lat - 1) + 1):
-                            for kx in range(max(ci * step - attempt, 0), min((ci + 1) * step + attempt, lat - 1) + 1):
-                                buf[cnt] = ts[(kz * lat + ky) * lat + kx]
-                                cnt += 1
-                else:  # and the triangles nearest the centres of the sub-cube's naug^3, then (2 naug)^3 cubes
-                    na = naug * (attempt - halo)
-                    for p in range(na * na * na):
-                        buf[cnt] = _nearest_triangle(sx + a * (p % na + 0.5) / na, sy + a * ((p // na) % na + 0.5) / na,
-                                                     sz + a * (p // (na * na) + 0.5) / na, d, pbox, pstart, grid, nodes, index)
-                        cnt += 1
-                u = np.unique(buf[:cnt])
-                if u.size > maxlen or u[0] < 0:
-                    break
-                dc = np.empty(u.size)
-                for t in range(u.size):
-                    dc[t] = _closest(sx + 0.5 * a, sy + 0.5 * a, sz + 0.5 * a, d, 48 * u[t] + 8)[0]
-                lst = u[np.argsort(dc, kind="mergesort")]
-                if _list_agrees(sx, sy, sz, a, nver, lst, d, pbox, pstart, grid, nodes, index):
-                    out[e, c, :lst.size] = lst
-                    ln[e, c] = lst.size
-                    break
-    return out, ln
+            used += ln[e, c] > 0
+        if ln[e].sum() > split_len * max(used, 1) and (lat - 1) % (2 * sub) == 0:
+            _sub_lists(ts, x0, y0, z0, h, lat, 2 * sub, 1, 2, 6, maxlen, out2[e], ln2[e], d, pbox, pstart, grid, nodes, index)
+    return out, ln, out2, ln2
 
 
 @numba.njit(cache=True)
@@ -1235,21 +1252,6 @@ def _needed(tree: CandidateTree, wall: Wall3D, head: Array, cells: npt.NDArray[n
     return need | at_cells, seal & ~at_cells, at_cells
 
 
-def _cell_lists(head: Array, ijk: npt.NDArray[np.int64], lat: int, sub: int, nver: int, maxlen: int,
-                exact: tuple[npt.NDArray[Any], ...]) -> tuple[npt.NDArray[np.int64], list[npt.NDArray[np.int32]]]:
-    """:func:`_list_cells` over the cells ``ijk`` (m, 3) in chunks: (lengths (m, sub^3), per cell its lists in a row)."""
-    ns = sub ** 3
-    lens_all = np.zeros((len(ijk), ns), dtype=np.int64)
-    rows: list[npt.NDArray[np.int32]] = []
-    chunk = max(1, (1 << 25) // (ns * maxlen * 4))  # a chunk's lists: at most 128 MB
-    for c0 in range(0, len(ijk), chunk):
-        lists, lens = _list_cells(head, np.ascontiguousarray(ijk[c0:c0 + chunk]), lat, sub, 1, nver, 6, maxlen, *exact)
-        lens_all[c0:c0 + chunk] = lens
-        keep = np.arange(maxlen)[None, :] < lens[:, :, None]
-        rows.extend(lists[e][keep[e]] for e in range(len(lens)))  # per sub-cube, its list
-    return lens_all, rows
-
-
 def _store_lists(head: Array, rec: npt.NDArray[Any], fine: npt.NDArray[Any], lcells: npt.NDArray[np.int64],
                  lat: int, sub: int, split_len: float, maxlen: int, exact: tuple[npt.NDArray[Any], ...], dtype: type
                  ) -> tuple[npt.NDArray[Any], dict[str, float]]:
@@ -1269,16 +1271,23 @@ def _store_lists(head: Array, rec: npt.NDArray[Any], fine: npt.NDArray[Any], lce
     kk, rem = np.divmod(lcells, nx * ny)
     jj, ii = np.divmod(rem, nx)
     ijk = np.column_stack([ii, jj, kk])
-    lens, rows = _cell_lists(head, ijk, lat, sub, 3, maxlen, exact)
+    ns = sub ** 3
     subs = [sub] * len(lcells)
-    per = [ln for ln in lens]
-    used = (lens > 0).sum(axis=1)
-    heavy = np.nonzero(lens.sum(axis=1) > split_len * np.maximum(used, 1))[0]
-    if heavy.size and 2 * sub <= lat - 1 and (lat - 1) % (2 * sub) == 0:
-        lens2, rows2 = _cell_lists(head, ijk[heavy], lat, 2 * sub, 2, maxlen, exact)
-        for e, c in enumerate(heavy):
-            if (lens2[e] > 0).sum() >= 8 * used[c]:  # no more of the cell left to the exact query
-                subs[c], per[c], rows[c] = 2 * sub, lens2[e], rows2[e]
+    per: list[npt.NDArray[np.int64]] = []
+    rows: list[npt.NDArray[np.int32]] = []
+    chunk = max(1, (1 << 27) // (9 * ns * maxlen * 4))  # a chunk's lists, the finer included: at most 128 MB
+    for c0 in range(0, len(ijk), chunk):
+        lists, ln, lists2, ln2 = _list_cells(head, np.ascontiguousarray(ijk[c0:c0 + chunk]), lat, sub, split_len, maxlen,
+                                             *exact)
+        for e in range(len(ln)):
+            used = int((ln[e] > 0).sum())
+            if (ln2[e] > 0).sum() >= 8 * used and ln2[e].any():  # the finer ones leave no more to the exact query
+                subs[c0 + e] = 2 * sub
+                per.append(ln2[e])
+                rows.append(lists2[e][np.arange(maxlen)[None, :] < ln2[e][:, None]])
+            else:
+                per.append(ln[e])
+                rows.append(lists[e][np.arange(maxlen)[None, :] < ln[e][:, None]])  # per sub-cube, its list
     has = np.array([ln.sum() > 0 for ln in per])
     size = np.array([n ** 3 + 3 for n in subs])
     limit = 2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52

@@ -285,3 +285,20 @@ def test_list_cells_answer_as_the_exact_query(y_fast: tuple[wf.WallField3D, wf.W
     assert np.abs(r["sdist"] - e["sdist"]).max() < 5e-6
     ok = _well_conditioned(y.wall, q, e["normal"], rng)
     assert _angle(r["normal"], e["normal"])[ok].max() < 2.0
+
+
+def test_a_list_cells_directory_decodes_beyond_float32s_exact_integers() -> None:
+    """A list cell's directory gives its lists' start as hi * 2^20 + lo, each exact in float32, so a start beyond
+    2^24 (the synthetic tree's lists reach 2.2 x 10^7) is read exactly; the point's sub-cube picks its list."""
+    base = 37 * wf._LIST_BASE + 12345
+    assert int(np.float32(base)) != base  # not exact as one float32
+    starts = [0, 3, 3, 7, 8, 8, 8, 9, 12]
+    o, sub = 10, 2
+    fine = np.zeros(30, dtype=np.float32)
+    fine[o], fine[o + 1] = divmod(base, wf._LIST_BASE)
+    fine[o + 2:o + 2 + len(starts)] = starts
+    for c in range(sub ** 3):
+        t = [((c >> a) & 1) * 0.5 + 0.25 for a in range(3)]
+        assert wf._sub_list(t[0], t[1], t[2], fine, o, sub) == (base + starts[c], starts[c + 1] - starts[c])
+    assert wf._sub_list(1.0, 1.0, 1.0, fine, o, sub) == (base + 9, 3)  # the far faces belong to the last sub-cube
+    assert wf._sub_list(0.75, 0.0, 0.0, fine, o, sub) == (base + 3, 0)  # an empty list: the exact query answers
