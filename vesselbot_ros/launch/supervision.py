@@ -111,11 +111,12 @@ class Supervisor:
         raise NodeDied(f"{died}\nthe coil output did not reach zero within {timeout:.0f} s (wall)") from None
 
     def stop_nodes(self, timeout: float = 10.0) -> None:
-        """SIGINT every node process, wait (then SIGKILL)."""
+        """SIGINT every node process, wait ``timeout`` s in all (not per node), then SIGKILL those still running."""
         for p in self.nodes:
             p.signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
         for p in self.nodes:
-            p.wait(timeout)
+            p.wait(max(0.0, deadline - time.monotonic()))
             p.close()
 
     def stop_recorder(self, timeout: float = 30.0) -> int | None:
