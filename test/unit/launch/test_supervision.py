@@ -37,4 +37,4 @@ def test_stop_nodes_gives_hung_nodes_one_grace_in_all_not_one_each(tmp_path: Pat
     sup.stop_nodes(0.5)
     assert all(len(h.signals) == 1 and h.closed for h in hung)
     waits = [t for h in hung for t in h.timeouts]
-    assert len(waits) == 4 and 0.0 < waits[0] <= 0.5 and sum(waits) <= 0.5
+    assert len(waits) == 4 and sum(waits) <= 0.5  # one grace in all (per node: 2 s)
