@@ -304,6 +304,16 @@ def _sub_list(tx, ty, tz, fine, o, sub):  # type: ignore[no-untyped-def]  # numb
     return int(fine[o]) * _LIST_BASE + int(fine[o + 1]) + a, int(fine[o + 3 + c]) - a
 
 
+@numba.njit(cache=True)
+def _sub_list_lengths(t, fine, o, sub):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(m,) the length of the list :func:`_sub_list` gives each point at ``t`` (m, 3) in its list cell (directory
+    ``o``, division ``sub``)."""
+    out = np.zeros(t.shape[0], dtype=np.int64)
+    for k in range(t.shape[0]):
+        out[k] = _sub_list(t[k, 0], t[k, 1], t[k, 2], fine, o[k], sub[k])[1]
+    return out
+
+
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def _model(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(s, inward normal, rho) of the model of record ``rec[o:o + 8]`` (axis point, unit axis direction, radius R,
@@ -377,14 +387,19 @@ def _nearest_triangle(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type:
     return _scan(px, py, pz, d, pbox, pstart, index, nodes[leaf, 1], nodes[leaf, 2], nodes[leaf, 3])[5]
 
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _cube_centre(x0, y0, z0, a, n, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The centre of cube ``p`` (x fastest) of the ``n``^3 cubes of the cube of side ``a`` (m) with lowest corner
+    (x0, y0, z0)."""
+    return x0 + a * (p % n + 0.5) / n, y0 + a * ((p // n) % n + 0.5) / n, z0 + a * (p // (n * n) + 0.5) / n
+
+
 @numba.njit(cache=True)
 def _list_agrees(x0, y0, z0, a, n, lst, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Whether the scan over ``lst`` answers as the exact query, bit for bit, at the centres of the ``n``^3 cubes
     of the cube of side ``a`` (m) with lowest corner (x0, y0, z0)."""
     for p in range(n * n * n):
-        px = x0 + a * (p % n + 0.5) / n
-        py = y0 + a * ((p // n) % n + 0.5) / n
-        pz = z0 + a * (p // (n * n) + 0.5) / n
+        px, py, pz = _cube_centre(x0, y0, z0, a, n, p)
         r1 = _scan_list(px, py, pz, d, lst, 0, lst.size)
         r2 = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
         if r1[0] != r2[0] or r1[1] != r2[1] or r1[2] != r2[2] or r1[3] != r2[3]:
@@ -419,8 +434,8 @@ def _sub_lists(ts, x0, y0, z0, h, lat, sub, halo, nver, naug, maxlen, out, ln, d
             else:  # and the triangles nearest the centres of the sub-cube's naug^3, then (2 naug)^3 cubes
                 na = naug * (attempt - halo)
                 for p in range(na * na * na):
-                    buf[cnt] = _nearest_triangle(sx + a * (p % na + 0.5) / na, sy + a * ((p // na) % na + 0.5) / na,
-                                                 sz + a * (p // (na * na) + 0.5) / na, d, pbox, pstart, grid, nodes, index)
+                    px, py, pz = _cube_centre(sx, sy, sz, a, na, p)
+                    buf[cnt] = _nearest_triangle(px, py, pz, d, pbox, pstart, grid, nodes, index)
                     cnt += 1
             u = np.unique(buf[:cnt])
             if u.size > maxlen or u[0] < 0:
@@ -1168,16 +1183,12 @@ class WallField3D:
         ijk = np.floor(f).astype(np.int64)
         inside = ((ijk >= 0) & (ijk < n - 1)).all(axis=1)
         ijk = np.clip(ijk, 0, n - 2)
-        t = np.clip(f - ijk, 0.0, 1.0)
+        t = np.ascontiguousarray(np.clip(f - ijk, 0.0, 1.0))
         rec = self.field.reshape(n[2], n[1], n[0], NODE_STRIDE)[ijk[:, 2], ijk[:, 1], ijk[:, 0]]
-        sub = rec[:, 7].astype(np.int64)
-        listed = inside & (sub > 0)
-        o = rec[listed, 6].astype(np.int64)
-        sb = sub[listed]
-        abc = np.minimum((t[listed] * sb[:, None]).astype(np.int64), sb[:, None] - 1)
-        c = (abc[:, 2] * sb + abc[:, 1]) * sb + abc[:, 0]
-        listed[listed] = self.fine[o + 3 + c] > self.fine[o + 2 + c]
-        return listed
+        listed = inside & (rec[:, 7] > 0)
+        listed[listed] = _sub_list_lengths(t[listed], self.fine, rec[listed, 6].astype(np.int64),
+                                           rec[listed, 7].astype(np.int64)) > 0
+        return np.asarray(listed)
 
     def exact_mask_raw(self, points_m: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """(m,) whether each point (m, 3) (m) lies off the grid or in an exact cell or sub-cell (list cells included)."""
@@ -1280,14 +1291,11 @@ def _store_lists(head: Array, rec: npt.NDArray[Any], fine: npt.NDArray[Any], lce
         lists, ln, lists2, ln2 = _list_cells(head, np.ascontiguousarray(ijk[c0:c0 + chunk]), lat, sub, split_len, maxlen,
                                              *exact)
         for e in range(len(ln)):
-            used = int((ln[e] > 0).sum())
-            if (ln2[e] > 0).sum() >= 8 * used and ln2[e].any():  # the finer ones leave no more to the exact query
-                subs[c0 + e] = 2 * sub
-                per.append(ln2[e])
-                rows.append(lists2[e][np.arange(maxlen)[None, :] < ln2[e][:, None]])
-            else:
-                per.append(ln[e])
-                rows.append(lists[e][np.arange(maxlen)[None, :] < ln[e][:, None]])  # per sub-cube, its list
+            finer = ln2[e].any() and (ln2[e] > 0).sum() >= 8 * (ln[e] > 0).sum()  # leaving no more to the exact query
+            lst, n = (lists2[e], ln2[e]) if finer else (lists[e], ln[e])
+            subs[c0 + e] = 2 * sub if finer else sub
+            per.append(n)
+            rows.append(lst[np.arange(maxlen)[None, :] < n[:, None]])  # per sub-cube, its list
     has = np.array([ln.sum() > 0 for ln in per])
     size = np.array([n ** 3 + 3 for n in subs])
     limit = 2 ** 24 if np.dtype(dtype) == np.float32 else 2 ** 52
