@@ -37,6 +37,7 @@ __all__ = [
     "mat2_inverse",
     "mat2_apply",
     "solve",
+    "convolve_valid",
     "interp_spline",
     "interp_spline_fitpack",
     "hypot2",
@@ -132,6 +133,53 @@ def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64] | npt.N
             x[i][j] = s / row[i]
     out = np.array(x, dtype=np.complex128) if cplx else np.array(x, dtype=np.float64)
     return out[:, 0] if bm.ndim == 1 else out
+
+
+def convolve_valid(x: npt.ArrayLike, w: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """``np.convolve(x, w, mode="valid")`` without BLAS: every output summed in one fixed order.
+
+    numpy's ``convolve`` sums each output with the BLAS ``ddot`` of the
+    kernel it loaded, and the AVX-512 and AVX2 kernels sum in different
+    orders (the planner's smoothed speeds differed in their last bits).  Here
+    each output ``sum_i x[j + i] w[n - 1 - i]`` is its products, each rounded,
+    added in the order of OpenBLAS's AVX2 ``ddot``: the first ``n & -16``
+    products as sixteen partial sums (product ``i`` into sum ``i % 16``),
+    folded as that kernel folds its four 4-wide registers, then the remaining
+    products one by one.  For a kernel shorter than 32 (one block: the
+    planner's 21 taps) that is exactly what the AVX2 kernel returns, so the
+    plans made under it keep their bits; from 32 taps on the AVX2 kernel
+    fuses its multiply-adds, and this stays its own fixed, rounded order.
+
+    Args:
+        x: (m,) signal, ``m >= n``.
+        w: (n,) kernel, ``n >= 1``.
+
+    Returns:
+        ``(m - n + 1,)`` outputs.
+    """
+    xa = np.asarray(x, dtype=np.float64)
+    wa = np.asarray(w, dtype=np.float64)
+    if xa.ndim != 1 or wa.ndim != 1 or wa.size < 1 or xa.size < wa.size:
+        raise ModelInputError(f"convolve_valid needs 1-D x at least as long as a non-empty 1-D w, "
+                              f"got {xa.shape}, {wa.shape}")
+    n = wa.size
+    m = xa.size - n + 1
+    wr = wa[::-1]
+    prod = [xa[i:i + m] * wr[i] for i in range(n)]  # elementwise: IEEE products, no BLAS
+    n1 = n & -16
+    if n1:
+        lanes = [0.0 + prod[i] for i in range(16)]  # register k = i // 4, lane i % 4 (the AVX2 kernel's layout)
+        for b in range(16, n1, 16):
+            lanes = [lanes[i] + prod[b + i] for i in range(16)]
+        # each register's high half onto its low half, then the registers pairwise, then the two lanes
+        half = [[lanes[4 * k] + lanes[4 * k + 2], lanes[4 * k + 1] + lanes[4 * k + 3]] for k in range(4)]
+        pair = [(half[0][j] + half[1][j]) + (half[2][j] + half[3][j]) for j in range(2)]
+        dot = pair[0] + pair[1]
+    else:
+        dot = np.zeros(m)
+    for i in range(n1, n):
+        dot = dot + prod[i]
+    return np.asarray(dot, dtype=np.float64)
 
 
 def _knots(x: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64]:

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import convolve_valid
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, wall_shift_of
 from vesselbot_ros.control.input_mapping import input_matrix
@@ -421,7 +422,7 @@ def _smooth(dus: npt.NDArray[np.float64], options: PlanOptions) -> npt.NDArray[n
     win = np.hanning(w + 2)[1:-1]
     win /= win.sum()
     pad = w // 2
-    return np.convolve(np.pad(dus, pad, mode="edge"), win, mode="valid")
+    return convolve_valid(np.pad(dus, pad, mode="edge"), win)  # not np.convolve: its BLAS ddot sums by CPU kernel
 
 
 def _table(ts: npt.NDArray[np.float64], us: npt.NDArray[np.float64], U: float, options: PlanOptions,
