@@ -49,20 +49,31 @@ BEND_DEG = 12.0
 SPACING_MM = 0.25
 
 
+def _dot(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> float:
+    """``a . b`` of two 3-vectors summed left to right: ``a @ b`` is a BLAS ``ddot``, whose sum order (and fused
+    multiply-adds) depend on the CPU's OpenBLAS kernel, and the tree's bytes must not."""
+    return float(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+
+
+def _norm(a: npt.NDArray[np.float64]) -> float:
+    """``|a|`` by :func:`_dot` (``np.linalg.norm`` of a vector is a BLAS ``ddot`` too)."""
+    return math.sqrt(_dot(a, a))
+
+
 def _rotate(v: npt.NDArray[np.float64], axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
     """``v`` turned by ``angle`` (rad) about the unit vector ``axis`` (Rodrigues)."""
-    return v * math.cos(angle) + np.cross(axis, v) * math.sin(angle) + axis * float(axis @ v) * (1.0 - math.cos(angle))
+    return v * math.cos(angle) + np.cross(axis, v) * math.sin(angle) + axis * _dot(axis, v) * (1.0 - math.cos(angle))
 
 
 def _branch(start: npt.NDArray[np.float64], heading: npt.NDArray[np.float64], toward: npt.NDArray[np.float64],
             length: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Samples (n, 3) of a branch from ``start`` along ``heading`` bending by BEND_DEG towards ``toward``; end tangent."""
-    side = toward - float(toward @ heading) * heading
-    if np.linalg.norm(side) < 1e-12:  # along the parent's axis already: no bend
+    side = toward - _dot(toward, heading) * heading
+    if _norm(side) < 1e-12:  # along the parent's axis already: no bend
         end_dir = heading
     else:
-        axis = np.cross(heading, side / np.linalg.norm(side))
-        end_dir = _rotate(heading, axis / np.linalg.norm(axis), math.radians(BEND_DEG))
+        axis = np.cross(heading, side / _norm(side))
+        end_dir = _rotate(heading, axis / _norm(axis), math.radians(BEND_DEG))
     p1 = start + 0.5 * length * heading
     p2 = p1 + 0.5 * length * end_dir
     n = int(math.ceil(length / SPACING_MM)) + 1
@@ -90,8 +101,8 @@ def tree_paths() -> list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]
         tb = math.acos((r ** 4 + rb ** 4 - ra ** 4) / (2.0 * r * r * rb * rb))
         # the bifurcation plane holds end_dir and the binormal; it turns 90 deg about the axis each generation
         plane = _rotate(normal, end_dir, math.pi / 2.0)
-        plane = plane - float(plane @ end_dir) * end_dir
-        plane /= np.linalg.norm(plane)
+        plane = plane - _dot(plane, end_dir) * end_dir
+        plane /= _norm(plane)
         for rr, th, sgn in ((ra, ta, 1.0), (rb, tb, -1.0)):
             d = _rotate(end_dir, plane, sgn * th)
             grow(pts[-1], d, plane, rr, gen + 1, (pts, rad), end_dir)

@@ -415,7 +415,8 @@ def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str,
         pts, rad = _clean(pts, rad, scale)
         p = parent_of[g]
         if p is not None:  # start at the parent's end: on it if the tract starts within half a radius, else from it
-            if np.linalg.norm(pts[0] - ends[p]) < 0.5 * rad[0]:
+            gap = pts[0] - ends[p]  # its length by elementwise sums: np.linalg.norm of a vector is a BLAS ddot
+            if math.sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]) < 0.5 * rad[0]:
                 pts = np.vstack([ends[p], pts[1:]])
             else:
                 pts, rad = np.vstack([ends[p], pts]), np.concatenate([rad[:1], rad])
