@@ -47,6 +47,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import interp_spline, interp_spline_fitpack
 from vesselbot_ros.config import OMIT_IF, ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.resources import require_fits, spline_setup_cost
 
 if TYPE_CHECKING:  # the splines come from blas_free, which imports scipy.interpolate when it builds one
     from scipy.interpolate import BSpline
@@ -149,6 +150,9 @@ class ReferenceParams:
                 f"anchors_z_m must have as many points as anchors_x_m ({len(self.anchors_x_m)}), "
                 f"got {len(self.anchors_z_m)}"
             )
+        n = len(self.anchors_x_m)  # the spline's dense collocation solve grows as n^2 (memory) and n^2 (time)
+        require_fits("anchors_x_m", f"{n} points", *spline_setup_cost(n), what="the reference's B-spline set-up",
+                     hint="use fewer anchors")
         for i, v in enumerate(self.anchors_x_m):
             check_finite(f"anchors_x_m[{i}]", v)
         for i, v in enumerate(self.anchors_z_m):

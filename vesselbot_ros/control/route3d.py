@@ -25,6 +25,7 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.network import NetworkGeometry3D, VesselNetworkParams, route_to_outlet
 
 __all__ = ["VERTICAL_SINE", "up_directions", "anchor_arcs", "route_anchors_3d"]
@@ -53,6 +54,10 @@ def anchor_arcs(s0: float, s_end: float, spacing_m: float, end: str = "spaced") 
     ``spaced``: every ``spacing_m`` from ``s0``, the last in ``(s_end - spacing_m, s_end]`` (at least one).
     ``at_margin``: the fewest evenly spaced anchors at most ``spacing_m`` apart, the last at ``s_end``.
     """
+    n_max = max(1.0, (s_end - s0) / spacing_m + 1.0)  # the reference's spline then solves through them
+    require_fits("reference.route_anchor_spacing_m", spacing_m, *spline_setup_cost(int(min(n_max, 2**31))),
+                 what=f"the reference's B-spline set-up through {n_max:.3g} planned anchors",
+                 hint="space the planned anchors wider")
     if end == "at_margin":
         n = max(1, int(np.ceil((s_end - s0) / spacing_m - 1e-9)))
         return s0 + (s_end - s0) * np.arange(1, n + 1, dtype=np.float64) / n

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import shutil
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -45,6 +44,7 @@ from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.resources import fmt_bytes, memory_budget_bytes
 from vesselbot_ros.scanner.hardware import DbdtLimit
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import section_resolver, switch_sections
@@ -467,21 +467,9 @@ def estimate_resources(scenario: Scenario) -> ResourceEstimate:
     return ResourceEstimate(n, int(min(ticks * per_tick, 2**62)), int(min(ticks * BAG_BYTES_PER_TICK, 2**62)))
 
 
-def _memory_budget_bytes() -> int:
-    """Half of this machine's physical memory (what one run may hold)."""
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        total = 8 * 2**30
-    return int(total // 2)
-
-
-def _fmt_bytes(n: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if n < 1024 or unit == "TiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TiB"  # pragma: no cover
+# the one budget and formatter of every resource check (vesselbot_ros.resources.require_fits reads them too)
+_memory_budget_bytes = memory_budget_bytes
+_fmt_bytes = fmt_bytes
 
 
 def check_resources(

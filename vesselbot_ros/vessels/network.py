@@ -60,6 +60,7 @@ from vesselbot_ros.config import (
     shipped_config_dir,
     to_mapping,
 )
+from vesselbot_ros.resources import require_fits, spline_setup_cost
 
 __all__ = [
     "BranchParams",
@@ -77,6 +78,20 @@ __all__ = [
 
 #: Folder of the shipped vessel networks.
 VESSELS_DIR = Path(__file__).resolve().parents[2] / "config" / "vessels"
+
+#: A blood vessel's lumen radius lies between a capillary's few micrometres and the aorta's ~15 mm (m):
+#: a branch's radius outside [MIN_RADIUS_M, MAX_RADIUS_M] is refused (a file in the wrong unit, mostly).
+MIN_RADIUS_M = 1.0e-6
+MAX_RADIUS_M = 2.0e-2
+#: The longest branch, and the largest side of a network's bounding box (m): a vessel tree within a body.
+MAX_LENGTH_M = 1.0
+#: Memory one smoothed centreline sample costs, all copies made of it (points, radii, arc lengths, the
+#: geometry's and the overlap check's copies and trees), rounded up (bytes).
+SAMPLE_BYTES = 256.0
+#: The overlap check's time per pair of samples of two branches (s; numpy, measured ~20 ns, rounded up).
+OVERLAP_SECONDS_PER_PAIR = 4.0e-8
+#: The overlap check compares this many pairs of samples at a time (bounded memory: ~100 bytes a pair).
+_OVERLAP_BLOCK_PAIRS = 1 << 20
 
 
 def _all_zero(values: tuple[float, ...]) -> bool:
@@ -178,6 +193,9 @@ class BranchParams:
             check_finite(f"y_m[{i}]", v)
         for i, v in enumerate(self.radius_m):
             check_positive(f"radius_m[{i}]", v)
+            if not MIN_RADIUS_M <= v <= MAX_RADIUS_M:
+                raise ConfigError(f"radius_m[{i}] must be a blood vessel's lumen radius, between {MIN_RADIUS_M:g} and "
+                                  f"{MAX_RADIUS_M:g} m, got {v!r} (is the unit metres?)")
         if self.is_planar:
             pts = np.column_stack([self.x_m, self.z_m])
             seg = np.hypot(*np.diff(pts, axis=0).T)
@@ -189,6 +207,10 @@ class BranchParams:
         if np.any(seg <= 0.0):
             i = int(np.argmin(seg))
             raise ConfigError(f"{keys}: points must be distinct, got a repeated point at index {i + 1}: {pts[i + 1].tolist()}")
+        length = float(seg.sum())
+        if not length <= MAX_LENGTH_M:
+            raise ConfigError(f"{keys}: a branch is at most {MAX_LENGTH_M:g} m long, got {length:.6g} m "
+                              "(is the unit metres?)")
 
     @property
     def is_planar(self) -> bool:
@@ -320,6 +342,12 @@ class VesselNetworkParams:
                     raise ConfigError(f"branches[{i}] ({b.name!r}): parent chain has a cycle through {cur.name!r}")
                 seen.add(cur.name)
                 cur = by_name[cur.parent]
+        pts = np.concatenate([b.points_3d() for b in self.branches])
+        extent = pts.max(axis=0) - pts.min(axis=0)
+        if not float(extent.max()) <= MAX_LENGTH_M:
+            raise ConfigError(f"branches: a network spans at most {MAX_LENGTH_M:g} m along x, y and z, got "
+                              f"{[float(f'{e:.6g}') for e in extent]} m (is the unit metres?)")
+        _check_sizes(self)
         _check_overlaps(self)
 
     @property
@@ -353,6 +381,30 @@ class VesselNetworkParams:
         return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _check_sizes(net: VesselNetworkParams) -> None:
+    """Refuse, before any sample is made, a network whose smoothed centrelines would not fit.
+
+    The samples (``ceil(chord / sample_spacing_m) + 1`` a branch), the smoothing spline's dense solve through a
+    branch's points and the overlap check's pairs of samples are estimated and bounded by
+    :func:`vesselbot_ros.resources.require_fits`.
+    """
+    samples: list[float] = []
+    for b in net.branches:
+        p = b.points_3d()
+        chord = float(_norm(np.diff(p, axis=0)).sum())
+        samples.append(max(2.0, math.ceil(chord / net.sample_spacing_m) + 1.0))
+    total = sum(samples)
+    pairs = (total * total - sum(n * n for n in samples)) / 2.0
+    require_fits("sample_spacing_m", net.sample_spacing_m, SAMPLE_BYTES * total, OVERLAP_SECONDS_PER_PAIR * pairs,
+                 what=f"the network's {total:.3g} centreline samples (and the overlap check of their pairs)",
+                 hint="raise sample_spacing_m")
+    if net.smoothing == "spline":
+        i = max(range(len(net.branches)), key=lambda j: len(net.branches[j].x_m))
+        n = len(net.branches[i].x_m)
+        require_fits(f"branches[{i}].x_m", f"{n} points", *spline_setup_cost(n),
+                     what=f"branch {net.branches[i].name!r}'s smoothing spline", hint="thin its points or use smoothing: none")
+
+
 def _check_overlaps(net: VesselNetworkParams) -> None:
     """Raise ConfigError naming two branches whose tubes overlap away from their common node.
 
@@ -380,17 +432,27 @@ def _check_overlaps(net: VesselNetworkParams) -> None:
             if not ma.any() or not mb.any():
                 continue
             qa, qb = pa[ma], pb[mb]
-            d = _norm(qa[:, None, :] - qb[None, :, :])
-            need = ra[ma][:, None] + rb[mb][None, :]
-            bad = d < need
-            if bad.any():
-                ia, ib = np.unravel_index(int(np.argmax(need - d)), d.shape)
+            rqa, rqb = ra[ma], rb[mb]
+            worst: tuple[float, int, int, float, float] | None = None  # (need - d, ia, ib, d, need), first maximum
+            step = max(1, _OVERLAP_BLOCK_PAIRS // len(qb))
+            for lo in range(0, len(qa), step):  # blocks of rows: bounded memory, the same first maximum
+                d = _norm(qa[lo:lo + step, None, :] - qb[None, :, :])
+                need = rqa[lo:lo + step, None] + rqb[None, :]
+                if not (d < need).any():
+                    continue
+                excess = need - d
+                k = int(np.argmax(excess))
+                ka, kb = np.unravel_index(k, d.shape)
+                if worst is None or excess.flat[k] > worst[0]:
+                    worst = (float(excess.flat[k]), lo + int(ka), int(kb), float(d[ka, kb]), float(need[ka, kb]))
+            if worst is not None:
+                _e, ia, ib, dist, sum_r = worst
                 where = (0.5 * (qa[ia] + qb[ib])).tolist()
                 axes = "x, z" if planar else "x, y, z"
                 at = ", ".join(f"{v:.6g}" for v in where)
                 raise ConfigError(f"branches {a.name!r} and {by_name[b.name].name!r} overlap near ({axes}) = "
-                                  f"({at}) m: centrelines {d[ia, ib]:.6g} m apart, "
-                                  f"radii sum {need[ia, ib]:.6g} m")
+                                  f"({at}) m: centrelines {dist:.6g} m apart, "
+                                  f"radii sum {sum_r:.6g} m")
 
 
 def smooth_centreline(b: BranchParams, smoothing: str, spacing_m: float
