@@ -12,6 +12,8 @@ errors: ``ConfigError``, ``ModelInputError``, ``BagError``, ``RunError``)
 escaping ``run`` is printed as one clear line and exits with code 2; so is an
 ``OSError`` (a full disk, a missing permission).  A closed stdout (``vesselbot
 bag info DIR | head -3``) ends the command quietly.
+
+Exit codes (:data:`EXIT_CODES`, also in ``vesselbot --help``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,16 @@ import sys
 from collections.abc import Sequence
 
 from vesselbot_ros.errors import VesselbotError
+
+#: What the exit codes of every sub-command mean.
+EXIT_CODES = """exit codes:
+  0    done
+  1    the run completed but its result cannot be trusted, said in one warning line on stderr (commands the coil
+       rejected: non-finite, not a command, a controller that raised: it ramped to zero; a missed real-time verdict;
+       campaign: runs that failed or rejected commands)
+  2    bad input or an error, in one line (config, model input, bag, run, file system)
+  130  interrupted (Ctrl-C)
+  141  stdout closed (| head)"""
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -52,6 +64,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vesselbot",
         description="MRI-guided magnetic microrobot navigation emulator (Arcese et al., IEEE TBME 2012).",
+        epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():

@@ -26,8 +26,12 @@ records it) is read on (x, y, z): its metrics are the launcher's (errors in
 space) and its per-axis plots have y.
 
 Every time plot shades saturated intervals (red, full height), and marks
-slew-limited (orange strip along the bottom) and fault (grey strip along the
-top) intervals, so that no shading hides another.  With a multiplexed
+slew-limited (orange strip along the bottom), fault (grey strip along the
+top) and rejected-command (purple strip just below it: the coil rejected the
+controller's command and ramped towards zero) intervals, so that no shading
+hides another.  The commanded gradient is drawn as commanded: a rejected
+command is a gap, not the zero the driver records; ``metrics.json`` counts
+them (``rejected_commands``, ``first_rejected_command_s``).  With a multiplexed
 scanner sequence it also shades the tracking windows (light blue, full
 height) read from the bag's sequence-phase topic (:func:`tracking_windows`):
 no propulsion gradient is applied there, and the frames are acquired there.  Faults are the imager's scheduled outlier bursts and
@@ -141,6 +145,9 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, 
         t_s = idx["_ns"].astype(np.float64) * 1e-9
     ax = _AXES[dims]
     slew = ("x", "y", "z") if dims == 3 else ("x", "z")
+    rej = ts.get("coil.rejected")
+    rejected = (np.asarray(rej)[co].astype(bool) if rej is not None and len(rej)
+                else np.zeros(len(co), dtype=bool))
     return {
         "t_s": t_s,
         "p_true": ts["truth.p_WR"][tr][:, ax],
@@ -149,7 +156,9 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, 
         "x_hat": ts["estimate.p_hat"][es][:, ax],
         "z_hat": ts["estimate.v_hat"][es][:, ax],
         "g_applied": ts["coil.applied"][co][:, ax],
-        "g_cmd": ts["coil.commanded"][co][:, ax],
+        # as commanded: a command the coil rejected is NaN (a gap in the figure), never the 0 the driver records
+        "g_cmd": np.where(rejected[:, None], np.nan, ts["coil.commanded"][co][:, ax]),
+        "cmd_rejected": rejected,
         "saturated": ts["coil.saturated"][co].astype(bool),
         "slew_limited": np.stack([ts[f"coil.slew_limited_{c}"][co] for c in slew], axis=1).astype(bool),
         "in_contact": ts["truth.in_contact"][tr].astype(bool),
@@ -236,7 +245,8 @@ def _shade(ax: Any, spans: Mapping[str, list[tuple[float, float]]]) -> None:
     slew-limited for the whole run.
     """
     style = {"saturated": ("tab:red", 0.15, 0.0, 1.0), "slew limited": ("tab:orange", 0.6, 0.0, 0.05),
-             "fault": ("0.3", 0.6, 0.95, 1.0), "tracking window": ("tab:blue", 0.1, 0.0, 1.0)}
+             "fault": ("0.3", 0.6, 0.95, 1.0), "tracking window": ("tab:blue", 0.1, 0.0, 1.0),
+             "rejected command": ("tab:purple", 0.6, 0.9, 0.95)}
     for label, ivs in spans.items():
         color, alpha, lo, hi = style[label]
         for i, (a, b) in enumerate(ivs):
@@ -364,6 +374,7 @@ def fig10a_gradients(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray],
     fig, axs = plt.subplots(2, 1, sharex=True, figsize=(8, 5.5))
     a = axs[0]
     _shade(a, spans)
+    # a rejected command is NaN: a gap in the commanded line, over the "rejected command" strip
     a.plot(t, np.linalg.norm(m["g_cmd"], axis=1) * mm, "tab:gray", lw=0.8, label="|U| commanded")
     a.plot(t, np.linalg.norm(m["g_applied"], axis=1) * mm, "tab:red", lw=1.0, label="|U| applied")
     a.plot(t, np.asarray(m["max_gradient"]) * mm, "k:", lw=1.0, label="U_sat (limit on |U|)")
@@ -642,8 +653,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     slew = bool_intervals(t, np.asarray(m["slew_limited"].any(axis=1), dtype=np.bool_))
     faults = _fault_intervals(ts, info.run_metadata, dt, dims)
     tracking = tracking_windows(ts, float(t[-1]) + dt)
+    rejected = bool_intervals(t, np.asarray(m["cmd_rejected"], dtype=np.bool_))
     spans = {"saturated": sat, "slew limited": slew, "fault": [(f["start_s"], f["end_s"]) for f in faults],
-             "tracking window": tracking}
+             "tracking window": tracking, "rejected command": rejected}
     t_out, thr = detect_outlier_frames(ts, dims)
     metrics.update(diagnostic_counters(info))
     metrics.update({
@@ -654,6 +666,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         "message_counts": {tp.name: tp.count for tp in info.topics},
         "saturated_intervals_s": sat,
         "slew_limited_intervals_s": slew,
+        "rejected_command_intervals_s": rejected,
         "faults": faults,
         "tracking_windows_s": tracking,
         "outlier_frames_detected": int(t_out.size),

@@ -26,6 +26,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.bag) / "report"
     print(f"report written to {out}: {', '.join(FIGURES)}, metrics.json")
     after = metrics["after_s"]
+    print(f"  the bag {metrics['coverage']}")
     if metrics.get("metrics_window_note"):
         print(f"  {metrics['metrics_window_note']}")
     print(f"  tracking error after {after} s: max {metrics['tracking_error_max_m'] * 1e6:.1f} um, "
@@ -33,4 +34,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  estimation error after {after} s: max {metrics['estimation_error_max_m'] * 1e6:.1f} um")
     print(f"  saturated {metrics['saturation_time_s']:.3f} s, slew-limited {metrics['slew_limited_time_s']:.3f} s, "
           f"wall contacts {metrics['wall_contacts']}, max |G| {metrics['max_gradient_T_per_m'] * 1e3:.1f} mT/m")
+    n_rej = int(metrics.get("rejected_commands") or 0)
+    first = metrics.get("first_rejected_command_s")
+    print(f"  rejected commands {n_rej}" + (f" (the first at t = {float(first):.3f} s; the coil ramped to zero)"
+                                           if n_rej and first is not None else ""))
     return 0

@@ -11,6 +11,12 @@ The spec format is in :mod:`vesselbot_ros.campaign.spec`, the folder layout and
 the results table in :mod:`vesselbot_ros.campaign.store`, the summary and
 figures in :mod:`vesselbot_ros.campaign.summary`.  Running the same command
 again resumes: finished runs (found by their content hash) are not run again.
+
+Exit codes: 0 every run is ``ok``, or some failed (their errors are in the
+table); 1 every run failed, or some runs completed but cannot be trusted
+(status ``rejected_commands``: the coil rejected controller commands and
+ramped to zero; or ``diverged``), said in one warning line with their count;
+2 bad input.
 """
 
 from __future__ import annotations
@@ -177,4 +183,13 @@ def run(args: argparse.Namespace) -> int:
     if n_failed_total:
         print(f"campaign {spec.name}: {n_failed_total} run(s) failed or ran over the run budget; their errors are in "
               f"the 'error' column of results.parquet", file=sys.stderr)
+    # runs that completed but cannot be trusted: commands the coil rejected (it ramped to zero), or diverged
+    untrusted = [r for r in rows if r.get("status") not in ("ok", "error", "timeout", None)]
+    if untrusted:
+        n_rej = sum(1 for r in untrusted if r.get("status") == "rejected_commands")
+        print(f"vesselbot: warning: campaign {spec.name}: {len(untrusted)} of {len(rows)} run(s) completed but cannot "
+              f"be trusted ({n_rej} on rejected controller commands, {len(untrusted) - n_rej} diverged or other); "
+              f"their status and warning line are in the 'status' and 'error' columns of results.parquet",
+              file=sys.stderr)
+        return 1
     return 1 if rows and n_failed_total == len(rows) else 0

@@ -232,6 +232,25 @@ def _scenario(task: RunTask, local: dict[int, Any]) -> Any:
     return hit
 
 
+#: Status of a run that completed on commands the coil rejected (non-finite, not a command, a controller that
+#: raised): the coil ramped to zero, so its metrics are not the controller's result.
+REJECTED_STATUS = "rejected_commands"
+
+
+def run_outcome(metrics: dict[str, Any]) -> tuple[str, str | None]:
+    """``(status, error)`` of a completed run from its metrics: ``("ok", None)``, or the metrics' own status
+    (``diverged``, ...) or :data:`REJECTED_STATUS` with its one warning line."""
+    status = metrics.get("status")
+    rejected = int(metrics.get("rejected_commands") or 0)
+    if not isinstance(status, str) or not status or (status == "ok" and rejected):
+        status = REJECTED_STATUS if rejected else "ok"
+    if status == "ok":
+        return "ok", None
+    if status == REJECTED_STATUS:
+        return status, kinds.rejection_warning(metrics)
+    return status, str(metrics.get("divergence") or status)
+
+
 def _one(task: RunTask, local: dict[int, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"run_id": task.run_id, "status": "ok", "error": None, "metrics": {}, "timeseries": None}
@@ -244,6 +263,7 @@ def _one(task: RunTask, local: dict[int, Any]) -> dict[str, Any]:
         result = closed_loop.run_closed_loop(scenario, task.seed)
         rec["metrics"] = {k: v for k, v in result.metrics.items()
                           if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
+        rec["status"], rec["error"] = run_outcome(result.metrics)  # ok, or a run whose result cannot be trusted
         if task.keep_timeseries:
             rec["timeseries"] = flatten_timeseries(result.timeseries)
     except Exception as exc:  # noqa: BLE001 - a failing run is a result, not a crash

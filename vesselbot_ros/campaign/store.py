@@ -26,8 +26,11 @@ index                       run position in the campaign order (grid x draws x s
 run_id                      content hash of scenario + seed + code version
 seed                        imager noise seed
 <dotted.scenario.key>       value of each varied key (grid and sampled)
-status                      ``ok``, ``error`` or ``timeout`` (stopped at the campaign's run budget)
-error                       ``"Type: message"`` of a failed or timed-out run, else null
+status                      ``ok``, ``error``, ``timeout`` (stopped at the campaign's run budget), or a run that
+                            completed but cannot be trusted: ``rejected_commands`` (the coil rejected controller
+                            commands and ramped to zero), ``diverged``
+error                       ``"Type: message"`` of a failed or timed-out run, the warning line of an untrusted
+                            one, else null
 <metric>                    every numeric metric of ``run_closed_loop`` (SI units in the name)
 run_time_s                  wall time of the run on its worker (s)
 worker                      ``host:pid`` of the worker

@@ -3,7 +3,8 @@
 :func:`summarize` computes, per group of grid values (one group when nothing
 is gridded) and per metric of :data:`SUMMARY_METRICS`, over the runs that
 finished without error (status ``ok``; ``error`` and ``timeout`` runs count as
-failed): the number of runs, the mean with its 95 % confidence
+failed, and runs that completed on rejected commands (``rejected_commands``) or
+diverged are counted by status in the header, not in the statistics): the number of runs, the mean with its 95 % confidence
 interval (Student t, ``mean +/- t(0.975, n-1) s / sqrt(n)``), the standard
 deviation, the 5th, 50th and 95th percentiles and the worst run (the largest
 value: every metric here is better smaller).
@@ -228,8 +229,16 @@ def write_report(rows: Sequence[dict[str, Any]], meta: dict[str, Any], root: Pat
     n_timeout = sum(1 for r in rows if r.get("status") == "timeout")
     budget = meta.get("run_timeout_s")
     over = (f", {n_timeout} over the run budget" + (f" of {budget:g} s" if budget else "")) if n_timeout else ""
+    # runs that completed but cannot be trusted (rejected_commands, diverged): counted by status, left out of the
+    # statistics as the failed ones are
+    untrusted: dict[str, int] = {}
+    for r in rows:
+        st = r.get("status")
+        if st not in ("ok", "error", "timeout", None):
+            untrusted[str(st)] = untrusted.get(str(st), 0) + 1
+    other = "".join(f", {n} {st}" for st, n in sorted(untrusted.items()))
     head = (f"campaign {meta.get('name')}: {len(rows)} of {meta.get('n_runs', len(rows))} runs finished, "
-            f"{n_ok} ok, {n_failed} failed{over} (metrics after t = {_after(rows)} s)\n\n")
+            f"{n_ok} ok, {n_failed} failed{over}{other} (metrics after t = {_after(rows)} s)\n\n")
     text = head + format_markdown(summary)
     (root / "summary.md").write_text(text, encoding="utf-8")
     with (root / "summary.csv").open("w", newline="", encoding="utf-8") as fh:

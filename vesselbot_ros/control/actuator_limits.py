@@ -27,9 +27,14 @@ time ``t``:
    segment between two points of the (convex) saturation set, so the applied
    gradient never leaves it, and no axis moves more than ``S*dt``.
 
-A non-finite command is *rejected*: the coil never sees it.  With
-``on_reject: hold`` it keeps the last applied value; with
-``on_reject: ramp_to_zero`` it ramps towards zero within the slew limit.
+A non-finite command is *rejected*: the coil never sees it.  From the
+rejected tick on the output ramps towards zero at the slew limit (the same
+:func:`coil_slew_to` towards zero as the watchdog's ramp) and stays at zero
+until a valid command arrives, which it then follows within the slew limit as
+usual: a rejected command never freezes the coil on a stale gradient (the
+``on_reject: hold`` of earlier versions flew the robot blind on the last good
+gradient and is refused with one line).  :meth:`CoilLimiter.reject` is the
+rejection of anything else that is not a command (a wrong frame or shape).
 :meth:`CoilLimiter.watchdog` ramps to zero within the slew limit when no
 command arrived for longer than ``command_timeout_s`` (a driver node calls it
 from a timer).
@@ -48,7 +53,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import hypot2, hypot3
 from vesselbot_ros.config import check_choice, check_positive
-from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.errors import ConfigError, ModelInputError
 
 __all__ = [
     "coil_saturate",
@@ -90,8 +95,10 @@ class CoilLimits:
             printed in Section III-C) or ``custom`` (``custom_slew_rate``).
         custom_slew_rate_T_per_m_per_s: Slew rate used when
             ``slew_rate == "custom"`` (T/m/s).
-        on_reject: What the coil does on a non-finite command: ``hold`` the
-            last applied value, or ``ramp_to_zero`` within the slew limit.
+        on_reject: What the coil does on a rejected (non-finite) command:
+            ``ramp_to_zero`` within the slew limit, from the rejected tick on (the
+            only choice: ``hold``, which froze the coil on a stale gradient, is
+            refused).
         command_timeout_s: :meth:`CoilLimiter.watchdog` ramps to zero when no
             command arrived for longer than this (s).
         kind: The coil's stage kind (:mod:`vesselbot_ros.sim.kinds`): ``gradient_coil``.
@@ -101,7 +108,7 @@ class CoilLimits:
     saturation_norm: Literal["euclidean", "per_axis"] = "euclidean"
     slew_rate: Literal["clinical", "paper_printed", "custom"] = "clinical"
     custom_slew_rate_T_per_m_per_s: float = CLINICAL_SLEW_RATE_T_PER_M_PER_S
-    on_reject: Literal["hold", "ramp_to_zero"] = "hold"
+    on_reject: Literal["ramp_to_zero"] = "ramp_to_zero"
     command_timeout_s: float = 0.05
     kind: Literal["gradient_coil"] = "gradient_coil"
 
@@ -110,7 +117,11 @@ class CoilLimits:
         check_choice("saturation_norm", self.saturation_norm, ("euclidean", "per_axis"))
         check_choice("slew_rate", self.slew_rate, ("clinical", "paper_printed", "custom"))
         check_positive("custom_slew_rate_T_per_m_per_s", self.custom_slew_rate_T_per_m_per_s)
-        check_choice("on_reject", self.on_reject, ("hold", "ramp_to_zero"))
+        if self.on_reject == "hold":
+            raise ConfigError("on_reject: 'hold' is refused: it froze the coil on the last good gradient for as long "
+                              "as the commands stayed bad, flying the robot blind; a rejected command ramps the coil "
+                              "to zero within the slew limit (on_reject: ramp_to_zero, the default)")
+        check_choice("on_reject", self.on_reject, ("ramp_to_zero",))
         check_choice("kind", self.kind, ("gradient_coil",))
         check_positive("command_timeout_s", self.command_timeout_s)
 
@@ -144,7 +155,8 @@ class CoilOutput(NamedTuple):
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
-# params (4,) float64: [saturation (T/m), slew rate (T/m/s), per_axis (0/1), ramp_to_zero on reject (0/1)]
+# params (4,) float64: [saturation (T/m), slew rate (T/m/s), per_axis (0/1), 1 (a rejected command ramps to zero;
+#   the slot of the refused ``hold``)]
 # state (4,) float64: [applied x, applied z (T/m), t_prev (s), t_last_command (s)]
 # out (7,) float64: [applied x, applied z, k_scale, saturated, slew_limited x, slew_limited z, rejected]
 COIL_OUT_SIZE = 7
@@ -156,7 +168,7 @@ def coil_params(limits: CoilLimits) -> npt.NDArray[np.float64]:
         float(limits.saturation_T_per_m),
         float(limits.slew_rate_T_per_m_per_s),
         1.0 if limits.saturation_norm == "per_axis" else 0.0,
-        1.0 if limits.on_reject == "ramp_to_zero" else 0.0,
+        1.0,  # on_reject: ramp_to_zero, the only choice
     ])
 
 
@@ -213,11 +225,8 @@ def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]  # n
     if dt < 0.0:
         dt = 0.0
     state[2] = t
-    if not (math.isfinite(gx) and math.isfinite(gz)):
-        if prm[3] > 0.5:
-            coil_slew_to(prm, state, 0.0, 0.0, dt, out)
-        else:
-            coil_slew_to(prm, state, state[0], state[1], dt, out)
+    if not (math.isfinite(gx) and math.isfinite(gz)):  # rejected: towards zero at the slew limit, as the watchdog
+        coil_slew_to(prm, state, 0.0, 0.0, dt, out)
         out[2] = 1.0
         out[3] = 0.0
         out[6] = 1.0
@@ -296,11 +305,8 @@ def coil3d_apply(prm, state, t, gx, gy, gz, out):  # type: ignore[no-untyped-def
     if dt < 0.0:
         dt = 0.0
     state[3] = t
-    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
-        if prm[3] > 0.5:
-            coil3d_slew_to(prm, state, 0.0, 0.0, 0.0, dt, out)
-        else:
-            coil3d_slew_to(prm, state, state[0], state[1], state[2], dt, out)
+    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):  # rejected: ramps to zero
+        coil3d_slew_to(prm, state, 0.0, 0.0, 0.0, dt, out)
         out[3] = 1.0
         out[4] = 0.0
         out[8] = 1.0
@@ -384,6 +390,14 @@ class CoilLimiter:
         self._dt(t_s)
         coil_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), self._out)
         return self._output()
+
+    def reject(self, t_s: float) -> CoilOutput:
+        """Reject whatever came for ``t_s`` (not a command: a wrong frame or shape, nothing usable).
+
+        The same as a non-finite command: the output ramps towards zero within
+        the slew limit and ``rejected`` is True.
+        """
+        return self.apply(t_s, np.full(self.dims, np.nan))
 
     def step(self, t_s: float, update: Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], None]) -> CoilOutput:
         """Advance the coil to ``t_s`` with ``update(state, out)``: a compiled step over the coil's state and output.

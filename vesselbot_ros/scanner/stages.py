@@ -126,13 +126,9 @@ def seq_coil_apply(prm, sv, hold, state, t, gx, gz, out):  # type: ignore[no-unt
     p0 = state[0]
     p1 = state[1]
     finite = math.isfinite(gx) and math.isfinite(gz)
-    if not finite:  # the coil's own rejection rule, then the gate (it must not hold into a tracking window)
-        if prm[3] < 0.5:  # hold
-            gx = p0
-            gz = p1
-        else:
-            gx = 0.0
-            gz = 0.0
+    if not finite:  # the coil's own rejection rule (towards zero at the slew limit), then the gate
+        gx = 0.0
+        gz = 0.0
     lim = limit_at(sv, t, hold, prm[1], prm[0])
     sx, sz, k = coil_saturate(prm, gx, gz)
     tx, tz = target_for(p0, p1, sx, sz, lim, prm[1] * hold)
@@ -237,6 +233,10 @@ class SequencedCoil:
         prm, sv, hold_s, t, gx, gz = self._prm, self.sv, self.hold_s, float(t_s), float(g[0]), float(g[1])
         return self.inner.step(t, lambda state, out: seq_coil_apply(prm, sv, hold_s, state, t, gx, gz, out))
 
+    def reject(self, t_s: float) -> CoilOutput:
+        """As :meth:`CoilLimiter.reject`: not a command; the output ramps towards zero within the slew limit."""
+        return self.apply(t_s, np.full(2, np.nan))
+
     def hold(self, t_s: float) -> CoilOutput:
         """As :meth:`CoilLimiter.hold` (holding the output is always allowed: outside propulsion it is zero)."""
         return self.inner.hold(t_s)
@@ -293,15 +293,10 @@ def seq_coil3d_apply(prm, sv, hold, state, t, gx, gy, gz, out):  # type: ignore[
     p1 = state[1]
     p2 = state[2]
     finite = math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)
-    if not finite:
-        if prm[3] < 0.5:  # hold
-            gx = p0
-            gy = p1
-            gz = p2
-        else:
-            gx = 0.0
-            gy = 0.0
-            gz = 0.0
+    if not finite:  # rejected: towards zero at the slew limit
+        gx = 0.0
+        gy = 0.0
+        gz = 0.0
     lim = limit_at(sv, t, hold, prm[1], prm[0])
     sx, sy, sz, k = coil3d_saturate(prm, gx, gy, gz)
     tx, ty, tz = target3_for(p0, p1, p2, sx, sy, sz, lim, prm[1] * hold)
@@ -417,6 +412,10 @@ class SequencedCoil3D:
             raise ModelInputError(f"commanded gradient must have shape (3,), got {g.shape}")
         prm, sv, hold_s, t, gx, gy, gz = self._prm, self.sv, self.hold_s, float(t_s), float(g[0]), float(g[1]), float(g[2])
         return self.inner.step(t, lambda state, out: seq_coil3d_apply(prm, sv, hold_s, state, t, gx, gy, gz, out))
+
+    def reject(self, t_s: float) -> CoilOutput:
+        """As :meth:`CoilLimiter.reject` on three axes."""
+        return self.apply(t_s, np.full(3, np.nan))
 
     def hold(self, t_s: float) -> CoilOutput:
         """As :meth:`CoilLimiter3D.hold`."""

@@ -55,7 +55,11 @@ g_applied            T/m      gradient applied by the coil on [t_k, t_k+1]
 k_scale              -        saturation factor k of Section III-C
 saturated            bool     k > 1
 slew_limited         bool     (n, 2) slew limit active per axis
-cmd_status           -        0 ok, 1 stale (safe action), 2 non-finite law
+cmd_status           -        0 ok, 1 stale (safe action), 2 non-finite (the law's safe action, or a rejected
+                              command)
+cmd_rejected         -        0 the command was taken; else why it was rejected (kinds.REJECT_REASONS: 1
+                              non-finite, 2 non-finite estimate (controller not called), 3 the controller
+                              raised, 4 not a command): the coil ramped towards zero at the slew limit
 sequence_phase       -        scanner phase at t_k: 0 continuous, 1 tracking, 2 dead, 3 propulsion
 forces               N        (n, 8, 2) force terms (only if record_forces)
 ===================  =======  ==============================================
@@ -390,6 +394,10 @@ def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDAr
         measurements_rejected=int(np.count_nonzero(series["meas_rejected"])),
         outlier_frames=int(np.count_nonzero(series["meas_outlier"])),
     )
+    codes = np.unique(series["cmd_rejected"])
+    reasons = [kinds.REJECT_REASONS[int(c)] for c in codes if int(c) in kinds.REJECT_REASONS]
+    if reasons:  # the words of the warning line (kinds.rejection_warning)
+        metrics["rejected_command_reasons"] = ", ".join(reasons)
     if scenario.physics.vessel.network:
         metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))
     return metrics
@@ -412,6 +420,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     phase = np.zeros(n, dtype=np.int8)
     seq_phase = _sequence_phase(scenario, ts)
     status = np.zeros(n, dtype=np.int8)
+    rejected = np.zeros(n, dtype=np.int8)
+    reject_details: dict[int, str] = {}
     forces = np.empty((n, 8, d)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
@@ -424,10 +434,15 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         truth = plant.output(rec_forces)
         meas = imager.frame(t, truth.p)
         est = observer.update(t, meas, g_prev)
-        # the controller gets what the graph carries between the nodes (kinds.call_controller: the same numbers)
-        cmd = kinds.call_controller(controller, t, est.x_hat, est.z_hat, est.time_since_measurement_s,
-                                    getattr(est, "flow_scale", 1.0), p_ref[k], v_ref[k], a_ref[k])
-        out = coil.apply(t, cmd.gradient_T_per_m)
+        # the controller gets what the graph carries between the nodes (kinds.call_controller: the same numbers);
+        # a bad command (non-finite, raised, not a command) is rejected: the coil gets NaN and ramps to zero
+        cmd, why, detail = kinds.checked_command(controller, t, est.x_hat, est.z_hat, est.time_since_measurement_s,
+                                                 getattr(est, "flow_scale", 1.0), p_ref[k], v_ref[k], a_ref[k], d)
+        if why:
+            rejected[k] = why
+            if why not in reject_details:
+                reject_details[why] = detail
+        out = coil.apply(t, cmd.gradient_T_per_m if not why else nan2)
         plant.step(out.applied)
         g_prev = out.applied
 
@@ -445,8 +460,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             b1["meas_outlier"][k] = meas.outlier
         f2["x_hat"][k] = est.x_hat
         f2["z_hat"][k] = est.z_hat
-        if adapted is None:
-            f1["flow_scale_hat"][k] = est.flow_scale
+        if adapted is None or why == kinds.REJECT_ESTIMATE:  # (the controller did not run on a non-finite estimate)
+            f1["flow_scale_hat"][k] = getattr(est, "flow_scale", 1.0)
             f1["magnetization_scale_hat"][k] = 1.0
         else:
             adapted = cast(BacksteppingController, controller).adapted  # reset() replaces it
@@ -473,11 +488,17 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     series["contact_phase"] = phase
     series["sequence_phase"] = seq_phase
     series["cmd_status"] = status
+    series["cmd_rejected"] = rejected
     if forces is not None:
         series["forces"] = forces
     observer_stats = getattr(getattr(observer, "model", None), "stats", np.zeros(4, dtype=np.int64))
     plant_stats = getattr(plant, "stats", np.zeros(4, dtype=np.int64))  # a user's plant may count nothing
-    return SimResult(series, _metrics(scenario, seed, series, plant_stats, observer_stats), "per_tick")
+    metrics = _metrics(scenario, seed, series, plant_stats, observer_stats)
+    if kinds.REJECT_RAISED in reject_details:  # what the controller raised first (only a Python stage can)
+        metrics["rejected_command_error"] = reject_details[kinds.REJECT_RAISED]
+    if kinds.REJECT_MALFORMED in reject_details:
+        metrics["rejected_command_malformed"] = reject_details[kinds.REJECT_MALFORMED]
+    return SimResult(series, metrics, "per_tick")
 
 
 def run_many(

@@ -58,13 +58,14 @@ from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopr
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim import kinds
+from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
 OBSERVER_FAILED = 2  # the observer's model integration failed
-ESTIMATE_NONFINITE = 3  # the controller got a non-finite estimate
+ESTIMATE_NONFINITE = 3  # (no longer a stop: a non-finite estimate is a rejected command, kinds.checked_command)
 REFERENCE_NONFINITE = 4  # the controller got a non-finite reference sample
 EKF_FAILED = 5  # the extended Kalman filter's prediction failed
 FLOW_SCALE_FAILED = 6  # the compensating law got a flow scale it cannot use
@@ -92,6 +93,7 @@ COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
     ("saturated", np.bool_, ()),
     ("slew_limited", np.bool_, (2,)),
     ("cmd_status", np.int8, ()),
+    ("cmd_rejected", np.int8, ()),
 )
 
 
@@ -209,7 +211,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
                 x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
-                saturated, slew_limited, cmd_status, err):
+                saturated, slew_limited, cmd_status, cmd_rejected, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
 
     State arrays (``y``, ``contact``, ``obs_*``, the filter's ``e_*``,
@@ -292,31 +294,52 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         z_hat[k, 1] = obs_out[3]
         meas_used[k] = obs_out[7] > 0.5
         meas_rejected[k] = obs_out[8] > 0.5
-        # controller
+        # controller (kinds.checked_command: a non-finite estimate is not given to it, a non-finite command is
+        # rejected; either reaches the coil as NaN, which ramps it towards zero at the slew limit)
         if not (math.isfinite(obs_out[0]) and math.isfinite(obs_out[1]) and math.isfinite(obs_out[2])
                 and math.isfinite(obs_out[3])):
-            return ESTIMATE_NONFINITE, k
-        if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
-                and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
-            return REFERENCE_NONFINITE, k
-        status = ctrl_step(ctrl_prm, ctrl_state, model_p, ctrl_work, ctrl_fbuf, t, obs_out[0], obs_out[1], obs_out[2],
-                           obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0], v_ref[k, 1],
-                           a_ref[k, 0], a_ref[k, 1], ctrl_out)
-        flow_scale_hat[k] = ctrl_out[4]  # the scales the controller worked with (the observer's, or adapted)
-        magnetization_scale_hat[k] = ctrl_out[5]
-        if status == STEP_FLOW_SCALE_INVALID:
-            err[0] = ctrl_out[4]
-            return FLOW_SCALE_FAILED, k
-        g_cmd[k, 0] = ctrl_out[0]
-        g_cmd[k, 1] = ctrl_out[1]
-        u_cmd[k, 0] = ctrl_out[2]
-        u_cmd[k, 1] = ctrl_out[3]
+            status = 2
+            why = REJECT_ESTIMATE
+            gx_cmd = np.nan
+            gz_cmd = np.nan
+            u_cmd[k, 0] = np.nan
+            u_cmd[k, 1] = np.nan
+            flow_scale_hat[k] = obs_out[9]
+            magnetization_scale_hat[k] = 1.0
+        else:
+            if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
+                    and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
+                return REFERENCE_NONFINITE, k
+            status = ctrl_step(ctrl_prm, ctrl_state, model_p, ctrl_work, ctrl_fbuf, t, obs_out[0], obs_out[1],
+                               obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0],
+                               v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
+            flow_scale_hat[k] = ctrl_out[4]  # the scales the controller worked with (the observer's, or adapted)
+            magnetization_scale_hat[k] = ctrl_out[5]
+            if status == STEP_FLOW_SCALE_INVALID:
+                err[0] = ctrl_out[4]
+                return FLOW_SCALE_FAILED, k
+            gx_cmd = ctrl_out[0]
+            gz_cmd = ctrl_out[1]
+            u_cmd[k, 0] = ctrl_out[2]
+            u_cmd[k, 1] = ctrl_out[3]
+            why = 0
+            if not (math.isfinite(gx_cmd) and math.isfinite(gz_cmd)):
+                why = REJECT_NONFINITE
+                status = 2
+            elif status < 0 or status > 2:  # not a status of a command
+                why = REJECT_MALFORMED
+                status = 2
+                gx_cmd = np.nan
+                gz_cmd = np.nan
+        g_cmd[k, 0] = gx_cmd
+        g_cmd[k, 1] = gz_cmd
         cmd_status[k] = status
+        cmd_rejected[k] = why
         # coil
         if seq_mode == 1:
-            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
+            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gx_cmd, gz_cmd, coil_out)
         else:
-            coil_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], coil_out)
+            coil_apply(coil_prm, coil_state, t, gx_cmd, gz_cmd, coil_out)
         gx_prev = coil_out[0]
         gz_prev = coil_out[1]
         g_applied[k, 0] = gx_prev

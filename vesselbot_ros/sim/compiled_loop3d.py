@@ -38,13 +38,13 @@ from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspac
 from vesselbot_ros.scanner.stages import SequencedCoil3D, SequencedImager3D, seq_coil3d_apply, seq_imager3d_frame
 from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop codes and errors
     COLUMNS,
-    ESTIMATE_NONFINITE,
     FLOW_SCALE_FAILED,
     OBSERVER_FAILED,
     PLANT_FAILED,
     REFERENCE_NONFINITE,
     raise_for_code,
 )
+from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_NONFINITE
 from vesselbot_ros.sim.plant import PlantSimulator3D
 
 __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "run_kernel3d", "COLUMNS3D"]
@@ -144,7 +144,7 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
                   obs_scal, coil_state, plant_stats, model_stats, record_forces, forces,
                   p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat,
                   flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
-                  saturated, slew_limited, cmd_status, err):
+                  saturated, slew_limited, cmd_status, cmd_rejected, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (0 = every tick ran); state arrays updated in place,
     ``err`` (3,) the failure's ``[t0, t1, integrator code]`` (or the flow scale).  Scratch is allocated once."""
     work, fbuf, sc = new_workspace3d()
@@ -157,6 +157,7 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
     free = np.zeros(4)
     gu = np.zeros((2, 3))
     g = np.zeros(3)
+    gc = np.zeros(3)  # the tick's command (NaN: rejected)
     img_state = np.zeros(4)
     img_state[1] = -math.inf
     img_out = np.zeros(6)
@@ -217,29 +218,44 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
         magnetization_scale_hat[k] = 1.0
         meas_used[k] = obs_out[10] > 0.5
         meas_rejected[k] = obs_out[11] > 0.5
-        # law (24)
+        # law (24) (kinds.checked_command: a non-finite estimate or command is rejected; the coil ramps to zero)
+        finite_estimate = True
         for c in range(6):
             if not math.isfinite(obs_out[c]):
-                return ESTIMATE_NONFINITE, k
+                finite_estimate = False
+        if not finite_estimate:
+            status = 2
+            why = REJECT_ESTIMATE
+            for c in range(3):
+                gc[c] = np.nan
+                u_cmd[k, c] = np.nan
+        else:
+            for c in range(3):
+                if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
+                    return REFERENCE_NONFINITE, k
+            status = law3d_command(ctrl_prm, ctrl_last, model_p, p_s, W, F, fh, free, ctrl_fbuf, ctrl_sc, ys, z3, t,
+                                   obs_out[0], obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[5], obs_out[6],
+                                   1.0, p_ref[k, 0], p_ref[k, 1], p_ref[k, 2], v_ref[k, 0], v_ref[k, 1], v_ref[k, 2],
+                                   a_ref[k, 0], a_ref[k, 1], a_ref[k, 2], ctrl_out)
+            if status == FLOW_SCALE_INVALID:
+                err[0] = 1.0
+                return FLOW_SCALE_FAILED, k
+            why = 0
+            for c in range(3):
+                gc[c] = ctrl_out[c]
+                u_cmd[k, c] = ctrl_out[3 + c]
+                if not math.isfinite(gc[c]):
+                    why = REJECT_NONFINITE
+                    status = 2
         for c in range(3):
-            if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
-                return REFERENCE_NONFINITE, k
-        status = law3d_command(ctrl_prm, ctrl_last, model_p, p_s, W, F, fh, free, ctrl_fbuf, ctrl_sc, ys, z3, t,
-                               obs_out[0], obs_out[1], obs_out[2], obs_out[3], obs_out[4], obs_out[5], obs_out[6], 1.0,
-                               p_ref[k, 0], p_ref[k, 1], p_ref[k, 2], v_ref[k, 0], v_ref[k, 1], v_ref[k, 2],
-                               a_ref[k, 0], a_ref[k, 1], a_ref[k, 2], ctrl_out)
-        if status == FLOW_SCALE_INVALID:
-            err[0] = 1.0
-            return FLOW_SCALE_FAILED, k
-        for c in range(3):
-            g_cmd[k, c] = ctrl_out[c]
-            u_cmd[k, c] = ctrl_out[3 + c]
+            g_cmd[k, c] = gc[c]
         cmd_status[k] = status
+        cmd_rejected[k] = why
         # coil
         if seq_mode == 1:
-            seq_coil3d_apply(coil_prm, sv, hold_s, coil_state, t, ctrl_out[0], ctrl_out[1], ctrl_out[2], coil_out)
+            seq_coil3d_apply(coil_prm, sv, hold_s, coil_state, t, gc[0], gc[1], gc[2], coil_out)
         else:
-            coil3d_apply(coil_prm, coil_state, t, ctrl_out[0], ctrl_out[1], ctrl_out[2], coil_out)
+            coil3d_apply(coil_prm, coil_state, t, gc[0], gc[1], gc[2], coil_out)
         for c in range(3):
             g[c] = coil_out[c]
             g_applied[k, c] = coil_out[c]

@@ -51,6 +51,7 @@ import hashlib
 import importlib
 import importlib.metadata
 import inspect
+import math
 import sys
 import threading
 from collections.abc import Callable, Mapping
@@ -73,7 +74,7 @@ from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measur
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import planned_reference
-from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import effective_coil_limits
@@ -86,7 +87,9 @@ from vesselbot_ros.vessels.cfd import packed_params
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
     "kind_of", "kinds", "build", "compiled_controller", "params_type", "section_resolver", "switch_sections",
-    "fingerprint", "controller_estimate", "call_controller", "make_observer", "PlantStage", "ImagerStage",
+    "fingerprint", "controller_estimate", "call_controller", "checked_command", "rejection_warning", "REJECT_REASONS",
+    "REJECT_NONE", "REJECT_NONFINITE", "REJECT_ESTIMATE", "REJECT_RAISED", "REJECT_MALFORMED", "COMMAND_STATUSES",
+    "make_observer", "PlantStage", "ImagerStage",
     "ObserverStage", "ControllerStage", "CoilStage", "ReferenceStage",
 ]
 
@@ -396,7 +399,15 @@ def build(role: str, builder: Any) -> Any:
     """Build ``role``'s stage for the run of ``builder`` (``closed_loop``'s stage builder), through its kind."""
     ctx = BuildContext(builder, role)
     kind = find(role, ctx.params.kind, f"{SECTIONS[role]}.kind")
-    return kind.build(ctx)
+    if kind.source == "built-in":
+        return kind.build(ctx)
+    try:  # a user's kind whose constructor fails: one line naming the kind and the exception, not a traceback
+        return kind.build(ctx)
+    except VesselbotError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure of a user's constructor
+        raise ConfigError(f"{SECTIONS[role]}.kind: the {role} kind {kind.name!r} could not be built: its constructor "
+                          f"raised {type(exc).__name__}: {exc}") from None
 
 
 def fingerprint(scenario: Any) -> str:
@@ -475,6 +486,87 @@ def call_controller(controller: Any, t_s: float, x_hat: npt.NDArray[np.float64],
     cmd: ControlCommand = controller.command(t_s, controller_estimate(t_s, x_hat, z_hat, age_s, flow_scale),
                                              RefSample(p_ref, v_ref, a_ref))
     return cmd
+
+
+# ---- a command the coil can take, or a rejection ------------------------------------------------------------------
+#: Codes of the loops' ``cmd_rejected`` column: why the tick's command was rejected (0: it was not).  A rejected
+#: command reaches the coil as non-finite, so the coil ramps towards zero at the slew limit from that tick on.
+REJECT_NONE, REJECT_NONFINITE, REJECT_ESTIMATE, REJECT_RAISED, REJECT_MALFORMED = 0, 1, 2, 3, 4
+#: Words of each rejection code (the warning line of ``simulate`` and ``campaign`` names them).
+REJECT_REASONS: dict[int, str] = {REJECT_NONFINITE: "non-finite", REJECT_ESTIMATE: "non-finite estimate",
+                                  REJECT_RAISED: "the controller raised", REJECT_MALFORMED: "not a command"}
+#: The controller statuses a command may carry (the ``cmd_status`` codes).
+COMMAND_STATUSES = ("ok", "stale", "nonfinite")
+
+
+def checked_command(controller: Any, t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.NDArray[np.float64],
+                    age_s: float, flow_scale: float, p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64],
+                    a_ref: npt.NDArray[np.float64], dims: int = 2) -> tuple[ControlCommand, int, str]:
+    """:func:`call_controller`, contained: ``(command, rejection code, detail)``; never raises for a bad command.
+
+    * a non-finite estimate: the controller is not called (code :data:`REJECT_ESTIMATE`);
+    * the controller raises (anything but a deliberate :class:`~vesselbot_ros.errors.VesselbotError`, which
+      stops the run in one line as before): :data:`REJECT_RAISED`, ``detail`` names the exception;
+    * it returns a :class:`ControlCommand` (or an object with its fields) whose gradient is not ``(dims,)`` or whose status is not one of
+      :data:`COMMAND_STATUSES`, ``None`` or anything else: :data:`REJECT_MALFORMED`;
+    * a bare array (or sequence) of ``dims`` numbers is a command (the gradient, T/m; ``u`` unknown: NaN);
+    * a gradient with a NaN or an infinity: :data:`REJECT_NONFINITE`.
+
+    A rejected command comes back with a NaN gradient (the coil's rejection: it ramps to zero) and status
+    ``nonfinite``; a non-finite gradient keeps its values (the ``g_cmd`` column shows what was commanded).
+    """
+    nan = np.full(dims, np.nan)
+    if not all(math.isfinite(float(v)) for v in (*x_hat, *z_hat)):
+        return ControlCommand(nan, nan.copy(), "nonfinite"), REJECT_ESTIMATE, "non-finite estimate"
+    try:
+        cmd: Any = call_controller(controller, t_s, x_hat, z_hat, age_s, flow_scale, p_ref, v_ref, a_ref)
+    except VesselbotError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a user's controller that raises is a rejected command, counted
+        return ControlCommand(nan, nan.copy(), "nonfinite"), REJECT_RAISED, f"{type(exc).__name__}: {exc}"
+    g: Any
+    u: Any
+    if isinstance(cmd, ControlCommand):
+        g, u, status = cmd
+    elif hasattr(cmd, "gradient_T_per_m"):  # a command of the user's own type, with the ControlCommand fields
+        g, u, status = cmd.gradient_T_per_m, getattr(cmd, "u_m_per_s2", nan), getattr(cmd, "status", "ok")
+    elif isinstance(cmd, (np.ndarray, list, tuple)):
+        g, u, status = cmd, nan.copy(), "ok"
+    else:
+        return (ControlCommand(nan, nan.copy(), "nonfinite"), REJECT_MALFORMED,
+                f"returned {type(cmd).__name__}, not a command")
+    try:
+        ga = np.array(g, dtype=np.float64).reshape(-1) if np.ndim(g) == 1 else None
+        ua = np.array(u, dtype=np.float64).reshape(-1) if np.ndim(u) == 1 else None
+    except (TypeError, ValueError):
+        ga = ua = None
+    if ga is None or ga.shape != (dims,):
+        return (ControlCommand(nan, nan.copy(), "nonfinite"), REJECT_MALFORMED,
+                f"gradient of shape {np.shape(g)}, expected ({dims},)")
+    if ua is None or ua.shape != (dims,):
+        ua = nan.copy()
+    if status not in COMMAND_STATUSES:
+        return (ControlCommand(nan, ua, "nonfinite"), REJECT_MALFORMED,
+                f"status {status!r}, not one of {list(COMMAND_STATUSES)}")
+    if not all(math.isfinite(v) for v in ga):
+        return ControlCommand(ga, ua, "nonfinite"), REJECT_NONFINITE, "non-finite"
+    return ControlCommand(ga, ua, status), REJECT_NONE, ""
+
+
+def rejection_warning(metrics: Mapping[str, Any], what: str = "controller commands") -> str | None:
+    """The one warning line of a run whose commands were rejected (None if none was), from its metrics."""
+    n = int(metrics.get("rejected_commands") or 0)
+    if n <= 0:
+        return None
+    reasons = str(metrics.get("rejected_command_reasons") or "rejected")
+    for key in ("rejected_command_error", "rejected_command_malformed"):  # the first detail of each, per-tick loop
+        if metrics.get(key):
+            reasons += f"; first: {metrics[key]}"
+    t0 = metrics.get("first_rejected_command_s")
+    when = f" from t = {float(t0):.3f} s" if t0 is not None and math.isfinite(float(t0)) else ""
+    total = metrics.get("n_ticks")
+    of = f" of {int(total)}" if total is not None else ""
+    return f"{n}{of} {what} rejected ({reasons}){when}; the coil ramped to zero"
 
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------

@@ -30,6 +30,11 @@ Returned keys (all floats / ints, SI units in the name):
   axis slew-limited (ticks times the tick period), whole run;
 * ``wall_contacts``: number of contact onsets; ``contact_time_s``;
 * ``max_gradient_T_per_m``: largest ``||g_applied||``;
+* ``rejected_commands``: ticks whose command the coil rejected (non-finite,
+  not a command, ...: it ramped towards zero at the slew limit), when the
+  series has the optional ``cmd_rejected`` column (non-zero = rejected: the
+  loops' rejection codes, or a bag's ``coil.rejected``); and, only when it is
+  not 0, ``first_rejected_command_s``: the time of the first such tick (s);
 * ``after_s``, ``duration_s``, ``n_ticks``: ``after_s`` is the start of the
   window actually used; a run that ends before the requested window starts
   is reported over the whole run (``after_s`` = first tick) and
@@ -120,7 +125,7 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
     slew = arrs["slew_limited"].astype(bool)
     if slew.ndim == 2:
         slew = np.any(slew, axis=1)
-    return {
+    out: dict[str, float | int] = {
         "after_s": window_start,
         "duration_s": float(t[-1] - t[0] + dt),
         "n_ticks": int(n),
@@ -137,6 +142,15 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
         "contact_time_s": float(np.count_nonzero(contact) * dt),
         "max_gradient_T_per_m": _max_rms(_norm_rows(arrs["g_applied"].astype(np.float64)))[0],
     }
+    if "cmd_rejected" in timeseries:  # optional: the loops' rejection codes, or a bag's coil.rejected flags
+        codes = np.asarray(timeseries["cmd_rejected"])
+        if codes.shape[:1] != (n,):
+            raise ModelInputError(f"timeseries['cmd_rejected'] has shape {codes.shape}, expected {n} rows (len of t_s)")
+        rej: npt.NDArray[np.bool_] = np.any(codes.reshape(n, -1).astype(bool), axis=1)
+        out["rejected_commands"] = int(np.count_nonzero(rej))
+        if out["rejected_commands"]:
+            out["first_rejected_command_s"] = float(t[np.argmax(rej)])
+    return out
 
 
 def metrics_window_note(metrics: Mapping[str, Any], requested_after_s: float) -> str | None:

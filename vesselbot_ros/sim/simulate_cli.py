@@ -8,12 +8,19 @@ Writes to ``--out`` (default ``out/simulate/<scenario>/``):
   :mod:`vesselbot_ros.sim.closed_loop` (``t_s`` in s, positions in m,
   velocities in m/s, gradients in T/m, vectors as (n, 2) over (x, z));
 * ``scenario.yaml``: the scenario as run (after ``--set`` overrides).
+
+Exit codes: 0 the run completed; 1 it completed but its result cannot be
+trusted: the coil rejected commands (non-finite, not a command, a controller
+that raised, a non-finite estimate: ``rejected_commands`` in ``metrics.json``;
+the coil ramped towards zero at the slew limit from each such tick), said in
+one warning line on stderr; 2 bad input (one error line).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -21,6 +28,7 @@ import numpy as np
 import yaml
 
 from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.kinds import rejection_warning
 from vesselbot_ros.sim.metrics import metrics_window_note
 from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, check_resources, load_scenario
 from vesselbot_ros.vessels.cfd import womersley_numbers
@@ -43,7 +51,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the scenario and write metrics and time series; return 0."""
+    """Run the scenario and write metrics and time series; return 0, or 1 if commands were rejected."""
     scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
     check_resources(scenario)  # before any work: one line if the run does not fit in memory
     out = Path(args.out) if args.out else Path("out") / "simulate" / scenario.name
@@ -73,4 +81,8 @@ def run(args: argparse.Namespace) -> int:
         target = m["route_outlet"] or "-"
         print(f"{scenario.name}: branch reached {m['branch_final']} (target {target}: "
               f"{'reached' if m['reached_target'] else 'NOT reached'}); outside the lumen {m['outside_lumen_time_s']:.3f} s")
+    warning = rejection_warning(m)
+    if warning:  # the run completed, but it flew on rejected commands: exit 1 (module docstring)
+        print(f"vesselbot: warning: {warning}", file=sys.stderr)
+        return 1
     return 0

@@ -71,21 +71,37 @@ def test_a_held_tick_is_an_output_so_the_next_command_slews_from_it() -> None:
         lim.hold(0.0)
 
 
-def test_non_finite_command_is_rejected_and_held() -> None:
-    lim = CoilLimiter(CoilLimits())
-    lim.apply(0.001, [0.02, 0.01])
-    out = lim.apply(0.002, [math.nan, 0.0])
+def test_a_rejected_command_never_freezes_the_coil_it_ramps_to_zero_at_the_slew_limit() -> None:
+    """Default limits (issue 38): from the first non-finite command on, the output moves towards zero by S dt per
+    tick on the larger axis (the watchdog's ramp), stays at zero while the commands stay bad, and follows the next
+    valid command within the slew limit; ``reject`` (not a command: a wrong frame) is the same."""
+    lim = CoilLimiter(CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=5.0), 0.0)
+    for k in range(1, 21):
+        lim.apply(k * 1e-3, [0.036, -0.018])  # 5 T/m/s * 1 ms = 5 mT/m per tick: there by tick 8
+    np.testing.assert_allclose(lim.applied, [0.036, -0.018], rtol=1e-12)
+    applied = []
+    for k in range(21, 41):
+        out = lim.apply(k * 1e-3, [math.nan, 0.0] if k % 2 else [0.0, math.inf])
+        assert out.rejected and not out.saturated and out.k_scale == 1.0
+        applied.append(out.applied)
+    a = np.array(applied)
+    steps = np.abs(np.diff(np.vstack([[0.036, -0.018], a]), axis=0))
+    assert np.all(steps <= 5e-3 * (1 + 1e-9))
+    np.testing.assert_allclose(a[0], [0.031, -0.0155], rtol=1e-9)  # the step scaled uniformly: same direction
+    # |G| / S = 36 mT/m / 5 T/m/s = 7.2 ms: zero from the 8th rejected tick on, exactly
+    assert np.all(a[7:] == 0.0) and np.all(np.abs(a[6]) > 0.0)
+    out = lim.apply(41e-3, [0.02, 0.0])
+    assert not out.rejected
+    np.testing.assert_allclose(out.applied, [0.005, 0.0], rtol=1e-9)
+    out = lim.reject(42e-3)
     assert out.rejected
-    np.testing.assert_allclose(out.applied, [0.02, 0.01], rtol=1e-12, atol=1e-12)
-    assert np.all(np.isfinite(out.applied))
+    np.testing.assert_allclose(out.applied, [0.0, 0.0], atol=1e-18)
 
 
-def test_non_finite_command_ramp_to_zero() -> None:
-    lim = CoilLimiter(CoilLimits(on_reject="ramp_to_zero", slew_rate="custom", custom_slew_rate_T_per_m_per_s=10.0))
-    lim.apply(0.001, [0.05, 0.0])  # 10 T/m/s * 1 ms = 0.01
-    lim.apply(0.010, [0.05, 0.0])
-    out = lim.apply(0.011, [math.inf, 0.0])
-    np.testing.assert_allclose(out.applied, [0.04, 0.0], atol=1e-15)
+def test_on_reject_hold_is_refused_in_one_line() -> None:
+    with pytest.raises(ConfigError, match=r"on_reject: 'hold' is refused: it froze the coil on the last good gradient"):
+        CoilLimits(on_reject="hold")  # type: ignore[arg-type]
+    assert CoilLimits().on_reject == "ramp_to_zero"
 
 
 def test_watchdog_ramps_to_zero_after_timeout() -> None:
@@ -177,7 +193,7 @@ def _coil_runs(limits: CoilLimits, commands: np.ndarray, dt: float) -> tuple[np.
 
 
 @pytest.mark.parametrize("norm", ["euclidean", "per_axis"])
-@pytest.mark.parametrize("reject", ["hold", "ramp_to_zero"])
+@pytest.mark.parametrize("reject", ["ramp_to_zero"])
 def test_the_3d_coil_in_the_plane_is_the_planar_coil(norm: str, reject: str) -> None:
     """Every y command 0: the three-axis coil applies the planar coil's doubles on x and z, 0 on y, with the same
     saturation factor and flags (saturating, slewing and non-finite commands included)."""
