@@ -29,7 +29,12 @@ reference needs.  The planner turns that bound into a reference:
   segment (between two anchors) gets its margin ``a_avail - max need`` and its
   coast floor (half the largest drift from the reference over one coast,
   released on the reference with no gradient: the plant's own integrator, so
-  a bead on the wall coasts on the wall).  A negative margin makes the pass
+  a bead on the wall coasts on the wall; coasts start every
+  ``coast_every_s``, or every quarter coast when a coast is longer than four
+  of those, so that the check's work does not grow with the tracking window;
+  its plant time is estimated before it starts and a check over
+  :data:`COAST_BUDGET_PLANT_S` is refused in one line naming
+  ``sequence.tracking_window_s``).  A negative margin makes the pass
   run again with a budget fraction 0.85 times smaller (at most
   ``retries`` times); still negative: :class:`PlanInfeasible`, which names the
   segment and the acceleration missing.
@@ -58,9 +63,18 @@ from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 from vesselbot_ros.vessels.cfd import packed_params
 
-__all__ = ["PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
+__all__ = ["COAST_BUDGET_PLANT_S", "COAST_STARTS_PER_COAST", "check_fits_path",
+           "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
            "flying_changes", "WALL_FLOW_SCALE_SIGMA0",
            "evaluate", "plan_scenario", "coast_time_s", "reachable"]
+
+
+#: Coast starts per coast length at most: a longer coast (a long tracking window) starts a quarter coast apart, not
+#: every ``coast_every_s`` (so the check's plant time grows with the plan's duration, not with the window).
+COAST_STARTS_PER_COAST = 4
+#: The most plant time (s) one check of a plan (:func:`evaluate`) may integrate for its coast floors (a bead resting
+#: on the wall integrates at about 0.1 s of wall time per second of plant time; the shipped plans need 2-15 s).
+COAST_BUDGET_PLANT_S = 120.0
 
 
 class PlanInfeasible(VesselbotError):
@@ -462,9 +476,19 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
     bounds = np.append(options.anchor_spacing_m * np.arange(n_seg), traj.length_m)
     seg = np.clip(np.searchsorted(bounds, u, side="right") - 1, 0, n_seg - 1)
     t_c = coast_time_s(scenario)
+    sels = [np.flatnonzero(seg == i) for i in range(n_seg)]
+    # the coasts' plant time, before any is integrated: one line instead of a check that runs for hours
+    plant_s = t_c * sum(_coast_starts(float(ts[sel[0]]), float(ts[sel[-1]]), t_c, options.coast_every_s).size
+                        for sel in sels if sel.size)
+    if plant_s > COAST_BUDGET_PLANT_S:
+        seq = scenario.sequence
+        raise ConfigError(
+            f"sequence.tracking_window_s={seq.tracking_window_s!r}: checking this plan's coast floor would integrate "
+            f"about {plant_s:.0f} s of plant time (coasts of {t_c:.4g} s without propulsion along "
+            f"{traj.end_time_s:.3g} s of path), more than the planner's {COAST_BUDGET_PLANT_S:g} s: shorten the "
+            f"tracking window or the dead time")
     out = []
-    for i in range(n_seg):
-        sel = np.flatnonzero(seg == i)
+    for i, sel in enumerate(sels):
         if sel.size == 0:
             continue
         k = sel[int(np.argmax(needs[sel]))]
@@ -485,6 +509,11 @@ def reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64],
     return np.array([p[0], rest[0][0]]), np.array([v[0], rest[1][0]])
 
 
+def _coast_starts(t_from: float, t_to: float, t_c: float, every_s: float) -> npt.NDArray[np.float64]:
+    """When the coasts of one segment start (s): every ``every_s``, at most :data:`COAST_STARTS_PER_COAST` per coast."""
+    return np.arange(t_from, t_to + 1e-12, max(every_s, t_c / COAST_STARTS_PER_COAST))
+
+
 def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t_to: float, t_c: float,
                  every_s: float) -> float:
     """Half the largest drift over one coast released on the (reachable) reference within ``[t_from, t_to]`` (m)."""
@@ -492,7 +521,7 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
         return 0.0
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     worst = 0.0
-    for t0 in np.arange(t_from, t_to + 1e-12, every_s):
+    for t0 in _coast_starts(t_from, t_to, t_c, every_s):
         s0 = traj.sample(float(t0))
         p0, v0 = reachable(scenario, float(t0), s0.p, s0.v)
         y = np.concatenate([p0, v0]).astype(np.float64)
@@ -504,6 +533,27 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
 
 
 # ---------------------------------------------------------------------------------------------- plan
+def check_fits_path(scenario: Scenario) -> None:
+    """Refuse a sequence whose coast (tracking window + 2 dead times) or latency is as long as the path's duration.
+
+    The scenario loader already refuses a window or latency that does not fit
+    in the run (``sim.duration_s``); the plan is checked against its path
+    (``reference.duration_s``, the time the scenario's reference takes).
+
+    Raises:
+        ConfigError: one line naming the key, its value and the path's duration.
+    """
+    seq, ref = scenario.sequence, planned_reference(scenario)
+    if seq.mode == "continuous":
+        return
+    path = f"the path's duration (reference.duration_s = {ref.duration_s!r} s)"
+    if coast_time_s(scenario) >= ref.duration_s:
+        raise ConfigError(f"sequence.tracking_window_s={seq.tracking_window_s!r}: a coast without propulsion "
+                          f"(tracking window + 2 dead times = {coast_time_s(scenario):.6g} s) must be shorter than {path}")
+    if seq.latency_s >= ref.duration_s:
+        raise ConfigError(f"sequence.latency_s={seq.latency_s!r} must be shorter than {path}")
+
+
 def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
     """Plan a reference the scanner can fly along ``scenario``'s path (module docstring).
 
@@ -515,8 +565,11 @@ def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
         PlanInfeasible: no budget fraction gives a non-negative margin on every
             segment (the message names the worst segment and the acceleration
             missing), or the bead cannot be moved on to the end of the path.
+        ConfigError: a sequence that does not fit the path (:func:`check_fits_path`), or a coast check
+            over :data:`COAST_BUDGET_PLANT_S` of plant time (:func:`evaluate`).
     """
     options = options or PlanOptions()
+    check_fits_path(scenario)
     if options.height != "auto":
         return _make_plan(scenario, options)
     plans, why = [], []

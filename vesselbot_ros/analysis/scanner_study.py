@@ -539,8 +539,11 @@ def cell_row(cell: StudyCell, scenario: Scenario, bounds: dict[str, float], reco
     """One table row from the cell's run records (in seed order): mean / worst tracking and estimation errors.
 
     The first run that did not finish (in seed order) gives the cell's status:
-    ``timeout: ...`` (over the run budget) or ``failed (seed N): Type: message``;
-    then the cell has no error columns, as none are over all its seeds.
+    ``timeout: ...`` (over the run budget), ``failed (seed N): Type: message``, or
+    a run that completed with a status other than ``ok``
+    (:func:`~vesselbot_ros.sim.metrics.run_status`): ``diverged (seed N): what
+    left the vessel`` or ``rejected_commands (seed N): ...``; then the cell has
+    no error columns, as none are over all its seeds.
     """
     row: dict[str, Any] = dataclasses.asdict(cell)
     row.update(tracking_window_s=scenario.sequence.tracking_window_s, duty_cycle=duty_cycle(scenario.sequence),
@@ -549,6 +552,9 @@ def cell_row(cell: StudyCell, scenario: Scenario, bounds: dict[str, float], reco
         if r.get("status") == "timeout":
             row.update(status=f"timeout: seed {r['seed']} over {run_timeout_s:g} s of wall time "
                               f"(plant integration crawling)")
+            return row
+        if r.get("status") not in ("ok", "error", None):  # completed, not a result: diverged, rejected commands
+            row.update(status=f"{r['status']} (seed {r['seed']}): {r.get('error')}")
             return row
         if r.get("status") != "ok":
             row.update(status=f"failed (seed {r['seed']}): {r.get('error')}")

@@ -481,7 +481,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         if problems:
             raise RecordingMismatch("the bag does not hold what was published: " + "; ".join(problems))
     series = {"t_s": np.arange(n) * dt, **series}
-    metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
+    metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s,
+                                                   vessel_diameter_m=scenario.physics.vessel.diameter_m))
     metrics.update(scenario=scenario.name, seed=scenario.seed)
     if scenario.physics.vessel.network:
         metrics.update(navigation_metrics(scenario, series["t_s"], series["p_true"]))

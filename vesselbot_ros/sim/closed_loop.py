@@ -381,7 +381,10 @@ def _sequence_phase(scenario: Scenario, ts: npt.NDArray[np.float64]) -> npt.NDAr
 
 def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDArray[Any]],
              plant_stats: npt.NDArray[np.int64], model_stats: npt.NDArray[np.int64]) -> dict[str, Any]:
-    metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s))
+    # every tick is computed here: a NaN position or estimate is a divergence, not a missing sample
+    metrics: dict[str, Any] = dict(compute_metrics(series, scenario.sim.metrics_after_s,
+                                                   vessel_diameter_m=scenario.physics.vessel.diameter_m,
+                                                   nonfinite_diverges=True))
     metrics.update(
         scenario=scenario.name,
         seed=scenario.seed if seed is None else int(seed),

@@ -38,11 +38,26 @@ Returned keys (all floats / ints, SI units in the name):
 * ``after_s``, ``duration_s``, ``n_ticks``: ``after_s`` is the start of the
   window actually used; a run that ends before the requested window starts
   is reported over the whole run (``after_s`` = first tick) and
-  ``metrics_window_note`` says so in words.
+  ``metrics_window_note`` says so in words;
+* ``diverged_at_s``: the first tick at which the run diverged (below), or
+  None; ``divergence``: what diverged, in words (None when it did not);
+* ``status``: the run's outcome, :func:`run_status`: ``ok``, ``diverged``
+  or ``rejected_commands``.  Every command reads it (``vesselbot simulate``
+  and ``run`` warn in one line and exit 1 when it is not ``ok``; a campaign's
+  and the scanner study's tables carry it).
+
+Divergence (the one rule, :func:`diverged_at`): at some tick the true
+position or the estimate lies farther from the reference than
+:func:`divergence_bound_m` (``max(10 vessel diameters, 10 mm)``: a bead or
+an estimate that far is outside any vessel the run models), or is not finite
+(NaN only where every tick is computed, ``nonfinite_diverges``: in a real-time
+run NaN marks a sample that never arrived).  The whole run counts, not just
+the metrics window.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -51,7 +66,12 @@ import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
 
-__all__ = ["REQUIRED_KEYS", "compute_metrics", "metrics_window_note"]
+__all__ = ["REQUIRED_KEYS", "DIVERGENCE_DIAMETERS", "DIVERGENCE_MIN_M", "compute_metrics", "divergence_bound_m",
+           "diverged_at", "run_status", "status_line", "metrics_window_note"]
+
+#: The divergence bound: this many vessel diameters from the reference, and never less than :data:`DIVERGENCE_MIN_M`.
+DIVERGENCE_DIAMETERS = 10.0
+DIVERGENCE_MIN_M = 10e-3
 
 REQUIRED_KEYS = (
     "t_s",
@@ -79,12 +99,74 @@ def _max_rms(e: npt.NDArray[np.float64]) -> tuple[float, float]:
     return float(np.max(e)), float(np.sqrt(np.mean(e * e)))
 
 
-def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict[str, float | int]:
+def divergence_bound_m(vessel_diameter_m: float = 0.0) -> float:
+    """How far from the reference the bead or its estimate may be before the run counts as diverged (m)."""
+    d = float(vessel_diameter_m) if math.isfinite(vessel_diameter_m) else 0.0
+    return max(DIVERGENCE_DIAMETERS * d, DIVERGENCE_MIN_M)
+
+
+def diverged_at(t_s: npt.ArrayLike, p_true: npt.ArrayLike, x_hat: npt.ArrayLike, p_ref: npt.ArrayLike,
+                bound_m: float, nonfinite_diverges: bool = False) -> tuple[float, str] | None:
+    """``(t, what)`` of the first tick at which the run diverged (module docstring), or None.
+
+    Args:
+        t_s: (n,) tick times, s.
+        p_true, x_hat, p_ref: (n, d) true, estimated and reference positions, m.
+        bound_m: :func:`divergence_bound_m`.
+        nonfinite_diverges: A NaN counts (every tick was computed); an infinity always counts.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    ref = np.asarray(p_ref, dtype=np.float64)
+    first: tuple[float, str] | None = None
+    for name, arr in (("the true position", p_true), ("the estimate", x_hat)):
+        a = np.asarray(arr, dtype=np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):
+            dist = _norm_rows(a - ref)
+            far = dist > bound_m
+        bad_value = np.any(np.isinf(a), axis=1)
+        if nonfinite_diverges:
+            bad_value |= np.any(np.isnan(a), axis=1)
+        hits = np.flatnonzero(far | bad_value)
+        if hits.size == 0:
+            continue
+        k = int(hits[0])
+        what = (f"{name} is not finite" if bad_value[k] else
+                f"{name} is {float(dist[k]) * 1e3:.4g} mm from the reference")
+        if first is None or float(t[k]) < first[0]:
+            first = (float(t[k]), f"{what} (the bound is {bound_m * 1e3:g} mm)")
+    return first
+
+
+def run_status(metrics: Mapping[str, Any]) -> str:
+    """The run's outcome: ``diverged``, ``rejected_commands`` (commands the coil refused) or ``ok``."""
+    if metrics.get("diverged_at_s") is not None:
+        return "diverged"
+    if int(metrics.get("rejected_commands", 0) or 0) > 0:
+        return "rejected_commands"
+    return "ok"
+
+
+def status_line(metrics: Mapping[str, Any]) -> str | None:
+    """One warning line for a run whose status is not ``ok`` (None when it is)."""
+    status = metrics.get("status", run_status(metrics))
+    if status == "ok":
+        return None
+    if status == "diverged":
+        return (f"warning: the run diverged at t = {float(metrics['diverged_at_s']):.4g} s: "
+                f"{metrics.get('divergence') or 'beyond the divergence bound'}; its metrics are not a result")
+    return f"warning: the run's status is {status}"
+
+
+def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6, *, vessel_diameter_m: float = 0.0,
+                    nonfinite_diverges: bool = False) -> dict[str, Any]:
     """Compute the closed-loop metrics (see module docstring for keys and units).
 
     Args:
         timeseries: Mapping with at least :data:`REQUIRED_KEYS`.
         after_s: Start of the steady-state window (s); paper: 0.6.
+        vessel_diameter_m: The vessel's diameter (m), for :func:`divergence_bound_m`.
+        nonfinite_diverges: A NaN position or estimate is a divergence (a run that computes every tick),
+            not a missing sample.
 
     Returns:
         Dict of metrics.  If no tick lies at or after ``after_s`` (a run
@@ -125,7 +207,7 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
     slew = arrs["slew_limited"].astype(bool)
     if slew.ndim == 2:
         slew = np.any(slew, axis=1)
-    out: dict[str, float | int] = {
+    out: dict[str, Any] = {
         "after_s": window_start,
         "duration_s": float(t[-1] - t[0] + dt),
         "n_ticks": int(n),
@@ -150,6 +232,10 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6) -> dict
         out["rejected_commands"] = int(np.count_nonzero(rej))
         if out["rejected_commands"]:
             out["first_rejected_command_s"] = float(t[np.argmax(rej)])
+    div = diverged_at(t, p, arrs["x_hat"], arrs["p_ref"], divergence_bound_m(vessel_diameter_m), nonfinite_diverges)
+    out["diverged_at_s"] = None if div is None else div[0]
+    out["divergence"] = None if div is None else div[1]
+    out["status"] = run_status(out)
     return out
 
 

@@ -237,9 +237,25 @@ class Scenario:
                 raise ConfigError(f"sequence.tracking_window_s must be >= one control tick ({self.sim.dt_control_s!r} s), "
                                   f"got {self.sequence.tracking_window_s!r}")
             _check_on_tick_grid(self.sequence, self.sim.dt_control_s)
-        # observer (25)'s gains only matter when it is the observer (the EKF has none to check)
+            _check_fits_run(self.sequence, self.sim.duration_s)
+        elif mri and self.imager.latency_s >= self.sim.duration_s:
+            raise ConfigError(f"imager.latency_s must be < sim.duration_s ({self.sim.duration_s!r} s): no frame would "
+                              f"reach the observer within the run, got {self.imager.latency_s!r}")
+        # observer (25)'s gains only matter when it is the observer (the EKF has none to check); it is stable at the
+        # rate it gets frames at: imager.frame_rate_Hz, or under multiplexing one frame per sequence period
         high_gain = mri and self.observer.kind == "high_gain"
-        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if high_gain else 0.0
+        if high_gain and self.sequence.mode == "multiplexed":
+            period = self.sequence.period_s
+            rho = sampled_error_radius(self.observer, period)
+            if rho >= 1.0:
+                raise ConfigError(
+                    f"observer gains are unstable at the sequence's frame rate: with sequence.mode 'multiplexed' "
+                    f"observer (25) gets one frame per sequence period (sequence.tracking_window_s + 2 dead_time_s + "
+                    f"propulsion_window_s = {period:.6g} s, {1.0 / period:.4g} frames/s; imager.frame_rate_Hz is "
+                    f"unused): sampled error map has spectral radius {rho:.3f} >= 1, the rule is < 1 (lower "
+                    f"observer.high_gain, shorten the sequence's windows or use observer.kind 'ekf')")
+        continuous = high_gain and self.sequence.mode != "multiplexed"
+        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if continuous else 0.0
         if rho >= 1.0:
             raise ConfigError(
                 f"observer gains are unstable at imager.frame_rate_Hz={self.imager.frame_rate_Hz!r}: "
@@ -381,6 +397,32 @@ def _check_on_tick_grid(seq: SequenceParams, dt: float) -> None:
         if abs(n - round(n)) > 1e-6:
             what = "an even number of control ticks (its middle stamps the frame)" if mult == 2 else "whole control ticks"
             raise ConfigError(f"sequence.{name} must be {what} of {dt!r} s with sequence.mode 'multiplexed', got {value!r}")
+
+
+def _check_fits_run(seq: SequenceParams, duration_s: float) -> None:
+    """A multiplexed sequence's first frame reaches the observer, and its first propulsion window opens, in the run.
+
+    A latency or a window longer than the run would leave the loop without a
+    measurement or without propulsion: every command refuses such a scenario
+    (``simulate``, ``run``, ``plan``, ``campaign`` and the scanner study load
+    it here).  The message names the key, its value and the run's duration.
+    """
+    run = f"sim.duration_s ({duration_s!r} s)"
+    for name, value in (("latency_s", seq.latency_s), ("tracking_window_s", seq.tracking_window_s),
+                        ("start_s", seq.start_s)):
+        if value >= duration_s:
+            raise ConfigError(f"sequence.{name} must be < {run} with sequence.mode 'multiplexed': the loop would get "
+                              f"no frame within the run, got {value!r}")
+    first_frame = seq.start_s + seq.tracking_window_s + seq.latency_s
+    if first_frame >= duration_s:
+        raise ConfigError(f"sequence.latency_s={seq.latency_s!r}: the first frame reaches the observer at "
+                          f"sequence.start_s + tracking_window_s + latency_s = {first_frame:.6g} s, not before the run "
+                          f"ends ({run}); shorten the latency or the window, or run longer")
+    first_push = seq.start_s + seq.tracking_window_s + seq.dead_time_s
+    if first_push >= duration_s:
+        raise ConfigError(f"sequence.dead_time_s={seq.dead_time_s!r}: the first propulsion window opens at "
+                          f"sequence.start_s + tracking_window_s + dead_time_s = {first_push:.6g} s, not before the "
+                          f"run ends ({run})")
 
 
 def scenario_from_mapping(mapping: Any) -> Scenario:

@@ -12,8 +12,10 @@ Writes to ``--out`` (default ``out/simulate/<scenario>/``):
 Exit codes: 0 the run completed; 1 it completed but its result cannot be
 trusted: the coil rejected commands (non-finite, not a command, a controller
 that raised, a non-finite estimate: ``rejected_commands`` in ``metrics.json``;
-the coil ramped towards zero at the slew limit from each such tick), said in
-one warning line on stderr; 2 bad input (one error line).
+the coil ramped towards zero at the slew limit from each such tick), or the
+run diverged (the bead or its estimate left the vessel:
+``status: diverged`` and ``diverged_at_s``, :mod:`vesselbot_ros.sim.metrics`),
+said in one warning line on stderr; 2 bad input (one error line).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import yaml
 
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.kinds import rejection_warning
-from vesselbot_ros.sim.metrics import metrics_window_note
+from vesselbot_ros.sim.metrics import metrics_window_note, status_line
 from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, check_resources, load_scenario
 from vesselbot_ros.vessels.cfd import womersley_numbers
 from vesselbot_ros.vessels.network import load_network
@@ -81,8 +83,10 @@ def run(args: argparse.Namespace) -> int:
         target = m["route_outlet"] or "-"
         print(f"{scenario.name}: branch reached {m['branch_final']} (target {target}: "
               f"{'reached' if m['reached_target'] else 'NOT reached'}); outside the lumen {m['outside_lumen_time_s']:.3f} s")
+    if m.get("diverged_at_s") is not None:  # it left the vessel (sim/metrics.py's rule): one line, exit 1
+        print(f"vesselbot: {status_line(m)}", file=sys.stderr)
     warning = rejection_warning(m)
     if warning:  # the run completed, but it flew on rejected commands: exit 1 (module docstring)
         print(f"vesselbot: warning: {warning}", file=sys.stderr)
         return 1
-    return 0
+    return 0 if m.get("status", "ok") == "ok" else 1

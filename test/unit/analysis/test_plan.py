@@ -197,3 +197,59 @@ def test_the_docs_quote_the_stored_network_and_design_sections():
     for name, stored in (("plan_network", "network.md"), ("plan_design", "design.md"), ("plan_campaigns", "campaigns.md")):
         body = (root / "docs" / "plan_study" / stored).read_text()
         assert f"<!-- BEGIN {name} -->\n" + body + f"<!-- END {name} -->" in text, name
+
+
+def _coast_plant_s(scenario, monkeypatch) -> float:
+    """The plant time (s) :func:`evaluate` integrates for its coast floors, with the plant's integration faked."""
+    from vesselbot_ros.analysis import plan as plan_module
+
+    total = [0.0]
+
+    def fake(self, t0, t1, y, u, contact):  # the real signature
+        total[0] += t1 - t0
+
+    monkeypatch.setattr(plan_module.DynamicsModel, "propagate", fake)
+    evaluate(scenario)
+    return total[0]
+
+
+def test_the_coast_checks_work_does_not_grow_with_the_tracking_window(clinical, monkeypatch):
+    """``vesselbot plan`` with a 1 s tracking window ran for over an hour: a coast started every 10 ms and each
+    integrated the whole 1 s coast.  Coasts now start at most 4 per coast length, so the plant time is bounded by
+    about 4x the path's duration whatever the window; a check over COAST_BUDGET_PLANT_S is refused before any
+    integration, in one line naming the key."""
+    from vesselbot_ros.analysis.plan import COAST_BUDGET_PLANT_S
+    from vesselbot_ros.sim.scenario import scenario_with
+
+    shipped = _coast_plant_s(clinical, monkeypatch)  # 24 ms coasts every 10 ms along a 2 s path: unchanged
+    assert 4.0 < shipped < 6.0
+    costs = {w: _coast_plant_s(scenario_with(clinical, {"sequence.tracking_window_s": w}), monkeypatch)
+             for w in (0.1, 0.2, 0.4)}
+    path_s = build_stages(clinical).reference.end_time_s
+    for w, plant_s in costs.items():
+        assert plant_s <= 4.0 * path_s + 10 * (w + 0.004), (w, plant_s)  # the starts, and one coast per segment
+    assert costs[0.4] < 1.5 * costs[0.1]  # was 4x (proportional to the window)
+    long = load_scenario("clinical_3t_small_artery", sets=["sequence.tracking_window_s=1", "sim.duration_s=60",
+                                                           "reference.duration_s=60"])
+    with pytest.raises(ConfigError, match=r"^sequence\.tracking_window_s=1\.0: checking this plan's coast floor "
+                                          r"would integrate about \d+ s of plant time .* more than the planner's "
+                                          rf"{COAST_BUDGET_PLANT_S:g} s"):
+        _coast_plant_s(long, monkeypatch)
+
+
+def test_a_coast_or_latency_as_long_as_the_path_is_refused_before_planning(monkeypatch):
+    """The loader refuses what does not fit in the run (sim.duration_s); the planner checks the path too."""
+    from vesselbot_ros.analysis import plan as plan_module
+
+    def boom(*args, **kwargs):
+        raise AssertionError("planned anyway")
+
+    monkeypatch.setattr(plan_module, "_make_plan", boom)
+    short = load_scenario("clinical_3t_small_artery", sets=["reference.duration_s=0.5", "sequence.tracking_window_s=0.6"])
+    with pytest.raises(ConfigError, match=r"^sequence\.tracking_window_s=0\.6: a coast without propulsion \(tracking "
+                                          r"window \+ 2 dead times = 0\.604 s\) must be shorter than the path's "
+                                          r"duration \(reference\.duration_s = 0\.5 s\)$"):
+        make_plan(short)
+    late = load_scenario("clinical_3t_small_artery", sets=["reference.duration_s=0.5", "sequence.latency_s=0.5"])
+    with pytest.raises(ConfigError, match=r"^sequence\.latency_s=0\.5 must be shorter than the path's duration"):
+        make_plan(late)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import subprocess
+import sys
 
 import pytest
 
@@ -42,3 +44,56 @@ def test_nonsense_sequence_parameters_are_one_line_naming_the_key(tmp_path, caps
         assert main(["plan", "--set", f"{key}={value}", "--out", str(tmp_path)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and key.split(".")[1] in err, err
+
+
+def _plan_subprocess(tmp_path, *sets: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
+    """``vesselbot plan`` in a process of its own, stopped at ``timeout_s`` (a generous bound: a hang, not speed)."""
+    args = [sys.executable, "-m", "vesselbot_ros.cli", "plan", "--out", str(tmp_path / "plan")]
+    for s in sets:
+        args += ["--set", s]
+    try:
+        return subprocess.run(args, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"vesselbot plan {' '.join(sets)} still running after {timeout_s:g} s (it hung for > 300 s)")
+
+
+def test_a_tracking_window_longer_than_the_run_is_one_line_and_exit_2_not_a_hang(tmp_path):
+    """``sequence.tracking_window_s=5`` ran for over 300 s with no output (in the coast check); now the scenario
+    loader refuses it, naming the key, the value and the run's duration."""
+    proc = _plan_subprocess(tmp_path, "sequence.tracking_window_s=5", timeout_s=60.0)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(err) == 1 and err[0].startswith("vesselbot plan: error: sequence.tracking_window_s must be < "
+                                               "sim.duration_s (2.0 s)") and err[0].endswith("got 5.0")
+    assert not (tmp_path / "plan").exists()
+
+
+def test_a_valid_but_long_tracking_window_plans_in_bounded_time(tmp_path):
+    """A 1 s window (it fits the 2 s run) ran for over 60 s, then hours: each 10 ms of the path started a coast of
+    1 s.  Now the coast check's work is bounded (at most 4 coasts per coast length): the planner ends, here with its
+    one line (a 3 % duty cycle cannot carry the bead), within a generous bound."""
+    proc = _plan_subprocess(tmp_path, "sequence.tracking_window_s=1", timeout_s=300.0)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode in (0, 2), proc.stderr
+    if proc.returncode == 2:
+        assert len(err) == 1 and err[0].startswith("vesselbot plan: error: infeasible: segment "), err
+
+
+@pytest.mark.parametrize("fill_after", ["", "vesselbot_ros.analysis.plan_cli:make_plan"],
+                         ids=["full-before-planning", "full-after-planning"])
+def test_a_full_disk_leaves_the_earlier_plan_and_no_empty_file(tmp_path, fill_after):
+    from vesselbot_ros.testing import cli_on_a_full_disk
+
+    out = tmp_path / "plan"
+    out.mkdir()
+    old = {"plan.yaml": "name: an earlier plan\n", "segments.csv": "segment\n1\n"}
+    for name, text in old.items():
+        (out / name).write_text(text)
+    child = cli_on_a_full_disk(["plan", "--hardware", "clinical_3t_mfde", "--height", "wall", "--out", str(out)],
+                               fill_after=fill_after)
+    err = child.stderr.strip().splitlines()
+    assert child.returncode == 2, child.stderr
+    assert len(err) == 1 and err[0].startswith("vesselbot plan: error: ") and "File too large" in err[0]
+    assert (f"--out {out} is not writable" in err[0] if not fill_after
+            else f"cannot write {out / 'plan.yaml'} " in err[0] and "plan.yaml is unchanged" in err[0])
+    assert {p.name: p.read_text() for p in out.iterdir()} == old  # no 0-byte plan.yaml, no temporary file

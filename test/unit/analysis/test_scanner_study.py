@@ -45,9 +45,13 @@ def test_cell_scenario_takes_the_hardware_the_windows_and_the_pair(base: Scenari
     assert (sc.sequence.tracking_window_s, sc.sequence.propulsion_window_s, sc.sequence.latency_s) == (0.004, 0.06, 0.03)
     assert sc.coil.saturation_T_per_m == 0.4
     assert (sc.controller.gains.k1, sc.controller.gains.k2, sc.observer.kind) == (150.0, 150.0, "ekf")
-    preset = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.03, 0.02, "paper"))
+    preset = ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.004, 0.02, "paper"))
     assert preset.sequence.tracking_window_s == 0.02  # the preset's
     assert preset.observer.kind == "high_gain"
+    # observer (25) is checked at the rate it gets frames at: one per 54 ms period is unstable (it ran "ok" with an
+    # estimation rms of 1.9 m); the study records the cell as refused with this line
+    with pytest.raises(ConfigError, match=r"observer gains are unstable at the sequence's frame rate: .* = 0\.054 s"):
+        ss.cell_scenario(base, ss.StudyCell("clinical_3t", 0.03, 0.02, "paper"))
 
 
 def test_bounds_say_where_the_loop_can_be_feasible(base: Scenario) -> None:
