@@ -323,7 +323,7 @@ TOPICS: tuple[TopicSpec, ...] = (
                    "request for a tick already answered crossed the answer and is ignored"),
     TopicSpec("coil_state", "coil/state", "vesselbot_msgs/msg/CoilState", "coil_driver", ("recorder",),
               "per tick (+ watchdog)", "reliable", "T/m, T/m/s", FRAME_ID, per_tick=True,
-              series=("g_applied", "saturated", "slew_limited")),
+              series=("g_applied", "saturated", "slew_limited", "cmd_rejected")),
     TopicSpec("sequence_phase", "scanner/phase", "vesselbot_msgs/msg/SequencePhase", "coil_driver",
               ("recorder", "(your observer or controller)"), "on phase change (latched; once when continuous)",
               "reliable_latched", "s", FRAME_ID,

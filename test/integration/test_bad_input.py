@@ -91,7 +91,7 @@ def _script(role):
             s += bad_values(key, 1) + [(key, m[key](100), "future_tick"), (key, m[key](0), "stale_tick")]
         flood = m["estimate"](1, p=(0.0, INF))
     elif role == "coil_driver":
-        # each malformed command still answers its tick (held by the limiter): NaN at 1, -Inf at 2, frame at 3;
+        # each malformed command still answers its tick (the limiter ramps to zero): NaN at 1, -Inf at 2, frame at 3;
         # the plant's stall request for tick 4 is answered by the watchdog (held); one for tick 2 crossed its
         # answer and is ignored; a request for a tick not reached, off the grid or in another frame is rejected
         s = [("gradient_command", m["gradient_command"](0, g=(0.01, 0.0)), None),
@@ -274,9 +274,13 @@ def test_outputs_stay_finite(probed):
     assert n >= 1, probed["outputs"]
     if probed["role"] == "coil_driver":
         applied = np.array([[m.vector.x, m.vector.z] for m in probed["outputs"]["coil_applied"]])
-        # ticks 0..3 answered: the 10 mT/m command, then held through NaN, -Inf and the wrong frame; tick 4 by the
-        # watchdog on the stall request (held: within coil.command_timeout_s), and nothing for the other requests
+        # ticks 0..3 answered: the 10 mT/m command, then, from the NaN on, ramped to zero at the slew limit (the
+        # clinical 100 T/m/s moves 100 mT/m in a tick: zero at once) through NaN, -Inf and the wrong frame, never
+        # held on the stale 10 mT/m; tick 4 by the watchdog on the stall request (held at zero: within
+        # coil.command_timeout_s), and nothing for the other requests
         states = probed["outputs"]["coil_state"]
         assert len(applied) == len(states) == 5
-        np.testing.assert_array_equal(applied[1:5], np.repeat(applied[:1], 4, axis=0))
+        assert applied[0, 0] == pytest.approx(0.01, abs=1e-15)
+        np.testing.assert_array_equal(applied[1:5], 0.0)
+        assert [s.command_rejected for s in states[:5]] == [False, True, True, True, False]
         assert [s.watchdog_active for s in states[:5]] == [False] * 5

@@ -113,6 +113,12 @@ def _assert_ramp_to_zero(r, victim):
     assert ramp.size >= 5 and wd[ramp].all()
     # no tick of the bag after the death is missing on the other per-tick topics either
     np.testing.assert_allclose(np.diff(ts["truth.t_s"]), DT_S, atol=1e-9)
+    if victim == "controller":
+        # the message names the sim time of the dead node's last output as its reader got it (the driver's last
+        # command), not a progress sample of the plant (it used to name one, up to a second of wall time older)
+        k_cmd = int(round(t[last_cmd] / DT_S))
+        assert (f"its last output: /vesselbot/gradient_command of tick {k_cmd} (t = {t[last_cmd]:.3f} s), "
+                "as vesselbot_coil_driver received it") in r["err"], r["err"]
     return t_zero, bound
 
 

@@ -67,7 +67,8 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 
 __all__ = ["GraphOptions", "GraphResult", "NodeDied", "RecordingMismatch", "RealtimeStats", "run_graph",
-           "role_contract", "check_recorded_counts", "realtime_report", "RealtimeReport", "INTERRUPTED_GRACE_S"]
+           "role_contract", "check_recorded_counts", "realtime_report", "RealtimeReport", "INTERRUPTED_GRACE_S",
+           "rejection_reasons"]
 
 #: Seconds an interrupted run (Ctrl-C, SIGTERM, SIGHUP) gives its nodes to exit after SIGINT, in all, before SIGKILL
 #: (a finished run gives them 10 s); the recorder then finalises the bag.
@@ -491,6 +492,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         for key in keys:
             if key in d:
                 metrics[key] = int(d[key])
+    if metrics.get("rejected_commands"):  # counted from the coil's command_rejected flags; why, from the nodes
+        metrics.update(rejection_reasons(diagnostics))
     sim_s = _run_sim_s(mon, diagnostics, n, dt)
     rtf = sim_s / wall if wall > 0 else float("inf")
     result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
@@ -498,6 +501,34 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         result.realtime = RealtimeReport(options.real_time_factor, sim_s, wall,
                                          tuple(realtime_report(diagnostics, roles, n)))
     return result
+
+
+#: The coil driver's input rejections of a command (``rejected_reason:<name>``) -> the warning line's words.
+_DRIVER_REJECT_WORDS = {"non_finite": "non-finite", "wrong_frame_id": "wrong frame_id", "nonzero_y": "non-zero y"}
+
+
+def rejection_reasons(diagnostics: Mapping[str, Mapping[str, str]]) -> dict[str, str]:
+    """Why the run's commands were rejected, as the ROS-free runner's metrics say it (the warning line's words).
+
+    ``rejected_command_reasons``: the controller node's rejections (the core's :data:`~vesselbot_ros.sim.kinds.REJECT_REASONS`
+    words, in code order), or, with a user's node in the controller's slot, what the coil driver rejected (a
+    non-finite value, a wrong frame_id, a non-zero y); ``rejected_command_error`` / ``rejected_command_malformed``: the first
+    exception or malformed value the controller returned, when there was one.
+    """
+    from vesselbot_ros.sim.kinds import REJECT_REASONS  # deferred: the core's registry (this module loads ROS-free)
+
+    ctl = diagnostics.get(NODE_NAMES["controller"], {})
+    drv = diagnostics.get(NODE_NAMES["coil_driver"], {})
+    names = {1: "nonfinite", 2: "nonfinite_estimate", 3: "raised", 4: "malformed"}  # controller_node.REJECT_NAMES
+    words = [REJECT_REASONS[c] for c, name in names.items() if int(ctl.get(f"command_rejected:{name}", "0") or 0) > 0]
+    for key, word in _DRIVER_REJECT_WORDS.items() if not ctl else ():  # our controller's NaN reach it too
+        if int(drv.get(f"rejected_reason:{key}", "0") or 0) > 0:
+            words.append(word)
+    out = {"rejected_command_reasons": ", ".join(words)} if words else {}
+    for key in ("rejected_command_error", "rejected_command_malformed"):
+        if ctl.get(key):
+            out[key] = ctl[key]
+    return out
 
 
 def _run_sim_s(mon: Monitor, diagnostics: Mapping[str, Mapping[str, str]], n: int, dt: float) -> float:

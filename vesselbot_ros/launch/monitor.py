@@ -86,6 +86,8 @@ class Monitor:
 
         self._never = Future()  # spin() handles every event of its slice, then returns
         self.diag: dict[str, dict[str, str]] = {}
+        #: wall time (time.monotonic) at which each node's latest diagnostics arrived
+        self.diag_wall: dict[str, float] = {}
         self.diag_level: dict[str, tuple[int, str]] = {}
         self.user_roles = tuple(user_roles)
         #: messages received per canonical topic name from the users' nodes
@@ -217,8 +219,10 @@ class Monitor:
         return out
 
     def _on_diag(self, m: Any) -> None:
+        now = time.monotonic()
         for st in m.status:
             self.diag[st.name] = {kv.key: kv.value for kv in st.values}
+            self.diag_wall[st.name] = now
             lvl = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
             self.diag_level[st.name] = (lvl, st.message)
 

@@ -13,10 +13,18 @@ Exit codes: 0 run completed; 1 a node died, a wait timed out (the message
 names the node / what was awaited), the bag does not hold what was published
 (names topic and counts), or a real-time run missed more than 1 % of its
 control periods or held an average real-time factor more than 1 % below
-the one asked (states both figures apart: docs/graph.md); 2 invalid
-arguments or configuration (every argument is checked before anything is
-started or any directory is created: one line naming it); 130 interrupted
-(SIGINT, SIGTERM or SIGHUP: nodes stopped, bag finalised).
+the one asked (states both figures apart: docs/graph.md), or the run
+completed but cannot be trusted: the coil rejected commands (non-finite, a
+controller that raised or returned no command, a diverged estimate, a wrong
+frame from a user's node: the coil ramped to zero at the slew limit from each
+such tick; ``rejected_commands`` and ``first_rejected_command_s`` in the
+summary and ``--metrics-json``, one warning line) or the run diverged; 2
+invalid arguments or configuration (every argument is checked before
+anything is started or any directory is created: one line naming it; a
+plug-in stage kind is built once in the launcher, so a constructor that
+raises is one line naming the kind and the exception, before any node
+starts); 130 interrupted (SIGINT, SIGTERM or SIGHUP: nodes stopped, bag
+finalised).
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import platform
 import re
 import signal
 import sys
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -42,7 +51,7 @@ from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
 from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
 
-__all__ = ["register", "run", "apply_overrides"]
+__all__ = ["register", "run", "apply_overrides", "check_plugin_stages"]
 
 DEFAULT_CONFIG = "sound_small_artery"  # vesselbot_ros.sim.scenario.DEFAULT_SCENARIO, without importing the core
 ROLES_CHOICES = LOOP_ROLES
@@ -166,6 +175,26 @@ def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int |
     return config_apply_overrides(mapping, overrides)
 
 
+def check_plugin_stages(scenario: Any, without: Sequence[str] = ()) -> None:
+    """Build, once and in this process, every stage of a user's kind (not built in) whose node the launcher starts.
+
+    A node builds its stage when it starts; a user's constructor that raises would then end a run whose graph
+    is already up.  Built here first, it is one line naming the kind and the exception (ConfigError: exit 2),
+    before any node starts or any directory is made.  The built stages are thrown away.
+    """
+    from vesselbot_ros.graph_spec import role as graph_role  # the role -> stage names of the graph spec
+    from vesselbot_ros.sim import kinds  # deferred: the core's registry (numba); `vesselbot run --help` imports this
+    from vesselbot_ros.sim.closed_loop import build_stage
+
+    for r in LOOP_ROLES:
+        stage = graph_role(r).stage
+        if r in without or stage not in kinds.SECTIONS:
+            continue
+        section = kinds.SECTIONS[stage]
+        if kinds.find(stage, getattr(scenario, section).kind, f"{section}.kind").source != "built-in":
+            build_stage(scenario, stage)  # kinds.build: a constructor's exception is a ConfigError naming the kind
+
+
 def _versions() -> dict[str, str]:
     out = {"vesselbot_ros": vesselbot_ros.__version__, "python": platform.python_version()}
     try:
@@ -197,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
         from vesselbot_ros.vessels.cfd import packed_params  # deferred: the CFD stack, only for a network scenario
 
         packed_params(scenario.physics)
+    check_plugin_stages(scenario, args.without)  # a user's kind that cannot be built: one line, nothing started
     if record and importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
         raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "
                              "use --no-record")
@@ -291,7 +321,22 @@ def run(args: argparse.Namespace) -> int:
             return 1
         for line in rt.warnings:
             print(f"vesselbot run: warning: real time held, but {line}", file=sys.stderr)
-    return 0
+    return _trust(result.metrics)
+
+
+def _trust(m: dict[str, Any]) -> int:
+    """The run completed: 0, or 1 with one line when it cannot be trusted (diverged, commands rejected), as simulate."""
+    from vesselbot_ros.sim.kinds import rejection_warning  # deferred: the core (see run)
+
+    if m.get("diverged_at_s") is not None:  # it left the vessel (sim/metrics.py's rule)
+        from vesselbot_ros.sim.metrics import status_line
+
+        print(f"vesselbot: {status_line(m)}", file=sys.stderr)
+    warning = rejection_warning(m)
+    if warning:  # the coil rejected commands and ramped to zero: the run flew on no command
+        print(f"vesselbot: warning: {warning}", file=sys.stderr)
+        return 1
+    return 0 if m.get("status", "ok") == "ok" else 1
 
 
 def _print_summary(result: Any) -> None:

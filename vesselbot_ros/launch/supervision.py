@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from vesselbot_ros.errors import RunError
-from vesselbot_ros.graph_spec import NODE_NAMES, role
+from vesselbot_ros.graph_spec import NODE_NAMES, role, topic
 from vesselbot_ros.launch.processes import ChildProcess
 
-__all__ = ["NodeDied", "Supervisor", "wait_for"]
+__all__ = ["NodeDied", "Supervisor", "wait_for", "last_output", "LAST_OUTPUT_WAIT_S"]
 
 
 class NodeDied(RunError):
@@ -91,24 +91,28 @@ class Supervisor:
         Raises:
             NodeDied: always; the message names the dead node and says where the coil output ended.
         """
-        k_death = mon.max_tick
+        k_death = mon.max_tick  # a progress sample (diagnostics, once a second): not when the node died
+        t_found = time.monotonic()
         mon.watch_coil()  # the coil state from now on: where the watchdog's ramp ends
-        print(f"vesselbot run: node {dead.label} died (exit code {dead.poll()}) at tick {k_death} "
-              f"(t = {k_death * dt:.3f} s); letting the coil driver's watchdog ramp the gradient to zero",
-              file=sys.stderr, flush=True)
+        print(f"vesselbot run: node {dead.label} died (exit code {dead.poll()}); letting the coil driver's watchdog "
+              f"ramp the gradient to zero", file=sys.stderr, flush=True)
         others = [p for p in self.all if p is not dead]
+        outputs = [topic(k).name for r in self.roles_of.get(dead.label, [dead.label]) for k in role(r).outputs]
         deadline = time.monotonic() + timeout
         plant_name = NODE_NAMES["plant"]
+        end = f"the coil output did not reach zero within {timeout:.0f} s (wall)"
         while time.monotonic() < deadline:
             mon.spin(0.05)
             self.check_alive(others)
             lc = mon.last_coil
             if lc is not None and lc[0] > k_death and lc[2] and lc[1] == (0.0, 0.0, 0.0):
-                raise NodeDied(f"{died}\ncoil output ramped to zero by the driver's watchdog at tick {lc[0]} "
-                               f"(t = {lc[0] * dt:.3f} s)") from None
+                end = f"coil output ramped to zero by the driver's watchdog at tick {lc[0]} (t = {lc[0] * dt:.3f} s)"
+                break
             if mon.diag.get(plant_name, {}).get("finished") == "true":
-                raise NodeDied(f"{died}\nthe run reached its end before the coil output was zero") from None
-        raise NodeDied(f"{died}\nthe coil output did not reach zero within {timeout:.0f} s (wall)") from None
+                end = "the run reached its end before the coil output was zero"
+                break
+        last = last_output(mon, outputs, t_found, dt, [NODE_NAMES[r] for r in self.roles_of.get(dead.label, [])])
+        raise NodeDied(f"{died}\n{last}\n{end}") from None
 
     def stop_nodes(self, timeout: float = 10.0) -> None:
         """SIGINT every node process, wait ``timeout`` s in all (not per node), then SIGKILL those still running."""
@@ -136,6 +140,43 @@ class Supervisor:
             with contextlib.suppress(Exception):
                 p.wait(5.0)
             p.close()
+
+
+#: Wall time (s) :func:`last_output` waits for its readers' diagnostics sent after the death was found.
+LAST_OUTPUT_WAIT_S = 2.5
+
+
+def last_output(mon: Any, outputs: Sequence[str], t_found: float, dt: float, dead_names: Sequence[str] = (),
+                wait_s: float = LAST_OUTPUT_WAIT_S) -> str:
+    """The sim time of a dead node's last output, as the living nodes that read it saw it (one line).
+
+    Each node reports the latest tick of every input that reached it (``last_tick:<topic>``, diagnostics
+    once a second): a report sent after the death was found (``t_found``, wall) holds the node's last
+    message.  Waits at most ``wait_s`` (wall) for one; else says what is known, naming it a bound.
+    """
+    deadline = time.monotonic() + wait_s
+    while True:
+        best: tuple[int, str, str] | None = None
+        fresh = False
+        for name, d in mon.diag.items():
+            if name in dead_names:
+                continue
+            for t in outputs:
+                v = d.get(f"last_tick:{t}")
+                if v is None:
+                    continue
+                fresh = fresh or mon.diag_wall.get(name, 0.0) > t_found
+                with contextlib.suppress(ValueError):
+                    if best is None or int(v) > best[0]:
+                        best = (int(v), t, name)
+        if fresh or time.monotonic() >= deadline:
+            break
+        mon.spin(0.05)
+    if best is None:
+        return "no living node reported an output of it (its last output's time is unknown)"
+    k, t, name = best
+    when = "" if fresh else " at least (no report of its readers since it died came in time)"
+    return f"its last output: {t} of tick {k} (t = {k * dt:.3f} s){when}, as {name} received it"
 
 
 def wait_for(pred: Callable[[], bool], timeout: float, mon: Any, sup: Supervisor | None, what: str,

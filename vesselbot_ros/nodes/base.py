@@ -18,7 +18,8 @@
   every ``graph.diagnostics_period_s`` of *wall* time, on every rejection
   burst, and once when the run is finished.  Keys: ``published:<topic>``
   (messages published), ``received:<topic>`` (accepted inputs),
-  ``rejected:<topic>`` (rejected inputs), ``rejected_total``,
+  ``rejected:<topic>`` (rejected inputs), ``rejected_total``, ``last_tick:<topic>``
+  (the latest tick of an input that reached the node, :meth:`VesselbotNode.note_input_tick`),
   ``matched_subscribers:<topic>`` / ``matched_publishers:<topic>`` (DDS
   matches, used by the launcher to know the graph is wired), ``finished``,
   plus node-specific entries;
@@ -33,6 +34,8 @@
   reason), and the next diagnostics are WARN with the reason and counts.  In
   lockstep, tick bookkeeping (stale / future ticks) is each node's own and
   reported through :meth:`VesselbotNode.reject`.  The node keeps running.
+  A node whose own stage gave a bad result (a rejected command) says so the
+  same way, :meth:`VesselbotNode.flag_output` (WARN ``rejected output: ...``).
 """
 
 from __future__ import annotations
@@ -137,6 +140,7 @@ class VesselbotNode(Node):
         self.finished = False
         self._published: Counter[str] = Counter()
         self._received: Counter[str] = Counter()
+        self._last_input_tick: dict[str, int] = {}  # per topic: the latest tick of an input that reached this node
         self._rejected: Counter[str] = Counter()
         self._reject_reasons: Counter[str] = Counter()
         self._last_reason = ""
@@ -438,6 +442,17 @@ class VesselbotNode(Node):
         names = self._topic_names
         self._received[names[key] if key in names else topic(key).name] += 1
 
+    def note_input_tick(self, key: str, k: int) -> None:
+        """Note that an input of tick ``k`` on topic ``key`` reached this node (accepted or not).
+
+        Diagnostics ``last_tick:<topic>``: when the node that publishes ``key`` dies, the launcher names the sim
+        time of its last output as its readers saw it, not a progress sample.
+        """
+        names = self._topic_names
+        name = names[key] if key in names else topic(key).name
+        if k > self._last_input_tick.get(name, -1):
+            self._last_input_tick[name] = k
+
     def wired(self) -> bool:
         """True once every publisher and subscription of this node is matched (over DDS or within the process)."""
         bus = self._intra
@@ -455,11 +470,24 @@ class VesselbotNode(Node):
         name = topic(key).name
         self._rejected[name] += 1
         self._reject_reasons[reason] += 1
-        self._last_reason = f"{name}: {reason}" + (f" ({detail})" if detail else "")
+        self._last_reason = f"rejected input: {name}: {reason}" + (f" ({detail})" if detail else "")
+        self._warn(name, reason, f"rejected input on {name}: {reason}" + (f" ({detail})" if detail else ""))
+
+    def flag_output(self, key: str, reason: str, detail: str = "") -> None:
+        """Record that this node's own output on topic ``key`` is bad (its stage's result was rejected).
+
+        A rate-limited warning (once per second per topic and reason) and WARN diagnostics, as :meth:`reject`
+        does for inputs; the node's own counters say how many.
+        """
+        name = topic(key).name
+        self._last_reason = f"rejected output: {name}: {reason}" + (f" ({detail})" if detail else "")
+        self._warn(name, reason, f"rejected output on {name}: {reason}" + (f" ({detail})" if detail else ""))
+
+    def _warn(self, name: str, reason: str, text: str) -> None:
         now = time.monotonic()
         if now - self._last_warn.get((name, reason), -1e9) >= 1.0:
             self._last_warn[(name, reason)] = now
-            self.get_logger().warning(f"rejected input on {name}: {reason}" + (f" ({detail})" if detail else ""))
+            self.get_logger().warning(text)
         self._warn_pending = True
         if now - self._last_diag_wall >= 0.2:
             self.publish_diagnostics()
@@ -573,6 +601,8 @@ class VesselbotNode(Node):
             kv[f"received:{t}"] = str(self._received[t])
         for t in sorted(self._rejected):
             kv[f"rejected:{t}"] = str(self._rejected[t])
+        for name, last in sorted(self._last_input_tick.items()):
+            kv[f"last_tick:{name}"] = str(last)
         for reason, n in sorted(self._reject_reasons.items()):
             kv[f"rejected_reason:{reason}"] = str(n)
         kv["rejected_total"] = str(sum(self._rejected.values()))
@@ -591,7 +621,7 @@ class VesselbotNode(Node):
         kv["lateness_max_s"] = repr(self._late_max)
         kv.update(self.diagnostic_values())
         level = DiagnosticStatus.WARN if self._warn_pending else DiagnosticStatus.OK
-        message = f"rejected input: {self._last_reason}" if self._warn_pending else ("finished" if self.finished else "ok")
+        message = self._last_reason if self._warn_pending else ("finished" if self.finished else "ok")
         self._warn_pending = False
         st = DiagnosticStatus(level=level, name=self.get_name(), message=message, hardware_id="vesselbot")
         st.values = [KeyValue(key=k, value=v) for k, v in kv.items()]

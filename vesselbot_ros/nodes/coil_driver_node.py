@@ -32,9 +32,13 @@ out ``/diagnostics``                   diagnostic_msgs/DiagnosticArray   1 Hz wa
 The output is ALWAYS limited, whatever arrives: every accepted command goes
 through ``CoilLimiter.apply``.  A command that is non-finite or malformed
 (wrong frame_id, non-zero y in a planar scenario) is *not dropped*: it is passed to the limiter as
-non-finite, which rejects it (``command_rejected = true``) and holds or ramps
-to zero within the slew limit per ``coil.on_reject``.  Nothing non-finite is
-ever published.
+non-finite, which rejects it (``command_rejected = true``) and, from that
+tick on, ramps the output to zero at the slew limit (the core coil stage's
+rule, the very one the ROS-free runner applies: the same ramp as the
+watchdog's), where it stays until a valid command comes; it never holds a
+stale gradient.  Counted: ``rejected_commands`` (diagnostics) and
+``command_rejected`` per tick (``coil/state``, the run's ``cmd_rejected``
+series and metrics).  Nothing non-finite is ever published.
 
 Watchdog ("commands stopped"):
 
@@ -166,6 +170,7 @@ class CoilDriverNode(VesselbotNode):
         if not on_grid:
             self.reject("gradient_command", "off_tick_stamp", f"stamp {stamp} ns")
             return
+        self.note_input_tick("gradient_command", k)  # the controller's last command, if it dies (the launcher)
         if self.lockstep and k != self.k:
             self.reject("gradient_command", "stale_tick" if k < self.k else "future_tick", f"tick {k}, driver at {self.k}")
             return

@@ -27,10 +27,30 @@ vessel (+ margin), off-grid or stale/future ticks (lockstep) or stamps
 leaves its tick open; the coil driver's watchdog then keeps the loop going.
 The core's safe actions (``stale``: estimate too old; ``nonfinite``: the law
 diverged) are counted in diagnostics (``status:<name>``).
+
+What the controller returns is checked before it is published, by the core's
+:func:`~vesselbot_ros.sim.kinds.checked_command`, the very check the ROS-free
+runner makes (so a lockstep run stays bit for bit the runner's): a
+non-finite gradient, a controller that raised in its step, a return value
+that is not a command (``None``, a wrong shape, an unknown status) and a
+non-finite estimate (an observer that diverged: the estimate is counted as a
+rejected input, ``rejected_reason:non_finite``, yet its tick is answered,
+the controller not called) are *rejected commands*: counted
+(``status:nonfinite``, ``rejected_commands``, ``command_rejected:<reason>``,
+the first one's tick and, for a raise or a malformed value, its text) and
+warned (WARN diagnostics, a log line at most once per second).  The node
+still publishes the tick's command, as the core hands it over (the
+controller's own non-finite values, else NaN): nothing is dropped, so the
+bag holds every command the loop ran on and the tick does not wait for the
+driver's watchdog; the coil driver rejects it (``command_rejected``) and,
+through the same coil stage as the runner, ramps the gradient to zero at the
+slew limit, until a valid command comes.  A finite bare array of the right
+shape is a command, as in the runner.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from collections import Counter
 from typing import Any
@@ -44,9 +64,19 @@ from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.tick_join import TickJoin
 from vesselbot_ros.sim.closed_loop import build_stage
-from vesselbot_ros.sim.kinds import call_controller
+from vesselbot_ros.sim.kinds import (
+    REJECT_ESTIMATE,
+    REJECT_MALFORMED,
+    REJECT_NONFINITE,
+    REJECT_RAISED,
+    checked_command,
+)
 
-__all__ = ["ControllerNode", "main"]
+__all__ = ["ControllerNode", "REJECT_NAMES", "main"]
+
+#: Diagnostic names of the core's rejection codes (``command_rejected:<name>``).
+REJECT_NAMES: dict[int, str] = {REJECT_NONFINITE: "nonfinite", REJECT_ESTIMATE: "nonfinite_estimate",
+                                REJECT_RAISED: "raised", REJECT_MALFORMED: "malformed"}
 
 
 class ControllerNode(VesselbotNode):
@@ -68,6 +98,9 @@ class ControllerNode(VesselbotNode):
         self.join = TickJoin(self, {"estimate": 0, "reference": 0})
         self._ref_latest: Any = None
         self.status: Counter[str] = Counter()
+        self.rejected: Counter[int] = Counter()  # rejected commands by the core's code
+        self.first_rejected_tick: int | None = None
+        self.reject_details: dict[int, str] = {}  # the first detail of each code
 
     def _on_estimate(self, msg: Any) -> None:
         """An estimate, in its flat form (``Odometry``: ``pose_pose_position_x`` ...)."""
@@ -76,13 +109,28 @@ class ControllerNode(VesselbotNode):
         px, py, pz = msg.pose_pose_position_x, msg.pose_pose_position_y, msg.pose_pose_position_z
         vy = msg.twist_twist_linear_y
         stamp = cv.stamp_ns(msg)
-        if not self.check("estimate", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp,
-                          values=(px, py, pz, msg.twist_twist_linear_x, vy, msg.twist_twist_linear_z, age),
-                          y_values=(py, vy), z_position=pz, x_position=px, y_position=py):
+        state = (px, py, pz, msg.twist_twist_linear_x, vy, msg.twist_twist_linear_z)
+        finite = all(map(math.isfinite, state))
+        if finite and not self.check("estimate", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp,
+                                     values=(*state, age), y_values=(py, vy), z_position=pz, x_position=px,
+                                     y_position=py):
             return
+        if not finite:
+            # the observer diverged: a rejected input (counted, WARN), yet, when it is the estimate of a tick
+            # still open, that tick is answered with a rejected command (the runner's REJECT_ESTIMATE: the coil
+            # ramps to zero now, instead of the driver's watchdog holding the last gradient first)
+            if not self.check("estimate", frame_id=msg.header_frame_id_cdr, stamp_ns=stamp, values=(age,)):
+                return
+            k_bad, on_grid = cv.tick_of_ns(stamp, self.dt)
+            answer = on_grid and (not self.lockstep or self.join.fits("estimate", k_bad))
+            self.reject("estimate", "non_finite", f"values {list(state)}"
+                        + ("; the tick's command is rejected" if answer else ""))
+            if not answer:
+                return
         k = self.join.tick_of("estimate", stamp)
         if k is None:
             return
+        self.note_input_tick("estimate", k)
         if self.lockstep:
             if self.join.put("estimate", k, (x, z, age, flow_scale)):
                 self.count_received("estimate")
@@ -105,6 +153,7 @@ class ControllerNode(VesselbotNode):
         k = self.join.tick_of("reference", stamp, int(msg.tick))
         if k is None:
             return
+        self.note_input_tick("reference", k)
         if self.lockstep:
             if self.join.put("reference", k, (p, v, a)):
                 self.count_received("reference")
@@ -115,11 +164,23 @@ class ControllerNode(VesselbotNode):
 
     def _command(self, k: int, est: tuple[Any, Any, float, float], ref: tuple[Any, Any, Any]) -> None:
         t = cv.tick_time(k, self.dt)
-        # the estimate as the runner hands it, with the observer's blood-velocity scale
-        cmd = call_controller(self.controller, t, est[0], est[1], est[2], est[3], *ref)
+        # the estimate as the runner hands it, with the observer's blood-velocity scale; the runner's check of
+        # what came back (a rejected command comes with the controller's non-finite values, else NaN)
+        cmd, why, detail = checked_command(self.controller, t, est[0], est[1], est[2], est[3], *ref, self.dims)
         self.status[cmd.status] += 1
+        if why:
+            self._count_rejected(k, why, detail)
         self.publish("gradient_command", cv.gradient_flat(t, cmd.gradient_T_per_m, self.dims))
         self.period_done(k)
+
+    def _count_rejected(self, k: int, why: int, detail: str) -> None:
+        """Count a rejected command of tick ``k`` (the core's code ``why``) and warn (rate-limited)."""
+        self.rejected[why] += 1
+        if self.first_rejected_tick is None:
+            self.first_rejected_tick = k
+        self.reject_details.setdefault(why, detail)
+        self.flag_output("gradient_command", REJECT_NAMES.get(why, str(why)),
+                         f"tick {k}: {detail}; the coil driver rejects it and ramps to zero")
 
     def _drain(self) -> None:
         while (inputs := self.join.pop_ready()) is not None:
@@ -130,6 +191,13 @@ class ControllerNode(VesselbotNode):
     def diagnostic_values(self) -> dict[str, str]:
         out = {"tick": str(self.join.k - 1)}
         out.update({f"status:{s}": str(self.status[s]) for s in ("ok", "stale", "nonfinite")})
+        out["rejected_commands"] = str(sum(self.rejected.values()))
+        out.update({f"command_rejected:{name}": str(self.rejected[code]) for code, name in REJECT_NAMES.items()})
+        if self.first_rejected_tick is not None:
+            out["first_rejected_command_tick"] = str(self.first_rejected_tick)
+        for code, key in ((REJECT_RAISED, "rejected_command_error"), (REJECT_MALFORMED, "rejected_command_malformed")):
+            if code in self.reject_details:
+                out[key] = self.reject_details[code]
         return out
 
 

@@ -134,6 +134,7 @@ class ObserverNode(VesselbotNode):
         if meas is not None:
             self.count_received("measurement")
         if self.lockstep:
+            self.note_input_tick("measurement", self.n_meas)  # the imager's message of tick n_meas
             self.join.put("measurement", self.n_meas, meas if isinstance(meas, Measurement) else None)
             self.n_meas += 1
             self._drain()

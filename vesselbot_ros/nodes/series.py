@@ -35,6 +35,8 @@ SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
     "g_applied": ("g_applied_x_T_per_m", "g_applied_z_T_per_m"),
     "saturated": ("saturated",),
     "slew_limited": ("slew_limited_x", "slew_limited_z"),
+    # the coil rejected the tick's command (non-finite, malformed): what the metrics' rejected_commands count
+    "cmd_rejected": ("cmd_rejected",),
 }
 
 #: :data:`SERIES_COLUMNS` of a 3-D vessel tree (``Scenario.dims`` 3): every vector has its y column
@@ -44,7 +46,7 @@ SERIES_COLUMNS_3D: dict[str, tuple[str, ...]] = {
 }
 
 #: Flags (stored as 0.0 / 1.0, returned as bool).
-FLAGS = frozenset({"in_contact", "saturated", "slew_limited"})
+FLAGS = frozenset({"in_contact", "saturated", "slew_limited", "cmd_rejected"})
 
 #: topic key -> one message's floats (its flat form, nodes/wire.py), in the order of its spec's ``series`` columns
 READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
@@ -53,7 +55,7 @@ READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
                            m.twist_twist_linear_x, m.twist_twist_linear_z),
     "reference": lambda m: (m.position_x, m.position_z),
     "coil_state": lambda m: (m.applied_x, m.applied_z, float(m.saturated),
-                             float(m.slew_limited_x), float(m.slew_limited_z)),
+                             float(m.slew_limited_x), float(m.slew_limited_z), float(m.command_rejected)),
 }
 
 #: :data:`READERS` of a 3-D vessel tree, in the order of :data:`SERIES_COLUMNS_3D`
@@ -64,7 +66,8 @@ READERS_3D: dict[str, Callable[[Any], tuple[float, ...]]] = {
                            m.twist_twist_linear_x, m.twist_twist_linear_y, m.twist_twist_linear_z),
     "reference": lambda m: (m.position_x, m.position_y, m.position_z),
     "coil_state": lambda m: (m.applied_x, m.applied_y, m.applied_z, float(m.saturated),
-                             float(m.slew_limited_x), float(m.slew_limited_y), float(m.slew_limited_z)),
+                             float(m.slew_limited_x), float(m.slew_limited_y), float(m.slew_limited_z),
+                             float(m.command_rejected)),
 }
 
 

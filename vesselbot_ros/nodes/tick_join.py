@@ -62,6 +62,12 @@ class TickJoin:
         slot[kk] = value
         return True
 
+    def fits(self, key: str, k: int) -> bool:
+        """True if :meth:`put` would store input ``key`` of tick ``k`` (nothing is stored nor rejected)."""
+        kk = k + self.lags[key]
+        w = self.windows[key]
+        return kk >= self.k and kk not in self._slots[key] and (w is None or kk <= self.k + w)
+
     def pop_ready(self) -> dict[str, Any] | None:
         """The inputs of the current tick if all are in (and advance to the next tick), else None."""
         k = self.k

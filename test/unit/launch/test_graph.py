@@ -81,3 +81,19 @@ def test_count_comparison_names_every_difference():
     assert check_recorded_counts({"/a": 3, "/b": 2}, {"/a": 3, "/b": 2, "/extra": 5}) == []
     assert check_recorded_counts({"/a": 2000}, {"/a": 1999}) == ["/a: published 2000, recorded 1999"]
     assert check_recorded_counts({"/a": 1}, {}) == ["/a: published 1, recorded 0"]
+
+
+def test_rejection_reasons_come_from_the_controller_node_or_else_the_coil_driver():
+    """The warning line's words: the controller node's own rejections (the core's words), with the first
+    exception; a user's node in the controller's slot: what the coil driver rejected."""
+    from vesselbot_ros.launch.graph import rejection_reasons
+
+    ctl = {"command_rejected:nonfinite": "3", "command_rejected:raised": "2", "command_rejected:malformed": "0",
+           "rejected_command_error": "ZeroDivisionError: boom"}
+    drv = {"rejected_reason:non_finite": "5", "rejected_reason:wrong_frame_id": "1"}
+    got = rejection_reasons({"vesselbot_controller": ctl, "vesselbot_coil_driver": drv})
+    assert got == {"rejected_command_reasons": "non-finite, the controller raised",
+                   "rejected_command_error": "ZeroDivisionError: boom"}
+    got = rejection_reasons({"vesselbot_coil_driver": drv})
+    assert got == {"rejected_command_reasons": "non-finite, wrong frame_id"}
+    assert rejection_reasons({}) == {}

@@ -103,3 +103,72 @@ def test_no_config_means_the_scenario_make_run_runs(tmp_path, capsys, monkeypatc
     with pytest.raises(SystemExit) as exc:
         cli.main(["run", "--compression", "gzip"])
     assert exc.value.code == 2 and "invalid choice: 'gzip'" in capsys.readouterr().err
+
+
+PLUGINS = REPO / "test" / "plugins"
+
+
+def test_a_plugin_whose_constructor_raises_is_one_line_before_any_node_starts(tmp_path, capsys, monkeypatch):
+    """The plug-in controller is built once in the launcher: its constructor's exception is one line naming the
+    kind and the exception, exit 2, no run directory, and the graph is never started (it used to start the whole
+    graph, then the controller node died)."""
+    from vesselbot_ros.launch import graph
+
+    monkeypatch.syspath_prepend(str(PLUGINS))
+    monkeypatch.chdir(tmp_path)
+    started = []
+    monkeypatch.setattr(graph, "run_graph", lambda *a, **k: started.append(a))
+    code = cli.main(["run", "--config", str(PAPER), "--set", "controller.kind=vesselbot_graph_fault_plugin:RaisingCtor",
+                     "--record-dir", str(tmp_path / "bag"), "--quiet"])
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, out + err
+    assert "vesselbot_graph_fault_plugin:RaisingCtor" in lines[0] and "RuntimeError: no licence for this coil" in lines[0]
+    assert "Traceback" not in err and not started
+    assert os.listdir(tmp_path) == []  # no bag, no runs/, no log directory
+
+
+def test_without_the_controller_its_kind_is_not_built(tmp_path, monkeypatch):
+    """--without controller: the user's node takes the slot, so the scenario's kind is never built (nor refused)."""
+    from vesselbot_ros.launch.run_cli import check_plugin_stages
+    from vesselbot_ros.sim.scenario import load_scenario
+
+    monkeypatch.syspath_prepend(str(PLUGINS))
+    s = load_scenario(str(PAPER), sets=["controller.kind=vesselbot_graph_fault_plugin:RaisingCtor"])
+    check_plugin_stages(s, ["controller"])
+    from vesselbot_ros.config import ConfigError
+
+    with pytest.raises(ConfigError, match="controller.kind"):
+        check_plugin_stages(s, [])
+
+
+@pytest.mark.parametrize(("metrics", "code", "needles"), [
+    ({"rejected_commands": 1500, "first_rejected_command_s": 0.5, "n_ticks": 2000,
+      "rejected_command_reasons": "non-finite", "status": "rejected_commands"}, 1,
+     ["vesselbot: warning: 1500 of 2000 controller commands rejected (non-finite) from t = 0.500 s",
+      "the coil ramped to zero"]),
+    ({"rejected_commands": 0, "n_ticks": 2000, "status": "ok"}, 0, []),
+])
+def test_a_run_whose_commands_were_rejected_warns_in_one_line_and_exits_1(tmp_path, capsys, monkeypatch, metrics,
+                                                                          code, needles):
+    """The run completed, yet the coil flew on rejected commands: one warning line, exit 1 (it used to exit 0)."""
+    import numpy as np
+
+    from vesselbot_ros.launch import graph
+
+    monkeypatch.chdir(tmp_path)
+    n = 4
+    ts = {k: np.zeros((n, 2)) for k in ("p_true", "x_hat", "g_applied")}
+    result = graph.GraphResult(dict(metrics), ts, 1.0, 1.0, {})
+    monkeypatch.setattr(graph, "run_graph", lambda *a, **k: result)
+    out_json = tmp_path / "m.json"
+    got = cli.main(["run", "--config", str(PAPER), "--no-record", "--quiet", "--metrics-json", str(out_json)])
+    _out, err = capsys.readouterr()
+    assert got == code, err
+    warnings = [line for line in err.splitlines() if "warning" in line]
+    assert len(warnings) == (1 if needles else 0), err
+    for needle in needles:
+        assert needle in warnings[0]
+    import json
+
+    assert json.loads(out_json.read_text())["metrics"]["rejected_commands"] == metrics["rejected_commands"]

@@ -149,7 +149,8 @@ def test_a_three_d_log_has_y_columns_and_answers_its_floats_as_three_axis_series
 
 def test_a_planar_log_is_unchanged_by_the_three_d_columns():
     log = SeriesLog(("coil_state",), 1, DT)
-    assert log.columns == ("g_applied_x_T_per_m", "g_applied_z_T_per_m", "saturated", "slew_limited_x", "slew_limited_z")
+    assert log.columns == ("g_applied_x_T_per_m", "g_applied_z_T_per_m", "saturated", "slew_limited_x", "slew_limited_z",
+                           "cmd_rejected")
     log.add("coil_state", _flat(CoilState(tick=0, slew_limited_y=True)))  # a planar coil never sets it; not read
     assert log.as_dict()["slew_limited"].tolist() == [[False, False]]
 
@@ -158,3 +159,14 @@ def test_a_y_column_without_its_x_and_z_is_malformed():
     r = GetSeries.Response(rows=1, columns=["p_true_x_m", "p_true_y_m"], values=[0.0] * 2)
     with pytest.raises(ValueError, match="p_true_z_m"):
         series_from_response(r)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_the_coil_state_carries_the_rejected_flag_of_each_tick(dims):
+    """The run's ``cmd_rejected`` series (what the metrics' rejected_commands count) is the coil's own flag."""
+    log = SeriesLog(("coil_state",), 3, DT, dims=dims)
+    for k in range(3):
+        log.add("coil_state", _flat(CoilState(tick=k, command_rejected=k >= 1)))
+    got = series_from_response(log.fill(GetSeries.Response()))
+    assert got["cmd_rejected"].tolist() == [False, True, True]
+    assert empty_series(2, dims)["cmd_rejected"].tolist() == [False, False]
