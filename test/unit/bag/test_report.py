@@ -289,3 +289,33 @@ def test_a_3d_tree_run_gets_xz_and_xy_projections_of_its_tubes_and_paths(tmp_pat
         assert x_lo < -40.0 and x_hi > 30.0  # the whole tree: the CCA from x = -40 mm, the ICA to 29 mm
     # the XY panel shows the tree leaving the plane: the ICA's and ECA's tubes reach y = -3.5 mm - 2.8 mm
     assert xy.dataLim.y0 < -6.0
+
+
+def test_a_rejected_command_is_drawn_as_a_gap_and_counted(tmp_path, monkeypatch, capsys):
+    """The coil driver rejected the commands from tick 500 (and recorded commanded = 0): the report's commanded
+    gradient is NaN there (a gap in Fig. 10a, not a line at 0), metrics.json counts them and `vesselbot report`
+    prints the count (issue 38)."""
+    import conftest
+
+    from vesselbot_ros.bag.reader import read_timeseries
+    from vesselbot_ros.bag.report import metrics_timeseries
+    from vesselbot_ros.cli import main as cli_main
+    from vesselbot_ros.graph_spec import topic
+
+    def reject_from_500(k, name, msg):
+        if name == topic("coil_state").name and k >= 500:
+            msg.command_rejected = True
+            msg.commanded.x = msg.commanded.z = 0.0
+
+    meta = dict(conftest.RUN_METADATA, config={"sim": {"control_rate_Hz": 1000.0}})
+    monkeypatch.setattr(conftest, "RUN_METADATA", meta)
+    conftest.write_synthetic_bag(tmp_path / "b", 1000, edit=reject_from_500)
+    m = metrics_timeseries(read_timeseries(tmp_path / "b"), dt_s=1e-3)
+    assert np.all(np.isnan(m["g_cmd"][500:])) and np.all(np.isfinite(m["g_cmd"][:500]))
+    np.testing.assert_array_equal(m["cmd_rejected"], np.arange(1000) >= 500)
+    assert cli_main(["report", str(tmp_path / "b"), "--out", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "rejected commands 500 (the first at t = 0.500 s; the coil ramped to zero)" in out
+    on_disk = json.loads((tmp_path / "rep" / "metrics.json").read_text())
+    assert on_disk["rejected_commands"] == 500 and on_disk["first_rejected_command_s"] == pytest.approx(0.5)
+    assert on_disk["rejected_command_intervals_s"] == [[pytest.approx(0.5), pytest.approx(1.0)]]

@@ -225,3 +225,19 @@ def test_run_ids_of_a_users_kind_follow_its_source(tmp_path, monkeypatch) -> Non
     assert code.startswith("c0+") and resolved["controller"]["kind"] == "ids_plugin:IntegralController"
     (tmp_path / "ids_plugin.py").write_text(src + "\n# edited\n")
     assert resolve_with_code(m, "c0")[1] != code
+
+
+def test_a_run_on_rejected_commands_is_not_ok_and_says_why(monkeypatch) -> None:
+    """A controller that sends NaN from 0.1 s (issue 38): the run completes but its status is rejected_commands,
+    its error column the one warning line, and its metrics count the rejected ticks; a sound run stays ok."""
+    monkeypatch.syspath_prepend(str(ROOT / "test" / "plugins"))
+    bad = _mapping(0, duration=0.2)
+    bad["controller"] = {"kind": "vesselbot_hostile_plugin:NaNFrom", "start_s": 0.1}
+    recs = run_chunk([_task(0, resolve_mapping(bad)), _task(1, resolve_mapping(_mapping(0, duration=0.2)))],
+                     code_version())
+    assert recs[0]["status"] == "rejected_commands"
+    assert recs[0]["error"] == ("100 of 200 controller commands rejected (non-finite) from t = 0.100 s; "
+                                "the coil ramped to zero")
+    assert recs[0]["metrics"]["rejected_commands"] == 100
+    assert recs[0]["metrics"]["first_rejected_command_s"] == pytest.approx(0.1, abs=1e-12)
+    assert recs[1]["status"] == "ok" and recs[1]["error"] is None and recs[1]["metrics"]["rejected_commands"] == 0

@@ -74,3 +74,16 @@ def test_reproduction_doc_tables_are_generated_from_the_stored_campaigns(repo) -
     assert names == {p.stem for p in (repo / "config" / "campaigns").glob("*.yaml")}
     for variant in ("bs24_printed_hold", "bs24_midpoint", "adaptive_bs", "ekf_flow_estimate"):
         assert f"| variant={variant} | tracking error max (um) | 100 / 0 |" in doc
+
+
+def test_runs_on_rejected_commands_are_counted_in_the_header_and_left_out_of_the_statistics(tmp_path) -> None:
+    rows = _rows()
+    for r in rows[:3]:
+        r["status"] = "rejected_commands"
+        r["tracking_error_max_m"] = 0.0154  # the robot flown blind: not a result of the law
+    meta = {"name": "t", "n_runs": 41, "n_seeds": 20, "grid_keys": ["controller.sample_hold"],
+            "varied_keys": ["controller.sample_hold"]}
+    summary, text = write_report(rows, meta, tmp_path)
+    assert text.startswith("campaign t: 41 of 41 runs finished, 37 ok, 1 failed, 3 rejected_commands ")
+    s = {(x.group, x.metric): x for x in summary}[("controller.sample_hold=none", "tracking_error_max_m")]
+    assert s.worst < 0.0154 and s.n == 16

@@ -188,3 +188,48 @@ def test_a_users_compiled_controller_runs_in_the_compiled_loop_with_the_per_tick
     for col in ("p_true", "x_hat", "g_cmd", "u_cmd", "g_applied", "flow_scale_hat"):
         assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
     assert fast.metrics["tracking_error_max_m"] < 1e-3
+
+
+def test_checked_command_contains_every_bad_answer_of_a_controller() -> None:
+    """kinds.checked_command (both loops' and the nodes' rule, issue 38): a bare (2,) array is a command; NaN/inf,
+    an exception, None, a wrong shape or an unknown status is a rejection with its code and a NaN gradient for the
+    coil; a non-finite estimate is not given to the controller; a deliberate VesselbotError still stops the run."""
+    from vesselbot_ros.control.backstepping import ControlCommand
+
+    z = np.zeros(2)
+
+    class Answer:
+        def __init__(self, value):
+            self.value, self.calls = value, 0
+
+        def command(self, t_s, estimate, ref):
+            self.calls += 1
+            if isinstance(self.value, BaseException):
+                raise self.value
+            return self.value
+
+    def check(value, x=z):
+        return kinds.checked_command(Answer(value), 0.0, x, z, 0.0, 1.0, z, z, z, 2)
+
+    cmd, why, _ = check(np.array([0.01, -0.02]))
+    assert why == kinds.REJECT_NONE and cmd.status == "ok"
+    np.testing.assert_array_equal(cmd.gradient_T_per_m, [0.01, -0.02])
+    assert np.all(np.isnan(cmd.u_m_per_s2))
+    cmd, why, _ = check(ControlCommand(np.array([0.01, 0.0]), np.ones(2), "stale"))
+    assert why == kinds.REJECT_NONE and cmd.status == "stale"
+    for value, code, detail in [
+        (ControlCommand(np.array([np.nan, 0.0]), z, "ok"), kinds.REJECT_NONFINITE, "non-finite"),
+        (np.array([np.inf, 0.0]), kinds.REJECT_NONFINITE, "non-finite"),
+        (ValueError("boom"), kinds.REJECT_RAISED, "ValueError: boom"),
+        (None, kinds.REJECT_MALFORMED, "returned NoneType, not a command"),
+        (np.zeros(3), kinds.REJECT_MALFORMED, "gradient of shape (3,), expected (2,)"),
+        (ControlCommand(z, z, "fine"), kinds.REJECT_MALFORMED, "status 'fine', not one of ['ok', 'stale', 'nonfinite']"),
+    ]:
+        cmd, why, text = check(value)
+        assert (why, text) == (code, detail)
+        assert cmd.status == "nonfinite" and not np.all(np.isfinite(cmd.gradient_T_per_m))
+    ctrl = Answer(np.zeros(2))
+    _, why, _ = kinds.checked_command(ctrl, 0.0, np.array([np.nan, 0.0]), z, 0.0, 1.0, z, z, z, 2)
+    assert why == kinds.REJECT_ESTIMATE and ctrl.calls == 0
+    with pytest.raises(ModelInputError, match="deliberate"):
+        check(ModelInputError("deliberate"))
