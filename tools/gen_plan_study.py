@@ -60,6 +60,11 @@ DESIGN_RADII_M = (175e-6, 250e-6, 375e-6, 500e-6)
 
 def _fly(scenario: Scenario) -> tuple[float, float, float]:
     rs = run_many(scenario, SEEDS)
+    for seed, r in zip(SEEDS, rs):  # a run that diverged (sim/metrics.py's rule) is no number of the study
+        if r.metrics["status"] != "ok":
+            raise SystemExit(f"gen_plan_study: {scenario.name} seed {seed}: status {r.metrics['status']} "
+                             f"({r.metrics.get('divergence') or r.metrics.get('rejected_command_reasons')}); "
+                             f"not tabulated")
     track = np.array([r.metrics["tracking_error_max_m"] for r in rs])
     est = np.array([r.metrics["estimation_error_rms_m"] for r in rs])
     return float(track.mean()), float(track.max()), float(est.mean())

@@ -406,6 +406,18 @@ def _check_fits_run(seq: SequenceParams, duration_s: float) -> None:
     measurement or without propulsion: every command refuses such a scenario
     (``simulate``, ``run``, ``plan``, ``campaign`` and the scanner study load
     it here).  The message names the key, its value and the run's duration.
+
+    The other times that may exceed the run are harmless, and accepted: a run
+    shorter than them is the same loop as the first seconds of a longer run
+    (``--duration`` makes such a prefix of every shipped scenario):
+    ``coil.command_timeout_s`` and ``controller.stale_timeout_s`` (the
+    watchdog and the safe action then never fire, as in that prefix; the coil
+    still ramps a rejected command to zero from its tick), an imager outlier
+    burst or dropout window that starts after the run (never reached), an
+    imager frame period longer than the run in continuous mode (the frame at
+    t = 0, then the observer predicts), and ``sim.metrics_after_s`` (the
+    metrics cover the whole run and say so, ``metrics_window_note``).  In
+    continuous mode the sequence's windows and latency are unused.
     """
     run = f"sim.duration_s ({duration_s!r} s)"
     for name, value in (("latency_s", seq.latency_s), ("tracking_window_s", seq.tracking_window_s),
