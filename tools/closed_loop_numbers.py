@@ -22,6 +22,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from vesselbot_ros.atomic_io import write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "reproduction.md"
 README = ROOT / "README.md"
@@ -179,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if new != old:
             stale.append(path.name)
             if args.write:
-                path.write_text(new, encoding="utf-8")
+                write_text(path, new)
     if args.check and stale:
         print(f"stale closed-loop numbers in {', '.join(stale)}: run tools/closed_loop_numbers.py --write",
               file=sys.stderr)

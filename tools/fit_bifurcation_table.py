@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from vesselbot_ros.atomic_io import atomic_open, save_figure
 from vesselbot_ros.physics import bifurcation as bif
 from vesselbot_ros.vessels.bifurcation_fit import cfd_profile_samples
 
@@ -31,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> int:
     samples = cfd_profile_samples()
     table, rms = bif.fit_profile_table(samples)
-    with bif.CFD_SAMPLES.open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(bif.CFD_SAMPLES, newline="") as fh:
         fh.write("# CFD profiles across the major bifurcation of config/vessels/paper_iiic_artery.yaml "
                  "(tools/fit_bifurcation_table.py); y = section coordinate, u = velocity / inlet V_f\n")
         w = csv.writer(fh)
@@ -61,7 +62,7 @@ def main() -> int:
     fig.tight_layout()
     out = ROOT / "docs" / "figures" / "major_bifurcation_cfd_fit.png"
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    save_figure(fig, out, dpi=120)
     print("rms per angle:", {k: round(v, 4) for k, v in rms.items()})
     print(f"wrote {bif._DEFAULT_TABLE}, {bif.CFD_SAMPLES}, {out}")
     return 0

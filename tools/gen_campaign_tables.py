@@ -26,6 +26,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
+from vesselbot_ros.atomic_io import write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "campaigns"
@@ -80,7 +82,7 @@ def main() -> None:
         dest.mkdir(parents=True, exist_ok=True)
         for f in [out / "results.parquet", out / "campaign.json", *sorted((out / "figures").glob("*.png"))]:
             shutil.copy2(f, dest / f.name)
-    DOC.write_text(render(DOC.read_text()))
+    write_text(DOC, render(DOC.read_text()))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/")
 
 

@@ -43,6 +43,7 @@ from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import Plan, PlanInfeasible, PlanOptions, flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import fmt_um, preset_changes  # noqa: E402
+from vesselbot_ros.atomic_io import atomic_open, write_bytes, write_text  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with  # noqa: E402
 
@@ -108,11 +109,11 @@ def _write_plan(hardware: str, flown: Scenario, plan: Plan) -> None:
 
     PLANS.mkdir(parents=True, exist_ok=True)
     mapping = dict(flown.to_mapping(), name=f"{hardware}_plan")
-    (PLANS / f"{hardware}.yaml").write_text(
+    write_text(PLANS / f"{hardware}.yaml",
         f"# written by tools/gen_plan_study.py: vesselbot plan of {BASE} on the {hardware} preset, its coil and\n"
         f"# sequence; {plan.end_s:.2f} s, margin {plan.margin_m_per_s2:.2f} m/s^2, coast floor "
         f"{plan.coast_floor_m * 1e6:.0f} um (COAST_FLOOR_M below: the campaigns' target).  Do not edit: regenerate.\n"
-        f"# COAST_FLOOR_M: {plan.coast_floor_m!r}\n" + yaml.safe_dump(mapping, sort_keys=False), encoding="utf-8")
+        f"# COAST_FLOOR_M: {plan.coast_floor_m!r}\n" + yaml.safe_dump(mapping, sort_keys=False))
 
 
 def floor_of(path: Path) -> float:
@@ -139,7 +140,7 @@ def campaigns() -> str:
         rows = pq.read_table(out / "results.parquet").to_pylist()
         dest = DATA / "campaigns" / spec.stem
         dest.mkdir(parents=True, exist_ok=True)
-        (dest / "results.parquet").write_bytes((out / "results.parquet").read_bytes())
+        write_bytes(dest / "results.parquet", (out / "results.parquet").read_bytes())
         for variant in sorted({r["variant"] for r in rows}):
             vals = np.array([r["tracking_error_max_m"] for r in rows if r["variant"] == variant and r["status"] == "ok"])
             n_all = sum(1 for r in rows if r["variant"] == variant)
@@ -191,7 +192,7 @@ def design() -> str:
     base = scenario_with(load_scenario(BASE), preset_changes("clinical_3t"))
     cells = design_grid(base, DESIGN_RADII_M, list(MATERIALS))
     table = design_rows(cells)
-    with (DATA / "design.csv").open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(DATA / "design.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(table[0]))
         w.writeheader()
         w.writerows(table)
@@ -240,19 +241,19 @@ def main() -> None:
     if not args.render:
         rs = rows()
         keys = sorted({k for r in rs for k in r})
-        with (DATA / "table.csv").open("w", newline="", encoding="utf-8") as fh:
+        with atomic_open(DATA / "table.csv", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=keys)
             w.writeheader()
             w.writerows(rs)
-        (DATA / "table.md").write_text(markdown(rs), encoding="utf-8")
+        write_text(DATA / "table.md", markdown(rs))
     if args.campaigns:
-        (DATA / "campaigns.md").write_text(campaigns(), encoding="utf-8")
+        write_text(DATA / "campaigns.md", campaigns())
     if args.design:
-        (DATA / "design.md").write_text(design(), encoding="utf-8")
+        write_text(DATA / "design.md", design())
     if args.network:
-        (DATA / "network.md").write_text(network(), encoding="utf-8")
+        write_text(DATA / "network.md", network())
     stored = {name: (DATA / f).read_text() for name, f in SECTIONS if (DATA / f).is_file()}
-    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(), stored))
+    write_text(DOC, render(DOC.read_text(), (DATA / "table.md").read_text(), stored))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 
 

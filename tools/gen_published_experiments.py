@@ -29,6 +29,7 @@ from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.analysis.plan import flying_changes, make_plan, plan_scenario  # noqa: E402
 from vesselbot_ros.analysis.scanner_study import preset_changes  # noqa: E402
+from vesselbot_ros.atomic_io import atomic_open, write_text  # noqa: E402
 from vesselbot_ros.sim.closed_loop import run_many  # noqa: E402
 from vesselbot_ros.sim.scenario import load_scenario, scenario_with  # noqa: E402
 
@@ -114,12 +115,12 @@ def main() -> None:
     DATA.mkdir(parents=True, exist_ok=True)
     if not args.render:
         rs = rows()
-        with (DATA / "table.csv").open("w", newline="", encoding="utf-8") as fh:
+        with atomic_open(DATA / "table.csv", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rs[0]))
             w.writeheader()
             w.writerows(rs)
-        (DATA / "table.md").write_text(markdown(rs), encoding="utf-8")
-    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text()))
+        write_text(DATA / "table.md", markdown(rs))
+    write_text(DOC, render(DOC.read_text(), (DATA / "table.md").read_text()))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 
 

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 from vesselbot_ros import graph_spec as topics
+from vesselbot_ros.atomic_io import write_text
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -38,4 +39,4 @@ def render(text: str) -> str:
 
 
 if __name__ == "__main__":
-    README.write_text(render(README.read_text()))
+    write_text(README, render(README.read_text()))

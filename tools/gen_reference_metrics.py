@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import sys
 
+from vesselbot_ros.atomic_io import write_text
 from vesselbot_ros.sim.reference_metrics import REFERENCE_FILE, compare, compute_reference, load_reference
 
 
@@ -21,7 +22,7 @@ def main() -> int:
         diff = compare(load_reference(), now)
         print(f"{len(diff) - 1 if diff else 0} numbers changed" + ("".join(f"\n  {d}" for d in diff)))
     REFERENCE_FILE.parent.mkdir(parents=True, exist_ok=True)
-    REFERENCE_FILE.write_text(json.dumps(now, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    write_text(REFERENCE_FILE, json.dumps(now, indent=1, sort_keys=True) + "\n")
     print(f"wrote {REFERENCE_FILE} ({len(now['runs'])} runs)")
     return 0
 

@@ -28,6 +28,8 @@ sys.path.insert(0, str(ROOT / "tools"))  # loaded by file location in the tests 
 
 from doc_sections import replace_section  # noqa: E402
 
+from vesselbot_ros.atomic_io import write_text  # noqa: E402
+
 DOC = ROOT / "docs" / "reproduction.md"
 DATA = ROOT / "docs" / "scanner_study"
 PLANNED = ROOT / "docs" / "scanner_study_planned"
@@ -53,7 +55,7 @@ def main() -> None:
         subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "scanner-study", *ARGS, *extra, "--out", str(out)],
                        cwd=ROOT, check=True)
     planned = PLANNED / "table.md"
-    DOC.write_text(render(DOC.read_text(), (DATA / "table.md").read_text(),
+    write_text(DOC, render(DOC.read_text(), (DATA / "table.md").read_text(),
                           planned.read_text() if planned.is_file() else None))
     print(f"wrote {DOC.relative_to(ROOT)} from {DATA.relative_to(ROOT)}/table.md")
 

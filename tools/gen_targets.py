@@ -60,6 +60,7 @@ from vesselbot_ros.analysis.scanner_study import (  # noqa: E402
     floors,
     fmt_um,
 )
+from vesselbot_ros.atomic_io import atomic_open, write_bytes, write_text  # noqa: E402
 from vesselbot_ros.physics.kernel import diameter_at  # noqa: E402
 from vesselbot_ros.sim.closed_loop import build_stage, run_closed_loop  # noqa: E402
 from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with, shipped_scenarios  # noqa: E402
@@ -130,7 +131,7 @@ def _write_floors(label: str, floors: list[float]) -> None:
     old = [r for r in csv.DictReader(path.open(encoding="utf-8"))] if path.is_file() else []
     rows = [r for r in old if r["target"] != label] + [{"target": label, "seed": s, "floor_m": repr(f)}
                                                         for s, f in zip(FLOOR_SEEDS, floors)]
-    with path.open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(path, newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["target", "seed", "floor_m"])
         w.writeheader()
         w.writerows(rows)
@@ -195,17 +196,17 @@ def run_insert_campaign() -> None:
     spec = {"name": "targets_insert_paper_reference", "base": "../../sound_small_artery_ekf.yaml",
             "seeds": {"start": 0, "count": 100}, "variants": variants, "run_timeout_s": 600}
     INSERT_CAMPAIGN.parent.mkdir(parents=True, exist_ok=True)
-    INSERT_CAMPAIGN.write_text(
+    write_text(INSERT_CAMPAIGN,
         "# The scanner-navigation targets' insert cells on the paper's reference (Section III-C with the extended\n"
         "# Kalman filter), each with ekf_k300 and ekf_predictive, over seeds 0-99.  Written and run by\n"
         "# tools/gen_targets.py --campaigns (or: vesselbot campaign <this file>).  Do not edit: regenerate.\n"
-        + yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+        + yaml.safe_dump(spec, sort_keys=False))
     out = ROOT / "out" / "campaigns" / "targets" / INSERT_CAMPAIGN.stem
     subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "campaign", str(INSERT_CAMPAIGN), "--out", str(out),
                     "--no-progress"], cwd=ROOT, check=True)
     dest = DATA / "campaigns" / INSERT_CAMPAIGN.stem
     dest.mkdir(parents=True, exist_ok=True)
-    (dest / "results.parquet").write_bytes((out / "results.parquet").read_bytes())
+    write_bytes(dest / "results.parquet", (out / "results.parquet").read_bytes())
 
 
 def _against_floor(table: list[dict], variant: str, label: str, bound: float, factor: float) -> dict:
@@ -309,13 +310,13 @@ def main() -> None:
             print(f"{c['plan']:<18} {c['variant']:<12} 100 seeds: mean {fmt_um(c['mean_m'])} worst {fmt_um(c['worst_m'])} um, "
                   f"{c['within'] * 100:.0f} % within 2x the coast floor, {_pct(c['within_floor'])} within 2x the seed's "
                   "tracking floor")
-        with (DATA / "targets.csv").open("w", newline="", encoding="utf-8") as fh:
+        with atomic_open(DATA / "targets.csv", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
-        (DATA / "table.md").write_text(render_table(rows, camp, insert), encoding="utf-8")
-    DOC.write_text(replace_section(DOC.read_text(encoding="utf-8"), "targets",
-                                   (DATA / "table.md").read_text(encoding="utf-8")), encoding="utf-8")
+        write_text(DATA / "table.md", render_table(rows, camp, insert))
+    write_text(DOC, replace_section(DOC.read_text(encoding="utf-8"), "targets",
+                                   (DATA / "table.md").read_text(encoding="utf-8")))
     print(f"wrote {DOC.relative_to(ROOT)} from {(DATA / 'table.md').relative_to(ROOT)}")
 
 

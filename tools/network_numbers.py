@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vesselbot_ros.atomic_io import write_text
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import load_network
@@ -69,7 +70,7 @@ def main() -> int:
             doc = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _m: new, doc, flags=re.S)
         else:
             doc += "\n" + new + "\n"
-        DOC.write_text(doc, encoding="utf-8")
+        write_text(DOC, doc)
         print(f"wrote {DOC}")
     return 0
 

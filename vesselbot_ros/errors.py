@@ -8,9 +8,10 @@ prints any of them as one line and exits with code 2::
     ├── ConfigError (also ValueError)      a configuration value is missing, unknown or invalid
     ├── ModelInputError (also ValueError)  a non-finite or wrongly shaped value reached the core
     ├── BagError                           a bag is missing, truncated, corrupt or inconsistent
-    └── RunError                           a run failed while it ran
-        ├── NodeDied                       (vesselbot_ros.launch.supervision)
-        └── RecordingMismatch              (vesselbot_ros.launch.graph)
+    ├── RunError                           a run failed while it ran
+    │   ├── NodeDied                       (vesselbot_ros.launch.supervision)
+    │   └── RecordingMismatch              (vesselbot_ros.launch.graph)
+    └── OutputError (also OSError)         an output file or folder cannot be written (full disk, read-only)
 
 :class:`ConfigError` and :class:`ModelInputError` stay ``ValueError`` too, so
 code that catches ``ValueError`` keeps working.  They are importable from
@@ -21,7 +22,7 @@ This is the lowest layer of the package: it imports nothing from it.
 
 from __future__ import annotations
 
-__all__ = ["VesselbotError", "ConfigError", "ModelInputError", "BagError", "RunError"]
+__all__ = ["VesselbotError", "ConfigError", "ModelInputError", "BagError", "RunError", "OutputError"]
 
 
 class VesselbotError(RuntimeError):
@@ -45,3 +46,15 @@ class BagError(VesselbotError):
 
 class RunError(VesselbotError):
     """A run could not go on: a node died, a recording mismatched, a node or cluster did not answer."""
+
+
+class OutputError(OSError, VesselbotError):
+    """An output file or folder cannot be written (a full disk, a file size limit, a read-only place).
+
+    Raised by :mod:`vesselbot_ros.atomic_io`.  It stays an ``OSError`` (with
+    ``errno`` and ``filename``), and its message is one sentence that names
+    the path and what was left as it was.
+    """
+
+    def __str__(self) -> str:
+        return str(self.strerror)

@@ -23,6 +23,8 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+from vesselbot_ros.atomic_io import write_text
+
 __all__ = ["numba_sources", "source_digest", "ensure_fresh"]
 
 ROOT = Path(__file__).resolve().parent
@@ -57,9 +59,7 @@ def ensure_fresh(root: Path = ROOT) -> bool:
         for f in root.rglob("__pycache__/*.nb[ic]"):
             f.unlink(missing_ok=True)
         stamp.parent.mkdir(exist_ok=True)
-        tmp = stamp.with_suffix(".tmp")
-        tmp.write_text(digest)
-        tmp.replace(stamp)
+        write_text(stamp, digest)
     except OSError:  # read-only install: numba then uses its own user cache dir
         pass
     return True

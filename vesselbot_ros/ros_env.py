@@ -17,7 +17,6 @@ from __future__ import annotations
 import fcntl
 import os
 import random
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -28,7 +27,22 @@ __all__ = ["DomainLease", "allocate_domain", "allocate_domain_for_peers", "ros_e
 # ports).  0 is the default that other programs use: never take it.
 DOMAIN_MIN = 1
 DOMAIN_MAX = 101
-_LOCK_DIR = Path(tempfile.gettempdir()) / "vesselbot_domains"
+
+
+def _temp_dir() -> Path:
+    """The folder ``tempfile.gettempdir()`` picks (``$TMPDIR``, ``$TEMP``, ``$TMP``, ``/tmp``, ...), without its probe.
+
+    gettempdir() writes a test file to choose; on a full disk every write fails and it raises "No usable
+    temporary directory" at import, before a command could check (and name) its own output path.
+    """
+    for name in ("TMPDIR", "TEMP", "TMP"):
+        d = os.environ.get(name)
+        if d and os.path.isdir(d):
+            return Path(d)
+    return next((Path(d) for d in ("/tmp", "/var/tmp", "/usr/tmp") if os.path.isdir(d)), Path.cwd())
+
+
+_LOCK_DIR = _temp_dir() / "vesselbot_domains"
 
 
 @dataclass

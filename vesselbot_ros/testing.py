@@ -13,6 +13,9 @@
   :mod:`vesselbot_ros.nodes.calls`).
 * :func:`fill_message` sets every field of a message to a distinct,
   non-default value, for round-trip tests.
+* :func:`cli_on_a_full_disk` runs a ``vesselbot`` command in a child
+  process whose files cannot grow (``RLIMIT_FSIZE``), from the start or once
+  a given step has returned: a full disk, without filling one.
 
 Example::
 
@@ -28,6 +31,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -38,7 +42,8 @@ from vesselbot_ros.launch.processes import ChildProcess
 from vesselbot_ros.nodes.calls import Resend
 from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 
-__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "call_service", "spin_node", "fill_message"]
+__all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "call_service", "spin_node", "fill_message",
+           "cli_on_a_full_disk"]
 
 
 @dataclass
@@ -189,3 +194,43 @@ def run_node_script(script: str, *args: str, timeout: float = 120.0) -> Any:
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     assert lines, f"node {script} printed no JSON: {proc.stdout[-2000:]} {proc.stderr[-2000:]}"
     return json.loads(lines[-1])
+
+
+_FULL_DISK_CHILD = """
+import resource, sys
+def fill():
+    resource.setrlimit(resource.RLIMIT_FSIZE, (0, 0))  # every write now fails (EFBIG), as on a full disk
+module, _, name = sys.argv[1].partition(":")
+if module:
+    import importlib
+    mod = importlib.import_module(module)
+    step = getattr(mod, name)
+    def step_then_fill(*a, **k):
+        out = step(*a, **k)
+        fill()
+        return out
+    setattr(mod, name, step_then_fill)
+else:
+    fill()
+from vesselbot_ros.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def cli_on_a_full_disk(argv: Sequence[str], fill_after: str = "", cwd: str | os.PathLike[str] | None = None,
+                       timeout: float = 600.0) -> subprocess.CompletedProcess[str]:
+    """Run ``vesselbot ARGV`` in a child process on a "full disk": no file of it may grow past 0 bytes.
+
+    ``RLIMIT_FSIZE`` = 0 makes every write fail with ``EFBIG`` (Python ignores
+    ``SIGXFSZ``), while files can still be created, renamed and removed, as on
+    a full disk; it holds for root too.  The disk may fill from the start
+    (``fill_after=""``: the checks before the work see it) or once the step
+    ``"module:function"`` has returned (e.g. the run, before the outputs are
+    written): that name is looked up in ``module`` when called, so give the
+    module that calls it.
+
+    Returns:
+        The finished process (text stdout and stderr).
+    """
+    return subprocess.run([sys.executable, "-c", _FULL_DISK_CHILD, fill_after, *argv], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout)

@@ -18,6 +18,7 @@ import numpy as np
 
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
 from vesselbot_ros.analysis.design_map import DESIGNS, DesignMap, DesignStudy, all_design_maps, summarize
+from vesselbot_ros.atomic_io import atomic_open, atomic_path, check_output_dir, save_figure
 
 __all__ = ["register", "run", "plot_maps"]
 
@@ -73,7 +74,7 @@ def plot_maps(maps: list[DesignMap], path: Path) -> None:
     import matplotlib.pyplot as plt  # deferred: matplotlib (see maps_figure)
 
     fig = maps_figure(maps)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -82,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     params = load_physics(args)
     study = DesignStudy.from_mapping(load_study_mapping(args))
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")
     t0 = time.perf_counter()
     maps = all_design_maps(params, study)
     elapsed = time.perf_counter() - t0
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(maps)} maps of {study.grid.n_lambda}x{study.grid.n_delta} in {elapsed:.3f} s")
     print(f"{'vessel':<13} {'design':<6} {'max Fm/Ftot':>11} {'lambda':>7} {'Delta (m)':>11} {'Delta/Dmax':>10}"
           "  lambda range >= 90 % of max")
-    with (out / "design_map_summary.csv").open("w", newline="") as fh:
+    with atomic_open(out / "design_map_summary.csv", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(("vessel", "design", "max_ratio", "lambda_at_max", "delta_at_max_m", "xi_at_max", "lambda90_lo", "lambda90_hi"))
         for s in summaries:
@@ -104,8 +105,9 @@ def run(args: argparse.Namespace) -> int:
         mat[0, 1:] = m.xi
         mat[1:, 0] = m.lam
         mat[1:, 1:] = m.ratio
-        np.savetxt(out / f"map_{m.vessel}_{m.design}.csv", mat, delimiter=",", fmt="%.6g",
-                   header=f"F_m/F_tot for {m.design} in {m.vessel}; row 0: xi = Delta/Delta_max; column 0: lambda")
+        with atomic_path(out / f"map_{m.vessel}_{m.design}.csv") as tmp:
+            np.savetxt(tmp, mat, delimiter=",", fmt="%.6g",
+                       header=f"F_m/F_tot for {m.design} in {m.vessel}; row 0: xi = Delta/Delta_max; column 0: lambda")
     if not args.no_png:
         plot_maps(maps, out / "design_map.png")
         print(f"wrote {out / 'design_map.png'}")

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics
+from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.force_balance import ContactState, ForceTerms, force_terms
 from vesselbot_ros.physics.params import PhysicsParams
@@ -105,7 +106,7 @@ def _plot(curve: BalanceCurve, params: PhysicsParams, path: Path) -> None:
     ax2.set_title("near the upper wall")
     ax2.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -125,9 +126,9 @@ def run(args: argparse.Namespace) -> int:
                           f"got {args.min_gap!r}")
     curve = force_balance_curve(p_eval, delta_grid(p_eval, d_t, min_gap_m=args.min_gap), t_s=t)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")
     names = (*TERMS, "total", "load")
-    with (out / "force_balance.csv").open("w", newline="") as fh:
+    with atomic_open(out / "force_balance.csv", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["delta_m", "gap_m"] + [f"{n}_{c}_N" for n in names for c in ("x", "z")])
         for i, z in enumerate(curve.delta_m):

@@ -34,6 +34,7 @@ from vesselbot_ros.analysis.plan import (
     wall_rest,
 )
 from vesselbot_ros.analysis.scanner_study import preset_changes
+from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.scanner.hardware import PRESETS
@@ -42,6 +43,8 @@ from vesselbot_ros.sim.scenario import Scenario, load_scenario, scenario_with, s
 from vesselbot_ros.vessels.cfd import packed_params
 
 DEFAULT = "clinical_3t_small_artery"
+#: Room the outputs need at most (plan.yaml, segments.csv, plan.png: about 0.3 MiB), bytes.
+OUTPUT_BYTES = 4 * 2**20
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -69,9 +72,9 @@ def run(args: argparse.Namespace) -> int:
                              changes=preset_changes(args.hardware) if args.hardware else None)
     options = PlanOptions(budget_fraction=args.budget_fraction, height=args.height,
                           max_speed_m_per_s=args.max_speed_m_per_s)
-    plan = make_plan(scenario, options)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out", need_bytes=OUTPUT_BYTES, need_why="plan.yaml, segments.csv and plan.png")
+    plan = make_plan(scenario, options)
     planned = plan_scenario(scenario, plan.reference)
     changes = flying_changes(planned, plan)
     if changes:  # the plan rides the lower wall: the loop's options for it
@@ -79,11 +82,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{scenario.name}: the plan rests on the lower wall; flown with "
               + ", ".join(f"{k}: {v}" for k, v in changes.items()))
     mapping = dict(planned.to_mapping(), name=f"{scenario.name}_plan")
-    (out / "plan.yaml").write_text(
+    write_text(out / "plan.yaml",
         "# written by vesselbot plan: the scenario with a reference its coil can fly (vesselbot simulate --config this)\n"
-        + yaml.safe_dump(mapping, sort_keys=False), encoding="utf-8")
+        + yaml.safe_dump(mapping, sort_keys=False))
     rows = segments_table(plan.segments)
-    with (out / "segments.csv").open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(out / "segments.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -157,5 +160,5 @@ def _figure(planned: Scenario, plan: Plan, path: Path) -> None:
     for ax in (ax0, ax1, ax2):
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -19,6 +19,7 @@ import numpy as np
 from vesselbot_ros.analysis.plan import PlanOptions
 from vesselbot_ros.analysis.plan_design import MATERIALS, DesignCell, design_grid, rows
 from vesselbot_ros.analysis.scanner_study import preset_changes
+from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
@@ -58,15 +59,15 @@ def run(args: argparse.Namespace) -> int:
         if m not in MATERIALS:
             raise ConfigError(f"--materials: each must be one of {sorted(MATERIALS)}, got {m!r}")
     base = load_scenario(args.config, sets=args.set, changes=preset_changes(args.hardware))
-    cells = design_grid(base, args.radii_um, materials, PlanOptions())
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")  # before the planning: an unwritable folder is one line, nothing computed
+    cells = design_grid(base, args.radii_um, materials, PlanOptions())
     table = rows(cells)
-    with (out / "design.csv").open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(out / "design.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(table[0]))
         w.writeheader()
         w.writerows(table)
-    (out / "design.md").write_text(markdown(cells), encoding="utf-8")
+    write_text(out / "design.md", markdown(cells))
     print(f"{base.name} on {args.hardware}: which bead the coil can fly along the path")
     print(markdown(cells), end="")
     best = min((c for c in cells if c.status == "ok"), key=lambda c: c.coast_floor_m, default=None)
@@ -122,5 +123,5 @@ def _figure(cells: list[DesignCell], path: Path, title: str) -> None:
     ax.set_xlabel("bead radius (um)")
     ax.set_title(f"{title}: coast floor of the plan (red: acceleration missing)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from vesselbot_ros.analysis.scanner_study import PAIRS, fmt_um, run_study, study_cells
+from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.config import ConfigError, check_positive
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
@@ -79,18 +80,18 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--workers sizes the local cluster; it does not apply with --scheduler")
     check_positive("--run-timeout-s", args.run_timeout_s)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")
     rows = run_study(base, cells, range(args.seeds), args.workers, args.run_timeout_s, scheduler=args.scheduler,
                      runs_dir=out / "runs", progress=True, reference=args.reference)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
             "pair", "status", "hold_margin_m_per_s2", "gradient_to_fly_T_per_m", "coast_floor_m", "estimation_floor_m",
             "tracking_floor_m", "tracking_max_mean_m", "tracking_max_worst_m", "tracking_rms_mean_m",
             "estimation_rms_mean_m", "estimation_rms_worst_m"]
-    with (out / "table.csv").open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(out / "table.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    (out / "table.md").write_text(markdown_table(rows), encoding="utf-8")
+    write_text(out / "table.md", markdown_table(rows))
     print(f"{'hardware':<18}{'T win':>7}{'P win':>7}{'duty':>6}{'fps':>6}{'lat':>6}  {'pair':<9}{'hold':>7}{'floor':>7}"
           f"{'est fl':>7}{'trk fl':>7}"
           f"{'track max mean/worst um':>25}{'est rms mean um':>17}  status")
@@ -176,5 +177,5 @@ def _plot(rows: list[dict], path: Path, xkey: str, xscale: float, xlabel: str, k
     axes[0][0].set_ylabel("tracking error max after 0.6 s, mean over seeds (um)")
     axes[0][-1].legend(title="observer / controller")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)

@@ -18,6 +18,7 @@ import numpy.typing as npt
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
 from vesselbot_ros.analysis.design_map import DesignStudy
 from vesselbot_ros.analysis.force_balance_cli import delta_grid, force_balance_curve, steady
+from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.kernel import I_CHARGE
 from vesselbot_ros.physics.params import PhysicsParams
@@ -92,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
         curves[label] = ratio
         print(f"{label:<32}{ratio[i_c]:16.4g}{ratio[i_w]:14.4g}{ftot[i_c] / ftot0[i_c] - 1:14.1%}{ftot[i_w] / ftot0[i_w] - 1:12.1%}")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "sensitivity.csv").open("w", newline="") as fh:
+    check_output_dir(out, "--out")
+    with atomic_open(out / "sensitivity.csv", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["delta_m", *curves])
         for i, z in enumerate(deltas):
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         ax.legend(fontsize=8)
     axes[0].set_ylabel("F_m / F_tot")
     fig.tight_layout()
-    fig.savefig(out / "sensitivity.png", dpi=110)
+    save_figure(fig, out / "sensitivity.png", dpi=110)
     plt.close(fig)
     print(f"wrote {out / 'sensitivity.csv'} and {out / 'sensitivity.png'}")
     return 0

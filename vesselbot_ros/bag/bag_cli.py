@@ -34,17 +34,22 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(format_info(info, show_config=not args.no_config))
         return 0 if info.consistent else 1
+    from vesselbot_ros.bag.info import coverage  # deferred: see open_bag above
     from vesselbot_ros.bag.repair import repair_bag  # deferred: see open_bag above
 
     res = repair_bag(args.bag, force=args.force)
+    cov = coverage(open_bag(res.path))  # a repaired bag may end early: say how much of the run it holds
+    span = f"  sim time: {cov.line()}" if cov is not None else "  sim time: no /clock recorded"
     if not res.repaired:
         print(f"{res.path}: already a valid bag ({res.message_count} messages); nothing to do (use --force to rebuild)")
+        print(span)
         return 0
     if res.mcap_rewritten:
         print(f"{res.path}: rebuilt metadata.yaml and MCAP with {res.message_count} messages; "
               f"{res.dropped_bytes} trailing bytes were unreadable")
     else:
         print(f"{res.path}: the MCAP is intact ({res.message_count} messages); rebuilt metadata.yaml from it")
+    print(span)
     for k in res.kept:
         print(f"  original kept as {k.name}")
     print("  run metadata: " + (f"from {res.run_metadata_from}" if res.run_metadata_from else "none found"))

@@ -4,11 +4,110 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
+import struct
+from dataclasses import dataclass
 from typing import Any
 
-from vesselbot_ros.bag.reader import BagInfo
+from mcap.reader import make_reader
 
-__all__ = ["format_info", "info_dict"]
+from vesselbot_ros.bag.reader import BagInfo
+from vesselbot_ros.errors import BagError
+from vesselbot_ros.graph_spec import topic
+
+__all__ = ["Coverage", "coverage", "format_info", "info_dict"]
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The sim-time span a bag covers, against the run's planned duration.
+
+    Attributes:
+        first_s: Sim time of the first recorded tick (s).
+        last_s: Sim time of the last recorded tick (s).
+        dt_s: The run's control period (s; None if the run's config does not say).
+        planned_s: The run's planned duration, ``sim.duration_s`` (s; None if not recorded).
+    """
+
+    first_s: float
+    last_s: float
+    dt_s: float | None
+    planned_s: float | None
+
+    @property
+    def covered_s(self) -> float:
+        """Sim time the bag covers: its first to its last tick, and the last tick's control period (s)."""
+        return self.last_s - self.first_s + (self.dt_s or 0.0)
+
+    @property
+    def partial(self) -> bool:
+        """True when the bag ends more than half a control period before the planned end of the run."""
+        if self.planned_s is None:
+            return False
+        return self.covered_s < self.planned_s - 0.5 * (self.dt_s or 0.0) - 1e-9
+
+    def line(self) -> str:
+        """``covers 0.83 s of the 2.00 s run (partial: its last tick is at sim t = 0.829 s)``."""
+        if self.planned_s is None:
+            return (f"covers {self.covered_s:.2f} s of sim time ({self.first_s:.3f} to {self.last_s:.3f} s); "
+                    f"the run's planned duration is not recorded")
+        if self.partial:
+            return (f"covers {self.covered_s:.2f} s of the {self.planned_s:.2f} s run (partial: its last tick is at "
+                    f"sim t = {self.last_s:.3f} s)")
+        return f"covers {self.covered_s:.2f} s of the {self.planned_s:.2f} s run (complete)"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (``bag info --json``, the report's ``metrics.json``)."""
+        return {"sim_time_first_s": self.first_s, "sim_time_last_s": self.last_s,
+                "sim_time_covered_s": self.covered_s, "planned_duration_s": self.planned_s, "partial": self.partial}
+
+
+def _config_number(run: dict[str, Any], key: str) -> float | None:
+    try:
+        v = float(run["config"]["sim"][key])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def coverage_of_ticks(run: dict[str, Any], first_s: float, last_s: float) -> Coverage:
+    """The :class:`Coverage` of ticks from ``first_s`` to ``last_s`` (s) of the run described by ``run``."""
+    rate = _config_number(run, "control_rate_Hz")
+    return Coverage(first_s, last_s, 1.0 / rate if rate else None, _config_number(run, "duration_s"))
+
+
+def _clock_s(data: bytes) -> float:
+    # rosgraph_msgs/Clock in CDR: the 4-byte encapsulation header, then builtin_interfaces/Time (int32, uint32)
+    sec, nsec = struct.unpack_from("<iI" if data[1] == 1 else ">iI", data, 4)
+    return sec + 1e-9 * nsec
+
+
+def coverage(info: BagInfo) -> Coverage | None:
+    """The sim-time span of the bag's ``/clock`` (its first and last message only), or None without one.
+
+    Raises:
+        BagError: if the MCAP cannot be read.
+    """
+    clock = topic("clock").name
+    if info.topic(clock) is None:
+        return None
+    first: float | None = None
+    last: float | None = None
+    try:
+        for path in info.mcap_paths:
+            with path.open("rb") as fh:
+                reader = make_reader(fh)
+                for reverse in (False, True):  # the first message, then the last (the summary's index: two chunks)
+                    t = next((_clock_s(m.data) for _s, _c, m in reader.iter_messages(topics=[clock], reverse=reverse)),
+                             None)
+                    if t is not None:
+                        first = t if first is None else min(first, t)
+                        last = t if last is None else max(last, t)
+    except Exception as exc:  # noqa: BLE001 - mcap and struct raise many types on bad data
+        raise BagError(f"bag {info.path}: cannot read its /clock: {exc!r}") from None
+    if first is None or last is None:
+        return None
+    return coverage_of_ticks(info.run_metadata, first, last)
 
 
 def _iso(ns: int) -> str:
@@ -39,6 +138,7 @@ def info_dict(info: BagInfo) -> dict[str, Any]:
         "config": run.get("config"),
         "consistent": info.consistent,
         "problems": list(info.problems),
+        "coverage": cov.as_dict() if (cov := coverage(info)) is not None else None,
     }
 
 
@@ -50,6 +150,7 @@ def format_info(info: BagInfo, show_config: bool = True) -> str:
         f"Files:      {', '.join(p.name for p in info.mcap_paths)}",
         f"Scenario:   {run.get('scenario', '-')}   seed: {run.get('seed', '-')}   mode: {run.get('mode', '-')}",
         f"Duration:   {info.duration_ns * 1e-9:.3f} s (log time)",
+        f"Sim time:   {cov.line() if (cov := coverage(info)) is not None else 'no /clock recorded'}",
         f"Start:      {_iso(info.start_ns)} ({info.start_ns} ns)",
         f"End:        {_iso(info.end_ns)} ({info.end_ns} ns)",
         f"Messages:   {info.message_count}",

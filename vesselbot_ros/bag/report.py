@@ -54,6 +54,8 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros import graph_spec
+from vesselbot_ros.atomic_io import check_output_dir, save_figure, write_text
+from vesselbot_ros.bag.info import coverage_of_ticks
 from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_timeseries
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.actuator_limits import CoilLimits
@@ -74,6 +76,8 @@ TRACKING_BOUND_M = 150e-6  # paper Fig. 9b: tracking error bound after 0.6 s
 ESTIMATION_BOUND_M = 10e-6  # paper Fig. 9b: estimation error bound
 FIGURES = ("fig9a_trajectory.png", "fig9b_errors.png", "fig10a_gradients.png", "fig10b_velocities.png",
            "fig10c_velocity_error.png", "forces.png")
+#: Room a report needs at most (six figures of 0.1 to 0.5 MiB each and metrics.json), bytes.
+REPORT_BYTES = 8 * 2**20
 #: Columns of the bag's (x, y, z) vectors the run's own arrays hold: a planar run's (x, z), a 3-D tree's all three
 _AXES = {2: [0, 2], 3: [0, 1, 2]}
 
@@ -630,7 +634,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
 
     info = bag_dir if isinstance(bag_dir, BagInfo) else open_bag(bag_dir)
     out = Path(out_dir) if out_dir is not None else info.path / "report"
-    out.mkdir(parents=True, exist_ok=True)
+    # before any work: a folder that cannot be written, or too little room for the figures, is one line
+    check_output_dir(out, "report folder", need_bytes=REPORT_BYTES,
+                     need_why=f"{len(FIGURES)} figures and metrics.json, at most")
     run = info.run_metadata
     rate = _run_config_value(run, "sim", "control_rate_Hz")
     if after_s is None:
@@ -658,6 +664,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
              "tracking window": tracking, "rejected command": rejected}
     t_out, thr = detect_outlier_frames(ts, dims)
     metrics.update(diagnostic_counters(info))
+    # a repaired bag may end before the run did: the span it covers, against the run's planned duration
+    cov = coverage_of_ticks(run, float(t[0]), float(t[-1]))
+    metrics.update(cov.as_dict(), coverage=cov.line())
     metrics.update({
         "bag": str(info.path),
         "scenario": run.get("scenario"),
@@ -696,12 +705,15 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         FIGURES[4]: fig10c_velocity_error(t, m, spans),
         FIGURES[5]: forces_figure(t, m, spans),
     }
-    for name, fig in figures.items():
-        fig.savefig(out / name, dpi=120)
-        plt.close(fig)
+    # each file whole or not at all: a full disk leaves the earlier report's files, never a 0-byte one
+    try:
+        for name, fig in figures.items():
+            save_figure(fig, out / name, dpi=120)
+    finally:
+        for fig in figures.values():
+            plt.close(fig)
 
-    (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2, sort_keys=True) + "\n",
-                                      encoding="utf-8")
+    write_text(out / "metrics.json", json.dumps(_jsonable(metrics), indent=2, sort_keys=True) + "\n")
     return metrics
 
 

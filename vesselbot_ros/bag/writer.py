@@ -68,6 +68,7 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from vesselbot_ros.atomic_io import probe_dir, write_text
 from vesselbot_ros.errors import BagError
 
 __all__ = [
@@ -209,9 +210,13 @@ def qos_from_spec(durability_transient_local: bool, depth: int) -> Qos:
 def check_output_dir(path: str | os.PathLike[str], min_free_bytes: int = MIN_FREE_BYTES) -> Path:
     """Check that a bag can be written at ``path`` before anything is recorded.
 
-    The directory is created if needed (it may exist, e.g. with a ``logs/``
-    folder), must be writable, must not already hold a bag, and its file
-    system must have ``min_free_bytes`` free.
+    In this order: the free space of its file system (``min_free_bytes``;
+    ``vesselbot run`` passes 0, its one rule being
+    :func:`vesselbot_ros.sim.scenario.check_resources`), the directory is
+    created if needed (it may exist, e.g. with a ``logs/`` folder), it must
+    not already hold a bag, and a probe file must be writable there (the
+    probe is removed, on failure too).  A refused check removes the folders
+    it created.
 
     Returns:
         The resolved directory.
@@ -220,26 +225,36 @@ def check_output_dir(path: str | os.PathLike[str], min_free_bytes: int = MIN_FRE
         BagError: naming the path and the problem.
     """
     out = Path(path).expanduser().resolve()
+    base = out
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if min_free_bytes > 0 and base.is_dir():
+        free = shutil.disk_usage(base).free
+        if free < min_free_bytes:
+            raise BagError(f"only {free / 2**20:.0f} MiB free under {base}; recording to {out} needs at least "
+                           f"{min_free_bytes / 2**20:.0f} MiB; nothing was created")
+    created = [p for p in (out, *out.parents) if not p.exists()]
+
+    def undo() -> None:
+        for p in created:  # deepest first
+            with contextlib.suppress(OSError):
+                p.rmdir()
+
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
+        undo()
         raise BagError(f"cannot create bag directory {out}: {exc.strerror or exc}") from None
     if not out.is_dir():
         raise BagError(f"bag path {out} exists and is not a directory")
     existing = [p.name for p in (out / "metadata.yaml", *out.glob("*.mcap")) if p.exists()]
     if existing:
         raise BagError(f"{out} already holds a bag ({', '.join(existing)}); not overwriting")
-    probe = out / f".write_probe_{os.getpid()}"
     try:
-        probe.write_bytes(b"x")
-        probe.unlink()
+        probe_dir(out)
     except OSError as exc:
+        undo()
         raise BagError(f"bag directory {out} is not writable: {exc.strerror or exc}") from None
-    free = shutil.disk_usage(out).free
-    if free < min_free_bytes:
-        raise BagError(
-            f"only {free / 2**20:.0f} MiB free under {out}; recording needs at least {min_free_bytes / 2**20:.0f} MiB"
-        )
     return out
 
 
@@ -369,10 +384,13 @@ class _DirWriter(Writer):
         self.storage = JazzyMcapWriter(self.path, self.compression_mode, self.preset)
 
     def close(self) -> None:
-        super().close()
+        try:
+            super().close()  # rosbags writes metadata.yaml.tmp, then renames it
+        finally:
+            with contextlib.suppress(OSError):
+                self.metapath.with_suffix(".yaml.tmp").unlink(missing_ok=True)  # left by a write that failed
         text = self.metapath.read_text(encoding="utf-8")
-        self.metapath.write_text(re.sub(r"^(\s+)ros_distro: rosbags$", rf"\1ros_distro: {ROS_DISTRO}", text, flags=re.M),
-                                 encoding="utf-8")
+        write_text(self.metapath, re.sub(r"^(\s+)ros_distro: rosbags$", rf"\1ros_distro: {ROS_DISTRO}", text, flags=re.M))
 
 
 class BagWriter:
@@ -426,7 +444,12 @@ class BagWriter:
             writer.open()
         except (WriterError, OSError) as exc:
             raise BagError(f"cannot open bag {self.path}: {exc}") from None
-        (self.path / RUN_METADATA_FILE).write_text(self._run_json + "\n", encoding="utf-8")
+        try:
+            write_text(self.path / RUN_METADATA_FILE, self._run_json + "\n")
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                writer.storage.abort()  # type: ignore[union-attr]  # set by writer.open()
+            raise BagError(f"cannot open bag {self.path}: {exc}") from None
         self._writer = writer
         return self
 

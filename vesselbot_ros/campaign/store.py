@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -52,6 +51,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vesselbot_ros.atomic_io import atomic_path, write_text
 from vesselbot_ros.errors import VesselbotError
 
 __all__ = ["CampaignStore"]
@@ -60,9 +60,8 @@ _PART_COLUMNS = ("run_id", "status", "error", "run_time_s", "worker")
 
 
 def _atomic_write_table(table: pa.Table, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:  # whole or not at all; the temporary file never stays
+        pq.write_table(table, tmp)
 
 
 def _rows_to_table(rows: Sequence[dict[str, Any]], first: Sequence[str] = ()) -> pa.Table:
@@ -104,8 +103,8 @@ class CampaignStore:
                 for tmp in d.glob(".*.tmp*"):  # left by a campaign killed while writing
                     tmp.unlink()
             _atomic_write_table(_rows_to_table(rows, ("index", "run_id", "seed")), self.root / "runs.parquet")
-            (self.root / "campaign.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-            (self.root / "spec.yaml").write_text(spec_text, encoding="utf-8")
+            write_text(self.root / "campaign.json", json.dumps(meta, indent=2, sort_keys=True) + "\n")
+            write_text(self.root / "spec.yaml", spec_text)
         except OSError as exc:
             raise VesselbotError(f"cannot write the campaign folder {str(self.root)!r}: {exc}") from None
 

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from vesselbot_ros.atomic_io import atomic_open, save_figure, write_text
+
 __all__ = ["SUMMARY_METRICS", "SummaryRow", "summarize", "format_markdown", "draw_figures", "write_report"]
 
 # metric column -> (label, display unit, factor from SI)
@@ -176,7 +178,7 @@ def draw_figures(rows: Sequence[dict[str, Any]], varied_keys: Sequence[str], gro
     fig.suptitle(f"{title}: distribution of the tracking error".strip(": "))
     fig.tight_layout()
     path = out_dir / "tracking_error_distribution.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     written.append(path)
 
@@ -202,7 +204,7 @@ def draw_figures(rows: Sequence[dict[str, Any]], varied_keys: Sequence[str], gro
         ax.set_title(f"{title}: tracking error vs {key}".strip(": "), fontsize=10)
         fig.tight_layout()
         path = out_dir / f"tracking_error_vs_{key.replace('/', '_')}.png"
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path, dpi=110)
         plt.close(fig)
         written.append(path)
     return written
@@ -240,8 +242,8 @@ def write_report(rows: Sequence[dict[str, Any]], meta: dict[str, Any], root: Pat
     head = (f"campaign {meta.get('name')}: {len(rows)} of {meta.get('n_runs', len(rows))} runs finished, "
             f"{n_ok} ok, {n_failed} failed{over}{other} (metrics after t = {_after(rows)} s)\n\n")
     text = head + format_markdown(summary)
-    (root / "summary.md").write_text(text, encoding="utf-8")
-    with (root / "summary.csv").open("w", newline="", encoding="utf-8") as fh:
+    write_text(root / "summary.md", text)
+    with atomic_open(root / "summary.csv", newline="") as fh:
         w = csv.writer(fh)
         fields = [f.name for f in dataclasses.fields(SummaryRow)]
         w.writerow(fields)

@@ -384,7 +384,10 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         if options.record_dir is not None or options.live_port is not None:
             sup.start_recorder(recorder_command(options.record_dir, options.run_metadata, namespace=options.namespace,
                                                 compression=options.compression, live_port=options.live_port,
-                                                live_rate_Hz=options.live_rate_Hz))
+                                                live_rate_Hz=options.live_rate_Hz,
+                                                # the free space was checked before the run, by the one rule
+                                                # (vesselbot_ros.sim.scenario.check_resources)
+                                                min_free_mb=0))
             wait_for(mon.recorder_subscribed, options.wait_timeout_s, mon, sup, "the recorder to subscribe to every topic")
             if options.live_port is not None:
                 wait_for(lambda: mon.recorder_live_url() is not None, options.wait_timeout_s, mon, sup,

@@ -35,7 +35,9 @@ import contextlib
 import dataclasses
 import json
 import math
+import os
 import shlex
+import shutil
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -45,6 +47,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from vesselbot_ros.atomic_io import write_error, write_text
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.bag.replay import _import_type
 from vesselbot_ros.bag.writer import BagWriter, check_output_dir
@@ -76,6 +79,8 @@ CLOCK = topic("clock").name
 #: A node that publishes the output and subscribes to some inputs but not all
 #: (e.g. an observer ignoring ``coil/applied``) is fed after this wall time (s).
 PARTIAL_WIRING_GRACE_S = 3.0
+#: Free space a result bag needs besides the source bag's size (bytes): the node's log, params and comparison.json.
+REESTIMATE_HEADROOM_BYTES = 16 * 2**20
 DIAGNOSTICS = topic("diagnostics").name
 REPLAY_NS = resolve(REPLAY_PREFIX)
 
@@ -518,7 +523,9 @@ def reestimate(
     plan = plan_feed(info, role)
     if not plan.ticks:
         raise BagError(f"bag {info.path}: nothing to feed ({plan.stop_reason})")
-    out = check_output_dir(Path(out_dir) if out_dir is not None else info.path / f"reestimate_{role}")
+    # the result bag re-records the fed inputs: about the source bag's size, plus the node's log and the comparison
+    need = sum(p.stat().st_size for p in info.mcap_paths) + REESTIMATE_HEADROOM_BYTES
+    out = check_output_dir(Path(out_dir) if out_dir is not None else info.path / f"reestimate_{role}", min_free_bytes=need)
     log_dir = out / "logs"
     scenario = scenario_from_mapping(plan.run_metadata["config"])
     params = scenario_to_parameters(scenario)
@@ -653,16 +660,33 @@ def reestimate(
     entries.sort()
 
     specs = {s.name: s for s in TOPICS}
-    with BagWriter(out, run_metadata=metadata) as writer:
-        conns: dict[str, Any] = {}
-        for t_ns, _order, name, data in entries:
-            if name not in conns:
-                msgtype = _out_type(role) if name == new_topic else plan.recorded_types.get(name) or specs[name].msgtype
-                depth = specs[name].depth if name in specs else 100
-                conns[name] = writer.add_topic(name, msgtype, depth=depth)
-            writer.write(conns[name], data, t_ns)
-    (out / "comparison.json").write_text(json.dumps(_jsonable(summary), indent=2, sort_keys=True) + "\n",
-                                         encoding="utf-8")
+    # the result bag whole or not at all: written in a work folder inside ``out`` (the MCAP keeps its name), then
+    # its files are renamed in, metadata.yaml last; a full disk leaves ``out`` without a bag and no work folder
+    work = out / f".result-{os.getpid()}" / out.name
+    try:
+        writer = BagWriter(work, run_metadata=metadata).open()
+        try:
+            conns: dict[str, Any] = {}
+            for t_ns, _order, name, data in entries:
+                if name not in conns:
+                    msgtype = (_out_type(role) if name == new_topic
+                               else plan.recorded_types.get(name) or specs[name].msgtype)
+                    depth = specs[name].depth if name in specs else 100
+                    conns[name] = writer.add_topic(name, msgtype, depth=depth)
+                writer.write(conns[name], data, t_ns)
+        except BaseException:
+            writer.abort()
+            raise
+        writer.finish()
+        for f in sorted(work.iterdir(), key=lambda f: f.name == "metadata.yaml"):
+            f.replace(out / f.name)
+    except OSError as exc:
+        raise write_error(out / f"{out.name}.mcap", exc) from None
+    except BagError as exc:  # the writer's own wrapping of an OSError (could not finalise ...)
+        raise BagError(f"cannot write the result bag {out}: {exc}; no partial bag was left") from None
+    finally:
+        shutil.rmtree(work.parent, ignore_errors=True)
+    write_text(out / "comparison.json", json.dumps(_jsonable(summary), indent=2, sort_keys=True) + "\n")
     return ReestimateResult(role, out, fed, answered, len(plan.ticks), comparison, error, t_feed, exit_code)
 
 

@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import vesselbot_ros
+from vesselbot_ros.atomic_io import check_output_file, write_text
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.config import apply_overrides as config_apply_overrides
@@ -159,6 +160,7 @@ def validate_args(args: argparse.Namespace) -> None:
             raise ConfigError(f"--metrics-json {args.metrics_json}: folder {parent} does not exist")
         if args.metrics_json.is_dir():
             raise ConfigError(f"--metrics-json {args.metrics_json} is a directory")
+        check_output_file(args.metrics_json, "--metrics-json")  # a read-only place is refused now, not after the run
 
 
 def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int | None) -> dict[str, Any]:
@@ -241,7 +243,8 @@ def run(args: argparse.Namespace) -> int:
     run_dir = args.record_dir or Path("runs") / f"{stamp}_{scenario.name}"
     if record:
         try:
-            run_dir = check_output_dir(run_dir)  # clear error if unwritable or already a bag
+            # clear error if unwritable or already a bag; its free space was checked above, by the one rule
+            run_dir = check_output_dir(run_dir, min_free_bytes=0)
         except BaseException:
             lease.release()
             raise
@@ -302,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
                    "final": {k: [float(x) for x in result.timeseries[k][-1]] for k in ("p_true", "x_hat", "g_applied")}}
         if result.realtime is not None:  # the same figures and verdict as the printed lines
             payload["real_time"] = result.realtime.as_dict()
-        args.metrics_json.write_text(json.dumps(payload, indent=2, default=float))
+        write_text(args.metrics_json, json.dumps(payload, indent=2, default=float))
     if record:
         print(f"bag: {run_dir}")
         if args.report:

@@ -33,6 +33,7 @@ from typing import Any
 
 import yaml
 
+from vesselbot_ros.atomic_io import write_text
 from vesselbot_ros.config import RESOLVE_TYPE, ConfigError, parse_yaml_text, to_mapping, unflatten
 from vesselbot_ros.sim.kinds import DEFAULT_KINDS, ROLES, SECTIONS, find
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
@@ -196,5 +197,4 @@ def write_params_file(path: str | Path, parameters: Mapping[str, Any], node_name
     """Write a ROS ``--params-file`` holding ``parameters`` for ``node_name``."""
     p = Path(path)
     data = {node_name: {"ros__parameters": dict(parameters)}}
-    p.write_text(yaml.safe_dump(data, sort_keys=False, width=10**6), encoding="utf-8")
-    return p
+    return write_text(p, yaml.safe_dump(data, sort_keys=False, width=10**6))

@@ -83,6 +83,7 @@ def recorder_command(
     compression: str = "none",
     live_port: int | None = None,
     live_rate_Hz: float | None = None,
+    min_free_mb: int | None = None,
 ) -> list[str]:
     """The argv that starts a recorder (the launcher's and replay's way to start one).
 
@@ -97,6 +98,8 @@ def recorder_command(
         live_port: Serve the topics live on this port (None: no live view).
             ``output_dir`` None: live view only.
         live_rate_Hz: Messages per topic and wall second forwarded live, at most (0: all; None: the default).
+        min_free_mb: Free space the recorder checks for before it opens the bag (MiB; None: its default, 256;
+            the launcher passes 0: it checked the run's own estimate before it started anything).
     """
     argv = [python or sys.executable, "-m", "vesselbot_ros.nodes.recorder_node", "--ros-args", *remap_args(namespace),
             "-p", f"output_dir:={_yaml_str(str(output_dir or ''))}"]
@@ -108,6 +111,8 @@ def recorder_command(
         argv += ["-p", f"run_metadata:={_yaml_str(json.dumps(dict(run_metadata), sort_keys=True))}"]
     if compression != "none":
         argv += ["-p", f"compression:={_yaml_str(compression)}"]
+    if min_free_mb is not None:
+        argv += ["-p", f"min_free_mb:={int(min_free_mb)}"]
     if extra_topics:
         argv += ["-p", "extra_topics:=[" + ", ".join(_yaml_str(t) for t in extra_topics) + "]"]
     return argv

@@ -50,6 +50,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.extending import register_jitable
 
+from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import ModelInputError
 
@@ -347,7 +348,7 @@ def fit_profiles_csv(path: str | Path) -> tuple[ProfileTable, dict[float, float]
 
 def save_profile_table(table: ProfileTable, path: str | Path, comment: str = "") -> None:
     """Write ``table`` as CSV: header ``theta_deg,a,b,c,d,e,p,q``, ``#`` comment lines first."""
-    with Path(path).open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(path, newline="") as fh:
         for line in comment.splitlines():
             fh.write(f"# {line}\n")
         w = csv.writer(fh)
@@ -424,7 +425,7 @@ def fig6_reconstruction_samples(n_points: int = 41) -> dict[float, tuple[npt.NDA
 def rebuild_default_table() -> tuple[ProfileTable, dict[float, float]]:
     """Regenerate the reconstruction's sample CSV and its fitted table (``profile_table: reconstruction``)."""
     samples = fig6_reconstruction_samples()
-    with _DEFAULT_SAMPLES.open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(_DEFAULT_SAMPLES, newline="") as fh:
         fh.write("# Qualitative reconstruction of Arcese et al. 2012 Fig. 6 (not CFD); see bifurcation.py\n")
         w = csv.writer(fh)
         w.writerow(("theta_deg", "y", "u"))

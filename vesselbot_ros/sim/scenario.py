@@ -66,6 +66,7 @@ __all__ = [
     "check_resources",
     "BYTES_PER_TICK",
     "BAG_BYTES_PER_TICK",
+    "RECORDING_HEADROOM_BYTES",
     "shipped_scenarios",
     "SCENARIO_DIR",
     "DEFAULT_SCENARIO",
@@ -78,6 +79,9 @@ BYTES_PER_TICK = 512
 FORCE_BYTES_PER_TICK = 8 * 2 * 8
 # What one tick adds to a recorded bag (about 120 MB for 60 s at 1 kHz).
 BAG_BYTES_PER_TICK = 2048
+#: Free space a recorded run needs besides its bag (bytes): the node logs, the bag's metadata and a report's
+#: six figures (vesselbot_ros.bag.report.REPORT_BYTES is 8 MiB of it).
+RECORDING_HEADROOM_BYTES = 16 * 2**20
 
 
 @dataclasses.dataclass(frozen=True)
@@ -406,18 +410,6 @@ def _check_fits_run(seq: SequenceParams, duration_s: float) -> None:
     measurement or without propulsion: every command refuses such a scenario
     (``simulate``, ``run``, ``plan``, ``campaign`` and the scanner study load
     it here).  The message names the key, its value and the run's duration.
-
-    The other times that may exceed the run are harmless, and accepted: a run
-    shorter than them is the same loop as the first seconds of a longer run
-    (``--duration`` makes such a prefix of every shipped scenario):
-    ``coil.command_timeout_s`` and ``controller.stale_timeout_s`` (the
-    watchdog and the safe action then never fire, as in that prefix; the coil
-    still ramps a rejected command to zero from its tick), an imager outlier
-    burst or dropout window that starts after the run (never reached), an
-    imager frame period longer than the run in continuous mode (the frame at
-    t = 0, then the observer predicts), and ``sim.metrics_after_s`` (the
-    metrics cover the whole run and say so, ``metrics_window_note``).  In
-    continuous mode the sequence's windows and latency are unused.
     """
     run = f"sim.duration_s ({duration_s!r} s)"
     for name, value in (("latency_s", seq.latency_s), ("tracking_window_s", seq.tracking_window_s),
@@ -563,10 +555,13 @@ def check_resources(
         while not parent.exists() and parent != parent.parent:
             parent = parent.parent
         free = shutil.disk_usage(parent).free
-        if est.bag_bytes > free:
+        need = est.bag_bytes + RECORDING_HEADROOM_BYTES  # the one rule of `vesselbot run` (the recorder checks no other)
+        if need > free:
             raise ConfigError(
-                f"{what}; its recording needs about {_fmt_bytes(est.bag_bytes)}, more than the "
-                f"{_fmt_bytes(free)} free under {parent}: shorten sim.duration_s, lower sim.control_rate_Hz or use --no-record"
+                f"{what}; recording it to {bag_dir} needs {_fmt_bytes(need)} free ({_fmt_bytes(est.bag_bytes)} of bag "
+                f"at {BAG_BYTES_PER_TICK} B per tick, and {_fmt_bytes(RECORDING_HEADROOM_BYTES)} for the node logs, the "
+                f"bag's metadata and a report), but only {_fmt_bytes(free)} is free on {parent}: free some space, "
+                f"shorten sim.duration_s, lower sim.control_rate_Hz or use --no-record"
             )
     return est
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from vesselbot_ros.atomic_io import atomic_path, check_output_dir, fmt_size, write_text
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.kinds import rejection_warning
 from vesselbot_ros.sim.metrics import metrics_window_note, status_line
@@ -37,6 +38,9 @@ from vesselbot_ros.vessels.cfd import womersley_numbers
 from vesselbot_ros.vessels.network import load_network
 
 __all__ = ["register", "run"]
+
+#: Room for the outputs besides the time series (metrics.json, scenario.yaml), bytes.
+OUTPUT_MARGIN_BYTES = 2**20
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -55,16 +59,20 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the scenario and write metrics and time series; return 0, or 1 if commands were rejected."""
     scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
-    check_resources(scenario)  # before any work: one line if the run does not fit in memory
+    est = check_resources(scenario)  # before any work: one line if the run does not fit in memory
     out = Path(args.out) if args.out else Path("out") / "simulate" / scenario.name
-    out.mkdir(parents=True, exist_ok=True)
+    # before any work too: a folder that cannot be written, or too little room for the outputs, is one line
+    check_output_dir(out, "--out", need_bytes=est.memory_bytes + OUTPUT_MARGIN_BYTES,
+                     need_why=f"{fmt_size(est.memory_bytes)} of time series at most, and 1 MiB for metrics.json and scenario.yaml")
     t0 = time.perf_counter()
     result = run_closed_loop(scenario)
     wall = time.perf_counter() - t0
     metrics = dict(result.metrics, wall_time_s=wall)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    np.savez_compressed(out / "timeseries.npz", **result.timeseries)  # type: ignore[arg-type]  # numpy's stub: a ** dict could hold allow_pickle
-    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_mapping(), sort_keys=False), encoding="utf-8")
+    # each output whole or not at all (a full disk leaves the earlier files, never a 0-byte one)
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    with atomic_path(out / "timeseries.npz") as tmp:
+        np.savez_compressed(tmp, **result.timeseries)  # type: ignore[arg-type]  # numpy's stub: a ** dict could hold allow_pickle
+    write_text(out / "scenario.yaml", yaml.safe_dump(scenario.to_mapping(), sort_keys=False))
     m = metrics
     note = metrics_window_note(m, scenario.sim.metrics_after_s)
     if note:

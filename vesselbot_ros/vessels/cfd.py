@@ -55,7 +55,6 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -63,6 +62,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import shipped_config_dir, to_mapping
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.kernel import pack_network_params, pack_params
@@ -406,18 +406,11 @@ class NetworkField:
     def save(self, path: Path) -> None:
         """Write atomically (temporary file, then rename) as compressed npz."""
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-        os.close(fd)
-        try:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, head=np.array([self.x0_m, self.z0_m, self.h_m, self.nx, self.nz]),
-                                    data=self.data, meta=np.array(json.dumps(self.meta)),
-                                    wall_segments=self.wall_segments, cell_offsets=self.cell_offsets,
-                                    cell_index=self.cell_index)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        with atomic_open(path, "wb") as fh:
+            np.savez_compressed(fh, head=np.array([self.x0_m, self.z0_m, self.h_m, self.nx, self.nz]),
+                                data=self.data, meta=np.array(json.dumps(self.meta)),
+                                wall_segments=self.wall_segments, cell_offsets=self.cell_offsets,
+                                cell_index=self.cell_index)
 
     @classmethod
     def load(cls, path: Path) -> NetworkField:

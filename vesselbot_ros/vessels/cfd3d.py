@@ -67,8 +67,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -77,6 +75,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.errors import RunError
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
@@ -1047,18 +1046,11 @@ def solution_key(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams) -> 
 def _save(sol: FlowSolution3D, path: Path) -> None:
     """Write atomically (temporary file, then rename)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    try:
-        caps = {k: [c.tolist(), n.tolist(), r] for k, (c, n, r) in sol.caps.items()}
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, points=sol.mesh.p, tets=sol.mesh.t.astype(np.int32), u=sol.u, p=sol.p,
-                                info=np.array(json.dumps({"fluxes": sol.fluxes_m3_per_s, "caps": caps,
-                                                          "meta": sol.meta})))
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    caps = {k: [c.tolist(), n.tolist(), r] for k, (c, n, r) in sol.caps.items()}
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, points=sol.mesh.p, tets=sol.mesh.t.astype(np.int32), u=sol.u, p=sol.p,
+                            info=np.array(json.dumps({"fluxes": sol.fluxes_m3_per_s, "caps": caps,
+                                                      "meta": sol.meta})))
 
 
 def _load(path: Path) -> FlowSolution3D:

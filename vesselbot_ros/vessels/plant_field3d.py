@@ -51,8 +51,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -60,6 +58,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.kernel import pack_params
@@ -220,15 +219,8 @@ class PlantField3D:
 
 def _atomic_savez(path: Path, compressed: bool, **arrays: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:
-            (np.savez_compressed if compressed else np.savez)(fh, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_open(path, "wb") as fh:
+        (np.savez_compressed if compressed else np.savez)(fh, **arrays)
 
 
 def shipped_dir() -> Path:

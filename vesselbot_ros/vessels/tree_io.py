@@ -51,10 +51,10 @@ read or written.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
 import os
 import re
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -63,6 +63,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
+from vesselbot_ros.atomic_io import atomic_path, write_text
 from vesselbot_ros.config import ConfigError, load_dataclass, to_mapping
 from vesselbot_ros.vessels.network import CfdParams, VesselNetworkParams
 
@@ -525,17 +526,7 @@ def write_network_yaml(net: VesselNetworkParams, path: str | os.PathLike[str], h
                      for b in m["branches"]]
     text = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
     text += yaml.dump(m, Dumper=_Dumper, sort_keys=False, width=120)
-    out = Path(path)
-    mode = out.stat().st_mode & 0o777 if out.is_file() else 0o644  # mkstemp's file is 0600: give the usual mode
-    fd, tmp = tempfile.mkstemp(dir=out.parent if str(out.parent) else ".", prefix=f".{out.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, mode)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, text)  # whole or not at all (a full disk: one line naming the file, no partial file)
 
 
 def write_vmtk_centerlines(paths: Sequence[Path3], path: str | os.PathLike[str],
@@ -572,10 +563,11 @@ def write_vmtk_centerlines(paths: Sequence[Path3], path: str | os.PathLike[str],
         a = numpy_to_vtk(np.asarray(vals, dtype=np.int32), deep=True)
         a.SetName(nm)
         poly.GetCellData().AddArray(a)
-    w = vtkXMLPolyDataWriter()
-    w.SetFileName(str(path))
-    w.SetInputData(poly)
-    w.SetDataModeToBinary()
-    w.SetCompressorTypeToNone()
-    if w.Write() != 1:
-        raise OSError(f"vtk could not write {str(path)!r}")
+    with atomic_path(path) as tmp:  # whole or not at all
+        w = vtkXMLPolyDataWriter()
+        w.SetFileName(str(tmp))
+        w.SetInputData(poly)
+        w.SetDataModeToBinary()
+        w.SetCompressorTypeToNone()
+        if w.Write() != 1:
+            raise OSError(errno.EIO, "vtk could not write the file", str(path))

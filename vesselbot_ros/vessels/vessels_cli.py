@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vesselbot_ros.atomic_io import check_output_file
+
 __all__ = ["register", "run"]
 
 
@@ -31,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from vesselbot_ros.vessels.tree_io import import_vmtk_centerlines, write_network_yaml
 
     out = Path(args.out)
+    check_output_file(out, "--out")  # before the import: a folder that cannot be written is one line, nothing read
     name = args.name or out.stem
     net = import_vmtk_centerlines(args.file, name=name, length_unit_m=args.unit_m,
                                   split_tolerance=args.split_tolerance, junction_factor=args.junction_factor,

@@ -110,3 +110,64 @@ def test_report_of_a_run_shorter_than_the_window_says_so(synthetic_bag, tmp_path
     assert "ends before the metrics window starts (sim.metrics_after_s = 5 s)" in out
     assert main(["report", str(synthetic_bag[0]), "--out", str(tmp_path / "r"), "--after", "nan"]) == 2
     assert "--after must be a finite time >= 0 s" in capsys.readouterr().err
+
+
+def test_report_on_a_full_disk_leaves_the_earlier_report_and_no_empty_file(synthetic_bag, tmp_path):
+    from vesselbot_ros.testing import cli_on_a_full_disk
+
+    bag = tmp_path / "run1"
+    shutil.copytree(synthetic_bag[0], bag)
+    rep = bag / "report"
+    rep.mkdir()
+    old = {"fig9a_trajectory.png": "an earlier figure", "metrics.json": '{"old": 1}\n'}
+    for name, text in old.items():
+        (rep / name).write_text(text)
+    # the disk fills once the bag is read, before the figures are written
+    child = cli_on_a_full_disk(["report", str(bag)], fill_after="vesselbot_ros.bag.report:read_timeseries")
+    err = child.stderr.strip().splitlines()
+    assert child.returncode == 2, child.stderr
+    assert len(err) == 1 and err[0].startswith("vesselbot report: error: cannot write ")
+    assert f"{rep / 'fig9a_trajectory.png'} (File too large: the disk is full" in err[0]
+    assert {p.name: p.read_text() for p in rep.iterdir()} == old  # no 0-byte figure, no temporary file
+
+
+def test_replay_into_on_a_full_disk_is_one_line_naming_the_folder_and_leaves_nothing(synthetic_bag, tmp_path):
+    from vesselbot_ros.testing import cli_on_a_full_disk
+
+    bag = tmp_path / "run1"
+    shutil.copytree(synthetic_bag[0], bag)
+    before = sorted(p.relative_to(bag) for p in bag.rglob("*"))
+    child = cli_on_a_full_disk(["replay", str(bag), "--into", "observer"])
+    err = child.stderr.strip().splitlines()
+    assert child.returncode == 2, child.stderr
+    assert err == [f"vesselbot replay: error: bag directory {bag / 'reestimate_observer'} is not writable: "
+                   "File too large"]
+    assert sorted(p.relative_to(bag) for p in bag.rglob("*")) == before  # no .write_probe_NNN, no empty folder
+
+
+def test_a_repaired_partial_bag_says_how_much_of_the_run_it_covers(tmp_path, capsys):
+    """A recorder killed at 0.83 s of a 2 s run: repair, info and report each say it covers 0.83 s of 2.00 s."""
+    from conftest import RUN_METADATA, write_synthetic_bag
+
+    meta = dict(RUN_METADATA, config={**RUN_METADATA["config"], "sim": {"duration_s": 2.0, "control_rate_Hz": 1000.0}})
+    live = tmp_path / "live" / "run1"
+    writer, _ = write_synthetic_bag(live, 830, flush_every=10, finish=False, run_metadata=meta)
+    writer.flush()
+    killed = tmp_path / "run1"
+    killed.mkdir()
+    (killed / "run1.mcap").write_bytes(writer.mcap_path.read_bytes())  # what a SIGKILL leaves: chunks, no summary
+    (killed / "run_metadata.json").write_bytes((live / "run_metadata.json").read_bytes())
+    writer.finish()
+    line = "covers 0.83 s of the 2.00 s run (partial: its last tick is at sim t = 0.829 s)"
+    assert main(["bag", "repair", str(killed)]) == 0
+    assert f"  sim time: {line}" in capsys.readouterr().out.splitlines()
+    assert main(["bag", "info", str(killed), "--no-config"]) == 0
+    assert f"Sim time:   {line}" in capsys.readouterr().out.splitlines()
+    assert main(["bag", "info", str(killed), "--json"]) == 0
+    cov = json.loads(capsys.readouterr().out)["coverage"]
+    assert cov["partial"] is True and cov["planned_duration_s"] == 2.0
+    assert cov["sim_time_covered_s"] == pytest.approx(0.83, abs=1e-9)
+    assert main(["report", str(killed), "--out", str(tmp_path / "rep")]) == 0
+    assert f"  the bag {line}" in capsys.readouterr().out.splitlines()
+    metrics = json.loads((tmp_path / "rep" / "metrics.json").read_text())
+    assert metrics["partial"] is True and metrics["coverage"] == line

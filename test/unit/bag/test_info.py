@@ -29,3 +29,15 @@ def test_metadata_count_off_by_one_exits_1_naming_the_topic(synthetic_bag, tmp_p
     out = capsys.readouterr().out
     assert "DOES NOT MATCH" in out
     assert "/vesselbot/gradient_command: metadata.yaml says 1001 messages, the MCAP holds 1000" in out
+
+
+def test_a_bag_says_the_span_of_sim_time_it_covers_against_the_planned_run(synthetic_bag, tmp_path, capsys):
+    from conftest import RUN_METADATA, write_synthetic_bag
+
+    assert main(["bag", "info", str(synthetic_bag[0]), "--no-config"]) == 0  # its config does not say the duration
+    assert ("Sim time:   covers 1.00 s of sim time (0.000 to 0.999 s); the run's planned duration is not recorded"
+            in capsys.readouterr().out.splitlines())
+    meta = dict(RUN_METADATA, config={"sim": {"duration_s": 1.0, "control_rate_Hz": 1000.0}})
+    write_synthetic_bag(tmp_path / "full", 1000, run_metadata=meta)
+    assert main(["bag", "info", str(tmp_path / "full"), "--no-config"]) == 0
+    assert "Sim time:   covers 1.00 s of the 1.00 s run (complete)" in capsys.readouterr().out.splitlines()

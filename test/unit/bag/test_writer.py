@@ -140,8 +140,36 @@ def test_unwritable_or_full_output_directories_fail_before_recording(tmp_path):
     afile.write_text("x")
     with pytest.raises(BagError, match=r"cannot create bag directory .*a_file/run"):
         check_output_dir(afile / "run")
-    with pytest.raises(BagError, match=r"MiB free under .*; recording needs at least"):
+    with pytest.raises(BagError, match=r"MiB free under .*; recording to .*ok needs at least .*; nothing was created"):
         check_output_dir(tmp_path / "ok", min_free_bytes=2**62)
+    assert not (tmp_path / "ok").exists()
+
+
+def test_the_write_probe_never_stays_and_a_refused_folder_is_removed(tmp_path):
+    """On a full disk (a child whose files cannot grow: RLIMIT_FSIZE = 0) the probe's write fails: the probe file,
+    and the folders the check made, are gone; a folder that was there stays, empty."""
+    import subprocess
+    import sys
+    import textwrap
+
+    made, kept = tmp_path / "runs" / "run1", tmp_path / "kept"
+    kept.mkdir()
+    code = textwrap.dedent(f"""
+        import resource
+        resource.setrlimit(resource.RLIMIT_FSIZE, (0, 0))
+        from vesselbot_ros.bag.writer import check_output_dir
+        from vesselbot_ros.errors import BagError
+        for path in ({str(made)!r}, {str(kept)!r}):
+            try:
+                check_output_dir(path)
+            except BagError as exc:
+                print(exc)
+    """)
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.splitlines() == [f"bag directory {made} is not writable: File too large",
+                                         f"bag directory {kept} is not writable: File too large"]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["kept"]  # no .write_probe_NNN, no runs/run1
 
 
 def test_unknown_types_and_duplicate_topics_are_clear_errors(tmp_path):

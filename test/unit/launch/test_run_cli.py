@@ -172,3 +172,43 @@ def test_a_run_whose_commands_were_rejected_warns_in_one_line_and_exits_1(tmp_pa
     import json
 
     assert json.loads(out_json.read_text())["metrics"]["rejected_commands"] == metrics["rejected_commands"]
+
+
+@pytest.mark.parametrize("target", ["/sys/vesselbot_metrics.json", "/sys/kernel/uevent_seqnum"],
+                         ids=["new-file-in-a-read-only-folder", "read-only-file"])
+def test_metrics_json_to_a_read_only_place_is_refused_before_anything_runs(tmp_path, monkeypatch, capsys, target):
+    # a chmod 0o500 folder stops no one running as root (the tests do); sysfs refuses a new file and a write to a
+    # read-only attribute, whoever asks
+    if not Path(target).parent.is_dir() or (target.endswith("seqnum") and not Path(target).is_file()):
+        pytest.skip("no sysfs here")
+    import vesselbot_ros.sim.scenario as scenario_module
+
+    def no_run(*a, **k):
+        raise AssertionError("the scenario was loaded: the run went on")
+
+    monkeypatch.setattr(scenario_module, "load_scenario", no_run)
+    monkeypatch.chdir(tmp_path)
+    rc = cli.main(["run", "--no-record", "--metrics-json", target])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert err[0].startswith(f"vesselbot run: error: --metrics-json {target} is not writable (Permission denied)")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_run_that_does_not_fit_on_the_disk_is_one_line_with_both_sizes_and_leaves_no_bag_folder(
+        tmp_path, monkeypatch, capsys):
+    """8 MB free: one line naming the bag folder, the estimate (3.9 MiB of bag), what it needs in all and what is
+    free, by the one rule (no second 256 MiB minimum), and no empty bag folder."""
+    import collections
+    import shutil
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**10, 10**10, 8 * 10**6))
+    bag = tmp_path / "runs" / "r1"
+    rc = cli.main(["run", "--record-dir", str(bag)])  # the default: 2 s at 1 kHz
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert f"recording it to {bag} needs 19.9 MiB free (3.9 MiB of bag at 2048 B per tick, and 16.0 MiB for the " \
+           f"node logs, the bag's metadata and a report), but only 7.6 MiB is free on {tmp_path}" in err[0]
+    assert "256" not in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -168,7 +168,8 @@ def test_resource_check_is_a_scenario_layer_function(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"time series need about .* more than the 1\.0 KiB"):
         check_resources(s, memory_budget_bytes=1024)
     big = load_scenario(SOUND, sets=["sim.duration_s=1e5", "reference.duration_s=2"])
-    with pytest.raises(ConfigError, match=r"its recording needs about .* free under .*--no-record"):
+    with pytest.raises(ConfigError, match=r"recording it to .* needs .* free \(.* of bag .*\), but only .* is free on "
+                                          r".*--no-record"):
         check_resources(big, bag_dir=tmp_path, memory_budget_bytes=2**62)
 
 
