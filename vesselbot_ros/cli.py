@@ -31,7 +31,7 @@ EXIT_CODES = """exit codes:
   0    done
   1    the run completed but its result cannot be trusted, said in one warning line on stderr (commands the coil
        rejected: non-finite, not a command, a controller that raised: it ramped to zero; a missed real-time verdict;
-       campaign: runs that failed or rejected commands)
+       campaign: every run failed, or some runs rejected commands or diverged)
   2    bad input or an error, in one line (config, model input, bag, run, file system)
   130  interrupted (Ctrl-C)
   141  stdout closed (| head)"""
