@@ -117,7 +117,7 @@ def _assert_ramp_to_zero(r, victim):
         # the message names the sim time of the dead node's last output as its reader got it (the driver's last
         # command), not a progress sample of the plant (it used to name one, up to a second of wall time older)
         k_cmd = int(round(t[last_cmd] / DT_S))
-        assert (f"its last output: /vesselbot/gradient_command of tick {k_cmd} (t = {t[last_cmd]:.3f} s), "
+        assert (f"its last message: /vesselbot/gradient_command of tick {k_cmd} (t = {t[last_cmd]:.3f} s), "
                 "as vesselbot_coil_driver received it") in r["err"], r["err"]
     return t_zero, bound
 

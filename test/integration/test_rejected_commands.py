@@ -122,6 +122,7 @@ def test_the_graph_gives_the_runners_numbers(nan_run):
     finally:
         sys.path.remove(str(PLUGINS))
     ros = nan_run["json"]
+    assert pure.metrics["rejected_commands"] == ros["metrics"]["rejected_commands"] == N - K_BAD
     for k, v in pure.metrics.items():
         if isinstance(v, float) and math.isnan(v):
             assert math.isnan(ros["metrics"][k]), k

@@ -321,6 +321,7 @@ def run(args: argparse.Namespace) -> int:
     if rt is not None:
         if rt.failed:
             print(f"vesselbot run: error: {rt.verdict_line()}", file=sys.stderr)
+            _trust(result.metrics)  # rejected commands are said too: a real-time failure does not hide them
             return 1
         for line in rt.warnings:
             print(f"vesselbot run: warning: real time held, but {line}", file=sys.stderr)

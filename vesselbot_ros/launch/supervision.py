@@ -176,7 +176,7 @@ def last_output(mon: Any, outputs: Sequence[str], t_found: float, dt: float, dea
         return "no living node reported an output of it (its last output's time is unknown)"
     k, t, name = best
     when = "" if fresh else " at least (no report of its readers since it died came in time)"
-    return f"its last output: {t} of tick {k} (t = {k * dt:.3f} s){when}, as {name} received it"
+    return f"its last message: {t} of tick {k} (t = {k * dt:.3f} s){when}, as {name} received it"
 
 
 def wait_for(pred: Callable[[], bool], timeout: float, mon: Any, sup: Supervisor | None, what: str,

@@ -61,7 +61,7 @@ def test_a_dead_nodes_last_output_is_the_tick_its_readers_last_got_not_a_progres
                 "vesselbot_plant": {"tick": "326"}},
                {"vesselbot_coil_driver": now + 0.1, "vesselbot_plant": now + 0.1})
     line = last_output(mon, ["/vesselbot/gradient_command"], now, 1e-3, ["vesselbot_controller"])
-    assert line == ("its last output: /vesselbot/gradient_command of tick 499 (t = 0.499 s), "
+    assert line == ("its last message: /vesselbot/gradient_command of tick 499 (t = 0.499 s), "
                     "as vesselbot_coil_driver received it")
     assert mon.spins == 0
 
