@@ -50,6 +50,7 @@ from vesselbot_ros.config import ConfigError
 from vesselbot_ros.config import apply_overrides as config_apply_overrides
 from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
+from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
 
 __all__ = ["register", "run", "apply_overrides", "check_plugin_stages"]
@@ -184,12 +185,12 @@ def check_plugin_stages(scenario: Any, without: Sequence[str] = ()) -> None:
     is already up.  Built here first, it is one line naming the kind and the exception (ConfigError: exit 2),
     before any node starts or any directory is made.  The built stages are thrown away.
     """
-    from vesselbot_ros.graph_spec import role as graph_role  # the role -> stage names of the graph spec
-    from vesselbot_ros.sim import kinds  # deferred: the core's registry (numba); `vesselbot run --help` imports this
+    # deferred: the core's registry and stage builder (numba); `vesselbot run --help` imports this module
+    from vesselbot_ros.sim import kinds
     from vesselbot_ros.sim.closed_loop import build_stage
 
     for r in LOOP_ROLES:
-        stage = graph_role(r).stage
+        stage = graph_role(r).stage  # the graph spec's role -> stage name
         if r in without or stage not in kinds.SECTIONS:
             continue
         section = kinds.SECTIONS[stage]
@@ -333,7 +334,7 @@ def _trust(m: dict[str, Any]) -> int:
     from vesselbot_ros.sim.kinds import rejection_warning  # deferred: the core (see run)
 
     if m.get("diverged_at_s") is not None:  # it left the vessel (sim/metrics.py's rule)
-        from vesselbot_ros.sim.metrics import status_line
+        from vesselbot_ros.sim.metrics import status_line  # deferred: the core (see run)
 
         print(f"vesselbot: {status_line(m)}", file=sys.stderr)
     warning = rejection_warning(m)
