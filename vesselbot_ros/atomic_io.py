@@ -46,6 +46,7 @@ __all__ = [
     "write_text",
     "write_bytes",
     "write_error",
+    "failure_reason",
     "save_figure",
     "check_output_dir",
     "check_output_file",
@@ -74,12 +75,19 @@ def _why(exc: OSError) -> str:
     return text
 
 
+def failure_reason(exc: OSError) -> str:
+    """Why a write failed, in words (``File too large: the disk is full or ...``), without the path."""
+    return exc.reason if isinstance(exc, OutputError) and exc.reason else _why(exc)
+
+
 def write_error(path: str | os.PathLike[str], exc: OSError) -> OutputError:
     """The one-line error of a file that could not be written at ``path``."""
     if isinstance(exc, OutputError):
         return exc
-    return OutputError(exc.errno or errno.EIO, f"cannot write {path} ({_why(exc)}); "
-                       f"no partial file was left, an earlier {Path(path).name} is unchanged", str(path))
+    err = OutputError(exc.errno or errno.EIO, f"cannot write {path} ({_why(exc)}); "
+                      f"no partial file was left, an earlier {Path(path).name} is unchanged", str(path))
+    err.reason = _why(exc)
+    return err
 
 
 def _umask() -> int:

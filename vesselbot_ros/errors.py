@@ -56,5 +56,8 @@ class OutputError(OSError, VesselbotError):
     the path and what was left as it was.
     """
 
+    #: Why it failed, without the path (``File too large: the disk is full ...``); "" if not known.
+    reason: str = ""
+
     def __str__(self) -> str:
         return str(self.strerror)

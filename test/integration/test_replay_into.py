@@ -176,3 +176,22 @@ def test_into_refuses_an_existing_result_and_options_without_into(bag, tmp_path)
     assert proc.returncode == 2 and "already holds a bag (metadata.yaml" in proc.stderr, proc.stderr
     proc = _replay(str(bag), "--node-cmd", "x")
     assert proc.returncode == 2 and "need --into observer|controller" in proc.stderr, proc.stderr
+
+
+def test_into_on_a_disk_that_fills_after_the_feed_leaves_no_partial_result_bag(bag, tmp_path):
+    """The disk fills once the node's answers are in, before the result bag is written: one error line naming the
+    result bag, no partial bag (no MCAP, no metadata.yaml, no work folder), exit 2."""
+    from vesselbot_ros.testing import cli_on_a_full_disk
+
+    out = tmp_path / "into"
+    child = cli_on_a_full_disk(["replay", str(bag), "--into", "observer", "--out", str(out)],
+                               fill_after="vesselbot_ros.launch.reestimate:compare_outputs", cwd=REPO, timeout=300)
+    errors = [ln for ln in child.stderr.splitlines() if "error" in ln]
+    assert child.returncode == 2, child.stderr
+    assert len(errors) == 1 and errors[0].startswith(f"vesselbot replay: error: cannot write the result bag {out} ("), \
+        child.stderr
+    assert "File too large: the disk is full" in errors[0] and errors[0].endswith(
+        f"no partial bag was left (the node's log is in {out / 'logs'})")
+    assert "Traceback" not in child.stderr
+    left = sorted(p.name for p in out.iterdir())
+    assert "logs" in left and not [n for n in left if n.endswith(".mcap") or n.startswith(".") or n == "metadata.yaml"]

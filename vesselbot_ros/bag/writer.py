@@ -68,7 +68,7 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from vesselbot_ros.atomic_io import probe_dir, write_text
+from vesselbot_ros.atomic_io import failure_reason, probe_dir, write_text
 from vesselbot_ros.errors import BagError
 
 __all__ = [
@@ -446,10 +446,11 @@ class BagWriter:
             raise BagError(f"cannot open bag {self.path}: {exc}") from None
         try:
             write_text(self.path / RUN_METADATA_FILE, self._run_json + "\n")
-        except OSError as exc:
+        except OSError as exc:  # an OutputError (the file is not left half-written)
             with contextlib.suppress(OSError):
                 writer.storage.abort()  # type: ignore[union-attr]  # set by writer.open()
-            raise BagError(f"cannot open bag {self.path}: {exc}") from None
+            raise BagError(f"cannot open bag {self.path}: cannot write {RUN_METADATA_FILE} "
+                           f"({failure_reason(exc)})") from None
         self._writer = writer
         return self
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -47,11 +48,11 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from vesselbot_ros.atomic_io import write_error, write_text
+from vesselbot_ros.atomic_io import failure_reason, write_text
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.bag.replay import _import_type
 from vesselbot_ros.bag.writer import BagWriter, check_output_dir
-from vesselbot_ros.errors import BagError, VesselbotError
+from vesselbot_ros.errors import BagError, OutputError, VesselbotError
 from vesselbot_ros.graph_spec import REPLAY_PREFIX, TOPICS, qos_profile, resolve, role, tick_of_ns, topic
 from vesselbot_ros.launch.processes import ChildProcess
 from vesselbot_ros.nodes.graph_params import GraphParams
@@ -680,10 +681,11 @@ def reestimate(
         writer.finish()
         for f in sorted(work.iterdir(), key=lambda f: f.name == "metadata.yaml"):
             f.replace(out / f.name)
-    except OSError as exc:
-        raise write_error(out / f"{out.name}.mcap", exc) from None
-    except BagError as exc:  # the writer's own wrapping of an OSError (could not finalise ...)
-        raise BagError(f"cannot write the result bag {out}: {exc}; no partial bag was left") from None
+    except (OSError, BagError) as exc:  # BagError: the writer's own wrapping of an OSError (could not finalise ...)
+        why = (failure_reason(exc) if isinstance(exc, OSError) else str(exc)).replace(str(work), str(out))
+        raise OutputError(getattr(exc, "errno", None) or errno.EIO,
+                          f"cannot write the result bag {out} ({why}); no partial bag was left (the node's log is "
+                          f"in {out / 'logs'})", str(out)) from None
     finally:
         shutil.rmtree(work.parent, ignore_errors=True)
     write_text(out / "comparison.json", json.dumps(_jsonable(summary), indent=2, sort_keys=True) + "\n")
