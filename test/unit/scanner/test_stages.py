@@ -112,6 +112,32 @@ def test_sequenced_coil_hold_keeps_the_output_and_the_slew_clock() -> None:
         coil.hold(k0 * dt)  # time never goes back
 
 
+def test_the_sequenced_coil_ramps_a_rejected_command_to_zero_within_the_window() -> None:
+    """Inside a propulsion window a non-finite command (or ``reject``: not a command) moves the output towards zero
+    by at most S dt per tick and flags it; it is never held (issue 38)."""
+    from vesselbot_ros.scanner.stages import SequencedCoil
+    from vesselbot_ros.sim.closed_loop import build_stages
+
+    m = _multiplexed()
+    m["coil"].update(slew_rate="custom", custom_slew_rate_T_per_m_per_s=2.0)
+    sc = scenario_from_mapping(m)
+    coil = build_stages(sc).coil
+    assert isinstance(coil, SequencedCoil)
+    seq, dt = sc.sequence, sc.sim.dt_control_s
+    k0 = next(k for k in range(1000) if all(phase_at(seq, (k + i) * dt) == "propulsion" for i in range(6)))
+    out = coil.apply(k0 * dt, np.array([1.0, 1.0]))
+    out = coil.apply((k0 + 1) * dt, np.array([1.0, 1.0]))
+    g1 = out.applied
+    step = sc.coil.slew_rate_T_per_m_per_s * dt
+    assert np.all(np.abs(g1) > 1.5 * step)
+    nan = coil.apply((k0 + 2) * dt, np.array([np.nan, 0.0]))
+    assert nan.rejected and np.all(np.abs(nan.applied) < np.abs(g1))
+    assert np.all(np.abs(nan.applied - g1) <= step * (1 + 1e-9)) and np.any(np.abs(nan.applied - g1) > 0.5 * step)
+    rej = coil.reject((k0 + 3) * dt)
+    assert rej.rejected and np.all(np.abs(rej.applied) < np.abs(nan.applied))
+    assert np.all(np.abs(rej.applied - nan.applied) <= step * (1 + 1e-9))
+
+
 # ---- three axes (3-D vessel trees) --------------------------------------------------------------------
 SEQ3D = ["sequence.mode=multiplexed", "sequence.tracking_window_s=0.002", "sequence.dead_time_s=0.001",
          "sequence.propulsion_window_s=0.004", "sequence.latency_s=0.001", "imager.frame_rate_Hz=500",
