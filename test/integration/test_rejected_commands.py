@@ -143,3 +143,21 @@ def test_a_plugin_whose_constructor_raises_stops_the_run_before_any_node_starts(
     assert "vesselbot_graph_fault_plugin:RaisingCtor" in lines[0] and "RuntimeError: no licence for this coil" in lines[0]
     assert not bag.exists() and not (tmp_path / "runs").exists()  # no run directory, no logs: nothing started
     assert "vesselbot run:" not in p.stdout  # the banner is printed when the graph starts
+
+
+def test_a_controller_that_raises_in_its_step_is_contained_counted_and_named(tmp_path):
+    """The plug-in raises from 0.1 s on: the node survives, every such tick is a rejected command (the coil ramps to
+    zero), and the warning names the exception, with the runner's numbers (it used to kill the controller node)."""
+    cfg = write_config(tmp_path / "cfg", controller={"kind": KIND, "after_s": 0.1, "mode": "raise"},
+                       sim__duration_s=0.3, sim__metrics_after_s=0.05)
+    out = tmp_path / "m.json"
+    p = subprocess.run(run_cmd("--config", str(cfg), "--no-record", "--metrics-json", str(out), "--quiet"),
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300, env=_env())
+    assert p.returncode == 1, p.stdout + p.stderr
+    warnings = [line for line in p.stderr.splitlines() if "warning" in line]
+    assert warnings == ["vesselbot: warning: 200 of 300 controller commands rejected (the controller raised; first: "
+                        "ZeroDivisionError: the law divided by zero at t = 0.100 s) from t = 0.100 s; "
+                        "the coil ramped to zero"], p.stderr
+    m = json.loads(out.read_text())
+    assert m["metrics"]["rejected_commands"] == 200 and m["final"]["g_applied"] == [0.0, 0.0]
+    assert "died" not in p.stderr
