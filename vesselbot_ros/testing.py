@@ -16,6 +16,9 @@
 * :func:`cli_on_a_full_disk` runs a ``vesselbot`` command in a child
   process whose files cannot grow (``RLIMIT_FSIZE``), from the start or once
   a given step has returned: a full disk, without filling one.
+* :func:`cli_under_memory_limit` runs a ``vesselbot`` command in a child
+  process whose address space is limited (``RLIMIT_AS``): a step too large
+  for the machine fails there, not on the machine.
 
 Example::
 
@@ -43,7 +46,7 @@ from vesselbot_ros.nodes.calls import Resend
 from vesselbot_ros.ros_env import allocate_domain, apply_to_process, restore_process_env, ros_environment
 
 __all__ = ["RosSandbox", "isolated_ros", "NodeProcess", "spin_until", "call_service", "spin_node", "fill_message",
-           "cli_on_a_full_disk"]
+           "cli_on_a_full_disk", "cli_under_memory_limit", "MEMORY_LIMIT_BYTES"]
 
 
 @dataclass
@@ -234,3 +237,34 @@ def cli_on_a_full_disk(argv: Sequence[str], fill_after: str = "", cwd: str | os.
     """
     return subprocess.run([sys.executable, "-c", _FULL_DISK_CHILD, fill_after, *argv], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout)
+
+
+#: The address space :func:`cli_under_memory_limit` gives a command by default: 3 GiB.  A ``vesselbot`` command
+#: reserves 0.5-0.7 GiB of it (numba's and llvmlite's, vtk's and gmsh's libraries; measured ``VmPeak`` of
+#: ``vessels import`` and of a refused ``simulate``), so a step of a few GiB cannot start.
+MEMORY_LIMIT_BYTES = 3 * 2**30
+
+
+def _limit_address_space(limit: int) -> Callable[[], None]:
+    def apply() -> None:
+        import resource  # deferred: POSIX only, and only the child needs it
+
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    return apply
+
+
+def cli_under_memory_limit(argv: Sequence[str], limit_bytes: int = MEMORY_LIMIT_BYTES,
+                           cwd: str | os.PathLike[str] | None = None,
+                           timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """Run ``vesselbot ARGV`` in a child process whose address space is at most ``limit_bytes`` (``RLIMIT_AS``).
+
+    An allocation past the limit fails in the child (``MemoryError``, or a library's own error) instead of
+    taking the machine's memory; a command that estimates its steps first refuses them in one line.
+
+    Returns:
+        The finished process (text stdout and stderr).
+    """
+    code = "import sys\nfrom vesselbot_ros.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+    return subprocess.run([sys.executable, "-c", code, *argv], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, preexec_fn=_limit_address_space(limit_bytes))

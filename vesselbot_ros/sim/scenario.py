@@ -61,6 +61,7 @@ __all__ = [
     "with_overrides",
     "scenario_with",
     "scenario_from_mapping",
+    "short_copy",
     "scenario_overrides",
     "estimate_resources",
     "check_resources",
@@ -410,6 +411,18 @@ def _check_fits_run(seq: SequenceParams, duration_s: float) -> None:
     measurement or without propulsion: every command refuses such a scenario
     (``simulate``, ``run``, ``plan``, ``campaign`` and the scanner study load
     it here).  The message names the key, its value and the run's duration.
+
+    The other times that may exceed the run are harmless, and accepted: a run
+    shorter than them is the same loop as the first seconds of a longer run
+    (``--duration`` makes such a prefix of every shipped scenario):
+    ``coil.command_timeout_s`` and ``controller.stale_timeout_s`` (the
+    watchdog and the safe action then never fire, as in that prefix; the coil
+    still ramps a rejected command to zero from its tick), an imager outlier
+    burst or dropout window that starts after the run (never reached), an
+    imager frame period longer than the run in continuous mode (the frame at
+    t = 0, then the observer predicts), and ``sim.metrics_after_s`` (the
+    metrics cover the whole run and say so, ``metrics_window_note``).  In
+    continuous mode the sequence's windows and latency are unused.
     """
     run = f"sim.duration_s ({duration_s!r} s)"
     for name, value in (("latency_s", seq.latency_s), ("tracking_window_s", seq.tracking_window_s),
@@ -427,6 +440,24 @@ def _check_fits_run(seq: SequenceParams, duration_s: float) -> None:
         raise ConfigError(f"sequence.dead_time_s={seq.dead_time_s!r}: the first propulsion window opens at "
                           f"sequence.start_s + tracking_window_s + dead_time_s = {first_push:.6g} s, not before the "
                           f"run ends ({run})")
+
+
+def short_copy(scenario: Scenario, duration_s: float) -> Scenario:
+    """``scenario`` run for ``duration_s`` only: a warm-up's throwaway copy (its first calls load compiled code).
+
+    A multiplexed sequence's windows shrink to one or two control ticks, with
+    no latency and no dead time, so that its first frame and its first
+    propulsion window fall within the copy's few ticks (the loader refuses a
+    sequence that does not fit in its run, :func:`_check_fits_run`); every
+    stage still runs the same code.  A continuous scenario keeps its sequence.
+    """
+    sim = dataclasses.replace(scenario.sim, duration_s=duration_s)
+    seq = scenario.sequence
+    if seq.mode == "multiplexed":
+        dt = sim.dt_control_s
+        seq = dataclasses.replace(seq, start_s=0.0, tracking_window_s=2.0 * dt, dead_time_s=0.0,
+                                  propulsion_window_s=dt, latency_s=0.0)
+    return dataclasses.replace(scenario, sim=sim, sequence=seq)
 
 
 def scenario_from_mapping(mapping: Any) -> Scenario:
@@ -538,7 +569,10 @@ def check_resources(
 
     Raises:
         ConfigError: one line naming ``sim.duration_s`` and
-            ``sim.control_rate_Hz``, what the run needs and what is available.
+            ``sim.control_rate_Hz``, what the run needs and what is available;
+            for a 3-D tree whose wall and flow are not yet built, naming the
+            ``cfd`` key whose build would not fit
+            (:func:`vesselbot_ros.vessels.plant_field3d.check_build`).
     """
     est = estimate_resources(scenario)
     budget = _memory_budget_bytes() if memory_budget_bytes is None else memory_budget_bytes
@@ -550,6 +584,10 @@ def check_resources(
             f"{_fmt_bytes(budget)} a run may use (half of this machine's memory): shorten sim.duration_s or lower "
             f"sim.control_rate_Hz"
         )
+    if scenario.dims == 3:  # the 3-D plant's wall and flow, built once per tree: bounded before any node starts
+        from vesselbot_ros.vessels.plant_field3d import check_build  # deferred: the 3-D wall's numba kernels
+
+        check_build(load_network(scenario.physics.vessel.network), scenario.physics.blood, quiet=True)
     if bag_dir is not None:
         parent = Path(bag_dir).expanduser().absolute()
         while not parent.exists() and parent != parent.parent:

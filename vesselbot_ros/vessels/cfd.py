@@ -55,6 +55,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -75,6 +76,7 @@ from vesselbot_ros.physics.meshed_wall import (
     wall_segments,
 )
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
+from vesselbot_ros.resources import fmt_bytes, require_fits
 from vesselbot_ros.vessels.network import (
     NetworkGeometry,
     VesselNetworkParams,
@@ -90,6 +92,19 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
 CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (physics/meshed_wall.py), wall-disc local diameter, cap-snapped velocity
+
+# What a new field costs, estimated before it is solved (check_field_fits); measured on a 20 mm tube of
+# 1.5 mm radius (a 2-core machine, loaded): mesh 0.3 mm, 6548 triangles, solved in 6 s; mesh 0.1 mm, 78762
+# triangles, 355 s and 3.3 GB; 825 thousand grid nodes sampled in 187 s and 366 MB.
+#: gmsh's triangles per (lumen area / cfd.mesh_size_m^2) (10-14 measured).
+TRIANGLES_PER_AREA_H2 = 14.0
+#: The solve's memory per triangle (P2/P1 Taylor-Hood, the sparse LU's fill), bytes.
+TRIANGLE_BYTES = 48.0 * 1024
+#: The solve's time: ``SOLVE_S_REF`` at ``SOLVE_TRIANGLES_REF`` triangles, growing as their number to ``SOLVE_POWER``.
+SOLVE_S_REF, SOLVE_TRIANGLES_REF, SOLVE_POWER = 6.5, 6500.0, 1.6
+#: Memory and time per node of the sampling grid (bytes, s).
+GRID_NODE_BYTES = 512.0
+GRID_NODE_SECONDS = 2.5e-4
 
 
 def cache_dir() -> Path:
@@ -526,6 +541,44 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     return NetworkField(x0, z0, h, nx, nz, np.ascontiguousarray(data), meta, segs, off, idx)
 
 
+def field_estimate(net: VesselNetworkParams) -> tuple[float, float]:
+    """(triangles of the mesh, nodes of the sampling grid) a new field of ``net`` would have (module constants)."""
+    area = 0.0
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    for b in net.branches:
+        pts = np.column_stack([b.x_m, b.z_m]).astype(np.float64)
+        rad = b.radii()
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        area += float((seg * (rad[1:] + rad[:-1])).sum())  # 2 r per unit length
+        lo = np.minimum(lo, (pts - rad[:, None]).min(axis=0))
+        hi = np.maximum(hi, (pts + rad[:, None]).max(axis=0))
+    c = net.cfd
+    triangles = TRIANGLES_PER_AREA_H2 * area / c.mesh_size_m ** 2
+    nodes = float(np.prod((hi - lo + 2.0 * c.grid_margin_m) / c.grid_spacing_m + 2.0))
+    return triangles, nodes
+
+
+def check_field_fits(net: VesselNetworkParams) -> tuple[float, float]:
+    """Refuse, before it starts, a new field of ``net`` whose solve or sampling would not fit (memory, time).
+
+    Returns:
+        (triangles, grid nodes) estimated.
+
+    Raises:
+        ConfigError: one line naming ``cfd.mesh_size_m`` or ``cfd.grid_spacing_m``, its value and the estimate.
+    """
+    triangles, nodes = field_estimate(net)
+    c = net.cfd
+    seconds = SOLVE_S_REF * (triangles / SOLVE_TRIANGLES_REF) ** SOLVE_POWER
+    require_fits("cfd.mesh_size_m", c.mesh_size_m, TRIANGLE_BYTES * triangles, seconds,
+                 what=f"the 2-D flow solve of network {net.name!r} ({triangles:.3g} triangles)",
+                 hint="raise cfd.mesh_size_m")
+    require_fits("cfd.grid_spacing_m", c.grid_spacing_m, GRID_NODE_BYTES * nodes, GRID_NODE_SECONDS * nodes,
+                 what=f"the sampled field of network {net.name!r} ({nodes:.3g} grid nodes)",
+                 hint="raise cfd.grid_spacing_m")
+    return triangles, nodes
+
+
 def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool = False) -> NetworkField:
     """The sampled field of ``net`` for ``blood``: shipped, cached, or solved, sampled and cached.
 
@@ -543,6 +596,10 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
                 return NetworkField.load(found)
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
+    triangles, nodes = check_field_fits(net)  # before any work: one line if it does not fit
+    print(f"meshing {net.name} (about {triangles:.3g} triangles, est. "
+          f"{fmt_bytes(max(TRIANGLE_BYTES * triangles, GRID_NODE_BYTES * nodes))}; solved once, then cached)",
+          file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     sol = solve_flow(net, blood)
     field = sample_field(net, blood, sol)

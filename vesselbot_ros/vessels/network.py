@@ -90,8 +90,9 @@ MAX_LENGTH_M = 1.0
 SAMPLE_BYTES = 256.0
 #: The overlap check's time per pair of samples of two branches (s; numpy, measured ~20 ns, rounded up).
 OVERLAP_SECONDS_PER_PAIR = 4.0e-8
-#: The overlap check compares this many pairs of samples at a time (bounded memory: ~100 bytes a pair).
-_OVERLAP_BLOCK_PAIRS = 1 << 20
+#: The overlap check compares blocks of this many samples of one branch with as many of another (bounded
+#: memory: ~100 bytes a pair), skipping the pairs of blocks too far apart to touch.
+_OVERLAP_BLOCK = 1024
 
 
 def _all_zero(values: tuple[float, ...]) -> bool:
@@ -405,6 +406,44 @@ def _check_sizes(net: VesselNetworkParams) -> None:
                      what=f"branch {net.branches[i].name!r}'s smoothing spline", hint="thin its points or use smoothing: none")
 
 
+def _blocks(q: npt.NDArray[np.float64], r: npt.NDArray[np.float64]
+            ) -> list[tuple[int, npt.NDArray[np.float64], npt.NDArray[np.float64], float]]:
+    """(start, box low, box high, largest radius) of each block of :data:`_OVERLAP_BLOCK` consecutive samples."""
+    out = []
+    for lo in range(0, len(q), _OVERLAP_BLOCK):
+        qq = q[lo:lo + _OVERLAP_BLOCK]
+        out.append((lo, qq.min(axis=0), qq.max(axis=0), float(r[lo:lo + _OVERLAP_BLOCK].max())))
+    return out
+
+
+def _worst_overlap(qa: npt.NDArray[np.float64], ra: npt.NDArray[np.float64], qb: npt.NDArray[np.float64],
+                   rb: npt.NDArray[np.float64]) -> tuple[float, int, int, float, float] | None:
+    """The pair of samples whose tubes overlap most, ``(need - d, ia, ib, d, need)``, or None if none do.
+
+    ``np.argmax`` of ``need - d`` over all (ia, ib) (its first maximum), in blocks of samples: two blocks
+    whose boxes lie farther apart than their largest radii's sum hold no overlap and are skipped, so the memory
+    is one block pair's and the time grows with the pairs that come close, not with all of them.
+    """
+    best: tuple[float, int, int, float, float] | None = None
+    bb = _blocks(qb, rb)
+    for la, alo, ahi, amax in _blocks(qa, ra):
+        for lb, blo, bhi, bmax in bb:
+            gap = np.maximum(0.0, np.maximum(blo - ahi, alo - bhi))
+            if float(_norm(gap[None, :])[0]) >= amax + bmax:
+                continue
+            d = _norm(qa[la:la + _OVERLAP_BLOCK, None, :] - qb[None, lb:lb + _OVERLAP_BLOCK, :])
+            need = ra[la:la + _OVERLAP_BLOCK, None] + rb[None, lb:lb + _OVERLAP_BLOCK]
+            if not (d < need).any():
+                continue
+            excess = need - d
+            k = int(np.argmax(excess))
+            ka, kb = np.unravel_index(k, d.shape)
+            cand = (float(excess.flat[k]), la + int(ka), lb + int(kb), float(d[ka, kb]), float(need[ka, kb]))
+            if best is None or cand[0] > best[0] or (cand[0] == best[0] and cand[1:3] < best[1:3]):
+                best = cand  # ties: the first in (ia, ib) order, as one argmax over the whole array
+    return best
+
+
 def _check_overlaps(net: VesselNetworkParams) -> None:
     """Raise ConfigError naming two branches whose tubes overlap away from their common node.
 
@@ -433,18 +472,7 @@ def _check_overlaps(net: VesselNetworkParams) -> None:
                 continue
             qa, qb = pa[ma], pb[mb]
             rqa, rqb = ra[ma], rb[mb]
-            worst: tuple[float, int, int, float, float] | None = None  # (need - d, ia, ib, d, need), first maximum
-            step = max(1, _OVERLAP_BLOCK_PAIRS // len(qb))
-            for lo in range(0, len(qa), step):  # blocks of rows: bounded memory, the same first maximum
-                d = _norm(qa[lo:lo + step, None, :] - qb[None, :, :])
-                need = rqa[lo:lo + step, None] + rqb[None, :]
-                if not (d < need).any():
-                    continue
-                excess = need - d
-                k = int(np.argmax(excess))
-                ka, kb = np.unravel_index(k, d.shape)
-                if worst is None or excess.flat[k] > worst[0]:
-                    worst = (float(excess.flat[k]), lo + int(ka), int(kb), float(d[ka, kb]), float(need[ka, kb]))
+            worst = _worst_overlap(qa, rqa, qb, rqb)
             if worst is not None:
                 _e, ia, ib, dist, sum_r = worst
                 where = (0.5 * (qa[ia] + qb[ib])).tolist()

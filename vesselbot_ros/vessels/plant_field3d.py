@@ -51,6 +51,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -65,10 +66,12 @@ from vesselbot_ros.physics.kernel import pack_params
 from vesselbot_ros.physics.meshed_wall3d import Wall3D
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.physics.wall_field3d import build_wall_field3d, grid_box
+from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline_3d
 
-__all__ = ["PlantField3D", "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
+__all__ = ["PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
+           "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
            "WallArrays",
            "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
 
@@ -96,6 +99,24 @@ EXACT_DEPTH = 5
 LIST_MAX = 256
 #: Vertices are stored in the samples' file on this lattice (m).
 _QUANTUM_M = 1.0e-9
+
+# What a tree's samples and wall field cost, estimated before they are built (:func:`build_estimate`).
+#: gmsh's tetrahedra per (lumen volume / edge^3), the edge the lumen's or the wall's (2 pi r / elements per
+#: circle), whichever is smaller: fitted to the shipped trees' flow meshes (5.3-5.8).
+TETS_PER_EDGE_VOLUME = 6.0
+#: The 3-D flow solve's memory and time per tetrahedron (P2/P1 assembly, AMG, FGMRES): measured 23-28 KB and
+#: 2.3 ms on a tube of 5-12 thousand, the shipped trees solved in 0.9-2.9 ms each (a 2-core machine, loaded).
+TET_BYTES = 32.0 * 1024
+TET_SECONDS = 3.0e-3
+#: The plant's wall: triangles per (wall area / size^2), the size :func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`'s
+#: ``sqrt(6 r sag)`` (fitted to the shipped walls: 2.2-2.6); memory (gmsh, the exact wall's tree) and time each.
+TRIANGLES_PER_SIZE_AREA = 2.7
+WALL_TRIANGLE_BYTES = 1024.0
+WALL_TRIANGLE_SECONDS = 1.0e-4
+#: Per node of the plant's grid: the sampling's float64 copies and the wall field's build (the synthetic tree:
+#: 7.6 million nodes, 480 MB and 165 s for the wall field), bytes and s.
+NODE_BYTES = 192.0
+NODE_SECONDS = 5.0e-5
 
 Array = npt.NDArray[np.float64]
 
@@ -290,6 +311,86 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str) -> PlantFiel
     return PlantField3D(net.name, key, verts, tri, dict(wm.caps), origin, h, (nx, ny, nz), vel32, meta, view_verts, vtri)
 
 
+@dataclasses.dataclass(frozen=True)
+class Build3DEstimate:
+    """What building a tree's samples and wall field would take (:func:`build_estimate`).
+
+    Attributes:
+        tets: Tetrahedra of the flow mesh.  triangles: Triangles of the plant's wall.  nodes: Nodes of the grid.
+        solve_bytes, solve_s: The flow solve's peak memory (bytes) and time (s).
+        sample_bytes, sample_s: The wall mesh's, the grid's sampling's and the wall field's.
+    """
+
+    tets: float
+    triangles: float
+    nodes: float
+    solve_bytes: float
+    solve_s: float
+    sample_bytes: float
+    sample_s: float
+
+
+def build_estimate(net: VesselNetworkParams) -> Build3DEstimate:
+    """Estimate, from the smoothed centrelines alone, what :func:`plant_field` and :func:`wall_arrays` would build."""
+    st = flow_settings(net)
+    h = grid_spacing_m(net)
+    vol = tris = 0.0
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for b in net.branches:
+        p, r, arc = smooth_centreline_3d(b, net.smoothing, net.sample_spacing_m)
+        dl, rm = np.diff(arc), 0.5 * (r[1:] + r[:-1])
+        edge = np.minimum(st.mesh_size_m, 2.0 * np.pi * rm / st.wall_elements_per_circle)
+        vol += float((np.pi * rm ** 2 * dl / edge ** 3).sum())
+        size2 = np.minimum(6.0 * rm * WALL_SAG_M, 1.0e-6)
+        tris += float((2.0 * np.pi * rm * dl / size2).sum())
+        lo = np.minimum(lo, (p - r[:, None]).min(axis=0))
+        hi = np.maximum(hi, (p + r[:, None]).max(axis=0))
+    tets = TETS_PER_EDGE_VOLUME * vol
+    tris *= TRIANGLES_PER_SIZE_AREA
+    nodes = float(np.prod((hi - lo + 2.0 * (GRID_MARGIN_M + 2.0 * h)) / h + 1.0))
+    return Build3DEstimate(tets, tris, nodes, TET_BYTES * tets, TET_SECONDS * tets,
+                           WALL_TRIANGLE_BYTES * tris + NODE_BYTES * nodes, WALL_TRIANGLE_SECONDS * tris + NODE_SECONDS * nodes)
+
+
+def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, quiet: bool = False) -> Build3DEstimate | None:
+    """Refuse, before anything is meshed, a tree whose samples or wall field would not fit (memory, time).
+
+    Nothing is estimated when the samples and the wall field are shipped or cached.  Otherwise one line on
+    stderr says what will be built (``meshing <tree> (about N cells, est. M MiB)``) unless ``quiet``.
+
+    Returns:
+        The estimate, or None if nothing is to be built.
+
+    Raises:
+        ConfigError: one line naming ``cfd.mesh_size_3d_m`` (the flow solve) or ``cfd.grid_spacing_3d_m`` (the
+            grid and the wall), its value and the estimate.
+    """
+    blood = blood if blood is not None else BloodParams()
+    key = field_key(net, blood)
+    have_samples = any((d / f"{net.name}-{key}.3d.npz").is_file() for d in (shipped_dir(), cfd3d.cache_dir()))
+    if have_samples and (cfd3d.cache_dir() / f"{net.name}-{key}.wall.npz").is_file():
+        return None
+    est = build_estimate(net)
+    c = net.cfd
+    if not have_samples:
+        mesh = repr(c.mesh_size_3d_m) if c.mesh_size_3d_m > 0.0 else f"0 (the default, {flow_settings(net).mesh_size_m:g} m)"
+        require_fits("cfd.mesh_size_3d_m", mesh, est.solve_bytes, est.solve_s,
+                     what=f"the 3-D flow solve of tree {net.name!r} ({est.tets:.3g} tetrahedra)",
+                     hint="raise cfd.mesh_size_3d_m or lower cfd.wall_elements_per_circle_3d in the tree's cfd: block")
+    spacing = repr(c.grid_spacing_3d_m) if c.grid_spacing_3d_m > 0.0 else f"0 (the default, {DEFAULT_SPACING_M:g} m)"
+    require_fits("cfd.grid_spacing_3d_m", spacing, est.sample_bytes, est.sample_s,
+                 what=f"the 3-D wall and grid of tree {net.name!r} ({est.nodes:.3g} grid nodes, "
+                      f"{est.triangles:.3g} wall triangles)",
+                 hint="raise cfd.grid_spacing_3d_m in the tree's cfd: block")
+    if not quiet:
+        cells = f"{est.tets:.3g} cells, " if not have_samples else ""
+        peak = max(est.solve_bytes if not have_samples else 0.0, est.sample_bytes)
+        secs = (est.solve_s if not have_samples else 0.0) + est.sample_s
+        print(f"meshing {net.name} (about {cells}{est.nodes:.3g} grid nodes, est. {fmt_bytes(peak)}, "
+              f"up to {fmt_seconds(secs)}; built once, then cached)", file=sys.stderr, flush=True)
+    return est
+
+
 @functools.lru_cache(maxsize=8)
 def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, refresh: bool = False) -> PlantField3D:
     """The samples of ``net`` for ``blood`` (default: the shipped scenarios' blood): shipped, cached, or solved.
@@ -309,6 +410,7 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
                 return PlantField3D.load(found)
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
+    check_build(net, blood)  # before anything is meshed: one line if it does not fit, else one saying what is built
     fld = _sample(net, blood, key)
     with contextlib.suppress(OSError):  # a full or read-only cache: the run goes on with the samples in memory
         fld.save(cached)

@@ -65,7 +65,7 @@ import yaml
 
 from vesselbot_ros.atomic_io import atomic_path, write_text
 from vesselbot_ros.config import ConfigError, load_dataclass, to_mapping
-from vesselbot_ros.vessels.network import CfdParams, VesselNetworkParams
+from vesselbot_ros.vessels.network import MAX_LENGTH_M, MAX_RADIUS_M, MIN_RADIUS_M, CfdParams, VesselNetworkParams
 
 __all__ = [
     "RADIUS_ARRAY",
@@ -432,6 +432,27 @@ def _split_form_mapping(f: CentrelineFile, scale: float, name: str, source: str,
     return {"name": name, "branches": branches}
 
 
+def _check_units(f: CentrelineFile, length_unit_m: float, src: str) -> None:
+    """Refuse, before any work, a file whose radii or extent are not a blood vessel's in ``length_unit_m``.
+
+    A vessel's radius lies in [:data:`~vesselbot_ros.vessels.network.MIN_RADIUS_M`,
+    :data:`~vesselbot_ros.vessels.network.MAX_RADIUS_M`] and a tree spans at most
+    :data:`~vesselbot_ros.vessels.network.MAX_LENGTH_M` (a file in mm read with ``--unit-m 1`` is 1000 times
+    too large: its tubes would be metres wide and its samples billions).
+    """
+    rad = np.concatenate([r for _p, r in f.lines]) * length_unit_m
+    pts = np.concatenate([p for p, _r in f.lines]) * length_unit_m
+    extent = float((pts.max(axis=0) - pts.min(axis=0)).max())
+    lo, hi = float(rad.min()), float(rad.max())
+    unit = f"length_unit_m (--unit-m) = {length_unit_m!r}"
+    if lo < MIN_RADIUS_M or hi > MAX_RADIUS_M:
+        raise ConfigError(f"{src}: with {unit} its radii are {lo:.3g} to {hi:.3g} m, outside a blood vessel's "
+                          f"{MIN_RADIUS_M:g} to {MAX_RADIUS_M:g} m: is the unit right (VMTK works in mm: 1e-3)?")
+    if extent > MAX_LENGTH_M:
+        raise ConfigError(f"{src}: with {unit} it spans {extent:.3g} m, more than a vessel tree's "
+                          f"{MAX_LENGTH_M:g} m: is the unit right (VMTK works in mm: 1e-3)?")
+
+
 def _network_name(path: Path, name: str | None) -> str:
     if name:
         return name
@@ -472,6 +493,7 @@ def import_vmtk_centerlines(path: str | os.PathLike[str], *, name: str | None = 
     f = read_vmtk_centerlines(p, radius_array)
     nm = _network_name(p, name)
     src = f"VMTK centreline file {str(path)!r}"
+    _check_units(f, length_unit_m, src)
     try:
         if f.branch_split:
             mapping = _split_form_mapping(f, length_unit_m, nm, src, junction_factor)

@@ -18,7 +18,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="the centreline file (.vtp, or legacy .vtk)")
     p.add_argument("--out", required=True, help="the network YAML to write (nothing is written on an error)")
     p.add_argument("--name", default=None, help="the network's name (default: the output file's stem)")
-    p.add_argument("--unit-m", type=float, default=1.0e-3, help="the file's length unit in metres (default 1e-3: mm)")
+    p.add_argument("--unit-m", type=float, default=1.0e-3,
+                   help="the file's length unit in metres (default 1e-3: mm); in it the radii must be a blood "
+                        "vessel's, 1 um to 20 mm, and the tree span at most 1 m (vesselbot_ros.vessels.network: "
+                        "MIN_RADIUS_M, MAX_RADIUS_M, MAX_LENGTH_M), else the file is refused (a network YAML too)")
     p.add_argument("--split-tolerance", type=float, default=0.5,
                    help="raw paths part where one leaves the tube of this fraction of the other's radius (0.5)")
     p.add_argument("--junction-factor", type=float, default=1.0,

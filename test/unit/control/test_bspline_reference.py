@@ -231,3 +231,41 @@ def test_anchors_y_m_of_another_length_or_non_finite_is_one_line_naming_it() -> 
         ReferenceParams(anchors_y_m=(0.0, 1e-3))
     with pytest.raises(ConfigError, match=r"anchors_y_m\[1\]"):
         ReferenceParams(anchors_y_m=(0.0, math.nan, 0.0, 0.0))
+
+
+# --- issue 38 section 3: the reference's spline set-up is bounded before it starts -------------------------------
+
+
+def test_a_reference_of_35000_anchors_is_refused_before_its_spline_is_built(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A 0.6 MB scenario of 35000 anchors: the old set-up made a 9.13 GiB identity matrix (and a dense solve of
+    35002^2 Python floats); now one line names the key, the count and the estimate, exit 2, under a 3 GiB limit."""
+    import yaml
+
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    n = 35000
+    path = tmp_path / "many.yaml"
+    path.write_text(yaml.safe_dump({"name": "many", "reference": {"anchors_x_m": [i * 1e-7 for i in range(n)],
+                                                                  "anchors_z_m": [0.0] * n}}, width=1 << 30))
+    proc = cli_under_memory_limit(["simulate", "--config", str(path), "--out", str(tmp_path / "out")], timeout=60)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "reference.anchors_x_m=35000 points: the reference's B-spline set-up needs about" in lines[0]
+    assert "GiB of memory" in lines[0] and "use fewer anchors" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_anchor_bound_is_the_resource_check_s_estimate(monkeypatch: pytest.MonkeyPatch) -> None:
+    from vesselbot_ros import resources
+    from vesselbot_ros.resources import spline_setup_cost
+
+    monkeypatch.setattr(resources, "memory_budget_bytes", lambda: 8 * 2**30)  # a machine of 16 GiB
+
+    b, s = spline_setup_cost(35000)
+    assert b == pytest.approx(112.0 * 35002 ** 2) and s == pytest.approx(0.8e-6 * 35002 ** 2)
+    pts = np.linspace(0.0, 9e-3, 2000)
+    ReferenceParams(anchors_x_m=tuple(pts), anchors_z_m=(0.0,) * 2000)  # 0.45 GB, 3 s: fits a machine's budget
+    with pytest.raises(ConfigError, match=r"^anchors_x_m=20000 points: the reference's B-spline set-up needs about "
+                                          r"41\.7 GiB of memory, more than the 8\.0 GiB"):
+        ReferenceParams(anchors_x_m=tuple(np.linspace(0.0, 9e-3, 20000)), anchors_z_m=(0.0,) * 20000)

@@ -90,3 +90,13 @@ def test_route_end_is_validated_and_left_out_of_the_mapping_when_spaced() -> Non
         ReferenceParams(route_end="last")  # type: ignore[arg-type]
     assert "route_end" not in to_mapping(ReferenceParams())
     assert to_mapping(ReferenceParams(route_end="at_margin"))["route_end"] == "at_margin"
+
+
+def test_a_planned_anchor_spacing_whose_spline_would_not_fit_is_refused_with_the_estimate() -> None:
+    """10 cm of route at 10 nm: 10 million planned anchors (the old planner made them, then the dense spline)."""
+    from vesselbot_ros.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^reference\.route_anchor_spacing_m=1e-08: the reference's B-spline set-up "
+                                          r"through 1e\+07 planned anchors needs about [0-9.]+ TiB of memory"):
+        anchor_arcs(0.0, 0.1, 1e-8)
+    assert len(anchor_arcs(0.0, 0.1, 2.5e-3)) == 40

@@ -320,3 +320,83 @@ def test_synthetic_tree_obeys_murrays_law_over_four_generations() -> None:
             assert ra ** 3 / r ** 3 == pytest.approx(0.6, rel=1e-5)
     g = NetworkGeometry3D(net)
     assert g.radius("b0").max() == pytest.approx(1.5e-3) and min(g.radius(n).min() for n in g.names) == pytest.approx(0.6e-3)
+
+
+# --- issue 38 section 3: sizes and physical limits, refused before anything is allocated -----------------------
+
+
+def _one_line_refusal(proc, *fragments: str) -> str:  # type: ignore[no-untyped-def]
+    """A refused command: exit 2, one line on stderr naming every fragment, no traceback."""
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-3000:])
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr, proc.stderr[-3000:]
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, proc.stderr
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+    return str(lines[0])
+
+
+@pytest.mark.parametrize(("radius", "rule"), [(1e6, "got 1000000.0"), (2.5e-2, "got 0.025"), (5e-7, "got 5e-07")])
+def test_a_radius_no_blood_vessel_has_is_refused_naming_the_limits(radius: float, rule: str) -> None:
+    with pytest.raises(ConfigError, match=r"branches\[0\]\.radius_m\[0\] must be a blood vessel's lumen radius, "
+                                          r"between 1e-06 and 0\.02 m, " + rule):
+        _net([dict(Y[0], radius_m=[radius])])
+
+
+def test_a_branch_or_a_network_longer_than_a_body_is_refused() -> None:
+    with pytest.raises(ConfigError, match=r"branches\[0\]\.x_m, z_m: a branch is at most 1 m long, got 1\.5 m"):
+        _net([dict(Y[0], x_m=[0.0, 1.5])])
+    far = [dict(Y[0], x_m=[0.0, 0.6]), dict(Y[1], parent="a", x_m=[0.6, 1.2], z_m=[0.0, 0.01])]
+    with pytest.raises(ConfigError, match=r"branches: a network spans at most 1 m along x, y and z, got \[1\.2, 0\.0, 0\.01\]"):
+        _net(far)
+
+
+def test_a_sample_spacing_whose_samples_would_not_fit_is_refused_with_the_estimate() -> None:
+    # 22 mm of centreline at 1e-12 m: 2.2e10 samples; the old check built them (and their pairs) first
+    with pytest.raises(ConfigError, match=r"^sample_spacing_m=1e-12: the network's 2\.22e\+10 centreline samples .* needs about "
+                                          r"[0-9.]+ TiB of memory"):
+        _net(Y, sample_spacing_m=1e-12)
+
+
+def test_the_overlap_check_in_blocks_finds_the_whole_array_s_first_worst_pair(monkeypatch: pytest.MonkeyPatch) -> None:
+    from vesselbot_ros.vessels import network
+
+    monkeypatch.setattr(network, "_OVERLAP_BLOCK", 16)  # many blocks, some skipped, on small arrays
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        na, nb = (int(v) for v in rng.integers(1, 120, 2))
+        # walks (blocks of consecutive samples lie together, as a centreline's do; far blocks are skipped), on a
+        # 0.05 lattice (many ties)
+        qa = np.round(np.cumsum(rng.normal(0.0, 0.03, (na, 3)), axis=0) * 20.0) / 20.0
+        qb = np.round((np.cumsum(rng.normal(0.0, 0.03, (nb, 3)), axis=0) + rng.uniform(-0.5, 0.5, 3)) * 20.0) / 20.0
+        ra, rb = np.round(rng.uniform(0, 0.05, na), 2), np.round(rng.uniform(0, 0.05, nb), 2)
+        d = np.hypot(np.hypot(*(qa[:, None, ::2] - qb[None, :, ::2]).transpose(2, 0, 1)), qa[:, None, 1] - qb[None, :, 1])
+        need = ra[:, None] + rb[None, :]
+        got = network._worst_overlap(qa, ra, qb, rb)
+        if (d < need).any():
+            ia, ib = np.unravel_index(int(np.argmax(need - d)), d.shape)
+            assert got is not None and got[1:3] == (ia, ib)
+            assert got[3] == d[ia, ib] and got[4] == need[ia, ib]
+        else:
+            assert got is None
+
+
+def test_a_long_network_validates_in_bounded_memory_and_its_flow_solve_is_refused_with_the_estimate(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A 0.7 m Y (the old overlap check made a 4+ GiB array of its daughters' sample pairs): validated within a
+    3 GiB address space, and the 2-D flow solve its default mesh would need is refused in one line, exit 2."""
+    import yaml
+
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    net = {"name": "long_y", "branches": [
+        {"name": "trunk_a", "parent": "", "x_m": [-2e-3, 0.3], "z_m": [0.0, 0.0], "radius_m": [1.5e-3]},
+        {"name": "upper", "parent": "trunk_a", "x_m": [0.3, 0.65], "z_m": [0.0, 0.2], "radius_m": [1.19e-3]},
+        {"name": "lower", "parent": "trunk_a", "x_m": [0.3, 0.65], "z_m": [0.0, -0.2], "radius_m": [1.19e-3]}]}
+    path = tmp_path / "long_y.yaml"
+    path.write_text(yaml.safe_dump(net))
+    proc = cli_under_memory_limit(["simulate", "--config", "paper_iiic_network_upper", "--set",
+                                   f"physics.vessel.network={path}", "--out", str(tmp_path / "out")],
+                                  cwd=tmp_path, timeout=120)
+    line = _one_line_refusal(proc, "cfd.mesh_size_m=0.0001", "the 2-D flow solve of network 'long_y'", "GiB")
+    assert "triangles) needs about" in line
+    assert not (tmp_path / "out").exists()

@@ -85,3 +85,70 @@ def test_settings_follow_the_cfd_block() -> None:
     iiic = load_network("config/vessels/paper_iiic_artery_3d.yaml")
     assert pf.flow_settings(iiic).mesh_size_m == pytest.approx(1.2 * iiic.cfd.mesh_size_m)
     assert pf.grid_spacing_m(iiic) == pf.DEFAULT_SPACING_M
+
+
+# --- issue 38 section 3: a tree's wall and flow are estimated and bounded before anything is meshed -------------
+
+
+def _own_tree(tmp_path, cfd: dict | None = None):  # type: ignore[no-untyped-def]
+    """The carotid tree as a user's own file, with no ``cfd:`` block (or the given one)."""
+    import yaml
+
+    t = yaml.safe_load((pf.shipped_dir().parent / "vessels" / "carotid_bifurcation_3d.yaml").read_text())
+    t.pop("cfd", None)
+    t["name"] = "my_tree"
+    if cfd is not None:
+        t["cfd"] = cfd
+    path = tmp_path / "my_tree.yaml"
+    path.write_text(yaml.safe_dump(t))
+    return path
+
+
+def test_a_tree_without_a_cfd_block_is_refused_before_meshing_with_the_estimate(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The default fine mesh of a user's tree (the old `simulate` meshed and solved it for 290+ s and 5.9 GB, saying
+    nothing): one line naming the key, its default and the estimate, exit 2, under a 3 GiB address space."""
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    tree = _own_tree(tmp_path)
+    proc = cli_under_memory_limit(["simulate", "--config", "carotid_bifurcation_3d_eca", "--set",
+                                   f"physics.vessel.network={tree}", "--out", str(tmp_path / "out")], timeout=120)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "cfd.mesh_size_3d_m=0 (the default, 0.00012 m): the 3-D flow solve of tree 'my_tree'" in lines[0]
+    assert "tetrahedra) needs about" in lines[0] and "GiB of memory" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_build_estimate_matches_the_shipped_trees_and_says_what_it_builds(tmp_path, monkeypatch,  # type: ignore[no-untyped-def]
+                                                                             capsys) -> None:
+    """The estimate against what the shipped trees' meshes have (their files' meta): within a factor 1.5."""
+    for name in ("carotid_bifurcation_3d", "paper_iiic_artery_3d", "synthetic_tree_3d"):
+        net = load_network(name)
+        est = pf.build_estimate(net)
+        fld = pf.plant_field(net)
+        assert fld.meta["solve"]["n_tets"] / 1.5 < est.tets < 1.5 * fld.meta["solve"]["n_tets"]
+        assert fld.meta["wall_triangles"] / 1.5 < est.triangles < 1.5 * fld.meta["wall_triangles"]
+        assert fld.meta["nodes"] / 1.5 < est.nodes < 1.5 * fld.meta["nodes"]
+    monkeypatch.setenv("VESSELBOT_CFD_CACHE", str(tmp_path / "cache"))
+    carotid = load_network("carotid_bifurcation_3d")
+    assert pf.check_build(carotid) is not None  # shipped samples, its wall field not yet built here: no solve
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("meshing carotid_bifurcation_3d (about 1.8e+06 grid nodes, est. ")
+    key = pf.field_key(carotid, BloodParams())
+    (tmp_path / "cache" / "3d").mkdir(parents=True)
+    (tmp_path / "cache" / "3d" / f"carotid_bifurcation_3d-{key}.wall.npz").write_bytes(b"")
+    assert pf.check_build(carotid) is None  # nothing to build, nothing said
+    assert capsys.readouterr().err == ""
+    net = load_network(str(_own_tree(tmp_path, {"mesh_size_3d_m": 8e-4, "wall_elements_per_circle_3d": 24,
+                                                "grid_spacing_3d_m": 2.5e-4})))
+    monkeypatch.setattr("vesselbot_ros.resources.memory_budget_bytes", lambda: 64 * 2**30)
+    est = pf.check_build(net)
+    assert est is not None
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"meshing my_tree (about {est.tets:.3g} cells, {est.nodes:.3g} grid nodes, est. ")
+    monkeypatch.setattr("vesselbot_ros.resources.memory_budget_bytes", lambda: 2**30)
+    with pytest.raises(ConfigError, match=r"^cfd\.mesh_size_3d_m=0\.0008: the 3-D flow solve of tree 'my_tree' \(4\.92e\+04 "
+                                          r"tetrahedra\) needs about 1\.5 GiB of memory, more than the 1\.0 GiB"):
+        pf.check_build(net)

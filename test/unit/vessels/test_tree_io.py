@@ -256,3 +256,51 @@ def test_daughters_take_their_radius_from_beyond_the_junctions_sphere(tmp_path: 
     assert set(plain["b0_0"].radius_m) == {1.2e-3} and set(plain["b0_0_0"].radius_m) == {0.9e-3}
     with pytest.raises(ConfigError, match=r"junction_factor must be in \[0, 10\], got -1.0"):
         import_vmtk_centerlines(tmp_path / "plain.vtp", junction_factor=-1.0)
+
+
+# --- issue 38 section 3: a file in the wrong unit is refused at import, before any sample is made -------------
+
+
+def _refused(proc, *fragments: str) -> str:  # type: ignore[no-untyped-def]
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-3000:])
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr, proc.stderr[-3000:]
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, proc.stderr
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+    return str(lines[0])
+
+
+def test_import_in_metres_of_a_file_in_mm_is_refused_in_one_line_within_a_memory_limit(tmp_path: Path) -> None:
+    """``--unit-m 1`` on a file in mm: tubes metres wide along 40 m (the old importer went on to a 17.5 GiB
+    array of sample pairs); refused naming the option, its value and the radii it gives, nothing written."""
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    write_vmtk_centerlines(RAW, tmp_path / "t.vtp")
+    assert sum(len(p) for p, _r in RAW) == 353
+    proc = cli_under_memory_limit(["vessels", "import", str(tmp_path / "t.vtp"), "--out", str(tmp_path / "t.yaml"),
+                                   "--unit-m", "1"], timeout=60)
+    _refused(proc, "t.vtp", "length_unit_m (--unit-m) = 1.0", "radii are 0.9 to 1.5 m", "1e-06 to 0.02 m")
+    assert not (tmp_path / "t.yaml").exists()
+
+
+def test_a_radius_of_1e6_mm_is_refused_at_import(tmp_path: Path) -> None:
+    """The old importer accepted it (and ``simulate`` ended in a gmsh traceback)."""
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    p, r = RAW[2]
+    write_vmtk_centerlines([RAW[0], RAW[1], (p, np.where(np.arange(len(r)) == 60, 1e6, r))], tmp_path / "huge.vtp")
+    proc = cli_under_memory_limit(["vessels", "import", str(tmp_path / "huge.vtp"), "--out", str(tmp_path / "h.yaml")],
+                                  timeout=60)
+    _refused(proc, "huge.vtp", "radii are 0.0009 to 1e+03 m", "outside a blood vessel's 1e-06 to 0.02 m")
+    write_vmtk_centerlines([(p, r / 100.0) for p, r in RAW], tmp_path / "thin.vtp")  # radii right in 0.1 m, not lengths
+    with pytest.raises(ConfigError, match=r"thin\.vtp'?: with length_unit_m \(--unit-m\) = 0\.1 it spans 3 m, more than a "
+                                          r"vessel tree's 1 m"):
+        import_vmtk_centerlines(tmp_path / "thin.vtp", length_unit_m=0.1)
+
+
+def test_the_importer_s_help_states_the_limits(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["vessels", "import", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "1 um to 20 mm" in text and "at most 1 m" in text and "MAX_RADIUS_M" in text
