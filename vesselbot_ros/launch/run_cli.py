@@ -18,7 +18,9 @@ completed but cannot be trusted: the coil rejected commands (non-finite, a
 controller that raised or returned no command, a diverged estimate, a wrong
 frame from a user's node: the coil ramped to zero at the slew limit from each
 such tick; ``rejected_commands`` and ``first_rejected_command_s`` in the
-summary and ``--metrics-json``, one warning line) or the run diverged; 2
+summary and ``--metrics-json``, one warning line), a lockstep tick had no
+valid command in time (the coil driver's watchdog answered it:
+``watchdog_ticks``, one warning line) or the run diverged; 2
 invalid arguments or configuration (every argument is checked before
 anything is started or any directory is created: one line naming it; a
 plug-in stage kind is built once in the launcher, so a constructor that
@@ -326,13 +328,15 @@ def run(args: argparse.Namespace) -> int:
             return 1
         for line in rt.warnings:
             print(f"vesselbot run: warning: real time held, but {line}", file=sys.stderr)
-    return _trust(result.metrics)
+    return _trust(result.metrics, lockstep_watchdog=args.mode == "lockstep")
 
 
-def _trust(m: dict[str, Any]) -> int:
-    """The run completed: 0, or 1 with one line when it cannot be trusted (diverged, commands rejected), as simulate."""
+def _trust(m: dict[str, Any], lockstep_watchdog: bool = False) -> int:
+    """The run completed: 0, or 1 with one line per reason it cannot be trusted (diverged, commands rejected,
+    lockstep ticks the coil driver's watchdog answered), as simulate."""
     from vesselbot_ros.sim.kinds import rejection_warning  # deferred: the core (see run)
 
+    code = 0 if m.get("status", "ok") == "ok" else 1
     if m.get("diverged_at_s") is not None:  # it left the vessel (sim/metrics.py's rule)
         from vesselbot_ros.sim.metrics import status_line  # deferred: the core (see run)
 
@@ -340,8 +344,14 @@ def _trust(m: dict[str, Any]) -> int:
     warning = rejection_warning(m)
     if warning:  # the coil rejected commands and ramped to zero: the run flew on no command
         print(f"vesselbot: warning: {warning}", file=sys.stderr)
-        return 1
-    return 0 if m.get("status", "ok") == "ok" else 1
+        code = 1
+    n_wd = int(m.get("watchdog_ticks") or 0)
+    if lockstep_watchdog and n_wd > 0:  # no valid command came in time: the coil held, then ramped to zero
+        print(f"vesselbot: warning: {n_wd} of {m.get('n_ticks', '?')} ticks got no valid controller command in "
+              "time: the coil driver's watchdog answered them (held for coil.command_timeout_s of sim time, then "
+              "ramped to zero)", file=sys.stderr)
+        code = 1
+    return code
 
 
 def _print_summary(result: Any) -> None:

@@ -148,6 +148,10 @@ def test_without_the_controller_its_kind_is_not_built(tmp_path, monkeypatch):
      ["vesselbot: warning: 1500 of 2000 controller commands rejected (non-finite) from t = 0.500 s",
       "the coil ramped to zero"]),
     ({"rejected_commands": 0, "n_ticks": 2000, "status": "ok"}, 0, []),
+    # lockstep ticks the coil driver's watchdog answered (a user's node sent nothing usable in time): not ok either
+    ({"rejected_commands": 0, "n_ticks": 2000, "status": "ok", "watchdog_ticks": 37}, 1,
+     ["vesselbot: warning: 37 of 2000 ticks got no valid controller command in time: the coil driver's watchdog "
+      "answered them"]),
 ])
 def test_a_run_whose_commands_were_rejected_warns_in_one_line_and_exits_1(tmp_path, capsys, monkeypatch, metrics,
                                                                           code, needles):
