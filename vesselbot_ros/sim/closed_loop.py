@@ -86,7 +86,7 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
 from vesselbot_ros.sim import compiled_loop, compiled_loop3d, kinds
 from vesselbot_ros.sim.metrics import compute_metrics
-from vesselbot_ros.sim.scenario import Scenario
+from vesselbot_ros.sim.scenario import Scenario, short_copy
 
 __all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES",
            "PATHS", "REPLACEABLE"]
@@ -210,8 +210,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
         stages: Names of the stages to warm (fields of :class:`Stages`); ``None``
             runs a few ticks of the whole per-tick loop.  A node warms its own.
     """
-    sim = dataclasses.replace(scenario.sim, duration_s=WARM_TICKS / scenario.sim.control_rate_Hz)
-    short = dataclasses.replace(scenario, sim=sim)
+    short = short_copy(scenario, WARM_TICKS / scenario.sim.control_rate_Hz)  # a multiplexed sequence fits its ticks
     if stages is None:
         run_closed_loop(short, path="per_tick")
         return

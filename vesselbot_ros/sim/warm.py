@@ -12,7 +12,7 @@ import dataclasses as dc
 
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
-from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios, short_copy
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
 
@@ -28,7 +28,7 @@ def warm() -> None:
                                                                       dead_time_s=0.001, propulsion_window_s=0.003,
                                                                       latency_s=0.001)))
     for sc in scenarios:
-        sc = dc.replace(sc, sim=dc.replace(sc.sim, duration_s=0.01))
+        sc = short_copy(sc, 0.01)  # a multiplexed sequence shrunk to fit the 10 ticks (the same compiled code)
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
         run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
         run_many(sc, [0, 1], workers=2)

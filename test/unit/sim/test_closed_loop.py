@@ -212,7 +212,7 @@ def test_stages_built_one_at_a_time_run_the_same_loop_as_build_stages(name: str)
 def test_warm_up_of_each_stage_leaves_a_later_run_unchanged_and_names_unknown_stages() -> None:
     from vesselbot_ros.sim.closed_loop import Stages, build_stage, warm_up
 
-    s = _short(load_scenario("clinical_3t_small_artery"), 0.02)
+    s = _short(load_scenario("clinical_3t_small_artery"), 0.05)  # its first frame reaches the observer at 0.04 s
     before = run_closed_loop(s, 1, path="per_tick")
     for stage in Stages._fields:
         warm_up(s, [stage])

@@ -34,17 +34,14 @@ def test_a_sequence_that_cannot_fit_in_the_run_is_refused_naming_key_value_and_d
         load_scenario(CLINICAL, sets=sets)
 
 
-def test_the_shipped_sequence_fits_and_a_long_latency_that_fits_is_kept() -> None:
-    assert load_scenario(CLINICAL).sequence.latency_s == 0.02
-    assert load_scenario(CLINICAL, sets=["sequence.latency_s=1.5"]).sequence.latency_s == 1.5
-    # continuous mode does not use the sequence's windows (imager.latency_s applies): not refused
-    assert load_scenario(SOUND, sets=["sequence.latency_s=10"]).sequence.latency_s == 10.0
-
-
-def test_an_imager_latency_as_long_as_the_run_is_refused() -> None:
+def test_a_latency_is_refused_only_when_no_frame_reaches_the_observer_within_the_run() -> None:
     with pytest.raises(ConfigError, match=r"^imager\.latency_s must be < sim\.duration_s \(0\.5 s\): no frame .* got 0\.5$"):
         load_scenario(SOUND, sets=["imager.latency_s=0.5"], duration=0.5)
     assert load_scenario(SOUND, sets=["imager.latency_s=0.4"], duration=0.5).imager.latency_s == 0.4
+    assert load_scenario(CLINICAL).sequence.latency_s == 0.02
+    assert load_scenario(CLINICAL, sets=["sequence.latency_s=1.5"]).sequence.latency_s == 1.5  # its frames fit
+    # continuous mode does not use the sequence's windows (imager.latency_s applies): not refused
+    assert load_scenario(SOUND, sets=["sequence.latency_s=10"]).sequence.latency_s == 10.0
 
 
 def test_observer_25_is_checked_at_the_sequences_frame_rate_under_multiplexing() -> None:
