@@ -54,6 +54,7 @@ from vesselbot_ros.physics.wall_interactions import (
     steric_coefficient,
     wall_pair_forces_z,
 )
+from vesselbot_ros.resources import require_fits
 
 __all__ = [
     "DESIGNS",
@@ -105,6 +106,10 @@ def _table1() -> tuple[VesselCase, ...]:
 
 
 MAX_GRID_POINTS = 1_000_000  # per map: about 100x the default 200 x 200, a few hundred MB of temporaries
+#: What a map keeps per point (Delta, F_tot, the ratio: float64) and what one map's forces take while it is
+#: computed (the force terms' temporaries, rounded up), bytes.
+MAP_POINT_BYTES = 24
+MAP_TEMP_BYTES = 512
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,6 +178,10 @@ class DesignStudy:
     def __post_init__(self) -> None:
         if not self.vessels:
             raise ConfigError("vessels must list at least one vessel")
+        n_maps = len(self.vessels) * len(DESIGNS)  # every map is kept (the summary, the CSVs and the figure read them)
+        points = self.grid.n_lambda * self.grid.n_delta
+        require_fits("vessels", f"{len(self.vessels)} vessels", MAP_POINT_BYTES * n_maps * points + MAP_TEMP_BYTES * points,
+                     what=f"the {n_maps} maps of {points} points", hint="fewer vessels or a coarser grid")
 
     @classmethod
     def from_mapping(cls, mapping: object) -> DesignStudy:

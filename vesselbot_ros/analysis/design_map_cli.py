@@ -19,6 +19,8 @@ import numpy as np
 from vesselbot_ros.analysis._common import add_config_arguments, load_physics, load_study_mapping
 from vesselbot_ros.analysis.design_map import DESIGNS, DesignMap, DesignStudy, all_design_maps, summarize
 from vesselbot_ros.atomic_io import atomic_open, atomic_path, check_output_dir, save_figure
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.resources import require_fits
 
 __all__ = ["register", "run", "plot_maps"]
 
@@ -46,7 +48,8 @@ def maps_figure(maps: list[DesignMap]) -> Any:
     from matplotlib.lines import Line2D
 
     vessels = list(dict.fromkeys(m.vessel for m in maps))
-    fig, axes = plt.subplots(len(vessels), len(DESIGNS), figsize=(12, 3.2 * len(vessels) + 0.6), squeeze=False)
+    fig, axes = plt.subplots(len(vessels), len(DESIGNS), squeeze=False,
+                             figsize=(FIGURE_WIDTH_IN, FIGURE_ROW_IN * len(vessels) + FIGURE_EXTRA_IN))
     for m in maps:
         ax = axes[vessels.index(m.vessel), DESIGNS.index(m.design)]
         data = np.log10(np.maximum(m.ratio, 1e-12)).T
@@ -69,12 +72,35 @@ def maps_figure(maps: list[DesignMap]) -> Any:
     return fig
 
 
+#: The figure's resolution (dots per inch), its size per row of vessels and its fixed parts (inches).
+FIGURE_DPI = 110
+FIGURE_WIDTH_IN, FIGURE_ROW_IN, FIGURE_EXTRA_IN = 12.0, 3.2, 0.6
+#: Matplotlib's Agg canvas is at most this many pixels along each side.
+MAX_FIGURE_PIXELS = 2**16
+
+
+def check_figure(n_vessels: int) -> None:
+    """Refuse, before any map is computed, a figure of ``n_vessels`` rows matplotlib cannot draw or memory cannot hold.
+
+    Raises:
+        ConfigError: one line naming ``design_study.vessels``, the count and the figure's size.
+    """
+    w = FIGURE_WIDTH_IN * FIGURE_DPI
+    h = (FIGURE_ROW_IN * n_vessels + FIGURE_EXTRA_IN) * FIGURE_DPI
+    if h > MAX_FIGURE_PIXELS:
+        raise ConfigError(f"design_study.vessels={n_vessels} vessels: the figure would be {w:.0f} x {h:.0f} pixels, more "
+                          f"than matplotlib's {MAX_FIGURE_PIXELS} along a side: list at most "
+                          f"{int((MAX_FIGURE_PIXELS / FIGURE_DPI - FIGURE_EXTRA_IN) / FIGURE_ROW_IN)} vessels or use --no-png")
+    require_fits("design_study.vessels", f"{n_vessels} vessels", 12.0 * w * h,  # RGBA canvas, its copies and the PNG
+                 what=f"the figure of {w:.0f} x {h:.0f} pixels", hint="fewer vessels or --no-png")
+
+
 def plot_maps(maps: list[DesignMap], path: Path) -> None:
     """Save :func:`maps_figure` to ``path``."""
     import matplotlib.pyplot as plt  # deferred: matplotlib (see maps_figure)
 
     fig = maps_figure(maps)
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=FIGURE_DPI)
     plt.close(fig)
 
 
@@ -82,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
     """Compute, print and save the design maps; returns 0."""
     params = load_physics(args)
     study = DesignStudy.from_mapping(load_study_mapping(args))
+    if not args.no_png:
+        check_figure(len(study.vessels))
     out = Path(args.out)
     check_output_dir(out, "--out")
     t0 = time.perf_counter()

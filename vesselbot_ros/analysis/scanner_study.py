@@ -104,6 +104,7 @@ from vesselbot_ros.config import ConfigError, check_choice, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
+from vesselbot_ros.resources import require_fits
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
@@ -143,9 +144,23 @@ class StudyCell:
     tracking_window_s: float | None = None  # None: the preset's
 
 
+#: What one cell of the study holds (its row, its runs' records; bytes, rounded up).
+CELL_BYTES = 64 * 1024
+
+
 def study_cells(hardware: Iterable[str], propulsion_windows_s: Iterable[float], latencies_s: Iterable[float],
                 pairs: Iterable[str], tracking_windows_s: Iterable[float | None] = (None,)) -> list[StudyCell]:
-    """The grid, in a fixed order (hardware, tracking window, propulsion window, latency, pair)."""
+    """The grid, in a fixed order (hardware, tracking window, propulsion window, latency, pair).
+
+    Raises:
+        ConfigError: an unknown preset or pair, or a grid whose cells (and their runs' results) would not fit in
+            memory (one line naming the options and the estimate; :func:`vesselbot_ros.resources.require_fits`).
+    """
+    hardware, propulsion_windows_s, latencies_s = list(hardware), list(propulsion_windows_s), list(latencies_s)
+    pairs, tracking_windows_s = list(pairs), list(tracking_windows_s)
+    n = len(hardware) * len(tracking_windows_s) * len(propulsion_windows_s) * len(latencies_s) * len(pairs)
+    require_fits("--hardware x --tracking-windows x --propulsion-windows x --latencies x --pairs", f"{n} cells",
+                 CELL_BYTES * n, what="the study's cells and their results", hint="shorten the lists")
     for h in hardware:
         if h not in PRESETS:
             raise ConfigError(f"hardware must be one of {sorted(PRESETS)}, got {h!r}")

@@ -62,6 +62,7 @@ from vesselbot_ros.config import (
     load_yaml,
     unflatten,
 )
+from vesselbot_ros.resources import require_fits
 from vesselbot_ros.sim.kinds import switch_sections
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 
@@ -276,11 +277,29 @@ class CampaignSpec:
         clash = set(self.grid) & set(self.samples.params)
         if clash:
             raise ConfigError(f"grid and samples.params both vary {sorted(clash)[0]!r}; vary a key in one place")
+        self._check_size()
         if self.samples.paired_with_seeds and len(self.seed_list()) != self.samples.count:
             raise ConfigError(
                 f"samples.paired_with_seeds needs as many seeds as samples.count ({self.samples.count}), "
                 f"got {len(self.seed_list())} seeds"
             )
+
+    def n_runs(self) -> int:
+        """How many runs the campaign has (variants x grid points x draws x seeds, or x 1 seed when paired)."""
+        n_seeds = self.seeds.count if isinstance(self.seeds, SeedRange) else len(self.seeds)
+        return ((len(self.variants) or 1) * math.prod(len(v) for v in self.grid.values()) * (self.samples.count or 1)
+                * (1 if self.samples.paired_with_seeds else n_seeds))
+
+    def _check_size(self) -> None:
+        """Refuse, before any run is listed, a campaign whose list of runs and results would not fit in memory."""
+        n_seeds = self.seeds.count if isinstance(self.seeds, SeedRange) else len(self.seeds)
+        factors = {"seeds": 1 if self.samples.paired_with_seeds else n_seeds, "samples.count": self.samples.count or 1,
+                   "grid": math.prod(len(v) for v in self.grid.values()), "variants": len(self.variants) or 1}
+        key = max(factors, key=lambda k: factors[k])
+        runs = self.n_runs()
+        shown = f"{n_seeds} seeds" if key == "seeds" else f"{factors[key]} {'points' if key == 'grid' else key}"
+        require_fits(key, f"{shown} ({runs:.3g} runs)", RUN_BYTES * runs,
+                     what="the campaign's list of runs and their results", hint=f"fewer {key}, or several campaigns")
 
     def seed_list(self) -> tuple[int, ...]:
         """The seeds as a tuple."""
@@ -295,6 +314,11 @@ class CampaignSpec:
     def group_keys(self) -> tuple[str, ...]:
         """The columns that split the runs into summary groups: ``variant`` and the grid keys."""
         return (("variant",) if self.variants else ()) + tuple(self.grid)
+
+
+#: What one run of a campaign holds in the engine before and after it runs: its point (a shallow copy of the
+#: scenario mapping), its result row (metrics, counters) and its share of the results' table (bytes, rounded up).
+RUN_BYTES = 16 * 1024
 
 
 def _seed(name: str, value: Any) -> int:

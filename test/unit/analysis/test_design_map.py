@@ -71,3 +71,22 @@ def test_config_errors():
         DesignStudy.from_mapping({"vessels": [{"name": "a", "diameter_m": -1.0, "velocity_m_per_s": 1.0}]})
     with pytest.raises(ConfigError, match="design must be one of"):
         design_map(VesselCase(), "XX", P, SMALL)  # type: ignore[arg-type]
+
+
+def test_a_study_whose_maps_would_not_fit_is_refused_before_any_map(tmp_path):  # type: ignore[no-untyped-def]
+    """2000 vessels x 3 designs on 1000 x 1000 points: 144 GB of kept maps (the old study computed them one by one
+    until the memory ran out); one line naming the key, the count and the estimate, exit 2, under a 3 GiB limit."""
+    import yaml
+
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    vessels = [{"name": f"v{i}", "diameter_m": 1e-3, "velocity_m_per_s": 0.02} for i in range(2000)]
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump({"design_study": {"vessels": vessels, "grid": {"n_lambda": 1000, "n_delta": 1000}}}))
+    proc = cli_under_memory_limit(["design-map", "--study-config", str(path), "--no-png", "--out", str(tmp_path / "o")],
+                                  timeout=60)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "design_study.vessels=2000 vessels: the 6000 maps of 1000000 points needs about 134.6 GiB" in lines[0]
+    assert not (tmp_path / "o").exists()

@@ -305,3 +305,13 @@ def test_the_targets_section_is_the_stored_targets_table() -> None:
                 r["floor_worst_m"]) and float(r["outside_s"]) == 0.0)
     spec, _base = load_campaign_spec(root / "config" / "campaigns" / "targets" / "insert_paper_reference.yaml")
     assert len(spec.variants) == 6 and (spec.seeds.start, spec.seeds.count) == (0, 100)  # the 100-seed table
+
+
+def test_a_grid_of_cells_that_would_not_fit_is_refused_before_it_is_listed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """10^4 propulsion windows x 10^4 latencies x the presets and pairs: billions of cells (the old grid made them)."""
+    monkeypatch.setattr("vesselbot_ros.resources.memory_budget_bytes", lambda: 8 * 2**30)
+    windows = [0.01 + 1e-6 * i for i in range(10_000)]
+    with pytest.raises(ConfigError, match=r"^--hardware x --tracking-windows x --propulsion-windows x --latencies x --pairs="
+                                          r"[0-9]+ cells: the study's cells and their results needs about [0-9.]+ TiB"):
+        ss.study_cells(list(ss.PRESETS), windows, windows, list(ss.PAIRS))
+    assert len(ss.study_cells(["clinical_3t"], [0.01, 0.02], [0.0], list(ss.PAIRS))) == 2 * len(ss.PAIRS)

@@ -193,3 +193,23 @@ def test_a_variant_switches_a_stage_to_a_users_kind_and_grids_its_keys(tmp_path,
         load_campaign_spec(_write(tmp_path, variants={"pid": {"controller.kind": kind, "controller.kx": 1.0}}))
     with pytest.raises(ConfigError, match=r"unknown scenario key 'controler\.kind'"):  # outside the sections: static
         campaign_spec_from_mapping({"name": "t", "base": str(SOUND), "grid": {"controler.kind": ["a"]}})
+
+
+def test_a_campaign_of_a_billion_runs_is_refused_before_its_runs_are_listed(tmp_path: Path) -> None:
+    """``seeds: {count: 1e9}`` (and 1e9 x a grid): the old loader listed the seeds, then a billion runs."""
+    from vesselbot_ros.testing import cli_under_memory_limit
+
+    spec = tmp_path / "big.yaml"
+    spec.write_text(yaml.safe_dump({"name": "big", "base": str(SOUND), "seeds": {"start": 0, "count": 10**9}}))
+    proc = cli_under_memory_limit(["campaign", str(spec), "--out", str(tmp_path / "out")], timeout=60)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "seeds=1000000000 seeds (1e+09 runs): the campaign's list of runs and their results needs about" in lines[0]
+    assert "TiB of memory" in lines[0] and not (tmp_path / "out").exists()
+    grid = {"name": "g", "base": str(SOUND), "seeds": [0, 1], "grid": {"imager.noise_sigma_m": [1e-5 * (i + 1) for i in range(4)]},
+            "samples": {"count": 10**9, "params": {"physics.robot.radius_m": {"distribution": "uniform", "low": 1e-4,
+                                                                                         "high": 2e-4}}}}
+    with pytest.raises(ConfigError, match=r"^samples\.count=1000000000 samples\.count \(8e\+09 runs\): "):
+        campaign_spec_from_mapping(grid)
+    assert campaign_spec_from_mapping(dict(grid, samples={**grid["samples"], "count": 3})).n_runs() == 24

@@ -289,10 +289,11 @@ def test_a_radius_of_1e6_mm_is_refused_at_import(tmp_path: Path) -> None:
     from vesselbot_ros.testing import cli_under_memory_limit
 
     p, r = RAW[2]
-    write_vmtk_centerlines([RAW[0], RAW[1], (p, np.where(np.arange(len(r)) == 60, 1e6, r))], tmp_path / "huge.vtp")
+    write_vmtk_centerlines([(p, np.where(np.arange(len(r)) == 60, 1e6, r))], tmp_path / "huge.vtp")  # one path
     proc = cli_under_memory_limit(["vessels", "import", str(tmp_path / "huge.vtp"), "--out", str(tmp_path / "h.yaml")],
                                   timeout=60)
-    _refused(proc, "huge.vtp", "radii are 0.0009 to 1e+03 m", "outside a blood vessel's 1e-06 to 0.02 m")
+    _refused(proc, "huge.vtp", "radii are 0.0012 to 1e+03 m", "outside a blood vessel's 1e-06 to 0.02 m")
+    assert not (tmp_path / "h.yaml").exists()
     write_vmtk_centerlines([(p, r / 100.0) for p, r in RAW], tmp_path / "thin.vtp")  # radii right in 0.1 m, not lengths
     with pytest.raises(ConfigError, match=r"thin\.vtp'?: with length_unit_m \(--unit-m\) = 0\.1 it spans 3 m, more than a "
                                           r"vessel tree's 1 m"):
