@@ -42,6 +42,9 @@ __all__ = [
     "interp_spline_fitpack",
     "hypot2",
     "hypot3",
+    "dot3",
+    "sym3_least_eigvec",
+    "solve3",
 ]
 
 #: A 2x2 matrix as four Python floats ``(a, b, c, d)`` = ``[[a, b], [c, d]]``.
@@ -336,3 +339,129 @@ def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument t
     if ax == 0.0 and ay == 0.0 and az == 0.0:
         return 0.0
     return _vector_norm(ax, ay, az)
+
+
+@numba.njit(cache=True, nogil=True)
+def dot3(a, b):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``a . b`` of two 3-vectors, ``(a0 b0 + a1 b1) + a2 b2``, for compiled code.
+
+    numba's ``a @ b`` calls the BLAS ``ddot`` through scipy, whose AVX-512
+    kernel fuses multiply-adds where the AVX2 and SSE kernels do not; this
+    order is the one those two give, so code they built keeps its bits.
+    """
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@numba.njit(cache=True, nogil=True)
+def sym3_least_eigvec(m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The unit eigenvector of the least eigenvalue of the symmetric 3x3 ``m`` (its upper triangle is read), for
+    compiled code, by cyclic Jacobi rotations: pairs (0, 1), (0, 2), (1, 2) in turn, an off-diagonal element
+    dropped once below 1e-17 of its diagonal pair (the classical threshold), at most 64 sweeps.
+
+    numba's ``np.linalg.eigh`` calls LAPACK, whose reductions go through the BLAS kernel the CPU picks.  Ties:
+    the lowest index.  Sign: the largest component (the first of equals) positive, so it is one vector, not
+    either of two.  Returns ``(eigenvalue, (3,) vector)``.
+    """
+    a = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            a[i, j] = m[min(i, j), max(i, j)]
+    v = np.zeros((3, 3))
+    for i in range(3):
+        v[i, i] = 1.0
+    for _sweep in range(64):
+        if a[0, 1] == 0.0 and a[0, 2] == 0.0 and a[1, 2] == 0.0:
+            break
+        for r in range(3):
+            p = 0 if r < 2 else 1
+            q = 1 if r == 0 else 2
+            apq = a[p, q]
+            if apq == 0.0:
+                continue
+            if abs(apq) <= 1e-17 * (abs(a[p, p]) + abs(a[q, q])):
+                a[p, q] = 0.0
+                a[q, p] = 0.0
+                continue
+            theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+            if abs(theta) > 1e150:
+                t = 0.5 / theta
+            else:
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            c = 1.0 / math.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):  # A <- A J (columns p, q)
+                akp = a[k, p]
+                akq = a[k, q]
+                a[k, p] = c * akp - s * akq
+                a[k, q] = s * akp + c * akq
+            for k in range(3):  # A <- J^T A (rows p, q)
+                apk = a[p, k]
+                aqk = a[q, k]
+                a[p, k] = c * apk - s * aqk
+                a[q, k] = s * apk + c * aqk
+            a[p, q] = 0.0
+            a[q, p] = 0.0
+            for k in range(3):  # V <- V J
+                vkp = v[k, p]
+                vkq = v[k, q]
+                v[k, p] = c * vkp - s * vkq
+                v[k, q] = s * vkp + c * vkq
+    j = 0
+    for i in range(1, 3):
+        if a[i, i] < a[j, j]:
+            j = i
+    out = np.empty(3)
+    big = 0
+    for i in range(3):
+        out[i] = v[i, j]
+        if abs(out[i]) > abs(out[big]):
+            big = i
+    L = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
+    sg = 1.0 if out[big] >= 0.0 else -1.0
+    for i in range(3):
+        out[i] = sg * out[i] / L
+    return a[j, j], out
+
+
+@numba.njit(cache=True, nogil=True)
+def solve3(a, b):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(det a, x)`` with ``a x = b`` for a 3x3 ``a``, for compiled code: Gaussian elimination with partial
+    pivoting (the first of equal pivots), as :func:`solve` does in Python; ``x`` is NaN if a pivot is exactly 0.
+
+    numba's ``np.linalg.det`` and ``solve`` call LAPACK's LU, which goes through the CPU's BLAS kernel.
+    """
+    m = np.empty((3, 4))
+    for i in range(3):
+        for j in range(3):
+            m[i, j] = a[i, j]
+        m[i, 3] = b[i]
+    det = 1.0
+    x = np.empty(3)
+    for col in range(3):
+        piv = col
+        for r in range(col + 1, 3):
+            if abs(m[r, col]) > abs(m[piv, col]):
+                piv = r
+        if m[piv, col] == 0.0:
+            x[:] = np.nan
+            return 0.0, x
+        if piv != col:
+            det = -det
+            for j in range(4):
+                tmp = m[col, j]
+                m[col, j] = m[piv, j]
+                m[piv, j] = tmp
+        p = m[col, col]
+        det *= p
+        for r in range(col + 1, 3):
+            f = m[r, col] / p
+            if f == 0.0:
+                continue
+            for j in range(col, 4):
+                m[r, j] = m[r, j] - f * m[col, j]
+    for i in range(2, -1, -1):
+        s = m[i, 3]
+        for c in range(i + 1, 3):
+            s = s - m[i, c] * x[c]
+        x[i] = s / m[i, i]
+    return det, x

@@ -98,6 +98,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import dot3
+
 __all__ = ["STRIDE", "CHUNK", "Cap", "WallSurface", "CandidateTree", "wall_surface", "candidate_tree", "centre_distances",
            "leaves3d", "node_boxes", "pruned_arrays", "split_leaves",
            "nearest_wall3d", "smooth_wall3d", "query_points3d", "brute_force3d", "ball_diameters3d", "local_diameter3d",
@@ -277,13 +279,13 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
         b = v[tri[t, 1]]
         c = v[tri[t, 2]]
         cr = np.cross(b - a, c - a)
-        fn[t] = cr / math.sqrt(cr @ cr)
+        fn[t] = cr / math.sqrt(dot3(cr, cr))
         for k in range(3):
             p = v[tri[t, k]]
             q1 = v[tri[t, (k + 1) % 3]] - p
             q2 = v[tri[t, (k + 2) % 3]] - p
             x = np.cross(q1, q2)
-            ang[t, k] = math.atan2(math.sqrt(x @ x), q1 @ q2)
+            ang[t, k] = math.atan2(math.sqrt(dot3(x, x)), dot3(q1, q2))
     # vertex -> incident (triangle, corner) CSR
     cnt = np.zeros(n + 1, dtype=np.int64)
     for t in range(m):
@@ -304,7 +306,7 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
     for i in range(n):
         for e in range(cnt[i], cnt[i + 1]):
             vn[i] += ang[inc_t[e], inc_k[e]] * fn[inc_t[e]]
-        L = math.sqrt(vn[i] @ vn[i])
+        L = math.sqrt(dot3(vn[i], vn[i]))
         if L > 0:
             vn[i] /= L
     # edge pseudonormals: sum of the (at most two) faces' normals
@@ -320,7 +322,7 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
                 has_j = tri[s, 0] == j or tri[s, 1] == j or tri[s, 2] == j
                 if has_j:
                     en += fn[s]
-            L = math.sqrt(en @ en)
+            L = math.sqrt(dot3(en, en))
             for d in range(3):
                 out[48 * t + 17 + 3 * k + d] = en[d] / L
     for t in range(m):
@@ -333,13 +335,13 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
             cn = np.zeros(3)
             for e in range(cnt[i], cnt[i + 1]):
                 s = inc_t[e]
-                if fn[s] @ fn[t] >= crease_cos:
+                if dot3(fn[s], fn[t]) >= crease_cos:
                     cn += ang[s, inc_k[e]] * fn[s]
             if vnormal_override.shape[0] == n:
-                ov = vnormal_override[i] if vnormal_override[i] @ vn[i] >= 0.0 else -vnormal_override[i]
-                if ov @ fn[t] >= crease_cos:
+                ov = vnormal_override[i] if dot3(vnormal_override[i], vn[i]) >= 0.0 else -vnormal_override[i]
+                if dot3(ov, fn[t]) >= crease_cos:
                     cn = ov.copy()
-            L = math.sqrt(cn @ cn)
+            L = math.sqrt(dot3(cn, cn))
             for d in range(3):
                 out[b0 + 35 + 3 * k + d] = cn[d] / L
         for d in range(3):
@@ -348,7 +350,7 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
         r = 0.0
         for k in range(3):
             dd = v[tri[t, k]] - cen
-            r = max(r, math.sqrt(dd @ dd))
+            r = max(r, math.sqrt(dot3(dd, dd)))
         for d in range(3):
             out[b0 + d] = cen[d]
         out[b0 + 3] = r * (1.0 + 1e-9) + 1e-15  # a little larger: the sphere test never rejects a tie
@@ -365,16 +367,16 @@ def _triangle_data(v, tri, crease_cos, vnormal_override, chunk_len):  # type: ig
             for k in range(3):
                 c += v[tri[u, k]] / (3.0 * L)
             nsum += np.cross(v[tri[u, 1]] - v[tri[u, 0]], v[tri[u, 2]] - v[tri[u, 0]])
-        nn = nsum / max(math.sqrt(nsum @ nsum), 1e-300)
+        nn = nsum / max(math.sqrt(dot3(nsum, nsum)), 1e-300)
         rad = 0.0
         thick = 0.0
         for u in range(t, t + L):
             for k in range(3):
                 dv = v[tri[u, k]] - c
-                hn = dv @ nn
+                hn = dot3(dv, nn)
                 thick = max(thick, abs(hn))
-                rad = max(rad, math.sqrt(max(dv @ dv - hn * hn, 0.0)))
-        pad = 1e-9 * math.sqrt(c @ c) + 1e-15
+                rad = max(rad, math.sqrt(max(dot3(dv, dv) - hn * hn, 0.0)))
+        pad = 1e-9 * math.sqrt(dot3(c, c)) + 1e-15
         for d in range(3):
             out[48 * t + 44 + d] = c[d]
             out[48 * (t + 1) + 44 + d] = nn[d]
@@ -438,15 +440,15 @@ def _patch_boxes(v, tri, pstart):  # type: ignore[no-untyped-def]  # numba kerne
         nsum = np.zeros(3)
         for t in range(pstart[p], pstart[p + 1]):
             nsum += np.cross(v[tri[t, 1]] - v[tri[t, 0]], v[tri[t, 2]] - v[tri[t, 0]])
-        L = math.sqrt(nsum @ nsum)
+        L = math.sqrt(dot3(nsum, nsum))
         ax = np.eye(3)
         if L > 0.0:
             n = nsum / L
             k = np.argmin(np.abs(n))
             e = np.zeros(3)
             e[k] = 1.0
-            t1 = e - (e @ n) * n
-            t1 /= math.sqrt(t1 @ t1)
+            t1 = e - dot3(e, n) * n
+            t1 /= math.sqrt(dot3(t1, t1))
             t2 = np.cross(n, t1)
             ax[0] = n
             ax[1] = t1
@@ -496,14 +498,15 @@ def wall_surface(vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequen
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     tri = _orient(np.asarray(triangles, dtype=np.int64))
     bnd = _boundary_edges(tri)
-    caps_t = tuple((np.asarray(c, dtype=np.float64), np.asarray(nn, dtype=np.float64) / np.linalg.norm(nn), float(r))
-                   for c, nn, r in caps)
+    # the caps' normals unit by elementwise sums (np.linalg.norm of a vector is a BLAS ddot, its order by CPU)
+    caps_t = tuple((np.asarray(c, dtype=np.float64), nn / math.sqrt(dot3(nn, nn)), float(r))
+                   for c, nn, r in ((c, np.asarray(nn, dtype=np.float64), r) for c, nn, r in caps))
     which = np.full(len(bnd), -1)
     for k, (c, nn, r) in enumerate(caps_t):
         on = np.ones(len(bnd), dtype=bool)
         for end in (0, 1):
             p = v[bnd[:, end]] - c
-            on &= (np.abs(p @ nn) < 1e-3 * r) & (np.linalg.norm(p, axis=1) <= r * (1 + 1e-3))
+            on &= (np.abs((p[:, 0] * nn[0] + p[:, 1] * nn[1]) + p[:, 2] * nn[2]) < 1e-3 * r) & (np.linalg.norm(p, axis=1) <= r * (1 + 1e-3))
         which[on & (which < 0)] = k
     if (which < 0).any():
         raise ValueError(f"wall_surface: {(which < 0).sum()} boundary edges lie on no cap")
@@ -1563,7 +1566,8 @@ def y_solids(q: Array, cap_margin_m: float = 5e-5) -> tuple[npt.NDArray[np.bool_
     near = np.abs(np.linalg.norm(q, axis=1) - Y_BRANCHES[0][3])
     beyond = np.zeros(len(q), dtype=bool)
     for s, u, length, r in Y_BRANCHES:
-        t = (q - s) @ u
+        rel = q - s
+        t = (rel[:, 0] * u[0] + rel[:, 1] * u[1]) + rel[:, 2] * u[2]
         rho = np.linalg.norm(q - s - t[:, None] * u, axis=1)
         dx, dy = rho - r, np.abs(t - 0.5 * length) - 0.5 * length
         sdf = np.minimum(np.maximum(dx, dy), 0.0) + np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))

@@ -142,6 +142,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.blas_free import solve3, sym3_least_eigvec
 from vesselbot_ros.physics.meshed_wall3d import (
     CandidateTree,
     Wall3D,
@@ -877,8 +878,7 @@ def _fit_model(qs, ss, ns, lab, c, f32, out, o):  # type: ignore[no-untyped-def]
     cand[7] = 0.0
     for tr in range(2):
         if tr == 1:  # the cylinder
-            _w, v = np.linalg.eigh(mm)
-            t = v[:, 0].copy()
+            _w, t = sym3_least_eigvec(mm)  # not np.linalg.eigh: LAPACK goes through the CPU's BLAS kernel
             am = np.zeros((3, 3))
             bm = np.zeros(3)
             off = 0.0
@@ -894,9 +894,9 @@ def _fit_model(qs, ss, ns, lab, c, f32, out, o):  # type: ignore[no-untyped-def]
                 for b in range(3):
                     am[a, b] += t[a] * t[b]
                     bm[a] += t[a] * t[b] * cen[b]
-            if abs(np.linalg.det(am)) < 1e-12 * npt ** 3:
+            det, pt = solve3(am, bm)  # not np.linalg.det / solve (LAPACK's LU): as above
+            if abs(det) < 1e-12 * npt ** 3:
                 continue
-            pt = np.linalg.solve(am, bm)
             for p in range(qs.shape[0]):
                 if lab[p] == c:
                     off += (pt[0] - qs[p, 0]) * ns[p, 0] + (pt[1] - qs[p, 1]) * ns[p, 1] + (pt[2] - qs[p, 2]) * ns[p, 2]
@@ -1248,7 +1248,7 @@ def _needed(tree: CandidateTree, wall: Wall3D, head: Array, cells: npt.NDArray[n
     edge = ((centre - half[:, None] <= g[0:3] + 1e-12) | (centre + half[:, None] >= g[0:3] + g[3] * g[4:7] - 1e-12)).any(axis=1)
     for c, n, r in wall.surface.caps:
         rel = centre - c
-        t = np.maximum(rel @ n, 0.0)
+        t = np.maximum((rel[:, 0] * n[0] + rel[:, 1] * n[1]) + rel[:, 2] * n[2], 0.0)  # not rel @ n: a BLAS gemv
         seal &= ~(edge & (np.linalg.norm(rel - t[:, None] * n, axis=1) <= r + 2.0 * g[3]))
     m = int(math.ceil(h / (2.0 * float(half[leaf].min())) - 1e-9)) + 1  # points per axis: leaves no finer
     u = np.linspace(0.0, 1.0, m)
