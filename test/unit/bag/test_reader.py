@@ -146,3 +146,19 @@ def test_a_bag_from_before_3d_trees_reads_with_its_own_coil_state_and_no_y_slew_
     assert out["coil.slew_limited_z"].tolist() == [False, False, True]
     assert out["coil.slew_limited_y"].tolist() == [False, False, False]
     assert out["coil.applied"][:, 0].tolist() == [0.0, 0.05, 0.1] and (out["coil.applied"][:, 1] == 0.0).all()
+
+
+def test_a_bag_too_large_for_the_memory_is_refused_before_its_messages_are_read(synthetic_bag, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The series of a bag are held in memory: a bag the machine cannot hold (here: a 1 MiB budget for the
+    synthetic bag's 8 thousand messages) is one line naming the bag, its messages and the estimate."""
+    import re
+
+    from vesselbot_ros.config import ConfigError
+
+    info = open_bag(synthetic_bag[0])
+    n = sum(t.count for t in info.topics if t.name != "/rosout")
+    monkeypatch.setattr("vesselbot_ros.resources.memory_budget_bytes", lambda: 2**20)
+    with pytest.raises(ConfigError, match=rf"^bag {re.escape(str(info.path))}=[0-9]+ messages: reading its time series needs about "
+                                          r"[0-9.]+ MiB of memory, more than the 1\.0 MiB"):
+        read_timeseries(info)
+    assert n > 1000
