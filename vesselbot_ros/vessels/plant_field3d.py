@@ -383,11 +383,12 @@ def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, q
                       f"{est.triangles:.3g} wall triangles)",
                  hint="raise cfd.grid_spacing_3d_m in the tree's cfd: block")
     if not quiet:
-        cells = f"{est.tets:.3g} cells, " if not have_samples else ""
         peak = max(est.solve_bytes if not have_samples else 0.0, est.sample_bytes)
         secs = (est.solve_s if not have_samples else 0.0) + est.sample_s
-        print(f"meshing {net.name} (about {cells}{est.nodes:.3g} grid nodes, est. {fmt_bytes(peak)}, "
-              f"up to {fmt_seconds(secs)}; built once, then cached)", file=sys.stderr, flush=True)
+        what = (f"meshing {net.name} (about {est.tets:.3g} cells, " if not have_samples else
+                f"building the 3-D wall field of {net.name} (about ")
+        print(f"{what}{est.nodes:.3g} grid nodes, est. {fmt_bytes(peak)}, up to {fmt_seconds(secs)}; built once, "
+              "then cached)", file=sys.stderr, flush=True)
     return est
 
 
@@ -433,6 +434,7 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
             return WallArrays(args, stats)
         except (OSError, ValueError, KeyError):
             pass  # a torn, foreign or older file: build again
+    check_build(net, blood)  # tens of seconds to minutes: bounded first, and one line says so
     wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
                             origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True,
                             list_max=LIST_MAX)

@@ -135,7 +135,7 @@ def test_the_build_estimate_matches_the_shipped_trees_and_says_what_it_builds(tm
     carotid = load_network("carotid_bifurcation_3d")
     assert pf.check_build(carotid) is not None  # shipped samples, its wall field not yet built here: no solve
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("meshing carotid_bifurcation_3d (about 1.8e+06 grid nodes, est. ")
+    assert len(err) == 1 and err[0].startswith("building the 3-D wall field of carotid_bifurcation_3d (about 1.8e+06 grid nodes, est. ")
     key = pf.field_key(carotid, BloodParams())
     (tmp_path / "cache" / "3d").mkdir(parents=True)
     (tmp_path / "cache" / "3d" / f"carotid_bifurcation_3d-{key}.wall.npz").write_bytes(b"")
