@@ -90,6 +90,8 @@ MAX_LENGTH_M = 1.0
 SAMPLE_BYTES = 256.0
 #: The overlap check's time per pair of samples of two branches (s; numpy, measured ~20 ns, rounded up).
 OVERLAP_SECONDS_PER_PAIR = 4.0e-8
+#: ... and per pair of branches (its masks and blocks in Python, s; rounded up).
+OVERLAP_SECONDS_PER_BRANCH_PAIR = 1.0e-4
 #: The overlap check compares blocks of this many samples of one branch with as many of another (bounded
 #: memory: ~100 bytes a pair), skipping the pairs of blocks too far apart to touch.
 _OVERLAP_BLOCK = 1024
@@ -389,6 +391,9 @@ def _check_sizes(net: VesselNetworkParams) -> None:
     branch's points and the overlap check's pairs of samples are estimated and bounded by
     :func:`vesselbot_ros.resources.require_fits`.
     """
+    nb = len(net.branches)
+    require_fits("branches", f"{nb} branches", SAMPLE_BYTES * nb, OVERLAP_SECONDS_PER_BRANCH_PAIR * nb * (nb - 1) / 2.0,
+                 what="the overlap check of every pair of branches", hint="split the tree into several networks")
     samples: list[float] = []
     for b in net.branches:
         p = b.points_3d()

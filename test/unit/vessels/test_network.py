@@ -400,3 +400,18 @@ def test_a_long_network_validates_in_bounded_memory_and_its_flow_solve_is_refuse
     line = _one_line_refusal(proc, "cfd.mesh_size_m=0.0001", "the 2-D flow solve of network 'long_y'", "GiB")
     assert "triangles) needs about" in line
     assert not (tmp_path / "out").exists()
+
+
+def test_a_network_of_too_many_branches_for_the_overlap_check_is_refused_with_its_time() -> None:
+    """7000 branches (a 1 MB file holds ten thousand): 24.5 million branch pairs, about 41 min of checking."""
+    ends: list[tuple[float, float]] = []
+    tree = []
+    for i in range(7000):  # a binary tree 13 generations deep, each branch 0.1 mm on from its parent's end
+        x0, z0 = ends[(i - 1) // 2] if i else (0.0, 0.0)
+        x1, z1 = x0 + 1e-4, z0 + (5e-5 if i % 2 else -5e-5)
+        ends.append((x1, z1))
+        tree.append({"name": f"b{i}", "parent": f"b{(i - 1) // 2}" if i else "", "x_m": [x0, x1], "z_m": [z0, z1],
+                     "radius_m": [1e-6]})
+    with pytest.raises(ConfigError, match=r"^branches=7000 branches: the overlap check of every pair of branches would take "
+                                          r"about 41 min .*more than the 30 min a set-up step may take"):
+        _net(tree)
