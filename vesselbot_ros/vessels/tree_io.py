@@ -65,6 +65,7 @@ import yaml
 
 from vesselbot_ros.atomic_io import atomic_path, write_text
 from vesselbot_ros.config import ConfigError, load_dataclass, to_mapping
+from vesselbot_ros.resources import require_fits
 from vesselbot_ros.vessels.network import MAX_LENGTH_M, MAX_RADIUS_M, MIN_RADIUS_M, CfdParams, VesselNetworkParams
 
 __all__ = [
@@ -83,6 +84,8 @@ RADIUS_ARRAY = "MaximumInscribedSphereRadius"
 SPLIT_ARRAYS = ("CenterlineIds", "TractIds", "GroupIds", "Blanking")
 #: Coordinates are rounded to this many decimals of a metre (1 nm).
 DECIMALS = 9
+#: What reading a centreline file holds per byte of it (VTK's arrays, their numpy copies, the paths; rounded up).
+READ_BYTES_PER_FILE_BYTE = 16
 
 Path3 = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]  # (points (n, 3), radius (n,))
 
@@ -126,6 +129,9 @@ def read_vmtk_centerlines(path: str | os.PathLike[str], radius_array: str = RADI
     p = Path(path)
     if not p.is_file():
         raise _fail(path, "no such file")
+    size = p.stat().st_size  # VTK holds the file, its arrays, and numpy copies of them: bounded before it reads
+    require_fits(f"VMTK centreline file {str(path)!r}", f"{size} bytes", READ_BYTES_PER_FILE_BYTE * size,
+                 what="reading it", hint="thin its centrelines (vmtkcenterlineresampling)")
     # deferred: vtk is large (~0.3 s, 100 MB) and only the importer needs it
     import vtkmodules.vtkIOLegacy as vtk_legacy
     import vtkmodules.vtkIOXML as vtk_xml  # deferred: as above

@@ -305,3 +305,11 @@ def test_the_importer_s_help_states_the_limits(capsys: pytest.CaptureFixture[str
         main(["vessels", "import", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "1 um to 20 mm" in text and "at most 1 m" in text and "MAX_RADIUS_M" in text
+
+
+def test_a_file_too_large_to_read_is_refused_before_vtk_reads_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    write_vmtk_centerlines(RAW, tmp_path / "t.vtp")
+    size = (tmp_path / "t.vtp").stat().st_size
+    monkeypatch.setattr("vesselbot_ros.resources.memory_budget_bytes", lambda: 4 * size)  # less than 16 bytes a byte
+    with pytest.raises(ConfigError, match=rf"^VMTK centreline file '.*t\.vtp'={size} bytes: reading it needs about "):
+        read_vmtk_centerlines(tmp_path / "t.vtp")
