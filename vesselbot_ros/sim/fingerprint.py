@@ -25,7 +25,7 @@ import numpy as np
 from vesselbot_ros.sim.closed_loop import SimResult, run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
-__all__ = ["fingerprint", "fingerprint_series", "fingerprint_runs", "openblas_cores"]
+__all__ = ["fingerprint", "fingerprint_series", "fingerprint_runs", "openblas_cores", "cpu_core_types"]
 
 
 def fingerprint_series(series: Mapping[str, Any]) -> str:
@@ -79,6 +79,28 @@ def openblas_cores() -> dict[str, str]:
                 out[lib.rsplit("/", 1)[-1]] = fn().decode()
                 break
     return out
+
+
+def cpu_core_types() -> list[str]:
+    """OpenBLAS core types this x86-64 CPU can execute, newest first (read from ``/proc/cpuinfo``'s flags):
+    ``SkylakeX`` (AVX-512), ``Haswell`` (AVX2 and FMA), and always ``Nehalem`` (SSE4.2: every CPU numpy 2.x runs
+    on, its baseline being x86-64-v2)."""
+    flags: set[str] = set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    break
+    except OSError:
+        pass
+    cores = []
+    if {"avx512f", "avx512dq", "avx512bw", "avx512vl", "avx512cd"} <= flags:
+        cores.append("SkylakeX")
+    if {"avx2", "fma"} <= flags:
+        cores.append("Haswell")
+    cores.append("Nehalem")
+    return cores
 
 
 def main(argv: list[str] | None = None) -> int:
