@@ -57,6 +57,7 @@ def _sha(*parts: bytes) -> str:
 def fingerprint_plans(presets: Iterable[str] = PLAN_PRESETS) -> dict[str, str]:
     """``{"plan/<preset>": sha}`` of ``make_plan`` on ``clinical_3t_small_artery`` with each preset (as
     tools/gen_plan_study.py plans it): the whole plan (reference, segments, margins), ``repr`` of every float."""
+    # deferred: the planner, the 3-D wall and the tree importer (vtk) are heavy; each part loads only its own
     from vesselbot_ros.analysis.plan import make_plan
     from vesselbot_ros.analysis.scanner_study import preset_changes
     from vesselbot_ros.sim.scenario import load_scenario
@@ -71,6 +72,7 @@ def fingerprint_plans(presets: Iterable[str] = PLAN_PRESETS) -> dict[str, str]:
 def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, int, int]] = WALL_BLOCK) -> dict[str, str]:
     """``{"wall/<network>/<array>": sha}`` of the wall field's arrays built at the plant's settings on ``block`` of
     the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree)."""
+    # deferred: as above
     from vesselbot_ros.physics.wall_field3d import build_wall_field3d
     from vesselbot_ros.vessels import plant_field3d as pf
     from vesselbot_ros.vessels.network import load_network
@@ -96,7 +98,7 @@ def fingerprint_tree_generator(root: Path = _ROOT) -> dict[str, str]:
     tool = root / "tools" / "make_synthetic_tree_3d.py"
     if not tool.is_file():
         return {}
-    from vesselbot_ros.vessels.tree_io import import_vmtk_centerlines
+    from vesselbot_ros.vessels.tree_io import import_vmtk_centerlines  # deferred: as above
 
     spec = importlib.util.spec_from_file_location("_make_synthetic_tree_3d", tool)
     assert spec is not None and spec.loader is not None
@@ -126,7 +128,7 @@ def fingerprint_builds(parts: Iterable[str] = ("plans", "wall", "tree")) -> dict
 
 def main(argv: list[str] | None = None) -> int:
     """Print the fingerprints as JSON on stdout."""
-    from vesselbot_ros.sim.fingerprint import openblas_cores
+    from vesselbot_ros.sim.fingerprint import openblas_cores  # deferred: it loads the closed loop, which only --with-cores needs
 
     ap = argparse.ArgumentParser(prog="python -m vesselbot_ros.analysis.builds_fingerprint", description=__doc__)
     ap.add_argument("--part", action="append", choices=("plans", "wall", "tree"), help="what to build (default: all)")
