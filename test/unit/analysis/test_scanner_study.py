@@ -176,10 +176,20 @@ def test_reproduction_doc_quotes_the_stored_study_table() -> None:
     assert planned.count("\n") - 2 == 96 and "lower wall" not in planned  # the same grid, its own plans
     rows = list(csv.DictReader((root / "docs" / "scanner_study" / "table.csv").open()))
     assert len(rows) == table.count("\n") - 2 == 96  # 2 hardware x 2 tracking x 3 propulsion windows x 2 latencies x 4 pairs
-    assert {r["status"] for r in rows} == {"ok"}
+    # every cell ran but the paper pair's where observer (25) is unstable at the sequence's frame rate (the
+    # prose: "refuses those 18 paper cells (12 to 29 frames/s)"); the six it runs are 31-62.5 frames/s
+    refused = [r for r in rows if r["status"] != "ok"]
+    assert all(r["pair"] == "paper" and r["status"].startswith("refused: observer gains are unstable at the sequence's "
+                                                               "frame rate") for r in refused)
+    assert len(refused) == 18
+    ran_paper = [r for r in rows if r["pair"] == "paper" and r["status"] == "ok"]
+    assert len(ran_paper) == 6 and min(float(r["frame_rate_Hz"]) for r in ran_paper) > 30.0
+    assert 7e-3 < min(float(r["tracking_max_mean_m"]) for r in ran_paper)
+    assert max(float(r["tracking_max_mean_m"]) for r in ran_paper) < 11e-3  # "7 to 11 mm"
+    ran = [r for r in rows if r["status"] == "ok"]
     # the bounds the prose quotes
-    assert all(float(r["hold_margin_m_per_s2"]) < 0 for r in rows if r["hardware"] == "clinical_3t")
-    assert all(float(r["hold_margin_m_per_s2"]) > 0 for r in rows if r["hardware"] == "propulsion_insert")
+    assert all(float(r["hold_margin_m_per_s2"]) < 0 for r in ran if r["hardware"] == "clinical_3t")
+    assert all(float(r["hold_margin_m_per_s2"]) > 0 for r in ran if r["hardware"] == "propulsion_insert")
 
 
 def test_the_gradient_to_fly_makes_the_hold_margin_zero() -> None:
