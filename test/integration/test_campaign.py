@@ -194,3 +194,47 @@ def test_a_3d_tree_campaign_gives_the_pure_loops_numbers(tmp_path) -> None:
             assert r[k] == m[k], (r["variant"], r["seed"], k)
     ts = pq.read_table(tmp_path / "out" / rows[0]["timeseries"])
     assert {"p_true_x", "p_true_y", "p_true_z"} <= set(ts.column_names) and ts.num_rows == 300
+
+
+PLUGINS = REPO / "test" / "plugins"
+
+
+def _with_controller(tmp: Path, controller: dict) -> Path:
+    """The sound scenario with its controller section replaced (a campaign varies values, not sections)."""
+    doc = yaml.safe_load((REPO / "config" / "sound_small_artery.yaml").read_text())
+    doc["controller"] = controller
+    p = tmp / "base.yaml"
+    p.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def test_a_campaign_whose_controller_sends_nan_says_so_and_exits_1(tmp_path, monkeypatch) -> None:
+    """Issue 38: every run on NaN commands is 'rejected_commands', never 'ok'; one warning line; exit 1."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(PLUGINS), os.environ.get("PYTHONPATH")])))
+    spec = _spec(tmp_path, "nan", seeds=[0, 1], base=str(_with_controller(
+        tmp_path, {"kind": "vesselbot_hostile_plugin:NaNFrom", "start_s": 0.1})))
+    res = _campaign(str(spec), "--out", str(tmp_path / "out"), "--workers", "1")
+    assert res.returncode == 1, res.stderr
+    rows = _rows(tmp_path / "out")
+    assert len(rows) == 2 and {r["status"] for r in rows} == {"rejected_commands"}
+    for r in rows:  # the ticks from 0.1 s of a 0.2 s run at 1 kHz
+        assert r["error"].startswith("100 of 200 controller commands rejected (non-finite) "
+                                     "from t = 0.100 s; the coil ramped to zero"), r["error"]
+    warnings = [ln for ln in res.stderr.splitlines() if "cannot be trusted" in ln]
+    assert len(warnings) == 1 and "2 of 2 run(s)" in warnings[0] and "2 on rejected controller commands" in warnings[0]
+    assert "Traceback" not in res.stderr
+
+
+def test_a_campaign_whose_controller_cannot_be_built_records_one_line_per_run(tmp_path, monkeypatch) -> None:
+    """Issue 38: a plug-in whose constructor raises is one line in each run's 'error', never a traceback or 'ok'."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(PLUGINS), os.environ.get("PYTHONPATH")])))
+    spec = _spec(tmp_path, "broken", seeds=[0], base=str(_with_controller(
+        tmp_path, {"kind": "vesselbot_hostile_plugin:BrokenConstructor"})))
+    res = _campaign(str(spec), "--out", str(tmp_path / "out"), "--workers", "1")
+    assert res.returncode == 1, res.stderr  # every run failed
+    assert "Traceback" not in res.stderr and "Warning" not in res.stderr, res.stderr
+    assert "1 run(s) failed" in res.stderr
+    rows = _rows(tmp_path / "out")
+    assert len(rows) == 1 and rows[0]["status"] == "error"
+    assert "'vesselbot_hostile_plugin:BrokenConstructor' could not be built: its constructor raised" in rows[0]["error"]
+    assert "\n" not in rows[0]["error"]  # one line

@@ -174,7 +174,10 @@ def draw_figures(rows: Sequence[dict[str, Any]], varied_keys: Sequence[str], gro
         ax.set_xlabel(f"{label} after t = metrics_after_s ({unit})")
         ax.set_ylabel("runs")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:  # no finished run, no histogram to name (matplotlib warns)
+        axes[0].legend(fontsize=8)
+    else:
+        axes[0].text(0.5, 0.5, "no run finished ok", ha="center", va="center", transform=axes[0].transAxes)
     fig.suptitle(f"{title}: distribution of the tracking error".strip(": "))
     fig.tight_layout()
     path = out_dir / "tracking_error_distribution.png"
