@@ -124,8 +124,11 @@ def _variants() -> dict[str, Scenario]:
             ekf, sequence=mux, controller=dc.replace(ekf.controller, duty_compensation="sequence"),
             coil=dc.replace(ekf.coil, on_reject="ramp_to_zero", saturation_norm="per_axis"),
             imager=dc.replace(ekf.imager, dropouts=(Dropout(start_s=0.1, duration_s=0.05),))),
+        # observer (25) sees one frame per sequence period: 40 frames/s here (mux's 27 are unstable for its gains,
+        # refused by the scenario loader), with a latency longer than the period
         "scanner_high_gain": dc.replace(
-            sound, sequence=dc.replace(mux, start_s=0.0, latency_s=0.02),
+            sound, sequence=dc.replace(mux, tracking_window_s=0.006, dead_time_s=0.002, propulsion_window_s=0.015,
+                                       start_s=0.0, latency_s=0.02),
             controller=dc.replace(sound.controller, duty_compensation="sequence", stale_timeout_s=0.5)),
         "flow_compensation_high_gain": dc.replace(
             sound, controller=dc.replace(sound.controller, flow_compensation="estimate", sample_hold="midpoint")),
