@@ -360,6 +360,8 @@ def _print_summary(result: Any) -> None:
     for k, v in m.items():
         if isinstance(v, float):
             print(f"  {k:40s} {v:.6g}")
+        elif v is None:  # a metric that does not apply to this run (diverged_at_s of a run that did not diverge)
+            print(f"  {k:40s} -")
         else:
             print(f"  {k:40s} {v}")
     rt = result.realtime
