@@ -21,33 +21,10 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.sim.closed_loop import run_closed_loop
-from vesselbot_ros.sim.fingerprint import fingerprint, fingerprint_series
+from vesselbot_ros.sim.fingerprint import cpu_core_types, fingerprint, fingerprint_series
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
 REPO = Path(__file__).resolve().parents[3]
-
-
-def _cpu_flags() -> set[str]:
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return set()
-    for line in text.splitlines():
-        if line.startswith("flags"):
-            return set(line.split(":", 1)[1].split())
-    return set()
-
-
-def _core_types() -> list[str]:
-    """OpenBLAS core types this CPU can execute, newest first."""
-    flags = _cpu_flags()
-    cores = []
-    if {"avx512f", "avx512dq", "avx512bw", "avx512vl", "avx512cd"} <= flags:
-        cores.append("SkylakeX")  # the AVX-512 kernels
-    if {"avx2", "fma"} <= flags:
-        cores.append("Haswell")  # the AVX2 kernels
-    cores.append("Nehalem")  # SSE4.2 kernels: every CPU numpy 2.x runs on (its baseline is x86-64-v2)
-    return cores
 
 
 def _fingerprints(env_extra: dict[str, str]) -> dict[str, object]:
@@ -65,7 +42,7 @@ def _fingerprints(env_extra: dict[str, str]) -> dict[str, object]:
 @pytest.mark.timeout(1200)  # four subprocesses of ten runs each; generous for a loaded 2-core machine
 @pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="OpenBLAS core types are x86-64 names")
 def test_pure_loop_bit_identical_under_every_openblas_kernel_and_numpy_simd_level() -> None:
-    cores = _core_types()
+    cores = cpu_core_types()
     assert cores[-1] == "Nehalem"
     variants: dict[str, dict[str, str]] = {f"OPENBLAS_CORETYPE={c}": {"OPENBLAS_CORETYPE": c} for c in cores}
     # numpy's own SIMD dispatch (baseline x86-64-v2 only): also must not matter
