@@ -33,7 +33,6 @@ from vesselbot_ros.analysis.plan import (
     segments_table,
     wall_rest,
 )
-from vesselbot_ros.analysis.scanner_study import preset_changes
 from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.kernel import fluid_velocity_x
@@ -51,8 +50,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``vesselbot plan``."""
     parser.add_argument("--config", default=str(shipped_scenarios()[DEFAULT]),
                         help=f"the scenario whose path, bead, coil and sequence are planned for (default {DEFAULT})")
-    parser.add_argument("--hardware", default=None, choices=sorted(PRESETS),
-                        help="a scanner preset's coil and sequence instead of the scenario's")
+    parser.add_argument("--hardware", default=None, metavar="PRESET",
+                        help=f"a scanner preset's coil and sequence instead of the scenario's (one of "
+                             f"{', '.join(sorted(PRESETS))})")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario value, dotted key (applied after --hardware); repeatable")
     parser.add_argument("--budget-fraction", type=float, default=PlanOptions.budget_fraction,
@@ -68,8 +68,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan, write, print; exit 0 (PlanInfeasible: the caller's one line and exit 2)."""
-    scenario = load_scenario(args.config, sets=args.set,
-                             changes=preset_changes(args.hardware) if args.hardware else None)
+    scenario = load_scenario(args.config, sets=args.set, hardware=args.hardware)
     options = PlanOptions(budget_fraction=args.budget_fraction, height=args.height,
                           max_speed_m_per_s=args.max_speed_m_per_s)
     out = Path(args.out)

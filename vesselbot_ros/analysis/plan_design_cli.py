@@ -18,7 +18,6 @@ import numpy as np
 
 from vesselbot_ros.analysis.plan import PlanOptions
 from vesselbot_ros.analysis.plan_design import MATERIALS, DesignCell, design_grid, rows
-from vesselbot_ros.analysis.scanner_study import preset_changes
 from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.scanner.hardware import PRESETS
@@ -41,8 +40,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``vesselbot plan-design``."""
     parser.add_argument("--config", default=str(shipped_scenarios()[DEFAULT]),
                         help=f"the scenario whose path and vessel are planned for (default {DEFAULT})")
-    parser.add_argument("--hardware", default="clinical_3t", choices=sorted(PRESETS),
-                        help="the scanner preset's coil and sequence (default clinical_3t)")
+    parser.add_argument("--hardware", default="clinical_3t", metavar="PRESET",
+                        help=f"the scanner preset's coil and sequence (one of {', '.join(sorted(PRESETS))}; "
+                             f"default clinical_3t)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario value, dotted key (after --hardware); repeatable")
     parser.add_argument("--radii-um", type=_radii, default=_radii("100,175,250,375,500"),
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     for m in materials:
         if m not in MATERIALS:
             raise ConfigError(f"--materials: each must be one of {sorted(MATERIALS)}, got {m!r}")
-    base = load_scenario(args.config, sets=args.set, changes=preset_changes(args.hardware))
+    base = load_scenario(args.config, sets=args.set, hardware=args.hardware)
     out = Path(args.out)
     check_output_dir(out, "--out")  # before the planning: an unwritable folder is one line, nothing computed
     cells = design_grid(base, args.radii_um, materials, PlanOptions())

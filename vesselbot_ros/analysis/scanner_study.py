@@ -105,7 +105,7 @@ from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.resources import require_fits
-from vesselbot_ros.scanner.hardware import PRESETS
+from vesselbot_ros.scanner.hardware import PRESETS, preset_changes
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_with
@@ -179,20 +179,6 @@ def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
         else:
             out[f"{prefix}{k}"] = v
     return out
-
-
-def preset_changes(name: str, **sequence: Any) -> dict[str, Any]:
-    """A hardware preset as dotted-key changes to a scenario: its coil, its whole sequence (``sequence`` keys
-    replace the preset's), no imager latency of its own (the sequence's latency is the scanner's)."""
-    if name not in PRESETS:
-        raise ConfigError(f"hardware must be one of {sorted(PRESETS)}, got {name!r}")
-    hw = PRESETS[name]
-    seq = {f.name: getattr(hw.sequence, f.name) for f in dataclasses.fields(SequenceParams)}
-    seq.update(sequence)
-    return {**_flat("sequence.", seq),
-            "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
-            "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
-            "imager.latency_s": 0.0}
 
 
 def cell_changes(cell: StudyCell) -> dict[str, Any]:

@@ -64,7 +64,7 @@ from vesselbot_ros.config import (
 )
 from vesselbot_ros.resources import require_fits
 from vesselbot_ros.sim.kinds import switch_sections
-from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
+from vesselbot_ros.sim.scenario import Scenario, load_scenario_mapping, scenario_from_mapping
 
 __all__ = [
     "Distribution",
@@ -481,7 +481,7 @@ def load_campaign_spec(path: str | Path) -> tuple[CampaignSpec, dict[str, Any]]:
     if not base_path.is_absolute():
         base_path = p.parent / base_path
     try:
-        base = load_yaml(base_path)
+        base = load_scenario_mapping(base_path)  # the scenario file's own `base:` chain resolved, as every command
     except ConfigError as exc:
         raise ConfigError(f"base: {exc}") from None
     base = _with_values(base, spec.overrides)

@@ -72,7 +72,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, metavar="N", help="override the scenario seed")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario value, dotted key, YAML value (as vesselbot simulate; e.g. "
-                             "controller.kind=predictive); repeatable")
+                             "controller.kind=predictive); applied after --hardware; repeatable")
+    parser.add_argument("--hardware", default=None, metavar="PRESET",
+                        help="fly on a scanner preset's gradient coil and sequence (e.g. clinical_3t; an unknown "
+                             "name lists the presets); --set applies after it")
     parser.add_argument("--real-time-factor", type=float, default=1.0, metavar="F",
                         help="sim seconds per wall second in realtime mode (default 1)")
     parser.add_argument("--without", action="append", default=[], choices=ROLES_CHOICES, metavar="NODE",
@@ -217,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
     # 1. validate everything before touching the disk or starting anything
     validate_args(args)
     # the one config path of every command: --set, --duration and --seed as vesselbot simulate applies them
-    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
+    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed,
+                             hardware=args.hardware)
     record = not args.no_record
     # a run that does not fit in memory or on disk is refused here, one line naming the keys
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)

@@ -51,13 +51,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import Any, Literal
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import SequenceParams
 
-__all__ = ["HardwarePreset", "PRESETS", "iec_normal_mode_dbdt", "dbdt_slew_limit", "DbdtLimit", "dbdt_axis_slew_limit",
+__all__ = ["HardwarePreset", "PRESETS", "preset_changes", "iec_normal_mode_dbdt", "dbdt_slew_limit", "DbdtLimit", "dbdt_axis_slew_limit",
            "effective_coil_limits", "dbdt_at"]
 
 RHEOBASE_T_PER_S = 20.0  # IEC 60601-2-33 rb
@@ -95,6 +95,38 @@ PRESETS: dict[str, HardwarePreset] = {
                        latency_s=0.02),
         "400 mT/m: Mathieu and Martel, MRM 2010 (propulsion gradient insert); slew, windows, latency: ours"),
 }
+
+
+def preset_changes(name: str, **sequence: Any) -> dict[str, Any]:
+    """A hardware preset as dotted-key changes to a scenario: its coil, its whole sequence (``sequence`` keys
+    replace the preset's), no imager latency of its own (the sequence's latency is the scanner's).
+
+    The one meaning of ``--hardware PRESET`` (``simulate``, ``run``, ``plan``, ``plan-design``: through
+    :func:`vesselbot_ros.sim.scenario.load_scenario`'s ``hardware``) and of a scanner study's hardware; ``--set``
+    applies after it.
+
+    Raises:
+        ConfigError: ``name`` is not a preset (the message lists the known ones).
+    """
+    if name not in PRESETS:
+        raise ConfigError(f"--hardware: unknown scanner preset {name!r}; known presets: {', '.join(sorted(PRESETS))}")
+    hw = PRESETS[name]
+    seq = {f.name: getattr(hw.sequence, f.name) for f in dataclasses.fields(SequenceParams)}
+    seq.update(sequence)
+    return {**_flat("sequence.", seq),
+            "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
+            "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
+            "imager.latency_s": 0.0}
+
+
+def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in mapping.items():
+        if isinstance(v, dict):
+            out.update(_flat(f"{prefix}{k}.", v))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 def iec_normal_mode_dbdt(t_eff_ms: float) -> float:

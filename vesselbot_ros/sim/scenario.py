@@ -15,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import shutil
+import sys
+import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -29,9 +31,11 @@ from vesselbot_ros.config import (
     check_finite,
     check_nonnegative,
     check_positive,
+    flatten,
     load_dataclass,
     load_yaml,
     parse_set_items,
+    resolve_config_path,
     shipped_config_dir,
     to_mapping,
     unflatten,
@@ -45,9 +49,9 @@ from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.resources import fmt_bytes, memory_budget_bytes
-from vesselbot_ros.scanner.hardware import DbdtLimit
+from vesselbot_ros.scanner.hardware import DbdtLimit, preset_changes
 from vesselbot_ros.scanner.sequence import SequenceParams
-from vesselbot_ros.sim.kinds import section_resolver, switch_sections
+from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, require_planar, route_to_outlet
 
@@ -58,6 +62,11 @@ __all__ = [
     "SimParams",
     "Scenario",
     "load_scenario",
+    "load_scenario_mapping",
+    "merge_scenario_mappings",
+    "defaults_taken",
+    "defaults_note",
+    "BASE_KEY",
     "with_overrides",
     "scenario_with",
     "scenario_from_mapping",
@@ -461,8 +470,198 @@ def short_copy(scenario: Scenario, duration_s: float) -> Scenario:
 
 
 def scenario_from_mapping(mapping: Any) -> Scenario:
-    """Build a :class:`Scenario` from a plain mapping (strict, see module docstring)."""
+    """Build a :class:`Scenario` from a plain mapping (strict, see module docstring).
+
+    A mapping with a ``base:`` key (ROS parameters of a user's node, say) extends that scenario as a file does
+    (:func:`load_scenario_mapping`); a relative path is taken from the working directory.
+    """
+    if isinstance(mapping, Mapping) and BASE_KEY in mapping:
+        mapping = _extend(dict(mapping), Path.cwd() / "<mapping>", ())
     return load_dataclass(Scenario, mapping, "")
+
+
+#: The key of a scenario file naming the scenario it extends: a shipped scenario's name (``sound_small_artery``)
+#: or a path relative to the file.
+BASE_KEY = "base"
+
+
+def merge_scenario_mappings(base: Mapping[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
+    """``child`` over ``base``, key by key: what a scenario file with ``base:`` loads as.
+
+    A mapping merges into the base's mapping at the same key (recursively); any other value (a number, a
+    string, a list) and an empty mapping ``{}`` replace the base's value.  A stage section whose ``kind`` the
+    child switches to a kind with other parameters drops the base's keys of the old kind
+    (:func:`~vesselbot_ros.sim.kinds.switch_sections`, as ``--set`` does).  Unknown keys are left for the loader
+    to refuse, naming the key.
+    """
+    return switch_sections(base, _deep_merge(base, child), child)
+
+
+def _deep_merge(base: Mapping[str, Any], child: Mapping[str, Any]) -> dict[str, Any]:
+    out = apply_overrides(base, {})  # a deep copy
+    for key, value in child.items():
+        old = out.get(key)
+        if isinstance(value, Mapping) and value and isinstance(old, Mapping):
+            out[key] = _deep_merge(old, value)
+        else:
+            out[key] = apply_overrides({"v": value}, {})["v"]
+    return out
+
+
+def _base_path(path: Path, base: str) -> Path:
+    """The file ``base:`` of ``path`` names: a path relative to ``path``'s folder (or absolute), else a shipped name."""
+    near = (path.parent / Path(base).expanduser())
+    if near.is_file():
+        return near
+    return resolve_config_path(base)
+
+
+def _extend(data: dict[str, Any], path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+    """``data`` (read from ``path``) merged over the scenario its ``base:`` names, that one's base first."""
+    base = data.pop(BASE_KEY)
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"{BASE_KEY} in {path} must be a shipped scenario's name or a path relative to the file, "
+                          f"got {base!r}")
+    bp = _base_path(path, base)
+    if not bp.is_file():
+        names = ", ".join(sorted(shipped_scenarios()))
+        raise ConfigError(f"{BASE_KEY}: {base!r} in {path} does not exist (neither {path.parent / base} nor a shipped "
+                          f"scenario; shipped: {names})")
+    parent = _read_scenario_file(bp, (*chain, path.resolve()))
+    merged = merge_scenario_mappings(parent, data)
+    if "name" not in data and _is_name(path.stem) and path.name != "<mapping>":
+        merged["name"] = path.stem  # the run is labelled after the file, not after its base
+    return merged
+
+
+def _is_name(text: str) -> bool:
+    return bool(text) and all(c.isalnum() or c in "_-." for c in text)
+
+
+def _read_scenario_file(path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+    p = resolve_config_path(path)
+    key = p.resolve()
+    if key in chain:
+        loop = [*chain[chain.index(key):], key]
+        raise ConfigError(f"{BASE_KEY}: scenario files extend each other in a circle: "
+                          + " -> ".join(str(q) for q in loop))
+    data = load_yaml(p)
+    return _extend(data, p, chain) if BASE_KEY in data else data
+
+
+def load_scenario_mapping(path: str | Path, *, note: bool = True) -> dict[str, Any]:
+    """The mapping of a scenario file, its ``base:`` chain resolved: the one reader of scenario files.
+
+    A file with ``base: NAME`` (a shipped scenario's name or a path relative to the file) is merged over that
+    scenario key by key (:func:`merge_scenario_mappings`); the base may have a base of its own.  A file that
+    sets no ``name`` is named after itself (its stem).  A file without ``base:`` takes the code's defaults for
+    every key it leaves out; when those differ from :data:`DEFAULT_SCENARIO`'s, one line on stderr says so
+    (:func:`defaults_note`; not for the shipped files, which are written whole on purpose).
+
+    Raises:
+        ConfigError: as :func:`~vesselbot_ros.config.load_yaml`, for the file and each base; a base that does
+            not exist (named, with the shipped names); a ``base:`` that is not a string; files whose bases form
+            a circle (every file named).
+    """
+    p = resolve_config_path(path)
+    data = _read_scenario_file(p, ())
+    if note and BASE_KEY not in load_yaml(p):
+        line = defaults_note(p, data)
+        if line:
+            print(line, file=sys.stderr, flush=True)
+    return data
+
+
+def defaults_taken(data: Mapping[str, Any], default: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
+    """The keys a scenario mapping without ``base:`` leaves to the code where ``default`` sets another value.
+
+    Returns:
+        ``(dotted key, the code's default, default's value)`` per such key, in ``default``'s order; the code's
+        default is :data:`UNSET` where the code has none (an entry of a mapping such as ``model.overrides``).
+        A stage section whose ``kind`` ``data`` switches to a kind with other parameters is left out (the
+        default's keys do not apply to it).
+    """
+    hints = typing.get_type_hints(Scenario)
+    code_top = Scenario.__dataclass_fields__
+    role_of = {sec: role for role, sec in SECTIONS.items()}
+    out: list[tuple[str, Any, Any]] = []
+    for sec, dval in default.items():
+        if sec in ("name", BASE_KEY) or sec not in code_top:
+            continue
+        fval = data.get(sec)
+        if not isinstance(dval, Mapping):
+            field = code_top[sec]
+            if sec not in data and field.default is not dataclasses.MISSING and field.default != dval:
+                out.append((sec, field.default, dval))
+            continue
+        if fval is not None and not isinstance(fval, Mapping):
+            continue  # the loader refuses it, naming the key
+        try:
+            if sec in role_of:
+                cls = params_type(role_of[sec], fval or {})
+                if cls is not params_type(role_of[sec], dval):
+                    continue
+            else:
+                cls = hints[sec]
+            code = flatten(to_mapping(cls()))
+        except (ConfigError, TypeError):
+            continue  # a kind the code cannot default (a user's class with required fields): nothing to compare
+        for key, value in flatten(dval).items():
+            if not _is_set(fval, key.split(".")) and code.get(key, UNSET) != value:
+                out.append((f"{sec}.{key}", code.get(key, UNSET), value))
+    return out
+
+
+class _Unset:
+    def __repr__(self) -> str:
+        return "unset"
+
+
+#: The code's default of a key it has none for (:func:`defaults_taken`).
+UNSET: Any = _Unset()
+
+
+def _is_set(section: Any, parts: list[str]) -> bool:
+    node = section
+    for part in parts:
+        if not isinstance(node, Mapping) or not node:
+            return node is not None  # a value or an empty mapping written above the key: the file decided
+        if part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float):
+        text = f"{value:g}"
+    elif isinstance(value, (list, tuple)) and any(isinstance(v, Mapping) for v in value):
+        text = f"[{len(value)} entr{'y' if len(value) == 1 else 'ies'}]"
+    elif isinstance(value, (list, tuple)):
+        text = "[" + ", ".join(_short(v) for v in value) + "]"
+    else:
+        text = str(value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
+def defaults_note(path: str | Path, data: Mapping[str, Any]) -> str | None:
+    """The one line that tells a scenario file without ``base:`` which defaults it got, or None.
+
+    None for a shipped file and for a file that sets every key where the code's defaults and
+    :data:`DEFAULT_SCENARIO`'s differ (:func:`defaults_taken`): there is nothing to tell.
+    """
+    p = Path(path)
+    shipped = shipped_config_dir().resolve()
+    if p.resolve().parent == shipped or shipped in p.resolve().parents:
+        return None
+    default = load_yaml(resolve_config_path(DEFAULT_SCENARIO))
+    taken = defaults_taken(data, default)
+    if not taken:
+        return None
+    shown = ", ".join(f"{k} {_short(code)} not {_short(val)}" for k, code, val in taken[:4])
+    more = f", and {len(taken) - 4} more" if len(taken) > 4 else ""
+    return (f"note: {p} has no `{BASE_KEY}:`; keys it does not set take the code's defaults ({shown}{more}), not "
+            f"those of {DEFAULT_SCENARIO}: add `{BASE_KEY}: {DEFAULT_SCENARIO}` to extend the default scenario")
 
 
 def scenario_overrides(
@@ -484,18 +683,21 @@ def scenario_overrides(
 
 def load_scenario(
     path: str | Path, *, sets: Iterable[str] = (), duration: float | None = None, seed: int | None = None,
-    changes: Mapping[str, Any] | None = None,
+    changes: Mapping[str, Any] | None = None, hardware: str | None = None,
 ) -> Scenario:
     """Load a scenario YAML file, with the command line's overrides applied (one path for every command).
 
     Args:
-        path: The scenario YAML file.
+        path: The scenario YAML file (its ``base:`` chain resolved, :func:`load_scenario_mapping`).
         sets: ``KEY=VALUE`` strings (``--set``), VALUE read as YAML by the one
             parser; a mapping value replaces the mapping at KEY.
         duration: ``--duration`` (``sim.duration_s``), s.
         seed: ``--seed``.
-        changes: Dotted-key values a command sets (a scanner preset's coil
-            and sequence); ``sets``, ``duration`` and ``seed`` win over them.
+        changes: Dotted-key values a command sets; ``sets``, ``duration``
+            and ``seed`` win over them.
+        hardware: ``--hardware PRESET``: a scanner preset's coil and sequence
+            (:func:`~vesselbot_ros.scanner.hardware.preset_changes`), applied
+            first: ``changes``, ``sets``, ``duration`` and ``seed`` win over it.
 
     Raises:
         ConfigError: missing or unreadable file, not a scenario (empty, binary,
@@ -503,7 +705,9 @@ def load_scenario(
             wrong type or out-of-range value (the message names the dotted key
             and value).
     """
-    return with_overrides(load_yaml(path), {**(changes or {}), **scenario_overrides(sets, duration, seed)})
+    preset = preset_changes(hardware) if hardware is not None else {}
+    return with_overrides(load_scenario_mapping(path),
+                          {**preset, **(changes or {}), **scenario_overrides(sets, duration, seed)})
 
 
 def with_overrides(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> Scenario:

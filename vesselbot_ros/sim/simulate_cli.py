@@ -52,13 +52,18 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, help="output directory (default out/simulate/<scenario>/)")
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE",
-        help="override a scenario value, dotted key, YAML value (e.g. imager.frame_rate_Hz=50); repeatable",
+        help="override a scenario value, dotted key, YAML value (e.g. imager.frame_rate_Hz=50); applied after "
+             "--hardware; repeatable",
     )
+    parser.add_argument("--hardware", default=None, metavar="PRESET",
+                        help="fly on a scanner preset's gradient coil and sequence (e.g. clinical_3t; an unknown "
+                             "name lists the presets); --set applies after it")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the scenario and write metrics and time series; return 0, or 1 if commands were rejected."""
-    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed)
+    scenario = load_scenario(args.config, sets=args.set, duration=args.duration, seed=args.seed,
+                             hardware=args.hardware)
     est = check_resources(scenario)  # before any work: one line if the run does not fit in memory
     out = Path(args.out) if args.out else Path("out") / "simulate" / scenario.name
     # before any work too: a folder that cannot be written, or too little room for the outputs, is one line

@@ -35,6 +35,7 @@ BAD = [
     (["--live", "--live-rate", "-5"], ["--live-rate", "-5"]),
     (["--live", "--live-rate", "nan"], ["--live-rate", "nan"]),
     (["--compression", "zstd_small", "--no-record"], ["--compression zstd_small", "--no-record"]),
+    (["--hardware", "mri9000"], ["--hardware: unknown scanner preset 'mri9000'; known presets: clinical_3t, "]),
 ]
 
 
@@ -103,6 +104,28 @@ def test_no_config_means_the_scenario_make_run_runs(tmp_path, capsys, monkeypatc
     with pytest.raises(SystemExit) as exc:
         cli.main(["run", "--compression", "gzip"])
     assert exc.value.code == 2 and "invalid choice: 'gzip'" in capsys.readouterr().err
+
+
+def test_hardware_is_the_presets_keys_with_set_applied_after_it_as_simulate_and_plan(tmp_path, capsys, monkeypatch):
+    from vesselbot_ros.config import ConfigError
+    from vesselbot_ros.scanner.hardware import preset_changes
+    from vesselbot_ros.sim import scenario as sc
+
+    seen = []
+
+    def stop(scenario, *args, **kwargs):  # the scenario the graph would run, before anything is made
+        seen.append(scenario)
+        raise ConfigError("stopped here")
+
+    monkeypatch.setattr(sc, "check_resources", stop)
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(["run", "--config", "clinical_3t_small_artery", "--hardware", "propulsion_insert",
+                     "--set", "coil.saturation_T_per_m=0.3", "--quiet"])
+    assert code == 2 and "stopped here" in capsys.readouterr().err
+    by_set = sc.load_scenario("clinical_3t_small_artery", sets=[
+        *(f"{k}={v}" for k, v in preset_changes("propulsion_insert").items()), "coil.saturation_T_per_m=0.3"])
+    assert seen == [by_set]
+    assert (by_set.coil.saturation_T_per_m, by_set.sequence.propulsion_window_s) == (0.3, 0.06)
 
 
 PLUGINS = REPO / "test" / "plugins"

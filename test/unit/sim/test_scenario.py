@@ -3,12 +3,23 @@ rate it really gets frames at (sim/scenario.py)."""
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import pytest
+import yaml
 
 from vesselbot_ros.cli import main as cli_main
-from vesselbot_ros.config import ConfigError
+from vesselbot_ros.config import ConfigError, apply_overrides, load_yaml
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
-from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+from vesselbot_ros.sim.scenario import (
+    defaults_note,
+    defaults_taken,
+    load_scenario,
+    load_scenario_mapping,
+    scenario_from_mapping,
+    shipped_scenarios,
+)
 
 CLINICAL = shipped_scenarios()["clinical_3t_small_artery"]  # multiplexed: 20 ms window, 2 ms dead, 30 ms push, 20 ms latency
 SOUND = shipped_scenarios()["sound_small_artery"]  # continuous
@@ -74,3 +85,127 @@ def test_simulate_and_plan_refuse_a_latency_longer_than_the_run_in_one_line(comm
     assert code == 2
     assert len(err) == 1 and "sequence.latency_s must be < sim.duration_s (2.0 s)" in err[0] and "got 10.0" in err[0]
     assert not any(tmp_path.iterdir())  # refused before any work
+
+
+# ---- `base:`: a scenario file extends another, key by key ----------------------------------------------------------
+
+
+def _write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_a_file_with_base_is_the_base_with_its_keys_over_it_and_is_named_after_itself(tmp_path: Path, capsys) -> None:
+    child = _write(tmp_path / "fast_imager.yaml", "base: sound_small_artery\nimager: {frame_rate_Hz: 500}\n"
+                                                  "seed: 7\n")
+    got = load_scenario(child)
+    sound = load_scenario(SOUND)
+    want = dataclasses.replace(sound, name="fast_imager", seed=7,
+                               imager=dataclasses.replace(sound.imager, frame_rate_Hz=500.0))
+    assert got == want  # every key the file does not set is sound_small_artery's (its outliers, its anchors, ...)
+    assert got.imager.outliers == sound.imager.outliers and len(sound.imager.outliers) == 1
+    assert "base" not in got.to_mapping()  # what a run records (the bag's metadata) is the merged scenario
+    assert capsys.readouterr().err == ""  # no note: it says what it extends
+
+
+def test_a_file_with_base_loads_the_same_scenario_as_the_equivalent_full_file(tmp_path: Path) -> None:
+    """The 508 um instead of 160 um of issue 39 came from a partial file; with `base:` it is the full file's scenario."""
+    full = load_yaml(SOUND)
+    full = apply_overrides(full, {"name": "mine", "controller.sample_hold": "none", "imager.noise_sigma_m": 2e-5})
+    full_file = _write(tmp_path / "full.yaml", yaml.safe_dump(full, sort_keys=False))
+    based = _write(tmp_path / "mine.yaml", "base: sound_small_artery\ncontroller: {sample_hold: none}\n"
+                                           "imager: {noise_sigma_m: 2.0e-5}\n")
+    assert load_scenario(based) == load_scenario(full_file)
+    # and differs from the partial file without base, which gets the code's defaults (a 50 Hz imager, no outliers)
+    partial = _write(tmp_path / "p" / "mine.yaml", "controller: {sample_hold: none}\nimager: {noise_sigma_m: 2.0e-5}\n"
+                                                   "name: mine\n")
+    loose = load_scenario(partial)
+    assert loose != load_scenario(based)
+    assert loose.imager.frame_rate_Hz == 50.0 and loose.imager.outliers == ()
+
+
+def test_a_chain_of_bases_and_a_relative_path_from_the_file(tmp_path: Path) -> None:
+    _write(tmp_path / "lib" / "middle.yaml", "base: sound_small_artery\nimager: {frame_rate_Hz: 500}\n")
+    top = _write(tmp_path / "runs" / "top.yaml", "base: ../lib/middle.yaml\nimager: {noise_sigma_m: 3.0e-5}\n"
+                                                 "name: top\n")
+    got = load_scenario(top)
+    assert (got.imager.frame_rate_Hz, got.imager.noise_sigma_m, got.name) == (500.0, 3e-5, "top")
+    assert got.reference == load_scenario(SOUND).reference  # from the end of the chain
+
+
+def test_a_cycle_of_bases_is_one_error_naming_the_files(tmp_path: Path) -> None:
+    a = _write(tmp_path / "a.yaml", "base: b.yaml\n")
+    b = _write(tmp_path / "b.yaml", "base: ./a.yaml\n")
+    with pytest.raises(ConfigError, match=r"^base: scenario files extend each other in a circle: ") as info:
+        load_scenario(a)
+    assert str(info.value).endswith(f"{a} -> {b} -> {a}")
+    self_ref = _write(tmp_path / "self.yaml", "base: self.yaml\n")
+    with pytest.raises(ConfigError, match=r"in a circle: .*self\.yaml -> .*self\.yaml$"):
+        load_scenario(self_ref)
+
+
+def test_a_missing_base_names_it_and_the_shipped_scenarios(tmp_path: Path) -> None:
+    f = _write(tmp_path / "x.yaml", "base: sound_smal_artery\n")
+    with pytest.raises(ConfigError, match=r"^base: 'sound_smal_artery' in .*x\.yaml does not exist \(neither .* nor a "
+                                          r"shipped scenario; shipped: .*sound_small_artery"):
+        load_scenario(f)
+    g = _write(tmp_path / "y.yaml", "base: [sound_small_artery]\n")
+    with pytest.raises(ConfigError, match=r"^base in .*y\.yaml must be a shipped scenario's name or a path relative to "
+                                          r"the file, got \['sound_small_artery'\]$"):
+        load_scenario(g)
+
+
+def test_an_unknown_key_in_a_file_with_base_is_still_refused_naming_it(tmp_path: Path) -> None:
+    f = _write(tmp_path / "x.yaml", "base: sound_small_artery\nimager: {frame_rate_hz: 500}\n")
+    with pytest.raises(ConfigError, match=r"^unknown key imager\.frame_rate_hz \(value 500\); allowed keys: "):
+        load_scenario(f)
+
+
+def test_a_kind_the_file_switches_drops_the_bases_keys_of_the_old_kind_and_an_empty_mapping_replaces(
+        tmp_path: Path) -> None:
+    sound = load_scenario(SOUND)
+    assert sound.model.overrides  # the 5 % velocity error of the sound readings
+    f = _write(tmp_path / "x.yaml", "base: sound_small_artery\ncontroller: {kind: predictive}\nmodel: {overrides: {}}\n")
+    got = load_scenario(f)
+    assert got.controller.kind == "predictive" and got.model.overrides == {}
+    assert got == load_scenario(SOUND, sets=["controller.kind=predictive", "model.overrides={}", "name=x"])
+
+
+def test_a_mapping_with_base_as_ros_parameters_give_it_extends_that_scenario() -> None:
+    got = scenario_from_mapping({"base": "sound_small_artery", "imager": {"frame_rate_Hz": 500}})
+    assert got == dataclasses.replace(load_scenario(SOUND), imager=dataclasses.replace(load_scenario(SOUND).imager,
+                                                                                       frame_rate_Hz=500.0))
+
+
+def test_a_partial_file_without_base_is_told_in_one_line_which_defaults_it_got(tmp_path: Path, capsys) -> None:
+    f = _write(tmp_path / "partial.yaml", "name: partial\ncontroller: {kind: backstepping}\n")
+    load_scenario(f)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1
+    assert err[0].startswith(f"note: {f} has no `base:`; keys it does not set take the code's defaults (")
+    assert "imager.frame_rate_Hz 50 not 1000" in err[0] and "imager.outliers [] not [1 entry]" in err[0]
+    assert err[0].endswith("not those of sound_small_artery: add `base: sound_small_artery` to extend the default "
+                           "scenario")
+    # the keys are computed, not listed by hand: the code's default against the default scenario's, per key
+    taken = {k: (code, dflt) for k, code, dflt in defaults_taken(load_yaml(f), load_yaml(SOUND))}
+    assert taken["imager.frame_rate_Hz"] == (50.0, 1000.0)
+    assert taken["controller.sample_hold"] == ("none", "midpoint")
+    assert "physics.robot.radius_m" not in taken  # sound_small_artery keeps the code's default there
+
+
+def test_no_note_for_a_file_that_sets_every_key_where_the_defaults_differ_nor_for_shipped_files(
+        tmp_path: Path, capsys) -> None:
+    full = _write(tmp_path / "copy.yaml", SOUND.read_text())
+    assert defaults_note(full, load_yaml(full)) is None
+    # one such key left out: the note names it and only it
+    data = load_yaml(SOUND)
+    del data["imager"]["frame_rate_Hz"]
+    one = _write(tmp_path / "one.yaml", yaml.safe_dump(data))
+    note = defaults_note(one, load_yaml(one))
+    assert note is not None and "(imager.frame_rate_Hz 50 not 1000)" in note
+    for path in shipped_scenarios().values():
+        assert defaults_note(path, load_yaml(path)) is None
+    capsys.readouterr()
+    load_scenario_mapping(full)
+    assert capsys.readouterr().err == ""

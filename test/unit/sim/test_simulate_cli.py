@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
+from vesselbot_ros.cli import main as cli_main
+from vesselbot_ros.scanner.hardware import preset_changes
 from vesselbot_ros.testing import cli_on_a_full_disk
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -30,3 +33,29 @@ def test_a_full_disk_leaves_the_earlier_outputs_and_no_empty_or_probe_file(tmp_p
     assert (f"--out {out} is not writable" in err[0] if not fill_after
             else f"cannot write {out / 'metrics.json'} " in err[0] and "metrics.json is unchanged" in err[0])
     assert {p.name: p.read_text() for p in out.iterdir()} == OLD  # no 0-byte file, no temporary or probe file
+
+
+def test_hardware_flies_the_same_run_as_the_presets_keys_given_with_set(tmp_path: Path, capsys) -> None:
+    common = ["simulate", "--config", "clinical_3t_small_artery", "--duration", "0.05"]
+    assert cli_main([*common, "--hardware", "propulsion_insert", "--out", str(tmp_path / "hw")]) == 0
+    sets = [a for k, v in preset_changes("propulsion_insert").items() for a in ("--set", f"{k}={v}")]
+    assert cli_main([*common, *sets, "--out", str(tmp_path / "set")]) == 0
+    assert (tmp_path / "hw" / "scenario.yaml").read_text() == (tmp_path / "set" / "scenario.yaml").read_text()
+    m_hw, m_set = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("hw", "set"))
+    for m in (m_hw, m_set):
+        m.pop("wall_time_s", None)
+    assert m_hw == m_set
+    assert "saturation_T_per_m: 0.4" in (tmp_path / "hw" / "scenario.yaml").read_text()  # the insert's 400 mT/m
+    # --set applies after --hardware
+    capsys.readouterr()
+    assert cli_main([*common, "--hardware", "propulsion_insert", "--set", "coil.saturation_T_per_m=0.3",
+                     "--out", str(tmp_path / "both")]) == 0
+    assert "saturation_T_per_m: 0.3" in (tmp_path / "both" / "scenario.yaml").read_text()
+
+
+def test_an_unknown_hardware_preset_is_one_line_listing_the_known_ones(tmp_path: Path, capsys) -> None:
+    assert cli_main(["simulate", "--hardware", "mri9000", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vesselbot simulate: error: --hardware: unknown scanner preset 'mri9000'; known presets: "
+                   "clinical_3t, clinical_3t_mfde, paper, propulsion_insert"]
+    assert not (tmp_path / "o").exists()
