@@ -95,3 +95,76 @@ def cpu_share(seconds: float = 0.5) -> float:
     while time.monotonic() < t_end:
         x += 1
     return (time.process_time() - c0) / (time.monotonic() - w0)
+
+
+#: A sleeper that wakes this much later than it asked saw the machine stall (a quiet machine wakes it in ~0.1 ms).
+STALL_S = 0.002
+
+_WITNESS = r"""
+import json, select, sys, time
+period, stall = float(sys.argv[1]), float(sys.argv[2])
+events = []
+due = time.monotonic()
+print("ready", flush=True)
+while True:
+    due += period
+    r, _, _ = select.select([sys.stdin], [], [], max(0.0, due - time.monotonic()))
+    now = time.monotonic()
+    if r:
+        break
+    if now - due > stall:
+        events.append((due, now - due))
+    if now > due + period:  # a stall: start the schedule again from now, do not count its ticks twice
+        due = now
+print(json.dumps(events), flush=True)
+"""
+
+
+@dataclass
+class Stalls:
+    """What :class:`stall_witness` saw: each wake-up later than :data:`STALL_S`, as (due, late) in monotonic s."""
+
+    events: list[tuple[float, float]]
+
+    def within(self, t0: float, t1: float) -> list[tuple[float, float]]:
+        """The stalls that overlapped the monotonic window [t0, t1]."""
+        return [(due, late) for due, late in self.events if due <= t1 and due + late >= t0]
+
+    def total_s(self, t0: float, t1: float) -> float:
+        """Wall time the witness was kept from running within [t0, t1] (s)."""
+        return sum(late for _, late in self.within(t0, t1))
+
+    def describe(self, t0: float, t1: float) -> str:
+        ev = self.within(t0, t1)
+        worst = max((late for _, late in ev), default=0.0)
+        return (f"an independent sleeper woke {len(ev)} times more than {STALL_S * 1e3:g} ms late in the run's window "
+                f"(worst {worst * 1e3:.1f} ms, {self.total_s(t0, t1) * 1e3:.1f} ms in all)")
+
+
+class stall_witness:
+    """A separate process that sleeps 1 ms at a time and notes every wake-up the machine delayed.
+
+    What ``/proc/stat`` cannot see (a hypervisor that deschedules the VM without counting steal, a host's
+    noisy neighbour, a page-reclaim storm) still delays a sleeper's wake-up: if a trivial process that asks for
+    the CPU every millisecond was kept waiting for milliseconds while a real-time run ran, the machine stalled,
+    and a deadline the run missed then says nothing about the program.
+    """
+
+    def __init__(self, period_s: float = 0.001) -> None:
+        self.period_s = period_s
+
+    def __enter__(self) -> Stalls:
+        import subprocess
+        import sys
+
+        self.stalls = Stalls([])
+        self._proc = subprocess.Popen([sys.executable, "-c", _WITNESS, str(self.period_s), str(STALL_S)],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert self._proc.stdout is not None and self._proc.stdout.readline().strip() == "ready"
+        return self.stalls
+
+    def __exit__(self, *exc: object) -> None:
+        import json
+
+        out, _ = self._proc.communicate("", timeout=30)
+        self.stalls.events[:] = [tuple(e) for e in json.loads(out.strip().splitlines()[-1])]

@@ -200,12 +200,16 @@ class RealtimeReport:
         sim_s: Sim time advanced from the first to the last tick published (s).
         wall_s: Wall time from the first to the last tick published (s).
         nodes: Per loop node, its deadlines.
+        window_monotonic_s: The launcher's ``time.monotonic()`` when it started the run and when it saw the run
+            end (the machine's CLOCK_MONOTONIC, the same in every process): where to look in other measurements of
+            the machine (a load monitor, a trace) for what happened meanwhile.
     """
 
     asked: float
     sim_s: float
     wall_s: float
     nodes: tuple[RealtimeStats, ...]
+    window_monotonic_s: tuple[float, float] = (0.0, 0.0)
 
     @property
     def factor_held(self) -> float:
@@ -269,7 +273,8 @@ class RealtimeReport:
         return {"asked": self.asked, "factor_held": self.factor_held, "sim_s": self.sim_s, "wall_s": self.wall_s,
                 "missed_limit": REALTIME_MISSED_LIMIT, "factor_limit": REALTIME_FACTOR_LIMIT,
                 "factor_short": self.factor_short, "failed": self.failed, "reasons": self.reasons,
-                "verdict": self.verdict_line(), "nodes": [st.as_dict() for st in self.nodes]}
+                "verdict": self.verdict_line(), "nodes": [st.as_dict() for st in self.nodes],
+                "window_monotonic_s": list(self.window_monotonic_s)}
 
 
 @dataclasses.dataclass
@@ -502,7 +507,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
     if options.mode == "realtime":
         result.realtime = RealtimeReport(options.real_time_factor, sim_s, wall,
-                                         tuple(realtime_report(diagnostics, roles, n)))
+                                         tuple(realtime_report(diagnostics, roles, n)), (t_start, t_end))
     return result
 
 
