@@ -175,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"<!-- {name} -->\n{body}\n")
         return 0
     stale = []
-    for path in (DOCS, README):
+    for path in (DOCS,):
         old = path.read_text(encoding="utf-8")
         new = render(old, bodies, path)
         if new != old:

@@ -44,11 +44,10 @@ def test_sound_variant_numbers_in_the_docs_are_current():
 
 def test_every_closed_loop_claim_is_mean_and_worst_over_seeds():
     text = (ROOT / "docs" / "reproduction.md").read_text(encoding="utf-8")
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
     main = _section(text, "closed_loop")
     assert "seeds 0-4: mean / worst" in main and main.count(" / ") >= 10
-    summary = _section(readme, "closed_loop_summary")
-    assert "mean / worst" in summary and "123 µm" not in readme and "123 um" not in text
+    summary = _section(text, "closed_loop_summary")
+    assert "mean / worst" in summary and "123 µm" not in text and "123 um" not in text
     # the summary's sound-variant numbers are the table's
     row = next(ln for ln in main.splitlines() if ln.startswith("| tracking error max"))
     assert row.split("|")[4].strip().removesuffix(" um") in summary

@@ -1,6 +1,6 @@
 """The import contract: every import of the package points down the floors, and nothing imports in a circle.
 
-``LAYERS`` is the one table of the package's floors (README.md's "Layers"
+``LAYERS`` is the one table of the package's floors (docs/graph.md's "Layers"
 section shows it, and :func:`test_readme_shows_the_layer_table` keeps the two
 equal).  A module may import modules of its own floor or of a floor below,
 never above; imports inside functions count the same as top-level ones (they
@@ -201,7 +201,7 @@ def test_the_real_tree_fails_once_an_upward_import_is_added(tmp_path: Path, monk
 
 
 def test_readme_shows_the_layer_table() -> None:
-    readme = (ROOT.parent / "README.md").read_text()
+    readme = (ROOT.parent / "docs" / "graph.md").read_text()
     section = readme.split("### Layers", 1)[1].split("\n#", 1)[0]
     rows = re.findall(r"^\| (\d+) \| (\w+) \| ([^|]+) \|", section, re.M)
     shown = tuple((name, tuple(u.strip(" `") for u in units.split(","))) for _i, name, units in rows)
