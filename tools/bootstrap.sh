@@ -25,6 +25,12 @@ quiet_pip() {  # pip without the local index's noise; fails when pip fails
   if [ $rc -ne 0 ]; then echo "vesselbot bootstrap: pip $1 failed (exit $rc)" >&2; exit $rc; fi
 }
 mark() { mkdir -p "$stamps"; echo "$2" > "$stamps/$1"; }
+# every step that runs says how long it took, and the bootstrap its total, so that the next fresh machine
+# knows what to expect (the figures in docs/install.md are such lines, from a fresh clone)
+t0=$SECONDS
+step_t0=$SECONDS
+step() { step_t0=$SECONDS; echo "vesselbot bootstrap: $*"; }
+took() { echo "vesselbot bootstrap:   $1 took $((SECONDS - step_t0)) s"; }
 
 for tool in cmake ninja cc; do
   command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install cmake ninja-build gcc)" >&2; exit 1; }
@@ -36,7 +42,7 @@ done
 # 1. virtual environment + pinned requirements
 req=$(hash_files requirements.txt)
 if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
-  echo "vesselbot bootstrap: installing pinned requirements into .venv (about 1 min on a fresh machine)"
+  step "installing pinned requirements into .venv (pip; the longest step on a fresh machine)"
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/sim-interfaces" "$stamps/package"
   quiet_pip install -r requirements.txt
@@ -46,16 +52,18 @@ if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
     || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \
               "(apt-get install libglu1-mesa libxcursor1 libxft2 libxinerama1)" >&2; exit 1; }
   mark requirements "$req"
+  took "pip install"
 fi
 
 # 2. vesselbot_ros itself, editable (before the interfaces: it needs none of them, and the numba warm-up needs it)
 # the console scripts derive from the graph spec
 pkg=$(hash_files setup.py setup.cfg package.xml requirements.txt vesselbot_ros/graph_spec.py)
 if ! fresh package "$pkg"; then
-  echo "vesselbot bootstrap: installing vesselbot_ros (editable)"
+  step "installing vesselbot_ros (editable)"
   quiet_pip install --no-deps --no-build-isolation -e .
   (cd / && "$venv/bin/python" -c "import vesselbot_ros.cli") || { echo "vesselbot bootstrap: vesselbot_ros does not import" >&2; exit 1; }
   mark package "$pkg"
+  took "vesselbot_ros"
 fi
 
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
@@ -71,15 +79,18 @@ if ! fresh numba-cache "$nb"; then
   numba_log=$(mktemp)
   (cd / && exec "$venv/bin/python" -c "from vesselbot_ros.sim.warm import warm; warm()") >"$numba_log" 2>&1 &
   numba_pid=$!
+  numba_t0=$SECONDS
 fi
 numba_done() {  # wait for the background warm-up; stamp it, or show its error and fail
   [ -n "$numba_pid" ] || return 0
+  echo "vesselbot bootstrap: waiting for the numba warm-up (started $((SECONDS - numba_t0)) s ago)"
   if ! wait "$numba_pid"; then
     tail -30 "$numba_log" >&2; rm -f "$numba_log"
     echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1
   fi
   rm -f "$numba_log"; numba_pid=
   mark numba-cache "$nb"
+  echo "vesselbot bootstrap:   numba warm-up took $((SECONDS - numba_t0)) s (in the background)"
 }
 trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
 
@@ -87,10 +98,11 @@ trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
 ifc=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \
       $(find msg_defs -type f | LC_ALL=C sort))
 if ! fresh interfaces "$ifc"; then
-  echo "vesselbot bootstrap: building msg_defs (vesselbot_msgs) into .venv"
+  step "building msg_defs (vesselbot_msgs) into .venv (rosidl)"
   rm -f "$stamps/interfaces"
   tools/build_interfaces.sh "$venv" msg_defs build/msg_defs
   mark interfaces "$ifc"
+  took "msg_defs"
 fi
 
 # 3b. the simulation_interfaces standard (vendored, unchanged; no Jazzy wheel of it on PyPI)
@@ -98,19 +110,22 @@ sif=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \
       $(find third_party/simulation_interfaces -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' \
            -o -name CMakeLists.txt -o -name package.xml \) | LC_ALL=C sort))
 if ! fresh sim-interfaces "$sif"; then
-  echo "vesselbot bootstrap: building third_party/simulation_interfaces into .venv"
+  step "building third_party/simulation_interfaces into .venv (rosidl)"
   rm -f "$stamps/sim-interfaces"
   tools/build_interfaces.sh "$venv" third_party/simulation_interfaces build/simulation_interfaces
   mark sim-interfaces "$sif"
+  took "simulation_interfaces"
 fi
 
 # 5. Foxglove's JavaScript packages for the tests (exact versions from tools/js/package-lock.json)
 js=$(hash_files tools/js/package.json tools/js/package-lock.json)
 if ! fresh npm "$js" || [ ! -d tools/js/node_modules ]; then
-  echo "vesselbot bootstrap: installing tools/js (npm ci)"
+  step "installing tools/js (npm ci)"
   rm -f "$stamps/npm"
   (cd tools/js && npm ci --no-audit --no-fund --loglevel=error) || { echo "vesselbot bootstrap: npm ci in tools/js failed" >&2; exit 1; }
   mark npm "$js"
+  took "npm ci"
 fi
 
 numba_done
+[ $((SECONDS - t0)) -lt 5 ] || echo "vesselbot bootstrap: done in $((SECONDS - t0)) s"

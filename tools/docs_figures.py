@@ -178,6 +178,34 @@ INPUTS: dict[str, str] = {
     "< 150 um": "the paper's claimed bound, quoted",
     "150 um after": "the paper's claimed bound, quoted",
     "< 10 um": "the paper's claimed bound, quoted",
+    # the scenario's geometry and the paper's inputs (Table I's vessel, X0, the aberrant measurements)
+    "10 mm /s). The error": "the flow velocity of the case the text describes, an input",
+    "1 mm ), the injection": "the reference's first anchor X0, an input",
+    "1 mm ) and is announced": "the paper's aberrant measurements (1 mm for 20 ms), an input",
+    "1 mm , 20 ms outlier": "the paper's aberrant measurements (1 mm for 20 ms), an input",
+    "1 mm offset": "the paper's aberrant measurements (1 mm for 20 ms), an input",
+    "1 mm for 20 ms": "the paper's aberrant measurements (1 mm for 20 ms), an input",
+    "1 mm downstream": "the paper's aberrant measurements (1 mm for 20 ms), an input",
+    "1 mm above the axis": "the paper's reference height, an input",
+    "1 mm vessel": "Table I's vessel diameter, an input",
+    "1 mm ) |": "Table I's vessel diameter (a table's row label), an input",
+    "10 mm ) |": "Table I's vessel diameter (a table's row label), an input",
+    "1 mm before the node": "where Fig. 6's bifurcation profiles are sampled, an input",
+    "10 mm into": "the symmetric bifurcation's position, an input",
+    "1 mm of the wall": "the near-wall region the wall field resolves, an input",
+    "250 um bead": "Table III's bead diameter, an input",
+    "1 um -20 mm": "the importer's radius limits, an input",
+    # thresholds a test or a check applies (what a run must stay within), not what a run gave
+    "10 mm ) from the reference": "the divergence bound max(10 D, 10 mm), a threshold",
+    "250 um of the fault-free": "the fault test's tracking threshold",
+    "1 mm ) in": "the lost-track threshold of the scanner study",
+    "1 mm . The insert": "the scanner study's tracking target",
+    "100 x U_sat": "the hostile test controller's command range, an input",
+    "2 x U_sat": "a deliberately broken clamp (the check of the invariant test), an input",
+    # a real-time factor asked for (vesselbot run --real-time-factor): what a run held is a result, what it is asked is not
+    "0.05x": "a real-time factor asked for, an input",
+    "1x": "a real-time factor asked for, an input",
+    "50x": "a real-time factor asked for, an input",
 }
 
 

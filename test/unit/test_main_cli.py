@@ -41,7 +41,7 @@ def test_os_error_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(sim, "run_closed_loop", full_disk)
     cfg = tmp_path / "s.yaml"
-    cfg.write_text("name: s\nsim: {duration_s: 0.01}\nreference: {duration_s: 0.01}\n")
+    cfg.write_text("base: sound_small_artery\nname: s\nsim: {duration_s: 0.01}\nreference: {duration_s: 0.01}\n")
     assert main(["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and "metrics.json" in err[0]

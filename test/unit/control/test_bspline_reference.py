@@ -245,7 +245,7 @@ def test_a_reference_of_35000_anchors_is_refused_before_its_spline_is_built(tmp_
 
     n = 35000
     path = tmp_path / "many.yaml"
-    path.write_text(yaml.safe_dump({"name": "many", "reference": {"anchors_x_m": [i * 1e-7 for i in range(n)],
+    path.write_text(yaml.safe_dump({"base": "sound_small_artery", "name": "many", "reference": {"anchors_x_m": [i * 1e-7 for i in range(n)],
                                                                   "anchors_z_m": [0.0] * n}}, width=1 << 30))
     proc = cli_under_memory_limit(["simulate", "--config", str(path), "--out", str(tmp_path / "out")], timeout=60)
     assert proc.returncode == 2, proc.stderr[-3000:]
