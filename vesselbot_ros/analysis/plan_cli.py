@@ -73,16 +73,17 @@ def run(args: argparse.Namespace) -> int:
                           max_speed_m_per_s=args.max_speed_m_per_s)
     out = Path(args.out)
     check_output_dir(out, "--out", need_bytes=OUTPUT_BYTES, need_why="plan.yaml, segments.csv and plan.png")
+    label = run_label(scenario.name, args.hardware)
     plan = make_plan(scenario, options)
     planned = plan_scenario(scenario, plan.reference)
     changes = flying_changes(planned, plan)
     if changes:  # the plan rides the lower wall: the loop's options for it
         planned = scenario_with(planned, changes)
-        print(f"{scenario.name}: the plan rests on the lower wall; flown with "
+        print(f"{label}: the plan rests on the lower wall; flown with "
               + ", ".join(f"{k}: {v}" for k, v in changes.items()))
-    mapping = dict(planned.to_mapping(), name=f"{scenario.name}_plan")
+    mapping = dict(planned.to_mapping(), name=plan_name(scenario.name, args.hardware))
     write_text(out / "plan.yaml",
-        "# written by vesselbot plan: the scenario with a reference its coil can fly (vesselbot simulate --config this)\n"
+        f"# written by vesselbot plan: {label}, with a reference its coil can fly (vesselbot simulate --config this)\n"
         + yaml.safe_dump(mapping, sort_keys=False))
     rows = segments_table(plan.segments)
     with atomic_open(out / "segments.csv", newline="") as fh:
@@ -90,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
         w.writeheader()
         w.writerows(rows)
     continuous = _continuous_end(scenario, options)
-    _print(scenario, plan, continuous)
-    _figure(planned, plan, out / "plan.png")
+    _print(label, scenario, plan, continuous)
+    _figure(label, planned, plan, out / "plan.png")
     print(f"wrote {out / 'plan.yaml'}, {out / 'segments.csv'}, {out / 'plan.png'}")
     return 0
 
@@ -107,7 +108,17 @@ def _continuous_end(scenario: Scenario, options: PlanOptions) -> float | None:
         return None
 
 
-def _print(scenario: Scenario, plan: Plan, continuous: float | None) -> None:
+def run_label(name: str, hardware: str | None) -> str:
+    """How the output names the run: the scenario, and the ``--hardware`` preset that replaced its coil and sequence."""
+    return name if hardware is None else f"{name} with --hardware {hardware}"
+
+
+def plan_name(name: str, hardware: str | None) -> str:
+    """The ``name`` of the written plan.yaml: ``<scenario>_plan``, ``<scenario>_<preset>_plan`` with ``--hardware``."""
+    return f"{name}_plan" if hardware is None else f"{name}_{hardware}_plan"
+
+
+def _print(label: str, scenario: Scenario, plan: Plan, continuous: float | None) -> None:
     n = len(plan.segments)
     print(f"{'segment':>8}{'x from-to (mm)':>18}  {'where':<24}{'t (s)':>15}{'need':>8}{'margin':>8}{'floor um':>10}")
     for s in plan.segments:
@@ -118,12 +129,12 @@ def _print(scenario: Scenario, plan: Plan, continuous: float | None) -> None:
     cont = ("" if scenario.sequence.mode == "continuous" else
             f" (continuous propulsion on the same coil: {continuous:.2f} s)" if continuous is not None else
             " (continuous propulsion on the same coil: infeasible too)")
-    print(f"{scenario.name}: the path takes {plan.end_s:.2f} s{cont}; margin >= {plan.margin_m_per_s2:.2f} m/s^2 "
+    print(f"{label}: the path takes {plan.end_s:.2f} s{cont}; margin >= {plan.margin_m_per_s2:.2f} m/s^2 "
           f"of {plan.a_avail_m_per_s2:.2f} ({plan.a_sat_m_per_s2:.2f} at {plan.duty:.0%} duty, budget fraction "
           f"{plan.budget_fraction:.2f}); coast floor {plan.coast_floor_m * 1e6:.0f} um")
 
 
-def _figure(planned: Scenario, plan: Plan, path: Path) -> None:
+def _figure(label: str, planned: Scenario, plan: Plan, path: Path) -> None:
     # deferred: matplotlib (~0.5 s) loads only when the figure is drawn, not for `vesselbot plan --help`
     import matplotlib
 
@@ -146,7 +157,7 @@ def _figure(planned: Scenario, plan: Plan, path: Path) -> None:
     fig.colorbar(sc, ax=ax0, label="margin (m/s^2)")
     ax0.set_xlabel("x (mm)")
     ax0.set_ylabel("z (mm)")
-    ax0.set_title(f"{planned.name}: the planned path (walls at the nominal diameter)")
+    ax0.set_title(f"{label}: the planned path (walls at the nominal diameter)")
     ax1.plot(ts, v[:, 0] * 1e3, label="reference axial speed")
     ax1.plot(ts, flow * 1e3, label="blood at the centreline", alpha=0.6)
     ax1.set_ylabel("mm/s")

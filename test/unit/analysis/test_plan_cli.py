@@ -97,3 +97,23 @@ def test_a_full_disk_leaves_the_earlier_plan_and_no_empty_file(tmp_path, fill_af
     assert (f"--out {out} is not writable" in err[0] if not fill_after
             else f"cannot write {out / 'plan.yaml'} " in err[0] and "plan.yaml is unchanged" in err[0])
     assert {p.name: p.read_text() for p in out.iterdir()} == old  # no 0-byte plan.yaml, no temporary file
+
+
+def test_a_plan_on_another_preset_is_labelled_with_it_everywhere_it_names_the_run(tmp_path, capsys, monkeypatch):
+    """``--hardware propulsion_insert`` replaces the scenario's coil and sequence: the output does not call the
+    result by the base scenario's name alone (issue 39)."""
+    from vesselbot_ros.analysis import plan_cli
+
+    titles = []
+    real_save = plan_cli.save_figure
+    monkeypatch.setattr(plan_cli, "save_figure",
+                        lambda fig, path, **kw: (titles.append(fig.axes[0].get_title()), real_save(fig, path, **kw)))
+    assert main(["plan", "--hardware", "propulsion_insert", "--out", str(tmp_path)]) == 0
+    label = "clinical_3t_small_artery with --hardware propulsion_insert"
+    named = [ln for ln in capsys.readouterr().out.splitlines() if "clinical_3t_small_artery" in ln]
+    assert named and all(ln.startswith(f"{label}: ") for ln in named), named
+    assert any(ln.startswith(f"{label}: the path takes ") for ln in named)
+    text = (tmp_path / "plan.yaml").read_text()
+    assert text.splitlines()[0].startswith(f"# written by vesselbot plan: {label}, ")
+    assert load_scenario(tmp_path / "plan.yaml").name == "clinical_3t_small_artery_propulsion_insert_plan"
+    assert titles == [f"{label}: the planned path (walls at the nominal diameter)"]

@@ -1,30 +1,80 @@
-"""`vesselbot scenarios`: one line per shipped scenario, the default marked; works from any directory."""
+"""`vesselbot scenarios`: every shipped scenario with its whole description (wrapped, indented), the default
+marked, a scenario the loader refuses marked with the loader's one line; works from any directory."""
 
 from __future__ import annotations
 
+import shutil
+
 from vesselbot_ros import cli
+from vesselbot_ros.sim import scenario as scenario_mod
 from vesselbot_ros.sim.scenario import shipped_scenarios
 
 
-def test_one_line_per_shipped_scenario_with_its_description(tmp_path, capsys, monkeypatch):
+def _entries(out: str) -> dict[str, list[str]]:
+    """``{name line: [its indented lines]}`` of the command's output."""
+    entries: dict[str, list[str]] = {}
+    for ln in out.splitlines():
+        if ln.startswith(" "):
+            entries[list(entries)[-1]].append(ln)
+        else:
+            entries[ln] = []
+    return entries
+
+
+def test_each_shipped_scenario_with_its_whole_description_wrapped_and_indented(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("COLUMNS", "80")
     assert cli.main(["scenarios"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert [ln.split()[0] for ln in lines] == sorted(shipped_scenarios())
+    entries = _entries(capsys.readouterr().out)
+    names = [e.split()[0] for e in entries]
+    assert names == sorted(shipped_scenarios())
     assert {"paper_small_artery", "sound_small_artery", "sound_small_artery_ekf", "sound_small_artery_adaptive",
-            "clinical_3t_small_artery", "paper_iiic_network_upper"} <= set(shipped_scenarios())
-    by_name = {ln.split()[0]: ln for ln in lines}
-    assert by_name["sound_small_artery"].endswith("(default)")
-    assert "PRINTED" in by_name["paper_small_artery"] and "(default)" not in by_name["paper_small_artery"]
+            "clinical_3t_small_artery", "paper_iiic_network_upper", "folio_2017_tro"} <= set(names)
+    assert "sound_small_artery (default)" in entries and "paper_small_artery" in entries
+    for lines in entries.values():
+        assert lines and all(ln.startswith("    ") and len(ln) <= 79 for ln in lines), lines
+    text = {e.split()[0]: " ".join(ln.strip() for ln in lines) for e, lines in entries.items()}
+    # not cut at the first full stop: the whole description, the shared sources legend left out
+    assert text["folio_2017_tro"].startswith("Folio and Ferreira, IEEE Trans. Robotics 2017 (hal-01446482)")
+    assert text["folio_2017_tro"].endswith("(the coil cannot hold the bead's weight).")
+    assert "s_hat' = gamma dF/ds . e2, projected" in text["sound_small_artery_adaptive"]
+    assert "PRINTED" in text["paper_small_artery"] and not any("Sources:" in t for t in text.values())
+    assert text["clinical_3t_small_artery"].endswith("docs/graph.md, docs/reproduction.md.")
+    # every shipped scenario loads and passes the run's resource check: none is marked
+    assert not any("cannot be flown" in t for t in text.values())
 
 
-def test_a_description_is_a_whole_sentence_not_cut_at_an_abbreviation(tmp_path):
+def test_a_scenario_the_loader_refuses_is_marked_with_its_one_line_reason(tmp_path, capsys, monkeypatch):
+    shipped = shipped_scenarios()
+    good = tmp_path / "sound_small_artery.yaml"
+    shutil.copy(shipped["sound_small_artery"], good)
+    latency = tmp_path / "latency.yaml"  # refused by the scenario loader
+    latency.write_text("# A multiplexed sequence with an imager latency too.  Second sentence.\n"
+                       f"base: {shipped['clinical_3t_small_artery']}\nname: latency\n"
+                       "imager:\n  latency_s: 0.01\n")
+    endless = tmp_path / "endless.yaml"  # loads, but refused by the resource check simulate runs first
+    endless.write_text(f"# A run of a billion seconds.\nbase: {shipped['sound_small_artery']}\nname: endless\n"
+                       "sim:\n  duration_s: 1.0e9\n")
+    monkeypatch.setattr(scenario_mod, "shipped_scenarios",
+                        lambda: {"endless": endless, "latency": latency, "sound_small_artery": good})
+    monkeypatch.setenv("COLUMNS", "200")
+    assert cli.main(["scenarios"]) == 0
+    entries = _entries(capsys.readouterr().out)
+    assert list(entries) == ["endless", "latency", "sound_small_artery (default)"]
+    assert entries["latency"][0].startswith("    ! cannot be flown as shipped: imager.latency_s must be 0 with "
+                                            "sequence.mode 'multiplexed'")
+    assert entries["latency"][1:] == ["    A multiplexed sequence with an imager latency too. Second sentence."]
+    assert entries["endless"][0].startswith("    ! cannot be flown as shipped: sim.duration_s=1000000000.0 s")
+    assert not any("cannot be flown" in ln for ln in entries["sound_small_artery (default)"])
+
+
+def test_describe_is_the_whole_comment_block_without_the_legend(tmp_path):
     from vesselbot_ros.sim.scenarios_cli import describe
 
     path = tmp_path / "s.yaml"
-    path.write_text("# Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T. Second sentence.\n"
-                    "name: s\n")
-    assert describe(str(path)) == "Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T."
+    path.write_text("# Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T.  Second\n"
+                    "# sentence.  Sources: \"T3\" = Table III, \"ours\" = not in the paper.\nname: s\n")
+    assert describe(path) == "Steered in turn (Tamaz et al., the paper's ref. [23]), e.g. at 3 T. Second sentence."
     for name, p in shipped_scenarios().items():
-        text = describe(str(p))
-        assert text.endswith(".") and not text.endswith(("ref.", "al.")), (name, text)
+        text = describe(p)
+        assert text.endswith((".", ")")) and "Sources:" not in text, (name, text)
