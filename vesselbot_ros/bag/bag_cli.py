@@ -11,10 +11,18 @@ __all__ = ["register", "run"]
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``info`` and ``repair`` sub-commands."""
     sub = parser.add_subparsers(dest="bag_command", metavar="{info,repair}", required=True)
-    p = sub.add_parser("info", help="topics, counts, times, run config and seed; checks metadata vs MCAP")
+    p = sub.add_parser("info", help="topics, counts, coverage, scenario, seed and the run's key settings; checks "
+                                    "metadata vs MCAP (--full: also the run's whole config)",
+                       description="What a bag holds: the scenario, seed and mode, the settings that tell runs apart "
+                                   "(loop, hardware, vessel), the command, the duration and sim-time coverage, the "
+                                   "topics with their message counts, and whether metadata.yaml matches the MCAP; "
+                                   "exit 1 if it does not.  --full adds the files, start and end times, chunks, "
+                                   "versions and the run's whole config.")
     p.add_argument("bag", help="bag directory")
-    p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--no-config", action="store_true", help="do not print the run's config")
+    p.add_argument("--full", action="store_true",
+                   help="also print the files, start and end times, chunks, versions and the run's whole config")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text (everything, the config included)")
+    p.add_argument("--no-config", action="store_true", help="with --full: leave the run's config out")
     r = sub.add_parser("repair", help="rebuild metadata.yaml (and a complete MCAP) after a hard kill")
     r.add_argument("bag", help="bag directory")
     r.add_argument("--force", action="store_true", help="rebuild even if the bag already validates")
@@ -32,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(info_dict(info), indent=2, sort_keys=True))
         else:
-            print(format_info(info, show_config=not args.no_config))
+            print(format_info(info, full=args.full, show_config=not args.no_config))
         return 0 if info.consistent else 1
     from vesselbot_ros.bag.info import coverage  # deferred: see open_bag above
     from vesselbot_ros.bag.repair import repair_bag  # deferred: see open_bag above

@@ -15,7 +15,7 @@ from vesselbot_ros.bag.reader import BagInfo
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import topic
 
-__all__ = ["Coverage", "coverage", "format_info", "info_dict"]
+__all__ = ["Coverage", "coverage", "format_info", "info_dict", "run_settings"]
 
 
 @dataclass(frozen=True)
@@ -142,38 +142,103 @@ def info_dict(info: BagInfo) -> dict[str, Any]:
     }
 
 
-def format_info(info: BagInfo, show_config: bool = True) -> str:
-    """Human-readable summary of a bag."""
+def _get(config: Any, dotted: str) -> Any:
+    """``config``'s value at a dotted key, or None where the run's config does not have it."""
+    node = config
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def _num(value: Any, scale: float = 1.0) -> str:
+    """A recorded number for a person (``0.045`` T/m scaled to mT/m: ``45``); a non-number as it is."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    return f"{value * scale:g}"
+
+
+def run_settings(config: Any) -> list[str]:
+    """The few settings of a run's config that tell runs apart (what ``bag info`` prints without ``--full``).
+
+    The loop (duration, rate, controller, observer, reference), the hardware
+    (coil, sequence, imager) and the vessel; a line or a part the config does not
+    have is left out.
+    """
+    def part(label: str, key: str, fmt: Any = str) -> str:
+        v = _get(config, key)
+        return "" if v is None or v == "" or v == [] else f"{label}{fmt(v)}"
+
+    def joined(*parts: str, sep: str = ", ") -> str:
+        return sep.join(p for p in parts if p)
+
+    loop = joined(joined(part("", "sim.duration_s", lambda v: f"{_num(v)} s"),
+                         part("at ", "sim.control_rate_Hz", lambda v: f"{_num(v)} Hz"), sep=" "),
+                  joined(part("controller ", "controller.kind"), part("observer ", "observer.kind"),
+                         part("reference ", "reference.kind")), sep="; ")
+    hardware = joined(part("coil ", "coil.saturation_T_per_m", lambda v: f"{_num(v, 1e3)} mT/m"),
+                      part("sequence ", "sequence.mode"), part("dB/dt ", "dbdt.mode"),
+                      joined(part("imager ", "imager.kind"),
+                             part("at ", "imager.frame_rate_Hz", lambda v: f"{_num(v)} frames/s"), sep=" "),
+                      part("noise ", "imager.noise_sigma_m", lambda v: f"{_num(v, 1e6)} um"))
+    vessel = joined(part("network ", "physics.vessel.network")
+                    or part("straight, D = ", "physics.vessel.diameter_m", lambda v: f"{_num(v, 1e3)} mm"),
+                    part("to outlet ", "reference.route_outlet"),
+                    part("bead r = ", "physics.robot.radius_m", lambda v: f"{_num(v, 1e6)} um"))
+    return [f"{label:<12}{text}" for label, text in (("Loop:", loop), ("Hardware:", hardware), ("Vessel:", vessel))
+            if text]
+
+
+def format_info(info: BagInfo, full: bool = False, show_config: bool = True) -> str:
+    """Human-readable summary of a bag.
+
+    The default is short: the scenario, seed and mode, the settings that tell
+    runs apart (:func:`run_settings`), the command, the duration and sim-time
+    coverage, the topics with their counts, and whether the metadata matches the
+    MCAP.  ``full`` adds the files, start and end times, chunks, versions and
+    (unless ``show_config`` is False) the run's whole config.
+    """
     run = info.run_metadata
-    lines = [
-        f"Bag:        {info.path}",
-        f"Files:      {', '.join(p.name for p in info.mcap_paths)}",
-        f"Scenario:   {run.get('scenario', '-')}   seed: {run.get('seed', '-')}   mode: {run.get('mode', '-')}",
+    config = run.get("config")
+    lines = [f"Bag:        {info.path}"]
+    if full:
+        lines.append(f"Files:      {', '.join(p.name for p in info.mcap_paths)}")
+    lines.append(f"Scenario:   {run.get('scenario', '-')}   seed: {run.get('seed', '-')}   mode: {run.get('mode', '-')}")
+    lines += run_settings(config)
+    if run.get("command"):
+        cmd = run["command"]
+        lines.append(f"Command:    {' '.join(cmd) if isinstance(cmd, list) else cmd}")
+    lines += [
         f"Duration:   {info.duration_ns * 1e-9:.3f} s (log time)",
         f"Sim time:   {cov.line() if (cov := coverage(info)) is not None else 'no /clock recorded'}",
-        f"Start:      {_iso(info.start_ns)} ({info.start_ns} ns)",
-        f"End:        {_iso(info.end_ns)} ({info.end_ns} ns)",
-        f"Messages:   {info.message_count}",
-        f"Chunks:     {info.chunks}, compression {info.chunk_compression}",
-        "Topics:",
     ]
+    if full:
+        lines += [
+            f"Start:      {_iso(info.start_ns)} ({info.start_ns} ns)",
+            f"End:        {_iso(info.end_ns)} ({info.end_ns} ns)",
+        ]
+    lines.append(f"Messages:   {info.message_count}")
+    if full:
+        lines.append(f"Chunks:     {info.chunks}, compression {info.chunk_compression}")
+    lines.append("Topics:")
     width = max((len(t.name) for t in info.topics), default=10)
     twidth = max((len(t.msgtype) for t in info.topics), default=10)
     for t in info.topics:
         mark = "" if t.mcap_count is None or t.mcap_count == t.count else f"  (MCAP: {t.mcap_count})"
         latched = "  latched" if t.latched else ""
         lines.append(f"  {t.name:<{width}}  {t.msgtype:<{twidth}}  {t.count:>8}{mark}{latched}")
-    if run.get("versions"):
+    if full and run.get("versions"):
         lines.append(f"Versions:   {json.dumps(run['versions'], sort_keys=True)}")
-    if run.get("command"):
-        cmd = run["command"]
-        lines.append(f"Command:    {' '.join(cmd) if isinstance(cmd, list) else cmd}")
-    if show_config and run.get("config") is not None:
+    if full and show_config and config is not None:
         lines.append("Config:")
-        lines += ["  " + ln for ln in json.dumps(run["config"], indent=2, sort_keys=True).splitlines()]
+        lines += ["  " + ln for ln in json.dumps(config, indent=2, sort_keys=True).splitlines()]
     if info.consistent:
         lines.append("Metadata:   consistent with the MCAP")
     else:
         lines.append("Metadata:   DOES NOT MATCH the MCAP:")
         lines += [f"  - {p}" for p in info.problems]
+    if not full:
+        lines.append("More:       --full adds the files, start and end times, chunks, versions"
+                     + (" and the run's whole config" if config is not None else ""))
     return "\n".join(lines)

@@ -20,7 +20,7 @@ def truncated(synthetic_bag, tmp_path):
 
 
 def test_bag_info_prints_topics_counts_times_config_and_seed(synthetic_bag, capsys):
-    assert main(["bag", "info", str(synthetic_bag[0])]) == 0
+    assert main(["bag", "info", "--full", str(synthetic_bag[0])]) == 0  # --full: the run's config too
     out = capsys.readouterr().out
     assert "seed: 7" in out and "Scenario:   synthetic" in out
     assert "/vesselbot/truth" in out and "vesselbot_msgs/msg/PlantState" in out and " 1000" in out
