@@ -25,6 +25,8 @@ import sys
 from collections.abc import Sequence
 
 from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.progress import add_progress_argument, wanted
+from vesselbot_ros.progress import session as progress_session
 
 #: What the exit codes of every sub-command mean.
 EXIT_CODES = """exit codes:
@@ -59,6 +61,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: The commands that can wait long on a step (a CFD solve, a 3-D wall field, a campaign's runs): they take
+#: ``--no-progress`` (:func:`~vesselbot_ros.progress.add_progress_argument`) and draw bars on a terminal.
+PROGRESS_COMMANDS = frozenset({"simulate", "run", "campaign", "plan", "plan-design", "scanner-study"})
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """Build the top-level parser; import only ``only``'s module if given."""
     parser = argparse.ArgumentParser(
@@ -72,6 +79,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text.replace("%", "%%"), description=help_text)
         if only == name:
             importlib.import_module(module).register(p)
+        if name in PROGRESS_COMMANDS:
+            add_progress_argument(p)
     return parser
 
 
@@ -105,7 +114,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
-        return int(module.run(args) or 0)
+        with progress_session(wanted(getattr(args, "no_progress", True))):  # bars on a terminal (progress.py)
+            return int(module.run(args) or 0)
     except VesselbotError as exc:  # the root: config, model input, bag and run errors alike
         print(f"vesselbot {args.command}: error: {exc}", file=sys.stderr)
         return 2

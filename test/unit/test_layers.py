@@ -20,7 +20,7 @@ import pytest
 #: Floors from the bottom up: (name, the units on it).  A unit is a subpackage of vesselbot_ros or
 #: one of its top-level modules; ``vesselbot_ros`` is the package's own ``__init__``.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("vesselbot_ros", "errors", "atomic_io", "resources", "config", "blas_free", "numba_cache")),
+    ("base", ("vesselbot_ros", "errors", "atomic_io", "resources", "config", "blas_free", "numba_cache", "progress")),
     ("physics", ("physics",)),
     ("vessels", ("vessels",)),
     ("control", ("control",)),

@@ -19,6 +19,7 @@ from pathlib import Path
 from vesselbot_ros.analysis.scanner_study import PAIRS, fmt_um, run_study, study_cells
 from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.config import ConfigError, check_positive
+from vesselbot_ros.progress import add_progress_argument, suppressed
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
@@ -65,6 +66,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="scenario: every cell flies the base scenario's reference; planned: the plan of its own "
                              "hardware and sequence (vesselbot plan), against the plan's coast floor")
     parser.add_argument("--out", default="out/scanner-study", help="output folder")
+    add_progress_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     check_output_dir(out, "--out")
     rows = run_study(base, cells, range(args.seeds), args.workers, args.run_timeout_s, scheduler=args.scheduler,
-                     runs_dir=out / "runs", progress=True, reference=args.reference)
+                     runs_dir=out / "runs", progress=not suppressed(getattr(args, "no_progress", False)), reference=args.reference)
     keys = ["hardware", "tracking_window_s", "propulsion_window_s", "duty_cycle", "frame_rate_Hz", "latency_s",
             "pair", "status", "hold_margin_m_per_s2", "gradient_to_fly_T_per_m", "coast_floor_m", "estimation_floor_m",
             "tracking_floor_m", "tracking_max_mean_m", "tracking_max_worst_m", "tracking_rms_mean_m",

@@ -31,6 +31,7 @@ from typing import Any
 import yaml
 
 from vesselbot_ros.config import ConfigError, check_positive, unflatten
+from vesselbot_ros.progress import add_progress_argument, suppressed
 
 __all__ = ["register", "run"]
 
@@ -56,7 +57,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "(e.g. sim.duration_s=0.5); repeatable")
     parser.add_argument("--retry-failed", action="store_true",
                         help="run again the runs recorded as failed or timed out")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_argument(parser)
 
 
 def _parse_sets(items: list[str]) -> dict[str, Any]:
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     if todo:
         # the report's imports (matplotlib: 0.3 s) happen while this process waits for the runs
         threading.Thread(target=_import_report_libraries, name="vesselbot-report-imports", daemon=True).start()
-        progress = Progress(f"campaign {spec.name}", meta["n_runs"], n_before, enabled=not args.no_progress)
+        progress = Progress(f"campaign {spec.name}", meta["n_runs"], n_before, enabled=not suppressed(args.no_progress))
         try:
             with dask_client(args.scheduler, args.workers, closing) as client:
                 outcome = execute(todo, store, client, prepared.code, chunk_size=chunk, progress=progress,

@@ -160,6 +160,7 @@ from vesselbot_ros.physics.meshed_wall3d import (
     smooth_wall3d,
     split_leaves,
 )
+from vesselbot_ros.progress import ProgressFn
 
 __all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d", "corner_weight"]
 
@@ -1322,7 +1323,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        prune: bool = True, out_band_m: float | None = None, exact_max_leaf: int = 8,
                        exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
                        models: int = MODELS, list_max: int = 0, list_lattice: int = 17, list_sub: int = 4,
-                       list_split: float = 12.0) -> WallField3D:
+                       list_split: float = 12.0, progress: ProgressFn | None = None) -> WallField3D:
     """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
 
     Args:
@@ -1359,6 +1360,9 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
             (their lists checked at 8 points each).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
             ``exact_max_leaf``, down to ``exact_max_depth`` (0: the wall tree's depth).
+        progress: Called as ``progress(done, total)`` after each stage of the build (the sampling, the
+            diameters, each chunk of flagged layers, the model cells, the refinement, the pruning, the lists);
+            ``done == total`` at the end.
 
     Returns:
         The :class:`WallField3D`.
@@ -1386,9 +1390,22 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         raise ValueError(f"build_wall_field3d: the grid {origin} .. {top} leaves the candidate tree's box {tlo} .. {thi}: "
                          "build the Wall3D with a larger margin_m")
     head = np.array([origin[0], origin[1], origin[2], h_m, nx, ny, nz, max(1, int(refine)), 0.0], dtype=np.float64)
+    chunks = range(0, nz - 1, layers_per_chunk)
+    steps = len(chunks) + 6  # sampling, diameters, the chunks, model cells, refinement, pruning, lists
+    done = 0
+
+    def stage() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, steps)
+
+    if progress is not None:
+        progress(0, steps)
     field: npt.NDArray[Any] = np.zeros(nx * ny * nz * NODE_STRIDE, dtype=dtype)
     wargs = wall._args
     q = _sample_nodes(head, field, *wargs)
+    stage()
     t1 = time.perf_counter()
     # local diameter: lumen nodes by the ball rule (:func:`_lumen_diameters`), the others from the nearest lumen node
     if not (q[:, 0] > 0.0).any():
@@ -1402,16 +1419,18 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         _dist, ind = distance_transform_edt(empty, return_indices=True)
         diam3 = diam3[tuple(ind)]
     field.reshape(-1, NODE_STRIDE)[:, 4] = diam3.ravel()
+    stage()
     t2 = time.perf_counter()
     # flags, a few cell layers at a time
     counts = np.zeros(3, dtype=np.int64)
     cos_tol = math.cos(math.radians(tol_normal_deg))
     cos_spread = math.cos(math.radians(spread_deg))
-    for k0 in range(0, nz - 1, layers_per_chunk):
+    for k0 in chunks:
         k1 = min(nz - 1, k0 + layers_per_chunk)
         planes = _sub_lattice(head, field, 2 * k0, 2 * k1, band_m, out_band, *wargs)
         counts += _flag_layers(head, field, planes, 2 * k0, k0, k1, band_m, out_band, tol_dist_m, cos_tol,
                                cos_spread).sum(axis=0)
+        stage()
     t3 = time.perf_counter()
     # one level of refinement in the flagged cells that reach into the lumen (a bead's centre is never
     # outside); blocks with no good sub-cell are dropped (exact)
@@ -1441,6 +1460,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         mrec = allrec[passed]
         n_used = np.bincount(used, minlength=MODELS + 1)
         rec[cand[passed], 5] = -2.0 - np.arange(mrec.shape[0])
+    stage()
     t3b = time.perf_counter()
     flagged = np.nonzero((rec[:, 5] > -2.0) & (rec[:, 5] != 0) & cell_of.ravel())[0]
     kk, rem = np.divmod(flagged, nx * ny)
@@ -1462,6 +1482,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         exact_blocks = flagged[keep[good[keep] < r ** 3]]
     head[8] = fine.size
     fine = np.ascontiguousarray(np.concatenate([fine, mrec.ravel().astype(dtype)]))
+    stage()
     t4 = time.perf_counter()
     # the exact query's arrays, pruned to the leaves the lookup can ask: those of the cells it answers
     # exactly and those reaching outside the grid
@@ -1470,6 +1491,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
     if prune:
         exact = _pruned(wall, head, np.concatenate([np.nonzero(rec[:, 5] == -1.0)[0], exact_blocks]), exact_max_leaf,
                         exact_max_depth)
+    stage()
     t5 = time.perf_counter()
     # list cells: the exact cells and those with exact sub-cells, wholly in the lumen, whose few nearest triangles
     # a short scan answers as the exact query
@@ -1478,6 +1500,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         lcells = np.concatenate([np.nonzero((rec[:, 5] == -1.0) & cell_in.ravel())[0], exact_blocks[cell_in.ravel()[exact_blocks]]])
     fine, list_stats = _store_lists(head, rec, fine, lcells, int(list_lattice), int(list_sub), float(list_split),
                                     int(list_max), exact, dtype)
+    stage()
     t6 = time.perf_counter()
     cells = (nx - 1) * (ny - 1) * (nz - 1)
     n_exact = int((rec[:, 5] == -1.0).sum())

@@ -3,31 +3,43 @@
 :mod:`vesselbot_ros.numba_cache` keeps that cache fresh (it runs on package
 import); :func:`warm` fills it.  ``tools/bootstrap.sh`` calls it once per
 version of the compiled sources, so ``make run``, ``make test`` and every node
-start without compiling.
+start without compiling.  ``python -m vesselbot_ros.sim.warm [--no-progress]`` runs it
+with a bar over the scenarios on a terminal.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses as dc
 
+from vesselbot_ros.progress import ProgressFn, add_progress_argument, session, step, wanted
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios, short_copy
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
 
-__all__ = ["warm"]
+__all__ = ["warm", "main"]
 
 
-def warm() -> None:
-    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly."""
+def warm(progress: ProgressFn | None = None) -> None:
+    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly.
+
+    ``progress(done, total)`` is called after each scenario warmed (default: :func:`~vesselbot_ros.progress.step`'s,
+    a bar when a command draws them).
+    """
+    if progress is None:
+        with step("numba warm-up") as report:
+            warm(report)
+        return
     scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
     planar = next(sc for sc in scenarios if sc.dims == 2)
     # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
     scenarios.append(dc.replace(planar, sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
                                                                       dead_time_s=0.001, propulsion_window_s=0.003,
                                                                       latency_s=0.001)))
-    for sc in scenarios:
+    progress(0, len(scenarios))
+    for done, sc in enumerate(scenarios, 1):
         sc = short_copy(sc, 0.01)  # a multiplexed sequence shrunk to fit the 10 ticks (the same compiled code)
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
         run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
@@ -35,3 +47,19 @@ def warm() -> None:
         if sc.physics.vessel.network and sc.dims == 2:  # the nodes' input check (VesselbotNode.check)
             network_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(0.0, 0.0)
         # a 3-D tree's run above built (or read) its wall lookup and cached it: the nodes and tests read it
+        progress(done, len(scenarios))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m vesselbot_ros.sim.warm [--no-progress]``: :func:`warm`, with a bar on a terminal."""
+    parser = argparse.ArgumentParser(prog="python -m vesselbot_ros.sim.warm",
+                                     description="fill numba's on-disk cache (every compiled path a run uses)")
+    add_progress_argument(parser)
+    args = parser.parse_args(argv)
+    with session(wanted(args.no_progress)):
+        warm()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -76,6 +76,7 @@ from vesselbot_ros.physics.meshed_wall import (
     wall_segments,
 )
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
+from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, require_fits
 from vesselbot_ros.vessels.network import (
     NetworkGeometry,
@@ -256,8 +257,13 @@ def _parabola_dofs(ubasis: Any, facets: npt.NDArray[np.int64], cap: tuple[Any, A
     return np.concatenate([ids_x, ids_z]), np.concatenate([prof * n_out[0], prof * n_out[1]])
 
 
-def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwork | None = None) -> FlowSolution:
-    """Solve the steady Navier-Stokes flow of ``net`` (see the module docstring)."""
+def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwork | None = None,
+               progress: ProgressFn | None = None) -> FlowSolution:
+    """Solve the steady Navier-Stokes flow of ``net`` (see the module docstring).
+
+    ``progress(done, total)`` is called after the mesh and assembly, after each Picard iteration and at the end
+    (``done == total``: ``total`` counts the most iterations, so a converged solve jumps to it).
+    """
     # deferred: scikit-fem and scipy.sparse are heavy imports (~0.3 s), paid only when a field is solved
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
@@ -278,6 +284,9 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     from skfem.helpers import ddot, div, dot, grad
 
     t0 = time.perf_counter()
+    report = progress or (lambda done, total: None)
+    steps = net.cfd.picard_max_iterations + 2  # mesh and assembly, the iterations, the fluxes
+    report(0, steps)
     meshed = meshed or mesh_network(net)
     geom = NetworkGeometry(net)
     m = MeshTri(np.ascontiguousarray(meshed.points.T), np.ascontiguousarray(meshed.triangles.T))
@@ -321,6 +330,7 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     A_visc = asm(viscous, ub, mu=mu)
     B = asm(divergence, ub, pb)
     nu, npr = A_visc.shape[0], B.shape[0]
+    report(1, steps)
     # Dirichlet data
     vc_in = net.cfd.inlet_centreline_velocity_m_per_s
     r_in = meshed.caps["inlet"][2]
@@ -369,6 +379,7 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
         change = float(np.max(np.abs(u_new - u)) / max(np.max(np.abs(u_new)), 1e-300))
         u = u_new
         pr = sol[nu:]
+        report(1 + it, steps)
         if it > 1 and change < net.cfd.picard_tol:
             break
     flux_form = Functional(lambda w: dot(w["u"], w.n))
@@ -376,6 +387,7 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     for name in ["inlet", *outlets]:
         fb = FacetBasis(m, ub.elem, facets=meshed.boundaries[name], intorder=6)
         fluxes[name] = float(asm(flux_form, fb, u=fb.interpolate(u)))
+    report(steps, steps)
     return FlowSolution(m, ub, pb, u, pr, fluxes, it, change, time.perf_counter() - t0, dict(meshed.caps))
 
 
@@ -601,8 +613,16 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
           f"{fmt_bytes(max(TRIANGLE_BYTES * triangles, GRID_NODE_BYTES * nodes))}; solved once, then cached)",
           file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    sol = solve_flow(net, blood)
-    field = sample_field(net, blood, sol)
+    with step(f"2-D flow of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
+        steps = [1]
+
+        def solving(done: int, total: int) -> None:  # the solve's steps, then one for the sampling
+            steps[0] = total + 1
+            report(done, steps[0])
+
+        sol = solve_flow(net, blood, progress=solving)
+        field = sample_field(net, blood, sol)
+        report(steps[0], steps[0])
     field.meta["total_s"] = time.perf_counter() - t0
     field.save(path)
     return field

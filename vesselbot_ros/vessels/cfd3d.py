@@ -80,6 +80,7 @@ from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.errors import RunError
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.progress import ProgressFn
 from vesselbot_ros.vessels.network import VesselNetworkParams, smooth_centreline_3d
 
 __all__ = [
@@ -710,8 +711,12 @@ def _profile(X: npt.NDArray[np.float64], cap: tuple[Any, Any, float]) -> npt.NDA
 
 
 def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshed: Meshed3D | None = None,
-               *, verbose: bool = False) -> FlowSolution3D:
+               *, verbose: bool = False, progress: ProgressFn | None = None) -> FlowSolution3D:
     """Solve the steady Navier-Stokes flow through ``tree`` (see the module docstring).
+
+    ``progress(done, total)`` is called after the mesh, assembly and multigrid set-up, after each Picard
+    iteration and at the end (``done == total``: ``total`` counts the most iterations, so a converged solve
+    jumps to it).
 
     Raises:
         ConfigError: gmsh cannot mesh the tree.
@@ -724,6 +729,9 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
     from skfem import Basis, BilinearForm, ElementTetP0, ElementTetP1, ElementTetP2, FacetBasis, Functional, MeshTet, asm
 
     t_start = time.perf_counter()
+    report = progress or (lambda done, total: None)
+    steps = settings.picard_max_iterations + 2  # mesh, assembly and AMG; the iterations; the fluxes
+    report(0, steps)
     meshed = meshed or mesh_tree(tree, settings)
     log = print if verbose else (lambda *a, **k: None)
     m = MeshTet(np.ascontiguousarray(meshed.points.T), np.ascontiguousarray(meshed.tets.T))
@@ -829,6 +837,7 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
         return LinearOperator((n_u + npr, n_u + npr), matvec=apply, dtype=np.float64)
 
     prec = make_prec(3 * ni)
+    report(1, steps)
     u = uD.copy()
     x = np.zeros(3 * ni + npr)
     change = math.inf
@@ -859,6 +868,7 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
         u = u_new
         log(f"  Picard {it}: {len(res) - 1} GMRES iterations, residual {rel:.2e}, change {change:.2e} "
             f"({time.perf_counter() - t_start:.1f} s)")
+        report(1 + it, steps)
         if it > 1 and change < settings.picard_tol:
             break
     else:
@@ -877,6 +887,7 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
             "free_outlets": free, "picard_iterations": it, "picard_change": change, "gmres_iterations": gmres_its,
             "discrete_inlet_flux_m3_per_s": q_in, "mesh_s": meshed.elapsed_s,
             "solve_s": time.perf_counter() - t_start}
+    report(steps, steps)
     return FlowSolution3D(m, vb, pb, u, p, fluxes, dict(meshed.caps), meta)
 
 
@@ -1068,8 +1079,10 @@ def _load(path: Path) -> FlowSolution3D:
 
 
 def solve_tree_cached(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, *, refresh: bool = False,
-                      verbose: bool = False) -> tuple[FlowSolution3D, Path]:
+                      verbose: bool = False, progress: ProgressFn | None = None) -> tuple[FlowSolution3D, Path]:
     """The solution of ``tree``: read from the cache, or solved and cached (never on failure).
+
+    ``progress``: :func:`solve_tree`'s, called only if the tree is solved.
 
     Returns:
         (solution, its cache file).
@@ -1082,6 +1095,6 @@ def solve_tree_cached(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams
             return sol, path
         except (OSError, ValueError, KeyError):
             pass  # a torn or foreign file: solve again
-    sol = solve_tree(tree, settings, blood, verbose=verbose)
+    sol = solve_tree(tree, settings, blood, verbose=verbose, progress=progress)
     _save(sol, path)
     return sol, path

@@ -66,6 +66,7 @@ from vesselbot_ros.physics.kernel import pack_params
 from vesselbot_ros.physics.meshed_wall3d import Wall3D
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.physics.wall_field3d import build_wall_field3d, grid_box
+from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline_3d
@@ -286,17 +287,29 @@ def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
     return tri[~on_cap]
 
 
-def _sample(net: VesselNetworkParams, blood: BloodParams, key: str) -> PlantField3D:
-    """Solve (or read the cached solve), mesh the wall and sample (module docstring)."""
+def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: ProgressFn | None = None) -> PlantField3D:
+    """Solve (or read the cached solve), mesh the wall and sample (module docstring).
+
+    ``progress(done, total)``: the solve's steps (none if it is cached), then the wall's mesh and the sampling.
+    """
     t0 = time.perf_counter()
     settings = flow_settings(net)
     tree = cfd3d.tree_from_network(net)
-    sol, _path = cfd3d.solve_tree_cached(tree, settings, blood)
+    report = progress or (lambda done, total: None)
+    steps = [3]  # a cached solve, the wall's mesh, the sampling; a solve's own steps replace the first
+
+    def solving(done: int, total: int) -> None:
+        steps[0] = total + 2
+        report(done, steps[0])
+
+    sol, _path = cfd3d.solve_tree_cached(tree, settings, blood, progress=solving)
+    report(steps[0] - 2, steps[0])
     vtri = _wall_triangles(sol)
     used, inv = np.unique(vtri, return_inverse=True)
     view_verts = np.ascontiguousarray(sol.mesh.p.T[used])
     vtri = inv.reshape(-1, 3).astype(np.int64)
     wm = cfd3d.mesh_wall(tree, WALL_SAG_M)
+    report(steps[0] - 1, steps[0])
     h = grid_spacing_m(net)
     origin, shape = grid_box(wm.vertices.min(axis=0), wm.vertices.max(axis=0), h, GRID_MARGIN_M + 2.0 * h)
     verts, tri = _canonical_wall(wm.vertices, wm.triangles, origin)
@@ -308,6 +321,7 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str) -> PlantFiel
     vel32: npt.NDArray[np.float32] = (vel / settings.inlet_centreline_velocity_m_per_s).reshape(nz, ny, nx, 3).astype(np.float32)
     meta = {"solve": sol.meta, "wall": wm.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
             "view_triangles": int(len(vtri)), "nodes": int(nx * ny * nz)}
+    report(steps[0], steps[0])
     return PlantField3D(net.name, key, verts, tri, dict(wm.caps), origin, h, (nx, ny, nz), vel32, meta, view_verts, vtri)
 
 
@@ -412,7 +426,8 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
     check_build(net, blood)  # before anything is meshed: one line if it does not fit, else one saying what is built
-    fld = _sample(net, blood, key)
+    with step(f"3-D flow of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
+        fld = _sample(net, blood, key, report)
     with contextlib.suppress(OSError):  # a full or read-only cache: the run goes on with the samples in memory
         fld.save(cached)
     return fld
@@ -435,9 +450,10 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
         except (OSError, ValueError, KeyError):
             pass  # a torn, foreign or older file: build again
     check_build(net, blood)  # tens of seconds to minutes: bounded first, and one line says so
-    wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
-                            origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True,
-                            list_max=LIST_MAX)
+    with step(f"3-D wall field of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
+        wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
+                                origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True,
+                                list_max=LIST_MAX, progress=report)
     stats = {**wf.stats, "v": WALL_VERSION}
     with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
         _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
