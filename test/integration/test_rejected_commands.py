@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import subprocess
 import sys
 import time
@@ -107,7 +106,7 @@ def test_the_run_reports_the_rejections_warns_in_one_line_and_exits_1(nan_run):
     warnings = [line for line in p.stderr.splitlines() if "warning" in line]
     assert warnings == [f"vesselbot: warning: {N - K_BAD} of {N} controller commands rejected (non-finite) from "
                         f"t = {T_BAD_S:.3f} s; the coil ramped to zero"], p.stderr
-    assert re.search(rf"rejected_commands\s+{N - K_BAD}\b", p.stdout), p.stdout  # the summary too
+    assert f"; rejected commands {N - K_BAD}" in p.stdout, p.stdout  # the one-line result too
     assert "Traceback" not in p.stderr
 
 

@@ -28,16 +28,31 @@ N_TICKS = 300
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("replay_into")
-    cfg = yaml.safe_load((REPO / "config/paper_small_artery.yaml").read_text())
-    cfg["imager"].update(frame_rate_Hz=250.0, latency_s=0.002,
-                         outliers=[{"start_s": 0.1, "duration_s": 0.02, "magnitude_m": 1.0e-3}])
+    # the paper scenario extended by a file (`base:`), which is deleted once recorded: the bag alone holds the
+    # merged scenario, which the re-run nodes get
+    cfg = {"base": "paper_small_artery", "name": "paper_small_artery",
+           "imager": {"frame_rate_Hz": 250.0, "latency_s": 0.002,
+                      "outliers": [{"start_s": 0.1, "duration_s": 0.02, "magnitude_m": 1.0e-3}]}}
     (tmp / "zoh.yaml").write_text(yaml.safe_dump(cfg))
     out = tmp / "bag"
     cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", str(tmp / "zoh.yaml"), "--duration", "0.3",
            "--seed", "5", "--quiet", "--record-dir", str(out)]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    (tmp / "zoh.yaml").unlink()
     return out
+
+
+def test_the_bag_holds_the_merged_scenario_of_a_file_with_base(bag):
+    from vesselbot_ros.sim.scenario import load_scenario, scenario_from_mapping
+
+    config = open_bag(bag).run_metadata["config"]
+    assert "base" not in config
+    got = scenario_from_mapping(config)
+    paper = load_scenario("paper_small_artery", duration=0.3, seed=5)
+    assert (got.imager.frame_rate_Hz, got.imager.latency_s, len(got.imager.outliers)) == (250.0, 0.002, 1)
+    assert (got.physics, got.controller, got.reference, got.coil) == (paper.physics, paper.controller,
+                                                                      paper.reference, paper.coil)
 
 
 def _replay(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
@@ -93,9 +108,12 @@ def test_into_observer_reproduces_the_recorded_estimates_bit_for_bit(bag, tmp_pa
 
 
 def test_into_controller_reproduces_the_recorded_commands_bit_for_bit(bag, tmp_path):
-    out = tmp_path / "ctl"
-    proc = _replay(str(bag), "--into", "controller", "--out", str(out), "--tolerance", "0")
+    before = sorted(p.name for p in bag.iterdir())
+    proc = _replay(str(bag), "--into", "controller", "--tolerance", "0")  # the default result: beside the bag
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = bag.with_name(f"{bag.name}.reestimate_controller")
+    assert f"bag: {out} " in proc.stdout
+    assert sorted(p.name for p in bag.iterdir()) == before  # nothing written into the recorded bag
     old, new = _by_tick(out, "/vesselbot/gradient_command"), _by_tick(out, "/vesselbot/replay/gradient_command")
     assert sorted(new) == sorted(old) == list(range(N_TICKS))
     for k in range(N_TICKS):

@@ -35,10 +35,19 @@ def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("run_bag")
     bag, metrics = tmp / "bag", tmp / "metrics.json"
     cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", CONFIG, "--duration", "0.3", "--seed", "4",
-           "--quiet", "--record-dir", str(bag), "--metrics-json", str(metrics), "--report"]
+           "--quiet", "--record-dir", str(bag), "--metrics-json", str(metrics), "--report", "--all-metrics"]
     proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return bag, json.loads(metrics.read_text()), proc.stdout
+
+
+def test_the_bag_folder_holds_the_bag_only_and_the_logs_and_report_go_beside_it(run):
+    """`ros2 bag info` and Foxglove see a clean bag: no logs/, no report/ inside it."""
+    bag, _, stdout = run
+    assert sorted(p.name for p in bag.iterdir()) == ["bag.mcap", "metadata.yaml", "run_metadata.json"]
+    logs = bag.with_name(f"{bag.name}.logs")
+    assert (logs / "params.yaml").is_file() and any(logs.glob("*.log"))
+    assert f"report: {bag.with_name(f'{bag.name}.report')}" in stdout
 
 
 def test_metadata_counts_equal_the_counts_the_publishers_reported(run):
@@ -113,7 +122,7 @@ def _same(a, b) -> bool:
 
 def test_report_writes_every_figure_and_the_metrics_the_run_printed(run, tmp_path):
     bag, launcher, stdout = run
-    report = bag / "report"  # written by `vesselbot run --report`
+    report = bag.with_name(f"{bag.name}.report")  # written by `vesselbot run --report`, beside the bag
     assert f"report: {report}" in stdout
     for name in FIGURES:
         data = (report / name).read_bytes()
@@ -123,7 +132,10 @@ def test_report_writes_every_figure_and_the_metrics_the_run_printed(run, tmp_pat
     for key, value in ran.items():  # every metric of the run, same compute_metrics, bit for bit
         assert key in from_bag, key
         assert _same(value, from_bag[key]), f"{key}: run {value!r}, report {from_bag[key]!r}"
-    # what the run printed is what the bag says
+    # what the run printed is what the bag says: its one-line result (as simulate's), and with --all-metrics each metric
+    from vesselbot_ros.sim.metrics import headline
+
+    assert f": {headline(from_bag)}" in stdout, stdout
     printed = {}
     for line in stdout.splitlines():
         parts = line.split()

@@ -93,7 +93,7 @@ def test_the_bag_holds_every_vector_on_three_axes_as_the_pure_runner_has_it(run,
 @pytest.mark.parametrize("run", ["single_process"], indirect=True)  # the run that wrote the report
 def test_the_report_from_the_bag_alone_has_the_same_metrics(run, pure) -> None:  # type: ignore[no-untyped-def]
     bag, m = run
-    rep = json.loads((bag / "report" / "metrics.json").read_text())
+    rep = json.loads((bag.with_name(f"{bag.name}.report") / "metrics.json").read_text())  # beside the bag
     _scenario, res = pure
     for k in ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m", "estimation_error_rms_m",
               "velocity_estimation_error_max_m_per_s", "saturation_time_s", "slew_limited_time_s", "contact_time_s",

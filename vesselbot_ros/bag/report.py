@@ -4,7 +4,8 @@
 aligns the per-tick topics on their stamps, computes the metrics with the
 *same* function as the ROS-free runner
 (:func:`vesselbot_ros.sim.metrics.compute_metrics`) and writes, into
-``<bag>/report/`` by default:
+``<bag>.report/`` beside the bag by default (:func:`vesselbot_ros.bag.derived_dir`: the bag folder
+holds the bag only):
 
 * ``fig9a_trajectory.png``: XZ trajectory, reference, estimate, the vessel's
   wall envelope over the run and its walls at the narrowest moment, time
@@ -55,6 +56,7 @@ import numpy.typing as npt
 
 from vesselbot_ros import graph_spec
 from vesselbot_ros.atomic_io import check_output_dir, save_figure, write_text
+from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.info import coverage_of_ticks
 from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_timeseries
 from vesselbot_ros.config import ConfigError, load_dataclass
@@ -67,7 +69,7 @@ from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
 from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
 
-__all__ = ["write_report", "metrics_timeseries", "positions_3d", "tree_trajectory",
+__all__ = ["write_report", "report_dir", "metrics_timeseries", "positions_3d", "tree_trajectory",
            "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
            "DIAGNOSTIC_COUNTERS", "FIGURES", "fig9a_trajectory", "fig9b_errors", "fig10a_gradients",
            "fig10b_velocities", "fig10c_velocity_error", "forces_figure"]
@@ -609,6 +611,11 @@ def diagnostic_counters(info: BagInfo) -> dict[str, int]:
     return out
 
 
+def report_dir(bag_dir: str | Path, out_dir: str | Path | None = None) -> Path:
+    """Where :func:`write_report` writes: ``out_dir``, else ``<bag_dir>.report`` beside the bag (never into it)."""
+    return Path(out_dir) if out_dir is not None else derived_dir(bag_dir, "report")
+
+
 def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = None,
                  after_s: float | None = None) -> dict[str, Any]:
     """Write the figures and ``metrics.json`` of a recorded run; return the metrics.
@@ -620,7 +627,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
 
     Args:
         bag_dir: The bag directory (or a validated :class:`BagInfo`).
-        out_dir: Output folder (default ``<bag_dir>/report``).
+        out_dir: Output folder (default ``<bag_dir>.report``, beside the bag: :func:`report_dir`).
         after_s: Start of the steady-state window of the metrics (s); None:
             the run's ``sim.metrics_after_s``, else 0.6 (paper).
 
@@ -633,7 +640,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     import matplotlib.pyplot as plt  # deferred: matplotlib (see above)
 
     info = bag_dir if isinstance(bag_dir, BagInfo) else open_bag(bag_dir)
-    out = Path(out_dir) if out_dir is not None else info.path / "report"
+    out = report_dir(info.path, out_dir)
     # before any work: a folder that cannot be written, or too little room for the figures, is one line
     check_output_dir(out, "report folder", need_bytes=REPORT_BYTES,
                      need_why=f"{len(FIGURES)} figures and metrics.json, at most")

@@ -1,9 +1,8 @@
-"""``vesselbot report DIR [--out OUT] [--after S]``: figures and metrics JSON from a bag alone."""
+"""``vesselbot report DIR [--out OUT] [--after S]``: figures and metrics JSON from a bag alone, into ``DIR.report/``."""
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 __all__ = ["register", "run"]
 
@@ -11,7 +10,8 @@ __all__ = ["register", "run"]
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the report arguments."""
     parser.add_argument("bag", help="bag directory")
-    parser.add_argument("--out", help="output folder (default: <bag>/report)")
+    parser.add_argument("--out", help="output folder (default: <bag>.report, beside the bag folder, which holds "
+                                      "the bag only)")
     parser.add_argument("--after", type=float, default=None, metavar="S",
                         help="start of the steady-state window of the metrics, s "
                              "(default: the run's sim.metrics_after_s, else 0.6 as in the paper)")
@@ -20,10 +20,10 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the report; print where and the headline metrics."""
     # deferred: the report pulls in the bag reader and the compiled core (~0.4 s); `vesselbot report --help` imports this module
-    from vesselbot_ros.bag.report import FIGURES, write_report
+    from vesselbot_ros.bag.report import FIGURES, report_dir, write_report
 
     metrics = write_report(args.bag, args.out, after_s=args.after)
-    out = Path(args.out) if args.out else Path(args.bag) / "report"
+    out = report_dir(args.bag, args.out)
     print(f"report written to {out}: {', '.join(FIGURES)}, metrics.json")
     after = metrics["after_s"]
     print(f"  the bag {metrics['coverage']}")

@@ -11,8 +11,8 @@
   ``metadata.yaml`` and in the MCAP's ``rosbag2`` metadata record), and into
   the side file ``run_metadata.json`` written at open, so that ``bag repair``
   can restore it after a hard kill;
-* the bag directory may already exist (the launcher puts ROS logs in
-  ``DIR/logs``), but an existing ``metadata.yaml`` or ``*.mcap`` is never
+* the bag directory may already exist (the launcher puts its node logs beside it, in
+  ``DIR.logs``), but an existing ``metadata.yaml`` or ``*.mcap`` is never
   overwritten;
 * log times are integer ns and strictly increasing (ties are broken by +1 ns)
   so that every reader (rosbags, mcap, Foxglove) orders the messages exactly as

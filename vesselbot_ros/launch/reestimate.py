@@ -19,7 +19,7 @@ deterministic functions of that sequence: a lockstep bag replayed into a fresh
 node of the same scenario gives the recorded outputs bit for bit (difference
 0.0; the CDR doubles round-trip exactly).
 
-The result is a new bag (default ``<DIR>/reestimate_<role>/``) holding the
+The result is a new bag (default ``<DIR>.reestimate_<role>/``, beside the bag) holding the
 fed inputs and the recorded output with their original log times, the new
 output under ``/vesselbot/replay/<name>`` (log time = the recorded output's
 + 1 ns), and the node's ``/diagnostics``; plus ``comparison.json``.
@@ -49,6 +49,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 from vesselbot_ros.atomic_io import failure_reason, write_text
+from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.reader import BagInfo, iter_messages, open_bag
 from vesselbot_ros.bag.replay import _import_type
 from vesselbot_ros.bag.writer import BagWriter, check_output_dir
@@ -62,6 +63,7 @@ from vesselbot_ros.sim.scenario import scenario_from_mapping
 
 __all__ = [
     "ROLES",
+    "reestimate_dir",
     "RoleIO",
     "Recorded",
     "TickFeed",
@@ -484,6 +486,11 @@ def _tail(path: Path, n: int = 15) -> str:
     return ""
 
 
+def reestimate_dir(bag_dir: str | Path, role: str) -> Path:
+    """The default result bag of ``replay --into role``: ``<bag_dir>.reestimate_<role>``, beside the bag (never in it)."""
+    return derived_dir(bag_dir, f"reestimate_{role}")
+
+
 def reestimate(
     bag: str | Path | BagInfo,
     role: str,
@@ -500,7 +507,7 @@ def reestimate(
     Args:
         bag: The recorded bag (directory or validated :class:`BagInfo`).
         role: ``observer`` or ``controller``.
-        out_dir: The result bag (default ``<bag>/reestimate_<role>``); must not
+        out_dir: The result bag (default ``<bag>.reestimate_<role>``, beside the bag); must not
             hold a bag yet.
         node_cmd: The node under test (see :func:`node_command`); None: ours.
         answer_timeout_s: Wall time to wait for the answer to each tick (s).
@@ -526,7 +533,7 @@ def reestimate(
         raise BagError(f"bag {info.path}: nothing to feed ({plan.stop_reason})")
     # the result bag re-records the fed inputs: about the source bag's size, plus the node's log and the comparison
     need = sum(p.stat().st_size for p in info.mcap_paths) + REESTIMATE_HEADROOM_BYTES
-    out = check_output_dir(Path(out_dir) if out_dir is not None else info.path / f"reestimate_{role}", min_free_bytes=need)
+    out = check_output_dir(Path(out_dir) if out_dir is not None else reestimate_dir(info.path, role), min_free_bytes=need)
     log_dir = out / "logs"
     scenario = scenario_from_mapping(plan.run_metadata["config"])
     params = scenario_to_parameters(scenario)

@@ -7,7 +7,8 @@ Plain replay publishes in the ROS domain of the environment
 
 ``--into ROLE`` re-runs one node on the bag's inputs instead
 (:mod:`vesselbot_ros.launch.reestimate`): a fresh node in a leased domain, fed
-tick by tick, its outputs recorded next to the originals and compared.  Exit
+tick by tick, its outputs recorded next to the originals and compared, into a
+new bag beside the recorded one (``DIR.reestimate_ROLE/``, or ``--out``).  Exit
 codes: 0 every tick answered (and, with ``--tolerance``, every difference
 within it); 1 the node died, a tick went unanswered, or a difference exceeds
 ``--tolerance``; 2 a bad bag or argument.
@@ -55,7 +56,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--node-cmd", default=None, metavar="CMD",
                    help="command of the node under test (default: ours); '{params}' is replaced by the "
                         "scenario's --params-file, else '--ros-args --params-file F' is appended")
-    g.add_argument("--out", default=None, metavar="DIR", help="result bag (default <bag>/reestimate_<ROLE>)")
+    g.add_argument("--out", default=None, metavar="DIR",
+                   help="result bag (default <bag>.reestimate_<ROLE>, beside the bag folder, which holds the bag only)")
     g.add_argument("--answer-timeout", type=float, default=10.0, metavar="S",
                    help="wall time to wait for the node's answer to each tick (default 10 s)")
     g.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
@@ -164,11 +166,11 @@ def _live_view(args: argparse.Namespace, info: Any) -> Any:
 
 def _run_into(args: argparse.Namespace, info: BagInfo) -> int:
     # deferred: re-running a node pulls in the compiled core and rosbags; `vesselbot replay --help` imports this module
-    from vesselbot_ros.launch.reestimate import ROLES, reestimate, replay_topic
+    from vesselbot_ros.launch.reestimate import ROLES, reestimate, reestimate_dir, replay_topic
 
     if args.tolerance is not None and not args.tolerance >= 0:
         raise BagError(f"--tolerance must be >= 0, got {args.tolerance}")
-    _check_into_out(args, info)
+    _check_into_out(args, info, reestimate_dir(info.path, args.into))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     res = reestimate(info, args.into, out_dir=args.out, node_cmd=args.node_cmd,
                      answer_timeout_s=args.answer_timeout, wait_timeout_s=args.wait_timeout,
@@ -197,9 +199,8 @@ def _holds_bag(d: Path) -> bool:
     return (d / "metadata.yaml").exists() or any(d.glob("*.mcap"))
 
 
-def _check_into_out(args: argparse.Namespace, info: Any) -> None:
-    """Refuse an --into result folder that already holds a bag, suggesting a free ``--out``."""
-    default = Path(info.path) / f"reestimate_{args.into}"
+def _check_into_out(args: argparse.Namespace, info: Any, default: Path) -> None:
+    """Refuse an --into result folder (``default``: beside the bag) that already holds a bag, suggesting a free ``--out``."""
     out = Path(args.out) if args.out is not None else default
     if not _holds_bag(out):
         return

@@ -47,6 +47,7 @@ from typing import Any
 
 import vesselbot_ros
 from vesselbot_ros.atomic_io import check_output_file, write_text
+from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.config import apply_overrides as config_apply_overrides
@@ -86,7 +87,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "messages to each other in lockstep, DDS only for readers outside the process)")
     parser.add_argument("--no-record", action="store_true", help="do not record a bag")
     parser.add_argument("--record-dir", type=Path, default=None, metavar="DIR",
-                        help="bag directory (default runs/<UTC time>_<scenario>)")
+                        help="bag directory (default runs/<UTC time>_<scenario>); it holds the bag only: the node "
+                             "logs go beside it to DIR.logs, --report to DIR.report")
     parser.add_argument("--compression", choices=tuple(_compression_choices()), default="none",
                         help="MCAP chunk compression of the bag: rosbag2's storage presets on Jazzy "
                              "(zstd_fast: fastest zstd, 768 KiB chunks; zstd_small: strongest zstd, 4 MiB chunks)")
@@ -114,6 +116,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--namespace", default=None, metavar="NAME",
                         help="put the graph under /NAME instead of /vesselbot (two graphs can share one domain)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--all-metrics", action="store_true",
+                        help="print every metric in SI units after the run, not only the one-line result "
+                             "(--metrics-json and the report's metrics.json hold them all either way)")
 
 
 def _live_port(args: argparse.Namespace) -> int | None:
@@ -255,7 +260,8 @@ def run(args: argparse.Namespace) -> int:
         except BaseException:
             lease.release()
             raise
-    log_dir = (run_dir / "logs") if record else Path("runs") / "logs" / f"{stamp}_{scenario.name}"
+    # beside the bag, not in it: the bag folder holds what rosbag2 writes (ros2 bag info, Foxglove see a clean bag)
+    log_dir = derived_dir(run_dir, "logs") if record else Path("runs") / "logs" / f"{stamp}_{scenario.name}"
 
     # deferred: the launcher pulls in the compiled core and the node modules; `vesselbot run --help` imports this module
     from vesselbot_ros.launch.graph import GraphOptions, NodeDied, RecordingMismatch, run_graph
@@ -306,7 +312,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
-    _print_summary(result)
+    _print_summary(result, scenario.name, all_metrics=args.all_metrics)
     if args.metrics_json is not None:
         payload = {"metrics": result.metrics, "wall_s": result.wall_s, "real_time_factor": result.real_time_factor,
                    "final": {k: [float(x) for x in result.timeseries[k][-1]] for k in ("p_true", "x_hat", "g_applied")}}
@@ -318,12 +324,12 @@ def run(args: argparse.Namespace) -> int:
         if args.report:
             # deferred: the report draws with matplotlib (heavy) and is an optional part of an install
             try:
-                from vesselbot_ros.bag.report import write_report
+                from vesselbot_ros.bag.report import report_dir, write_report
             except ImportError:
                 print("vesselbot run: --report needs vesselbot_ros.bag.report, which is not installed", file=sys.stderr)
                 return 1
             write_report(run_dir, after_s=scenario.sim.metrics_after_s)  # same window as the printed metrics
-            print(f"report: {run_dir / 'report'}")
+            print(f"report: {report_dir(run_dir)}")
     rt = result.realtime
     if rt is not None:
         if rt.failed:
@@ -358,16 +364,21 @@ def _trust(m: dict[str, Any], lockstep_watchdog: bool = False) -> int:
     return code
 
 
-def _print_summary(result: Any) -> None:
+def _print_summary(result: Any, name: str, *, all_metrics: bool = False) -> None:
+    """The run's result as simulate prints it (one line, um), then the real-time figures; ``all_metrics``: every metric."""
+    from vesselbot_ros.sim.metrics import headline  # deferred: the core (see run)
+
     m = result.metrics
     print(f"run finished: {m['n_ticks']} ticks in {result.wall_s:.3f} s wall (RTF {result.real_time_factor:.4g})")
-    for k, v in m.items():
-        if isinstance(v, float):
-            print(f"  {k:40s} {v:.6g}")
-        elif v is None:  # a metric that does not apply to this run (diverged_at_s of a run that did not diverge)
-            print(f"  {k:40s} -")
-        else:
-            print(f"  {k:40s} {v}")
+    print(f"{name}: {headline(m)}")
+    if all_metrics:
+        for k, v in m.items():
+            if isinstance(v, float):
+                print(f"  {k:40s} {v:.6g}")
+            elif v is None:  # a metric that does not apply to this run (diverged_at_s of a run that did not diverge)
+                print(f"  {k:40s} -")
+            else:
+                print(f"  {k:40s} {v}")
     rt = result.realtime
     if rt is not None:
         print(f"real time: {rt.factor_text()}")

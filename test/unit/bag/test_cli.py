@@ -58,12 +58,17 @@ def test_bag_repair_cli_then_info_succeeds(tmp_path, capsys):
     assert "nothing to do" in capsys.readouterr().out
 
 
-def test_report_cli_writes_into_the_bag_by_default(synthetic_bag, tmp_path, capsys):
+def test_report_cli_writes_beside_the_bag_by_default_and_leaves_the_bag_folder_as_it_was(synthetic_bag, tmp_path,
+                                                                                          capsys):
     dst = tmp_path / "r"
     shutil.copytree(synthetic_bag[0], dst)
+    before = sorted(p.name for p in dst.iterdir())
     assert main(["report", str(dst)]) == 0
-    assert (dst / "report" / "metrics.json").is_file()
-    assert "tracking error after 0.6 s" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert (tmp_path / "r.report" / "metrics.json").is_file()
+    assert sorted(p.name for p in dst.iterdir()) == before  # nothing added to the bag
+    assert f"report written to {tmp_path / 'r.report'}: " in out  # says where
+    assert "tracking error after 0.6 s" in out
 
 
 @pytest.mark.parametrize("argv", [["bag", "info"], ["bag", "repair", "--force"]])
@@ -85,7 +90,7 @@ def test_closed_stdout_pipe_ends_without_traceback(synthetic_bag, tmp_path, argv
 def test_replay_into_a_second_time_suggests_out(synthetic_bag, tmp_path, capsys, use_out):
     bag = tmp_path / "run1"
     shutil.copytree(synthetic_bag[0], bag)
-    earlier = bag / "reestimate_observer"
+    earlier = tmp_path / "run1.reestimate_observer"  # beside the bag
     earlier.mkdir()
     (earlier / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     argv = ["replay", str(bag), "--into", "observer"] + (["--out", str(earlier)] if use_out else [])
@@ -94,7 +99,7 @@ def test_replay_into_a_second_time_suggests_out(synthetic_bag, tmp_path, capsys,
     assert len(err) == 1
     assert "already holds a bag (metadata.yaml) from an earlier `replay --into observer`" in err[0]
     assert "it is not overwritten: pass --out DIR" in err[0]
-    assert f"--out {bag / 'reestimate_observer_2'}" in err[0]
+    assert f"--out {tmp_path / 'run1.reestimate_observer_2'}" in err[0]
 
 
 @pytest.mark.parametrize("start", ["nan", "inf", "-1"])
@@ -117,7 +122,7 @@ def test_report_on_a_full_disk_leaves_the_earlier_report_and_no_empty_file(synth
 
     bag = tmp_path / "run1"
     shutil.copytree(synthetic_bag[0], bag)
-    rep = bag / "report"
+    rep = tmp_path / "run1.report"
     rep.mkdir()
     old = {"fig9a_trajectory.png": "an earlier figure", "metrics.json": '{"old": 1}\n'}
     for name, text in old.items():
@@ -136,13 +141,13 @@ def test_replay_into_on_a_full_disk_is_one_line_naming_the_folder_and_leaves_not
 
     bag = tmp_path / "run1"
     shutil.copytree(synthetic_bag[0], bag)
-    before = sorted(p.relative_to(bag) for p in bag.rglob("*"))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
     child = cli_on_a_full_disk(["replay", str(bag), "--into", "observer"])
     err = child.stderr.strip().splitlines()
     assert child.returncode == 2, child.stderr
-    assert err == [f"vesselbot replay: error: bag directory {bag / 'reestimate_observer'} is not writable: "
+    assert err == [f"vesselbot replay: error: bag directory {tmp_path / 'run1.reestimate_observer'} is not writable: "
                    "File too large"]
-    assert sorted(p.relative_to(bag) for p in bag.rglob("*")) == before  # no .write_probe_NNN, no empty folder
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # no .write_probe_NNN, no empty folder
 
 
 def test_a_repaired_partial_bag_says_how_much_of_the_run_it_covers(tmp_path, capsys):

@@ -10,7 +10,7 @@ import pytest
 
 from vesselbot_ros.cli import main as cli_main
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.sim.metrics import compute_metrics, divergence_bound_m, run_status, status_line
+from vesselbot_ros.sim.metrics import compute_metrics, divergence_bound_m, headline, run_status, status_line
 
 SOUND = Path(__file__).resolve().parents[3] / "config" / "sound_small_artery.yaml"
 
@@ -166,3 +166,25 @@ def test_the_scanner_studys_table_says_diverged() -> None:
     row = cell_row(StudyCell("paper", 0.03, 0.0, "paper"), sc, {}, [good, bad], None)
     assert row["status"] == "diverged (seed 1): the estimate is 1915 mm from the reference"
     assert "estimation_rms_mean_m" not in row  # no mean over a run that left the vessel
+
+
+def test_the_headline_is_one_line_in_micrometres_with_what_applies():
+    m = {"after_s": 0.6, "tracking_error_max_m": 751.24e-6, "tracking_error_rms_m": 310.0e-6,
+         "estimation_error_max_m": 402.04e-6, "saturation_time_s": 0.12, "wall_contacts": 0,
+         "rejected_commands": 0, "diverged_at_s": None}
+    line = headline(m)
+    assert line == ("tracking error after 0.6 s max 751.2 um rms 310.0 um; estimation error max 402.0 um; "
+                    "saturated 0.120 s; contacts 0")
+    bad = dict(m, rejected_commands=1500, diverged_at_s=0.8123, tracking_error_max_m=float("nan"))
+    assert headline(bad) == ("tracking error after 0.6 s max - rms 310.0 um; estimation error max 402.0 um; "
+                             "saturated 0.120 s; contacts 0; rejected commands 1500; diverged at t = 0.8123 s")
+
+
+def test_simulate_prints_the_headline_and_where_the_wall_time_went(tmp_path, capsys):
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("base: sound_small_artery\nname: s\nsim: {duration_s: 0.05}\nreference: {duration_s: 0.05}\n")
+    assert cli_main(["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert f"s: {headline(m)}; wall time {m['wall_time_s']:.2f} s (set-up {m['setup_wall_time_s']:.2f} s" in out
+    assert 0.0 <= m["setup_wall_time_s"] <= m["wall_time_s"]
