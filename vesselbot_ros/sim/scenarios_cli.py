@@ -8,8 +8,11 @@ Each scenario is loaded by the one loader the commands use
 simulate`` checks it before it runs
 (:func:`~vesselbot_ros.sim.scenario.check_resources`): a scenario they would
 refuse is marked ``cannot be flown as shipped`` with the first line of the
-refusal.  Loading a 3-D tree's scenario plans its route, so the list takes
-seconds, not a fraction of one.
+refusal.  A planar scenario whose coil cannot hold the bead against its weight
+(:func:`~vesselbot_ros.analysis.plan.hover_shortfall`: a bound for every
+controller) is marked ``cannot hover on its coil``: only a path along the
+lower wall flies there (``vesselbot plan``).  Loading a 3-D tree's scenario
+plans its route, so the list takes seconds, not a fraction of one.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from pathlib import Path
 from vesselbot_ros.config import load_yaml
 from vesselbot_ros.errors import ConfigError
 
-__all__ = ["register", "run", "describe", "refusal"]
+__all__ = ["register", "run", "describe", "refusal", "hover_note"]
 
 #: The legend every shipped file ends its comment block with: not part of what the scenario is.
 _LEGEND = re.compile(r"\s*Sources:\s*\"T3\".*$")
@@ -64,6 +67,24 @@ def refusal(path: str | Path) -> str | None:
     return None
 
 
+def hover_note(path: str | Path) -> str | None:
+    """Why no controller hovers the bead of the planar scenario at ``path`` (one line), or None if its coil can."""
+    from vesselbot_ros.analysis.plan import hover_shortfall  # deferred: see refusal
+    from vesselbot_ros.sim.scenario import load_scenario
+
+    try:
+        scenario = load_scenario(path)
+    except ConfigError:
+        return None  # refusal() says why
+    short = hover_shortfall(scenario) if scenario.dims == 2 else None
+    if short is None:
+        return None
+    a_avail, a_weight = short
+    return (f"cannot hover on its coil: the saturated coil gives at most {a_avail:.2f} m/s^2 at its duty cycle, the "
+            f"apparent weight pulls {a_weight:.2f} m/s^2 down, so no controller holds a reference off the lower wall; "
+            f"only a path along the wall flies (`vesselbot plan --config {Path(path).stem}` plans one)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Print each shipped scenario's name (the default marked), its description wrapped and indented, its refusal."""
     from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, shipped_scenarios  # deferred: see refusal
@@ -77,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         if why is not None:
             print(textwrap.fill(f"cannot be flown as shipped: {why}", width, initial_indent=INDENT + "! ",
                                 subsequent_indent=INDENT + "  "))
+        elif (hover := hover_note(path)) is not None:
+            print(textwrap.fill(hover, width, initial_indent=INDENT + "! ", subsequent_indent=INDENT + "  "))
         print(textwrap.fill(describe(path), width, initial_indent=INDENT, subsequent_indent=INDENT,
                             break_on_hyphens=False))
     return 0

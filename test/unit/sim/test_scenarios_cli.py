@@ -33,7 +33,10 @@ def test_each_shipped_scenario_with_its_whole_description_wrapped_and_indented(t
     assert "sound_small_artery (default)" in entries and "paper_small_artery" in entries
     for lines in entries.values():
         assert lines and all(ln.startswith("    ") and len(ln) <= 79 for ln in lines), lines
-    text = {e.split()[0]: " ".join(ln.strip() for ln in lines) for e, lines in entries.items()}
+    def described(lines: list[str]) -> list[str]:  # the description's lines, not a mark ("    ! ..." and its "      ")
+        return [ln for ln in lines if not ln.startswith(("    !", "     "))]
+
+    text = {e.split()[0]: " ".join(ln.strip() for ln in described(lines)) for e, lines in entries.items()}
     # not cut at the first full stop: the whole description, the shared sources legend left out
     assert text["folio_2017_tro"].startswith("Folio and Ferreira, IEEE Trans. Robotics 2017 (hal-01446482)")
     assert text["folio_2017_tro"].endswith("(the coil cannot hold the bead's weight).")
@@ -78,3 +81,23 @@ def test_describe_is_the_whole_comment_block_without_the_legend(tmp_path):
     for name, p in shipped_scenarios().items():
         text = describe(p)
         assert text.endswith((".", ")")) and "Sources:" not in text, (name, text)
+
+
+def test_a_coil_that_cannot_hold_the_bead_against_its_weight_is_marked_and_one_that_can_is_not(capsys):
+    from vesselbot_ros.analysis.plan import available_accel, hover_shortfall, weight_accel
+    from vesselbot_ros.sim.scenario import load_scenario, resolve_config_path
+    from vesselbot_ros.sim.scenarios_cli import hover_note
+
+    clinical = load_scenario("clinical_3t_small_artery")
+    a_avail, a_weight = hover_shortfall(clinical)
+    assert a_avail == available_accel(clinical)[0] < a_weight == weight_accel(clinical)
+    assert 8.0 < a_weight < 8.5  # Table III's bead: g (1 - rho_f / rho) with its iron fraction
+    note = hover_note(resolve_config_path("clinical_3t_small_artery"))
+    assert note is not None and f"at most {a_avail:.2f} m/s^2" in note and f"pulls {a_weight:.2f} m/s^2" in note
+    assert hover_shortfall(load_scenario("sound_small_artery")) is None
+    assert hover_note(resolve_config_path("sound_small_artery")) is None
+    assert cli.main(["scenarios"]) == 0
+    out = capsys.readouterr().out
+    block = out.split("clinical_3t_small_artery\n", 1)[1].split("\n", 1)[0]
+    assert block.strip().startswith("! cannot hover on its coil")
+    assert "sound_small_artery (default)\n    !" not in out

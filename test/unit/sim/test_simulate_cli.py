@@ -44,6 +44,7 @@ def test_hardware_flies_the_same_run_as_the_presets_keys_given_with_set(tmp_path
     m_hw, m_set = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("hw", "set"))
     for m in (m_hw, m_set):
         m.pop("wall_time_s", None)
+        m.pop("setup_wall_time_s", None)
     assert m_hw == m_set
     assert "saturation_T_per_m: 0.4" in (tmp_path / "hw" / "scenario.yaml").read_text()  # the insert's 400 mT/m
     # --set applies after --hardware
