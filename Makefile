@@ -12,13 +12,17 @@ SEED ?= 1
 CONFIG ?=
 PYTEST_ARGS ?=
 
-.PHONY: bootstrap run lint test test-unit test-integration bench simulate figures clean
+.PHONY: bootstrap bootstrap-run run lint test test-unit test-integration bench simulate figures clean
 
 bootstrap:
-	@tools/bootstrap.sh
+	@tools/bootstrap.sh test
+
+## What `make run` needs only (no test tools; the numba warm-up of the default scenario, the rest on first use).
+bootstrap-run:
+	@tools/bootstrap.sh run
 
 ## The main job: the paper's closed-loop scenario over ROS 2, recorded to runs/, then reported.
-run: bootstrap
+run: bootstrap-run
 	@$(PY) -m vesselbot_ros.cli run $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED) --report
 
 ## The whole test suite (unit + integration over real ROS 2 topics), on two workers (each test leases its
@@ -46,11 +50,11 @@ test-integration: bootstrap
 	@$(INTEGRATION)
 
 ## ROS-free closed loop of the same scenario.
-simulate: bootstrap
+simulate: bootstrap-run
 	@$(PY) -m vesselbot_ros.cli simulate $(if $(CONFIG),--config $(CONFIG)) --seed $(SEED)
 
 ## Paper figures 7 and 8.
-figures: bootstrap
+figures: bootstrap-run
 	@$(PY) -m vesselbot_ros.cli design-map && $(PY) -m vesselbot_ros.cli force-balance && $(PY) -m vesselbot_ros.cli sensitivity
 
 bench: bootstrap

@@ -9,7 +9,12 @@
 #      which the integration tests run with node
 # Each step is skipped when the sha256 of its inputs matches the stamp it left,
 # so a second call does nothing (well under 5 s).  A failing step leaves no stamp.
+# Usage: tools/bootstrap.sh [test|run]   test (default): everything make test needs;
+#   run: what make run needs only (no tools/js; the numba warm-up of the default scenario, the rest compiles on
+#   first use, a 3-D tree's wall build saying so in one line)
 set -euo pipefail
+scope=${1:-test}
+case $scope in test|run) ;; *) echo "vesselbot bootstrap: unknown scope '$scope' (test or run)" >&2; exit 2;; esac
 cd "$(dirname "$0")/.."
 root=$PWD
 venv=$root/.venv
@@ -35,7 +40,7 @@ took() { echo "vesselbot bootstrap:   $1 took $((SECONDS - step_t0)) s"; }
 for tool in cmake ninja cc; do
   command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install cmake ninja-build gcc)" >&2; exit 1; }
 done
-for tool in node npm; do
+[ "$scope" = run ] || for tool in node npm; do
   command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install nodejs npm)" >&2; exit 1; }
 done
 
@@ -73,11 +78,13 @@ fi
 #    before the bootstrap ends.
 nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
 numba_pid=
-if ! fresh numba-cache "$nb"; then
-  echo "vesselbot bootstrap: compiling the closed loop into numba's cache (once per version of the code, in the background)"
-  rm -f "$stamps/numba-cache"
+warm_scope=all; numba_stamp=numba-cache
+[ "$scope" = test ] || { warm_scope=run; numba_stamp=numba-run; }
+if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
+  echo "vesselbot bootstrap: compiling the closed loop into numba's cache ($warm_scope: once per version of the code, in the background)"
+  rm -f "$stamps/$numba_stamp"
   numba_log=$(mktemp)
-  (cd / && exec "$venv/bin/python" -c "from vesselbot_ros.sim.warm import warm; warm()") >"$numba_log" 2>&1 &
+  (cd / && exec "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$warm_scope" --no-progress) >"$numba_log" 2>&1 &
   numba_pid=$!
   numba_t0=$SECONDS
 fi
@@ -89,7 +96,7 @@ numba_done() {  # wait for the background warm-up; stamp it, or show its error a
     echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1
   fi
   rm -f "$numba_log"; numba_pid=
-  mark numba-cache "$nb"
+  mark "$numba_stamp" "$nb"
   echo "vesselbot bootstrap:   numba warm-up took $((SECONDS - numba_t0)) s (in the background)"
 }
 trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
@@ -119,7 +126,7 @@ fi
 
 # 5. Foxglove's JavaScript packages for the tests (exact versions from tools/js/package-lock.json)
 js=$(hash_files tools/js/package.json tools/js/package-lock.json)
-if ! fresh npm "$js" || [ ! -d tools/js/node_modules ]; then
+if [ "$scope" = test ] && { ! fresh npm "$js" || [ ! -d tools/js/node_modules ]; }; then
   step "installing tools/js (npm ci)"
   rm -f "$stamps/npm"
   (cd tools/js && npm ci --no-audit --no-fund --loglevel=error) || { echo "vesselbot bootstrap: npm ci in tools/js failed" >&2; exit 1; }

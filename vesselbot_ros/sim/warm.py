@@ -15,24 +15,34 @@ import dataclasses as dc
 from vesselbot_ros.progress import ProgressFn, add_progress_argument, session, step, wanted
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
-from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios, short_copy
+from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, load_scenario, shipped_scenarios, short_copy
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
 
 __all__ = ["warm", "main"]
 
 
-def warm(progress: ProgressFn | None = None) -> None:
-    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario, briefly.
+#: What :func:`warm` compiles: ``all`` (every shipped scenario: what ``make test`` needs, the 3-D trees' wall
+#: lookups included, minutes on a fresh machine) or ``run`` (the default scenario: what ``make run`` needs; the rest
+#: compiles on first use, a 3-D wall build saying so in one line).
+SCOPES = ("all", "run")
+
+
+def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
+    """Compile (or load) every compiled path a run uses: both loops of each shipped scenario (``scope="all"``) or
+    of the default scenario (``scope="run"``, :data:`SCOPES`), briefly.
 
     ``progress(done, total)`` is called after each scenario warmed (default: :func:`~vesselbot_ros.progress.step`'s,
     a bar when a command draws them).
     """
+    if scope not in SCOPES:
+        raise ValueError(f"scope must be one of {SCOPES}, got {scope!r}")
     if progress is None:
         with step("numba warm-up") as report:
-            warm(report)
+            warm(report, scope=scope)
         return
-    scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
+    paths = shipped_scenarios()
+    scenarios = [load_scenario(path) for name, path in paths.items() if scope == "all" or name == DEFAULT_SCENARIO]
     planar = next(sc for sc in scenarios if sc.dims == 2)
     # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
     scenarios.append(dc.replace(planar, sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
@@ -54,10 +64,12 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m vesselbot_ros.sim.warm [--no-progress]``: :func:`warm`, with a bar on a terminal."""
     parser = argparse.ArgumentParser(prog="python -m vesselbot_ros.sim.warm",
                                      description="fill numba's on-disk cache (every compiled path a run uses)")
+    parser.add_argument("--scope", choices=SCOPES, default="all",
+                        help="all: every shipped scenario (make test); run: the default scenario (make run)")
     add_progress_argument(parser)
     args = parser.parse_args(argv)
     with session(wanted(args.no_progress)):
-        warm()
+        warm(scope=args.scope)
     return 0
 
 
