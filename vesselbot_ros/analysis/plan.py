@@ -64,8 +64,7 @@ from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = ["COAST_BUDGET_PLANT_S", "COAST_STARTS_PER_COAST", "check_fits_path",
-           "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "weight_accel", "hover_shortfall",
-           "need", "wall_rest", "make_plan",
+           "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
            "flying_changes", "WALL_FLOW_SCALE_SIGMA0",
            "evaluate", "plan_scenario", "coast_time_s", "reachable"]
 
@@ -175,26 +174,6 @@ def available_accel(scenario: Scenario) -> tuple[float, float, float]:
     a_sat = abs(float(input_matrix(scenario.physics)[1, 1])) * scenario.coil.saturation_T_per_m
     duty = duty_cycle(scenario.sequence)
     return duty * a_sat, a_sat, duty
-
-
-def weight_accel(scenario: Scenario) -> float:
-    """The acceleration the apparent weight gives the bead (m/s^2, downward): ``V (rho - rho_f) g / m``."""
-    ph = scenario.physics
-    r = ph.robot
-    volume = 4.0 / 3.0 * np.pi * r.radius_m ** 3
-    return float(volume * (r.density_kg_per_m3 - ph.blood.density_kg_per_m3) * ph.vessel.gravity_m_per_s2 / r.mass_kg)
-
-
-def hover_shortfall(scenario: Scenario) -> tuple[float, float] | None:
-    """``(a_avail, a_weight)`` when the saturated coil, duty-averaged, cannot hold the bead against its apparent
-    weight (:func:`available_accel` < :func:`weight_accel`), else None.
-
-    A bound for every loop: no controller hovers such a bead, so only a path resting on the lower wall can be
-    flown (:func:`make_plan`).  Planar scenarios (the coil's vertical axis, :func:`available_accel`).
-    """
-    a_avail = available_accel(scenario)[0]
-    a_weight = weight_accel(scenario)
-    return (a_avail, a_weight) if a_avail < a_weight else None
 
 
 def coast_time_s(scenario: Scenario) -> float:

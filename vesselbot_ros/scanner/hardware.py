@@ -55,9 +55,12 @@ from typing import Any, Literal
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.actuator_limits import CoilLimits
-from vesselbot_ros.scanner.sequence import SequenceParams
+from vesselbot_ros.control.input_mapping import input_matrix
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
 
-__all__ = ["HardwarePreset", "PRESETS", "preset_changes", "iec_normal_mode_dbdt", "dbdt_slew_limit", "DbdtLimit", "dbdt_axis_slew_limit",
+__all__ = ["weight_accel", "hover_shortfall",
+           "HardwarePreset", "PRESETS", "preset_changes", "iec_normal_mode_dbdt", "dbdt_slew_limit", "DbdtLimit", "dbdt_axis_slew_limit",
            "effective_coil_limits", "dbdt_at"]
 
 RHEOBASE_T_PER_S = 20.0  # IEC 60601-2-33 rb
@@ -192,3 +195,26 @@ def effective_coil_limits(coil: CoilLimits, limit: DbdtLimit, axes: int = 2) -> 
     if s_db >= coil.slew_rate_T_per_m_per_s:
         return coil
     return dataclasses.replace(coil, slew_rate="custom", custom_slew_rate_T_per_m_per_s=s_db)
+
+
+def weight_accel(physics: PhysicsParams) -> float:
+    """The acceleration the apparent weight gives the bead (m/s^2, downward): ``V (rho - rho_f) g / m``."""
+    r = physics.robot
+    volume = 4.0 / 3.0 * math.pi * r.radius_m ** 3
+    return float(volume * (r.density_kg_per_m3 - physics.blood.density_kg_per_m3) * physics.vessel.gravity_m_per_s2
+                 / r.mass_kg)
+
+
+def hover_shortfall(physics: PhysicsParams, saturation_T_per_m: float,
+                    sequence: SequenceParams) -> tuple[float, float] | None:
+    """``(a_avail, a_weight)`` when the saturated coil, duty-averaged, cannot hold the bead against its apparent
+    weight, else None.
+
+    ``a_avail`` is the vertical axis's acceleration at saturation times the sequence's duty cycle (as
+    :func:`vesselbot_ros.analysis.plan.available_accel`), ``a_weight`` :func:`weight_accel`.  A bound for every
+    loop: no controller hovers such a bead, so only a path resting on the lower wall can be flown
+    (``vesselbot plan``).  The planar model's axes (x, z).
+    """
+    a_avail = duty_cycle(sequence) * abs(float(input_matrix(physics)[1, 1])) * saturation_T_per_m
+    a_weight = weight_accel(physics)
+    return (a_avail, a_weight) if a_avail < a_weight else None

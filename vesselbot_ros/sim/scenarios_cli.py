@@ -9,7 +9,7 @@ simulate`` checks it before it runs
 (:func:`~vesselbot_ros.sim.scenario.check_resources`): a scenario they would
 refuse is marked ``cannot be flown as shipped`` with the first line of the
 refusal.  A planar scenario whose coil cannot hold the bead against its weight
-(:func:`~vesselbot_ros.analysis.plan.hover_shortfall`: a bound for every
+(:func:`~vesselbot_ros.scanner.hardware.hover_shortfall`: a bound for every
 controller) is marked ``cannot hover on its coil``: only a path along the
 lower wall flies there (``vesselbot plan``).  Loading a 3-D tree's scenario
 plans its route, so the list takes seconds, not a fraction of one.
@@ -69,14 +69,16 @@ def refusal(path: str | Path) -> str | None:
 
 def hover_note(path: str | Path) -> str | None:
     """Why no controller hovers the bead of the planar scenario at ``path`` (one line), or None if its coil can."""
-    from vesselbot_ros.analysis.plan import hover_shortfall  # deferred: see refusal
+    # deferred: the scenario module pulls in the compiled core; `vesselbot --help` imports this module
+    from vesselbot_ros.scanner.hardware import hover_shortfall
     from vesselbot_ros.sim.scenario import load_scenario
 
     try:
         scenario = load_scenario(path)
     except ConfigError:
         return None  # refusal() says why
-    short = hover_shortfall(scenario) if scenario.dims == 2 else None
+    short = (hover_shortfall(scenario.physics, scenario.coil.saturation_T_per_m, scenario.sequence)
+             if scenario.dims == 2 else None)
     if short is None:
         return None
     a_avail, a_weight = short

@@ -84,17 +84,19 @@ def test_describe_is_the_whole_comment_block_without_the_legend(tmp_path):
 
 
 def test_a_coil_that_cannot_hold_the_bead_against_its_weight_is_marked_and_one_that_can_is_not(capsys):
-    from vesselbot_ros.analysis.plan import available_accel, hover_shortfall, weight_accel
+    from vesselbot_ros.analysis.plan import available_accel
+    from vesselbot_ros.scanner.hardware import hover_shortfall, weight_accel
     from vesselbot_ros.sim.scenario import load_scenario, resolve_config_path
     from vesselbot_ros.sim.scenarios_cli import hover_note
 
     clinical = load_scenario("clinical_3t_small_artery")
-    a_avail, a_weight = hover_shortfall(clinical)
-    assert a_avail == available_accel(clinical)[0] < a_weight == weight_accel(clinical)
+    a_avail, a_weight = hover_shortfall(clinical.physics, clinical.coil.saturation_T_per_m, clinical.sequence)
+    assert a_avail == available_accel(clinical)[0] < a_weight == weight_accel(clinical.physics)
     assert 8.0 < a_weight < 8.5  # Table III's bead: g (1 - rho_f / rho) with its iron fraction
     note = hover_note(resolve_config_path("clinical_3t_small_artery"))
     assert note is not None and f"at most {a_avail:.2f} m/s^2" in note and f"pulls {a_weight:.2f} m/s^2" in note
-    assert hover_shortfall(load_scenario("sound_small_artery")) is None
+    sound = load_scenario("sound_small_artery")
+    assert hover_shortfall(sound.physics, sound.coil.saturation_T_per_m, sound.sequence) is None
     assert hover_note(resolve_config_path("sound_small_artery")) is None
     assert cli.main(["scenarios"]) == 0
     out = capsys.readouterr().out
