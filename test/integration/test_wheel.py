@@ -76,7 +76,7 @@ def test_wheel_in_a_fresh_venv_runs_the_default_scenario_from_a_temporary_direct
     listing = subprocess.run([str(venv / "bin" / "vesselbot"), "scenarios"], cwd=work, env=env, capture_output=True,
                              text=True, timeout=120)
     assert listing.returncode == 0, listing.stderr
-    names = [ln.split()[0] for ln in listing.stdout.splitlines()]
+    names = [ln.split()[0] for ln in listing.stdout.splitlines() if ln and not ln[0].isspace()]  # not a description
     from vesselbot_ros.sim.scenario import shipped_scenarios
 
     assert names == sorted(shipped_scenarios())  # the wheel ships every scenario of the checkout

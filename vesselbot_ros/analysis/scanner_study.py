@@ -100,7 +100,7 @@ from vesselbot_ros.analysis.plan import (
 from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pending, prepare
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError, check_choice, to_mapping
+from vesselbot_ros.config import ConfigError, check_choice, flatten, to_mapping
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
@@ -171,16 +171,6 @@ def study_cells(hardware: Iterable[str], propulsion_windows_s: Iterable[float], 
             in itertools.product(hardware, tracking_windows_s, propulsion_windows_s, latencies_s, pairs)]
 
 
-def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in mapping.items():
-        if isinstance(v, dict):
-            out.update(_flat(f"{prefix}{k}.", v))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def cell_changes(cell: StudyCell) -> dict[str, Any]:
     """The cell's changes to the base scenario as dotted keys (a campaign variant).
 
@@ -196,7 +186,7 @@ def cell_changes(cell: StudyCell) -> dict[str, Any]:
                                                "dead_time_s": seq.dead_time_s,
                                                "propulsion_window_s": cell.propulsion_window_s,
                                                "latency_s": cell.latency_s}),
-            **_flat("", PAIRS[cell.pair])}
+            **flatten(PAIRS[cell.pair])}
 
 
 def cell_scenario(base: Scenario, cell: StudyCell) -> Scenario:
@@ -524,7 +514,7 @@ def study_spec(cells: Sequence[StudyCell], runnable: Sequence[int], seeds: Seque
 def planned_changes(scenario: Scenario, plan: Plan) -> dict[str, Any]:
     """A cell's changes that fly ``plan`` instead of its reference: the planned reference, the run until it ends,
     and the loop's options for a plan on the wall (:func:`~vesselbot_ros.analysis.plan.flying_changes`)."""
-    return {**_flat("reference.", to_mapping(plan.reference)), "sim.duration_s": float(plan.end_s),
+    return {**flatten(to_mapping(plan.reference), "reference."), "sim.duration_s": float(plan.end_s),
             **flying_changes(scenario, plan)}
 
 

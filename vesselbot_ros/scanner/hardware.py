@@ -53,7 +53,7 @@ import dataclasses
 import math
 from typing import Any, Literal
 
-from vesselbot_ros.config import ConfigError, check_choice, check_positive
+from vesselbot_ros.config import ConfigError, check_choice, check_positive, flatten
 from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.physics.params import PhysicsParams
@@ -116,20 +116,10 @@ def preset_changes(name: str, **sequence: Any) -> dict[str, Any]:
     hw = PRESETS[name]
     seq = {f.name: getattr(hw.sequence, f.name) for f in dataclasses.fields(SequenceParams)}
     seq.update(sequence)
-    return {**_flat("sequence.", seq),
+    return {**flatten(seq, "sequence."),
             "coil.saturation_T_per_m": hw.saturation_T_per_m, "coil.slew_rate": "custom",
             "coil.custom_slew_rate_T_per_m_per_s": hw.slew_T_per_m_per_s,
             "imager.latency_s": 0.0}
-
-
-def _flat(prefix: str, mapping: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in mapping.items():
-        if isinstance(v, dict):
-            out.update(_flat(f"{prefix}{k}.", v))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def iec_normal_mode_dbdt(t_eff_ms: float) -> float:
