@@ -90,4 +90,4 @@ def test_wheel_in_a_fresh_venv_runs_the_default_scenario_from_a_temporary_direct
     assert "CONFIG ?=\n" in (REPO / "Makefile").read_text()
     bags = list((work / "runs").glob("*_sound_small_artery"))
     assert len(bags) == 1 and (bags[0] / "metadata.yaml").is_file()
-    assert "n_ticks                                  2000" in run.stdout
+    assert "run finished: 2000 ticks" in run.stdout and "sound_small_artery: tracking error after 0.6 s max " in run.stdout
