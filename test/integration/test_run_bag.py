@@ -48,6 +48,9 @@ def test_the_bag_folder_holds_the_bag_only_and_the_logs_and_report_go_beside_it(
     logs = bag.with_name(f"{bag.name}.logs")
     assert (logs / "params.yaml").is_file() and any(logs.glob("*.log"))
     assert f"report: {bag.with_name(f'{bag.name}.report')}" in stdout
+    # a run that ended normally leaves no alarm in any node's log (the stop signal ends the spin, not a callback)
+    alarms = {p.name: p.read_text(errors="replace") for p in logs.glob("*.log")}
+    assert not {n: t for n, t in alarms.items() if "FATAL" in t or "Traceback" in t}, alarms
 
 
 def test_metadata_counts_equal_the_counts_the_publishers_reported(run):

@@ -67,10 +67,12 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
     if bus is not None:
         bus.attach(ex)
     never = Future()
+    _SPINNING[0] = never
     try:
-        while rclpy.ok(context=context) and not (stop is not None and stop()):
+        while rclpy.ok(context=context) and not _SIGNALLED[0] and not (stop is not None and stop()):
             ex.spin_until_future_complete(never, timeout_sec=0.1)  # every event of a 0.1 s slice
     finally:
+        _SPINNING[0] = None
         for n in nodes:
             ex.remove_node(n)
         ex.shutdown()
@@ -78,18 +80,31 @@ def spin_nodes(nodes: Sequence[Any], context: Any = None, stop: Callable[[], boo
 
 #: Set by :func:`_interrupt`: a signal has asked the node process to stop (reset by :func:`run_node`).
 _SIGNALLED = [False]
+#: While :func:`spin_nodes` spins, the future its executor spins on: a signal completes it, which ends the spin
+#: after the callback in progress (a busy node's executor never ends a 0.1 s slice by itself).
+_SPINNING: list[Any] = [None]
 
 
 def _interrupt(signum: int, frame: Any) -> None:
-    """SIGINT / SIGTERM of a node process: stop it as Ctrl-C does, between two Python steps."""
+    """SIGINT / SIGTERM of a node process: stop it.
+
+    While the nodes spin, it completes the future the executor spins on, so the spin ends after the callback in
+    progress: a KeyboardInterrupt raised inside a callback would reach rclpy's executor, which logs it as a FATAL
+    "Exception in 'timers' callback" with a traceback, in every node log of a run that ended normally.  Before the
+    spin (a node still building, which can take long), it stops the process as Ctrl-C does, between two Python steps.
+    """
     _SIGNALLED[0] = True
-    raise KeyboardInterrupt
+    spinning = _SPINNING[0]
+    if spinning is None:
+        raise KeyboardInterrupt
+    if not spinning.done():
+        spinning.set_result(None)
 
 
 def run_node(node_cls: Callable[..., Any], argv: Sequence[str] | None = None, *, exit_process: bool = False) -> int:
     """``main()`` of a node process: init, build, spin, clean up.
 
-    SIGINT and SIGTERM raise :exc:`KeyboardInterrupt` (:func:`_interrupt`)
+    SIGINT and SIGTERM end the spin, or raise :exc:`KeyboardInterrupt` before it (:func:`_interrupt`),
     instead of running rclpy's own signal handler, which shut the context down
     from inside the signal: a publication in flight then failed ("publisher's
     context is invalid", a traceback), and the context, shut down under rclpy's
