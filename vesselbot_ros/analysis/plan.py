@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -58,6 +58,7 @@ from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.physics.kernel import diameter_at
+from vesselbot_ros.progress import step
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
@@ -570,20 +571,32 @@ def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
     """
     options = options or PlanOptions()
     check_fits_path(scenario)
-    if options.height != "auto":
-        return _make_plan(scenario, options)
-    plans, why = [], []
-    for height in ("free", "wall"):
-        try:
-            plans.append(_make_plan(scenario, dataclasses.replace(options, height=height)))
-        except PlanInfeasible as exc:
-            why.append(exc)
-    if not plans:
-        raise min(why, key=lambda e: e.missing_m_per_s2)
-    return min(plans, key=lambda p: (round(p.coast_floor_m, 7), p.end_s))
+    heights = ("free", "wall") if options.height == "auto" else (options.height,)
+    # one step per timing attempt (each evaluates the whole plan: about a second), at most retries + 1 a height
+    with step(f"planning {scenario.name}") as report:
+        total, done = len(heights) * (options.retries + 1), [0]
+
+        def attempted() -> None:
+            done[0] += 1
+            report(done[0], total)
+
+        report(0, total)
+        if options.height != "auto":
+            return _make_plan(scenario, options, attempted)
+        plans, why = [], []
+        for height in heights:
+            try:
+                plans.append(_make_plan(scenario, dataclasses.replace(options, height=height), attempted))
+            except PlanInfeasible as exc:
+                why.append(exc)
+            done[0] = heights.index(height) * (options.retries + 1) + options.retries + 1  # this height's share
+            report(done[0], total)
+        if not plans:
+            raise min(why, key=lambda e: e.missing_m_per_s2)
+        return min(plans, key=lambda p: (round(p.coast_floor_m, 7), p.end_s))
 
 
-def _make_plan(scenario: Scenario, options: PlanOptions) -> Plan:
+def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[], None] = lambda: None) -> Plan:
     model = DynamicsModel(scenario.physics, scenario.sim.integrator)
     a_avail, a_sat, duty = available_accel(scenario)
     ref0 = planned_reference(scenario)
@@ -615,6 +628,7 @@ def _make_plan(scenario: Scenario, options: PlanOptions) -> Plan:
         planned = dataclasses.replace(geom, timing="planned", duration_s=t_tab[-1], planned_t_s=t_tab,
                                       planned_u_m=u_tab)
         segs = evaluate(plan_scenario(scenario, planned), options)
+        attempted()
         if min(s.margin_m_per_s2 for s in segs) >= 0.0:
             return Plan(planned, segs, a_avail, a_sat, duty, fraction, t0 + t_tab[-1])
         worst = segs

@@ -253,3 +253,20 @@ def test_a_coast_or_latency_as_long_as_the_path_is_refused_before_planning(monke
     late = load_scenario("clinical_3t_small_artery", sets=["reference.duration_s=0.5", "sequence.latency_s=0.5"])
     with pytest.raises(ConfigError, match=r"^sequence\.latency_s=0\.5 must be shorter than the path's duration"):
         make_plan(late)
+
+
+def test_planning_reports_each_timing_attempt_to_a_progress_bar():
+    import io
+
+    from vesselbot_ros.progress import session
+
+    weak = load_scenario("clinical_3t_small_artery", sets=["coil.saturation_T_per_m=0.005"])
+    stream = io.StringIO()
+    with session(True, stream), pytest.raises(PlanInfeasible):
+        make_plan(weak, PlanOptions(height="free", retries=1))  # both attempts fail: the bar still reaches its end
+    text = stream.getvalue()
+    assert "planning clinical_3t_small_artery" in text and "2/2" in text, text
+    quiet = io.StringIO()
+    with session(False, quiet), pytest.raises(PlanInfeasible):
+        make_plan(weak, PlanOptions(height="free", retries=1))
+    assert quiet.getvalue() == ""
