@@ -200,9 +200,9 @@ class RealtimeReport:
         sim_s: Sim time advanced from the first to the last tick published (s).
         wall_s: Wall time from the first to the last tick published (s).
         nodes: Per loop node, its deadlines.
-        window_monotonic_s: The launcher's ``time.monotonic()`` when it started the run and when it saw the run
-            end (the machine's CLOCK_MONOTONIC, the same in every process): where to look in other measurements of
-            the machine (a load monitor, a trace) for what happened meanwhile.
+        window_monotonic_s: The launcher's ``time.monotonic()`` before it asked the run to start and when it saw
+            the run end (the machine's CLOCK_MONOTONIC, the same in every process), so the window holds every tick:
+            where to look in other measurements of the machine (a load monitor, a trace) for what happened meanwhile.
     """
 
     asked: float
@@ -414,6 +414,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         if sup.recorder is not None:
             wait_for(mon.recorder_matched, options.wait_timeout_s, mon, sup,
                      "the recorder to match every publisher (else it drops their first messages)")
+        t_asked = time.monotonic()  # before the run is asked to start: the window holds its first tick
         if options.start_paused:
             from simulation_interfaces.msg import SimulationState  # deferred: a message package (see rclpy above)
 
@@ -507,7 +508,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     result = GraphResult(metrics, series, wall, rtf, diagnostics, recorded_counts=recorded)
     if options.mode == "realtime":
         result.realtime = RealtimeReport(options.real_time_factor, sim_s, wall,
-                                         tuple(realtime_report(diagnostics, roles, n)), (t_start, t_end))
+                                         tuple(realtime_report(diagnostics, roles, n)), (t_asked, t_end))
     return result
 
 
