@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from typing import Any, TextIO
 
 __all__ = ["ProgressFn", "NO_PROGRESS_ENV", "FORCE_PROGRESS_ENV", "add_progress_argument", "suppressed", "wanted",
-           "bar", "session", "step", "active"]
+           "bar", "session", "step", "active", "COMPILE_NOTICE"]
 
 #: A long step's report: ``progress(done, total)``, ``done`` rising to ``total``.
 ProgressFn = Callable[[int, int], None]
@@ -95,16 +95,54 @@ def bar(name: str, stream: TextIO | None = None) -> Iterator[ProgressFn]:
         t.close()
 
 
+#: The one line a session prints when numba starts compiling the package's code (a cache miss: a case the
+#: bootstrap did not warm, or the first run after the compiled sources changed).
+COMPILE_NOTICE = ("vesselbot: compiling the compiled loop for this case (numba, once per version of the code; "
+                  "later runs load it from the cache)")
+
+
+def _compile_listener(stream: TextIO) -> Any:
+    """A numba event listener that writes :data:`COMPILE_NOTICE` once, at the first compile of our code."""
+    # deferred: numba is heavy; a session that draws nothing never loads it for this
+    from numba.core import event
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev: Any) -> None:
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            if not self.said and str(getattr(func, "__module__", "")).startswith("vesselbot_ros"):
+                self.said = True
+                print(COMPILE_NOTICE, file=stream, flush=True)
+
+        def on_end(self, ev: Any) -> None:
+            del ev
+
+    return Notice()
+
+
 @contextlib.contextmanager
 def session(enabled: bool, stream: TextIO | None = None) -> Iterator[None]:
-    """Within it, every :func:`step` draws a bar on ``stream`` (default stderr) if ``enabled``, none otherwise."""
+    """Within it, every :func:`step` draws a bar on ``stream`` (default stderr) if ``enabled``, none otherwise.
+
+    An enabled session also says, in one line, when numba starts compiling the package's code
+    (:data:`COMPILE_NOTICE`): the minute a first run of an unwarmed case waits is not silent.
+    """
     global _stream
     before = _stream
     _stream = (sys.stderr if stream is None else stream) if enabled else None
+    listener = None
+    if _stream is not None:
+        from numba.core import event  # deferred: see _compile_listener
+
+        listener = _compile_listener(_stream)
+        event.register("numba:compile", listener)
     try:
         yield
     finally:
         _stream = before
+        if listener is not None:
+            event.unregister("numba:compile", listener)
 
 
 def active() -> bool:

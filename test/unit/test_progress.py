@@ -134,3 +134,35 @@ def test_the_warm_up_counts_every_scenario_it_warms(monkeypatch) -> None:  # typ
     n = len(shipped_scenarios()) + 1  # the shipped scenarios and a multiplexed copy of a planar one
     assert calls == [(i, n) for i in range(n + 1)]
     assert len(ran) == 2 * n  # both loops of each, the bar counting what was warmed
+
+
+def test_a_session_says_once_when_numba_compiles_our_code_and_nothing_otherwise():
+    import io
+
+    import numba
+
+    from vesselbot_ros.progress import COMPILE_NOTICE, session
+
+    def ours(x):  # a function of the package (its module says so), never compiled before: a cache miss
+        return x + 1
+
+    def also_ours(x):
+        return x * 2
+
+    def theirs(x):
+        return x - 1
+
+    ours.__module__ = also_ours.__module__ = "vesselbot_ros.test_compile_notice"
+    stream = io.StringIO()
+    with session(True, stream):
+        assert numba.njit(theirs)(1) == 0  # not our code: no notice
+        assert stream.getvalue() == ""
+        assert numba.njit(ours)(1) == 2 and numba.njit(also_ours)(2) == 4
+    assert stream.getvalue() == COMPILE_NOTICE + "\n"  # once, however much compiles
+    quiet = io.StringIO()
+    with session(False, quiet):
+        def more(x):
+            return x + 3
+        more.__module__ = ours.__module__
+        assert numba.njit(more)(1) == 4
+    assert quiet.getvalue() == ""
