@@ -35,13 +35,16 @@ INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not w
 ## worker, that worker was seen to die at the server's first test (2 of 6 clean-clone runs; never alone).
 UNIT = $(PY) -m pytest test/unit -q -n 2 --ignore=test/unit/test_live.py $(PYTEST_ARGS) \
 	&& $(PY) -m pytest test/unit/test_live.py -q $(PYTEST_ARGS)
-test: bootstrap lint
+## (the bootstrap runs `make lint`'s checks while numba's warm-up finishes: VESSELBOT_BOOTSTRAP_LINT)
+test:
+	@VESSELBOT_BOOTSTRAP_LINT='$(LINT)' tools/bootstrap.sh test
 	@$(UNIT) && $(INTEGRATION)
 
 ## Static checks (configuration in pyproject.toml): ruff over the code, tests and tools, then mypy over the
 ## package (incremental, cache in .mypy_cache: a few seconds when little changed).  `make test` runs it first.
+LINT = $(PY) -m ruff check --quiet vesselbot_ros test tools bench examples && $(PY) -m mypy
 lint: bootstrap
-	@$(PY) -m ruff check --quiet vesselbot_ros test tools bench examples && $(PY) -m mypy
+	@$(LINT)
 
 test-unit: bootstrap
 	@$(UNIT)

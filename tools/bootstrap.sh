@@ -73,33 +73,39 @@ fi
 
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
 #    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
-#    of other code on import; this only warms them).  About 2-3 min on a fresh machine, on one core:
-#    it runs in the background while the interfaces build (it needs none of them), and is waited for
-#    before the bootstrap ends.
+#    of other code on import; this only warms them).  About 2-3 min on a fresh machine: it runs in the
+#    background while the interfaces build (it needs none of them), make test's two halves (planar, 3-D) in a
+#    process each, and is waited for before the bootstrap ends.
 nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
-numba_pid=
-warm_scope=all; numba_stamp=numba-cache
-[ "$scope" = test ] || { warm_scope=run; numba_stamp=numba-run; }
+numba_pids=()
+numba_logs=()
+warm_scopes=(planar trees); numba_stamp=numba-cache  # make test: both halves at once, one process each
+[ "$scope" = test ] || { warm_scopes=(run); numba_stamp=numba-run; }
 if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
-  echo "vesselbot bootstrap: compiling the closed loop into numba's cache ($warm_scope: once per version of the code, in the background)"
+  echo "vesselbot bootstrap: compiling the closed loop into numba's cache (${warm_scopes[*]}: once per version of the code, in the background)"
   rm -f "$stamps/$numba_stamp"
-  numba_log=$(mktemp)
-  (cd / && exec "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$warm_scope" --no-progress) >"$numba_log" 2>&1 &
-  numba_pid=$!
+  for ws in "${warm_scopes[@]}"; do
+    log=$(mktemp)
+    (cd / && exec "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$ws" --no-progress) >"$log" 2>&1 &
+    numba_pids+=($!); numba_logs+=("$log")
+  done
   numba_t0=$SECONDS
 fi
-numba_done() {  # wait for the background warm-up; stamp it, or show its error and fail
-  [ -n "$numba_pid" ] || return 0
+numba_done() {  # wait for the background warm-ups; stamp them, or show the first error and fail
+  [ ${#numba_pids[@]} -gt 0 ] || return 0
   echo "vesselbot bootstrap: waiting for the numba warm-up (started $((SECONDS - numba_t0)) s ago)"
-  if ! wait "$numba_pid"; then
-    tail -30 "$numba_log" >&2; rm -f "$numba_log"
-    echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1
-  fi
-  rm -f "$numba_log"; numba_pid=
+  local i failed=
+  for i in "${!numba_pids[@]}"; do
+    if ! wait "${numba_pids[$i]}"; then
+      [ -n "$failed" ] || { tail -30 "${numba_logs[$i]}" >&2; failed=1; }
+    fi
+  done
+  rm -f "${numba_logs[@]}"; numba_pids=()
+  [ -z "$failed" ] || { echo "vesselbot bootstrap: numba warm-up failed" >&2; exit 1; }
   mark "$numba_stamp" "$nb"
   echo "vesselbot bootstrap:   numba warm-up took $((SECONDS - numba_t0)) s (in the background)"
 }
-trap '[ -n "$numba_pid" ] && kill "$numba_pid" 2>/dev/null; true' EXIT
+trap '[ ${#numba_pids[@]} -eq 0 ] || kill "${numba_pids[@]}" 2>/dev/null; true' EXIT
 
 # 3. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
 ifc=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \
@@ -134,5 +140,12 @@ if [ "$scope" = test ] && { ! fresh npm "$js" || [ ! -d tools/js/node_modules ];
   took "npm ci"
 fi
 
+# make test's static checks (the Makefile's LINT, passed as VESSELBOT_BOOTSTRAP_LINT), run while the numba
+# warm-up may still be compiling: they need the package and the interfaces, not the cache; a finding fails after it
+lint_rc=0
+if [ -n "${VESSELBOT_BOOTSTRAP_LINT:-}" ]; then
+  bash -c "$VESSELBOT_BOOTSTRAP_LINT" || lint_rc=$?
+fi
 numba_done
 [ $((SECONDS - t0)) -lt 5 ] || echo "vesselbot bootstrap: done in $((SECONDS - t0)) s"
+[ "$lint_rc" -eq 0 ] || { echo "vesselbot bootstrap: lint failed (ruff or mypy, above)" >&2; exit "$lint_rc"; }

@@ -23,9 +23,15 @@ __all__ = ["warm", "main"]
 
 
 #: What :func:`warm` compiles: ``all`` (every shipped scenario: what ``make test`` needs, the 3-D trees' wall
-#: lookups included, minutes on a fresh machine) or ``run`` (the default scenario: what ``make run`` needs; the rest
+#: lookups included, minutes on a fresh machine), its two halves ``planar`` and ``trees`` (the 3-D scenarios), which
+#: the bootstrap warms in two processes at once, or ``run`` (the default scenario: what ``make run`` needs; the rest
 #: compiles on first use, a 3-D wall build saying so in one line).
-SCOPES = ("all", "run")
+SCOPES = ("all", "planar", "trees", "run")
+
+
+def _in_scope(scope: str, name: str, dims: int) -> bool:
+    return (scope == "all" or (scope == "planar" and dims == 2) or (scope == "trees" and dims == 3)
+            or (scope == "run" and name == DEFAULT_SCENARIO))
 
 
 def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
@@ -41,13 +47,14 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
         with step("numba warm-up") as report:
             warm(report, scope=scope)
         return
-    paths = shipped_scenarios()
-    scenarios = [load_scenario(path) for name, path in paths.items() if scope == "all" or name == DEFAULT_SCENARIO]
-    planar = next(sc for sc in scenarios if sc.dims == 2)
-    # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
-    scenarios.append(dc.replace(planar, sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
-                                                                      dead_time_s=0.001, propulsion_window_s=0.003,
-                                                                      latency_s=0.001)))
+    loaded = [(name, load_scenario(path)) for name, path in shipped_scenarios().items()]
+    scenarios = [sc for name, sc in loaded if _in_scope(scope, name, sc.dims)]
+    planar = next((sc for sc in scenarios if sc.dims == 2), None)
+    if planar is not None:
+        # the scanner's stages as the nodes and the per-tick loop call them, even if no shipped scenario multiplexes
+        scenarios.append(dc.replace(planar, sequence=SequenceParams(mode="multiplexed", tracking_window_s=0.002,
+                                                                    dead_time_s=0.001, propulsion_window_s=0.003,
+                                                                    latency_s=0.001)))
     progress(0, len(scenarios))
     for done, sc in enumerate(scenarios, 1):
         sc = short_copy(sc, 0.01)  # a multiplexed sequence shrunk to fit the 10 ticks (the same compiled code)
@@ -65,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vesselbot_ros.sim.warm",
                                      description="fill numba's on-disk cache (every compiled path a run uses)")
     parser.add_argument("--scope", choices=SCOPES, default="all",
-                        help="all: every shipped scenario (make test); run: the default scenario (make run)")
+                        help="all: every shipped scenario (make test), or its halves planar and trees (3-D); run: the "
+                             "default scenario (make run)")
     add_progress_argument(parser)
     args = parser.parse_args(argv)
     with session(wanted(args.no_progress)):

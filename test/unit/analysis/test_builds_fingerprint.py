@@ -33,7 +33,8 @@ REPO = Path(__file__).resolve().parents[3]
 
 def _builds(env_extra: dict[str, str], folder: Path) -> dict[str, object]:
     env = {k: v for k, v in os.environ.items()
-           if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "VESSELBOT_CFD_CACHE", "XDG_CACHE_HOME")}
+           if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "VESSELBOT_CFD_CACHE", "XDG_CACHE_HOME",
+                        "NUMBA_NUM_THREADS", "OMP_WAIT_POLICY")}
     folder.mkdir(parents=True)
     env.update(env_extra, VESSELBOT_CFD_CACHE=str(folder / "cfd"), XDG_CACHE_HOME=str(folder / "xdg"))
     proc = subprocess.run(
@@ -56,6 +57,11 @@ def test_once_per_machine_builds_bit_identical_under_every_openblas_kernel_and_n
     # numpy's own SIMD dispatch must not matter either: the oldest kernel's run also has numpy at its baseline
     # (x86-64-v2 only), so that every OpenBLAS kernel and both numpy levels run, in one subprocess per kernel
     variants[f"OPENBLAS_CORETYPE={cores[-1]}"]["NPY_DISABLE_CPU_FEATURES"] = "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
+    # the wall build's parallel loops: the native kernel's run on two threads, the others on one, so that the
+    # thread count (a machine's core count) is checked not to matter either; one thread each also keeps two
+    # variants at once from oversubscribing the cores (OpenMP's spinning threads cost a third more CPU)
+    for i, env in enumerate(variants.values()):
+        env.update(NUMBA_NUM_THREADS="2" if i == 0 else "1", OMP_WAIT_POLICY="PASSIVE")
     with ThreadPoolExecutor(max_workers=max(1, min(len(variants), os.cpu_count() or 1))) as pool:
         futures = {name: pool.submit(_builds, env, tmp_path / f"v{i}") for i, (name, env) in enumerate(variants.items())}
         results = {name: f.result() for name, f in futures.items()}
