@@ -36,6 +36,7 @@ __all__ = [
     "mat2",
     "mat2_inverse",
     "mat2_apply",
+    "hypot_axes",
     "solve",
     "convolve_valid",
     "interp_spline",
@@ -339,6 +340,15 @@ def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument t
     if ax == 0.0 and ay == 0.0 and az == 0.0:
         return 0.0
     return _vector_norm(ax, ay, az)
+
+
+@numba.njit(cache=True, nogil=True)
+def hypot_axes(v):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The Euclidean norm of a vector of two or three axes, :func:`hypot2` or :func:`hypot3` (the same double for
+    ``(x, z)`` as for ``(x, 0, z)``): the norm of a stage that runs on any number of axes."""
+    if v.shape[0] == 3:
+        return hypot3(v[0], v[1], v[2])
+    return hypot2(v[0], v[1])
 
 
 @numba.njit(cache=True, nogil=True)

@@ -51,7 +51,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import hypot2, hypot3
+from vesselbot_ros.blas_free import hypot_axes
 from vesselbot_ros.config import check_choice, check_positive
 from vesselbot_ros.errors import ConfigError, ModelInputError
 
@@ -63,15 +63,13 @@ __all__ = [
     "CoilLimits",
     "CoilOutput",
     "CoilLimiter",
-    "CoilLimiter3D",
     "coil_params",
     "coil_apply",
     "coil_slew_to",
+    "coil_reject",
+    "coil_out_size",
+    "new_coil_state",
     "COIL_OUT_SIZE",
-    "coil3d_saturate",
-    "coil3d_slew_to",
-    "coil3d_apply",
-    "COIL3D_OUT_SIZE",
 ]
 
 #: Section III-C: ``U_sat = 80 mT/m``.
@@ -155,11 +153,18 @@ class CoilOutput(NamedTuple):
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
+# One coil on any number of axes d (2: the plane's x, z; 3: x, y, z), the axis count read from the arrays:
 # params (4,) float64: [saturation (T/m), slew rate (T/m/s), per_axis (0/1), 1 (a rejected command ramps to zero;
 #   the slot of the refused ``hold``)]
-# state (4,) float64: [applied x, applied z (T/m), t_prev (s), t_last_command (s)]
-# out (7,) float64: [applied x, applied z, k_scale, saturated, slew_limited x, slew_limited z, rejected]
-COIL_OUT_SIZE = 7
+# state (d + 2,) float64: [applied (d) (T/m), t_prev (s), t_last_command (s)]
+# out (2 d + 3,) float64: [applied (d), k_scale, saturated, slew_limited (d), rejected]
+def coil_out_size(dims: int) -> int:
+    """Length of a coil's ``out`` on ``dims`` axes."""
+    return 2 * int(dims) + 3
+
+
+#: ``out`` length on the plane's two axes.
+COIL_OUT_SIZE = coil_out_size(2)
 
 
 def coil_params(limits: CoilLimits) -> npt.NDArray[np.float64]:
@@ -172,209 +177,158 @@ def coil_params(limits: CoilLimits) -> npt.NDArray[np.float64]:
     ])
 
 
-@numba.njit(cache=True, nogil=True)
-def coil_slew_to(prm, state, tx, tz, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Move the applied gradient towards ``(tx, tz)`` (T/m) within ``S * dt``; flags into ``out[4:6]``.
+def new_coil_state(dims: int, t0_s: float) -> npt.NDArray[np.float64]:
+    """A coil's state at ``t0_s``: zero gradient on ``dims`` axes."""
+    st = np.zeros(int(dims) + 2)
+    st[dims] = st[dims + 1] = float(t0_s)
+    return st
 
-    The step is scaled uniformly (stays on the segment applied -> target).
-    """
-    s0 = tx - state[0]
-    s1 = tz - state[1]
+
+@numba.njit(cache=True, nogil=True)
+def coil_slew_to(prm, state, target, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Move the applied gradient towards ``target`` (T/m, (d,)) within ``S * dt`` on every axis; flags into
+    ``out[d + 2 : 2 d + 2]``.  The step is scaled uniformly (stays on the segment applied -> target).  ``target``
+    may be ``out[:d]``: every axis of it is read before ``out[:d]`` is written."""
+    d = target.shape[0]
     max_step = prm[1] * dt
-    a0 = abs(s0)
-    a1 = abs(s1)
-    out[4] = 1.0 if a0 > max_step else 0.0
-    out[5] = 1.0 if a1 > max_step else 0.0
-    biggest = a0 if a0 >= a1 else a1
+    biggest = 0.0
+    for c in range(d):
+        a = abs(target[c] - state[c])
+        out[d + 2 + c] = 1.0 if a > max_step else 0.0
+        if a > biggest:
+            biggest = a
     if biggest > max_step:
         f = max_step / biggest
-        s0 = s0 * f
-        s1 = s1 * f
-    state[0] = state[0] + s0
-    state[1] = state[1] + s1
-    out[0] = state[0]
-    out[1] = state[1]
+        for c in range(d):
+            state[c] = state[c] + (target[c] - state[c]) * f
+    else:
+        for c in range(d):
+            state[c] = state[c] + (target[c] - state[c])
+    for c in range(d):
+        out[c] = state[c]
 
 
 @numba.njit(cache=True, nogil=True)
-def coil_saturate(prm, gx, gz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``(sx, sz, k)``: the finite command ``(gx, gz)`` (T/m) saturated in the configured norm, and ``k >= 1``."""
+def coil_saturate(prm, g, s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The finite command ``g`` (T/m, (d,)) saturated in the configured norm into ``s``; returns ``k >= 1``."""
+    d = g.shape[0]
     g_sat = prm[0]
     if prm[2] < 0.5:
-        k = hypot2(gx, gz) / g_sat  # CPython's math.hypot, double for double
+        k = hypot_axes(g) / g_sat  # CPython's math.hypot, double for double
         if not k > 1.0:
             k = 1.0
-        return gx / k, gz / k, k
-    kx = abs(gx) / g_sat
-    if not kx > 1.0:
-        kx = 1.0
-    kz = abs(gz) / g_sat
-    if not kz > 1.0:
-        kz = 1.0
-    return gx / kx, gz / kz, (kx if kx >= kz else kz)
+        for c in range(d):
+            s[c] = g[c] / k
+        return k
+    k = 1.0
+    for c in range(d):
+        kc = abs(g[c]) / g_sat
+        if not kc > 1.0:
+            kc = 1.0
+        s[c] = g[c] / kc
+        if kc > k:
+            k = kc
+    return k
 
 
 @numba.njit(cache=True, nogil=True)
-def coil_apply(prm, state, t, gx, gz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Saturate, then slew-limit the command ``(gx, gz)`` (T/m) at time ``t`` (s); see :class:`CoilLimiter`.
+def coil_reject(prm, state, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """A rejected command: towards zero at the slew limit, as the watchdog (``out`` flags it rejected)."""
+    d = state.shape[0] - 2
+    zero = out[:d]  # the target, in the slots coil_slew_to writes last (no allocation on the loop's path)
+    for c in range(d):
+        zero[c] = 0.0
+    coil_slew_to(prm, state, zero, dt, out)
+    out[d] = 1.0
+    out[d + 1] = 0.0
+    out[2 * d + 2] = 1.0
 
-    The caller checks that ``t`` is finite and not before ``state[2]``.  Writes
-    ``out`` (:data:`COIL_OUT_SIZE`,) and updates ``state``; allocates nothing.
+
+@numba.njit(cache=True, nogil=True)
+def coil_apply(prm, state, t, g, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Saturate, then slew-limit the command ``g`` (T/m, (d,)) at time ``t`` (s); see :class:`CoilLimiter`.
+
+    The caller checks that ``t`` is finite and not before the state's ``t_prev``.  Writes ``out``
+    (:func:`coil_out_size`) and updates ``state``; a non-finite command is rejected.  ``g`` may be ``out[:d]``.
     """
-    dt = t - state[2]
+    d = g.shape[0]
+    dt = t - state[d]
     if dt < 0.0:
         dt = 0.0
-    state[2] = t
-    if not (math.isfinite(gx) and math.isfinite(gz)):  # rejected: towards zero at the slew limit, as the watchdog
-        coil_slew_to(prm, state, 0.0, 0.0, dt, out)
-        out[2] = 1.0
-        out[3] = 0.0
-        out[6] = 1.0
+    state[d] = t
+    finite = True
+    for c in range(d):
+        if not math.isfinite(g[c]):
+            finite = False
+    if not finite:  # rejected: towards zero at the slew limit, as the watchdog
+        coil_reject(prm, state, dt, out)
         return
-    state[3] = t
-    sx, sz, k = coil_saturate(prm, gx, gz)
-    coil_slew_to(prm, state, sx, sz, dt, out)
-    out[2] = k
-    out[3] = 1.0 if k > 1.0 else 0.0
-    out[6] = 0.0
-
-
-# ---- three gradient axes (3-D vessel trees) -------------------------------------------------------
-# The same coil on x, y and z: params as above; state (5,): [applied x, y, z (T/m), t_prev, t_last_command (s)];
-# out (9,): [applied x, y, z, k_scale, saturated, slew_limited x, y, z, rejected].  With every y command 0 it gives
-# coil_apply's doubles in x and z and 0 in y (hypot3(x, 0, z) == hypot2(x, z)).
-COIL3D_OUT_SIZE = 9
-
-
-@numba.njit(cache=True, nogil=True)
-def coil3d_slew_to(prm, state, tx, ty, tz, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`coil_slew_to` on three axes: towards ``(tx, ty, tz)`` (T/m) within ``S * dt`` on every axis, the step
-    scaled uniformly; flags into ``out[5:8]``."""
-    s0 = tx - state[0]
-    s1 = ty - state[1]
-    s2 = tz - state[2]
-    max_step = prm[1] * dt
-    a0 = abs(s0)
-    a1 = abs(s1)
-    a2 = abs(s2)
-    out[5] = 1.0 if a0 > max_step else 0.0
-    out[6] = 1.0 if a1 > max_step else 0.0
-    out[7] = 1.0 if a2 > max_step else 0.0
-    biggest = a0 if a0 >= a2 else a2
-    biggest = biggest if biggest >= a1 else a1
-    if biggest > max_step:
-        f = max_step / biggest
-        s0 = s0 * f
-        s1 = s1 * f
-        s2 = s2 * f
-    state[0] = state[0] + s0
-    state[1] = state[1] + s1
-    state[2] = state[2] + s2
-    out[0] = state[0]
-    out[1] = state[1]
-    out[2] = state[2]
-
-
-@numba.njit(cache=True, nogil=True)
-def coil3d_saturate(prm, gx, gy, gz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``(sx, sy, sz, k)``: :func:`coil_saturate` on three axes (the Euclidean norm of the three, or each axis)."""
-    g_sat = prm[0]
-    if prm[2] < 0.5:
-        k = hypot3(gx, gy, gz) / g_sat
-        if not k > 1.0:
-            k = 1.0
-        return gx / k, gy / k, gz / k, k
-    kx = abs(gx) / g_sat
-    if not kx > 1.0:
-        kx = 1.0
-    ky = abs(gy) / g_sat
-    if not ky > 1.0:
-        ky = 1.0
-    kz = abs(gz) / g_sat
-    if not kz > 1.0:
-        kz = 1.0
-    k = kx if kx >= kz else kz
-    return gx / kx, gy / ky, gz / kz, (k if k >= ky else ky)
-
-
-@numba.njit(cache=True, nogil=True)
-def coil3d_apply(prm, state, t, gx, gy, gz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`coil_apply` on three axes: saturate, then slew-limit ``(gx, gy, gz)`` (T/m) at time ``t`` (s); writes
-    ``out`` (:data:`COIL3D_OUT_SIZE`,), updates ``state``, allocates nothing; a non-finite command is rejected."""
-    dt = t - state[3]
-    if dt < 0.0:
-        dt = 0.0
-    state[3] = t
-    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):  # rejected: ramps to zero
-        coil3d_slew_to(prm, state, 0.0, 0.0, 0.0, dt, out)
-        out[3] = 1.0
-        out[4] = 0.0
-        out[8] = 1.0
-        return
-    state[4] = t
-    sx, sy, sz, k = coil3d_saturate(prm, gx, gy, gz)
-    coil3d_slew_to(prm, state, sx, sy, sz, dt, out)
-    out[3] = k
-    out[4] = 1.0 if k > 1.0 else 0.0
-    out[8] = 0.0
+    state[d + 1] = t
+    s = out[:d]  # the saturated command, in the slots coil_slew_to reads before it writes them
+    k = coil_saturate(prm, g, s)
+    coil_slew_to(prm, state, s, dt, out)
+    out[d] = k
+    out[d + 1] = 1.0 if k > 1.0 else 0.0
+    out[2 * d + 2] = 0.0
 
 
 class CoilLimiter:
-    """Stateful saturation + slew limiter (the coil driver's pure core).
+    """Stateful saturation + slew limiter on ``dims`` gradient axes (the coil driver's pure core).
 
-    Ports: input ``commanded`` gradient (2,) T/m at time ``t``; output
-    :class:`CoilOutput`.  State: last applied gradient and its time.
+    Ports: input ``commanded`` gradient (dims,) T/m at time ``t``; output :class:`CoilOutput`.  State: last
+    applied gradient and its time.  The plane's coil is ``dims = 2`` (x, z); a 3-D tree's ``dims = 3``
+    (the norm and the slew over x, y and z; with y commanded 0 it gives the plane's doubles in x and z).
 
     Args:
         limits: The coil limits.
         t0_s: Time at which the coil starts (s); the applied gradient is zero
             at ``t0_s`` so the first step is slew-limited from zero.
+        dims: Gradient axes, 2 or 3.
     """
 
-    def __init__(self, limits: CoilLimits, t0_s: float = 0.0) -> None:
+    def __init__(self, limits: CoilLimits, t0_s: float = 0.0, dims: int = 2) -> None:
         if not math.isfinite(t0_s):
             raise ModelInputError(f"t0_s must be finite, got {t0_s!r}")
+        if dims not in (2, 3):
+            raise ModelInputError(f"a coil has 2 or 3 axes, got {dims!r}")
         self.limits = limits
+        self.dims = int(dims)
         self._prm = coil_params(limits)
-        self._state = np.array([0.0, 0.0, float(t0_s), float(t0_s)])  # applied x, z, t_prev, t_last_command
-        self._out = np.zeros(COIL_OUT_SIZE)
+        self._state = new_coil_state(dims, t0_s)
+        self._out = np.zeros(coil_out_size(dims))
 
     @property
     def applied(self) -> npt.NDArray[np.float64]:
-        """(2,) last applied gradient, T/m (a copy)."""
-        return self._state[:2].copy()
+        """(dims,) last applied gradient, T/m (a copy)."""
+        return self._state[:self.dims].copy()
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
-        """(4,) copy of the compiled state: applied x, z (T/m), time of the last call and of the last command (s)."""
+        """(dims + 2,) copy of the compiled state: applied (T/m), time of the last call and of the last command (s)."""
         return self._state.copy()
 
     def reset(self, t0_s: float = 0.0) -> None:
         """Zero the coil at time ``t0_s``."""
-        self._state[:] = (0.0, 0.0, float(t0_s), float(t0_s))
-
-    #: Axes, and the state's slot of the last call's time (the command's is the next).
-    dims = 2
-    _ti = 2
+        self._state[:] = new_coil_state(self.dims, t0_s)
 
     def _dt(self, t_s: float) -> float:
         if not math.isfinite(t_s):
             raise ModelInputError(f"coil time must be finite, got {t_s!r}")
-        dt = t_s - self._state[self._ti]
+        dt = t_s - self._state[self.dims]
         if dt < -1e-12:
-            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {float(self._state[self._ti])!r}")
+            raise ModelInputError(f"coil time went backwards: {t_s!r} < previous {float(self._state[self.dims])!r}")
         return max(dt, 0.0)
 
     def _output(self) -> CoilOutput:
-        o = self._out
-        return CoilOutput(o[:2].copy(), float(o[2]), bool(o[3] > 0.5), o[4:6] > 0.5, bool(o[6] > 0.5))
+        o, d = self._out, self.dims
+        return CoilOutput(o[:d].copy(), float(o[d]), bool(o[d + 1] > 0.5), o[d + 2:2 * d + 2] > 0.5, bool(o[2 * d + 2] > 0.5))
 
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
         """Saturate, then slew-limit one command (the compiled :func:`coil_apply`).
 
         Args:
             t_s: Time of the command (s); must not go backwards.
-            commanded_T_per_m: (2,) commanded gradient, T/m, frame W.
+            commanded_T_per_m: (dims,) commanded gradient, T/m, frame W.
 
         Returns:
             The :class:`CoilOutput` applied from ``t_s`` on.
@@ -384,11 +338,11 @@ class CoilLimiter:
                 the command has the wrong shape.  A non-finite command is not
                 an error: it is rejected (``rejected=True``).
         """
-        g = np.asarray(commanded_T_per_m, dtype=np.float64)
-        if g.shape != (2,):
-            raise ModelInputError(f"commanded gradient must have shape (2,), got {g.shape}")
+        g = np.array(commanded_T_per_m, dtype=np.float64)
+        if g.shape != (self.dims,):
+            raise ModelInputError(f"commanded gradient must have shape ({self.dims},), got {g.shape}")
         self._dt(t_s)
-        coil_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), self._out)
+        coil_apply(self._prm, self._state, float(t_s), g, self._out)
         return self._output()
 
     def reject(self, t_s: float) -> CoilOutput:
@@ -417,8 +371,8 @@ class CoilLimiter:
         tick is an output like any other, so it is not slew time for the next one.
         """
         self._dt(t_s)  # checks that time does not go backwards
-        self._state[2] = float(t_s)
-        return CoilOutput(self._state[:2].copy(), 1.0, False, np.zeros(2, dtype=bool), False)
+        self._state[self.dims] = float(t_s)
+        return CoilOutput(self._state[:self.dims].copy(), 1.0, False, np.zeros(self.dims, dtype=bool), False)
 
     def watchdog(self, t_now_s: float) -> CoilOutput | None:
         """Ramp to zero within the slew limit if commands stopped.
@@ -432,82 +386,18 @@ class CoilLimiter:
         """
         if not math.isfinite(t_now_s):
             raise ModelInputError(f"watchdog time must be finite, got {t_now_s!r}")
-        t_last_command = float(self._state[3])
+        d = self.dims
+        t_last_command = float(self._state[d + 1])
         if t_now_s - t_last_command <= self.limits.command_timeout_s:
             return None
         self._dt(t_now_s)  # checks that time does not go backwards
         # The output did not move while it was held for command_timeout_s, so that
         # interval is not slew time: the ramp starts when the timeout expires.
-        ramp_start = max(float(self._state[2]), t_last_command + self.limits.command_timeout_s)
+        ramp_start = max(float(self._state[d]), t_last_command + self.limits.command_timeout_s)
         dt = max(float(t_now_s) - ramp_start, 0.0)
-        self._state[2] = float(t_now_s)
-        coil_slew_to(self._prm, self._state, 0.0, 0.0, dt, self._out)
-        self._out[2] = 1.0
-        self._out[3] = 0.0
-        self._out[6] = 0.0
-        return self._output()
-
-
-class CoilLimiter3D(CoilLimiter):
-    """:class:`CoilLimiter` on three axes (3-D vessel trees): the same ports on (3,) gradients.
-
-    Saturation of ``|G|`` over the three axes (``euclidean``) or of each (``per_axis``), then the slew limit
-    (:func:`coil3d_apply`); a tree in the plane y = 0 commanded with y = 0 gets the planar coil's doubles in x
-    and z.
-    """
-
-    dims = 3
-    _ti = 3
-
-    def __init__(self, limits: CoilLimits, t0_s: float = 0.0) -> None:
-        if not math.isfinite(t0_s):
-            raise ModelInputError(f"t0_s must be finite, got {t0_s!r}")
-        self.limits = limits
-        self._prm = coil_params(limits)
-        self._state = np.array([0.0, 0.0, 0.0, float(t0_s), float(t0_s)])  # applied x, y, z, t_prev, t_last_command
-        self._out = np.zeros(COIL3D_OUT_SIZE)
-
-    @property
-    def applied(self) -> npt.NDArray[np.float64]:
-        """(3,) last applied gradient, T/m (a copy)."""
-        return self._state[:3].copy()
-
-    def reset(self, t0_s: float = 0.0) -> None:
-        """Zero the coil at time ``t0_s``."""
-        self._state[:] = (0.0, 0.0, 0.0, float(t0_s), float(t0_s))
-
-    def _output(self) -> CoilOutput:
-        o = self._out
-        return CoilOutput(o[:3].copy(), float(o[3]), bool(o[4] > 0.5), o[5:8] > 0.5, bool(o[8] > 0.5))
-
-    def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
-        """:meth:`CoilLimiter.apply` on a (3,) command (:func:`coil3d_apply`)."""
-        g = np.asarray(commanded_T_per_m, dtype=np.float64)
-        if g.shape != (3,):
-            raise ModelInputError(f"commanded gradient must have shape (3,), got {g.shape}")
-        self._dt(t_s)
-        coil3d_apply(self._prm, self._state, float(t_s), float(g[0]), float(g[1]), float(g[2]), self._out)
-        return self._output()
-
-    def hold(self, t_s: float) -> CoilOutput:
-        """:meth:`CoilLimiter.hold` on three axes."""
-        self._dt(t_s)
-        self._state[3] = float(t_s)
-        return CoilOutput(self._state[:3].copy(), 1.0, False, np.zeros(3, dtype=bool), False)
-
-    def watchdog(self, t_now_s: float) -> CoilOutput | None:
-        """:meth:`CoilLimiter.watchdog` on three axes."""
-        if not math.isfinite(t_now_s):
-            raise ModelInputError(f"watchdog time must be finite, got {t_now_s!r}")
-        t_last_command = float(self._state[4])
-        if t_now_s - t_last_command <= self.limits.command_timeout_s:
-            return None
-        self._dt(t_now_s)
-        ramp_start = max(float(self._state[3]), t_last_command + self.limits.command_timeout_s)
-        dt = max(float(t_now_s) - ramp_start, 0.0)
-        self._state[3] = float(t_now_s)
-        coil3d_slew_to(self._prm, self._state, 0.0, 0.0, 0.0, dt, self._out)
-        self._out[3] = 1.0
-        self._out[4] = 0.0
-        self._out[8] = 0.0
+        self._state[d] = float(t_now_s)
+        coil_slew_to(self._prm, self._state, np.zeros(d), dt, self._out)
+        self._out[d] = 1.0
+        self._out[d + 1] = 0.0
+        self._out[2 * d + 2] = 0.0
         return self._output()

@@ -16,20 +16,25 @@ Timing model, all on the caller's tick grid ``t_k``:
 * ``frame(t_k, p_true)`` returns the frame delivered at ``t_k`` (the newest if
   several are due), or None.
 
-Random draws: every acquired frame draws exactly four numbers from the
-generator, in this order: two standard normals (noise on x, z), one uniform
-(outlier direction) and one uniform (random dropout), whether or not the frame
-is an outlier or dropped.  The random stream is therefore a pure function of
-the seed and of the tick sequence, and injecting an outlier burst does not
-shift the noise of later frames.
+One imager on the position's axes: two in the plane (x, z), three in a 3-D tree (x, y, z); the axis count is
+the imager's ``dims``, read by the compiled steps from the arrays they get.
+
+Random draws: every acquired frame on ``d`` axes draws exactly ``2 d`` numbers
+from the generator, in this order: ``d`` standard normals (the noise on each
+axis), one uniform (outlier direction), one uniform (random dropout) and, in
+space, one uniform (the direction's polar cosine), whether or not the frame is
+an outlier or dropped.  In the plane that is two normals and two uniforms.  The
+random stream is therefore a pure function of the seed and of the tick
+sequence, and injecting an outlier burst does not shift the noise of later frames.
 
 Outliers ("important aberrant values", Section III-C, at t = 0.5 s) add
-``magnitude_m * (cos theta, sin theta)`` to frames acquired in
-``[start, start + duration)``.  The direction is an option of each burst:
-``direction: fixed`` uses ``theta = angle_rad`` for every frame of the burst
-(a fixed offset, the paper's reading and the default of the paper scenarios in
-``config/``); ``direction: random_per_frame`` draws a new ``theta`` for every
-frame (zero-mean, much milder for the observer).  Dropouts drop frames acquired in a
+``magnitude_m * (cos theta, sin theta)`` in the scanner's XZ plane to frames
+acquired in ``[start, start + duration)``.  The direction is an option of each
+burst: ``direction: fixed`` uses ``theta = angle_rad`` for every frame of the
+burst (a fixed offset, the paper's reading and the default of the paper
+scenarios in ``config/``); ``direction: random_per_frame`` draws a new direction
+for every frame, uniform on the circle in the plane and on the sphere in space
+(zero-mean, much milder for the observer).  Dropouts drop frames acquired in a
 window, or at random with ``dropout_probability``.
 """
 
@@ -50,7 +55,8 @@ from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_
 from vesselbot_ros.errors import ModelInputError
 
 __all__ = ["OutlierBurst", "Dropout", "ImagerParams", "Measurement", "ImagerModel", "imager_arrays", "imager_frame",
-           "imager_acquire", "check_frame_inputs", "draw_variates", "fill_variates", "VariateBuffer"]
+           "imager_acquire", "check_frame_inputs", "next_normal", "next_uniform", "fill_variates", "VariateBuffer",
+           "queue_push", "queue_deliver", "new_queue", "queue_with_room", "queue_columns", "frame_out_size"]
 
 _EPS_S = 1e-9  # tick-grid tolerance: a tick within 1 ns of a deadline counts as on time
 
@@ -138,7 +144,7 @@ class Measurement(NamedTuple):
 
     Attributes:
         t_acq_s: Acquisition time (s).
-        p: (2,) measured position, m, frame W.
+        p: (dims,) measured position, m, frame W: (x, z) in the plane, (x, y, z) in space.
         outlier: True if an aberrant offset was injected (ground-truth flag
             for analysis; an estimator must not read it).
     """
@@ -148,32 +154,36 @@ class Measurement(NamedTuple):
     outlier: bool
 
 
-def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float) -> npt.NDArray[np.float64]:
-    """The true position as a (2,) array; ModelInputError unless it is finite and time does not go back."""
+def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float, dims: int = 2) -> npt.NDArray[np.float64]:
+    """The true position as a (dims,) array; ModelInputError unless it is finite and time does not go back."""
     p = np.asarray(p_true, dtype=np.float64)
-    if p.shape != (2,) or not (math.isfinite(p[0]) and math.isfinite(p[1])):
-        raise ModelInputError(f"imager: true position must be a finite (2,) array, got {p_true!r}")
+    if p.shape != (dims,) or not bool(np.isfinite(p).all()):
+        raise ModelInputError(f"imager: true position must be a finite ({dims},) array, got {p_true!r}")
     if not math.isfinite(t_s) or t_s < t_last_s:
         raise ModelInputError(f"imager: tick time must be finite and non-decreasing, got {t_s!r}")
     return p
 
 
 class ImagerModel:
-    """Stateful imager: call :meth:`frame` once per tick, in time order.
+    """Stateful imager on ``dims`` axes: call :meth:`frame` once per tick, in time order.
 
     Args:
         params: Imager parameters.
         rng: Seeded generator; the model owns it from now on.
+        dims: Position axes: 2 (the plane's x, z) or 3 (x, y, z).
     """
 
-    def __init__(self, params: ImagerParams, rng: np.random.Generator) -> None:
+    def __init__(self, params: ImagerParams, rng: np.random.Generator, dims: int = 2) -> None:
+        if dims not in (2, 3):
+            raise ModelInputError(f"an imager has 2 or 3 axes, got {dims!r}")
         self.params = params
-        self._variates = VariateBuffer(rng)
+        self.dims = int(dims)
+        self._variates = VariateBuffer(rng, dims)
         self._prm, self._outliers, self._dropouts = imager_arrays(params)
         # compiled state: next frame slot, last tick time, queue head, queue tail (imager_frame)
         self._state = np.array([0.0, -math.inf, 0.0, 0.0])
-        self._queue = new_queue()
-        self._out = np.zeros(5)
+        self._queue = new_queue(dims)
+        self._out = np.zeros(frame_out_size(dims))
 
     @property
     def rng(self) -> np.random.Generator:
@@ -208,26 +218,29 @@ class ImagerModel:
         d = Dropout(start_s=start_s, duration_s=duration_s)
         self._dropouts = np.concatenate([self._dropouts, np.array([[d.start_s, d.start_s + d.duration_s]])])
 
-    def acquire(self, t_acq_s: float, p: npt.NDArray[np.float64]) -> Measurement | None:
-        """One frame of position ``p`` (m) acquired at ``t_acq_s`` (s), or None if it is dropped.
-
-        The acquisition of :func:`imager_frame` on its own (same four draws,
-        same doubles), for imagers that decide themselves when to acquire (the
-        scanner's :class:`~vesselbot_ros.scanner.stages.SequencedImager`).
-        """
-        o = self._out
-        imager_acquire(self._prm, self._outliers, self._dropouts, self._variates.ready(), float(t_acq_s), float(p[0]),
-                       float(p[1]), o)
+    def _measurement(self) -> Measurement | None:
+        o, d = self._out, self.dims
         if o[0] < 0.5:
             return None
-        return Measurement(float(t_acq_s), o[2:4].copy(), bool(o[4] > 0.5))
+        return Measurement(float(o[1]), o[2:2 + d].copy(), bool(o[2 + d] > 0.5))
+
+    def acquire(self, t_acq_s: float, p: npt.NDArray[np.float64]) -> Measurement | None:
+        """One frame of position ``p`` (m, (dims,)) acquired at ``t_acq_s`` (s), or None if it is dropped.
+
+        The acquisition of :func:`imager_frame` on its own (same draws, same
+        doubles), for imagers that decide themselves when to acquire (the
+        scanner's :class:`~vesselbot_ros.scanner.stages.SequencedImager`).
+        """
+        imager_acquire(self._prm, self._outliers, self._dropouts, self._variates.ready(), float(t_acq_s),
+                       np.array(p, dtype=np.float64), self._out)
+        return self._measurement()
 
     def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
         """Acquire (if due) and deliver (if due) at tick ``t_s`` (the compiled :func:`imager_frame`).
 
         Args:
             t_s: Tick time (s), non-decreasing across calls.
-            p_true: (2,) true position at ``t_s``, m, frame W.
+            p_true: (dims,) true position at ``t_s``, m, frame W.
 
         Returns:
             The newest frame delivered at ``t_s``, or None.
@@ -236,35 +249,39 @@ class ImagerModel:
             ModelInputError: on a non-finite time or position, a wrong shape or
                 time going backwards.
         """
-        p = check_frame_inputs(t_s, p_true, self._state[1])
+        p = check_frame_inputs(t_s, p_true, self._state[1], self.dims)
         st = self._state
         self._queue = queue_with_room(self._queue, st, 2, 3)
         imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._variates.ready(), float(t_s),
-                     float(p[0]), float(p[1]), self._out)
-        o = self._out
-        if o[0] < 0.5:
-            return None
-        return Measurement(float(o[1]), o[2:4].copy(), bool(o[4] > 0.5))
+                     np.array(p, dtype=np.float64), self._out)
+        return self._measurement()
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
+# On d position axes (2: x, z; 3: x, y, z), read from the position array's length:
 # params (4,): [frame period (s), noise sigma (m), latency (s), dropout probability]
-# outliers (m, 4): [start, end, magnitude, fixed angle (rad) or NaN for a random angle per frame];
+# outliers (m, 4): [start, end, magnitude, fixed angle (rad) or NaN for a random direction per frame];
 # dropouts (m, 2): [start, end]
 # state (4,): [index of the next frame slot, time of the last call, queue head, queue tail]
-# queue (cap, 5): the frame queue (below)
-# out (5,): [delivered (0/1), t_acq, p x, p z, outlier]
+# queue (cap, 3 + d): the frame queue (below)
+# out (3 + d,): [delivered (0/1), t_acq, p (d), outlier]
+def frame_out_size(dims: int) -> int:
+    """Length of an imager's ``out`` (and of a queue row) on ``dims`` axes."""
+    return 3 + int(dims)
+
+
+def queue_columns(dims: int) -> int:
+    """Columns of the frame queue on ``dims`` axes: [t_deliver, t_acq, p (dims), outlier]."""
+    return frame_out_size(dims)
+
 
 # The frame queue of every imager kind (this one and the scanner's, scanner/stages.py): frames acquired and not yet
-# delivered, a ring of rows [t_deliver, t_acq, p x, p z, outlier] whose head and tail counters live in the imager's
+# delivered, a ring of rows [t_deliver, t_acq, p (d), outlier] whose head and tail counters live in the imager's
 # state array (at the indices the caller gives).  queue_push adds a frame, queue_deliver hands out the due ones,
 # queue_with_room grows the ring (Python, between ticks).
-QUEUE_COLUMNS = 5
-
-
-def new_queue() -> npt.NDArray[np.float64]:
+def new_queue(dims: int = 2) -> npt.NDArray[np.float64]:
     """An empty frame queue (16 rows; :func:`queue_with_room` grows it)."""
-    return np.empty((16, QUEUE_COLUMNS))
+    return np.empty((16, queue_columns(dims)))
 
 
 def queue_with_room(queue: npt.NDArray[np.float64], state: npt.NDArray[np.float64], head: int,
@@ -278,37 +295,34 @@ def queue_with_room(queue: npt.NDArray[np.float64], state: npt.NDArray[np.float6
     if waiting + 1 < cap:
         return queue
     order = (int(state[head]) + np.arange(waiting)) % cap
-    grown = np.empty((2 * cap, QUEUE_COLUMNS))
+    grown = np.empty((2 * cap, queue.shape[1]))
     grown[:waiting] = queue[order]
     state[head], state[tail] = 0.0, float(waiting)
     return grown
 
 
 @numba.njit(cache=True, nogil=True)
-def queue_push(queue, state, tail, t_deliver, t_acq, px, pz, outlier):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Put a frame at the ring's tail (the caller sized the ring: :func:`queue_with_room`)."""
+def queue_push(queue, state, tail, t_deliver, frame):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Put ``frame[1:]`` (an imager's ``out``: t_acq, p, outlier), due at ``t_deliver``, at the ring's tail (the
+    caller sized the ring: :func:`queue_with_room`)."""
     j = int(state[tail]) % queue.shape[0]
     queue[j, 0] = t_deliver
-    queue[j, 1] = t_acq
-    queue[j, 2] = px
-    queue[j, 3] = pz
-    queue[j, 4] = outlier
+    for c in range(1, queue.shape[1]):
+        queue[j, c] = frame[c]
     state[tail] += 1.0
 
 
 @numba.njit(cache=True, nogil=True)
 def queue_deliver(queue, state, head, tail, t, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Take every frame due at ``t`` off the ring's head; ``out`` = the newest ([delivered, t_acq, x, z, outlier])."""
+    """Take every frame due at ``t`` off the ring's head; ``out`` = the newest ([delivered, t_acq, p, outlier])."""
     out[0] = 0.0
     while state[head] < state[tail]:
         j = int(state[head]) % queue.shape[0]
         if not queue[j, 0] <= t + _EPS_S:
             break
         out[0] = 1.0
-        out[1] = queue[j, 1]
-        out[2] = queue[j, 2]
-        out[3] = queue[j, 3]
-        out[4] = queue[j, 4]
+        for c in range(1, queue.shape[1]):
+            out[c] = queue[j, c]
         state[head] += 1.0
 
 
@@ -323,52 +337,64 @@ def imager_arrays(params: ImagerParams) -> tuple[npt.NDArray[np.float64], ...]:
     return prm, out, drop
 
 
-def draw_variates(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The four variates of one acquisition, in this order: two standard normals, two uniforms.
+def next_normal(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The next standard normal of an acquisition's draws (compiled code only).
 
-    Compiled code only.  ``src`` is a ``numpy.random.Generator`` (the compiled
-    loop draws from it) or a :class:`VariateBuffer` array (the per-tick path: the
-    same variates, drawn ahead in blocks, so that no call from Python passes a
-    Generator, which numba types and unboxes on every call, about 8 us).
+    ``src`` is a ``numpy.random.Generator`` (the compiled loop draws from it) or a
+    :class:`VariateBuffer` array (the per-tick path: the same variates, drawn
+    ahead in blocks, so that no call from Python passes a Generator, which numba
+    types and unboxes on every call, about 8 us).
     """
-    raise NotImplementedError("draw_variates runs in compiled code only")
+    raise NotImplementedError("next_normal runs in compiled code only")
 
 
-@overload(draw_variates, jit_options={"nogil": True})
-def _draw_variates(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def next_uniform(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The next uniform on [0, 1) of an acquisition's draws (compiled code only; ``src`` as :func:`next_normal`)."""
+    raise NotImplementedError("next_uniform runs in compiled code only")
+
+
+def _from_buffer(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    i = int(src[0])
+    src[0] = i + 1
+    return src[i + 1]
+
+
+@overload(next_normal, jit_options={"nogil": True})
+def _next_normal(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if isinstance(src, types.NumPyRandomGeneratorType):
-        def from_generator(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-            n0 = src.standard_normal()
-            n1 = src.standard_normal()
-            u0 = src.random()
-            u1 = src.random()
-            return n0, n1, u0, u1
-        return from_generator
+        return lambda src: src.standard_normal()
     if isinstance(src, types.Array):
-        def from_buffer(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-            i = int(src[0])
-            src[0] = i + 4
-            return src[i + 1], src[i + 2], src[i + 3], src[i + 4]
-        return from_buffer
+        return _from_buffer
+    return None
+
+
+@overload(next_uniform, jit_options={"nogil": True})
+def _next_uniform(src):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(src, types.NumPyRandomGeneratorType):
+        return lambda src: src.random()
+    if isinstance(src, types.Array):
+        return _from_buffer
     return None
 
 
 @numba.njit(cache=True, nogil=True)
-def fill_variates(rng, buf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Draw ``buf[1:]`` from ``rng`` in :func:`draw_variates`' order; ``buf[0] = 0`` (none used)."""
-    for i in range(1, buf.shape[0] - 3, 4):
-        buf[i] = rng.standard_normal()
-        buf[i + 1] = rng.standard_normal()
-        buf[i + 2] = rng.random()
-        buf[i + 3] = rng.random()
+def fill_variates(rng, buf, dims):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Draw ``buf[1:]`` from ``rng`` in the acquisitions' order on ``dims`` axes (``dims`` normals, then ``dims``
+    uniforms, per acquisition); ``buf[0] = 0`` (none used)."""
+    per = 2 * dims
+    for i in range(1, buf.shape[0] - per + 1, per):
+        for c in range(dims):
+            buf[i + c] = rng.standard_normal()
+        for c in range(dims):
+            buf[i + dims + c] = rng.random()
     buf[0] = 0.0
 
 
 class VariateBuffer:
-    """A Generator's acquisition variates, drawn ahead in blocks (the same stream, the same doubles).
+    """A Generator's acquisition variates on ``dims`` axes, drawn ahead in blocks (the same stream, the same doubles).
 
     ``buf[0]`` counts the variates used, ``buf[1:]`` holds them.  :meth:`ready`
-    refills when fewer than one acquisition's four remain; :meth:`generator`
+    refills when fewer than one acquisition's ``2 dims`` remain; :meth:`generator`
     gives the Generator back exactly where the variates used so far left it
     (it rewinds to the last refill and draws only what was used).
     """
@@ -376,10 +402,10 @@ class VariateBuffer:
     #: Acquisitions per block.
     BLOCK = 256
 
-    def __init__(self, rng: np.random.Generator, per: int = 4, fill: Any = None) -> None:
+    def __init__(self, rng: np.random.Generator, dims: int = 2) -> None:
         self._rng = rng
-        self._per = int(per)  # variates per acquisition (the 3-D imager draws 6: control/imager3d.py)
-        self._fill = fill_variates if fill is None else fill  # draws them in the imager's order
+        self._dims = int(dims)
+        self._per = 2 * self._dims  # variates per acquisition
         self.buf = np.zeros(1 + self._per * self.BLOCK)
         self.buf[0] = float(self.buf.shape[0] - 1)  # empty: the first use fills
         self._state_at_fill: Mapping[str, Any] | None = None
@@ -389,7 +415,7 @@ class VariateBuffer:
         b = self.buf
         if b[0] + self._per > b.shape[0] - 1:
             self._state_at_fill = self._rng.bit_generator.state
-            self._fill(self._rng, b)
+            fill_variates(self._rng, b, self._dims)
         return b
 
     def generator(self) -> np.random.Generator:
@@ -398,28 +424,43 @@ class VariateBuffer:
             used = int(self.buf[0])
             self._rng.bit_generator.state = self._state_at_fill
             if used:
-                self._fill(self._rng, np.zeros(1 + used))
+                fill_variates(self._rng, np.zeros(1 + used), self._dims)
             self._state_at_fill = None
             self.buf[0] = float(self.buf.shape[0] - 1)
         return self._rng
 
 
 @numba.njit(cache=True, nogil=True)
-def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Acquire one frame of ``(px, pz)`` at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[2:5]`` = (x, z, outlier).
+def imager_acquire(prm, outliers, dropouts, rng, t, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Acquire one frame of position ``p`` (d,) at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[1]`` = t,
+    ``out[2:2 + d]`` the measured position, ``out[2 + d]`` the outlier flag.
 
-    Draws two standard normals (noise on x, z), one uniform (outlier
-    direction) and one uniform (random dropout), in this order, always.
+    Draws ``d`` standard normals (the noise per axis), one uniform (outlier
+    direction), one uniform (random dropout) and, in space, one uniform (the
+    direction's polar cosine), in this order, always.  ``p`` may be ``out[2:2 + d]``.
     """
-    n0, n1, u_dir, u_drop = draw_variates(rng)
-    m0 = px + prm[1] * n0
-    m1 = pz + prm[1] * n1
+    d = p.shape[0]
+    for c in range(d):
+        out[2 + c] = p[c] + prm[1] * next_normal(rng)
+    u_dir = next_uniform(rng)
+    u_drop = next_uniform(rng)
+    u_pol = next_uniform(rng) if d == 3 else 0.0
     outlier = 0.0
+    last = d - 1  # z: the plane's second axis, space's third
     for i in range(outliers.shape[0]):
         if outliers[i, 0] - _EPS_S <= t < outliers[i, 1] - _EPS_S:
-            th = 2.0 * math.pi * u_dir if math.isnan(outliers[i, 3]) else outliers[i, 3]
-            m0 = m0 + outliers[i, 2] * math.cos(th)
-            m1 = m1 + outliers[i, 2] * math.sin(th)
+            mag = outliers[i, 2]
+            if math.isnan(outliers[i, 3]) and d == 3:  # a direction uniform on the sphere
+                phi = 2.0 * math.pi * u_dir
+                cz = 2.0 * u_pol - 1.0
+                sz = math.sqrt(max(0.0, 1.0 - cz * cz))
+                out[2] = out[2] + mag * (sz * math.cos(phi))
+                out[3] = out[3] + mag * (sz * math.sin(phi))
+                out[4] = out[4] + mag * cz
+            else:  # in the scanner's XZ plane: the burst's fixed angle, or one uniform on the circle
+                th = 2.0 * math.pi * u_dir if math.isnan(outliers[i, 3]) else outliers[i, 3]
+                out[2] = out[2] + mag * math.cos(th)
+                out[2 + last] = out[2 + last] + mag * math.sin(th)
             outlier = 1.0
             break
     dropped = u_drop < prm[3]
@@ -430,26 +471,24 @@ def imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out):  # type: ignor
                 break
     out[0] = 0.0 if dropped else 1.0
     out[1] = t
-    out[2] = m0
-    out[3] = m1
-    out[4] = outlier
+    out[2 + d] = outlier
 
 
 @numba.njit(cache=True, nogil=True)
-def imager_frame(prm, outliers, dropouts, state, queue, rng, t, px, pz, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles).
+def imager_frame(prm, outliers, dropouts, state, queue, rng, t, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles), on the axes of ``p`` (d,).
 
-    The caller checks that ``t`` and ``(px, pz)`` are finite and that time does
-    not go backwards, and sizes ``queue`` for every frame that can wait
+    The caller checks that ``t`` and ``p`` are finite and that time does
+    not go backwards, and sizes ``queue`` (cap, 3 + d) for every frame that can wait
     (one row per tick is always enough).  Draws from ``rng`` (a
-    ``numpy.random.Generator``) in the documented order: two standard normals,
-    two uniforms per acquired frame.  Writes ``out``; allocates nothing.
+    ``numpy.random.Generator`` or a :class:`VariateBuffer` array) in the documented order.
+    Writes ``out`` (3 + d,); allocates nothing.
     """
     state[1] = t
     period = prm[0]
     if t + _EPS_S >= state[0] * period:
         state[0] = float(int(math.floor((t + _EPS_S) / period)) + 1)
-        imager_acquire(prm, outliers, dropouts, rng, t, px, pz, out)
+        imager_acquire(prm, outliers, dropouts, rng, t, p, out)
         if out[0] > 0.5:
-            queue_push(queue, state, 3, t + prm[2], t, out[2], out[3], out[4])
+            queue_push(queue, state, 3, t + prm[2], out)
     queue_deliver(queue, state, 2, 3, t, out)

@@ -14,7 +14,7 @@ Each is its planar stage's rule axis by axis (their modules' docstrings say why 
   - F``, ``F`` the model's at the tick or at the middle of the hold (``sample_hold: midpoint``), with the
   model's ``V_f`` scaled by the estimate's flow scale (``flow_compensation: estimate``); ``G = U / b``; stale
   estimates and non-finite commands take the safe action (``stale_action``);
-* the coil: :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter3D`.
+* the coil: :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter` with ``dims=3`` (one coil for both).
 
 With the model of a 3-D tree (:class:`~vesselbot_ros.control.model3d.DynamicsModel3D`) each stage runs its
 compiled step (:func:`hgo3d_update`, :func:`law3d_command`), the very function the compiled 3-D loop calls

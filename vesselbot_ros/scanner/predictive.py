@@ -197,7 +197,9 @@ def _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0,
                 j = n - 1
             c0 = plan[2 * j]
             c1 = plan[2 * j + 1]
-        seq_coil_apply(coil, sv, dt, rep, tk, c0, c1, cout)
+        cout[0] = c0  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
+        cout[1] = c1
+        seq_coil_apply(coil, sv, dt, rep, tk, cout[:2], cout)
         g0 = cout[0]
         g1 = cout[1]
         # RK4 over [tk, tk + dt] under the gradient the coil applies over it
@@ -421,7 +423,9 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
     # the coil replica takes the command the coil takes (the compiled sequence gate, saturation and slew)
     off_cout = _layout(prm, n_model)[6]
     cout = work[off_cout:off_cout + COIL_OUT_SIZE]
-    seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[_S_COIL:_S_COIL + 4], t, c0, c1, cout)
+    cout[0] = c0  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
+    cout[1] = c1
+    seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[_S_COIL:_S_COIL + 4], t, cout[:2], cout)
     out[0] = c0
     out[1] = c1
     if c0 == 0.0 and c1 == 0.0:

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import hypot2, hypot3
+from vesselbot_ros.blas_free import hypot2, hypot3, hypot_axes
 from vesselbot_ros.config import ConfigError, check_choice, check_nonnegative, check_positive
 
 __all__ = [
@@ -54,8 +54,7 @@ __all__ = [
     "PhaseWindow",
     "window_at",
     "limit_at",
-    "target_for",
-    "target3_for",
+    "target_into",
 ]
 
 _EPS_S = 1e-9
@@ -207,72 +206,42 @@ def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]  # num
 
 
 @numba.njit(cache=True, nogil=True)
-def target_for(px, pz, cx, cz, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`propulsion_target` (compiled; CPython's ``math.hypot`` via ``hypot2``): ``(gx, gz)``."""
-    n = hypot2(cx, cz)
+def target_into(p, c, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`propulsion_target` (compiled) on any number of gradient axes: the coil's output ``p`` and the finite
+    command ``c`` (T/m, (d,), d = 2 or 3); ``c`` becomes the target.  Norms by CPython's ``math.hypot``
+    (``hypot2`` / ``hypot3``: the plane's doubles for ``(x, 0, z)``)."""
+    d = c.shape[0]
+    n = hypot_axes(c)
     if n > limit:
-        if limit <= 0.0:
-            cx = 0.0
-            cz = 0.0
-        else:
-            cx = cx * (limit / n)
-            cz = cz * (limit / n)
-    sx = cx - px
-    sz = cz - pz
-    ax = abs(sx)
-    az = abs(sz)
-    biggest = az if az > ax else ax
+        for i in range(d):
+            c[i] = 0.0 if limit <= 0.0 else c[i] * (limit / n)
+    biggest = 0.0
+    for i in range(d):
+        a = abs(c[i] - p[i])
+        if a > biggest:
+            biggest = a
     # the coil's own step, S times the tick as it measures it, may be a rounding larger: the endpoint
     # estimated with a slightly smaller step lies on the same segment, so inside the disc means inside
     step = max_step * (1.0 - 1e-9)
+    last = d - 1  # z: the second axis of the plane, the third in space
     if biggest > step:
         f = step / biggest
-        ex = px + sx * f
-        ez = pz + sz * f
+        e0 = p[0] + (c[0] - p[0]) * f
+        e1 = p[1] + (c[1] - p[1]) * f
+        e2 = p[last] + (c[last] - p[last]) * f
     else:
-        ex = cx
-        ez = cz
-    if hypot2(ex, ez) <= limit:
-        return cx, cz
-    m = hypot2(px, pz)
+        e0 = c[0]
+        e1 = c[1]
+        e2 = c[last]
+    if (hypot2(e0, e1) if d == 2 else hypot3(e0, e1, e2)) <= limit:  # the endpoint's norm (no scratch array)
+        return
+    m = hypot_axes(p)
     if m <= limit or m == 0.0:
-        return px, pz
-    return px * (limit / m), pz * (limit / m)
-
-
-@numba.njit(cache=True, nogil=True)
-def target3_for(px, py, pz, cx, cy, cz, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`target_for` on three gradient axes (a 3-D vessel tree's coil): ``(gx, gy, gz)``."""
-    n = hypot3(cx, cy, cz)
-    if n > limit:
-        if limit <= 0.0:
-            cx = 0.0
-            cy = 0.0
-            cz = 0.0
-        else:
-            cx = cx * (limit / n)
-            cy = cy * (limit / n)
-            cz = cz * (limit / n)
-    sx = cx - px
-    sy = cy - py
-    sz = cz - pz
-    biggest = max(abs(sx), abs(sy), abs(sz))
-    step = max_step * (1.0 - 1e-9)
-    if biggest > step:
-        f = step / biggest
-        ex = px + sx * f
-        ey = py + sy * f
-        ez = pz + sz * f
-    else:
-        ex = cx
-        ey = cy
-        ez = cz
-    if hypot3(ex, ey, ez) <= limit:
-        return cx, cy, cz
-    m = hypot3(px, py, pz)
-    if m <= limit or m == 0.0:
-        return px, py, pz
-    return px * (limit / m), py * (limit / m), pz * (limit / m)
+        for i in range(d):
+            c[i] = p[i]
+        return
+    for i in range(d):
+        c[i] = p[i] * (limit / m)
 
 
 def _check_time(t_s: float) -> None:
@@ -356,8 +325,8 @@ def propulsion_limit(params: SequenceParams, t_s: float, hold_s: float, slew_T_p
                           float(saturation_T_per_m)))
 
 
-def propulsion_target(applied_prev: tuple[float, float], commanded: tuple[float, float], limit_T_per_m: float,
-                      max_step_T_per_m: float) -> tuple[float, float]:
+def propulsion_target(applied_prev: tuple[float, ...], commanded: tuple[float, ...], limit_T_per_m: float,
+                      max_step_T_per_m: float) -> tuple[float, ...]:
     """The command to hand a slew-limited coil so its output stays within ``limit_T_per_m``.
 
     The coil (:class:`~vesselbot_ros.control.actuator_limits.CoilLimiter`) moves
@@ -369,14 +338,14 @@ def propulsion_target(applied_prev: tuple[float, float], commanded: tuple[float,
     :func:`propulsion_limit` falls by at most the slew per tick.
 
     Args:
-        applied_prev: (gx, gz) the coil's output over the previous tick (T/m).
-        commanded: (gx, gz) the controller's command (T/m), finite.
+        applied_prev: (gx, gz) or (gx, gy, gz): the coil's output over the previous tick (T/m).
+        commanded: the controller's command on the same axes (T/m), finite.
         limit_T_per_m: :func:`propulsion_limit` for this tick (T/m), >= 0.
         max_step_T_per_m: Slew rate times the tick (T/m).
 
     Returns:
-        (gx, gz) the target to hand the coil (T/m).
+        The target to hand the coil (T/m), on the same axes.
     """
-    gx, gz = target_for(float(applied_prev[0]), float(applied_prev[1]), float(commanded[0]), float(commanded[1]),
-                        float(limit_T_per_m), float(max_step_T_per_m))
-    return (float(gx), float(gz))
+    c = np.array(commanded, dtype=np.float64)
+    target_into(np.array(applied_prev, dtype=np.float64), c, float(limit_T_per_m), float(max_step_T_per_m))
+    return tuple(float(v) for v in c)

@@ -241,6 +241,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     obs_out[9] = 1.0  # observer (25) does not estimate the flow scale
     ctrl_out = np.zeros(CONTROLLER_OUT_SIZE)
     coil_out = np.zeros(COIL_OUT_SIZE)
+    gc = np.zeros(2)  # the tick's command (NaN: rejected)
     gx_prev = 0.0
     gz_prev = 0.0
     h = ig[5]
@@ -259,9 +260,9 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
             forces_into(t, y[0], y[1], y[2], y[3], gx_prev, gz_prev, contact, plant_p, forces[k])
         # imager (the plant state is finite: the integrator checked it)
         if seq_mode == 1:
-            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[0], y[1], img_out)
+            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:2], img_out)
         else:
-            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], img_out)
+            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:2], img_out)
         has_meas = img_out[0] > 0.5
         if has_meas:
             meas_p[k, 0] = img_out[2]
@@ -336,10 +337,12 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         cmd_status[k] = status
         cmd_rejected[k] = why
         # coil
+        gc[0] = gx_cmd
+        gc[1] = gz_cmd
         if seq_mode == 1:
-            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gx_cmd, gz_cmd, coil_out)
+            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
         else:
-            coil_apply(coil_prm, coil_state, t, gx_cmd, gz_cmd, coil_out)
+            coil_apply(coil_prm, coil_state, t, gc, coil_out)
         gx_prev = coil_out[0]
         gz_prev = coil_out[1]
         g_applied[k, 0] = gx_prev

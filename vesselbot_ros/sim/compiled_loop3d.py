@@ -3,12 +3,12 @@
 :func:`loop3d_kernel` runs every tick of one run in numba, calling the compiled steps of the 3-D stages in the
 per-tick runner's order (:mod:`vesselbot_ros.sim.closed_loop`)::
 
-    plant output (forces3d_at) -> imager3d_frame | seq_imager3d_frame (scanner) -> hgo3d_update (25)
-    -> law3d_command (24) -> coil3d_apply | seq_coil3d_apply (scanner) -> plant step (integrate3d)
+    plant output (forces3d_at) -> imager_frame | seq_imager_frame (scanner; the imager's, on three axes) -> hgo3d_update (25)
+    -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner; the coil's, on three axes) -> plant step (integrate3d)
 
 The stages' Python classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`,
-:class:`~vesselbot_ros.control.imager3d.Imager3D`, :class:`~vesselbot_ros.control.loop3d_stages.HighGainObserver3D`,
-:class:`~vesselbot_ros.control.loop3d_stages.Backstepping3D`, :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter3D`)
+:class:`~vesselbot_ros.control.imager_model.ImagerModel` on three axes, :class:`~vesselbot_ros.control.loop3d_stages.HighGainObserver3D`,
+:class:`~vesselbot_ros.control.loop3d_stages.Backstepping3D`, :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter` on three axes)
 call the very same compiled functions on the same state, so the two paths are bit-identical
 (``test/unit/sim/test_compiled_loop.py`` checks every column, metric and statistic of the shipped 3-D scenarios).
 The imager draws from the run's ``numpy.random.Generator`` in the documented order (six variates per acquired
@@ -26,16 +26,16 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import COIL3D_OUT_SIZE, CoilLimiter3D, coil3d_apply, coil_params
+from vesselbot_ros.control.actuator_limits import CoilLimiter, coil_apply, coil_out_size, coil_params
 from vesselbot_ros.control.backstepping import FLOW_SCALE_INVALID
 from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, integrator_vector
-from vesselbot_ros.control.imager3d import Imager3D, imager3d_frame, queue_rows
+from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D, hgo3d_update, law3d_command
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK
 from vesselbot_ros.physics.kernel import I_R
 from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
-from vesselbot_ros.scanner.stages import SequencedCoil3D, SequencedImager3D, seq_coil3d_apply, seq_imager3d_frame
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop codes and errors
     COLUMNS,
     FLOW_SCALE_FAILED,
@@ -54,18 +54,20 @@ __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "ru
 COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = tuple((name, dt, (3,) if shape == (2,) else shape)
                                                                 for name, dt, shape in COLUMNS)
 
-_BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator3D,), "imager": (Imager3D, SequencedImager3D),
+_BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator3D,), "imager": (ImagerModel, SequencedImager),
                                           "observer": (HighGainObserver3D,), "controller": (Backstepping3D,),
-                                          "coil": (CoilLimiter3D, SequencedCoil3D)}
+                                          "coil": (CoilLimiter, SequencedCoil)}
 
 
 def foreign_stages3d(stages: Any) -> list[str]:
     """The roles whose stage :func:`prepare3d` cannot read: not exactly a built-in 3-D class, or over a user's model."""
     bad = [role for role, cls in _BUILT_IN.items() if type(getattr(stages, role)) not in cls]
     im, co = stages.imager, stages.coil
-    if "imager" not in bad and type(im) is SequencedImager3D and type(im.inner) is not Imager3D:
+    if "imager" not in bad and (getattr(im, "dims", 2) != 3
+                                or (type(im) is SequencedImager and type(im.inner) is not ImagerModel)):
         bad.append("imager")
-    if "coil" not in bad and type(co) is SequencedCoil3D and type(co.inner) is not CoilLimiter3D:
+    if "coil" not in bad and (getattr(co, "dims", 2) != 3
+                              or (type(co) is SequencedCoil and type(co.inner) is not CoilLimiter)):
         bad.append("coil")
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
@@ -95,7 +97,6 @@ class LoopInputs3D:
     imager_prm: npt.NDArray[np.float64]
     outliers: npt.NDArray[np.float64]
     dropouts: npt.NDArray[np.float64]
-    queue_rows: int
     obs_prm: npt.NDArray[np.float64]
     ctrl_prm: npt.NDArray[np.float64]
     coil_prm: npt.NDArray[np.float64]
@@ -120,21 +121,23 @@ def prepare3d(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)
     p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
     plant, imager, observer, controller, coil = stages.plant, stages.imager, stages.observer, stages.controller, stages.coil
-    seq = isinstance(coil, SequencedCoil3D) or isinstance(imager, SequencedImager3D)
-    if seq and not (isinstance(coil, SequencedCoil3D) and isinstance(imager, SequencedImager3D)
+    seq = isinstance(coil, SequencedCoil) or isinstance(imager, SequencedImager)
+    if seq and not (isinstance(coil, SequencedCoil) and isinstance(imager, SequencedImager)
                     and np.array_equal(coil.sv, imager.sv)):
         raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
-    rows = imager._queue.shape[0] if seq else queue_rows(imager.params)
     k = plant.packed
     return LoopInputs3D(
         n=n, dt=dt, ts=ts, p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref),
         a_ref=np.ascontiguousarray(a_ref), plant_p=plant.p, model_p=observer.model.p, W=k.W, F=k.F, fh=k.fh,
         ig=integrator_vector(plant.integrator), obs_ig=integrator_vector(observer.model.integrator),
         imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
-        queue_rows=rows, obs_prm=observer.params_vector, ctrl_prm=controller.params_vector,
+        obs_prm=observer.params_vector, ctrl_prm=controller.params_vector,
         coil_prm=coil_params(coil.limits), seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7),
         hold_s=coil.hold_s if seq else 0.0, plant_y0=plant.state, obs_y0=observer.state, coil_state0=coil.state,
         record_forces=record_forces)
+
+
+_COIL_OUT_SIZE = coil_out_size(3)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -169,7 +172,7 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
     obs_out = np.zeros(12)
     ctrl_last = np.zeros(3)
     ctrl_out = np.zeros(6)
-    coil_out = np.zeros(COIL3D_OUT_SIZE)
+    coil_out = np.zeros(_COIL_OUT_SIZE)
     fk = np.empty((8, 3))
     h = ig[5]
     for k in range(n):
@@ -189,9 +192,9 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
                     forces[k, i, c] = fk[i, c]
         # imager
         if seq_mode == 1:
-            seq_imager3d_frame(sv, imager_prm, outliers, dropouts, rng, seq_st, queue, acq, t, y[0], y[1], y[2], img_out)
+            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_st, queue, acq, t, y[:3], img_out)
         else:
-            imager3d_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[0], y[1], y[2], img_out)
+            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:3], img_out)
         has_meas = img_out[0] > 0.5
         if has_meas:
             for c in range(3):
@@ -253,9 +256,9 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
         cmd_rejected[k] = why
         # coil
         if seq_mode == 1:
-            seq_coil3d_apply(coil_prm, sv, hold_s, coil_state, t, gc[0], gc[1], gc[2], coil_out)
+            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
         else:
-            coil3d_apply(coil_prm, coil_state, t, gc[0], gc[1], gc[2], coil_out)
+            coil_apply(coil_prm, coil_state, t, gc, coil_out)
         for c in range(3):
             g[c] = coil_out[c]
             g_applied[k, c] = coil_out[c]
@@ -295,7 +298,7 @@ def run_kernel3d(inp: LoopInputs3D, rng: np.random.Generator
     err = np.zeros(3)
     code, tick = loop3d_kernel(  # type: ignore[call-arg]  # *columns is 21 long: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.W, inp.F, inp.fh, inp.ig,
-        inp.obs_ig, rng, inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((inp.queue_rows, 6)), inp.obs_prm,
+        inp.obs_ig, rng, inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((n + 1, 6)), inp.obs_prm,
         inp.ctrl_prm, inp.coil_prm, inp.seq_mode, inp.sv, inp.hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
         plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS3D), err)

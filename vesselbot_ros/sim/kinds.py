@@ -62,14 +62,13 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimiter3D, CoilLimits, CoilOutput
+from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
 from vesselbot_ros.control.compiled_stage import CompiledController
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
-from vesselbot_ros.control.imager3d import Imager3D
 from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D
 from vesselbot_ros.control.model import DynamicsModel
@@ -80,7 +79,7 @@ from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import duty_cycle
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedCoil3D, SequencedImager, SequencedImager3D
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator, PlantSimulator3D
 from vesselbot_ros.vessels.cfd import packed_params
 
@@ -571,7 +570,7 @@ def rejection_warning(metrics: Mapping[str, Any], what: str = "controller comman
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------
 # In a 3-D vessel tree (Scenario.dims == 3) each built-in kind builds its stage on three axes
-# (control/loop3d_stages.py, control/imager3d.py, PlantSimulator3D, CoilLimiter3D); the scenario refuses the
+# (control/loop3d_stages.py, PlantSimulator3D; the imager and the coil take the axis count); the scenario refuses the
 # kinds and options that have no 3-D form yet, in one line.
 def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
     s = ctx.scenario
@@ -580,12 +579,9 @@ def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
     return PlantSimulator(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
 
 
-def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager | Imager3D | SequencedImager3D:
+def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager:
     s = ctx.scenario
-    if s.dims == 3:
-        im3 = Imager3D(s.imager, ctx.rng())
-        return SequencedImager3D(im3, s.sequence) if s.sequence.mode == "multiplexed" else im3
-    imager = ImagerModel(s.imager, ctx.rng())
+    imager = ImagerModel(s.imager, ctx.rng(), dims=s.dims)
     if s.sequence.mode == "multiplexed":  # the scanner: imaging and propulsion take turns
         return SequencedImager(imager, s.sequence)
     return imager
@@ -631,15 +627,13 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
     return PredictiveController(s.controller, ctx.model.p, effective_coil_limits(s.coil, s.dbdt), s.sequence, ctx.dt_s)
 
 
-def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil | CoilLimiter3D | SequencedCoil3D:
+def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
     s = ctx.scenario
-    if s.dims == 3:  # dB/dt of three axes slewing at once
-        c3 = CoilLimiter3D(effective_coil_limits(s.coil, s.dbdt, axes=3), -ctx.dt_s)
-        return SequencedCoil3D(c3, s.sequence, ctx.dt_s) if s.sequence.mode == "multiplexed" else c3
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
     # between any two later ticks: the first command may move S * dt, not 0 (which left the robot unactuated for
     # the first 1 ms and cost ~350 um of start-up transient, docs/control.md).
-    coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt), -ctx.dt_s)
+    # Its axes are the scenario's (a 3-D tree's dB/dt counts three axes slewing at once).
+    coil = CoilLimiter(effective_coil_limits(s.coil, s.dbdt, axes=s.dims), -ctx.dt_s, dims=s.dims)
     if s.sequence.mode == "multiplexed":
         return SequencedCoil(coil, s.sequence, ctx.dt_s)
     return coil
@@ -649,7 +643,7 @@ for _kind in (
     StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator, PlantSimulator3D),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
-              stage_types=(ImagerModel, SequencedImager, Imager3D, SequencedImager3D),
+              stage_types=(ImagerModel, SequencedImager),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver, HighGainObserver3D),
               summary="high-gain observer (25)"),
@@ -668,7 +662,7 @@ for _kind in (
               stage_types=(PredictiveController,), compile_controller=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
-              stage_types=(CoilLimiter, SequencedCoil, CoilLimiter3D, SequencedCoil3D),
+              stage_types=(CoilLimiter, SequencedCoil),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):
     register(_kind)

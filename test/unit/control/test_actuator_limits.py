@@ -12,15 +12,14 @@ from hypothesis import strategies as st
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.actuator_limits import (
     CLINICAL_SLEW_RATE_T_PER_M_PER_S,
-    COIL3D_OUT_SIZE,
     COIL_OUT_SIZE,
     PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S,
     CoilLimiter,
-    CoilLimiter3D,
     CoilLimits,
-    coil3d_apply,
     coil_apply,
+    coil_out_size,
     coil_params,
+    new_coil_state,
 )
 from vesselbot_ros.errors import ModelInputError
 
@@ -179,14 +178,14 @@ def test_property_limits_never_exceeded(seq, norm, slew) -> None:  # type: ignor
 
 # ---- three axes --------------------------------------------------------------------------------------------------
 def _coil_runs(limits: CoilLimits, commands: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The 2-D coil on (x, z) and the 3-D coil on (x, y, z) over the same command sequence: their outputs."""
+    """The one coil on (x, z) and on (x, y, z) over the same command sequence: their outputs."""
     prm = coil_params(limits)
-    s2, s3 = np.zeros(4), np.zeros(5)
-    o2, o3 = np.zeros(COIL_OUT_SIZE), np.zeros(COIL3D_OUT_SIZE)
+    s2, s3 = new_coil_state(2, 0.0), new_coil_state(3, 0.0)
+    o2, o3 = np.zeros(COIL_OUT_SIZE), np.zeros(coil_out_size(3))
     out2, out3 = [], []
     for i, (gx, gy, gz) in enumerate(commands):
-        coil_apply(prm, s2, (i + 1) * dt, gx, gz, o2)
-        coil3d_apply(prm, s3, (i + 1) * dt, gx, gy, gz, o3)
+        coil_apply(prm, s2, (i + 1) * dt, np.array([gx, gz]), o2)
+        coil_apply(prm, s3, (i + 1) * dt, np.array([gx, gy, gz]), o3)
         out2.append(o2.copy())
         out3.append(o3.copy())
     return np.array(out2), np.array(out3)
@@ -229,9 +228,9 @@ def test_the_3d_coil_keeps_saturation_and_slew_on_every_axis(seed: int, norm: st
 
 
 # ---- three axes ---------------------------------------------------------------------------------------
-def test_coil3d_in_the_plane_is_the_planar_coil() -> None:
+def test_the_coil_on_three_axes_in_the_plane_is_the_coil_on_two() -> None:
     lim = CoilLimits(slew_rate="clinical")
-    c2, c3 = CoilLimiter(lim, -1e-3), CoilLimiter3D(lim, -1e-3)
+    c2, c3 = CoilLimiter(lim, -1e-3), CoilLimiter(lim, -1e-3, dims=3)
     rng = np.random.default_rng(0)
     for k in range(200):
         g = rng.normal(0.0, 0.1, 2)
@@ -242,9 +241,9 @@ def test_coil3d_in_the_plane_is_the_planar_coil() -> None:
         assert list(o3.slew_limited[[0, 2]]) == list(o2.slew_limited)
 
 
-def test_coil3d_saturates_the_norm_over_three_axes_and_ramps_down() -> None:
+def test_the_coil_on_three_axes_saturates_the_norm_over_them_and_ramps_down() -> None:
     lim = CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=1e6, command_timeout_s=0.01)
-    c = CoilLimiter3D(lim, 0.0)
+    c = CoilLimiter(lim, 0.0, dims=3)
     out = c.apply(1e-3, np.array([0.1, 0.1, 0.1]))
     assert np.linalg.norm(out.applied) == pytest.approx(lim.saturation_T_per_m, rel=1e-12)
     assert out.saturated and out.k_scale == pytest.approx(np.sqrt(0.03) / lim.saturation_T_per_m)
@@ -255,3 +254,23 @@ def test_coil3d_saturates_the_norm_over_three_axes_and_ramps_down() -> None:
     assert rej.rejected
     with pytest.raises(ModelInputError, match=r"\(3,\)"):
         c.apply(0.7, np.zeros(2))
+
+
+def test_a_coil_has_two_or_three_axes_and_its_command_goes_in_place() -> None:
+    """One coil class serves the plane and space; a command may sit in the output's own slots (no scratch)."""
+    with pytest.raises(ModelInputError, match="2 or 3 axes"):
+        CoilLimiter(CoilLimits(), 0.0, dims=4)
+    prm = coil_params(CoilLimits(slew_rate="custom", custom_slew_rate_T_per_m_per_s=20.0))
+    rng = np.random.default_rng(5)
+    for d in (2, 3):
+        sa, sb = new_coil_state(d, 0.0), new_coil_state(d, 0.0)
+        oa, ob = np.zeros(coil_out_size(d)), np.zeros(coil_out_size(d))
+        for i in range(100):
+            g = rng.normal(0.0, 0.1, d)
+            if i % 17 == 0:
+                g[0] = np.nan
+            coil_apply(prm, sa, (i + 1) * 1e-3, g, oa)
+            ob[:d] = g
+            coil_apply(prm, sb, (i + 1) * 1e-3, ob[:d], ob)
+            np.testing.assert_array_equal(oa, ob)
+            np.testing.assert_array_equal(sa, sb)

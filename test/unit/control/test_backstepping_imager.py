@@ -176,14 +176,14 @@ def test_variate_buffer_draws_the_generators_stream_and_gives_it_back_where_it_w
 
     direct = np.random.default_rng(7)
     expected = np.zeros(1 + 4 * 300)
-    fill_variates(direct, expected)  # 300 acquisitions straight from the generator
+    fill_variates(direct, expected, 2)  # 300 acquisitions straight from the generator
     buffered = VariateBuffer(np.random.default_rng(7))
     got = []
     for _ in range(300):  # more than one block
         b = buffered.ready()
         i = int(b[0])
         got.extend(b[i + 1:i + 5])
-        b[0] = i + 4  # what the compiled draw_variates does
+        b[0] = i + 4  # what the compiled next_normal / next_uniform do, four times
     assert np.array_equal(np.array(got), expected[1:])
     # the generator comes back exactly where 300 acquisitions left it, whatever was drawn ahead
     assert buffered.generator().random() == direct.random()
@@ -201,7 +201,7 @@ def test_the_imager_per_tick_and_its_generator_handed_on_continue_one_stream():
     a_next = a.rng.standard_normal()
     b.frame(10e-3, p)  # b draws one more acquisition: two normals first
     ref = np.random.default_rng(3)
-    fill_variates(ref, np.zeros(1 + 4 * 10))
+    fill_variates(ref, np.zeros(1 + 4 * 10), 2)
     assert a_next == ref.standard_normal()
 
 

@@ -28,7 +28,7 @@ def _bits(a):
     return np.asarray(a, dtype=np.float64).tobytes()
 
 
-class _Out:  # a CoilLimiter3D output's fields
+class _Out:  # a three-axis CoilLimiter output's fields
     def __init__(self, applied, slew):
         self.applied, self.k_scale, self.saturated, self.slew_limited, self.rejected = applied, 1.25, True, slew, False
 

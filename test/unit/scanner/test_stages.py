@@ -146,13 +146,13 @@ SEQ3D = ["sequence.mode=multiplexed", "sequence.tracking_window_s=0.002", "seque
 
 def test_the_3d_sequence_gates_all_three_axes_and_images_once_per_window() -> None:
     from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
-    from vesselbot_ros.scanner.stages import SequencedCoil3D, SequencedImager3D
+    from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
     from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
     from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
     sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=SEQ3D)
     st = build_stages(sc)
-    assert type(st.imager) is SequencedImager3D and type(st.coil) is SequencedCoil3D
+    assert type(st.imager) is SequencedImager and type(st.coil) is SequencedCoil and st.imager.dims == st.coil.dims == 3
     a, b = run_closed_loop(sc, 3), run_closed_loop(sc, 3, path="per_tick")
     assert a.path == "compiled"
     for k, v in b.timeseries.items():
