@@ -67,7 +67,7 @@ from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.control.high_gain_observer import write_estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, integrate_dopri5_ws, new_workspace
+from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_MASS, I_R, I_V_F, forces_tc, onto_lumen, wall_delta_xz
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
@@ -220,9 +220,10 @@ def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]  # 
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
-# prm (20,): [B (4, row-major), q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2, max_consecutive_rejections,
+# prm (27,): [B (4, row-major), q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2, max_consecutive_rejections,
 #   delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2, flow_scale_sigma0^2 (0 if frozen),
-#   rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1), max_rejection_s (inf: off)]
+#   rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1), max_rejection_s (inf: off),
+#   the prediction's integrator (7, physics.integrator.integrator_vector: dopri5)]
 # scal (5,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1),
 #   acquisition time of the first frame of the current run of rejections (s; inf: none)]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
@@ -231,14 +232,14 @@ def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]  # 
 # work, fbuf: integrator workspace (new_workspace); vec (8, 5) and mat (6, 5, 5) scratch (vec[5]: time-terms memo)
 # out (10,): [x (2), z (2), time since the last frame, innovation X_hat - Y (2), used, rejected, s_hat]
 # err (8,): [t0, t1, integrator code, the 5 states the failing prediction started from]
-EKF_PRM_SIZE = 20
+EKF_PRM_SIZE = 27
 EKF_OUT_SIZE = 10
 #: codes of :func:`ekf_update` besides OK: the prediction failed (see ``err``)
 PREDICTION_FAILED = 3
 
 
 def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any) -> npt.NDArray[np.float64]:
-    """(20,) parameter vector of :func:`ekf_update` (squares formed as :class:`ExtendedKalmanObserver` forms them)."""
+    """(27,) parameter vector of :func:`ekf_update` (squares formed as :class:`ExtendedKalmanObserver` forms them)."""
     q = params
     return np.array([*b, q.accel_noise_m_per_s2_sqrt_s**2,
                      q.flow_scale_noise_per_sqrt_s**2 if q.estimate_flow_scale else 0.0,
@@ -246,7 +247,8 @@ def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any)
                      1.0 if q.delay_compensation else 0.0, q.position_sigma0_m**2, q.velocity_sigma0_m_per_s**2,
                      q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0,
                      ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s,
-                     1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf])
+                     1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf,
+                     0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0])
 
 
 def ekf_history_len(params: EkfParams, tick_s: float) -> int:
@@ -272,13 +274,19 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf,
     _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
                  mat[2], fbuf, vec[5], prm[18] > 0.5)
     _scaled(p, y[4], p_s)
-    ys = vec[3]
+    ys = vec[3, :4]  # the mean's (X, Z): the flow scale is not integrated
     ys[0] = y[0]
     ys[1] = y[1]
     ys[2] = y[2]
     ys[3] = y[3]
-    code, h = integrate_dopri5_ws(t0, t1, ys, 0.0, 0.0, ux, uz, free, p_s, scal[2], prm[13], prm[14], prm[15],
-                                  prm[16], prm[17], stats, work, fbuf)
+    g = work[G_ROW, :2]  # no gradient: the model's input is the acceleration U = B G
+    g[0] = 0.0
+    g[1] = 0.0
+    u = work[U_ROW, :2]
+    u[0] = ux
+    u[1] = uz
+    # the planar vessel reads no 3-D scratch: fbuf stands in for it
+    code, h = integrate(t0, t1, ys, g, u, free, p_s, scal[2], prm[20:27], stats, work, fbuf, fbuf)
     scal[2] = h
     if code != OK or not (math.isfinite(ys[0]) and math.isfinite(ys[1]) and math.isfinite(ys[2])
                           and math.isfinite(ys[3])):
@@ -543,7 +551,7 @@ class EkfState:
         self.hist_P = np.zeros((n_hist, N, N))
         self.hist_u = np.zeros((n_hist, 2))
         self.free = np.zeros(4)
-        self.work, self.fbuf = new_workspace()
+        self.work, self.fbuf, _sc = new_workspace(2)
         self.vec = np.zeros((8, N))
         self.mat = np.zeros((6, N, N))
         self.out = np.zeros(EKF_OUT_SIZE)

@@ -59,7 +59,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_
 from vesselbot_ros.control.ekf_params import EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_scalars
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws
+from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, failure_message, integrate, integrator_vector
 
 #: Estimates kept for delay compensation (one per update).
 HISTORY_LEN = 4096
@@ -236,7 +236,7 @@ class HighGainObserver:
         self.rejected = 0
         # A DynamicsModel is the kernel at packed params: then update() runs the compiled
         # observer_update (as the compiled loop does); any other ObserverModel runs in Python.
-        self._compiled = all(hasattr(model, a) for a in ("p", "integrator", "stats", "_work", "_fbuf"))
+        self._compiled = all(hasattr(model, a) for a in ("p", "integrator", "stats", "_work", "_fbuf", "_sc"))
         if self._compiled:
             self._prm = observer_params(params, self._b)
             self._ig = integrator_vector(model.integrator)
@@ -327,7 +327,7 @@ class HighGainObserver:
         m = self.model
         t0 = self._t
         code = observer_update(self._prm, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig, m.p,
-                               m.stats, m._work, m._fbuf, t_s, gx, gz, has, t_acq, m0, m1, self._out)
+                               m.stats, m._work, m._fbuf, m._sc, t_s, gx, gz, has, t_acq, m0, m1, self._out)
         if code != OK:
             raise ModelInputError(failure_message("observer model", t0, t_s, code, self._y.tolist()))
         self._t = t_s
@@ -366,12 +366,6 @@ def observer_params(params: ObserverParams, b: tuple[float, float, float, float]
                      float(params.innovation_gate_m), 1.0 if params.init_from_first_measurement else 0.0])
 
 
-def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
-    """(7,) ``[rk4 (0/1), rtol, atol_pos, atol_vel, min_step, max_step, fixed_step]`` for compiled stages."""
-    return np.array([1.0 if ig.method == "rk4" else 0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s,
-                     ig.min_step_s, ig.max_step_s, ig.fixed_step_s])
-
-
 @numba.njit(cache=True, nogil=True)
 def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The compiled observers' output: ``out[:9]`` = [X (2), Z (2) from ``y``, age, innovation (2), used, rejected]."""
@@ -387,7 +381,7 @@ def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf, sc,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                     t, gx, gz, has_meas, t_acq, m0, m1, out):
     """:meth:`HighGainObserver.update` over explicit state (same doubles).
 
@@ -401,14 +395,14 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, wor
         state reached and nothing else changed.
     """
     if t > scal[0]:
-        ux = prm[4] * gx + prm[5] * gz
-        uz = prm[6] * gx + prm[7] * gz
-        if ig[0] < 0.5:
-            code, h = integrate_dopri5_ws(scal[0], t, y, 0.0, 0.0, ux, uz, contact, model_p, scal[3], ig[1], ig[2],
-                                          ig[3], ig[4], ig[5], stats, work, fbuf)
-            scal[3] = h
-        else:
-            code = integrate_rk4_ws(scal[0], t, y, 0.0, 0.0, ux, uz, contact, model_p, ig[6], stats, work, fbuf)
+        g = work[G_ROW, :2]  # no gradient: the model's input is the acceleration U = B G
+        g[0] = 0.0
+        g[1] = 0.0
+        u = work[U_ROW, :2]
+        u[0] = prm[4] * gx + prm[5] * gz
+        u[1] = prm[6] * gx + prm[7] * gz
+        code, h = integrate(scal[0], t, y, g, u, contact, model_p, scal[3], ig, stats, work, fbuf, sc)
+        scal[3] = h
         if code != OK:
             return code
     scal[0] = t

@@ -48,9 +48,9 @@ from vesselbot_ros.control.backstepping import (
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, ObserverParams, axis_gains, integrator_vector
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, failure_message
+from vesselbot_ros.physics.integrator import OK, failure_message, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F
-from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.physics.plant3d import forces3d_at
 
 __all__ = ["HighGainObserver3D", "Backstepping3D", "axis_gains3d", "hgo3d_update", "law3d_command", "observer3d_params",
            "law3d_params", "STATUS_NAMES"]
@@ -86,7 +86,7 @@ def hgo3d_update(prm, scal, y, contact, hist, hist_n, ig, model_p, W, F, fh, sta
         gu[1, 0] = b * g0
         gu[1, 1] = b * g1
         gu[1, 2] = b * g2
-        code, h = integrate3d(scal[0], t, y, gu[0], gu[1], contact, model_p, W, F, fh, scal[3], ig, stats, work, fbuf, sc)
+        code, h = integrate(scal[0], t, y, gu[0], gu[1], contact, (model_p, W, F, fh), scal[3], ig, stats, work, fbuf, sc)
         scal[3] = h
         if code != OK:
             return code
@@ -296,7 +296,7 @@ class HighGainObserver3D:
             self._scal = np.array([self._t, -math.inf, 0.0, model.integrator.max_step_s])
             self._hist = np.empty((HISTORY_LEN, 4))
             self._hist_n = np.zeros(2, dtype=np.int64)
-            self._work, self._fbuf, self._sc = new_workspace3d()
+            self._work, self._fbuf, self._sc = new_workspace(3)
             self._gu = np.zeros((2, 3))
             self._out = np.zeros(12)
 

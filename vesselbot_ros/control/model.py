@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
 from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.vessels.cfd import packed_params
@@ -48,14 +48,25 @@ class DynamicsModel:
         mapping: Literal["with_tau_m", "paper_printed"] = "with_tau_m",
     ) -> None:
         self.physics = physics
-        self.integrator = integrator if integrator is not None else IntegratorParams()
+        self.integrator = integrator if integrator is not None else IntegratorParams()  # and its vector (the setter)
         self.p = packed_params(physics)
         self.input_matrix = input_matrix(physics, mapping)
         self._free = np.zeros(4)
         self._p_scaled = self.p.copy()
         self._h = self.integrator.max_step_s
         self.stats = np.zeros(4, dtype=np.int64)
-        self._work, self._fbuf = new_workspace()  # integrator scratch, allocated once
+        self._work, self._fbuf, self._sc = new_workspace(2)  # integrator scratch, allocated once
+        self._zero = np.zeros(2)
+
+    @property
+    def integrator(self) -> IntegratorParams:
+        """Integrator settings of :meth:`propagate`; setting them takes effect from the next call."""
+        return self._integrator
+
+    @integrator.setter
+    def integrator(self, value: IntegratorParams) -> None:
+        self._integrator = value
+        self._ig = integrator_vector(value)
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
@@ -96,15 +107,7 @@ class DynamicsModel:
             ModelInputError: if the integration fails (step below the minimum
                 or a non-finite state).
         """
-        ig = self.integrator
-        if ig.method == "dopri5":
-            code, self._h = integrate_dopri5_ws(
-                t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p, self._h,
-                ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
-                self._work, self._fbuf,
-            )
-        else:
-            code = integrate_rk4_ws(t0_s, t1_s, y, 0.0, 0.0, u_m_per_s2[0], u_m_per_s2[1], contact, self.p,
-                                    ig.fixed_step_s, self.stats, self._work, self._fbuf)
+        code, self._h = integrate(t0_s, t1_s, y, self._zero, np.asarray(u_m_per_s2, dtype=np.float64), contact, self.p,
+                                  self._h, self._ig, self.stats, self._work, self._fbuf, self._sc)
         if code != OK:
             raise ModelInputError(failure_message("observer model", t0_s, t1_s, code, y.tolist()))

@@ -14,13 +14,12 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.vessels.plant_field3d import packed3d, planar_twin
 
 __all__ = ["DynamicsModel3D"]
@@ -53,7 +52,7 @@ class DynamicsModel3D:
         self._h = self.integrator.max_step_s
         self._ig = integrator_vector(self.integrator)
         self.stats = np.zeros(4, dtype=np.int64)
-        self._work, self._fbuf, self._sc = new_workspace3d()
+        self._work, self._fbuf, self._sc = new_workspace(3)
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
@@ -81,7 +80,7 @@ class DynamicsModel3D:
             ModelInputError: the integration failed (step below the minimum or a non-finite state).
         """
         k = self.packed
-        code, self._h = integrate3d(t0_s, t1_s, y, self._zero3, np.asarray(u_m_per_s2, dtype=np.float64), contact, self.p,
-                                    k.W, k.F, k.fh, self._h, self._ig, self.stats, self._work, self._fbuf, self._sc)
+        code, self._h = integrate(t0_s, t1_s, y, self._zero3, np.asarray(u_m_per_s2, dtype=np.float64), contact,
+                                  (self.p, k.W, k.F, k.fh), self._h, self._ig, self.stats, self._work, self._fbuf, self._sc)
         if code != OK:
             raise ModelInputError(failure_message("observer model", t0_s, t1_s, code, y.tolist()))

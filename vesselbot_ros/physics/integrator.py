@@ -1,4 +1,8 @@
-"""Compiled integrators of ``Xd = Z, Zd = a(t, X, Z; G) + u`` over one control period.
+"""The compiled integrator of ``Xd = Z, Zd = a(t, X, Z; G) + u`` over one control period, on any number of axes.
+
+One integrator for every vessel: the plane's (a straight vessel or a planar network, state ``(x, z, vx, vz)``) and a
+3-D tree's (state ``(x, y, z, vx, vy, vz)``); the vessel's right-hand side is chosen by the type of the ``geom``
+argument at compile time (:func:`rhs_into`, the geometry's edge).
 
 The right-hand side is the physics kernel's total acceleration
 (:func:`vesselbot_ros.physics.kernel.accel`) under a gradient ``G`` held over
@@ -36,18 +40,23 @@ from typing import Literal
 
 import numba
 import numpy as np
+import numpy.typing as npt
+from numba import types
+from numba.extending import overload
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, forces_tc, time_terms_into, update_contact, wall_delta_at, wall_delta_xz
+from vesselbot_ros.physics.plant3d import contact3d_update, rhs3d_into
 
 __all__ = [
     "IntegratorParams",
     "Workspace",
     "new_workspace",
-    "integrate_dopri5",
-    "integrate_dopri5_ws",
-    "integrate_rk4",
-    "integrate_rk4_ws",
+    "integrator_vector",
+    "integrate",
+    "rhs_into",
+    "G_ROW",
+    "U_ROW",
     "OK",
     "STEP_TOO_SMALL",
     "NON_FINITE",
@@ -112,19 +121,29 @@ class IntegratorParams:
 # nothing, and without numba's runtime they take no atomic reference counts on the arrays they view and pass
 # (those counts were ~18 % of a compiled run's samples under ``perf``, and contended between threads).
 
-#: Scratch arrays of one integrator: ``(work (10, 4), fbuf (8, 2))`` float64.  ``work`` rows 0-8 are the
-#: stages, row 9 the memo of the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`).
-Workspace = tuple[np.ndarray, np.ndarray]
+#: Scratch arrays of one integrator on ``d`` axes: ``(work (12, 2 d), fbuf (8, d), sc (4, d))`` float64.  ``work``
+#: rows 0-8 are the stages, row 9 the memo of the planar force model's time-only terms
+#: (:func:`~vesselbot_ros.physics.kernel.time_terms_into`), rows 10 and 11 room for a caller's gradient and extra
+#: acceleration (``g``, ``u``); ``sc`` is the 3-D force kernel's scratch.
+Workspace = tuple[np.ndarray, np.ndarray, np.ndarray]
 #: Row of ``work`` holding the time-only terms ``[t, D(t), pulse factor, wall factor]``.
 TIME_TERMS_ROW = 9
+#: Rows of ``work`` a caller may use for the gradient and the extra acceleration it passes.
+G_ROW, U_ROW = 10, 11
+
+
+def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
+    """(7,) ``[rk4 (0/1), rtol, atol_pos, atol_vel, min_step, max_step, fixed_step]``: :func:`integrate`'s ``ig``."""
+    return np.array([1.0 if ig.method == "rk4" else 0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s,
+                     ig.min_step_s, ig.max_step_s, ig.fixed_step_s])
 
 
 @numba.njit(cache=True)
-def new_workspace():  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``(work, fbuf)``: the scratch arrays :func:`integrate_dopri5_ws` and :func:`integrate_rk4_ws` write into."""
-    work = np.empty((10, 4))
+def new_workspace(dims=2):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(work, fbuf, sc)``: the scratch arrays :func:`integrate` and the force kernels write into (:data:`Workspace`)."""
+    work = np.zeros((12, 2 * dims))
     work[TIME_TERMS_ROW, 0] = np.nan
-    return work, np.empty((8, 2))
+    return work, np.empty((8, dims)), np.zeros((4, dims))
 
 
 # Dormand-Prince 5(4) tableau
@@ -143,44 +162,77 @@ _E6 = 22.0 / 525.0
 _E7 = -1.0 / 40.0
 
 
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _rhs(t, y, gx, gz, ux, uz, contact, p, out, fbuf, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+# ---- the geometry's edge: the vessel a bead flies in -------------------------------------------------------------
+# ``geom`` is the plane's packed parameters ``p`` (a straight vessel or a planar network: the planar force kernel,
+# state (x, z, vx, vz)) or a 3-D tree's ``(p, W, F, fh)`` (the 3-D force kernel, state (x, y, z, vx, vy, vz)).  These
+# two functions are the only places the integrator tells them apart, by the argument's type at compile time.
+def rhs_into(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out = (Z, a(t, X, Z; g) + u)`` of the bead in ``geom`` (compiled code only)."""
+    raise NotImplementedError("rhs_into runs in compiled code only")
+
+
+def contact_after_step(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Advance the contact state after an accepted step, with the nearest wall's ``delta`` (compiled code only)."""
+    raise NotImplementedError("contact_after_step runs in compiled code only")
+
+
+def _planar_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     # the kernel's accel() without its (8, 2) scratch, time-only terms memoised in tc: same operations, same doubles
-    forces_tc(t, y[0], y[1], y[2], y[3], gx, gz, contact, p, fbuf, tc)
+    forces_tc(t, y[0], y[1], y[2], y[3], g[0], g[1], contact, geom, fbuf, tc)
     out[0] = y[2]
     out[1] = y[3]
-    out[2] = fbuf[7, 0] / p[I_MASS] + ux
-    out[3] = fbuf[7, 1] / p[I_MASS] + uz
+    out[2] = fbuf[7, 0] / geom[I_MASS] + u[0]
+    out[3] = fbuf[7, 1] / geom[I_MASS] + u[1]
 
 
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _update_contact_at(t, y, contact, p, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    if p[I_NET_ON] > 0.5:  # a network's wall comes from the grid at (x, z), not from D(t)
-        delta, _wall = wall_delta_xz(t, y[0], y[1], p)
+def _tree_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    rhs3d_into(t, y, g, u, contact, geom[0], geom[1], geom[2], geom[3], out, fbuf, sc)
+
+
+def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if geom[I_NET_ON] > 0.5:  # a network's wall comes from the grid at (x, z), not from D(t)
+        delta, _wall = wall_delta_xz(t, y[0], y[1], geom)
     else:
-        time_terms_into(t, p, tc)
-        delta, _wall = wall_delta_at(y[1], tc[1], p)
-    update_contact(contact, delta, p)
+        time_terms_into(t, geom, tc)
+        delta, _wall = wall_delta_at(y[1], tc[1], geom)
+    update_contact(contact, delta, geom)
+
+
+def _tree_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    contact3d_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
+
+
+@overload(rhs_into, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above
+def _rhs_into(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_rhs if isinstance(geom, types.Array) else _tree_rhs
+
+
+@overload(contact_after_step, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above
+def _contact_after_step(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_contact if isinstance(geom, types.Array) else _tree_contact
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats, work, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Integrate ``y = (x, z, vx, vz)`` in place from ``t0`` to ``t1`` (s).
+def integrate(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Integrate ``y = (X, Z)`` (2 d,) in place from ``t0`` to ``t1`` (s) in the vessel ``geom``, on any number of axes.
 
-    Args: t0, t1 (s); y (4,) float64, overwritten; gx, gz gradient (T/m);
-    ux, uz extra acceleration (m/s^2); contact (4,) contact state, updated;
-    p packed physics params; h proposed first step (s); rtol (-); atol_pos (m);
-    atol_vel (m/s); h_min, h_max (s); stats (4,) int64 += [accepted, rejected,
+    Args: t0, t1 (s); y (2 d,) float64, overwritten; g (d,) gradient (T/m);
+    u (d,) extra acceleration (m/s^2); contact (4,) contact state, updated;
+    geom the vessel (the geometry's edge above); h proposed first step (s, dopri5);
+    ig (7,) :func:`integrator_vector`; stats (4,) int64 += [accepted, rejected,
     rhs evaluations, steps forced at h_min].  A step that fails the tolerance
     at ``h_min`` is accepted and counted as forced (the tolerance cannot be met
     across a jump of the right-hand side).
 
-    ``work`` (10, 4) and ``fbuf`` (8, 2) float64 are scratch arrays the caller
-    allocates once (:func:`new_workspace`): nothing is allocated here.
+    ``work``, ``fbuf`` and ``sc`` are scratch arrays the caller allocates once
+    (:func:`new_workspace`): nothing is allocated here.  ``g`` and ``u`` may be
+    rows :data:`G_ROW` and :data:`U_ROW` of ``work``.
 
     Returns:
         (code, h_next): return code and the step size to propose next period.
     """
+    n = work.shape[1]  # the state's length, 2 d: the stages' (y may be longer: its first n entries are integrated)
+    half = n // 2
     k1 = work[0]
     k2 = work[1]
     k3 = work[2]
@@ -191,10 +243,39 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
     yt = work[7]
     yn = work[8]
     tc = work[TIME_TERMS_ROW]
-    tc[0] = np.nan  # p may differ from the last call's
+    tc[0] = np.nan  # the vessel may differ from the last call's
+    if ig[0] > 0.5:  # fixed-step RK4: ceil((t1 - t0) / fixed_step) equal steps
+        m = int(math.ceil((t1 - t0) / ig[6] - 1e-9))
+        if m < 1:
+            m = 1
+        hh = (t1 - t0) / m
+        for j in range(m):
+            t = t0 + j * hh
+            rhs_into(t, y, g, u, contact, geom, k1, fbuf, sc, tc)
+            for i in range(n):
+                yt[i] = y[i] + 0.5 * hh * k1[i]
+            rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k2, fbuf, sc, tc)
+            for i in range(n):
+                yt[i] = y[i] + 0.5 * hh * k2[i]
+            rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k3, fbuf, sc, tc)
+            for i in range(n):
+                yt[i] = y[i] + hh * k3[i]
+            rhs_into(t + hh, yt, g, u, contact, geom, k4, fbuf, sc, tc)
+            for i in range(n):
+                y[i] = y[i] + hh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            contact_after_step(t + hh, y, contact, geom, tc)
+            stats[0] += 1
+            stats[2] += 4
+        for i in range(n):
+            if not math.isfinite(y[i]):
+                return NON_FINITE, h
+        return OK, h
+    rtol = ig[1]
+    h_min = ig[4]
+    h_max = ig[5]
     t = t0
     h = min(max(h, h_min), h_max)
-    _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
+    rhs_into(t, y, g, u, contact, geom, k1, fbuf, sc, tc)
     stats[2] += 1
     n_steps = 0
     while t < t1 - 1e-15 * max(1.0, abs(t1)):
@@ -206,31 +287,30 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
         n_steps += 1
         if not t + hs > t or n_steps > MAX_STEPS_PER_CALL:
             return STEP_TOO_SMALL, h
-        for i in range(4):
+        for i in range(n):
             yt[i] = y[i] + hs * _A21 * k1[i]
-        _rhs(t + _C2 * hs, yt, gx, gz, ux, uz, contact, p, k2, fbuf, tc)
-        for i in range(4):
+        rhs_into(t + _C2 * hs, yt, g, u, contact, geom, k2, fbuf, sc, tc)
+        for i in range(n):
             yt[i] = y[i] + hs * (_A31 * k1[i] + _A32 * k2[i])
-        _rhs(t + _C3 * hs, yt, gx, gz, ux, uz, contact, p, k3, fbuf, tc)
-        for i in range(4):
+        rhs_into(t + _C3 * hs, yt, g, u, contact, geom, k3, fbuf, sc, tc)
+        for i in range(n):
             yt[i] = y[i] + hs * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
-        _rhs(t + _C4 * hs, yt, gx, gz, ux, uz, contact, p, k4, fbuf, tc)
-        for i in range(4):
+        rhs_into(t + _C4 * hs, yt, g, u, contact, geom, k4, fbuf, sc, tc)
+        for i in range(n):
             yt[i] = y[i] + hs * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
-        _rhs(t + _C5 * hs, yt, gx, gz, ux, uz, contact, p, k5, fbuf, tc)
-        for i in range(4):
+        rhs_into(t + _C5 * hs, yt, g, u, contact, geom, k5, fbuf, sc, tc)
+        for i in range(n):
             yt[i] = y[i] + hs * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
-        _rhs(t + hs, yt, gx, gz, ux, uz, contact, p, k6, fbuf, tc)
-        for i in range(4):
+        rhs_into(t + hs, yt, g, u, contact, geom, k6, fbuf, sc, tc)
+        for i in range(n):
             yn[i] = y[i] + hs * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
-        _rhs(t + hs, yn, gx, gz, ux, uz, contact, p, k7, fbuf, tc)
+        rhs_into(t + hs, yn, g, u, contact, geom, k7, fbuf, sc, tc)
         stats[2] += 6
         err = 0.0
-        for i in range(4):
+        for i in range(n):
             e = hs * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i] + _E6 * k6[i] + _E7 * k7[i])
-            atol = atol_pos if i < 2 else atol_vel
-            sc = atol + rtol * max(abs(y[i]), abs(yn[i]))
-            r = abs(e) / sc
+            atol = ig[2] if i < half else ig[3]
+            r = abs(e) / (atol + rtol * max(abs(y[i]), abs(yn[i])))
             if not (r <= err):  # also catches NaN
                 err = r
         if not math.isfinite(err):
@@ -241,21 +321,22 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
             # delta = 0) cannot meet the tolerance at any step: accept at h_min
             stats[3] += 1
         if err <= 1.0 or forced:
-            if not (math.isfinite(yn[0]) and math.isfinite(yn[1]) and math.isfinite(yn[2]) and math.isfinite(yn[3])):
-                for i in range(4):
-                    y[i] = yn[i]
+            finite = True
+            for i in range(n):
+                finite = finite and math.isfinite(yn[i])
+            for i in range(n):
+                y[i] = yn[i]
+            if not finite:
                 return NON_FINITE, h
             t = t1 if last else t + hs
-            for i in range(4):
-                y[i] = yn[i]
             c0, c1, c2, c3 = contact[0], contact[1], contact[2], contact[3]
-            _update_contact_at(t, y, contact, p, tc)
+            contact_after_step(t, y, contact, geom, tc)
             stats[0] += 1
             if c0 == contact[0] and c1 == contact[1] and c2 == contact[2] and c3 == contact[3]:
-                for i in range(4):  # FSAL: last stage is the next first stage
+                for i in range(n):  # FSAL: last stage is the next first stage
                     k1[i] = k7[i]
             else:  # the contact state changed the rhs: re-evaluate
-                _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
+                rhs_into(t, y, g, u, contact, geom, k1, fbuf, sc, tc)
                 stats[2] += 1
             fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** -0.2))
             if not last or hs >= h:
@@ -263,62 +344,7 @@ def integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos
         else:
             stats[1] += 1
             h = max(h_min, hs * max(0.2, 0.9 * err ** -0.2))
-    for i in range(4):
+    for i in range(n):
         if not math.isfinite(y[i]):
             return NON_FINITE, h
     return OK, h
-
-
-@numba.njit(cache=True)
-def integrate_dopri5(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max, stats):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`integrate_dopri5_ws` with a workspace allocated for this call (convenience)."""
-    work, fbuf = new_workspace()
-    return integrate_dopri5_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h, rtol, atol_pos, atol_vel, h_min, h_max,
-                               stats, work, fbuf)
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fixed-step RK4 from ``t0`` to ``t1`` with ``ceil((t1-t0)/h_fixed)`` equal steps.
-
-    Same arguments as :func:`integrate_dopri5_ws`; returns the code.
-    """
-    n = int(math.ceil((t1 - t0) / h_fixed - 1e-9))
-    if n < 1:
-        n = 1
-    h = (t1 - t0) / n
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    yt = work[7]
-    tc = work[TIME_TERMS_ROW]
-    tc[0] = np.nan  # p may differ from the last call's
-    for j in range(n):
-        t = t0 + j * h
-        _rhs(t, y, gx, gz, ux, uz, contact, p, k1, fbuf, tc)
-        for i in range(4):
-            yt[i] = y[i] + 0.5 * h * k1[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k2, fbuf, tc)
-        for i in range(4):
-            yt[i] = y[i] + 0.5 * h * k2[i]
-        _rhs(t + 0.5 * h, yt, gx, gz, ux, uz, contact, p, k3, fbuf, tc)
-        for i in range(4):
-            yt[i] = y[i] + h * k3[i]
-        _rhs(t + h, yt, gx, gz, ux, uz, contact, p, k4, fbuf, tc)
-        for i in range(4):
-            y[i] = y[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-        _update_contact_at(t + h, y, contact, p, tc)
-        stats[0] += 1
-        stats[2] += 4
-    for i in range(4):
-        if not math.isfinite(y[i]):
-            return NON_FINITE
-    return OK
-
-
-@numba.njit(cache=True)
-def integrate_rk4(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`integrate_rk4_ws` with a workspace allocated for this call (convenience)."""
-    work, fbuf = new_workspace()
-    return integrate_rk4_ws(t0, t1, y, gx, gz, ux, uz, contact, p, h_fixed, stats, work, fbuf)

@@ -1,9 +1,9 @@
-"""The 3-D plant's compiled right-hand side and integrators: a bead in a vessel tree in space.
+"""The 3-D plant's compiled right-hand side: a bead in a vessel tree in space.
 
 State ``y = (x, y, z, vx, vy, vz)`` (m, m/s), input the gradient ``G`` (3,) (T/m) held over a control period
 plus an optional constant acceleration ``u`` (3,) (m/s^2): the plant passes ``G`` and ``u = 0``, the
-observer's model ``G = 0`` and ``u = B G`` (as the planar integrators of
-:mod:`vesselbot_ros.physics.integrator`, whose docstring says why adaptive and what the codes mean).
+observer's model ``G = 0`` and ``u = B G``; the one integrator of :mod:`vesselbot_ros.physics.integrator` steps it
+(that module's docstring says why adaptive and what the codes mean).
 
 Geometry and flow at a point (:func:`geometry3d`), from the tree's samples
 (:mod:`vesselbot_ros.vessels.plant_field3d`):
@@ -31,56 +31,14 @@ import numba
 import numpy as np
 
 from vesselbot_ros.physics.blood_flow import pulse_factor
-from vesselbot_ros.physics.integrator import (  # the planar integrator's Dormand-Prince 5(4) tableau and codes
-    _A21,
-    _A31,
-    _A32,
-    _A41,
-    _A42,
-    _A43,
-    _A51,
-    _A52,
-    _A53,
-    _A54,
-    _A61,
-    _A62,
-    _A63,
-    _A64,
-    _A65,
-    _B1,
-    _B3,
-    _B4,
-    _B5,
-    _B6,
-    _C2,
-    _C3,
-    _C4,
-    _C5,
-    _E1,
-    _E3,
-    _E4,
-    _E5,
-    _E6,
-    _E7,
-    MAX_STEPS_PER_CALL,
-    NON_FINITE,
-    OK,
-    STEP_TOO_SMALL,
-)
 from vesselbot_ros.physics.kernel import I_A_F, I_D_PULSE, I_MASS, I_OMEGA_F, I_PHI_F, I_R, I_V_F, update_contact
 from vesselbot_ros.physics.kernel3d import forces3d_into
 from vesselbot_ros.physics.wall_field3d import corner_weight, wall_field3d
 
-__all__ = ["geometry3d", "forces3d_at", "integrate3d", "new_workspace3d", "FLOW_CHANNELS"]
+__all__ = ["geometry3d", "forces3d_at", "rhs3d_into", "contact3d_update", "FLOW_CHANNELS"]
 
 #: Channels per node of the flow grid ``F``: velocity (3) per unit inlet centreline velocity, viscosity (Pa s).
 FLOW_CHANNELS = 4
-
-
-@numba.njit(cache=True)
-def new_workspace3d():  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``(work (9, 6), fbuf (8, 3), sc (4, 3))``: scratch of :func:`integrate3d` and :func:`forces3d_at`."""
-    return np.empty((9, 6)), np.empty((8, 3)), np.zeros((4, 3))
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -166,7 +124,7 @@ def forces3d_at(t, y, g, contact, p, W, F, fh, fbuf, sc):  # type: ignore[no-unt
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _rhs3d(t, y, g, u, contact, p, W, F, fh, out, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def rhs3d_into(t, y, g, u, contact, p, W, F, fh, out, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     forces3d_at(t, y, g, contact, p, W, F, fh, fbuf, sc)
     m = p[I_MASS]
     out[0] = y[3]
@@ -178,130 +136,6 @@ def _rhs3d(t, y, g, u, contact, p, W, F, fh, out, fbuf, sc):  # type: ignore[no-
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _contact3d(t, y, contact, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def contact3d_update(t, y, contact, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     s_t = geometry3d(t, y[0], y[1], y[2], p, W, F, fh)[0]
     update_contact(contact, p[I_R] - s_t, p)
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def integrate3d(t0, t1, y, g, u, contact, p, W, F, fh, h, ig, stats, work, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Integrate ``y`` (6,) in place from ``t0`` to ``t1`` (s) under ``g`` (3,) T/m and ``u`` (3,) m/s^2.
-
-    ``ig`` (7,) ``[rk4 (0/1), rtol, atol_pos, atol_vel, min_step, max_step, fixed_step]``
-    (:func:`~vesselbot_ros.control.high_gain_observer.integrator_vector`); ``h`` the proposed first step
-    (dopri5); ``stats`` (4,) int64 += [accepted, rejected, rhs evaluations, forced steps]; ``work``, ``fbuf``,
-    ``sc`` from :func:`new_workspace3d`.  The planar integrators' rules: error control, forced steps at the
-    minimum step, FSAL unless the contact state changed, the codes.
-
-    Returns:
-        (code, h_next).
-    """
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    k5 = work[4]
-    k6 = work[5]
-    k7 = work[6]
-    yt = work[7]
-    yn = work[8]
-    if ig[0] > 0.5:  # fixed-step RK4
-        n = max(1, int(math.ceil((t1 - t0) / ig[6] - 1e-9)))
-        hh = (t1 - t0) / n
-        for j in range(n):
-            t = t0 + j * hh
-            _rhs3d(t, y, g, u, contact, p, W, F, fh, k1, fbuf, sc)
-            for i in range(6):
-                yt[i] = y[i] + 0.5 * hh * k1[i]
-            _rhs3d(t + 0.5 * hh, yt, g, u, contact, p, W, F, fh, k2, fbuf, sc)
-            for i in range(6):
-                yt[i] = y[i] + 0.5 * hh * k2[i]
-            _rhs3d(t + 0.5 * hh, yt, g, u, contact, p, W, F, fh, k3, fbuf, sc)
-            for i in range(6):
-                yt[i] = y[i] + hh * k3[i]
-            _rhs3d(t + hh, yt, g, u, contact, p, W, F, fh, k4, fbuf, sc)
-            for i in range(6):
-                y[i] = y[i] + hh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-            _contact3d(t + hh, y, contact, p, W, F, fh)
-            stats[0] += 1
-            stats[2] += 4
-        for i in range(6):
-            if not math.isfinite(y[i]):
-                return NON_FINITE, h
-        return OK, h
-    rtol = ig[1]
-    h_min = ig[4]
-    h_max = ig[5]
-    t = t0
-    h = min(max(h, h_min), h_max)
-    _rhs3d(t, y, g, u, contact, p, W, F, fh, k1, fbuf, sc)
-    stats[2] += 1
-    n_steps = 0
-    while t < t1 - 1e-15 * max(1.0, abs(t1)):
-        last = False
-        hs = h
-        if t + hs >= t1:
-            hs = t1 - t
-            last = True
-        n_steps += 1
-        if not t + hs > t or n_steps > MAX_STEPS_PER_CALL:
-            return STEP_TOO_SMALL, h
-        for i in range(6):
-            yt[i] = y[i] + hs * _A21 * k1[i]
-        _rhs3d(t + _C2 * hs, yt, g, u, contact, p, W, F, fh, k2, fbuf, sc)
-        for i in range(6):
-            yt[i] = y[i] + hs * (_A31 * k1[i] + _A32 * k2[i])
-        _rhs3d(t + _C3 * hs, yt, g, u, contact, p, W, F, fh, k3, fbuf, sc)
-        for i in range(6):
-            yt[i] = y[i] + hs * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
-        _rhs3d(t + _C4 * hs, yt, g, u, contact, p, W, F, fh, k4, fbuf, sc)
-        for i in range(6):
-            yt[i] = y[i] + hs * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
-        _rhs3d(t + _C5 * hs, yt, g, u, contact, p, W, F, fh, k5, fbuf, sc)
-        for i in range(6):
-            yt[i] = y[i] + hs * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i] + _A65 * k5[i])
-        _rhs3d(t + hs, yt, g, u, contact, p, W, F, fh, k6, fbuf, sc)
-        for i in range(6):
-            yn[i] = y[i] + hs * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i] + _B6 * k6[i])
-        _rhs3d(t + hs, yn, g, u, contact, p, W, F, fh, k7, fbuf, sc)
-        stats[2] += 6
-        err = 0.0
-        for i in range(6):
-            e = hs * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i] + _E6 * k6[i] + _E7 * k7[i])
-            atol = ig[2] if i < 3 else ig[3]
-            r = abs(e) / (atol + rtol * max(abs(y[i]), abs(yn[i])))
-            if not (r <= err):  # also catches NaN
-                err = r
-        if not math.isfinite(err):
-            err = 1e10
-        forced = err > 1.0 and hs <= h_min * (1.0 + 1e-12)
-        if forced:
-            stats[3] += 1
-        if err <= 1.0 or forced:
-            ok = True
-            for i in range(6):
-                ok = ok and math.isfinite(yn[i])
-            for i in range(6):
-                y[i] = yn[i]
-            if not ok:
-                return NON_FINITE, h
-            t = t1 if last else t + hs
-            c0, c1, c2, c3 = contact[0], contact[1], contact[2], contact[3]
-            _contact3d(t, y, contact, p, W, F, fh)
-            stats[0] += 1
-            if c0 == contact[0] and c1 == contact[1] and c2 == contact[2] and c3 == contact[3]:
-                for i in range(6):  # FSAL
-                    k1[i] = k7[i]
-            else:
-                _rhs3d(t, y, g, u, contact, p, W, F, fh, k1, fbuf, sc)
-                stats[2] += 1
-            fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** -0.2))
-            if not last or hs >= h:
-                h = min(h_max, hs * fac)
-        else:
-            stats[1] += 1
-            h = max(h_min, hs * max(0.2, 0.9 * err ** -0.2))
-    for i in range(6):
-        if not math.isfinite(y[i]):
-            return NON_FINITE, h
-    return OK, h

@@ -7,7 +7,7 @@ stages in the runner's order::
     -> imager_frame | seq_imager_frame (scanner)
     -> observer_update (25) | ekf_update (extended Kalman)
     -> the controller's compiled step, of any kind (control/compiled_stage.py: law (24), its adaptive form, ...)
-    -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate_dopri5_ws | integrate_rk4_ws)
+    -> coil_apply | seq_coil_apply (scanner) -> plant step (the one integrator, physics.integrator.integrate)
 
 over explicit state arrays that :func:`prepare` builds from the same
 :class:`~vesselbot_ros.sim.closed_loop.Stages` as the per-tick loop, and it
@@ -54,7 +54,7 @@ from vesselbot_ros.control.high_gain_observer import (
 )
 from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, failure_message, integrate, new_workspace
 from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim import kinds
@@ -225,8 +225,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     ``ctrl_state`` and scratch ``ctrl_work``.
     All scratch is allocated once, before the first tick.
     """
-    work, fbuf = new_workspace()
-    obs_work, obs_fbuf = new_workspace()
+    work, fbuf, sc = new_workspace(2)
+    obs_work, obs_fbuf, obs_sc = new_workspace(2)
     ctrl_fbuf = np.empty((8, 2))
     queue = np.empty((n + 1, 5))
     img_state = np.zeros(4)
@@ -242,6 +242,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     ctrl_out = np.zeros(CONTROLLER_OUT_SIZE)
     coil_out = np.zeros(COIL_OUT_SIZE)
     gc = np.zeros(2)  # the tick's command (NaN: rejected)
+    ga = np.zeros(2)  # the gradient applied over the period
+    z2 = np.zeros(2)
     gx_prev = 0.0
     gz_prev = 0.0
     h = ig[5]
@@ -282,7 +284,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
                 return EKF_FAILED, k
         else:
             code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_p, model_stats,
-                                   obs_work, obs_fbuf, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
+                                   obs_work, obs_fbuf, obs_sc, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
                                    img_out[3], obs_out)
             if code != OK:
                 err[0] = obs_scal[0]
@@ -354,12 +356,9 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
         t0 = 0.0 + k * dt
         t1 = 0.0 + (k + 1) * dt
-        if ig[0] < 0.5:
-            code, h = integrate_dopri5_ws(t0, t1, y, gx_prev, gz_prev, 0.0, 0.0, contact, plant_p, h, ig[1], ig[2],
-                                          ig[3], ig[4], ig[5], plant_stats, work, fbuf)
-        else:
-            code = integrate_rk4_ws(t0, t1, y, gx_prev, gz_prev, 0.0, 0.0, contact, plant_p, ig[6], plant_stats,
-                                    work, fbuf)
+        ga[0] = gx_prev
+        ga[1] = gz_prev
+        code, h = integrate(t0, t1, y, ga, z2, contact, plant_p, h, ig, plant_stats, work, fbuf, sc)
         if code != OK:
             err[0] = t0
             err[1] = t1
@@ -369,8 +368,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
 
 
 _NO_EKF: tuple[npt.NDArray[Any], ...] = (
-    np.zeros(20), np.zeros(4), np.zeros(6, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(1), np.zeros((1, 5)),
-    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros(1), np.zeros((10, 4)), np.zeros((8, 2)),
+    np.zeros(27), np.zeros(4), np.zeros(6, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(1), np.zeros((1, 5)),
+    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros(1), np.zeros((12, 4)), np.zeros((8, 2)),
     np.zeros((8, 5)), np.zeros((6, 5, 5)),
 )
 

@@ -4,7 +4,7 @@
 per-tick runner's order (:mod:`vesselbot_ros.sim.closed_loop`)::
 
     plant output (forces3d_at) -> imager_frame | seq_imager_frame (scanner; the imager's, on three axes) -> hgo3d_update (25)
-    -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner; the coil's, on three axes) -> plant step (integrate3d)
+    -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner; the coil's, on three axes) -> plant step (the one integrator)
 
 The stages' Python classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`,
 :class:`~vesselbot_ros.control.imager_model.ImagerModel` on three axes, :class:`~vesselbot_ros.control.loop3d_stages.HighGainObserver3D`,
@@ -32,9 +32,9 @@ from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, integrator_vec
 from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D, hgo3d_update, law3d_command
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK
+from vesselbot_ros.physics.integrator import OK, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_R
-from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop codes and errors
     COLUMNS,
@@ -150,8 +150,8 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
                   saturated, slew_limited, cmd_status, cmd_rejected, err):
     """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (0 = every tick ran); state arrays updated in place,
     ``err`` (3,) the failure's ``[t0, t1, integrator code]`` (or the flow scale).  Scratch is allocated once."""
-    work, fbuf, sc = new_workspace3d()
-    obs_work, obs_fbuf, obs_sc = new_workspace3d()
+    work, fbuf, sc = new_workspace(3)
+    obs_work, obs_fbuf, obs_sc = new_workspace(3)
     ctrl_fbuf = np.empty((8, 3))
     ctrl_sc = np.zeros((4, 3))
     ys = np.zeros(6)
@@ -268,7 +268,7 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
         # plant step over [t_k, t_k+1]
         t0 = 0.0 + k * dt
         t1 = 0.0 + (k + 1) * dt
-        code, h = integrate3d(t0, t1, y, g, z3, contact, plant_p, W, F, fh, h, ig, plant_stats, work, fbuf, sc)
+        code, h = integrate(t0, t1, y, g, z3, contact, (plant_p, W, F, fh), h, ig, plant_stats, work, fbuf, sc)
         if code != OK:
             err[0] = t0
             err[1] = t1

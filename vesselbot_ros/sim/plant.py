@@ -11,17 +11,16 @@ period).  Tick times are ``t_k = t0 + k / rate`` (no accumulated drift).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate_dopri5_ws, integrate_rk4_ws, new_workspace
+from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
 from vesselbot_ros.physics.kernel import I_R, TERM_NAMES, forces_into, wall_delta_xz
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.physics.plant3d import forces3d_at, integrate3d, new_workspace3d
+from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.plant_field3d import packed3d
 
@@ -80,7 +79,7 @@ class PlantSimulator:
         if y.shape != (4,) or not np.all(np.isfinite(y)):
             raise ModelInputError(f"initial state must be finite (2,) + (2,), got {p0_m!r}, {v0_m_per_s!r}")
         self.physics = physics
-        self.integrator = integrator
+        self.integrator = integrator  # and its packed vector (the setter)
         self.p = packed_params(physics)
         self._dt = float(dt_control_s)
         self._t0 = float(t0_s)
@@ -88,10 +87,27 @@ class PlantSimulator:
         self._y = y
         self._contact = np.zeros(4)
         self._g = np.zeros(2)
+        self._zero = np.zeros(2)
         self._h = integrator.max_step_s
         self._forces = np.empty((8, 2))
-        self._work, self._fbuf = new_workspace()  # integrator scratch, allocated once
+        self._work, self._fbuf, self._sc = new_workspace(2)  # integrator scratch, allocated once
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
+
+    @property
+    def integrator(self) -> IntegratorParams:
+        """Integrator settings; setting them takes effect from the next step."""
+        return self._integrator
+
+    @integrator.setter
+    def integrator(self, value: IntegratorParams) -> None:
+        self._integrator = value
+        self._ig = integrator_vector(value)
+
+    @property
+    def geom(self) -> Any:
+        """The vessel the integrator flies the bead in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge):
+        the packed parameters ``p`` of a straight vessel or a planar network."""
+        return self.p
 
     @property
     def t_s(self) -> float:
@@ -121,28 +137,21 @@ class PlantSimulator:
                            int(self._contact[0]), forces)
 
     def step(self, applied_gradient_T_per_m: npt.ArrayLike) -> None:
-        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (2,)).
+        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (2,) in the plane, (3,) in a tree).
 
         Raises:
             ModelInputError: on a non-finite or wrongly shaped gradient, or if
                 the integration fails (step too small, non-finite state).
         """
-        g = np.asarray(applied_gradient_T_per_m, dtype=np.float64)
-        if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
-            raise ModelInputError(f"plant: applied gradient must be a finite (2,) array, got {applied_gradient_T_per_m!r}")
+        d = self._g.shape[0]
+        g = np.array(applied_gradient_T_per_m, dtype=np.float64)
+        if g.shape != (d,) or not bool(np.isfinite(g).all()):
+            raise ModelInputError(f"plant: applied gradient must be a finite ({d},) array, got {applied_gradient_T_per_m!r}")
         self._g = g
         t0 = self.t_s
         t1 = self._t0 + (self._k + 1) * self._dt
-        ig = self.integrator
-        if ig.method == "dopri5":
-            code, self._h = integrate_dopri5_ws(
-                t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, self._h,
-                ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, self.stats,
-                self._work, self._fbuf,
-            )
-        else:
-            code = integrate_rk4_ws(t0, t1, self._y, g[0], g[1], 0.0, 0.0, self._contact, self.p, ig.fixed_step_s,
-                                    self.stats, self._work, self._fbuf)
+        code, self._h = integrate(t0, t1, self._y, g, self._zero, self._contact, self.geom, self._h, self._ig, self.stats,
+                                  self._work, self._fbuf, self._sc)
         if code != OK:
             raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
         self._k += 1
@@ -183,23 +192,19 @@ class PlantSimulator3D(PlantSimulator):
         self._y = y
         self._contact = np.zeros(4)
         self._g = np.zeros(3)
-        self._zero3 = np.zeros(3)
+        self._zero = np.zeros(3)
         self._h = integrator.max_step_s
         self._forces = np.empty((8, 3))
-        self._work, self._fbuf, self._sc = new_workspace3d()
+        self._work, self._fbuf, self._sc = new_workspace(3)
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
 
-    # t_s, state ((6,): (x, y, z, vx, vy, vz)) and contact_state are the planar plant's
+    # t_s, state ((6,): (x, y, z, vx, vy, vz)), contact_state, integrator and step are the planar plant's
 
     @property
-    def integrator(self) -> IntegratorParams:
-        """Integrator settings; setting them takes effect from the next step (as the planar plant's)."""
-        return self._integrator
-
-    @integrator.setter
-    def integrator(self, value: IntegratorParams) -> None:
-        self._integrator = value
-        self._ig = integrator_vector(value)
+    def geom(self) -> Any:
+        """The tree the integrator flies the bead in: ``(p, W, F, fh)`` (:mod:`vesselbot_ros.physics.plant3d`)."""
+        k = self.packed
+        return (self.p, k.W, k.F, k.fh)
 
     def output(self, with_forces: bool = False) -> PlantOutput:
         """Ground truth at the current tick (see :class:`PlantOutput`)."""
@@ -211,22 +216,3 @@ class PlantSimulator3D(PlantSimulator):
         wall = 1.0 if self._sc[2, 2] <= 0.0 else -1.0
         return PlantOutput(t, y[:3].copy(), y[3:].copy(), float(delta), wall, bool(delta > 0.0), int(self._contact[0]),
                            self._forces.copy() if with_forces else None)
-
-    def step(self, applied_gradient_T_per_m: npt.ArrayLike) -> None:
-        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (3,)).
-
-        Raises:
-            ModelInputError: on a non-finite or wrongly shaped gradient, or if the integration fails.
-        """
-        g = np.asarray(applied_gradient_T_per_m, dtype=np.float64)
-        if g.shape != (3,) or not (math.isfinite(g[0]) and math.isfinite(g[1]) and math.isfinite(g[2])):
-            raise ModelInputError(f"plant: applied gradient must be a finite (3,) array, got {applied_gradient_T_per_m!r}")
-        self._g = g.copy()
-        t0 = self.t_s
-        t1 = self._t0 + (self._k + 1) * self._dt
-        k = self.packed
-        code, self._h = integrate3d(t0, t1, self._y, self._g, self._zero3, self._contact, self.p, k.W, k.F, k.fh, self._h,
-                                    self._ig, self.stats, self._work, self._fbuf, self._sc)
-        if code != OK:
-            raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
-        self._k += 1

@@ -8,8 +8,9 @@ import pytest
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model3d import DynamicsModel3D
+from vesselbot_ros.physics.integrator import new_workspace
 from vesselbot_ros.physics.kernel import I_MASS
-from vesselbot_ros.physics.plant3d import forces3d_at, new_workspace3d
+from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.sim.plant import PlantSimulator3D
 from vesselbot_ros.sim.scenario import load_scenario
 from vesselbot_ros.vessels.plant_field3d import planar_twin
@@ -26,7 +27,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
     m = DynamicsModel3D(scenario.model_physics(), scenario.sim.integrator)
     x, z = np.array([2e-3, 1e-4, 5e-4]), np.array([1e-3, -2e-4, 0.0])
     f = m.F(0.1, x, z)
-    _w, fbuf, sc = new_workspace3d()
+    _w, fbuf, sc = new_workspace(3)
     k = m.packed
     forces3d_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf, sc)
     assert np.array_equal(f, fbuf[7] / m.p[I_MASS])

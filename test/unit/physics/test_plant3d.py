@@ -17,7 +17,7 @@ from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.physics import meshed_wall3d as mw
 from vesselbot_ros.physics import plant3d as p3
 from vesselbot_ros.physics import wall_field3d as wf
-from vesselbot_ros.physics.integrator import NON_FINITE, OK, IntegratorParams
+from vesselbot_ros.physics.integrator import NON_FINITE, OK, IntegratorParams, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_MASS, I_R, I_V_F, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
 
@@ -92,11 +92,11 @@ def test_dopri5_and_fine_rk4_agree(tube) -> None:  # type: ignore[no-untyped-def
     ys = []
     for ig in (IntegratorParams(), IntegratorParams(method="rk4", fixed_step_s=2e-6)):
         y = np.array([3e-3, 0.2e-3, -0.3e-3, 0.0, 0.0, 0.0])
-        work, fbuf, sc = p3.new_workspace3d()
+        work, fbuf, sc = new_workspace(3)
         stats = np.zeros(4, dtype=np.int64)
         h = ig.max_step_s
         for k in range(20):
-            code, h = p3.integrate3d(k * 1e-3, (k + 1) * 1e-3, y, g, np.zeros(3), np.zeros(4), p, W, F, fh, h,
+            code, h = integrate(k * 1e-3, (k + 1) * 1e-3, y, g, np.zeros(3), np.zeros(4), (p, W, F, fh), h,
                                      integrator_vector(ig), stats, work, fbuf, sc)
             assert code == OK
         ys.append(y)
@@ -112,12 +112,12 @@ def test_a_bead_settles_at_its_terminal_velocity_in_still_blood(tube) -> None:  
     F0[..., 3] = 0.3  # a viscous fluid: relaxation time 2 r^2 rho / (9 eta) ~ 0.1 ms, settled within 5 ms
     p = _params(diameter_pulsation=0.0)
     y = np.array([4e-3, 0.0, 0.9e-3, 0.0, 0.0, 0.0])
-    work, fbuf, sc = p3.new_workspace3d()
+    work, fbuf, sc = new_workspace(3)
     ig = integrator_vector(IntegratorParams())
     stats = np.zeros(4, dtype=np.int64)
     h = 1e-4
     for k in range(5):
-        code, h = p3.integrate3d(k * 1e-3, (k + 1) * 1e-3, y, np.zeros(3), np.zeros(3), np.zeros(4), p, W, F0, fh, h, ig,
+        code, h = integrate(k * 1e-3, (k + 1) * 1e-3, y, np.zeros(3), np.zeros(3), np.zeros(4), (p, W, F0, fh), h, ig,
                                  stats, work, fbuf, sc)
         assert code == OK
     p3.forces3d_at(5e-3, y, np.zeros(3), np.zeros(4), p, W, F0, fh, fbuf, sc)
@@ -129,8 +129,8 @@ def test_a_non_finite_gradient_stops_with_its_code(tube) -> None:  # type: ignor
     W, F, fh = tube
     p = _params()
     y = np.array([4e-3, 0.0, 0.0, 0.0, 0.0, 0.0])
-    work, fbuf, sc = p3.new_workspace3d()
-    code, _h = p3.integrate3d(0.0, 1e-3, y, np.array([np.nan, 0.0, 0.0]), np.zeros(3), np.zeros(4), p, W, F, fh, 1e-4,
+    work, fbuf, sc = new_workspace(3)
+    code, _h = integrate(0.0, 1e-3, y, np.array([np.nan, 0.0, 0.0]), np.zeros(3), np.zeros(4), (p, W, F, fh), 1e-4,
                               integrator_vector(IntegratorParams()), np.zeros(4, dtype=np.int64), work, fbuf, sc)
     assert code == NON_FINITE
 
@@ -141,6 +141,6 @@ def test_contact_state_advances_with_the_distance_to_the_wall(tube) -> None:  # 
     r = p[I_R]
     y = np.array([4e-3, 0.0, R - r + 2e-6, 0.0, 0.0, 0.0])  # 2 um into the upper wall
     contact = np.zeros(4)
-    p3._contact3d(0.0, y, contact, p, W, F, fh)
+    p3.contact3d_update(0.0, y, contact, p, W, F, fh)
     assert contact[0] == 1.0  # loading
     assert p[I_MASS] > 0
