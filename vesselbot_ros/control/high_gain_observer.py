@@ -54,10 +54,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import hypot2, mat2, mat2_apply
+from vesselbot_ros.blas_free import hypot_axes
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
 from vesselbot_ros.control.ekf_params import EkfParams
-from vesselbot_ros.control.estimate import Estimate, measurement_scalars
+from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, failure_message, integrate, integrator_vector
 
@@ -74,6 +74,8 @@ __all__ = [
     "ObserverModel",
     "HISTORY_LEN",
     "observer_params",
+    "observer_out_size",
+    "input_accel",
     "integrator_vector",
     "observer_update",
     "write_estimate",
@@ -145,11 +147,28 @@ class ObserverParams:
         check_nonnegative("innovation_gate_m", self.innovation_gate_m)
 
 
-def axis_gains(params: ObserverParams) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Diagonals of ``G_x`` and ``G_z``: ``(gx, gz)``, each (2,) over axes (x, z)."""
+def axis_gains(params: ObserverParams, dims: int = 2) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Diagonals of ``G_x`` and ``G_z``: ``(gx, gz)``, each (dims,): over (x, z), or (x, y, z) where y, across the
+    scanner's bore as z is, takes z's pair (so a tree in the plane y = 0 sees the planar gains on x and z)."""
     if params.gain_layout == "per_axis":
-        return np.array([params.g1, params.g3]), np.array([params.g2, params.g4])
-    return np.array([params.g1, params.g2]), np.array([params.g3, params.g4])
+        gx, gz = np.array([params.g1, params.g3]), np.array([params.g2, params.g4])
+    else:
+        gx, gz = np.array([params.g1, params.g2]), np.array([params.g3, params.g4])
+    if dims == 3:
+        return np.array([gx[0], gx[1], gx[1]]), np.array([gz[0], gz[1], gz[1]])
+    return gx, gz
+
+
+def input_accel(b: npt.NDArray[np.float64], g: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``U = B G`` by fixed-order scalar sums, row by row (not BLAS: :mod:`vesselbot_ros.blas_free`); (d,)."""
+    d = g.shape[0]
+    u = np.empty(d)
+    for i in range(d):
+        acc = float(b[i, 0]) * float(g[0])
+        for j in range(1, d):
+            acc = acc + float(b[i, j]) * float(g[j])
+        u[i] = acc
+    return u
 
 
 def linearised_error_matrix(
@@ -195,7 +214,8 @@ def sampled_error_radius(params: ObserverParams, period_s: float) -> float:
 
 
 class HighGainObserver:
-    """Sampled high-gain observer (25); call :meth:`update` once per tick.
+    """Sampled high-gain observer (25) on the model's axes (two in the plane, three in a 3-D tree); call
+    :meth:`update` once per tick.
 
     Ports: inputs ``measurement`` (or None) and ``applied_gradient_prev`` (the
     gradient the coil actually applied over the last tick, T/m); output
@@ -204,8 +224,8 @@ class HighGainObserver:
     Args:
         params: Observer gains and options.
         model: Dynamics model with the controller's (possibly wrong) parameters.
-        x_hat0: (2,) prior position, m.
-        z_hat0: (2,) prior velocity, m/s.
+        x_hat0: (d,) prior position, m (its length is the axis count).
+        z_hat0: (d,) prior velocity, m/s (zero if None).
         t0_s: Time of the prior (s).
     """
 
@@ -214,40 +234,45 @@ class HighGainObserver:
         params: ObserverParams,
         model: Any,
         x_hat0: npt.ArrayLike,
-        z_hat0: npt.ArrayLike = (0.0, 0.0),
+        z_hat0: npt.ArrayLike | None = None,
         t0_s: float = 0.0,
     ) -> None:
-        y = np.concatenate([np.asarray(x_hat0, dtype=np.float64), np.asarray(z_hat0, dtype=np.float64)])
-        if y.shape != (4,) or not np.all(np.isfinite(y)):
-            raise ModelInputError(f"observer prior must be finite (2,) + (2,), got {x_hat0!r}, {z_hat0!r}")
+        x0 = np.asarray(x_hat0, dtype=np.float64)
+        z0 = np.zeros_like(x0) if z_hat0 is None else np.asarray(z_hat0, dtype=np.float64)
+        d = x0.shape[0] if x0.ndim == 1 else 0
+        y = np.concatenate([x0.ravel(), z0.ravel()])
+        if d not in (2, 3) or y.shape != (2 * d,) or not np.all(np.isfinite(y)):
+            raise ModelInputError(f"observer prior must be finite (d,) + (d,), d = 2 or 3, got {x_hat0!r}, {z_hat0!r}")
+        self.dims = d
         self.params = params
         self.model = model
-        gx, gz = axis_gains(params)
+        gx, gz = axis_gains(params, d)
         self._kx = params.high_gain * gx
         self._kz = params.high_gain**2 * gz
-        # B as four floats: U = B G in fixed-order scalar arithmetic, not BLAS (vesselbot_ros.blas_free)
-        self._b = mat2(model.input_matrix)
+        self._b = np.array(model.input_matrix, dtype=np.float64).reshape(d, d)  # U = B G, fixed-order sums
         self._y = y
         self._t = float(t0_s)
         self._contact = model.new_contact_state()
         self._t_meas = -math.inf
         self._initialised = False
-        self._history: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_LEN)
+        self._history: deque[tuple[float, npt.NDArray[np.float64]]] = deque(maxlen=HISTORY_LEN)
         self.rejected = 0
-        # A DynamicsModel is the kernel at packed params: then update() runs the compiled
+        # A DynamicsModel (planar or 3-D) is the kernel at packed params: then update() runs the compiled
         # observer_update (as the compiled loop does); any other ObserverModel runs in Python.
-        self._compiled = all(hasattr(model, a) for a in ("p", "integrator", "stats", "_work", "_fbuf", "_sc"))
+        self._compiled = all(hasattr(model, a) for a in ("geom", "integrator", "stats", "_work", "_fbuf", "_sc"))
         if self._compiled:
-            self._prm = observer_params(params, self._b)
+            self.params_vector = observer_params(params, self._b)
             self._ig = integrator_vector(model.integrator)
             self._scal = np.array([self._t, -math.inf, 0.0, model.integrator.max_step_s])
-            self._hist = np.empty((HISTORY_LEN, 3))
+            self._hist = np.empty((HISTORY_LEN, 1 + d))
             self._hist_n = np.zeros(2, dtype=np.int64)
-            self._out = np.zeros(9)
+            self._out = np.zeros(observer_out_size(d))
+            self._g = np.zeros(d)
+            self._m = np.zeros(d)
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
-        """(4,) ``(x_hat, z_hat)`` copy: position (m) then velocity (m/s)."""
+        """(2 d,) ``(x_hat, z_hat)`` copy: position (m) then velocity (m/s)."""
         return self._y.copy()
 
     def update(
@@ -262,7 +287,7 @@ class HighGainObserver:
             t_s: Tick time (s), non-decreasing.
             measurement: A :class:`~vesselbot_ros.control.imager_model.Measurement`
                 (``t_acq_s``, ``p``) delivered at this tick, or None.
-            applied_gradient_prev: (2,) gradient applied by the coil since the
+            applied_gradient_prev: (d,) gradient applied by the coil since the
                 previous tick (T/m).
 
         Returns:
@@ -272,97 +297,112 @@ class HighGainObserver:
             ModelInputError: on a non-finite or backwards time or a non-finite
                 applied gradient (the coil output is always finite).
         """
+        d = self.dims
         g = np.asarray(applied_gradient_prev, dtype=np.float64)
-        if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
-            raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
+        if g.shape != (d,) or not bool(np.isfinite(g).all()):
+            raise ModelInputError(f"observer: applied gradient must be a finite ({d},) array, got {applied_gradient_prev!r}")
         if not math.isfinite(t_s) or t_s < self._t - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {self._t!r}")
         if self._compiled:
-            return self._update_compiled(float(t_s), measurement, float(g[0]), float(g[1]))
+            return self._update_compiled(float(t_s), measurement, g)
         if t_s > self._t:
-            self.model.propagate(self._t, t_s, self._y, np.array(mat2_apply(self._b, g[0], g[1])), self._contact)
-            y = self._y
-            if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2]) and math.isfinite(y[3])):
+            self.model.propagate(self._t, t_s, self._y, input_accel(self._b, g), self._contact)
+            if not bool(np.isfinite(self._y).all()):
                 raise ModelInputError(f"observer: prediction became non-finite at t={t_s!r}")
         self._t = float(t_s)
         if self.params.delay_compensation:
-            self._history.append((self._t, self._y[0], self._y[1]))
+            self._history.append((self._t, self._y[:d].copy()))
         used = False
         rejected = False
-        innov = np.zeros(2)
+        innov = np.zeros(d)
         if measurement is not None:
             yp = np.asarray(measurement.p, dtype=np.float64)
             t_acq = float(measurement.t_acq_s)
-            if yp.shape != (2,) or not (math.isfinite(yp[0]) and math.isfinite(yp[1]) and math.isfinite(t_acq)):
+            if yp.shape != (d,) or not (bool(np.isfinite(yp).all()) and math.isfinite(t_acq)):
                 rejected = True
             elif not self._initialised and self.params.init_from_first_measurement:
-                self._y[:2] = yp
+                self._y[:d] = yp
                 self._t_meas = t_acq
                 self._initialised = True
                 used = True
             else:
-                x_ref = self._y[:2]
-                if self.params.delay_compensation:
-                    x_ref = self._estimate_at(t_acq)
+                x_ref = self._estimate_at(t_acq) if self.params.delay_compensation else self._y[:d]
                 innov = x_ref - yp
                 gate = self.params.innovation_gate_m
-                if gate > 0.0 and math.hypot(innov[0], innov[1]) > gate:
+                if gate > 0.0 and math.hypot(*innov) > gate:
                     rejected = True
-                    innov = np.zeros(2)
+                    innov = np.zeros(d)
                 else:
                     tm = t_acq - self._t_meas if math.isfinite(self._t_meas) else 0.0
                     if tm > 0.0:
-                        self._y[:2] += tm * self._kx * innov
-                        self._y[2:] += tm * self._kz * innov
+                        self._y[:d] += tm * self._kx * innov
+                        self._y[d:] += tm * self._kz * innov
                     self._t_meas = t_acq
                     self._initialised = True
                     used = True
             if rejected:
                 self.rejected += 1
         age = self._t - self._t_meas
-        return Estimate(self._t, self._y[:2].copy(), self._y[2:].copy(), age, innov, used, rejected)
+        return Estimate(self._t, self._y[:d].copy(), self._y[d:].copy(), age, innov, used, rejected)
 
-    def _update_compiled(self, t_s: float, measurement: Any | None, gx: float, gz: float) -> Estimate:
-        has, t_acq, m0, m1 = measurement_scalars(measurement)
-        m = self.model
+    def _update_compiled(self, t_s: float, measurement: Any | None, g: npt.NDArray[np.float64]) -> Estimate:
+        d = self.dims
+        has, t_acq, m = False, math.nan, self._m
+        m[:] = math.nan
+        if measurement is not None:
+            has, t_acq = True, float(measurement.t_acq_s)
+            mp = np.asarray(measurement.p, dtype=np.float64)
+            if mp.shape == (d,):  # a wrong shape travels as NaN: rejected like any non-finite frame
+                m[:] = mp
+        md = self.model
         t0 = self._t
-        code = observer_update(self._prm, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig, m.p,
-                               m.stats, m._work, m._fbuf, m._sc, t_s, gx, gz, has, t_acq, m0, m1, self._out)
+        self._g[:] = g
+        code = observer_update(self.params_vector, self._scal, self._y, self._contact, self._hist, self._hist_n, self._ig,
+                               md.geom, md.stats, md._work, md._fbuf, md._sc, t_s, self._g, has, t_acq, m, self._out)
         if code != OK:
             raise ModelInputError(failure_message("observer model", t0, t_s, code, self._y.tolist()))
         self._t = t_s
         self._t_meas = float(self._scal[1])
         self._initialised = bool(self._scal[2] > 0.5)
         o = self._out
-        rejected = bool(o[8] > 0.5)
+        rejected = bool(o[3 * d + 2] > 0.5)
         self.rejected += int(rejected)
-        return Estimate(self._t, o[0:2].copy(), o[2:4].copy(), float(o[4]), o[5:7].copy(), bool(o[7] > 0.5), rejected)
+        return Estimate(self._t, o[0:d].copy(), o[d:2 * d].copy(), float(o[2 * d]), o[2 * d + 1:3 * d + 1].copy(),
+                        bool(o[3 * d + 1] > 0.5), rejected)
 
     def _estimate_at(self, t_acq: float) -> npt.NDArray[np.float64]:
-        best = None
-        for t, x, z in reversed(self._history):
-            best = (x, z)
+        best = self._y[:self.dims]
+        for t, x in reversed(self._history):
+            best = x
             if t <= t_acq + 1e-9:
                 break
-        if best is None:
-            return self._y[:2].copy()
-        return np.array(best)
+        return best.copy()
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
-# params (11,): [kx x, kx z, kz x, kz z, B (4, row-major), delay_compensation, innovation_gate_m, init_from_first]
+# On d axes (2: x, z; 3: x, y, z), read from the gradient array's length:
+# params (2 d + d^2 + 3,): [kx (d), kz (d), B (d x d, row-major), delay_compensation, innovation_gate_m, init_from_first]
 # scal (4,): [t (s), t of the last accepted measurement (s, -inf before), initialised (0/1), next integrator step (s)]
-# y (4,) estimate (X, Z); contact (4,) model contact state; hist (HISTORY_LEN, 3) ring of (t, x, z) and
-# hist_n (2,) int64 [count, next slot]; ig (7,) from integrator_vector; stats (4,) int64 model integrator counters
-# out (9,): [x x, x z, z x, z z, time since measurement, innovation x, z, used (0/1), rejected (0/1)]
+# y (2 d,) estimate (X, Z); contact (4,) model contact state; hist (HISTORY_LEN, 1 + d) ring of (t, X) and
+# hist_n (2,) int64 [count, next slot]; ig (7,) from integrator_vector; geom the model's vessel (physics.integrator);
+# stats (4,) int64 model integrator counters; work, fbuf, sc the model's integrator workspace
+# out (3 d + 3,): [X (d), Z (d), time since measurement, innovation (d), used (0/1), rejected (0/1)]
 
 
-def observer_params(params: ObserverParams, b: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
-    """(11,) parameter vector of :func:`observer_update` (gains as :class:`HighGainObserver` forms them)."""
-    gx, gz = axis_gains(params)
+def observer_out_size(dims: int) -> int:
+    """Length of :func:`observer_update`'s ``out`` on ``dims`` axes."""
+    return 3 * int(dims) + 3
+
+
+def observer_params(params: ObserverParams, b: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Parameter vector of :func:`observer_update` (gains as :class:`HighGainObserver` forms them; ``b`` the model's
+    input matrix, (d, d))."""
+    bm = np.asarray(b, dtype=np.float64)
+    d = int(round(math.sqrt(bm.size)))
+    gx, gz = axis_gains(params, d)
     kx = params.high_gain * gx
     kz = params.high_gain**2 * gz
-    return np.array([kx[0], kx[1], kz[0], kz[1], *b, 1.0 if params.delay_compensation else 0.0,
+    return np.array([*kx, *kz, *bm.reshape(-1), 1.0 if params.delay_compensation else 0.0,
                      float(params.innovation_gate_m), 1.0 if params.init_from_first_measurement else 0.0])
 
 
@@ -381,77 +421,90 @@ def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def observer_update(prm, scal, y, contact, hist, hist_n, ig, model_p, stats, work, fbuf, sc,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-                    t, gx, gz, has_meas, t_acq, m0, m1, out):
-    """:meth:`HighGainObserver.update` over explicit state (same doubles).
+def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, fbuf, sc,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+                    t, g, has_meas, t_acq, m, out):
+    """:meth:`HighGainObserver.update` over explicit state (same doubles), on the axes of ``g`` (d,).
 
-    Predicts ``y`` from ``scal[0]`` to ``t`` under ``U = B (gx, gz)`` with the
-    model's integrator, then corrects with the measurement ``(m0, m1)``
-    acquired at ``t_acq`` if ``has_meas``.  The caller checks that ``t`` is
+    Predicts ``y`` from ``scal[0]`` to ``t`` under ``U = B g`` with the
+    model's integrator in the vessel ``geom``, then corrects with the measurement
+    ``m`` (d,) acquired at ``t_acq`` if ``has_meas``.  The caller checks that ``t`` is
     finite and not before ``scal[0]`` and that the gradient is finite.
 
     Returns:
         The model integrator's code (``OK`` = 0); on failure ``y`` holds the
         state reached and nothing else changed.
     """
+    d = g.shape[0]
+    ob = 2 * d  # B's offset in prm
+    oo = ob + d * d  # the options' offset
     if t > scal[0]:
-        g = work[G_ROW, :2]  # no gradient: the model's input is the acceleration U = B G
-        g[0] = 0.0
-        g[1] = 0.0
-        u = work[U_ROW, :2]
-        u[0] = prm[4] * gx + prm[5] * gz
-        u[1] = prm[6] * gx + prm[7] * gz
-        code, h = integrate(scal[0], t, y, g, u, contact, model_p, scal[3], ig, stats, work, fbuf, sc)
+        gz = work[G_ROW, :d]  # no gradient: the model's input is the acceleration U = B g
+        u = work[U_ROW, :d]
+        for i in range(d):
+            gz[i] = 0.0
+            acc = prm[ob + i * d] * g[0]
+            for j in range(1, d):
+                acc = acc + prm[ob + i * d + j] * g[j]
+            u[i] = acc
+        code, h = integrate(scal[0], t, y, gz, u, contact, geom, scal[3], ig, stats, work, fbuf, sc)
         scal[3] = h
         if code != OK:
             return code
     scal[0] = t
-    if prm[8] > 0.5:
+    if prm[oo] > 0.5:
         j = hist_n[1]
         hist[j, 0] = t
-        hist[j, 1] = y[0]
-        hist[j, 2] = y[1]
+        for c in range(d):
+            hist[j, 1 + c] = y[c]
         hist_n[1] = (j + 1) % hist.shape[0]
         if hist_n[0] < hist.shape[0]:
             hist_n[0] += 1
     used = 0.0
     rejected = 0.0
-    i0 = 0.0
-    i1 = 0.0
+    innov = out[2 * d + 1:3 * d + 1]
+    for c in range(d):
+        innov[c] = 0.0
     if has_meas:
-        if not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(t_acq)):
+        finite = math.isfinite(t_acq)
+        for c in range(d):
+            finite = finite and math.isfinite(m[c])
+        if not finite:
             rejected = 1.0
-        elif scal[2] < 0.5 and prm[10] > 0.5:
-            y[0] = m0
-            y[1] = m1
+        elif scal[2] < 0.5 and prm[oo + 2] > 0.5:
+            for c in range(d):
+                y[c] = m[c]
             scal[1] = t_acq
             scal[2] = 1.0
             used = 1.0
         else:
-            r0 = y[0]
-            r1 = y[1]
-            if prm[8] > 0.5:  # the newest estimate stored at or before t_acq (else the oldest)
+            for c in range(d):
+                innov[c] = y[c]
+            if prm[oo] > 0.5:  # the newest estimate stored at or before t_acq (else the oldest)
                 for i in range(hist_n[0]):
                     j = (hist_n[1] - 1 - i) % hist.shape[0]
-                    r0 = hist[j, 1]
-                    r1 = hist[j, 2]
+                    for c in range(d):
+                        innov[c] = hist[j, 1 + c]
                     if hist[j, 0] <= t_acq + 1e-9:
                         break
-            i0 = r0 - m0
-            i1 = r1 - m1
-            if prm[9] > 0.0 and hypot2(i0, i1) > prm[9]:
+            for c in range(d):
+                innov[c] = innov[c] - m[c]
+            if prm[oo + 1] > 0.0 and hypot_axes(innov) > prm[oo + 1]:
                 rejected = 1.0
-                i0 = 0.0
-                i1 = 0.0
+                for c in range(d):
+                    innov[c] = 0.0
             else:
                 tm = t_acq - scal[1] if math.isfinite(scal[1]) else 0.0
                 if tm > 0.0:
-                    y[0] = y[0] + tm * prm[0] * i0
-                    y[1] = y[1] + tm * prm[1] * i1
-                    y[2] = y[2] + tm * prm[2] * i0
-                    y[3] = y[3] + tm * prm[3] * i1
+                    for c in range(d):
+                        y[c] = y[c] + tm * prm[c] * innov[c]
+                    for c in range(d):
+                        y[d + c] = y[d + c] + tm * prm[d + c] * innov[c]
                 scal[1] = t_acq
                 scal[2] = 1.0
                 used = 1.0
-    write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
+    for c in range(2 * d):
+        out[c] = y[c]
+    out[2 * d] = scal[0] - scal[1]
+    out[3 * d + 1] = used
+    out[3 * d + 2] = rejected
     return OK

@@ -68,6 +68,12 @@ class DynamicsModel:
         self._integrator = value
         self._ig = integrator_vector(value)
 
+    @property
+    def geom(self) -> npt.NDArray[np.float64]:
+        """The vessel :meth:`propagate` integrates in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge): the
+        packed parameters of a straight vessel or a planar network."""
+        return self.p
+
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
         return np.zeros(4)

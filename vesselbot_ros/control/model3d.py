@@ -9,7 +9,7 @@ matrix is ``B = b I`` with the planar model's ``b`` (the coil's three axes act a
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -53,6 +53,12 @@ class DynamicsModel3D:
         self._ig = integrator_vector(self.integrator)
         self.stats = np.zeros(4, dtype=np.int64)
         self._work, self._fbuf, self._sc = new_workspace(3)
+
+    @property
+    def geom(self) -> Any:
+        """The tree :meth:`propagate` integrates in: ``(p, W, F, fh)`` (:mod:`vesselbot_ros.physics.integrator`)."""
+        k = self.packed
+        return (self.p, k.W, k.F, k.fh)
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""

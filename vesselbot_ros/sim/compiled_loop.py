@@ -40,7 +40,6 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
 from vesselbot_ros.control.backstepping import BacksteppingController, flow_scale_message
 from vesselbot_ros.control.compiled_stage import CONTROLLER_OUT_SIZE, STEP_FLOW_SCALE_INVALID, CompiledController
@@ -186,7 +185,7 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     if isinstance(observer, ExtendedKalmanObserver):
         obs_kind, obs_prm, ekf, obs_y0 = OBS_EKF, np.zeros(11), observer.ekf.copy(), np.zeros(4)
     else:
-        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer_params(observer.params, mat2(model.input_matrix)), None, observer.state
+        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer_params(observer.params, model.input_matrix), None, observer.state
     return LoopInputs(
         n=n, dt=dt, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
@@ -284,8 +283,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
                 return EKF_FAILED, k
         else:
             code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_p, model_stats,
-                                   obs_work, obs_fbuf, obs_sc, t, gx_prev, gz_prev, has_meas, img_out[1], img_out[2],
-                                   img_out[3], obs_out)
+                                   obs_work, obs_fbuf, obs_sc, t, ga, has_meas, img_out[1], img_out[2:4], obs_out)
             if code != OK:
                 err[0] = obs_scal[0]
                 err[1] = t
@@ -347,6 +345,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
             coil_apply(coil_prm, coil_state, t, gc, coil_out)
         gx_prev = coil_out[0]
         gz_prev = coil_out[1]
+        ga[0] = gx_prev  # the gradient applied over the period: the plant's and, next tick, the observer's
+        ga[1] = gz_prev
         g_applied[k, 0] = gx_prev
         g_applied[k, 1] = gz_prev
         k_scale[k] = coil_out[2]
@@ -356,8 +356,6 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
         t0 = 0.0 + k * dt
         t1 = 0.0 + (k + 1) * dt
-        ga[0] = gx_prev
-        ga[1] = gz_prev
         code, h = integrate(t0, t1, y, ga, z2, contact, plant_p, h, ig, plant_stats, work, fbuf, sc)
         if code != OK:
             err[0] = t0

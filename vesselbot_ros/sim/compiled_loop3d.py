@@ -3,12 +3,13 @@
 :func:`loop3d_kernel` runs every tick of one run in numba, calling the compiled steps of the 3-D stages in the
 per-tick runner's order (:mod:`vesselbot_ros.sim.closed_loop`)::
 
-    plant output (forces3d_at) -> imager_frame | seq_imager_frame (scanner; the imager's, on three axes) -> hgo3d_update (25)
-    -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner; the coil's, on three axes) -> plant step (the one integrator)
+    plant output (forces3d_at) -> imager_frame | seq_imager_frame (scanner) -> observer_update (25)
+    -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate)
 
-The stages' Python classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`,
-:class:`~vesselbot_ros.control.imager_model.ImagerModel` on three axes, :class:`~vesselbot_ros.control.loop3d_stages.HighGainObserver3D`,
-:class:`~vesselbot_ros.control.loop3d_stages.Backstepping3D`, :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter` on three axes)
+The imager, the observer, the coil and the integrator are the planar loop's, on three axes.  The stages' Python
+classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`, :class:`~vesselbot_ros.control.imager_model.ImagerModel`,
+:class:`~vesselbot_ros.control.high_gain_observer.HighGainObserver`,
+:class:`~vesselbot_ros.control.loop3d_stages.Backstepping3D`, :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter`)
 call the very same compiled functions on the same state, so the two paths are bit-identical
 (``test/unit/sim/test_compiled_loop.py`` checks every column, metric and statistic of the shipped 3-D scenarios).
 The imager draws from the run's ``numpy.random.Generator`` in the documented order (six variates per acquired
@@ -28,9 +29,9 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.actuator_limits import CoilLimiter, coil_apply, coil_out_size, coil_params
 from vesselbot_ros.control.backstepping import FLOW_SCALE_INVALID
-from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, integrator_vector
+from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, integrator_vector, observer_update
 from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
-from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D, hgo3d_update, law3d_command
+from vesselbot_ros.control.loop3d_stages import Backstepping3D, law3d_command
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_R
@@ -55,7 +56,7 @@ COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = tuple((name, dt, (3,) 
                                                                 for name, dt, shape in COLUMNS)
 
 _BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator3D,), "imager": (ImagerModel, SequencedImager),
-                                          "observer": (HighGainObserver3D,), "controller": (Backstepping3D,),
+                                          "observer": (HighGainObserver,), "controller": (Backstepping3D,),
                                           "coil": (CoilLimiter, SequencedCoil)}
 
 
@@ -72,6 +73,8 @@ def foreign_stages3d(stages: Any) -> list[str]:
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
             bad.append(role)
+    if "observer" not in bad and getattr(stages.observer, "dims", 2) != 3:
+        bad.append("observer")
     if not hasattr(stages.reference, "sample_many"):
         bad.append("reference")
     return bad
@@ -158,7 +161,6 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
     z3 = np.zeros(3)
     p_s = np.empty_like(model_p)
     free = np.zeros(4)
-    gu = np.zeros((2, 3))
     g = np.zeros(3)
     gc = np.zeros(3)  # the tick's command (NaN: rejected)
     img_state = np.zeros(4)
@@ -206,9 +208,8 @@ def loop3d_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, W, F, fh, ig
                 meas_p[k, c] = np.nan
             meas_t_acq_s[k] = np.nan
         # observer (25)
-        code = hgo3d_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_p, W, F, fh, model_stats,
-                            obs_work, obs_fbuf, obs_sc, gu, t, g[0], g[1], g[2], has_meas, img_out[1], img_out[2],
-                            img_out[3], img_out[4], obs_out)
+        code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, (model_p, W, F, fh),
+                               model_stats, obs_work, obs_fbuf, obs_sc, t, g, has_meas, img_out[1], img_out[2:5], obs_out)
         if code != OK:
             err[0] = obs_scal[0]
             err[1] = t

@@ -70,7 +70,7 @@ from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
 from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
-from vesselbot_ros.control.loop3d_stages import Backstepping3D, HighGainObserver3D
+from vesselbot_ros.control.loop3d_stages import Backstepping3D
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
@@ -570,7 +570,7 @@ def rejection_warning(metrics: Mapping[str, Any], what: str = "controller comman
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------
 # In a 3-D vessel tree (Scenario.dims == 3) each built-in kind builds its stage on three axes
-# (control/loop3d_stages.py, PlantSimulator3D; the imager and the coil take the axis count); the scenario refuses the
+# (control/loop3d_stages.py, PlantSimulator3D; the imager, observer (25) and the coil take the axis count); the scenario refuses the
 # kinds and options that have no 3-D form yet, in one line.
 def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
     s = ctx.scenario
@@ -595,10 +595,8 @@ def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.Arra
     return HighGainObserver(params, model, x_hat0, z_hat0, 0.0)
 
 
-def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver | HighGainObserver3D:
+def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver:
     s = ctx.scenario
-    if s.dims == 3:
-        return HighGainObserver3D(s.observer, ctx.model, ctx.get("reference").sample(0.0).p, s.initial.z_hat0_m_per_s)
     return make_observer(s.observer, ctx.model, ctx.get("reference").sample(0.0).p, s.initial.z_hat0_m_per_s, ctx.dt_s)
 
 
@@ -645,7 +643,7 @@ for _kind in (
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
-    StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver, HighGainObserver3D),
+    StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
               summary="high-gain observer (25)"),
     StageKind("observer", "ekf", ObserverParams, _observer, compiled=True, stage_types=(ExtendedKalmanObserver,),
               summary="extended Kalman filter: delay compensation, blood-velocity scale estimate"),
