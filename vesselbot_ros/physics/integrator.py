@@ -45,8 +45,18 @@ from numba import types
 from numba.extending import overload
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
-from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, forces_tc, time_terms_into, update_contact, wall_delta_at, wall_delta_xz
-from vesselbot_ros.physics.plant3d import contact3d_update, rhs3d_into
+from vesselbot_ros.physics.kernel import (
+    I_MASS,
+    I_NET_ON,
+    I_R,
+    forces_into,
+    forces_tc,
+    time_terms_into,
+    update_contact,
+    wall_delta_at,
+    wall_delta_xz,
+)
+from vesselbot_ros.physics.plant3d import contact3d_update, forces3d_at, rhs3d_into
 
 __all__ = [
     "IntegratorParams",
@@ -55,6 +65,8 @@ __all__ = [
     "integrator_vector",
     "integrate",
     "rhs_into",
+    "wall_and_forces",
+    "plant_output",
     "G_ROW",
     "U_ROW",
     "OK",
@@ -165,7 +177,7 @@ _E7 = -1.0 / 40.0
 # ---- the geometry's edge: the vessel a bead flies in -------------------------------------------------------------
 # ``geom`` is the plane's packed parameters ``p`` (a straight vessel or a planar network: the planar force kernel,
 # state (x, z, vx, vz)) or a 3-D tree's ``(p, W, F, fh)`` (the 3-D force kernel, state (x, y, z, vx, vy, vz)).  These
-# two functions are the only places the integrator tells them apart, by the argument's type at compile time.
+# three functions are the only places the loop's plant tells them apart, by the argument's type at compile time.
 def rhs_into(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``out = (Z, a(t, X, Z; g) + u)`` of the bead in ``geom`` (compiled code only)."""
     raise NotImplementedError("rhs_into runs in compiled code only")
@@ -200,6 +212,37 @@ def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  #
 
 def _tree_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     contact3d_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
+
+
+def wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(delta, wall)`` of the bead of state ``y`` in ``geom``: its signed penetration of the nearest wall (m, > 0 in
+    contact) and which wall (+1 above the centre, -1 below); the force terms (8, d) under ``g`` in ``fbuf`` if
+    ``with_forces`` (a tree's kernel computes them anyway).  Compiled code only."""
+    raise NotImplementedError("wall_and_forces runs in compiled code only")
+
+
+def _planar_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    delta, wall = wall_delta_xz(t, y[0], y[1], geom)
+    if with_forces:
+        forces_into(t, y[0], y[1], y[2], y[3], g[0], g[1], contact, geom, fbuf)
+    return delta, wall
+
+
+def _tree_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    p = geom[0]
+    s_t = forces3d_at(t, y, g, contact, p, geom[1], geom[2], geom[3], fbuf, sc)
+    return p[I_R] - s_t, (1.0 if sc[2, 2] <= 0.0 else -1.0)  # the wall above when its inward normal points down
+
+
+@overload(wall_and_forces, jit_options={"nogil": True})
+def _wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_wall if isinstance(geom, types.Array) else _tree_wall
+
+
+@numba.njit(cache=True, nogil=True)
+def plant_output(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`wall_and_forces` callable from Python (the plant's ground truth at a tick)."""
+    return wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces)
 
 
 @overload(rhs_into, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above

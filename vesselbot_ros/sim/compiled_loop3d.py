@@ -7,7 +7,7 @@ per-tick runner's order (:mod:`vesselbot_ros.sim.closed_loop`)::
     -> law3d_command (24) -> coil_apply | seq_coil_apply (scanner) -> plant step (integrate)
 
 The imager, the observer, the coil and the integrator are the planar loop's, on three axes.  The stages' Python
-classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator3D`, :class:`~vesselbot_ros.control.imager_model.ImagerModel`,
+classes (:class:`~vesselbot_ros.sim.plant.PlantSimulator`, :class:`~vesselbot_ros.control.imager_model.ImagerModel`,
 :class:`~vesselbot_ros.control.high_gain_observer.HighGainObserver`,
 :class:`~vesselbot_ros.control.loop3d_stages.Backstepping3D`, :class:`~vesselbot_ros.control.actuator_limits.CoilLimiter`)
 call the very same compiled functions on the same state, so the two paths are bit-identical
@@ -46,7 +46,7 @@ from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop
     raise_for_code,
 )
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_NONFINITE
-from vesselbot_ros.sim.plant import PlantSimulator3D
+from vesselbot_ros.sim.plant import PlantSimulator
 
 __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "run_kernel3d", "COLUMNS3D"]
 
@@ -55,7 +55,7 @@ __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "ru
 COLUMNS3D: tuple[tuple[str, Any, tuple[int, ...]], ...] = tuple((name, dt, (3,) if shape == (2,) else shape)
                                                                 for name, dt, shape in COLUMNS)
 
-_BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator3D,), "imager": (ImagerModel, SequencedImager),
+_BUILT_IN: dict[str, tuple[type, ...]] = {"plant": (PlantSimulator,), "imager": (ImagerModel, SequencedImager),
                                           "observer": (HighGainObserver,), "controller": (Backstepping3D,),
                                           "coil": (CoilLimiter, SequencedCoil)}
 
@@ -73,8 +73,9 @@ def foreign_stages3d(stages: Any) -> list[str]:
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
             bad.append(role)
-    if "observer" not in bad and getattr(stages.observer, "dims", 2) != 3:
-        bad.append("observer")
+    for role in ("plant", "observer"):  # the kernel's stages are on three axes
+        if role not in bad and getattr(getattr(stages, role), "dims", 2) != 3:
+            bad.append(role)
     if not hasattr(stages.reference, "sample_many"):
         bad.append("reference")
     return bad

@@ -80,7 +80,7 @@ from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
-from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator, PlantSimulator3D
+from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
 from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = [
@@ -570,12 +570,10 @@ def rejection_warning(metrics: Mapping[str, Any], what: str = "controller comman
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------
 # In a 3-D vessel tree (Scenario.dims == 3) each built-in kind builds its stage on three axes
-# (control/loop3d_stages.py, PlantSimulator3D; the imager, observer (25) and the coil take the axis count); the scenario refuses the
+# (control/loop3d_stages.py; the plant, the imager, observer (25) and the coil take the axis count); the scenario refuses the
 # kinds and options that have no 3-D form yet, in one line.
-def _plant(ctx: BuildContext) -> PlantSimulator | PlantSimulator3D:
+def _plant(ctx: BuildContext) -> PlantSimulator:
     s = ctx.scenario
-    if s.dims == 3:
-        return PlantSimulator3D(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
     return PlantSimulator(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
 
 
@@ -638,7 +636,7 @@ def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
 
 
 for _kind in (
-    StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator, PlantSimulator3D),
+    StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator,),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager),

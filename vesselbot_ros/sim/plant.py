@@ -17,14 +17,21 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
-from vesselbot_ros.physics.kernel import I_R, TERM_NAMES, forces_into, wall_delta_xz
+from vesselbot_ros.physics.integrator import (
+    OK,
+    IntegratorParams,
+    failure_message,
+    integrate,
+    integrator_vector,
+    new_workspace,
+    plant_output,
+)
+from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.plant_field3d import packed3d
 
-__all__ = ["PlantOutput", "PlantSimulator", "PlantSimulator3D", "TERM_NAMES"]
+__all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 
 
 class PlantOutput(NamedTuple):
@@ -32,13 +39,13 @@ class PlantOutput(NamedTuple):
 
     Attributes:
         t_s: Tick time (s).
-        p: (2,) true position, m, frame W.
-        v: (2,) true velocity, m/s.
+        p: (d,) true position, m, frame W.
+        v: (d,) true velocity, m/s.
         delta_m: Signed distance to the nearest wall (m), > 0 = penetration.
         wall: +1 upper wall, -1 lower wall (the nearest one).
         in_contact: ``delta_m > 0``.
         contact_phase: 0 free, 1 loading (15), 2 unloading (16).
-        forces: (8, 2) force terms (N) in ``TERM_NAMES`` order under the
+        forces: (8, d) force terms (N) in ``TERM_NAMES`` order under the
             gradient currently applied, or None if not asked for.
     """
 
@@ -53,14 +60,19 @@ class PlantOutput(NamedTuple):
 
 
 class PlantSimulator:
-    """True robot dynamics, advanced one control period per :meth:`step`.
+    """True robot dynamics, advanced one control period per :meth:`step`, on the vessel's axes.
+
+    In the plane (a straight vessel or a planar network) the state is ``(x, z, vx, vz)``; in a 3-D tree
+    (``physics.vessel.network`` a tree in space, ``p0_m`` of three values) ``(x, y, z, vx, vy, vz)``, the kernel
+    :mod:`vesselbot_ros.physics.plant3d`.  The ports are the same on (d,) vectors (:class:`PlantOutput`: (d,) ``p``,
+    ``v``, (8, d) forces).
 
     Args:
         physics: True physics parameters.
         integrator: Integrator settings.
         dt_control_s: Control period (s).
-        p0_m: (2,) initial position (m).
-        v0_m_per_s: (2,) initial velocity (m/s).
+        p0_m: (d,) initial position (m): its length is the axis count.
+        v0_m_per_s: (d,) initial velocity (m/s); zero if None.
         t0_s: Initial time (s).
     """
 
@@ -70,27 +82,35 @@ class PlantSimulator:
         integrator: IntegratorParams,
         dt_control_s: float,
         p0_m: npt.ArrayLike,
-        v0_m_per_s: npt.ArrayLike = (0.0, 0.0),
+        v0_m_per_s: npt.ArrayLike | None = None,
         t0_s: float = 0.0,
     ) -> None:
         if not (math.isfinite(dt_control_s) and dt_control_s > 0.0):
             raise ModelInputError(f"dt_control_s must be finite and > 0, got {dt_control_s!r}")
-        y = np.concatenate([np.asarray(p0_m, dtype=np.float64), np.asarray(v0_m_per_s, dtype=np.float64)])
-        if y.shape != (4,) or not np.all(np.isfinite(y)):
-            raise ModelInputError(f"initial state must be finite (2,) + (2,), got {p0_m!r}, {v0_m_per_s!r}")
+        p0 = np.asarray(p0_m, dtype=np.float64).ravel()
+        d = p0.shape[0]
+        v0 = np.zeros(d) if v0_m_per_s is None else np.asarray(v0_m_per_s, dtype=np.float64).ravel()
+        y = np.concatenate([p0, v0])
+        if d not in (2, 3) or y.shape != (2 * d,) or not np.all(np.isfinite(y)):
+            raise ModelInputError(f"initial state must be finite (d,) + (d,), d = 2 or 3, got {p0_m!r}, {v0_m_per_s!r}")
+        self.dims = d
         self.physics = physics
         self.integrator = integrator  # and its packed vector (the setter)
-        self.p = packed_params(physics)
+        if d == 3:  # a tree in space: the 3-D kernel's packed tree (the geometry's edge)
+            self.packed = packed3d(physics)
+            self.p = self.packed.p
+        else:
+            self.p = packed_params(physics)
         self._dt = float(dt_control_s)
         self._t0 = float(t0_s)
         self._k = 0
         self._y = y
         self._contact = np.zeros(4)
-        self._g = np.zeros(2)
-        self._zero = np.zeros(2)
+        self._g = np.zeros(d)
+        self._zero = np.zeros(d)
         self._h = integrator.max_step_s
-        self._forces = np.empty((8, 2))
-        self._work, self._fbuf, self._sc = new_workspace(2)  # integrator scratch, allocated once
+        self._forces = np.empty((8, d))
+        self._work, self._fbuf, self._sc = new_workspace(d)  # integrator scratch, allocated once
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
 
     @property
@@ -106,7 +126,10 @@ class PlantSimulator:
     @property
     def geom(self) -> Any:
         """The vessel the integrator flies the bead in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge):
-        the packed parameters ``p`` of a straight vessel or a planar network."""
+        the packed parameters ``p`` of a straight vessel or a planar network, a tree's ``(p, W, F, fh)``."""
+        if self.dims == 3:
+            k = self.packed
+            return (self.p, k.W, k.F, k.fh)
         return self.p
 
     @property
@@ -116,7 +139,7 @@ class PlantSimulator:
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
-        """(4,) copy of ``(x, z, vx, vz)`` (m, m/s)."""
+        """(2 d,) copy of ``(X, Z)`` (m, m/s)."""
         return self._y.copy()
 
     @property
@@ -128,22 +151,19 @@ class PlantSimulator:
         """Ground truth at the current tick (see :class:`PlantOutput`)."""
         t = self.t_s
         y = self._y
-        delta, wall = wall_delta_xz(t, y[0], y[1], self.p)
-        forces = None
-        if with_forces:
-            forces_into(t, y[0], y[1], y[2], y[3], self._g[0], self._g[1], self._contact, self.p, self._forces)
-            forces = self._forces.copy()
-        return PlantOutput(t, y[:2].copy(), y[2:].copy(), float(delta), float(wall), bool(delta > 0.0),
-                           int(self._contact[0]), forces)
+        d = self.dims
+        delta, wall = plant_output(t, y, self._g, self._contact, self.geom, self._forces, self._sc, with_forces)
+        return PlantOutput(t, y[:d].copy(), y[d:].copy(), float(delta), float(wall), bool(delta > 0.0),
+                           int(self._contact[0]), self._forces.copy() if with_forces else None)
 
     def step(self, applied_gradient_T_per_m: npt.ArrayLike) -> None:
-        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (2,) in the plane, (3,) in a tree).
+        """Integrate ``[t_k, t_{k+1}]`` under the applied gradient (T/m, (d,)).
 
         Raises:
             ModelInputError: on a non-finite or wrongly shaped gradient, or if
                 the integration fails (step too small, non-finite state).
         """
-        d = self._g.shape[0]
+        d = self.dims
         g = np.array(applied_gradient_T_per_m, dtype=np.float64)
         if g.shape != (d,) or not bool(np.isfinite(g).all()):
             raise ModelInputError(f"plant: applied gradient must be a finite ({d},) array, got {applied_gradient_T_per_m!r}")
@@ -155,64 +175,3 @@ class PlantSimulator:
         if code != OK:
             raise ModelInputError(failure_message(f"tick {self._k}: plant", t0, t1, code, self._y.tolist()))
         self._k += 1
-
-
-class PlantSimulator3D(PlantSimulator):
-    """:class:`PlantSimulator` in a 3-D vessel tree: state ``(x, y, z, vx, vy, vz)``, three gradient axes.
-
-    The same ports on 3-vectors (:class:`PlantOutput` with (3,) ``p``, ``v`` and (8, 3) forces); the kernel is
-    :mod:`vesselbot_ros.physics.plant3d`.  ``wall`` is +1 when the nearest wall lies above the centre (its inward
-    normal points down), else -1, as in the planar network.
-
-    Args:
-        physics: True physics parameters (``vessel.network`` a 3-D tree).
-        integrator: Integrator settings.
-        dt_control_s: Control period (s).
-        p0_m: (3,) initial position (m).
-        v0_m_per_s: (3,) initial velocity (m/s).
-        t0_s: Initial time (s).
-    """
-
-    dims = 3
-
-    def __init__(self, physics: PhysicsParams, integrator: IntegratorParams, dt_control_s: float, p0_m: npt.ArrayLike,
-                 v0_m_per_s: npt.ArrayLike = (0.0, 0.0, 0.0), t0_s: float = 0.0) -> None:
-        if not (math.isfinite(dt_control_s) and dt_control_s > 0.0):
-            raise ModelInputError(f"dt_control_s must be finite and > 0, got {dt_control_s!r}")
-        y = np.concatenate([np.asarray(p0_m, dtype=np.float64), np.asarray(v0_m_per_s, dtype=np.float64)])
-        if y.shape != (6,) or not np.all(np.isfinite(y)):
-            raise ModelInputError(f"initial state must be finite (3,) + (3,), got {p0_m!r}, {v0_m_per_s!r}")
-        self.physics = physics
-        self.integrator = integrator  # and its packed vector (the setter)
-        self.packed = packed3d(physics)
-        self.p = self.packed.p
-        self._dt = float(dt_control_s)
-        self._t0 = float(t0_s)
-        self._k = 0
-        self._y = y
-        self._contact = np.zeros(4)
-        self._g = np.zeros(3)
-        self._zero = np.zeros(3)
-        self._h = integrator.max_step_s
-        self._forces = np.empty((8, 3))
-        self._work, self._fbuf, self._sc = new_workspace(3)
-        self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
-
-    # t_s, state ((6,): (x, y, z, vx, vy, vz)), contact_state, integrator and step are the planar plant's
-
-    @property
-    def geom(self) -> Any:
-        """The tree the integrator flies the bead in: ``(p, W, F, fh)`` (:mod:`vesselbot_ros.physics.plant3d`)."""
-        k = self.packed
-        return (self.p, k.W, k.F, k.fh)
-
-    def output(self, with_forces: bool = False) -> PlantOutput:
-        """Ground truth at the current tick (see :class:`PlantOutput`)."""
-        t = self.t_s
-        y = self._y
-        k = self.packed
-        s_t = forces3d_at(t, y, self._g, self._contact, self.p, k.W, k.F, k.fh, self._forces, self._sc)
-        delta = self.p[I_R] - s_t
-        wall = 1.0 if self._sc[2, 2] <= 0.0 else -1.0
-        return PlantOutput(t, y[:3].copy(), y[3:].copy(), float(delta), wall, bool(delta > 0.0), int(self._contact[0]),
-                           self._forces.copy() if with_forces else None)

@@ -11,7 +11,7 @@ from vesselbot_ros.control.model3d import DynamicsModel3D
 from vesselbot_ros.physics.integrator import new_workspace
 from vesselbot_ros.physics.kernel import I_MASS
 from vesselbot_ros.physics.plant3d import forces3d_at
-from vesselbot_ros.sim.plant import PlantSimulator3D
+from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import load_scenario
 from vesselbot_ros.vessels.plant_field3d import planar_twin
 
@@ -39,7 +39,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
 def test_propagate_is_the_plant_under_the_same_push(scenario) -> None:  # type: ignore[no-untyped-def]
     phys = scenario.physics
     m = DynamicsModel3D(phys, scenario.sim.integrator)
-    plant = PlantSimulator3D(phys, scenario.sim.integrator, 1e-3, [1e-3, 2e-4, 5e-4], [0.0, 0.0, 0.0])
+    plant = PlantSimulator(phys, scenario.sim.integrator, 1e-3, [1e-3, 2e-4, 5e-4], [0.0, 0.0, 0.0])
     g = np.array([0.02, 0.01, 0.04])
     y = np.array([1e-3, 2e-4, 5e-4, 0.0, 0.0, 0.0])
     contact = m.new_contact_state()
@@ -51,7 +51,7 @@ def test_propagate_is_the_plant_under_the_same_push(scenario) -> None:  # type: 
 
 
 def test_the_plant_reports_its_wall_side_and_forces(scenario) -> None:  # type: ignore[no-untyped-def]
-    plant = PlantSimulator3D(scenario.physics, scenario.sim.integrator, 1e-3, [2e-3, 0.0, 1.2e-3], [0.0, 0.0, 0.0])
+    plant = PlantSimulator(scenario.physics, scenario.sim.integrator, 1e-3, [2e-3, 0.0, 1.2e-3], [0.0, 0.0, 0.0])
     out = plant.output(with_forces=True)
     assert out.p.shape == (3,) and out.forces is not None and out.forces.shape == (8, 3)
     assert out.wall == 1.0 and -1.5e-3 < out.delta_m < 0.0  # the upper wall is the nearest, 0.05 mm away

@@ -236,7 +236,7 @@ def test_checked_command_contains_every_bad_answer_of_a_controller() -> None:
 
 
 # ---- one loop on any number of axes (issue 40): a role's kind builds one class for the plane and for space ----
-_NOT_YET_ONE = {"plant", "controller"}  # still a planar class and a 3-D twin: each xfail must turn green
+_NOT_YET_ONE = {"controller"}  # still a planar class and a 3-D twin: each xfail must turn green
 
 
 def _stage_class(stage: object) -> tuple[type, ...]:
