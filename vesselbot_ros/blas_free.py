@@ -342,7 +342,7 @@ def hypot3(x, y, z):  # type: ignore[no-untyped-def]  # numba kernel: argument t
     return _vector_norm(ax, ay, az)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def hypot_axes(v):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The Euclidean norm of a vector of two or three axes, :func:`hypot2` or :func:`hypot3` (the same double for
     ``(x, z)`` as for ``(x, 0, z)``): the norm of a stage that runs on any number of axes."""

@@ -184,7 +184,7 @@ def new_coil_state(dims: int, t0_s: float) -> npt.NDArray[np.float64]:
     return st
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def coil_slew_to(prm, state, target, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Move the applied gradient towards ``target`` (T/m, (d,)) within ``S * dt`` on every axis; flags into
     ``out[d + 2 : 2 d + 2]``.  The step is scaled uniformly (stays on the segment applied -> target).  ``target``
@@ -208,7 +208,7 @@ def coil_slew_to(prm, state, target, dt, out):  # type: ignore[no-untyped-def]  
         out[c] = state[c]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def coil_saturate(prm, g, s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The finite command ``g`` (T/m, (d,)) saturated in the configured norm into ``s``; returns ``k >= 1``."""
     d = g.shape[0]
@@ -231,7 +231,7 @@ def coil_saturate(prm, g, s):  # type: ignore[no-untyped-def]  # numba kernel: a
     return k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def coil_reject(prm, state, dt, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """A rejected command: towards zero at the slew limit, as the watchdog (``out`` flags it rejected)."""
     d = state.shape[0] - 2
@@ -244,7 +244,7 @@ def coil_reject(prm, state, dt, out):  # type: ignore[no-untyped-def]  # numba k
     out[2 * d + 2] = 1.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def coil_apply(prm, state, t, g, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Saturate, then slew-limit the command ``g`` (T/m, (d,)) at time ``t`` (s); see :class:`CoilLimiter`.
 

@@ -59,7 +59,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_
 from vesselbot_ros.control.ekf_params import EkfParams
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, failure_message, integrate, integrator_vector
+from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, failure_message, integrate, integrator_vector, state_len
 
 #: Estimates kept for delay compensation (one per update).
 HISTORY_LEN = 4096
@@ -420,7 +420,7 @@ def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-unty
     out[8] = rejected
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, fbuf, sc,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
                     t, g, has_meas, t_acq, m, out):
     """:meth:`HighGainObserver.update` over explicit state (same doubles), on the axes of ``g`` (d,).
@@ -434,7 +434,7 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, 
         The model integrator's code (``OK`` = 0); on failure ``y`` holds the
         state reached and nothing else changed.
     """
-    d = g.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops below unroll); g's length
     ob = 2 * d  # B's offset in prm
     oo = ob + d * d  # the options' offset
     if t > scal[0]:

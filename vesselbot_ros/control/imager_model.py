@@ -301,7 +301,7 @@ def queue_with_room(queue: npt.NDArray[np.float64], state: npt.NDArray[np.float6
     return grown
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def queue_push(queue, state, tail, t_deliver, frame):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Put ``frame[1:]`` (an imager's ``out``: t_acq, p, outlier), due at ``t_deliver``, at the ring's tail (the
     caller sized the ring: :func:`queue_with_room`)."""
@@ -312,7 +312,7 @@ def queue_push(queue, state, tail, t_deliver, frame):  # type: ignore[no-untyped
     state[tail] += 1.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def queue_deliver(queue, state, head, tail, t, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Take every frame due at ``t`` off the ring's head; ``out`` = the newest ([delivered, t_acq, p, outlier])."""
     out[0] = 0.0
@@ -430,7 +430,7 @@ class VariateBuffer:
         return self._rng
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def imager_acquire(prm, outliers, dropouts, rng, t, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Acquire one frame of position ``p`` (d,) at ``t``: ``out[0]`` 1 if kept (0 if dropped), ``out[1]`` = t,
     ``out[2:2 + d]`` the measured position, ``out[2 + d]`` the outlier flag.
@@ -474,7 +474,7 @@ def imager_acquire(prm, outliers, dropouts, rng, t, p, out):  # type: ignore[no-
     out[2 + d] = outlier
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def imager_frame(prm, outliers, dropouts, state, queue, rng, t, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`ImagerModel.frame` over explicit state (same draws, same doubles), on the axes of ``p`` (d,).
 

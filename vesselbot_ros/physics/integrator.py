@@ -65,6 +65,7 @@ __all__ = [
     "integrator_vector",
     "integrate",
     "rhs_into",
+    "state_len",
     "wall_and_forces",
     "plant_output",
     "G_ROW",
@@ -214,6 +215,18 @@ def _tree_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # n
     contact3d_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
 
 
+def state_len(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The state's length in ``geom``, 2 d, a constant at compile time (so the integrator's loops unroll)."""
+    raise NotImplementedError("state_len runs in compiled code only")
+
+
+@overload(state_len, inline="always")
+def _state_len(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(geom, types.Array):
+        return lambda geom: 4
+    return lambda geom: 6
+
+
 def wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(delta, wall)`` of the bead of state ``y`` in ``geom``: its signed penetration of the nearest wall (m, > 0 in
     contact) and which wall (+1 above the centre, -1 below); the force terms (8, d) under ``g`` in ``fbuf`` if
@@ -274,7 +287,7 @@ def integrate(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # 
     Returns:
         (code, h_next): return code and the step size to propose next period.
     """
-    n = work.shape[1]  # the state's length, 2 d: the stages' (y may be longer: its first n entries are integrated)
+    n = state_len(geom)  # 2 d, the stages' length (y may be longer: its first n entries are integrated)
     half = n // 2
     k1 = work[0]
     k2 = work[1]

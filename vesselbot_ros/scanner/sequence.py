@@ -205,7 +205,7 @@ def limit_at(sv, t_s, hold_s, slew, sat):  # type: ignore[no-untyped-def]  # num
     return sat if not v < sat else v
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def target_into(p, c, limit, max_step):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:func:`propulsion_target` (compiled) on any number of gradient axes: the coil's output ``p`` and the finite
     command ``c`` (T/m, (d,), d = 2 or 3); ``c`` becomes the target.  Norms by CPython's ``math.hypot``

@@ -74,7 +74,7 @@ def new_seq_imager_state(dims: int = 2) -> npt.NDArray[np.float64]:
     return st
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`SequencedImager.frame` over explicit state (same draws, same doubles), on the axes of ``p`` (d,).
 
@@ -107,7 +107,7 @@ def seq_imager_frame(sv, prm, outliers, dropouts, rng, st, queue, acq, t, p, out
     queue_deliver(queue, st, d + 4, d + 5, t, out)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)
 def seq_coil_apply(prm, sv, hold, state, t, g, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """:meth:`SequencedCoil.apply` over the coil's explicit state (:func:`coil_apply`'s ``prm``, ``state``, ``out``),
     on the command's axes (``g`` (d,), T/m).
