@@ -20,7 +20,14 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
+from vesselbot_ros.physics.integrator import (
+    OK,
+    IntegratorHolder,
+    IntegratorParams,
+    failure_message,
+    integrate,
+    new_workspace,
+)
 from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.vessels.cfd import packed_params
@@ -32,7 +39,7 @@ __all__ = ["DynamicsModel", "BLOOD_VELOCITY_ERROR"]
 BLOOD_VELOCITY_ERROR = 0.05
 
 
-class DynamicsModel:
+class DynamicsModel(IntegratorHolder):
     """``F(X, Z)``, the input matrix ``B`` and a propagator, for one parameter set.
 
     Args:
@@ -57,16 +64,6 @@ class DynamicsModel:
         self.stats = np.zeros(4, dtype=np.int64)
         self._work, self._fbuf, self._sc = new_workspace(2)  # integrator scratch, allocated once
         self._zero = np.zeros(2)
-
-    @property
-    def integrator(self) -> IntegratorParams:
-        """Integrator settings of :meth:`propagate`; setting them takes effect from the next call."""
-        return self._integrator
-
-    @integrator.setter
-    def integrator(self, value: IntegratorParams) -> None:
-        self._integrator = value
-        self._ig = integrator_vector(value)
 
     @property
     def geom(self) -> npt.NDArray[np.float64]:

@@ -16,7 +16,14 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, IntegratorParams, failure_message, integrate, integrator_vector, new_workspace
+from vesselbot_ros.physics.integrator import (
+    OK,
+    IntegratorHolder,
+    IntegratorParams,
+    failure_message,
+    integrate,
+    new_workspace,
+)
 from vesselbot_ros.physics.kernel import I_MASS, I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.physics.plant3d import forces3d_at
@@ -25,7 +32,7 @@ from vesselbot_ros.vessels.plant_field3d import packed3d, planar_twin
 __all__ = ["DynamicsModel3D"]
 
 
-class DynamicsModel3D:
+class DynamicsModel3D(IntegratorHolder):
     """``F(X, Z)`` (3,), ``B`` (3, 3) and a propagator for one parameter set in a 3-D tree.
 
     Args:
@@ -50,7 +57,6 @@ class DynamicsModel3D:
         self._zero3 = np.zeros(3)
         self._y = np.zeros(6)
         self._h = self.integrator.max_step_s
-        self._ig = integrator_vector(self.integrator)
         self.stats = np.zeros(4, dtype=np.int64)
         self._work, self._fbuf, self._sc = new_workspace(3)
 

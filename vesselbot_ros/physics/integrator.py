@@ -63,6 +63,7 @@ __all__ = [
     "Workspace",
     "new_workspace",
     "integrator_vector",
+    "IntegratorHolder",
     "integrate",
     "rhs_into",
     "state_len",
@@ -149,6 +150,24 @@ def integrator_vector(ig: IntegratorParams) -> npt.NDArray[np.float64]:
     """(7,) ``[rk4 (0/1), rtol, atol_pos, atol_vel, min_step, max_step, fixed_step]``: :func:`integrate`'s ``ig``."""
     return np.array([1.0 if ig.method == "rk4" else 0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s,
                      ig.min_step_s, ig.max_step_s, ig.fixed_step_s])
+
+
+class IntegratorHolder:
+    """A stage that integrates (a plant, a model): its ``integrator`` settings and their packed vector ``_ig``,
+    set together; new settings take effect from the next step."""
+
+    _integrator: IntegratorParams
+    _ig: npt.NDArray[np.float64]
+
+    @property
+    def integrator(self) -> IntegratorParams:
+        """Integrator settings; setting them takes effect from the next step."""
+        return self._integrator
+
+    @integrator.setter
+    def integrator(self, value: IntegratorParams) -> None:
+        self._integrator = value
+        self._ig = integrator_vector(value)
 
 
 @numba.njit(cache=True)

@@ -19,10 +19,10 @@ import numpy.typing as npt
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
     OK,
+    IntegratorHolder,
     IntegratorParams,
     failure_message,
     integrate,
-    integrator_vector,
     new_workspace,
     plant_output,
 )
@@ -59,7 +59,7 @@ class PlantOutput(NamedTuple):
     forces: npt.NDArray[np.float64] | None
 
 
-class PlantSimulator:
+class PlantSimulator(IntegratorHolder):
     """True robot dynamics, advanced one control period per :meth:`step`, on the vessel's axes.
 
     In the plane (a straight vessel or a planar network) the state is ``(x, z, vx, vz)``; in a 3-D tree
@@ -112,16 +112,6 @@ class PlantSimulator:
         self._forces = np.empty((8, d))
         self._work, self._fbuf, self._sc = new_workspace(d)  # integrator scratch, allocated once
         self.stats = np.zeros(4, dtype=np.int64)  # accepted, rejected, rhs evaluations, forced steps
-
-    @property
-    def integrator(self) -> IntegratorParams:
-        """Integrator settings; setting them takes effect from the next step."""
-        return self._integrator
-
-    @integrator.setter
-    def integrator(self, value: IntegratorParams) -> None:
-        self._integrator = value
-        self._ig = integrator_vector(value)
 
     @property
     def geom(self) -> Any:
