@@ -61,7 +61,12 @@ def test_users_controller_every_command_is_in_the_bag(tmp_path):
                            cwd=REPO, capture_output=True, text=True, timeout=240)
     finally:
         user.send_signal(signal.SIGINT)
-        user.wait(timeout=20)
+        try:
+            user.wait(timeout=20)
+        except subprocess.TimeoutExpired:  # the user's own node, not the launcher's: stop it, say so, judge the bag
+            user.kill()
+            out, _ = user.communicate(timeout=20)
+            print(f"examples/my_controller.py did not exit 20 s after SIGINT; killed. Its output:\n{out[-3000:]}")
     assert p.returncode == 0, p.stdout + p.stderr
     info = open_bag(bag)
     assert info.consistent, info.problems
