@@ -396,8 +396,6 @@ class CoilLimiter:
         ramp_start = max(float(self._state[d]), t_last_command + self.limits.command_timeout_s)
         dt = max(float(t_now_s) - ramp_start, 0.0)
         self._state[d] = float(t_now_s)
-        coil_slew_to(self._prm, self._state, np.zeros(d), dt, self._out)
-        self._out[d] = 1.0
-        self._out[d + 1] = 0.0
-        self._out[2 * d + 2] = 0.0
+        coil_reject(self._prm, self._state, dt, self._out)  # the rejected command's ramp to zero
+        self._out[2 * d + 2] = 0.0  # a timeout, not a rejected command
         return self._output()

@@ -155,8 +155,9 @@ class Measurement(NamedTuple):
 
 
 def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float, dims: int = 2) -> npt.NDArray[np.float64]:
-    """The true position as a (dims,) array; ModelInputError unless it is finite and time does not go back."""
-    p = np.asarray(p_true, dtype=np.float64)
+    """The true position as a fresh contiguous (dims,) array, what the compiled frame takes; ModelInputError unless
+    it is finite and time does not go back."""
+    p = np.array(p_true, dtype=np.float64)
     if p.shape != (dims,) or not bool(np.isfinite(p).all()):
         raise ModelInputError(f"imager: true position must be a finite ({dims},) array, got {p_true!r}")
     if not math.isfinite(t_s) or t_s < t_last_s:
@@ -252,8 +253,8 @@ class ImagerModel:
         p = check_frame_inputs(t_s, p_true, self._state[1], self.dims)
         st = self._state
         self._queue = queue_with_room(self._queue, st, 2, 3)
-        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._variates.ready(), float(t_s),
-                     np.array(p, dtype=np.float64), self._out)
+        imager_frame(self._prm, self._outliers, self._dropouts, st, self._queue, self._variates.ready(), float(t_s), p,
+                     self._out)
         return self._measurement()
 
 

@@ -194,7 +194,7 @@ class SequencedImager:
         self._queue = queue_with_room(self._queue, st, d + 4, d + 5)
         inner = self.inner
         seq_imager_frame(self.sv, *inner.frame_arrays, inner.variates(), st, self._queue, self._acq,
-                         float(t_s), np.array(p, dtype=np.float64), self._out)
+                         float(t_s), p, self._out)
         o = self._out
         if o[0] < 0.5:
             return None

@@ -241,10 +241,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     ctrl_out = np.zeros(CONTROLLER_OUT_SIZE)
     coil_out = np.zeros(COIL_OUT_SIZE)
     gc = np.zeros(2)  # the tick's command (NaN: rejected)
-    ga = np.zeros(2)  # the gradient applied over the period
+    ga = np.zeros(2)  # the gradient applied over the last period: the plant's and, next tick, the models'
     z2 = np.zeros(2)
-    gx_prev = 0.0
-    gz_prev = 0.0
     h = ig[5]
     for k in range(n):
         t = ts[k]
@@ -258,7 +256,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         in_contact[k] = delta > 0.0
         contact_phase[k] = int(contact[0])
         if record_forces:
-            forces_into(t, y[0], y[1], y[2], y[3], gx_prev, gz_prev, contact, plant_p, forces[k])
+            forces_into(t, y[0], y[1], y[2], y[3], ga[0], ga[1], contact, plant_p, forces[k])
         # imager (the plant state is finite: the integrator checked it)
         if seq_mode == 1:
             seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:2], img_out)
@@ -277,7 +275,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
         # observer
         if obs_kind == OBS_EKF:
             code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p,
-                              e_p_s, e_work, e_fbuf, e_vec, e_mat, model_stats, t, gx_prev, gz_prev, has_meas,
+                              e_p_s, e_work, e_fbuf, e_vec, e_mat, model_stats, t, ga[0], ga[1], has_meas,
                               img_out[1], img_out[2], img_out[3], obs_out, err)
             if code != OK:
                 return EKF_FAILED, k
@@ -343,12 +341,10 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
             seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
         else:
             coil_apply(coil_prm, coil_state, t, gc, coil_out)
-        gx_prev = coil_out[0]
-        gz_prev = coil_out[1]
-        ga[0] = gx_prev  # the gradient applied over the period: the plant's and, next tick, the observer's
-        ga[1] = gz_prev
-        g_applied[k, 0] = gx_prev
-        g_applied[k, 1] = gz_prev
+        ga[0] = coil_out[0]
+        ga[1] = coil_out[1]
+        g_applied[k, 0] = ga[0]
+        g_applied[k, 1] = ga[1]
         k_scale[k] = coil_out[2]
         saturated[k] = coil_out[3] > 0.5
         slew_limited[k, 0] = coil_out[4] > 0.5

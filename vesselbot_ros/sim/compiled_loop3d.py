@@ -29,11 +29,11 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.actuator_limits import CoilLimiter, coil_apply, coil_out_size, coil_params
 from vesselbot_ros.control.backstepping import FLOW_SCALE_INVALID
-from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, integrator_vector, observer_update
+from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, observer_update
 from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
 from vesselbot_ros.control.loop3d_stages import Backstepping3D, law3d_command
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, integrate, new_workspace
+from vesselbot_ros.physics.integrator import OK, integrate, integrator_vector, new_workspace
 from vesselbot_ros.physics.kernel import I_R
 from vesselbot_ros.physics.plant3d import forces3d_at
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
@@ -64,16 +64,14 @@ def foreign_stages3d(stages: Any) -> list[str]:
     """The roles whose stage :func:`prepare3d` cannot read: not exactly a built-in 3-D class, or over a user's model."""
     bad = [role for role, cls in _BUILT_IN.items() if type(getattr(stages, role)) not in cls]
     im, co = stages.imager, stages.coil
-    if "imager" not in bad and (getattr(im, "dims", 2) != 3
-                                or (type(im) is SequencedImager and type(im.inner) is not ImagerModel)):
+    if "imager" not in bad and type(im) is SequencedImager and type(im.inner) is not ImagerModel:
         bad.append("imager")
-    if "coil" not in bad and (getattr(co, "dims", 2) != 3
-                              or (type(co) is SequencedCoil and type(co.inner) is not CoilLimiter)):
+    if "coil" not in bad and type(co) is SequencedCoil and type(co.inner) is not CoilLimiter:
         bad.append("coil")
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
             bad.append(role)
-    for role in ("plant", "observer"):  # the kernel's stages are on three axes
+    for role in ("plant", "imager", "observer", "coil"):  # the kernel's stages are on three axes
         if role not in bad and getattr(getattr(stages, role), "dims", 2) != 3:
             bad.append(role)
     if not hasattr(stages.reference, "sample_many"):
