@@ -45,7 +45,7 @@ from vesselbot_ros.sim.compiled_loop import (  # the planar loop's columns, stop
     REFERENCE_NONFINITE,
     raise_for_code,
 )
-from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_NONFINITE
+from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_NONFINITE, ROLES
 from vesselbot_ros.sim.plant import PlantSimulator
 
 __all__ = ["LoopInputs3D", "foreign_stages3d", "prepare3d", "loop3d_kernel", "run_kernel3d", "COLUMNS3D"]
@@ -71,8 +71,8 @@ def foreign_stages3d(stages: Any) -> list[str]:
     for role in ("observer", "controller"):
         if role not in bad and not getattr(getattr(stages, role), "_compiled", False):
             bad.append(role)
-    for role in ("plant", "imager", "observer", "coil"):  # the kernel's stages are on three axes
-        if role not in bad and getattr(getattr(stages, role), "dims", 2) != 3:
+    for role in ROLES:  # the kernel's stages are on three axes (a stage that gives no axis count: its class decides)
+        if role not in bad and getattr(getattr(stages, role), "dims", 3) != 3:
             bad.append(role)
     if not hasattr(stages.reference, "sample_many"):
         bad.append("reference")
