@@ -33,6 +33,8 @@ if TYPE_CHECKING:  # scipy.interpolate takes 0.7 s to import; only the stages th
 
 __all__ = [
     "Mat2",
+    "mat_inverse",
+    "mat_apply",
     "mat2",
     "mat2_inverse",
     "mat2_apply",
@@ -82,6 +84,38 @@ def mat2_apply(m: Mat2, x0: float, x1: float) -> tuple[float, float]:
     """``m @ (x0, x1)`` as two floats, each a product sum in a fixed order."""
     a, b, c, d = m
     return (a * x0 + b * x1, c * x0 + d * x1)
+
+
+def mat_inverse(m: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Inverse of a (d, d) matrix without BLAS: :func:`mat2_inverse` for d = 2, the reciprocals of a diagonal one,
+    else :func:`solve` against the identity.
+
+    Raises:
+        ModelInputError: a non-square, non-finite or singular matrix.
+    """
+    a = np.asarray(m, dtype=np.float64)
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or not np.all(np.isfinite(a)):
+        raise ModelInputError(f"expected a finite square matrix, got {m!r}")
+    if a.shape == (2, 2):
+        return np.array(mat2_inverse(mat2(a))).reshape(2, 2)
+    diag = np.diag(a)
+    if np.array_equal(a, np.diag(diag)):
+        if not np.all(diag != 0.0):
+            raise ModelInputError(f"matrix must be invertible, got {a.tolist()}")
+        return np.diag(1.0 / diag)
+    return np.asarray(solve(a, np.eye(a.shape[0])), dtype=np.float64)
+
+
+def mat_apply(m: npt.NDArray[np.float64], x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """``m @ x`` for a (d, d) matrix, each row a product sum in a fixed order (:func:`mat2_apply` for d = 2)."""
+    v = np.asarray(x, dtype=np.float64)
+    out = np.empty(m.shape[0])
+    for i in range(m.shape[0]):
+        acc = float(m[i, 0]) * float(v[0])
+        for j in range(1, m.shape[1]):
+            acc = acc + float(m[i, j]) * float(v[j])
+        out[i] = acc
+    return out
 
 
 def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64] | npt.NDArray[np.complex128]:

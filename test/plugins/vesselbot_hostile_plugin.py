@@ -46,9 +46,8 @@ def _pd_or_bad(prm, model_p, free, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, a
     return 0
 
 
-def _nan_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel
-              pr0, pr1, vr0, vr1, ar0, ar1, out):
-    return _pd_or_bad(prm, model_p, state, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, out)
+def _nan_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel
+    return _pd_or_bad(prm, geom, state, t, est[0], est[1], est[2], est[3], pr[0], pr[1], vr[0], vr[1], ar[0], ar[1], out)
 
 
 nan_step = lazy_step(_nan_step)
@@ -86,7 +85,7 @@ class NaNFrom:
         return ControlCommand(self.out[0:2].copy(), self.out[2:4].copy(), "ok")
 
     def compiled(self) -> CompiledController:
-        return CompiledController(nan_step(), self.prm, self.state, 0)
+        return CompiledController(nan_step, self.prm, self.state, 0)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,8 +16,7 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import ControlCommand
-from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
-from vesselbot_ros.physics.kernel import accel_no_motive
+from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step, model_f_into
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,47 +72,58 @@ class CompiledPDParams:
 
 
 @numba.njit(cache=True, nogil=True)
-def _pd(prm, model_p, free, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """U = a_ref + kd (v_ref - z) + kp (p_ref - x) - F(x, z); G = B^-1 U (prm: kp, kd, B^-1 row-major)."""
-    f0, f1 = accel_no_motive(t, x0, x1, z0, z1, free, model_p)
-    u0 = ar0 + prm[1] * (vr0 - z0) + prm[0] * (pr0 - x0) - f0
-    u1 = ar1 + prm[1] * (vr1 - z1) + prm[0] * (pr1 - x1) - f1
-    out[0] = prm[2] * u0 + prm[3] * u1
-    out[1] = prm[4] * u0 + prm[5] * u1
-    out[2] = u0
-    out[3] = u1
-    out[4] = 1.0
-    out[5] = 1.0
+def _pd(prm, geom, free, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """U = a_ref + kd (v_ref - z) + kp (p_ref - x) - F(x, z); G = B^-1 U (prm: kp, kd, B^-1 row-major), on the d
+    axes of the model ``geom`` (the plane or a 3-D tree: ``model_f_into`` reads either)."""
+    d = pr.shape[0]
+    f = work[3 * d:4 * d]
+    model_f_into(t, est[:d], est[d:2 * d], geom, free, fbuf, sc, work[:2 * d], work[2 * d:3 * d], f)
+    for i in range(d):
+        out[d + i] = ar[i] + prm[1] * (vr[i] - est[d + i]) + prm[0] * (pr[i] - est[i]) - f[i]
+    for i in range(d):
+        acc = prm[2 + i * d] * out[d]
+        for j in range(1, d):
+            acc = acc + prm[2 + i * d + j] * out[d + j]
+        out[i] = acc
+    out[2 * d] = 1.0
+    out[2 * d + 1] = 1.0
     return 0
 
 
-def _pd_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel
-            pr0, pr1, vr0, vr1, ar0, ar1, out):
+def _pd_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel
     """The compiled loop's form of :class:`CompiledPD` (the same function as its Python ``command``)."""
-    return _pd(prm, model_p, state, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, out)
+    return _pd(prm, geom, state, work, fbuf, sc, t, est, pr, vr, ar, out)
 
 
 pd_step = lazy_step(_pd_step)  # the numba cfunc, made on first use
 
 
 class CompiledPD:
-    """PD with the model's forces fed forward, in the compiled loop too (it has ``compiled()``)."""
+    """PD with the model's forces fed forward, in the compiled loop too (it has ``compiled()``), in any vessel."""
 
     ROLE = "controller"
     Params = CompiledPDParams
 
     def __init__(self, params: CompiledPDParams, context: Any) -> None:
         b_inv = np.linalg.inv(context.model.input_matrix)
+        d = b_inv.shape[0]
         self.prm = np.array([params.kp_per_s2, params.kd_per_s, *b_inv.ravel()])
-        self.model_p = context.model.p
+        self.geom = context.model.geom
         self.state = np.zeros(4)  # the memoryless contact state of F
-        self.out = np.zeros(6)
+        self.work = np.zeros(4 * d)
+        self.fbuf = np.empty((8, d))
+        self.sc = np.zeros((4, d))
+        self.est = np.zeros(2 * d + 2)
+        self.out = np.zeros(2 * d + 2)
 
     def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
-        x, z = estimate.x_hat, estimate.z_hat
-        _pd(self.prm, self.model_p, self.state, t_s, x[0], x[1], z[0], z[1], ref.p[0], ref.p[1], ref.v[0], ref.v[1],
-            ref.a[0], ref.a[1], self.out)
-        return ControlCommand(self.out[0:2].copy(), self.out[2:4].copy(), "ok")
+        d = self.est.shape[0] // 2 - 1
+        self.est[:d] = estimate.x_hat
+        self.est[d:2 * d] = estimate.z_hat
+        _pd(self.prm, self.geom, self.state, self.work, self.fbuf, self.sc, t_s, self.est,
+            np.asarray(ref.p, dtype=np.float64), np.asarray(ref.v, dtype=np.float64),
+            np.asarray(ref.a, dtype=np.float64), self.out)
+        return ControlCommand(self.out[0:d].copy(), self.out[d:2 * d].copy(), "ok")
 
     def compiled(self) -> CompiledController:
-        return CompiledController(pd_step(), self.prm, self.state, 0)
+        return CompiledController(pd_step, self.prm, self.state, self.work.shape[0])

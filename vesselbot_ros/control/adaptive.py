@@ -90,16 +90,26 @@ class AdaptiveState:
     t_last_s: float = math.nan
 
 
-def adaptive_params(params: AdaptiveParams, input_matrix: tuple[float, float, float, float]) -> npt.NDArray[np.float64]:
-    """(9,) vector of :func:`adapt_scales` and ``backstepping.adaptive_command``: ``[gamma_s, gamma_m, scale_min,
-    scale_max, regressor_step, B (4, row-major)]``."""
+def adaptive_params(params: AdaptiveParams, input_matrix: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """(5 + d^2,) vector of :func:`adapt_scales` and ``backstepping.adaptive_command``: ``[gamma_s, gamma_m,
+    scale_min, scale_max, regressor_step, B (d x d, row-major)]``."""
     return np.array([float(params.flow_scale_gain_s3_per_m2), float(params.magnetization_gain_s3_per_m2),
-                     float(params.scale_min), float(params.scale_max), float(params.regressor_step), *input_matrix])
+                     float(params.scale_min), float(params.scale_max), float(params.regressor_step),
+                     *np.asarray(input_matrix, dtype=np.float64).ravel()])
 
 
 @numba.njit(cache=True, nogil=True)
-def adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The update laws on arrays: ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``, in place.
+def _dot(a, b):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    acc = a[0] * b[0]
+    for i in range(1, a.shape[0]):
+        acc = acc + a[i] * b[i]
+    return acc
+
+
+@numba.njit(cache=True, nogil=True)
+def adapt_scales(aprm, ast, t, e2, phi_s, phi_m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The update laws on arrays: ``ast`` (3,) ``[s_hat, m_hat, time of the last update]``, in place; ``e2``,
+    ``phi_s``, ``phi_m`` (d,).
 
     ``aprm`` from :func:`adaptive_params`.  Explicit Euler over the time since the
     last update, projected onto ``[scale_min, scale_max]``; the first call (time
@@ -113,10 +123,10 @@ def adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1):  # typ
     lo = aprm[2]
     hi = aprm[3]
     if aprm[0] > 0.0:
-        ds = dt * aprm[0] * (phi_s0 * e20 + phi_s1 * e21)
+        ds = dt * aprm[0] * _dot(phi_s, e2)
         ast[0] = min(hi, max(lo, ast[0] + ds))
     if aprm[1] > 0.0:
-        dm = dt * aprm[1] * (phi_m0 * e20 + phi_m1 * e21)
+        dm = dt * aprm[1] * _dot(phi_m, e2)
         ast[1] = min(hi, max(lo, ast[1] + dm))
 
 
@@ -124,9 +134,9 @@ def adaptation_step(
     prm: AdaptiveParams,
     state: AdaptiveState,
     t_s: float,
-    e2: tuple[float, float],
-    phi_s: tuple[float, float],
-    phi_m: tuple[float, float],
+    e2: npt.ArrayLike,
+    phi_s: npt.ArrayLike,
+    phi_m: npt.ArrayLike,
 ) -> None:
     """Advance the estimates to ``t_s`` (explicit Euler, projected), in place.
 
@@ -139,6 +149,7 @@ def adaptation_step(
         phi_m: ``B G`` of the gradient applied since the last update (m/s^2).
     """
     ast = np.array([state.flow_scale, state.magnetization_scale, state.t_last_s], dtype=np.float64)
-    adapt_scales(adaptive_params(prm, (1.0, 0.0, 0.0, 1.0)), ast, float(t_s), float(e2[0]), float(e2[1]),
-                 float(phi_s[0]), float(phi_s[1]), float(phi_m[0]), float(phi_m[1]))
+    e = np.asarray(e2, dtype=np.float64)
+    adapt_scales(adaptive_params(prm, np.eye(e.shape[0])), ast, float(t_s), e, np.asarray(phi_s, dtype=np.float64),
+                 np.asarray(phi_m, dtype=np.float64))
     state.flow_scale, state.magnetization_scale, state.t_last_s = float(ast[0]), float(ast[1]), float(ast[2])

@@ -1,7 +1,7 @@
 """Backstepping tracking law, eq. (24) of Arcese et al. (2012).
 
 For the canonical form (23) ``Xd = Z, Zd = F(X, Z) + U`` (per unit mass,
-frame W, axes x and z), with reference ``X_ref`` and its first two
+frame W; axes x and z in the plane, x, y and z in a 3-D tree: the same law on each), with reference ``X_ref`` and its first two
 derivatives, the law is::
 
     U = Xdd_ref + (k1 + k2) Xd_ref + (1 + k1 k2) X_ref
@@ -36,12 +36,13 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
+from vesselbot_ros.blas_free import mat_apply, mat_inverse
 from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
-from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step
+from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step, model_f_into
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_R, I_V_F, diameter_at, forces_into
+from vesselbot_ros.physics.integrator import forces_at, params_of, with_params
+from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_R, I_V_F, diameter_at
 
 __all__ = [
     "BacksteppingGains",
@@ -50,6 +51,8 @@ __all__ = [
     "BacksteppingController",
     "backstepping_u",
     "controller_params",
+    "law_work_size",
+    "PRM_B_INV",
     "backstepping_command",
     "STATUS_OK",
     "STATUS_STALE",
@@ -62,7 +65,7 @@ __all__ = [
 
 
 class ForceFn(Protocol):
-    """``F(t_s, X, Z[, flow_scale]) -> (2,)`` m/s^2 (:meth:`vesselbot_ros.control.model.DynamicsModel.F`'s shape)."""
+    """``F(t_s, X, Z[, flow_scale]) -> (d,)`` m/s^2 (:meth:`vesselbot_ros.control.model.DynamicsModel.F`'s shape)."""
 
     def __call__(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64], flow_scale: float = 1.0, /
                  ) -> npt.NDArray[np.float64]: ...
@@ -153,8 +156,8 @@ class ControlCommand(NamedTuple):
     """Output of :meth:`BacksteppingController.command`.
 
     Attributes:
-        gradient_T_per_m: (2,) commanded gradient, T/m, frame W.
-        u_m_per_s2: (2,) acceleration ``U`` of eq. (24), m/s^2 (zeros when not
+        gradient_T_per_m: (d,) commanded gradient, T/m, frame W.
+        u_m_per_s2: (d,) acceleration ``U`` of eq. (24), m/s^2 (zeros when not
             computed).
         status: ``ok``, ``stale`` (safe action, estimate too old) or
             ``nonfinite`` (safe action, the law gave a non-finite value).
@@ -175,17 +178,17 @@ def backstepping_u(
     v_ref: npt.NDArray[np.float64],
     a_ref: npt.NDArray[np.float64],
 ) -> npt.NDArray[np.float64]:
-    """Eq. (24): the acceleration ``U`` (m/s^2), shape (2,).
+    """Eq. (24): the acceleration ``U`` (m/s^2), shape (d,).
 
     Args:
         k1: Gain k1 (1/s).
         k2: Gain k2 (1/s).
-        x: (2,) position X (m).
-        z: (2,) velocity Z (m/s).
-        f: (2,) ``F(X, Z)`` (m/s^2).
-        p_ref: (2,) ``X_ref`` (m).
-        v_ref: (2,) ``Xd_ref`` (m/s).
-        a_ref: (2,) ``Xdd_ref`` (m/s^2).
+        x: (d,) position X (m).
+        z: (d,) velocity Z (m/s).
+        f: (d,) ``F(X, Z)`` (m/s^2).
+        p_ref: (d,) ``X_ref`` (m).
+        v_ref: (d,) ``Xd_ref`` (m/s).
+        a_ref: (d,) ``Xdd_ref`` (m/s^2).
     """
     s = k1 + k2
     c = 1.0 + k1 * k2
@@ -197,19 +200,28 @@ STATUS_OK, STATUS_STALE, STATUS_NONFINITE = 0, 1, 2
 #: :func:`backstepping_command` refused the observer's flow scale (not finite and > 0): an error, not a status.
 FLOW_SCALE_INVALID = STEP_FLOW_SCALE_INVALID
 _STATUS_NAMES = ("ok", "stale", "nonfinite")
+#: Index of ``B^-1`` (d x d, row-major) in :func:`controller_params`'s vector.
+PRM_B_INV = 8
 
 
-def controller_params(params: ControllerParams, b_inv: tuple[float, float, float, float], half_hold_s: float,
+def controller_params(params: ControllerParams, b_inv: npt.ArrayLike, half_hold_s: float,
                       inv_duty: float = 1.0) -> npt.NDArray[np.float64]:
-    """(12,) parameter vector of :func:`backstepping_command`.
+    """(8 + d^2,) parameter vector of :func:`backstepping_command`.
 
-    ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), B^-1 (4, row-major),
-    flow compensation (1 = estimate), 1 / duty cycle (1 = none), wall contact carried (1) / model (0)]``.
+    ``[k1, k2, T/2 (midpoint hold, 0 = none), stale_timeout_s, hold (1) / zero (0), flow compensation
+    (1 = estimate), 1 / duty cycle (1 = none), wall contact carried (1) / model (0), B^-1 (d x d, row-major)]``.
     """
     return np.array([float(params.gains.k1), float(params.gains.k2), float(half_hold_s), float(params.stale_timeout_s),
-                     1.0 if params.stale_action == "hold" else 0.0, *b_inv,
+                     1.0 if params.stale_action == "hold" else 0.0,
                      1.0 if params.flow_compensation == "estimate" else 0.0, float(inv_duty),
-                     1.0 if params.wall_contact == "carried" else 0.0])
+                     1.0 if params.wall_contact == "carried" else 0.0,
+                     *np.asarray(b_inv, dtype=np.float64).ravel()])
+
+
+def law_work_size(model_p_size: int, dims: int) -> int:
+    """Length of the laws' ``work``: ``[p_s (the model's size), y (2 d), g0 (d), e2 (d), phi_s (d), phi_m (d),
+    fa (d)]``."""
+    return int(model_p_size) + 7 * int(dims)
 
 
 def flow_scale_message(flow_scale: float) -> str:
@@ -219,60 +231,29 @@ def flow_scale_message(flow_scale: float) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    d = last.shape[0]
     if prm[4] < 0.5:
-        last[0] = 0.0
-        last[1] = 0.0
-    out[0] = last[0]
-    out[1] = last[1]
-    out[2] = 0.0
-    out[3] = 0.0
+        for c in range(d):
+            last[c] = 0.0
+    for c in range(d):
+        out[c] = last[c]
+        out[d + c] = 0.0
     return status
 
 
 @numba.njit(cache=True, nogil=True)
-def backstepping_command(prm, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-                         pr0, pr1, vr0, vr1, ar0, ar1, out):
-    """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model's packed parameters.
-
-    Args: prm (12,) from :func:`controller_params`; last (2,) last command (T/m),
-    updated; model_p packed model physics; p_s scratch of its size (``V_f``
-    scaled by ``flow_scale`` with flow compensation); free_contact (4,) zeros
-    (memoryless contact of ``F``); fbuf (8, 2) scratch; t (s); estimate x, z
-    (m, m/s); age (s); the observer's flow scale ``s_hat`` (-); reference p, v,
-    a.  Writes ``out`` = [g x, g z (T/m), U x, U z (m/s^2)].
-
-    Returns:
-        ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken),
-        or :data:`FLOW_SCALE_INVALID` (nothing changed).  The same doubles as
-        :func:`backstepping_u`, ``DynamicsModel.F`` and ``blas_free.mat2_apply``.
-    """
-    if not age <= prm[3]:
-        return _safe_command(prm, last, out, STATUS_STALE)
-    compensate = prm[9] > 0.5  # F with the model's V_f scaled by the observer's estimate
-    if compensate and not (math.isfinite(flow_scale) and flow_scale > 0.0):
-        return FLOW_SCALE_INVALID
-    p = _scaled_model(model_p, p_s, flow_scale) if compensate else model_p
-    g0, g1, u0, u1 = _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1)
-    return _emit(prm, last, out, g0, g1, u0, u1)
-
-
-@numba.njit(cache=True, nogil=True)
-def _scaled_model(model_p, p_s, flow_scale):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-    """The model's packed parameters with ``V_f`` times ``flow_scale`` (``model_p`` itself for 1), as ``DynamicsModel.F``."""
+def _scaled_model(geom, p_s, flow_scale):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    """The model with ``V_f`` times ``flow_scale`` (the model itself for 1), as ``DynamicsModel.F``."""
+    p = params_of(geom)
     if flow_scale == 1.0:
-        return model_p
-    for i in range(model_p.shape[0]):
-        p_s[i] = model_p[i]
-    p_s[I_V_F] = model_p[I_V_F] * flow_scale
-    return p_s
-
-
-@numba.njit(cache=True, nogil=True)
-def _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-    """``DynamicsModel.F`` at ``(X, Z)``, time ``t``, on packed parameters ``p`` (m/s^2): the same doubles."""
-    forces_into(t, x0, x1, z0, z1, 0.0, 0.0, free_contact, p, fbuf)
-    m = model_p[I_MASS]
-    return fbuf[7, 0] / m, fbuf[7, 1] / m
+        q = p
+    else:
+        n = p.shape[0]
+        for i in range(n):
+            p_s[i] = p[i]
+        p_s[I_V_F] = p[I_V_F] * flow_scale
+        q = p_s[:n]
+    return with_params(geom, q)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -284,107 +265,151 @@ def rests_on_lower_wall(t, pz, p):  # type: ignore[no-untyped-def]  # numba kern
 
 
 @numba.njit(cache=True, nogil=True)
-def _law(prm, model_p, p, free_contact, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-    """Eq. (24) with ``F`` on ``p``, mapped by ``B^-1`` and the duty compensation: ``(g x, g z, U x, U z)``."""
+def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    """Eq. (24) with ``F`` of the model ``gq``, mapped by ``B^-1`` and the duty compensation: ``out`` = [g (d), U (d)]."""
+    d = pr.shape[0]
+    n = params_of(geom).shape[0]
+    y = work[n:n + 2 * d]
+    g0 = work[n + 2 * d:n + 3 * d]
     k1 = prm[0]
     k2 = prm[1]
     s = k1 + k2
     c = 1.0 + k1 * k2
     h = prm[2]
-    if h > 0.0:
-        a0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - 0.0
-        a1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - 0.0
+    m = params_of(gq)[I_MASS]
+    if h > 0.0:  # F at the middle of the hold, along the acceleration (24) asks for
         hh = 0.5 * h * h
-        f0, f1 = _model_f(model_p, p, free_contact, fbuf, t + h, x0 + h * z0 + hh * a0, x1 + h * z1 + hh * a1,
-                          z0 + h * a0, z1 + h * a1)
-        u0 = a0 - f0
-        u1 = a1 - f1
+        for i in range(d):
+            a = ar[i] + s * vr[i] + c * pr[i] - c * est[i] - s * est[d + i]
+            out[d + i] = a
+            y[i] = est[i] + h * est[d + i] + hh * a
+            y[d + i] = est[d + i] + h * a
+        forces_at(t + h, y, g0, free, gq, fbuf, sc)
+        for i in range(d):
+            out[d + i] = out[d + i] - fbuf[7, i] / m
     else:
-        f0, f1 = _model_f(model_p, p, free_contact, fbuf, t, x0, x1, z0, z1)
-        u0 = ar0 + s * vr0 + c * pr0 - c * x0 - s * z0 - f0
-        u1 = ar1 + s * vr1 + c * pr1 - c * x1 - s * z1 - f1
-    if prm[11] > 0.5 and rests_on_lower_wall(t, pr1, model_p):
-        u1 = 0.0  # the reference rests on the lower wall: the weight and the wall hold the bead there
-    g0 = prm[5] * u0 + prm[6] * u1
-    g1 = prm[7] * u0 + prm[8] * u1
-    if prm[10] != 1.0:  # duty compensation
-        g0 = g0 * prm[10]
-        g1 = g1 * prm[10]
-    return g0, g1, u0, u1
+        for i in range(d):
+            y[i] = est[i]
+            y[d + i] = est[d + i]
+        forces_at(t, y, g0, free, gq, fbuf, sc)
+        for i in range(d):
+            out[d + i] = ar[i] + s * vr[i] + c * pr[i] - c * est[i] - s * est[d + i] - fbuf[7, i] / m
+    if prm[7] > 0.5 and rests_on_lower_wall(t, pr[d - 1], params_of(geom)):
+        out[2 * d - 1] = 0.0  # the reference rests on the lower wall: the weight and the wall hold the bead there
+    for i in range(d):
+        b = PRM_B_INV + i * d
+        acc = prm[b] * out[d]
+        for j in range(1, d):
+            acc = acc + prm[b + j] * out[d + j]
+        if prm[6] != 1.0:  # duty compensation
+            acc = acc * prm[6]
+        out[i] = acc
 
 
 @numba.njit(cache=True, nogil=True)
-def _emit(prm, last, out, g0, g1, u0, u1):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-    """Write a command (or take the safe action if it is not finite); its status."""
-    if not (math.isfinite(g0) and math.isfinite(g1)):
-        return _safe_command(prm, last, out, STATUS_NONFINITE)
-    last[0] = g0
-    last[1] = g1
-    out[0] = g0
-    out[1] = g1
-    out[2] = u0
-    out[3] = u1
+def _emit(prm, last, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    """Keep the command in ``out`` (or take the safe action if it is not finite); its status."""
+    d = last.shape[0]
+    for c in range(d):
+        if not math.isfinite(out[c]):
+            return _safe_command(prm, last, out, STATUS_NONFINITE)
+    for c in range(d):
+        last[c] = out[c]
     return STATUS_OK
 
 
 @numba.njit(cache=True, nogil=True)
-def adaptive_command(prm, aprm, ast, last, model_p, p_s, free_contact, fbuf, t, x0, x1, z0, z1, age,  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-                     pr0, pr1, vr0, vr1, ar0, ar1, out):
+def backstepping_command(prm, last, geom, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
+    """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model ``geom``, on d axes.
+
+    Args: prm from :func:`controller_params`; last (d,) last command (T/m), updated; geom the model's vessel
+    (:attr:`~vesselbot_ros.control.model.DynamicsModel.geom`); work (:func:`law_work_size`) scratch; free (4,)
+    zeros (memoryless contact of ``F``); fbuf (8, d), sc (4, d) scratch; t (s); est ``[X (d), Z (d), age (s), the
+    observer's flow scale]``; the reference p, v, a (d,).  Writes ``out`` = [g (d) (T/m), U (d) (m/s^2)].
+
+    Returns:
+        ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken), or :data:`FLOW_SCALE_INVALID`
+        (nothing changed).
+    """
+    d = pr.shape[0]
+    if not est[2 * d] <= prm[3]:
+        return _safe_command(prm, last, out, STATUS_STALE)
+    flow_scale = est[2 * d + 1]
+    gq = geom
+    if prm[5] > 0.5:  # F with the model's V_f scaled by the observer's estimate
+        if not (math.isfinite(flow_scale) and flow_scale > 0.0):
+            return FLOW_SCALE_INVALID
+        gq = _scaled_model(geom, work, flow_scale)
+    _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out)
+    return _emit(prm, last, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def adaptive_command(prm, aprm, ast, last, geom, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Adaptive backstepping (:mod:`vesselbot_ros.control.adaptive`): adapt, then law (24) at the adapted scales.
 
     ``aprm`` from :func:`~vesselbot_ros.control.adaptive.adaptive_params`; ``ast`` (3,) ``[s_hat, m_hat,
     time of the last update]``, updated (:func:`~vesselbot_ros.control.adaptive.adapt_scales`);
-    the rest as :func:`backstepping_command`.  A stale estimate pauses the adaptation.  The law
-    uses ``F`` at ``s_hat`` and divides the gradient by ``m_hat``.  The same doubles as the Python
-    reading in :class:`BacksteppingController` with a user's ``F``.
+    the rest as :func:`backstepping_command` (the observer's flow scale unused).  A stale estimate pauses the
+    adaptation.  The law uses ``F`` at ``s_hat`` and divides the gradient by ``m_hat``.  The same doubles as the
+    Python reading in :class:`BacksteppingController` with a user's ``F``.
     """
-    if not age <= prm[3]:
+    d = pr.shape[0]
+    if not est[2 * d] <= prm[3]:
         ast[2] = t  # adaptation pauses while the estimate is stale
         return _safe_command(prm, last, out, STATUS_STALE)
+    n = params_of(geom).shape[0]
+    y = work[n:n + 2 * d]
+    g0 = work[n + 2 * d:n + 3 * d]
+    e2 = work[n + 3 * d:n + 4 * d]
+    phi_s = work[n + 4 * d:n + 5 * d]
+    phi_m = work[n + 5 * d:n + 6 * d]
+    fa = work[n + 6 * d:n + 7 * d]
     k1 = prm[0]
-    e20 = z0 - vr0 + k1 * (x0 - pr0)
-    e21 = z1 - vr1 + k1 * (x1 - pr1)
     h = aprm[4]
-    fa0, fa1 = _model_f(model_p, _scaled_model(model_p, p_s, ast[0]), free_contact, fbuf, t, x0, x1, z0, z1)
-    fb0, fb1 = _model_f(model_p, _scaled_model(model_p, p_s, ast[0] + h), free_contact, fbuf, t, x0, x1, z0, z1)
-    phi_s0 = (fb0 - fa0) / h
-    phi_s1 = (fb1 - fa1) / h
-    phi_m0 = aprm[5] * last[0] + aprm[6] * last[1]  # B G of the gradient commanded since the last update
-    phi_m1 = aprm[7] * last[0] + aprm[8] * last[1]
-    adapt_scales(aprm, ast, t, e20, e21, phi_s0, phi_s1, phi_m0, phi_m1)
+    for i in range(d):
+        e2[i] = est[d + i] - vr[i] + k1 * (est[i] - pr[i])
+    model_f_into(t, est[:d], est[d:2 * d], _scaled_model(geom, work, ast[0]), free, fbuf, sc, y, g0, fa)
+    model_f_into(t, est[:d], est[d:2 * d], _scaled_model(geom, work, ast[0] + h), free, fbuf, sc, y, g0, phi_s)
+    for i in range(d):
+        phi_s[i] = (phi_s[i] - fa[i]) / h
+        b = 5 + i * d  # B G of the gradient commanded since the last update
+        acc = aprm[b] * last[0]
+        for j in range(1, d):
+            acc = acc + aprm[b + j] * last[j]
+        phi_m[i] = acc
+    adapt_scales(aprm, ast, t, e2, phi_s, phi_m)
     flow_scale = ast[0]
     if not (math.isfinite(flow_scale) and flow_scale > 0.0):
         return FLOW_SCALE_INVALID
-    g0, g1, u0, u1 = _law(prm, model_p, _scaled_model(model_p, p_s, flow_scale), free_contact, fbuf, t, x0, x1,
-                          z0, z1, pr0, pr1, vr0, vr1, ar0, ar1)
+    _law(prm, geom, _scaled_model(geom, work, flow_scale), work, free, fbuf, sc, t, est, pr, vr, ar, out)
     inv_m = 1.0 / ast[1]
     if inv_m != 1.0:
-        g0 = g0 * inv_m
-        g1 = g1 * inv_m
-    return _emit(prm, last, out, g0, g1, u0, u1)
-
+        for i in range(d):
+            out[i] = out[i] * inv_m
+    return _emit(prm, last, out)
 
 
 # ---- the compiled loop's form (control/compiled_stage.py): law (24) and the adaptive law behind one signature ----
-# state: [last command x, z (T/m), memoryless contact (4, zeros)] + (adaptive) [s_hat, m_hat, time of the last update];
-# prm: controller_params (12,) + (adaptive) adaptive_params (9,); work: the model's size (V_f-scaled copy)
-def _backstepping_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
-                      pr0, pr1, vr0, vr1, ar0, ar1, out):
+# state: [last command (d) (T/m), memoryless contact (4, zeros)] + (adaptive) [s_hat, m_hat, time of the last update];
+# prm: controller_params + (adaptive) adaptive_params; work: law_work_size
+def _backstepping_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
     """:func:`backstepping_command` as a compiled controller step (the observer's flow scale)."""
-    status = backstepping_command(prm, state[0:2], model_p, work, state[2:6], fbuf, t, x0, x1, z0, z1, age,
-                                  flow_scale, pr0, pr1, vr0, vr1, ar0, ar1, out)
-    out[4] = flow_scale
-    out[5] = 1.0
+    d = pr.shape[0]
+    status = backstepping_command(prm, state[0:d], geom, work, state[d:d + 4], fbuf, sc, t, est, pr, vr, ar, out)
+    out[2 * d] = est[2 * d + 1]
+    out[2 * d + 1] = 1.0
     return status
 
 
-def _adaptive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
-                  pr0, pr1, vr0, vr1, ar0, ar1, out):
+def _adaptive_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
     """:func:`adaptive_command` as a compiled controller step (its own adapted scales)."""
-    status = adaptive_command(prm[0:12], prm[12:21], state[6:9], state[0:2], model_p, work, state[2:6], fbuf, t,
-                              x0, x1, z0, z1, age, pr0, pr1, vr0, vr1, ar0, ar1, out)
-    out[4] = state[6]  # the adapted scales after this tick's update
-    out[5] = state[7]
+    d = pr.shape[0]
+    np_ = PRM_B_INV + d * d
+    status = adaptive_command(prm[0:np_], prm[np_:], state[d + 4:d + 7], state[0:d], geom, work, state[d:d + 4], fbuf,
+                              sc, t, est, pr, vr, ar, out)
+    out[2 * d] = state[d + 4]  # the adapted scales after this tick's update
+    out[2 * d + 1] = state[d + 5]
     return status
 
 
@@ -393,16 +418,18 @@ adaptive_step = lazy_step(_adaptive_step)
 
 
 class BacksteppingController:
-    """Eq. (24) on the observer's estimate, mapped to a coil gradient.
+    """Eq. (24) on the observer's estimate, mapped to a coil gradient, on the model's axes (2 in the plane, 3 in a
+    tree).
 
     Ports: inputs ``estimate`` (x_hat, z_hat, time since measurement) and
     ``ref_sample`` (X_ref, Xd_ref, Xdd_ref); output :class:`ControlCommand`.
 
     Args:
         params: Gains and safe-behaviour settings.
-        force_fn: ``F(t_s, X, Z) -> (2,)`` m/s^2, all forces but the motive one
-            divided by the mass, with the controller's own model parameters.
-        input_matrix: (2, 2) ``B`` with ``U = B G`` (m/s^2 per T/m).
+        force_fn: ``F(t_s, X, Z[, flow_scale]) -> (d,)`` m/s^2, all forces but the motive one divided by the mass,
+            with the controller's own model parameters.  A :class:`~vesselbot_ros.control.model.DynamicsModel`'s
+            ``F`` runs the compiled law (the compiled loop's very functions); any other in Python.
+        input_matrix: (d, d) ``B`` with ``U = B G`` (m/s^2 per T/m); its size is the axis count.
         hold_period_s: Period ``T`` over which the coil holds each command (s);
             used by ``sample_hold: midpoint`` (0 = continuous, same as ``none``).
         duty_cycle: The scanner's propulsion duty cycle in (0, 1]; used by
@@ -419,43 +446,51 @@ class BacksteppingController:
     ) -> None:
         if not (math.isfinite(hold_period_s) and hold_period_s >= 0.0):
             raise ModelInputError(f"hold_period_s must be finite and >= 0, got {hold_period_s!r}")
+        b = np.asarray(input_matrix, dtype=np.float64)
+        if b.shape not in ((2, 2), (3, 3)):
+            raise ModelInputError(f"input_matrix must be (2, 2) or (3, 3), got shape {b.shape}")
         try:
-            b_inv = mat2_inverse(mat2(input_matrix))
+            b_inv = mat_inverse(b)  # G = B^-1 U in fixed-order scalar arithmetic, not BLAS (vesselbot_ros.blas_free)
         except ModelInputError as exc:
             raise ModelInputError(f"input_matrix: {exc}") from None
+        d = b.shape[0]
+        self.dims = d
         self.params = params
         self._f = force_fn
-        # B^-1 as four floats: G = B^-1 U in fixed-order scalar arithmetic, not BLAS (vesselbot_ros.blas_free)
         self._b_inv = b_inv
+        self._b = b
         self._k1 = float(params.gains.k1)
         self._k2 = float(params.gains.k2)
-        self._last = np.zeros(2)
+        self._last = np.zeros(d)
         self._half = 0.5 * float(hold_period_s) if params.sample_hold == "midpoint" else 0.0
         self._compensate = params.flow_compensation == "estimate"
-        self._b = mat2(input_matrix)
         # the adapted scales [s_hat, m_hat, time of the last update] (``kind: adaptive_backstepping``), else None
         self._ast: npt.NDArray[np.float64] | None = (np.array([1.0, 1.0, math.nan])
                                                      if params.kind == "adaptive_backstepping" else None)
-        self._aprm = adaptive_params(params.adaptive, self._b) if self._ast is not None else np.zeros(9)
+        self._aprm = adaptive_params(params.adaptive, b) if self._ast is not None else np.zeros(5 + d * d)
         if not (math.isfinite(duty_cycle) and 0.0 < duty_cycle <= 1.0):
             raise ModelInputError(f"duty_cycle must be in (0, 1], got {duty_cycle!r}")
         self._inv_duty = 1.0 / duty_cycle if params.duty_compensation == "sequence" else 1.0
-        # F of a DynamicsModel is the kernel at its packed params: then the law runs compiled
-        # (backstepping_command), as in the compiled loop; any other force_fn runs in Python.
-        owner = getattr(force_fn, "__self__", None)
+        # F of a DynamicsModel is the force kernel on its geometry: then the law runs compiled (backstepping_command,
+        # adaptive_command), as in the compiled loop; any other force_fn runs in Python.
+        owner: Any = getattr(force_fn, "__self__", None)
         model_p = getattr(owner, "p", None)
-        # the compiled law takes flow and duty compensation and the adaptation (adaptive_command)
-        self.model_params: npt.NDArray[np.float64] | None = (
-            model_p if (getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray)) else None
-        )
+        own = getattr(owner, "F", None) == force_fn and isinstance(model_p, np.ndarray) and hasattr(owner, "geom")
+        self.model_params: npt.NDArray[np.float64] | None = model_p if own else None
+        self.model_geom: Any = owner.geom if own else None
         self.params_vector = controller_params(params, b_inv, self._half, self._inv_duty)
-        if params.wall_contact == "carried" and (self.model_params is None or self.model_params[I_NET_ON] > 0.5):
+        if params.wall_contact == "carried" and (self.model_params is None or d != 2
+                                                 or self.model_params[I_NET_ON] > 0.5):
             raise ConfigError("controller.wall_contact 'carried' needs the model's F of a straight vessel "
                               "(physics.vessel.network empty)")
-        self._p_s = np.empty_like(model_p) if self.model_params is not None else np.empty(0)
-        self._out = np.zeros(4)
+        n_p = self.model_params.shape[0] if self.model_params is not None else 0
+        self._work = np.zeros(law_work_size(n_p, d))
+        self._est = np.zeros(2 * d + 2)
+        self._ref = np.zeros((3, d))
+        self._out = np.zeros(2 * d)
         self._free = np.zeros(4)
-        self._fbuf = np.empty((8, 2))
+        self._fbuf = np.empty((8, d))
+        self._sc = np.zeros((4, d))
 
     def reset(self) -> None:
         """Forget the last command (the ``hold`` action then holds zero) and any adapted scale."""
@@ -472,7 +507,7 @@ class BacksteppingController:
 
     @property
     def adaptive_vector(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
-        """``(aprm (9,), state (3,))`` of :func:`adaptive_command`, or None (not adaptive)."""
+        """``(aprm, state (3,))`` of :func:`adaptive_command`, or None (not adaptive)."""
         return None if self._ast is None else (self._aprm, self._ast)
 
     def compiled(self) -> CompiledController:
@@ -485,14 +520,14 @@ class BacksteppingController:
             raise ModelInputError("the compiled loop needs the controller's F from a DynamicsModel")
         state = np.concatenate([self._last, self._free])
         if self._ast is None:
-            return CompiledController(backstepping_step(), self.params_vector, state, self.model_params.shape[0])
-        return CompiledController(adaptive_step(), np.concatenate([self.params_vector, self._aprm]),
-                                  np.concatenate([state, self._ast]), self.model_params.shape[0])
+            return CompiledController(backstepping_step, self.params_vector, state, self._work.shape[0])
+        return CompiledController(adaptive_step, np.concatenate([self.params_vector, self._aprm]),
+                                  np.concatenate([state, self._ast]), self._work.shape[0])
 
     def _safe(self, status: str) -> ControlCommand:
         if self.params.stale_action != "hold":
             self._last[:] = 0.0
-        return ControlCommand(self._last.copy(), np.zeros(2), status)
+        return ControlCommand(self._last.copy(), np.zeros(self.dims), status)
 
     def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
         """Compute the gradient command from an observer estimate and a reference sample.
@@ -526,12 +561,12 @@ class BacksteppingController:
 
         Args:
             t_s: Time (s).
-            x_hat: (2,) estimated position, m.
-            z_hat: (2,) estimated velocity, m/s.
+            x_hat: (d,) estimated position, m.
+            z_hat: (d,) estimated velocity, m/s.
             time_since_measurement_s: Age of the last correction (s).
-            p_ref: (2,) reference position, m.
-            v_ref: (2,) reference velocity, m/s.
-            a_ref: (2,) reference acceleration, m/s^2.
+            p_ref: (d,) reference position, m.
+            v_ref: (d,) reference velocity, m/s.
+            a_ref: (d,) reference acceleration, m/s^2.
             flow_scale: Observer's blood-velocity scale ``s_hat`` (-); used
                 only with ``flow_compensation: estimate``.
 
@@ -543,42 +578,50 @@ class BacksteppingController:
                 (the observer guarantees a finite estimate, so this is a bug
                 upstream, not a run-time condition to hide).
         """
+        d = self.dims
+        est = self._est
+        ref = self._ref
         # scalar checks: np.all(np.isfinite(.)) costs ~4 us per call on (2,) arrays
-        if not (math.isfinite(x_hat[0]) and math.isfinite(x_hat[1]) and math.isfinite(z_hat[0]) and math.isfinite(z_hat[1])):
+        for c in range(d):
+            est[c] = x_hat[c]
+            est[d + c] = z_hat[c]
+            ref[0, c] = p_ref[c]
+            ref[1, c] = v_ref[c]
+            ref[2, c] = a_ref[c]
+        if not all(math.isfinite(v) for v in est[:2 * d]):
             raise ModelInputError(f"controller: non-finite estimate x_hat={x_hat!r}, z_hat={z_hat!r}")
-        if not (math.isfinite(p_ref[0]) and math.isfinite(p_ref[1]) and math.isfinite(v_ref[0])
-                and math.isfinite(v_ref[1]) and math.isfinite(a_ref[0]) and math.isfinite(a_ref[1])):
+        if not all(math.isfinite(v) for v in ref.flat):
             raise ModelInputError("controller: non-finite reference sample")
-        if self.model_params is not None and self._ast is not None:
-            status = adaptive_command(
-                self.params_vector, self._aprm, self._ast, self._last, self.model_params, self._p_s, self._free,
-                self._fbuf, float(t_s), float(x_hat[0]), float(x_hat[1]), float(z_hat[0]), float(z_hat[1]),
-                float(time_since_measurement_s), float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]),
-                float(a_ref[0]), float(a_ref[1]), self._out,
-            )
-            if status == FLOW_SCALE_INVALID:
-                raise ModelInputError(flow_scale_message(float(self._ast[0])))
-            o = self._out
-            return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
+        est[2 * d] = float(time_since_measurement_s)
+        est[2 * d + 1] = float(flow_scale)
         if self.model_params is not None:
-            status = backstepping_command(
-                self.params_vector, self._last, self.model_params, self._p_s, self._free, self._fbuf, float(t_s),
-                float(x_hat[0]), float(x_hat[1]), float(z_hat[0]), float(z_hat[1]), float(time_since_measurement_s),
-                float(flow_scale), float(p_ref[0]), float(p_ref[1]), float(v_ref[0]), float(v_ref[1]), float(a_ref[0]),
-                float(a_ref[1]), self._out,
-            )
-            if status == FLOW_SCALE_INVALID:
-                raise ModelInputError(flow_scale_message(flow_scale))
             o = self._out
-            return ControlCommand(o[:2].copy(), o[2:].copy(), _STATUS_NAMES[status])
-        # a user's F (not the model's kernel): the same law in Python
-        if not time_since_measurement_s <= self.params.stale_timeout_s:
             if self._ast is not None:
-                self._ast[2] = float(t_s)  # adaptation pauses while the estimate is stale
+                status = adaptive_command(self.params_vector, self._aprm, self._ast, self._last, self.model_geom,
+                                          self._work, self._free, self._fbuf, self._sc, float(t_s), est, ref[0],
+                                          ref[1], ref[2], o)
+                if status == FLOW_SCALE_INVALID:
+                    raise ModelInputError(flow_scale_message(float(self._ast[0])))
+            else:
+                status = backstepping_command(self.params_vector, self._last, self.model_geom, self._work, self._free,
+                                              self._fbuf, self._sc, float(t_s), est, ref[0], ref[1], ref[2], o)
+                if status == FLOW_SCALE_INVALID:
+                    raise ModelInputError(flow_scale_message(flow_scale))
+            return ControlCommand(o[:d].copy(), o[d:].copy(), _STATUS_NAMES[status])
+        return self._python_law(float(t_s), est[:d].copy(), est[d:2 * d].copy(), float(time_since_measurement_s),
+                                ref[0].copy(), ref[1].copy(), ref[2].copy(), flow_scale)
+
+    def _python_law(self, t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.NDArray[np.float64], age: float,
+                    p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64], a_ref: npt.NDArray[np.float64],
+                    flow_scale: float) -> ControlCommand:
+        """The law with a user's ``F`` (not a model's kernel), in Python."""
+        if not age <= self.params.stale_timeout_s:
+            if self._ast is not None:
+                self._ast[2] = t_s  # adaptation pauses while the estimate is stale
             return self._safe("stale")
         inv_m = 1.0
         if self._ast is not None:
-            flow_scale = self._adapt(float(t_s), x_hat, z_hat, p_ref, v_ref)
+            flow_scale = self._adapt(t_s, x_hat, z_hat, p_ref, v_ref)
             inv_m = 1.0 / float(self._ast[1])
         if self._compensate or self._ast is not None:
             if not (math.isfinite(flow_scale) and flow_scale > 0.0):
@@ -588,20 +631,21 @@ class BacksteppingController:
                 return self._f(t, x, z, flow_scale)
         else:
             force = self._f
+        zero = np.zeros(self.dims)
         if self._half > 0.0:
             h = self._half
-            a = backstepping_u(self._k1, self._k2, x_hat, z_hat, np.zeros(2), p_ref, v_ref, a_ref)
+            a = backstepping_u(self._k1, self._k2, x_hat, z_hat, zero, p_ref, v_ref, a_ref)
             f = force(t_s + h, x_hat + h * z_hat + 0.5 * h * h * a, z_hat + h * a)
             u = a - f
         else:
             f = force(t_s, x_hat, z_hat)
             u = backstepping_u(self._k1, self._k2, x_hat, z_hat, f, p_ref, v_ref, a_ref)
-        g = np.array(mat2_apply(self._b_inv, u[0], u[1]))
+        g = mat_apply(self._b_inv, u)
         if self._inv_duty != 1.0:
             g = g * self._inv_duty
         if inv_m != 1.0:
             g = g * inv_m
-        if not (math.isfinite(g[0]) and math.isfinite(g[1])):
+        if not all(math.isfinite(v) for v in g):
             return self._safe("nonfinite")
         self._last[:] = g
         return ControlCommand(g, u, "ok")
@@ -616,10 +660,8 @@ class BacksteppingController:
         s_hat = float(ast[0])
         f0 = self._f(t_s, x_hat, z_hat, s_hat)
         f1 = self._f(t_s, x_hat, z_hat, s_hat + h)
-        b = self._b  # phi_m = B G of the gradient commanded since the last update (m = 1)
-        adapt_scales(self._aprm, ast, t_s,
-                     float(z_hat[0] - v_ref[0] + k1 * (x_hat[0] - p_ref[0])),
-                     float(z_hat[1] - v_ref[1] + k1 * (x_hat[1] - p_ref[1])),
-                     float((f1[0] - f0[0]) / h), float((f1[1] - f0[1]) / h),
-                     b[0] * self._last[0] + b[1] * self._last[1], b[2] * self._last[0] + b[3] * self._last[1])
+        e2 = np.array([float(z_hat[c] - v_ref[c] + k1 * (x_hat[c] - p_ref[c])) for c in range(self.dims)])
+        phi_s = np.array([float((f1[c] - f0[c]) / h) for c in range(self.dims)])
+        phi_m = mat_apply(self._b, self._last)  # B G of the gradient commanded since the last update (m = 1)
+        adapt_scales(self._aprm, ast, t_s, e2, phi_s, phi_m)
         return float(ast[0])

@@ -62,81 +62,86 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import mat2
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
-from vesselbot_ros.control.estimate import Estimate, measurement_scalars
-from vesselbot_ros.control.high_gain_observer import write_estimate
+from vesselbot_ros.control.estimate import Estimate, measurement_arrays
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, integrate, new_workspace
-from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_MASS, I_R, I_V_F, forces_tc, onto_lumen, wall_delta_xz
+from vesselbot_ros.physics.integrator import (
+    G_ROW,
+    OK,
+    U_ROW,
+    forces_memo,
+    integrate,
+    mass_of,
+    new_workspace,
+    onto_lumen_at,
+    params_of,
+    wall_press,
+    with_params,
+)
+from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_V_F
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
-           "EKF_OUT_SIZE", "PREDICTION_FAILED"]
-
-N = 5
-
+           "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes"]
 
 @numba.njit(cache=True, nogil=True)
 def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Copy ``p`` into ``p_s`` with V_f multiplied by ``s``."""
+    """Copy ``p`` into ``p_s`` (of its size) with V_f multiplied by ``s``; ``p_s``."""
     for i in range(p.shape[0]):
         p_s[i] = p[i]
     p_s[I_V_F] = p[I_V_F] * s
+    return p_s
 
 
 #: ``wall_projection: lumen``: how near a wall (in bead radii) an estimate pressed towards it rests on it
-#: (:func:`_resting`): within a radius the surface forces and the wall's reaction set the motion across the lumen.
+#: (:func:`~vesselbot_ros.physics.integrator.wall_press`): within a radius the surface forces and the wall's
+#: reaction set the motion across the lumen.
 CONSTRAINT_ZONE_RADII = 1.0
 
 
 @numba.njit(cache=True, nogil=True)
-def _resting(t, y, uz, p_s, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Whether the estimate rests on a wall: within :data:`CONSTRAINT_ZONE_RADII` bead radii of it, and the forces
-    but the wall's (drag, apparent weight, image charge) and the control press it there."""
-    delta, wall = wall_delta_xz(t, y[0], y[1], p_s)
-    if not delta > -CONSTRAINT_ZONE_RADII * p_s[I_R]:
-        return False
-    return wall * ((fbuf[1, 1] + fbuf[2, 1] + fbuf[5, 1]) / p_s[I_MASS] + uz) > 0.0
+def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Continuous dynamics f(t, y) (2 d + 1,) into ``out`` (``fbuf`` (8, d), ``sc`` (4, d) scratch: the model's F, same
+    doubles); ``u`` (d,) the input acceleration, ``g0`` (d,) zeros.
 
-
-@numba.njit(cache=True, nogil=True)
-def _f(t, y, ux, uz, free, p, p_s, out, fbuf, tc, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Continuous dynamics f(t, y) (5,) into ``out`` (``fbuf`` (8, 2) scratch: the kernel's accel_no_motive, same doubles).
-
-    ``tc`` memoises the force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
+    ``tc`` memoises the planar force model's time-only terms (:func:`~vesselbot_ros.physics.kernel.time_terms_into`),
     which do not depend on ``V_f``, the only parameter ``s`` scales.  ``constrained`` (``wall_projection:
-    lumen``): where the estimate rests on a wall (:func:`_resting`), the drag and the apparent weight only, the
-    wall being a constraint (its stiff contact and surface forces would give the covariance a Jacobian of
-    microsecond modes); elsewhere every force, as without the option.  Near a wall that does not hold the bead
-    (the weight pulls it away from the upper one) the image-charge attraction, about 5 m/s^2 a bead radius from
-    the wall, is no constraint's: left out of the covariance there, it biased a noise-free estimate by 300-500 um.
+    lumen``): where the estimate rests on a wall (:func:`~vesselbot_ros.physics.integrator.wall_press`), the drag
+    and the apparent weight only, the wall being a constraint (its stiff contact and surface forces would give the
+    covariance a Jacobian of microsecond modes); elsewhere every force, as without the option.  Near a wall that
+    does not hold the bead (the weight pulls it away from the upper one) the image-charge attraction, about
+    5 m/s^2 a bead radius from the wall, is no constraint's: left out of the covariance there, it biased a
+    noise-free estimate by 300-500 um.
     """
-    _scaled(p, y[4], p_s)
-    forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, free, p_s, fbuf, tc)
-    out[0] = y[2]
-    out[1] = y[3]
-    if constrained and _resting(t, y, uz, p_s, fbuf):
-        out[2] = (fbuf[1, 0] + fbuf[2, 0]) / p_s[I_MASS] + ux
-        out[3] = (fbuf[1, 1] + fbuf[2, 1]) / p_s[I_MASS] + uz
+    d = u.shape[0]
+    gs = with_params(geom, _scaled(params_of(geom), y[2 * d], p_s))
+    forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
+    m = mass_of(gs)
+    for c in range(d):
+        out[c] = y[d + c]
+    if constrained and wall_press(t, y, u, gs, fbuf, CONSTRAINT_ZONE_RADII):
+        for c in range(d):
+            out[d + c] = (fbuf[1, c] + fbuf[2, c]) / m + u[c]
     else:
-        out[2] = fbuf[7, 0] / p_s[I_MASS] + ux
-        out[3] = fbuf[7, 1] / p_s[I_MASS] + uz
-    out[4] = 0.0
+        for c in range(d):
+            out[d + c] = fbuf[7, c] / m + u[c]
+    out[2 * d] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)
-def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi, T, fbuf, tc, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T, fbuf, sc, tc, g0, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
+    d = u.shape[0]
+    N = 2 * d + 1
     tc[0] = np.nan  # p (the model) may differ from the last call's
-    _f(t, y, ux, uz, free, p, p_s, f0, fbuf, tc, constrained)
+    _f(t, y, u, free, geom, p_s, f0, fbuf, sc, tc, g0, constrained)
     for j in range(N):
-        d = 1e-7 * max(abs(y[j]), 1e-3) if j < 2 else (1e-7 * max(abs(y[j]), 1e-2) if j < 4 else 1e-7)
+        dj = 1e-7 * max(abs(y[j]), 1e-3) if j < d else (1e-7 * max(abs(y[j]), 1e-2) if j < 2 * d else 1e-7)
         for i in range(N):
             yp[i] = y[i]
-        yp[j] = y[j] + d
-        _f(t, yp, ux, uz, free, p, p_s, f1, fbuf, tc, constrained)
+        yp[j] = y[j] + dj
+        _f(t, yp, u, free, geom, p_s, f1, fbuf, sc, tc, g0, constrained)
         for i in range(N):
-            A[i, j] = (f1[i] - f0[i]) / d
+            A[i, j] = (f1[i] - f0[i]) / dj
     # Phi = exp(A h) by scaling and squaring: Phi_s = I + M + M^2/2 with M = A h / 2^s, ||M||_inf <= 0.5,
     # then squared s times.  In free flow ||A h|| ~ 0.3 (drag rate 300 1/s, h = 1 ms): s = 0.  Near a
     # wall the Hertz contact makes A stiff; squaring keeps that to at most ~60 matrix products.
@@ -180,75 +185,157 @@ def _predict_cov(t, h, y, P, ux, uz, qa2, qs2, free, p, p_s, f0, f1, yp, A, Phi,
                 acc += T[i, k] * Phi[j, k]
             P[i, j] = acc
             P[j, i] = acc
-    P[2, 2] += qa2 * h
-    P[3, 3] += qa2 * h
-    P[4, 4] += qs2 * h
+    for c in range(d):
+        P[d + c, d + c] += qa2 * h
+    P[2 * d, 2 * d] += qs2 * h
     return n_sq
 
 
 @numba.njit(cache=True, nogil=True)
-def _correct(y, P, mx, mz, r2, gate, KK, T):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Kalman correction with a position frame; returns (accepted, nu_x, nu_z, d2)."""
-    nx = mx - y[0]
-    nz = mz - y[1]
-    s00 = P[0, 0] + r2
-    s01 = P[0, 1]
-    s11 = P[1, 1] + r2
-    det = s00 * s11 - s01 * s01
-    i00 = s11 / det
-    i01 = -s01 / det
-    i11 = s00 / det
-    d2 = nx * (i00 * nx + i01 * nz) + nz * (i01 * nx + i11 * nz)
+def _s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``Si = (P[:d, :d] + r2 I)^-1`` (symmetric) by the adjugate, in a fixed order."""
+    if d == 2:
+        s00 = P[0, 0] + r2
+        s01 = P[0, 1]
+        s11 = P[1, 1] + r2
+        det = s00 * s11 - s01 * s01
+        Si[0, 0] = s11 / det
+        Si[0, 1] = -s01 / det
+        Si[1, 0] = Si[0, 1]
+        Si[1, 1] = s00 / det
+        return
+    a = P[0, 0] + r2
+    b = P[0, 1]
+    c = P[0, 2]
+    e = P[1, 1] + r2
+    f = P[1, 2]
+    i = P[2, 2] + r2
+    c00 = e * i - f * f
+    c01 = c * f - b * i
+    c02 = b * f - c * e
+    det = a * c00 + b * c01 + c * c02
+    Si[0, 0] = c00 / det
+    Si[0, 1] = c01 / det
+    Si[0, 2] = c02 / det
+    Si[1, 1] = (a * i - c * c) / det
+    Si[1, 2] = (b * c - a * f) / det
+    Si[2, 2] = (a * e - b * b) / det
+    Si[1, 0] = Si[0, 1]
+    Si[2, 0] = Si[0, 2]
+    Si[2, 1] = Si[1, 2]
+
+
+@numba.njit(cache=True, nogil=True)
+def _correct(y, P, m, r2, gate, KK, T, nu, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Kalman correction with a position frame ``m`` (d,); the innovation ``Y - X_hat`` in ``nu``; returns
+    (accepted, d2)."""
+    d = m.shape[0]
+    N = y.shape[0]
+    for c in range(d):
+        nu[c] = m[c] - y[c]
+    _s_inverse(P, r2, d, Si)
+    d2 = 0.0
+    for a in range(d):
+        acc = Si[a, 0] * nu[0]
+        for c in range(1, d):
+            acc = acc + Si[a, c] * nu[c]
+        d2 = d2 + nu[a] * acc
     if gate > 0.0 and d2 > gate:
-        return False, nx, nz, d2
-    for i in range(N):  # K = P[:, :2] S^-1
-        KK[i, 0] = P[i, 0] * i00 + P[i, 1] * i01
-        KK[i, 1] = P[i, 0] * i01 + P[i, 1] * i11
+        return False, d2
+    for i in range(N):  # K = P[:, :d] S^-1
+        for c in range(d):
+            acc = P[i, 0] * Si[0, c]
+            for k in range(1, d):
+                acc = acc + P[i, k] * Si[k, c]
+            KK[i, c] = acc
     for i in range(N):
-        y[i] += KK[i, 0] * nx + KK[i, 1] * nz
-    # Joseph form: P = (I - K H) P (I - K H)^T + K R K^T, H = [I2 0]
+        acc = KK[i, 0] * nu[0]
+        for c in range(1, d):
+            acc = acc + KK[i, c] * nu[c]
+        y[i] += acc
+    # Joseph form: P = (I - K H) P (I - K H)^T + K R K^T, H = [I_d 0]
     for i in range(N):  # T = (I - K H) P
         for j in range(N):
-            T[i, j] = P[i, j] - KK[i, 0] * P[0, j] - KK[i, 1] * P[1, j]
+            acc = P[i, j]
+            for c in range(d):
+                acc = acc - KK[i, c] * P[c, j]
+            T[i, j] = acc
     for i in range(N):
         for j in range(i, N):
-            # (T (I - K H)^T)[i, j] = T[i, j] - T[i, 0] K[j, 0] - T[i, 1] K[j, 1]
-            v = T[i, j] - T[i, 0] * KK[j, 0] - T[i, 1] * KK[j, 1] + r2 * (KK[i, 0] * KK[j, 0] + KK[i, 1] * KK[j, 1])
+            # (T (I - K H)^T)[i, j] = T[i, j] - sum_c T[i, c] K[j, c]
+            acc = T[i, j]
+            for c in range(d):
+                acc = acc - T[i, c] * KK[j, c]
+            kk = KK[i, 0] * KK[j, 0]
+            for c in range(1, d):
+                kk = kk + KK[i, c] * KK[j, c]
+            v = acc + r2 * kk
             P[i, j] = v
             P[j, i] = v
-    return True, nx, nz, d2
+    return True, d2
 
 
 # ---- compiled stage -------------------------------------------------------------------------------
-# prm (27,): [B (4, row-major), q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2, max_consecutive_rejections,
-#   delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2, flow_scale_sigma0^2 (0 if frozen),
-#   rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1), max_rejection_s (inf: off),
-#   the prediction's integrator (7, physics.integrator.integrator_vector: dopri5)]
+# On d axes (2: x, z; 3: x, y, z), the state N = 2 d + 1 long:
+# prm (22 + d^2,): [q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2 (on d degrees of freedom),
+#   max_consecutive_rejections, delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2,
+#   flow_scale_sigma0^2 (0 if frozen), rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1),
+#   max_rejection_s (inf: off), the prediction's integrator (7, physics.integrator.integrator_vector: dopri5),
+#   B (d x d, row-major)]
 # scal (5,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1),
 #   acquisition time of the first frame of the current run of rejections (s; inf: none)]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
-# y (5,), P (5, 5); history: hist_t (n,), hist_y (n, 5), hist_P (n, 5, 5), hist_u (n, 2)
-# free (4,) the model's contact state; p the model's packed params, p_s (same size) scratch;
-# work, fbuf: integrator workspace (new_workspace); vec (8, 5) and mat (6, 5, 5) scratch (vec[5]: time-terms memo)
-# out (10,): [x (2), z (2), time since the last frame, innovation X_hat - Y (2), used, rejected, s_hat]
-# err (8,): [t0, t1, integrator code, the 5 states the failing prediction started from]
-EKF_PRM_SIZE = 27
-EKF_OUT_SIZE = 10
+# y (N,), P (N, N); history: hist_t (n,), hist_y (n, N), hist_P (n, N, N), hist_u (n, d)
+# free (4,) the model's contact state; geom the model's vessel (physics.integrator), p_s (its parameters' size)
+# scratch; work, fbuf, sc: integrator workspace (new_workspace); vec (8, N) and mat (6, N, N) scratch
+# (vec[5]: time-terms memo, vec[6]: zeros, vec[7]: the input acceleration and the innovation)
+# out (3 d + 4,): [X (d), Z (d), time since the last frame, innovation X_hat - Y (d), used, rejected, s_hat]
+# err (3 + N,): [t0, t1, integrator code, the states the failing prediction started from]
+#: Indices in the parameter vector (module comment above).
+_QA2, _QS2, _R2, _GATE, _MAX_REJ, _DELAY, _POS0, _VEL0, _S0 = 0, 1, 2, 3, 4, 5, 6, 7, 8
+_LUMEN, _MAX_REJ_S, _IG, _B = 14, 15, 16, 23
 #: codes of :func:`ekf_update` besides OK: the prediction failed (see ``err``)
 PREDICTION_FAILED = 3
 
 
-def ekf_params(params: EkfParams, b: tuple[float, float, float, float], ig: Any) -> npt.NDArray[np.float64]:
-    """(27,) parameter vector of :func:`ekf_update` (squares formed as :class:`ExtendedKalmanObserver` forms them)."""
+def ekf_prm_size(dims: int) -> int:
+    """Length of :func:`ekf_params`'s vector on ``dims`` axes."""
+    return _B + int(dims) ** 2
+
+
+def ekf_out_size(dims: int) -> int:
+    """Length of :func:`ekf_update`'s ``out`` on ``dims`` axes: observer (25)'s and ``s_hat``."""
+    return 3 * int(dims) + 4
+
+
+#: The planar filter's ``out`` length.
+EKF_OUT_SIZE = ekf_out_size(2)
+
+
+def gate_on_axes(gate_chi2: float, dims: int) -> float:
+    """``gate_chi2`` (a quantile of the chi-square law of 2 degrees of freedom, as configured) as the quantile of
+    the same probability on ``dims`` degrees of freedom: the innovation has one per axis."""
+    if dims == 2 or not gate_chi2 > 0.0:
+        return float(gate_chi2)
+    from scipy.stats import chi2  # deferred: scipy.stats takes a second to import; only a 3-D filter needs it
+
+    return float(chi2.ppf(-math.expm1(-0.5 * float(gate_chi2)), dims))
+
+
+def ekf_params(params: EkfParams, b: npt.ArrayLike, ig: Any) -> npt.NDArray[np.float64]:
+    """Parameter vector of :func:`ekf_update` (squares formed as :class:`ExtendedKalmanObserver` forms them); ``b`` the
+    model's input matrix (d, d)."""
     q = params
-    return np.array([*b, q.accel_noise_m_per_s2_sqrt_s**2,
+    bm = np.asarray(b, dtype=np.float64)
+    return np.array([q.accel_noise_m_per_s2_sqrt_s**2,
                      q.flow_scale_noise_per_sqrt_s**2 if q.estimate_flow_scale else 0.0,
-                     q.measurement_sigma_m**2, float(q.gate_chi2), float(q.max_consecutive_rejections),
+                     q.measurement_sigma_m**2, gate_on_axes(q.gate_chi2, bm.shape[0]), float(q.max_consecutive_rejections),
                      1.0 if q.delay_compensation else 0.0, q.position_sigma0_m**2, q.velocity_sigma0_m_per_s**2,
                      q.flow_scale_sigma0**2 if q.estimate_flow_scale else 0.0,
                      ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s,
                      1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf,
-                     0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0])
+                     0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0,
+                     *bm.ravel()])
 
 
 def ekf_history_len(params: EkfParams, tick_s: float) -> int:
@@ -257,71 +344,72 @@ def ekf_history_len(params: EkfParams, tick_s: float) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_reset_covariance(prm, P):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _ekf_reset_covariance(prm, P, d):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    N = 2 * d + 1
     for i in range(N):
         for j in range(N):
             P[i, j] = 0.0
-    P[0, 0] = prm[10]
-    P[1, 1] = prm[10]
-    P[2, 2] = prm[11]
-    P[3, 3] = prm[11]
-    P[4, 4] = prm[12]
+    for c in range(d):
+        P[c, c] = prm[_POS0]
+    for c in range(d):
+        P[d + c, d + c] = prm[_VEL0]
+    P[2 * d, 2 * d] = prm[_S0]
 
 
 @numba.njit(cache=True, nogil=True)
-def _ekf_predict(prm, scal, ist, t0, t1, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, sc, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
-    _predict_cov(t0, t1 - t0, y, P, ux, uz, prm[4], prm[5], free, p, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
-                 mat[2], fbuf, vec[5], prm[18] > 0.5)
-    _scaled(p, y[4], p_s)
-    ys = vec[3, :4]  # the mean's (X, Z): the flow scale is not integrated
-    ys[0] = y[0]
-    ys[1] = y[1]
-    ys[2] = y[2]
-    ys[3] = y[3]
-    g = work[G_ROW, :2]  # no gradient: the model's input is the acceleration U = B G
-    g[0] = 0.0
-    g[1] = 0.0
-    u = work[U_ROW, :2]
-    u[0] = ux
-    u[1] = uz
-    # the planar vessel reads no 3-D scratch: fbuf stands in for it
-    code, h = integrate(t0, t1, ys, g, u, free, p_s, scal[2], prm[20:27], stats, work, fbuf, fbuf)
+    d = u.shape[0]
+    N = 2 * d + 1
+    g0 = vec[6, :d]
+    _predict_cov(t0, t1 - t0, y, P, u, prm[_QA2], prm[_QS2], free, geom, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
+                 mat[2], fbuf, sc, vec[5], g0, prm[_LUMEN] > 0.5)
+    gs = with_params(geom, _scaled(params_of(geom), y[2 * d], p_s))
+    ys = vec[3, :2 * d]  # the mean's (X, Z): the flow scale is not integrated
+    for i in range(2 * d):
+        ys[i] = y[i]
+    g = work[G_ROW, :d]  # no gradient: the model's input is the acceleration U = B G
+    uu = work[U_ROW, :d]
+    for c in range(d):
+        g[c] = 0.0
+        uu[c] = u[c]
+    code, h = integrate(t0, t1, ys, g, uu, free, gs, scal[2], prm[_IG:_IG + 7], stats, work, fbuf, sc)
     scal[2] = h
-    if code != OK or not (math.isfinite(ys[0]) and math.isfinite(ys[1]) and math.isfinite(ys[2])
-                          and math.isfinite(ys[3])):
+    finite = True
+    for i in range(2 * d):
+        finite = finite and math.isfinite(ys[i])
+    if code != OK or not finite:
         err[0] = t0
         err[1] = t1
         err[2] = code
         for i in range(N):
             err[3 + i] = y[i]
         return PREDICTION_FAILED
-    y[0] = ys[0]
-    y[1] = ys[1]
-    y[2] = ys[2]
-    y[3] = ys[3]
+    for i in range(2 * d):
+        y[i] = ys[i]
     finite = True
     for i in range(N):
         for j in range(N):
             if not math.isfinite(P[i, j]):
                 finite = False
-    if not (finite and P[0, 0] < 1.0 and P[1, 1] < 1.0):  # covariance lost: start it again
-        _ekf_reset_covariance(prm, P)
+    small = True
+    for c in range(d):
+        small = small and P[c, c] < 1.0
+    if not (finite and small):  # covariance lost: start it again
+        _ekf_reset_covariance(prm, P, d)
         ist[4] += 1
     return OK
 
 
 @numba.njit(cache=True, nogil=True)
-def _project(prm, t, y, p, free):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``wall_projection: lumen``: an estimate closer to a wall than the brush length put there (:func:`onto_lumen`: where
-    the steric force starts, not at contact, where it throws the estimate off), with a fresh
-    contact state (the one carried along belongs to the estimate before the jump); else nothing."""
-    if prm[18] > 0.5:
-        x0, x1, z0, z1 = onto_lumen(t, y[0], y[1], y[2], y[3], p, p[I_BRUSH_L0])
-        if x0 != y[0] or x1 != y[1]:
-            for i in range(free.shape[0]):
-                free[i] = 0.0
-        y[0], y[1], y[2], y[3] = x0, x1, z0, z1
+def _project(prm, t, y, geom, free):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``wall_projection: lumen``: an estimate closer to a wall than the brush length put there
+    (:func:`~vesselbot_ros.physics.integrator.onto_lumen_at`: where the steric force starts, not at contact, where it
+    throws the estimate off), with a fresh contact state (the one carried along belongs to the estimate before the
+    jump); else nothing."""
+    if prm[_LUMEN] > 0.5 and onto_lumen_at(t, y, geom, params_of(geom)[I_BRUSH_L0]):
+        for i in range(free.shape[0]):
+            free[i] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -335,14 +423,15 @@ def _ekf_find(ist, hist_t, t_acq):  # type: ignore[no-untyped-def]  # numba kern
 
 @numba.njit(cache=True, nogil=True)
 def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-        prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat, stats, err):
+        prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, work, fbuf, sc, vec, mat,
+        stats, err):
     """``(yc, Pc)`` is the state ``back`` ticks ago: rewrite the history to now, set ``(y, P)``; code.
 
     With ``wall_projection: lumen`` the contact state starts afresh: the one carried along is now's, not
     the past state's, and on a wall the difference throws the re-prediction off.
     """
     n = hist_t.shape[0]
-    if prm[18] > 0.5:
+    if prm[_LUMEN] > 0.5:
         for i in range(free.shape[0]):
             free[i] = 0.0
     for step in range(back, 0, -1):
@@ -350,8 +439,8 @@ def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument ty
         k = (j + 1) % n
         hist_y[j, :] = yc
         hist_P[j, :, :] = Pc
-        code = _ekf_predict(prm, scal, ist, hist_t[j], hist_t[k], yc, Pc, hist_u[j, 0], hist_u[j, 1], free, p, p_s,
-                            work, fbuf, vec, mat, stats, err)
+        code = _ekf_predict(prm, scal, ist, hist_t[j], hist_t[k], yc, Pc, hist_u[j], free, geom, p_s, work, fbuf, sc,
+                            vec, mat, stats, err)
         if code != OK:
             return code
     hist_y[ist[1], :] = yc
@@ -362,50 +451,51 @@ def _ekf_repredict(  # type: ignore[no-untyped-def]  # numba kernel: argument ty
 
 
 @numba.njit(cache=True, nogil=True)
-def _start_track(prm, scal, ist, restart, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-                 vec, mat, stats, err):
+def _start_track(prm, scal, ist, restart, t_acq, m, y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, work, fbuf,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+                 sc, vec, mat, stats, err):
     """Start the track on a frame: its position at its acquisition time, re-predicted to now; code.
 
     The first frame keeps the prior's velocity and scale covariance; a ``restart`` (the filter lost the robot)
     starts from the whole prior covariance and is counted.
     """
+    d = m.shape[0]
+    N = 2 * d + 1
     n = hist_t.shape[0]
     yc = vec[4]
     Pc = mat[3]
     done = False
-    if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
+    if prm[_DELAY] > 0.5 and t_acq < scal[0] - 1e-9:
         back = _ekf_find(ist, hist_t, t_acq)
         if back >= 0:
             i = (ist[1] - back + n) % n
             yc[:] = hist_y[i]
             Pc[:, :] = hist_P[i]
-            yc[0] = m0
-            yc[1] = m1
-            _project(prm, hist_t[i], yc, p, free)
+            for c in range(d):
+                yc[c] = m[c]
+            _project(prm, hist_t[i], yc, geom, free)
             if restart:
-                _ekf_reset_covariance(prm, Pc)
+                _ekf_reset_covariance(prm, Pc, d)
             else:
-                for j in range(N):
-                    Pc[0, j] = 0.0
-                    Pc[j, 0] = 0.0
-                    Pc[1, j] = 0.0
-                    Pc[j, 1] = 0.0
-                Pc[0, 0] = prm[10]
-                Pc[1, 1] = prm[10]
-            code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, p,
-                                  p_s, work, fbuf, vec, mat, stats, err)
+                for c in range(d):
+                    for j in range(N):
+                        Pc[c, j] = 0.0
+                        Pc[j, c] = 0.0
+                for c in range(d):
+                    Pc[c, c] = prm[_POS0]
+            code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
+                                  p_s, work, fbuf, sc, vec, mat, stats, err)
             if code != OK:
                 return code
             done = True
     if not done:
-        y[0] = m0
-        y[1] = m1
-        _project(prm, scal[0], y, p, free)
+        for c in range(d):
+            y[c] = m[c]
+        _project(prm, scal[0], y, geom, free)
         if restart:
-            _ekf_reset_covariance(prm, P)
+            _ekf_reset_covariance(prm, P, d)
         else:
-            P[0, 0] = prm[10]
-            P[1, 1] = prm[10]
+            for c in range(d):
+                P[c, c] = prm[_POS0]
         hist_y[ist[1], :] = y
         hist_P[ist[1], :, :] = P
     if restart:
@@ -418,25 +508,31 @@ def _start_track(prm, scal, ist, restart, t_acq, m0, m1, y, P, hist_t, hist_y, h
 
 
 @numba.njit(cache=True, nogil=True)
-def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_s, work, fbuf, vec, mat,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-               stats, t, gx, gz, has_meas, t_acq, m0, m1, out, err):
-    """:meth:`ExtendedKalmanObserver.update` over explicit state: predict to ``t``, fuse a delivered frame.
+def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, work, fbuf, sc, vec, mat,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+               stats, t, g, has_meas, t_acq, m, out, err):
+    """:meth:`ExtendedKalmanObserver.update` over explicit state, on the axes of ``g`` (d,): predict to ``t``, fuse a
+    delivered frame ``m`` (d,) acquired at ``t_acq``.
 
     The caller checks that ``t`` is finite and not before ``scal[0]`` and that
-    the gradient is finite.  Writes ``out`` (:data:`EKF_OUT_SIZE`,); allocates nothing.
+    the gradient is finite.  Writes ``out`` (:func:`ekf_out_size`); allocates nothing.
 
     Returns:
-        ``OK``, or :data:`PREDICTION_FAILED` (``err`` = ``[t0, t1, integrator code, state (5)]``,
+        ``OK``, or :data:`PREDICTION_FAILED` (``err`` = ``[t0, t1, integrator code, state (N)]``,
         :func:`ekf_failure_message`).
     """
+    d = g.shape[0]
     n = hist_t.shape[0]
-    ux = prm[0] * gx + prm[1] * gz
-    uz = prm[2] * gx + prm[3] * gz
+    u = vec[7, :d]  # U = B G, the input acceleration
+    for i in range(d):
+        acc = prm[_B + i * d] * g[0]
+        for j in range(1, d):
+            acc = acc + prm[_B + i * d + j] * g[j]
+        u[i] = acc
     if ist[0] > 0:  # the input over the last tick is the one applied since
-        hist_u[ist[1], 0] = ux
-        hist_u[ist[1], 1] = uz
+        for c in range(d):
+            hist_u[ist[1], c] = u[c]
     if t > scal[0]:
-        code = _ekf_predict(prm, scal, ist, scal[0], t, y, P, ux, uz, free, p, p_s, work, fbuf, vec, mat, stats, err)
+        code = _ekf_predict(prm, scal, ist, scal[0], t, y, P, u, free, geom, p_s, work, fbuf, sc, vec, mat, stats, err)
         if code != OK:
             return code
     scal[0] = t
@@ -446,59 +542,63 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
     hist_t[head] = t
     hist_y[head, :] = y
     hist_P[head, :, :] = P
-    hist_u[head, 0] = 0.0
-    hist_u[head, 1] = 0.0
+    for c in range(d):
+        hist_u[head, c] = 0.0
     ist[0] = min(ist[0] + 1, n)
     used = 0.0
     rejected = 0.0
-    i0 = 0.0
-    i1 = 0.0
+    innov = out[2 * d + 1:3 * d + 1]
+    for c in range(d):
+        innov[c] = 0.0
     yc = vec[4]
     Pc = mat[3]
-    KK = mat[4][:, :2]
+    KK = mat[4][:, :d]
+    nu = vec[7, d:2 * d]
+    Si = mat[5][:d, :d]
     if has_meas:
-        if not (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(t_acq)) or t_acq > scal[0] + 1e-9:
+        finite = math.isfinite(t_acq)
+        for c in range(d):
+            finite = finite and math.isfinite(m[c])
+        if not finite or t_acq > scal[0] + 1e-9:
             rejected = 1.0
-        elif scal[3] < 0.5 or ist[2] >= prm[8]:
-            code = _start_track(prm, scal, ist, scal[3] > 0.5, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free,
-                                p, p_s, work, fbuf, vec, mat, stats, err)
+        elif scal[3] < 0.5 or ist[2] >= prm[_MAX_REJ]:
+            code = _start_track(prm, scal, ist, scal[3] > 0.5, t_acq, m, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                geom, p_s, work, fbuf, sc, vec, mat, stats, err)
             if code != OK:
                 return code
             used = 1.0
         else:
             found = False
             ok = False
-            nx = 0.0
-            nz = 0.0
-            if prm[9] > 0.5 and t_acq < scal[0] - 1e-9:
+            if prm[_DELAY] > 0.5 and t_acq < scal[0] - 1e-9:
                 back = _ekf_find(ist, hist_t, t_acq)
                 if back >= 0:
                     found = True
                     i = (ist[1] - back + n) % n
                     yc[:] = hist_y[i]
                     Pc[:, :] = hist_P[i]
-                    ok, nx, nz, _d2 = _correct(yc, Pc, m0, m1, prm[6], prm[7], KK, mat[2])
+                    ok, _d2 = _correct(yc, Pc, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si)
                     if ok:
-                        _project(prm, hist_t[i], yc, p, free)
+                        _project(prm, hist_t[i], yc, geom, free)
                         code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free,
-                                              p, p_s, work, fbuf, vec, mat, stats, err)
+                                              geom, p_s, work, fbuf, sc, vec, mat, stats, err)
                         if code != OK:
                             return code
             if not found:
-                ok, nx, nz, _d2 = _correct(y, P, m0, m1, prm[6], prm[7], KK, mat[2])
+                ok, _d2 = _correct(y, P, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si)
                 if ok:
-                    _project(prm, scal[0], y, p, free)
+                    _project(prm, scal[0], y, geom, free)
             if ok:
-                i0 = -nx  # X_hat - Y, as Estimate documents
-                i1 = -nz
+                for c in range(d):
+                    innov[c] = -nu[c]  # X_hat - Y, as Estimate documents
                 scal[1] = t_acq
                 used = 1.0
                 ist[2] = 0
                 scal[4] = math.inf
-            elif ist[2] >= 1 and t_acq - scal[4] >= prm[19]:
+            elif ist[2] >= 1 and t_acq - scal[4] >= prm[_MAX_REJ_S]:
                 # frames rejected in a row for max_rejection_s, and this one too: the filter lost the robot
-                code = _start_track(prm, scal, ist, True, t_acq, m0, m1, y, P, hist_t, hist_y, hist_P, hist_u, free,
-                                    p, p_s, work, fbuf, vec, mat, stats, err)
+                code = _start_track(prm, scal, ist, True, t_acq, m, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                    geom, p_s, work, fbuf, sc, vec, mat, stats, err)
                 if code != OK:
                     return code
                 used = 1.0
@@ -509,14 +609,18 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, p, p_
                     scal[4] = t_acq
         if rejected > 0.5:
             ist[3] += 1
-    write_estimate(out, y, scal[0] - scal[1], i0, i1, used, rejected)
-    out[9] = y[4]
+    for c in range(2 * d):
+        out[c] = y[c]
+    out[2 * d] = scal[0] - scal[1]
+    out[3 * d + 1] = used
+    out[3 * d + 2] = rejected
+    out[3 * d + 3] = y[2 * d]
     return OK
 
 
 def ekf_failure_message(err: npt.NDArray[np.float64]) -> str:
     """The error of a failed prediction (:data:`PREDICTION_FAILED`): the interval, the code and the state."""
-    return f"observer: prediction failed on [{float(err[0])!r}, {float(err[1])!r}] (code {int(err[2])}), state {err[3:8].tolist()}"
+    return f"observer: prediction failed on [{float(err[0])!r}, {float(err[1])!r}] (code {int(err[2])}), state {err[3:].tolist()}"
 
 
 class EkfState:
@@ -524,44 +628,47 @@ class EkfState:
 
     Args:
         params: Filter settings.
-        model: The dynamics model (packed parameters ``p``, input matrix, integrator).
-        x_hat0: (2,) prior position, m.
-        z_hat0: (2,) prior velocity, m/s.
+        model: The dynamics model (its ``geom``, input matrix, integrator; its axis count ``dims``).
+        x_hat0: (d,) prior position, m.
+        z_hat0: (d,) prior velocity, m/s.
         t0_s: Time of the prior (s).
         tick_s: Control period (s).
     """
 
     def __init__(self, params: EkfParams, model: Any, x_hat0: npt.NDArray[np.float64], z_hat0: npt.NDArray[np.float64],
                  t0_s: float, tick_s: float) -> None:
-        self.prm = ekf_params(params, mat2(model.input_matrix), model.integrator)
-        self.p = np.asarray(model.p, dtype=np.float64)
-        self.p_s = np.empty_like(self.p)
+        d = int(getattr(model, "dims", 2))
+        n_x = 2 * d + 1
+        self.dims = d
+        self.prm = ekf_params(params, model.input_matrix, model.integrator)
+        self.geom = model.geom
+        p = self.geom if isinstance(self.geom, np.ndarray) else self.geom[0]
+        self.p_s = np.empty_like(p)
         self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0, math.inf])
         self.ist = np.zeros(6, dtype=np.int64)
         self.ist[1] = -1
-        self.y = np.array([x_hat0[0], x_hat0[1], z_hat0[0], z_hat0[1], params.flow_scale0])
-        self.P = np.diag([params.position_sigma0_m**2 * 1e4, params.position_sigma0_m**2 * 1e4,
-                          params.velocity_sigma0_m_per_s**2, params.velocity_sigma0_m_per_s**2,
-                          params.flow_scale_sigma0**2])
+        self.y = np.array([*x_hat0[:d], *z_hat0[:d], params.flow_scale0])
+        self.P = np.diag([params.position_sigma0_m**2 * 1e4] * d + [params.velocity_sigma0_m_per_s**2] * d
+                         + [params.flow_scale_sigma0**2])
         if not params.estimate_flow_scale:
-            self.P[4, 4] = 0.0
+            self.P[2 * d, 2 * d] = 0.0
         n_hist = ekf_history_len(params, tick_s)
         self.hist_t = np.full(n_hist, -math.inf)
-        self.hist_y = np.zeros((n_hist, N))
-        self.hist_P = np.zeros((n_hist, N, N))
-        self.hist_u = np.zeros((n_hist, 2))
+        self.hist_y = np.zeros((n_hist, n_x))
+        self.hist_P = np.zeros((n_hist, n_x, n_x))
+        self.hist_u = np.zeros((n_hist, d))
         self.free = np.zeros(4)
-        self.work, self.fbuf, _sc = new_workspace(2)
-        self.vec = np.zeros((8, N))
-        self.mat = np.zeros((6, N, N))
-        self.out = np.zeros(EKF_OUT_SIZE)
-        self.err = np.zeros(8)
+        self.work, self.fbuf, self.sc = new_workspace(d)
+        self.vec = np.zeros((8, n_x))
+        self.mat = np.zeros((6, n_x, n_x))
+        self.out = np.zeros(ekf_out_size(d))
+        self.err = np.zeros(3 + n_x)
 
     def copy(self) -> EkfState:
         """An independent copy (every array copied): a fresh run's state from a prepared one."""
         new = object.__new__(EkfState)
         for k, v in vars(self).items():
-            setattr(new, k, v.copy() if isinstance(v, np.ndarray) and k != "p" else v)
+            setattr(new, k, v.copy() if isinstance(v, np.ndarray) else v)  # geom: the model's, shared
         return new
 
 
@@ -578,18 +685,20 @@ class ExtendedKalmanObserver:
         params: Filter settings.
         model: Dynamics model with the controller's (possibly wrong) parameters
             (:class:`~vesselbot_ros.control.model.DynamicsModel`).
-        x_hat0: (2,) prior position, m.
-        z_hat0: (2,) prior velocity, m/s.
+        x_hat0: (d,) prior position, m (d the model's axes).
+        z_hat0: (d,) prior velocity, m/s; zeros if None.
         t0_s: Time of the prior (s).
         tick_s: Control period (s): the history holds one entry per tick.
     """
 
-    def __init__(self, params: EkfParams, model: Any, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike = (0.0, 0.0),
+    def __init__(self, params: EkfParams, model: Any, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike | None = None,
                  t0_s: float = 0.0, tick_s: float = 1e-3) -> None:
+        d = int(getattr(model, "dims", 2))
         x0 = np.asarray(x_hat0, dtype=np.float64)
-        z0 = np.asarray(z_hat0, dtype=np.float64)
-        if x0.shape != (2,) or z0.shape != (2,) or not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z0))):
-            raise ModelInputError(f"observer prior must be finite (2,) + (2,), got {x_hat0!r}, {z_hat0!r}")
+        z0 = np.zeros(d) if z_hat0 is None else np.asarray(z_hat0, dtype=np.float64)
+        if x0.shape != (d,) or z0.shape != (d,) or not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z0))):
+            raise ModelInputError(f"observer prior must be finite ({d},) + ({d},), got {x_hat0!r}, {z_hat0!r}")
+        self.dims = d
         if not (math.isfinite(tick_s) and tick_s > 0.0):
             raise ModelInputError(f"tick_s must be finite and > 0, got {tick_s!r}")
         self.params = params
@@ -600,12 +709,12 @@ class ExtendedKalmanObserver:
 
     @property
     def state(self) -> npt.NDArray[np.float64]:
-        """(5,) ``(x, z, vx, vz, s)`` copy."""
+        """(2 d + 1,) ``(X, Z, s)`` copy."""
         return self.ekf.y.copy()
 
     @property
     def covariance(self) -> npt.NDArray[np.float64]:
-        """(5, 5) covariance copy."""
+        """(2 d + 1, 2 d + 1) covariance copy."""
         return self.ekf.P.copy()
 
     @property
@@ -629,23 +738,24 @@ class ExtendedKalmanObserver:
         Args:
             t_s: Tick time (s), non-decreasing.
             measurement: A :class:`~vesselbot_ros.control.imager_model.Measurement` or None.
-            applied_gradient_prev: (2,) gradient applied since the previous tick (T/m).
+            applied_gradient_prev: (d,) gradient applied since the previous tick (T/m).
 
         Returns:
             The :class:`Estimate` at ``t_s`` (``flow_scale`` = ``s_hat``).
         """
+        d = self.dims
         g = np.asarray(applied_gradient_prev, dtype=np.float64)
-        if g.shape != (2,) or not (math.isfinite(g[0]) and math.isfinite(g[1])):
-            raise ModelInputError(f"observer: applied gradient must be a finite (2,) array, got {applied_gradient_prev!r}")
+        if g.shape != (d,) or not bool(np.isfinite(g).all()):
+            raise ModelInputError(f"observer: applied gradient must be a finite ({d},) array, got {applied_gradient_prev!r}")
         e = self.ekf
         if not math.isfinite(t_s) or t_s < e.scal[0] - 1e-12:
             raise ModelInputError(f"observer: time must be finite and non-decreasing, got {t_s!r} after {float(e.scal[0])!r}")
-        has, t_acq, m0, m1 = measurement_scalars(measurement)
-        code = ekf_update(e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.p, e.p_s,
-                          e.work, e.fbuf, e.vec, e.mat, self.stats, float(t_s), float(g[0]), float(g[1]), has, t_acq,
-                          m0, m1, e.out, e.err)
+        has, t_acq, m = measurement_arrays(measurement, d)
+        code = ekf_update(e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free, e.geom, e.p_s,
+                          e.work, e.fbuf, e.sc, e.vec, e.mat, self.stats, float(t_s), np.ascontiguousarray(g), has, t_acq,
+                          m, e.out, e.err)
         if code != OK:
             raise ModelInputError(ekf_failure_message(e.err))
         o = e.out
-        return Estimate(float(e.scal[0]), o[0:2].copy(), o[2:4].copy(), float(o[4]), o[5:7].copy(), bool(o[7] > 0.5),
-                        bool(o[8] > 0.5), float(o[9]))
+        return Estimate(float(e.scal[0]), o[0:d].copy(), o[d:2 * d].copy(), float(o[2 * d]), o[2 * d + 1:3 * d + 1].copy(),
+                        bool(o[3 * d + 1] > 0.5), bool(o[3 * d + 2] > 0.5), float(o[3 * d + 3]))

@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Estimate", "measurement_scalars"]
+__all__ = ["Estimate", "measurement_arrays"]
 
 
 class Estimate(NamedTuple):
@@ -38,16 +38,16 @@ class Estimate(NamedTuple):
     flow_scale: float = 1.0
 
 
-def measurement_scalars(measurement: Any | None) -> tuple[bool, float, float, float]:
-    """A delivered frame (``t_acq_s``, ``p``) or None -> ``(has, t_acq_s, x, z)`` for a compiled observer update.
+def measurement_arrays(measurement: Any | None, dims: int) -> tuple[bool, float, npt.NDArray[np.float64]]:
+    """A delivered frame or None -> ``(has, t_acq_s, p (dims,))`` for a compiled observer update on ``dims`` axes.
 
-    No frame: ``(False, nan, nan, nan)``; a position of the wrong shape travels
-    as nan, which the compiled update rejects like any non-finite measurement.
+    No frame: ``(False, nan, nan...)``; a position of the wrong shape travels as nan, which the compiled update
+    rejects like any non-finite measurement.
     """
+    m = np.full(int(dims), math.nan)
     if measurement is None:
-        return False, math.nan, math.nan, math.nan
+        return False, math.nan, m
     yp = np.asarray(measurement.p, dtype=np.float64)
-    t_acq = float(measurement.t_acq_s)
-    if yp.shape == (2,):
-        return True, t_acq, float(yp[0]), float(yp[1])
-    return True, t_acq, math.nan, math.nan
+    if yp.shape == (int(dims),):
+        m[:] = yp
+    return True, float(measurement.t_acq_s), m

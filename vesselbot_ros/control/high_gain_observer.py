@@ -78,7 +78,6 @@ __all__ = [
     "input_accel",
     "integrator_vector",
     "observer_update",
-    "write_estimate",
 ]
 
 
@@ -404,20 +403,6 @@ def observer_params(params: ObserverParams, b: npt.ArrayLike) -> npt.NDArray[np.
     kz = params.high_gain**2 * gz
     return np.array([*kx, *kz, *bm.reshape(-1), 1.0 if params.delay_compensation else 0.0,
                      float(params.innovation_gate_m), 1.0 if params.init_from_first_measurement else 0.0])
-
-
-@numba.njit(cache=True, nogil=True)
-def write_estimate(out, y, age, i0, i1, used, rejected):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The compiled observers' output: ``out[:9]`` = [X (2), Z (2) from ``y``, age, innovation (2), used, rejected]."""
-    out[0] = y[0]
-    out[1] = y[1]
-    out[2] = y[2]
-    out[3] = y[3]
-    out[4] = age
-    out[5] = i0
-    out[6] = i1
-    out[7] = used
-    out[8] = rejected
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the views it passes (physics.integrator)

@@ -1,23 +1,26 @@
-"""The controller's and observer's dynamics model: ``F(X, Z)`` and its integrator.
+"""The controller's and observer's dynamics model: ``F(X, Z)`` and its integrator, on the vessel's axes.
 
-``F`` is eq. (23)'s drift: every force but the motive one, divided by the
-mass, from the physics kernel (:func:`~vesselbot_ros.physics.kernel.accel_no_motive`)
-evaluated with the *model's* parameters, which may differ from the plant's
-(e.g. the 5 % blood-velocity error of Section III-C).
+``F`` is eq. (23)'s drift: every force but the motive one, divided by the mass, from the physics kernel evaluated
+with the *model's* parameters, which may differ from the plant's (e.g. the 5 % blood-velocity error of Section
+III-C).  The vessel decides the axis count as it does for the plant: a straight vessel or a planar network gives
+the plane (x, z), a 3-D tree gives (x, y, z) (:attr:`DynamicsModel.geom`, the integrator's geometry edge).
 
-The contact term needs the Hertz loading/unloading history.  :meth:`F` (used
-by the controller) is memoryless: it evaluates the loading branch (15) from a
-free state.  :meth:`propagate` (used by the observer's prediction) carries a
-contact state along the estimated trajectory, exactly as the plant does.
+The contact term needs the Hertz loading/unloading history.  :meth:`DynamicsModel.F` (used by the controller) is
+memoryless: it evaluates the loading branch (15) from a free state.  :meth:`DynamicsModel.propagate` (used by the
+observer's prediction) carries a contact state along the estimated trajectory, exactly as the plant does.
+
+The input matrix is ``B`` with ``U = B G`` (:mod:`vesselbot_ros.control.input_mapping`); in a tree ``B = b I`` with
+the plane's ``b`` (the coil's three axes act alike on the bead).
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.compiled_stage import model_f_into
 from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
@@ -28,9 +31,11 @@ from vesselbot_ros.physics.integrator import (
     integrate,
     new_workspace,
 )
-from vesselbot_ros.physics.kernel import I_V_F, accel_no_motive
+from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.vessels.cfd import packed_params
+from vesselbot_ros.vessels.network import network_dims
+from vesselbot_ros.vessels.plant_field3d import packed3d, planar_twin
 
 __all__ = ["DynamicsModel", "BLOOD_VELOCITY_ERROR"]
 
@@ -40,10 +45,10 @@ BLOOD_VELOCITY_ERROR = 0.05
 
 
 class DynamicsModel(IntegratorHolder):
-    """``F(X, Z)``, the input matrix ``B`` and a propagator, for one parameter set.
+    """``F(X, Z)``, the input matrix ``B`` and a propagator, for one parameter set, on the vessel's axes.
 
     Args:
-        physics: The model's physics parameters.
+        physics: The model's physics parameters (its vessel gives the axis count :attr:`dims`).
         integrator: Integrator settings for :meth:`propagate`.
         mapping: Input mapping (see :mod:`vesselbot_ros.control.input_mapping`).
     """
@@ -56,20 +61,40 @@ class DynamicsModel(IntegratorHolder):
     ) -> None:
         self.physics = physics
         self.integrator = integrator if integrator is not None else IntegratorParams()  # and its vector (the setter)
-        self.p = packed_params(physics)
-        self.input_matrix = input_matrix(physics, mapping)
-        self._free = np.zeros(4)
+        d = network_dims(physics.vessel.network)
+        self.dims = d
+        if d == 3:  # a tree in space: the 3-D kernel's packed tree (the geometry's edge)
+            self.packed = packed3d(physics)
+            self.p = self.packed.p
+            b = float(input_matrix(planar_twin(physics), mapping)[0, 0])
+            self.input_gain = b
+            self.input_matrix = b * np.eye(3)
+        else:
+            self.p = packed_params(physics)
+            self.input_matrix = input_matrix(physics, mapping)
+            self.input_gain = float(self.input_matrix[0, 0])
         self._p_scaled = self.p.copy()
         self._h = self.integrator.max_step_s
         self.stats = np.zeros(4, dtype=np.int64)
-        self._work, self._fbuf, self._sc = new_workspace(2)  # integrator scratch, allocated once
-        self._zero = np.zeros(2)
+        self._work, self._fbuf, self._sc = new_workspace(d)  # integrator scratch, allocated once
+        self._free = np.zeros(4)
+        self._zero = np.zeros(d)
+        self._y = np.zeros(2 * d)
 
     @property
-    def geom(self) -> npt.NDArray[np.float64]:
+    def geom(self) -> Any:
         """The vessel :meth:`propagate` integrates in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge): the
-        packed parameters of a straight vessel or a planar network."""
+        packed parameters of a straight vessel or a planar network, or a tree's ``(p, W, F, fh)``."""
+        if self.dims == 3:
+            k = self.packed
+            return (self.p, k.W, k.F, k.fh)
         return self.p
+
+    def _geom_with(self, p: npt.NDArray[np.float64]) -> Any:
+        if self.dims == 3:
+            k = self.packed
+            return (p, k.W, k.F, k.fh)
+        return p
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
@@ -77,7 +102,7 @@ class DynamicsModel(IntegratorHolder):
 
     def F(self, t_s: float, x: npt.NDArray[np.float64], z: npt.NDArray[np.float64],
           flow_scale: float = 1.0) -> npt.NDArray[np.float64]:
-        """``F(X, Z)`` (m/s^2), shape (2,), at time ``t_s`` (memoryless contact).
+        """``F(X, Z)`` (m/s^2), shape (d,), at time ``t_s`` (memoryless contact).
 
         ``flow_scale`` multiplies the model's centreline blood velocity ``V_f``
         (an observer's estimate of the model's flow error; 1 = the model's own).
@@ -86,8 +111,10 @@ class DynamicsModel(IntegratorHolder):
         if flow_scale != 1.0:
             p = self._p_scaled
             p[I_V_F] = self.p[I_V_F] * flow_scale
-        ax, az = accel_no_motive(t_s, x[0], x[1], z[0], z[1], self._free, p)
-        return np.array((ax, az))
+        f = np.empty(self.dims)
+        model_f_into(float(t_s), np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
+                     self._geom_with(p), self._free, self._fbuf, self._sc, self._y, self._zero, f)
+        return f
 
     def propagate(
         self,
@@ -102,15 +129,15 @@ class DynamicsModel(IntegratorHolder):
         Args:
             t0_s: Start (s).
             t1_s: End (s).
-            y: (4,) ``(X, Z)`` state, overwritten.
-            u_m_per_s2: (2,) input acceleration held over the interval.
+            y: (2 d,) ``(X, Z)`` state, overwritten.
+            u_m_per_s2: (d,) input acceleration held over the interval.
             contact: (4,) contact state carried along ``y``, updated.
 
         Raises:
             ModelInputError: if the integration fails (step below the minimum
                 or a non-finite state).
         """
-        code, self._h = integrate(t0_s, t1_s, y, self._zero, np.asarray(u_m_per_s2, dtype=np.float64), contact, self.p,
-                                  self._h, self._ig, self.stats, self._work, self._fbuf, self._sc)
+        code, self._h = integrate(t0_s, t1_s, y, self._zero, np.asarray(u_m_per_s2, dtype=np.float64), contact,
+                                  self.geom, self._h, self._ig, self.stats, self._work, self._fbuf, self._sc)
         if code != OK:
             raise ModelInputError(failure_message("observer model", t0_s, t1_s, code, y.tolist()))

@@ -51,12 +51,13 @@ from vesselbot_ros.physics.kernel import (
     I_R,
     forces_into,
     forces_tc,
+    onto_lumen,
     time_terms_into,
     update_contact,
     wall_delta_at,
     wall_delta_xz,
 )
-from vesselbot_ros.physics.plant3d import contact3d_update, forces3d_at, rhs3d_into
+from vesselbot_ros.physics.plant3d import contact3d_update, forces3d_at, geometry3d, rhs3d_into
 
 __all__ = [
     "IntegratorParams",
@@ -68,6 +69,13 @@ __all__ = [
     "rhs_into",
     "state_len",
     "wall_and_forces",
+    "forces_at",
+    "forces_memo",
+    "wall_press",
+    "onto_lumen_at",
+    "params_of",
+    "mass_of",
+    "with_params",
     "plant_output",
     "G_ROW",
     "U_ROW",
@@ -196,8 +204,8 @@ _E7 = -1.0 / 40.0
 
 # ---- the geometry's edge: the vessel a bead flies in -------------------------------------------------------------
 # ``geom`` is the plane's packed parameters ``p`` (a straight vessel or a planar network: the planar force kernel,
-# state (x, z, vx, vz)) or a 3-D tree's ``(p, W, F, fh)`` (the 3-D force kernel, state (x, y, z, vx, vy, vz)).  These
-# three functions are the only places the loop's plant tells them apart, by the argument's type at compile time.
+# state (x, z, vx, vz)) or a 3-D tree's ``(p, W, F, fh)`` (the 3-D force kernel, state (x, y, z, vx, vy, vz)).  The
+# overloads below are the only places the loop's stages tell them apart, by the argument's type at compile time.
 def rhs_into(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``out = (Z, a(t, X, Z; g) + u)`` of the bead in ``geom`` (compiled code only)."""
     raise NotImplementedError("rhs_into runs in compiled code only")
@@ -269,6 +277,146 @@ def _tree_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[n
 @overload(wall_and_forces, jit_options={"nogil": True})
 def _wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_wall if isinstance(geom, types.Array) else _tree_wall
+
+
+def forces_at(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The force terms (8, d) on the bead of state ``y`` (2 d,) under the gradient ``g`` (d,) in ``fbuf``: the
+    models' ``F`` (row 7 is the sum); compiled code only."""
+    raise NotImplementedError("forces_at runs in compiled code only")
+
+
+def _planar_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces_into(t, y[0], y[1], y[2], y[3], g[0], g[1], contact, geom, fbuf)
+
+
+def _tree_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
+
+
+@overload(forces_at, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above
+def _forces_at(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_forces if isinstance(geom, types.Array) else _tree_forces
+
+
+def forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`forces_at` with the planar force model's time-only terms memoised in ``tc``
+    (:func:`~vesselbot_ros.physics.kernel.forces_tc`: the same doubles); a tree's kernel has none to keep."""
+    raise NotImplementedError("forces_memo runs in compiled code only")
+
+
+def _planar_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces_tc(t, y[0], y[1], y[2], y[3], g[0], g[1], contact, geom, fbuf, tc)
+
+
+def _tree_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
+
+
+@overload(forces_memo, jit_options={"nogil": True})
+def _forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_forces_memo if isinstance(geom, types.Array) else _tree_forces_memo
+
+
+def wall_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether a bead at ``y`` rests on the nearest wall: within ``zone_radii`` bead radii of it, and the drag, the
+    apparent weight and the image charge (``fbuf``'s rows 1, 2 and 5, over the mass) plus ``u`` press it there
+    (compiled code only)."""
+    raise NotImplementedError("wall_press runs in compiled code only")
+
+
+def _planar_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    delta, wall = wall_delta_xz(t, y[0], y[1], geom)
+    if not delta > -zone_radii * geom[I_R]:
+        return False
+    return wall * ((fbuf[1, 1] + fbuf[2, 1] + fbuf[5, 1]) / geom[I_MASS] + u[1]) > 0.0
+
+
+def _tree_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    p = geom[0]
+    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
+    if not p[I_R] - s_t > -zone_radii * p[I_R]:
+        return False
+    m = p[I_MASS]
+    push = (n0 * ((fbuf[1, 0] + fbuf[2, 0] + fbuf[5, 0]) / m + u[0]) + n1 * ((fbuf[1, 1] + fbuf[2, 1] + fbuf[5, 1]) / m + u[1])
+            + n2 * ((fbuf[1, 2] + fbuf[2, 2] + fbuf[5, 2]) / m + u[2]))
+    return push < 0.0  # against the inward normal: into the wall
+
+
+@overload(wall_press, jit_options={"nogil": True})
+def _wall_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_press if isinstance(geom, types.Array) else _tree_press
+
+
+def onto_lumen_at(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """A bead of state ``y`` (2 d,) closer to a wall than ``gap`` (m) put ``gap`` from it along the wall's inward
+    normal, its velocity into the wall removed, in place; whether it moved (compiled code only).  The wall as a
+    constraint, for estimators that step too coarsely for the stiff contact."""
+    raise NotImplementedError("onto_lumen_at runs in compiled code only")
+
+
+def _planar_onto(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    x0, x1, z0, z1 = onto_lumen(t, y[0], y[1], y[2], y[3], geom, gap)
+    moved = x0 != y[0] or x1 != y[1]
+    y[0], y[1], y[2], y[3] = x0, x1, z0, z1
+    return moved
+
+
+def _tree_onto(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    p = geom[0]
+    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
+    delta = p[I_R] - s_t + gap
+    if not delta > 0.0:
+        return False
+    y[0] = y[0] + delta * n0
+    y[1] = y[1] + delta * n1
+    y[2] = y[2] + delta * n2
+    vn = y[3] * n0 + y[4] * n1 + y[5] * n2
+    if vn < 0.0:
+        y[3] = y[3] - vn * n0
+        y[4] = y[4] - vn * n1
+        y[5] = y[5] - vn * n2
+    return True
+
+
+@overload(onto_lumen_at, jit_options={"nogil": True})
+def _onto_lumen_at(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_onto if isinstance(geom, types.Array) else _tree_onto
+
+
+def params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The packed physics parameters of ``geom`` (compiled code only)."""
+    raise NotImplementedError("params_of runs in compiled code only")
+
+
+@overload(params_of, inline="always")
+def _params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(geom, types.Array):
+        return lambda geom: geom
+    return lambda geom: geom[0]
+
+
+def mass_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The bead's mass in ``geom``'s packed parameters (kg; compiled code only)."""
+    raise NotImplementedError("mass_of runs in compiled code only")
+
+
+@overload(mass_of, inline="always")
+def _mass_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(geom, types.Array):
+        return lambda geom: geom[I_MASS]
+    return lambda geom: geom[0][I_MASS]
+
+
+def with_params(geom, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``geom`` with its packed physics parameters replaced by ``p`` (the same vessel; compiled code only)."""
+    raise NotImplementedError("with_params runs in compiled code only")
+
+
+@overload(with_params, inline="always")
+def _with_params(geom, p):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(geom, types.Array):
+        return lambda geom, p: p
+    return lambda geom, p: (p, geom[1], geom[2], geom[3])
 
 
 @numba.njit(cache=True, nogil=True)

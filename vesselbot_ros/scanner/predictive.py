@@ -438,11 +438,10 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
     return status
 
 
-def _predictive_step(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: typed by CONTROLLER_STEP
-                    pr0, pr1, vr0, vr1, ar0, ar1, out):
-    """:func:`predictive_command` as the compiled loop's controller step."""
-    return predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,
-                              pr0, pr1, vr0, vr1, ar0, ar1, out)
+def _predictive_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
+    """:func:`predictive_command` as the compiled loop's controller step (planar: ``geom`` is the packed model)."""
+    return predictive_command(prm, state, geom, work, fbuf, t, est[0], est[1], est[2], est[3], est[4], est[5],
+                              pr[0], pr[1], vr[0], vr[1], ar[0], ar[1], out)
 
 
 predictive_step = lazy_step(_predictive_step)
@@ -509,4 +508,4 @@ class PredictiveController:
 
     def compiled(self) -> CompiledController:
         """This controller in the compiled loop's form, now."""
-        return CompiledController(predictive_step(), self.prm, self.state, self.work.shape[0])
+        return CompiledController(predictive_step, self.prm, self.state, self.work.shape[0])

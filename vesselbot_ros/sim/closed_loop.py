@@ -28,7 +28,7 @@ over seeds and scenario variants on several cores, each row equal to the
 single run.
 
 Time-series columns (``SimResult.timeseries``; vectors are (n, 2) over (x, z), or (n, 3) over (x, y, z) in a
-3-D vessel tree (``Scenario.dims``; its compiled loop is :mod:`vesselbot_ros.sim.compiled_loop3d`)):
+3-D vessel tree (``Scenario.dims``; the same loop and the same compiled kernel on three axes)):
 
 ===================  =======  ==============================================
 key                  unit     meaning
@@ -80,11 +80,10 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.model import DynamicsModel
-from vesselbot_ros.control.model3d import DynamicsModel3D
 from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
-from vesselbot_ros.sim import compiled_loop, compiled_loop3d, kinds
+from vesselbot_ros.sim import compiled_loop, kinds
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario, short_copy
 
@@ -154,9 +153,8 @@ class _StageBuilder:
             if name == "model_physics":  # the model's own physics (blood-velocity error): the model and the reference
                 self._built[name] = self.s.model_physics()
             elif name == "model":
-                model_cls = DynamicsModel3D if self.s.dims == 3 else DynamicsModel
-                self._built[name] = model_cls(self.get("model_physics"), self.s.sim.integrator,
-                                              self.s.model.input_mapping)
+                self._built[name] = DynamicsModel(self.get("model_physics"), self.s.sim.integrator,
+                                                  self.s.model.input_mapping)
             else:
                 self._built[name] = kinds.build(name, self)
         return self._built[name]
@@ -321,8 +319,7 @@ def run_stages(
 # Prepared kernel inputs per scenario object (a frozen Scenario: the same object is the same scenario), so that
 # repeated runs of one scenario over seeds build the stages and sample the reference once.  Keyed on id() and
 # checked through a weak reference (the dict never keeps a scenario alive, and a recycled id is detected).
-#: The compiled loops' inputs: planar, or of a 3-D tree.
-Inputs = compiled_loop.LoopInputs | compiled_loop3d.LoopInputs3D
+Inputs = compiled_loop.LoopInputs
 _PREPARED: dict[int, tuple[weakref.ref[Scenario], Inputs | None]] = {}
 _PREPARED_LOCK = threading.Lock()
 _PREPARED_MAX = 64
@@ -345,25 +342,18 @@ def prepared(scenario: Scenario) -> Inputs | None:
 
 
 def _foreign_stages(scenario: Scenario, stages: Stages) -> list[str]:
-    """The stages the compiled loop of the scenario's geometry (planar, or a 3-D tree) cannot read."""
-    if scenario.dims == 3:
-        return compiled_loop3d.foreign_stages3d(stages)
+    """The stages the compiled loop cannot read."""
     return compiled_loop.foreign_stages(stages)
 
 
 def _prepare(scenario: Scenario, stages: Stages) -> Inputs:
     sim = scenario.sim
-    if scenario.dims == 3:
-        return compiled_loop3d.prepare3d(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
     return compiled_loop.prepare(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
 
 
 def _compiled_result(scenario: Scenario, seed: int | None, inp: Inputs, rng: np.random.Generator,
                      keep_timeseries: bool = True) -> SimResult:
-    if isinstance(inp, compiled_loop3d.LoopInputs3D):
-        cols, plant_stats, model_stats = compiled_loop3d.run_kernel3d(inp, rng)
-    else:
-        cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
+    cols, plant_stats, model_stats = compiled_loop.run_kernel(inp, rng)
     # copies: the prepared inputs are shared by every run of the scenario and must not be written through a result
     series: dict[str, npt.NDArray[Any]] = {"t_s": inp.ts.copy(), "p_ref": inp.p_ref.copy(), "v_ref": inp.v_ref.copy(),
                                            "a_ref": inp.a_ref.copy()}

@@ -1,33 +1,29 @@
-"""The closed loop of :mod:`vesselbot_ros.sim.closed_loop` as one compiled function.
+"""The closed loop of :mod:`vesselbot_ros.sim.closed_loop` as one compiled function, on the vessel's axes.
 
-:func:`loop_kernel` runs every tick of one run in numba, calling the compiled
-stages in the runner's order::
+:func:`loop_kernel` runs every tick of one run in numba, calling the compiled stages in the runner's order::
 
-    plant output (wall_delta_xz, forces_into)
+    plant output (physics.integrator.wall_and_forces)
     -> imager_frame | seq_imager_frame (scanner)
     -> observer_update (25) | ekf_update (extended Kalman)
     -> the controller's compiled step, of any kind (control/compiled_stage.py: law (24), its adaptive form, ...)
     -> coil_apply | seq_coil_apply (scanner) -> plant step (the one integrator, physics.integrator.integrate)
 
-over explicit state arrays that :func:`prepare` builds from the same
-:class:`~vesselbot_ros.sim.closed_loop.Stages` as the per-tick loop, and it
-writes every time-series column into arrays allocated once per run.  Each
-stage does the same IEEE operations in the same order as its Python class
-(the classes of the coil and the law call the very same functions), so the
-two paths are bit-identical; ``test/unit/sim/test_compiled_loop.py`` checks
-every column, metric and run statistic.
+over explicit state arrays that :func:`prepare` builds from the same :class:`~vesselbot_ros.sim.closed_loop.Stages`
+as the per-tick loop, and it writes every time-series column into arrays allocated once per run.  One kernel serves
+the plane (a straight vessel or a planar network: d = 2 axes, x and z) and a 3-D tree (d = 3): the axis count is
+the plant state's, and the vessel is the ``geom`` argument of the integrator's geometry edge, so numba compiles
+the kernel once per geometry type.  Each stage does the same IEEE operations in the same order as its Python class
+(the classes call the very same functions), so the two paths are bit-identical;
+``test/unit/sim/test_compiled_loop.py`` checks every column, metric and run statistic.
 
-Random draws: the imager's ``numpy.random.Generator`` is passed into the
-kernel and drawn from in the documented order (two standard normals, two
-uniforms per acquired frame), so one seed gives one stream in both paths.
+Random draws: the imager's ``numpy.random.Generator`` is passed into the kernel and drawn from in the documented
+order (d standard normals, then d uniforms per acquired frame), so one seed gives one stream in both paths.
 
-Bad input inside the loop (a non-finite state, a failing integrator, a flow
-scale the law cannot use) stops the kernel at that tick with a code;
-:func:`raise_for_code` raises the per-tick loop's
+Bad input inside the loop (a non-finite state, a failing integrator, a flow scale the law cannot use) stops the
+kernel at that tick with a code; :func:`raise_for_code` raises the per-tick loop's
 :class:`~vesselbot_ros.errors.ModelInputError`, word for word.
 
-The kernel releases the GIL (``nogil``), so :func:`~vesselbot_ros.sim.closed_loop.run_many`
-runs several in threads.
+The kernel releases the GIL (``nogil``), so :func:`~vesselbot_ros.sim.closed_loop.run_many` runs several in threads.
 """
 
 from __future__ import annotations
@@ -40,26 +36,20 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimiter, coil_apply, coil_params
-from vesselbot_ros.control.backstepping import BacksteppingController, flow_scale_message
-from vesselbot_ros.control.compiled_stage import CONTROLLER_OUT_SIZE, STEP_FLOW_SCALE_INVALID, CompiledController
-from vesselbot_ros.control.ekf_observer import EKF_OUT_SIZE, EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
-from vesselbot_ros.control.high_gain_observer import (
-    HISTORY_LEN,
-    HighGainObserver,
-    integrator_vector,
-    observer_params,
-    observer_update,
-)
-from vesselbot_ros.control.imager_model import ImagerModel, imager_frame
+from vesselbot_ros.control.actuator_limits import CoilLimiter, coil_apply, coil_params
+from vesselbot_ros.control.backstepping import flow_scale_message
+from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, geom_type
+from vesselbot_ros.control.ekf_observer import EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
+from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, observer_update
+from vesselbot_ros.control.imager_model import ImagerModel, imager_frame, queue_columns
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, failure_message, integrate, new_workspace
-from vesselbot_ros.physics.kernel import forces_into, wall_delta_xz
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, seq_coil_apply, seq_imager_frame
+from vesselbot_ros.physics.integrator import OK, failure_message, integrate, integrator_vector, new_workspace, wall_and_forces
+from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
-__all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
+__all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "columns",
+           "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
@@ -69,31 +59,40 @@ REFERENCE_NONFINITE = 4  # the controller got a non-finite reference sample
 EKF_FAILED = 5  # the extended Kalman filter's prediction failed
 FLOW_SCALE_FAILED = 6  # the compensating law got a flow scale it cannot use
 
-#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order.
-COLUMNS: tuple[tuple[str, Any, tuple[int, ...]], ...] = (
-    ("p_true", np.float64, (2,)),
-    ("v_true", np.float64, (2,)),
+#: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order; ``"d"`` is the axis count.
+_COLUMN_SPEC: tuple[tuple[str, Any, tuple[Any, ...]], ...] = (
+    ("p_true", np.float64, ("d",)),
+    ("v_true", np.float64, ("d",)),
     ("delta_m", np.float64, ()),
     ("in_contact", np.bool_, ()),
     ("contact_phase", np.int8, ()),
-    ("meas_p", np.float64, (2,)),
+    ("meas_p", np.float64, ("d",)),
     ("meas_t_acq_s", np.float64, ()),
     ("meas_outlier", np.bool_, ()),
-    ("x_hat", np.float64, (2,)),
-    ("z_hat", np.float64, (2,)),
+    ("x_hat", np.float64, ("d",)),
+    ("z_hat", np.float64, ("d",)),
     ("flow_scale_hat", np.float64, ()),
     ("magnetization_scale_hat", np.float64, ()),
     ("meas_used", np.bool_, ()),
     ("meas_rejected", np.bool_, ()),
-    ("u_cmd", np.float64, (2,)),
-    ("g_cmd", np.float64, (2,)),
-    ("g_applied", np.float64, (2,)),
+    ("u_cmd", np.float64, ("d",)),
+    ("g_cmd", np.float64, ("d",)),
+    ("g_applied", np.float64, ("d",)),
     ("k_scale", np.float64, ()),
     ("saturated", np.bool_, ()),
-    ("slew_limited", np.bool_, (2,)),
+    ("slew_limited", np.bool_, ("d",)),
     ("cmd_status", np.int8, ()),
     ("cmd_rejected", np.int8, ()),
 )
+
+
+def columns(dims: int) -> tuple[tuple[str, Any, tuple[int, ...]], ...]:
+    """(name, dtype, trailing shape) of the kernel's columns on ``dims`` axes, in its argument order."""
+    return tuple((name, dt, tuple(dims if a == "d" else a for a in shape)) for name, dt, shape in _COLUMN_SPEC)
+
+
+#: The planar loop's columns (:func:`columns` of 2 axes).
+COLUMNS = columns(2)
 
 
 @dataclass
@@ -106,12 +105,13 @@ class LoopInputs:
 
     n: int
     dt: float
+    dims: int
     ts: npt.NDArray[np.float64]
     p_ref: npt.NDArray[np.float64]
     v_ref: npt.NDArray[np.float64]
     a_ref: npt.NDArray[np.float64]
-    plant_p: npt.NDArray[np.float64]
-    model_p: npt.NDArray[np.float64]
+    plant_geom: Any
+    model_geom: Any
     ig: npt.NDArray[np.float64]
     obs_ig: npt.NDArray[np.float64]
     imager_prm: npt.NDArray[np.float64]
@@ -120,6 +120,7 @@ class LoopInputs:
     obs_kind: int
     obs_prm: npt.NDArray[np.float64]
     ekf: EkfState | None
+    ekf_geom: Any
     ctrl: CompiledController
     coil_prm: npt.NDArray[np.float64]
     seq_mode: int
@@ -137,16 +138,18 @@ OBS_HIGH_GAIN, OBS_EKF = 0, 1
 
 def foreign_stages(stages: Any) -> list[str]:
     """The stages :func:`prepare` cannot read, by name: of a kind the compiled loop does not run (a user's
-    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), or a built-in one over a user's part."""
+    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), a built-in one over a user's part, or one on
+    other axes than the plant's."""
+    d = getattr(stages.plant, "dims", 2)
     bad = [role for role in kinds.ROLES
            if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)
-           or getattr(getattr(stages, role), "dims", 2) != 2]  # the kernel's stages are planar
-    im, ob, co = stages.imager, stages.observer, stages.coil
+           or getattr(getattr(stages, role), "dims", d) != d]
+    im, ob, co, ctrl = stages.imager, stages.observer, stages.coil, stages.controller
     if type(im) is SequencedImager and type(im.inner) is not ImagerModel:
         bad.append("imager")
     if type(ob) is HighGainObserver and not getattr(ob, "_compiled", False):
         bad.append("observer")
-    if type(stages.controller) is BacksteppingController and stages.controller.model_params is None:
+    if getattr(ctrl, "model_params", True) is None:  # a built-in law over a user's F
         bad.append("controller")
     if type(co) is SequencedCoil and type(co.inner) is not CoilLimiter:
         bad.append("coil")
@@ -158,6 +161,14 @@ def _read_only(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     v = np.ascontiguousarray(a).view()
     v.flags.writeable = False
     return v
+
+
+def _model_geom(geom: Any) -> Any:
+    """The model's geometry as the controller steps take it (:func:`~vesselbot_ros.control.compiled_stage.geom_type`)."""
+    if isinstance(geom, np.ndarray):
+        return _read_only(geom)
+    p, *rest = geom
+    return (_read_only(p), *rest)
 
 
 def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
@@ -183,16 +194,16 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
                     and np.array_equal(coil.sv, stages.imager.sv)):
         raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
     if isinstance(observer, ExtendedKalmanObserver):
-        obs_kind, obs_prm, ekf, obs_y0 = OBS_EKF, np.zeros(11), observer.ekf.copy(), np.zeros(4)
+        obs_kind, obs_prm, ekf, obs_y0 = OBS_EKF, np.zeros(11), observer.ekf.copy(), np.zeros(2 * plant.dims)
     else:
-        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer_params(observer.params, model.input_matrix), None, observer.state
+        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer.params_vector, None, observer.state
     return LoopInputs(
-        n=n, dt=dt, ts=ts,
+        n=n, dt=dt, dims=plant.dims, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
-        plant_p=plant.p, model_p=_read_only(model.p), ig=integrator_vector(plant.integrator),
+        plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=integrator_vector(plant.integrator),
         obs_ig=integrator_vector(model.integrator),
         imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
-        obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf,
+        obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf, ekf_geom=ekf.geom if ekf is not None else model.geom,
         ctrl=kinds.compiled_controller(controller),
         coil_prm=coil_params(limiter.limits),
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
@@ -202,157 +213,156 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
 
 
 @numba.njit(cache=True, nogil=True)
-def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
-                imager_prm, outliers, dropouts, obs_kind, obs_prm, ctrl_step, ctrl_prm, ctrl_state, ctrl_work, coil_prm, seq_mode, sv,
-                hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
-                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p, e_p_s, e_work, e_fbuf,
-                e_vec, e_mat,
+def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
+                imager_prm, outliers, dropouts, queue, seq_state, obs_kind, obs_prm, ctrl_step, ctrl_prm, ctrl_state,
+                ctrl_work, coil_prm, seq_mode, sv, hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
+                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_geom, e_p_s, e_work, e_fbuf,
+                e_sc, e_vec, e_mat,
                 plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
                 x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
                 saturated, slew_limited, cmd_status, cmd_rejected, err):
-    """Run ticks ``0 .. n-1``; returns ``(code, tick)`` (``code`` 0 = every tick ran).
+    """Run ticks ``0 .. n-1`` on the d = ``len(y) / 2`` axes of the vessel ``plant_geom``; returns ``(code, tick)``
+    (``code`` 0 = every tick ran).
 
-    State arrays (``y``, ``contact``, ``obs_*``, the filter's ``e_*``,
-    ``coil_state``, stats) are updated in place; ``err`` (8,) receives the
-    failure's details (``[t0, t1, integrator code, state...]``, or the flow
-    scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the
-    ``obs_*`` arrays) or the extended Kalman filter (:data:`OBS_EKF`, the
-    ``e_*`` arrays); ``seq_mode`` 1 runs the scanner's imager and coil on the
-    sequence ``sv``.  The controller is ``ctrl_step``, a compiled step of any
-    kind (:mod:`vesselbot_ros.control.compiled_stage`) on ``ctrl_prm``, its state
-    ``ctrl_state`` and scratch ``ctrl_work``.
-    All scratch is allocated once, before the first tick.
+    State arrays (``y``, ``contact``, ``queue``, ``seq_state``, ``obs_*``, the filter's ``e_*``, ``coil_state``,
+    stats) are updated in place; ``err`` (8,) receives the failure's details (``[t0, t1, integrator code,
+    state...]``, or the flow scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the ``obs_*``
+    arrays) or the extended Kalman filter (:data:`OBS_EKF`, the ``e_*`` arrays); ``seq_mode`` 1 runs the
+    scanner's imager and coil on the sequence ``sv``.  The controller is ``ctrl_step``, a compiled step of any kind
+    (:mod:`vesselbot_ros.control.compiled_stage`) on ``ctrl_prm``, its state ``ctrl_state`` and scratch ``ctrl_work``,
+    over the model ``model_geom``.  All scratch is allocated once, before the first tick.
     """
-    work, fbuf, sc = new_workspace(2)
-    obs_work, obs_fbuf, obs_sc = new_workspace(2)
-    ctrl_fbuf = np.empty((8, 2))
-    queue = np.empty((n + 1, 5))
+    d = y.shape[0] // 2
+    work, fbuf, sc = new_workspace(d)
+    obs_work, obs_fbuf, obs_sc = new_workspace(d)
+    ctrl_fbuf = np.empty((8, d))
+    ctrl_sc = np.zeros((4, d))
+    fk = np.empty((8, d))
     img_state = np.zeros(4)
     img_state[1] = -math.inf
-    seq_state = np.zeros(8)
-    seq_state[0] = -1.0
-    acq = np.zeros(5)
-    img_out = np.zeros(5)
-    hist = np.empty((HISTORY_LEN, 3))
+    acq = np.zeros(3 + d)
+    img_out = np.zeros(3 + d)
+    hist = np.empty((HISTORY_LEN, 1 + d))
     hist_n = np.zeros(2, dtype=np.int64)
-    obs_out = np.zeros(EKF_OUT_SIZE)
-    obs_out[9] = 1.0  # observer (25) does not estimate the flow scale
-    ctrl_out = np.zeros(CONTROLLER_OUT_SIZE)
-    coil_out = np.zeros(COIL_OUT_SIZE)
-    gc = np.zeros(2)  # the tick's command (NaN: rejected)
-    ga = np.zeros(2)  # the gradient applied over the last period: the plant's and, next tick, the models'
-    z2 = np.zeros(2)
+    n_obs = 3 * d + 3  # observer_out_size(d); the extended Kalman filter adds its flow scale
+    obs_out = np.zeros(n_obs + 1)
+    obs_out[n_obs] = 1.0  # observer (25) does not estimate the flow scale
+    est = np.zeros(2 * d + 2)
+    ctrl_out = np.zeros(2 * d + 2)
+    coil_out = np.zeros(2 * d + 3)  # coil_out_size(d)
+    gc = np.zeros(d)  # the tick's command (NaN: rejected)
+    ga = np.zeros(d)  # the gradient applied over the last period: the plant's and, next tick, the models'
+    zd = np.zeros(d)
     h = ig[5]
     for k in range(n):
         t = ts[k]
-        # plant output at t_k
-        delta, _wall = wall_delta_xz(t, y[0], y[1], plant_p)
-        p_true[k, 0] = y[0]
-        p_true[k, 1] = y[1]
-        v_true[k, 0] = y[2]
-        v_true[k, 1] = y[3]
+        # plant output at t_k (the forces under the gradient applied over the last period)
+        delta, _wall = wall_and_forces(t, y, ga, contact, plant_geom, fk, sc, record_forces)
+        for c in range(d):
+            p_true[k, c] = y[c]
+            v_true[k, c] = y[d + c]
         delta_m[k] = delta
         in_contact[k] = delta > 0.0
         contact_phase[k] = int(contact[0])
         if record_forces:
-            forces_into(t, y[0], y[1], y[2], y[3], ga[0], ga[1], contact, plant_p, forces[k])
+            for i in range(8):
+                for c in range(d):
+                    forces[k, i, c] = fk[i, c]
         # imager (the plant state is finite: the integrator checked it)
         if seq_mode == 1:
-            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:2], img_out)
+            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:d], img_out)
         else:
-            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:2], img_out)
+            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:d], img_out)
         has_meas = img_out[0] > 0.5
         if has_meas:
-            meas_p[k, 0] = img_out[2]
-            meas_p[k, 1] = img_out[3]
+            for c in range(d):
+                meas_p[k, c] = img_out[2 + c]
             meas_t_acq_s[k] = img_out[1]
-            meas_outlier[k] = img_out[4] > 0.5
+            meas_outlier[k] = img_out[2 + d] > 0.5
         else:
-            meas_p[k, 0] = np.nan
-            meas_p[k, 1] = np.nan
+            for c in range(d):
+                meas_p[k, c] = np.nan
             meas_t_acq_s[k] = np.nan
         # observer
         if obs_kind == OBS_EKF:
-            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_p,
-                              e_p_s, e_work, e_fbuf, e_vec, e_mat, model_stats, t, ga[0], ga[1], has_meas,
-                              img_out[1], img_out[2], img_out[3], obs_out, err)
+            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_geom,
+                              e_p_s, e_work, e_fbuf, e_sc, e_vec, e_mat, model_stats, t, ga, has_meas, img_out[1],
+                              img_out[2:2 + d], obs_out, err)
             if code != OK:
                 return EKF_FAILED, k
         else:
-            code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_p, model_stats,
-                                   obs_work, obs_fbuf, obs_sc, t, ga, has_meas, img_out[1], img_out[2:4], obs_out)
+            code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_geom, model_stats,
+                                   obs_work, obs_fbuf, obs_sc, t, ga, has_meas, img_out[1], img_out[2:2 + d], obs_out)
             if code != OK:
                 err[0] = obs_scal[0]
                 err[1] = t
                 err[2] = code
                 return OBSERVER_FAILED, k
-        x_hat[k, 0] = obs_out[0]
-        x_hat[k, 1] = obs_out[1]
-        z_hat[k, 0] = obs_out[2]
-        z_hat[k, 1] = obs_out[3]
-        meas_used[k] = obs_out[7] > 0.5
-        meas_rejected[k] = obs_out[8] > 0.5
+        finite_estimate = True
+        for c in range(d):
+            x_hat[k, c] = obs_out[c]
+            z_hat[k, c] = obs_out[d + c]
+            if not (math.isfinite(obs_out[c]) and math.isfinite(obs_out[d + c])):
+                finite_estimate = False
+        meas_used[k] = obs_out[3 * d + 1] > 0.5
+        meas_rejected[k] = obs_out[3 * d + 2] > 0.5
         # controller (kinds.checked_command: a non-finite estimate is not given to it, a non-finite command is
         # rejected; either reaches the coil as NaN, which ramps it towards zero at the slew limit)
-        if not (math.isfinite(obs_out[0]) and math.isfinite(obs_out[1]) and math.isfinite(obs_out[2])
-                and math.isfinite(obs_out[3])):
+        if not finite_estimate:
             status = 2
             why = REJECT_ESTIMATE
-            gx_cmd = np.nan
-            gz_cmd = np.nan
-            u_cmd[k, 0] = np.nan
-            u_cmd[k, 1] = np.nan
-            flow_scale_hat[k] = obs_out[9]
+            for c in range(d):
+                gc[c] = np.nan
+                u_cmd[k, c] = np.nan
+            flow_scale_hat[k] = obs_out[n_obs]
             magnetization_scale_hat[k] = 1.0
         else:
-            if not (math.isfinite(p_ref[k, 0]) and math.isfinite(p_ref[k, 1]) and math.isfinite(v_ref[k, 0])
-                    and math.isfinite(v_ref[k, 1]) and math.isfinite(a_ref[k, 0]) and math.isfinite(a_ref[k, 1])):
-                return REFERENCE_NONFINITE, k
-            status = ctrl_step(ctrl_prm, ctrl_state, model_p, ctrl_work, ctrl_fbuf, t, obs_out[0], obs_out[1],
-                               obs_out[2], obs_out[3], obs_out[4], obs_out[9], p_ref[k, 0], p_ref[k, 1], v_ref[k, 0],
-                               v_ref[k, 1], a_ref[k, 0], a_ref[k, 1], ctrl_out)
-            flow_scale_hat[k] = ctrl_out[4]  # the scales the controller worked with (the observer's, or adapted)
-            magnetization_scale_hat[k] = ctrl_out[5]
+            for c in range(d):
+                if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
+                    return REFERENCE_NONFINITE, k
+            for c in range(2 * d + 1):
+                est[c] = obs_out[c]
+            est[2 * d + 1] = obs_out[n_obs]
+            status = ctrl_step(ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc, t, est, p_ref[k],
+                               v_ref[k], a_ref[k], ctrl_out)
+            flow_scale_hat[k] = ctrl_out[2 * d]  # the scales the controller worked with (the observer's, or adapted)
+            magnetization_scale_hat[k] = ctrl_out[2 * d + 1]
             if status == STEP_FLOW_SCALE_INVALID:
-                err[0] = ctrl_out[4]
+                err[0] = ctrl_out[2 * d]
                 return FLOW_SCALE_FAILED, k
-            gx_cmd = ctrl_out[0]
-            gz_cmd = ctrl_out[1]
-            u_cmd[k, 0] = ctrl_out[2]
-            u_cmd[k, 1] = ctrl_out[3]
             why = 0
-            if not (math.isfinite(gx_cmd) and math.isfinite(gz_cmd)):
-                why = REJECT_NONFINITE
+            for c in range(d):
+                gc[c] = ctrl_out[c]
+                u_cmd[k, c] = ctrl_out[d + c]
+                if not math.isfinite(gc[c]):
+                    why = REJECT_NONFINITE
+            if why != 0:
                 status = 2
             elif status < 0 or status > 2:  # not a status of a command
                 why = REJECT_MALFORMED
                 status = 2
-                gx_cmd = np.nan
-                gz_cmd = np.nan
-        g_cmd[k, 0] = gx_cmd
-        g_cmd[k, 1] = gz_cmd
+                for c in range(d):
+                    gc[c] = np.nan
+        for c in range(d):
+            g_cmd[k, c] = gc[c]
         cmd_status[k] = status
         cmd_rejected[k] = why
         # coil
-        gc[0] = gx_cmd
-        gc[1] = gz_cmd
         if seq_mode == 1:
             seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
         else:
             coil_apply(coil_prm, coil_state, t, gc, coil_out)
-        ga[0] = coil_out[0]
-        ga[1] = coil_out[1]
-        g_applied[k, 0] = ga[0]
-        g_applied[k, 1] = ga[1]
-        k_scale[k] = coil_out[2]
-        saturated[k] = coil_out[3] > 0.5
-        slew_limited[k, 0] = coil_out[4] > 0.5
-        slew_limited[k, 1] = coil_out[5] > 0.5
+        for c in range(d):
+            ga[c] = coil_out[c]
+            g_applied[k, c] = coil_out[c]
+            slew_limited[k, c] = coil_out[d + 2 + c] > 0.5
+        k_scale[k] = coil_out[d]
+        saturated[k] = coil_out[d + 1] > 0.5
         # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
         t0 = 0.0 + k * dt
         t1 = 0.0 + (k + 1) * dt
-        code, h = integrate(t0, t1, y, ga, z2, contact, plant_p, h, ig, plant_stats, work, fbuf, sc)
+        code, h = integrate(t0, t1, y, ga, zd, contact, plant_geom, h, ig, plant_stats, work, fbuf, sc)
         if code != OK:
             err[0] = t0
             err[1] = t1
@@ -361,11 +371,11 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_p, model_p, ig, obs_ig, rn
     return OK, n
 
 
-_NO_EKF: tuple[npt.NDArray[Any], ...] = (
-    np.zeros(27), np.zeros(4), np.zeros(6, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(1), np.zeros((1, 5)),
-    np.zeros((1, 5, 5)), np.zeros((1, 2)), np.zeros(4), np.zeros(1), np.zeros(1), np.zeros((12, 4)), np.zeros((8, 2)),
-    np.zeros((8, 5)), np.zeros((6, 5, 5)),
-)
+def _no_ekf(geom: Any) -> tuple[Any, ...]:
+    """Stand-ins for the filter's arrays when observer (25) runs (of the types the kernel was compiled for)."""
+    return (np.zeros(1), np.zeros(5), np.zeros(6, dtype=np.int64), np.zeros(1), np.zeros((1, 1)), np.zeros(1),
+            np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(4), geom, np.zeros(1), np.zeros((12, 1)),
+            np.zeros((8, 1)), np.zeros((4, 1)), np.zeros((8, 1)), np.zeros((6, 1, 1)))
 
 
 def run_kernel(
@@ -376,9 +386,10 @@ def run_kernel(
     Raises:
         ModelInputError: as the per-tick loop would (:func:`raise_for_code`).
     """
-    n = inp.n
-    cols = {name: (np.zeros if dt is np.bool_ else np.empty)((n, *shape), dtype=dt) for name, dt, shape in COLUMNS}
-    forces = np.empty((n, 8, 2)) if inp.record_forces else np.empty((0, 8, 2))
+    n, d = inp.n, inp.dims
+    spec = columns(d)
+    cols = {name: (np.zeros if dt is np.bool_ else np.empty)((n, *shape), dtype=dt) for name, dt, shape in spec}
+    forces = np.empty((n, 8, d)) if inp.record_forces else np.empty((0, 8, d))
     y = inp.plant_y0.copy()
     contact = np.zeros(4)
     obs_y = inp.obs_y0.copy()
@@ -387,23 +398,24 @@ def run_kernel(
     coil_state = inp.coil_state0.copy()
     plant_stats = np.zeros(4, dtype=np.int64)
     model_stats = np.zeros(4, dtype=np.int64)
-    err = np.zeros(8)
+    err = np.zeros(3 + 2 * d + 1)
     if inp.ekf is not None:
         e = inp.ekf.copy()
-        ekf_arrays: tuple[npt.NDArray[Any], ...] = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free,
-                                                    e.p, e.p_s, e.work, e.fbuf, e.vec, e.mat)
+        ekf_arrays: tuple[Any, ...] = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free,
+                                       e.geom, e.p_s, e.work, e.fbuf, e.sc, e.vec, e.mat)
     else:
-        ekf_arrays = _NO_EKF
-    code, tick = loop_kernel(  # type: ignore[call-arg]  # *ekf_arrays is 16 long: numba's Dispatcher stub cannot count it
-        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_p, inp.model_p, inp.ig, inp.obs_ig, rng,
-        inp.imager_prm, inp.outliers, inp.dropouts, inp.obs_kind, inp.obs_prm, inp.ctrl.step, inp.ctrl.prm,
-        inp.ctrl.state0.copy(), np.empty(inp.ctrl.work_size), inp.coil_prm,
+        ekf_arrays = _no_ekf(inp.ekf_geom)
+    code, tick = loop_kernel(  # type: ignore[call-arg]  # *ekf_arrays is 17 long: numba's Dispatcher stub cannot count it
+        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_geom, inp.model_geom, inp.ig, inp.obs_ig, rng,
+        inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((n + 1, queue_columns(d))), new_seq_imager_state(d),
+        inp.obs_kind, inp.obs_prm, inp.ctrl.step(geom_type(inp.model_geom)), inp.ctrl.prm,
+        inp.ctrl.state0.copy(), np.zeros(inp.ctrl.work_size), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s,
         y, contact, obs_y, obs_contact, obs_scal, coil_state, *ekf_arrays, plant_stats, model_stats,
-        inp.record_forces, forces, *(cols[name] for name, _dt, _shape in COLUMNS), err,
+        inp.record_forces, forces, *(cols[name] for name, _dt, _shape in spec), err,
     )
     if code != OK:
-        raise_for_code(code, tick, y, ekf_arrays[3][:4].copy() if inp.ekf is not None else obs_y, err)
+        raise_for_code(code, tick, y, ekf_arrays[3][:2 * d].copy() if inp.ekf is not None else obs_y, err, axes=d)
     if inp.record_forces:
         cols["forces"] = forces
     return cols, plant_stats, model_stats

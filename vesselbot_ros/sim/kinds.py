@@ -70,7 +70,6 @@ from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
 from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
-from vesselbot_ros.control.loop3d_stages import Backstepping3D
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
@@ -569,9 +568,8 @@ def rejection_warning(metrics: Mapping[str, Any], what: str = "controller comman
 
 
 # ---- the built-in kinds -----------------------------------------------------------------------------------------
-# In a 3-D vessel tree (Scenario.dims == 3) each built-in kind builds its stage on three axes
-# (control/loop3d_stages.py; the plant, the imager, observer (25) and the coil take the axis count); the scenario refuses the
-# kinds and options that have no 3-D form yet, in one line.
+# Each built-in kind builds one class for every vessel: its stage takes the axis count of the scenario (Scenario.dims: 3
+# in a 3-D tree) or of the model; the scenario refuses the kinds and options that have no 3-D form yet, in one line.
 def _plant(ctx: BuildContext) -> PlantSimulator:
     s = ctx.scenario
     return PlantSimulator(s.physics, s.sim.integrator, ctx.dt_s, s.initial.p0_m, s.initial.v0_m_per_s)
@@ -610,11 +608,9 @@ def _reference(ctx: BuildContext) -> ReferenceTrajectory:
     return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity_x=flow_x, wall_shift=wall_shift_of(phys))
 
 
-def _controller(ctx: BuildContext) -> BacksteppingController | Backstepping3D:
+def _controller(ctx: BuildContext) -> BacksteppingController:
     s = ctx.scenario
     model = ctx.model
-    if s.dims == 3:
-        return Backstepping3D(s.controller, model, ctx.dt_s, duty_cycle(s.sequence))
     return BacksteppingController(s.controller, model.F, model.input_matrix, ctx.dt_s, duty_cycle(s.sequence))
 
 
@@ -648,7 +644,7 @@ for _kind in (
     StageKind("reference", "bspline", ReferenceParams, _reference, compiled=True, stage_types=(ReferenceTrajectory,),
               summary="C2 cubic B-spline through the anchors (or the planned route of a network)"),
     StageKind("controller", "backstepping", ControllerParams, _controller, compiled=True,
-              stage_types=(BacksteppingController, Backstepping3D), summary="backstepping law (24)",
+              stage_types=(BacksteppingController,), summary="backstepping law (24)",
               compile_controller=BacksteppingController.compiled),
     StageKind("controller", "adaptive_backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,),

@@ -53,7 +53,7 @@ from vesselbot_ros.scanner.hardware import DbdtLimit, preset_changes
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, require_planar, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, network_dims, require_planar, route_to_outlet
 
 __all__ = [
     "ModelParams",
@@ -307,21 +307,14 @@ class Scenario:
     def dims(self) -> int:
         """3 when ``physics.vessel.network`` is a 3-D tree (its file gives ``y_m``): the loop runs on (x, y, z);
         else 2, the paper's plane (x, z)."""
-        if not self.physics.vessel.network:
-            return 2
-        try:
-            return 3 if load_network(self.physics.vessel.network).is_3d else 2
-        except ConfigError:
-            return 2  # the network check names the file and the cause
+        return network_dims(self.physics.vessel.network)  # a network that does not load: its check names the cause
 
     def _check_3d(self, bspline: bool) -> None:
         """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
         missing = []
-        if isinstance(self.observer, ObserverParams) and self.observer.kind != "high_gain":
-            missing.append(f"observer.kind {self.observer.kind!r} yet (the 3-D loop has observer (25), 'high_gain')")
         ckind = getattr(self.controller, "kind", "")
-        if ckind in ("adaptive_backstepping", "predictive"):  # built in, planar yet (a user's kind gets 3-vectors)
-            missing.append(f"controller.kind {ckind!r} yet (the 3-D loop has law (24), 'backstepping')")
+        if ckind == "predictive":  # built in, planar yet (a user's kind gets 3-vectors)
+            missing.append(f"controller.kind {ckind!r} yet (the 3-D loop has law (24), 'backstepping', and its adaptive form)")
         if bspline and self.reference.timing == "flow_synchronised":
             missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):

@@ -69,6 +69,7 @@ __all__ = [
     "NetworkGeometry",
     "NetworkGeometry3D",
     "load_network",
+    "network_dims",
     "require_planar",
     "smooth_centreline",
     "smooth_centreline_3d",
@@ -577,6 +578,17 @@ def load_network(source: str) -> VesselNetworkParams:
     path = resolve_network_path(source).resolve()
     st = path.stat()
     return _load_network_cached(str(path), st.st_mtime_ns, st.st_size)
+
+
+def network_dims(source: str) -> int:
+    """The axis count of the vessel a physics section names: 3 for a 3-D tree (its file gives ``y_m``), else 2 (no
+    network, or a planar one).  A network that does not load counts as planar; its own check names the file."""
+    if not source:
+        return 2
+    try:
+        return 3 if load_network(source).is_3d else 2
+    except ConfigError:
+        return 2
 
 
 @functools.lru_cache(maxsize=32)

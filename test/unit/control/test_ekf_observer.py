@@ -11,7 +11,7 @@ import pytest
 
 from vesselbot_ros.analysis.scanner_study import StudyCell, cell_scenario
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
+from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver, gate_on_axes
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.control.model import DynamicsModel
@@ -203,3 +203,11 @@ def test_track_restarts_once_the_rejected_frames_span_max_rejection_s() -> None:
     e = obs.update(0.096, _meas(0.096, far), np.zeros(2))  # rejected frames span 32 ms >= 30 ms: restart on it
     assert e.used_measurement and obs.track_resets == 1
     np.testing.assert_allclose(e.x_hat, far, rtol=0, atol=1e-12)
+
+
+def test_the_gate_keeps_its_probability_on_three_axes() -> None:
+    """The configured gate is a 2-degree-of-freedom quantile (99.9 %); a tree's innovation has three: the same
+    probability's quantile there."""
+    assert gate_on_axes(CHI2_2DOF_999, 2) == CHI2_2DOF_999
+    assert gate_on_axes(CHI2_2DOF_999, 3) == pytest.approx(16.266, abs=1e-3)
+    assert gate_on_axes(0.0, 3) == 0.0  # off stays off

@@ -236,21 +236,17 @@ def test_checked_command_contains_every_bad_answer_of_a_controller() -> None:
 
 
 # ---- one loop on any number of axes (issue 40): a role's kind builds one class for the plane and for space ----
-_NOT_YET_ONE = {"controller"}  # still a planar class and a 3-D twin: each xfail must turn green
-
-
 def _stage_class(stage: object) -> tuple[type, ...]:
     """The class of a built stage, and of the stage it wraps (the scanner's gated imager and coil)."""
     inner = getattr(stage, "inner", None)
     return (type(stage),) if inner is None else (type(stage), type(inner))
 
 
-@pytest.mark.parametrize("role", kinds.ROLES)
-def test_a_roles_built_in_kind_is_one_class_in_the_plane_and_in_a_3d_tree(role: str, request) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("role", (*kinds.ROLES, "model"))
+def test_a_roles_built_in_kind_is_one_class_in_the_plane_and_in_a_3d_tree(role: str) -> None:
     """The same scenario options in the straight vessel and in a 3-D tree, continuous and multiplexed: each role's
-    stage is built from one class (the axis count is its data), never a planar class and a 3-D twin."""
-    if role in _NOT_YET_ONE:
-        request.applymarker(pytest.mark.xfail(strict=True, reason="planar and 3-D classes still differ (issue 40)"))
+    stage (and the controller's and observer's model) is built from one class (the axis count is its data), never a
+    planar class and a 3-D twin."""
     seq = ["sequence.mode=multiplexed", "sequence.tracking_window_s=0.002", "sequence.dead_time_s=0.001",
            "sequence.propulsion_window_s=0.004", "sequence.latency_s=0.001", "imager.frame_rate_Hz=500",
            "controller.duty_compensation=sequence", "sim.duration_s=0.1"]

@@ -1,4 +1,4 @@
-"""Law (24) on three axes (vesselbot_ros.control.loop3d_stages): the planar rule, axis by axis."""
+"""Law (24) (vesselbot_ros.control.backstepping) on three axes: the planar rule, axis by axis, in one class."""
 
 from __future__ import annotations
 
@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from vesselbot_ros.control.backstepping import BacksteppingGains, ControllerParams, backstepping_u
+from vesselbot_ros.control.backstepping import BacksteppingController, BacksteppingGains, ControllerParams, backstepping_u
 from vesselbot_ros.control.bspline_reference import RefSample
 from vesselbot_ros.control.estimate import Estimate
-from vesselbot_ros.control.loop3d_stages import Backstepping3D
 from vesselbot_ros.errors import ModelInputError
 
 
@@ -38,7 +37,7 @@ class _FreeModel:
 def test_law_24_per_axis() -> None:
     prm = ControllerParams(gains=BacksteppingGains(k1=5.0, k2=10.0))
     m = _FreeModel(3, b=4.0)
-    c = Backstepping3D(prm, m)
+    c = BacksteppingController(prm, m.F, m.input_matrix)
     x, z = np.array([1e-3, 2e-4, -3e-4]), np.array([1e-3, 0.0, -2e-3])
     ref = RefSample(np.array([2e-3, 0.0, 0.0]), np.array([4e-3, 1e-4, 0.0]), np.array([0.0, 0.0, 1e-2]))
     cmd = c.command(0.0, Estimate(0.0, x, z, 0.0, np.zeros(3), True, False), ref)
@@ -54,7 +53,7 @@ def test_law_24_per_axis() -> None:
 def test_law_midpoint_and_flow_compensation_use_the_model() -> None:
     prm = ControllerParams(sample_hold="midpoint", flow_compensation="estimate")
     m = _FreeModel(3)
-    c = Backstepping3D(prm, m, hold_period_s=1e-3)
+    c = BacksteppingController(prm, m.F, m.input_matrix, hold_period_s=1e-3)
     x, z = np.zeros(3), np.array([1e-3, 0.0, 0.0])
     ref = RefSample(np.zeros(3), np.zeros(3), np.zeros(3))
     cmd = c.command(0.0, Estimate(0.0, x, z, 0.0, np.zeros(3), True, False, 2.0), ref)

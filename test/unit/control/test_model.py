@@ -1,5 +1,5 @@
-"""The 3-D model (vesselbot_ros.control.model3d): F is the plant's kernel over the mass, B = b I, and propagate
-integrates the plant's equations with the input as an acceleration."""
+"""The dynamics model (vesselbot_ros.control.model) in a 3-D tree: F is the plant's kernel over the mass, B = b I,
+and propagate integrates the plant's equations with the input as an acceleration; one class for every vessel."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.control.input_mapping import input_matrix
-from vesselbot_ros.control.model3d import DynamicsModel3D
+from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.integrator import new_workspace
 from vesselbot_ros.physics.kernel import I_MASS
 from vesselbot_ros.physics.plant3d import forces3d_at
@@ -24,7 +24,7 @@ def scenario():  # type: ignore[no-untyped-def]
 
 
 def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # type: ignore[no-untyped-def]
-    m = DynamicsModel3D(scenario.model_physics(), scenario.sim.integrator)
+    m = DynamicsModel(scenario.model_physics(), scenario.sim.integrator)
     x, z = np.array([2e-3, 1e-4, 5e-4]), np.array([1e-3, -2e-4, 0.0])
     f = m.F(0.1, x, z)
     _w, fbuf, sc = new_workspace(3)
@@ -38,7 +38,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
 
 def test_propagate_is_the_plant_under_the_same_push(scenario) -> None:  # type: ignore[no-untyped-def]
     phys = scenario.physics
-    m = DynamicsModel3D(phys, scenario.sim.integrator)
+    m = DynamicsModel(phys, scenario.sim.integrator)
     plant = PlantSimulator(phys, scenario.sim.integrator, 1e-3, [1e-3, 2e-4, 5e-4], [0.0, 0.0, 0.0])
     g = np.array([0.02, 0.01, 0.04])
     y = np.array([1e-3, 2e-4, 5e-4, 0.0, 0.0, 0.0])
