@@ -53,12 +53,12 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import convolve_valid
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, wall_shift_of
-from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.progress import step
+from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping

@@ -18,7 +18,7 @@ Pairs:
 * ``ekf_k300``: the same with k1 = k2 = 150 (k1 + k2 near the drag rate, as
   ``sound_small_artery_ekf`` in continuous mode);
 * ``ekf_predictive``: the extended Kalman observer with the predictive
-  controller built for the sequence (:mod:`vesselbot_ros.scanner.predictive`).
+  controller built for the sequence (:mod:`vesselbot_ros.control.predictive`).
 
 Four physical bounds per cell, computed from the true plant along the
 reference, say where the loop can be feasible before any controller runs:
@@ -101,11 +101,11 @@ from vesselbot_ros.campaign.engine import Progress, dask_client, execute, pendin
 from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, check_choice, flatten, to_mapping
-from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.resources import require_fits
 from vesselbot_ros.scanner.hardware import PRESETS, preset_changes
+from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_with

@@ -60,11 +60,11 @@ from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.info import coverage_of_ticks
 from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_timeseries
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.control.route import draw_network, navigation_outcome
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import NODE_NAMES
 from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
 from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network

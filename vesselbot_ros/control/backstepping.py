@@ -17,7 +17,7 @@ real and negative for every ``k1, k2 > 0`` (Table III, ``k1 = 5, k2 = 10``:
 steady-state error ``dF / (1 + k1 k2)``.
 
 The acceleration ``U`` (m/s^2) is mapped to a gradient (T/m) by the model's
-input matrix ``B`` (see :mod:`vesselbot_ros.control.input_mapping`):
+input matrix ``B`` (see :mod:`vesselbot_ros.scanner.input_mapping`):
 ``G = B^-1 U``.
 
 Safe behaviour: when the estimate is older than ``stale_timeout_s`` (no

@@ -737,7 +737,7 @@ class ExtendedKalmanObserver:
 
         Args:
             t_s: Tick time (s), non-decreasing.
-            measurement: A :class:`~vesselbot_ros.control.imager_model.Measurement` or None.
+            measurement: A :class:`~vesselbot_ros.scanner.imager_model.Measurement` or None.
             applied_gradient_prev: (d,) gradient applied since the previous tick (T/m).
 
         Returns:

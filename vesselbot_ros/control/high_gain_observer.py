@@ -284,7 +284,7 @@ class HighGainObserver:
 
         Args:
             t_s: Tick time (s), non-decreasing.
-            measurement: A :class:`~vesselbot_ros.control.imager_model.Measurement`
+            measurement: A :class:`~vesselbot_ros.scanner.imager_model.Measurement`
                 (``t_acq_s``, ``p``) delivered at this tick, or None.
             applied_gradient_prev: (d,) gradient applied by the coil since the
                 previous tick (T/m).

@@ -9,7 +9,7 @@ The contact term needs the Hertz loading/unloading history.  :meth:`DynamicsMode
 memoryless: it evaluates the loading branch (15) from a free state.  :meth:`DynamicsModel.propagate` (used by the
 observer's prediction) carries a contact state along the estimated trajectory, exactly as the plant does.
 
-The input matrix is ``B`` with ``U = B G`` (:mod:`vesselbot_ros.control.input_mapping`); in a tree ``B = b I`` with
+The input matrix is ``B`` with ``U = B G`` (:mod:`vesselbot_ros.scanner.input_mapping`); in a tree ``B = b I`` with
 the plane's ``b`` (the coil's three axes act alike on the bead).
 """
 
@@ -21,7 +21,6 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.compiled_stage import model_f_into
-from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
     OK,
@@ -33,6 +32,7 @@ from vesselbot_ros.physics.integrator import (
 )
 from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.network import network_dims
 from vesselbot_ros.vessels.plant_field3d import packed3d, planar_twin
@@ -50,7 +50,7 @@ class DynamicsModel(IntegratorHolder):
     Args:
         physics: The model's physics parameters (its vessel gives the axis count :attr:`dims`).
         integrator: Integrator settings for :meth:`propagate`.
-        mapping: Input mapping (see :mod:`vesselbot_ros.control.input_mapping`).
+        mapping: Input mapping (see :mod:`vesselbot_ros.scanner.input_mapping`).
     """
 
     def __init__(

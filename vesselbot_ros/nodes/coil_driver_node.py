@@ -1,6 +1,6 @@
 """MRI gradient-coil driver node: saturation, slew limit and watchdog on every command.
 
-Thin adapter over :class:`vesselbot_ros.control.actuator_limits.CoilLimiter`
+Thin adapter over :class:`vesselbot_ros.scanner.actuator_limits.CoilLimiter`
 (Section III-C: ``U_a = U / k``, ``k = max(1, |U| / U_sat)``, then the slew
 limit, lowered by the scenario's ``dbdt:`` limit when that binds), built by
 :func:`vesselbot_ros.sim.closed_loop.build_stage`: with a multiplexed
@@ -83,11 +83,11 @@ from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Header
 from vesselbot_msgs.msg import CoilState, SequencePhase
 
-from vesselbot_ros.control.actuator_limits import CoilOutput
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
+from vesselbot_ros.scanner.actuator_limits import CoilOutput
 from vesselbot_ros.scanner.hardware import dbdt_at
 from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at
 from vesselbot_ros.sim.closed_loop import build_stage

@@ -237,7 +237,7 @@ def reference_flat(k: int, t_s: float, p: npt.ArrayLike, v: npt.ArrayLike, a: np
 
 def coil_state_flat(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
                     dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0, dims: int = 2) -> Any:
-    """CoilState (flat form) from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no limit);
+    """CoilState (flat form) from a :class:`~vesselbot_ros.scanner.actuator_limits.CoilOutput` (dB/dt 0: no limit);
     vectors and slew flags ``(dims,)``."""
     return _MAKE_COIL_STATE[dims](
         *divmod(ns_of_time(t_s), NS_PER_S), int(k), *_xs(commanded), *_xs(out.applied),
@@ -317,7 +317,7 @@ def gradient_msg(t_s: float, g: npt.ArrayLike, dims: int = 2) -> Vector3Stamped:
 
 def coil_state_msg(k: int, t_s: float, commanded: npt.ArrayLike, out: Any, limits: Any, watchdog: bool,
                    dbdt_limit_T_per_s: float = 0.0, dbdt_radius_m: float = 0.0, dims: int = 2) -> CoilState:
-    """CoilState from a :class:`~vesselbot_ros.control.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
+    """CoilState from a :class:`~vesselbot_ros.scanner.actuator_limits.CoilOutput` (dB/dt 0: no dB/dt limit)."""
     return codec(CoilState).to_message(coil_state_flat(k, t_s, commanded, out, limits, watchdog, dbdt_limit_T_per_s,
                                                        dbdt_radius_m, dims))
 

@@ -1,6 +1,6 @@
 """MRI imager node: noisy position frames at a frame rate, with latency, outliers and dropouts.
 
-Thin adapter over :class:`vesselbot_ros.control.imager_model.ImagerModel`,
+Thin adapter over :class:`vesselbot_ros.scanner.imager_model.ImagerModel`,
 seeded with ``numpy.random.default_rng(seed)`` exactly as the pure runner.
 
 Ports (frame ``vessel``):

@@ -57,11 +57,11 @@ import numpy as np
 from geometry_msgs.msg import PointStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 
-from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.tick_join import TickJoin
+from vesselbot_ros.scanner.imager_model import Measurement
 from vesselbot_ros.sim.closed_loop import build_stage
 
 __all__ = ["ObserverNode", "main"]

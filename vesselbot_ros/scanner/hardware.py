@@ -54,9 +54,9 @@ import math
 from typing import Any, Literal
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, flatten
-from vesselbot_ros.control.actuator_limits import CoilLimits
-from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.actuator_limits import CoilLimits
+from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.scanner.sequence import SequenceParams, duty_cycle
 
 __all__ = ["weight_accel", "hover_shortfall",

@@ -329,7 +329,7 @@ def propulsion_target(applied_prev: tuple[float, ...], commanded: tuple[float, .
                       max_step_T_per_m: float) -> tuple[float, ...]:
     """The command to hand a slew-limited coil so its output stays within ``limit_T_per_m``.
 
-    The coil (:class:`~vesselbot_ros.control.actuator_limits.CoilLimiter`) moves
+    The coil (:class:`~vesselbot_ros.scanner.actuator_limits.CoilLimiter`) moves
     from ``applied_prev`` towards its command by at most ``max_step_T_per_m`` per
     axis, scaling the whole step.  The commanded gradient is first scaled into
     the disc of radius ``limit``; if the coil could not get inside the disc in

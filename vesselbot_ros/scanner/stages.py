@@ -1,9 +1,9 @@
 """The imager and the coil driver as stages of a multiplexing scanner (drop-in for the continuous ones).
 
 :class:`SequencedImager` has the port of
-:class:`~vesselbot_ros.control.imager_model.ImagerModel` (``frame(t, p_true)``
+:class:`~vesselbot_ros.scanner.imager_model.ImagerModel` (``frame(t, p_true)``
 once per tick) and :class:`SequencedCoil` the port of
-:class:`~vesselbot_ros.control.actuator_limits.CoilLimiter` (``apply(t, G)``),
+:class:`~vesselbot_ros.scanner.actuator_limits.CoilLimiter` (``apply(t, G)``),
 so the runner, the nodes and a user's code call them exactly as before.
 
 Imaging.  One frame per tracking window: the robot's mean true position over
@@ -31,8 +31,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilOutput, coil_apply, coil_params, coil_saturate
-from vesselbot_ros.control.imager_model import (
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilOutput, coil_apply, coil_params, coil_saturate
+from vesselbot_ros.scanner.imager_model import (
     ImagerModel,
     Measurement,
     check_frame_inputs,
@@ -43,7 +44,6 @@ from vesselbot_ros.control.imager_model import (
     queue_push,
     queue_with_room,
 )
-from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.scanner.sequence import (
     SequenceParams,
     limit_at,

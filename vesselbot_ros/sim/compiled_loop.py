@@ -36,14 +36,14 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.actuator_limits import CoilLimiter, coil_apply, coil_params
 from vesselbot_ros.control.backstepping import flow_scale_message
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, geom_type
 from vesselbot_ros.control.ekf_observer import EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
 from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, observer_update
-from vesselbot_ros.control.imager_model import ImagerModel, imager_frame, queue_columns
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import OK, failure_message, integrate, integrator_vector, new_workspace, wall_and_forces
+from vesselbot_ros.scanner.actuator_limits import CoilLimiter, coil_apply, coil_params
+from vesselbot_ros.scanner.imager_model import ImagerModel, imager_frame, queue_columns
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE

@@ -62,21 +62,21 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
 from vesselbot_ros.control.compiled_stage import CompiledController
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
-from vesselbot_ros.control.imager_model import ImagerModel, ImagerParams, Measurement
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.scanner.hardware import effective_coil_limits
-from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
+from vesselbot_ros.scanner.imager_model import ImagerModel, ImagerParams, Measurement
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
@@ -616,7 +616,8 @@ def _controller(ctx: BuildContext) -> BacksteppingController:
 
 def _predictive(ctx: BuildContext) -> PredictiveController:
     s = ctx.scenario
-    return PredictiveController(s.controller, ctx.model.p, effective_coil_limits(s.coil, s.dbdt), s.sequence, ctx.dt_s)
+    return PredictiveController(s.controller, ctx.model, effective_coil_limits(s.coil, s.dbdt, axes=s.dims), s.sequence,
+                                ctx.dt_s)
 
 
 def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:

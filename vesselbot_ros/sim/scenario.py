@@ -40,16 +40,16 @@ from vesselbot_ros.config import (
     to_mapping,
     unflatten,
 )
-from vesselbot_ros.control.actuator_limits import CoilLimits
 from vesselbot_ros.control.backstepping import ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
-from vesselbot_ros.control.imager_model import ImagerParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.resources import fmt_bytes, memory_budget_bytes
+from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.hardware import DbdtLimit, preset_changes
+from vesselbot_ros.scanner.imager_model import ImagerParams
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
@@ -312,9 +312,8 @@ class Scenario:
     def _check_3d(self, bspline: bool) -> None:
         """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
         missing = []
-        ckind = getattr(self.controller, "kind", "")
-        if ckind == "predictive":  # built in, planar yet (a user's kind gets 3-vectors)
-            missing.append(f"controller.kind {ckind!r} yet (the 3-D loop has law (24), 'backstepping', and its adaptive form)")
+        if getattr(self.controller, "wall_contact", "") == "carried":  # the straight vessel's lower wall
+            missing.append("controller.wall_contact 'carried' (it rides a straight vessel's lower wall)")
         if bspline and self.reference.timing == "flow_synchronised":
             missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):

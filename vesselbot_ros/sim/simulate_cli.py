@@ -55,6 +55,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="override a scenario value, dotted key, YAML value (e.g. imager.frame_rate_Hz=50); applied after "
              "--hardware; repeatable",
     )
+    parser.add_argument("--path", default="auto", choices=("auto", "compiled", "per_tick"),
+                        help="which loop runs: auto (compiled when every stage is built in), compiled, or per_tick "
+                             "(the stages' Python methods, tick by tick: the same numbers, slower; for debugging)")
     parser.add_argument("--hardware", default=None, metavar="PRESET",
                         help="fly on a scanner preset's gradient coil and sequence (e.g. clinical_3t; an unknown "
                              "name lists the presets); --set applies after it")
@@ -77,9 +80,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     prepared(scenario)  # the set-up apart: the vessel's flow field and wall lookups (CFD, cached per machine), the stages
     setup = time.perf_counter() - t0
-    result = run_closed_loop(scenario)
+    result = run_closed_loop(scenario, path=args.path)
     wall = time.perf_counter() - t0
-    metrics = dict(result.metrics, wall_time_s=wall, setup_wall_time_s=setup)
+    metrics = dict(result.metrics, wall_time_s=wall, setup_wall_time_s=setup, loop_path=result.path)
     # each output whole or not at all (a full disk leaves the earlier files, never a 0-byte one)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     with atomic_path(out / "timeseries.npz") as tmp:
@@ -89,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     note = metrics_window_note(m, scenario.sim.metrics_after_s)
     if note:
         print(f"{scenario.name}: {note}")
-    print(f"{scenario.name}: {headline(m)}; wall time {wall:.2f} s ({_wall_split(setup, wall)}) -> {out}")
+    print(f"{scenario.name}: {headline(m)}; wall time {wall:.2f} s ({_wall_split(setup, wall)}, {result.path} loop) -> {out}")
     if scenario.physics.vessel.network:
         wo = womersley_numbers(load_network(scenario.physics.vessel.network), scenario.physics.blood,
                                scenario.physics.flow.angular_frequency_rad_per_s)

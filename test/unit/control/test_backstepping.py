@@ -11,6 +11,8 @@ from vesselbot_ros.control.backstepping import BacksteppingController, Backstepp
 from vesselbot_ros.control.bspline_reference import RefSample
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.input_mapping import input_matrix
 
 
 class _FreeModel:
@@ -63,3 +65,111 @@ def test_law_midpoint_and_flow_compensation_use_the_model() -> None:
     assert np.allclose(cmd.u_m_per_s2, a - f, rtol=1e-14) and cc == 51.0
     with pytest.raises(ModelInputError, match="flow scale"):
         c.command(0.0, Estimate(0.0, x, z, 0.0, np.zeros(3), True, False, 0.0), ref)
+
+
+def test_law_24_hand_computed() -> None:
+    k1, k2 = 5.0, 10.0
+    x, z, f = np.array([1.0, 2.0]), np.array([0.5, -0.5]), np.array([0.1, 0.2])
+    pr, vr, ar = np.array([1.5, 1.0]), np.array([0.0, 1.0]), np.array([0.3, 0.0])
+    u = backstepping_u(k1, k2, x, z, f, pr, vr, ar)
+    expected = ar + 15 * vr + 51 * pr - 51 * x - 15 * z - f
+    np.testing.assert_allclose(u, expected, rtol=1e-15, atol=1e-12)
+
+
+def test_exact_loop_error_decays_with_lyapunov_rate() -> None:
+    # double integrator with F known exactly: e'' + 15 e' + 51 e = 0
+    f = lambda t, x, z: -3.0 * z + 1.0  # noqa: E731
+    ctrl = BacksteppingController(ControllerParams(), f, np.eye(2))
+    x, z = np.array([1e-3, -2e-3]), np.zeros(2)
+    dt = 1e-4
+    e0 = np.linalg.norm(x)
+    for k in range(20000):  # 2 s
+        u = ctrl.command_arrays(k * dt, x, z, 0.0, np.zeros(2), np.zeros(2), np.zeros(2)).u_m_per_s2
+        a = f(0, x, z) + u
+        z = z + dt * a
+        x = x + dt * z
+    # slowest root -7.5 + sqrt(5.25) = -5.21 1/s: e(2 s) ~ e0 exp(-10.4) * O(1)
+    assert np.linalg.norm(x) < 1e-3 * e0
+
+
+def test_stale_estimate_safe_actions() -> None:
+    f = lambda t, x, z: np.zeros(2)  # noqa: E731
+    zero = BacksteppingController(ControllerParams(stale_timeout_s=0.1, stale_action="zero"), f, np.eye(2))
+    cmd = zero.command_arrays(0.0, np.ones(2), np.zeros(2), 0.5, np.zeros(2), np.zeros(2), np.zeros(2))
+    assert cmd.status == "stale"
+    np.testing.assert_array_equal(cmd.gradient_T_per_m, [0.0, 0.0])
+    hold = BacksteppingController(ControllerParams(stale_timeout_s=0.1, stale_action="hold"), f, np.eye(2))
+    ok = hold.command_arrays(0.0, np.ones(2), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    stale = hold.command_arrays(0.1, np.ones(2), np.zeros(2), math.inf, np.zeros(2), np.zeros(2), np.zeros(2))
+    np.testing.assert_array_equal(stale.gradient_T_per_m, ok.gradient_T_per_m)
+
+
+def test_controller_bad_input() -> None:
+    f = lambda t, x, z: np.array([math.nan, 0.0])  # noqa: E731
+    ctrl = BacksteppingController(ControllerParams(), f, np.eye(2))
+    cmd = ctrl.command_arrays(0.0, np.zeros(2), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    assert cmd.status == "nonfinite" and np.all(np.isfinite(cmd.gradient_T_per_m))
+    with pytest.raises(ModelInputError, match="non-finite estimate"):
+        ctrl.command_arrays(0.0, np.array([math.nan, 0.0]), np.zeros(2), 0.0, np.zeros(2), np.zeros(2), np.zeros(2))
+    with pytest.raises(ModelInputError, match="invertible"):
+        BacksteppingController(ControllerParams(), f, np.zeros((2, 2)))
+    with pytest.raises(Exception, match=r"k1 must be > 0, got -1"):
+        BacksteppingGains(k1=-1.0)
+
+
+def test_midpoint_sample_hold_evaluates_F_at_mid_hold_state():
+    from vesselbot_ros.control.backstepping import BacksteppingController, ControllerParams
+
+    calls = []
+
+    def f(t, x, z):
+        calls.append((t, x.copy(), z.copy()))
+        return np.array([2.0 * t, -1.0])
+
+    T = 1e-3
+    c = BacksteppingController(ControllerParams(sample_hold="midpoint"), f, np.eye(2), hold_period_s=T)
+    x, z = np.array([1e-3, 2e-3]), np.array([0.01, -0.02])
+    pr, vr, ar = np.array([1.1e-3, 2.0e-3]), np.array([0.012, 0.0]), np.array([0.1, 0.2])
+    cmd = c.command_arrays(0.5, x, z, 0.0, pr, vr, ar)
+    a = ar + 15.0 * vr + 51.0 * pr - 51.0 * x - 15.0 * z  # k1 = 5, k2 = 10
+    h = T / 2
+    t_mid, x_mid, z_mid = calls[-1]
+    assert t_mid == pytest.approx(0.5 + h, abs=1e-15)
+    np.testing.assert_allclose(x_mid, x + h * z + 0.5 * h * h * a, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(z_mid, z + h * a, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(cmd.u_m_per_s2, a - np.array([2.0 * (0.5 + h), -1.0]), rtol=1e-12, atol=1e-12)
+    # 'none' (printed) evaluates F at the tick
+    c0 = BacksteppingController(ControllerParams(), f, np.eye(2), hold_period_s=T)
+    c0.command_arrays(0.5, x, z, 0.0, pr, vr, ar)
+    assert calls[-1][0] == 0.5
+    with pytest.raises(ModelInputError, match="hold_period_s"):
+        BacksteppingController(ControllerParams(), f, np.eye(2), hold_period_s=-1.0)
+
+
+def test_carried_wall_contact_drops_the_vertical_command_where_the_reference_rests_on_the_lower_wall() -> None:
+    """``wall_contact: carried``: a reference on the lower wall leaves the weight and the wall to hold the bead
+    (U z = 0, U x as printed); above the contact height the law is (24) as printed."""
+    from vesselbot_ros.config import ConfigError
+    from vesselbot_ros.control.model import DynamicsModel
+    from vesselbot_ros.physics.kernel import diameter_at
+    from vesselbot_ros.physics.params import VesselParams
+
+    ph = PhysicsParams()
+    model = DynamicsModel(ph)
+    b = input_matrix(ph)
+    printed = BacksteppingController(ControllerParams(), model.F, b)
+    carried = BacksteppingController(ControllerParams(wall_contact="carried"), model.F, b)
+    t = 0.3
+    touch = -(0.5 * float(diameter_at(t, model.p)) - ph.robot.radius_m)
+    est = dict(x_hat=np.array([1e-3, touch + 20e-6]), z_hat=np.array([2e-3, 0.0]), time_since_measurement_s=0.0,
+               flow_scale=1.0)
+    for z_ref, dropped in ((touch - 25e-6, True), (touch, True), (touch + 1e-6, False), (0.0, False)):
+        args = (t, est["x_hat"], est["z_hat"], 0.0, np.array([1.2e-3, z_ref]), np.array([4.5e-3, 0.0]), np.zeros(2))
+        a, c = printed.command_arrays(*args), carried.command_arrays(*args)
+        assert c.u_m_per_s2[0] == a.u_m_per_s2[0]
+        assert (c.u_m_per_s2[1] == 0.0) if dropped else (c.u_m_per_s2[1] == a.u_m_per_s2[1])
+    with pytest.raises(ConfigError, match="straight vessel"):
+        net = PhysicsParams(vessel=VesselParams(network="paper_iiic_artery"))
+        BacksteppingController(ControllerParams(wall_contact="carried"), DynamicsModel(net).F, input_matrix(net))
+    with pytest.raises(ConfigError, match="straight vessel"):  # a user's F: the law cannot see the wall
+        BacksteppingController(ControllerParams(wall_contact="carried"), lambda t, x, z, s=1.0: np.zeros(2), b)

@@ -13,9 +13,9 @@ from vesselbot_ros.analysis.scanner_study import StudyCell, cell_scenario
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver, gate_on_axes
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
-from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.scanner.imager_model import Measurement
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import load_scenario, scenario_from_mapping, scenario_with, shipped_scenarios

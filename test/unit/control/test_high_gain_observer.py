@@ -15,8 +15,8 @@ from vesselbot_ros.control.high_gain_observer import (
     linearised_error_matrix,
     sampled_error_radius,
 )
-from vesselbot_ros.control.imager_model import Measurement
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.scanner.imager_model import Measurement
 
 
 class LinearDragModel:

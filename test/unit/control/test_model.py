@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vesselbot_ros.control.input_mapping import input_matrix
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.integrator import new_workspace
 from vesselbot_ros.physics.kernel import I_MASS
 from vesselbot_ros.physics.plant3d import forces3d_at
+from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import load_scenario
 from vesselbot_ros.vessels.plant_field3d import planar_twin

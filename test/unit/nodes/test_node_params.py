@@ -7,8 +7,8 @@ import dataclasses
 import pytest
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.imager_model import OutlierBurst
 from vesselbot_ros.nodes.params import scenario_from_parameters, scenario_schema, scenario_to_parameters, write_params_file
+from vesselbot_ros.scanner.imager_model import OutlierBurst
 from vesselbot_ros.sim.scenario import Scenario, load_scenario
 
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.control.actuator_limits import CoilLimiter, CoilLimits
+from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilLimits
 from vesselbot_ros.scanner.hardware import (
     DbdtLimit,
     dbdt_at,

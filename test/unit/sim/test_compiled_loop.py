@@ -15,11 +15,11 @@ import pytest
 
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.control.backstepping import ControlCommand
-from vesselbot_ros.control.imager_model import Dropout
+from vesselbot_ros.control.predictive import PredictiveParams
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.kernel import I_D0_RATIO, I_V_F
-from vesselbot_ros.scanner.predictive import PredictiveParams
+from vesselbot_ros.scanner.imager_model import Dropout
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import SimResult, build_stages, run_closed_loop, run_many, run_stages
 from vesselbot_ros.sim.fingerprint import fingerprint

@@ -85,7 +85,7 @@ def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_a_planar_ves
 
 
 @pytest.mark.parametrize(("key", "value", "what"), [
-    ("observer.kind", "ekf", "observer.kind 'ekf'"), ("controller.kind", "predictive", "controller.kind 'predictive'"),
+    ("controller.wall_contact", "carried", "controller.wall_contact 'carried'"),
     ("reference.timing", "flow_synchronised", "reference.timing 'flow_synchronised'")])
 def test_a_3d_tree_refuses_what_its_loop_has_not_yet_in_one_line(key: str, value: str, what: str) -> None:
     from vesselbot_ros.config import ConfigError

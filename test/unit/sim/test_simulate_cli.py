@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vesselbot_ros.cli import main as cli_main
@@ -60,3 +61,27 @@ def test_an_unknown_hardware_preset_is_one_line_listing_the_known_ones(tmp_path:
     assert err == ["vesselbot simulate: error: --hardware: unknown scanner preset 'mri9000'; known presets: "
                    "clinical_3t, clinical_3t_mfde, paper, propulsion_insert"]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("kind", ["observer.kind=ekf", "controller.kind=predictive"])
+def test_a_3d_tree_takes_the_filter_and_the_predictive_controller_to_the_outlet_in_both_loops(tmp_path: Path,
+                                                                                             kind: str) -> None:
+    """Issue 40: every kind in every geometry.  The carotid bifurcation (a 3-D tree) with the extended Kalman filter,
+    and with the predictive controller, reaches its outlet compiled and per tick, with the same bits."""
+    runs = {}
+    for path in ("compiled", "per_tick"):
+        out = tmp_path / path
+        assert cli_main(["simulate", "--config", "carotid_bifurcation_3d_eca", "--set", kind, "--path", path,
+                         "--out", str(out)]) == 0
+        m = json.loads((out / "metrics.json").read_text())
+        assert m.pop("loop_path") == path
+        assert m["status"] == "ok" and m["reached_target"] == 1, m
+        for key in ("wall_time_s", "setup_wall_time_s"):
+            m.pop(key)
+        with np.load(out / "timeseries.npz") as z:
+            runs[path] = (json.dumps(m, sort_keys=True), {k: z[k] for k in z.files})
+    assert runs["compiled"][0] == runs["per_tick"][0]
+    series = runs["compiled"][1]
+    assert series["p_true"].shape[1] == 3
+    for col, values in series.items():
+        assert np.array_equal(values, runs["per_tick"][1][col], equal_nan=True), col

@@ -55,7 +55,6 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
-from vesselbot_ros.control.actuator_limits import COIL_OUT_SIZE, CoilLimits, coil_params
 from vesselbot_ros.control.backstepping import (
     FLOW_SCALE_INVALID,
     STATUS_NONFINITE,
@@ -67,7 +66,9 @@ from vesselbot_ros.control.backstepping import (
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.kernel import I_MASS, I_V_F, forces_into, onto_lumen
+from vesselbot_ros.physics.integrator import forces_at, mass_of, onto_lumen_at, params_of, with_params
+from vesselbot_ros.physics.kernel import I_V_F
+from vesselbot_ros.scanner.actuator_limits import CoilLimits, coil_params, new_coil_state
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
 
@@ -132,100 +133,133 @@ class PredictiveParams:
 
 
 # ---- parameter and state vectors -----------------------------------------------------------------------------------
+# On d axes (2: x, z; 3: x, y, z), read from the reference sample's length:
 # prm: [pieces, iterations, horizon ticks (continuous), replan ticks (continuous), regularization, stale timeout,
 #       dt, max horizon ticks, finite-difference step (T/m), saturation (T/m), terminal velocity weight (s),
 #       coil prm (4), sequence sv (7), wall contact carried (0/1)]
 _P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV, _P_WALL = (
     0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 22)
-# state: [coil replica (4), plan start time, ticks per piece, last age, has plan (0/1),
-#         contact (4, zeros: the model's memoryless contact), plan: pieces x (gx, gz)]
-_S_COIL, _S_T0, _S_LEN, _S_AGE, _S_PLAN, _S_CONTACT, _S_G = 0, 4, 5, 6, 7, 8, 12
+
+
+# state: [coil replica (d + 2), plan start time, ticks per piece, last age, has plan (0/1),
+#         contact (4, zeros: the model's memoryless contact), plan: pieces x (d gradient components)]
+@numba.njit(cache=True, nogil=True)
+def _state_offsets(d):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(coil, t0, len, age, plan, contact, g)`` offsets in the state on ``d`` axes."""
+    return 0, d + 2, d + 3, d + 4, d + 5, d + 6, d + 10
+
+
+def state_size(pieces: int, dims: int) -> int:
+    """Length of the controller's state on ``dims`` axes."""
+    return int(dims) + 10 + int(pieces) * int(dims)
 
 
 @numba.njit(cache=True, nogil=True)
-def _layout(prm, n_model):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The work array's layout: ``(rows, residual, columns, normal matrix, rhs, step, coil out, replica, size)``.
+def _layout(prm, n_model, d):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The work array's layout: ``(rows, residual, columns, normal matrix, rhs, step, coil out, replica, scratch,
+    size)``.
 
-    work: scaled model (``n_model``) | residual (``rows``) | 2n columns (``rows`` each) | normal matrix
-    (2n x 2n) | rhs (2n) | step (2n) | coil out | coil replica (4).
+    work: scaled model (``n_model``) | residual (``rows``) | d n columns (``rows`` each) | normal matrix
+    (d n x d n) | rhs (d n) | step (d n) | coil out (2 d + 3) | coil replica (d + 2) | rollout scratch (9 d).
     """
-    m = 2 * int(prm[_P_N])
-    rows = 2 * int(prm[_P_HMAX]) + 2 + m
+    m = d * int(prm[_P_N])
+    rows = d * int(prm[_P_HMAX]) + d + m
     off_r = n_model
     off_cols = off_r + rows
     off_a = off_cols + rows * m
     off_b = off_a + m * m
     off_x = off_b + m
     off_cout = off_x + m
-    off_rep = off_cout + COIL_OUT_SIZE
-    return rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_rep + 4
+    off_rep = off_cout + 2 * d + 3
+    off_scr = off_rep + d + 2
+    return rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_scr, off_scr + 9 * d
+
+
+def work_size(prm: npt.NDArray[np.float64], n_model: int, dims: int) -> int:
+    """Length of the controller's work array."""
+    return int(_layout(prm, n_model, dims)[9])
 
 
 @numba.njit(cache=True, nogil=True)
-def _accel(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The prediction's acceleration: magnetic, drag and apparent weight (the wall is a constraint: ``onto_lumen``).
+def _accel(t, y, g, contact, geom, fbuf, sc, a):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The prediction's acceleration into ``a`` (d,): magnetic, drag and apparent weight (the wall is a constraint:
+    ``onto_lumen_at``).
 
     The contact and the surface forces are stiff (microseconds); at the prediction's one step per tick they
     would blow up, so the prediction keeps the bead in the lumen instead, where a wall carries it.
     """
-    forces_into(t, x0, x1, z0, z1, g0, g1, contact, p, fbuf)
-    m = p[I_MASS]
-    return (fbuf[0, 0] + fbuf[1, 0] + fbuf[2, 0]) / m, (fbuf[0, 1] + fbuf[1, 1] + fbuf[2, 1]) / m
+    forces_at(t, y, g, contact, geom, fbuf, sc)
+    m = mass_of(geom)
+    for c in range(a.shape[0]):
+        a[c] = (fbuf[0, c] + fbuf[1, c] + fbuf[2, c]) / m
 
 
 @numba.njit(cache=True, nogil=True)
-def _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-             plan, n_win, n_hor, piece_len):
+def _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar, plan, n_win,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+             n_hor, piece_len):
     """Predict ``n_hor`` ticks under ``plan`` (pieces over the first ``n_win`` ticks, zero after); residuals at ``off_r``."""
+    d = pr.shape[0]
     n = int(prm[_P_N])
     dt = prm[_P_DT]
     coil = prm[_P_COIL:_P_COIL + 4]
     sv = prm[_P_SV:_P_SV + 7]
-    rep = work[off_rep:off_rep + 4]
-    cout = work[off_cout:off_cout + COIL_OUT_SIZE]
-    contact = state[_S_CONTACT:_S_CONTACT + 4]
-    for i in range(4):
-        rep[i] = state[_S_COIL + i]
+    s_coil, _t0, _len, _age, _plan, s_contact, _g = _state_offsets(d)
+    rep = work[off_rep:off_rep + d + 2]
+    cout = work[off_cout:off_cout + 2 * d + 3]
+    contact = state[s_contact:s_contact + 4]
+    y = work[off_scr:off_scr + 2 * d]  # the bead (X, Z)
+    ys = work[off_scr + 2 * d:off_scr + 4 * d]  # a stage's state
+    ka = work[off_scr + 4 * d:off_scr + 5 * d]
+    kb = work[off_scr + 5 * d:off_scr + 6 * d]
+    kc = work[off_scr + 6 * d:off_scr + 7 * d]
+    kd = work[off_scr + 7 * d:off_scr + 8 * d]
+    g = work[off_scr + 8 * d:off_scr + 9 * d]
+    for i in range(d + 2):
+        rep[i] = state[s_coil + i]
+    for i in range(2 * d):
+        y[i] = est[i]
     h = dt
     for k in range(n_hor):
         tk = t + k * dt
-        c0 = 0.0
-        c1 = 0.0
+        j = 0
         if k < n_win:
             j = k // piece_len
             if j > n - 1:
                 j = n - 1
-            c0 = plan[2 * j]
-            c1 = plan[2 * j + 1]
-        cout[0] = c0  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
-        cout[1] = c1
-        seq_coil_apply(coil, sv, dt, rep, tk, cout[:2], cout)
-        g0 = cout[0]
-        g1 = cout[1]
+        for c in range(d):  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
+            cout[c] = plan[d * j + c] if k < n_win else 0.0
+        seq_coil_apply(coil, sv, dt, rep, tk, cout[:d], cout)
+        for c in range(d):
+            g[c] = cout[c]
         # RK4 over [tk, tk + dt] under the gradient the coil applies over it
-        a0, a1 = _accel(tk, x0, x1, z0, z1, g0, g1, contact, p, fbuf)
-        b0, b1 = _accel(tk + 0.5 * h, x0 + 0.5 * h * z0, x1 + 0.5 * h * z1, z0 + 0.5 * h * a0, z1 + 0.5 * h * a1,
-                        g0, g1, contact, p, fbuf)
-        c0_, c1_ = _accel(tk + 0.5 * h, x0 + 0.5 * h * (z0 + 0.5 * h * a0), x1 + 0.5 * h * (z1 + 0.5 * h * a1),
-                          z0 + 0.5 * h * b0, z1 + 0.5 * h * b1, g0, g1, contact, p, fbuf)
-        d0, d1 = _accel(tk + h, x0 + h * (z0 + 0.5 * h * b0), x1 + h * (z1 + 0.5 * h * b1), z0 + h * c0_, z1 + h * c1_,
-                        g0, g1, contact, p, fbuf)
-        nx0 = x0 + h * (z0 + h * (a0 + b0 + c0_) / 6.0)
-        nx1 = x1 + h * (z1 + h * (a1 + b1 + c1_) / 6.0)
-        z0 = z0 + h * (a0 + 2.0 * b0 + 2.0 * c0_ + d0) / 6.0
-        z1 = z1 + h * (a1 + 2.0 * b1 + 2.0 * c1_ + d1) / 6.0
-        x0, x1, z0, z1 = onto_lumen(tk + h, nx0, nx1, z0, z1, p, 0.0)
+        _accel(tk, y, g, contact, geom, fbuf, sc, ka)
+        for c in range(d):
+            ys[c] = y[c] + 0.5 * h * y[d + c]
+            ys[d + c] = y[d + c] + 0.5 * h * ka[c]
+        _accel(tk + 0.5 * h, ys, g, contact, geom, fbuf, sc, kb)
+        for c in range(d):
+            ys[c] = y[c] + 0.5 * h * (y[d + c] + 0.5 * h * ka[c])
+            ys[d + c] = y[d + c] + 0.5 * h * kb[c]
+        _accel(tk + 0.5 * h, ys, g, contact, geom, fbuf, sc, kc)
+        for c in range(d):
+            ys[c] = y[c] + h * (y[d + c] + 0.5 * h * kb[c])
+            ys[d + c] = y[d + c] + h * kc[c]
+        _accel(tk + h, ys, g, contact, geom, fbuf, sc, kd)
+        for c in range(d):
+            y[c] = y[c] + h * (y[d + c] + h * (ka[c] + kb[c] + kc[c]) / 6.0)
+            y[d + c] = y[d + c] + h * (ka[c] + 2.0 * kb[c] + 2.0 * kc[c] + kd[c]) / 6.0
+        onto_lumen_at(tk + h, y, geom, 0.0)
         tau = (k + 1) * dt
-        work[off_r + 2 * k] = (x0 - (pr0 + vr0 * tau + 0.5 * ar0 * tau * tau)) / _ERR_SCALE_M
-        work[off_r + 2 * k + 1] = (x1 - (pr1 + vr1 * tau + 0.5 * ar1 * tau * tau)) / _ERR_SCALE_M
+        for c in range(d):
+            work[off_r + d * k + c] = (y[c] - (pr[c] + vr[c] * tau + 0.5 * ar[c] * tau * tau)) / _ERR_SCALE_M
     # the velocity at the horizon's end (the next window starts from it), as the distance it carries the bead in
     # the velocity weight's time
     tau = n_hor * dt
-    work[off_r + 2 * n_hor] = prm[_P_VW] * (z0 - (vr0 + ar0 * tau)) / _ERR_SCALE_M
-    work[off_r + 2 * n_hor + 1] = prm[_P_VW] * (z1 - (vr1 + ar1 * tau)) / _ERR_SCALE_M
+    for c in range(d):
+        work[off_r + d * n_hor + c] = prm[_P_VW] * (y[d + c] - (vr[c] + ar[c] * tau)) / _ERR_SCALE_M
     w = math.sqrt(prm[_P_LAM]) / prm[_P_SAT]
-    for i in range(2 * n):
-        work[off_r + 2 * n_hor + 2 + i] = w * plan[i]
+    for i in range(d * n):
+        work[off_r + d * n_hor + d + i] = w * plan[i]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -261,41 +295,43 @@ def _solve(a, b, m, x):  # type: ignore[no-untyped-def]  # numba kernel: argumen
 
 
 @numba.njit(cache=True, nogil=True)
-def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1, n_win, n_hor):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, n_hor):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Gauss-Newton on the plan in ``state`` (``n_win`` window ticks, ``n_hor`` predicted); False if it is not finite."""
+    d = pr.shape[0]
     n = int(prm[_P_N])
-    m = 2 * n
-    used = 2 * n_hor + 2 + m
-    rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, _size = _layout(prm, n_model)
+    m = d * n
+    used = d * n_hor + d + m
+    rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_scr, _size = _layout(prm, n_model, d)
+    _c, s_t0, s_len, _age, s_plan, _contact, s_g = _state_offsets(d)
     piece_len = (n_win + n - 1) // n
     if piece_len < 1:
         piece_len = 1
-    plan = state[_S_G:_S_G + m]
+    plan = state[s_g:s_g + m]
     a = work[off_a:off_a + m * m].reshape((m, m))
     b = work[off_b:off_b + m]
     x = work[off_x:off_x + m]
     sat = prm[_P_SAT]
     step = prm[_P_H]
     # wall_contact carried and the reference on the lower wall: the vertical components stay zero
-    pinned = prm[_P_WALL] > 0.5 and rests_on_lower_wall(t, pr1, p)
+    pinned = prm[_P_WALL] > 0.5 and rests_on_lower_wall(t, pr[d - 1], params_of(geom))
     if pinned:
         for j in range(n):
-            plan[2 * j + 1] = 0.0
+            plan[d * j + d - 1] = 0.0
     for _it in range(int(prm[_P_IT])):
-        _rollout(prm, state, p, work, off_r, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
-                 plan, n_win, n_hor, piece_len)
+        _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar, plan, n_win,
+                 n_hor, piece_len)
         for j in range(m):
-            if pinned and j % 2 == 1:
+            if pinned and j % d == d - 1:
                 continue  # its row and column of the normal equations are the identity's (below): no step
             keep = plan[j]
             plan[j] = keep + step
-            _rollout(prm, state, p, work, off_cols + j * rows, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1,
-                     vr0, vr1, ar0, ar1, plan, n_win, n_hor, piece_len)
+            _rollout(prm, state, geom, work, off_cols + j * rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr,
+                     ar, plan, n_win, n_hor, piece_len)
             plan[j] = keep
             for i in range(used):
                 work[off_cols + j * rows + i] = (work[off_cols + j * rows + i] - work[off_r + i]) / step
         for j in range(m):
-            if pinned and j % 2 == 1:
+            if pinned and j % d == d - 1:
                 b[j] = 0.0
                 for k in range(m):
                     a[j, k] = 1.0 if k == j else 0.0
@@ -305,7 +341,7 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
                 s += work[off_cols + j * rows + i] * work[off_r + i]
             b[j] = -s
             for k in range(m):
-                if pinned and k % 2 == 1:
+                if pinned and k % d == d - 1:
                     a[j, k] = 0.0
                     continue
                 s = 0.0
@@ -324,16 +360,17 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
         alpha = 1.0
         for _half in range(4):
             for j in range(n):
-                g0 = plan[2 * j] + alpha * x[2 * j]
-                g1 = plan[2 * j + 1] + alpha * x[2 * j + 1]
-                norm = math.sqrt(g0 * g0 + g1 * g1)
+                for c in range(d):
+                    trial[d * j + c] = plan[d * j + c] + alpha * x[d * j + c]
+                sq = trial[d * j] * trial[d * j]
+                for c in range(1, d):
+                    sq = sq + trial[d * j + c] * trial[d * j + c]
+                norm = math.sqrt(sq)
                 if norm > sat:
-                    g0 = g0 * (sat / norm)
-                    g1 = g1 * (sat / norm)
-                trial[2 * j] = g0
-                trial[2 * j + 1] = g1
-            _rollout(prm, state, p, work, off_cols + rows, off_cout, off_rep, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0,
-                     vr1, ar0, ar1, trial, n_win, n_hor, piece_len)
+                    for c in range(d):
+                        trial[d * j + c] = trial[d * j + c] * (sat / norm)
+            _rollout(prm, state, geom, work, off_cols + rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar,
+                     trial, n_win, n_hor, piece_len)
             cost = 0.0
             for i in range(used):
                 cost += work[off_cols + rows + i] * work[off_cols + rows + i]
@@ -348,32 +385,38 @@ def _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, 
     for i in range(m):
         if not math.isfinite(plan[i]):
             return False
-    state[_S_T0] = t
-    state[_S_LEN] = piece_len
-    state[_S_PLAN] = 1.0
+    state[s_t0] = t
+    state[s_len] = piece_len
+    state[s_plan] = 1.0
     return True
 
 
 @numba.njit(cache=True, nogil=True)
-def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, flow_scale,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-                       pr0, pr1, vr0, vr1, ar0, ar1, out):
-    """One tick of the predictive controller (module docstring); writes ``out`` as a compiled controller step.
+def predictive_command(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """One tick of the predictive controller (module docstring), as a compiled controller step
+    (:mod:`vesselbot_ros.control.compiled_stage`: the estimate ``est`` = [X (d), Z (d), age, flow scale], the
+    model ``geom``, the reference p, v, a (d,)); writes ``out`` = [g (d), U (d), flow scale, 1].
 
     Returns ``STATUS_OK``, ``STATUS_STALE``, ``STATUS_NONFINITE`` (a plan that came out non-finite: zero
     for the window) or :data:`~vesselbot_ros.control.backstepping.FLOW_SCALE_INVALID`.
     """
+    d = pr.shape[0]
     dt = prm[_P_DT]
     n = int(prm[_P_N])
+    model_p = params_of(geom)
     n_model = model_p.shape[0]
     sv = prm[_P_SV:_P_SV + 7]
-    out[4] = flow_scale
-    out[5] = 1.0
+    s_coil, s_t0, s_len, s_age, s_plan, s_contact, s_g = _state_offsets(d)
+    age = est[2 * d]
+    flow_scale = est[2 * d + 1]
+    out[2 * d] = flow_scale
+    out[2 * d + 1] = 1.0
     status = STATUS_OK
-    c0 = 0.0
-    c1 = 0.0
+    for c in range(d):
+        out[c] = 0.0
     if not age <= prm[_P_STALE]:
         status = STATUS_STALE
-        state[_S_PLAN] = 0.0
+        state[s_plan] = 0.0
     elif not (math.isfinite(flow_scale) and flow_scale > 0.0):
         return FLOW_SCALE_INVALID
     else:
@@ -382,66 +425,66 @@ def predictive_command(prm, state, model_p, work, fbuf, t, x0, x1, z0, z1, age, 
             p[i] = model_p[i]
         if flow_scale != 1.0:
             p[I_V_F] = model_p[I_V_F] * flow_scale
-        new_frame = age < state[_S_AGE] - 0.5 * dt  # a frame corrected the estimate since the last tick
+        gq = with_params(geom, p)
+        new_frame = age < state[s_age] - 0.5 * dt  # a frame corrected the estimate since the last tick
         multiplexed = sv[0] > 0.5
         in_window = (not multiplexed) or phase_code(sv, t) == _CODE_PROPULSION
         if not in_window:
-            state[_S_PLAN] = 0.0  # the window ended: the next one is planned afresh
+            state[s_plan] = 0.0  # the window ended: the next one is planned afresh
         else:
-            elapsed = int(math.floor((t - state[_S_T0]) / dt + 0.5)) if state[_S_PLAN] > 0.5 else 0
+            elapsed = int(math.floor((t - state[s_t0]) / dt + 0.5)) if state[s_plan] > 0.5 else 0
             if multiplexed:
                 _period, tau = cycle_at(sv, t)  # in a propulsion window: after start_s
                 n_win = int(math.floor((sv[1] + sv[2] + sv[3] - tau) / dt + 0.5))
                 n_hor = n_win + int(math.floor((sv[1] + 2.0 * sv[2]) / dt + 0.5))
-                replan = state[_S_PLAN] < 0.5 or new_frame
+                replan = state[s_plan] < 0.5 or new_frame
             else:
                 n_win = int(prm[_P_HZ])
                 n_hor = n_win
-                replan = state[_S_PLAN] < 0.5 or new_frame or elapsed >= int(prm[_P_RE])
+                replan = state[s_plan] < 0.5 or new_frame or elapsed >= int(prm[_P_RE])
             if n_hor > int(prm[_P_HMAX]):
                 n_hor = int(prm[_P_HMAX])
             if n_win > n_hor:
                 n_win = n_hor
             if replan:
-                if state[_S_PLAN] < 0.5:  # a new window starts from no gradient (the last window's plan is a poor
-                    for i in range(2 * n):  # start: the problem is not convex, and Gauss-Newton stays near it)
-                        state[_S_G + i] = 0.0
-                if not _plan(prm, state, p, work, n_model, fbuf, t, x0, x1, z0, z1, pr0, pr1, vr0, vr1, ar0, ar1,
-                             n_win, n_hor):
-                    for i in range(2 * n):
-                        state[_S_G + i] = 0.0
-                    state[_S_PLAN] = 0.0
+                if state[s_plan] < 0.5:  # a new window starts from no gradient (the last window's plan is a poor
+                    for i in range(d * n):  # start: the problem is not convex, and Gauss-Newton stays near it)
+                        state[s_g + i] = 0.0
+                if not _plan(prm, state, gq, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, n_hor):
+                    for i in range(d * n):
+                        state[s_g + i] = 0.0
+                    state[s_plan] = 0.0
                     status = STATUS_NONFINITE
                 elapsed = 0
             if status == STATUS_OK:
-                j = elapsed // int(state[_S_LEN])
+                j = elapsed // int(state[s_len])
                 if j > n - 1:
                     j = n - 1
-                c0 = state[_S_G + 2 * j]
-                c1 = state[_S_G + 2 * j + 1]
-    state[_S_AGE] = age
+                for c in range(d):
+                    out[c] = state[s_g + d * j + c]
+    state[s_age] = age
     # the coil replica takes the command the coil takes (the compiled sequence gate, saturation and slew)
-    off_cout = _layout(prm, n_model)[6]
-    cout = work[off_cout:off_cout + COIL_OUT_SIZE]
-    cout[0] = c0  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
-    cout[1] = c1
-    seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[_S_COIL:_S_COIL + 4], t, cout[:2], cout)
-    out[0] = c0
-    out[1] = c1
-    if c0 == 0.0 and c1 == 0.0:
-        out[2] = 0.0
-        out[3] = 0.0
+    off_cout = _layout(prm, n_model, d)[6]
+    cout = work[off_cout:off_cout + 2 * d + 3]
+    nonzero = False
+    for c in range(d):
+        cout[c] = out[c]  # the command, in the coil's output slots (seq_coil_apply reads it before it writes them)
+        nonzero = nonzero or out[c] != 0.0
+    seq_coil_apply(prm[_P_COIL:_P_COIL + 4], sv, dt, state[s_coil:s_coil + d + 2], t, cout[:d], cout)
+    if not nonzero:
+        for c in range(d):
+            out[d + c] = 0.0
     else:  # the motive acceleration the command asks for at the estimate: the magnetic term over the mass
-        forces_into(t, x0, x1, z0, z1, c0, c1, state[_S_CONTACT:_S_CONTACT + 4], model_p, fbuf)
-        out[2] = fbuf[0, 0] / model_p[I_MASS]
-        out[3] = fbuf[0, 1] / model_p[I_MASS]
+        forces_at(t, est[:2 * d], out[:d], state[s_contact:s_contact + 4], geom, fbuf, sc)
+        m = mass_of(geom)
+        for c in range(d):
+            out[d + c] = fbuf[0, c] / m
     return status
 
 
 def _predictive_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
-    """:func:`predictive_command` as the compiled loop's controller step (planar: ``geom`` is the packed model)."""
-    return predictive_command(prm, state, geom, work, fbuf, t, est[0], est[1], est[2], est[3], est[4], est[5],
-                              pr[0], pr[1], vr[0], vr[1], ar[0], ar[1], out)
+    """:func:`predictive_command` as the compiled loop's controller step."""
+    return predictive_command(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out)
 
 
 predictive_step = lazy_step(_predictive_step)
@@ -470,41 +513,54 @@ def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: Sequ
 
 
 class PredictiveController:
-    """The predictive controller's stage (module docstring): ``command(t, estimate, ref)`` and its compiled form.
+    """The predictive controller's stage (module docstring): ``command(t, estimate, ref)`` and its compiled form, on
+    the model's axes (the plane or a 3-D tree).
 
     Args:
         params: Its parameters.
-        model_p: The controller's model of the plant, packed.
+        model: The controller's model of the plant (:class:`~vesselbot_ros.control.model.DynamicsModel`: its
+            ``geom`` and ``dims``).
         coil: The coil's effective limits (dB/dt applied), as the coil stage has them.
         sequence: The scanner's sequence.
         dt_s: The control period (s).
     """
 
-    def __init__(self, params: PredictiveParams, model_p: npt.NDArray[np.float64], coil: CoilLimits,
-                 sequence: SequenceParams, dt_s: float) -> None:
+    def __init__(self, params: PredictiveParams, model: Any, coil: CoilLimits, sequence: SequenceParams,
+                 dt_s: float) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ModelInputError(f"dt_s must be finite and > 0, got {dt_s!r}")
+        d = int(getattr(model, "dims", 2))
+        self.dims = d
         self.params = params
         self.prm = predictive_params(params, coil, sequence, dt_s)
-        self.model_p = model_p
-        self.state = np.zeros(_S_G + 2 * params.pieces)
-        self.state[_S_COIL:_S_COIL + 4] = (0.0, 0.0, -dt_s, -dt_s)  # the coil stage's start (idle before t = 0)
-        self.state[_S_AGE] = math.inf
-        self.work = np.zeros(_layout(self.prm, model_p.shape[0])[8])
-        self.fbuf = np.empty((8, 2))
-        self._out = np.zeros(6)
+        self.geom = model.geom
+        n_model = int(model.p.shape[0])
+        self.state = np.zeros(state_size(params.pieces, d))
+        self.state[0:d + 2] = new_coil_state(d, -dt_s)  # the coil stage's start (idle before t = 0)
+        self.state[d + 4] = math.inf  # no estimate yet
+        self.work = np.zeros(work_size(self.prm, n_model, d))
+        self.fbuf = np.empty((8, d))
+        self.sc = np.zeros((4, d))
+        self._est = np.zeros(2 * d + 2)
+        self._ref = np.zeros((3, d))
+        self._out = np.zeros(2 * d + 2)
 
     def command(self, t_s: float, estimate: Any, ref: Any) -> ControlCommand:
         """The gradient for ``[t_s, t_s + dt]`` from the estimate and the reference sample."""
-        x, z = estimate.x_hat, estimate.z_hat
-        status = predictive_command(self.prm, self.state, self.model_p, self.work, self.fbuf, float(t_s),
-                                    float(x[0]), float(x[1]), float(z[0]), float(z[1]),
-                                    float(estimate.time_since_measurement_s), float(estimate.flow_scale),
-                                    float(ref.p[0]), float(ref.p[1]), float(ref.v[0]), float(ref.v[1]),
-                                    float(ref.a[0]), float(ref.a[1]), self._out)
+        d = self.dims
+        est, r = self._est, self._ref
+        est[:d] = estimate.x_hat
+        est[d:2 * d] = estimate.z_hat
+        est[2 * d] = float(estimate.time_since_measurement_s)
+        est[2 * d + 1] = float(estimate.flow_scale)
+        r[0] = ref.p
+        r[1] = ref.v
+        r[2] = ref.a
+        status = predictive_command(self.prm, self.state, self.geom, self.work, self.fbuf, self.sc, float(t_s), est,
+                                    r[0], r[1], r[2], self._out)
         if status == FLOW_SCALE_INVALID:
             raise ModelInputError(flow_scale_message(float(estimate.flow_scale)))
-        return ControlCommand(self._out[0:2].copy(), self._out[2:4].copy(), STATUS_NAMES[status])
+        return ControlCommand(self._out[0:d].copy(), self._out[d:2 * d].copy(), STATUS_NAMES[status])
 
     def compiled(self) -> CompiledController:
         """This controller in the compiled loop's form, now."""

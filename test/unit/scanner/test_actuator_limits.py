@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.control.actuator_limits import (
+from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.scanner.actuator_limits import (
     CLINICAL_SLEW_RATE_T_PER_M_PER_S,
     COIL_OUT_SIZE,
     PAPER_PRINTED_SLEW_RATE_T_PER_M_PER_S,
@@ -21,7 +22,6 @@ from vesselbot_ros.control.actuator_limits import (
     coil_params,
     new_coil_state,
 )
-from vesselbot_ros.errors import ModelInputError
 
 
 def test_slew_presets() -> None:

@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.actuator_limits import CoilLimiter
+from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.physics.kernel import I_R, diameter_at
+from vesselbot_ros.scanner.actuator_limits import CoilLimiter
 from vesselbot_ros.scanner.hardware import effective_coil_limits
-from vesselbot_ros.scanner.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
@@ -128,7 +128,7 @@ def test_wall_contact_carried_plans_no_vertical_gradient_where_the_reference_res
     fast, slow = run_closed_loop(carried, 1), run_closed_loop(carried, 1, path="per_tick")
     assert fast.metrics == slow.metrics and np.array_equal(fast.timeseries["g_cmd"], slow.timeseries["g_cmd"])
     ts = fast.timeseries
-    model = build_stages(carried).controller.model_p
+    model = build_stages(carried).controller.geom  # a straight vessel: the packed model
     on_wall = ts["p_ref"][:, 1] <= model[I_R] - 0.5 * np.array([diameter_at(t, model) for t in ts["t_s"]])
     propelled = ts["sequence_phase"] == PROPULSION
     assert np.any(on_wall & propelled) and np.any(~on_wall & propelled)
