@@ -55,6 +55,46 @@ def _times(tree: Path, case: str, runs: int) -> list[float]:
     return [float(v) for v in proc.stdout.split()]
 
 
+#: The commit issue 40 measured "today" on (before one loop on any number of axes): the benches' default reference.
+ISSUE_40_BASE = "783b807"
+
+
+def side_by_side(ref: str, cases: list[str], runs: int = 5, rounds: int = 3,
+                 ratios: tuple[tuple[str, str, str], ...] = ()) -> dict[tuple[str, str], float]:
+    """Time ``cases`` in the ``ref`` commit and in this checkout, taking turns; print one line per case (fastest
+    and median CPU ms per simulated second, new / ref) and, for each ``(numerator, denominator, label)`` of
+    ``ratios``, the two cases' ratio in each tree.  Returns the fastest figures by ``(case, "ref" | "new")``."""
+    rev = subprocess.run(["git", "rev-parse", "--short", ref], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    print(f"this checkout against {rev} (load average {os.getloadavg()[0]:.2f}); CPU ms per simulated s, "
+          f"{rounds} x {runs} warm runs each, taking turns")
+    medians: dict[tuple[str, str], float] = {}
+    fastest: dict[tuple[str, str], float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        ref_tree = Path(tmp) / "ref"
+        ref_tree.mkdir()
+        archive = subprocess.run(["git", "archive", rev], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(ref_tree)], input=archive, check=True)
+        for case in cases:
+            got: dict[str, list[float]] = {"ref": [], "new": []}
+            for _ in range(rounds):
+                got["ref"] += _times(ref_tree, case, runs)
+                got["new"] += _times(ROOT, case, runs)
+            for tree in ("ref", "new"):
+                medians[(case, tree)] = statistics.median(got[tree])
+                fastest[(case, tree)] = min(got[tree])
+            r, n = fastest[(case, "ref")], fastest[(case, "new")]
+            mr, mn = medians[(case, "ref")], medians[(case, "new")]
+            print(f"  {case:28s} fastest: {rev} {r:7.2f}  this {n:7.2f}  this/{rev} {n / r:5.3f};  "
+                  f"median: {mr:7.2f} {mn:7.2f}  {mn / mr:5.3f}")
+    for num, den, label in ratios:
+        for tree, name in (("ref", rev), ("new", "this")):
+            if (num, tree) in fastest and (den, tree) in fastest:
+                print(f"  {label} ({name}): {fastest[(num, tree)] / fastest[(den, tree)]:.2f}x")
+    print(f"  load average after: {os.getloadavg()[0]:.2f}")
+    return fastest
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref", default="HEAD~1", help="the commit to compare with (git rev)")
@@ -62,35 +102,9 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3, help="subprocesses per tree and case, taking turns")
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated shipped scenarios (default: all four)")
     args = ap.parse_args()
-    rev = subprocess.run(["git", "rev-parse", "--short", args.ref], cwd=ROOT, capture_output=True, text=True,
-                         check=True).stdout.strip()
-    print(f"bench_against: this checkout against {rev}; load average {os.getloadavg()[0]:.2f}")
-    with tempfile.TemporaryDirectory() as tmp:
-        ref_tree = Path(tmp) / "ref"
-        ref_tree.mkdir()
-        archive = subprocess.run(["git", "archive", rev], cwd=ROOT, capture_output=True, check=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(ref_tree)], input=archive, check=True)
-        medians: dict[tuple[str, str], float] = {}
-        fastest: dict[tuple[str, str], float] = {}
-        cases = [c for c in args.cases.split(",") if c]
-        for case in cases:
-            got: dict[str, list[float]] = {"ref": [], "new": []}
-            for _ in range(args.rounds):
-                got["ref"] += _times(ref_tree, case, args.runs)
-                got["new"] += _times(ROOT, case, args.runs)
-            for tree in ("ref", "new"):
-                medians[(case, tree)] = statistics.median(got[tree])
-                fastest[(case, tree)] = min(got[tree])
-            ref, new = fastest[(case, "ref")], fastest[(case, "new")]
-            mref, mnew = medians[(case, "ref")], medians[(case, "new")]
-            print(f"  {case:28s} CPU ms per simulated s, fastest: {rev} {ref:7.2f}  this {new:7.2f}  this/{rev} "
-                  f"{new / ref:5.3f};  median: {mref:7.2f} {mnew:7.2f}  {mnew / mref:5.3f}")
-        for tree, label in (("ref", rev), ("new", "this")):
-            if ("paper_iiic_network_upper_3d", tree) not in medians or ("paper_iiic_network_upper", tree) not in medians:
-                continue
-            ratio = fastest[("paper_iiic_network_upper_3d", tree)] / fastest[("paper_iiic_network_upper", tree)]
-            print(f"  3-D tree / planar network, same route ({label}): {ratio:.2f}x  [issue 40 target <= 1.5x]")
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    side_by_side(args.ref, [c for c in args.cases.split(",") if c], args.runs, args.rounds,
+                 ratios=(("paper_iiic_network_upper_3d", "paper_iiic_network_upper",
+                          "3-D tree / planar network, same route [issue 40 target <= 1.5x]"),))
     return 0
 
 

@@ -12,7 +12,10 @@ Prints, side by side in one run (the compiled loop's targets in brackets):
 3. the first ``run_closed_loop`` call in a fresh process with the numba cache warm [<= 2 s], and the
    whole process (interpreter, imports, first run);
 4. the machine's load average before and after (other jobs share the cores: read the figures with it);
-5. accuracy: key metrics against a run with 100x tighter integrator tolerances, and seeds 0-4.
+5. accuracy: key metrics against a run with 100x tighter integrator tolerances, and seeds 0-4;
+6. the compiled loop's cost against a reference commit's, side by side (``--ref``, default the commit issue 40
+   measured before one loop served any number of axes; ``--ref ''`` skips it): CPU ms per simulated second of
+   both scenarios in both trees, taking turns (``bench_against.side_by_side``).
 
 Sections 1-3 run for the paper scenario and again for the extended-Kalman-filter scenario
 (``--ekf-config``; ``--ekf-config ''`` skips it), whose filter and flow-compensating law run compiled too.
@@ -34,8 +37,10 @@ import sys
 import time
 from pathlib import Path
 
+from bench_against import ISSUE_40_BASE, side_by_side  # this folder's: the same timing as bench_against.py
+
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
-from vesselbot_ros.sim.scenario import load_scenario
+from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m", "estimation_error_rms_m")
@@ -135,6 +140,7 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--runs", type=int, default=1000, help="runs per batch (section 2)")
     ap.add_argument("--ekf-config", default=str(ROOT / "config" / "sound_small_artery_ekf.yaml"))
     ap.add_argument("--warm-runs", type=int, default=15, help="runs per path (section 1)")
+    ap.add_argument("--ref", default=ISSUE_40_BASE, help="section 6's reference commit ('' skips it)")
     args = ap.parse_args(argv)
     print(f"4. before: {_load()}; every wall figure stretches with the load, the CPU figures much less")
     for path in [args.config] + ([args.ekf_config] if args.ekf_config else []):
@@ -143,6 +149,10 @@ def main(argv: list[str]) -> None:
         cold(path)
         print(f"4. now:    {_load()}")
     accuracy(args.config)
+    if args.ref:
+        print("6. ", end="")
+        names = [load_scenario(path).name for path in [args.config] + ([args.ekf_config] if args.ekf_config else [])]
+        side_by_side(args.ref, [n for n in names if n in shipped_scenarios()])
 
 
 if __name__ == "__main__":

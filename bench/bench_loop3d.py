@@ -14,15 +14,22 @@ Two figures, each a ratio of two measurements taken here, one after the other:
   of those points the wall's exact query answers and the size of the tree's wall arrays; and at points uniform in
   the III-C lumen.
 
-Usage: ``.venv/bin/python bench/bench_loop3d.py``
+Then the run costs side by side with a reference commit's (``--ref``, default the commit issue 40 measured before
+one loop served any number of axes; ``--ref ''`` skips it): CPU ms per simulated second of the planar route and the
+three trees in both trees of code, taking turns, and the 3-D / planar ratio of the same route in each (issue 40's
+target: <= 1.5x).
+
+Usage: ``.venv/bin/python bench/bench_loop3d.py [--ref REV]``
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numba
 import numpy as np
+from bench_against import ISSUE_40_BASE, side_by_side  # this folder's: the same timing as bench_against.py
 
 from vesselbot_ros.physics.kernel import network_geometry
 from vesselbot_ros.physics.plant3d import geometry3d
@@ -76,6 +83,9 @@ def ns_per_call(fn, q: np.ndarray, *args: object) -> float:  # type: ignore[no-u
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ref", default=ISSUE_40_BASE, help="the reference commit of the side-by-side section ('' skips)")
+    args = ap.parse_args()
     planar_s, p2 = per_sim_second(PLANAR)
     print("run cost per simulated second (compiled loop, best of 5)")
     print(f"  {PLANAR:32s} {1e3 * planar_s:8.2f} ms")
@@ -110,6 +120,10 @@ def main() -> int:
     box3 = np.ascontiguousarray(box3)
     b2, b3 = ns_per_call(_loop2d, box2, p2d), ns_per_call(_loop3d, box3, k3.p, k3.W, k3.F, k3.fh)
     print(f"  box points (III-C)               planar {b2:7.1f}   3-D {b3:7.1f}   {b3 / b2:5.2f} x")
+    if args.ref:
+        print("run cost per simulated second, ", end="")
+        side_by_side(args.ref, [PLANAR, *TREES], ratios=((TREES[0], PLANAR, "3-D tree / planar network, same route "
+                                                          "[issue 40 target <= 1.5x]"),))
     return 0
 
 

@@ -62,6 +62,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.compiled_stage import CompiledObserver, lazy_step, observer_step_type
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_arrays
 from vesselbot_ros.errors import ModelInputError
@@ -75,13 +76,14 @@ from vesselbot_ros.physics.integrator import (
     new_workspace,
     onto_lumen_at,
     params_of,
+    state_len,
     wall_press,
     with_params,
 )
 from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_V_F
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
-           "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes"]
+           "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes", "ekf_step"]
 
 @numba.njit(cache=True, nogil=True)
 def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -112,7 +114,7 @@ def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: i
     5 m/s^2 a bead radius from the wall, is no constraint's: left out of the covariance there, it biased a
     noise-free estimate by 300-500 um.
     """
-    d = u.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
     gs = with_params(geom, _scaled(params_of(geom), y[2 * d], p_s))
     forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
     m = mass_of(gs)
@@ -130,7 +132,7 @@ def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: i
 @numba.njit(cache=True, nogil=True)
 def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T, fbuf, sc, tc, g0, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
-    d = u.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     tc[0] = np.nan  # p (the model) may differ from the last call's
     _f(t, y, u, free, geom, p_s, f0, fbuf, sc, tc, g0, constrained)
@@ -226,11 +228,11 @@ def _s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: a
 
 
 @numba.njit(cache=True, nogil=True)
-def _correct(y, P, m, r2, gate, KK, T, nu, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Kalman correction with a position frame ``m`` (d,); the innovation ``Y - X_hat`` in ``nu``; returns
     (accepted, d2)."""
-    d = m.shape[0]
-    N = y.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    N = 2 * d + 1
     for c in range(d):
         nu[c] = m[c] - y[c]
     _s_inverse(P, r2, d, Si)
@@ -359,7 +361,7 @@ def _ekf_reset_covariance(prm, P, d):  # type: ignore[no-untyped-def]  # numba k
 @numba.njit(cache=True, nogil=True)
 def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, sc, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
-    d = u.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     g0 = vec[6, :d]
     _predict_cov(t0, t1 - t0, y, P, u, prm[_QA2], prm[_QS2], free, geom, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
@@ -458,7 +460,7 @@ def _start_track(prm, scal, ist, restart, t_acq, m, y, P, hist_t, hist_y, hist_P
     The first frame keeps the prior's velocity and scale covariance; a ``restart`` (the filter lost the robot)
     starts from the whole prior covariance and is counted.
     """
-    d = m.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     n = hist_t.shape[0]
     yc = vec[4]
@@ -520,7 +522,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
         ``OK``, or :data:`PREDICTION_FAILED` (``err`` = ``[t0, t1, integrator code, state (N)]``,
         :func:`ekf_failure_message`).
     """
-    d = g.shape[0]
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
     n = hist_t.shape[0]
     u = vec[7, :d]  # U = B G, the input acceleration
     for i in range(d):
@@ -577,7 +579,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
                     i = (ist[1] - back + n) % n
                     yc[:] = hist_y[i]
                     Pc[:, :] = hist_P[i]
-                    ok, _d2 = _correct(yc, Pc, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si)
+                    ok, _d2 = _correct(yc, Pc, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si, geom)
                     if ok:
                         _project(prm, hist_t[i], yc, geom, free)
                         code = _ekf_repredict(prm, scal, ist, back, yc, Pc, y, P, hist_t, hist_y, hist_P, hist_u, free,
@@ -585,7 +587,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
                         if code != OK:
                             return code
             if not found:
-                ok, _d2 = _correct(y, P, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si)
+                ok, _d2 = _correct(y, P, m, prm[_R2], prm[_GATE], KK, mat[2], nu, Si, geom)
                 if ok:
                     _project(prm, scal[0], y, geom, free)
             if ok:
@@ -616,6 +618,52 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
     out[3 * d + 2] = rejected
     out[3 * d + 3] = y[2 * d]
     return OK
+
+
+# ---- the compiled loop's form (control/compiled_stage.py's observer signature) -------------------------------------
+# prm: ekf_params | history length n; state: scal (5) | y (N) | P (N x N) | hist_t (n) | hist_y (n x N) |
+# hist_P (n x N x N) | hist_u (n x d) | free (4); istate: ist (6); work: p_s (the model's size) | work (12 x 2 d) |
+# fbuf (8 x d) | sc (4 x d) | vec (8 x N) | mat (6 x N x N)
+def _ekf_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, out, err):  # type: ignore[no-untyped-def]  # numba kernel: typed by observer_step_type
+    """:func:`ekf_update` as a compiled observer step."""
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    nx = 2 * d + 1
+    n_prm = _B + d * d
+    n = int(prm[n_prm])
+    o = 0
+    scal = state[o:o + 5]
+    o += 5
+    y = state[o:o + nx]
+    o += nx
+    P = state[o:o + nx * nx].reshape((nx, nx))
+    o += nx * nx
+    hist_t = state[o:o + n]
+    o += n
+    hist_y = state[o:o + n * nx].reshape((n, nx))
+    o += n * nx
+    hist_P = state[o:o + n * nx * nx].reshape((n, nx, nx))
+    o += n * nx * nx
+    hist_u = state[o:o + n * d].reshape((n, d))
+    o += n * d
+    free = state[o:o + 4]
+    n_p = params_of(geom).shape[0]
+    o = 0
+    p_s = work[o:o + n_p]
+    o += n_p
+    w = work[o:o + 24 * d].reshape((12, 2 * d))
+    o += 24 * d
+    fbuf = work[o:o + 8 * d].reshape((8, d))
+    o += 8 * d
+    sc = work[o:o + 4 * d].reshape((4, d))
+    o += 4 * d
+    vec = work[o:o + 8 * nx].reshape((8, nx))
+    o += 8 * nx
+    mat = work[o:o + 6 * nx * nx].reshape((6, nx, nx))
+    return ekf_update(prm[0:n_prm], scal, istate[0:6], y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, w, fbuf, sc,
+                      vec, mat, stats, t, g, has_meas, t_acq, m, out, err)
+
+
+ekf_step = lazy_step(_ekf_step, observer_step_type)
 
 
 def ekf_failure_message(err: npt.NDArray[np.float64]) -> str:
@@ -711,6 +759,15 @@ class ExtendedKalmanObserver:
     def state(self) -> npt.NDArray[np.float64]:
         """(2 d + 1,) ``(X, Z, s)`` copy."""
         return self.ekf.y.copy()
+
+    def compiled(self) -> CompiledObserver:
+        """This filter in the compiled loop's form (:mod:`vesselbot_ros.control.compiled_stage`), now."""
+        e = self.ekf
+        state = np.concatenate([e.scal, e.y, e.P.ravel(), e.hist_t, e.hist_y.ravel(), e.hist_P.ravel(), e.hist_u.ravel(),
+                                e.free])
+        work = np.concatenate([e.p_s, e.work.ravel(), e.fbuf.ravel(), e.sc.ravel(), e.vec.ravel(), e.mat.ravel()])
+        return CompiledObserver(ekf_step, np.concatenate([e.prm, [float(len(e.hist_t))]]), state, e.ist, work, e.geom,
+                                ekf_failure_message)
 
     @property
     def covariance(self) -> npt.NDArray[np.float64]:

@@ -56,10 +56,20 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import hypot_axes
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
+from vesselbot_ros.control.compiled_stage import CompiledObserver, lazy_step, observer_step_type
 from vesselbot_ros.control.ekf_params import EkfParams
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import G_ROW, OK, U_ROW, failure_message, integrate, integrator_vector, state_len
+from vesselbot_ros.physics.integrator import (
+    G_ROW,
+    OK,
+    U_ROW,
+    failure_message,
+    integrate,
+    integrator_vector,
+    new_workspace,
+    state_len,
+)
 
 #: Estimates kept for delay compensation (one per update).
 HISTORY_LEN = 4096
@@ -78,6 +88,7 @@ __all__ = [
     "input_accel",
     "integrator_vector",
     "observer_update",
+    "hgo_step",
 ]
 
 
@@ -273,6 +284,20 @@ class HighGainObserver:
     def state(self) -> npt.NDArray[np.float64]:
         """(2 d,) ``(x_hat, z_hat)`` copy: position (m) then velocity (m/s)."""
         return self._y.copy()
+
+    def compiled(self) -> CompiledObserver:
+        """This observer in the compiled loop's form (:mod:`vesselbot_ros.control.compiled_stage`), now.
+
+        Raises:
+            ModelInputError: its model is not a compiled one (a user's ``propagate``).
+        """
+        if not self._compiled:
+            raise ModelInputError("the compiled loop needs the observer's model to be a DynamicsModel")
+        d = self.dims
+        work, fbuf, sc = new_workspace(d)
+        state = np.concatenate([self._scal, self._y, self._contact, self._hist.ravel()])
+        return CompiledObserver(hgo_step, np.concatenate([self.params_vector, self._ig]), state, self._hist_n,
+                                np.concatenate([work.ravel(), fbuf.ravel(), sc.ravel()]), self.model.geom, _failure)
 
     def update(
         self,
@@ -493,3 +518,39 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, 
     out[3 * d + 1] = used
     out[3 * d + 2] = rejected
     return OK
+
+
+# ---- the compiled loop's form (control/compiled_stage.py's observer signature) -------------------------------------
+# prm: observer_params | integrator vector (7); state: scal (4) | y (2 d) | contact (4) | hist (HISTORY_LEN x (1 + d));
+# istate: hist_n (2); work: the integrator workspace (work (12 x 2 d) | fbuf (8 x d) | sc (4 x d))
+def _hgo_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, out, err):  # type: ignore[no-untyped-def]  # numba kernel: typed by observer_step_type
+    """:func:`observer_update` as a compiled observer step: err = [t0, t, integrator code, the state reached]."""
+    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    n_prm = 2 * d + d * d + 3
+    scal = state[0:4]
+    y = state[4:4 + 2 * d]
+    contact = state[4 + 2 * d:8 + 2 * d]
+    hist = state[8 + 2 * d:8 + 2 * d + HISTORY_LEN * (1 + d)].reshape((HISTORY_LEN, 1 + d))
+    w = work[0:24 * d].reshape((12, 2 * d))
+    fbuf = work[24 * d:32 * d].reshape((8, d))
+    sc = work[32 * d:36 * d].reshape((4, d))
+    t0 = scal[0]
+    code = observer_update(prm[0:n_prm], scal, y, contact, hist, istate[0:2], prm[n_prm:n_prm + 7], geom, stats, w, fbuf,
+                           sc, t, g, has_meas, t_acq, m, out)
+    out[3 * d + 3] = 1.0  # observer (25) does not estimate the blood-velocity scale
+    if code != OK:
+        err[0] = t0
+        err[1] = t
+        err[2] = code
+        for i in range(2 * d):
+            err[3 + i] = y[i]
+    return code
+
+
+hgo_step = lazy_step(_hgo_step, observer_step_type)
+
+
+def _failure(err: npt.NDArray[np.float64]) -> str:
+    """The per-tick loop's error of a failed prediction (:func:`_hgo_step`'s ``err``)."""
+    d = (len(err) - 4) // 2
+    return failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), err[3:3 + 2 * d].tolist())

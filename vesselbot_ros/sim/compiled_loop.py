@@ -4,8 +4,8 @@
 
     plant output (physics.integrator.wall_and_forces)
     -> imager_frame | seq_imager_frame (scanner)
-    -> observer_update (25) | ekf_update (extended Kalman)
-    -> the controller's compiled step, of any kind (control/compiled_stage.py: law (24), its adaptive form, ...)
+    -> the observer's compiled step, of any kind (control/compiled_stage.py: observer (25), the extended Kalman filter)
+    -> the controller's compiled step, of any kind (law (24), its adaptive form, the predictive controller, ...)
     -> coil_apply | seq_coil_apply (scanner) -> plant step (the one integrator, physics.integrator.integrate)
 
 over explicit state arrays that :func:`prepare` builds from the same :class:`~vesselbot_ros.sim.closed_loop.Stages`
@@ -37,11 +37,22 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.backstepping import flow_scale_message
-from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, geom_type
-from vesselbot_ros.control.ekf_observer import EkfState, ExtendedKalmanObserver, ekf_failure_message, ekf_update
-from vesselbot_ros.control.high_gain_observer import HISTORY_LEN, HighGainObserver, observer_update
+from vesselbot_ros.control.compiled_stage import (
+    STEP_FLOW_SCALE_INVALID,
+    CompiledController,
+    CompiledObserver,
+    geom_type,
+)
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import OK, failure_message, integrate, integrator_vector, new_workspace, wall_and_forces
+from vesselbot_ros.physics.integrator import (
+    OK,
+    failure_message,
+    integrate,
+    integrator_vector,
+    new_workspace,
+    state_len,
+    wall_and_forces,
+)
 from vesselbot_ros.scanner.actuator_limits import CoilLimiter, coil_apply, coil_params
 from vesselbot_ros.scanner.imager_model import ImagerModel, imager_frame, queue_columns
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
@@ -49,14 +60,12 @@ from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
 __all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "columns",
-           "COLUMNS", "OBS_HIGH_GAIN", "OBS_EKF"]
+           "COLUMNS"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
-OBSERVER_FAILED = 2  # the observer's model integration failed
-ESTIMATE_NONFINITE = 3  # (no longer a stop: a non-finite estimate is a rejected command, kinds.checked_command)
+OBSERVER_FAILED = 2  # the observer's step failed (its err says how: CompiledObserver.message)
 REFERENCE_NONFINITE = 4  # the controller got a non-finite reference sample
-EKF_FAILED = 5  # the extended Kalman filter's prediction failed
 FLOW_SCALE_FAILED = 6  # the compensating law got a flow scale it cannot use
 
 #: (name, dtype, trailing shape) of the columns the kernel fills, in its argument order; ``"d"`` is the axis count.
@@ -117,40 +126,34 @@ class LoopInputs:
     imager_prm: npt.NDArray[np.float64]
     outliers: npt.NDArray[np.float64]
     dropouts: npt.NDArray[np.float64]
-    obs_kind: int
-    obs_prm: npt.NDArray[np.float64]
-    ekf: EkfState | None
-    ekf_geom: Any
+    obs: CompiledObserver
     ctrl: CompiledController
     coil_prm: npt.NDArray[np.float64]
     seq_mode: int
     sv: npt.NDArray[np.float64]
     hold_s: float
     plant_y0: npt.NDArray[np.float64]
-    obs_y0: npt.NDArray[np.float64]
     coil_state0: npt.NDArray[np.float64]
     record_forces: bool
 
 
-#: observer kinds of :func:`loop_kernel`
-OBS_HIGH_GAIN, OBS_EKF = 0, 1
-
-
 def foreign_stages(stages: Any) -> list[str]:
     """The stages :func:`prepare` cannot read, by name: of a kind the compiled loop does not run (a user's
-    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), a built-in one over a user's part, or one on
-    other axes than the plant's."""
+    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), an observer or controller its kind cannot compile
+    (a built-in one over a user's model), a scanner stage over a user's part, or one on other axes than the plant's."""
     d = getattr(stages.plant, "dims", 2)
     bad = [role for role in kinds.ROLES
            if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)
            or getattr(getattr(stages, role), "dims", d) != d]
-    im, ob, co, ctrl = stages.imager, stages.observer, stages.coil, stages.controller
+    for role in kinds.STEPPED_ROLES:
+        if role not in bad:
+            try:
+                kinds.compiled_stage(role, getattr(stages, role))
+            except ModelInputError:
+                bad.append(role)
+    im, co = stages.imager, stages.coil
     if type(im) is SequencedImager and type(im.inner) is not ImagerModel:
         bad.append("imager")
-    if type(ob) is HighGainObserver and not getattr(ob, "_compiled", False):
-        bad.append("observer")
-    if getattr(ctrl, "model_params", True) is None:  # a built-in law over a user's F
-        bad.append("controller")
     if type(co) is SequencedCoil and type(co.inner) is not CoilLimiter:
         bad.append("coil")
     return [role for role in kinds.ROLES if role in bad]
@@ -193,49 +196,40 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     if seq and not (isinstance(coil, SequencedCoil) and isinstance(stages.imager, SequencedImager)
                     and np.array_equal(coil.sv, stages.imager.sv)):
         raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
-    if isinstance(observer, ExtendedKalmanObserver):
-        obs_kind, obs_prm, ekf, obs_y0 = OBS_EKF, np.zeros(11), observer.ekf.copy(), np.zeros(2 * plant.dims)
-    else:
-        obs_kind, obs_prm, ekf, obs_y0 = OBS_HIGH_GAIN, observer.params_vector, None, observer.state
     return LoopInputs(
         n=n, dt=dt, dims=plant.dims, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
         plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=integrator_vector(plant.integrator),
         obs_ig=integrator_vector(model.integrator),
         imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
-        obs_kind=obs_kind, obs_prm=obs_prm, ekf=ekf, ekf_geom=ekf.geom if ekf is not None else model.geom,
-        ctrl=kinds.compiled_controller(controller),
+        obs=kinds.compiled_stage("observer", observer), ctrl=kinds.compiled_stage("controller", controller),
         coil_prm=coil_params(limiter.limits),
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
-        plant_y0=plant.state, obs_y0=obs_y0, coil_state0=limiter.state,
+        plant_y0=plant.state, coil_state0=limiter.state,
         record_forces=record_forces,
     )
 
 
 @numba.njit(cache=True, nogil=True)
-def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, obs_ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
-                imager_prm, outliers, dropouts, queue, seq_state, obs_kind, obs_prm, ctrl_step, ctrl_prm, ctrl_state,
-                ctrl_work, coil_prm, seq_mode, sv, hold_s, y, contact, obs_y, obs_contact, obs_scal, coil_state,
-                e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_geom, e_p_s, e_work, e_fbuf,
-                e_sc, e_vec, e_mat,
-                plant_stats, model_stats, record_forces, forces,
+def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
+                imager_prm, outliers, dropouts, queue, seq_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom,
+                obs_work, ctrl_step, ctrl_prm, ctrl_state, ctrl_work, coil_prm, seq_mode, sv, hold_s, y, contact,
+                coil_state, plant_stats, model_stats, record_forces, forces,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
                 x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
                 saturated, slew_limited, cmd_status, cmd_rejected, err):
     """Run ticks ``0 .. n-1`` on the d = ``len(y) / 2`` axes of the vessel ``plant_geom``; returns ``(code, tick)``
     (``code`` 0 = every tick ran).
 
-    State arrays (``y``, ``contact``, ``queue``, ``seq_state``, ``obs_*``, the filter's ``e_*``, ``coil_state``,
-    stats) are updated in place; ``err`` (8,) receives the failure's details (``[t0, t1, integrator code,
-    state...]``, or the flow scale).  ``obs_kind`` selects observer (25) (:data:`OBS_HIGH_GAIN`, the ``obs_*``
-    arrays) or the extended Kalman filter (:data:`OBS_EKF`, the ``e_*`` arrays); ``seq_mode`` 1 runs the
-    scanner's imager and coil on the sequence ``sv``.  The controller is ``ctrl_step``, a compiled step of any kind
-    (:mod:`vesselbot_ros.control.compiled_stage`) on ``ctrl_prm``, its state ``ctrl_state`` and scratch ``ctrl_work``,
-    over the model ``model_geom``.  All scratch is allocated once, before the first tick.
+    State arrays (``y``, ``contact``, ``queue``, ``seq_state``, the observer's and the controller's, ``coil_state``,
+    stats) are updated in place; ``err`` (3 + 2 d + 1,) receives the failure's details (``[t0, t1, integrator code,
+    state...]``, or the flow scale).  The observer is ``obs_step`` and the controller ``ctrl_step``, compiled steps
+    of any kind (:mod:`vesselbot_ros.control.compiled_stage`) on their parameters, state and scratch, over their
+    models ``obs_geom`` and ``model_geom``; ``seq_mode`` 1 runs the scanner's imager and coil on the sequence ``sv``.
+    All scratch is allocated once, before the first tick.
     """
-    d = y.shape[0] // 2
+    d = state_len(plant_geom) // 2  # the axes, a constant at compile time (the loops unroll)
     work, fbuf, sc = new_workspace(d)
-    obs_work, obs_fbuf, obs_sc = new_workspace(d)
     ctrl_fbuf = np.empty((8, d))
     ctrl_sc = np.zeros((4, d))
     fk = np.empty((8, d))
@@ -243,11 +237,8 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, obs_
     img_state[1] = -math.inf
     acq = np.zeros(3 + d)
     img_out = np.zeros(3 + d)
-    hist = np.empty((HISTORY_LEN, 1 + d))
-    hist_n = np.zeros(2, dtype=np.int64)
-    n_obs = 3 * d + 3  # observer_out_size(d); the extended Kalman filter adds its flow scale
+    n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
     obs_out = np.zeros(n_obs + 1)
-    obs_out[n_obs] = 1.0  # observer (25) does not estimate the flow scale
     est = np.zeros(2 * d + 2)
     ctrl_out = np.zeros(2 * d + 2)
     coil_out = np.zeros(2 * d + 3)  # coil_out_size(d)
@@ -285,20 +276,10 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, obs_
                 meas_p[k, c] = np.nan
             meas_t_acq_s[k] = np.nan
         # observer
-        if obs_kind == OBS_EKF:
-            code = ekf_update(e_prm, e_scal, e_ist, e_y, e_P, e_hist_t, e_hist_y, e_hist_P, e_hist_u, e_free, e_geom,
-                              e_p_s, e_work, e_fbuf, e_sc, e_vec, e_mat, model_stats, t, ga, has_meas, img_out[1],
-                              img_out[2:2 + d], obs_out, err)
-            if code != OK:
-                return EKF_FAILED, k
-        else:
-            code = observer_update(obs_prm, obs_scal, obs_y, obs_contact, hist, hist_n, obs_ig, model_geom, model_stats,
-                                   obs_work, obs_fbuf, obs_sc, t, ga, has_meas, img_out[1], img_out[2:2 + d], obs_out)
-            if code != OK:
-                err[0] = obs_scal[0]
-                err[1] = t
-                err[2] = code
-                return OBSERVER_FAILED, k
+        code = obs_step(obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, t, ga, has_meas, img_out[1],
+                        img_out[2:2 + d], obs_out, err)
+        if code != OK:
+            return OBSERVER_FAILED, k
         finite_estimate = True
         for c in range(d):
             x_hat[k, c] = obs_out[c]
@@ -371,13 +352,6 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, obs_
     return OK, n
 
 
-def _no_ekf(geom: Any) -> tuple[Any, ...]:
-    """Stand-ins for the filter's arrays when observer (25) runs (of the types the kernel was compiled for)."""
-    return (np.zeros(1), np.zeros(5), np.zeros(6, dtype=np.int64), np.zeros(1), np.zeros((1, 1)), np.zeros(1),
-            np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(4), geom, np.zeros(1), np.zeros((12, 1)),
-            np.zeros((8, 1)), np.zeros((4, 1)), np.zeros((8, 1)), np.zeros((6, 1, 1)))
-
-
 def run_kernel(
     inp: LoopInputs, rng: np.random.Generator
 ) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
@@ -392,50 +366,34 @@ def run_kernel(
     forces = np.empty((n, 8, d)) if inp.record_forces else np.empty((0, 8, d))
     y = inp.plant_y0.copy()
     contact = np.zeros(4)
-    obs_y = inp.obs_y0.copy()
-    obs_contact = np.zeros(4)
-    obs_scal = np.array([0.0, -math.inf, 0.0, inp.obs_ig[5]])
     coil_state = inp.coil_state0.copy()
     plant_stats = np.zeros(4, dtype=np.int64)
     model_stats = np.zeros(4, dtype=np.int64)
     err = np.zeros(3 + 2 * d + 1)
-    if inp.ekf is not None:
-        e = inp.ekf.copy()
-        ekf_arrays: tuple[Any, ...] = (e.prm, e.scal, e.ist, e.y, e.P, e.hist_t, e.hist_y, e.hist_P, e.hist_u, e.free,
-                                       e.geom, e.p_s, e.work, e.fbuf, e.sc, e.vec, e.mat)
-    else:
-        ekf_arrays = _no_ekf(inp.ekf_geom)
-    code, tick = loop_kernel(  # type: ignore[call-arg]  # *ekf_arrays is 17 long: numba's Dispatcher stub cannot count it
-        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_geom, inp.model_geom, inp.ig, inp.obs_ig, rng,
+    obs, ctrl = inp.obs, inp.ctrl
+    code, tick = loop_kernel(  # type: ignore[call-arg]  # *columns: numba's Dispatcher stub cannot count it
+        n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_geom, inp.model_geom, inp.ig, rng,
         inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((n + 1, queue_columns(d))), new_seq_imager_state(d),
-        inp.obs_kind, inp.obs_prm, inp.ctrl.step(geom_type(inp.model_geom)), inp.ctrl.prm,
-        inp.ctrl.state0.copy(), np.zeros(inp.ctrl.work_size), inp.coil_prm,
-        inp.seq_mode, inp.sv, inp.hold_s,
-        y, contact, obs_y, obs_contact, obs_scal, coil_state, *ekf_arrays, plant_stats, model_stats,
+        obs.step(geom_type(obs.geom)), obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
+        ctrl.step(geom_type(inp.model_geom)), ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
+        inp.seq_mode, inp.sv, inp.hold_s, y, contact, coil_state, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in spec), err,
     )
     if code != OK:
-        raise_for_code(code, tick, y, ekf_arrays[3][:2 * d].copy() if inp.ekf is not None else obs_y, err, axes=d)
+        raise_for_code(code, tick, y, err, obs.message)
     if inp.record_forces:
         cols["forces"] = forces
     return cols, plant_stats, model_stats
 
 
-def raise_for_code(code: int, tick: int, y: npt.NDArray[np.float64], obs_y: npt.NDArray[np.float64],
-                   err: npt.NDArray[np.float64], axes: int = 2) -> None:
-    """Raise the per-tick loop's error for a kernel (planar, or on ``axes`` = 3) that stopped at ``tick`` with ``code``.
-
-    ``y`` is the plant's state, ``obs_y`` the observer's ``(X, Z)`` when the kernel stopped.
-    """
+def raise_for_code(code: int, tick: int, y: npt.NDArray[np.float64], err: npt.NDArray[np.float64],
+                   observer_message: Any) -> None:
+    """Raise the per-tick loop's error for a kernel that stopped at ``tick`` with ``code``: ``y`` the plant's state,
+    ``err`` the failure's details, ``observer_message(err)`` the observer's words for its own failure."""
     if code == PLANT_FAILED:
         raise ModelInputError(failure_message(f"tick {tick}: plant", float(err[0]), float(err[1]), int(err[2]), y.tolist()))
     if code == OBSERVER_FAILED:
-        raise ModelInputError(failure_message("observer model", float(err[0]), float(err[1]), int(err[2]), obs_y.tolist()))
-    if code == EKF_FAILED:
-        raise ModelInputError(ekf_failure_message(err))
-    if code == ESTIMATE_NONFINITE:
-        raise ModelInputError(f"controller: non-finite estimate x_hat={obs_y[:axes].copy()!r}, "
-                              f"z_hat={obs_y[axes:2 * axes].copy()!r}")
+        raise ModelInputError(observer_message(err))
     if code == REFERENCE_NONFINITE:
         raise ModelInputError("controller: non-finite reference sample")
     if code == FLOW_SCALE_FAILED:

@@ -64,7 +64,7 @@ import numpy.typing as npt
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
-from vesselbot_ros.control.compiled_stage import CompiledController
+from vesselbot_ros.control.compiled_stage import CompiledController, CompiledObserver
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
@@ -84,7 +84,7 @@ from vesselbot_ros.vessels.cfd import packed_params
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
-    "kind_of", "kinds", "build", "compiled_controller", "params_type", "section_resolver", "switch_sections",
+    "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "params_type", "section_resolver", "switch_sections",
     "fingerprint", "controller_estimate", "call_controller", "checked_command", "rejection_warning", "REJECT_REASONS",
     "REJECT_NONE", "REJECT_NONFINITE", "REJECT_ESTIMATE", "REJECT_RAISED", "REJECT_MALFORMED", "COMMAND_STATUSES",
     "make_observer", "PlantStage", "ImagerStage",
@@ -93,6 +93,9 @@ __all__ = [
 
 #: The loop's roles, in the order the loop calls them (the fields of ``closed_loop.Stages`` but the model).
 ROLES: tuple[str, ...] = ("plant", "imager", "observer", "reference", "controller", "coil")
+#: The roles whose kinds bring a compiled step the compiled loop calls through a pointer (its signature:
+#: :mod:`vesselbot_ros.control.compiled_stage`); the plant, imager, reference and coil are the loop's own.
+STEPPED_ROLES: tuple[str, ...] = ("observer", "controller")
 #: The scenario section that holds each role's parameters (and its ``kind``).
 SECTIONS: dict[str, str] = {"plant": "physics", "imager": "imager", "observer": "observer", "reference": "reference",
                             "controller": "controller", "coil": "coil"}
@@ -166,15 +169,17 @@ class StageKind:
             params subclass :class:`~vesselbot_ros.physics.params.PhysicsParams` (the controller's
             model reads them).
         build: Makes the Python stage: ``build(context) -> stage``.
-        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For a
-            controller: ``compile_controller`` gives its compiled form.
+        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For an
+            observer or a controller: ``compile`` gives its compiled form.
         stage_types: The classes the built stage may have, for :func:`kind_of` on a stage object.
         summary: One line for ``vesselbot kinds``.
         source: ``built-in``, ``entry point <distribution>`` or ``scenario``.
         module_file: The file the kind is defined in (its hash joins a campaign run's content address).
-        compile_controller: A controller kind's compiled form of a built stage
-            (:class:`~vesselbot_ros.control.compiled_stage.CompiledController`: a numba step of the one
-            signature the compiled loop calls), or None (the per-tick loop runs it).
+        compile: An observer or controller kind's compiled form of a built stage
+            (:class:`~vesselbot_ros.control.compiled_stage.CompiledObserver` or ``CompiledController``: a numba
+            step of the one signature of its role that the compiled loop calls), or None (the per-tick loop
+            runs it).  It raises :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile
+            (a built-in kind over a user's part).
     """
 
     role: str
@@ -186,7 +191,7 @@ class StageKind:
     summary: str = ""
     source: str = "built-in"
     module_file: str = ""
-    compile_controller: Callable[[Any], CompiledController] | None = None
+    compile: Callable[[Any], CompiledObserver | CompiledController] | None = None
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -196,8 +201,8 @@ class StageKind:
         if "kind" not in {f.name for f in dataclasses.fields(self.params)}:
             raise ConfigError(f"stage kind {self.name!r}: its params dataclass {self.params.__name__} needs a "
                               "'kind: str' field (the scenario's kind key)")
-        if self.role == "controller" and self.compiled and self.compile_controller is None:
-            raise ConfigError(f"stage kind {self.name!r}: a compiled controller kind needs compile_controller")
+        if self.role in STEPPED_ROLES and self.compiled and self.compile is None:
+            raise ConfigError(f"stage kind {self.name!r}: a compiled {self.role} kind needs compile")
         if self.role == "plant" and not issubclass(self.params, PhysicsParams):
             raise ConfigError(f"stage kind {self.name!r}: a plant kind's params must subclass PhysicsParams "
                               f"(the controller's model reads them), got {self.params.__name__}")
@@ -295,11 +300,11 @@ def _as_kind(obj: Any, name: str, source: str, where: str) -> StageKind:
                if hasattr(needed, m) and not callable(getattr(obj, m, None))]
     if missing:
         raise ConfigError(f"{where}: class {obj.__name__} ({role}) lacks method(s) {missing} of the {role} protocol")
-    compiled = role == "controller" and callable(getattr(obj, "compiled", None))  # its CompiledController
+    compiled = role in STEPPED_ROLES and callable(getattr(obj, "compiled", None))  # its CompiledObserver/Controller
     cls: Any = obj  # the user's class: called with (params, context) by the convention
     return StageKind(role=role, name=name, params=params, build=lambda ctx: cls(ctx.params, ctx), compiled=compiled,
                      stage_types=(obj,), summary=(inspect.getdoc(obj) or "").split("\n")[0], source=source,
-                     module_file=_module_file(obj), compile_controller=(lambda stage: stage.compiled()) if compiled else None)
+                     module_file=_module_file(obj), compile=(lambda stage: stage.compiled()) if compiled else None)
 
 
 def find(role: str, name: str, where: str = "") -> StageKind:
@@ -364,16 +369,16 @@ def kind_of(role: str, stage: object) -> StageKind | None:
     return None
 
 
-def compiled_controller(controller: Any) -> CompiledController:
-    """The compiled form of a controller stage, through its kind (:attr:`StageKind.compile_controller`).
+def compiled_stage(role: str, stage: Any) -> Any:
+    """The compiled form of an observer or controller stage, through its kind (:attr:`StageKind.compile`).
 
     Raises:
-        ModelInputError: the controller's kind has no compiled form.
+        ModelInputError: the stage's kind has no compiled form, or cannot compile this stage.
     """
-    kind = kind_of("controller", controller)
-    if kind is None or kind.compile_controller is None:
-        raise ModelInputError(f"controller {type(controller).__name__}: its kind has no compiled form")
-    return kind.compile_controller(controller)
+    kind = kind_of(role, stage)
+    if kind is None or kind.compile is None:
+        raise ModelInputError(f"{role} {type(stage).__name__}: its kind has no compiled form")
+    return kind.compile(stage)
 
 
 def params_type(role: str, section: Any, where: str = "") -> type:
@@ -639,20 +644,21 @@ for _kind in (
               stage_types=(ImagerModel, SequencedImager),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
-              summary="high-gain observer (25)"),
+              summary="high-gain observer (25)", compile=HighGainObserver.compiled),
     StageKind("observer", "ekf", ObserverParams, _observer, compiled=True, stage_types=(ExtendedKalmanObserver,),
-              summary="extended Kalman filter: delay compensation, blood-velocity scale estimate"),
+              summary="extended Kalman filter: delay compensation, blood-velocity scale estimate",
+              compile=ExtendedKalmanObserver.compiled),
     StageKind("reference", "bspline", ReferenceParams, _reference, compiled=True, stage_types=(ReferenceTrajectory,),
               summary="C2 cubic B-spline through the anchors (or the planned route of a network)"),
     StageKind("controller", "backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,), summary="backstepping law (24)",
-              compile_controller=BacksteppingController.compiled),
+              compile=BacksteppingController.compiled),
     StageKind("controller", "adaptive_backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,),
               summary="law (24) with on-line blood-velocity and magnetisation scales",
-              compile_controller=BacksteppingController.compiled),
+              compile=BacksteppingController.compiled),
     StageKind("controller", "predictive", PredictiveParams, _predictive, compiled=True,
-              stage_types=(PredictiveController,), compile_controller=PredictiveController.compiled,
+              stage_types=(PredictiveController,), compile=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
               stage_types=(CoilLimiter, SequencedCoil),

@@ -180,7 +180,7 @@ def test_a_users_compiled_controller_runs_in_the_compiled_loop_with_the_per_tick
     """One module with a numba step of the one signature: the compiled loop calls it, no branch of its own."""
     sc = _scenario(0.3, controller={"kind": "vesselbot_test_plugin:CompiledPD"})
     k = kinds.find("controller", "vesselbot_test_plugin:CompiledPD")
-    assert k.compiled and k.compile_controller is not None
+    assert k.compiled and k.compile is not None
     fast = run_closed_loop(sc, seed=2)
     slow = run_closed_loop(sc, seed=2, path="per_tick")
     assert (fast.path, slow.path) == ("compiled", "per_tick")
