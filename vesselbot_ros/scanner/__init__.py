@@ -1,1 +1,2 @@
-"""The MRI scanner as the loop sees it: the imaging/propulsion sequence and its hardware limits (pure core)."""
+"""The MRI system as the loop sees it (pure core): the imager (tracking frames), the gradient coil and its limits,
+the input mapping ``U = B G``, the imaging/propulsion sequence and the hardware presets."""
