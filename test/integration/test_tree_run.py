@@ -117,3 +117,26 @@ def test_replay_into_a_role_reproduces_the_3d_run_bit_for_bit(run, role, tmp_pat
     summary = json.loads((out / "comparison.json").read_text())
     diffs = summary["max_abs_difference"]
     assert set(diffs.values()) == {0.0} and any(k.endswith("_y_m") or "_y_" in k for k in diffs), diffs
+
+
+@pytest.mark.parametrize("sets", [("observer.kind=ekf", "controller.flow_compensation=estimate"),
+                                  ("controller.kind=predictive",)], ids=["ekf", "predictive"])
+def test_the_filter_and_the_predictive_controller_run_in_the_tree_over_the_nodes(sets, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 40: every kind in every geometry, in the nodes too.  The extended Kalman filter (its blood-velocity
+    scale fed to law (24)) and the predictive controller fly the tree over ROS, lockstep, with the pure runner's
+    metrics bit for bit."""
+    duration = 0.3
+    scenario = load_scenario(REPO / CONFIG, duration=duration, sets=list(sets))
+    assert scenario.dims == 3
+    want = run_closed_loop(scenario, 0).metrics
+    metrics = tmp_path / "metrics.json"
+    cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", CONFIG, "--seed", "0", "--quiet",
+           "--duration", str(duration), "--record-dir", str(tmp_path / "bag"), "--metrics-json", str(metrics),
+           "--single-process", "--wait-timeout", "120", "--run-timeout", "240"]
+    for s in sets:
+        cmd += ["--set", s]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=420)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    got = json.loads(metrics.read_text())["metrics"]
+    for k, v in want.items():
+        assert got[k] == v, k

@@ -41,7 +41,7 @@ from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step, model_f_into
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import forces_at, params_of, state_len, with_params
+from vesselbot_ros.physics.integrator import axes_of, forces_at, params_of, with_params
 from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_R, I_V_F, diameter_at
 
 __all__ = [
@@ -267,7 +267,7 @@ def rests_on_lower_wall(t, pz, p):  # type: ignore[no-untyped-def]  # numba kern
 @numba.njit(cache=True, nogil=True)
 def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) with ``F`` of the model ``gq``, mapped by ``B^-1`` and the duty compensation: ``out`` = [g (d), U (d)]."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     n = params_of(geom).shape[0]
     y = work[n:n + 2 * d]
     g0 = work[n + 2 * d:n + 3 * d]
@@ -331,7 +331,7 @@ def backstepping_command(prm, last, geom, work, free, fbuf, sc, t, est, pr, vr, 
         ``STATUS_OK``, ``STATUS_STALE`` or ``STATUS_NONFINITE`` (safe action taken), or :data:`FLOW_SCALE_INVALID`
         (nothing changed).
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     if not est[2 * d] <= prm[3]:
         return _safe_command(prm, last, out, STATUS_STALE)
     flow_scale = est[2 * d + 1]
@@ -354,7 +354,7 @@ def adaptive_command(prm, aprm, ast, last, geom, work, free, fbuf, sc, t, est, p
     adaptation.  The law uses ``F`` at ``s_hat`` and divides the gradient by ``m_hat``.  The same doubles as the
     Python reading in :class:`BacksteppingController` with a user's ``F``.
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     if not est[2 * d] <= prm[3]:
         ast[2] = t  # adaptation pauses while the estimate is stale
         return _safe_command(prm, last, out, STATUS_STALE)
@@ -395,7 +395,7 @@ def adaptive_command(prm, aprm, ast, last, geom, work, free, fbuf, sc, t, est, p
 # prm: controller_params + (adaptive) adaptive_params; work: law_work_size
 def _backstepping_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
     """:func:`backstepping_command` as a compiled controller step (the observer's flow scale)."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     status = backstepping_command(prm, state[0:d], geom, work, state[d:d + 4], fbuf, sc, t, est, pr, vr, ar, out)
     out[2 * d] = est[2 * d + 1]
     out[2 * d + 1] = 1.0
@@ -404,7 +404,7 @@ def _backstepping_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out
 
 def _adaptive_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: typed by controller_step_type
     """:func:`adaptive_command` as a compiled controller step (its own adapted scales)."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     np_ = PRM_B_INV + d * d
     status = adaptive_command(prm[0:np_], prm[np_:], state[d + 4:d + 7], state[0:d], geom, work, state[d:d + 4], fbuf,
                               sc, t, est, pr, vr, ar, out)

@@ -56,7 +56,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import types
 
-from vesselbot_ros.physics.integrator import forces_at, mass_of, state_len
+from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of
 
 __all__ = ["controller_step_type", "controller_out_size", "STEP_FLOW_SCALE_INVALID", "CompiledController",
            "observer_step_type", "observer_step_out_size", "CompiledObserver", "lazy_step", "model_f_into", "geom_type"]
@@ -166,7 +166,7 @@ def lazy_step(py_func: Callable[..., int],
 def model_f_into(t, x, z, geom, free, fbuf, sc, y, g0, f):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The model's ``F(X, Z)`` (m/s^2, (d,)) at ``t`` into ``f``: every force but the motive one over the mass, at the
     contact state ``free`` (zeros: memoryless).  ``y`` (2 d,) scratch, ``g0`` (d,) zeros."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     for c in range(d):
         y[c] = x[c]
         y[d + c] = z[c]

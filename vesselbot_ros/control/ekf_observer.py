@@ -70,13 +70,13 @@ from vesselbot_ros.physics.integrator import (
     G_ROW,
     OK,
     U_ROW,
-    forces_memo,
+    axes_of,
+    free_forces_memo,
     integrate,
     mass_of,
     new_workspace,
     onto_lumen_at,
     params_of,
-    state_len,
     wall_press,
     with_params,
 )
@@ -87,11 +87,10 @@ __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "
 
 @numba.njit(cache=True, nogil=True)
 def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Copy ``p`` into ``p_s`` (of its size) with V_f multiplied by ``s``; ``p_s``."""
+    """Copy ``p`` into ``p_s`` (of its size) with V_f multiplied by ``s``."""
     for i in range(p.shape[0]):
         p_s[i] = p[i]
     p_s[I_V_F] = p[I_V_F] * s
-    return p_s
 
 
 #: ``wall_projection: lumen``: how near a wall (in bead radii) an estimate pressed towards it rests on it
@@ -114,9 +113,10 @@ def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: i
     5 m/s^2 a bead radius from the wall, is no constraint's: left out of the covariance there, it biased a
     noise-free estimate by 300-500 um.
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
-    gs = with_params(geom, _scaled(params_of(geom), y[2 * d], p_s))
-    forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
+    _scaled(params_of(geom), y[2 * d], p_s)
+    gs = with_params(geom, p_s)
+    free_forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
     m = mass_of(gs)
     for c in range(d):
         out[c] = y[d + c]
@@ -132,7 +132,7 @@ def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: i
 @numba.njit(cache=True, nogil=True)
 def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T, fbuf, sc, tc, g0, constrained):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``P <- Phi P Phi^T + Q h`` with ``Phi ~ exp(A h)``, ``A = df/dy`` at (t, y); returns the squarings."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     tc[0] = np.nan  # p (the model) may differ from the last call's
     _f(t, y, u, free, geom, p_s, f0, fbuf, sc, tc, g0, constrained)
@@ -231,7 +231,7 @@ def _s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: a
 def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Kalman correction with a position frame ``m`` (d,); the innovation ``Y - X_hat`` in ``nu``; returns
     (accepted, d2)."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     for c in range(d):
         nu[c] = m[c] - y[c]
@@ -361,12 +361,13 @@ def _ekf_reset_covariance(prm, P, d):  # type: ignore[no-untyped-def]  # numba k
 @numba.njit(cache=True, nogil=True)
 def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, sc, vec, mat, stats, err):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Mean by the model's integrator under ``V_f`` scaled by ``s``, covariance by :func:`_predict_cov`; code."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     g0 = vec[6, :d]
     _predict_cov(t0, t1 - t0, y, P, u, prm[_QA2], prm[_QS2], free, geom, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
                  mat[2], fbuf, sc, vec[5], g0, prm[_LUMEN] > 0.5)
-    gs = with_params(geom, _scaled(params_of(geom), y[2 * d], p_s))
+    _scaled(params_of(geom), y[2 * d], p_s)
+    gs = with_params(geom, p_s)
     ys = vec[3, :2 * d]  # the mean's (X, Z): the flow scale is not integrated
     for i in range(2 * d):
         ys[i] = y[i]
@@ -460,7 +461,7 @@ def _start_track(prm, scal, ist, restart, t_acq, m, y, P, hist_t, hist_y, hist_P
     The first frame keeps the prior's velocity and scale covariance; a ``restart`` (the filter lost the robot)
     starts from the whole prior covariance and is counted.
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     N = 2 * d + 1
     n = hist_t.shape[0]
     yc = vec[4]
@@ -522,7 +523,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
         ``OK``, or :data:`PREDICTION_FAILED` (``err`` = ``[t0, t1, integrator code, state (N)]``,
         :func:`ekf_failure_message`).
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     n = hist_t.shape[0]
     u = vec[7, :d]  # U = B G, the input acceleration
     for i in range(d):
@@ -626,7 +627,7 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
 # fbuf (8 x d) | sc (4 x d) | vec (8 x N) | mat (6 x N x N)
 def _ekf_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, out, err):  # type: ignore[no-untyped-def]  # numba kernel: typed by observer_step_type
     """:func:`ekf_update` as a compiled observer step."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     nx = 2 * d + 1
     n_prm = _B + d * d
     n = int(prm[n_prm])

@@ -64,11 +64,11 @@ from vesselbot_ros.physics.integrator import (
     G_ROW,
     OK,
     U_ROW,
+    axes_of,
     failure_message,
     integrate,
     integrator_vector,
     new_workspace,
-    state_len,
 )
 
 #: Estimates kept for delay compensation (one per update).
@@ -444,7 +444,7 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, 
         The model integrator's code (``OK`` = 0); on failure ``y`` holds the
         state reached and nothing else changed.
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops below unroll); g's length
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops below unroll); g's length
     ob = 2 * d  # B's offset in prm
     oo = ob + d * d  # the options' offset
     if t > scal[0]:
@@ -525,7 +525,7 @@ def observer_update(prm, scal, y, contact, hist, hist_n, ig, geom, stats, work, 
 # istate: hist_n (2); work: the integrator workspace (work (12 x 2 d) | fbuf (8 x d) | sc (4 x d))
 def _hgo_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, out, err):  # type: ignore[no-untyped-def]  # numba kernel: typed by observer_step_type
     """:func:`observer_update` as a compiled observer step: err = [t0, t, integrator code, the state reached]."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     n_prm = 2 * d + d * d + 3
     scal = state[0:4]
     y = state[4:4 + 2 * d]

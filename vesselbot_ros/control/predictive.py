@@ -66,7 +66,7 @@ from vesselbot_ros.control.backstepping import (
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import forces_at, mass_of, onto_lumen_at, params_of, state_len, with_params
+from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, onto_lumen_at, params_of, with_params
 from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.scanner.actuator_limits import CoilLimits, coil_params, new_coil_state
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
@@ -198,7 +198,7 @@ def _accel(t, y, g, contact, geom, fbuf, sc, a):  # type: ignore[no-untyped-def]
 def _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar, plan, n_win,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
              n_hor, piece_len):
     """Predict ``n_hor`` ticks under ``plan`` (pieces over the first ``n_win`` ticks, zero after); residuals at ``off_r``."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     n = int(prm[_P_N])
     dt = prm[_P_DT]
     coil = prm[_P_COIL:_P_COIL + 4]
@@ -297,7 +297,7 @@ def _solve(a, b, m, x):  # type: ignore[no-untyped-def]  # numba kernel: argumen
 @numba.njit(cache=True, nogil=True)
 def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, n_hor):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Gauss-Newton on the plan in ``state`` (``n_win`` window ticks, ``n_hor`` predicted); False if it is not finite."""
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     n = int(prm[_P_N])
     m = d * n
     used = d * n_hor + d + m
@@ -400,7 +400,7 @@ def predictive_command(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out
     Returns ``STATUS_OK``, ``STATUS_STALE``, ``STATUS_NONFINITE`` (a plan that came out non-finite: zero
     for the window) or :data:`~vesselbot_ros.control.backstepping.FLOW_SCALE_INVALID`.
     """
-    d = state_len(geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
     dt = prm[_P_DT]
     n = int(prm[_P_N])
     model_p = params_of(geom)

@@ -68,9 +68,11 @@ __all__ = [
     "integrate",
     "rhs_into",
     "state_len",
+    "axes_of",
     "wall_and_forces",
     "forces_at",
     "forces_memo",
+    "free_forces_memo",
     "wall_press",
     "onto_lumen_at",
     "params_of",
@@ -254,6 +256,18 @@ def _state_len(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument 
     return lambda geom: 6
 
 
+def axes_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The axis count d of ``geom``, a literal at compile time (so the loops over axes unroll)."""
+    raise NotImplementedError("axes_of runs in compiled code only")
+
+
+@overload(axes_of, inline="always")
+def _axes_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if isinstance(geom, types.Array):
+        return lambda geom: 2
+    return lambda geom: 3
+
+
 def wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(delta, wall)`` of the bead of state ``y`` in ``geom``: its signed penetration of the nearest wall (m, > 0 in
     contact) and which wall (+1 above the centre, -1 below); the force terms (8, d) under ``g`` in ``fbuf`` if
@@ -293,7 +307,7 @@ def _tree_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-d
     forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
 
 
-@overload(forces_at, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above
+@overload(forces_at, inline="always")
 def _forces_at(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_forces if isinstance(geom, types.Array) else _tree_forces
 
@@ -312,9 +326,24 @@ def _tree_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-
     forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
 
 
-@overload(forces_memo, jit_options={"nogil": True})
+@overload(forces_memo, inline="always")
 def _forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_forces_memo if isinstance(geom, types.Array) else _tree_forces_memo
+
+
+def free_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`forces_memo` without a gradient (``g`` (d,) zeros): a model's ``F``.  The plane's passes literal zeros,
+    which the compiler folds (the extended Kalman filter evaluates it seven times a tick)."""
+    raise NotImplementedError("free_forces_memo runs in compiled code only")
+
+
+def _planar_free_forces(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, contact, geom, fbuf, tc)
+
+
+@overload(free_forces_memo, inline="always")
+def _free_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_free_forces if isinstance(geom, types.Array) else _tree_forces_memo
 
 
 def wall_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time

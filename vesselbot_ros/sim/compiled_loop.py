@@ -46,11 +46,11 @@ from vesselbot_ros.control.compiled_stage import (
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
     OK,
+    axes_of,
     failure_message,
     integrate,
     integrator_vector,
     new_workspace,
-    state_len,
     wall_and_forces,
 )
 from vesselbot_ros.scanner.actuator_limits import CoilLimiter, coil_apply, coil_params
@@ -228,7 +228,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,
     models ``obs_geom`` and ``model_geom``; ``seq_mode`` 1 runs the scanner's imager and coil on the sequence ``sv``.
     All scratch is allocated once, before the first tick.
     """
-    d = state_len(plant_geom) // 2  # the axes, a constant at compile time (the loops unroll)
+    d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
     work, fbuf, sc = new_workspace(d)
     ctrl_fbuf = np.empty((8, d))
     ctrl_sc = np.zeros((4, d))
