@@ -62,7 +62,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.compiled_stage import CompiledObserver, lazy_step, observer_step_type
+from vesselbot_ros.control.compiled_stage import CompiledObserver, flat_view, lazy_step, observer_step_type
 from vesselbot_ros.control.ekf_params import CHI2_2DOF_999, EkfParams
 from vesselbot_ros.control.estimate import Estimate, measurement_arrays
 from vesselbot_ros.errors import ModelInputError
@@ -636,30 +636,30 @@ def _ekf_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, o
     o += 5
     y = state[o:o + nx]
     o += nx
-    P = state[o:o + nx * nx].reshape((nx, nx))
+    P = flat_view(state, o, (nx, nx))
     o += nx * nx
     hist_t = state[o:o + n]
     o += n
-    hist_y = state[o:o + n * nx].reshape((n, nx))
+    hist_y = flat_view(state, o, (n, nx))
     o += n * nx
-    hist_P = state[o:o + n * nx * nx].reshape((n, nx, nx))
+    hist_P = flat_view(state, o, (n, nx, nx))
     o += n * nx * nx
-    hist_u = state[o:o + n * d].reshape((n, d))
+    hist_u = flat_view(state, o, (n, d))
     o += n * d
     free = state[o:o + 4]
     n_p = params_of(geom).shape[0]
     o = 0
     p_s = work[o:o + n_p]
     o += n_p
-    w = work[o:o + 24 * d].reshape((12, 2 * d))
+    w = flat_view(work, o, (12, 2 * d))
     o += 24 * d
-    fbuf = work[o:o + 8 * d].reshape((8, d))
+    fbuf = flat_view(work, o, (8, d))
     o += 8 * d
-    sc = work[o:o + 4 * d].reshape((4, d))
+    sc = flat_view(work, o, (4, d))
     o += 4 * d
-    vec = work[o:o + 8 * nx].reshape((8, nx))
+    vec = flat_view(work, o, (8, nx))
     o += 8 * nx
-    mat = work[o:o + 6 * nx * nx].reshape((6, nx, nx))
+    mat = flat_view(work, o, (6, nx, nx))
     return ekf_update(prm[0:n_prm], scal, istate[0:6], y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, w, fbuf, sc,
                       vec, mat, stats, t, g, has_meas, t_acq, m, out, err)
 

@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.blas_free import hypot_axes
 from vesselbot_ros.config import ConfigError, check_choice, check_finite, check_nonnegative, check_positive
-from vesselbot_ros.control.compiled_stage import CompiledObserver, lazy_step, observer_step_type
+from vesselbot_ros.control.compiled_stage import CompiledObserver, flat_view, lazy_step, observer_step_type
 from vesselbot_ros.control.ekf_params import EkfParams
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.errors import ModelInputError
@@ -530,10 +530,10 @@ def _hgo_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, o
     scal = state[0:4]
     y = state[4:4 + 2 * d]
     contact = state[4 + 2 * d:8 + 2 * d]
-    hist = state[8 + 2 * d:8 + 2 * d + HISTORY_LEN * (1 + d)].reshape((HISTORY_LEN, 1 + d))
-    w = work[0:24 * d].reshape((12, 2 * d))
-    fbuf = work[24 * d:32 * d].reshape((8, d))
-    sc = work[32 * d:36 * d].reshape((4, d))
+    hist = flat_view(state, 8 + 2 * d, (HISTORY_LEN, 1 + d))
+    w = flat_view(work, 0, (12, 2 * d))
+    fbuf = flat_view(work, 24 * d, (8, d))
+    sc = flat_view(work, 32 * d, (4, d))
     t0 = scal[0]
     code = observer_update(prm[0:n_prm], scal, y, contact, hist, istate[0:2], prm[n_prm:n_prm + 7], geom, stats, w, fbuf,
                            sc, t, g, has_meas, t_acq, m, out)
