@@ -194,4 +194,4 @@ def flat_view(a, offset, shape):  # type: ignore[no-untyped-def]  # numba kernel
     """A C-contiguous view of ``shape`` on the float64 array ``a`` from ``offset`` (a step's layout over its flat
     state or scratch).  Without a reshape's checks and reference count (about 15 ns each, a dozen per tick for the
     filter): the view lives only while the step runs, and ``a`` outlives it.  The caller keeps it in bounds."""
-    return numba.carray(_float_ptr(a.ctypes.data + 8 * offset), shape)
+    return numba.carray(_float_ptr(a.ctypes.data + 8 * offset), shape)  # type: ignore[call-arg]  # the intrinsic takes the typing context itself
