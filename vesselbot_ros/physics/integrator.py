@@ -67,7 +67,6 @@ __all__ = [
     "IntegratorHolder",
     "integrate",
     "rhs_into",
-    "state_len",
     "axes_of",
     "wall_and_forces",
     "forces_at",
@@ -242,18 +241,6 @@ def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  #
 
 def _tree_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     contact3d_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
-
-
-def state_len(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The state's length in ``geom``, 2 d, a constant at compile time (so the integrator's loops unroll)."""
-    raise NotImplementedError("state_len runs in compiled code only")
-
-
-@overload(state_len, inline="always")
-def _state_len(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    if isinstance(geom, types.Array):
-        return lambda geom: 4
-    return lambda geom: 6
 
 
 def axes_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -483,7 +470,7 @@ def integrate(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # 
     Returns:
         (code, h_next): return code and the step size to propose next period.
     """
-    n = state_len(geom)  # 2 d, the stages' length (y may be longer: its first n entries are integrated)
+    n = 2 * axes_of(geom)  # 2 d, the stages' length (y may be longer: its first n entries are integrated)
     half = n // 2
     k1 = work[0]
     k2 = work[1]
