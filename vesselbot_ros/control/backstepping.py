@@ -41,8 +41,8 @@ from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step, model_f_into
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import axes_of, forces_at, params_of, with_params
-from vesselbot_ros.physics.kernel import I_MASS, I_NET_ON, I_R, I_V_F, diameter_at
+from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, params_of, with_params
+from vesselbot_ros.physics.kernel import I_NET_ON, I_R, diameter_at, flow_scaled_into
 
 __all__ = [
     "BacksteppingGains",
@@ -248,11 +248,8 @@ def _scaled_model(geom, p_s, flow_scale):  # type: ignore[no-untyped-def]  # num
     if flow_scale == 1.0:
         q = p
     else:
-        n = p.shape[0]
-        for i in range(n):
-            p_s[i] = p[i]
-        p_s[I_V_F] = p[I_V_F] * flow_scale
-        q = p_s[:n]
+        flow_scaled_into(p, flow_scale, p_s)
+        q = p_s[:p.shape[0]]
     return with_params(geom, q)
 
 
@@ -276,7 +273,7 @@ def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type:
     s = k1 + k2
     c = 1.0 + k1 * k2
     h = prm[2]
-    m = params_of(gq)[I_MASS]
+    m = mass_of(gq)
     if h > 0.0:  # F at the middle of the hold, along the acceleration (24) asks for
         hh = 0.5 * h * h
         for i in range(d):

@@ -60,7 +60,7 @@ from numba.extending import intrinsic
 from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of
 
 __all__ = ["controller_step_type", "controller_out_size", "STEP_FLOW_SCALE_INVALID", "CompiledController",
-           "observer_step_type", "observer_step_out_size", "CompiledObserver", "lazy_step", "model_f_into", "geom_type",
+           "observer_step_type", "observer_step_out_size", "CompiledObserver", "lazy_step", "model_f_into",
            "flat_view"]
 
 _F = types.float64
@@ -73,11 +73,6 @@ STEP_FLOW_SCALE_INVALID = 3
 def controller_out_size(dims: int) -> int:
     """Length of a step's ``out`` on ``dims`` axes: [g (d), U (d), flow scale, magnetisation scale]."""
     return 2 * int(dims) + 2
-
-
-def geom_type(geom: Any) -> Any:
-    """The numba type of a model geometry as it reaches a step: its own (a read-only packed array stays read-only)."""
-    return numba.typeof(geom)
 
 
 def controller_step_type(gtype: Any) -> Any:

@@ -71,7 +71,7 @@ from vesselbot_ros.physics.integrator import (
     OK,
     U_ROW,
     axes_of,
-    free_forces_memo,
+    forces_memo,
     integrate,
     mass_of,
     new_workspace,
@@ -80,18 +80,10 @@ from vesselbot_ros.physics.integrator import (
     wall_press,
     with_params,
 )
-from vesselbot_ros.physics.kernel import I_BRUSH_L0, I_V_F
+from vesselbot_ros.physics.kernel import I_BRUSH_L0, flow_scaled_into
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
            "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes", "ekf_step"]
-
-@numba.njit(cache=True, nogil=True)
-def _scaled(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Copy ``p`` into ``p_s`` (of its size) with V_f multiplied by ``s``."""
-    for i in range(p.shape[0]):
-        p_s[i] = p[i]
-    p_s[I_V_F] = p[I_V_F] * s
-
 
 #: ``wall_projection: lumen``: how near a wall (in bead radii) an estimate pressed towards it rests on it
 #: (:func:`~vesselbot_ros.physics.integrator.wall_press`): within a radius the surface forces and the wall's
@@ -114,9 +106,9 @@ def _f(t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0, constrained):  # type: i
     noise-free estimate by 300-500 um.
     """
     d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
-    _scaled(params_of(geom), y[2 * d], p_s)
+    flow_scaled_into(params_of(geom), y[2 * d], p_s)
     gs = with_params(geom, p_s)
-    free_forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
+    forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
     m = mass_of(gs)
     for c in range(d):
         out[c] = y[d + c]
@@ -366,7 +358,7 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, s
     g0 = vec[6, :d]
     _predict_cov(t0, t1 - t0, y, P, u, prm[_QA2], prm[_QS2], free, geom, p_s, vec[0], vec[1], vec[2], mat[0], mat[1],
                  mat[2], fbuf, sc, vec[5], g0, prm[_LUMEN] > 0.5)
-    _scaled(params_of(geom), y[2 * d], p_s)
+    flow_scaled_into(params_of(geom), y[2 * d], p_s)
     gs = with_params(geom, p_s)
     ys = vec[3, :2 * d]  # the mean's (X, Z): the flow scale is not integrated
     for i in range(2 * d):

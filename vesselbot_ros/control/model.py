@@ -33,9 +33,8 @@ from vesselbot_ros.physics.integrator import (
 from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.input_mapping import input_matrix
-from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.network import network_dims
-from vesselbot_ros.vessels.plant_field3d import packed3d, planar_twin
+from vesselbot_ros.vessels.plant_field3d import packed_vessel, planar_twin, vessel_geom
 
 __all__ = ["DynamicsModel", "BLOOD_VELOCITY_ERROR"]
 
@@ -63,16 +62,11 @@ class DynamicsModel(IntegratorHolder):
         self.integrator = integrator if integrator is not None else IntegratorParams()  # and its vector (the setter)
         d = network_dims(physics.vessel.network)
         self.dims = d
-        if d == 3:  # a tree in space: the 3-D kernel's packed tree (the geometry's edge)
-            self.packed = packed3d(physics)
-            self.p = self.packed.p
-            b = float(input_matrix(planar_twin(physics), mapping)[0, 0])
-            self.input_gain = b
-            self.input_matrix = b * np.eye(3)
+        self.p, self.packed = packed_vessel(physics, d)  # a tree in space: the 3-D kernel's packed tree
+        if d == 3:  # the coil's three axes act alike on the bead: B = b I with the plane's b
+            self.input_matrix = float(input_matrix(planar_twin(physics), mapping)[0, 0]) * np.eye(3)
         else:
-            self.p = packed_params(physics)
             self.input_matrix = input_matrix(physics, mapping)
-            self.input_gain = float(self.input_matrix[0, 0])
         self._p_scaled = self.p.copy()
         self._h = self.integrator.max_step_s
         self.stats = np.zeros(4, dtype=np.int64)
@@ -85,16 +79,7 @@ class DynamicsModel(IntegratorHolder):
     def geom(self) -> Any:
         """The vessel :meth:`propagate` integrates in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge): the
         packed parameters of a straight vessel or a planar network, or a tree's ``(p, W, F, fh)``."""
-        if self.dims == 3:
-            k = self.packed
-            return (self.p, k.W, k.F, k.fh)
-        return self.p
-
-    def _geom_with(self, p: npt.NDArray[np.float64]) -> Any:
-        if self.dims == 3:
-            k = self.packed
-            return (p, k.W, k.F, k.fh)
-        return p
+        return vessel_geom(self.p, self.packed)
 
     def new_contact_state(self) -> npt.NDArray[np.float64]:
         """A fresh (free) contact state array (4,)."""
@@ -113,7 +98,7 @@ class DynamicsModel(IntegratorHolder):
             p[I_V_F] = self.p[I_V_F] * flow_scale
         f = np.empty(self.dims)
         model_f_into(float(t_s), np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
-                     self._geom_with(p), self._free, self._fbuf, self._sc, self._y, self._zero, f)
+                     vessel_geom(p, self.packed), self._free, self._fbuf, self._sc, self._y, self._zero, f)
         return f
 
     def propagate(

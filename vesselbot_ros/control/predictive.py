@@ -67,7 +67,7 @@ from vesselbot_ros.control.backstepping import (
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, onto_lumen_at, params_of, with_params
-from vesselbot_ros.physics.kernel import I_V_F
+from vesselbot_ros.physics.kernel import flow_scaled_into
 from vesselbot_ros.scanner.actuator_limits import CoilLimits, coil_params, new_coil_state
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
 from vesselbot_ros.scanner.stages import seq_coil_apply
@@ -421,10 +421,7 @@ def predictive_command(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out
         return FLOW_SCALE_INVALID
     else:
         p = work[0:n_model]  # the model, its V_f scaled by the observer's estimate (a copy: the same doubles at 1)
-        for i in range(n_model):
-            p[i] = model_p[i]
-        if flow_scale != 1.0:
-            p[I_V_F] = model_p[I_V_F] * flow_scale
+        flow_scaled_into(model_p, flow_scale, p)
         gq = with_params(geom, p)
         new_frame = age < state[s_age] - 0.5 * dt  # a frame corrected the estimate since the last tick
         multiplexed = sv[0] > 0.5

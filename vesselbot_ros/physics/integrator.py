@@ -71,7 +71,6 @@ __all__ = [
     "wall_and_forces",
     "forces_at",
     "forces_memo",
-    "free_forces_memo",
     "wall_press",
     "onto_lumen_at",
     "params_of",
@@ -316,21 +315,6 @@ def _tree_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-
 @overload(forces_memo, inline="always")
 def _forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_forces_memo if isinstance(geom, types.Array) else _tree_forces_memo
-
-
-def free_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`forces_memo` without a gradient (``g`` (d,) zeros): a model's ``F``.  The plane's passes literal zeros,
-    which the compiler folds (the extended Kalman filter evaluates it seven times a tick)."""
-    raise NotImplementedError("free_forces_memo runs in compiled code only")
-
-
-def _planar_free_forces(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces_tc(t, y[0], y[1], y[2], y[3], 0.0, 0.0, contact, geom, fbuf, tc)
-
-
-@overload(free_forces_memo, inline="always")
-def _free_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    return _planar_free_forces if isinstance(geom, types.Array) else _tree_forces_memo
 
 
 def wall_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time

@@ -56,6 +56,7 @@ from vesselbot_ros.physics.wall_interactions import (
 
 __all__ = [
     "TERM_NAMES",
+    "flow_scaled_into",
     "pack_params",
     "pack_network_params",
     "accel",
@@ -516,6 +517,15 @@ def accel(t, x, z, vx, vz, gx, gz, contact_arr, p):  # type: ignore[no-untyped-d
     out = np.empty((8, 2))
     forces_into(t, x, z, vx, vz, gx, gz, contact_arr, p, out)
     return out[7, 0] / p[I_MASS], out[7, 1] / p[I_MASS]
+
+
+@numba.njit(cache=True, nogil=True)
+def flow_scaled_into(p, s, p_s):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Copy the packed parameters ``p`` into ``p_s`` (at least as long) with the centreline blood velocity ``V_f``
+    times ``s``: a model that believes another blood velocity (an estimate of the flow scale)."""
+    for i in range(p.shape[0]):
+        p_s[i] = p[i]
+    p_s[I_V_F] = p[I_V_F] * s
 
 
 @numba.njit(cache=True)

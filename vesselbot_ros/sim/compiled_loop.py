@@ -41,7 +41,6 @@ from vesselbot_ros.control.compiled_stage import (
     STEP_FLOW_SCALE_INVALID,
     CompiledController,
     CompiledObserver,
-    geom_type,
 )
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
@@ -167,7 +166,7 @@ def _read_only(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 
 def _model_geom(geom: Any) -> Any:
-    """The model's geometry as the controller steps take it (:func:`~vesselbot_ros.control.compiled_stage.geom_type`)."""
+    """The model's geometry as the controller steps take it: its packed parameters read-only."""
     if isinstance(geom, np.ndarray):
         return _read_only(geom)
     p, *rest = geom
@@ -374,8 +373,8 @@ def run_kernel(
     code, tick = loop_kernel(  # type: ignore[call-arg]  # *columns: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_geom, inp.model_geom, inp.ig, rng,
         inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((n + 1, queue_columns(d))), new_seq_imager_state(d),
-        obs.step(geom_type(obs.geom)), obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
-        ctrl.step(geom_type(inp.model_geom)), ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
+        obs.step(numba.typeof(obs.geom)), obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
+        ctrl.step(numba.typeof(inp.model_geom)), ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s, y, contact, coil_state, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in spec), err,
     )

@@ -28,8 +28,7 @@ from vesselbot_ros.physics.integrator import (
 )
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.vessels.plant_field3d import packed3d
+from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
 
 __all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
 
@@ -96,11 +95,7 @@ class PlantSimulator(IntegratorHolder):
         self.dims = d
         self.physics = physics
         self.integrator = integrator  # and its packed vector (the setter)
-        if d == 3:  # a tree in space: the 3-D kernel's packed tree (the geometry's edge)
-            self.packed = packed3d(physics)
-            self.p = self.packed.p
-        else:
-            self.p = packed_params(physics)
+        self.p, self.packed = packed_vessel(physics, d)  # a tree in space: the 3-D kernel's packed tree
         self._dt = float(dt_control_s)
         self._t0 = float(t0_s)
         self._k = 0
@@ -117,10 +112,7 @@ class PlantSimulator(IntegratorHolder):
     def geom(self) -> Any:
         """The vessel the integrator flies the bead in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge):
         the packed parameters ``p`` of a straight vessel or a planar network, a tree's ``(p, W, F, fh)``."""
-        if self.dims == 3:
-            k = self.packed
-            return (self.p, k.W, k.F, k.fh)
-        return self.p
+        return vessel_geom(self.p, self.packed)
 
     @property
     def t_s(self) -> float:

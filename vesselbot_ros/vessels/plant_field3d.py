@@ -69,9 +69,10 @@ from vesselbot_ros.physics.wall_field3d import build_wall_field3d, grid_box
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d
+from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline_3d
 
-__all__ = ["PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
+__all__ = ["packed_vessel", "vessel_geom", "PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
            "WallArrays",
            "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
@@ -517,3 +518,18 @@ def packed3d(params: PhysicsParams) -> Packed3D:
     wa = wall_arrays(net, params.blood)
     F, fh = _flow_grid(net, params.blood)
     return Packed3D(pack_params(planar_twin(params)), wa.args, F, fh)
+
+
+def packed_vessel(physics: PhysicsParams, dims: int) -> tuple[npt.NDArray[np.float64], Packed3D | None]:
+    """``(p, packed)`` of the vessel ``physics`` names, on ``dims`` axes: its packed parameters and a tree's compiled
+    inputs (None in the plane).  What the plant and the models build their vessel from."""
+    if dims == 3:
+        k = packed3d(physics)
+        return k.p, k
+    return packed_params(physics), None
+
+
+def vessel_geom(p: npt.NDArray[np.float64], packed: Packed3D | None) -> Any:
+    """The geometry the integrator and the compiled steps take (``physics.integrator``'s geometry edge), with the
+    packed parameters ``p``: ``p`` itself in the plane, a tree's ``(p, W, F, fh)``."""
+    return p if packed is None else (p, packed.W, packed.F, packed.fh)

@@ -19,7 +19,6 @@ class _FreeModel:
     """F = 0: the bead coasts (dims 2 or 3), B = b I."""
 
     def __init__(self, dims: int, b: float = 2.0) -> None:
-        self.input_gain = b
         self.input_matrix = b * np.eye(dims)
         self.stats = np.zeros(4, dtype=np.int64)
 
