@@ -27,7 +27,7 @@ from vesselbot_ros.graph_spec import CHILD_FRAME_ID, qos_profile, topic
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.plant_node import network_scene_markers
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 
 ROBOT_RADIUS_M = 250e-6
 DT_S = 1e-3
@@ -46,7 +46,7 @@ def main() -> int:
     network, rate = sys.argv[1], float(sys.argv[2])
     net = load_network(network)
     markers = network_scene_markers(net, BloodParams(), ROBOT_RADIUS_M)
-    geom = NetworkGeometry3D(net)
+    geom = NetworkGeometry(net, dims=3)
     route = geom.centreline_path(route_to_outlet(net, net.outlets[0]))
     path_pts = route[:: max(1, len(route) // 300)]
     radius = geom.query(route)["radius"]

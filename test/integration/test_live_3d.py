@@ -31,7 +31,7 @@ from vesselbot_ros.live_view import ARROW_AT_LIMIT_M  # noqa: E402
 from vesselbot_ros.nodes.recorder_node import recorder_command  # noqa: E402
 from vesselbot_ros.physics.params import BloodParams  # noqa: E402
 from vesselbot_ros.testing import NodeProcess  # noqa: E402
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network  # noqa: E402
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network  # noqa: E402
 from vesselbot_ros.vessels.plant_field3d import wall_mesh  # noqa: E402
 
 PEER = Path(__file__).with_name("scene3d_peer.py")
@@ -139,7 +139,7 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
     assert wall["points_sum"] == _sums(wall_rec.points)
     assert 0 < wall["color"][3] < 1 and wall["scale"] == [1.0, 1.0, 1.0]
     # in 3-D: the wall and the centrelines of the branches that leave the plane have y
-    lo, hi = NetworkGeometry3D(net).bbox[2:4]
+    lo, hi = NetworkGeometry(net, dims=3).bbox[2:4]
     assert wall["y_abs_max"] == pytest.approx(max(-lo, hi), rel=0.05)
     lines = {b.name: scene["vessel"][f"{b.name}/centreline"] for b in net.branches}
     assert all(c["type"] == LINE_STRIP and c["frame_id"] == FRAME_ID for c in lines.values())
@@ -162,7 +162,7 @@ def _check_scene(got: Any, bag: Path, network: str) -> None:
     truth = rec["truth"][stamp]
     assert robot["type"] == SPHERE and robot["position"] == _xyz(truth.position)
     assert (robot["position"][1] != 0.0) == off_plane
-    assert NetworkGeometry3D(net).query([robot["position"]])["sdist"][0] > 0
+    assert NetworkGeometry(net, dims=3).query([robot["position"]])["sdist"][0] > 0
     r = 0.5 * (truth.vessel_diameter - truth.wall_gap_upper - truth.wall_gap_lower)
     assert robot["scale"] == pytest.approx([2 * r] * 3, rel=1e-12)
     # the estimate and the gradient arrow (from the robot along the applied 3-D gradient, 2 mm at the limit)

@@ -67,7 +67,7 @@ from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
 __all__ = ["write_report", "report_dir", "metrics_timeseries", "positions_3d", "tree_trajectory",
            "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",
@@ -530,7 +530,7 @@ def network_trajectory(t: npt.NDArray[np.float64], m: Mapping[str, np.ndarray], 
     return fig
 
 
-def _draw_tree_projection(ax: Any, geom: NetworkGeometry3D, axis: int, mm: float) -> None:
+def _draw_tree_projection(ax: Any, geom: NetworkGeometry, axis: int, mm: float) -> None:
     """A 3-D tree's tubes projected on the plane of x and coordinate ``axis`` (1: y, 2: z): each a grey band.
 
     A tube's projection is its projected centreline widened by its radius on either side, across the projected
@@ -538,7 +538,7 @@ def _draw_tree_projection(ax: Any, geom: NetworkGeometry3D, axis: int, mm: float
     narrows to its centreline, which is drawn dotted).
     """
     for name in geom.names:
-        q = geom.centreline_3d(name)[:, [0, axis]]
+        q = geom.centreline(name)[:, [0, axis]]
         rad = geom.radius(name)
         tan = np.gradient(q, axis=0)
         length = np.hypot(tan[:, 0], tan[:, 1])
@@ -561,7 +561,7 @@ def tree_trajectory(t: npt.NDArray[np.float64], p: Mapping[str, np.ndarray], net
     import matplotlib.pyplot as plt  # deferred: matplotlib (~0.5 s) loads only when a figure is drawn
 
     mm = 1e3
-    geom = NetworkGeometry3D(load_network(network))
+    geom = NetworkGeometry(load_network(network), dims=3)
     fig, axs = plt.subplots(2, 1, figsize=(9, 9))
     idx = _time_marks(t)
     x_lo, x_hi = geom.bbox[0] * mm, geom.bbox[1] * mm

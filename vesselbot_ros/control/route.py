@@ -35,7 +35,7 @@ from vesselbot_ros.control.route3d import anchor_arcs, route_anchors_3d
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.physics.wall_field3d import field_points3d
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, NetworkGeometry3D, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 from vesselbot_ros.vessels.plant_field3d import wall_arrays
 
 __all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
@@ -151,14 +151,11 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
-    geom: NetworkGeometry | NetworkGeometry3D
-    if net.is_3d:  # the 3-D plant's wall (its compiled lookup) and the tree's centreline tubes
-        geom = NetworkGeometry3D(net)
-        q = geom.query(p)
+    geom = NetworkGeometry(net)
+    q = geom.query(p)
+    if net.is_3d:  # the 3-D plant's wall (its compiled lookup)
         out = field_points3d(np.ascontiguousarray(p), *wall_arrays(net, blood).args)[:, 0] < 0.0
     else:
-        geom = NetworkGeometry(net)
-        q = geom.query(p)
         # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
         out = network_wall(net, blood).query(p)["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.resources import require_fits, spline_setup_cost
-from vesselbot_ros.vessels.network import NetworkGeometry3D, VesselNetworkParams, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, route_to_outlet
 
 __all__ = ["VERTICAL_SINE", "up_directions", "anchor_arcs", "route_anchors_3d"]
 
@@ -81,7 +81,7 @@ def route_anchors_3d(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike,
             (:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m`).
         end: Where the last anchor lies (:func:`anchor_arcs`: ``spaced`` or ``at_margin``).
     """
-    geom = NetworkGeometry3D(net)
+    geom = NetworkGeometry(net, dims=3)
     names = route_to_outlet(net, outlet)
     path = geom.centreline_path(names)
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)

@@ -99,7 +99,7 @@ from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
 from vesselbot_ros.vessels import plant_field3d
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, NetworkGeometry3D, VesselNetworkParams, load_network
+from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S",
            "network_scene_markers"]
@@ -121,7 +121,7 @@ def network_scene_markers(net: VesselNetworkParams, blood: Any, robot_radius_m: 
     """
     if net.is_3d:
         vertices, triangles = plant_field3d.wall_mesh(net, blood)
-        return cv.network_markers_3d(NetworkGeometry3D(net), vertices, triangles, robot_radius_m)
+        return cv.network_markers_3d(NetworkGeometry(net, dims=3), vertices, triangles, robot_radius_m)
     return cv.network_markers(NetworkGeometry(net), network_wall(net, blood).segments, robot_radius_m)
 
 

@@ -53,7 +53,7 @@ from vesselbot_ros.scanner.imager_model import ImagerParams
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network, network_dims, require_planar, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network, network_dims, require_planar, route_to_outlet
 
 __all__ = [
     "ModelParams",
@@ -360,7 +360,7 @@ class Scenario:
                 raise ConfigError(f"reference.route_outlet must be an outlet of network {net.name!r} "
                                   f"({net.outlets}), got {self.reference.route_outlet!r}")
             route_to_outlet(net, self.reference.route_outlet)
-        geom = NetworkGeometry3D(net)
+        geom = NetworkGeometry(net, dims=3)
         s0 = float(geom.query(np.asarray(self.initial.p0_m))["sdist"][0])
         if s0 <= 0.0:
             raise ConfigError(f"initial.p0_m must lie inside the vessel network {net.name!r}, got {list(self.initial.p0_m)} "

@@ -81,7 +81,7 @@ from vesselbot_ros.errors import RunError
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.progress import ProgressFn
-from vesselbot_ros.vessels.network import VesselNetworkParams, smooth_centreline_3d
+from vesselbot_ros.vessels.network import VesselNetworkParams, smooth_centreline
 
 __all__ = [
     "Branch3D",
@@ -209,7 +209,7 @@ def tree_from_network(net: VesselNetworkParams) -> Tree3D:
 
     A straight branch keeps its own points and radii (its centreline is the line; a radius profile
     along it, such as a sinus, is kept point by point).  A curved branch is its smoothed centreline
-    (:func:`~vesselbot_ros.vessels.network.smooth_centreline_3d`, sampled every
+    (:func:`~vesselbot_ros.vessels.network.smooth_centreline`, sampled every
     ``net.sample_spacing_m``; for a planar branch the x and z of the 2-D solve's centreline bit for
     bit) thinned to about one point per half radius, enough for the mesher's spline to follow it
     to well below a micrometre.
@@ -221,7 +221,7 @@ def tree_from_network(net: VesselNetworkParams) -> Tree3D:
             p3 = tuple((float(x), float(y), float(z)) for x, y, z in own)
             r = b.radii()
         else:
-            pts, rad, s = smooth_centreline_3d(b, net.smoothing, net.sample_spacing_m)
+            pts, rad, s = smooth_centreline(b, net.smoothing, net.sample_spacing_m, 3)
             step = max(1, int(0.5 * float(rad.min()) / max(float(s[1] - s[0]), 1e-12)))
             keep = np.unique(np.concatenate([np.arange(0, len(pts), step), [len(pts) - 1]]))
             if len(keep) >= 3 and s[keep[-1]] - s[keep[-2]] < 0.25 * step * (s[1] - s[0]):

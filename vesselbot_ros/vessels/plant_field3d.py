@@ -70,7 +70,7 @@ from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d
 from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline_3d
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
 
 __all__ = ["packed_vessel", "vessel_geom", "PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
@@ -352,7 +352,7 @@ def build_estimate(net: VesselNetworkParams) -> Build3DEstimate:
     vol = tris = 0.0
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for b in net.branches:
-        p, r, arc = smooth_centreline_3d(b, net.smoothing, net.sample_spacing_m)
+        p, r, arc = smooth_centreline(b, net.smoothing, net.sample_spacing_m, 3)
         dl, rm = np.diff(arc), 0.5 * (r[1:] + r[:-1])
         edge = np.minimum(st.mesh_size_m, 2.0 * np.pi * rm / st.wall_elements_per_circle)
         vol += float((np.pi * rm ** 2 * dl / edge ** 3).sum())

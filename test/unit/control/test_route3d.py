@@ -14,7 +14,7 @@ from vesselbot_ros.control import route
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
 from vesselbot_ros.control.route3d import VERTICAL_SINE, anchor_arcs, route_anchors_3d, up_directions
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
 
 def test_in_the_plane_the_3d_route_is_the_planar_route() -> None:
@@ -54,14 +54,14 @@ def test_a_tree_in_space_puts_every_anchor_inside_its_tube_above_the_centreline(
     """The synthetic 4-generation tree: every anchor lies inside the lumen's tubes, at the wall-safe height above the
     centreline's cross-section vertical (or on it near a node), and the route ends near its outlet."""
     net = load_network("synthetic_tree_3d")
-    geom = NetworkGeometry3D(net)
+    geom = NetworkGeometry(net, dims=3)
     outlet = [b.name for b in net.branches if not any(c.parent == b.name for c in net.branches)][-1]
     root = next(b for b in net.branches if not b.parent)
-    p0 = geom.centreline_3d(root.name)[0]
+    p0 = geom.centreline(root.name)[0]
     anchors = route_anchors_3d(net, outlet, p0, 2.0e-3, 1.0e-3, lambda d: 0.25 * d)
     q = geom.query(anchors)
     assert np.all(q["sdist"] > 0.2 * q["radius"])  # inside, a quarter diameter off the axis at most
-    end = geom.centreline_3d(outlet)[-1]
+    end = geom.centreline(outlet)[-1]
     assert np.linalg.norm(anchors[-1] - end) < 3.5e-3
 
 

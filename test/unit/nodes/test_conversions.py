@@ -213,10 +213,10 @@ def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
 
     from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
     from vesselbot_ros.vessels import cfd3d
-    from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
     net = load_network("carotid_bifurcation_3d")
-    geom = NetworkGeometry3D(net)
+    geom = NetworkGeometry(net, dims=3)
     # a coarse mesh of the tree's lumen (a second: no flow solve), its wall's triangles
     meshed = cfd3d.mesh_tree(cfd3d.tree_from_network(net), cfd3d.settings_from_network(
         net, mesh_size_m=1.5e-3, wall_elements_per_circle=16))
@@ -235,7 +235,7 @@ def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
     assert [m.id for m in ms] == list(range(len(ms)))
     for b, m in zip(net.branches, ms[1:]):
         c = np.array([[p.x, p.y, p.z] for p in m.points])
-        samples = geom.centreline_3d(b.name)
+        samples = geom.centreline(b.name)
         every = round(2e-4 / net.sample_spacing_m)  # step_m's default
         assert m.type == Marker.LINE_STRIP and m.header.frame_id == FRAME_ID
         assert np.array_equal(c, samples[np.unique(np.r_[np.arange(0, len(samples), every), len(samples) - 1])])

@@ -10,7 +10,6 @@ from hypothesis import strategies as st
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.vessels.network import (
     NetworkGeometry,
-    NetworkGeometry3D,
     VesselNetworkParams,
     load_network,
     route_to_outlet,
@@ -94,6 +93,29 @@ def test_point_clearance_equals_the_vectorised_query_bit_for_bit(name: str, u: f
     assert g.clearance(x, z) == (q["sdist"][0], q["diameter"][0])
 
 
+@settings(max_examples=100, deadline=None)
+@given(name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen", "carotid_bifurcation_3d", "synthetic_tree_3d"]),
+       u=st.floats(-0.1, 1.1), v=st.floats(-0.1, 1.1), w=st.floats(-0.1, 1.1))
+def test_one_geometry_on_any_axes_the_plane_is_space_at_y_zero(name: str, u: float, v: float, w: float) -> None:
+    # one class: a planar network on two axes gives the bits of the same network on three at y = 0
+    net = load_network(name)
+    g3 = NetworkGeometry(net, dims=3)
+    x0, x1, y0, y1, z0, z1 = g3.bbox
+    p3 = np.array([x0 + u * (x1 - x0), y0 + v * (y1 - y0) if not net.is_planar else 0.0, z0 + w * (z1 - z0)])
+    q3 = g3.query(p3[None])
+    assert g3.clearance(*p3) == (q3["sdist"][0], q3["diameter"][0])
+    assert abs(np.linalg.norm(q3["normal"][0]) - 1.0) < 1e-12
+    if net.is_planar:
+        g2 = NetworkGeometry(net)
+        assert g2.dims == 2 and g2.bbox == (x0, x1, z0, z1)
+        q2 = g2.query(p3[None, ::2])
+        for key in ("sdist", "diameter", "radius", "branch", "arc"):
+            assert np.array_equal(q2[key], q3[key]), key
+        assert np.array_equal(q2["normal"], q3["normal"][:, ::2]) and q3["normal"][0, 1] == 0.0
+        assert np.array_equal(q2["foot"], q3["foot"][:, ::2])
+        assert g2.clearance(*p3[::2]) == g3.clearance(*p3)
+
+
 # --- three-dimensional trees (y_m) -----------------------------------------------------------------
 
 def _rot_x(branches, theta):  # type: ignore[no-untyped-def]
@@ -135,12 +157,12 @@ def test_2d_consumers_refuse_a_non_planar_network_in_one_line() -> None:
     from vesselbot_ros.vessels.cfd import mesh_network, network_field
 
     net = _net(_rot_x(Y, 0.3))
-    for call in (lambda: NetworkGeometry(net), lambda: network_field(net, BloodParams()), lambda: mesh_network(net)):
+    for call in (lambda: NetworkGeometry(net, dims=2), lambda: network_field(net, BloodParams()), lambda: mesh_network(net)):
         with pytest.raises(ConfigError, match=r"^vessel network 't' is not planar \(branch 'b' leaves the plane y = 0") as ei:
             call()
         assert "\n" not in str(ei.value)
-    g = NetworkGeometry3D(net)  # the 3-D geometry takes it
-    assert g.centreline_3d("b").shape[1] == 3 and not g.is_planar
+    g = NetworkGeometry(net, dims=3)  # the 3-D geometry takes it
+    assert g.centreline("b").shape[1] == 3 and not g.is_planar
 
 
 def test_y_m_validation_names_the_key_and_the_value() -> None:
@@ -212,10 +234,10 @@ def test_rotated_planar_network_keeps_its_lengths_and_radii(theta: float, name: 
     m = to_mapping(planar)
     m["branches"] = _rot_x(m["branches"], theta)
     net = load_dataclass(VesselNetworkParams, m, "")
-    g2, g3 = NetworkGeometry(planar), NetworkGeometry3D(net)
+    g2, g3 = NetworkGeometry(planar), NetworkGeometry(net, dims=3)
     for b in planar.branches:
         p2, r2, s2 = g2.branches[b.name]
-        p3, s3 = g3.centreline_3d(b.name), g3.arc_length(b.name)
+        p3, s3 = g3.centreline(b.name), g3.arc_length(b.name)
         assert abs(s3[-1] - s2[-1]) < 1e-12 * s2[-1]
         # (a chord that is a whole number of sample spacings may round to one sample more or fewer)
         assert abs(len(s3) - len(s2)) <= 1
@@ -234,8 +256,8 @@ def test_3d_spline_through_a_helix() -> None:
     x, y, z = R * np.cos(t), R * np.sin(t), pitch * t / (2.0 * np.pi)
     net = _net([{"name": "h", "parent": "", "x_m": x.tolist(), "y_m": y.tolist(), "z_m": z.tolist(),
                  "radius_m": [0.5e-3] + [0.3e-3] * 16}])
-    g = NetworkGeometry3D(net)
-    p = g.centreline_3d("h")
+    g = NetworkGeometry(net, dims=3)
+    p = g.centreline("h")
     np.testing.assert_allclose(p[0], [x[0], y[0], z[0]], atol=1e-15)
     np.testing.assert_allclose(p[-1], [x[-1], y[-1], z[-1]], atol=1e-15)
     # on the helix's cylinder within 1 % of R (0.76 %: the natural ends), 0.2 % away from the ends
@@ -260,11 +282,11 @@ SHIPPED_3D = ("paper_iiic_artery_3d", "carotid_bifurcation_3d", "synthetic_tree_
 def test_paper_iiic_artery_3d_is_the_planar_network() -> None:
     planar, tree = load_network("paper_iiic_artery"), load_network("paper_iiic_artery_3d")
     assert tree.is_planar and all(len(b.y_m) == len(b.x_m) for b in tree.branches)  # y_m given, all 0
-    g2, g3 = NetworkGeometry(planar), NetworkGeometry3D(tree)
+    g2, g3 = NetworkGeometry(planar), NetworkGeometry(tree, dims=3)
     assert g3.names == g2.names
     for name in g2.names:
         p2, r2, s2 = g2.branches[name]
-        p3 = g3.centreline_3d(name)
+        p3 = g3.centreline(name)
         assert np.array_equal(p3[:, 0], p2[:, 0]) and np.array_equal(p3[:, 2], p2[:, 1]) and not p3[:, 1].any()
         assert np.array_equal(g3.radius(name), r2) and np.array_equal(g3.arc_length(name), s2)
     assert [(b.name, b.parent) for b in tree.branches] == [(b.name, b.parent) for b in planar.branches]
@@ -280,15 +302,15 @@ def test_a_network_is_3d_when_any_branch_gives_y_m_even_all_zero() -> None:
 
 def test_carotid_bifurcation_has_the_models_dimensions_and_leaves_the_plane() -> None:
     net = load_network("carotid_bifurcation_3d")
-    g = NetworkGeometry3D(net)
+    g = NetworkGeometry(net, dims=3)
     assert not net.is_planar and net.outlets == ["ica", "eca"]
     D = 8.0e-3
     assert g.radius("cca").min() == g.radius("cca").max() == pytest.approx(0.5 * D)
     assert g.radius("ica").max() == pytest.approx(0.5 * 1.10 * D, rel=2e-4)  # the sinus (between two samples)
     assert g.radius("ica")[-1] == pytest.approx(0.5 * 0.70 * D)
     assert g.radius("eca").max() == pytest.approx(0.5 * 0.58 * D)
-    d_ica = g.centreline_3d("ica")[-1] / np.linalg.norm(g.centreline_3d("ica")[-1])
-    d_eca = g.centreline_3d("eca")[-1] / np.linalg.norm(g.centreline_3d("eca")[-1])
+    d_ica = g.centreline("ica")[-1] / np.linalg.norm(g.centreline("ica")[-1])
+    d_eca = g.centreline("eca")[-1] / np.linalg.norm(g.centreline("eca")[-1])
     # 25 deg each side of the CCA's axis in the model's plane, each turned 15 deg about it
     assert np.degrees(np.arccos(d_ica[0])) == pytest.approx(25.0, abs=1e-6)
     assert np.degrees(np.arccos(d_eca[0])) == pytest.approx(25.0, abs=1e-6)
@@ -296,13 +318,13 @@ def test_carotid_bifurcation_has_the_models_dimensions_and_leaves_the_plane() ->
     n = np.cross(d_ica, d_eca)
     assert np.degrees(np.arcsin(abs(n[0]) / np.linalg.norm(n))) == pytest.approx(6.9, abs=0.05)  # planarity angle
     with pytest.raises(ConfigError, match="vessel network 'carotid_bifurcation_3d' is not planar"):
-        NetworkGeometry(net)
+        NetworkGeometry(net, dims=2)
 
 
 @pytest.mark.parametrize("name", SHIPPED_3D)
 def test_shipped_3d_trees_let_the_bead_pass(name: str) -> None:
     # Table III's bead has r = 250 um: every lumen radius is at least 0.35 mm (the III-C side branches)
-    g = NetworkGeometry3D(load_network(name))
+    g = NetworkGeometry(load_network(name), dims=3)
     assert min(float(g.radius(b).min()) for b in g.names) >= 0.35e-3
 
 
@@ -318,7 +340,7 @@ def test_synthetic_tree_obeys_murrays_law_over_four_generations() -> None:
             r, ra, rb = b.radius_m[-1], kids[0].radius_m[-1], kids[1].radius_m[-1]
             assert ra ** 3 + rb ** 3 == pytest.approx(r ** 3, rel=1e-5)
             assert ra ** 3 / r ** 3 == pytest.approx(0.6, rel=1e-5)
-    g = NetworkGeometry3D(net)
+    g = NetworkGeometry(net, dims=3)
     assert g.radius("b0").max() == pytest.approx(1.5e-3) and min(g.radius(n).min() for n in g.names) == pytest.approx(0.6e-3)
 
 

@@ -10,7 +10,7 @@ from vesselbot_ros.config import ConfigError
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.physics.wall_field3d import field_points3d
 from vesselbot_ros.vessels import plant_field3d as pf
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
 TREES = ("paper_iiic_artery_3d", "carotid_bifurcation_3d", "synthetic_tree_3d")
 
@@ -30,7 +30,7 @@ def test_every_shipped_tree_ships_its_samples(name: str) -> None:
         for c, n, r in fld.caps.values():  # in a cap's plane only a sliver of the tube between rim vertices
             in_plane = np.abs((cen - c) @ n) < 1e-4 * r
             assert (np.linalg.norm(cen[in_plane] - c, axis=1) > r * (1 - 1e-3)).all()
-        sd = NetworkGeometry3D(net).query(v)["sdist"]
+        sd = NetworkGeometry(net, dims=3).query(v)["sdist"]
         assert np.max(np.abs(sd)) < 0.15e-3  # the smoothed centrelines' tubes against the solid's (junctions)
     assert 2e5 < len(fld.triangles) < 5e5 and 5e3 < len(fld.view_triangles) < 3e4
     assert fld.meta["wall"]["sag_p99_um"] < 0.5 and fld.meta["wall"]["sag_max_um"] < 1.0

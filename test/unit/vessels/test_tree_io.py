@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from vesselbot_ros.cli import main
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.vessels.network import NetworkGeometry3D, load_network
+from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 from vesselbot_ros.vessels.tree_io import (
     import_vmtk_centerlines,
     network_mapping_from_paths,
@@ -66,7 +66,7 @@ def test_raw_vmtk_paths_split_where_they_part(tmp_path: Path) -> None:
     # the shared trunk is one branch of the 51 points, the node exactly at 10 mm
     assert len(net.root.x_m) == 51 and net.root.y_m == () and net.root.x_m[-1] == 0.01
     # lengths (m) of the smoothed centrelines: straight segments, so the chords
-    g = NetworkGeometry3D(net)
+    g = NetworkGeometry(net, dims=3)
     assert g.length_m("b0") == pytest.approx(0.010, rel=1e-9)
     assert g.length_m("b0_0") == pytest.approx(np.linalg.norm(np.subtract(A, N1)) * 1e-3, rel=1e-9)
 
