@@ -226,7 +226,7 @@ def _planar_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[n
 
 
 def _tree_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    rhs3d_into(t, y, g, u, contact, geom[0], geom[1], geom[2], geom[3], out, fbuf, sc)
+    rhs3d_into(t, y, g, u, contact, geom[0], geom[1], geom[2], geom[3], out, fbuf)
 
 
 def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -270,8 +270,8 @@ def _planar_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore
 
 def _tree_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     p = geom[0]
-    s_t = forces3d_at(t, y, g, contact, p, geom[1], geom[2], geom[3], fbuf, sc)
-    return p[I_R] - s_t, (1.0 if sc[2, 2] <= 0.0 else -1.0)  # the wall above when its inward normal points down
+    s_t, n_z = forces3d_at(t, y, g, contact, p, geom[1], geom[2], geom[3], fbuf)
+    return p[I_R] - s_t, (1.0 if n_z <= 0.0 else -1.0)  # the wall above when its inward normal points down
 
 
 @overload(wall_and_forces, jit_options={"nogil": True})
@@ -290,7 +290,7 @@ def _planar_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped
 
 
 def _tree_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
+    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
 
 
 @overload(forces_at, inline="always")
@@ -309,7 +309,7 @@ def _planar_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[n
 
 
 def _tree_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf, sc)
+    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
 
 
 @overload(forces_memo, inline="always")

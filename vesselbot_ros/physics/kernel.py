@@ -474,41 +474,58 @@ def forces_tc(t, x, z, vx, vz, gx, gz, contact_arr, p, out, tc):  # type: ignore
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def _forces_network(t, x, z, vx, vz, gx, gz, contact_arr, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`forces_into` in a vessel network: every force from the local wall geometry.
-
-    delta and the inward normal n from the signed distance; the drag's wall
-    factor from the local diameter and viscosity; contact (15)-(16) against the
-    nearest wall along n; interactions from the nearest wall (gap s) and the
-    opposite one (gap D - s) along the normal.
-    """
-    r = p[I_R]
+    """:func:`forces_into` in a planar vessel network: :func:`wall_forces_into` at the wall and flow of the
+    network's grid at (x, z) (:func:`network_geometry`)."""
     s_t, nx, nz, d_t, eta, vfx, vfz = network_geometry(t, x, z, p)
-    out[0, 0] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gx)
-    out[0, 1] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], gz)
-    ux = vx - vfx
-    uz = vz - vfz
+    wall_forces_into((vx, vz), (gx, gz), s_t, (nx, nz), d_t, eta, (vfx, vfz), contact_arr, p, out)
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def wall_forces_into(v, g, s_t, n, d_t, eta, vf, contact_arr, p, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Fill ``out`` (8, d) with the force terms (N) on d axes, every one from the local wall and flow.
+
+    The axes are ``len(n)``: (x, z) in the plane, (x, y, z) in space, the last the vertical; a planar
+    scene on three axes with y = 0 gives the plane's doubles in x and z and exactly 0 in y (tested).
+    Magnetic (2) per gradient axis; drag (11) on ``v - vf`` with the wall factor of the local diameter
+    ``d_t``; apparent weight (14) along the vertical; contact (15)-(16) against the nearest wall along
+    its inward normal ``n`` (overlap ``r - s_t``); vdW (18), electrostatic (19) and steric (22) forces
+    of the nearest wall (gap ``s_t - r``) and of the opposite one (gap ``d_t - s_t - r``) along ``-n``.
+
+    Args:
+        v, g, n, vf: The bead's velocity (m/s), the gradient (T/m), the unit inward normal and the blood
+            velocity at the bead (m/s), each d values (tuples or arrays).
+        s_t: Signed distance of the bead's centre to the nearest wall (m, > 0 inside).
+        d_t: Local lumen diameter (m).
+        eta: Blood viscosity there (Pa s).
+        contact_arr: (4,) the Hertz loading/unloading state.
+        p: Packed physical parameters (:func:`pack_params`).
+        out: (8, d) float64, overwritten.
+    """
+    d = len(n)
+    r = p[I_R]
+    uu = 0.0
+    for i in range(d):
+        out[0, i] = bead_pulling_force(p[I_TAU], p[I_VOLUME], p[I_MAGNETIZATION], g[i])
+        u = v[i] - vf[i]
+        uu += u * u
     lam = min(2.0 * r / max(d_t, 2.0 * r), _LAMBDA_MAX)
-    c = drag_gain(np.sqrt(ux * ux + uz * uz), r, eta, p[I_RHO_F], wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0]))
-    out[1, 0] = -c * ux
-    out[1, 1] = -c * uz
-    out[2, 0] = 0.0
-    out[2, 1] = p[I_WEIGHT_Z]
+    c = drag_gain(np.sqrt(uu), r, eta, p[I_RHO_F], wall_factor(lam, p[I_ALPHA0], p[I_LAMBDA0]))
+    for i in range(d):
+        out[1, i] = -c * (v[i] - vf[i])
+        out[2, i] = 0.0
+    out[2, d - 1] = p[I_WEIGHT_Z]
     d_near = min(r - s_t, r)
     d_far = min(r - (d_t - s_t), r)
     fc = contact_force_magnitude(d_near, contact_arr[0], contact_arr[1], contact_arr[2], contact_arr[3], p[I_HERTZ_K], p[I_UNLOAD_EXP])
-    out[3, 0] = fc * nx
-    out[3, 1] = fc * nz
     # wall_pair_forces_z's "+" is towards its first wall: here the nearest one, direction -n
     vdw, el, st = wall_pair_forces_z(d_near, d_far, r, p[I_HAMAKER], p[I_VDW_GMIN], p[I_CHARGE], p[I_EPS_EPS0],
                                      p[I_EL_FACTOR], p[I_STERIC_COEF], p[I_BRUSH_L0], p[I_HEAVISIDE])
-    out[4, 0] = -vdw * nx
-    out[4, 1] = -vdw * nz
-    out[5, 0] = -el * nx
-    out[5, 1] = -el * nz
-    out[6, 0] = -st * nx
-    out[6, 1] = -st * nz
-    out[7, 0] = out[0, 0] + out[1, 0] + out[2, 0] + out[3, 0] + out[4, 0] + out[5, 0] + out[6, 0]
-    out[7, 1] = out[0, 1] + out[1, 1] + out[2, 1] + out[3, 1] + out[4, 1] + out[5, 1] + out[6, 1]
+    for i in range(d):
+        out[3, i] = fc * n[i]
+        out[4, i] = -vdw * n[i]
+        out[5, i] = -el * n[i]
+        out[6, i] = -st * n[i]
+        out[7, i] = out[0, i] + out[1, i] + out[2, i] + out[3, i] + out[4, i] + out[5, i] + out[6, i]
 
 
 @numba.njit(cache=True)

@@ -16,7 +16,7 @@ Geometry and flow at a point (:func:`geometry3d`), from the tree's samples
   point moved towards the centreline by ``(D / 2 - s) (1 - 1 / (1 + eps))`` along ``n`` (the field dilates
   with the vessel), times ``V_f`` and the pulse (12); the viscosity (Pries at the node's diameter) at the point.
 
-Forces: :func:`~vesselbot_ros.physics.kernel3d.forces3d_into` (the planar network's terms on 3-vectors).
+Forces: :func:`~vesselbot_ros.physics.kernel.wall_forces_into` on three axes (the planar network's terms).
 The contact state advances after every accepted step with ``delta = r - s_t``.
 
 Arguments that describe the tree: ``W``, the wall lookup's nine arrays (``wall_field3d(x, y, z, *W)``), ``F``
@@ -31,8 +31,17 @@ import numba
 import numpy as np
 
 from vesselbot_ros.physics.blood_flow import pulse_factor
-from vesselbot_ros.physics.kernel import I_A_F, I_D_PULSE, I_MASS, I_OMEGA_F, I_PHI_F, I_R, I_V_F, update_contact
-from vesselbot_ros.physics.kernel3d import forces3d_into
+from vesselbot_ros.physics.kernel import (
+    I_A_F,
+    I_D_PULSE,
+    I_MASS,
+    I_OMEGA_F,
+    I_PHI_F,
+    I_R,
+    I_V_F,
+    update_contact,
+    wall_forces_into,
+)
 from vesselbot_ros.physics.wall_field3d import corner_weight, wall_field3d
 
 __all__ = ["geometry3d", "forces3d_at", "rhs3d_into", "contact3d_update", "FLOW_CHANNELS"]
@@ -106,26 +115,17 @@ def geometry3d(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numb
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def forces3d_at(t, y, g, contact, p, W, F, fh, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def forces3d_at(t, y, g, contact, p, W, F, fh, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fill ``fbuf`` (8, 3) with the force terms (N) on the bead of state ``y`` (6,) under the gradient ``g`` (3,);
-    returns ``s_t`` (m).  ``sc`` (4, 3) is scratch (velocity, -, normal, blood velocity)."""
+    returns ``(s_t, n_z)``: the signed distance (m) and the vertical component of the nearest wall's inward normal."""
     s_t, n0, n1, n2, d_t, eta, v0, v1, v2 = geometry3d(t, y[0], y[1], y[2], p, W, F, fh)
-    sc[0, 0] = y[3]
-    sc[0, 1] = y[4]
-    sc[0, 2] = y[5]
-    sc[2, 0] = n0
-    sc[2, 1] = n1
-    sc[2, 2] = n2
-    sc[3, 0] = v0
-    sc[3, 1] = v1
-    sc[3, 2] = v2
-    forces3d_into(sc[0], g, s_t, sc[2], d_t, eta, sc[3], contact, p, fbuf)
-    return s_t
+    wall_forces_into((y[3], y[4], y[5]), g, s_t, (n0, n1, n2), d_t, eta, (v0, v1, v2), contact, p, fbuf)
+    return s_t, n2
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def rhs3d_into(t, y, g, u, contact, p, W, F, fh, out, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, p, W, F, fh, fbuf, sc)
+def rhs3d_into(t, y, g, u, contact, p, W, F, fh, out, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    forces3d_at(t, y, g, contact, p, W, F, fh, fbuf)
     m = p[I_MASS]
     out[0] = y[3]
     out[1] = y[4]

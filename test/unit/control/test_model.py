@@ -29,7 +29,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
     f = m.F(0.1, x, z)
     _w, fbuf, sc = new_workspace(3)
     k = m.packed
-    forces3d_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf, sc)
+    forces3d_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf)
     assert np.array_equal(f, fbuf[7] / m.p[I_MASS])
     assert not np.array_equal(m.F(0.1, x, z, 1.2), f)  # the flow scale reaches the blood velocity
     b = input_matrix(planar_twin(scenario.model_physics()))[0, 0]

@@ -120,7 +120,7 @@ def test_a_bead_settles_at_its_terminal_velocity_in_still_blood(tube) -> None:  
         code, h = integrate(k * 1e-3, (k + 1) * 1e-3, y, np.zeros(3), np.zeros(3), np.zeros(4), (p, W, F0, fh), h, ig,
                                  stats, work, fbuf, sc)
         assert code == OK
-    p3.forces3d_at(5e-3, y, np.zeros(3), np.zeros(4), p, W, F0, fh, fbuf, sc)
+    p3.forces3d_at(5e-3, y, np.zeros(3), np.zeros(4), p, W, F0, fh, fbuf)
     assert y[5] < 0.0 and abs(fbuf[7, 2]) < 1e-3 * abs(fbuf[2, 2])  # the weight balanced by the drag
     assert abs(y[3]) < 1e-3 * abs(y[5]) and abs(y[4]) < 1e-3 * abs(y[5])  # still blood, a vertical weight: falls straight
 
