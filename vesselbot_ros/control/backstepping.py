@@ -41,8 +41,8 @@ from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step, model_f_into
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, params_of, with_params
-from vesselbot_ros.physics.kernel import I_NET_ON, I_R, diameter_at, flow_scaled_into
+from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, params_of, rests_on_lower_wall, with_params
+from vesselbot_ros.physics.kernel import flow_scaled_into
 
 __all__ = [
     "BacksteppingGains",
@@ -59,7 +59,6 @@ __all__ = [
     "STATUS_NONFINITE",
     "FLOW_SCALE_INVALID",
     "flow_scale_message",
-    "rests_on_lower_wall",
 ]
 
 
@@ -118,9 +117,11 @@ class ControllerParams:
             asks for (then saturated as usual).
         wall_contact: ``model``: (24) as printed, cancelling every force of
             the model at the estimate, the walls' included.  ``carried``: where
-            the reference rests on the straight vessel's lower wall (at or
-            below the height where the bead touches it), the vertical command
-            is dropped: the weight holds the bead on the wall and the wall
+            the reference rests on a wall below it (a bead there would touch
+            the nearest wall, whose inward normal points up: the straight
+            vessel's lower wall, a network's or a tree's floor; the model's
+            wall decides, :func:`~vesselbot_ros.physics.integrator.rests_on_lower_wall`),
+            the vertical command is dropped: the weight holds the bead on the wall and the wall
             carries any push into it, so the whole coil goes to the axial
             command (a plan that rides the wall, ``vesselbot plan``).  As
             printed, (24) cancels the weight (and the contact force at an
@@ -254,14 +255,6 @@ def _scaled_model(geom, p_s, flow_scale):  # type: ignore[no-untyped-def]  # num
 
 
 @numba.njit(cache=True, nogil=True)
-def rests_on_lower_wall(t, pz, p):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
-    """Whether a reference at height ``pz`` (m) rests on the straight vessel's lower wall at ``t``: what
-    ``wall_contact: carried`` asks before it leaves the vertical to the weight and the wall (law (24), the
-    predictive controller)."""
-    return pz <= p[I_R] - 0.5 * diameter_at(t, p)
-
-
-@numba.njit(cache=True, nogil=True)
 def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) with ``F`` of the model ``gq``, mapped by ``B^-1`` and the duty compensation: ``out`` = [g (d), U (d)]."""
     d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
@@ -291,8 +284,8 @@ def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type:
         forces_at(t, y, g0, free, gq, fbuf, sc)
         for i in range(d):
             out[d + i] = ar[i] + s * vr[i] + c * pr[i] - c * est[i] - s * est[d + i] - fbuf[7, i] / m
-    if prm[7] > 0.5 and rests_on_lower_wall(t, pr[d - 1], params_of(geom)):
-        out[2 * d - 1] = 0.0  # the reference rests on the lower wall: the weight and the wall hold the bead there
+    if prm[7] > 0.5 and rests_on_lower_wall(t, pr, geom):
+        out[2 * d - 1] = 0.0  # the reference rests on a wall below: the weight and the wall hold the bead there
     for i in range(d):
         b = PRM_B_INV + i * d
         acc = prm[b] * out[d]
@@ -476,10 +469,9 @@ class BacksteppingController:
         self.model_params: npt.NDArray[np.float64] | None = model_p if own else None
         self.model_geom: Any = owner.geom if own else None
         self.params_vector = controller_params(params, b_inv, self._half, self._inv_duty)
-        if params.wall_contact == "carried" and (self.model_params is None or d != 2
-                                                 or self.model_params[I_NET_ON] > 0.5):
-            raise ConfigError("controller.wall_contact 'carried' needs the model's F of a straight vessel "
-                              "(physics.vessel.network empty)")
+        if params.wall_contact == "carried" and self.model_params is None:
+            raise ConfigError("controller.wall_contact 'carried' needs the model's F (a DynamicsModel): it asks the "
+                              "model's wall where the reference rests")
         n_p = self.model_params.shape[0] if self.model_params is not None else 0
         self._work = np.zeros(law_work_size(n_p, d))
         self._est = np.zeros(2 * d + 2)

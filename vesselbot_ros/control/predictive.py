@@ -62,11 +62,18 @@ from vesselbot_ros.control.backstepping import (
     STATUS_STALE,
     ControlCommand,
     flow_scale_message,
-    rests_on_lower_wall,
 )
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, onto_lumen_at, params_of, with_params
+from vesselbot_ros.physics.integrator import (
+    axes_of,
+    forces_at,
+    mass_of,
+    onto_lumen_at,
+    params_of,
+    rests_on_lower_wall,
+    with_params,
+)
 from vesselbot_ros.physics.kernel import flow_scaled_into
 from vesselbot_ros.scanner.actuator_limits import CoilLimits, coil_params, new_coil_state
 from vesselbot_ros.scanner.sequence import SequenceParams, cycle_at, phase_code, sequence_vector
@@ -99,8 +106,8 @@ class PredictiveParams:
             starts from that velocity.
         stale_timeout_s: Estimate age beyond which the controller commands zero (s).
         wall_contact: ``none``: the plan shapes both gradient components
-            everywhere.  ``carried``: where the reference rests on the lower
-            wall (as law (24)'s option of that name decides it), the plan's
+            everywhere.  ``carried``: where the reference rests on a wall
+            below it (as law (24)'s option of that name decides it), the plan's
             vertical gradient is held at zero and only the axial one is
             planned: the weight and the wall hold the bead there, and a
             vertical push only lifts it off the wall (``vesselbot plan`` sets it
@@ -312,8 +319,8 @@ def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, 
     x = work[off_x:off_x + m]
     sat = prm[_P_SAT]
     step = prm[_P_H]
-    # wall_contact carried and the reference on the lower wall: the vertical components stay zero
-    pinned = prm[_P_WALL] > 0.5 and rests_on_lower_wall(t, pr[d - 1], params_of(geom))
+    # wall_contact carried and the reference on a wall below: the vertical components stay zero
+    pinned = prm[_P_WALL] > 0.5 and rests_on_lower_wall(t, pr, geom)
     if pinned:
         for j in range(n):
             plan[d * j + d - 1] = 0.0

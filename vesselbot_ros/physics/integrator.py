@@ -49,6 +49,7 @@ from vesselbot_ros.physics.kernel import (
     I_MASS,
     I_NET_ON,
     I_R,
+    diameter_at,
     forces_into,
     forces_tc,
     onto_lumen,
@@ -73,6 +74,7 @@ __all__ = [
     "forces_memo",
     "wall_press",
     "onto_lumen_at",
+    "rests_on_lower_wall",
     "params_of",
     "mass_of",
     "with_params",
@@ -381,6 +383,32 @@ def _tree_onto(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel
 @overload(onto_lumen_at, jit_options={"nogil": True})
 def _onto_lumen_at(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_onto if isinstance(geom, types.Array) else _tree_onto
+
+
+def rests_on_lower_wall(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether a bead centred at ``x`` (d,) at ``t`` rests on a wall below it: in contact with the nearest wall (its
+    centre within a radius of it) whose inward normal points up.  What ``wall_contact: carried`` asks before it
+    leaves the vertical to the weight and the wall (compiled code only)."""
+    raise NotImplementedError("rests_on_lower_wall runs in compiled code only")
+
+
+def _planar_rests(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if geom[I_NET_ON] > 0.5:  # a planar network: the meshed wall nearest (x, z)
+        delta, wall = wall_delta_xz(t, x[0], x[1], geom)
+        return delta >= 0.0 and wall < 0.0
+    # the straight vessel: its lower wall at -D(t)/2 (the printed comparison, kept for its bits)
+    return x[1] <= geom[I_R] - 0.5 * diameter_at(t, geom)
+
+
+def _tree_rests(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    p = geom[0]
+    s_t, _n0, _n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, x[0], x[1], x[2], p, geom[1], geom[2], geom[3])
+    return p[I_R] - s_t >= 0.0 and n2 > 0.0
+
+
+@overload(rests_on_lower_wall, jit_options={"nogil": True})
+def _rests_on_lower_wall(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_rests if isinstance(geom, types.Array) else _tree_rests
 
 
 def params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time

@@ -167,8 +167,34 @@ def test_carried_wall_contact_drops_the_vertical_command_where_the_reference_res
         a, c = printed.command_arrays(*args), carried.command_arrays(*args)
         assert c.u_m_per_s2[0] == a.u_m_per_s2[0]
         assert (c.u_m_per_s2[1] == 0.0) if dropped else (c.u_m_per_s2[1] == a.u_m_per_s2[1])
-    with pytest.raises(ConfigError, match="straight vessel"):
-        net = PhysicsParams(vessel=VesselParams(network="paper_iiic_artery"))
-        BacksteppingController(ControllerParams(wall_contact="carried"), DynamicsModel(net).F, input_matrix(net))
-    with pytest.raises(ConfigError, match="straight vessel"):  # a user's F: the law cannot see the wall
+    with pytest.raises(ConfigError, match="needs the model's F"):  # a user's F: the law cannot see the wall
         BacksteppingController(ControllerParams(wall_contact="carried"), lambda t, x, z, s=1.0: np.zeros(2), b)
+    assert VesselParams  # (the network and tree cases: the next test)
+
+
+@pytest.mark.parametrize("network", ["straight_table3", "paper_iiic_artery_3d", "carotid_bifurcation_3d"])
+def test_carried_wall_contact_finds_the_floor_of_a_network_and_of_a_3d_tree(network: str) -> None:
+    """In a planar network and a 3-D tree the model's meshed wall says where the reference rests on a wall below
+    it: on the floor the vertical command is dropped, at the centre and under the roof the law is (24) as printed."""
+    from vesselbot_ros.control.model import DynamicsModel
+    from vesselbot_ros.physics.params import VesselParams
+
+    ph = PhysicsParams(vessel=VesselParams(network=network))
+    model = DynamicsModel(ph)
+    d, r = model.dims, ph.robot.radius_m
+    printed = BacksteppingController(ControllerParams(), model.F, model.input_matrix)
+    carried = BacksteppingController(ControllerParams(wall_contact="carried"), model.F, model.input_matrix)
+    # the inlet branch, along x at y = z = 0: (radius, an x on it)
+    radius, x0 = (4.0e-3, -20e-3) if network.startswith("carotid") else (1.5e-3, 0.0)
+    t = 0.3
+
+    def at(z: float) -> np.ndarray:
+        return np.array([x0, z] if d == 2 else [x0, 0.0, z])
+
+    x_hat, z_hat = at(0.0), np.zeros(d)
+    z_hat[0] = 2e-3
+    for z_ref, dropped in ((-(radius - 0.5 * r), True), (0.0, False), (radius - 0.5 * r, False)):
+        args = (t, x_hat, z_hat, 0.0, at(z_ref), np.eye(d)[0] * 4.5e-3, np.zeros(d))
+        a, c = printed.command_arrays(*args), carried.command_arrays(*args)
+        assert np.array_equal(c.u_m_per_s2[:-1], a.u_m_per_s2[:-1])
+        assert (c.u_m_per_s2[-1] == 0.0 != a.u_m_per_s2[-1]) if dropped else (c.u_m_per_s2[-1] == a.u_m_per_s2[-1])
