@@ -14,7 +14,9 @@ which is how the paper "rescales the reference velocity along this path":
 * ``flow_synchronised``: ``dx_ref/dt = c * v_f(t, P(u))`` where ``v_f`` is the
   axial blood velocity at the reference point and ``c = sync_ratio``: the
   reference drifts with the blood, which Section III-A2 recommends where
-  ``F_m/F_tot < 1``.  The ODE is integrated once on a 2 ms grid by the
+  ``F_m/F_tot < 1``.  ``sync_along: path`` reads it along the path for a route
+  that turns (a network, a tree): ``du/dt = c (v_f . P'(u)) / |P'(u)|^2``, the
+  blood's speed along the path's tangent (``x``, the default, is the printed form).  The ODE is integrated once on a 2 ms grid by the
   classical fourth-order Runge-Kutta method (scipy's RK45 computes its stages
   with BLAS ``gemv``, whose rounding depends on the CPU's kernel) and ``u(t)``
   is interpolated by FITPACK's not-a-knot cubic spline, so it is C2 too;
@@ -61,7 +63,8 @@ __all__ = [
     "wall_shift_of",
 ]
 
-FlowVelocityFn = Callable[[float, npt.NDArray[np.float64]], float]
+#: ``(t, point (d,)) -> blood velocity (d,)`` (m/s) at the point.
+FlowVelocityFn = Callable[[float, npt.NDArray[np.float64]], npt.NDArray[np.float64]]
 #: ``t (n,) -> (h, dh/dt, d2h/dt2)``: how far the straight vessel's lower wall moved down, ``(D(t) - D) / 2`` (m).
 WallShiftFn = Callable[[npt.NDArray[np.float64]], tuple[npt.NDArray[np.float64], ...]]
 
@@ -102,6 +105,9 @@ class ReferenceParams:
         start_s: Time at which the reference leaves the first anchor (s).
         timing: ``constant``, ``rest_to_rest``, ``flow_synchronised`` or ``planned``.
         sync_ratio: ``c`` in ``dx_ref/dt = c v_f`` (flow_synchronised only).
+        sync_along: ``x``: the printed ``dx_ref/dt = c v_fx`` (the path must be monotonic
+            in x); ``path``: the blood's speed along the path's tangent drives the path
+            parameter, ``du/dt = c (v_f . P') / |P'|^2`` (any route).
         planned_t_s: ``planned`` timing: times from ``start_s`` (s), from 0 to ``duration_s``, increasing.
         planned_u_m: ``planned`` timing: the path parameter at those times (m), from 0 to the path's length.
         wall_follow: Per anchor, the share of the lower wall's pulsation the
@@ -141,6 +147,7 @@ class ReferenceParams:
     anchors_y_m: tuple[float, ...] = dataclasses.field(default=(), metadata={OMIT_IF: lambda v: not v})
     route_end: Literal["spaced", "at_margin"] = dataclasses.field(default="spaced",
                                                                   metadata={OMIT_IF: lambda v: v == "spaced"})
+    sync_along: Literal["x", "path"] = dataclasses.field(default="x", metadata={OMIT_IF: lambda v: v == "x"})
 
     def __post_init__(self) -> None:
         if len(self.anchors_x_m) < 2:
@@ -183,6 +190,7 @@ class ReferenceParams:
         check_nonnegative("route_end_margin_m", self.route_end_margin_m)
         check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
         check_choice("route_end", self.route_end, ("spaced", "at_margin"))
+        check_choice("sync_along", self.sync_along, ("x", "path"))
 
     def anchor_points(self) -> npt.NDArray[np.float64]:
         """(n, 2) anchors (x, z) in the plane, or (n, 3) (x, y, z) with ``anchors_y_m`` (m)."""
@@ -236,7 +244,7 @@ class ReferenceTrajectory:
 
     Args:
         params: Anchors and timing.
-        flow_velocity_x: ``v_f(t_s, p_W) -> m/s``, axial blood velocity at a
+        flow_velocity: ``v_f(t_s, p_W) -> (d,) m/s``, the blood velocity at a
             point; required for ``timing == "flow_synchronised"``.
         wall_shift: The lower wall's displacement (:func:`lower_wall_shift`);
             required when a ``wall_follow`` weight is not 0.
@@ -247,7 +255,7 @@ class ReferenceTrajectory:
             does not end at the path's end.
     """
 
-    def __init__(self, params: ReferenceParams, flow_velocity_x: FlowVelocityFn | None = None,
+    def __init__(self, params: ReferenceParams, flow_velocity: FlowVelocityFn | None = None,
                  wall_shift: WallShiftFn | None = None) -> None:
         self.params = params
         pts = params.anchor_points()
@@ -262,9 +270,9 @@ class ReferenceTrajectory:
         self._T = float(params.duration_s)
         self._timing_spline: BSpline | None = None
         if params.timing == "flow_synchronised":
-            if flow_velocity_x is None:
+            if flow_velocity is None:
                 raise ConfigError("reference.timing 'flow_synchronised' needs the blood-flow velocity function")
-            self._timing_spline = self._synchronised_timing(flow_velocity_x)
+            self._timing_spline = self._synchronised_timing(flow_velocity)
         elif params.timing == "planned":
             u_end = params.planned_u_m[-1]
             if abs(u_end - self.length_m) > 1e-9 * max(self.length_m, 1e-3):
@@ -282,13 +290,20 @@ class ReferenceTrajectory:
         c = self.params.sync_ratio
         U = self.length_m
 
+        along_path = self.params.sync_along == "path"
+
         def rhs(t: float, u: float) -> float:
             u = min(max(u, 0.0), U)
             p = self._path(u)
-            dx_du = float(self._d1(u)[0])
-            if abs(dx_du) < 1e-9:
-                raise ConfigError("flow_synchronised timing needs a path monotonic in x (dx/du = 0 found)")
-            du = c * vf(self._t0 + t, p) / dx_du
+            d1 = [float(v) for v in self._d1(u)]
+            flow = vf(self._t0 + t, p)
+            if along_path:  # Python floats, not a BLAS dot: the same doubles on every CPU
+                du = c * sum(float(f) * g for f, g in zip(flow, d1)) / sum(g * g for g in d1)
+            else:
+                if abs(d1[0]) < 1e-9:
+                    raise ConfigError("flow_synchronised timing needs a path monotonic in x (dx/du = 0 found; "
+                                      "reference.sync_along 'path' follows any route)")
+                du = c * float(flow[0]) / d1[0]
             if (u <= 0.0 and du < 0.0) or (u >= U and du > 0.0):
                 du = 0.0
             if not math.isfinite(du):

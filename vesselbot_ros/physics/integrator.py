@@ -50,6 +50,7 @@ from vesselbot_ros.physics.kernel import (
     I_NET_ON,
     I_R,
     diameter_at,
+    fluid_velocity_xz,
     forces_into,
     forces_tc,
     onto_lumen,
@@ -75,6 +76,8 @@ __all__ = [
     "wall_press",
     "onto_lumen_at",
     "rests_on_lower_wall",
+    "blood_velocity_into",
+    "blood_velocity",
     "params_of",
     "mass_of",
     "with_params",
@@ -409,6 +412,38 @@ def _tree_rests(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: ar
 @overload(rests_on_lower_wall, jit_options={"nogil": True})
 def _rests_on_lower_wall(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_rests if isinstance(geom, types.Array) else _tree_rests
+
+
+def blood_velocity_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out`` (d,) = the blood velocity (m/s) at the point ``x`` (d,) at ``t`` in ``geom`` (compiled code only)."""
+    raise NotImplementedError("blood_velocity_into runs in compiled code only")
+
+
+def _planar_blood(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    vx, vz = fluid_velocity_xz(t, x[0], x[1], geom)
+    out[0] = vx
+    out[1] = vz
+
+
+def _tree_blood(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    r = geometry3d(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    out[0] = r[6]
+    out[1] = r[7]
+    out[2] = r[8]
+
+
+@overload(blood_velocity_into, jit_options={"nogil": True})
+def _blood_velocity_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_blood if isinstance(geom, types.Array) else _tree_blood
+
+
+@numba.njit(cache=True, nogil=True)
+def blood_velocity(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The blood velocity (d,) (m/s) at the point ``x`` (d,) at ``t`` in ``geom``: :func:`blood_velocity_into`,
+    callable from Python (the flow-synchronised reference's timing asks it)."""
+    out = np.empty(axes_of(geom))
+    blood_velocity_into(t, x, geom, out)
+    return out
 
 
 def params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time

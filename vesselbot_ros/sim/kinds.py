@@ -72,7 +72,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.physics.kernel import fluid_velocity_x
+from vesselbot_ros.physics.integrator import blood_velocity
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.scanner.hardware import effective_coil_limits
@@ -80,7 +80,7 @@ from vesselbot_ros.scanner.imager_model import ImagerModel, ImagerParams, Measur
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
-from vesselbot_ros.vessels.cfd import packed_params
+from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
@@ -602,15 +602,13 @@ def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver:
 
 
 def _reference(ctx: BuildContext) -> ReferenceTrajectory:
-    if ctx.scenario.dims == 3:  # no flow-synchronised timing nor wall following in a tree (the scenario checks)
-        return ReferenceTrajectory(planned_reference(ctx.scenario))
     phys = ctx.get("model_physics")
-    p_model = packed_params(phys)
+    geom = vessel_geom(*packed_vessel(phys, ctx.scenario.dims))  # the model's vessel: what the controller believes
 
-    def flow_x(t: float, p: npt.NDArray[np.float64]) -> float:
-        return float(fluid_velocity_x(t, float(p[0]), float(p[1]), p_model))
+    def flow(t: float, p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        return np.asarray(blood_velocity(t, np.ascontiguousarray(p, dtype=np.float64), geom))
 
-    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity_x=flow_x, wall_shift=wall_shift_of(phys))
+    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity=flow, wall_shift=wall_shift_of(phys))
 
 
 def _controller(ctx: BuildContext) -> BacksteppingController:

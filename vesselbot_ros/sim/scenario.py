@@ -312,8 +312,6 @@ class Scenario:
     def _check_3d(self, bspline: bool) -> None:
         """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
         missing = []
-        if bspline and self.reference.timing == "flow_synchronised":
-            missing.append("reference.timing 'flow_synchronised' yet")
         if bspline and any(self.reference.wall_follow):
             missing.append("reference.wall_follow yet")
         if missing:

@@ -78,14 +78,14 @@ def test_sample_equals_sample_many() -> None:
 
 
 def test_flow_synchronised_velocity_follows_flow() -> None:
-    def vf(t: float, p: np.ndarray) -> float:
-        return 0.01 * (1.0 + 0.5 * math.sin(2 * math.pi * t))
+    def vf(t: float, p: np.ndarray) -> np.ndarray:
+        return np.array([0.01 * (1.0 + 0.5 * math.sin(2 * math.pi * t)), 0.0])
 
     prm = ReferenceParams(anchors_x_m=(0.0, 0.02, 0.04, 0.06), anchors_z_m=(0.0, 0.0, 0.0, 0.0),
                           duration_s=2.0, timing="flow_synchronised", sync_ratio=0.5)
-    ref = ReferenceTrajectory(prm, flow_velocity_x=vf)
+    ref = ReferenceTrajectory(prm, flow_velocity=vf)
     for t in (0.1, 0.6, 1.4):
-        assert ref.sample(t).v[0] == pytest.approx(0.5 * vf(t, np.zeros(2)), rel=1e-4)
+        assert ref.sample(t).v[0] == pytest.approx(0.5 * vf(t, np.zeros(2))[0], rel=1e-4)
     # x_ref(t) = 0.005 (t + (1 - cos 2 pi t) / (4 pi))  (hand-integrated)
     t = 1.3
     assert ref.sample(t).p[0] == pytest.approx(0.005 * (t + (1 - math.cos(2 * math.pi * t)) / (4 * math.pi)), rel=1e-5)
@@ -269,3 +269,28 @@ def test_the_anchor_bound_is_the_resource_check_s_estimate(monkeypatch: pytest.M
     with pytest.raises(ConfigError, match=r"^anchors_x_m=20000 points: the reference's B-spline set-up needs about "
                                           r"41\.7 GiB of memory, more than the 8\.0 GiB"):
         ReferenceParams(anchors_x_m=tuple(np.linspace(0.0, 9e-3, 20000)), anchors_z_m=(0.0,) * 20000)
+
+
+def test_flow_synchronised_along_the_path_drifts_with_the_blood_along_a_route_that_turns() -> None:
+    """``sync_along: path`` on a route that climbs and turns back in 3-D (dx/du changes sign on the way, where the
+    printed ``x`` reading divides by it): the reference's speed along the path is c times the blood's along the
+    tangent."""
+    ys, zs = (0.0, 2e-3, 4e-3, 4e-3, 2e-3), (0.0, 1e-3, 4e-3, 8e-3, 10e-3)
+    kw = dict(anchors_x_m=(0.0, 3e-3, 5e-3, 3e-3, 0.0), anchors_y_m=ys, anchors_z_m=zs, duration_s=1.0,
+              timing="flow_synchronised", sync_ratio=0.8)
+    flow = np.array([0.004, 0.003, 0.012])
+
+    def vf(t: float, p: np.ndarray) -> np.ndarray:
+        return flow * (1.0 + 0.3 * math.sin(2 * math.pi * t))
+
+    ref = ReferenceTrajectory(ReferenceParams(**kw, sync_along="path"), flow_velocity=vf)
+    for t in (0.1, 0.35, 0.7):
+        s = ref.sample(t)
+        u = ref.parameter_at(t)[0]
+        tangent = np.asarray(ref._d1(u))
+        tangent /= np.linalg.norm(tangent)
+        assert np.linalg.norm(s.v) > 0.0
+        assert s.v @ tangent == pytest.approx(0.8 * vf(t, s.p) @ tangent, rel=1e-3)
+    assert ReferenceParams(**kw, sync_along="path").sync_along == "path"
+    with pytest.raises(ConfigError, match="sync_along"):
+        ReferenceParams(**kw, sync_along="y")

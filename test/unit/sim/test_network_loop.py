@@ -86,8 +86,10 @@ def test_a_scenario_refuses_a_reference_path_in_three_dimensions_in_a_planar_ves
 
 @pytest.mark.parametrize(("name", "sets"), [
     ("paper_iiic_network_lower", ["controller.wall_contact=carried"]),
-    ("carotid_bifurcation_3d_eca", ["controller.wall_contact=carried", "controller.kind=predictive"])])
-def test_carried_wall_contact_runs_in_a_network_and_a_3d_tree_compiled_as_per_tick(name: str, sets: list[str]) -> None:
+    ("carotid_bifurcation_3d_eca", ["controller.wall_contact=carried", "controller.kind=predictive"]),
+    ("paper_iiic_network_upper_3d", ["reference.timing=flow_synchronised", "reference.sync_along=path"]),
+    ("paper_iiic_network_lower", ["reference.timing=flow_synchronised", "reference.sync_along=path"])])
+def test_carried_contact_and_flow_synchronised_timing_run_in_networks_and_3d_trees_compiled_as_per_tick(name: str, sets: list[str]) -> None:
     sc = load_scenario(shipped_scenarios()[name], sets=["sim.duration_s=0.3", *sets])
     a, b = run_closed_loop(sc, 0), run_closed_loop(sc, 0, path="per_tick")
     assert a.path == "compiled" and a.metrics["status"] == "ok"
@@ -96,7 +98,7 @@ def test_carried_wall_contact_runs_in_a_network_and_a_3d_tree_compiled_as_per_ti
 
 
 @pytest.mark.parametrize(("key", "value", "what"), [
-    ("reference.timing", "flow_synchronised", "reference.timing 'flow_synchronised'")])
+    ("reference.wall_follow", "[1.0, 1.0, 1.0, 1.0]", "reference.wall_follow")])
 def test_a_3d_tree_refuses_what_its_loop_has_not_yet_in_one_line(key: str, value: str, what: str) -> None:
     from vesselbot_ros.config import ConfigError
 
