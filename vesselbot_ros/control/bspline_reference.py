@@ -28,6 +28,9 @@ which is how the paper "rescales the reference velocity along this path":
 the lower wall of the pulsating straight vessel: the point moves down by
 ``m(u) (D(t) - D) / 2`` where ``m`` blends the anchors' weights by the quintic
 smoothstep between consecutive anchors (C2, never outside the two weights).
+In a network or a tree the wall nearest the path moves by ``-eps(t) D n / 2``
+(``D`` its local diameter, ``n`` its inward normal, :class:`WallMotion`), and the
+point moves by ``m(u)`` times that: the same rule, on the meshed wall.
 With weight 1 and the anchor at ``z = -(D/2 - r - gap)`` the reference rests
 on the wall at every phase, where the wall carries the bead's weight.
 
@@ -60,11 +63,23 @@ __all__ = [
     "ReferenceTrajectory",
     "propose_anchors",
     "lower_wall_shift",
+    "WallMotion",
     "wall_shift_of",
 ]
 
 #: ``(t, point (d,)) -> blood velocity (d,)`` (m/s) at the point.
 FlowVelocityFn = Callable[[float, npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+class WallMotion(NamedTuple):
+    """How the wall nearest a path moves with the eq. (13) pulsation ``eps(t) = A sin(w t + phi)``: by
+    ``-eps(t) offset(p)`` at the path's point ``p``, ``offset`` giving ``D n / 2`` of that wall at each of
+    (n, d) points (a network's or a tree's meshed wall, :func:`~vesselbot_ros.physics.integrator.wall_offsets`)."""
+
+    offset: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+    pulsation: float
+    omega_rad_per_s: float
+    phase_rad: float
+
+
 #: ``t (n,) -> (h, dh/dt, d2h/dt2)``: how far the straight vessel's lower wall moved down, ``(D(t) - D) / 2`` (m).
 WallShiftFn = Callable[[npt.NDArray[np.float64]], tuple[npt.NDArray[np.float64], ...]]
 
@@ -246,8 +261,10 @@ class ReferenceTrajectory:
         params: Anchors and timing.
         flow_velocity: ``v_f(t_s, p_W) -> (d,) m/s``, the blood velocity at a
             point; required for ``timing == "flow_synchronised"``.
-        wall_shift: The lower wall's displacement (:func:`lower_wall_shift`);
-            required when a ``wall_follow`` weight is not 0.
+        wall_shift: The straight vessel's lower wall displacement (:func:`lower_wall_shift`);
+            it or ``wall_motion`` is required when a ``wall_follow`` weight is not 0.
+        wall_motion: How the meshed wall of a network or a tree moves (:class:`WallMotion`), used
+            when ``wall_shift`` is not given.
 
     Raises:
         ConfigError: if ``flow_synchronised`` is asked without a flow function, a
@@ -256,7 +273,7 @@ class ReferenceTrajectory:
     """
 
     def __init__(self, params: ReferenceParams, flow_velocity: FlowVelocityFn | None = None,
-                 wall_shift: WallShiftFn | None = None) -> None:
+                 wall_shift: WallShiftFn | None = None, wall_motion: WallMotion | None = None) -> None:
         self.params = params
         pts = params.anchor_points()
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -281,10 +298,18 @@ class ReferenceTrajectory:
             self._timing_spline = interp_spline_fitpack(np.asarray(params.planned_t_s, dtype=np.float64),
                                                         np.asarray(params.planned_u_m, dtype=np.float64))
         self._follow = np.asarray(params.wall_follow, dtype=np.float64) if any(params.wall_follow) else None
-        if self._follow is not None and wall_shift is None:
-            raise ConfigError("reference.wall_follow needs a straight vessel whose wall pulsates "
-                              "(physics.vessel.network must be empty)")
+        if self._follow is not None and wall_shift is None and wall_motion is None:
+            raise ConfigError("reference.wall_follow needs the wall's motion: a straight vessel's lower wall "
+                              "(wall_shift) or a network's meshed wall (wall_motion)")
         self._wall_shift = wall_shift
+        self._motion = wall_motion if self._follow is not None and wall_shift is None else None
+        self._offset: list[BSpline] = []
+        if self._motion is not None:
+            # D n / 2 of the wall nearest the path, every 0.1 mm of it, as C2 splines in u (FITPACK: no BLAS)
+            n = int(min(4000, max(16, math.ceil(self.length_m / 1e-4) + 1)))
+            us = np.linspace(0.0, self.length_m, n)
+            w = np.asarray(self._motion.offset(np.ascontiguousarray(self._path(us))), dtype=np.float64)
+            self._offset = [interp_spline_fitpack(us, np.ascontiguousarray(w[:, j])) for j in range(w.shape[1])]
 
     def _synchronised_timing(self, vf: FlowVelocityFn) -> BSpline:
         c = self.params.sync_ratio
@@ -374,7 +399,9 @@ class ReferenceTrajectory:
         d2 = self._d2(u) if self._d2 is not None else np.zeros_like(d1)
         v = d1 * du[:, None]
         a = d2 * (du**2)[:, None] + d1 * ddu[:, None]
-        if self._follow is not None:
+        if self._motion is not None:
+            self._follow_wall(t, u, du, ddu, p, v, a)
+        elif self._follow is not None:
             assert self._wall_shift is not None
             m, m_u, m_uu = self.follow_weight(u)
             h, hd, hdd = self._wall_shift(t)
@@ -382,6 +409,27 @@ class ReferenceTrajectory:
             v[:, -1] -= m_u * du * h + m * hd
             a[:, -1] -= (m_uu * du**2 + m_u * ddu) * h + 2.0 * m_u * du * hd + m * hdd
         return p, v, a
+
+    def _follow_wall(self, t: npt.NDArray[np.float64], u: npt.NDArray[np.float64], du: npt.NDArray[np.float64],
+                     ddu: npt.NDArray[np.float64], p: npt.NDArray[np.float64], v: npt.NDArray[np.float64],
+                     a: npt.NDArray[np.float64]) -> None:
+        """Move ``(p, v, a)`` in place by ``-eps(t) m(u) W(u)`` (``W = D n / 2`` of the nearest meshed wall) and its
+        time derivatives."""
+        assert self._motion is not None
+        m, m_u, m_uu = self.follow_weight(u)
+        w = np.column_stack([s(u) for s in self._offset])
+        w_u = np.column_stack([s(u, 1) for s in self._offset])
+        w_uu = np.column_stack([s(u, 2) for s in self._offset])
+        g = m[:, None] * w
+        g_u = m_u[:, None] * w + m[:, None] * w_u
+        g_uu = m_uu[:, None] * w + 2.0 * m_u[:, None] * w_u + m[:, None] * w_uu
+        amp, om = self._motion.pulsation, self._motion.omega_rad_per_s
+        arg = om * t + self._motion.phase_rad
+        e, e1, e2 = (amp * np.sin(arg))[:, None], (amp * om * np.cos(arg))[:, None], (-amp * om**2 * np.sin(arg))[:, None]
+        du_, ddu_ = du[:, None], ddu[:, None]
+        p -= e * g
+        v -= e1 * g + e * g_u * du_
+        a -= e2 * g + 2.0 * e1 * g_u * du_ + e * (g_uu * du_**2 + g_u * ddu_)
 
     def follow_weight(self, u: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
         """``(m, dm/du, d2m/du2)`` of the wall-follow weight at path parameter ``u`` (zeros without ``wall_follow``)."""

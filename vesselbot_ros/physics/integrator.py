@@ -53,6 +53,7 @@ from vesselbot_ros.physics.kernel import (
     fluid_velocity_xz,
     forces_into,
     forces_tc,
+    network_geometry,
     onto_lumen,
     time_terms_into,
     update_contact,
@@ -78,6 +79,8 @@ __all__ = [
     "rests_on_lower_wall",
     "blood_velocity_into",
     "blood_velocity",
+    "wall_offset_into",
+    "wall_offsets",
     "params_of",
     "mass_of",
     "with_params",
@@ -443,6 +446,47 @@ def blood_velocity(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel:
     callable from Python (the flow-synchronised reference's timing asks it)."""
     out = np.empty(axes_of(geom))
     blood_velocity_into(t, x, geom, out)
+    return out
+
+
+def wall_offset_into(x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out`` (d,) = ``D n / 2`` of the wall nearest the point ``x`` (d,) in ``geom`` at t = 0 (``D`` the local
+    diameter, ``n`` the unit inward normal): the eq. (13) pulsation ``eps`` moves that wall by ``-eps D n / 2``.
+    Pass a geometry whose pulsation is zero for the still wall (compiled code only)."""
+    raise NotImplementedError("wall_offset_into runs in compiled code only")
+
+
+def _planar_offset(x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if geom[I_NET_ON] > 0.5:  # a planar network: its meshed wall
+        _s, nx, nz, d, _eta, _vx, _vz = network_geometry(0.0, x[0], x[1], geom)
+        out[0] = 0.5 * d * nx
+        out[1] = 0.5 * d * nz
+    else:  # the straight vessel: its nearer wall, +-D/2
+        d = diameter_at(0.0, geom)
+        _delta, wall = wall_delta_at(x[1], d, geom)
+        out[0] = 0.0
+        out[1] = -0.5 * d * wall
+
+
+def _tree_offset(x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    _s, n0, n1, n2, d, _eta, _v0, _v1, _v2 = geometry3d(0.0, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    out[0] = 0.5 * d * n0
+    out[1] = 0.5 * d * n1
+    out[2] = 0.5 * d * n2
+
+
+@overload(wall_offset_into, jit_options={"nogil": True})
+def _wall_offset_into(x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_offset if isinstance(geom, types.Array) else _tree_offset
+
+
+@numba.njit(cache=True, nogil=True)
+def wall_offsets(points, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(n, d) :func:`wall_offset_into` at each of the points (n, d), callable from Python (a reference that follows
+    a pulsating wall asks it along its path)."""
+    out = np.empty_like(points)
+    for i in range(points.shape[0]):
+        wall_offset_into(points[i], geom, out[i])
     return out
 
 

@@ -63,7 +63,13 @@ import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
-from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, RefSample, wall_shift_of
+from vesselbot_ros.control.bspline_reference import (
+    ReferenceParams,
+    ReferenceTrajectory,
+    RefSample,
+    WallMotion,
+    wall_shift_of,
+)
 from vesselbot_ros.control.compiled_stage import CompiledController, CompiledObserver
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
@@ -72,7 +78,8 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.physics.integrator import blood_velocity
+from vesselbot_ros.physics.integrator import blood_velocity, wall_offsets
+from vesselbot_ros.physics.kernel import I_D_PULSE, I_OMEGA_F, I_PHI_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
 from vesselbot_ros.scanner.hardware import effective_coil_limits
@@ -603,12 +610,21 @@ def _observer(ctx: BuildContext) -> HighGainObserver | ExtendedKalmanObserver:
 
 def _reference(ctx: BuildContext) -> ReferenceTrajectory:
     phys = ctx.get("model_physics")
-    geom = vessel_geom(*packed_vessel(phys, ctx.scenario.dims))  # the model's vessel: what the controller believes
+    p_model, packed = packed_vessel(phys, ctx.scenario.dims)
+    geom = vessel_geom(p_model, packed)  # the model's vessel: what the controller believes
+    still_p = p_model.copy()
+    still_p[I_D_PULSE] = 0.0
+    still = vessel_geom(still_p, packed)  # its wall at rest
 
     def flow(t: float, p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         return np.asarray(blood_velocity(t, np.ascontiguousarray(p, dtype=np.float64), geom))
 
-    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity=flow, wall_shift=wall_shift_of(phys))
+    def offset(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        return np.asarray(wall_offsets(np.ascontiguousarray(points, dtype=np.float64), still))
+
+    motion = WallMotion(offset, float(p_model[I_D_PULSE]), float(p_model[I_OMEGA_F]), float(p_model[I_PHI_F]))
+    return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity=flow, wall_shift=wall_shift_of(phys),
+                               wall_motion=motion)
 
 
 def _controller(ctx: BuildContext) -> BacksteppingController:

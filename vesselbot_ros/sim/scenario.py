@@ -286,8 +286,6 @@ class Scenario:
             raise ConfigError(f"reference.anchors_y_m: a path in three dimensions needs a 3-D vessel tree "
                               f"(physics.vessel.network giving y_m); this vessel is planar (XZ), "
                               f"got anchors_y_m={list(self.reference.anchors_y_m)}")
-        if d == 3:
-            self._check_3d(bspline)
         if self.physics.vessel.network:
             self._check_network(bspline)
         elif bspline and self.reference.route_outlet:
@@ -308,14 +306,6 @@ class Scenario:
         """3 when ``physics.vessel.network`` is a 3-D tree (its file gives ``y_m``): the loop runs on (x, y, z);
         else 2, the paper's plane (x, z)."""
         return network_dims(self.physics.vessel.network)  # a network that does not load: its check names the cause
-
-    def _check_3d(self, bspline: bool) -> None:
-        """The kinds and options a 3-D tree's loop does not have yet, each refused in one line."""
-        missing = []
-        if bspline and any(self.reference.wall_follow):
-            missing.append("reference.wall_follow yet")
-        if missing:
-            raise ConfigError(f"a 3-D vessel tree ({self.physics.vessel.network}) does not take {missing[0]}")
 
     def _check_network(self, bspline: bool) -> None:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""

@@ -179,7 +179,7 @@ def test_planned_timing_and_wall_follow_bad_input() -> None:
         ReferenceParams(**{**PARAMS.__dict__, "wall_follow": (0.0, 1.5, 0.0, 0.0, 0.0)})
     with pytest.raises(ConfigError, match="one weight per anchor"):
         ReferenceParams(**{**PARAMS.__dict__, "wall_follow": (0.0, 1.0)})
-    with pytest.raises(ConfigError, match="needs a straight vessel"):
+    with pytest.raises(ConfigError, match="needs the wall's motion"):
         ReferenceTrajectory(_planned(wall_follow=(1.0,) * 5))  # no wall displacement given
     short = _planned()
     with pytest.raises(ConfigError, match="must end at the path's length"):

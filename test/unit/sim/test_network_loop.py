@@ -97,17 +97,51 @@ def test_carried_contact_and_flow_synchronised_timing_run_in_networks_and_3d_tre
         assert np.array_equal(a.timeseries[k], b.timeseries[k], equal_nan=True), k
 
 
-@pytest.mark.parametrize(("key", "value", "what"), [
-    ("reference.wall_follow", "[1.0, 1.0, 1.0, 1.0]", "reference.wall_follow")])
-def test_a_3d_tree_refuses_what_its_loop_has_not_yet_in_one_line(key: str, value: str, what: str) -> None:
-    from vesselbot_ros.config import ConfigError
+_FLOOR = ["reference.anchors_x_m=[0.0, 3.0e-3, 6.0e-3, 9.0e-3]", "reference.anchors_z_m=[-1.2e-3, -1.2e-3, -1.2e-3, -1.2e-3]",
+          "reference.wall_follow=[1.0, 1.0, 0.5, 0.0]"]
 
-    sets = [f"{key}={value}"]
-    if key == "sequence.mode":
-        sets += ["imager.frame_rate_Hz=50.0"]
-    with pytest.raises(ConfigError, match=r"does not take " + what.replace("(", r"\(").replace(".", r"\.")) as ei:
-        load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=sets)
-    assert "\n" not in str(ei.value)
+
+def test_wall_follow_in_a_network_moves_as_the_straight_vessels_lower_wall() -> None:
+    """A reference riding the floor of the one-branch network follows its meshed wall's pulsation as the straight
+    vessel's reference follows its analytic lower wall (eq. (13)): the same path within a nanometre, and the same
+    velocity and acceleration."""
+    from vesselbot_ros.sim.closed_loop import build_stages
+
+    base = shipped_scenarios()["sound_small_artery"]
+    ra = build_stages(load_scenario(base, sets=_FLOOR), 0).reference
+    rb = build_stages(load_scenario(base, sets=[*_FLOOR, STRAIGHT]), 0).reference
+    still = build_stages(load_scenario(base, sets=_FLOOR[:2]), 0).reference
+    ts = np.linspace(0.0, 2.0, 81)
+    (pa, va, aa), (pb, vb, ab), (p0, _v0, _a0) = ra.sample_many(ts), rb.sample_many(ts), still.sample_many(ts)
+    assert np.abs(pa - p0).max() > 1e-4  # it moves: up to 150 um (D eps / 2 of a 3 mm vessel at eps = 0.1)
+    np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(vb, va, rtol=0, atol=1e-8 * np.abs(va).max())
+    np.testing.assert_allclose(ab, aa, rtol=0, atol=1e-6 * np.abs(aa).max())
+
+
+def test_wall_follow_in_a_3d_tree_rides_its_floor_and_runs_compiled_as_per_tick() -> None:
+    """In the 3-D III-C tree (the planar network at y = 0) the reference on the trunk's floor moves down with the
+    tube's lower wall, D eps / 2 below its rest path, as in the straight vessel, and stays in the plane y = 0."""
+    from vesselbot_ros.sim.closed_loop import build_stages
+
+    floor = ['reference.route_outlet=""', "reference.anchors_x_m=[-1.5e-3, -0.5e-3, 0.5e-3, 1.5e-3]",
+             "reference.anchors_y_m=[0.0, 0.0, 0.0, 0.0]", "reference.anchors_z_m=[-1.1e-3, -1.1e-3, -1.1e-3, -1.1e-3]",
+             "initial.p0_m=[-1.5e-3, 0.0, -1.1e-3]", "reference.duration_s=1.0", "sim.duration_s=0.3"]
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=[*floor, "reference.wall_follow=[1.0, 1.0, 1.0, 1.0]"])
+    ref = build_stages(sc, 0).reference
+    still = build_stages(load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=floor), 0).reference
+    ts = np.linspace(0.0, 1.0, 41)
+    p, p0 = ref.sample_many(ts)[0], still.sample_many(ts)[0]
+    f = sc.physics.flow
+    eps = f.diameter_pulsation * np.sin(f.angular_frequency_rad_per_s * ts + f.phase_rad)
+    drop = 0.5 * 3.0e-3 * eps  # the trunk: D = 3 mm
+    np.testing.assert_allclose(p[:, 0], p0[:, 0], atol=1e-6)
+    np.testing.assert_allclose(p[:, 1], 0.0, atol=2e-6)
+    np.testing.assert_allclose(p0[:, 2] - p[:, 2], drop, atol=0.02 * 0.5 * 3.0e-3 * f.diameter_pulsation)
+    a, b = run_closed_loop(sc, 0), run_closed_loop(sc, 0, path="per_tick")
+    assert a.path == "compiled"
+    for k in a.timeseries:
+        assert np.array_equal(a.timeseries[k], b.timeseries[k], equal_nan=True), k
 
 
 @pytest.mark.parametrize("name", ["paper_iiic_network_upper_3d", "carotid_bifurcation_3d_eca", "synthetic_tree_3d_deep"])
