@@ -21,7 +21,7 @@ __all__ = ["CandidateTree", "candidate_tree", "centre_distances", "leaves3d", "n
 
 @dataclasses.dataclass(frozen=True)
 class CandidateTree:
-    """Per-cell candidate triangles: a root grid of cubes, each an octree (see the module docstring).
+    """Per-cell candidate triangles: a root grid of cubes, each an octree (see docs/vessels.md).
 
     Attributes:
         grid: (7,) root grid ``(x0, y0, z0, a, nx, ny, nz)``: origin (m), cube side (m), cubes per axis.
@@ -157,7 +157,7 @@ def centre_distances(d, centres, seed):  # type: ignore[no-untyped-def]  # numba
 def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3, max_leaf: int = 8,
                    max_depth: int = 2, min_depth: int = 1, near_m: float = math.inf, deep_leaf_m: float = 0.0,
                    far_out_m: float = math.inf) -> CandidateTree:
-    """The candidate octree of ``surface`` over its bounding box plus ``margin_m`` (see the module docstring).
+    """The candidate octree of ``surface`` over its bounding box plus ``margin_m`` (see docs/vessels.md).
 
     Each node's centre distance s_c (signed, from its seed) bounds its points' s within +-w (w: half-diagonal):
     a node within ``near_m`` of the wall (|s_c| - w <= near_m) is split while its list is longer than

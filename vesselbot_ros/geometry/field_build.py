@@ -198,7 +198,7 @@ def _s_at(x, y, z, head, field):  # type: ignore[no-untyped-def]  # numba kernel
 
 @numba.njit(cache=True, parallel=True)
 def _diameters(pts, q, head, field, d, pbox, pstart, grid, nodes, index, rmax, tol, chunk):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`~vesselbot_ros.physics.meshed_wall3d.ball_diameters3d` in parallel chunks, each ball first sized on the
+    """:func:`~vesselbot_ros.geometry.surface_wall.ball_diameters3d` in parallel chunks, each ball first sized on the
     sampled distances (its largest radius by bisection on the interpolated s, a few um off near the medial
     surface where the ball's centre lies), so the exact queries start 2 % above it and grow by 5 %: most
     balls take two (one that does not fit and the shrink through its nearest wall point), against about six
@@ -494,12 +494,12 @@ def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: flo
 
 
 class WallField3D:
-    """A wall sampled on a regular grid, with its exact query for the flagged cells (see the module docstring).
+    """A wall sampled on a regular grid, with its exact query for the flagged cells (see docs/vessels.md).
 
     Build with :func:`build_wall_field3d`.
 
     Attributes:
-        wall: The exact wall (:class:`~vesselbot_ros.physics.meshed_wall3d.Wall3D`).
+        wall: The exact wall (:class:`~vesselbot_ros.geometry.surface_wall.Wall3D`).
         head: (8,) ``(x0, y0, z0, h, nx, ny, nz, r)``: origin (m), spacing (m), nodes per axis, refinement.
         field: (nx ny nz NODE_STRIDE,) node records, x fastest (float32 or float64); slot 5 of a cell's lowest
             corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``, -2 - m model cell m (its
@@ -589,8 +589,8 @@ def _pruned(wall: Wall3D, head: Array, cells: npt.NDArray[np.int64], max_leaf: i
             max_depth: int) -> tuple[npt.NDArray[Any], ...]:
     """The wall's exact-query arrays kept only in the leaves holding a point of ``cells`` (flat indices of their
     lowest node) or a point outside the grid's cells, those leaves split down to ``max_depth`` (short lists
-    where the lookup asks) (:func:`~vesselbot_ros.physics.meshed_wall3d.split_leaves`,
-    :func:`~vesselbot_ros.physics.meshed_wall3d.pruned_arrays`).  Beyond the grid a leaf wholly outside the
+    where the lookup asks) (:func:`~vesselbot_ros.geometry.candidate_tree.split_leaves`,
+    :func:`~vesselbot_ros.geometry.candidate_tree.pruned_arrays`).  Beyond the grid a leaf wholly outside the
     lumen is sealed: only a bead far outside it goes there."""
     tree = wall.tree
     need, seal, at_cells = _needed(tree, wall, head, cells)
@@ -692,7 +692,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
                        models: int = MODELS, list_max: int = 0, list_lattice: int = 17, list_sub: int = 4,
                        list_split: float = 12.0, progress: ProgressFn | None = None) -> WallField3D:
-    """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
+    """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (docs/vessels.md).
 
     Args:
         wall: The exact wall; its candidate tree must cover the grid.
@@ -713,7 +713,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
             it, as beyond ``band_m`` inside, cells are interpolated whatever the error.
         prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
             lookup carries the wall's whole candidate tree.
-        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (module docstring)
+        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (docs/vessels.md)
             meets the tolerances at its lattice of 125 points is answered by them (for fine walls: on 0.1 mm
             facets the exact normal's facet-scale wiggle between the test points can take a model cell's error
             past 2 deg).
@@ -723,7 +723,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         list_max: An exact cell (or one with exact sub-cells) wholly in the lumen is divided in ``list_sub``^3
             sub-cubes; one whose nearest triangles at the cell's ``list_lattice``^3 lattice points in it and next
             to it are at most this many, and whose scan over them answers as the exact query at the centres of its
-            27 cubes, is answered by that scan (module docstring).  0: none.
+            27 cubes, is answered by that scan (docs/vessels.md).  0: none.
         list_split: ... a cell whose sub-cubes' lists are longer on average is divided in (2 ``list_sub``)^3 instead
             (their lists checked at 8 points each).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
@@ -809,7 +809,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         reach |= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_of = np.zeros((nz, ny, nx), dtype=bool)
     cell_of[:-1, :-1, :-1] = reach
-    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (module docstring)
+    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (docs/vessels.md)
     inner = np.ones((nz - 1, ny - 1, nx - 1), dtype=bool)
     for c in range(8):
         inner &= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0

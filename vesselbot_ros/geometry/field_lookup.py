@@ -87,7 +87,7 @@ def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, in
 
     ``head`` ``(x0, y0, z0, h, nx, ny, nz, r)``, ``field`` and ``fine`` (flat records of ``NODE_STRIDE``):
     the :class:`WallField3D`; ``d`` ... ``index``: its wall's exact-query arrays
-    (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), which answer in flagged cells and outside
+    (:func:`~vesselbot_ros.geometry.surface_query.smooth_wall3d`), which answer in flagged cells and outside
     the grid.  Allocates nothing.
     """
     h = head[3]
@@ -203,7 +203,7 @@ def _models(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d` over the triangles ``lst[o:o + n]`` (their indices,
+    """:func:`~vesselbot_ros.geometry.surface_query.smooth_wall3d` over the triangles ``lst[o:o + n]`` (their indices,
     nearest the cell's centre first) of a list cell: the same bounds, closest points and tie rule (the lowest
     index), so bit for bit its answer wherever the list holds the nearest triangle."""
     tbest = int(lst[o])

@@ -178,7 +178,7 @@ def _check_models(rec, o, qs, ss, ns, use, tol_s, cos_tol, axis_m):  # type: ign
 
 @numba.njit(cache=True, parallel=True)
 def _model_cells(head, cells, nmax, lat, vlat, band, out_band, tol_s, cos_tol, cos_std, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (module docstring) from the
+    """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (docs/vessels.md) from the
     exact query on its lattice of ``lat``^3 points (spacing h / (lat - 1): its corners, the 19 test points and
     the sub-cell centres among them for lat = 5), and test it there (the points within the band or h beyond it).
     Kept only if it meets the standard on the finer lattice of ``vlat``^3 points too (:func:`_verify_models`).

@@ -192,7 +192,7 @@ def _candidates(segs, x0, z0, h, nx, nz, slack):  # type: ignore[no-untyped-def]
 
 def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: float, nx: int, nz: int
                     ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    """CSR candidate lists of the grid's cells (see the module docstring): ``(offsets, index)``.
+    """CSR candidate lists of the grid's cells (see docs/vessels.md): ``(offsets, index)``.
 
     Args:
         segs: (k, 4) wall segments (m).  x0, z0, h: grid origin and spacing (m); nx, nz: nodes per axis.

@@ -243,7 +243,7 @@ def nearest_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type: ig
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def _smooth_normal(px, py, pz, d, t, s, nx, ny, nz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Inward unit normal of the corner-normal field of triangle ``t`` seen from the point (module docstring)."""
+    """Inward unit normal of the corner-normal field of triangle ``t`` seen from the point (docs/vessels.md)."""
     b = 48 * t + 8
     ax = d[b]
     ay = d[b + 1]
@@ -332,7 +332,7 @@ def _smooth_normal(px, py, pz, d, t, s, nx, ny, nz):  # type: ignore[no-untyped-
 def smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(s, nx, ny, nz)``: :func:`nearest_wall3d`'s exact distance (m) with the smooth inward normal.
 
-    The normal of the corner-normal field of the nearest triangle (module docstring): within a fraction of
+    The normal of the corner-normal field of the nearest triangle (docs/vessels.md): within a fraction of
     a degree of the smooth wall's where the facets' is off by h / (2 R).  Allocates nothing.
     """
     leaf = _leaf(px, py, pz, grid, nodes)

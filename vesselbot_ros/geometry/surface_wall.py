@@ -76,11 +76,11 @@ ball_diameters3d = _ball_diameters
 
 def local_diameter3d(surface: WallSurface, tree: CandidateTree, origin_m: npt.ArrayLike, h: float,
                      shape: tuple[int, int, int], tol_m: float = 2e-6) -> Array:
-    """(nz, ny, nx) local diameter (m) on the grid of nodes ``origin + h (i, j, k)`` (module docstring).
+    """(nz, ny, nx) local diameter (m) on the grid of nodes ``origin + h (i, j, k)`` (docs/vessels.md).
 
     A lumen node's diameter is that of the largest ball inscribed in the lumen touching the wall at the
     node's nearest wall point F, centred on the (smooth) inward normal there: the largest r with
-    s(F + r n) >= r - ``tol_m``, by doubling then shrinking through the nearest wall point (module docstring);
+    s(F + r n) >= r - ``tol_m``, by doubling then shrinking through the nearest wall point (docs/vessels.md);
     so a straight branch of radius R reads 2 R to the facets' sag.  Nodes outside the lumen take the value of the nearest lumen node.
 
     Args:
