@@ -31,9 +31,9 @@ import numba
 import numpy as np
 from bench_against import ISSUE_40_BASE, side_by_side  # this folder's: the same timing as bench_against.py
 
+from vesselbot_ros.geometry.field_build import WallField3D
 from vesselbot_ros.physics.kernel import network_geometry
 from vesselbot_ros.physics.plant3d import geometry3d
-from vesselbot_ros.physics.wall_field3d import WallField3D
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import packed_params

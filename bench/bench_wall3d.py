@@ -16,8 +16,10 @@ import time
 import numba
 import numpy as np
 
-from vesselbot_ros.physics import meshed_wall3d as mw
-from vesselbot_ros.physics.meshed_wall import nearest_wall
+from vesselbot_ros.geometry.fixtures import cylinder_wall, y_wall
+from vesselbot_ros.geometry.polyline_wall import nearest_wall
+from vesselbot_ros.geometry.surface_query import nearest_wall3d, smooth_wall3d
+from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
 
@@ -37,9 +39,9 @@ def _loop3d(q, d, pbox, pstart, grid, nodes, index, smooth):  # type: ignore[no-
     acc = 0.0
     for k in range(q.shape[0]):
         if smooth:
-            acc += mw.smooth_wall3d(q[k, 0], q[k, 1], q[k, 2], d, pbox, pstart, grid, nodes, index)[1]
+            acc += smooth_wall3d(q[k, 0], q[k, 1], q[k, 2], d, pbox, pstart, grid, nodes, index)[1]
         else:
-            acc += mw.nearest_wall3d(q[k, 0], q[k, 1], q[k, 2], d, pbox, pstart, grid, nodes, index)[1]
+            acc += nearest_wall3d(q[k, 0], q[k, 1], q[k, 2], d, pbox, pstart, grid, nodes, index)[1]
     return acc
 
 
@@ -67,13 +69,13 @@ def main() -> None:
     """Print the side-by-side table."""
     rng = np.random.default_rng(0)
     rows = []
-    for name2, make3 in (("straight_table3", lambda: mw.cylinder_wall(length_m=8e-3)), ("paper_iiic_artery", mw.y_wall)):
+    for name2, make3 in (("straight_table3", lambda: cylinder_wall(length_m=8e-3)), ("paper_iiic_artery", y_wall)):
         w2 = network_wall(load_network(name2))
         a2 = (w2._segs, w2._off, w2._idx, *w2._grid)
         x0, z0, h, nx, nz = w2._grid
         lo2, hi2 = np.array([x0, z0]), np.array([x0 + h * (nx - 1), z0 + h * (nz - 1)])
         v, t, caps, _n = make3()
-        w3 = mw.Wall3D(v, t, caps)
+        w3 = Wall3D(v, t, caps)
         a3 = w3._args
         wv = w3.surface.wall_vertices()
         lo3, hi3 = wv.min(axis=0), wv.max(axis=0)

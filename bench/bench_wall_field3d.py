@@ -6,11 +6,11 @@ Comparable geometries (as bench/bench_wall3d.py): the straight vessel (2-D ``str
 points: uniform in each geometry's lumen, and within 0.3 mm of the wall inside it, the same count in 2-D and
 3-D.  Per call (compiled loop, best of 5), ns:
 
-* 2-D wall: :func:`vesselbot_ros.physics.meshed_wall.nearest_wall` (s, normal);
+* 2-D wall: :func:`vesselbot_ros.geometry.polyline_wall.nearest_wall` (s, normal);
 * 2-D geometry: :func:`vesselbot_ros.physics.kernel.network_geometry` (s, normal, D, viscosity, velocity:
   the planar force kernel's whole lookup);
-* 3-D field: :func:`vesselbot_ros.physics.wall_field3d.wall_field3d` (s, normal, D; exact in flagged cells);
-* 3-D exact: :func:`vesselbot_ros.physics.meshed_wall3d.smooth_wall3d` (s, smooth normal), for reference;
+* 3-D field: :func:`vesselbot_ros.geometry.field_lookup.wall_field3d` (s, normal, D; exact in flagged cells);
+* 3-D exact: :func:`vesselbot_ros.geometry.surface_query.smooth_wall3d` (s, smooth normal), for reference;
 
 and the ratios 3-D field / 2-D (target <= 2).  Also the fraction of the points answered exactly.
 
@@ -28,8 +28,10 @@ import numpy as np
 # script run from it)
 from bench_wall3d import N, _loop2d, _loop3d, _sample, best
 
-from vesselbot_ros.physics import meshed_wall3d as mw
-from vesselbot_ros.physics import wall_field3d as wf
+from vesselbot_ros.geometry.field_build import WallField3D, build_wall_field3d
+from vesselbot_ros.geometry.field_lookup import wall_field3d
+from vesselbot_ros.geometry.fixtures import cylinder_wall, y_wall
+from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics.kernel import network_geometry
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import network_wall, packed_params
@@ -48,11 +50,11 @@ def _loop2d_geometry(q, p):  # type: ignore[no-untyped-def]
 def _loop3d_field(q, head, field, fine, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]
     acc = 0.0
     for k in range(q.shape[0]):
-        acc += wf.wall_field3d(q[k, 0], q[k, 1], q[k, 2], head, field, fine, d, pbox, pstart, grid, nodes, index)[0]
+        acc += wall_field3d(q[k, 0], q[k, 1], q[k, 2], head, field, fine, d, pbox, pstart, grid, nodes, index)[0]
     return acc
 
 
-def _exact(field: wf.WallField3D, q: np.ndarray) -> float:
+def _exact(field: WallField3D, q: np.ndarray) -> float:
     """Fraction of the points the lookup answers by the exact query."""
     return float(field.exact_mask(q).mean())
 
@@ -67,16 +69,16 @@ def main() -> None:
     rng = np.random.default_rng(0)
     rows = []
     scen = shipped_scenarios()
-    for name2, sets, make3 in (("straight_table3", ["physics.vessel.network=straight_table3"], lambda: mw.cylinder_wall(length_m=8e-3)),
-                               ("paper_iiic_artery", ["physics.vessel.network=paper_iiic_artery"], mw.y_wall)):
+    for name2, sets, make3 in (("straight_table3", ["physics.vessel.network=straight_table3"], lambda: cylinder_wall(length_m=8e-3)),
+                               ("paper_iiic_artery", ["physics.vessel.network=paper_iiic_artery"], y_wall)):
         w2 = network_wall(load_network(name2))
         a2 = (w2._segs, w2._off, w2._idx, *w2._grid)
         p2 = packed_params(load_scenario(scen["sound_small_artery"], sets=sets).physics)
         x0, z0, h, nx, nz = w2._grid
         lo2, hi2 = np.array([x0, z0]), np.array([x0 + h * (nx - 1), z0 + h * (nz - 1)])
         v, t, caps, _n = make3()
-        w3 = mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * h3)
-        f3 = wf.build_wall_field3d(w3, h_m=h3, refine=a.refine)
+        w3 = Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * h3)
+        f3 = build_wall_field3d(w3, h_m=h3, refine=a.refine)
         wv = w3.surface.wall_vertices()
         lo3, hi3 = wv.min(axis=0), wv.max(axis=0)
         for band in (None, 0.3e-3):

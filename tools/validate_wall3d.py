@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Validate the 3-D meshed wall (vesselbot_ros/physics/meshed_wall3d.py) against analytic walls.
+"""Validate the 3-D meshed wall (vesselbot_ros/geometry/surface_wall.py) against analytic walls.
 
 Meshes three reference solids with gmsh's OpenCASCADE kernel (surface mesh only, caps left out): a straight
 cylinder (R = 1.5 mm), a bent tube (torus section, R = 1.5 mm round a 6 mm bend, 90 deg) and a Y of cylinders
@@ -26,7 +26,8 @@ import time
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.physics import meshed_wall3d as mw
+from vesselbot_ros.geometry.fixtures import Y_BRANCHES, bent_tube_wall, cylinder_wall, y_solids, y_wall
+from vesselbot_ros.geometry.surface_wall import Wall3D
 
 Array = npt.NDArray[np.float64]
 R = 1.5e-3
@@ -36,7 +37,7 @@ def _angle_deg(a: Array, b: Array) -> Array:
     return np.degrees(np.arccos(np.clip((a * b).sum(axis=1), -1.0, 1.0)))
 
 
-def _errors(w: mw.Wall3D, w_cad: mw.Wall3D, q: Array, s_true: Array, n_true: Array) -> dict[str, float]:
+def _errors(w: Wall3D, w_cad: Wall3D, q: Array, s_true: Array, n_true: Array) -> dict[str, float]:
     out: dict[str, float] = {}
     for key, wall, smooth in (("facets", w, False), ("smooth_mesh_normals", w, True), ("smooth_cad_normals", w_cad, True)):
         r = wall.query(q, smooth=smooth)
@@ -78,7 +79,7 @@ def y_reference(q: Array) -> tuple[Array, Array]:
     junction and the caps): the branch whose wall is nearest."""
     best = np.full(len(q), -np.inf)
     nrm = np.zeros_like(q)
-    for s, u, L, r in mw.Y_BRANCHES:
+    for s, u, L, r in Y_BRANCHES:
         d, t = _axis_dist(q, s, u, L)
         val = r - d
         radial = (q - (s + np.clip(t, 0, L)[:, None] * u)) / np.maximum(d, 1e-12)[:, None]
@@ -90,7 +91,7 @@ def y_reference(q: Array) -> tuple[Array, Array]:
 
 def y_solids_sdf(q: Array) -> tuple[Array, Array]:
     """(inside the analytic union, min over the solids of |their signed distance| (m)): cylinders and ball."""
-    inside, near, _beyond = mw.y_solids(q)
+    inside, near, _beyond = y_solids(q)
     return inside, near
 
 
@@ -98,7 +99,7 @@ def y_points(n: int, rng: np.random.Generator) -> tuple[Array, Array, Array]:
     """Points within 1 mm of the Y's branch walls, 3 mm or more from the node and 0.5 mm from the caps."""
     qs = []
     per = n // 3
-    for s, u, L, r in mw.Y_BRANCHES:
+    for s, u, L, r in Y_BRANCHES:
         e1 = np.cross(u, [0.0, 0.0, 1.0])
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(u, e1)
@@ -112,7 +113,7 @@ def y_points(n: int, rng: np.random.Generator) -> tuple[Array, Array, Array]:
     # away from the crease: the nearest analytic wall point 0.5 mm or more from the other solids
     keep = np.ones(len(q), dtype=bool)
     foot = q - s_true[:, None] * n_true
-    for s, u, L, r in mw.Y_BRANCHES:
+    for s, u, L, r in Y_BRANCHES:
         d, _t = _axis_dist(foot, s, u, L)
         keep &= ~((d < r + 0.5e-3) & (np.abs(d - r) > 1e-9) & (np.linalg.norm(foot, axis=1) < 3.5e-3))
     return q[keep], s_true[keep], n_true[keep]
@@ -122,7 +123,7 @@ def y_box_points(n: int, rng: np.random.Generator) -> Array:
     """Random points of the Y's box, junction included, none beyond a cap."""
     q = rng.uniform([-5.8e-3, -4.5e-3, -2.0e-3], [4.5e-3, 4.5e-3, 2.0e-3], size=(n, 3))
     ok = np.ones(len(q), dtype=bool)
-    for s, u, L, _r in mw.Y_BRANCHES:
+    for s, u, L, _r in Y_BRANCHES:
         t = (q - s) @ u
         ok &= (t < L - 0.05e-3) if s[0] >= 0 else (t > 0.05e-3)
     return q[ok]
@@ -132,14 +133,14 @@ def validate(h_m: float = 0.1e-3, n: int = 20000, seed: int = 7, diameter: bool 
     """Every number of the module docstring, by geometry."""
     rng = np.random.default_rng(seed)
     out: dict[str, dict[str, float]] = {}
-    for name, make, pts in (("cylinder", mw.cylinder_wall, cylinder_points), ("torus", mw.bent_tube_wall, torus_points),
-                            ("Y", mw.y_wall, y_points)):
+    for name, make, pts in (("cylinder", cylinder_wall, cylinder_points), ("torus", bent_tube_wall, torus_points),
+                            ("Y", y_wall, y_points)):
         t0 = time.perf_counter()
         v, t, caps, nv = make(h_m=h_m)
         t1 = time.perf_counter()
-        w = mw.Wall3D(v, t, caps)
+        w = Wall3D(v, t, caps)
         t2 = time.perf_counter()
-        w_cad = mw.Wall3D(v, t, caps, vertex_normals=nv)
+        w_cad = Wall3D(v, t, caps, vertex_normals=nv)
         q, s_true, n_true = pts(n, rng)
         row = {"triangles": float(len(t)), "points": float(len(q)), "mesh_s": t1 - t0, "build_s": t2 - t1}
         row.update(_errors(w, w_cad, q, s_true, n_true))
@@ -162,7 +163,7 @@ def validate(h_m: float = 0.1e-3, n: int = 20000, seed: int = 7, diameter: bool 
     return out
 
 
-def _diameter(name: str, w: mw.Wall3D) -> dict[str, float]:
+def _diameter(name: str, w: Wall3D) -> dict[str, float]:
     h = 0.1e-3
     if name == "cylinder":
         o = np.array([2e-3, -2e-3, -2e-3])
@@ -181,7 +182,7 @@ def _diameter(name: str, w: mw.Wall3D) -> dict[str, float]:
         lumen = s > 0
         d = dd.ravel()
         out = {}
-        for k, (st, u, L, r) in enumerate(mw.Y_BRANCHES):
+        for k, (st, u, L, r) in enumerate(Y_BRANCHES):
             t = (p - st) @ u
             rho = np.linalg.norm(p - st - t[:, None] * u, axis=1)
             sel = lumen & (rho < r) & ((t > 0.5e-3) & (t < L - 3e-3) if st[0] < 0 else (t > 3.5e-3) & (t < L - 0.5e-3))

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Validate the sampled 3-D wall (vesselbot_ros/physics/wall_field3d.py) against the exact query and analytic walls.
+"""Validate the sampled 3-D wall (vesselbot_ros/geometry/field_build.py) against the exact query and analytic walls.
 
 Meshes the reference solids of tools/validate_wall3d.py with gmsh (a cylinder R = 1.5 mm, a bent tube R =
 1.5 mm round a 6 mm bend over 90 deg, a Y: parent 1.5 mm, daughters 1.2 mm at +-35 deg), samples each wall
@@ -45,8 +45,10 @@ import time
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.physics import meshed_wall3d as mw
-from vesselbot_ros.physics import wall_field3d as wf
+from vesselbot_ros.geometry.field_build import WallField3D, build_wall_field3d
+from vesselbot_ros.geometry.field_lookup import NODE_STRIDE, field_points3d
+from vesselbot_ros.geometry.fixtures import Y_BRANCHES, bent_tube_wall, cylinder_wall, y_solids, y_wall
+from vesselbot_ros.geometry.surface_wall import Wall3D
 
 Array = npt.NDArray[np.float64]
 R = 1.5e-3
@@ -58,7 +60,7 @@ def angle_deg(a: Array, b: Array) -> Array:
     return np.degrees(np.arccos(np.clip((a * b).sum(axis=1), -1.0, 1.0)))
 
 
-def near_wall_points(field: wf.WallField3D, n: int, rng: np.random.Generator, band_m: float = 1e-3) -> Array:
+def near_wall_points(field: WallField3D, n: int, rng: np.random.Generator, band_m: float = 1e-3) -> Array:
     """About ``n`` random points of the grid's box within ``band_m`` of the wall (exact query), inside and outside."""
     o = field.head[:3]
     top = o + field.head[3] * (np.array(field.shape) - 1)
@@ -101,7 +103,7 @@ def y_reference(q: Array) -> tuple[Array, Array, Array]:
     best = np.full(len(q), -np.inf)
     nrm = np.zeros_like(q)
     along = np.zeros(len(q))
-    for s, u, L, r in mw.Y_BRANCHES:
+    for s, u, L, r in Y_BRANCHES:
         t = (q - s) @ u
         foot = s + np.clip(t, 0, L)[:, None] * u
         d = np.linalg.norm(q - foot, axis=1)
@@ -112,7 +114,7 @@ def y_reference(q: Array) -> tuple[Array, Array, Array]:
         along[take] = (np.where(s[0] < 0, L - t, t))[take]
     foot = q - best[:, None] * nrm
     keep = along >= 3e-3
-    for s, u, L, r in mw.Y_BRANCHES:
+    for s, u, L, r in Y_BRANCHES:
         t = (q - s) @ u
         keep &= (t < L - 0.5e-3) if s[0] >= 0 else (t > 0.5e-3)
         tf = (foot - s) @ u
@@ -123,25 +125,25 @@ def y_reference(q: Array) -> tuple[Array, Array, Array]:
 
 def y_union(q: Array) -> tuple[Array, Array]:
     """(inside the analytic union of the Y's cylinders and ball, min over the solids of |signed distance| m)."""
-    inside, near, _beyond = mw.y_solids(q)
+    inside, near, _beyond = y_solids(q)
     return inside, near
 
 
 def y_beyond_caps(q: Array) -> Array:
     """Points beyond (or within 50 um of) a cap of the Y, where its lumen continues past the union."""
     out = np.zeros(len(q), dtype=bool)
-    for s, u, L, _r in mw.Y_BRANCHES:
+    for s, u, L, _r in Y_BRANCHES:
         t = (q - s) @ u
         out |= (t > L - 5e-5) if s[0] >= 0 else (t < 5e-5)
     return out
 
 
-def check(field: wf.WallField3D, name: str, n: int, rng: np.random.Generator) -> dict[str, float]:
+def check(field: WallField3D, name: str, n: int, rng: np.random.Generator) -> dict[str, float]:
     """Every figure of the module docstring for one geometry."""
     row: dict[str, float] = dict(field.stats)
     flags = field.flags()
     nx, ny, nz = field.shape
-    s_nodes = field.field.reshape(nz, ny, nx, wf.NODE_STRIDE)[:, :, :, 0]
+    s_nodes = field.field.reshape(nz, ny, nx, NODE_STRIDE)[:, :, :, 0]
     lumen_cell = (s_nodes[:-1, :-1, :-1] > 0)
     row["flagged_fraction_lumen"] = float((flags[lumen_cell] != 0).mean())
     row["exact_fraction_near_wall_points"] = float(field.exact_mask(near_wall_points(field, 20000, rng)).mean())
@@ -182,13 +184,13 @@ def validate(h_m: float = 0.1e-3, mesh_m: float = 0.1e-3, dtype: type = np.float
     """The tables, by geometry."""
     rng = np.random.default_rng(seed)
     out: dict[str, dict[str, float]] = {}
-    for name, make in (("cylinder", lambda: mw.cylinder_wall(h_m=mesh_m)), ("bent tube", lambda: mw.bent_tube_wall(h_m=mesh_m)),
-                       ("Y", lambda: mw.y_wall(h_m=mesh_m))):
+    for name, make in (("cylinder", lambda: cylinder_wall(h_m=mesh_m)), ("bent tube", lambda: bent_tube_wall(h_m=mesh_m)),
+                       ("Y", lambda: y_wall(h_m=mesh_m))):
         v, t, caps, _nv = make()
         t0 = time.perf_counter()
-        wall = mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * h_m)
+        wall = Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * h_m)
         t1 = time.perf_counter()
-        field = wf.build_wall_field3d(wall, h_m=h_m, dtype=dtype, refine=refine)
+        field = build_wall_field3d(wall, h_m=h_m, dtype=dtype, refine=refine)
         row = {"triangles": float(len(t)), "wall3d_s": t1 - t0}
         row.update(check(field, name, n, rng))
         out[name] = row
@@ -241,7 +243,7 @@ def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
     row.update({k: float(v) for k, v in wa.stats.items() if k in ("build_s", "tube_cells", "model_cells_2", "model_cells_3",
                                                                   "list_cells", "list_mean_len", "exact_cells", "exact_fraction",
                                                                   "exact_MB", "exact_triangles")})
-    field = wf.WallField3D.__new__(wf.WallField3D)
+    field = WallField3D.__new__(WallField3D)
     field.head, field.field, field.fine = wa.args[0], wa.args[1], wa.args[2]
     wall = fld.wall
     rng = np.random.default_rng(seed)
@@ -256,7 +258,7 @@ def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
         got.append(q)
         count += len(q)
     q = np.ascontiguousarray(np.concatenate(got)[:n])
-    r = wf.field_points3d(q, *wa.args)
+    r = field_points3d(q, *wa.args)
     e = wall.query(q)
     ang = angle_deg(r[:, 1:4], e["normal"])
     turn = np.zeros(len(q))  # the exact normal's turn within 5 um of each point (6 random directions)

@@ -21,6 +21,7 @@ import pytest
 #: one of its top-level modules; ``vesselbot_ros`` is the package's own ``__init__``.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("base", ("vesselbot_ros", "errors", "atomic_io", "resources", "config", "blas_free", "numba_cache", "progress")),
+    ("geometry", ("geometry",)),
     ("physics", ("physics",)),
     ("vessels", ("vessels",)),
     ("scanner", ("scanner",)),

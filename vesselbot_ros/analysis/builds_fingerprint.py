@@ -12,7 +12,7 @@ and the synthetic tree's generator and importer (``tools/make_synthetic_tree_3d.
 OpenBLAS kernel the CPU supports and compares the lines.
 
 Nothing here reads or writes a cache: the wall is built by
-:func:`~vesselbot_ros.physics.wall_field3d.build_wall_field3d` itself, at the
+:func:`~vesselbot_ros.geometry.field_build.build_wall_field3d` itself, at the
 plant's settings, on a block of the shipped carotid tree's grid round its
 bifurcation (the full build takes 40-170 s a tree: the same code on every
 cell, so a block that holds model cells of one to three models, list cells
@@ -73,7 +73,7 @@ def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, in
     """``{"wall/<network>/<array>": sha}`` of the wall field's arrays built at the plant's settings on ``block`` of
     the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree)."""
     # deferred: as above
-    from vesselbot_ros.physics.wall_field3d import build_wall_field3d
+    from vesselbot_ros.geometry.field_build import build_wall_field3d
     from vesselbot_ros.vessels import plant_field3d as pf
     from vesselbot_ros.vessels.network import load_network
 

@@ -32,8 +32,8 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
 from vesselbot_ros.control.route3d import anchor_arcs, route_anchors_3d
+from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.physics.wall_field3d import field_points3d
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
 from vesselbot_ros.vessels.plant_field3d import wall_arrays

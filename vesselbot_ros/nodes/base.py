@@ -57,6 +57,7 @@ from std_srvs.srv import Trigger
 from vesselbot_msgs.srv import GetSeries
 
 from vesselbot_ros.config import ConfigError, load_dataclass
+from vesselbot_ros.geometry.field_lookup import wall_field3d
 from vesselbot_ros.graph_spec import (
     DEFAULT_NAMESPACE,
     FRAME_ID,
@@ -77,7 +78,6 @@ from vesselbot_ros.nodes.intra_process import intra_process
 from vesselbot_ros.nodes.params import kind_parameters, scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
-from vesselbot_ros.physics.wall_field3d import wall_field3d
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.vessels.cfd import network_wall

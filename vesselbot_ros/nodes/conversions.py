@@ -374,7 +374,7 @@ def network_markers(geom: Any, wall_segments_m: npt.NDArray[np.float64], robot_r
 
     ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry` (the centrelines, a LINE_STRIP per
     branch, points every ``step_m``); ``wall_segments_m`` (k, 4) rows ``(ax, az, bx, bz)`` (m) are the meshed
-    wall's segments (:attr:`vesselbot_ros.physics.meshed_wall.WallQuery.segments`), the wall whose exact distance the
+    wall's segments (:attr:`vesselbot_ros.geometry.polyline_wall.WallQuery.segments`), the wall whose exact distance the
     plant computes, junctions included, open ends (inlet and outlet caps) left out.
     """
     out = MarkerArray()

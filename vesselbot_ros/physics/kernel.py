@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ConfigError
+from vesselbot_ros.geometry.polyline_wall import grid_cell, nearest_wall
 from vesselbot_ros.physics.apparent_weight import apparent_weight_z
 from vesselbot_ros.physics.bifurcation import load_profile_table
 from vesselbot_ros.physics.blood_flow import (
@@ -40,7 +41,6 @@ from vesselbot_ros.physics.blood_flow import (
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.drag import drag_gain, wall_factor
 from vesselbot_ros.physics.magnetic_force import bead_pulling_force
-from vesselbot_ros.physics.meshed_wall import grid_cell, nearest_wall
 from vesselbot_ros.physics.params import BOLTZMANN_J_PER_K, VACUUM_PERMITTIVITY_F_PER_M, PhysicsParams
 from vesselbot_ros.physics.wall_contact import contact_force_magnitude, contact_transition, hertz_stiffness
 from vesselbot_ros.physics.wall_interactions import (
@@ -243,7 +243,7 @@ def _grid_value(p, cell, field):  # type: ignore[no-untyped-def]  # numba kernel
 def _network_wall(p, x, z):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """(s, nx, nz): exact signed distance (m, > 0 inside) and unit inward normal of the meshed wall at (x, z) (m).
 
-    :func:`vesselbot_ros.physics.meshed_wall.nearest_wall` over the packed wall segments and cell candidates.
+    :func:`vesselbot_ros.geometry.polyline_wall.nearest_wall` over the packed wall segments and cell candidates.
     """
     o = int(p[I_NET_OFF])
     nx = int(p[o + 3])
@@ -261,7 +261,7 @@ def network_geometry(t, x, z, p):  # type: ignore[no-untyped-def]  # numba kerne
     """(s_t, nx, nz, D_t, eta, vfx, vfz) of a network at (x, z) (m), time t (s).
 
     s_t: signed distance of the centre to the meshed wall (m, > 0 inside; exact, computed
-    here from the wall's segments: physics/meshed_wall.py) with the wall moved out by the
+    here from the wall's segments: geometry/polyline_wall.py) with the wall moved out by the
     diameter pulsation (13): s + D eps(t) / 2, D_t = D (1 + eps(t));
     (nx, nz): unit inward normal of the nearest wall (exact); D: local diameter and
     eta: viscosity (Pa s), bilinear on the grid; (vfx, vfz): blood velocity (m/s),

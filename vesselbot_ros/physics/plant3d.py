@@ -9,7 +9,7 @@ Geometry and flow at a point (:func:`geometry3d`), from the tree's samples
 (:mod:`vesselbot_ros.vessels.plant_field3d`):
 
 * the wall: signed distance ``s`` (> 0 in the lumen), unit inward normal ``n`` and local diameter ``D`` of the
-  meshed wall (:func:`~vesselbot_ros.physics.wall_field3d.wall_field3d`: the grid, exact where it cannot
+  meshed wall (:func:`~vesselbot_ros.geometry.field_lookup.wall_field3d`: the grid, exact where it cannot
   answer), moved out by the diameter pulsation (13) as in the planar network
   (:func:`~vesselbot_ros.physics.kernel.network_geometry`): ``s_t = s + D eps(t) / 2``, ``D_t = D (1 + eps)``;
 * the blood: the steady 3-D velocity (trilinear on the grid, per unit inlet centreline velocity) sampled at the
@@ -30,6 +30,7 @@ import math
 import numba
 import numpy as np
 
+from vesselbot_ros.geometry.field_lookup import corner_weight, wall_field3d
 from vesselbot_ros.physics.blood_flow import pulse_factor
 from vesselbot_ros.physics.kernel import (
     I_A_F,
@@ -42,7 +43,6 @@ from vesselbot_ros.physics.kernel import (
     update_contact,
     wall_forces_into,
 )
-from vesselbot_ros.physics.wall_field3d import corner_weight, wall_field3d
 
 __all__ = ["geometry3d", "forces3d_at", "rhs3d_into", "contact3d_update", "FLOW_CHANNELS"]
 

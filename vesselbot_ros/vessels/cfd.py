@@ -29,7 +29,7 @@ sampled with the local diameter and viscosity on a regular grid
 (:class:`NetworkField`), which the compiled plant interpolates bilinearly; a
 grid node outside the mesh takes the velocity of the nearest boundary point
 (the profile beyond an open end, zero beside a wall).  The wall is the mesh's
-boundary (:mod:`vesselbot_ros.physics.meshed_wall`): the field stores its segments and
+boundary (:mod:`vesselbot_ros.geometry.polyline_wall`): the field stores its segments and
 each grid cell's candidate segments, from which the plant computes the exact
 signed distance and normal at any point (the grid's sdist/normal are those at
 the nodes, for plots).  Fields are cached on disk by a hash of the geometry,
@@ -65,9 +65,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import shipped_config_dir, to_mapping
-from vesselbot_ros.physics.blood_viscosity import viscosity_for
-from vesselbot_ros.physics.kernel import pack_network_params, pack_params
-from vesselbot_ros.physics.meshed_wall import (
+from vesselbot_ros.geometry.polyline_wall import (
     WallQuery,
     cell_candidates,
     local_diameter,
@@ -75,6 +73,8 @@ from vesselbot_ros.physics.meshed_wall import (
     query_points,
     wall_segments,
 )
+from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.kernel import pack_network_params, pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, require_fits
@@ -92,7 +92,7 @@ __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "sol
 
 #: Sampled fields, in the order of :attr:`NetworkField.data` (and of the kernel's packed grid).
 FIELD_NAMES = ("vx", "vz", "sdist", "nx", "nz", "diameter", "eta")
-CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (physics/meshed_wall.py), wall-disc local diameter, cap-snapped velocity
+CACHE_VERSION = 7  # 5-7: exact meshed-wall geometry (geometry/polyline_wall.py), wall-disc local diameter, cap-snapped velocity
 
 # What a new field costs, estimated before it is solved (check_field_fits); measured on a 20 mm tube of
 # 1.5 mm radius (a 2-core machine, loaded): mesh 0.3 mm, 6548 triangles, solved in 6 s; mesh 0.1 mm, 78762
@@ -401,11 +401,11 @@ class NetworkField:
             normalised to an inlet centreline velocity of 1 (-), signed distance
             (m, > 0 inside), unit inward normal (-), local diameter (m), viscosity (Pa s).
             The distance and normal at the nodes are the exact ones of the meshed wall
-            (:mod:`vesselbot_ros.physics.meshed_wall`); the plant computes them exactly at any point
+            (:mod:`vesselbot_ros.geometry.polyline_wall`); the plant computes them exactly at any point
             from the three wall arrays below and reads only the velocity, diameter and viscosity here.
         meta: Solve statistics and provenance (JSON-able).
         wall_segments: (k, 4) wall segments ``(ax, az, bx, bz)`` (m), lumen on the left, caps left
-            out and each wall end continued beyond its cap (:func:`vesselbot_ros.physics.meshed_wall.wall_segments`).
+            out and each wall end continued beyond its cap (:func:`vesselbot_ros.geometry.polyline_wall.wall_segments`).
         cell_offsets: ((nx-1)(nz-1)+1,) int64, CSR offsets of the grid cells' candidate segments.
         cell_index: (total,) int64, the candidate segments of cell ``j (nx-1) + i``.
     """
@@ -525,7 +525,7 @@ def sample_field(net: VesselNetworkParams, blood: BloodParams, sol: FlowSolution
     off, idx = cell_candidates(segs, x0, z0, h, nx, nz)
     q = query_points(pts, segs.ravel(), off.astype(np.float64), idx.astype(np.float64), x0, z0, h, nx, nz)
     # local diameter: the largest inscribed disc touching the wall where the point's nearest wall point is
-    # (physics/meshed_wall.py); it jumps where the nearest wall changes in a junction, and the wall moves out by
+    # (geometry/polyline_wall.py); it jumps where the nearest wall changes in a junction, and the wall moves out by
     # D eps(t) / 2 with the pulsation (13), so it (and the viscosity that follows it) is smoothed with a
     # Gaussian of cfd.diameter_smoothing_m (a constant field, the straight vessel, stays exactly constant)
     segs_f, off_f, idx_f = segs.ravel(), off.astype(np.float64), idx.astype(np.float64)
@@ -630,7 +630,7 @@ def network_field(net: VesselNetworkParams, blood: BloodParams, *, refresh: bool
 
 @functools.lru_cache(maxsize=16)
 def network_wall(net: VesselNetworkParams, blood: BloodParams | None = None) -> Any:
-    """The meshed wall of ``net`` as :class:`vesselbot_ros.physics.meshed_wall.WallQuery` (exact distance and normal).
+    """The meshed wall of ``net`` as :class:`vesselbot_ros.geometry.polyline_wall.WallQuery` (exact distance and normal).
 
     The wall depends on the geometry and mesh settings only, not on the blood model; it is read from
     the field of ``blood`` (default :class:`BloodParams`, the shipped scenarios' blood), so a wall of a

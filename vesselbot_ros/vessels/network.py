@@ -3,7 +3,7 @@
 A network is a tree of branches, each a centreline polyline with a radius at each point (format in
 ``docs/vessels.md``).  :class:`NetworkGeometry` smooths the centrelines and answers which tube holds a point,
 on two axes (x, z) or three (x, y, z).  The tubes are not the wall (a lower bound inside a junction): the
-meshed wall is (:mod:`vesselbot_ros.physics.meshed_wall`).
+meshed wall is (:mod:`vesselbot_ros.geometry.polyline_wall`).
 """
 
 from __future__ import annotations

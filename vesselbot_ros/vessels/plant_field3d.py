@@ -8,8 +8,8 @@ solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries v
   (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`: facets sagging about ``WALL_SAG_M`` = 0.5 um off the CAD
   surface, where the flow mesh's 0.3-0.8 mm facets sag up to 7.5-20 um; its caps, flat faces of the solid,
   left out), whose exact signed distance, smooth inward normal and local (ball) diameter
-  :mod:`vesselbot_ros.physics.meshed_wall3d` answers, sampled on the grid by
-  :mod:`vesselbot_ros.physics.wall_field3d`;
+  :mod:`vesselbot_ros.geometry.surface_query` answers, sampled on the grid by
+  :mod:`vesselbot_ros.geometry.field_build`;
 * the flow: the P2 velocity at the grid's nodes, normalised to an inlet centreline velocity of 1 (the plant
   scales it by ``physics.flow.centreline_velocity_m_per_s`` and the pulse (12), as the planar network's),
   zero outside the mesh; the blood viscosity at each node is Pries' at the node's local diameter.
@@ -61,11 +61,11 @@ import numpy.typing as npt
 
 from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError, to_mapping
+from vesselbot_ros.geometry.field_build import build_wall_field3d, grid_box
+from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.kernel import pack_params
-from vesselbot_ros.physics.meshed_wall3d import Wall3D
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
-from vesselbot_ros.physics.wall_field3d import build_wall_field3d, grid_box
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d
@@ -97,7 +97,7 @@ REFINE = 2
 NEAR_M = 0.6e-3
 #: ... and the lookup's, kept where it asks the exact query, down to 0.1 mm (depth 5 under 3.2 mm roots).
 EXACT_DEPTH = 5
-#: The longest triangle list of a list cell (:func:`~vesselbot_ros.physics.wall_field3d.build_wall_field3d`).
+#: The longest triangle list of a list cell (:func:`~vesselbot_ros.geometry.field_build.build_wall_field3d`).
 LIST_MAX = 256
 #: Vertices are stored in the samples' file on this lattice (m).
 _QUANTUM_M = 1.0e-9
@@ -150,7 +150,7 @@ def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
 
 @dataclasses.dataclass
 class WallArrays:
-    """The compiled wall lookup's arrays (:func:`~vesselbot_ros.physics.wall_field3d.wall_field3d`'s ``args``)."""
+    """The compiled wall lookup's arrays (:func:`~vesselbot_ros.geometry.field_lookup.wall_field3d`'s ``args``)."""
 
     args: tuple[npt.NDArray[Any], ...]
     stats: dict[str, float]

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.control.high_gain_observer import integrator_vector
-from vesselbot_ros.physics import meshed_wall3d as mw
+from vesselbot_ros.geometry.field_build import build_wall_field3d
+from vesselbot_ros.geometry.fixtures import cylinder_wall
+from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics import plant3d as p3
-from vesselbot_ros.physics import wall_field3d as wf
 from vesselbot_ros.physics.integrator import NON_FINITE, OK, IntegratorParams, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_MASS, I_R, I_V_F, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
@@ -28,8 +29,8 @@ ETA = 3.0e-3
 
 @pytest.fixture(scope="module")
 def tube():  # type: ignore[no-untyped-def]
-    v, t, caps, _nv = mw.cylinder_wall(R, 8e-3, 0.1e-3)
-    field = wf.build_wall_field3d(mw.Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * H), h_m=H)
+    v, t, caps, _nv = cylinder_wall(R, 8e-3, 0.1e-3)
+    field = build_wall_field3d(Wall3D(v, t, caps, margin_m=1.05e-3 + 3 * H), h_m=H)
     nx, ny, nz = field.shape
     o, h = field.head[:3], field.head[3]
     zz, yy = np.meshgrid(o[2] + h * np.arange(nz), o[1] + h * np.arange(ny), indexing="ij")

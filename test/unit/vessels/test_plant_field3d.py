@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.physics.wall_field3d import field_points3d
 from vesselbot_ros.vessels import plant_field3d as pf
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 

@@ -1,50 +1,10 @@
-"""The meshed vessel wall: exact signed distance, inward normal and local diameter.
+"""The planar meshed wall: exact signed distance, inward normal and local diameter over a 2-D mesh's boundary.
 
-The wall the CFD solves in is the boundary of the gmsh triangulation
-(:func:`vesselbot_ros.vessels.cfd.mesh_network`), a polyline of straight mesh
-edges.  This module makes that polyline the plant's wall everywhere, junctions
-included (the centreline-tube distance of
-:class:`~vesselbot_ros.vessels.network.NetworkGeometry` is only a lower bound
-inside a junction: 0.8 mm off in a Y, with normals up to 45 deg off).
-
-Wall segments (:func:`wall_segments`): the mesh's boundary edges, oriented with
-the lumen on their left, *without* the inlet and outlet caps: a cap is where
-the modelled vessel is cut, not a wall, so nothing touches it.  Each wall end at
-a cap is continued by a straight segment along the cap's outward normal (long
-enough to reach the grid's edge), so beyond an open end the lumen continues as
-a straight tube of the cap's width, as the vessel it was cut from would.
-
-Exact query (:func:`nearest_wall`, compiled, allocation-free): the grid of the
-sampled field is divided into cells; each cell stores (CSR: ``offsets`` per
-cell into ``index``) every segment whose distance to the cell centre c is at
-most d(c) + 2 w (w: the cell's half-diagonal; d: the distance to the wall).
-That set holds the nearest segment of every point q of the cell: with s* the
-segment nearest q, dist(s*, c) <= dist(s*, q) + w = d(q) + w <= d(c) + 2 w.  So
-the distance, the nearest wall point and the normal computed over the cell's
-candidates are those of the whole polyline: exact up to rounding.  Sign: the
-nearest segment's side (lumen on its left); where the nearest point is a vertex
-shared by two segments, the one the point lies further off the line of decides
-(the standard rule that makes the side test exact at vertices).  The inward
-normal is ``(q - foot) / |q - foot|`` inside and its opposite outside (it points
-from the wall into the lumen); on the wall itself the segment's left normal.
-Outside the grid the nearest edge cell's candidates answer: an upper bound of
-the distance, and the point is then far outside the lumen anyway.
-
-Local diameter (:func:`local_diameter`): the diameter of the largest disc
-inscribed in the lumen that touches the wall at the point's nearest wall point
--- the width of the vessel whose wall is nearest, which is what the diameter
-pulsation moves (the wall goes out by D eps / 2) and what confines the robot.
-2 r in a straight branch of radius r (to the search step, h / 4, on any slope);
-in a junction it follows the wall: the parent's width beside the node's wall,
-a daughter's beside the daughter's, the junction's inscribed disc near its
-middle and at the apex.  (The largest disc merely *containing* the point, the
-"local thickness", widened the daughters' entrances to the junction's 3 mm and
-moved the III-C upper route's stick/slide on the daughter's wall: worst seed
-2.7 mm tracking against 1.6 mm.)  Outside the lumen a node takes the value of
-the nearest lumen node.  The sampler then smooths it with
-``cfd.diameter_smoothing_m`` (it jumps where the nearest wall changes).
+The wall polyline of the gmsh triangulation (caps left out, each wall end continued beyond its cap), the
+grid cells' candidate segments, the compiled nearest-wall query (the kernel inlines it) with the clearance,
+and the local diameter (the largest inscribed disc touching the nearest wall point).  Rules, proofs and
+measurements: docs/vessels.md, "The wall geometry", `polyline_wall`.
 """
-
 from __future__ import annotations
 
 import math
@@ -232,7 +192,7 @@ def _candidates(segs, x0, z0, h, nx, nz, slack):  # type: ignore[no-untyped-def]
 
 def cell_candidates(segs: npt.NDArray[np.float64], x0: float, z0: float, h: float, nx: int, nz: int
                     ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    """CSR candidate lists of the grid's cells (see the module docstring): ``(offsets, index)``.
+    """CSR candidate lists of the grid's cells (see docs/vessels.md): ``(offsets, index)``.
 
     Args:
         segs: (k, 4) wall segments (m).  x0, z0, h: grid origin and spacing (m); nx, nz: nodes per axis.

@@ -1,135 +1,9 @@
-"""The 3-D vessel wall sampled on a regular grid: a compiled lookup of distance, normal and diameter.
+"""The sampled 3-D wall, built: the exact query sampled on a regular grid, cells flagged, refined and listed.
 
-The exact query of :mod:`vesselbot_ros.physics.meshed_wall3d` costs microseconds (tens of candidate triangles
-per point); the plant asks it at every force evaluation.  This module samples it once on a regular 3-D grid
-(the plant's grid, the flow's: nodes ``origin + h (i, j, k)``) and answers by interpolation, falling back to
-the exact query only in the cells where interpolation cannot meet the standard (within 1 mm of a wall,
-distance within 5 um and normal within 2 deg of the true wall), or the least of a few smooth models fitted
-to a cell (straight round tubes, ridges, planes) answers where it meets it.
-
-Samples (per node, ``NODE_STRIDE`` floats, float32 by default): the exact signed distance s (m, > 0 in the
-lumen), the smooth unit inward normal n (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), the
-local diameter D (m, :func:`~vesselbot_ros.physics.meshed_wall3d.local_diameter3d`'s ball definition, filled
-outside the lumen from the nearest lumen node) and the flag of the cell whose lowest corner the node is.
-
-Lookup (:func:`wall_field3d`, compiled, allocation-free): in the cell holding the point, trilinear weights
-w_c of its eight corners c, and
-
-* distance: ``sum_c w_c (s_c + n_c . (q - x_c) / 2)``, the mean of the trilinear interpolant and of the
-  blend of the corners' tangent planes.  s's gradient is n, and for a quadratic s the two errors are
-  exactly opposite (trilinear: ``+1/2 sum w_c (x_c - q)^T H (x_c - q)``; tangent planes: minus that), so the
-  mean reproduces quadratics and its error is third order, ~ h^3 / rho^2 (rho: the radius of curvature of
-  the level set), where the trilinear one's is h^2 / (8 rho): 2.5 um at h = 0.1 mm, 0.5 mm off the axis of
-  a tube, against 0.01 um;
-* normal: ``sum_c w_c n_c``, normalised (error ~ h^2 / (8 rho^2) rad);
-* diameter: trilinear.
-
-Flags (computed at build time): interpolation breaks where the nearest wall feature jumps inside a cell
-(the medial surface: a tube's axis, the bisector beside a junction's crease, the apex) and, within the
-band, where curvature is high.  The band is ``band_m`` in the lumen and ``out_band_m`` outside it (the 3-D
-plant: 1 mm and 0.1 mm, :mod:`vesselbot_ros.vessels.plant_field3d` says why).  A cell whose eight corners all
-lie beyond the band by half its diagonal (s is 1-Lipschitz, so every point of it lies beyond the band) is
-interpolated whatever the error: deep in a vessel, far outside it.  Any other cell is flagged when
-
-* its corners' normals span more than ``spread_deg`` (a jump of the nearest feature), or
-* at one of its 19 test points (the midpoints of its edges and faces and its centre: the lattice of
-  spacing h / 2) within the band or h beyond it, the interpolated distance is more than ``tol_dist_m`` off the exact one
-  or the normal more than ``tol_normal_deg``.  A medial surface with a jump of more than twice
-  ``tol_normal_deg`` that crosses an edge puts an edge midpoint or a face centre on the wrong side, so it is
-  caught wherever it crosses the cell; the interpolation errors of smooth fields peak at those points.
-
-Model cells (``tube``): a flagged cell wholly in the lumen is answered, where it can be, by the least of one to
-``MODELS`` (3) local smooth models, each a straight round cylinder with a sign, ``s = sigma (rho - R)`` (rho: the
-distance from its axis; sigma = -1: a lumen's wall seen from within, the normal towards the axis; sigma = +1: a
-ridge -- a junction's crease, R = 0 -- or convex edge seen from outside, the normal away from it) or a plane,
-with the inward normal of the model that attains the least.  Fitted at build time from the exact query on the
-cell's lattice of spacing h / 4 (125 points: its corners, its 19 test points, its eight sub-cell centres among
-them): one model to all the points (a vessel's axis: the straight round tube of the old "tube cells"), else
-the points grouped in two, then three, by k-means on their normals and on their feet (q - s n), each group
-fitted a model -- the axis along the least eigenvector of its sum n n^T (a cylinder's normals lie across its
-axis), through the point nearest its normal lines, sigma by which side of the points that lies on, R the mean of
-``rho - sigma s``; or the plane of its mean normal, whichever is nearer its distances -- and the points
-regrouped by the model nearest their s and normal (twice).  The first that meets the tolerances at every
-lattice point within the band or h beyond it is kept (the models rounded to the storage's precision first); the
-normal is not tested within ``axis_m`` of the attaining model's axis: 5 um / tan(2 deg) = 0.14 mm, where the
-exact normal itself turns by more than 2 deg within 5 um (undefined to the standard; on the plant's walls the
-facets' wiggle of the exact smooth normal reaches 1-2.5 deg near a vessel's axis, where the tube's is radial).
-The cell is then checked against the standard itself on its finer lattice of 9^3 points (spacing h / 8): the
-distance within ``tol_dist_m``, the normal within 1.5 deg, but within ``axis_m`` of the axis where the exact
-normal turns by more than 8 deg to a lattice neighbour (12.5 um away); else it is left exact.  (Without that
-check, at random points of the model cells, the normal was off by up to 5.5 deg at 11 well-conditioned points
-in 2 x 10^4 of the carotid's bulb, split between two nearly tangent wide cylinders, and by up to 16 deg at 3 in
-7 x 10^4 of the synthetic tree's, 46-67 um from a tube's axis where the wall is no round tube.)
-Exact for a straight round vessel, where the interpolation of the cone s = R - rho fails near the axis of a
-vessel narrower than the band.
-
-A flagged cell that reaches into the lumen is then refined once: ``refine``^3 sub-cells sampled exactly (the
-diameter interpolated from the cell's corners), each flagged by the same rules at spacing h / ``refine``;
-the lookup interpolates in a good sub-cell and asks the exact query in a flagged one (and in a flagged cell
-with no good sub-cell).  Outside the grid the exact query answers (the diameter from the nearest edge cell).
-
-List cells (``list_max``): the exact query is slow at a medial point because many triangles are nearly as
-near as the nearest (a ring round a vessel's axis, a strip along a crease), and its candidate lists must hold
-them all for every point of a 0.1 mm leaf; yet over a small cube only a few triangles are ever the nearest.
-So an exact cell (or one with exact sub-cells) wholly in the lumen is divided in ``list_sub``^3 sub-cubes
-(4^3: side 25 um), or in (2 ``list_sub``)^3 (12.5 um) where the coarser lists average more than
-``list_split`` (12) triangles (near a vessel's axis, where half the ring is nearly as near) and the finer ones
-leave no more to the exact query; each sub-cube is given the fewest triangles, nearest its centre first, whose
-scan -- the exact query's bounds, closest points and tie rule (the lowest index), so bit for bit its answer
-wherever the list holds the nearest triangle -- answers as the exact query, bit for bit, at the centres of its
-27 (finer: 8) cubes, tried in turn: the triangles the exact query finds nearest at the cell's lattice of
-``list_lattice``^3 points (17^3: spacing h / 16) in the sub-cube, then within one spacing of it, then with
-those nearest the centres of its 6^3 and 12^3 cubes added; none (the exact query) if no try passes or more
-than ``list_max``.  The lookup then finds the point's sub-cube in the cell's directory (stored after the model
-records in ``fine``; its offset and division in the cell's lowest node's slots 6 and 7) and scans its list,
-7 triangles on average (at the points the shipped runs' beads visit in list cells: 9 on the synthetic tree,
-against 98 over a whole cell), instead of asking the candidate tree.  Not a proof: a point between the
-checked points whose nearest triangle is missing gets the nearest of the list, a triangle beside it (at 10^5
-random points of the shipped trees' list cells: bit for bit at 99.70 / 99.92 / 99.75 % of them, the distance
-within 0.1 um; the normal off by more than 2 deg at 175 / 39 / 90 of them, every one where the exact normal
-itself turns by more than 2 deg within 5 um: within micrometres of a medial surface).  This keeps the exact
-query's own normal where no smooth model can: in a crease's wedge (the foot on a crease edge) the exact smooth
-normal takes one face's side: where the shipped runs' beads met the exact query it was up to 94 / 54 / 102 deg
-(III-C / carotid / synthetic tree; median 39 / 39 / 12 deg) off the distance's gradient, the direction from the
-crease.
-
-Pruning (``prune``): the exact query is then asked only in the exact cells and sub-cells (list cells
-included: their triangles are the pruned arrays') and off the grid, so
-the lookup carries the wall's candidate tree cut down to the leaves holding a point of those (split there
-to ``exact_max_depth`` for short lists), the other leaves emptied and their subtrees collapsed, and only the
-triangles those lists name (int32 lists and nodes); off the grid a leaf wholly outside the lumen, save near
-a cap's extension, is sealed (no list: its seed's answer signed outside; only a bead far outside the lumen
-goes there).  Bit for bit the whole tree's answer wherever the lookup asks it.
-
-Measured (tools/validate_wall_field3d.py, h = 0.1 mm, float32, no refinement, no tubes, the band 1 mm
-inside and outside; 0.1 mm reference triangles; 2 x 10^5 points within 1 mm of the wall each): against the
-exact query, max 0.8 / 0.9 / 1.7 um and 0.9 / 1.0 / 1.7 deg (cylinder / bent tube / Y, junction included),
-no sign error; against the analytic wall 0.7 / 1.2 um and 0.60 / 0.76 deg (cylinder / bent tube: the facets'
-0.66 / 0.99 deg are smoothed).  Flagged cells 0.003 / 0.03 / 1.9 %.  With ``refine`` = 2 the Y's worst
-normal is 2.1 deg (1 point in 2 x 10^5): in a junction's crease wedge (the foot on a crease edge) the exact
-smooth normal takes one face's side, jumping at the facets' scale, which 19 test points per sub-cell do not
-see; so refinement is off by default.  The 3-D plant's walls (0.5 um facets, refinement and model cells on,
-the band 1 mm in and 0.1 mm out, lists of up to 256 triangles, ``--shipped``): distance within 1.9 um,
-normal within 1.5 / 1.2 / 1.7 deg (III-C / carotid / synthetic tree) wherever the exact normal itself is defined
-(does not turn by more than 2 deg within 5 um); within micrometres of a medial surface 20 / 1 / 21 points in
-2 x 10^5 are off by more, up to 114 deg (a sub-cell the surface bulges into between its test points, taking the
-other wall's side; near a vessel's axis, where a model cell's normal is radial and the exact one wiggles, or a
-list misses one of two nearly equidistant triangles; with whole-cell lists, 15 / 0 / 15; with one tube per
-cell, the normal tested beyond 50 um of its axis and no list cells, 13 / 0 / 14).  At 10^5 random
-points of the model cells themselves: distance within 1.2 um, normal within 1.2 / 1.8 / 1.4 deg where the exact
-one is defined.  Model cells: 5307 / 133 / 16861 (of which 2 or 3 models: 196 / 125 / 549); exact cells 3316 /
-2204 / 10194 (3386 / 2204 / 10510 with tubes only), of which, with those with exact sub-cells, 6114 / 3623 /
-16761 are list cells (787 / 0 / 2975 of them divided in 8^3; 6.1 / 5.2 / 7.1 triangles per sub-cube on average,
-against 36 / 32 / 44 per cell with whole-cell lists); the exact query answers 0.2 / 0.3 / 0.4 % of the points
-in the band (2.1 / 1.7 / 4.1 % with tubes only: what is left are cells the wall crosses), list cells 1.9 / 1.4 /
-3.8 %.  At the points the shipped runs' beads visit (bench/bench_loop3d.py) the exact query answers 0.0 / 0.0 /
-0.0 % and list cells 4.6 / 0.9 / 21.0 % (with whole-cell lists the exact query 0.5 / 0.0 / 5.9 %: their
-nearest triangles over a cell were more than 256 or missed the check; with tubes only 4.5 / 0.9 / 27.5 %).
-Build (a 2-core machine, otherwise quiet): 50 / 38 / 165 s, of which the model cells 10 / 2 / 25 s and the list
-cells 33 / 7 / 123 s.
-Speed (bench/bench_wall_field3d.py): cylinder 47 / 42 ns (lumen / within 0.3 mm of the wall) against the
-2-D wall's 88 / 50 ns; the Y 323 / 74 ns against 72 / 45 ns: 7 % of its lumen (the junction's ball and
-creases) goes to the exact query.
+:func:`build_wall_field3d` samples a :class:`~vesselbot_ros.geometry.surface_wall.Wall3D` at the grid's nodes
+(distance, smooth normal, ball diameter), flags the cells interpolation cannot answer to the standard, fits
+model cells, refines, prunes the exact query to where the lookup asks it and stores the list cells' short
+triangle lists: a :class:`WallField3D`.  The rules and measurements: docs/vessels.md, "The wall geometry", `field_build`.
 """
 
 from __future__ import annotations
@@ -142,244 +16,35 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.blas_free import solve3, sym3_least_eigvec
-from vesselbot_ros.physics.meshed_wall3d import (
+from vesselbot_ros.geometry.candidate_tree import (
     CandidateTree,
-    Wall3D,
-    _closest,
-    _leaf,
-    _scan,
-    _signed,
-    _smooth_normal,
-    _triangle_far,
-    ball_diameters3d,
     centre_distances,
     leaves3d,
     node_boxes,
     pruned_arrays,
-    smooth_wall3d,
     split_leaves,
 )
+from vesselbot_ros.geometry.field_lookup import (
+    _LIST_BASE,
+    MODEL_REC,
+    MODELS,
+    NODE_STRIDE,
+    _interp,
+    _scan_list,
+    _sub_list_lengths,
+    field_points3d,
+)
+from vesselbot_ros.geometry.field_models import _beyond, _model_cells
+from vesselbot_ros.geometry.surface_query import _closest, _leaf, _scan, smooth_wall3d
+from vesselbot_ros.geometry.surface_wall import Wall3D, ball_diameters3d
 from vesselbot_ros.progress import ProgressFn
 
-__all__ = ["NODE_STRIDE", "WallField3D", "grid_box", "wall_field3d", "field_points3d", "build_wall_field3d", "corner_weight"]
+__all__ = ["WallField3D", "grid_box", "build_wall_field3d"]
 
-#: Floats per node: s (0), inward normal (1-3), diameter (4), flag of the cell with this lowest corner (5), its
-#: triangle list's offset in ``fine`` and length if it is a list cell (6-7; 0: none) (32 bytes in float32: two nodes
-#: per cache line).
-NODE_STRIDE = 8
 #: Every point of a cell of side h lies within this many h of one of its corners (half its diagonal).
 _HALF_DIAGONAL = 0.5 * math.sqrt(3.0)
-#: Models per model cell; floats per model cell's record: ``MODELS`` models of ``NODE_STRIDE`` floats each (axis point, unit axis
-#: direction, radius, sign sigma; sigma = 0: a plane, 9: no model).
-MODELS = 3
-MODEL_REC = MODELS * NODE_STRIDE
-_NO_MODEL = 9.0
-#: A list cell's lists start at ``fine[hi _LIST_BASE + lo]`` (the first two floats of its directory): each part
-#: exact in float32.
-_LIST_BASE = 1 << 20
 
 Array = npt.NDArray[np.float64]
-
-
-# ---------------------------------------------------------------------------------------------------------
-# compiled lookup
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def corner_weight(c, tx, ty, tz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(cx, cy, cz, w): corner ``c`` (0-7, x fastest) of a cell as offsets 0/1 per axis and its trilinear weight at
-    (tx, ty, tz) in [0, 1]^3."""
-    cx = c & 1
-    cy = (c >> 1) & 1
-    cz = c >> 2
-    return cx, cy, cz, (tx if cx else 1.0 - tx) * (ty if cy else 1.0 - ty) * (tz if cz else 1.0 - tz)
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _interp(field, base, sy, sz, tx, ty, tz, h):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(s, nx, ny, nz, D) interpolated in the cell whose lowest corner's record starts at ``base``.
-
-    ``sy``, ``sz``: record offsets of the next node along y and z; (tx, ty, tz) in [0, 1]: the point in the
-    cell; h: spacing (m).  The distance is the mean of the trilinear and the tangent-plane blends.
-    """
-    s = 0.0
-    gx = 0.0
-    gy = 0.0
-    gz = 0.0
-    dd = 0.0
-    for c in range(8):
-        cx, cy, cz, w = corner_weight(c, tx, ty, tz)
-        b = base + cx * NODE_STRIDE + cy * sy + cz * sz
-        n0 = float(field[b + 1])
-        n1 = float(field[b + 2])
-        n2 = float(field[b + 3])
-        s += w * (float(field[b]) + 0.5 * h * (n0 * (tx - cx) + n1 * (ty - cy) + n2 * (tz - cz)))
-        gx += w * n0
-        gy += w * n1
-        gz += w * n2
-        dd += w * float(field[b + 4])
-    L = math.sqrt(gx * gx + gy * gy + gz * gz)
-    if not (L > 0.0):
-        return s, 0.0, 0.0, -1.0, dd
-    return s, gx / L, gy / L, gz / L, dd
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _diameter(field, base, sy, sz, tx, ty, tz):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """D of :func:`_interp` alone (the same doubles), for the cells whose distance and normal come from elsewhere."""
-    dd = 0.0
-    for c in range(8):
-        cx, cy, cz, w = corner_weight(c, tx, ty, tz)
-        dd += w * float(field[base + cx * NODE_STRIDE + cy * sy + cz * sz + 4])
-    return dd
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def wall_field3d(px, py, pz, head, field, fine, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """``(s, nx, ny, nz, D)`` at (px, py, pz) (m): signed distance (m, > 0 in the lumen), unit inward normal and
-    local diameter (m).
-
-    ``head`` ``(x0, y0, z0, h, nx, ny, nz, r)``, ``field`` and ``fine`` (flat records of ``NODE_STRIDE``):
-    the :class:`WallField3D`; ``d`` ... ``index``: its wall's exact-query arrays
-    (:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d`), which answer in flagged cells and outside
-    the grid.  Allocates nothing.
-    """
-    h = head[3]
-    nx = int(head[4])
-    ny = int(head[5])
-    nz = int(head[6])
-    fx = (px - head[0]) / h
-    fy = (py - head[1]) / h
-    fz = (pz - head[2]) / h
-    i = int(math.floor(fx))
-    j = int(math.floor(fy))
-    k = int(math.floor(fz))
-    inside = i >= 0 and j >= 0 and k >= 0 and i < nx - 1 and j < ny - 1 and k < nz - 1
-    i = min(max(i, 0), nx - 2)
-    j = min(max(j, 0), ny - 2)
-    k = min(max(k, 0), nz - 2)
-    tx = min(1.0, max(0.0, fx - i))
-    ty = min(1.0, max(0.0, fy - j))
-    tz = min(1.0, max(0.0, fz - k))
-    sy = NODE_STRIDE * nx
-    sz = sy * ny
-    base = ((k * ny + j) * nx + i) * NODE_STRIDE
-    flag = field[base + 5]
-    if flag == 0.0 or not inside:
-        s, gx, gy, gz, dd = _interp(field, base, sy, sz, tx, ty, tz, h)
-        if inside:
-            return s, gx, gy, gz, dd
-    else:
-        dd = _diameter(field, base, sy, sz, tx, ty, tz)
-    if inside and flag > 0.0:
-        r = int(head[7])
-        r1 = r + 1
-        ux = tx * r
-        uy = ty * r
-        uz = tz * r
-        a = min(int(ux), r - 1)
-        b = min(int(uy), r - 1)
-        c = min(int(uz), r - 1)
-        fb = ((int(flag) - 1) * r1 * r1 * r1 + (c * r1 + b) * r1 + a) * NODE_STRIDE
-        if fine[fb + 5] == 0.0:
-            s, gx, gy, gz, _d = _interp(fine, fb, NODE_STRIDE * r1, NODE_STRIDE * r1 * r1, ux - a, uy - b, uz - c, h / r)
-            return s, gx, gy, gz, dd
-    if inside and flag <= -2.0:
-        s, gx, gy, gz, _rho = _models(px, py, pz, fine, int(head[8]) + (int(-flag) - 2) * MODEL_REC)
-        return s, gx, gy, gz, dd
-    if inside and field[base + 7] > 0.0:
-        o, n = _sub_list(tx, ty, tz, fine, int(field[base + 6]), int(field[base + 7]))
-        if n > 0:
-            s, gx, gy, gz = _scan_list(px, py, pz, d, fine, o, n)
-            return s, gx, gy, gz, dd
-    s, gx, gy, gz = smooth_wall3d(px, py, pz, d, pbox, pstart, grid, nodes, index)
-    return s, gx, gy, gz, dd
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _sub_list(tx, ty, tz, fine, o, sub):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(offset in ``fine``, length) of the triangle list of the sub-cube holding (tx, ty, tz) in [0, 1]^3 of the
-    list cell whose directory starts at ``fine[o]`` (``sub``^3 sub-cubes; length 0: none, the exact query)."""
-    c = (min(int(tz * sub), sub - 1) * sub + min(int(ty * sub), sub - 1)) * sub + min(int(tx * sub), sub - 1)
-    a = int(fine[o + 2 + c])
-    return int(fine[o]) * _LIST_BASE + int(fine[o + 1]) + a, int(fine[o + 3 + c]) - a
-
-
-@numba.njit(cache=True)
-def _sub_list_lengths(t, fine, o, sub):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(m,) the length of the list :func:`_sub_list` gives each point at ``t`` (m, 3) in its list cell (directory
-    ``o``, division ``sub``)."""
-    out = np.zeros(t.shape[0], dtype=np.int64)
-    for k in range(t.shape[0]):
-        out[k] = _sub_list(t[k, 0], t[k, 1], t[k, 2], fine, o[k], sub[k])[1]
-    return out
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _model(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(s, inward normal, rho) of the model of record ``rec[o:o + 8]`` (axis point, unit axis direction, radius R,
-    sign sigma) at (px, py, pz): ``sigma (rho - R)`` and ``sigma`` times the direction from the axis (rho: the
-    distance from it); sigma = 0: the plane through the point with unit normal the direction, ``R + a . (q - p)``
-    (rho: infinite)."""
-    dx = px - float(rec[o])
-    dy = py - float(rec[o + 1])
-    dz = pz - float(rec[o + 2])
-    ax = float(rec[o + 3])
-    ay = float(rec[o + 4])
-    az = float(rec[o + 5])
-    a = dx * ax + dy * ay + dz * az
-    sg = float(rec[o + 7])
-    if sg == 0.0:
-        return float(rec[o + 6]) + a, ax, ay, az, np.inf
-    dx -= a * ax
-    dy -= a * ay
-    dz -= a * az
-    rho = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if not (rho > 0.0):
-        return -sg * float(rec[o + 6]), 0.0, 0.0, -1.0, 0.0
-    return sg * (rho - float(rec[o + 6])), sg * dx / rho, sg * dy / rho, sg * dz / rho, rho
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _models(px, py, pz, rec, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(s, inward normal, rho) of the model cell of record ``rec[o:o + MODEL_REC]``: the least of its models' s,
-    the normal (and distance from the axis) of the model that attains it (the first of equals)."""
-    s, gx, gy, gz, rho = _model(px, py, pz, rec, o)
-    for m in range(1, MODELS):
-        b = o + m * NODE_STRIDE
-        if float(rec[b + 7]) == _NO_MODEL:
-            break
-        s2, hx, hy, hz, r2 = _model(px, py, pz, rec, b)
-        if s2 < s:
-            s, gx, gy, gz, rho = s2, hx, hy, hz, r2
-    return s, gx, gy, gz, rho
-
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _scan_list(px, py, pz, d, lst, o, n):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`~vesselbot_ros.physics.meshed_wall3d.smooth_wall3d` over the triangles ``lst[o:o + n]`` (their indices,
-    nearest the cell's centre first) of a list cell: the same bounds, closest points and tie rule (the lowest
-    index), so bit for bit its answer wherever the list holds the nearest triangle."""
-    tbest = int(lst[o])
-    best, fx, fy, fz, feat = _closest(px, py, pz, d, 48 * tbest + 8)
-    for e in range(o + 1, o + n):
-        t = int(lst[e])
-        b = 48 * t
-        if _triangle_far(px, py, pz, d, b, best):
-            continue
-        d2, gx, gy, gz, f = _closest(px, py, pz, d, b + 8)
-        if d2 < best or (d2 == best and t < tbest):
-            best = d2
-            fx = gx
-            fy = gy
-            fz = gz
-            feat = f
-            tbest = t
-    s, nx, ny, nz = _signed(px, py, pz, d, best, fx, fy, fz, feat, tbest)
-    gx, gy, gz = _smooth_normal(px, py, pz, d, tbest, s, nx, ny, nz)
-    return s, gx, gy, gz
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
@@ -487,21 +152,6 @@ def _list_cells(head, cells, lat, sub, split_len, maxlen, d, pbox, pstart, grid,
     return out, ln, out2, ln2
 
 
-@numba.njit(cache=True)
-def field_points3d(pts, head, field, fine, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """(m, 5) rows ``(s, nx, ny, nz, D)`` of :func:`wall_field3d` at points (m, 3) (m)."""
-    out = np.empty((pts.shape[0], 5))
-    for k in range(pts.shape[0]):
-        r = wall_field3d(pts[k, 0], pts[k, 1], pts[k, 2], head, field, fine, d, pbox, pstart, grid, nodes, index)
-        for c in range(5):
-            out[k, c] = r[c]
-    return out
-
-
-# ---------------------------------------------------------------------------------------------------------
-# build
-
-
 @numba.njit(cache=True, parallel=True)
 def _sample_nodes(head, field, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fill every node's s and normal (exact smooth query); returns them in float64, (N, 4)."""
@@ -548,7 +198,7 @@ def _s_at(x, y, z, head, field):  # type: ignore[no-untyped-def]  # numba kernel
 
 @numba.njit(cache=True, parallel=True)
 def _diameters(pts, q, head, field, d, pbox, pstart, grid, nodes, index, rmax, tol, chunk):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """:func:`~vesselbot_ros.physics.meshed_wall3d.ball_diameters3d` in parallel chunks, each ball first sized on the
+    """:func:`~vesselbot_ros.geometry.surface_wall.ball_diameters3d` in parallel chunks, each ball first sized on the
     sampled distances (its largest radius by bisection on the interpolated s, a few um off near the medial
     surface where the ball's centre lies), so the exact queries start 2 % above it and grow by 5 %: most
     balls take two (one that does not fit and the shrink through its nearest wall point), against about six
@@ -583,13 +233,6 @@ def _diameters(pts, q, head, field, d, pbox, pstart, grid, nodes, index, rmax, t
         b = min(n, a + chunk)
         out[a:b] = ball_diameters3d(pts[a:b], q[a:b], d, pbox, pstart, grid, nodes, index, rmax, tol, r0[a:b], 1.05)
     return out
-
-
-@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def _beyond(s, band, out_band, margin):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """True if a signed distance (m) lies beyond the band by more than ``margin``: deeper in the lumen than
-    ``band`` or farther outside it than ``out_band``."""
-    return s > band + margin if s >= 0.0 else -s > out_band + margin
 
 
 @numba.njit(cache=True, parallel=True)
@@ -838,281 +481,6 @@ def _lumen_diameters(head: Array, field: npt.NDArray[Any], q: Array, wargs: tupl
     return diam.ravel(), n
 
 
-@numba.njit(cache=True)
-def _fit_model(qs, ss, ns, lab, c, f32, out, o):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fit ``out[o:o + NODE_STRIDE]`` to the points labelled ``c`` (positions ``qs``, exact s ``ss``, inward normals
-    ``ns``): a straight round cylinder (the axis along the least eigenvector of their sum n n^T, through the point
-    nearest their normal lines; sigma -1 if that lies ahead along the inward normals -- a lumen's wall seen from
-    within -- else +1: a ridge seen from outside; R the mean of their ``rho - sigma s``) or a plane (their mean
-    normal), whichever is nearer their distances.  Rounded to float32 if ``f32``.  Returns False if none."""
-    npt = 0
-    cen = np.zeros(3)
-    mm = np.zeros((3, 3))
-    nm = np.zeros(3)
-    for p in range(qs.shape[0]):
-        if lab[p] != c:
-            continue
-        npt += 1
-        for a in range(3):
-            cen[a] += qs[p, a]
-            nm[a] += ns[p, a]
-            for b in range(3):
-                mm[a, b] += ns[p, a] * ns[p, b]
-    if npt < 2:
-        return False
-    cen /= npt
-    L = math.sqrt((nm ** 2).sum())
-    if not (L > 0.0):
-        return False
-    nm /= L
-    best = np.inf
-    cand = np.zeros(NODE_STRIDE)
-    # the plane
-    r0 = 0.0
-    for p in range(qs.shape[0]):
-        if lab[p] == c:
-            r0 += (ss[p] - ((qs[p, 0] - cen[0]) * nm[0] + (qs[p, 1] - cen[1]) * nm[1] + (qs[p, 2] - cen[2]) * nm[2])) / npt
-    for a in range(3):
-        cand[a] = cen[a]
-        cand[3 + a] = nm[a]
-    cand[6] = r0
-    cand[7] = 0.0
-    for tr in range(2):
-        if tr == 1:  # the cylinder
-            _w, t = sym3_least_eigvec(mm)  # not np.linalg.eigh: LAPACK goes through the CPU's BLAS kernel
-            am = np.zeros((3, 3))
-            bm = np.zeros(3)
-            off = 0.0
-            for p in range(qs.shape[0]):
-                if lab[p] != c:
-                    continue
-                for a in range(3):
-                    for b in range(3):
-                        pr = (1.0 if a == b else 0.0) - ns[p, a] * ns[p, b]
-                        am[a, b] += pr
-                        bm[a] += pr * qs[p, b]
-            for a in range(3):
-                for b in range(3):
-                    am[a, b] += t[a] * t[b]
-                    bm[a] += t[a] * t[b] * cen[b]
-            det, pt = solve3(am, bm)  # not np.linalg.det / solve (LAPACK's LU): as above
-            if abs(det) < 1e-12 * npt ** 3:
-                continue
-            for p in range(qs.shape[0]):
-                if lab[p] == c:
-                    off += (pt[0] - qs[p, 0]) * ns[p, 0] + (pt[1] - qs[p, 1]) * ns[p, 1] + (pt[2] - qs[p, 2]) * ns[p, 2]
-            sg = -1.0 if off > 0.0 else 1.0
-            rad = 0.0
-            for p in range(qs.shape[0]):
-                if lab[p] != c:
-                    continue
-                dv = qs[p] - pt
-                al = dv[0] * t[0] + dv[1] * t[1] + dv[2] * t[2]
-                rad += (math.sqrt(max((dv ** 2).sum() - al * al, 0.0)) - sg * ss[p]) / npt
-            for a in range(3):
-                cand[a] = pt[a]
-                cand[3 + a] = t[a]
-            cand[6] = rad
-            cand[7] = sg
-        if f32:
-            for a in range(NODE_STRIDE):
-                cand[a] = float(np.float32(cand[a]))
-        err = 0.0
-        for p in range(qs.shape[0]):
-            if lab[p] == c:
-                ms, _x, _y, _z, _r = _model(qs[p, 0], qs[p, 1], qs[p, 2], cand, 0)
-                err = max(err, abs(ms - ss[p]))
-        if err < best:
-            best = err
-            for a in range(NODE_STRIDE):
-                out[o + a] = cand[a]
-    return best < np.inf
-
-
-@numba.njit(cache=True)
-def _kmeans(vec, k, lab):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Label the rows of ``vec`` (n, 3) with k clusters (farthest-point start, Lloyd's steps); False if one empties."""
-    n = vec.shape[0]
-    cen = np.zeros((k, 3))
-    mean = np.zeros(3)
-    for p in range(n):
-        mean += vec[p] / n
-    dmin = np.full(n, np.inf)
-    ref = mean.copy()
-    for c in range(k):
-        far = -1.0
-        arg = 0
-        for p in range(n):
-            dd = ((vec[p] - ref) ** 2).sum()
-            if c > 0:
-                dmin[p] = min(dmin[p], dd)
-                dd = dmin[p]
-            if dd > far:
-                far = dd
-                arg = p
-        cen[c] = vec[arg]
-        ref = vec[arg].copy()
-        if c == 0:
-            for p in range(n):
-                dmin[p] = ((vec[p] - ref) ** 2).sum()
-    for _it in range(12):
-        for p in range(n):
-            bd = np.inf
-            for c in range(k):
-                dd = ((vec[p] - cen[c]) ** 2).sum()
-                if dd < bd:
-                    bd = dd
-                    lab[p] = c
-        cnt = np.zeros(k)
-        cen[:] = 0.0
-        for p in range(n):
-            cnt[lab[p]] += 1.0
-            cen[lab[p]] += vec[p]
-        for c in range(k):
-            if cnt[c] == 0.0:
-                return False
-            cen[c] /= cnt[c]
-    return True
-
-
-@numba.njit(cache=True)
-def _check_models(rec, o, qs, ss, ns, use, tol_s, cos_tol, axis_m):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Whether the model cell ``rec[o:]`` answers within the tolerances at the points ``use`` (the normal not
-    tested within ``axis_m`` of the attaining model's axis)."""
-    for p in range(qs.shape[0]):
-        if not use[p]:
-            continue
-        ms, mx, my, mz, rho = _models(qs[p, 0], qs[p, 1], qs[p, 2], rec, o)
-        if abs(ms - ss[p]) > tol_s or (rho > axis_m and mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2] < cos_tol):
-            return False
-    return True
-
-
-@numba.njit(cache=True, parallel=True)
-def _model_cells(head, cells, nmax, lat, vlat, band, out_band, tol_s, cos_tol, cos_std, axis_m, f32, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Fit each cell of ``cells`` (m, 3) ``(i, j, k)`` the least of 1 .. ``nmax`` models (module docstring) from the
-    exact query on its lattice of ``lat``^3 points (spacing h / (lat - 1): its corners, the 19 test points and
-    the sub-cell centres among them for lat = 5), and test it there (the points within the band or h beyond it).
-    Kept only if it meets the standard on the finer lattice of ``vlat``^3 points too (:func:`_verify_models`).
-    Returns (records (m, MODEL_REC) float64, models used (m,) int64: 0 failed)."""
-    h = head[3]
-    m = cells.shape[0]
-    rec = np.zeros((m, MODEL_REC))
-    used = np.zeros(m, dtype=np.int64)
-    npt = lat * lat * lat
-    for e in numba.prange(m):
-        qs = np.empty((npt, 3))
-        ss = np.empty(npt)
-        ns = np.empty((npt, 3))
-        ft = np.empty((npt, 3))
-        use = np.zeros(npt, dtype=np.bool_)
-        lab = np.zeros(npt, dtype=np.int64)
-        for p in range(npt):
-            a = p % lat
-            b = (p // lat) % lat
-            c = p // (lat * lat)
-            qs[p, 0] = head[0] + (cells[e, 0] + a / (lat - 1)) * h
-            qs[p, 1] = head[1] + (cells[e, 1] + b / (lat - 1)) * h
-            qs[p, 2] = head[2] + (cells[e, 2] + c / (lat - 1)) * h
-            s, gx, gy, gz = smooth_wall3d(qs[p, 0], qs[p, 1], qs[p, 2], d, pbox, pstart, grid, nodes, index)
-            ss[p] = s
-            ns[p, 0] = gx
-            ns[p, 1] = gy
-            ns[p, 2] = gz
-            ft[p, 0] = qs[p, 0] - s * gx
-            ft[p, 1] = qs[p, 1] - s * gy
-            ft[p, 2] = qs[p, 2] - s * gz
-            use[p] = not _beyond(s, band, out_band, h)
-        r = rec[e]
-        done = False
-        for k in range(1, nmax + 1):
-            for how in range(2 if k > 1 else 1):
-                if k > 1 and not _kmeans(ns if how == 0 else ft, k, lab):
-                    continue
-                if k == 1:
-                    lab[:] = 0
-                for _it in range(3):  # fit, then give each point to the model nearest its s and normal
-                    ok = True
-                    for c in range(MODELS):
-                        r[c * NODE_STRIDE + 7] = _NO_MODEL
-                    for c in range(k):
-                        ok = ok and _fit_model(qs, ss, ns, lab, c, f32, r, c * NODE_STRIDE)
-                    if not ok:
-                        break
-                    if _check_models(r, 0, qs, ss, ns, use, tol_s, cos_tol, axis_m):
-                        done = True
-                        break
-                    if k == 1:
-                        break
-                    for p in range(npt):
-                        bd = np.inf
-                        for c in range(k):
-                            ms, mx, my, mz, _rho = _model(qs[p, 0], qs[p, 1], qs[p, 2], r, c * NODE_STRIDE)
-                            dd = abs(ms - ss[p]) / tol_s + (1.0 - (mx * ns[p, 0] + my * ns[p, 1] + mz * ns[p, 2])) / (1.0 - cos_tol)
-                            if dd < bd:
-                                bd = dd
-                                lab[p] = c
-                if done:
-                    break
-            if done:
-                used[e] = k
-                break
-        if used[e] > 0 and not _verify_models(r, head, cells[e], vlat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart,
-                                               grid, nodes, index):
-            used[e] = 0
-    return rec, used
-
-
-@numba.njit(cache=True)
-def _verify_models(r, head, cell, lat, band, out_band, tol_s, cos_std, axis_m, d, pbox, pstart, grid, nodes, index):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """Whether the model cell ``r`` meets the standard on the cell's finer lattice of ``lat``^3 points: the distance
-    within ``tol_s`` and the normal within ``cos_std`` of the exact query's, but where the attaining model's axis is
-    within ``axis_m`` and the exact normal turns by more than 8 deg to a lattice neighbour (h / (lat - 1) away:
-    more than 3 deg within 5 um at h = 0.1 mm, lat = 9 -- undefined to the standard)."""
-    h = head[3]
-    n = lat * lat * lat
-    es = np.empty(n)
-    en = np.empty((n, 3))
-    for p in range(n):
-        x = head[0] + (cell[0] + (p % lat) / (lat - 1)) * h
-        y = head[1] + (cell[1] + ((p // lat) % lat) / (lat - 1)) * h
-        z = head[2] + (cell[2] + (p // (lat * lat)) / (lat - 1)) * h
-        s, gx, gy, gz = smooth_wall3d(x, y, z, d, pbox, pstart, grid, nodes, index)
-        es[p] = s
-        en[p, 0] = gx
-        en[p, 1] = gy
-        en[p, 2] = gz
-    cos_ill = math.cos(math.radians(8.0))
-    for p in range(n):
-        if _beyond(es[p], band, out_band, h):
-            continue
-        a = p % lat
-        b = (p // lat) % lat
-        c = p // (lat * lat)
-        x = head[0] + (cell[0] + a / (lat - 1)) * h
-        y = head[1] + (cell[1] + b / (lat - 1)) * h
-        z = head[2] + (cell[2] + c / (lat - 1)) * h
-        ms, mx, my, mz, rho = _models(x, y, z, r, 0)
-        if abs(ms - es[p]) > tol_s:
-            return False
-        if mx * en[p, 0] + my * en[p, 1] + mz * en[p, 2] >= cos_std:
-            continue
-        if rho > axis_m:
-            return False
-        ill = False
-        for nb in range(6):
-            da = (1 if nb == 0 else -1 if nb == 1 else 0)
-            db = (1 if nb == 2 else -1 if nb == 3 else 0)
-            dc = (1 if nb == 4 else -1 if nb == 5 else 0)
-            if 0 <= a + da < lat and 0 <= b + db < lat and 0 <= c + dc < lat:
-                o = ((c + dc) * lat + b + db) * lat + a + da
-                if en[o, 0] * en[p, 0] + en[o, 1] * en[p, 1] + en[o, 2] * en[p, 2] < cos_ill:
-                    ill = True
-        if not ill:
-            return False
-    return True
-
-
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
     """(origin (3,) m, (nx, ny, nz)): nodes on multiples of ``h_m`` covering the box plus ``margin_m``.
 
@@ -1126,12 +494,12 @@ def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: flo
 
 
 class WallField3D:
-    """A wall sampled on a regular grid, with its exact query for the flagged cells (see the module docstring).
+    """A wall sampled on a regular grid, with its exact query for the flagged cells (see docs/vessels.md).
 
     Build with :func:`build_wall_field3d`.
 
     Attributes:
-        wall: The exact wall (:class:`~vesselbot_ros.physics.meshed_wall3d.Wall3D`).
+        wall: The exact wall (:class:`~vesselbot_ros.geometry.surface_wall.Wall3D`).
         head: (8,) ``(x0, y0, z0, h, nx, ny, nz, r)``: origin (m), spacing (m), nodes per axis, refinement.
         field: (nx ny nz NODE_STRIDE,) node records, x fastest (float32 or float64); slot 5 of a cell's lowest
             corner: 0 interpolate, -1 exact, b > 0 refined in block b of ``fine``, -2 - m model cell m (its
@@ -1221,8 +589,8 @@ def _pruned(wall: Wall3D, head: Array, cells: npt.NDArray[np.int64], max_leaf: i
             max_depth: int) -> tuple[npt.NDArray[Any], ...]:
     """The wall's exact-query arrays kept only in the leaves holding a point of ``cells`` (flat indices of their
     lowest node) or a point outside the grid's cells, those leaves split down to ``max_depth`` (short lists
-    where the lookup asks) (:func:`~vesselbot_ros.physics.meshed_wall3d.split_leaves`,
-    :func:`~vesselbot_ros.physics.meshed_wall3d.pruned_arrays`).  Beyond the grid a leaf wholly outside the
+    where the lookup asks) (:func:`~vesselbot_ros.geometry.candidate_tree.split_leaves`,
+    :func:`~vesselbot_ros.geometry.candidate_tree.pruned_arrays`).  Beyond the grid a leaf wholly outside the
     lumen is sealed: only a bead far outside it goes there."""
     tree = wall.tree
     need, seal, at_cells = _needed(tree, wall, head, cells)
@@ -1324,7 +692,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
                        exact_max_depth: int = 0, tube: bool = False, axis_m: float = 5e-6 / math.tan(math.radians(2.0)),
                        models: int = MODELS, list_max: int = 0, list_lattice: int = 17, list_sub: int = 4,
                        list_split: float = 12.0, progress: ProgressFn | None = None) -> WallField3D:
-    """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (module docstring).
+    """Sample ``wall`` on a regular grid and flag the cells interpolation cannot answer (docs/vessels.md).
 
     Args:
         wall: The exact wall; its candidate tree must cover the grid.
@@ -1345,7 +713,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
             it, as beyond ``band_m`` inside, cells are interpolated whatever the error.
         prune: Keep the exact query's lists only in the leaves the lookup can ask (:func:`_pruned`); else the
             lookup carries the wall's whole candidate tree.
-        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (module docstring)
+        tube: A flagged cell wholly in the lumen whose least of up to ``models`` smooth models (docs/vessels.md)
             meets the tolerances at its lattice of 125 points is answered by them (for fine walls: on 0.1 mm
             facets the exact normal's facet-scale wiggle between the test points can take a model cell's error
             past 2 deg).
@@ -1355,7 +723,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         list_max: An exact cell (or one with exact sub-cells) wholly in the lumen is divided in ``list_sub``^3
             sub-cubes; one whose nearest triangles at the cell's ``list_lattice``^3 lattice points in it and next
             to it are at most this many, and whose scan over them answers as the exact query at the centres of its
-            27 cubes, is answered by that scan (module docstring).  0: none.
+            27 cubes, is answered by that scan (docs/vessels.md).  0: none.
         list_split: ... a cell whose sub-cubes' lists are longer on average is divided in (2 ``list_sub``)^3 instead
             (their lists checked at 8 points each).
         exact_max_leaf, exact_max_depth: The kept leaves are split while their list is longer than
@@ -1441,7 +809,7 @@ def build_wall_field3d(wall: Wall3D, h_m: float = 0.1e-3, margin_m: float = 1.05
         reach |= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0
     cell_of = np.zeros((nz, ny, nx), dtype=bool)
     cell_of[:-1, :-1, :-1] = reach
-    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (module docstring)
+    # first the flagged cells wholly in the lumen that the least of a few smooth models answers (docs/vessels.md)
     inner = np.ones((nz - 1, ny - 1, nx - 1), dtype=bool)
     for c in range(8):
         inner &= s3[c >> 2:nz - 1 + (c >> 2), (c >> 1) & 1:ny - 1 + ((c >> 1) & 1), c & 1:nx - 1 + (c & 1)] > 0.0

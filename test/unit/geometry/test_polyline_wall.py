@@ -1,7 +1,7 @@
-"""The plant's wall is the meshed wall (vesselbot_ros.physics.meshed_wall), checked through the packed-parameter path.
+"""The plant's wall is the meshed wall (vesselbot_ros.geometry.polyline_wall), checked through the packed-parameter path.
 
 The reference is brute force over the boundary edges of the gmsh triangulation (caps left out),
-written here independently of physics/meshed_wall.py.
+written here independently of geometry/polyline_wall.py.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def test_kernel_distance_and_normal_are_the_meshed_walls_within_5_um_and_2_deg(n
     dist, foot = _brute_force(q, a, b)
     inside = tri.get_trifinder()(q[:, 0], q[:, 1]) >= 0
     caps = cfd.mesh_network(load_network(network)).caps.values()
-    # outside: only beside a wall, not beyond an open end (where the lumen continues, see physics/meshed_wall.py)
+    # outside: only beside a wall, not beyond an open end (where the lumen continues, see geometry/polyline_wall.py)
     far_from_caps = np.all([np.hypot(*(q - c).T) > 2.0 * r + 1e-3 for c, _n, r in caps], axis=0)
     keep = (inside & (dist < 1e-3)) | (~inside & (dist < 2e-4) & far_from_caps)
     q, dist, foot, inside = q[keep], dist[keep], foot[keep], inside[keep]

@@ -1,0 +1,31 @@
+"""The candidate tree (vesselbot_ros.geometry.candidate_tree): its lists give brute force's answer, bit for bit.
+
+The reference is independent of the module: every triangle (brute force) and the union's inside test of the
+analytic Y.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vesselbot_ros.geometry.fixtures import y_solids
+from vesselbot_ros.geometry.surface_wall import Wall3D
+
+
+def test_y_candidates_are_complete_and_the_sign_is_the_unions(y: Wall3D) -> None:
+    """Everywhere in the Y's box, junction and crease included: the candidate lists give the answer of brute
+    force over every triangle bit for bit, and the sign is the analytic union's (cylinders and the node's ball)
+    wherever the point is more than 5 um from every solid's surface."""
+    rng = np.random.default_rng(3)
+    q = rng.uniform([-5.8e-3, -4.5e-3, -2.0e-3], [4.5e-3, 4.5e-3, 2.0e-3], size=(3000, 3))
+    inside, near, beyond = y_solids(q)
+    q = np.ascontiguousarray(q[~beyond])
+    inside, near = inside[~beyond], near[~beyond]
+    for smooth in (False, True):
+        a, b = y.query(q, smooth=smooth), y.brute_force(q, smooth=smooth)
+        np.testing.assert_array_equal(a["sdist"], b["sdist"])
+        np.testing.assert_array_equal(a["normal"], b["normal"])
+    s = y.query(q)["sdist"]
+    far = near > 5e-6
+    assert far.sum() > 2000
+    np.testing.assert_array_equal(s[far] > 0, inside[far])
