@@ -13,7 +13,10 @@ numba cache file of the package first.  Editing a module without numba code
 (the runner's Python, the CLI, the nodes) keeps the cache.
 
 It runs when :mod:`vesselbot_ros` is imported (about 1 ms), before any
-compiled function can load its cache.  :func:`vesselbot_ros.sim.warm.warm` fills the cache
+compiled function can load its cache.  A user's compiled kind calls and inlines
+our functions too, from its own module: :func:`freshen_dependent` drops that
+module's numba cache when our sources changed since it was written (the stage
+kinds' loader calls it before it imports the module).  :func:`vesselbot_ros.sim.warm.warm` fills the cache
 (``tools/bootstrap.sh`` calls it once per version of the compiled sources, so
 ``make run``, ``make test`` and every node start without compiling).
 """
@@ -25,7 +28,7 @@ from pathlib import Path
 
 from vesselbot_ros.atomic_io import write_text
 
-__all__ = ["numba_sources", "source_digest", "ensure_fresh"]
+__all__ = ["numba_sources", "source_digest", "ensure_fresh", "freshen_dependent"]
 
 ROOT = Path(__file__).resolve().parent
 STAMP_NAME = "numba.sources.sha256"
@@ -61,5 +64,34 @@ def ensure_fresh(root: Path = ROOT) -> bool:
         stamp.parent.mkdir(exist_ok=True)
         write_text(stamp, digest)
     except OSError:  # read-only install: numba then uses its own user cache dir
+        pass
+    return True
+
+
+_DIGESTS: dict[Path, str] = {}
+
+
+def freshen_dependent(module_file: str | Path, root: Path = ROOT) -> bool:
+    """Delete the numba cache files of a module outside the package (a user's compiled kind) if the package's
+    compiled sources changed since they were written: numba keys them on that module's own file only, and the
+    code in them calls or inlines ours.  The stamp is ``__pycache__/<stem>.vesselbot.sha256`` beside the module.
+
+    Returns:
+        True if caches were dropped (or there was no stamp yet).
+    """
+    path = Path(module_file)
+    if path.suffix != ".py" or not path.is_file():
+        return False
+    digest = _DIGESTS.get(root) or _DIGESTS.setdefault(root, source_digest(root))
+    cache = path.parent / "__pycache__"
+    stamp = cache / f"{path.stem}.vesselbot.sha256"
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return False
+        for f in cache.glob(f"{path.stem}.*.nb[ic]"):
+            f.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        write_text(stamp, digest)
+    except OSError:  # a read-only folder: numba then caches in its own user directory
         pass
     return True

@@ -272,6 +272,16 @@ def coil_apply(prm, state, t, g, out):  # type: ignore[no-untyped-def]  # numba 
     out[2 * d + 2] = 0.0
 
 
+class CompiledCoil(NamedTuple):
+    """A coil as the compiled loop runs it: its packed limits (:func:`coil_params`), its state now, and the
+    scanner's sequence it gates on (``sv``, None: none) with its hold (s)."""
+
+    prm: npt.NDArray[np.float64]
+    state0: npt.NDArray[np.float64]
+    sv: npt.NDArray[np.float64] | None = None
+    hold_s: float = 0.0
+
+
 class CoilLimiter:
     """Stateful saturation + slew limiter on ``dims`` gradient axes (the coil driver's pure core).
 
@@ -306,6 +316,10 @@ class CoilLimiter:
     def state(self) -> npt.NDArray[np.float64]:
         """(dims + 2,) copy of the compiled state: applied (T/m), time of the last call and of the last command (s)."""
         return self._state.copy()
+
+    def compiled(self) -> CompiledCoil:
+        """This coil's compiled form (its kind's :attr:`~vesselbot_ros.sim.kinds.StageKind.compile`)."""
+        return CompiledCoil(coil_params(self.limits), self.state)
 
     def reset(self, t0_s: float = 0.0) -> None:
         """Zero the coil at time ``t0_s``."""

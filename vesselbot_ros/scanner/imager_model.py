@@ -165,6 +165,17 @@ def check_frame_inputs(t_s: float, p_true: npt.ArrayLike, t_last_s: float, dims:
     return p
 
 
+class CompiledImager(NamedTuple):
+    """An imager as the compiled loop runs it: the arrays of :func:`imager_acquire` (``prm``, ``outliers``,
+    ``dropouts``, injected bursts included) and the scanner's sequence vector ``sv`` it acquires on (None: a frame
+    every imaging period, no sequence)."""
+
+    prm: npt.NDArray[np.float64]
+    outliers: npt.NDArray[np.float64]
+    dropouts: npt.NDArray[np.float64]
+    sv: npt.NDArray[np.float64] | None = None
+
+
 class ImagerModel:
     """Stateful imager on ``dims`` axes: call :meth:`frame` once per tick, in time order.
 
@@ -199,6 +210,10 @@ class ImagerModel:
     def frame_arrays(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """``(params, outliers, dropouts)`` of :func:`imager_acquire` now (injected bursts included), for compiled callers."""
         return self._prm, self._outliers, self._dropouts
+
+    def compiled(self) -> CompiledImager:
+        """This imager's compiled form (its kind's :attr:`~vesselbot_ros.sim.kinds.StageKind.compile`)."""
+        return CompiledImager(*self.frame_arrays)
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float,
                         angle_rad: float | None = None) -> None:

@@ -32,8 +32,16 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilOutput, coil_apply, coil_params, coil_saturate
+from vesselbot_ros.scanner.actuator_limits import (
+    CoilLimiter,
+    CoilOutput,
+    CompiledCoil,
+    coil_apply,
+    coil_params,
+    coil_saturate,
+)
 from vesselbot_ros.scanner.imager_model import (
+    CompiledImager,
     ImagerModel,
     Measurement,
     check_frame_inputs,
@@ -170,6 +178,18 @@ class SequencedImager:
         """The inner imager's ``(params, outliers, dropouts)``."""
         return self.inner.frame_arrays
 
+    def compiled(self) -> CompiledImager:
+        """The inner imager's compiled form on this sequence.
+
+        Raises:
+            ModelInputError: the inner imager has none (a user's imager the compiled loop cannot run).
+        """
+        form = getattr(self.inner, "compiled", None)
+        inner = form() if callable(form) else None
+        if not isinstance(inner, CompiledImager):
+            raise ModelInputError(f"the sequenced imager's {type(self.inner).__name__} has no compiled form")
+        return inner._replace(sv=self.sv)
+
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
         """As :meth:`ImagerModel.inject_outliers` (by acquisition time)."""
         self.inner.inject_outliers(start_s, duration_s, magnitude_m)
@@ -233,6 +253,18 @@ class SequencedCoil:
     def state(self) -> npt.NDArray[np.float64]:
         """(dims + 2,) copy of the inner coil's compiled state (:attr:`CoilLimiter.state`)."""
         return self.inner.state
+
+    def compiled(self) -> CompiledCoil:
+        """The inner coil's compiled form, gated on this sequence.
+
+        Raises:
+            ModelInputError: the inner coil has none (a user's coil the compiled loop cannot run).
+        """
+        form = getattr(self.inner, "compiled", None)
+        inner = form() if callable(form) else None
+        if not isinstance(inner, CompiledCoil):
+            raise ModelInputError(f"the sequenced coil's {type(self.inner).__name__} has no compiled form")
+        return inner._replace(sv=self.sv, hold_s=self.hold_s)
 
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
         """Saturate the command in the coil's norm, gate it by the sequence, then slew-limit it."""

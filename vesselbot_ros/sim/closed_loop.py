@@ -73,12 +73,11 @@ import threading
 import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Literal, NamedTuple, cast
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.control.backstepping import BacksteppingController
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import ModelInputError
@@ -306,13 +305,13 @@ def run_stages(
     """
     if path not in ("auto", "compiled", "per_tick"):
         raise ModelInputError(f"path must be 'auto', 'compiled' or 'per_tick', got {path!r}")
-    foreign = _foreign_stages(scenario, stages)
-    if path == "compiled" and foreign:
-        raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
-    if not foreign and path != "per_tick":
-        inp = _prepare(scenario, stages)
-        imager: Any = stages.imager  # a built-in imager (not foreign): it holds the run's generator
-        return _compiled_result(scenario, seed, inp, imager.rng)
+    if path != "per_tick":
+        inp, foreign = _prepare(scenario, stages)
+        if path == "compiled" and foreign:
+            raise ModelInputError(f"path='compiled' needs the built-in stages, got user stage(s) {foreign}")
+        if inp is not None:
+            imager: Any = stages.imager  # a built-in imager (not foreign): it holds the run's generator
+            return _compiled_result(scenario, seed, inp, imager.rng)
     return _run_per_tick(scenario, seed, stages)
 
 
@@ -333,7 +332,7 @@ def prepared(scenario: Scenario) -> Inputs | None:
         if hit is not None and hit[0]() is scenario:
             return hit[1]
     st = build_stages(scenario, None)
-    inp = None if _foreign_stages(scenario, st) else _prepare(scenario, st)
+    inp = _prepare(scenario, st)[0]
     with _PREPARED_LOCK:
         if len(_PREPARED) >= _PREPARED_MAX:
             _PREPARED.clear()
@@ -341,14 +340,10 @@ def prepared(scenario: Scenario) -> Inputs | None:
     return inp
 
 
-def _foreign_stages(scenario: Scenario, stages: Stages) -> list[str]:
-    """The stages the compiled loop cannot read."""
-    return compiled_loop.foreign_stages(stages)
-
-
-def _prepare(scenario: Scenario, stages: Stages) -> Inputs:
+def _prepare(scenario: Scenario, stages: Stages) -> tuple[Inputs | None, list[str]]:
+    """The compiled loop's inputs of ``stages``, or None and the roles it cannot run."""
     sim = scenario.sim
-    return compiled_loop.prepare(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
+    return compiled_loop.try_prepare(stages, sim.n_ticks, sim.dt_control_s, sim.record_forces)
 
 
 def _compiled_result(scenario: Scenario, seed: int | None, inp: Inputs, rng: np.random.Generator,
@@ -417,8 +412,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     forces = np.empty((n, 8, d)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
-    builtin_controller = type(controller) is BacksteppingController
-    adapted = getattr(controller, "adapted", None) if builtin_controller else None  # adaptive backstepping
+    adapted = getattr(controller, "adapted", None)  # an adaptive law's scales (flow_scale, magnetization_scale)
     g_prev = np.zeros(d)
     nan2 = np.full(d, np.nan)
     for k in range(n):
@@ -456,8 +450,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             f1["flow_scale_hat"][k] = getattr(est, "flow_scale", 1.0)
             f1["magnetization_scale_hat"][k] = 1.0
         else:
-            adapted = cast(BacksteppingController, controller).adapted  # reset() replaces it
-            assert adapted is not None  # the adaptive law always has its scales
+            adapted = controller.adapted  # reset() replaces it
             f1["flow_scale_hat"][k] = adapted.flow_scale
             f1["magnetization_scale_hat"][k] = adapted.magnetization_scale
         b1["meas_used"][k] = est.used_measurement

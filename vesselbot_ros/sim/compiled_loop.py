@@ -52,14 +52,14 @@ from vesselbot_ros.physics.integrator import (
     new_workspace,
     wall_and_forces,
 )
-from vesselbot_ros.scanner.actuator_limits import CoilLimiter, coil_apply, coil_params
-from vesselbot_ros.scanner.imager_model import ImagerModel, imager_frame, queue_columns
-from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager, new_seq_imager_state, seq_coil_apply, seq_imager_frame
+from vesselbot_ros.scanner.actuator_limits import coil_apply
+from vesselbot_ros.scanner.imager_model import imager_frame, queue_columns
+from vesselbot_ros.scanner.stages import new_seq_imager_state, seq_coil_apply, seq_imager_frame
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
-__all__ = ["LoopInputs", "prepare", "foreign_stages", "loop_kernel", "run_kernel", "raise_for_code", "columns",
-           "COLUMNS"]
+__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "foreign_stages", "loop_kernel", "run_kernel",
+           "raise_for_code", "columns", "COLUMNS"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
@@ -136,26 +136,29 @@ class LoopInputs:
     record_forces: bool
 
 
-def foreign_stages(stages: Any) -> list[str]:
-    """The stages :func:`prepare` cannot read, by name: of a kind the compiled loop does not run (a user's
-    object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), an observer or controller its kind cannot compile
-    (a built-in one over a user's model), a scanner stage over a user's part, or one on other axes than the plant's."""
+def compiled_forms(stages: Any) -> tuple[dict[str, Any], list[str]]:
+    """The compiled form of each stage of :data:`~vesselbot_ros.sim.kinds.FORM_ROLES`, through its kind, and the
+    roles whose stage the compiled loop cannot run: of a kind it does not run (a user's object;
+    :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), that its kind cannot compile (a built-in kind over a
+    user's part), or on other axes than the plant's."""
     d = getattr(stages.plant, "dims", 2)
-    bad = [role for role in kinds.ROLES
-           if not getattr(kinds.kind_of(role, getattr(stages, role)), "compiled", False)
-           or getattr(getattr(stages, role), "dims", d) != d]
-    for role in kinds.STEPPED_ROLES:
-        if role not in bad:
+    forms: dict[str, Any] = {}
+    bad = []
+    for role in kinds.ROLES:
+        stage = getattr(stages, role)
+        if not getattr(kinds.kind_of(role, stage), "compiled", False) or getattr(stage, "dims", d) != d:
+            bad.append(role)
+        elif role in kinds.FORM_ROLES:
             try:
-                kinds.compiled_stage(role, getattr(stages, role))
+                forms[role] = kinds.compiled_stage(role, stage)
             except ModelInputError:
                 bad.append(role)
-    im, co = stages.imager, stages.coil
-    if type(im) is SequencedImager and type(im.inner) is not ImagerModel:
-        bad.append("imager")
-    if type(co) is SequencedCoil and type(co.inner) is not CoilLimiter:
-        bad.append("coil")
-    return [role for role in kinds.ROLES if role in bad]
+    return forms, bad
+
+
+def foreign_stages(stages: Any) -> list[str]:
+    """The roles whose stage the compiled loop cannot run (:func:`compiled_forms`), in role order."""
+    return compiled_forms(stages)[1]
 
 
 def _read_only(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -174,39 +177,49 @@ def _model_geom(geom: Any) -> Any:
 
 
 def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
-    """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs.
+    """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs (:func:`try_prepare`).
+
+    Raises:
+        ModelInputError: a stage the compiled loop does not have (:func:`foreign_stages`).
+    """
+    inputs, bad = try_prepare(stages, n, dt, record_forces)
+    if inputs is None:
+        raise ModelInputError(f"compiled loop needs the built-in stages, got user stage(s) {bad}")
+    return inputs
+
+
+def try_prepare(stages: Any, n: int, dt: float, record_forces: bool) -> tuple[LoopInputs | None, list[str]]:
+    """The kernel inputs of freshly built stages, each compiled form made once, or None and the roles whose stage
+    the compiled loop cannot run (:func:`compiled_forms`).
 
     Takes the parameters and the initial state the stage objects hold (so
     both paths read the same numbers) and the reference sampled at every tick
     (``sample_many``, as the per-tick runner does).
 
     Raises:
-        ModelInputError: a stage the compiled loop does not have (:func:`foreign_stages`).
+        ModelInputError: the scanner's imager and coil on different sequences.
     """
-    bad = foreign_stages(stages)
+    forms, bad = compiled_forms(stages)
     if bad:
-        raise ModelInputError(f"compiled loop needs the built-in stages, got user stage(s) {bad}")
+        return None, bad
+    imager, coil = forms["imager"], forms["coil"]
+    seq = coil.sv is not None
+    if seq != (imager.sv is not None) or (seq and not np.array_equal(coil.sv, imager.sv)):
+        raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it for LoopInputs
     p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
-    plant, observer, controller, coil, model = stages.plant, stages.observer, stages.controller, stages.coil, stages.model
-    imager = stages.imager.inner if isinstance(stages.imager, SequencedImager) else stages.imager
-    limiter = coil.inner if isinstance(coil, SequencedCoil) else coil
-    seq = isinstance(coil, SequencedCoil) or isinstance(stages.imager, SequencedImager)
-    if seq and not (isinstance(coil, SequencedCoil) and isinstance(stages.imager, SequencedImager)
-                    and np.array_equal(coil.sv, stages.imager.sv)):
-        raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
+    plant, model = stages.plant, stages.model
     return LoopInputs(
         n=n, dt=dt, dims=plant.dims, ts=ts,
         p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
         plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=integrator_vector(plant.integrator),
         obs_ig=integrator_vector(model.integrator),
-        imager_prm=imager.frame_arrays[0], outliers=imager.frame_arrays[1], dropouts=imager.frame_arrays[2],
-        obs=kinds.compiled_stage("observer", observer), ctrl=kinds.compiled_stage("controller", controller),
-        coil_prm=coil_params(limiter.limits),
-        seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s if seq else 0.0,
-        plant_y0=plant.state, coil_state0=limiter.state,
+        imager_prm=imager.prm, outliers=imager.outliers, dropouts=imager.dropouts,
+        obs=forms["observer"], ctrl=forms["controller"], coil_prm=coil.prm,
+        seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s,
+        plant_y0=plant.state, coil_state0=coil.state0,
         record_forces=record_forces,
-    )
+    ), []
 
 
 @numba.njit(cache=True, nogil=True)

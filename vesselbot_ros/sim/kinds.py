@@ -50,6 +50,7 @@ import dataclasses
 import hashlib
 import importlib
 import importlib.metadata
+import importlib.util
 import inspect
 import math
 import sys
@@ -78,6 +79,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
+from vesselbot_ros.numba_cache import freshen_dependent
 from vesselbot_ros.physics.integrator import blood_velocity, wall_offsets
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_OMEGA_F, I_PHI_F
 from vesselbot_ros.physics.params import PhysicsParams
@@ -91,7 +93,7 @@ from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
-    "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "params_type", "section_resolver", "switch_sections",
+    "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "FORM_ROLES", "params_type", "section_resolver", "switch_sections",
     "fingerprint", "controller_estimate", "call_controller", "checked_command", "rejection_warning", "REJECT_REASONS",
     "REJECT_NONE", "REJECT_NONFINITE", "REJECT_ESTIMATE", "REJECT_RAISED", "REJECT_MALFORMED", "COMMAND_STATUSES",
     "make_observer", "PlantStage", "ImagerStage",
@@ -103,6 +105,10 @@ ROLES: tuple[str, ...] = ("plant", "imager", "observer", "reference", "controlle
 #: The roles whose kinds bring a compiled step the compiled loop calls through a pointer (its signature:
 #: :mod:`vesselbot_ros.control.compiled_stage`); the plant, imager, reference and coil are the loop's own.
 STEPPED_ROLES: tuple[str, ...] = ("observer", "controller")
+#: Roles whose compiled kinds give the compiled loop a compiled form (:attr:`StageKind.compile`): the stepped roles'
+#: numba steps, the imager's and the coil's arrays (:class:`~vesselbot_ros.scanner.imager_model.CompiledImager`,
+#: :class:`~vesselbot_ros.scanner.actuator_limits.CompiledCoil`, with the scanner's sequence they run on).
+FORM_ROLES: tuple[str, ...] = ("imager", "observer", "controller", "coil")
 #: The scenario section that holds each role's parameters (and its ``kind``).
 SECTIONS: dict[str, str] = {"plant": "physics", "imager": "imager", "observer": "observer", "reference": "reference",
                             "controller": "controller", "coil": "coil"}
@@ -176,17 +182,20 @@ class StageKind:
             params subclass :class:`~vesselbot_ros.physics.params.PhysicsParams` (the controller's
             model reads them).
         build: Makes the Python stage: ``build(context) -> stage``.
-        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For an
-            observer or a controller: ``compile`` gives its compiled form.
+        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For a role of
+            :data:`FORM_ROLES`: ``compile`` gives its compiled form.
         stage_types: The classes the built stage may have, for :func:`kind_of` on a stage object.
         summary: One line for ``vesselbot kinds``.
         source: ``built-in``, ``entry point <distribution>`` or ``scenario``.
         module_file: The file the kind is defined in (its hash joins a campaign run's content address).
-        compile: An observer or controller kind's compiled form of a built stage
-            (:class:`~vesselbot_ros.control.compiled_stage.CompiledObserver` or ``CompiledController``: a numba
-            step of the one signature of its role that the compiled loop calls), or None (the per-tick loop
-            runs it).  It raises :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile
-            (a built-in kind over a user's part).
+        compile: The compiled form of a built stage: for an observer or a controller a
+            :class:`~vesselbot_ros.control.compiled_stage.CompiledObserver` or ``CompiledController`` (a numba
+            step of the one signature of its role that the compiled loop calls), for an imager or a coil a
+            :class:`~vesselbot_ros.scanner.imager_model.CompiledImager` or
+            :class:`~vesselbot_ros.scanner.actuator_limits.CompiledCoil` (the arrays the kernel's imager and
+            coil read, on the scanner's sequence or none); None: the per-tick loop runs it.  It raises
+            :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile (a built-in kind
+            over a user's part).
     """
 
     role: str
@@ -208,7 +217,7 @@ class StageKind:
         if "kind" not in {f.name for f in dataclasses.fields(self.params)}:
             raise ConfigError(f"stage kind {self.name!r}: its params dataclass {self.params.__name__} needs a "
                               "'kind: str' field (the scenario's kind key)")
-        if self.role in STEPPED_ROLES and self.compiled and self.compile is None:
+        if self.role in FORM_ROLES and self.compiled and self.compile is None:
             raise ConfigError(f"stage kind {self.name!r}: a compiled {self.role} kind needs compile")
         if self.role == "plant" and not issubclass(self.params, PhysicsParams):
             raise ConfigError(f"stage kind {self.name!r}: a plant kind's params must subclass PhysicsParams "
@@ -276,6 +285,7 @@ def _load_entry_points() -> None:
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         dist = getattr(getattr(ep, "dist", None), "name", "?")
         try:
+            _freshen(ep.value.partition(":")[0])
             obj = ep.load()
         except Exception as exc:  # noqa: BLE001 - a broken plug-in package is reported by name, not a traceback
             print(f"vesselbot: stage kind entry point {ep.name!r} ({ep.value}) of {dist} does not load: {exc}",
@@ -283,6 +293,19 @@ def _load_entry_points() -> None:
             continue
         kind = _as_kind(obj, ep.name, f"entry point {dist}", where=f"entry point {ep.name!r}")
         register(kind)
+
+
+def _freshen(module_name: str) -> None:
+    """Before a user's module is imported: drop its numba cache if our compiled sources changed since it was written
+    (:func:`~vesselbot_ros.numba_cache.freshen_dependent`; its compiled kind calls and inlines our functions)."""
+    if module_name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(module_name)
+    except (ImportError, ValueError):
+        return  # the import that follows names the cause
+    if spec is not None and spec.origin:
+        freshen_dependent(spec.origin)
 
 
 def _module_file(obj: Any) -> str:
@@ -307,7 +330,7 @@ def _as_kind(obj: Any, name: str, source: str, where: str) -> StageKind:
                if hasattr(needed, m) and not callable(getattr(obj, m, None))]
     if missing:
         raise ConfigError(f"{where}: class {obj.__name__} ({role}) lacks method(s) {missing} of the {role} protocol")
-    compiled = role in STEPPED_ROLES and callable(getattr(obj, "compiled", None))  # its CompiledObserver/Controller
+    compiled = role in FORM_ROLES and callable(getattr(obj, "compiled", None))  # its compiled form
     cls: Any = obj  # the user's class: called with (params, context) by the convention
     return StageKind(role=role, name=name, params=params, build=lambda ctx: cls(ctx.params, ctx), compiled=compiled,
                      stage_types=(obj,), summary=(inspect.getdoc(obj) or "").split("\n")[0], source=source,
@@ -343,6 +366,7 @@ def find(role: str, name: str, where: str = "") -> StageKind:
         raise ConfigError(f"{key}: unknown {role} kind {name!r}; known: {known}, or 'module:Class' of your own")
     module_name, _, attr = name.partition(":")
     try:
+        _freshen(module_name)
         module = importlib.import_module(module_name)
     except Exception as exc:  # noqa: BLE001 - any failure of a user's module is one line naming the key
         raise ConfigError(f"{key}: module {module_name!r} of kind {name!r} does not import: "
@@ -377,7 +401,7 @@ def kind_of(role: str, stage: object) -> StageKind | None:
 
 
 def compiled_stage(role: str, stage: Any) -> Any:
-    """The compiled form of an observer or controller stage, through its kind (:attr:`StageKind.compile`).
+    """The compiled form of a stage of a role of :data:`FORM_ROLES`, through its kind (:attr:`StageKind.compile`).
 
     Raises:
         ModelInputError: the stage's kind has no compiled form, or cannot compile this stage.
@@ -490,9 +514,8 @@ def controller_estimate(t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.N
 def call_controller(controller: Any, t_s: float, x_hat: npt.NDArray[np.float64], z_hat: npt.NDArray[np.float64],
                     age_s: float, flow_scale: float, p_ref: npt.NDArray[np.float64], v_ref: npt.NDArray[np.float64],
                     a_ref: npt.NDArray[np.float64]) -> ControlCommand:
-    """One command of any controller, as the per-tick loop and the controller node call it (the same numbers)."""
-    if type(controller) is BacksteppingController:  # the built-in law's array port, flow scale included
-        return controller.command_arrays(t_s, x_hat, z_hat, age_s, p_ref, v_ref, a_ref, flow_scale)
+    """One command of any controller, as the per-tick loop and the controller node call it (the same numbers): its
+    ``command(t, estimate, reference)`` with the estimate the graph carries (:func:`controller_estimate`)."""
     cmd: ControlCommand = controller.command(t_s, controller_estimate(t_s, x_hat, z_hat, age_s, flow_scale),
                                              RefSample(p_ref, v_ref, a_ref))
     return cmd
@@ -655,7 +678,7 @@ for _kind in (
     StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator,),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
-              stage_types=(ImagerModel, SequencedImager),
+              stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
               summary="high-gain observer (25)", compile=HighGainObserver.compiled),
@@ -675,7 +698,7 @@ for _kind in (
               stage_types=(PredictiveController,), compile=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
-              stage_types=(CoilLimiter, SequencedCoil),
+              stage_types=(CoilLimiter, SequencedCoil), compile=lambda stage: stage.compiled(),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),
 ):
     register(_kind)

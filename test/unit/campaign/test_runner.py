@@ -124,11 +124,10 @@ def test_with_a_budget_runs_run_in_a_process_of_their_own_and_a_crash_there_is_o
 
 def test_a_run_process_kept_across_chunks_ends_idle_and_the_next_chunk_forks_a_new_one(monkeypatch) -> None:
     import concurrent.futures
-    import time
 
     import vesselbot_ros.campaign.runner as runner
 
-    monkeypatch.setattr(runner, "IDLE_EXIT_S", 0.5)
+    monkeypatch.setattr(runner, "IDLE_EXIT_S", 5.0)  # "at once" below is well within it, even on a loaded machine
     tasks = [_task(0, _mapping(0)), _task(1, _mapping(1))]
     here = run_chunk(tasks, code_version())  # this process loads the compiled loop; the run processes inherit it
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
@@ -136,7 +135,9 @@ def test_a_run_process_kept_across_chunks_ends_idle_and_the_next_chunk_forks_a_n
         pid = pool.submit(lambda: runner._THREAD.proc.pid).result()
         kept = pool.submit(run_chunk, tasks[1:], code_version(), 60.0).result()  # at once: the same process
         assert pool.submit(lambda: runner._THREAD.proc.pid).result() == pid
-        time.sleep(2.0)  # the process ends idle; the chunk sent to it finds it gone and runs in a new one
+        # the process ends idle (its end of the pipe closes: EOF), bounded; the chunk sent to it then finds it gone
+        # and runs in a new one
+        assert pool.submit(lambda: runner._THREAD.proc.conn.poll(120.0)).result()
         again = pool.submit(run_chunk, tasks, code_version(), 60.0).result()
         assert pool.submit(lambda: runner._THREAD.proc.pid).result() != pid
     assert [r["status"] for r in first + kept + again] == ["ok"] * 4
