@@ -1,44 +1,34 @@
-"""Route planning through a vessel network (pure): branch sequence, anchors, reference; where the robot went.
+"""Route planning through a vessel network, planar or in 3-D (pure): branch sequence, anchors, reference; where
+the robot went.
 
-Given the start point (the injection point ``initial.p0_m``) and a target
-outlet, the branch sequence is the path over the centreline tree from the inlet
-branch to that outlet (:func:`~vesselbot_ros.vessels.network.route_to_outlet`).
-Anchors are placed every ``reference.route_anchor_spacing_m`` of centreline
-arc length from the point of the route nearest the start to
-``reference.route_end_margin_m`` before the outlet (``reference.route_end``:
-the last one exactly there, the spacing shortened evenly to fit, or up to one
-spacing short of it), with the design-map rule of
-Section III-A (docs/control.md): in an artery the robot rides near the *upper*
-wall, where the flow is slow, at the wall-safe height
-:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m` of the local
-diameter (margin ``reference.route_wall_margin_m`` outside the band where the
-observer error is unstable); where that height is not positive (small vessels)
-the anchor is on the centreline.  Within one local diameter of a bifurcation
-node the height ramps linearly down to the centreline (the side of the wall
-changes there, and a route waiting at the upper wall in front of the wrong
-daughter's entrance loses the robot into it).  "Upper" is the side of the
-centreline whose normal points up (+z).  The first anchor is the start point itself.  The C2
-B-spline through the anchors and its timing are those of
-:class:`~vesselbot_ros.control.bspline_reference.ReferenceTrajectory`.
+Anchors every ``reference.route_anchor_spacing_m`` of centreline arc length from the start to the outlet, each
+the wall-safe height of the local diameter (Section III-A's design map) above the centreline on the side that
+points up, ramped to the centreline within one local diameter of a bifurcation node.  The rule, and what "up" is
+in the plane and in space, are in docs/vessels.md ("Routes").
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
-from vesselbot_ros.control.route3d import anchor_arcs, route_anchors_3d
 from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, route_to_outlet
 from vesselbot_ros.vessels.plant_field3d import wall_arrays
 
-__all__ = ["planned_reference", "route_branches", "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
+__all__ = ["planned_reference", "route_branches", "route_anchors", "up_directions", "anchor_arcs", "VERTICAL_SINE",
+           "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
+
+#: Below this sine of the angle between the centreline and the vertical, a cross-section in space has no up.
+VERTICAL_SINE = 0.05
 
 
 def route_branches(network: str, outlet: str) -> list[str]:
@@ -56,47 +46,105 @@ def _anchors_cached(phys, observer, ref, p0_m) -> npt.NDArray[np.float64]:  # ty
     cost ~0.3 s each."""
     net = load_network(phys.vessel.network)
     base = dataclasses.replace(phys, vessel=dataclasses.replace(phys.vessel, network=""))
-    if net.is_3d:  # the same rule along a route in space (control/route3d.py): up is the cross-section's vertical
 
-        def height_of(d: float) -> float:
-            pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
-            return wall_safe_delta_m(pd, observer, ref.route_wall_margin_m)
+    def height_of(d: float) -> float:
+        pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
+        return wall_safe_delta_m(pd, observer, ref.route_wall_margin_m)
 
-        arr3 = route_anchors_3d(net, ref.route_outlet, p0_m, ref.route_anchor_spacing_m, ref.route_end_margin_m, height_of,
-                                end=ref.route_end)
-        arr3.setflags(write=False)
-        return arr3
+    arr = route_anchors(net, ref.route_outlet, p0_m, ref.route_anchor_spacing_m, ref.route_end_margin_m, height_of,
+                        end=ref.route_end)
+    arr.setflags(write=False)
+    return arr
+
+
+def _row_norms(v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """|v| of each row: ``hypot`` in the plane, ``linalg.norm`` in space (axis count at the geometry's edge: each
+    keeps the anchors, and so the reference, it always gave)."""
+    if v.shape[1] == 2:
+        return np.asarray(np.hypot(v[:, 0], v[:, 1]))
+    return np.asarray(np.linalg.norm(v, axis=1))
+
+
+def up_directions(tangents: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Unit up direction in the cross-section at each unit tangent (k, d), and where it exists (k,).
+
+    In space: the vertical ``+z`` with its component along the tangent removed, normalised; where the centreline
+    is within :data:`VERTICAL_SINE` of vertical there is none (0).  In the plane: the tangent's normal that
+    points up (the same direction, written as the plane's rule, so the planar anchors keep their bits).
+    """
+    t = np.atleast_2d(np.asarray(tangents, dtype=np.float64))
+    if t.shape[1] == 2:  # axis count at the geometry's edge: the plane's normal of the tangent, pointing up
+        up = np.column_stack([-t[:, 1], t[:, 0]])
+        up[up[:, 1] < 0] *= -1.0
+        return up, np.ones(len(t), dtype=bool)
+    up = np.zeros_like(t)
+    up[:, 2] = 1.0
+    up -= t[:, 2:3] * t
+    norm = np.linalg.norm(up, axis=1)
+    ok = norm > VERTICAL_SINE
+    up[ok] /= norm[ok, None]
+    up[~ok] = 0.0
+    return up, ok
+
+
+def anchor_arcs(s0: float, s_end: float, spacing_m: float, end: str = "spaced") -> npt.NDArray[np.float64]:
+    """Arc lengths of the anchors after the start ``s0`` along a route planned to ``s_end`` (m).
+
+    ``spaced``: every ``spacing_m`` from ``s0``, the last in ``(s_end - spacing_m, s_end]`` (at least one).
+    ``at_margin``: the fewest evenly spaced anchors at most ``spacing_m`` apart, the last at ``s_end``.
+    """
+    n_max = max(1.0, (s_end - s0) / spacing_m + 1.0)  # the reference's spline then solves through them
+    require_fits("reference.route_anchor_spacing_m", spacing_m, *spline_setup_cost(int(min(n_max, 2**31))),
+                 what=f"the reference's B-spline set-up through {n_max:.3g} planned anchors",
+                 hint="space the planned anchors wider")
+    if end == "at_margin":
+        n = max(1, int(np.ceil((s_end - s0) / spacing_m - 1e-9)))
+        return s0 + (s_end - s0) * np.arange(1, n + 1, dtype=np.float64) / n
+    n = max(1, int(np.floor((s_end - s0) / spacing_m + 1e-9)))
+    return np.asarray(s0 + spacing_m * np.arange(1, n + 1), dtype=np.float64)
+
+
+def route_anchors(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, spacing_m: float, end_margin_m: float,
+                  height_of: Callable[[float], float], *, end: str = "spaced") -> npt.NDArray[np.float64]:
+    """The anchors (k, d) (m) of a reference from the start point ``p0_m`` (d,) to ``outlet``, on the network's
+    axes (2 for a planar file, 3 for a tree that gives ``y_m``).
+
+    Args:
+        net: The network.
+        outlet: The target outlet branch.
+        p0_m: The start (injection) point (m); the first anchor.
+        spacing_m: Arc length between anchors (m).
+        end_margin_m: The last anchor lies this far before the outlet (m).
+        height_of: The wall-safe height above the centreline of a vessel of diameter ``d`` (m -> m; negative
+            or zero: on the centreline), e.g. Section III-A's design map
+            (:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m`).
+        end: Where the last anchor lies (:func:`anchor_arcs`: ``spaced`` or ``at_margin``).
+    """
     geom = NetworkGeometry(net)
-    names = route_to_outlet(net, ref.route_outlet)
+    names = route_to_outlet(net, outlet)
     path = geom.centreline_path(names)
-    seg = np.hypot(*np.diff(path, axis=0).T)
-    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    arc = np.concatenate([[0.0], np.cumsum(_row_norms(np.diff(path, axis=0)))])
     p0 = np.asarray(p0_m, dtype=np.float64)
-    s0 = float(arc[int(np.argmin(np.hypot(*(path - p0).T)))])
-    s_list = anchor_arcs(s0, arc[-1] - ref.route_end_margin_m, ref.route_anchor_spacing_m, ref.route_end)
+    s0 = float(arc[int(np.argmin(_row_norms(path - p0)))])
+    s_list = anchor_arcs(s0, arc[-1] - end_margin_m, spacing_m, end)
     tang = np.gradient(path, axis=0)
-    tang /= np.hypot(tang[:, 0], tang[:, 1])[:, None]
-    up = np.column_stack([-tang[:, 1], tang[:, 0]])
-    up[up[:, 1] < 0] *= -1.0  # the normal that points up
-    q = geom.query(path)
+    tang /= _row_norms(tang)[:, None]
+    up, _has_up = up_directions(tang)
+    diam = geom.query(path)["diameter"]
     # arc lengths of the bifurcation nodes the route passes (the ends of all but its last branch)
-    lengths = [geom.branches[n][2][-1] for n in names]
-    nodes = np.cumsum(lengths)[:-1]
+    nodes = np.cumsum([geom.length_m(b) for b in names])[:-1]
     heights: dict[float, float] = {}
     out = [p0]
     for s in s_list:
         i = int(np.clip(np.searchsorted(arc, s), 0, len(path) - 1))
-        d = float(np.round(q["diameter"][i], 9))
+        d = float(np.round(diam[i], 9))
         if d not in heights:
-            pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
-            heights[d] = max(0.0, wall_safe_delta_m(pd, observer, ref.route_wall_margin_m))
+            heights[d] = max(0.0, float(height_of(d)))
         # within one local diameter of a node the height ramps down to the centreline, so the route never
         # waits in front of the other daughter's entrance (the wall side of a bend changes there)
         ramp = 1.0 if nodes.size == 0 else min(1.0, float(np.min(np.abs(nodes - s))) / d)
         out.append(path[i] + ramp * heights[d] * up[i])
-    arr = np.array(out)
-    arr.setflags(write=False)
-    return arr
+    return np.array(out)
 
 
 def planned_reference(scenario):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time

@@ -276,6 +276,8 @@ class Scenario:
                 f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
             )
         bspline = isinstance(self.reference, ReferenceParams)
+        # the axis count and the model's physics are read once, here (every builder and check asks these)
+        object.__setattr__(self, "_dims", network_dims(self.physics.vessel.network))
         d = self.dims
         for name in ("p0_m", "v0_m_per_s", "z_hat0_m_per_s"):
             vals = getattr(self.initial, name)
@@ -296,16 +298,18 @@ class Scenario:
                 raise ConfigError(f"reference.anchors_z_m[{i}] must lie inside the vessel (|z| < {half_d!r}), got {z!r}")
         if not self.physics.vessel.network and abs(self.initial.p0_m[1]) >= half_d:
             raise ConfigError(f"initial.p0_m[1] must lie inside the vessel (|z| < {half_d!r}), got {self.initial.p0_m[1]!r}")
-        try:
-            self.model_physics()
+        try:  # model.overrides merged once: model_physics() hands out this object
+            model = self.physics.with_overrides(self.model.overrides) if self.model.overrides else self.physics
         except ConfigError as exc:
             raise ConfigError(f"model.overrides: {exc}") from None
+        object.__setattr__(self, "_model_physics", model)
 
     @property
     def dims(self) -> int:
         """3 when ``physics.vessel.network`` is a 3-D tree (its file gives ``y_m``): the loop runs on (x, y, z);
-        else 2, the paper's plane (x, z)."""
-        return network_dims(self.physics.vessel.network)  # a network that does not load: its check names the cause
+        else 2, the paper's plane (x, z).  Read once, at validation (a network that does not load counts as
+        planar there; its own check names the cause)."""
+        return int(self.__dict__["_dims"])
 
     def _check_network(self, bspline: bool) -> None:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""
@@ -363,10 +367,9 @@ class Scenario:
                                   f"({-v:.6g} m outside the wall)")
 
     def model_physics(self) -> PhysicsParams:
-        """The controller's physics: ``physics`` with ``model.overrides`` applied."""
-        if not self.model.overrides:
-            return self.physics
-        return self.physics.with_overrides(self.model.overrides)
+        """The controller's physics: ``physics`` with ``model.overrides`` applied (merged once, at validation)."""
+        model: PhysicsParams = self.__dict__["_model_physics"]
+        return model
 
     def to_mapping(self) -> dict[str, Any]:
         """Plain YAML-able mapping; ``scenario_from_mapping`` inverts it."""

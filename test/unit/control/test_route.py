@@ -1,12 +1,20 @@
-"""Route planning (vesselbot_ros.control.route) and the scenario checks of a network."""
+"""Route planning (vesselbot_ros.control.route) and the scenario checks of a network; routes in a 3-D tree: the
+planar route's anchors in a tree in the plane, the cross-section's vertical in space."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.control.route import planned_reference, route_branches
+from vesselbot_ros.control import route
+from vesselbot_ros.control.reference_design import wall_safe_delta_m
+from vesselbot_ros.control.route import VERTICAL_SINE, anchor_arcs, planned_reference, route_branches, up_directions
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
@@ -47,3 +55,90 @@ def test_scenario_checks_of_a_network_name_key_and_value() -> None:
         load_scenario(shipped_scenarios()["sound_small_artery"], sets=["reference.route_outlet=upper"])
     with pytest.raises(ConfigError, match="major_bifurcation.enabled must be false with a network"):
         load_scenario(UPPER, sets=["physics.vessel.major_bifurcation.enabled=true"])
+
+
+# --- routes in a 3-D tree -------------------------------------------------------------------------------------
+
+def test_in_the_plane_the_3d_route_is_the_planar_route() -> None:
+    """The III-C tree given in 3-D (y = 0): the anchors are the planar route's, x and z, to rounding; y = 0."""
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper"])
+    ref = sc.reference
+    base = dataclasses.replace(sc.physics, vessel=dataclasses.replace(sc.physics.vessel, network=""))
+
+    def height_of(d: float) -> float:
+        pd = dataclasses.replace(base, vessel=dataclasses.replace(base.vessel, diameter_m=d))
+        return wall_safe_delta_m(pd, sc.observer, ref.route_wall_margin_m)
+
+    planar = route._anchors(sc)
+    p0 = np.array([sc.initial.p0_m[0], 0.0, sc.initial.p0_m[1]])
+    spatial = route.route_anchors(load_network("paper_iiic_artery_3d"), ref.route_outlet, p0, ref.route_anchor_spacing_m,
+                                  ref.route_end_margin_m, height_of)
+    assert spatial.shape == (len(planar), 3)
+    np.testing.assert_allclose(spatial[:, [0, 2]], planar, rtol=0, atol=1e-12)
+    assert np.all(spatial[:, 1] == 0.0)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0, 2 * math.pi), st.floats(-1.0, 1.0))
+def test_up_is_the_cross_sections_vertical(azimuth: float, sz: float) -> None:
+    """Up is a unit vector across the centreline, with the most +z of any such; none along a vertical centreline."""
+    t = np.array([math.sqrt(1 - sz * sz) * math.cos(azimuth), math.sqrt(1 - sz * sz) * math.sin(azimuth), sz])
+    up, ok = up_directions(t)
+    if math.sqrt(1 - sz * sz) <= VERTICAL_SINE:
+        assert not ok[0] and np.all(up == 0.0)
+        return
+    assert ok[0]
+    assert abs(np.linalg.norm(up[0]) - 1.0) < 1e-12 and abs(up[0] @ t) < 1e-12
+    assert abs(up[0, 2] - math.sqrt(1 - sz * sz)) < 1e-12  # the largest vertical component across t
+
+
+def test_a_tree_in_space_puts_every_anchor_inside_its_tube_above_the_centreline() -> None:
+    """The synthetic 4-generation tree: every anchor lies inside the lumen's tubes, at the wall-safe height above the
+    centreline's cross-section vertical (or on it near a node), and the route ends near its outlet."""
+    net = load_network("synthetic_tree_3d")
+    geom = NetworkGeometry(net, dims=3)
+    outlet = [b.name for b in net.branches if not any(c.parent == b.name for c in net.branches)][-1]
+    root = next(b for b in net.branches if not b.parent)
+    p0 = geom.centreline(root.name)[0]
+    anchors = route.route_anchors(net, outlet, p0, 2.0e-3, 1.0e-3, lambda d: 0.25 * d)
+    q = geom.query(anchors)
+    assert np.all(q["sdist"] > 0.2 * q["radius"])  # inside, a quarter diameter off the axis at most
+    end = geom.centreline(outlet)[-1]
+    assert np.linalg.norm(anchors[-1] - end) < 3.5e-3
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 5e-3), st.floats(1e-4, 30e-3), st.floats(0.5e-3, 4e-3))
+def test_the_route_ends_at_its_margin_or_up_to_one_spacing_short(s0: float, length: float, spacing: float) -> None:
+    """``spaced``: every spacing from the start, the last within one spacing of the end; ``at_margin``: evenly
+    spaced at most one spacing apart, the last exactly at the end."""
+    s_end = s0 + length
+    spaced = anchor_arcs(s0, s_end, spacing, "spaced")
+    assert np.allclose(np.diff(np.concatenate([[s0], spaced])), spacing)
+    if length >= spacing:
+        assert s_end - spacing - 1e-12 < spaced[-1] <= s_end + 1e-12
+    at = anchor_arcs(s0, s_end, spacing, "at_margin")
+    gaps = np.diff(np.concatenate([[s0], at]))
+    assert at[-1] == pytest.approx(s_end, abs=1e-15) and np.allclose(gaps, gaps[0])
+    assert gaps[0] <= spacing * (1 + 1e-9)
+    assert gaps[0] >= spacing * (at.size - 1) / at.size * (1 - 1e-9)  # one anchor fewer would space them wider
+
+
+def test_route_end_is_validated_and_left_out_of_the_mapping_when_spaced() -> None:
+    from vesselbot_ros.config import ConfigError, to_mapping
+    from vesselbot_ros.control.bspline_reference import ReferenceParams
+
+    with pytest.raises(ConfigError, match="route_end.*'last'"):
+        ReferenceParams(route_end="last")  # type: ignore[arg-type]
+    assert "route_end" not in to_mapping(ReferenceParams())
+    assert to_mapping(ReferenceParams(route_end="at_margin"))["route_end"] == "at_margin"
+
+
+def test_a_planned_anchor_spacing_whose_spline_would_not_fit_is_refused_with_the_estimate() -> None:
+    """10 cm of route at 10 nm: 10 million planned anchors (the old planner made them, then the dense spline)."""
+    from vesselbot_ros.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^reference\.route_anchor_spacing_m=1e-08: the reference's B-spline set-up "
+                                          r"through 1e\+07 planned anchors needs about [0-9.]+ TiB of memory"):
+        anchor_arcs(0.0, 0.1, 1e-8)
+    assert len(anchor_arcs(0.0, 0.1, 2.5e-3)) == 40
