@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from vesselbot_ros.config import load_dataclass
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels import cfd3d
+from vesselbot_ros.vessels import cfd3d, tree_mesh
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
 
 NEWTONIAN = BloodParams(viscosity_model="constant")
@@ -45,25 +45,25 @@ def check(label: str, value: float, limit: float, unit: str = "%") -> None:
     print(f"  {label:<62s} {value:+9.4f} {unit}  (limit {limit:g} {unit})  {'OK' if ok else 'FAIL'}")
 
 
-def tube(radius_m: float = 1.5e-3, length_m: float = 6e-3) -> cfd3d.Tree3D:
+def tube(radius_m: float = 1.5e-3, length_m: float = 6e-3) -> tree_mesh.Tree3D:
     """A straight tube along +x."""
-    return cfd3d.Tree3D("tube", (cfd3d.Branch3D("a", "", ((0.0, 0.0, 0.0), (length_m, 0.0, 0.0)), (radius_m,)),))
+    return tree_mesh.Tree3D("tube", (tree_mesh.Branch3D("a", "", ((0.0, 0.0, 0.0), (length_m, 0.0, 0.0)), (radius_m,)),))
 
 
 def y_tree(name: str, r0: float, r1: float, r2: float, angle_deg: float = 30.0, l0: float = 4e-3,
-           l1: float = 6e-3, l2: float | None = None) -> cfd3d.Tree3D:
+           l1: float = 6e-3, l2: float | None = None) -> tree_mesh.Tree3D:
     """A Y in the XZ plane: parent along +x (radius r0, length l0), daughters at +/- angle_deg."""
     a = math.radians(angle_deg)
     l2 = l1 if l2 is None else l2
     node = (l0, 0.0, 0.0)
-    return cfd3d.Tree3D(name, (
-        cfd3d.Branch3D("p", "", ((0.0, 0.0, 0.0), node), (r0,)),
-        cfd3d.Branch3D("d1", "p", (node, (l0 + l1 * math.cos(a), 0.0, l1 * math.sin(a))), (r1,)),
-        cfd3d.Branch3D("d2", "p", (node, (l0 + l2 * math.cos(a), 0.0, -l2 * math.sin(a))), (r2,)),
+    return tree_mesh.Tree3D(name, (
+        tree_mesh.Branch3D("p", "", ((0.0, 0.0, 0.0), node), (r0,)),
+        tree_mesh.Branch3D("d1", "p", (node, (l0 + l1 * math.cos(a), 0.0, l1 * math.sin(a))), (r1,)),
+        tree_mesh.Branch3D("d2", "p", (node, (l0 + l2 * math.cos(a), 0.0, -l2 * math.sin(a))), (r2,)),
     ))
 
 
-def y_network(tree: cfd3d.Tree3D, mesh_size_m: float) -> VesselNetworkParams:
+def y_network(tree: tree_mesh.Tree3D, mesh_size_m: float) -> VesselNetworkParams:
     """The same Y as a planar network (for the 2-D solve)."""
     br = []
     for b in tree.branches:
@@ -90,7 +90,7 @@ def poiseuille(sol: cfd3d.FlowSolution3D, radius_m: float, length_m: float, eta:
     return q / q_ex - 1.0, vc_err, (f1[1] - f2[1]) / dp_ex - 1.0
 
 
-def section_errors(sol: cfd3d.FlowSolution3D, tree: cfd3d.Tree3D) -> list[tuple[str, float, float]]:
+def section_errors(sol: cfd3d.FlowSolution3D, tree: tree_mesh.Tree3D) -> list[tuple[str, float, float]]:
     """(branch, arc fraction, relative flux error) through cross-sections of every branch.
 
     Sections at 0.3, 0.5, 0.7 of the root's length and 0.5, 0.7, 0.9 of a daughter's (nearer the
@@ -110,7 +110,7 @@ def section_errors(sol: cfd3d.FlowSolution3D, tree: cfd3d.Tree3D) -> list[tuple[
     return out
 
 
-def solve(tree: cfd3d.Tree3D, h: float, n_circle: int, blood: BloodParams = NEWTONIAN, outlets: str = "natural"
+def solve(tree: tree_mesh.Tree3D, h: float, n_circle: int, blood: BloodParams = NEWTONIAN, outlets: str = "natural"
           ) -> cfd3d.FlowSolution3D:
     st = cfd3d.Flow3DSettings(mesh_size_m=h, wall_elements_per_circle=n_circle, outlets=outlets)  # type: ignore[arg-type]
     t0 = time.perf_counter()
@@ -209,7 +209,7 @@ def validate(quick: bool) -> None:
         check("asymmetric Y share: change between the two finest meshes", 100 * d2, 0.5, "pt")
 
 
-def _solve_2d(tree: cfd3d.Tree3D, h: float):  # type: ignore[no-untyped-def]
+def _solve_2d(tree: tree_mesh.Tree3D, h: float):  # type: ignore[no-untyped-def]
     from vesselbot_ros.vessels import cfd  # deferred: the 2-D solve is needed only for the comparison
 
     return cfd.solve_flow(y_network(tree, h), BloodParams())
@@ -218,7 +218,7 @@ def _solve_2d(tree: cfd3d.Tree3D, h: float):  # type: ignore[no-untyped-def]
 def iiic(h: float, n_circle: int) -> None:
     print(f"5. III-C tree (paper_iiic_artery as a 3-D tree, y = 0): h = {h * 1e3:.2f} mm, {n_circle} elements per circle")
     net = load_network("paper_iiic_artery")
-    tree = cfd3d.tree_from_network(net)
+    tree = tree_mesh.tree_from_network(net)
     for outlets in ("natural", "murray"):
         st = cfd3d.settings_from_network(net, outlets=outlets, mesh_size_m=h, wall_elements_per_circle=n_circle)
         t0 = time.perf_counter()

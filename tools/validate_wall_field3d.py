@@ -199,24 +199,24 @@ def validate(h_m: float = 0.1e-3, mesh_m: float = 0.1e-3, dtype: type = np.float
 
 def straight_branches(net: object) -> list[tuple[str, Array, Array, float]]:
     """(name, start, end, radius) of the tree's straight branches of one radius (their wall is a cylinder)."""
-    from vesselbot_ros.vessels import cfd3d  # deferred: only the shipped trees' section needs the CFD module
+    from vesselbot_ros.vessels import tree_mesh  # deferred: only the shipped trees' section needs the tree mesh module
 
     out = []
-    for b in cfd3d.tree_from_network(net).branches:  # type: ignore[arg-type]
+    for b in tree_mesh.tree_from_network(net).branches:  # type: ignore[arg-type]
         pts, rad = b.points(), b.radii()
-        if cfd3d._collinear(pts) and cfd3d._constant(rad):
+        if tree_mesh._collinear(pts) and tree_mesh._constant(rad):
             out.append((b.name, pts[0], pts[-1], float(rad[0])))
     return out
 
 
 def nearest_branch(net: object, pts: Array) -> list[str]:
     """Per point the branch whose tube wall (its densified centreline and radii) is nearest."""
-    from vesselbot_ros.vessels import cfd3d  # deferred: only the shipped trees' section needs the CFD module
+    from vesselbot_ros.vessels import tree_mesh  # deferred: only the shipped trees' section needs the tree mesh module
 
     best = np.full(len(pts), np.inf)
     name = np.full(len(pts), "", dtype=object)
-    for b in cfd3d.tree_from_network(net).branches:  # type: ignore[arg-type]
-        dense, rad = cfd3d._densify(b.points(), b.radii(), 0.02 * float(b.radii().min()))
+    for b in tree_mesh.tree_from_network(net).branches:  # type: ignore[arg-type]
+        dense, rad = tree_mesh._densify(b.points(), b.radii(), 0.02 * float(b.radii().min()))
         for a0 in range(0, len(pts), 20000):
             q = pts[a0:a0 + 20000]
             dd = np.linalg.norm(q[:, None, :] - dense[None, ::4, :], axis=2)

@@ -5,7 +5,7 @@ solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries v
 ``cfd.outlet_split`` imposed at the outlets) and sampled for the plant:
 
 * the wall: the surface of the same fused solid the flow is solved in, meshed alone
-  (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`: facets sagging about ``WALL_SAG_M`` = 0.5 um off the CAD
+  (:func:`~vesselbot_ros.vessels.tree_mesh.mesh_wall`: facets sagging about ``WALL_SAG_M`` = 0.5 um off the CAD
   surface, where the flow mesh's 0.3-0.8 mm facets sag up to 7.5-20 um; its caps, flat faces of the solid,
   left out), whose exact signed distance, smooth inward normal and local (ball) diameter
   :mod:`vesselbot_ros.geometry.surface_query` answers, sampled on the grid by
@@ -68,7 +68,7 @@ from vesselbot_ros.physics.kernel import pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
-from vesselbot_ros.vessels import cfd3d
+from vesselbot_ros.vessels import cfd3d, tree_mesh
 from vesselbot_ros.vessels.cfd import packed_params
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
 
@@ -85,7 +85,7 @@ WALL_VERSION = 8  # 8: model cells' axes by a BLAS-free eigen-solver (one sign; 
 GRID_MARGIN_M = 3.0e-4
 #: Default spacing of the plant's grid (m).
 DEFAULT_SPACING_M = 1.0e-4
-#: The plant's wall: the facets' sag off the CAD surface (m) (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`).
+#: The plant's wall: the facets' sag off the CAD surface (m) (:func:`~vesselbot_ros.vessels.tree_mesh.mesh_wall`).
 WALL_SAG_M = 0.5e-6
 #: The wall field's standard holds within this of the wall in the lumen (m) ...
 BAND_M = 1.0e-3
@@ -110,7 +110,7 @@ TETS_PER_EDGE_VOLUME = 6.0
 #: 2.3 ms on a tube of 5-12 thousand, the shipped trees solved in 0.9-2.9 ms each (a 2-core machine, loaded).
 TET_BYTES = 32.0 * 1024
 TET_SECONDS = 3.0e-3
-#: The plant's wall: triangles per (wall area / size^2), the size :func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`'s
+#: The plant's wall: triangles per (wall area / size^2), the size :func:`~vesselbot_ros.vessels.tree_mesh.mesh_wall`'s
 #: ``sqrt(6 r sag)`` (fitted to the shipped walls: 2.2-2.6); memory (gmsh, the exact wall's tree) and time each.
 TRIANGLES_PER_SIZE_AREA = 2.7
 WALL_TRIANGLE_BYTES = 1024.0
@@ -141,7 +141,7 @@ def grid_spacing_m(net: VesselNetworkParams) -> float:
 
 def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
     """The samples' key: sha256 of the tree, its solve settings, the grid, the blood model and the version."""
-    tree = cfd3d.tree_from_network(net)
+    tree = tree_mesh.tree_from_network(net)
     text = json.dumps({"tree": dataclasses.asdict(tree), "settings": dataclasses.asdict(flow_settings(net)),
                        "h": grid_spacing_m(net), "sag": WALL_SAG_M, "blood": to_mapping(blood), "v": FIELD3D_VERSION},
                       sort_keys=True)
@@ -163,7 +163,7 @@ class PlantField3D:
     Attributes:
         name: The network's name.  key: :func:`field_key`.
         vertices: (n, 3) the plant's wall vertices (m), on a 1 nm lattice.  triangles: (k, 3) its triangles (caps
-            excluded): the solid's surface meshed alone (:func:`~vesselbot_ros.vessels.cfd3d.mesh_wall`).
+            excluded): the solid's surface meshed alone (:func:`~vesselbot_ros.vessels.tree_mesh.mesh_wall`).
         caps: cap name -> (centre (3,), unit outward normal (3,), radius m).
         origin: (3,) grid origin (m).  h: spacing (m).  shape: (nx, ny, nz) nodes.
         velocity: (nz, ny, nx, 3) float32 velocity per unit inlet centreline velocity (-).
@@ -295,7 +295,7 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: Pr
     """
     t0 = time.perf_counter()
     settings = flow_settings(net)
-    tree = cfd3d.tree_from_network(net)
+    tree = tree_mesh.tree_from_network(net)
     report = progress or (lambda done, total: None)
     steps = [3]  # a cached solve, the wall's mesh, the sampling; a solve's own steps replace the first
 
@@ -309,7 +309,7 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: Pr
     used, inv = np.unique(vtri, return_inverse=True)
     view_verts = np.ascontiguousarray(sol.mesh.p.T[used])
     vtri = inv.reshape(-1, 3).astype(np.int64)
-    wm = cfd3d.mesh_wall(tree, WALL_SAG_M)
+    wm = tree_mesh.mesh_wall(tree, WALL_SAG_M)
     report(steps[0] - 1, steps[0])
     h = grid_spacing_m(net)
     origin, shape = grid_box(wm.vertices.min(axis=0), wm.vertices.max(axis=0), h, GRID_MARGIN_M + 2.0 * h)

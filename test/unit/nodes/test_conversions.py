@@ -212,14 +212,13 @@ def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
     from visualization_msgs.msg import Marker
 
     from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
-    from vesselbot_ros.vessels import cfd3d
+    from vesselbot_ros.vessels import tree_mesh
     from vesselbot_ros.vessels.network import NetworkGeometry, load_network
 
     net = load_network("carotid_bifurcation_3d")
     geom = NetworkGeometry(net, dims=3)
     # a coarse mesh of the tree's lumen (a second: no flow solve), its wall's triangles
-    meshed = cfd3d.mesh_tree(cfd3d.tree_from_network(net), cfd3d.settings_from_network(
-        net, mesh_size_m=1.5e-3, wall_elements_per_circle=16))
+    meshed = tree_mesh.mesh_tree(tree_mesh.tree_from_network(net), 1.5e-3, 16)
     used, local = np.unique(meshed.boundaries["wall"], return_inverse=True)
     v, t = meshed.points[used], local.reshape(-1, 3)
     ms = cv.network_markers_3d(geom, v, t, 2.5e-4).markers
