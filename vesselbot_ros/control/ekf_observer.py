@@ -188,7 +188,7 @@ def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T
 @numba.njit(cache=True, nogil=True)
 def _s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``Si = (P[:d, :d] + r2 I)^-1`` (symmetric) by the adjugate, in a fixed order."""
-    if d == 2:
+    if d == 2:  # axis count: the plane's 2x2 adjugate (its bits), else the 3x3 one below
         s00 = P[0, 0] + r2
         s01 = P[0, 1]
         s11 = P[1, 1] + r2
@@ -309,7 +309,7 @@ EKF_OUT_SIZE = ekf_out_size(2)
 def gate_on_axes(gate_chi2: float, dims: int) -> float:
     """``gate_chi2`` (a quantile of the chi-square law of 2 degrees of freedom, as configured) as the quantile of
     the same probability on ``dims`` degrees of freedom: the innovation has one per axis."""
-    if dims == 2 or not gate_chi2 > 0.0:
+    if dims == 2 or not gate_chi2 > 0.0:  # axis count: the configured quantile is on the plane's 2 degrees
         return float(gate_chi2)
     from scipy.stats import chi2  # deferred: scipy.stats takes a second to import; only a 3-D filter needs it
 

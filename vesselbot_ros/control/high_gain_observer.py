@@ -164,7 +164,7 @@ def axis_gains(params: ObserverParams, dims: int = 2) -> tuple[npt.NDArray[np.fl
         gx, gz = np.array([params.g1, params.g3]), np.array([params.g2, params.g4])
     else:
         gx, gz = np.array([params.g1, params.g2]), np.array([params.g3, params.g4])
-    if dims == 3:
+    if dims == 3:  # axis count: y, across the bore as z is, takes z's pair
         return np.array([gx[0], gx[1], gx[1]]), np.array([gz[0], gz[1], gz[1]])
     return gx, gz
 

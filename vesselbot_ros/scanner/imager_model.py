@@ -460,7 +460,7 @@ def imager_acquire(prm, outliers, dropouts, rng, t, p, out):  # type: ignore[no-
         out[2 + c] = p[c] + prm[1] * next_normal(rng)
     u_dir = next_uniform(rng)
     u_drop = next_uniform(rng)
-    u_pol = next_uniform(rng) if d == 3 else 0.0
+    u_pol = next_uniform(rng) if d == 3 else 0.0  # axis count: the plane draws no polar variate (its stream stays)
     outlier = 0.0
     last = d - 1  # z: the plane's second axis, space's third
     for i in range(outliers.shape[0]):
