@@ -24,6 +24,7 @@ kinds' loader calls it before it imports the module).  :func:`vesselbot_ros.sim.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterable
 from pathlib import Path
 
 from vesselbot_ros.atomic_io import write_text
@@ -48,27 +49,38 @@ def source_digest(root: Path = ROOT) -> str:
     return h.hexdigest()
 
 
+def _refresh(stamp: Path, digest: str, caches: Iterable[Path]) -> bool:
+    """Delete ``caches`` and write ``digest`` to ``stamp`` unless the stamp already holds it; True if it did not."""
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return False
+        for f in caches:
+            f.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        write_text(stamp, digest)
+    except OSError:  # a read-only folder: numba then caches in its own user directory
+        pass
+    return True
+
+
+_DIGESTS: dict[Path, str] = {}
+
+
+def _digest(root: Path) -> str:
+    """:func:`source_digest` of ``root``, hashed once per process (the package's sources do not change under it)."""
+    if root not in _DIGESTS:
+        _DIGESTS[root] = source_digest(root)
+    return _DIGESTS[root]
+
+
 def ensure_fresh(root: Path = ROOT) -> bool:
     """Delete the package's numba cache files if its sources changed since they were written.
 
     Returns:
         True if caches were dropped (or there was no stamp yet).
     """
-    digest = source_digest(root)
-    stamp = root / "__pycache__" / STAMP_NAME
-    try:
-        if stamp.is_file() and stamp.read_text() == digest:
-            return False
-        for f in root.rglob("__pycache__/*.nb[ic]"):
-            f.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
-        write_text(stamp, digest)
-    except OSError:  # read-only install: numba then uses its own user cache dir
-        pass
-    return True
-
-
-_DIGESTS: dict[Path, str] = {}
+    _DIGESTS.pop(root, None)  # read the sources now, whatever an earlier call saw
+    return _refresh(root / "__pycache__" / STAMP_NAME, _digest(root), root.rglob("__pycache__/*.nb[ic]"))
 
 
 def freshen_dependent(module_file: str | Path, root: Path = ROOT) -> bool:
@@ -82,16 +94,5 @@ def freshen_dependent(module_file: str | Path, root: Path = ROOT) -> bool:
     path = Path(module_file)
     if path.suffix != ".py" or not path.is_file():
         return False
-    digest = _DIGESTS.get(root) or _DIGESTS.setdefault(root, source_digest(root))
     cache = path.parent / "__pycache__"
-    stamp = cache / f"{path.stem}.vesselbot.sha256"
-    try:
-        if stamp.is_file() and stamp.read_text() == digest:
-            return False
-        for f in cache.glob(f"{path.stem}.*.nb[ic]"):
-            f.unlink(missing_ok=True)
-        cache.mkdir(exist_ok=True)
-        write_text(stamp, digest)
-    except OSError:  # a read-only folder: numba then caches in its own user directory
-        pass
-    return True
+    return _refresh(cache / f"{path.stem}.vesselbot.sha256", _digest(root), cache.glob(f"{path.stem}.*.nb[ic]"))

@@ -58,7 +58,7 @@ from vesselbot_ros.scanner.stages import new_seq_imager_state, seq_coil_apply, s
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
-__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "foreign_stages", "loop_kernel", "run_kernel",
+__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "loop_kernel", "run_kernel",
            "raise_for_code", "columns", "COLUMNS"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
@@ -156,11 +156,6 @@ def compiled_forms(stages: Any) -> tuple[dict[str, Any], list[str]]:
     return forms, bad
 
 
-def foreign_stages(stages: Any) -> list[str]:
-    """The roles whose stage the compiled loop cannot run (:func:`compiled_forms`), in role order."""
-    return compiled_forms(stages)[1]
-
-
 def _read_only(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """A read-only view (the controller step's signature takes the packed model read-only)."""
     v = np.ascontiguousarray(a).view()
@@ -180,7 +175,7 @@ def prepare(stages: Any, n: int, dt: float, record_forces: bool) -> LoopInputs:
     """Pack freshly built :class:`~vesselbot_ros.sim.closed_loop.Stages` into kernel inputs (:func:`try_prepare`).
 
     Raises:
-        ModelInputError: a stage the compiled loop does not have (:func:`foreign_stages`).
+        ModelInputError: a stage the compiled loop does not have (:func:`compiled_forms`).
     """
     inputs, bad = try_prepare(stages, n, dt, record_forces)
     if inputs is None:
