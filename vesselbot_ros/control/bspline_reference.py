@@ -63,6 +63,7 @@ __all__ = [
     "ReferenceTrajectory",
     "propose_anchors",
     "lower_wall_shift",
+    "sinusoid",
     "WallMotion",
     "wall_shift_of",
 ]
@@ -84,9 +85,8 @@ class WallMotion(NamedTuple):
 WallShiftFn = Callable[[npt.NDArray[np.float64]], tuple[npt.NDArray[np.float64], ...]]
 
 
-def lower_wall_shift(diameter_m: float, pulsation: float, omega_rad_per_s: float, phase_rad: float) -> WallShiftFn:
-    """The lower wall's displacement of eq. (13)'s pulsating vessel, ``D(t) = D (1 + A sin(w t + phi))``."""
-    amp = 0.5 * diameter_m * pulsation
+def sinusoid(amp: float, omega_rad_per_s: float, phase_rad: float) -> WallShiftFn:
+    """``t -> (amp sin(w t + phi), its first and second time derivatives)``."""
 
     def shift(t: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
         arg = omega_rad_per_s * t + phase_rad
@@ -94,6 +94,11 @@ def lower_wall_shift(diameter_m: float, pulsation: float, omega_rad_per_s: float
         return amp * s, amp * omega_rad_per_s * c, -amp * omega_rad_per_s**2 * s
 
     return shift
+
+
+def lower_wall_shift(diameter_m: float, pulsation: float, omega_rad_per_s: float, phase_rad: float) -> WallShiftFn:
+    """The lower wall's displacement of eq. (13)'s pulsating vessel, ``D(t) = D (1 + A sin(w t + phi))``."""
+    return sinusoid(0.5 * diameter_m * pulsation, omega_rad_per_s, phase_rad)
 
 
 def wall_shift_of(physics: Any) -> WallShiftFn | None:
@@ -423,9 +428,8 @@ class ReferenceTrajectory:
         g = m[:, None] * w
         g_u = m_u[:, None] * w + m[:, None] * w_u
         g_uu = m_uu[:, None] * w + 2.0 * m_u[:, None] * w_u + m[:, None] * w_uu
-        amp, om = self._motion.pulsation, self._motion.omega_rad_per_s
-        arg = om * t + self._motion.phase_rad
-        e, e1, e2 = (amp * np.sin(arg))[:, None], (amp * om * np.cos(arg))[:, None], (-amp * om**2 * np.sin(arg))[:, None]
+        e, e1, e2 = (x[:, None] for x in sinusoid(self._motion.pulsation, self._motion.omega_rad_per_s,
+                                                  self._motion.phase_rad)(t))  # eps(t) of eq. (13)
         du_, ddu_ = du[:, None], ddu[:, None]
         p -= e * g
         v -= e1 * g + e * g_u * du_
