@@ -50,13 +50,11 @@ CONFIG = REPO / "config" / "sound_small_artery.yaml"  # what `make run` runs; --
 
 
 def pure_wall(duration: float | None) -> tuple[float, float]:
-    from vesselbot_ros.config import load_yaml
-    from vesselbot_ros.launch.run_cli import apply_overrides
     from vesselbot_ros.sim.closed_loop import run_closed_loop
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
+    from vesselbot_ros.sim.scenario import load_scenario
 
-    s = scenario_from_mapping(apply_overrides(load_yaml(CONFIG), duration, None))
-    short = scenario_from_mapping(apply_overrides(load_yaml(CONFIG), 0.01, None))
+    s = load_scenario(CONFIG, duration=duration)
+    short = load_scenario(CONFIG, duration=0.01)
     run_closed_loop(short)  # numba warm-up
     t = time.perf_counter()
     run_closed_loop(s)

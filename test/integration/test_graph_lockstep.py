@@ -11,10 +11,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from vesselbot_ros.config import load_yaml
-from vesselbot_ros.launch.run_cli import apply_overrides
 from vesselbot_ros.sim.closed_loop import run_closed_loop
-from vesselbot_ros.sim.scenario import scenario_from_mapping
+from vesselbot_ros.sim.scenario import load_scenario
 
 CONFIG = "config/paper_small_artery.yaml"
 
@@ -42,7 +40,7 @@ def _assert_identical(pure, ros):
 
 @pytest.mark.parametrize("extra", [[], ["--single-process"]], ids=["processes", "single_process"])
 def test_short_lockstep_run_equals_pure_runner(repo, tmp_path, extra):
-    scenario = scenario_from_mapping(apply_overrides(load_yaml(repo / CONFIG), 0.3, 3))
+    scenario = load_scenario(repo / CONFIG, duration=0.3, seed=3)
     pure = run_closed_loop(scenario)
     ros, stdout = _vesselbot_run(repo, tmp_path, "--duration", "0.3", "--seed", "3", "--no-record", *extra)
     assert ros["metrics"]["n_ticks"] == 300
@@ -53,7 +51,7 @@ def test_short_lockstep_run_equals_pure_runner(repo, tmp_path, extra):
 def test_ekf_scenario_lockstep_equals_pure_runner(repo, tmp_path):
     """The extended Kalman filter and the law compensating with its flow scale (which travels in the estimate)."""
     config = "config/sound_small_artery_ekf.yaml"
-    scenario = scenario_from_mapping(apply_overrides(load_yaml(repo / config), 0.3, 2))
+    scenario = load_scenario(repo / config, duration=0.3, seed=2)
     pure = run_closed_loop(scenario)
     assert pure.path == "compiled" and pure.timeseries["flow_scale_hat"][-1] != 1.0
     ros, _stdout = _vesselbot_run(repo, tmp_path, "--duration", "0.3", "--seed", "2", "--no-record", "--single-process",
@@ -64,7 +62,7 @@ def test_ekf_scenario_lockstep_equals_pure_runner(repo, tmp_path):
 
 def test_paper_scenario_recorded_equals_pure_runner(repo, tmp_path):
     """The full 2 s paper run (outliers at 0.5 s, wall contacts), recorded, once."""
-    scenario = scenario_from_mapping(apply_overrides(load_yaml(repo / CONFIG), None, 1))
+    scenario = load_scenario(repo / CONFIG, seed=1)
     pure = run_closed_loop(scenario)
     bag = tmp_path / "bag"
     ros, stdout = _vesselbot_run(repo, tmp_path, "--seed", "1", "--record-dir", str(bag), "--single-process", timeout=400)

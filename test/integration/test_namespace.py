@@ -16,10 +16,8 @@ import pytest
 pytest.importorskip("rclpy")
 
 from _runs import REPO, run_cmd
-from vesselbot_ros.config import load_yaml
-from vesselbot_ros.launch.run_cli import apply_overrides
 from vesselbot_ros.sim.closed_loop import run_closed_loop
-from vesselbot_ros.sim.scenario import scenario_from_mapping
+from vesselbot_ros.sim.scenario import load_scenario
 
 CONFIG = REPO / "config" / "sound_small_artery.yaml"
 DURATION = 0.2
@@ -45,7 +43,7 @@ def test_two_namespaced_graphs_on_one_domain_do_not_cross(tmp_path, peer_domain)
         assert p.returncode == 0, (label, outs[label])
     n = int(round(DURATION * 1000))
     for label, seed in (("default", 1), ("robot2", 2)):
-        pure = run_closed_loop(scenario_from_mapping(apply_overrides(load_yaml(CONFIG), DURATION, seed)))
+        pure = run_closed_loop(load_scenario(CONFIG, duration=DURATION, seed=seed))
         ros = json.loads((tmp_path / f"{label}.json").read_text())
         for key in ("p_true", "x_hat", "g_applied"):
             assert ros["final"][key] == [float(x) for x in pure.timeseries[key][-1]], (label, key)

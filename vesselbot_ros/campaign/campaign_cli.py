@@ -26,11 +26,8 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
-import yaml
-
-from vesselbot_ros.config import ConfigError, check_positive, unflatten
+from vesselbot_ros.config import ConfigError, check_positive
 from vesselbot_ros.progress import add_progress_argument, suppressed
 
 __all__ = ["register", "run"]
@@ -58,16 +55,6 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--retry-failed", action="store_true",
                         help="run again the runs recorded as failed or timed out")
     add_progress_argument(parser)
-
-
-def _parse_sets(items: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
 
 
 def _import_report_libraries() -> None:
@@ -115,16 +102,16 @@ def run(args: argparse.Namespace) -> int:
     # deferred: the engine, the spec and the scenario pull in pyarrow and the compiled core (~0.7 s);
     # `vesselbot campaign --help` imports this module
     from vesselbot_ros.campaign.engine import Progress, dask_client, execute, local_worker_count, pending, prepare
-    from vesselbot_ros.campaign.spec import load_campaign_spec, merge_mapping
+    from vesselbot_ros.campaign.spec import load_campaign_spec
     from vesselbot_ros.campaign.store import CampaignStore
     from vesselbot_ros.campaign.summary import write_report
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
+    from vesselbot_ros.sim.scenario import overridden, scenario_from_mapping, scenario_overrides
 
     spec_path = Path(args.spec)
     spec, base = load_campaign_spec(spec_path)
-    sets = _parse_sets(args.set)
+    sets = scenario_overrides(args.set)  # the one --set parser (bounded YAML), as simulate and run read it
     if sets:
-        base = merge_mapping(base, unflatten(sets))
+        base = overridden(base, sets)
         try:
             scenario_from_mapping(base)
         except ConfigError as exc:

@@ -44,10 +44,11 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
 
 from vesselbot_ros.campaign.runner import TIMEOUT_STATUS, RunTask, SeedHasher, code_version, resolve_with_code, run_chunk
-from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping, merge_mapping
+from vesselbot_ros.campaign.spec import CampaignSpec, expand_points, group_mapping
 from vesselbot_ros.campaign.store import CampaignStore
-from vesselbot_ros.config import ConfigError, check_positive, unflatten
+from vesselbot_ros.config import ConfigError, check_positive
 from vesselbot_ros.errors import RunError
+from vesselbot_ros.sim.scenario import overridden
 
 __all__ = ["Prepared", "prepare", "local_worker_count", "dask_client", "ChunkSizer", "chunk_sizes", "Outcome", "pending", "execute",
            "Progress"]
@@ -96,7 +97,7 @@ def prepare(spec: CampaignSpec, base_mapping: dict[str, Any]) -> Prepared:
                 mapping, id_code = p.mapping, code
             else:
                 resolved, id_code = group
-                mapping = merge_mapping(resolved, unflatten(p.draw)) if p.draw else resolved
+                mapping = overridden(resolved, p.draw) if p.draw else resolved
             hit = scenarios[p.point] = (mapping, SeedHasher(mapping, id_code))
         mapping, hasher = hit
         tasks.append(RunTask(p.index, hasher(p.seed), p.seed, mapping, p.keep_timeseries, hasher.key))

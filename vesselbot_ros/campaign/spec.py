@@ -31,7 +31,9 @@ values that vary across runs::
 The runs are every variant x grid point x every draw x every seed (or x the
 paired seed), in that nesting order; the position in that order is the run ``index``.  Keys
 are dotted paths into :class:`~vesselbot_ros.sim.scenario.Scenario` (a key
-inside ``model.overrides`` is free-form, checked when the scenario is built).
+inside ``model.overrides`` is free-form, checked when the scenario is built).  Each change goes through
+the scenario's one override path (:func:`~vesselbot_ros.sim.scenario.overridden`), as ``--set`` does: a value
+replaces what is at its key.
 Like every config, the file goes through :func:`vesselbot_ros.config.load_dataclass`:
 unknown keys are errors, and every error names the key and the value.  Grid
 values and the centre of each distribution are checked against the scenario
@@ -60,11 +62,9 @@ from vesselbot_ros.config import (
     check_positive,
     load_dataclass,
     load_yaml,
-    unflatten,
 )
 from vesselbot_ros.resources import require_fits
-from vesselbot_ros.sim.kinds import switch_sections
-from vesselbot_ros.sim.scenario import Scenario, load_scenario_mapping, scenario_from_mapping
+from vesselbot_ros.sim.scenario import Scenario, load_scenario_mapping, overridden, scenario_from_mapping
 
 __all__ = [
     "Distribution",
@@ -75,7 +75,6 @@ __all__ = [
     "RunPoint",
     "load_campaign_spec",
     "campaign_spec_from_mapping",
-    "merge_mapping",
     "check_scenario_key",
     "expand_points",
     "group_mapping",
@@ -365,17 +364,6 @@ def check_scenario_key(key: str) -> None:
         raise ConfigError(f"names a section, not a value (key {key!r}); vary one of its keys")
 
 
-def merge_mapping(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
-    """Recursively merge the nested ``update`` into a copy of ``base``."""
-    out = dict(base)
-    for k, v in update.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = merge_mapping(out[k], v)
-        else:
-            out[k] = v
-    return out
-
-
 @dataclasses.dataclass(frozen=True)
 class RunPoint:
     """One run of a campaign before it is hashed.
@@ -404,12 +392,6 @@ class RunPoint:
     draw: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
-def _with_values(base: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with the dotted ``values`` set; a stage switched to a kind with other parameters drops the old ones."""
-    update = unflatten(values)
-    return switch_sections(base, merge_mapping(base, update), update)
-
-
 def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunPoint]:
     """Every run of ``spec`` in order (grid x draws x seeds), see the module docstring.
 
@@ -431,11 +413,11 @@ def expand_points(spec: CampaignSpec, base_mapping: dict[str, Any]) -> list[RunP
     points: list[RunPoint] = []
     group = point = 0
     for vname, changes in variants:
-        variant_base = _with_values(base_mapping, changes)
+        variant_base = overridden(base_mapping, changes)
         tag = {} if vname is None else {"variant": vname}
         for g in grid_points:
             for i, d in enumerate(draws):
-                shared = _with_values(variant_base, {**g, **d})  # the seeds of a point share its sections
+                shared = overridden(variant_base, {**g, **d})  # the seeds of a point share its sections
                 for seed in ((seeds[i],) if s.paired_with_seeds else seeds):
                     values = {**tag, **g, **d}
                     idx = len(points)
@@ -455,7 +437,7 @@ def group_mapping(spec: CampaignSpec, base_mapping: dict[str, Any], values: dict
         values: The run's :attr:`RunPoint.values` (``variant`` and the grid keys are read).
     """
     changes = spec.variants[values["variant"]] if spec.variants else {}
-    return _with_values(_with_values(base_mapping, changes), {k: values[k] for k in spec.grid})
+    return overridden(overridden(base_mapping, changes), {k: values[k] for k in spec.grid})
 
 
 def campaign_spec_from_mapping(mapping: Any) -> CampaignSpec:
@@ -484,26 +466,26 @@ def load_campaign_spec(path: str | Path) -> tuple[CampaignSpec, dict[str, Any]]:
         base = load_scenario_mapping(base_path)  # the scenario file's own `base:` chain resolved, as every command
     except ConfigError as exc:
         raise ConfigError(f"base: {exc}") from None
-    base = _with_values(base, spec.overrides)
+    base = overridden(base, spec.overrides)
     try:
         scenario_from_mapping(base)
     except ConfigError as exc:
         raise ConfigError(f"base scenario {str(base_path)!r} with overrides: {exc}") from None
     for vname, changes in spec.variants.items():
         try:
-            scenario_from_mapping(_with_values(base, changes))
+            scenario_from_mapping(overridden(base, changes))
         except ConfigError as exc:
             raise ConfigError(f"variants.{vname} gives an invalid scenario: {exc}") from None
     for key, values in spec.grid.items():
         for i, v in enumerate(values):
             try:
-                scenario_from_mapping(_with_values(base, {key: v}))
+                scenario_from_mapping(overridden(base, {key: v}))
             except ConfigError as exc:
                 raise ConfigError(f"grid.{key}[{i}] = {v!r} gives an invalid scenario: {exc}") from None
     for key, dist in spec.samples.params.items():
         c = dist.centre()
         try:
-            scenario_from_mapping(_with_values(base, {key: c}))
+            scenario_from_mapping(overridden(base, {key: c}))
         except ConfigError as exc:
             raise ConfigError(f"samples.params.{key}: value {c!r} (centre of the distribution) is rejected: {exc}") from None
     return spec, base

@@ -50,13 +50,12 @@ from vesselbot_ros.atomic_io import check_output_file, write_text
 from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.config import apply_overrides as config_apply_overrides
 from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
 from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
 
-__all__ = ["register", "run", "apply_overrides", "check_plugin_stages"]
+__all__ = ["register", "run", "check_plugin_stages"]
 
 DEFAULT_CONFIG = "sound_small_artery"  # vesselbot_ros.sim.scenario.DEFAULT_SCENARIO, without importing the core
 ROLES_CHOICES = LOOP_ROLES
@@ -172,20 +171,6 @@ def validate_args(args: argparse.Namespace) -> None:
         if args.metrics_json.is_dir():
             raise ConfigError(f"--metrics-json {args.metrics_json} is a directory")
         check_output_file(args.metrics_json, "--metrics-json")  # a read-only place is refused now, not after the run
-
-
-def apply_overrides(mapping: dict[str, Any], duration: float | None, seed: int | None) -> dict[str, Any]:
-    """``--duration`` / ``--seed`` applied to a scenario mapping (validated later), through the one override path.
-
-    For callers that hold a mapping (tests, benches); ``vesselbot run`` itself loads with
-    :func:`vesselbot_ros.sim.scenario.load_scenario`, which applies the same keys and ``--set``.
-    """
-    overrides: dict[str, Any] = {}
-    if duration is not None:
-        overrides["sim.duration_s"] = duration
-    if seed is not None:
-        overrides["seed"] = seed
-    return config_apply_overrides(mapping, overrides)
 
 
 def check_plugin_stages(scenario: Any, without: Sequence[str] = ()) -> None:

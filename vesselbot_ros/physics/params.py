@@ -25,11 +25,13 @@ from typing import Any, Literal
 
 from vesselbot_ros.config import (
     ConfigError,
+    apply_overrides,
     check_choice,
     check_finite,
     check_nonnegative,
     check_positive,
     check_range,
+    flatten,
     load_dataclass,
     to_mapping,
     unflatten,
@@ -381,21 +383,17 @@ class PhysicsParams:
             ConfigError: unknown key or invalid value (named).
         """
         mapping = to_mapping(self)
-        for section, values in unflatten(dict(overrides)).items():
-            if not isinstance(values, dict) or section not in mapping:
-                raise ConfigError(f"unknown override key {section!r}; allowed sections: {sorted(mapping)}")
-            _merge(mapping[section], values, section)
-        return load_dataclass(type(self), mapping, "physics")  # a plant kind's params subclass PhysicsParams
-
-
-def _merge(base: dict[str, Any], upd: Mapping[str, Any], path: str) -> None:
-    for key, value in upd.items():
-        if isinstance(value, Mapping) and isinstance(base.get(key), dict):
-            _merge(base[key], value, f"{path}.{key}")
-        else:
-            if key not in base:
-                raise ConfigError(f"unknown override key {path}.{key}; allowed keys: {sorted(base)}")
-            base[key] = value
+        flat = flatten(unflatten(dict(overrides)))  # nested or dotted, as model.overrides may be written
+        for key in flat:
+            node: Any = mapping
+            for depth, part in enumerate(key.split(".")):
+                if not isinstance(node, dict) or part not in node:
+                    where = ".".join(key.split(".")[:depth])
+                    allowed = sorted(node) if isinstance(node, dict) else []
+                    raise ConfigError(f"unknown override key {key}; allowed {'keys of ' + where if where else 'sections'}"
+                                      f": {allowed}")
+                node = node[part]
+        return load_dataclass(type(self), apply_overrides(mapping, flat), "physics")  # a plant kind's params subclass
 
 
 @dataclasses.dataclass(frozen=True)

@@ -67,6 +67,7 @@ __all__ = [
     "defaults_taken",
     "defaults_note",
     "BASE_KEY",
+    "overridden",
     "with_overrides",
     "scenario_with",
     "scenario_from_mapping",
@@ -545,11 +546,12 @@ def load_scenario_mapping(path: str | Path, *, note: bool = True) -> dict[str, A
             a circle (every file named).
     """
     p = resolve_config_path(path)
-    data = _read_scenario_file(p, ())
-    if note and BASE_KEY not in load_yaml(p):
-        line = defaults_note(p, data)
-        if line:
-            print(line, file=sys.stderr, flush=True)
+    data = load_yaml(p)  # read once: the chain below reads each base once too
+    if BASE_KEY in data:
+        return _extend(data, p, ())
+    line = defaults_note(p, data) if note else None
+    if line:
+        print(line, file=sys.stderr, flush=True)
     return data
 
 
@@ -691,14 +693,21 @@ def load_scenario(
                           {**preset, **(changes or {}), **scenario_overrides(sets, duration, seed)})
 
 
-def with_overrides(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> Scenario:
-    """The scenario of ``mapping`` with each dotted key of ``overrides`` set to its value, validated.
+def overridden(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``mapping`` with each dotted key of ``overrides`` set to its value: the one override path of a scenario.
 
-    A section whose ``kind`` an override switches drops the old kind's keys
-    (:func:`~vesselbot_ros.sim.kinds.switch_sections`), as ``--set`` and a
-    campaign variant do.
+    ``--set``, ``--duration``, ``--seed``, ``--hardware``, a campaign's ``overrides``, variants, grid points and
+    draws all go through here: a value *replaces* what is at its key (``model.overrides={}`` clears the
+    mapping, :func:`~vesselbot_ros.config.apply_overrides`), and a section whose ``kind`` an override switches
+    to a kind with other parameters drops the old kind's keys (:func:`~vesselbot_ros.sim.kinds.switch_sections`).
+    Not validated: the loader does that once, naming the key.
     """
-    return scenario_from_mapping(switch_sections(mapping, apply_overrides(mapping, overrides), unflatten(overrides)))
+    return switch_sections(mapping, apply_overrides(mapping, overrides), unflatten(overrides))
+
+
+def with_overrides(mapping: Mapping[str, Any], overrides: Mapping[str, Any]) -> Scenario:
+    """The scenario of ``mapping`` with dotted-key ``overrides`` (:func:`overridden`), validated."""
+    return scenario_from_mapping(overridden(mapping, overrides))
 
 
 def scenario_with(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:

@@ -214,10 +214,8 @@ def test_planned_cells_fly_their_own_plan_against_its_coast_floor(tmp_path) -> N
     """``reference: planned``: a clinical 3 T cell flies the plan of its hardware and sequence (on the wall, with
     the loop's wall options), its bounds are the plan's, and its numbers are the planned scenario's own runs."""
     from vesselbot_ros.analysis.plan import flying_changes, make_plan, plan_scenario
-    from vesselbot_ros.campaign.spec import merge_mapping
-    from vesselbot_ros.config import unflatten
     from vesselbot_ros.sim.closed_loop import run_closed_loop
-    from vesselbot_ros.sim.scenario import scenario_from_mapping
+    from vesselbot_ros.sim.scenario import scenario_with
 
     base = load_scenario(shipped_scenarios()["clinical_3t_small_artery"])
     cells = ss.study_cells(["clinical_3t"], [0.03], [0.02], ["ekf_k300"])
@@ -227,7 +225,7 @@ def test_planned_cells_fly_their_own_plan_against_its_coast_floor(tmp_path) -> N
     assert row["status"] == "ok"
     assert row["coast_floor_m"] == plan.coast_floor_m and row["hold_margin_m_per_s2"] == plan.margin_m_per_s2
     planned = plan_scenario(cell, plan.reference)
-    flown = scenario_from_mapping(merge_mapping(planned.to_mapping(), unflatten(flying_changes(planned, plan))))
+    flown = scenario_with(planned, flying_changes(planned, plan))
     assert flown.controller.wall_contact == "carried"
     assert row["tracking_max_mean_m"] == run_closed_loop(flown, 0).metrics["tracking_error_max_m"]
     with pytest.raises(ConfigError, match="reference"):

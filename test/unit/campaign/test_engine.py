@@ -174,10 +174,9 @@ def test_a_run_over_the_budget_is_a_timeout_and_the_others_complete(tmp_path, mo
                                        "overrides": {"sim.duration_s": 0.05, "sim.metrics_after_s": 0.0},
                                        "run_timeout_s": 1.0})
     assert spec.run_timeout_s == 1.0
-    from vesselbot_ros.campaign.spec import merge_mapping
-    from vesselbot_ros.config import unflatten
+    from vesselbot_ros.sim.scenario import overridden
 
-    prep = prepare(spec, merge_mapping(base, unflatten(spec.overrides)))
+    prep = prepare(spec, overridden(base, spec.overrides))
     before = {c.pid for c in _children_alive()}  # run processes of other tests' threads, if any still run
     # no budget: every run here, in the worker thread, called as chunk_fn(tasks, code): the numbers to compare with
     # (this also loads the compiled loop in this process, which the run processes are forked from)
