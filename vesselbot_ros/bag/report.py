@@ -62,7 +62,7 @@ from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.route import draw_network, navigation_outcome
 from vesselbot_ros.errors import BagError
-from vesselbot_ros.graph_spec import NODE_NAMES
+from vesselbot_ros.graph_spec import AXES, AXIS_INDEX, NODE_NAMES
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES
@@ -80,8 +80,6 @@ FIGURES = ("fig9a_trajectory.png", "fig9b_errors.png", "fig10a_gradients.png", "
            "fig10c_velocity_error.png", "forces.png")
 #: Room a report needs at most (six figures of 0.1 to 0.5 MiB each and metrics.json), bytes.
 REPORT_BYTES = 8 * 2**20
-#: Columns of the bag's (x, y, z) vectors the run's own arrays hold: a planar run's (x, z), a 3-D tree's all three
-_AXES = {2: [0, 2], 3: [0, 1, 2]}
 
 
 def bool_intervals(t_s: npt.NDArray[np.float64], flag: npt.NDArray[np.bool_]) -> list[tuple[float, float]]:
@@ -149,8 +147,7 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, 
         t_s = np.round(idx["_ns"] * 1e-9 / dt_s).astype(np.int64) * dt_s
     else:
         t_s = idx["_ns"].astype(np.float64) * 1e-9
-    ax = _AXES[dims]
-    slew = ("x", "y", "z") if dims == 3 else ("x", "z")
+    ax = list(AXIS_INDEX[dims])
     rej = ts.get("coil.rejected")
     rejected = (np.asarray(rej)[co].astype(bool) if rej is not None and len(rej)
                 else np.zeros(len(co), dtype=bool))
@@ -166,7 +163,7 @@ def metrics_timeseries(ts: Mapping[str, np.ndarray], dt_s: float | None = None, 
         "g_cmd": np.where(rejected[:, None], np.nan, ts["coil.commanded"][co][:, ax]),
         "cmd_rejected": rejected,
         "saturated": ts["coil.saturated"][co].astype(bool),
-        "slew_limited": np.stack([ts[f"coil.slew_limited_{c}"][co] for c in slew], axis=1).astype(bool),
+        "slew_limited": np.stack([ts[f"coil.slew_limited_{c}"][co] for c in AXES[dims]], axis=1).astype(bool),
         "in_contact": ts["truth.in_contact"][tr].astype(bool),
         "diameter_m": ts["truth.diameter_m"][tr],
         "max_gradient": ts["coil.max_gradient"][co],
@@ -197,10 +194,10 @@ def detect_outlier_frames(ts: Mapping[str, np.ndarray], dims: int = 2) -> tuple[
         return np.zeros(0), float("nan")
     fresh = ts["measurement.fresh"].astype(bool)
     t_m = ts["measurement.t_s"][fresh]
-    p_m = ts["measurement.p_meas"][fresh][:, _AXES[dims]]
+    p_m = ts["measurement.p_meas"][fresh][:, list(AXIS_INDEX[dims])]
     t_tr = ts["truth.t_s"]
     order = np.argsort(t_tr, kind="stable")
-    p_tr = np.stack([np.interp(t_m, t_tr[order], ts["truth.p_WR"][order][:, a]) for a in _AXES[dims]], axis=1)
+    p_tr = np.stack([np.interp(t_m, t_tr[order], ts["truth.p_WR"][order][:, a]) for a in AXIS_INDEX[dims]], axis=1)
     d = np.linalg.norm(p_m - p_tr, axis=1)
     if d.size == 0:
         return np.zeros(0), float("nan")
@@ -485,7 +482,7 @@ DIAGNOSTIC_COUNTERS: dict[str, tuple[str, ...]] = graph_spec.diagnostic_counters
 
 def _axis_names(m: Mapping[str, np.ndarray]) -> str:
     """The axes of a run's vectors: ``xz`` (planar) or ``xyz`` (a 3-D tree)."""
-    return "xyz" if m["g_applied"].shape[1] == 3 else "xz"
+    return "".join(AXES[m["g_applied"].shape[1]])
 
 
 def _run_dims(run: Mapping[str, Any]) -> int:

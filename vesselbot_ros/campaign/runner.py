@@ -62,6 +62,7 @@ import numpy as np
 import scipy
 
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.graph_spec import AXES
 from vesselbot_ros.sim import closed_loop, kinds
 from vesselbot_ros.sim import scenario as scenario_module
 
@@ -186,7 +187,7 @@ def flatten_timeseries(series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for key, a in series.items():
         a = np.asarray(a)
-        names = {2: "xz", 3: "xyz"}.get(a.shape[-1]) if a.ndim > 1 else None
+        names = AXES.get(a.shape[-1]) if a.ndim > 1 else None
         if a.ndim == 1:
             out[key] = a
         elif a.ndim == 2 and names:

@@ -84,6 +84,7 @@ from std_msgs.msg import Header
 from vesselbot_msgs.msg import CoilState, SequencePhase
 
 from vesselbot_ros.errors import ModelInputError
+from vesselbot_ros.graph_spec import AXES
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
@@ -257,7 +258,7 @@ class CoilDriverNode(VesselbotNode):
             "rejected_commands": str(self.rejected_commands),
             "commands_lost": "true" if self.commands_lost else "false",
         } | {f"applied_{axis}_T_per_m": repr(float(g))
-             for axis, g in zip(cv.AXES[self.dims], self.limiter.applied, strict=True)}
+             for axis, g in zip(AXES[self.dims], self.limiter.applied, strict=True)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,75 +14,76 @@ published messages, so they equal what the bag holds bit for bit.
 
 from __future__ import annotations
 
+import functools
+import operator
 from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
-from vesselbot_ros.graph_spec import tick_of_ns, topic
+from vesselbot_ros.graph_spec import AXES, tick_of_ns, topic
 
-__all__ = ["SERIES_COLUMNS", "SERIES_COLUMNS_3D", "READERS", "READERS_3D", "SeriesLog", "series_columns", "columns_of",
-           "readers", "series_from_response", "split_series", "empty_series"]
+__all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "series_columns", "columns_of", "readers", "series_from_response",
+           "split_series", "empty_series"]
 
-#: series name -> its columns (x and z of a vector, or one flag), in a planar scenario
-SERIES_COLUMNS: dict[str, tuple[str, ...]] = {
-    "p_true": ("p_true_x_m", "p_true_z_m"),
-    "v_true": ("v_true_x_m_per_s", "v_true_z_m_per_s"),
-    "in_contact": ("in_contact",),
-    "x_hat": ("x_hat_x_m", "x_hat_z_m"),
-    "z_hat": ("z_hat_x_m_per_s", "z_hat_z_m_per_s"),
-    "p_ref": ("p_ref_x_m", "p_ref_z_m"),
-    "g_applied": ("g_applied_x_T_per_m", "g_applied_z_T_per_m"),
-    "saturated": ("saturated",),
-    "slew_limited": ("slew_limited_x", "slew_limited_z"),
+#: series name -> its columns: a vector's per axis (``{}`` takes the axis name, :data:`~vesselbot_ros.graph_spec.AXES`)
+#: or one flag
+_SERIES: dict[str, str] = {
+    "p_true": "p_true_{}_m",
+    "v_true": "v_true_{}_m_per_s",
+    "in_contact": "in_contact",
+    "x_hat": "x_hat_{}_m",
+    "z_hat": "z_hat_{}_m_per_s",
+    "p_ref": "p_ref_{}_m",
+    "g_applied": "g_applied_{}_T_per_m",
+    "saturated": "saturated",
+    "slew_limited": "slew_limited_{}",
     # the coil rejected the tick's command (non-finite, malformed): what the metrics' rejected_commands count
-    "cmd_rejected": ("cmd_rejected",),
-}
-
-#: :data:`SERIES_COLUMNS` of a 3-D vessel tree (``Scenario.dims`` 3): every vector has its y column
-SERIES_COLUMNS_3D: dict[str, tuple[str, ...]] = {
-    name: cols if len(cols) == 1 else (cols[0], cols[0].replace("_x", "_y", 1), cols[1])
-    for name, cols in SERIES_COLUMNS.items()
+    "cmd_rejected": "cmd_rejected",
 }
 
 #: Flags (stored as 0.0 / 1.0, returned as bool).
 FLAGS = frozenset({"in_contact", "saturated", "slew_limited", "cmd_rejected"})
 
-#: topic key -> one message's floats (its flat form, nodes/wire.py), in the order of its spec's ``series`` columns
-READERS: dict[str, Callable[[Any], tuple[float, ...]]] = {
-    "truth": lambda m: (m.position_x, m.position_z, m.velocity_x, m.velocity_z, float(m.in_contact)),
-    "estimate": lambda m: (m.pose_pose_position_x, m.pose_pose_position_z,
-                           m.twist_twist_linear_x, m.twist_twist_linear_z),
-    "reference": lambda m: (m.position_x, m.position_z),
-    "coil_state": lambda m: (m.applied_x, m.applied_z, float(m.saturated),
-                             float(m.slew_limited_x), float(m.slew_limited_z), float(m.command_rejected)),
+#: topic key -> the fields of its flat form (nodes/wire.py) the series read, in the order of its spec's ``series``
+#: columns (``{}`` per axis, as in :data:`_SERIES`)
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "truth": ("position_{}", "velocity_{}", "in_contact"),
+    "estimate": ("pose_pose_position_{}", "twist_twist_linear_{}"),
+    "reference": ("position_{}",),
+    "coil_state": ("applied_{}", "saturated", "slew_limited_{}", "command_rejected"),
 }
-
-#: :data:`READERS` of a 3-D vessel tree, in the order of :data:`SERIES_COLUMNS_3D`
-READERS_3D: dict[str, Callable[[Any], tuple[float, ...]]] = {
-    "truth": lambda m: (m.position_x, m.position_y, m.position_z, m.velocity_x, m.velocity_y, m.velocity_z,
-                        float(m.in_contact)),
-    "estimate": lambda m: (m.pose_pose_position_x, m.pose_pose_position_y, m.pose_pose_position_z,
-                           m.twist_twist_linear_x, m.twist_twist_linear_y, m.twist_twist_linear_z),
-    "reference": lambda m: (m.position_x, m.position_y, m.position_z),
-    "coil_state": lambda m: (m.applied_x, m.applied_y, m.applied_z, float(m.saturated),
-                             float(m.slew_limited_x), float(m.slew_limited_y), float(m.slew_limited_z),
-                             float(m.command_rejected)),
-}
-
 
 #: topic key -> its messages carry the tick (else: their stamp on the tick grid gives it)
 _HAS_TICK: dict[str, bool] = {"truth": True, "estimate": False, "reference": True, "coil_state": True}
 
 
+def _per_axis(pattern: str, dims: int) -> tuple[str, ...]:
+    return tuple(pattern.format(a) for a in AXES[dims]) if "{}" in pattern else (pattern,)
+
+
+@functools.cache
 def series_columns(dims: int = 2) -> dict[str, tuple[str, ...]]:
     """Series name -> its columns, for a scenario of ``dims`` axes (``Scenario.dims``)."""
-    return SERIES_COLUMNS_3D if dims == 3 else SERIES_COLUMNS
+    return {name: _per_axis(pattern, dims) for name, pattern in _SERIES.items()}
 
 
+def _reader(fields: tuple[str, ...]) -> Callable[[Any], tuple[float, ...]]:
+    get = operator.attrgetter(*fields)
+    return lambda m: tuple(map(float, get(m)))
+
+
+@functools.cache
 def readers(dims: int = 2) -> dict[str, Callable[[Any], tuple[float, ...]]]:
-    """Topic key -> one message's series floats, for a scenario of ``dims`` axes."""
-    return READERS_3D if dims == 3 else READERS
+    """Topic key -> one message's series floats (flags as 0.0 / 1.0), for a scenario of ``dims`` axes."""
+    return {key: _reader(tuple(f for pattern in fields for f in _per_axis(pattern, dims)))
+            for key, fields in _FIELDS.items()}
+
+
+#: The planar scenario's :func:`series_columns`.
+SERIES_COLUMNS = series_columns(2)
+#: The planar scenario's :func:`readers`.
+READERS = readers(2)
 
 
 def columns_of(key: str, dims: int = 2) -> tuple[str, ...]:
@@ -182,22 +183,22 @@ def split_series(cols: list[str], table: np.ndarray) -> dict[str, np.ndarray]:
         ValueError: a column is unknown, or a vector has its y column without its x and z.
     """
     out: dict[str, np.ndarray] = {}
-    for name, names in SERIES_COLUMNS.items():
+    planar, space = series_columns(2), series_columns(3)
+    for name, names in planar.items():
         if names[0] not in cols:
             continue
-        names3 = SERIES_COLUMNS_3D[name]
-        if len(names3) == 3 and names3[1] in cols:
-            names = names3
+        if len(space[name]) == 3 and space[name][1] in cols:
+            names = space[name]
         idx = [cols.index(c) for c in names]
         block = table[:, idx]
         if name in FLAGS:
             block = np.nan_to_num(block) != 0.0
         out[name] = block[:, 0] if len(names) == 1 else block
-    known = {c for table_ in (SERIES_COLUMNS, SERIES_COLUMNS_3D) for names in table_.values() for c in names}
+    known = {c for d in AXES for names in series_columns(d).values() for c in names}
     unknown = set(cols) - known
     if unknown:
         raise ValueError(f"unknown series columns {sorted(unknown)}")
-    lone = [c for names in SERIES_COLUMNS_3D.values() if len(names) == 3 and names[1] in cols
+    lone = [c for names in space.values() if len(names) == 3 and names[1] in cols
             for c in (names[0], names[2]) if c not in cols]
     if lone:
         raise ValueError(f"series columns {sorted(lone)} missing next to their y column")

@@ -123,12 +123,13 @@ def test_a_point_message_has_no_series():
 
 
 def test_a_three_d_log_has_y_columns_and_answers_its_floats_as_three_axis_series():
-    from vesselbot_ros.nodes.series import READERS_3D, SERIES_COLUMNS_3D
+    from vesselbot_ros.nodes.series import readers, series_columns
 
     for t in (t for t in TOPICS if t.series):  # each 3-D reader fills exactly its columns
-        assert len(READERS_3D[t.key](_flat(TYPES[t.key]()))) == len(columns_of(t.key, 3))
-    assert SERIES_COLUMNS_3D["p_true"] == ("p_true_x_m", "p_true_y_m", "p_true_z_m")
-    assert SERIES_COLUMNS_3D["slew_limited"] == ("slew_limited_x", "slew_limited_y", "slew_limited_z")
+        assert len(readers(3)[t.key](_flat(TYPES[t.key]()))) == len(columns_of(t.key, 3))
+    assert series_columns(3)["p_true"] == ("p_true_x_m", "p_true_y_m", "p_true_z_m")
+    assert series_columns(3)["slew_limited"] == ("slew_limited_x", "slew_limited_y", "slew_limited_z")
+    assert series_columns(2)["z_hat"] == ("z_hat_x_m_per_s", "z_hat_z_m_per_s")
     log = SeriesLog(role("plant").outputs, 3, DT, dims=3)
     m = PlantState(tick=1)
     _stamp(m, 1)
