@@ -57,8 +57,8 @@ from std_srvs.srv import Trigger
 from vesselbot_msgs.srv import GetSeries
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.geometry.field_lookup import wall_field3d
 from vesselbot_ros.graph_spec import (
+    AXIS_INDEX,
     DEFAULT_NAMESPACE,
     FRAME_ID,
     LOOP_ROLES,
@@ -80,9 +80,8 @@ from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
-from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
-from vesselbot_ros.vessels.plant_field3d import wall_arrays
+from vesselbot_ros.vessels.plant_field3d import meshed_wall
 
 __all__ = ["VesselbotNode"]
 
@@ -188,7 +187,10 @@ class VesselbotNode(Node):
         warm_up(self.scenario, (self.stage,) if self.stage else None)
         if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
             p0 = self.scenario.initial.p0_m
-            self._network_clearance(float(p0[0]), float(p0[-1]), float(p0[1]) if self.dims == 3 else 0.0)
+            xyz = [0.0, 0.0, 0.0]  # the point in (x, y, z): a planar one's y is 0
+            for i, v in zip(AXIS_INDEX[self.dims], p0, strict=True):
+                xyz[i] = float(v)
+            self._network_clearance(xyz[0], xyz[2], xyz[1])
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             self.add_service(reset_key, Trigger, self._on_reset)
@@ -495,17 +497,12 @@ class VesselbotNode(Node):
     def _network_clearance(self, x: float, z: float, y: float = 0.0) -> float:
         """Signed distance (m) of (x, z) (a 3-D tree: (x, y, z)) to the network's meshed wall (the plant's) at its
         widest (diameter pulsation), > 0 inside."""
-        geom = getattr(self, "_net_geom", None)
+        clearance = getattr(self, "_net_clearance", None)
         phys = self.scenario.physics
-        if geom is None:
-            net = load_network(phys.vessel.network)
-            if self.dims == 3:  # the 3-D plant's own compiled lookup of its meshed wall
-                args = wall_arrays(net, phys.blood).args
-                geom = self._net_geom = lambda x_, y_, z_: wall_field3d(x_, y_, z_, *args)[::4]
-            else:
-                wall = network_wall(net, phys.blood)
-                geom = self._net_geom = lambda x_, _y, z_: wall.clearance(x_, z_)
-        s, diameter = geom(x, y, z)
+        if clearance is None:
+            clearance = self._net_clearance = meshed_wall(load_network(phys.vessel.network), phys.blood).clearance
+        xyz = (x, y, z)
+        s, diameter = clearance(*(xyz[i] for i in AXIS_INDEX[self.dims]))
         return float(s + 0.5 * diameter * phys.flow.diameter_pulsation)
 
     def check(
@@ -548,7 +545,7 @@ class VesselbotNode(Node):
         if not all(map(math.isfinite, values)):
             self.reject(key, "non_finite", f"values {list(values)}")
             return False
-        if self.dims == 2:
+        if 1 not in AXIS_INDEX[self.dims]:  # a planar scenario pins y at 0
             for y in y_values:
                 if y != 0.0:
                     self.reject(key, "nonzero_y", f"y components {list(y_values)} (a planar scenario's y is 0)")
@@ -556,8 +553,9 @@ class VesselbotNode(Node):
         if z_position is not None and self.scenario.physics.vessel.network and x_position is not None:
             s = self._network_clearance(x_position, z_position, y_position)
             if s < -self.graph.position_margin_m:
-                where = (f"(x, y, z) = ({x_position!r}, {y_position!r}, {z_position!r})" if self.dims == 3
-                         else f"(x, z) = ({x_position!r}, {z_position!r})")
+                xyz = (x_position, y_position, z_position)
+                axes = AXIS_INDEX[self.dims]
+                where = f"({', '.join('xyz'[i] for i in axes)}) = ({', '.join(repr(xyz[i]) for i in axes)})"
                 self.reject(key, "outside_vessel", f"{where} m lies {-s!r} m outside the vessel network's walls")
                 return False
         elif z_position is not None:

@@ -16,8 +16,8 @@ from vesselbot_ros.progress import ProgressFn, add_progress_argument, session, s
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
 from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, load_scenario, shipped_scenarios, short_copy
-from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.plant_field3d import meshed_wall
 
 __all__ = ["warm", "main"]
 
@@ -61,9 +61,8 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
         run_closed_loop(sc, path="per_tick")  # the stage classes, each calling its compiled function
         run_many(sc, [0, 1], workers=2)
-        if sc.physics.vessel.network and sc.dims == 2:  # the nodes' input check (VesselbotNode.check)
-            network_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(0.0, 0.0)
-        # a 3-D tree's run above built (or read) its wall lookup and cached it: the nodes and tests read it
+        if sc.physics.vessel.network:  # the nodes' input check (VesselbotNode.check); a tree's lookup is built above
+            meshed_wall(load_network(sc.physics.vessel.network), sc.physics.blood).clearance(*([0.0] * sc.dims))
         progress(done, len(scenarios))
 
 

@@ -62,6 +62,7 @@ import numpy.typing as npt
 from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.geometry.field_build import build_wall_field3d, grid_box
+from vesselbot_ros.geometry.field_lookup import field_points3d, wall_field3d
 from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.kernel import pack_params
@@ -69,12 +70,12 @@ from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import cfd3d, tree_mesh
-from vesselbot_ros.vessels.cfd import packed_params
+from vesselbot_ros.vessels.cfd import network_wall, packed_params
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
 
 __all__ = ["packed_vessel", "vessel_geom", "PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
-           "WallArrays",
+           "WallArrays", "meshed_wall",
            "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
 
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
@@ -150,10 +151,34 @@ def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
 
 @dataclasses.dataclass
 class WallArrays:
-    """The compiled wall lookup's arrays (:func:`~vesselbot_ros.geometry.field_lookup.wall_field3d`'s ``args``)."""
+    """The compiled wall lookup's arrays (:func:`~vesselbot_ros.geometry.field_lookup.wall_field3d`'s ``args``),
+    queried as the planar network's wall is (:class:`~vesselbot_ros.geometry.polyline_wall.WallQuery`)."""
 
     args: tuple[npt.NDArray[Any], ...]
     stats: dict[str, float]
+
+    def query(self, points_m: npt.ArrayLike) -> dict[str, npt.NDArray[np.float64]]:
+        """``sdist`` (m,) m (> 0 inside), ``normal`` (m, 3) unit inward normal, ``diameter`` (m,) m at points (m, 3),
+        as the plant reads them."""
+        q = np.ascontiguousarray(np.atleast_2d(np.asarray(points_m, dtype=np.float64)))
+        r = field_points3d(q, *self.args)
+        return {"sdist": r[:, 0], "normal": r[:, 1:4], "diameter": r[:, 4]}
+
+    def clearance(self, x_m: float, y_m: float, z_m: float) -> tuple[float, float]:
+        """(signed distance (m, > 0 inside), local diameter (m)) at one point, compiled (a few microseconds)."""
+        r = wall_field3d(float(x_m), float(y_m), float(z_m), *self.args)
+        return float(r[0]), float(r[4])
+
+
+def meshed_wall(net: VesselNetworkParams, blood: BloodParams | None = None) -> Any:
+    """The plant's meshed wall of ``net`` on its own axes, one query for both: ``query(points)`` (``sdist``,
+    ``normal``, ``diameter``) and ``clearance(*point)`` (the signed distance and the diameter at one point).
+
+    The axis count's branch at the vessels' edge: a planar network's wall
+    (:func:`~vesselbot_ros.vessels.cfd.network_wall`, points (x, z)) or a 3-D tree's lookup (:func:`wall_arrays`,
+    points (x, y, z); built and cached on first use).
+    """
+    return wall_arrays(net, blood) if net.is_3d else network_wall(net, blood)
 
 
 @dataclasses.dataclass

@@ -152,3 +152,15 @@ def test_the_build_estimate_matches_the_shipped_trees_and_says_what_it_builds(tm
     with pytest.raises(ConfigError, match=r"^cfd\.mesh_size_3d_m=0\.0008: the 3-D flow solve of tree 'my_tree' \(4\.92e\+04 "
                                           r"tetrahedra\) needs about 1\.5 GiB of memory, more than the 1\.0 GiB"):
         pf.check_build(net)
+
+
+@pytest.mark.parametrize("name, point", [("paper_iiic_artery", (1e-3, 0.0)), ("paper_iiic_artery_3d", (1e-3, 2e-4, 0.0))])
+def test_the_meshed_wall_is_one_query_on_the_networks_own_axes(name: str, point: tuple[float, ...]) -> None:
+    """A planar network's wall and a tree's lookup answer the same two calls, on their own axes: ``clearance`` at a
+    point is the ``query`` row there, and a point well inside is inside."""
+    wall = pf.meshed_wall(load_network(f"config/vessels/{name}.yaml"))
+    s, diameter = wall.clearance(*point)
+    q = wall.query([point])
+    assert q["normal"].shape == (1, len(point))
+    assert s == q["sdist"][0] and diameter == q["diameter"][0]
+    assert 0.0 < s <= diameter / 2 * (1.0 + 1e-6) and 1e-3 < diameter < 1e-2
