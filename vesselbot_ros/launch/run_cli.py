@@ -215,16 +215,12 @@ def run(args: argparse.Namespace) -> int:
     record = not args.no_record
     # a run that does not fit in memory or on disk is refused here, one line naming the keys
     check_resources(scenario, bag_dir=(args.record_dir or Path("runs")) if record else None)
-    if scenario.dims == 3:
-        # a 3-D tree's flow and wall samples are built (or read from the cache) once, here, before any node starts
-        from vesselbot_ros.vessels.plant_field3d import packed3d  # deferred: the 3-D CFD stack, only for a 3-D tree
+    if scenario.physics.vessel.network:
+        # a network's CFD field (a tree's flow and wall samples) is solved or built, or read from the cache, once,
+        # here, before any node starts
+        from vesselbot_ros.vessels.plant_field3d import packed_vessel  # deferred: the CFD stack, only for a network
 
-        packed3d(scenario.physics)
-    elif scenario.physics.vessel.network:
-        # the network's CFD field is solved (or read from the cache) once, here, before any node starts
-        from vesselbot_ros.vessels.cfd import packed_params  # deferred: the CFD stack, only for a network scenario
-
-        packed_params(scenario.physics)
+        packed_vessel(scenario.physics, scenario.dims)
     check_plugin_stages(scenario, args.without)  # a user's kind that cannot be built: one line, nothing started
     if record and importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
         raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "
