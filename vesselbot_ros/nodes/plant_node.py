@@ -414,6 +414,8 @@ class PlantNode(VesselbotNode):
         t = out.t_s
         r = self.scenario.physics.robot.radius_m
         blood: tuple[float, ...]
+        # the vessel's edge, as the plant's own (physics.integrator): a tree's sampled field, the planar network's
+        # grid, or the straight vessel's two walls
         if self.dims == 3:
             k = self.plant.packed
             s_t, *_n, d, _eta, vfx, vfy, vfz = geometry3d(t, *out.p.tolist(), self.plant.p, k.W, k.F, k.fh)
