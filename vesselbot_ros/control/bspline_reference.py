@@ -61,6 +61,7 @@ __all__ = [
     "ReferenceParams",
     "RefSample",
     "ReferenceTrajectory",
+    "CompiledReference",
     "propose_anchors",
     "lower_wall_shift",
     "sinusoid",
@@ -259,6 +260,21 @@ class RefSample(NamedTuple):
     a: npt.NDArray[np.float64]
 
 
+@dataclasses.dataclass(frozen=True)
+class CompiledReference:
+    """A reference in the compiled loop's form: sampled once at every tick time, the loop reading tick k's row.
+
+    Attributes:
+        sample_many: ``sample_many(t_s) -> (p, v, a)``, each (n, d), at the (n,) tick times (the stage's own).
+    """
+
+    sample_many: Callable[[npt.NDArray[np.float64]], tuple[npt.NDArray[np.float64], ...]]
+
+    def at_ticks(self, t_s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+        """``(p, v, a)`` at the tick times ``t_s``, C-contiguous."""
+        return tuple(np.ascontiguousarray(a, dtype=np.float64) for a in self.sample_many(t_s))
+
+
 class ReferenceTrajectory:
     """C2 reference trajectory ``t -> (X_ref, Xd_ref, Xdd_ref)``.
 
@@ -379,6 +395,10 @@ class ReferenceTrajectory:
         du = np.where(inside, du, 0.0)
         ddu = np.where(inside, ddu, 0.0)
         return u, du, ddu
+
+    def compiled(self) -> CompiledReference:
+        """This reference in the compiled loop's form (its samples at the tick times)."""
+        return CompiledReference(self.sample_many)
 
     def sample_many(self, t_s: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], ...]:
         """Vectorised :meth:`sample`.

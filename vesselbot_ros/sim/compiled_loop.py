@@ -8,8 +8,10 @@
     -> the controller's compiled step, of any kind (law (24), its adaptive form, the predictive controller, ...)
     -> coil_apply | seq_coil_apply (scanner) -> plant step (the one integrator, physics.integrator.integrate)
 
-over explicit state arrays that :func:`prepare` builds from the same :class:`~vesselbot_ros.sim.closed_loop.Stages`
-as the per-tick loop, and it writes every time-series column into arrays allocated once per run.  One kernel serves
+over explicit state arrays that :func:`prepare` builds from the compiled form each role's kind gives of the same
+:class:`~vesselbot_ros.sim.closed_loop.Stages` as the per-tick loop's (:attr:`~vesselbot_ros.sim.kinds.StageKind.compile`:
+the plant's vessel and state, the reference's samples at the tick times, the imager's and the coil's arrays, the
+observer's and the controller's steps), and it writes every time-series column into arrays allocated once per run.  One kernel serves
 the plane (a straight vessel or a planar network: d = 2 axes, x and z) and a 3-D tree (d = 3): the axis count is
 the plant state's, and the vessel is the ``geom`` argument of the integrator's geometry edge, so numba compiles
 the kernel once per geometry type.  Each stage does the same IEEE operations in the same order as its Python class
@@ -48,7 +50,6 @@ from vesselbot_ros.physics.integrator import (
     axes_of,
     failure_message,
     integrate,
-    integrator_vector,
     new_workspace,
     wall_and_forces,
 )
@@ -121,7 +122,6 @@ class LoopInputs:
     plant_geom: Any
     model_geom: Any
     ig: npt.NDArray[np.float64]
-    obs_ig: npt.NDArray[np.float64]
     imager_prm: npt.NDArray[np.float64]
     outliers: npt.NDArray[np.float64]
     dropouts: npt.NDArray[np.float64]
@@ -137,10 +137,9 @@ class LoopInputs:
 
 
 def compiled_forms(stages: Any) -> tuple[dict[str, Any], list[str]]:
-    """The compiled form of each stage of :data:`~vesselbot_ros.sim.kinds.FORM_ROLES`, through its kind, and the
-    roles whose stage the compiled loop cannot run: of a kind it does not run (a user's object;
-    :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`), that its kind cannot compile (a built-in kind over a
-    user's part), or on other axes than the plant's."""
+    """The compiled form of each role's stage, through its kind, and the roles whose stage the compiled loop
+    cannot run: of a kind it does not run (a user's object; :attr:`~vesselbot_ros.sim.kinds.StageKind.compiled`),
+    that its kind cannot compile (a built-in kind over a user's part), or on other axes than the plant's."""
     d = getattr(stages.plant, "dims", 2)
     forms: dict[str, Any] = {}
     bad = []
@@ -148,7 +147,7 @@ def compiled_forms(stages: Any) -> tuple[dict[str, Any], list[str]]:
         stage = getattr(stages, role)
         if not getattr(kinds.kind_of(role, stage), "compiled", False) or getattr(stage, "dims", d) != d:
             bad.append(role)
-        elif role in kinds.FORM_ROLES:
+        else:
             try:
                 forms[role] = kinds.compiled_stage(role, stage)
             except ModelInputError:
@@ -202,17 +201,15 @@ def try_prepare(stages: Any, n: int, dt: float, record_forces: bool) -> tuple[Lo
     if seq != (imager.sv is not None) or (seq and not np.array_equal(coil.sv, imager.sv)):
         raise ModelInputError("compiled loop needs the scanner's imager and coil on the same sequence")
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it for LoopInputs
-    p_ref, v_ref, a_ref = stages.reference.sample_many(ts)
-    plant, model = stages.plant, stages.model
+    p_ref, v_ref, a_ref = forms["reference"].at_ticks(ts)  # sampled at every tick, as the per-tick runner does
+    plant, model = forms["plant"], stages.model
     return LoopInputs(
-        n=n, dt=dt, dims=plant.dims, ts=ts,
-        p_ref=np.ascontiguousarray(p_ref), v_ref=np.ascontiguousarray(v_ref), a_ref=np.ascontiguousarray(a_ref),
-        plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=integrator_vector(plant.integrator),
-        obs_ig=integrator_vector(model.integrator),
+        n=n, dt=dt, dims=len(plant.state0) // 2, ts=ts, p_ref=p_ref, v_ref=v_ref, a_ref=a_ref,
+        plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=plant.ig,
         imager_prm=imager.prm, outliers=imager.outliers, dropouts=imager.dropouts,
         obs=forms["observer"], ctrl=forms["controller"], coil_prm=coil.prm,
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s,
-        plant_y0=plant.state, coil_state0=coil.state0,
+        plant_y0=plant.state0, coil_state0=coil.state0,
         record_forces=record_forces,
     ), []
 

@@ -93,7 +93,7 @@ from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",
-    "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "FORM_ROLES", "params_type", "section_resolver", "switch_sections",
+    "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "params_type", "section_resolver", "switch_sections",
     "fingerprint", "controller_estimate", "call_controller", "checked_command", "rejection_warning", "REJECT_REASONS",
     "REJECT_NONE", "REJECT_NONFINITE", "REJECT_ESTIMATE", "REJECT_RAISED", "REJECT_MALFORMED", "COMMAND_STATUSES",
     "make_observer", "PlantStage", "ImagerStage",
@@ -105,10 +105,6 @@ ROLES: tuple[str, ...] = ("plant", "imager", "observer", "reference", "controlle
 #: The roles whose kinds bring a compiled step the compiled loop calls through a pointer (its signature:
 #: :mod:`vesselbot_ros.control.compiled_stage`); the plant, imager, reference and coil are the loop's own.
 STEPPED_ROLES: tuple[str, ...] = ("observer", "controller")
-#: Roles whose compiled kinds give the compiled loop a compiled form (:attr:`StageKind.compile`): the stepped roles'
-#: numba steps, the imager's and the coil's arrays (:class:`~vesselbot_ros.scanner.imager_model.CompiledImager`,
-#: :class:`~vesselbot_ros.scanner.actuator_limits.CompiledCoil`, with the scanner's sequence they run on).
-FORM_ROLES: tuple[str, ...] = ("imager", "observer", "controller", "coil")
 #: The scenario section that holds each role's parameters (and its ``kind``).
 SECTIONS: dict[str, str] = {"plant": "physics", "imager": "imager", "observer": "observer", "reference": "reference",
                             "controller": "controller", "coil": "coil"}
@@ -182,18 +178,21 @@ class StageKind:
             params subclass :class:`~vesselbot_ros.physics.params.PhysicsParams` (the controller's
             model reads them).
         build: Makes the Python stage: ``build(context) -> stage``.
-        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``).  For a role of
-            :data:`FORM_ROLES`: ``compile`` gives its compiled form.
+        compiled: The compiled loop runs this kind (its stage types are in ``stage_types``); ``compile`` gives
+            its compiled form.
         stage_types: The classes the built stage may have, for :func:`kind_of` on a stage object.
         summary: One line for ``vesselbot kinds``.
         source: ``built-in``, ``entry point <distribution>`` or ``scenario``.
         module_file: The file the kind is defined in (its hash joins a campaign run's content address).
-        compile: The compiled form of a built stage: for an observer or a controller a
+        compile: The compiled form of a built stage, one per role: for an observer or a controller a
             :class:`~vesselbot_ros.control.compiled_stage.CompiledObserver` or ``CompiledController`` (a numba
             step of the one signature of its role that the compiled loop calls), for an imager or a coil a
             :class:`~vesselbot_ros.scanner.imager_model.CompiledImager` or
             :class:`~vesselbot_ros.scanner.actuator_limits.CompiledCoil` (the arrays the kernel's imager and
-            coil read, on the scanner's sequence or none); None: the per-tick loop runs it.  It raises
+            coil read, on the scanner's sequence or none), for the plant a
+            :class:`~vesselbot_ros.sim.plant.CompiledPlant` (its vessel, integrator and state) and for the
+            reference a :class:`~vesselbot_ros.control.bspline_reference.CompiledReference` (its samples at the
+            tick times); None: the per-tick loop runs it.  It raises
             :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile (a built-in kind
             over a user's part).
     """
@@ -217,7 +216,7 @@ class StageKind:
         if "kind" not in {f.name for f in dataclasses.fields(self.params)}:
             raise ConfigError(f"stage kind {self.name!r}: its params dataclass {self.params.__name__} needs a "
                               "'kind: str' field (the scenario's kind key)")
-        if self.role in FORM_ROLES and self.compiled and self.compile is None:
+        if self.compiled and self.compile is None:
             raise ConfigError(f"stage kind {self.name!r}: a compiled {self.role} kind needs compile")
         if self.role == "plant" and not issubclass(self.params, PhysicsParams):
             raise ConfigError(f"stage kind {self.name!r}: a plant kind's params must subclass PhysicsParams "
@@ -330,7 +329,7 @@ def _as_kind(obj: Any, name: str, source: str, where: str) -> StageKind:
                if hasattr(needed, m) and not callable(getattr(obj, m, None))]
     if missing:
         raise ConfigError(f"{where}: class {obj.__name__} ({role}) lacks method(s) {missing} of the {role} protocol")
-    compiled = role in FORM_ROLES and callable(getattr(obj, "compiled", None))  # its compiled form
+    compiled = callable(getattr(obj, "compiled", None))  # its compiled form
     cls: Any = obj  # the user's class: called with (params, context) by the convention
     return StageKind(role=role, name=name, params=params, build=lambda ctx: cls(ctx.params, ctx), compiled=compiled,
                      stage_types=(obj,), summary=(inspect.getdoc(obj) or "").split("\n")[0], source=source,
@@ -401,7 +400,7 @@ def kind_of(role: str, stage: object) -> StageKind | None:
 
 
 def compiled_stage(role: str, stage: Any) -> Any:
-    """The compiled form of a stage of a role of :data:`FORM_ROLES`, through its kind (:attr:`StageKind.compile`).
+    """The compiled form of a stage, through its kind (:attr:`StageKind.compile`).
 
     Raises:
         ModelInputError: the stage's kind has no compiled form, or cannot compile this stage.
@@ -676,6 +675,7 @@ def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
 
 for _kind in (
     StageKind("plant", "vessel", PhysicsParams, _plant, compiled=True, stage_types=(PlantSimulator,),
+              compile=lambda stage: stage.compiled(),
               summary="the vessel physics of the paper (eq. (1)): a straight vessel or a meshed network"),
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
@@ -686,6 +686,7 @@ for _kind in (
               summary="extended Kalman filter: delay compensation, blood-velocity scale estimate",
               compile=ExtendedKalmanObserver.compiled),
     StageKind("reference", "bspline", ReferenceParams, _reference, compiled=True, stage_types=(ReferenceTrajectory,),
+              compile=lambda stage: stage.compiled(),
               summary="C2 cubic B-spline through the anchors (or the planned route of a network)"),
     StageKind("controller", "backstepping", ControllerParams, _controller, compiled=True,
               stage_types=(BacksteppingController,), summary="backstepping law (24)",

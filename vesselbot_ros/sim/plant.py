@@ -10,6 +10,7 @@ period).  Tick times are ``t_k = t0 + k / rate`` (no accumulated drift).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, NamedTuple
 
@@ -23,6 +24,7 @@ from vesselbot_ros.physics.integrator import (
     IntegratorParams,
     failure_message,
     integrate,
+    integrator_vector,
     new_workspace,
     plant_output,
 )
@@ -30,7 +32,23 @@ from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
 
-__all__ = ["PlantOutput", "PlantSimulator", "TERM_NAMES"]
+__all__ = ["PlantOutput", "PlantSimulator", "CompiledPlant", "TERM_NAMES"]
+
+
+@dataclasses.dataclass(frozen=True)
+class CompiledPlant:
+    """The plant in the compiled loop's form: what its step (``physics.integrator.integrate``) and its output
+    (``wall_and_forces``) read.
+
+    Attributes:
+        geom: The vessel (the integrator's geometry edge: packed parameters, or a tree's ``(p, W, F, fh)``).
+        ig: The integrator's settings, packed (:func:`~vesselbot_ros.physics.integrator.integrator_vector`).
+        state0: ``(X, Z)`` at tick 0 (2 d,); each run gets a copy.
+    """
+
+    geom: Any
+    ig: npt.NDArray[np.float64]
+    state0: npt.NDArray[np.float64]
 
 
 class PlantOutput(NamedTuple):
@@ -113,6 +131,10 @@ class PlantSimulator(IntegratorHolder):
         """The vessel the integrator flies the bead in (:mod:`vesselbot_ros.physics.integrator`'s geometry edge):
         the packed parameters ``p`` of a straight vessel or a planar network, a tree's ``(p, W, F, fh)``."""
         return vessel_geom(self.p, self.packed)
+
+    def compiled(self) -> CompiledPlant:
+        """This plant in the compiled loop's form (its vessel, integrator settings and current state)."""
+        return CompiledPlant(self.geom, integrator_vector(self.integrator), self.state)
 
     @property
     def t_s(self) -> float:
