@@ -27,7 +27,8 @@ from vesselbot_ros.graph_spec import CHILD_FRAME_ID, qos_profile, topic
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.plant_node import network_scene_markers
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import load_network, route_to_outlet
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 ROBOT_RADIUS_M = 250e-6
 DT_S = 1e-3

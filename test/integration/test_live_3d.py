@@ -31,8 +31,9 @@ from vesselbot_ros.live_view import ARROW_AT_LIMIT_M  # noqa: E402
 from vesselbot_ros.nodes.recorder_node import recorder_command  # noqa: E402
 from vesselbot_ros.physics.params import BloodParams  # noqa: E402
 from vesselbot_ros.testing import NodeProcess  # noqa: E402
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network  # noqa: E402
+from vesselbot_ros.vessels.network import load_network  # noqa: E402
 from vesselbot_ros.vessels.plant_field3d import wall_mesh  # noqa: E402
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry  # noqa: E402
 
 PEER = Path(__file__).with_name("scene3d_peer.py")
 #: The real run: the carotid scenario started 5 mm into the external carotid (y = -0.55 mm), routed to its end.

@@ -104,7 +104,8 @@ def test_a_network_run_gets_no_straight_walls_and_the_radius_from_both_gaps():
     from vesselbot_ros.live_view import DerivedView
     from vesselbot_ros.nodes import conversions as cv
     from vesselbot_ros.vessels.cfd import network_wall
-    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+    from vesselbot_ros.vessels.network import load_network
+    from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
     # in a network the gaps are to the nearest wall and the opposite one, not D/2 -/+ z: the old upper-gap rule
     # (D/2 - z - gap_up) gave a wrong radius wherever the centreline is not at z = 0

@@ -67,7 +67,8 @@ from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["write_report", "report_dir", "metrics_timeseries", "positions_3d", "tree_trajectory",
            "bool_intervals", "tracking_windows", "detect_outlier_frames", "diagnostic_counters",

@@ -21,8 +21,9 @@ from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
 from vesselbot_ros.vessels.plant_field3d import wall_arrays
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["planned_reference", "route_branches", "route_anchors", "up_directions", "anchor_arcs", "VERTICAL_SINE",
            "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]

@@ -368,7 +368,7 @@ def network_markers(geom: Any, wall_segments_m: npt.NDArray[np.float64], robot_r
                     step_m: float = 2.0e-4) -> MarkerArray:
     """A vessel network for viewers: the meshed wall the plant sees (one LINE_LIST) and each branch's centreline.
 
-    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry` (the centrelines, a LINE_STRIP per
+    ``geom`` is a :class:`vesselbot_ros.vessels.tube_geometry.NetworkGeometry` (the centrelines, a LINE_STRIP per
     branch, points every ``step_m``); ``wall_segments_m`` (k, 4) rows ``(ax, az, bx, bz)`` (m) are the meshed
     wall's segments (:attr:`vesselbot_ros.geometry.polyline_wall.WallQuery.segments`), the wall whose exact distance the
     plant computes, junctions included, open ends (inlet and outlet caps) left out.
@@ -435,7 +435,7 @@ def network_markers_3d(geom: Any, vertices_m: npt.ArrayLike, triangles: npt.Arra
                        step_m: float = 2.0e-4) -> MarkerArray:
     """A 3-D vessel tree for viewers: its wall mesh (one TRIANGLE_LIST, :func:`wall_mesh_marker`) and each branch's centreline.
 
-    ``geom`` is a :class:`vesselbot_ros.vessels.network.NetworkGeometry` (the 3-D centrelines, a LINE_STRIP
+    ``geom`` is a :class:`vesselbot_ros.vessels.tube_geometry.NetworkGeometry` (the 3-D centrelines, a LINE_STRIP
     per branch with its real y, a point every ``step_m``); ``vertices_m`` (n, 3) and ``triangles`` (k, 3)
     are the meshed lumen wall (open ends, the inlet and outlet caps, left out).  The same namespaces and
     ids as :func:`network_markers` (the planar network's), so a viewer's settings apply to both.

@@ -99,7 +99,8 @@ from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
 from vesselbot_ros.vessels import plant_field3d
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, VesselNetworkParams, load_network
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["PlantNode", "main", "PLANT_STAT_NAMES", "STOPPED", "PLAYING", "PAUSED", "ALREADY", "LOST_GRACE_S",
            "network_scene_markers"]

@@ -53,7 +53,8 @@ from vesselbot_ros.scanner.imager_model import ImagerParams
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network, network_dims, require_planar, route_to_outlet
+from vesselbot_ros.vessels.network import load_network, network_dims, require_planar, route_to_outlet
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = [
     "ModelParams",

@@ -78,13 +78,8 @@ from vesselbot_ros.physics.kernel import pack_network_params, pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, require_fits
-from vesselbot_ros.vessels.network import (
-    NetworkGeometry,
-    VesselNetworkParams,
-    load_network,
-    require_planar,
-    smooth_centreline,
-)
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, require_planar, smooth_centreline
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
            "network_field", "network_wall", "packed_params", "cache_dir", "shipped_field_dir", "field_file", "field_key", "FIELD_NAMES",

@@ -16,7 +16,8 @@ from vesselbot_ros.control import route
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
 from vesselbot_ros.control.route import VERTICAL_SINE, anchor_arcs, planned_reference, route_branches, up_directions
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 UPPER = shipped_scenarios()["paper_iiic_network_upper"]
 

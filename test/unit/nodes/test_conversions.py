@@ -213,7 +213,8 @@ def test_network_markers_3d_draw_the_tree_wall_and_its_3d_centrelines():
 
     from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS
     from vesselbot_ros.vessels import tree_mesh
-    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+    from vesselbot_ros.vessels.network import load_network
+    from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
     net = load_network("carotid_bifurcation_3d")
     geom = NetworkGeometry(net, dims=3)

@@ -139,7 +139,8 @@ def test_a_network_with_y_gets_its_wall_mesh_and_a_planar_one_its_meshed_wall_se
     from vesselbot_ros.nodes.plant_node import network_scene_markers
     from vesselbot_ros.physics.params import BloodParams
     from vesselbot_ros.vessels.cfd import network_wall
-    from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+    from vesselbot_ros.vessels.network import load_network
+    from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
     blood, r = BloodParams(), 2.5e-4
     planar = load_network("paper_iiic_artery")

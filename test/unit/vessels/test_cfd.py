@@ -80,7 +80,7 @@ def _sections(net: VesselNetworkParams) -> list[tuple[str, np.ndarray, np.ndarra
     """(branch, centre (2,), unit tangent (2,), radius, Murray share of the inflow) of one interior cross-section per
     branch: mid-way between 1.5 parent radii after its start node and 1.5 radii before its end node (branches too
     short for that have none).  The share is the sum of r^3 / sum r^3 over the outlets downstream."""
-    from vesselbot_ros.vessels.network import NetworkGeometry
+    from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
     g = NetworkGeometry(net)
     r_out = {o: max(next(b for b in net.branches if b.name == o).radius_m) for o in net.outlets}

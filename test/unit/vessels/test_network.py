@@ -1,4 +1,4 @@
-"""Vessel-network format, validation and pure geometry (vesselbot_ros.vessels.network, .route)."""
+"""Vessel-network format, validation, centreline smoothing and loading (vesselbot_ros.vessels.network)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.vessels.network import (
-    NetworkGeometry,
-    VesselNetworkParams,
-    load_network,
-    route_to_outlet,
-)
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 
 def _net(branches, **kw):  # type: ignore[no-untyped-def]
@@ -54,22 +50,8 @@ def test_overlapping_branches_are_named_with_where() -> None:
     _net(Y)  # the same daughters diverging are fine
 
 
-def test_straight_branch_geometry_is_exact() -> None:
-    g = NetworkGeometry(_net([Y[0]]))
-    z = np.linspace(-0.9e-3, 0.9e-3, 7)
-    q = g.query(np.column_stack([np.full(7, 2e-3), z]))
-    np.testing.assert_allclose(q["sdist"], 1e-3 - np.abs(z), atol=1e-15)
-    np.testing.assert_allclose(q["diameter"], 2e-3)
-    up = z > 0
-    np.testing.assert_allclose(q["normal"][up], [[0.0, -1.0]] * int(up.sum()), atol=1e-12)  # inward: away from the upper wall
-
-
-def test_geometry_picks_the_branch_and_routes_over_the_tree() -> None:
+def test_routes_over_the_tree() -> None:
     net = _net(Y)
-    g = NetworkGeometry(net)
-    q = g.query(np.array([[10e-3, 3.57e-3], [10e-3, -3.57e-3], [1e-3, 0.0], [1e-3, 3e-3]]))
-    assert [g.names[i] for i in q["branch"][:3]] == ["b", "c", "a"]
-    assert q["sdist"][3] < 0  # outside
     assert route_to_outlet(net, "c") == ["a", "c"]
     assert net.outlets == ["b", "c"]
     with pytest.raises(ConfigError, match="route outlet 'x'"):
@@ -80,40 +62,6 @@ def test_shipped_networks_load() -> None:
     net = load_network("paper_iiic_artery")
     assert net.outlets == ["side_down", "side_up", "upper", "lower"]
     assert load_network("config/vessels/straight_table3.yaml").root.name == "trunk"
-
-
-@settings(max_examples=150, deadline=None)
-@given(name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen", "straight_table3"]),
-       u=st.floats(-0.1, 1.1), v=st.floats(-0.1, 1.1))
-def test_point_clearance_equals_the_vectorised_query_bit_for_bit(name: str, u: float, v: float) -> None:
-    g = NetworkGeometry(load_network(name))
-    x0, x1, z0, z1 = g.bbox  # points in and around the lumen's bounding box, 10 % beyond each side
-    x, z = x0 + u * (x1 - x0), z0 + v * (z1 - z0)
-    q = g.query(np.array([[x, z]]))
-    assert g.clearance(x, z) == (q["sdist"][0], q["diameter"][0])
-
-
-@settings(max_examples=100, deadline=None)
-@given(name=st.sampled_from(["paper_iiic_artery", "small_artery_4gen", "carotid_bifurcation_3d", "synthetic_tree_3d"]),
-       u=st.floats(-0.1, 1.1), v=st.floats(-0.1, 1.1), w=st.floats(-0.1, 1.1))
-def test_one_geometry_on_any_axes_the_plane_is_space_at_y_zero(name: str, u: float, v: float, w: float) -> None:
-    # one class: a planar network on two axes gives the bits of the same network on three at y = 0
-    net = load_network(name)
-    g3 = NetworkGeometry(net, dims=3)
-    x0, x1, y0, y1, z0, z1 = g3.bbox
-    p3 = np.array([x0 + u * (x1 - x0), y0 + v * (y1 - y0) if not net.is_planar else 0.0, z0 + w * (z1 - z0)])
-    q3 = g3.query(p3[None])
-    assert g3.clearance(*p3) == (q3["sdist"][0], q3["diameter"][0])
-    assert abs(np.linalg.norm(q3["normal"][0]) - 1.0) < 1e-12
-    if net.is_planar:
-        g2 = NetworkGeometry(net)
-        assert g2.dims == 2 and g2.bbox == (x0, x1, z0, z1)
-        q2 = g2.query(p3[None, ::2])
-        for key in ("sdist", "diameter", "radius", "branch", "arc"):
-            assert np.array_equal(q2[key], q3[key]), key
-        assert np.array_equal(q2["normal"], q3["normal"][:, ::2]) and q3["normal"][0, 1] == 0.0
-        assert np.array_equal(q2["foot"], q3["foot"][:, ::2])
-        assert g2.clearance(*p3[::2]) == g3.clearance(*p3)
 
 
 # --- three-dimensional trees (y_m) -----------------------------------------------------------------

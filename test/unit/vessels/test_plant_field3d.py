@@ -10,7 +10,8 @@ from vesselbot_ros.config import ConfigError
 from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels import plant_field3d as pf
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+from vesselbot_ros.vessels.network import load_network
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 TREES = ("paper_iiic_artery_3d", "carotid_bifurcation_3d", "synthetic_tree_3d")
 

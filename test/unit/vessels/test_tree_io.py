@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from vesselbot_ros.cli import main
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.vessels.network import NetworkGeometry, load_network
+from vesselbot_ros.vessels.network import load_network
 from vesselbot_ros.vessels.tree_io import (
     import_vmtk_centerlines,
     network_mapping_from_paths,
@@ -20,6 +20,7 @@ from vesselbot_ros.vessels.tree_io import (
     write_network_yaml,
     write_vmtk_centerlines,
 )
+from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 
 def _seg(a, b, n):  # type: ignore[no-untyped-def]
