@@ -117,8 +117,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = [
-    "DEFAULT_NAMESPACE", "AXES", "AXIS_INDEX",
-    "FRAME_ID", "CHILD_FRAME_ID", "WIRE_STRINGS", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES",
+    "DEFAULT_NAMESPACE", "FRAME_ID", "CHILD_FRAME_ID", "WIRE_STRINGS", "TopicSpec", "ServiceSpec", "Role", "TOPICS", "SERVICES", "ROLES",
     "RECORDER",
     "SIMULATION_SERVICES", "SIMULATION_NODE", "reset_service_key", "series_service_key", "ViewSpec", "VIEW_CHANNELS", "view_table",
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
@@ -128,11 +127,6 @@ __all__ = [
 ]
 
 FRAME_ID = "vessel"
-#: The axes of the core's vectors in frame ``vessel`` per axis count (``Scenario.dims``), the one place they are
-#: named: a planar scenario's (2,) arrays are ``(x, z)`` (a message's y stays 0), a 3-D tree's ``(x, y, z)``.
-AXES: dict[int, tuple[str, ...]] = {2: ("x", "z"), 3: ("x", "y", "z")}
-#: :data:`AXES` as indices into a message's ``(x, y, z)``.
-AXIS_INDEX: dict[int, tuple[int, ...]] = {d: tuple("xyz".index(a) for a in names) for d, names in AXES.items()}
 #: The estimate's ``child_frame_id``: the robot it tracks.
 CHILD_FRAME_ID = "robot"
 #: The string fields of the per-tick messages, as the graph fixes them: a message whose strings are these travels

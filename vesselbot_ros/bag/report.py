@@ -62,7 +62,8 @@ from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.route import draw_network, navigation_outcome
 from vesselbot_ros.errors import BagError
-from vesselbot_ros.graph_spec import AXES, AXIS_INDEX, NODE_NAMES
+from vesselbot_ros.graph_spec import NODE_NAMES
+from vesselbot_ros.physics.axes import AXES, AXIS_INDEX
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES

@@ -62,7 +62,7 @@ import numpy as np
 import scipy
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.graph_spec import AXES
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.sim import closed_loop, kinds
 from vesselbot_ros.sim import scenario as scenario_module
 

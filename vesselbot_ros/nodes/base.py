@@ -58,7 +58,6 @@ from vesselbot_msgs.srv import GetSeries
 
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.graph_spec import (
-    AXIS_INDEX,
     DEFAULT_NAMESPACE,
     FRAME_ID,
     LOOP_ROLES,
@@ -78,6 +77,7 @@ from vesselbot_ros.nodes.intra_process import intra_process
 from vesselbot_ros.nodes.params import kind_parameters, scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
+from vesselbot_ros.physics.axes import AXIS_INDEX
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.vessels.network import load_network

@@ -84,10 +84,10 @@ from std_msgs.msg import Header
 from vesselbot_msgs.msg import CoilState, SequencePhase
 
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.graph_spec import AXES
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.scanner.actuator_limits import CoilOutput
 from vesselbot_ros.scanner.hardware import dbdt_at
 from vesselbot_ros.scanner.sequence import PhaseWindow, duty_cycle, window_at

@@ -3,7 +3,7 @@
 Conventions (see :mod:`vesselbot_ros.graph_spec`): frame ``vessel`` with x along
 the vessel axis, z vertical and y the scanner's horizontal axis across the
 bore.  Messages carry 3-D vectors; the core's arrays have one entry per axis
-of the scenario (``Scenario.dims``, :data:`~vesselbot_ros.graph_spec.AXES`): a planar scenario works on
+of the scenario (``Scenario.dims``, :data:`~vesselbot_ros.physics.axes.AXES`): a planar scenario works on
 (2,) arrays ``(x, z)`` and its messages carry ``y = 0``; a 3-D vessel tree
 works on (3,) arrays ``(x, y, z)`` and y is real.  Every helper that packs or
 unpacks a vector takes that one switch, ``dims`` (2 unless given), so a node
@@ -47,8 +47,9 @@ from std_msgs.msg import Header
 from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
 from visualization_msgs.msg import Marker, MarkerArray
 
-from vesselbot_ros.graph_spec import AXES, FRAME_ID, NETWORK_WALL_NS, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
+from vesselbot_ros.graph_spec import FRAME_ID, NETWORK_WALL_NS, WIRE_STRINGS, ns_of_time, tick_of_ns, tick_time
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for, message_builder
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 
@@ -283,7 +284,7 @@ def estimate_flow_scale(v: Any) -> float:
 def vector_array(x: float, y: float, z: float, dims: int = 2) -> npt.NDArray[np.float64]:
     """A message's vector -> the core's array: ``(x, z)`` in a planar scenario (y is 0 there), ``(x, y, z)`` in a
     3-D tree (``dims`` 3)."""
-    return np.array([x, y, z] if dims == 3 else [x, z])  # axis count at the wire's edge (graph_spec.AXES)
+    return np.array([x, y, z] if dims == 3 else [x, z])  # axis count at the wire's edge (physics.axes.AXES)
 
 
 def estimate_arrays(v: Any, dims: int = 2) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], float]:

@@ -21,12 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from vesselbot_ros.graph_spec import AXES, tick_of_ns, topic
+from vesselbot_ros.graph_spec import tick_of_ns, topic
+from vesselbot_ros.physics.axes import AXES
 
 __all__ = ["SERIES_COLUMNS", "READERS", "SeriesLog", "series_columns", "columns_of", "readers", "series_from_response",
            "split_series", "empty_series"]
 
-#: series name -> its columns: a vector's per axis (``{}`` takes the axis name, :data:`~vesselbot_ros.graph_spec.AXES`)
+#: series name -> its columns: a vector's per axis (``{}`` takes the axis name, :data:`~vesselbot_ros.physics.axes.AXES`)
 #: or one flag
 _SERIES: dict[str, str] = {
     "p_true": "p_true_{}_m",
