@@ -17,12 +17,12 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
-from vesselbot_ros.geometry.field_lookup import field_points3d
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
-from vesselbot_ros.vessels.plant_field3d import wall_arrays
+from vesselbot_ros.vessels.plant_field3d import meshed_wall
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["planned_reference", "route_branches", "route_anchors", "up_directions", "anchor_arcs", "VERTICAL_SINE",
@@ -154,24 +154,20 @@ def planned_reference(scenario):  # type: ignore[no-untyped-def]  # numba kernel
     if not ref.route_outlet:
         return ref
     a = _anchors(scenario)
-    if a.shape[1] == 3:
-        return dataclasses.replace(ref, anchors_x_m=tuple(float(v) for v in a[:, 0]),
-                                   anchors_y_m=tuple(float(v) for v in a[:, 1]),
-                                   anchors_z_m=tuple(float(v) for v in a[:, 2]))
-    return dataclasses.replace(ref, anchors_x_m=tuple(float(v) for v in a[:, 0]),
-                               anchors_z_m=tuple(float(v) for v in a[:, 1]))
+    return dataclasses.replace(ref, **{f"anchors_{axis}_m": tuple(float(v) for v in a[:, j])
+                                       for j, axis in enumerate(AXES[a.shape[1]])})
 
 
 def branch_at(network: str, points_m: npt.ArrayLike) -> tuple[list[str], npt.NDArray[np.float64]]:
-    """(branch name, signed distance to the meshed wall (m)) of each point (m, 2) in the network.
+    """(branch name, signed distance to the meshed wall (m)) of each point (m, d), on the network's axes.
 
-    The branch is the centreline tube holding the point; the distance is the meshed wall's
-    (:func:`vesselbot_ros.vessels.cfd.network_wall`), exact in the junctions too.
+    The branch is the centreline tube holding the point; the distance is the plant's meshed wall's
+    (:func:`vesselbot_ros.vessels.plant_field3d.meshed_wall`), exact in the junctions too.
     """
     net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(points_m)
-    return [geom.names[i] for i in q["branch"]], network_wall(net).query(points_m)["sdist"]
+    return [geom.names[i] for i in q["branch"]], meshed_wall(net).query(points_m)["sdist"]
 
 
 def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> dict[str, object]:  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -193,7 +189,7 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
                        blood: BloodParams | None = None) -> dict[str, object]:
     """:func:`navigation_metrics` from plain values (network file, target outlet or "").
 
-    "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.cfd.network_wall`, read
+    "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.plant_field3d.meshed_wall`, read
     from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it);
     the branch holding a point is its centreline tube's.
     """
@@ -202,11 +198,8 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
     net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(p)
-    if net.is_3d:  # the 3-D plant's wall (its compiled lookup)
-        out = field_points3d(np.ascontiguousarray(p), *wall_arrays(net, blood).args)[:, 0] < 0.0
-    else:
-        # the lumen dilates by the diameter pulsation; the steady wall is the conservative test
-        out = network_wall(net, blood).query(p)["sdist"] < 0.0
+    # the plant's meshed wall; the lumen dilates by the diameter pulsation: the steady wall is the conservative test
+    out = meshed_wall(net, blood).query(p)["sdist"] < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
     reached = False
