@@ -9,7 +9,7 @@ Two figures, each a ratio of two measurements taken here, one after the other:
   ``synthetic_tree_3d_deep``) against the same planar run (target: 3-D <= 3 x planar);
 * the force kernel's lookup (everything the kernel asks of the geometry and the flow at a point: distance, normal,
   diameter, viscosity, blood velocity): :func:`vesselbot_ros.physics.kernel.network_geometry` on the planar III-C
-  network at the points its bead visits against :func:`vesselbot_ros.physics.plant3d.geometry3d` on each 3-D tree
+  network at the points its bead visits against :func:`vesselbot_ros.physics.tree_vessel.tree_geometry` on each 3-D tree
   at the points its bead visits (the true positions of the runs above; target: 3-D <= 2 x planar), with the share
   of those points the wall's exact query answers and the size of the tree's wall arrays; and at points uniform in
   the III-C lumen.
@@ -33,11 +33,11 @@ from bench_against import ISSUE_40_BASE, side_by_side  # this folder's: the same
 
 from vesselbot_ros.geometry.field_build import WallField3D
 from vesselbot_ros.physics.kernel import network_geometry
-from vesselbot_ros.physics.plant3d import geometry3d
+from vesselbot_ros.physics.tree_vessel import tree_geometry
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.vessels.plant_field3d import packed3d
+from vesselbot_ros.vessels.tree_field import packed_tree
 
 PLANAR = "paper_iiic_network_upper"
 TREES = ("paper_iiic_network_upper_3d", "carotid_bifurcation_3d_eca", "synthetic_tree_3d_deep")
@@ -68,7 +68,7 @@ def _loop2d(q, p):  # type: ignore[no-untyped-def]
 def _loop3d(q, p, W, F, fh):  # type: ignore[no-untyped-def]
     acc = 0.0
     for k in range(q.shape[0]):
-        acc += geometry3d(0.1, q[k, 0], q[k, 1], q[k, 2], p, W, F, fh)[0]
+        acc += tree_geometry(0.1, q[k, 0], q[k, 1], q[k, 2], p, W, F, fh)[0]
     return acc
 
 
@@ -100,7 +100,7 @@ def main() -> int:
     print("force kernel lookup (geometry and flow at a point), ns per call, at the points the bead visits")
     print(f"  {PLANAR:32s} planar {a2:7.1f}")
     for name in TREES:
-        k3 = packed3d(load_scenario(shipped_scenarios()[name]).physics)
+        k3 = packed_tree(load_scenario(shipped_scenarios()[name]).physics)
         q3 = np.ascontiguousarray(np.repeat(visited[name], 20, axis=0))
         field = WallField3D.__new__(WallField3D)  # the lookup's own mask of exact cells, on the packed arrays
         field.head, field.field, field.fine = k3.W[0], k3.W[1], k3.W[2]
@@ -110,7 +110,7 @@ def main() -> int:
         mb = sum(a.nbytes for a in k3.W) / 1e6
         print(f"  {name:32s} 3-D    {a3:7.1f}   {a3 / a2:5.2f} x (target <= 2); exact share {exact:.1%}; "
               f"list cells {listed:.1%}; wall arrays {mb:.0f} MB")
-    k3 = packed3d(load_scenario(shipped_scenarios()[TREES[0]]).physics)
+    k3 = packed_tree(load_scenario(shipped_scenarios()[TREES[0]]).physics)
     rng = np.random.default_rng(0)
     q3 = visited[TREES[0]]
     lo, hi = q3.min(axis=0) - 1e-4, q3.max(axis=0) + 1e-4

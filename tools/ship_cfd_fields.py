@@ -2,13 +2,13 @@
 """Solve the flow of every shipped scenario's vessel network afresh and ship the sampled fields in config/cfd/.
 
 Planar networks ship their 2-D fields (:mod:`vesselbot_ros.vessels.cfd`); 3-D trees ship the 3-D plant's samples
-(``<tree>-<key>.3d.npz``: :mod:`vesselbot_ros.vessels.plant_field3d`).
+(``<tree>-<key>.3d.npz``: :mod:`vesselbot_ros.vessels.tree_field`).
 
 Run it (``.venv/bin/python tools/ship_cfd_fields.py``) after a change of a shipped
 network, of the CFD settings or code (``cfd.CACHE_VERSION``) or of a shipped
 scenario's blood model, then ``tools/gen_reference_metrics.py``, and commit
 both with the reason.  ``--only-3d`` makes the 3-D trees' samples alone (after a change of
-:mod:`vesselbot_ros.vessels.plant_field3d`'s ``FIELD3D_VERSION``: the 3-D flow solves are read from the
+:mod:`vesselbot_ros.vessels.tree_field`'s ``FIELD3D_VERSION``: the 3-D flow solves are read from the
 cache when there, the planar fields are left as they are).  Fields no shipped scenario uses any more are removed.
 Why the fields are shipped at all: :mod:`vesselbot_ros.vessels.cfd`
 ("Shipped fields").
@@ -22,7 +22,7 @@ import sys
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.cfd import field_file, network_field, shipped_field_dir
 from vesselbot_ros.vessels.network import load_network
-from vesselbot_ros.vessels.plant_field3d import field_key, plant_field
+from vesselbot_ros.vessels.tree_field import field_key, plant_field
 
 
 def shipped_networks(three_d: bool = False) -> dict[str, tuple[object, object]]:

@@ -18,7 +18,7 @@ on a grid of spacing ``--h-mm`` and prints, per geometry:
 Standard: distance <= 5 um, normal <= 2 deg within 1 mm of the wall.
 
 ``--shipped`` validates the shipped trees' walls instead, as the 3-D plant builds them
-(:func:`vesselbot_ros.vessels.plant_field3d.wall_arrays`: the standard held within 1 mm of the wall in the lumen
+(:func:`vesselbot_ros.vessels.tree_field.wall_arrays`: the standard held within 1 mm of the wall in the lumen
 and 0.1 mm outside it; model cells; the exact query pruned), per tree:
 
 * at random points in the band, inside and outside, the lookup against the exact query of the same (fine)
@@ -231,7 +231,7 @@ def nearest_branch(net: object, pts: Array) -> list[str]:
 def shipped(name: str, n: int, seed: int = 11) -> dict[str, float]:
     """The figures of ``--shipped`` for one tree (module docstring)."""
     from vesselbot_ros.physics.params import BloodParams  # deferred: only the shipped trees' section needs them
-    from vesselbot_ros.vessels import plant_field3d as pf
+    from vesselbot_ros.vessels import tree_field as pf
     from vesselbot_ros.vessels.network import load_network
 
     net = load_network(name)

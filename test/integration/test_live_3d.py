@@ -32,7 +32,7 @@ from vesselbot_ros.nodes.recorder_node import recorder_command  # noqa: E402
 from vesselbot_ros.physics.params import BloodParams  # noqa: E402
 from vesselbot_ros.testing import NodeProcess  # noqa: E402
 from vesselbot_ros.vessels.network import load_network  # noqa: E402
-from vesselbot_ros.vessels.plant_field3d import wall_mesh  # noqa: E402
+from vesselbot_ros.vessels.tree_field import wall_mesh  # noqa: E402
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry  # noqa: E402
 
 PEER = Path(__file__).with_name("scene3d_peer.py")

@@ -4,7 +4,7 @@
 module fingerprints the artefacts a machine makes once and then reads: the
 planner's plans of the shipped scanner presets (``config/plans``, rebuilt by
 ``vesselbot plan``), the 3-D plant's wall field (built from a shipped tree's
-wall into the per-machine cache, :func:`~vesselbot_ros.vessels.plant_field3d.wall_arrays`),
+wall into the per-machine cache, :func:`~vesselbot_ros.vessels.tree_field.wall_arrays`),
 and the synthetic tree's generator and importer (``tools/make_synthetic_tree_3d.py``,
 ``vesselbot vessels import``).  The cross-kernel test
 (``test/unit/analysis/test_builds_fingerprint.py``) runs
@@ -74,7 +74,7 @@ def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, in
     the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree)."""
     # deferred: as above
     from vesselbot_ros.geometry.field_build import build_wall_field3d
-    from vesselbot_ros.vessels import plant_field3d as pf
+    from vesselbot_ros.vessels import tree_field as pf
     from vesselbot_ros.vessels.network import load_network
 
     name, lo, shape = block

@@ -34,7 +34,7 @@ from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.vessels.network import network_dims
-from vesselbot_ros.vessels.plant_field3d import packed_vessel, planar_twin, vessel_geom
+from vesselbot_ros.vessels.tree_field import packed_vessel, planar_twin, vessel_geom
 
 __all__ = ["DynamicsModel", "BLOOD_VELOCITY_ERROR"]
 

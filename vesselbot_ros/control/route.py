@@ -22,7 +22,7 @@ from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
-from vesselbot_ros.vessels.plant_field3d import meshed_wall
+from vesselbot_ros.vessels.tree_field import meshed_wall
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["planned_reference", "route_branches", "route_anchors", "up_directions", "anchor_arcs", "VERTICAL_SINE",
@@ -162,7 +162,7 @@ def branch_at(network: str, points_m: npt.ArrayLike) -> tuple[list[str], npt.NDA
     """(branch name, signed distance to the meshed wall (m)) of each point (m, d), on the network's axes.
 
     The branch is the centreline tube holding the point; the distance is the plant's meshed wall's
-    (:func:`vesselbot_ros.vessels.plant_field3d.meshed_wall`), exact in the junctions too.
+    (:func:`vesselbot_ros.vessels.tree_field.meshed_wall`), exact in the junctions too.
     """
     net = load_network(network)
     geom = NetworkGeometry(net)
@@ -189,7 +189,7 @@ def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: np
                        blood: BloodParams | None = None) -> dict[str, object]:
     """:func:`navigation_metrics` from plain values (network file, target outlet or "").
 
-    "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.plant_field3d.meshed_wall`, read
+    "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.tree_field.meshed_wall`, read
     from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it);
     the branch holding a point is its centreline tube's.
     """

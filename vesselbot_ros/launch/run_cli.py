@@ -218,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     if scenario.physics.vessel.network:
         # a network's CFD field (a tree's flow and wall samples) is solved or built, or read from the cache, once,
         # here, before any node starts
-        from vesselbot_ros.vessels.plant_field3d import packed_vessel  # deferred: the CFD stack, only for a network
+        from vesselbot_ros.vessels.tree_field import packed_vessel  # deferred: the CFD stack, only for a network
 
         packed_vessel(scenario.physics, scenario.dims)
     check_plugin_stages(scenario, args.without)  # a user's kind that cannot be built: one line, nothing started

@@ -81,7 +81,7 @@ from vesselbot_ros.physics.axes import AXIS_INDEX
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.vessels.network import load_network
-from vesselbot_ros.vessels.plant_field3d import meshed_wall
+from vesselbot_ros.vessels.tree_field import meshed_wall
 
 __all__ = ["VesselbotNode"]
 

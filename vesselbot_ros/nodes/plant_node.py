@@ -94,10 +94,10 @@ from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.nodes.simulation_control import ALREADY, PAUSED, PLAYING, STOPPED, SimulationControl
 from vesselbot_ros.physics.blood_flow import Vessel
 from vesselbot_ros.physics.kernel import fluid_velocity_x, network_geometry
-from vesselbot_ros.physics.plant3d import geometry3d
+from vesselbot_ros.physics.tree_vessel import tree_geometry
 from vesselbot_ros.scanner.hardware import effective_coil_limits
 from vesselbot_ros.sim.closed_loop import build_stage
-from vesselbot_ros.vessels import plant_field3d
+from vesselbot_ros.vessels import tree_field
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
@@ -116,12 +116,12 @@ STALL_POLL_S = 0.005
 def network_scene_markers(net: VesselNetworkParams, blood: Any, robot_radius_m: float) -> MarkerArray:
     """The vessel markers of a network: a 3-D tree's wall mesh and 3-D centrelines, else the planar meshed wall.
 
-    A 3-D tree's wall is the one its plant computes with (:func:`vesselbot_ros.vessels.plant_field3d.wall_mesh`:
+    A 3-D tree's wall is the one its plant computes with (:func:`vesselbot_ros.vessels.tree_field.wall_mesh`:
     shipped, cached or solved with the tree's flow; 9 912 triangles for the carotid, 22 958 for
     synthetic_tree_3d: 1.7 MB of markers).
     """
     if net.is_3d:
-        vertices, triangles = plant_field3d.wall_mesh(net, blood)
+        vertices, triangles = tree_field.wall_mesh(net, blood)
         return cv.network_markers_3d(NetworkGeometry(net, dims=3), vertices, triangles, robot_radius_m)
     return cv.network_markers(NetworkGeometry(net), network_wall(net, blood).segments, robot_radius_m)
 
@@ -419,7 +419,7 @@ class PlantNode(VesselbotNode):
         # grid, or the straight vessel's two walls
         if self.dims == 3:
             k = self.plant.packed
-            s_t, *_n, d, _eta, vfx, vfy, vfz = geometry3d(t, *out.p.tolist(), self.plant.p, k.W, k.F, k.fh)
+            s_t, *_n, d, _eta, vfx, vfy, vfz = tree_geometry(t, *out.p.tolist(), self.plant.p, k.W, k.F, k.fh)
             blood = (float(vfx), float(vfy), float(vfz))
         elif self._network:
             s_t, _nx, _nz, d, _eta, vfx, vfz = network_geometry(t, float(out.p[0]), float(out.p[1]), self.plant.p)

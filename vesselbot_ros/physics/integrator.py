@@ -60,7 +60,7 @@ from vesselbot_ros.physics.kernel import (
     wall_delta_at,
     wall_delta_xz,
 )
-from vesselbot_ros.physics.plant3d import contact3d_update, forces3d_at, geometry3d, rhs3d_into
+from vesselbot_ros.physics.tree_vessel import tree_contact_update, tree_forces_at, tree_geometry, tree_rhs_into
 
 __all__ = [
     "IntegratorParams",
@@ -234,7 +234,7 @@ def _planar_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[n
 
 
 def _tree_rhs(t, y, g, u, contact, geom, out, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    rhs3d_into(t, y, g, u, contact, geom[0], geom[1], geom[2], geom[3], out, fbuf)
+    tree_rhs_into(t, y, g, u, contact, geom[0], geom[1], geom[2], geom[3], out, fbuf)
 
 
 def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -247,7 +247,7 @@ def _planar_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  #
 
 
 def _tree_contact(t, y, contact, geom, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    contact3d_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
+    tree_contact_update(t, y, contact, geom[0], geom[1], geom[2], geom[3])
 
 
 def axes_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
@@ -278,7 +278,7 @@ def _planar_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore
 
 def _tree_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     p = geom[0]
-    s_t, n_z = forces3d_at(t, y, g, contact, p, geom[1], geom[2], geom[3], fbuf)
+    s_t, n_z = tree_forces_at(t, y, g, contact, p, geom[1], geom[2], geom[3], fbuf)
     return p[I_R] - s_t, (1.0 if n_z <= 0.0 else -1.0)  # the wall above when its inward normal points down
 
 
@@ -298,7 +298,7 @@ def _planar_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped
 
 
 def _tree_forces(t, y, g, contact, geom, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
+    tree_forces_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
 
 
 @overload(forces_at, inline="always")
@@ -317,7 +317,7 @@ def _planar_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[n
 
 
 def _tree_forces_memo(t, y, g, contact, geom, fbuf, sc, tc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
+    tree_forces_at(t, y, g, contact, geom[0], geom[1], geom[2], geom[3], fbuf)
 
 
 @overload(forces_memo, inline="always")
@@ -341,7 +341,7 @@ def _planar_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-d
 
 def _tree_press(t, y, u, geom, fbuf, zone_radii):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     p = geom[0]
-    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
+    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = tree_geometry(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
     if not p[I_R] - s_t > -zone_radii * p[I_R]:
         return False
     m = p[I_MASS]
@@ -371,7 +371,7 @@ def _planar_onto(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kern
 
 def _tree_onto(t, y, geom, gap):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     p = geom[0]
-    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
+    s_t, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = tree_geometry(t, y[0], y[1], y[2], p, geom[1], geom[2], geom[3])
     delta = p[I_R] - s_t + gap
     if not delta > 0.0:
         return False
@@ -408,7 +408,7 @@ def _planar_rests(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: 
 
 def _tree_rests(t, x, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     p = geom[0]
-    s_t, _n0, _n1, n2, _d, _eta, _v0, _v1, _v2 = geometry3d(t, x[0], x[1], x[2], p, geom[1], geom[2], geom[3])
+    s_t, _n0, _n1, n2, _d, _eta, _v0, _v1, _v2 = tree_geometry(t, x[0], x[1], x[2], p, geom[1], geom[2], geom[3])
     return p[I_R] - s_t >= 0.0 and n2 > 0.0
 
 
@@ -429,7 +429,7 @@ def _planar_blood(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba ker
 
 
 def _tree_blood(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    r = geometry3d(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    r = tree_geometry(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
     out[0] = r[6]
     out[1] = r[7]
     out[2] = r[8]
@@ -469,7 +469,7 @@ def _planar_offset(x, geom, out):  # type: ignore[no-untyped-def]  # numba kerne
 
 
 def _tree_offset(x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    _s, n0, n1, n2, d, _eta, _v0, _v1, _v2 = geometry3d(0.0, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    _s, n0, n1, n2, d, _eta, _v0, _v1, _v2 = tree_geometry(0.0, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
     out[0] = 0.5 * d * n0
     out[1] = 0.5 * d * n1
     out[2] = 0.5 * d * n2

@@ -89,7 +89,7 @@ from vesselbot_ros.scanner.imager_model import ImagerModel, ImagerParams, Measur
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.scanner.stages import SequencedCoil, SequencedImager
 from vesselbot_ros.sim.plant import PlantOutput, PlantSimulator
-from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
+from vesselbot_ros.vessels.tree_field import packed_vessel, vessel_geom
 
 __all__ = [
     "ROLES", "SECTIONS", "DEFAULT_KINDS", "ENTRY_POINT_GROUP", "StageKind", "BuildContext", "register", "find",

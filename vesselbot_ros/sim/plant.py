@@ -30,7 +30,7 @@ from vesselbot_ros.physics.integrator import (
 )
 from vesselbot_ros.physics.kernel import TERM_NAMES
 from vesselbot_ros.physics.params import PhysicsParams
-from vesselbot_ros.vessels.plant_field3d import packed_vessel, vessel_geom
+from vesselbot_ros.vessels.tree_field import packed_vessel, vessel_geom
 
 __all__ = ["PlantOutput", "PlantSimulator", "CompiledPlant", "TERM_NAMES"]
 
@@ -81,7 +81,7 @@ class PlantSimulator(IntegratorHolder):
 
     In the plane (a straight vessel or a planar network) the state is ``(x, z, vx, vz)``; in a 3-D tree
     (``physics.vessel.network`` a tree in space, ``p0_m`` of three values) ``(x, y, z, vx, vy, vz)``, the kernel
-    :mod:`vesselbot_ros.physics.plant3d`.  The ports are the same on (d,) vectors (:class:`PlantOutput`: (d,) ``p``,
+    :mod:`vesselbot_ros.physics.tree_vessel`.  The ports are the same on (d,) vectors (:class:`PlantOutput`: (d,) ``p``,
     ``v``, (8, d) forces).
 
     Args:

@@ -767,7 +767,7 @@ def check_resources(
             ``sim.control_rate_Hz``, what the run needs and what is available;
             for a 3-D tree whose wall and flow are not yet built, naming the
             ``cfd`` key whose build would not fit
-            (:func:`vesselbot_ros.vessels.plant_field3d.check_build`).
+            (:func:`vesselbot_ros.vessels.tree_field.check_build`).
     """
     est = estimate_resources(scenario)
     budget = _memory_budget_bytes() if memory_budget_bytes is None else memory_budget_bytes
@@ -779,8 +779,8 @@ def check_resources(
             f"{_fmt_bytes(budget)} a run may use (half of this machine's memory): shorten sim.duration_s or lower "
             f"sim.control_rate_Hz"
         )
-    if scenario.dims == 3:  # the 3-D plant's wall and flow, built once per tree: bounded before any node starts
-        from vesselbot_ros.vessels.plant_field3d import check_build  # deferred: the 3-D wall's numba kernels
+    if scenario.dims == 3:  # a tree's wall and flow, built once per tree: bounded before any node starts
+        from vesselbot_ros.vessels.tree_field import check_build  # deferred: the 3-D wall's numba kernels
 
         check_build(load_network(scenario.physics.vessel.network), scenario.physics.blood, quiet=True)
     if bag_dir is not None:

@@ -17,7 +17,7 @@ from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
 from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, load_scenario, shipped_scenarios, short_copy
 from vesselbot_ros.vessels.network import load_network
-from vesselbot_ros.vessels.plant_field3d import meshed_wall
+from vesselbot_ros.vessels.tree_field import meshed_wall
 
 __all__ = ["warm", "main"]
 

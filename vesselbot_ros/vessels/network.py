@@ -188,7 +188,7 @@ class CfdParams:
             the lumen (m); 0 (the default): 1.2 ``mesh_size_m``.
         wall_elements_per_circle_3d: ... elements around a circumference of its wall; 0: 32.
         grid_spacing_3d_m: ... spacing of the 3-D plant's grid of wall and flow samples
-            (:mod:`vesselbot_ros.vessels.plant_field3d`, m); 0: 0.1 mm.
+            (:mod:`vesselbot_ros.vessels.tree_field`, m); 0: 0.1 mm.
         The three 3-D keys are left out of :func:`~vesselbot_ros.config.to_mapping` (and every hash) at 0.
     """
 
@@ -294,7 +294,7 @@ class VesselNetworkParams:
     @property
     def is_3d(self) -> bool:
         """True if the file writes the tree in three dimensions (some branch gives ``y_m``, even all zero): the
-        network the 3-D plant takes (:mod:`vesselbot_ros.vessels.plant_field3d`); the planar plant takes the others."""
+        network the 3-D plant takes (:mod:`vesselbot_ros.vessels.tree_field`); the planar plant takes the others."""
         return any(b.y_m for b in self.branches)
 
     @property

@@ -9,11 +9,11 @@ import pytest
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.physics.integrator import new_workspace
 from vesselbot_ros.physics.kernel import I_MASS
-from vesselbot_ros.physics.plant3d import forces3d_at
+from vesselbot_ros.physics.tree_vessel import tree_forces_at
 from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.sim.plant import PlantSimulator
 from vesselbot_ros.sim.scenario import load_scenario
-from vesselbot_ros.vessels.plant_field3d import planar_twin
+from vesselbot_ros.vessels.tree_field import planar_twin
 
 SCENARIO = "config/paper_iiic_network_upper_3d.yaml"
 
@@ -29,7 +29,7 @@ def test_f_is_the_kernels_force_without_the_motive_one(scenario) -> None:  # typ
     f = m.F(0.1, x, z)
     _w, fbuf, _sc = new_workspace(3)
     k = m.packed
-    forces3d_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf)
+    tree_forces_at(0.1, np.concatenate([x, z]), np.zeros(3), np.zeros(4), m.p, k.W, k.F, k.fh, fbuf)
     assert np.array_equal(f, fbuf[7] / m.p[I_MASS])
     assert not np.array_equal(m.F(0.1, x, z, 1.2), f)  # the flow scale reaches the blood velocity
     b = input_matrix(planar_twin(scenario.model_physics()))[0, 0]

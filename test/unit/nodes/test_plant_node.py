@@ -155,7 +155,7 @@ def test_a_network_with_y_gets_its_wall_mesh_and_a_planar_one_its_meshed_wall_se
     y = np.array([p.y for p in wall.points])
     assert y.min() == pytest.approx(-1.5e-3, rel=1e-6) and y.max() == pytest.approx(1.5e-3, rel=1e-6)  # the trunk
     # a tree that leaves the plane: the wall its plant computes with, centrelines with y
-    from vesselbot_ros.vessels.plant_field3d import wall_mesh
+    from vesselbot_ros.vessels.tree_field import wall_mesh
 
     net = load_network("carotid_bifurcation_3d")
     carotid = network_scene_markers(net, blood, r).markers

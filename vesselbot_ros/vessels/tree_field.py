@@ -1,4 +1,4 @@
-"""What the 3-D plant reads of a vessel tree: the meshed wall and the steady 3-D flow, on one regular grid.
+"""What the plant reads of a vessel tree in space: the meshed wall and the steady 3-D flow, on one regular grid.
 
 A 3-D network (:attr:`~vesselbot_ros.vessels.network.VesselNetworkParams.is_3d`: its file gives ``y_m``) is
 solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries viscosity, the network's
@@ -35,7 +35,7 @@ normal is undefined; the flow's dilation shift along the normal vanishes there t
 
 Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, caps, grid, flow) of a tree and
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
-:meth:`PlantField3D.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
+:meth:`TreeField.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
 them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine, otherwise quiet): III-C 50 s, 134 MB;
 carotid 38 s, 128 MB; synthetic tree 165 s, 480 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
@@ -73,10 +73,10 @@ from vesselbot_ros.vessels import cfd3d, tree_mesh
 from vesselbot_ros.vessels.cfd import network_wall, packed_params
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
 
-__all__ = ["packed_vessel", "vessel_geom", "PlantField3D", "Build3DEstimate", "build_estimate", "check_build",
+__all__ = ["packed_vessel", "vessel_geom", "TreeField", "TreeBuildEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
            "WallArrays", "meshed_wall",
-           "Packed3D", "packed3d", "planar_twin", "wall_arrays"]
+           "PackedTree", "packed_tree", "planar_twin", "wall_arrays"]
 
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
 FIELD3D_VERSION = 2
@@ -182,7 +182,7 @@ def meshed_wall(net: VesselNetworkParams, blood: BloodParams | None = None) -> A
 
 
 @dataclasses.dataclass
-class PlantField3D:
+class TreeField:
     """The samples of one tree (module docstring).
 
     Attributes:
@@ -229,7 +229,7 @@ class PlantField3D:
                       origin=self.origin, velocity=self.velocity, info=np.array(json.dumps(info)))
 
     @classmethod
-    def load(cls, path: Path) -> PlantField3D:
+    def load(cls, path: Path) -> TreeField:
         """Read a file :meth:`save` wrote (ValueError / KeyError / OSError if it is not one)."""
         with np.load(path) as z:
             info = json.loads(str(z["info"]))
@@ -313,7 +313,7 @@ def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
     return tri[~on_cap]
 
 
-def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: ProgressFn | None = None) -> PlantField3D:
+def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: ProgressFn | None = None) -> TreeField:
     """Solve (or read the cached solve), mesh the wall and sample (module docstring).
 
     ``progress(done, total)``: the solve's steps (none if it is cached), then the wall's mesh and the sampling.
@@ -348,11 +348,11 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: Pr
     meta = {"solve": sol.meta, "wall": wm.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
             "view_triangles": int(len(vtri)), "nodes": int(nx * ny * nz)}
     report(steps[0], steps[0])
-    return PlantField3D(net.name, key, verts, tri, dict(wm.caps), origin, h, (nx, ny, nz), vel32, meta, view_verts, vtri)
+    return TreeField(net.name, key, verts, tri, dict(wm.caps), origin, h, (nx, ny, nz), vel32, meta, view_verts, vtri)
 
 
 @dataclasses.dataclass(frozen=True)
-class Build3DEstimate:
+class TreeBuildEstimate:
     """What building a tree's samples and wall field would take (:func:`build_estimate`).
 
     Attributes:
@@ -370,7 +370,7 @@ class Build3DEstimate:
     sample_s: float
 
 
-def build_estimate(net: VesselNetworkParams) -> Build3DEstimate:
+def build_estimate(net: VesselNetworkParams) -> TreeBuildEstimate:
     """Estimate, from the smoothed centrelines alone, what :func:`plant_field` and :func:`wall_arrays` would build."""
     st = flow_settings(net)
     h = grid_spacing_m(net)
@@ -388,11 +388,11 @@ def build_estimate(net: VesselNetworkParams) -> Build3DEstimate:
     tets = TETS_PER_EDGE_VOLUME * vol
     tris *= TRIANGLES_PER_SIZE_AREA
     nodes = float(np.prod((hi - lo + 2.0 * (GRID_MARGIN_M + 2.0 * h)) / h + 1.0))
-    return Build3DEstimate(tets, tris, nodes, TET_BYTES * tets, TET_SECONDS * tets,
+    return TreeBuildEstimate(tets, tris, nodes, TET_BYTES * tets, TET_SECONDS * tets,
                            WALL_TRIANGLE_BYTES * tris + NODE_BYTES * nodes, WALL_TRIANGLE_SECONDS * tris + NODE_SECONDS * nodes)
 
 
-def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, quiet: bool = False) -> Build3DEstimate | None:
+def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, quiet: bool = False) -> TreeBuildEstimate | None:
     """Refuse, before anything is meshed, a tree whose samples or wall field would not fit (memory, time).
 
     Nothing is estimated when the samples and the wall field are shipped or cached.  Otherwise one line on
@@ -433,7 +433,7 @@ def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, q
 
 
 @functools.lru_cache(maxsize=8)
-def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, refresh: bool = False) -> PlantField3D:
+def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, refresh: bool = False) -> TreeField:
     """The samples of ``net`` for ``blood`` (default: the shipped scenarios' blood): shipped, cached, or solved.
 
     Raises:
@@ -448,7 +448,7 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
     for found in () if refresh else (shipped_dir() / name, cached):
         if found.is_file():
             try:
-                return PlantField3D.load(found)
+                return TreeField.load(found)
             except (OSError, ValueError, KeyError):
                 pass  # a torn or foreign file: solve again
     check_build(net, blood)  # before anything is meshed: one line if it does not fit, else one saying what is built
@@ -489,14 +489,14 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
 def wall_mesh(net: VesselNetworkParams, blood: BloodParams | None = None) -> tuple[Array, npt.NDArray[np.int64]]:
     """(vertices (n, 3) m, triangles (k, 3)) of the tree's wall (caps excluded) to draw: the flow mesh's (tens of
     thousands of triangles), within its facets' sag (up to about 20 um on the carotid's 4 mm trunk) of the
-    finer one the plant computes with (:attr:`PlantField3D.vertices`: hundreds of thousands)."""
+    finer one the plant computes with (:attr:`TreeField.vertices`: hundreds of thousands)."""
     fld = plant_field(net, blood)
     return fld.view_vertices, fld.view_triangles
 
 
 @dataclasses.dataclass(frozen=True)
-class Packed3D:
-    """The 3-D plant's compiled inputs (:mod:`vesselbot_ros.physics.plant3d`): physics, wall, flow.
+class PackedTree:
+    """The 3-D plant's compiled inputs (:mod:`vesselbot_ros.physics.tree_vessel`): physics, wall, flow.
 
     Attributes:
         p: The packed physical parameters (:func:`~vesselbot_ros.physics.kernel.pack_params` of the physics
@@ -531,7 +531,7 @@ def _flow_grid(net: VesselNetworkParams, blood: BloodParams) -> tuple[npt.NDArra
 
 
 @functools.lru_cache(maxsize=64)
-def packed3d(params: PhysicsParams) -> Packed3D:
+def packed_tree(params: PhysicsParams) -> PackedTree:
     """The compiled inputs of ``params``, whose ``vessel.network`` is a 3-D tree (cached per frozen params).
 
     Raises:
@@ -542,19 +542,19 @@ def packed3d(params: PhysicsParams) -> Packed3D:
         raise ConfigError(f"physics.vessel.network: {net.name!r} gives no y_m: the planar plant takes it")
     wa = wall_arrays(net, params.blood)
     F, fh = _flow_grid(net, params.blood)
-    return Packed3D(pack_params(planar_twin(params)), wa.args, F, fh)
+    return PackedTree(pack_params(planar_twin(params)), wa.args, F, fh)
 
 
-def packed_vessel(physics: PhysicsParams, dims: int) -> tuple[npt.NDArray[np.float64], Packed3D | None]:
+def packed_vessel(physics: PhysicsParams, dims: int) -> tuple[npt.NDArray[np.float64], PackedTree | None]:
     """``(p, packed)`` of the vessel ``physics`` names, on ``dims`` axes: its packed parameters and a tree's compiled
     inputs (None in the plane).  What the plant and the models build their vessel from."""
     if dims == 3:
-        k = packed3d(physics)
+        k = packed_tree(physics)
         return k.p, k
     return packed_params(physics), None
 
 
-def vessel_geom(p: npt.NDArray[np.float64], packed: Packed3D | None) -> Any:
+def vessel_geom(p: npt.NDArray[np.float64], packed: PackedTree | None) -> Any:
     """The geometry the integrator and the compiled steps take (``physics.integrator``'s geometry edge), with the
     packed parameters ``p``: ``p`` itself in the plane, a tree's ``(p, W, F, fh)``."""
     return p if packed is None else (p, packed.W, packed.F, packed.fh)

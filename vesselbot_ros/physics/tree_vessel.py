@@ -1,12 +1,12 @@
-"""The 3-D plant's compiled right-hand side: a bead in a vessel tree in space.
+"""A vessel tree in space, its side of the integrator's geometry edge: the compiled geometry, forces and right-hand side.
 
 State ``y = (x, y, z, vx, vy, vz)`` (m, m/s), input the gradient ``G`` (3,) (T/m) held over a control period
 plus an optional constant acceleration ``u`` (3,) (m/s^2): the plant passes ``G`` and ``u = 0``, the
 observer's model ``G = 0`` and ``u = B G``; the one integrator of :mod:`vesselbot_ros.physics.integrator` steps it
 (that module's docstring says why adaptive and what the codes mean).
 
-Geometry and flow at a point (:func:`geometry3d`), from the tree's samples
-(:mod:`vesselbot_ros.vessels.plant_field3d`):
+Geometry and flow at a point (:func:`tree_geometry`), from the tree's samples
+(:mod:`vesselbot_ros.vessels.tree_field`):
 
 * the wall: signed distance ``s`` (> 0 in the lumen), unit inward normal ``n`` and local diameter ``D`` of the
   meshed wall (:func:`~vesselbot_ros.geometry.field_lookup.wall_field3d`: the grid, exact where it cannot
@@ -44,7 +44,7 @@ from vesselbot_ros.physics.kernel import (
     wall_forces_into,
 )
 
-__all__ = ["geometry3d", "forces3d_at", "rhs3d_into", "contact3d_update", "FLOW_CHANNELS"]
+__all__ = ["tree_geometry", "tree_forces_at", "tree_rhs_into", "tree_contact_update", "FLOW_CHANNELS"]
 
 #: Channels per node of the flow grid ``F``: velocity (3) per unit inlet centreline velocity, viscosity (Pa s).
 FLOW_CHANNELS = 4
@@ -98,7 +98,7 @@ def _velocity_at(F, fh, x, y, z):  # type: ignore[no-untyped-def]  # numba kerne
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def geometry3d(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def tree_geometry(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``(s_t, nx, ny, nz, D_t, eta, vfx, vfy, vfz)`` at (x, y, z) (m), time t (s) (module docstring)."""
     s, n0, n1, n2, d = wall_field3d(x, y, z, W[0], W[1], W[2], W[3], W[4], W[5], W[6], W[7], W[8])
     eps = p[I_D_PULSE] * np.sin(p[I_OMEGA_F] * t + p[I_PHI_F])
@@ -115,17 +115,17 @@ def geometry3d(t, x, y, z, p, W, F, fh):  # type: ignore[no-untyped-def]  # numb
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def forces3d_at(t, y, g, contact, p, W, F, fh, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def tree_forces_at(t, y, g, contact, p, W, F, fh, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Fill ``fbuf`` (8, 3) with the force terms (N) on the bead of state ``y`` (6,) under the gradient ``g`` (3,);
     returns ``(s_t, n_z)``: the signed distance (m) and the vertical component of the nearest wall's inward normal."""
-    s_t, n0, n1, n2, d_t, eta, v0, v1, v2 = geometry3d(t, y[0], y[1], y[2], p, W, F, fh)
+    s_t, n0, n1, n2, d_t, eta, v0, v1, v2 = tree_geometry(t, y[0], y[1], y[2], p, W, F, fh)
     wall_forces_into((y[3], y[4], y[5]), g, s_t, (n0, n1, n2), d_t, eta, (v0, v1, v2), contact, p, fbuf)
     return s_t, n2
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def rhs3d_into(t, y, g, u, contact, p, W, F, fh, out, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    forces3d_at(t, y, g, contact, p, W, F, fh, fbuf)
+def tree_rhs_into(t, y, g, u, contact, p, W, F, fh, out, fbuf):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    tree_forces_at(t, y, g, contact, p, W, F, fh, fbuf)
     m = p[I_MASS]
     out[0] = y[3]
     out[1] = y[4]
@@ -136,6 +136,6 @@ def rhs3d_into(t, y, g, u, contact, p, W, F, fh, out, fbuf):  # type: ignore[no-
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
-def contact3d_update(t, y, contact, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    s_t = geometry3d(t, y[0], y[1], y[2], p, W, F, fh)[0]
+def tree_contact_update(t, y, contact, p, W, F, fh):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    s_t = tree_geometry(t, y[0], y[1], y[2], p, W, F, fh)[0]
     update_contact(contact, p[I_R] - s_t, p)

@@ -1,4 +1,4 @@
-"""The 3-D plant's samples of a tree (vesselbot_ros.vessels.plant_field3d): shipped, keyed, the wall without its
+"""The 3-D plant's samples of a tree (vesselbot_ros.vessels.tree_field): shipped, keyed, the wall without its
 caps, the flow normalised to the inlet and zero outside, the packed inputs."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.geometry.field_lookup import field_points3d
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels import plant_field3d as pf
+from vesselbot_ros.vessels import tree_field as pf
 from vesselbot_ros.vessels.network import load_network
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
@@ -21,7 +21,7 @@ def test_every_shipped_tree_ships_its_samples(name: str) -> None:
     net = load_network(f"config/vessels/{name}.yaml")
     path = pf.shipped_dir() / f"{name}-{pf.field_key(net, BloodParams())}.3d.npz"
     assert path.is_file(), f"{path} missing: run the tree once and copy its samples from the cache"
-    fld = pf.PlantField3D.load(path)
+    fld = pf.TreeField.load(path)
     assert fld.key == pf.field_key(net, BloodParams()) and fld.h == pf.grid_spacing_m(net)
     assert fld.velocity.shape == (fld.shape[2], fld.shape[1], fld.shape[0], 3)
     # the plant's wall: no triangle on a cap, every vertex on its branch's tube (up to the junctions' creases),
@@ -70,7 +70,7 @@ def test_packed_inputs_and_refusals() -> None:
     from vesselbot_ros.sim.scenario import load_scenario  # deferred: the scenario module imports the stages
 
     sc = load_scenario("config/paper_iiic_network_upper_3d.yaml")
-    k = pf.packed3d(sc.physics)
+    k = pf.packed_tree(sc.physics)
     assert k.F.dtype == np.float32 and k.F.shape[-1] == 4 and len(k.W) == 9
     eta = k.F[..., 3]
     assert 1e-3 < float(eta.min()) and float(eta.max()) < 0.02  # Pries' viscosity at the nodes' diameters

@@ -1,4 +1,4 @@
-"""The 3-D plant's compiled geometry, forces and integrators (vesselbot_ros.physics.plant3d) in a meshed cylinder.
+"""The 3-D plant's compiled geometry, forces and integrators (vesselbot_ros.physics.tree_vessel) in a meshed cylinder.
 
 A gmsh cylinder (R = 1.5 mm along +x, 0.1 mm triangles) sampled on a 0.2 mm grid with a Poiseuille flow
 ``1 - (rho / R)^2`` along x and a constant viscosity: the lookups against the analytic tube, the pulsation of
@@ -17,7 +17,7 @@ from vesselbot_ros.control.high_gain_observer import integrator_vector
 from vesselbot_ros.geometry.field_build import build_wall_field3d
 from vesselbot_ros.geometry.fixtures import cylinder_wall
 from vesselbot_ros.geometry.surface_wall import Wall3D
-from vesselbot_ros.physics import plant3d as p3
+from vesselbot_ros.physics import tree_vessel as p3
 from vesselbot_ros.physics.integrator import NON_FINITE, OK, IntegratorParams, integrate, new_workspace
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_MASS, I_R, I_V_F, pack_params
 from vesselbot_ros.physics.params import PhysicsParams
@@ -58,7 +58,7 @@ def test_geometry_matches_the_tube_and_its_poiseuille_flow(tube) -> None:  # typ
         th = rng.uniform(0.0, 2.0 * math.pi)
         x = rng.uniform(2e-3, 6e-3)
         y, z = rho * math.cos(th), rho * math.sin(th)
-        s, n0, n1, n2, d, eta, vx, vy, vz = p3.geometry3d(0.0, x, y, z, p, W, F, fh)
+        s, n0, n1, n2, d, eta, vx, vy, vz = p3.tree_geometry(0.0, x, y, z, p, W, F, fh)
         if R - rho <= 1e-3:  # the standard's band
             assert s == pytest.approx(R - rho, abs=12e-6)  # the facets' sag: 0.1^2 / (8 R) = 0.8 um, and the grid's
         else:  # beyond it the lookup interpolates across the axis, the tip of the cone s = R - rho (wall_field3d)
@@ -77,9 +77,9 @@ def test_pulsation_moves_the_wall_out_and_dilates_the_flow(tube) -> None:  # typ
     p = _params(pulsatility=0.0)
     t = 0.0  # the phase pi/2 at t = 0: eps = D_PULSE
     eps = p[I_D_PULSE] * math.sin(PhysicsParams().flow.phase_rad)
-    s0, *_ = p3.geometry3d(t, 4e-3, 0.0, 1.0e-3, _params(diameter_pulsation=0.0, pulsatility=0.0), W, F, fh)
-    s1, _a, _b, _c, d1, _e, vx, _vy, _vz = p3.geometry3d(t, 4e-3, 0.0, 1.0e-3, p, W, F, fh)
-    d0 = p3.geometry3d(t, 4e-3, 0.0, 1.0e-3, _params(diameter_pulsation=0.0, pulsatility=0.0), W, F, fh)[4]
+    s0, *_ = p3.tree_geometry(t, 4e-3, 0.0, 1.0e-3, _params(diameter_pulsation=0.0, pulsatility=0.0), W, F, fh)
+    s1, _a, _b, _c, d1, _e, vx, _vy, _vz = p3.tree_geometry(t, 4e-3, 0.0, 1.0e-3, p, W, F, fh)
+    d0 = p3.tree_geometry(t, 4e-3, 0.0, 1.0e-3, _params(diameter_pulsation=0.0, pulsatility=0.0), W, F, fh)[4]
     assert s1 == pytest.approx(s0 + 0.5 * d0 * eps, rel=1e-12)
     assert d1 == pytest.approx(d0 * (1.0 + eps), rel=1e-12)
     rho_eff = 1.0e-3 / (1.0 + eps)  # sampled at the point moved towards the axis
@@ -121,7 +121,7 @@ def test_a_bead_settles_at_its_terminal_velocity_in_still_blood(tube) -> None:  
         code, h = integrate(k * 1e-3, (k + 1) * 1e-3, y, np.zeros(3), np.zeros(3), np.zeros(4), (p, W, F0, fh), h, ig,
                                  stats, work, fbuf, sc)
         assert code == OK
-    p3.forces3d_at(5e-3, y, np.zeros(3), np.zeros(4), p, W, F0, fh, fbuf)
+    p3.tree_forces_at(5e-3, y, np.zeros(3), np.zeros(4), p, W, F0, fh, fbuf)
     assert y[5] < 0.0 and abs(fbuf[7, 2]) < 1e-3 * abs(fbuf[2, 2])  # the weight balanced by the drag
     assert abs(y[3]) < 1e-3 * abs(y[5]) and abs(y[4]) < 1e-3 * abs(y[5])  # still blood, a vertical weight: falls straight
 
@@ -142,6 +142,6 @@ def test_contact_state_advances_with_the_distance_to_the_wall(tube) -> None:  # 
     r = p[I_R]
     y = np.array([4e-3, 0.0, R - r + 2e-6, 0.0, 0.0, 0.0])  # 2 um into the upper wall
     contact = np.zeros(4)
-    p3.contact3d_update(0.0, y, contact, p, W, F, fh)
+    p3.tree_contact_update(0.0, y, contact, p, W, F, fh)
     assert contact[0] == 1.0  # loading
     assert p[I_MASS] > 0
