@@ -1,4 +1,4 @@
-"""Validate the 3-D flow solve (vesselbot_ros.vessels.cfd3d): print each figure and whether it meets its limit.
+"""Validate the 3-D flow solve (vesselbot_ros.vessels.tree_cfd): print each figure and whether it meets its limit.
 
 Checks:
   1. a straight tube against Poiseuille (Newtonian viscosity): centreline velocity, flow rate and
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from vesselbot_ros.config import load_dataclass
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
-from vesselbot_ros.vessels import cfd3d, tree_mesh
+from vesselbot_ros.vessels import tree_cfd, tree_mesh
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network
 
 NEWTONIAN = BloodParams(viscosity_model="constant")
@@ -74,23 +74,23 @@ def y_network(tree: tree_mesh.Tree3D, mesh_size_m: float) -> VesselNetworkParams
         "inlet_centreline_velocity_m_per_s": 0.025, "mesh_size_m": mesh_size_m, "outlet_split": "murray"}}, "")
 
 
-def poiseuille(sol: cfd3d.FlowSolution3D, radius_m: float, length_m: float, eta: float
+def poiseuille(sol: tree_cfd.FlowSolution3D, radius_m: float, length_m: float, eta: float
                ) -> tuple[float, float, float]:
     """Relative errors (flow rate, centreline velocity, pressure drop) of a tube's solution against Poiseuille."""
     vc = sol.meta["inlet_centreline_velocity_m_per_s"]
     q_ex = math.pi * radius_m ** 2 * vc / 2.0
     q = -sol.fluxes_m3_per_s["inlet"]
     xs = np.linspace(0.25, 0.75, 5) * length_m
-    v, _p, _ok = cfd3d.evaluate(sol, np.column_stack([xs, 0 * xs, 0 * xs]))
+    v, _p, _ok = tree_cfd.evaluate(sol, np.column_stack([xs, 0 * xs, 0 * xs]))
     vc_err = float(np.max(np.abs(v[:, 0] / vc - 1.0)) * np.sign(np.mean(v[:, 0] / vc - 1.0)))
     x1, x2 = 0.25 * length_m, 0.75 * length_m
-    f1 = cfd3d.section_flux(sol, (x1, 0, 0), (1, 0, 0), radius_m, 48, 256)
-    f2 = cfd3d.section_flux(sol, (x2, 0, 0), (1, 0, 0), radius_m, 48, 256)
+    f1 = tree_cfd.section_flux(sol, (x1, 0, 0), (1, 0, 0), radius_m, 48, 256)
+    f2 = tree_cfd.section_flux(sol, (x2, 0, 0), (1, 0, 0), radius_m, 48, 256)
     dp_ex = 8.0 * eta * (x2 - x1) * q_ex / (math.pi * radius_m ** 4)
     return q / q_ex - 1.0, vc_err, (f1[1] - f2[1]) / dp_ex - 1.0
 
 
-def section_errors(sol: cfd3d.FlowSolution3D, tree: tree_mesh.Tree3D) -> list[tuple[str, float, float]]:
+def section_errors(sol: tree_cfd.FlowSolution3D, tree: tree_mesh.Tree3D) -> list[tuple[str, float, float]]:
     """(branch, arc fraction, relative flux error) through cross-sections of every branch.
 
     Sections at 0.3, 0.5, 0.7 of the root's length and 0.5, 0.7, 0.9 of a daughter's (nearer the
@@ -105,16 +105,16 @@ def section_errors(sol: cfd3d.FlowSolution3D, tree: tree_mesh.Tree3D) -> list[tu
         t = (p[-1] - p[0]) / np.linalg.norm(p[-1] - p[0])
         for f in fractions:
             c = p[0] + f * (p[-1] - p[0])
-            flux, _pm, _a = cfd3d.section_flux(sol, c, t, r, 48, 256)
+            flux, _pm, _a = tree_cfd.section_flux(sol, c, t, r, 48, 256)
             out.append((b.name, f, flux / ref - 1.0))
     return out
 
 
 def solve(tree: tree_mesh.Tree3D, h: float, n_circle: int, blood: BloodParams = NEWTONIAN, outlets: str = "natural"
-          ) -> cfd3d.FlowSolution3D:
-    st = cfd3d.Flow3DSettings(mesh_size_m=h, wall_elements_per_circle=n_circle, outlets=outlets)  # type: ignore[arg-type]
+          ) -> tree_cfd.FlowSolution3D:
+    st = tree_cfd.Flow3DSettings(mesh_size_m=h, wall_elements_per_circle=n_circle, outlets=outlets)  # type: ignore[arg-type]
     t0 = time.perf_counter()
-    sol = cfd3d.solve_tree(tree, st, blood)
+    sol = tree_cfd.solve_tree(tree, st, blood)
     print(f"  [{tree.name}: h = {h * 1e3:.2f} mm, {n_circle} per circle: {sol.meta['n_tets']} tets, "
           f"{sol.meta['n_dofs']} dofs, Picard {sol.meta['picard_iterations']}, {time.perf_counter() - t0:.1f} s]")
     return sol
@@ -220,9 +220,9 @@ def iiic(h: float, n_circle: int) -> None:
     net = load_network("paper_iiic_artery")
     tree = tree_mesh.tree_from_network(net)
     for outlets in ("natural", "murray"):
-        st = cfd3d.settings_from_network(net, outlets=outlets, mesh_size_m=h, wall_elements_per_circle=n_circle)
+        st = tree_cfd.settings_from_network(net, outlets=outlets, mesh_size_m=h, wall_elements_per_circle=n_circle)
         t0 = time.perf_counter()
-        sol = cfd3d.solve_tree(tree, st, BloodParams(), verbose=True)
+        sol = tree_cfd.solve_tree(tree, st, BloodParams(), verbose=True)
         wall = time.perf_counter() - t0
         q = -sol.fluxes_m3_per_s["inlet"]
         m = sol.meta
@@ -234,7 +234,7 @@ def iiic(h: float, n_circle: int) -> None:
         check(f"III-C ({outlets}) wall time", wall / 60.0, 10.0, "min")
         if outlets == "natural":
             t0 = time.perf_counter()
-            _origin, _h, vel, inside = cfd3d.sample_grid(sol, 1e-4, 3e-4)
+            _origin, _h, vel, inside = tree_cfd.sample_grid(sol, 1e-4, 3e-4)
             print(f"   sample_grid at 0.1 mm: {vel.shape[:3]} nodes, {int(inside.sum())} inside, "
                   f"{time.perf_counter() - t0:.1f} s")
 

@@ -484,7 +484,7 @@ def _lumen_diameters(head: Array, field: npt.NDArray[Any], q: Array, wargs: tupl
 def grid_box(lo_m: npt.ArrayLike, hi_m: npt.ArrayLike, h_m: float, margin_m: float) -> tuple[Array, tuple[int, int, int]]:
     """(origin (3,) m, (nx, ny, nz)): nodes on multiples of ``h_m`` covering the box plus ``margin_m``.
 
-    The rule of :func:`vesselbot_ros.vessels.cfd3d.sample_grid`, so the wall and the flow can share nodes.
+    The rule of :func:`vesselbot_ros.vessels.tree_cfd.sample_grid`, so the wall and the flow can share nodes.
     """
     lo = np.asarray(lo_m, dtype=np.float64) - margin_m
     hi = np.asarray(hi_m, dtype=np.float64) + margin_m

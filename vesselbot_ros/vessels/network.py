@@ -184,7 +184,7 @@ class CfdParams:
             moves out by D eps / 2.
         picard_max_iterations: Cap on the Picard (Oseen) iterations.
         picard_tol: Relative change of the velocity at which Picard stops.
-        mesh_size_3d_m: A 3-D tree's solve (:mod:`vesselbot_ros.vessels.cfd3d`): largest tetrahedron edge in
+        mesh_size_3d_m: A 3-D tree's solve (:mod:`vesselbot_ros.vessels.tree_cfd`): largest tetrahedron edge in
             the lumen (m); 0 (the default): 1.2 ``mesh_size_m``.
         wall_elements_per_circle_3d: ... elements around a circumference of its wall; 0: 32.
         grid_spacing_3d_m: ... spacing of the 3-D plant's grid of wall and flow samples

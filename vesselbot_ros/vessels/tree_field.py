@@ -1,7 +1,7 @@
 """What the plant reads of a vessel tree in space: the meshed wall and the steady 3-D flow, on one regular grid.
 
 A 3-D network (:attr:`~vesselbot_ros.vessels.network.VesselNetworkParams.is_3d`: its file gives ``y_m``) is
-solved once by :mod:`vesselbot_ros.vessels.cfd3d` (steady Navier-Stokes, Pries viscosity, the network's
+solved once by :mod:`vesselbot_ros.vessels.tree_cfd` (steady Navier-Stokes, Pries viscosity, the network's
 ``cfd.outlet_split`` imposed at the outlets) and sampled for the plant:
 
 * the wall: the surface of the same fused solid the flow is solved in, meshed alone
@@ -36,7 +36,7 @@ normal is undefined; the flow's dilation shift along the normal vanishes there t
 Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, caps, grid, flow) of a tree and
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
 :meth:`TreeField.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
-:func:`~vesselbot_ros.vessels.cfd3d.cache_dir`, else solved (minutes) and cached.  The wall field built from
+:func:`~vesselbot_ros.vessels.tree_cfd.cache_dir`, else solved (minutes) and cached.  The wall field built from
 them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine, otherwise quiet): III-C 50 s, 134 MB;
 carotid 38 s, 128 MB; synthetic tree 165 s, 480 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
 it; most of the time goes to the list cells' sub-cube lists, which make its lookup 1.9x the planar one's
@@ -69,7 +69,7 @@ from vesselbot_ros.physics.kernel import pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
-from vesselbot_ros.vessels import cfd3d, tree_mesh
+from vesselbot_ros.vessels import tree_cfd, tree_mesh
 from vesselbot_ros.vessels.cfd import network_wall, packed_params
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
 
@@ -124,10 +124,10 @@ NODE_SECONDS = 5.0e-5
 Array = npt.NDArray[np.float64]
 
 
-def flow_settings(net: VesselNetworkParams) -> cfd3d.Flow3DSettings:
+def flow_settings(net: VesselNetworkParams) -> tree_cfd.Flow3DSettings:
     """The 3-D solve of ``net`` as its ``cfd`` block sets it (module docstring)."""
     c = net.cfd
-    return cfd3d.Flow3DSettings(
+    return tree_cfd.Flow3DSettings(
         inlet_centreline_velocity_m_per_s=c.inlet_centreline_velocity_m_per_s,
         mesh_size_m=c.mesh_size_3d_m if c.mesh_size_3d_m > 0.0 else 1.2 * c.mesh_size_m,
         wall_elements_per_circle=c.wall_elements_per_circle_3d or 32,
@@ -299,7 +299,7 @@ def _canonical_wall(vertices: Array, triangles: npt.NDArray[np.int64], origin: A
     return origin + _QUANTUM_M * q[order].astype(np.float64), np.ascontiguousarray(t.astype(np.int64))
 
 
-def _wall_triangles(sol: cfd3d.FlowSolution3D) -> npt.NDArray[np.int64]:
+def _wall_triangles(sol: tree_cfd.FlowSolution3D) -> npt.NDArray[np.int64]:
     """The mesh's boundary triangles that are not on a cap (a cap: in its plane, within 1.05 of its radius)."""
     m = sol.mesh
     tri = np.asarray(m.facets[:, m.boundary_facets()].T, dtype=np.int64)
@@ -328,7 +328,7 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: Pr
         steps[0] = total + 2
         report(done, steps[0])
 
-    sol, _path = cfd3d.solve_tree_cached(tree, settings, blood, progress=solving)
+    sol, _path = tree_cfd.solve_tree_cached(tree, settings, blood, progress=solving)
     report(steps[0] - 2, steps[0])
     vtri = _wall_triangles(sol)
     used, inv = np.unique(vtri, return_inverse=True)
@@ -343,7 +343,7 @@ def _sample(net: VesselNetworkParams, blood: BloodParams, key: str, progress: Pr
     g = np.stack(np.meshgrid(origin[0] + h * np.arange(nx), origin[1] + h * np.arange(ny),
                              origin[2] + h * np.arange(nz), indexing="ij"), axis=-1)  # (nx, ny, nz, 3)
     pts = g.transpose(2, 1, 0, 3).reshape(-1, 3)  # x fastest
-    vel, _p, _ok = cfd3d.evaluate(sol, pts)
+    vel, _p, _ok = tree_cfd.evaluate(sol, pts)
     vel32: npt.NDArray[np.float32] = (vel / settings.inlet_centreline_velocity_m_per_s).reshape(nz, ny, nx, 3).astype(np.float32)
     meta = {"solve": sol.meta, "wall": wm.meta, "sample_s": time.perf_counter() - t0, "wall_triangles": int(len(tri)),
             "view_triangles": int(len(vtri)), "nodes": int(nx * ny * nz)}
@@ -407,8 +407,8 @@ def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, q
     """
     blood = blood if blood is not None else BloodParams()
     key = field_key(net, blood)
-    have_samples = any((d / f"{net.name}-{key}.3d.npz").is_file() for d in (shipped_dir(), cfd3d.cache_dir()))
-    if have_samples and (cfd3d.cache_dir() / f"{net.name}-{key}.wall.npz").is_file():
+    have_samples = any((d / f"{net.name}-{key}.3d.npz").is_file() for d in (shipped_dir(), tree_cfd.cache_dir()))
+    if have_samples and (tree_cfd.cache_dir() / f"{net.name}-{key}.wall.npz").is_file():
         return None
     est = build_estimate(net)
     c = net.cfd
@@ -444,7 +444,7 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
     blood = blood if blood is not None else BloodParams()
     key = field_key(net, blood)
     name = f"{net.name}-{key}.3d.npz"
-    cached = cfd3d.cache_dir() / name
+    cached = tree_cfd.cache_dir() / name
     for found in () if refresh else (shipped_dir() / name, cached):
         if found.is_file():
             try:
@@ -463,7 +463,7 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
 def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> WallArrays:
     """The compiled wall lookup's arrays of ``net``: read from the cache, or built (tens of seconds) and cached."""
     fld = plant_field(net, blood)
-    path = cfd3d.cache_dir() / f"{fld.name}-{fld.key}.wall.npz"
+    path = tree_cfd.cache_dir() / f"{fld.name}-{fld.key}.wall.npz"
     names = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
     if path.is_file():
         try:

@@ -2,7 +2,7 @@
 
 :class:`Tree3D` is the input (per branch a name, a parent, centreline points and radii; :func:`tree_from_network`
 makes one of a network).  :func:`mesh_tree` fills the solid with tetrahedra for the flow solve
-(:mod:`vesselbot_ros.vessels.cfd3d`); :func:`mesh_wall` meshes its surface finely for the plant's wall.  How the
+(:mod:`vesselbot_ros.vessels.tree_cfd`); :func:`mesh_wall` meshes its surface finely for the plant's wall.  How the
 solid is built and meshed: docs/vessels.md, "CFD in 3-D".
 """
 
