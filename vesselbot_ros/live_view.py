@@ -63,7 +63,7 @@ Vec3 = tuple[float, float, float]
 
 def _xyz(v: Vec) -> Vec3:
     """``(x, y, z)`` of a scene point given as ``(x, y, z)`` or as ``(x, z)`` (y = 0)."""
-    if len(v) == 2:
+    if len(v) == 2:  # axis count at the scene's edge: a planar point's y is 0
         return (float(v[0]), 0.0, float(v[1]))
     return (float(v[0]), float(v[1]), float(v[2]))
 

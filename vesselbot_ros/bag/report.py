@@ -490,7 +490,8 @@ def _axis_names(m: Mapping[str, np.ndarray]) -> str:
 def _run_dims(run: Mapping[str, Any]) -> int:
     """The axes of the run's vectors as ``vesselbot run`` recorded them (``dims``: 3 in a 3-D tree); 2 when the bag
     does not say (a planar run, or a bag from before 3-D trees)."""
-    return 3 if run.get("dims") == 3 else 2
+    dims = run.get("dims")
+    return dims if dims in AXES else 2
 
 
 def _run_network(run: Mapping[str, Any]) -> tuple[str, str] | None:

@@ -342,7 +342,7 @@ def path_msg(points_m: npt.ArrayLike, t_s: float = 0.0) -> Path:
     pts = np.asarray(points_m, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] not in (2, 3):
         raise ValueError(f"points_m must be (n, 2) or (n, 3), got shape {pts.shape}")
-    to_point = point if pts.shape[1] == 2 else point3
+    to_point = point if pts.shape[1] == 2 else point3  # axis count at the wire's edge (a planar point's y is 0)
     msg = Path(header=header(t_s))
     for p in pts:
         ps = PoseStamped(header=header(t_s))

@@ -120,7 +120,7 @@ def network_scene_markers(net: VesselNetworkParams, blood: Any, robot_radius_m: 
     shipped, cached or solved with the tree's flow; 9 912 triangles for the carotid, 22 958 for
     synthetic_tree_3d: 1.7 MB of markers).
     """
-    if net.is_3d:
+    if net.is_3d:  # the vessel kind's edge: a tree's surface mesh, or the planar network's wall segments
         vertices, triangles = tree_field.wall_mesh(net, blood)
         return cv.network_markers_3d(NetworkGeometry(net, dims=3), vertices, triangles, robot_radius_m)
     return cv.network_markers(NetworkGeometry(net), network_wall(net, blood).segments, robot_radius_m)

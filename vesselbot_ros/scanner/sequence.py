@@ -233,7 +233,7 @@ def target_into(p, c, limit, max_step):  # type: ignore[no-untyped-def]  # numba
         e0 = c[0]
         e1 = c[1]
         e2 = c[last]
-    if (hypot2(e0, e1) if d == 2 else hypot3(e0, e1, e2)) <= limit:  # the endpoint's norm (no scratch array)
+    if (hypot2(e0, e1) if d == 2 else hypot3(e0, e1, e2)) <= limit:  # axis count: the endpoint's norm, no scratch
         return
     m = hypot_axes(p)
     if m <= limit or m == 0.0:

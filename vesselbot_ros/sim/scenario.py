@@ -44,6 +44,7 @@ from vesselbot_ros.control.backstepping import ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
 from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.resources import fmt_bytes, memory_budget_bytes
@@ -284,9 +285,9 @@ class Scenario:
         for name in ("p0_m", "v0_m_per_s", "z_hat0_m_per_s"):
             vals = getattr(self.initial, name)
             if len(vals) != d:
-                raise ConfigError(f"initial.{name} must have {d} values ({'x, y, z' if d == 3 else 'x, z'}: the vessel is "
+                raise ConfigError(f"initial.{name} must have {d} values ({', '.join(AXES[d])}: the vessel is "
                                   f"{'a 3-D tree' if d == 3 else 'planar'}), got {list(vals)}")
-        if bspline and self.reference.anchors_y_m and d != 3:
+        if bspline and self.reference.anchors_y_m and "y" not in AXES[d]:  # a planar scenario pins y
             raise ConfigError(f"reference.anchors_y_m: a path in three dimensions needs a 3-D vessel tree "
                               f"(physics.vessel.network giving y_m); this vessel is planar (XZ), "
                               f"got anchors_y_m={list(self.reference.anchors_y_m)}")
@@ -317,7 +318,7 @@ class Scenario:
         """Start point and anchors (given or planned; ``bspline``: the built-in reference) must lie inside the lumen."""
         try:
             net = load_network(self.physics.vessel.network)
-            if not net.is_3d:
+            if not net.is_3d:  # the vessel kind's edge: a planar network, or a tree checked below
                 require_planar(net, "the 2-D plant")
         except ConfigError as exc:
             raise ConfigError(f"physics.vessel.network: {exc}") from None
@@ -779,7 +780,7 @@ def check_resources(
             f"{_fmt_bytes(budget)} a run may use (half of this machine's memory): shorten sim.duration_s or lower "
             f"sim.control_rate_Hz"
         )
-    if scenario.dims == 3:  # a tree's wall and flow, built once per tree: bounded before any node starts
+    if scenario.dims == 3:  # the vessel kind's edge: a tree's wall and flow, built once per tree, bounded before any node starts
         from vesselbot_ros.vessels.tree_field import check_build  # deferred: the 3-D wall's numba kernels
 
         check_build(load_network(scenario.physics.vessel.network), scenario.physics.blood, quiet=True)

@@ -78,7 +78,7 @@ def hover_note(path: str | Path) -> str | None:
     except ConfigError:
         return None  # refusal() says why
     short = (hover_shortfall(scenario.physics, scenario.coil.saturation_T_per_m, scenario.sequence)
-             if scenario.dims == 2 else None)
+             if scenario.dims == 2 else None)  # the vessel kind's edge: the bound reads the planar model's input gain
     if short is None:
         return None
     a_avail, a_weight = short

@@ -294,7 +294,7 @@ class VesselNetworkParams:
     @property
     def is_3d(self) -> bool:
         """True if the file writes the tree in three dimensions (some branch gives ``y_m``, even all zero): the
-        network the 3-D plant takes (:mod:`vesselbot_ros.vessels.tree_field`); the planar plant takes the others."""
+        network the plant takes on three axes (:mod:`vesselbot_ros.vessels.tree_field`); the planar plant takes the others."""
         return any(b.y_m for b in self.branches)
 
     @property
@@ -467,7 +467,7 @@ def require_planar(net: VesselNetworkParams, consumer: str) -> None:
         if not b.is_planar:
             y = max(b.y_m, key=abs)
             raise ConfigError(f"vessel network {net.name!r} is not planar (branch {b.name!r} leaves the plane y = 0, "
-                              f"|y| up to {abs(y):.6g} m): {consumer} takes XZ networks only (the 3-D plant takes this tree)")
+                              f"|y| up to {abs(y):.6g} m): {consumer} takes XZ networks only (the plant takes this tree on three axes)")
 
 
 def resolve_network_path(source: str) -> Path:
