@@ -16,6 +16,7 @@ import numpy as np
 
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.control.backstepping import ControlCommand
+from vesselbot_ros.control.bspline_reference import CompiledReference, RefSample
 from vesselbot_ros.control.compiled_stage import CompiledController, lazy_step, model_f_into
 
 
@@ -127,3 +128,34 @@ class CompiledPD:
 
     def compiled(self) -> CompiledController:
         return CompiledController(pd_step, self.prm, self.state, self.work.shape[0])
+
+
+# ---- a reference kind with a compiled form: its samples at the tick times -----------------------------------------
+@dataclasses.dataclass(frozen=True)
+class GlideParams:
+    """A straight glide from the start point: ``p(t) = p0 + v t`` (m, m/s), on the scenario's axes."""
+
+    kind: str = "vesselbot_test_plugin:GlideReference"
+    speed_m_per_s: float = 2.0e-3
+
+
+class GlideReference:
+    """Glides along x at a constant speed from the scenario's start point (the test plug-in's reference kind)."""
+
+    ROLE = "reference"
+    Params = GlideParams
+
+    def __init__(self, params: GlideParams, context: Any) -> None:
+        self.p0 = np.asarray(context.scenario.initial.p0_m, dtype=np.float64)
+        self.v = np.zeros_like(self.p0)
+        self.v[0] = params.speed_m_per_s
+
+    def sample(self, t_s: float) -> RefSample:
+        return RefSample(self.p0 + self.v * t_s, self.v.copy(), np.zeros_like(self.v))
+
+    def sample_many(self, ts: np.ndarray) -> tuple[np.ndarray, ...]:
+        t = np.asarray(ts, dtype=np.float64)[:, None]
+        return self.p0 + self.v * t, np.repeat(self.v[None, :], len(t), axis=0), np.zeros((len(t), len(self.v)))
+
+    def compiled(self) -> CompiledReference:
+        return CompiledReference(self.sample_many)

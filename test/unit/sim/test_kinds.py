@@ -190,6 +190,21 @@ def test_a_users_compiled_controller_runs_in_the_compiled_loop_with_the_per_tick
     assert fast.metrics["tracking_error_max_m"] < 1e-3
 
 
+def test_a_users_reference_with_a_compiled_form_runs_in_the_compiled_loop_with_the_per_tick_numbers(plugins) -> None:
+    """Every role's kind may give its compiled form: a user's reference (its samples at the tick times) runs
+    compiled, with the numbers of the per-tick loop, which samples it tick by tick."""
+    sc = _scenario(0.3, reference={"kind": "vesselbot_test_plugin:GlideReference"})
+    k = kinds.find("reference", "vesselbot_test_plugin:GlideReference")
+    assert k.compiled and k.compile is not None
+    fast = run_closed_loop(sc, seed=1)
+    slow = run_closed_loop(sc, seed=1, path="per_tick")
+    assert (fast.path, slow.path) == ("compiled", "per_tick")
+    assert fast.metrics == slow.metrics
+    for col in ("p_ref", "p_true", "x_hat", "g_applied"):
+        assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
+    assert fast.timeseries["p_ref"][-1, 0] > fast.timeseries["p_ref"][0, 0]
+
+
 def test_checked_command_contains_every_bad_answer_of_a_controller() -> None:
     """kinds.checked_command (both loops' and the nodes' rule, issue 38): a bare (2,) array is a command; NaN/inf,
     an exception, None, a wrong shape or an unknown status is a rejection with its code and a NaN gradient for the
