@@ -183,7 +183,7 @@ def test_every_shipped_network_scenario_runs_on_a_shipped_field() -> None:
     assert {n.split("-")[0] for n in wanted} == {"paper_iiic_artery", "small_artery_4gen"}
     planar = [p.name for p in cfd.shipped_field_dir().glob("*.npz") if not p.name.endswith(".3d.npz")]
     assert sorted(planar) == sorted(wanted)
-    trees = [p.name for p in cfd.shipped_field_dir().glob("*.3d.npz")]  # the 3-D trees' samples (test_plant_field3d.py)
+    trees = [p.name for p in cfd.shipped_field_dir().glob("*.3d.npz")]  # the 3-D trees' samples (test_tree_field.py)
     assert sorted(trees) == sorted(tool.shipped_networks(three_d=True))
     for name in wanted:
         f = cfd.NetworkField.load(cfd.shipped_field_dir() / name)
