@@ -176,33 +176,29 @@ def test_vesselbot_kinds_lists_and_checks(plugins) -> None:
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "unknown observer kind 'foo'" in bad.stderr
 
 
-def test_a_users_compiled_controller_runs_in_the_compiled_loop_with_the_per_tick_numbers(plugins) -> None:
-    """One module with a numba step of the one signature: the compiled loop calls it, no branch of its own."""
-    sc = _scenario(0.3, controller={"kind": "vesselbot_test_plugin:CompiledPD"})
-    k = kinds.find("controller", "vesselbot_test_plugin:CompiledPD")
+@pytest.mark.parametrize("section, kind, columns", [
+    ("controller", "CompiledPD", ("p_true", "x_hat", "g_cmd", "u_cmd", "g_applied", "flow_scale_hat")),
+    ("reference", "GlideReference", ("p_ref", "p_true", "x_hat", "g_applied")),
+])
+def test_a_users_compiled_kind_runs_in_the_compiled_loop_with_the_per_tick_numbers(plugins, section, kind,
+                                                                                    columns) -> None:
+    """One module whose class gives its role's compiled form: the compiled loop runs it with no branch of its own
+    (a controller: a numba step of the one signature; a reference, as every role may: its samples at the tick
+    times), with the numbers of the per-tick loop."""
+    name = f"vesselbot_test_plugin:{kind}"
+    sc = _scenario(0.3, **{section: {"kind": name}})
+    k = kinds.find(section, name)
     assert k.compiled and k.compile is not None
     fast = run_closed_loop(sc, seed=2)
     slow = run_closed_loop(sc, seed=2, path="per_tick")
     assert (fast.path, slow.path) == ("compiled", "per_tick")
     assert fast.metrics == slow.metrics
-    for col in ("p_true", "x_hat", "g_cmd", "u_cmd", "g_applied", "flow_scale_hat"):
+    for col in columns:
         assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
-    assert fast.metrics["tracking_error_max_m"] < 1e-3
-
-
-def test_a_users_reference_with_a_compiled_form_runs_in_the_compiled_loop_with_the_per_tick_numbers(plugins) -> None:
-    """Every role's kind may give its compiled form: a user's reference (its samples at the tick times) runs
-    compiled, with the numbers of the per-tick loop, which samples it tick by tick."""
-    sc = _scenario(0.3, reference={"kind": "vesselbot_test_plugin:GlideReference"})
-    k = kinds.find("reference", "vesselbot_test_plugin:GlideReference")
-    assert k.compiled and k.compile is not None
-    fast = run_closed_loop(sc, seed=1)
-    slow = run_closed_loop(sc, seed=1, path="per_tick")
-    assert (fast.path, slow.path) == ("compiled", "per_tick")
-    assert fast.metrics == slow.metrics
-    for col in ("p_ref", "p_true", "x_hat", "g_applied"):
-        assert np.array_equal(fast.timeseries[col], slow.timeseries[col]), col
-    assert fast.timeseries["p_ref"][-1, 0] > fast.timeseries["p_ref"][0, 0]
+    if section == "controller":  # the law tracks
+        assert fast.metrics["tracking_error_max_m"] < 1e-3
+    else:  # the reference glides along x
+        assert fast.timeseries["p_ref"][-1, 0] > fast.timeseries["p_ref"][0, 0]
 
 
 def test_checked_command_contains_every_bad_answer_of_a_controller() -> None:
