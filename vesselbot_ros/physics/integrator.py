@@ -543,6 +543,49 @@ def _contact_after_step(t, y, contact, geom, tc):  # type: ignore[no-untyped-def
 
 
 @numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _integrate_rk4(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`integrate`'s fixed-step RK4: ``ceil((t1 - t0) / fixed_step)`` equal steps (same arguments, returns
+    ``(code, h)`` with ``h`` unchanged).
+
+    Its own function, not a branch of :func:`integrate`: with the four RK4 stages inline, LLVM laid out the
+    Dormand-Prince loop worse (the plant's integration of sound_small_artery 0.98 against 0.87 us a period before the
+    integrators were one; 0.89 with this split).
+    """
+    n = 2 * axes_of(geom)  # 2 d, the stages' length
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    yt = work[7]
+    tc = work[TIME_TERMS_ROW]
+    m = int(math.ceil((t1 - t0) / ig[6] - 1e-9))
+    if m < 1:
+        m = 1
+    hh = (t1 - t0) / m
+    for j in range(m):
+        t = t0 + j * hh
+        rhs_into(t, y, g, u, contact, geom, k1, fbuf, sc, tc)
+        for i in range(n):
+            yt[i] = y[i] + 0.5 * hh * k1[i]
+        rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k2, fbuf, sc, tc)
+        for i in range(n):
+            yt[i] = y[i] + 0.5 * hh * k2[i]
+        rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k3, fbuf, sc, tc)
+        for i in range(n):
+            yt[i] = y[i] + hh * k3[i]
+        rhs_into(t + hh, yt, g, u, contact, geom, k4, fbuf, sc, tc)
+        for i in range(n):
+            y[i] = y[i] + hh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        contact_after_step(t + hh, y, contact, geom, tc)
+        stats[0] += 1
+        stats[2] += 4
+    for i in range(n):
+        if not math.isfinite(y[i]):
+            return NON_FINITE, h
+    return OK, h
+
+
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
 def integrate(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Integrate ``y = (X, Z)`` (2 d,) in place from ``t0`` to ``t1`` (s) in the vessel ``geom``, on any number of axes.
 
@@ -574,32 +617,8 @@ def integrate(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc):  # 
     yn = work[8]
     tc = work[TIME_TERMS_ROW]
     tc[0] = np.nan  # the vessel may differ from the last call's
-    if ig[0] > 0.5:  # fixed-step RK4: ceil((t1 - t0) / fixed_step) equal steps
-        m = int(math.ceil((t1 - t0) / ig[6] - 1e-9))
-        if m < 1:
-            m = 1
-        hh = (t1 - t0) / m
-        for j in range(m):
-            t = t0 + j * hh
-            rhs_into(t, y, g, u, contact, geom, k1, fbuf, sc, tc)
-            for i in range(n):
-                yt[i] = y[i] + 0.5 * hh * k1[i]
-            rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k2, fbuf, sc, tc)
-            for i in range(n):
-                yt[i] = y[i] + 0.5 * hh * k2[i]
-            rhs_into(t + 0.5 * hh, yt, g, u, contact, geom, k3, fbuf, sc, tc)
-            for i in range(n):
-                yt[i] = y[i] + hh * k3[i]
-            rhs_into(t + hh, yt, g, u, contact, geom, k4, fbuf, sc, tc)
-            for i in range(n):
-                y[i] = y[i] + hh / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-            contact_after_step(t + hh, y, contact, geom, tc)
-            stats[0] += 1
-            stats[2] += 4
-        for i in range(n):
-            if not math.isfinite(y[i]):
-                return NON_FINITE, h
-        return OK, h
+    if ig[0] > 0.5:  # fixed-step RK4 (tc invalidated above, as it reads it)
+        return _integrate_rk4(t0, t1, y, g, u, contact, geom, h, ig, stats, work, fbuf, sc)
     rtol = ig[1]
     h_min = ig[4]
     h_max = ig[5]
