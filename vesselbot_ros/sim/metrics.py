@@ -93,7 +93,9 @@ def _norm_rows(a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 def _max_rms(e: npt.NDArray[np.float64]) -> tuple[float, float]:
     # NaN marks a missing sample (a real-time run has no per-tick guarantee): left out
-    e = e[np.isfinite(e)]
+    finite = np.isfinite(e)
+    if not finite.all():  # (every sample finite: e itself, without the copy)
+        e = e[finite]
     if e.size == 0:
         return float("nan"), float("nan")
     return float(np.max(e)), float(np.sqrt(np.mean(e * e)))
@@ -106,7 +108,8 @@ def divergence_bound_m(vessel_diameter_m: float = 0.0) -> float:
 
 
 def diverged_at(t_s: npt.ArrayLike, p_true: npt.ArrayLike, x_hat: npt.ArrayLike, p_ref: npt.ArrayLike,
-                bound_m: float, nonfinite_diverges: bool = False) -> tuple[float, str] | None:
+                bound_m: float, nonfinite_diverges: bool = False,
+                true_dist: npt.NDArray[np.float64] | None = None) -> tuple[float, str] | None:
     """``(t, what)`` of the first tick at which the run diverged (module docstring), or None.
 
     Args:
@@ -114,23 +117,28 @@ def diverged_at(t_s: npt.ArrayLike, p_true: npt.ArrayLike, x_hat: npt.ArrayLike,
         p_true, x_hat, p_ref: (n, d) true, estimated and reference positions, m.
         bound_m: :func:`divergence_bound_m`.
         nonfinite_diverges: A NaN counts (every tick was computed); an infinity always counts.
+        true_dist: ``_norm_rows(p_true - p_ref)`` if the caller has it already (the tracking error).
     """
     t = np.asarray(t_s, dtype=np.float64)
     ref = np.asarray(p_ref, dtype=np.float64)
     first: tuple[float, str] | None = None
-    for name, arr in (("the true position", p_true), ("the estimate", x_hat)):
+    for name, arr, known in (("the true position", p_true, true_dist), ("the estimate", x_hat, None)):
         a = np.asarray(arr, dtype=np.float64)
         with np.errstate(invalid="ignore", over="ignore"):
-            dist = _norm_rows(a - ref)
+            dist = _norm_rows(a - ref) if known is None else known
             far = dist > bound_m
-        bad_value = np.any(np.isinf(a), axis=1)
-        if nonfinite_diverges:
-            bad_value |= np.any(np.isnan(a), axis=1)
-        hits = np.flatnonzero(far | bad_value)
+        if np.isfinite(a).all():  # no value is NaN or infinite (a finished run's usual case): distances decide
+            bad_value = None
+            hits = np.flatnonzero(far)
+        else:
+            bad_value = np.any(np.isinf(a), axis=1)
+            if nonfinite_diverges:
+                bad_value |= np.any(np.isnan(a), axis=1)
+            hits = np.flatnonzero(far | bad_value)
         if hits.size == 0:
             continue
         k = int(hits[0])
-        what = (f"{name} is not finite" if bad_value[k] else
+        what = (f"{name} is not finite" if bad_value is not None and bad_value[k] else
                 f"{name} is {float(dist[k]) * 1e3:.4g} mm from the reference")
         if first is None or float(t[k]) < first[0]:
             first = (float(t[k]), f"{what} (the bound is {bound_m * 1e3:g} mm)")
@@ -205,7 +213,12 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6, *, vess
     contact = arrs["in_contact"].astype(bool)
     onsets = int(contact[0]) + int(np.count_nonzero(contact[1:] & ~contact[:-1]))
     slew = arrs["slew_limited"].astype(bool)
-    if slew.ndim == 2:
+    if slew.ndim == 2 and slew.shape[1] > 0:  # any axis slew-limited: the columns or'ed (np.any(axis=1), faster)
+        cols = slew
+        slew = cols[:, 0].copy()
+        for c in range(1, cols.shape[1]):
+            slew |= cols[:, c]
+    elif slew.ndim == 2:
         slew = np.any(slew, axis=1)
     out: dict[str, Any] = {
         "after_s": window_start,
@@ -232,7 +245,8 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6, *, vess
         out["rejected_commands"] = int(np.count_nonzero(rej))
         if out["rejected_commands"]:
             out["first_rejected_command_s"] = float(t[np.argmax(rej)])
-    div = diverged_at(t, p, arrs["x_hat"], arrs["p_ref"], divergence_bound_m(vessel_diameter_m), nonfinite_diverges)
+    div = diverged_at(t, p, arrs["x_hat"], arrs["p_ref"], divergence_bound_m(vessel_diameter_m), nonfinite_diverges,
+                      true_dist=e_track)
     out["diverged_at_s"] = None if div is None else div[0]
     out["divergence"] = None if div is None else div[1]
     out["status"] = run_status(out)
