@@ -30,6 +30,7 @@ The kernel releases the GIL (``nogil``), so :func:`~vesselbot_ros.sim.closed_loo
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -95,6 +96,7 @@ _COLUMN_SPEC: tuple[tuple[str, Any, tuple[Any, ...]], ...] = (
 )
 
 
+@functools.cache  # the same tuple every run (run_kernel asks it per run)
 def columns(dims: int) -> tuple[tuple[str, Any, tuple[int, ...]], ...]:
     """(name, dtype, trailing shape) of the kernel's columns on ``dims`` axes, in its argument order."""
     return tuple((name, dt, tuple(dims if a == "d" else a for a in shape)) for name, dt, shape in _COLUMN_SPEC)
@@ -127,6 +129,8 @@ class LoopInputs:
     dropouts: npt.NDArray[np.float64]
     obs: CompiledObserver
     ctrl: CompiledController
+    obs_step: Any  # obs.step and ctrl.step for the models' geometry types, looked up once (not per run)
+    ctrl_step: Any
     coil_prm: npt.NDArray[np.float64]
     seq_mode: int
     sv: npt.NDArray[np.float64]
@@ -203,11 +207,13 @@ def try_prepare(stages: Any, n: int, dt: float, record_forces: bool) -> tuple[Lo
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it for LoopInputs
     p_ref, v_ref, a_ref = forms["reference"].at_ticks(ts)  # sampled at every tick, as the per-tick runner does
     plant, model = forms["plant"], stages.model
+    obs, ctrl, model_geom = forms["observer"], forms["controller"], _model_geom(model.geom)
     return LoopInputs(
         n=n, dt=dt, dims=len(plant.state0) // 2, ts=ts, p_ref=p_ref, v_ref=v_ref, a_ref=a_ref,
-        plant_geom=plant.geom, model_geom=_model_geom(model.geom), ig=plant.ig,
+        plant_geom=plant.geom, model_geom=model_geom, ig=plant.ig,
         imager_prm=imager.prm, outliers=imager.outliers, dropouts=imager.dropouts,
-        obs=forms["observer"], ctrl=forms["controller"], coil_prm=coil.prm,
+        obs=obs, ctrl=ctrl, obs_step=obs.step(numba.typeof(obs.geom)), ctrl_step=ctrl.step(numba.typeof(model_geom)),
+        coil_prm=coil.prm,
         seq_mode=1 if seq else 0, sv=coil.sv if seq else np.zeros(7), hold_s=coil.hold_s,
         plant_y0=plant.state0, coil_state0=coil.state0,
         record_forces=record_forces,
@@ -378,8 +384,8 @@ def run_kernel(
     code, tick = loop_kernel(  # type: ignore[call-arg]  # *columns: numba's Dispatcher stub cannot count it
         n, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, inp.plant_geom, inp.model_geom, inp.ig, rng,
         inp.imager_prm, inp.outliers, inp.dropouts, np.zeros((n + 1, queue_columns(d))), new_seq_imager_state(d),
-        obs.step(numba.typeof(obs.geom)), obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
-        ctrl.step(numba.typeof(inp.model_geom)), ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
+        inp.obs_step, obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
+        inp.ctrl_step, ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s, y, contact, coil_state, plant_stats, model_stats,
         inp.record_forces, forces, *(cols[name] for name, _dt, _shape in spec), err,
     )
