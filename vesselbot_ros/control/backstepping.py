@@ -230,7 +230,7 @@ def flow_scale_message(flow_scale: float) -> str:
     return f"controller: flow scale must be finite and > 0, got {flow_scale!r}"
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the arrays it takes (physics.integrator)
 def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     d = last.shape[0]
     if prm[4] < 0.5:
@@ -242,7 +242,7 @@ def _safe_command(prm, last, out, status):  # type: ignore[no-untyped-def]  # nu
     return status
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")  # inlined: its view of p_s is returned to no-runtime callers
 def _scaled_model(geom, p_s, flow_scale):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """The model with ``V_f`` times ``flow_scale`` (the model itself for 1), as ``DynamicsModel.F``."""
     p = params_of(geom)
@@ -254,7 +254,7 @@ def _scaled_model(geom, p_s, flow_scale):  # type: ignore[no-untyped-def]  # num
     return with_params(geom, q)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the arrays it takes (physics.integrator)
 def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) with ``F`` of the model ``gq``, mapped by ``B^-1`` and the duty compensation: ``out`` = [g (d), U (d)]."""
     d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
@@ -296,7 +296,7 @@ def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type:
         out[i] = acc
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the arrays it takes (physics.integrator)
 def _emit(prm, last, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Keep the command in ``out`` (or take the safe action if it is not finite); its status."""
     d = last.shape[0]
@@ -308,7 +308,7 @@ def _emit(prm, last, out):  # type: ignore[no-untyped-def]  # numba kernel: type
     return STATUS_OK
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the arrays it takes (physics.integrator)
 def backstepping_command(prm, last, geom, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type: ignore[no-untyped-def]  # numba kernel: types inferred at compile time
     """Eq. (24) on the estimate, mapped to a gradient, with ``F`` from the model ``geom``, on d axes.
 
@@ -403,7 +403,7 @@ def _adaptive_step(prm, state, geom, work, fbuf, sc, t, est, pr, vr, ar, out):  
     return status
 
 
-backstepping_step = lazy_step(_backstepping_step)
+backstepping_step = lazy_step(_backstepping_step, nrt=False)
 adaptive_step = lazy_step(_adaptive_step)
 
 

@@ -142,18 +142,19 @@ class CompiledController:
         object.__setattr__(self, "state0", np.array(self.state0, dtype=np.float64, order="C"))
 
 
-def lazy_step(py_func: Callable[..., int],
-              signature: Callable[[Any], Any] = controller_step_type) -> Callable[[Any], Any]:
+def lazy_step(py_func: Callable[..., int], signature: Callable[[Any], Any] = controller_step_type,
+              nrt: bool = True) -> Callable[[Any], Any]:
     """``py_func`` (a module-level function of the step's arguments) as a ``cfunc`` of ``signature`` (the
     controller's, or :func:`observer_step_type`), made on the first call for a geometry type and kept.
 
     Making a ``cfunc`` loads it from numba's cache (or compiles it): about 0.1 s that a process which never
-    runs the compiled loop (a node, a ``--help``) should not pay at import.
+    runs the compiled loop (a node, a ``--help``) should not pay at import.  ``nrt=False`` compiles it without
+    numba's runtime (a step that allocates nothing and returns no array: no reference counts on its arguments).
     """
 
     @functools.cache
     def step(gtype: Any) -> Any:
-        return numba.cfunc(signature(gtype), cache=True)(py_func)
+        return numba.cfunc(signature(gtype), cache=True, _nrt=nrt)(py_func)  # type: ignore[call-arg]  # _nrt: an option numba's stubs omit
 
     step.__doc__ = f"The compiled step of ``{py_func.__name__}`` for a geometry type (made on first use)."
     return step

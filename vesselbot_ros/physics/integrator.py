@@ -282,7 +282,7 @@ def _tree_wall(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[n
     return p[I_R] - s_t, (1.0 if n_z <= 0.0 else -1.0)  # the wall above when its inward normal points down
 
 
-@overload(wall_and_forces, jit_options={"nogil": True})
+@overload(wall_and_forces, jit_options={"nogil": True, "_nrt": False})  # type: ignore[typeddict-unknown-key]  # _nrt: as above
 def _wall_and_forces(t, y, g, contact, geom, fbuf, sc, with_forces):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_wall if isinstance(geom, types.Array) else _tree_wall
 
@@ -495,7 +495,7 @@ def params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument t
     raise NotImplementedError("params_of runs in compiled code only")
 
 
-@overload(params_of, inline="always")
+@overload(params_of, inline="always", jit_options={"_nrt": True})  # type: ignore[typeddict-unknown-key]  # typed with the runtime: a no-runtime caller (the laws) inlines it, and returning geom[0] is not allowed without one
 def _params_of(geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if isinstance(geom, types.Array):
         return lambda geom: geom
