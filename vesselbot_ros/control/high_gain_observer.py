@@ -81,6 +81,7 @@ __all__ = [
     "axis_gains",
     "linearised_error_matrix",
     "sampled_error_radius",
+    "check_frame_period",
     "ObserverModel",
     "HISTORY_LEN",
     "observer_params",
@@ -205,6 +206,26 @@ def linearised_error_matrix(
     a[2:, :2] = L**2 * np.diag(gz) + jx
     a[2:, 2:] = jz
     return a
+
+
+def check_frame_period(params: ObserverParams, period_s: float, frame_rate_Hz: float | None = None) -> None:
+    """Raise ConfigError unless observer (25) with ``params`` is stable at one frame per ``period_s``: the sampled
+    error map's spectral radius (:func:`sampled_error_radius`) must be < 1.  The frames come at the imager's
+    ``frame_rate_Hz`` (given: the message names it), else one per sequence period (the message names the
+    sequence's keys)."""
+    rho = sampled_error_radius(params, period_s)
+    if rho < 1.0:
+        return
+    if frame_rate_Hz is None:
+        raise ConfigError(
+            f"observer gains are unstable at the sequence's frame rate: with sequence.mode 'multiplexed' "
+            f"observer (25) gets one frame per sequence period (sequence.tracking_window_s + 2 dead_time_s + "
+            f"propulsion_window_s = {period_s:.6g} s, {1.0 / period_s:.4g} frames/s; imager.frame_rate_Hz is "
+            f"unused): sampled error map has spectral radius {rho:.3f} >= 1, the rule is < 1 (lower "
+            f"observer.high_gain, shorten the sequence's windows or use observer.kind 'ekf')")
+    raise ConfigError(
+        f"observer gains are unstable at imager.frame_rate_Hz={frame_rate_Hz!r}: "
+        f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)")
 
 
 def sampled_error_radius(params: ObserverParams, period_s: float) -> float:

@@ -74,7 +74,7 @@ from vesselbot_ros.control.bspline_reference import (
 from vesselbot_ros.control.compiled_stage import CompiledController, CompiledObserver
 from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
-from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams
+from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams, check_frame_period
 from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
@@ -192,7 +192,9 @@ class StageKind:
             coil read, on the scanner's sequence or none), for the plant a
             :class:`~vesselbot_ros.sim.plant.CompiledPlant` (its vessel, integrator and state) and for the
             reference a :class:`~vesselbot_ros.control.bspline_reference.CompiledReference` (its samples at the
-            tick times); None: the per-tick loop runs it.  It raises
+            tick times); None: the per-tick loop runs it.
+        check: ``check(params, scenario)``: the kind's own rules across the scenario's sections, run when the
+            scenario is validated (its params class checks its own keys); raises ConfigError naming the keys.  It raises
             :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile (a built-in kind
             over a user's part).
     """
@@ -207,6 +209,7 @@ class StageKind:
     source: str = "built-in"
     module_file: str = ""
     compile: Callable[[Any], CompiledObserver | CompiledController] | None = None
+    check: Callable[[Any, Any], None] | None = None
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -661,6 +664,18 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
                                 ctx.dt_s)
 
 
+def _check_high_gain(params: ObserverParams, scenario: Any) -> None:
+    """Observer (25) is stable at the rate it gets frames: the MRI imager's ``frame_rate_Hz``, or one frame per
+    sequence period under multiplexing (:func:`~vesselbot_ros.control.high_gain_observer.check_frame_period`)."""
+    if not isinstance(scenario.imager, ImagerParams):
+        return  # a user's imager: its frames' rate is its own
+    if scenario.sequence.mode == "multiplexed":
+        check_frame_period(params, scenario.sequence.period_s)
+    else:
+        rate = scenario.imager.frame_rate_Hz
+        check_frame_period(params, 1.0 / rate, rate)
+
+
 def _coil(ctx: BuildContext) -> CoilLimiter | SequencedCoil:
     s = ctx.scenario
     # The coil was idle (zero) before t = 0 and ramps during the period before the first command, exactly as
@@ -681,7 +696,7 @@ for _kind in (
               stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
-              summary="high-gain observer (25)", compile=HighGainObserver.compiled),
+              summary="high-gain observer (25)", compile=HighGainObserver.compiled, check=_check_high_gain),
     StageKind("observer", "ekf", ObserverParams, _observer, compiled=True, stage_types=(ExtendedKalmanObserver,),
               summary="extended Kalman filter: delay compensation, blood-velocity scale estimate",
               compile=ExtendedKalmanObserver.compiled),

@@ -42,7 +42,7 @@ from vesselbot_ros.config import (
 )
 from vesselbot_ros.control.backstepping import ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams
-from vesselbot_ros.control.high_gain_observer import ObserverParams, sampled_error_radius
+from vesselbot_ros.control.high_gain_observer import ObserverParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.integrator import IntegratorParams
@@ -52,7 +52,7 @@ from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.hardware import DbdtLimit, preset_changes
 from vesselbot_ros.scanner.imager_model import ImagerParams
 from vesselbot_ros.scanner.sequence import SequenceParams
-from vesselbot_ros.sim.kinds import SECTIONS, params_type, section_resolver, switch_sections
+from vesselbot_ros.sim.kinds import ROLES, SECTIONS, find, params_type, section_resolver, switch_sections
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import load_network, network_dims, require_planar, route_to_outlet
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
@@ -258,26 +258,11 @@ class Scenario:
         elif mri and self.imager.latency_s >= self.sim.duration_s:
             raise ConfigError(f"imager.latency_s must be < sim.duration_s ({self.sim.duration_s!r} s): no frame would "
                               f"reach the observer within the run, got {self.imager.latency_s!r}")
-        # observer (25)'s gains only matter when it is the observer (the EKF has none to check); it is stable at the
-        # rate it gets frames at: imager.frame_rate_Hz, or under multiplexing one frame per sequence period
-        high_gain = mri and self.observer.kind == "high_gain"
-        if high_gain and self.sequence.mode == "multiplexed":
-            period = self.sequence.period_s
-            rho = sampled_error_radius(self.observer, period)
-            if rho >= 1.0:
-                raise ConfigError(
-                    f"observer gains are unstable at the sequence's frame rate: with sequence.mode 'multiplexed' "
-                    f"observer (25) gets one frame per sequence period (sequence.tracking_window_s + 2 dead_time_s + "
-                    f"propulsion_window_s = {period:.6g} s, {1.0 / period:.4g} frames/s; imager.frame_rate_Hz is "
-                    f"unused): sampled error map has spectral radius {rho:.3f} >= 1, the rule is < 1 (lower "
-                    f"observer.high_gain, shorten the sequence's windows or use observer.kind 'ekf')")
-        continuous = high_gain and self.sequence.mode != "multiplexed"
-        rho = sampled_error_radius(self.observer, 1.0 / self.imager.frame_rate_Hz) if continuous else 0.0
-        if rho >= 1.0:
-            raise ConfigError(
-                f"observer gains are unstable at imager.frame_rate_Hz={self.imager.frame_rate_Hz!r}: "
-                f"sampled error map has spectral radius {rho:.3f} >= 1 (lower observer.high_gain or raise the rate)"
-            )
+        for role in ROLES:  # each kind's own rules across the sections (StageKind.check: observer (25)'s frame rate)
+            section = getattr(self, SECTIONS[role])
+            check = find(role, section.kind).check
+            if check is not None:
+                check(section, self)
         bspline = isinstance(self.reference, ReferenceParams)
         # the axis count and the model's physics are read once, here (every builder and check asks these)
         object.__setattr__(self, "_dims", network_dims(self.physics.vessel.network))
