@@ -128,7 +128,7 @@ def test_the_warm_up_counts_every_scenario_it_warms(monkeypatch) -> None:  # typ
     ran: list[tuple[str, str]] = []
     monkeypatch.setattr(warm_module, "run_closed_loop", lambda sc, path="compiled": ran.append((sc.name, path)))
     monkeypatch.setattr(warm_module, "run_many", lambda *a, **k: None)
-    monkeypatch.setattr(warm_module, "network_wall", lambda *a: types.SimpleNamespace(clearance=lambda x, z: 0.0))
+    monkeypatch.setattr(warm_module, "meshed_wall", lambda *a: types.SimpleNamespace(clearance=lambda *point: (0.0, 0.0)))
     calls: list[tuple[int, int]] = []
     warm_module.warm(lambda done, total: calls.append((done, total)))
     n = len(shipped_scenarios()) + 1  # the shipped scenarios and a multiplexed copy of a planar one
