@@ -77,7 +77,7 @@ from vesselbot_ros.nodes.intra_process import intra_process
 from vesselbot_ros.nodes.params import kind_parameters, scenario_from_parameters, scenario_schema
 from vesselbot_ros.nodes.series import SeriesLog
 from vesselbot_ros.nodes.wire import FlatCodec, codec_for
-from vesselbot_ros.physics.axes import AXIS_INDEX
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.sim.closed_loop import warm_up
 from vesselbot_ros.sim.scenario import Scenario
 from vesselbot_ros.vessels.network import load_network
@@ -187,10 +187,7 @@ class VesselbotNode(Node):
         warm_up(self.scenario, (self.stage,) if self.stage else None)
         if self.scenario.physics.vessel.network:  # the input check's compiled clearance (and the network's file)
             p0 = self.scenario.initial.p0_m
-            xyz = [0.0, 0.0, 0.0]  # the point in (x, y, z): a planar one's y is 0
-            for i, v in zip(AXIS_INDEX[self.dims], p0, strict=True):
-                xyz[i] = float(v)
-            self._network_clearance(xyz[0], xyz[2], xyz[1])
+            self._network_clearance([float(v) for v in p0])
         reset_key = reset_service_key(role)
         if reset_key in graph_role(role).services:
             self.add_service(reset_key, Trigger, self._on_reset)
@@ -494,15 +491,14 @@ class VesselbotNode(Node):
         if now - self._last_diag_wall >= 0.2:
             self.publish_diagnostics()
 
-    def _network_clearance(self, x: float, z: float, y: float = 0.0) -> float:
-        """Signed distance (m) of (x, z) (a 3-D tree: (x, y, z)) to the network's meshed wall (the plant's) at its
-        widest (diameter pulsation), > 0 inside."""
+    def _network_clearance(self, point: Sequence[float]) -> float:
+        """Signed distance (m) of ``point`` (on the scenario's axes: (x, z), a 3-D tree's (x, y, z)) to the network's
+        meshed wall (the plant's) at its widest (diameter pulsation), > 0 inside."""
         clearance = getattr(self, "_net_clearance", None)
         phys = self.scenario.physics
         if clearance is None:
             clearance = self._net_clearance = meshed_wall(load_network(phys.vessel.network), phys.blood).clearance
-        xyz = (x, y, z)
-        s, diameter = clearance(*(xyz[i] for i in AXIS_INDEX[self.dims]))
+        s, diameter = clearance(*point)
         return float(s + 0.5 * diameter * phys.flow.diameter_pulsation)
 
     def check(
@@ -545,17 +541,17 @@ class VesselbotNode(Node):
         if not all(map(math.isfinite, values)):
             self.reject(key, "non_finite", f"values {list(values)}")
             return False
-        if 1 not in AXIS_INDEX[self.dims]:  # a planar scenario pins y at 0
+        if "y" not in AXES[self.dims]:  # a planar scenario pins y at 0
             for y in y_values:
                 if y != 0.0:
                     self.reject(key, "nonzero_y", f"y components {list(y_values)} (a planar scenario's y is 0)")
                     return False
         if z_position is not None and self.scenario.physics.vessel.network and x_position is not None:
-            s = self._network_clearance(x_position, z_position, y_position)
+            xyz = {"x": x_position, "y": y_position, "z": z_position}
+            axes = AXES[self.dims]
+            s = self._network_clearance([xyz[a] for a in axes])
             if s < -self.graph.position_margin_m:
-                xyz = (x_position, y_position, z_position)
-                axes = AXIS_INDEX[self.dims]
-                where = f"({', '.join('xyz'[i] for i in axes)}) = ({', '.join(repr(xyz[i]) for i in axes)})"
+                where = f"({', '.join(axes)}) = ({', '.join(repr(xyz[a]) for a in axes)})"
                 self.reject(key, "outside_vessel", f"{where} m lies {-s!r} m outside the vessel network's walls")
                 return False
         elif z_position is not None:

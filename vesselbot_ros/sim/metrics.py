@@ -213,13 +213,11 @@ def compute_metrics(timeseries: Mapping[str, Any], after_s: float = 0.6, *, vess
     contact = arrs["in_contact"].astype(bool)
     onsets = int(contact[0]) + int(np.count_nonzero(contact[1:] & ~contact[:-1]))
     slew = arrs["slew_limited"].astype(bool)
-    if slew.ndim == 2 and slew.shape[1] > 0:  # any axis slew-limited: the columns or'ed (np.any(axis=1), faster)
-        cols = slew
-        slew = cols[:, 0].copy()
-        for c in range(1, cols.shape[1]):
-            slew |= cols[:, c]
-    elif slew.ndim == 2:
-        slew = np.any(slew, axis=1)
+    if slew.ndim == 2:  # any axis slew-limited: the columns or'ed one by one (faster than np.any(axis=1))
+        any_axis = np.zeros(slew.shape[0], dtype=bool)
+        for c in range(slew.shape[1]):
+            any_axis |= slew[:, c]
+        slew = any_axis
     out: dict[str, Any] = {
         "after_s": window_start,
         "duration_s": float(t[-1] - t[0] + dt),

@@ -55,7 +55,7 @@ def test_the_input_check_takes_y_as_a_coordinate_in_a_3d_tree_and_as_zero_in_a_p
         s = load_scenario(config)
         n = SimpleNamespace(scenario=s, dims=s.dims, graph=GraphParams(), lockstep=True, rejected=[])
         n.reject = lambda key, reason, detail="": n.rejected.append(reason)
-        n._network_clearance = lambda x, z, y=0.0: VesselbotNode._network_clearance(n, x, z, y)
+        n._network_clearance = lambda point: VesselbotNode._network_clearance(n, point)
         return n
 
     tree = node("config/paper_iiic_network_upper_3d.yaml")
