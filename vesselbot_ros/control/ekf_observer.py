@@ -684,7 +684,7 @@ class EkfState:
         self.prm = ekf_params(params, model.input_matrix, model.integrator)
         self.geom = model.geom
         p = self.geom if isinstance(self.geom, np.ndarray) else self.geom[0]
-        self.p_s = np.empty_like(p)
+        self.p_s = p.copy()  # flow_scaled_into then copies only the scalars (a network's field block is in place)
         self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0, math.inf])
         self.ist = np.zeros(6, dtype=np.int64)
         self.ist[1] = -1

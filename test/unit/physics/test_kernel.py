@@ -170,3 +170,20 @@ def test_turning_the_scene_about_the_vertical_turns_the_wall_forces(angle: float
     kernel.wall_forces_into(rot @ v, rot @ g, s, rot @ n, 3e-3, 3.5e-3, rot @ vf, _CONTACTS[0], _P_NET, b)
     scale = np.abs(a).max()
     np.testing.assert_allclose(b, a @ rot.T, rtol=0, atol=1e-12 * scale)
+
+
+@pytest.mark.parametrize("name", ["sound_small_artery", "paper_iiic_network_lower"])
+def test_flow_scaled_params_are_the_model_with_v_f_scaled_from_any_start(name: str) -> None:
+    """``flow_scaled_into`` gives ``p`` with V_f times s whatever ``p_s`` held before (fresh, garbage, another
+    scale), though a network's field block is copied only into a ``p_s`` that does not hold it yet."""
+    p = cfd.packed_params(load_scenario(shipped_scenarios()[name]).physics)
+    want = p.copy()
+    want[kernel.I_V_F] = p[kernel.I_V_F] * 1.05
+    for start in (np.zeros_like(p), np.full_like(p, np.nan), p * 3.0 + 1.0):
+        p_s = start
+        kernel.flow_scaled_into(p, 1.05, p_s)
+        np.testing.assert_array_equal(p_s, want)
+        kernel.flow_scaled_into(p, 0.9, p_s)  # again, on what it now holds
+        want2 = p.copy()
+        want2[kernel.I_V_F] = p[kernel.I_V_F] * 0.9
+        np.testing.assert_array_equal(p_s, want2)
