@@ -56,6 +56,7 @@ from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTr
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.progress import step
 from vesselbot_ros.scanner.input_mapping import input_matrix
@@ -204,6 +205,9 @@ def need(model: DynamicsModel, t: npt.ArrayLike, p: npt.ArrayLike, v: npt.ArrayL
     out = np.empty(t.shape)
     for k in range(t.size):
         f = model.F(float(t[k]), p[k], v[k])
+        if p.shape[1] != 2:  # axis count: a 3-D tree (no lower wall to rest on: rest is the straight vessel's)
+            out[k] = math.hypot(*(a[k] - f))
+            continue
         dx, dz = a[k, 0] - f[0], a[k, 1] - f[1]
         if wall[k] and dz > 0.0:
             dz = 0.0
@@ -344,8 +348,8 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
     """Anchors, wall-follow weights and the fall to the wall if any (module docstring: where in the lumen)."""
     ref = planned_reference(scenario)
     first = np.array([ref.anchors_x_m[0], ref.anchors_z_m[0]])
-    if scenario.physics.vessel.network:  # a route: its own anchors and heights
-        return _Geometry(np.column_stack([ref.anchors_x_m, ref.anchors_z_m]), np.zeros(len(ref.anchors_x_m)), None, ())
+    if scenario.physics.vessel.network:  # a route: its own anchors and heights, on the network's axes
+        return _Geometry(ref.anchor_points(), np.zeros(len(ref.anchors_x_m)), None, ())
     x0, x1 = float(ref.anchors_x_m[0]), float(ref.anchors_x_m[-1])
     heights = _heights(scenario, options)
     _, wall_next = _best_height(scenario, model, min(x1, x0 + options.anchor_spacing_m), heights, v_cap)
@@ -403,6 +407,7 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                  v_cap: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Greedy forward pass from ``(t0, u0, du0)``: times, path parameters and their speeds (module docstring: when)."""
     h, a_t, U = options.step_s, options.tangential_accel_m_per_s2, traj.length_m
+    network = bool(scenario.physics.vessel.network)
     steps = np.linspace(-a_t, a_t, 9) * h
     t, u, du = t0, u0, du0
     ts, us, dus = [t], [u], [du]
@@ -410,8 +415,10 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
         if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
             break
         stop = math.sqrt(2.0 * a_t * max(U - u, 0.0))
-        # the cap is on the axial speed: a change of height goes as fast as the need allows
-        slope = abs(float(traj.state(np.array([t]), np.array([u]), np.ones(1), np.zeros(1))[1][0, 0]))
+        # the cap is on the axial speed: a change of height goes as fast as the need allows; along a network's
+        # route, on the path speed (the route turns and climbs)
+        slope = 1.0 if network else abs(float(traj.state(np.array([t]), np.array([u]), np.ones(1),
+                                                         np.zeros(1))[1][0, 0]))
         cap = min(v_cap / max(slope, v_cap / options.max_path_speed_m_per_s), stop)
         cand = np.unique(np.clip(du + steps, 0.0, max(cap, du - a_t * h)))[::-1]
         un = np.minimum(u + 0.5 * (du + cand) * h, U)
@@ -419,6 +426,23 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
         p, v, a = traj.state(tn, un, cand, (cand - du) / h)
         need_c = need(model, tn, p, v, a, wall_rest(scenario, tn))
         ok = np.flatnonzero(need_c <= budget)
+        if network and not ok.size:
+            # no pace up to the cap holds the bead here (a systole against the bead in a network's trunk): ride
+            # the flow, faster than the cap, at the slowest pace the budget allows, speeding up as fast as
+            # half the budget (the flow's push does the rest)
+            fast = np.unique(np.clip(du + steps * max(1.0, 0.5 * budget / a_t), 0.0,
+                                     min(options.max_path_speed_m_per_s, stop)))
+            fast = fast[fast > cap]
+            if fast.size:
+                un_f = np.minimum(u + 0.5 * (du + fast) * h, U)
+                tn_f = np.full(fast.shape, t + h)
+                pf, vf, af = traj.state(tn_f, un_f, fast, (fast - du) / h)
+                need_f = need(model, tn_f, pf, vf, af, None)
+                ok_f = np.flatnonzero(need_f <= budget)
+                i_f = int(ok_f[0]) if ok_f.size else int(np.argmin(need_f))
+                if ok_f.size or need_f[i_f] < float(np.min(need_c)):
+                    cand, un, need_c = fast[i_f:i_f + 1], un_f[i_f:i_f + 1], need_f[i_f:i_f + 1]
+                    ok = np.flatnonzero(need_c <= budget)
         pick = int(ok[0]) if ok.size else int(np.argmin(need_c))
         du, u, t = float(cand[pick]), float(un[pick]), t + h
         ts.append(t)
@@ -496,7 +520,7 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
         mode = "wall" if np.all(on_wall[sel]) else ("free" if not np.any(on_wall[sel]) else "mixed")
         floor = _coast_floor(scenario, traj, ts[sel[0]], ts[sel[-1]], t_c, options.coast_every_s)
         out.append(Segment(i, float(traj.path_point(bounds[i])[0]), float(traj.path_point(bounds[i + 1])[0]), mode,
-                           float(np.mean(p[sel, 1])), float(ts[sel[0]]), float(ts[sel[-1]]), float(needs[k]),
+                           float(np.mean(p[sel, -1])), float(ts[sel[0]]), float(ts[sel[-1]]), float(needs[k]),
                            float(ts[k]), a_avail - float(needs[k]), floor))
     return tuple(out)
 
@@ -521,15 +545,16 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
     if t_c <= 0.0:
         return 0.0
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    d = plant.dims
     worst = 0.0
     for t0 in _coast_starts(t_from, t_to, t_c, every_s):
         s0 = traj.sample(float(t0))
         p0, v0 = reachable(scenario, float(t0), s0.p, s0.v)
         y = np.concatenate([p0, v0]).astype(np.float64)
-        plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(2), plant.new_contact_state())
+        plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(d), plant.new_contact_state())
         s1 = traj.sample(float(t0) + t_c)
         p1, _ = reachable(scenario, float(t0) + t_c, s1.p, s1.v)
-        worst = max(worst, float(np.hypot(*(y[:2] - p1))))
+        worst = max(worst, float(math.hypot(*(y[:d] - p1))))
     return 0.5 * worst
 
 
@@ -603,10 +628,14 @@ def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[],
     t0 = float(ref0.start_s)
     v_cap = options.max_speed_m_per_s or ReferenceTrajectory(ref0).length_m / ref0.duration_s
     g = _geometry(scenario, model, options, v_cap)
-    geom = dataclasses.replace(ref0, anchors_x_m=tuple(float(v) for v in g.anchors[:, 0]),
-                               anchors_z_m=tuple(float(v) for v in g.anchors[:, 1]),
+    network = bool(scenario.physics.vessel.network)
+    # a network's plan keeps its outlet as the run's target, the anchors as given (the route's)
+    geom = dataclasses.replace(ref0, **{f"anchors_{axis}_m": tuple(float(v) for v in g.anchors[:, j])
+                                        for j, axis in enumerate(AXES[g.anchors.shape[1]])},
                                wall_follow=tuple(float(v) for v in g.follow) if np.any(g.follow) else (),
-                               route_outlet="", timing="constant", planned_t_s=(), planned_u_m=())
+                               route_outlet=ref0.route_outlet if network else "",
+                               route_anchors="given" if network else "planned",
+                               timing="constant", planned_t_s=(), planned_u_m=())
     traj = ReferenceTrajectory(geom, wall_shift=wall_shift_of(scenario.physics))
     if g.fall is not None:  # the fall's own timing, then the pass from where it rests on the wall
         u_fall = _fall_timing(g.fall, g.fall_picks, traj.anchor_u_m)

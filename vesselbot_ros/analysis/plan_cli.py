@@ -35,6 +35,7 @@ from vesselbot_ros.analysis.plan import (
 )
 from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.physics.integrator import blood_velocity
 from vesselbot_ros.physics.kernel import fluid_velocity_x
 from vesselbot_ros.scanner.hardware import PRESETS
 from vesselbot_ros.sim.closed_loop import build_stages
@@ -144,22 +145,30 @@ def _figure(label: str, planned: Scenario, plan: Plan, path: Path) -> None:
     ref = build_stages(planned).reference
     ts = np.arange(0.0, plan.end_s + 5e-4, 1e-3)
     p, v, a = ref.sample_many(ts)
-    needs = need(DynamicsModel(planned.physics, planned.sim.integrator), ts, p, v, a, wall_rest(planned, ts))
-    pk = packed_params(planned.physics)
-    flow = np.array([fluid_velocity_x(float(t), float(x), 0.0, pk) for t, (x, _) in zip(ts, p, strict=True)])
+    model = DynamicsModel(planned.physics, planned.sim.integrator)
+    needs = need(model, ts, p, v, a, wall_rest(planned, ts))
+    if planned.physics.vessel.network:  # along a route: the blood's speed where the reference is
+        flow = np.array([float(np.linalg.norm(blood_velocity(float(t), np.ascontiguousarray(q), model.geom)))
+                         for t, q in zip(ts, p, strict=True)])
+        flow_label, speed, speed_label = "blood at the reference", np.linalg.norm(v, axis=1), "reference speed"
+    else:
+        pk = packed_params(planned.physics)
+        flow = np.array([fluid_velocity_x(float(t), float(q[0]), 0.0, pk) for t, q in zip(ts, p, strict=True)])
+        flow_label, speed, speed_label = "blood at the centreline", v[:, 0], "reference axial speed"
     fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(8.0, 8.5))
     d = planned.physics.vessel.diameter_m
     if not planned.physics.vessel.network:
         for sgn in (-1.0, 1.0):
             ax0.axhline(sgn * 0.5 * d * 1e3, color="k", lw=1.0)
-    sc = ax0.scatter(p[:, 0] * 1e3, p[:, 1] * 1e3, c=plan.a_avail_m_per_s2 - needs, s=3, cmap="RdYlGn",
+    sc = ax0.scatter(p[:, 0] * 1e3, p[:, -1] * 1e3, c=plan.a_avail_m_per_s2 - needs, s=3, cmap="RdYlGn",
                      vmin=-1.0, vmax=plan.a_avail_m_per_s2)
     fig.colorbar(sc, ax=ax0, label="margin (m/s^2)")
     ax0.set_xlabel("x (mm)")
     ax0.set_ylabel("z (mm)")
-    ax0.set_title(f"{label}: the planned path (walls at the nominal diameter)")
-    ax1.plot(ts, v[:, 0] * 1e3, label="reference axial speed")
-    ax1.plot(ts, flow * 1e3, label="blood at the centreline", alpha=0.6)
+    ax0.set_title(f"{label}: the planned path " + ("(x-z view)" if planned.physics.vessel.network else
+                                                     "(walls at the nominal diameter)"))
+    ax1.plot(ts, speed * 1e3, label=speed_label)
+    ax1.plot(ts, flow * 1e3, label=flow_label, alpha=0.6)
     ax1.set_ylabel("mm/s")
     ax1.legend(loc="upper right")
     ax2.plot(ts, needs, label="need |Xdd_ref - F|")

@@ -136,7 +136,12 @@ class ReferenceParams:
         route_outlet: In a vessel network (``physics.vessel.network``): the
             target outlet branch; the anchors are then planned along the route
             from the start point (:mod:`vesselbot_ros.control.route`) and
-            ``anchors_x_m``/``anchors_z_m`` are not used.  ``""``: the anchors as given.
+            ``anchors_x_m``/``anchors_z_m`` are not used (unless ``route_anchors``
+            is ``given``).  ``""``: the anchors as given.
+        route_anchors: With ``route_outlet``: ``planned`` (the default) plans the
+            anchors along the route; ``given`` keeps the anchors as given (a
+            plan's, ``vesselbot plan``) and the outlet is the run's target only.
+            Left out of :func:`~vesselbot_ros.config.to_mapping` (and of every hash) when ``planned``.
         route_anchor_spacing_m: Arc length between planned anchors (m).
         route_end_margin_m: The planned anchors end this far before the outlet (m).
         route_end: Where the last planned anchor lies.  ``spaced`` (the default):
@@ -169,6 +174,8 @@ class ReferenceParams:
     route_end: Literal["spaced", "at_margin"] = dataclasses.field(default="spaced",
                                                                   metadata={OMIT_IF: lambda v: v == "spaced"})
     sync_along: Literal["x", "path"] = dataclasses.field(default="x", metadata={OMIT_IF: lambda v: v == "x"})
+    route_anchors: Literal["planned", "given"] = dataclasses.field(default="planned",
+                                                                   metadata={OMIT_IF: lambda v: v == "planned"})
 
     def __post_init__(self) -> None:
         if len(self.anchors_x_m) < 2:
@@ -212,6 +219,7 @@ class ReferenceParams:
         check_nonnegative("route_wall_margin_m", self.route_wall_margin_m)
         check_choice("route_end", self.route_end, ("spaced", "at_margin"))
         check_choice("sync_along", self.sync_along, ("x", "path"))
+        check_choice("route_anchors", self.route_anchors, ("planned", "given"))
 
     def anchor_points(self) -> npt.NDArray[np.float64]:
         """(n, 2) anchors (x, z) in the plane, or (n, 3) (x, y, z) with ``anchors_y_m`` (m)."""

@@ -73,6 +73,7 @@ from vesselbot_ros.physics.integrator import (
     axes_of,
     forces_memo,
     integrate,
+    jacobian_position_step,
     mass_of,
     new_workspace,
     onto_lumen_at,
@@ -128,8 +129,9 @@ def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T
     N = 2 * d + 1
     tc[0] = np.nan  # p (the model) may differ from the last call's
     _f(t, y, u, free, geom, p_s, f0, fbuf, sc, tc, g0, constrained)
+    floor = jacobian_position_step(geom)  # a tree's wall field jumps over nanometres: a step above its facets
     for j in range(N):
-        dj = 1e-7 * max(abs(y[j]), 1e-3) if j < d else (1e-7 * max(abs(y[j]), 1e-2) if j < 2 * d else 1e-7)
+        dj = max(1e-7 * max(abs(y[j]), 1e-3), floor) if j < d else (1e-7 * max(abs(y[j]), 1e-2) if j < 2 * d else 1e-7)
         for i in range(N):
             yp[i] = y[i]
         yp[j] = y[j] + dj

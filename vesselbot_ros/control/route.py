@@ -149,9 +149,10 @@ def route_anchors(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, sp
 
 
 def planned_reference(scenario):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    """The scenario's :class:`ReferenceParams` with planned anchors when ``reference.route_outlet`` is set."""
+    """The scenario's :class:`ReferenceParams` with planned anchors when ``reference.route_outlet`` is set (and
+    ``reference.route_anchors`` is ``planned``: a plan's anchors are ``given``)."""
     ref = scenario.reference
-    if not ref.route_outlet:
+    if not ref.route_outlet or ref.route_anchors == "given":
         return ref
     a = _anchors(scenario)
     return dataclasses.replace(ref, **{f"anchors_{axis}_m": tuple(float(v) for v in a[:, j])
