@@ -1,21 +1,29 @@
 #!/usr/bin/env python3
-"""Tracking through the network scenarios' bifurcations, seeds 0-4 (mean / worst); rewrites docs/reproduction.md's block.
+"""Tracking through the network scenarios' bifurcations, seeds 0-4 (mean / worst); rewrites docs/reproduction.md's blocks.
 
-The planar networks' scenarios, then the 3-D trees' (the III-C route written as a 3-D tree right after its planar
-twin's row): distances and errors are Euclidean over the scenario's axes, (x, z) or (x, y, z).
+Per tree, the paper's loop (the tree's scenario: observer (25), law (24), Table III gains; the baseline) and the
+best loop (``<tree>_ekf``, written by tools/gen_tree_scenarios.py: the extended Kalman filter, law (24) with
+k1 = k2 = 150 and flow compensation, a planned reference).  The planar networks' scenarios, then the 3-D trees'
+(the III-C route written as a 3-D tree right after its planar twin's row): distances and errors are Euclidean
+over the scenario's axes, (x, z) or (x, y, z).
 
-Usage: .venv/bin/python tools/network_numbers.py [--write]
+``--campaigns`` also runs (or resumes) the 100-seed campaigns of the best loops
+(``config/campaigns/trees_best/*.yaml``, ``vesselbot campaign``), copies their results to
+``docs/campaigns/trees_best/`` and tabulates the share reaching the outlet and the tracking against the target.
+
+Usage: .venv/bin/python tools/network_numbers.py [--write] [--campaigns]
 """
 
 from __future__ import annotations
 
 import re
+import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from vesselbot_ros.atomic_io import write_text
+from vesselbot_ros.atomic_io import write_bytes, write_text
 from vesselbot_ros.sim.closed_loop import run_closed_loop
 from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
 from vesselbot_ros.vessels.network import load_network
@@ -24,14 +32,20 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "reproduction.md"
 SCENARIOS = ("paper_iiic_network_upper", "paper_iiic_network_upper_3d", "paper_iiic_network_lower", "small_artery_4gen_udu",
              "carotid_bifurcation_3d_eca", "synthetic_tree_3d_deep")
+BEST = "_ekf"  # tools/gen_tree_scenarios.py's suffix
+LOOPS = {"": "paper: (25) + (24), Table III gains", BEST: "best: EKF + (24), k1 = k2 = 150, planned"}
+TARGET_M = 150e-6  # issue 41: the best loop's worst tracking in every tree
 BEGIN, END = "<!-- BEGIN network_numbers -->", "<!-- END network_numbers -->"
+CBEGIN, CEND = "<!-- BEGIN network_campaigns -->", "<!-- END network_campaigns -->"
+CAMPAIGNS = ROOT / "config" / "campaigns" / "trees_best"
+CAMPAIGN_DATA = ROOT / "docs" / "campaigns" / "trees_best"
 
 
 def block() -> str:
-    lines = ["| scenario | branch reached (seeds 0-4) | tracking max after 0.6 s (um) | tracking rms (um) | "
+    lines = ["| scenario | loop | branch reached (seeds 0-4) | tracking max after 0.6 s (um) | tracking rms (um) | "
              "tracking max within 2 mm of a major node (um) | estimation max (um) | wall contact (s) | outside lumen (s) |",
-             "|---|---|---|---|---|---|---|---|"]
-    for name in SCENARIOS:
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name in [tree + suffix for tree in SCENARIOS for suffix in LOOPS]:
         sc = load_scenario(shipped_scenarios()[name])
         outlet = sc.reference.route_outlet
         net = load_network(sc.physics.vessel.network)
@@ -55,21 +69,60 @@ def block() -> str:
             v = np.array([r[i] for r in rows]) * scale
             return f"{v.mean():{fmt}} / {v.max():{fmt}}"
 
-        lines.append(f"| `{name}` | {outlet}: {reached}/5 | {mw(1)} | {mw(2)} | {mw(3)} | {mw(4)} "
+        loop = LOOPS[BEST if name.endswith(BEST) else ""]
+        lines.append(f"| `{name}` | {loop} | {outlet}: {reached}/5 | {mw(1)} | {mw(2)} | {mw(3)} | {mw(4)} "
                      f"| {mw(5, 1, '.3f')} | {mw(6, 1, '.3f')} |")
     return "\n".join(lines)
+
+
+def run_campaigns() -> None:
+    """Run (or resume) the best loops' 100-seed campaigns; copy their tables to docs/campaigns/trees_best/."""
+    for spec in sorted(CAMPAIGNS.glob("*.yaml")):
+        out = ROOT / "out" / "campaigns" / "trees_best" / spec.stem
+        subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "campaign", str(spec), "--out", str(out),
+                        "--no-progress"], cwd=ROOT, check=True)
+        dest = CAMPAIGN_DATA / spec.stem
+        dest.mkdir(parents=True, exist_ok=True)
+        write_bytes(dest / "results.parquet", (out / "results.parquet").read_bytes())
+
+
+def campaign_block(data: Path = CAMPAIGN_DATA) -> str:
+    """The 100-seed table, from ``data/<tree>/results.parquet``."""
+    import pyarrow.parquet as pq  # deferred: only this table reads parquet
+
+    lines = ["| scenario (best loop) | runs ok | reached the outlet | tracking max after 0.6 s: mean / worst (um) | "
+             "p95 (um) | within 150 um | outside lumen, worst (s) |", "|---|---|---|---|---|---|---|"]
+    for tree in SCENARIOS:
+        rows = pq.read_table(data / tree / "results.parquet").to_pylist()
+        ok = [r for r in rows if r["status"] == "ok"]
+        tr = np.array([r["tracking_error_max_m"] for r in ok])
+        reached = sum(1 for r in ok if r["reached_target"] == 1)
+        within = np.count_nonzero(tr <= TARGET_M)
+        lines.append(f"| `{tree}{BEST}` | {len(ok)} of {len(rows)} | {reached} of {len(rows)} ({reached / len(rows):.0%}) "
+                     f"| {tr.mean() * 1e6:.0f} / {tr.max() * 1e6:.0f} | {np.percentile(tr, 95) * 1e6:.0f} "
+                     f"| {within / len(rows):.0%} | {max(r['outside_lumen_time_s'] for r in ok):.3f} |")
+    return "\n".join(lines)
+
+
+def _replace(doc: str, begin: str, end: str, text: str) -> str:
+    new = f"{begin}\n{text}\n{end}"
+    if begin in doc:
+        return re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _m: new, doc, flags=re.S)
+    return doc + "\n" + new + "\n"
 
 
 def main() -> int:
     text = block()
     print(text)
+    if "--campaigns" in sys.argv[1:]:
+        run_campaigns()
+    ctext = campaign_block() if (CAMPAIGN_DATA / SCENARIOS[0] / "results.parquet").exists() else None
+    if ctext:
+        print(ctext)
     if "--write" in sys.argv[1:]:
-        doc = DOC.read_text(encoding="utf-8")
-        new = f"{BEGIN}\n{text}\n{END}"
-        if BEGIN in doc:
-            doc = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _m: new, doc, flags=re.S)
-        else:
-            doc += "\n" + new + "\n"
+        doc = _replace(DOC.read_text(encoding="utf-8"), BEGIN, END, text)
+        if ctext:
+            doc = _replace(doc, CBEGIN, CEND, ctext)
         write_text(DOC, doc)
         print(f"wrote {DOC}")
     return 0

@@ -554,7 +554,7 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
         plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(d), plant.new_contact_state())
         s1 = traj.sample(float(t0) + t_c)
         p1, _ = reachable(scenario, float(t0) + t_c, s1.p, s1.v)
-        worst = max(worst, float(math.hypot(*(y[:d] - p1))))
+        worst = max(worst, float(np.hypot(*(y[:d] - p1)) if d == 2 else np.linalg.norm(y[:d] - p1)))  # axis count: the plane keeps its bits
     return 0.5 * worst
 
 

@@ -270,3 +270,34 @@ def test_planning_reports_each_timing_attempt_to_a_progress_bar():
     with session(False, quiet), pytest.raises(PlanInfeasible):
         make_plan(weak, PlanOptions(height="free", retries=1))
     assert quiet.getvalue() == ""
+
+
+@pytest.mark.parametrize("pace_m_per_s", [0.003, 0.0045, 0.006])
+def test_the_planned_node_crossings_keep_the_synthetic_tree_reachable_at_any_pace(pace_m_per_s):
+    """Three paces along the synthetic tree's route (its hand-timed 6.1 s is 3.8 mm/s; timed 5.5 s, 0 of 20 seeds
+    reached the outlet): the plan holds the bead wherever the coil can, and rides the flow through a systole where
+    it cannot, so each is flown into the outlet by the best loop with 0 s outside the lumen."""
+    from vesselbot_ros.sim.closed_loop import run_closed_loop
+
+    sets = ["observer.kind=ekf", "controller.gains={k1: 150.0, k2: 150.0}", "controller.flow_compensation=estimate",
+            "reference.route_wall_margin_m=3.0e-4"]
+    scenario = load_scenario("synthetic_tree_3d_deep", sets=sets)
+    plan = make_plan(scenario, PlanOptions(max_speed_m_per_s=pace_m_per_s))
+    assert plan.margin_m_per_s2 >= 0.0
+    m = run_closed_loop(plan_scenario(scenario, plan.reference), 0).metrics
+    assert m["status"] == "ok" and m["reached_target"] == 1, (pace_m_per_s, m["branch_final"])
+    assert m["outside_lumen_time_s"] == 0.0
+    assert m["tracking_error_max_m"] < 150e-6
+
+
+def test_a_network_plan_keeps_its_outlet_as_the_target_and_its_route_anchors():
+    """The written plan of a route keeps ``route_outlet`` (the run's target: reached or not) with the route's
+    anchors as given; flown, it reaches the outlet."""
+    from vesselbot_ros.control.route import planned_reference
+
+    scenario = load_scenario("paper_iiic_network_lower")
+    plan = make_plan(scenario)
+    flown = plan_scenario(scenario, plan.reference)
+    assert flown.reference.route_outlet == "lower" and flown.reference.route_anchors == "given"
+    np.testing.assert_array_equal(flown.reference.anchor_points(), planned_reference(scenario).anchor_points())
+    assert planned_reference(flown) == flown.reference  # given: the route's planner leaves them

@@ -178,3 +178,24 @@ def test_the_3d_trees_reach_their_outlets_on_seeds_0_to_4() -> None:
             m = runs[f"{name}/{seed}"]
             assert m["reached_target"] == 1, (name, seed)  # the final point in the route's outlet branch
             assert m["outside_lumen_time_s"] == 0.0, (name, seed)
+
+
+@pytest.mark.parametrize("name", ["paper_iiic_network_lower_ekf", "paper_iiic_network_upper_3d_ekf"])
+@pytest.mark.parametrize("controller", ["law24", "predictive"])
+def test_the_best_loops_reach_the_outlet_in_a_network_and_a_tree_compiled_as_per_tick(name: str, controller: str) -> None:
+    """The extended Kalman filter (flow scale, delay compensation) with law (24) or with the predictive controller,
+    on a planned route through a planar network and through a 3-D tree: into the outlet, 0 s outside the lumen,
+    the compiled loop equal to the per-tick loop bit for bit (every metric and every column)."""
+    sets = [] if controller == "law24" else ["controller.kind=predictive"]
+    sc = load_scenario(shipped_scenarios()[name], sets=sets)
+    assert sc.observer.kind == "ekf"
+    a = run_closed_loop(sc, 0, path="compiled")
+    b = run_closed_loop(sc, 0, path="per_tick")
+    assert a.path == "compiled" and b.path == "per_tick"
+    m = a.metrics
+    assert m["status"] == "ok" and m["reached_target"] == 1 and m["outside_lumen_time_s"] == 0.0
+    assert m["tracking_error_max_m"] < 150e-6
+    for k, v in m.items():
+        assert v == b.metrics[k] or (isinstance(v, float) and np.isnan(v) and np.isnan(b.metrics[k])), k
+    for k, col in a.timeseries.items():
+        np.testing.assert_array_equal(col, b.timeseries[k], err_msg=k)
