@@ -162,7 +162,7 @@ class Vessel:
         """(2,) blood velocity v_f at ``p_W`` (m/s), eq. (12), along +x."""
         f = self.params.flow
         pulse = pulse_factor(float(t_s), f.pulsatility, f.angular_frequency_rad_per_s, f.phase_rad)
-        return np.array([f.centreline_velocity_m_per_s * pulse * self.profile(t_s, p_W), 0.0])
+        return np.array([f.inflow_velocity_m_per_s * pulse * self.profile(t_s, p_W), 0.0])
 
     def geometry(self, t_s: float, p_W: npt.ArrayLike) -> WallGeometry:
         """Signed distance, wall and normal of the nearest wall at robot position ``p_W`` (m)."""

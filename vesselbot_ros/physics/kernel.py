@@ -168,7 +168,7 @@ def pack_network_params(params: PhysicsParams, fld: Any) -> npt.NDArray[np.float
     head[I_LAMBDA0] = dg.lambda0
     head[I_DIAMETER] = v.diameter_m
     head[I_D_PULSE] = f.diameter_pulsation
-    head[I_V_F] = f.centreline_velocity_m_per_s
+    head[I_V_F] = f.inflow_velocity_m_per_s  # V_f times flow.inflow_fraction (1: V_f itself, bit for bit)
     head[I_A_F] = f.pulsatility
     head[I_OMEGA_F] = f.angular_frequency_rad_per_s
     head[I_PHI_F] = f.phase_rad

@@ -24,6 +24,7 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from vesselbot_ros.config import (
+    OMIT_IF,
     ConfigError,
     apply_overrides,
     check_choice,
@@ -92,6 +93,14 @@ class BloodParams:
         check_positive("temperature_K", self.temperature_K)
 
 
+def _is_empty(value: str) -> bool:
+    return value == ""
+
+
+def _is_one(value: float) -> bool:
+    return bool(value == 1.0)
+
+
 @dataclasses.dataclass(frozen=True)
 class FlowParams:
     """Pulsatile blood flow, eqs. (12)-(13) (Table III).
@@ -103,6 +112,15 @@ class FlowParams:
         angular_frequency_rad_per_s: omega_f (rad/s). Table III: 2 pi.
         phase_rad: phi_f (rad). Table III: pi/2.
         diameter_pulsation: Relative amplitude of D(t), eq. (13) (-). Paper: 0.1.
+        preset: ``""`` (the values above, Table III by default) or the name of a physiological flow preset of
+            the vessel network (its file's ``flow_presets``, docs/vessels.md "Physiological flow presets"): the
+            scenario loader then writes the preset's centreline velocity, pulsatility and angular frequency
+            into this section (:func:`vesselbot_ros.sim.scenario.scenario_from_mapping`), and the network's
+            CFD field is solved with the preset's outlet shares.  Left out of
+            :func:`~vesselbot_ros.config.to_mapping` when empty.
+        inflow_fraction: Fraction of the inflow left by a flow reduction upstream (-), in [0, 1]: 1 (the
+            default) none; a proximal balloon occlusion arrests the antegrade flow (0).  The plant and the
+            model scale V_f by it (:attr:`inflow_velocity_m_per_s`).  Left out of ``to_mapping`` at 1.
     """
 
     centreline_velocity_m_per_s: float = 0.025
@@ -110,6 +128,8 @@ class FlowParams:
     angular_frequency_rad_per_s: float = 2.0 * math.pi
     phase_rad: float = math.pi / 2.0
     diameter_pulsation: float = 0.1
+    preset: str = dataclasses.field(default="", metadata={OMIT_IF: _is_empty})
+    inflow_fraction: float = dataclasses.field(default=1.0, metadata={OMIT_IF: _is_one})
 
     def __post_init__(self) -> None:
         check_finite("centreline_velocity_m_per_s", self.centreline_velocity_m_per_s)
@@ -117,6 +137,14 @@ class FlowParams:
         check_nonnegative("angular_frequency_rad_per_s", self.angular_frequency_rad_per_s)
         check_finite("phase_rad", self.phase_rad)
         check_range("diameter_pulsation", self.diameter_pulsation, 0.0, 0.5)
+        if not isinstance(self.preset, str) or (self.preset and not all(c.isalnum() or c == "_" for c in self.preset)):
+            raise ConfigError(f"preset must be '' or a name of letters, digits and '_', got {self.preset!r}")
+        check_range("inflow_fraction", self.inflow_fraction, 0.0, 1.0)
+
+    @property
+    def inflow_velocity_m_per_s(self) -> float:
+        """V_f the plant flies in (m/s): ``centreline_velocity_m_per_s`` times ``inflow_fraction`` (exact at 1)."""
+        return self.centreline_velocity_m_per_s * self.inflow_fraction
 
 
 @dataclasses.dataclass(frozen=True)

@@ -46,7 +46,7 @@ from vesselbot_ros.control.high_gain_observer import ObserverParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.integrator import IntegratorParams
-from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.physics.params import FlowParams, PhysicsParams
 from vesselbot_ros.resources import fmt_bytes, memory_budget_bytes
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.hardware import DbdtLimit, preset_changes
@@ -73,6 +73,7 @@ __all__ = [
     "with_overrides",
     "scenario_with",
     "scenario_from_mapping",
+    "with_flow_preset_values",
     "short_copy",
     "scenario_overrides",
     "estimate_resources",
@@ -280,6 +281,9 @@ class Scenario:
             self._check_network(bspline)
         elif bspline and self.reference.route_outlet:
             raise ConfigError(f"reference.route_outlet needs physics.vessel.network, got route_outlet={self.reference.route_outlet!r}")
+        if self.physics.flow.preset and not self.physics.vessel.network:
+            raise ConfigError(f"physics.flow.preset needs physics.vessel.network (a preset is a vessel network's), "
+                              f"got preset={self.physics.flow.preset!r}")
         half_d = 0.5 * self.physics.vessel.diameter_m
         for i, z in (() if self.physics.vessel.network or not bspline else enumerate(self.reference.anchors_z_m)):
             if abs(z) >= half_d:
@@ -307,6 +311,12 @@ class Scenario:
                 require_planar(net, "the 2-D plant")
         except ConfigError as exc:
             raise ConfigError(f"physics.vessel.network: {exc}") from None
+        flow = self.physics.flow
+        if flow.preset:  # scenario_from_mapping wrote its values; a scenario built otherwise must hold them too
+            for k, v in net.flow_preset(flow.preset).flow_values().items():
+                if getattr(flow, k) != v:
+                    raise ConfigError(f"physics.flow.{k}={getattr(flow, k)!r} is not flow preset {flow.preset!r}'s "
+                                      f"{v!r} (the preset sets it: build the scenario with scenario_from_mapping)")
         if net.is_3d:
             self._check_tree(net, bspline)
             return
@@ -446,7 +456,49 @@ def scenario_from_mapping(mapping: Any) -> Scenario:
     """
     if isinstance(mapping, Mapping) and BASE_KEY in mapping:
         mapping = _extend(dict(mapping), Path.cwd() / "<mapping>", ())
-    return load_dataclass(Scenario, mapping, "")
+    return load_dataclass(Scenario, with_flow_preset_values(mapping), "")
+
+
+def with_flow_preset_values(mapping: Any) -> Any:
+    """``mapping`` with ``physics.flow.preset``'s values written into ``physics.flow`` (docs/vessels.md).
+
+    The preset (a ``flow_presets`` entry of the file ``physics.vessel.network`` names) sets the flow section's
+    ``centreline_velocity_m_per_s``, ``pulsatility`` and ``angular_frequency_rad_per_s`` (whatever the section
+    held: the preset is the flow); a ``model.overrides`` velocity is scaled by the same ratio, so the model keeps
+    its relative error (the III-C 5 %).  Idempotent: a scenario's own mapping loads to the same scenario.  A
+    mapping without a preset is returned as it is.
+
+    Raises:
+        ConfigError: a preset without a network, a network that does not load, or no such preset (one line).
+    """
+    physics = mapping.get("physics") if isinstance(mapping, Mapping) else None
+    flow = physics.get("flow") if isinstance(physics, Mapping) else None
+    preset = flow.get("preset") if isinstance(flow, Mapping) else None
+    if not preset or not isinstance(preset, str):
+        return mapping  # no preset (or not a name: FlowParams names the key and value)
+    vessel = physics.get("vessel")
+    network = vessel.get("network") if isinstance(vessel, Mapping) else None
+    if not network or not isinstance(network, str):
+        raise ConfigError(f"physics.flow.preset needs physics.vessel.network (a preset is a vessel network's), "
+                          f"got preset={preset!r} and network={network!r}")
+    try:
+        net = load_network(network)
+    except ConfigError as exc:
+        raise ConfigError(f"physics.vessel.network: {exc}") from None
+    values = net.flow_preset(preset).flow_values()
+    out = apply_overrides(mapping, {f"physics.flow.{k}": v for k, v in values.items()})
+    old_vf = flow.get("centreline_velocity_m_per_s", FlowParams().centreline_velocity_m_per_s)
+    model = out.get("model")
+    overrides = model.get("overrides") if isinstance(model, Mapping) else None
+    key = "flow.centreline_velocity_m_per_s"
+    if isinstance(overrides, Mapping) and overrides:
+        flat = flatten(unflatten(dict(overrides)))
+        v = flat.get(key)
+        if (isinstance(v, (int, float)) and not isinstance(v, bool) and isinstance(old_vf, (int, float))
+                and old_vf != values["centreline_velocity_m_per_s"] and math.isfinite(old_vf) and old_vf != 0.0):
+            flat[key] = v * (values["centreline_velocity_m_per_s"] / old_vf)
+            out["model"]["overrides"] = unflatten(flat)
+    return out
 
 
 #: The key of a scenario file naming the scenario it extends: a shipped scenario's name (``sound_small_artery``)

@@ -9,8 +9,8 @@ plane of symmetry at the same centreline velocity -- the profile the analytic
 plant uses (eq. (12)).  What a planar slab cannot reproduce is the 3-D flux
 balance: in 2-D the flux of a branch scales as ``V_c r``, in a tube as
 ``V_c r^2``.  We therefore split the 2-D inflow among the outlets by Murray's
-law (shares r^3 / sum r^3, ``cfd.outlet_split: murray``) or by area (shares
-r^2), and accept that a daughter's centreline velocity is the 2-D one
+law (shares r^3 / sum r^3, ``cfd.outlet_split: murray``), by area (shares
+r^2) or by given shares (``shares``: a flow preset's, of the 2-D flux), and accept that a daughter's centreline velocity is the 2-D one
 (for a symmetric Murray bifurcation 0.63 of the parent's instead of 0.79 in 3-D).
 
 Equations: ``rho (u . grad) u = -grad p + div(mu grad u)``, ``div u = 0``; Taylor-Hood P2/P1 elements on a gmsh
@@ -78,7 +78,13 @@ from vesselbot_ros.physics.kernel import pack_network_params, pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, require_fits
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, require_planar, smooth_centreline
+from vesselbot_ros.vessels.network import (
+    VesselNetworkParams,
+    load_network,
+    require_planar,
+    smooth_centreline,
+    with_flow_preset,
+)
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["MeshedNetwork", "FlowSolution", "NetworkField", "mesh_network", "solve_flow", "sample_field",
@@ -334,6 +340,7 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     radii = {k: meshed.caps[k][2] for k in outlets}
     power = 3.0 if net.cfd.outlet_split == "murray" else 2.0
     total = sum(r ** power for r in radii.values())
+    given = dict(zip(net.cfd.share_outlets, net.cfd.outlet_shares))  # outlet_split: shares (a flow preset's)
     free = max(outlets, key=lambda k: (radii[k], outlets.index(k)))  # the widest (last among equals) is traction-free
     fixed_dofs: list[npt.NDArray[np.int64]] = []
     fixed_vals: list[npt.NDArray[np.float64]] = []
@@ -346,7 +353,7 @@ def solve_flow(net: VesselNetworkParams, blood: BloodParams, meshed: MeshedNetwo
     for k in outlets:
         if k == free:
             continue
-        share = radii[k] ** power / total
+        share = given[k.removeprefix("outlet:")] if given else radii[k] ** power / total
         vc_k = 3.0 * share * q_in / (4.0 * radii[k])
         d, v = _parabola_dofs(ub, meshed.boundaries[k], meshed.caps[k], vc_k, 1.0)
         fixed_dofs.append(d)
@@ -644,7 +651,8 @@ def packed_params(params: PhysicsParams) -> npt.NDArray[np.float64]:
     """
     if not params.vessel.network:
         return pack_params(params)
-    return pack_network_params(params, network_field(load_network(params.vessel.network), params.blood))
+    net = with_flow_preset(load_network(params.vessel.network), params.flow.preset)  # a preset's outlet shares
+    return pack_network_params(params, network_field(net, params.blood))
 
 
 def womersley_numbers(net: VesselNetworkParams, blood: BloodParams, omega_rad_per_s: float) -> dict[str, float]:

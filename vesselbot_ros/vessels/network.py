@@ -24,6 +24,7 @@ from vesselbot_ros.config import (
     ConfigError,
     check_choice,
     check_finite,
+    check_nonnegative,
     check_positive,
     check_range,
     load_dataclass,
@@ -37,6 +38,9 @@ from vesselbot_ros.resources import require_fits, spline_setup_cost
 __all__ = [
     "BranchParams",
     "CfdParams",
+    "FlowPresetParams",
+    "SHARE_SUM_TOL",
+    "with_flow_preset",
     "VesselNetworkParams",
     "load_network",
     "network_dims",
@@ -74,6 +78,37 @@ def _all_zero(values: tuple[float, ...]) -> bool:
 
 def _is_zero(value: float) -> bool:
     return bool(value == 0)
+
+
+def _is_empty(value: tuple[object, ...]) -> bool:
+    return not value
+
+
+def _always(_value: object) -> bool:
+    """A network's flow presets are not its geometry nor its field: never in its mapping's hash (a run's preset
+    enters the field's key through the ``cfd.outlet_shares`` it sets, :func:`with_flow_preset`)."""
+    return True
+
+
+#: Outlet shares must sum to 1 within this.
+SHARE_SUM_TOL = 1.0e-9
+
+
+def _check_shares(names_key: str, names: tuple[str, ...], shares_key: str, shares: tuple[float, ...]) -> None:
+    """Outlet names and their shares: as many, distinct, each share in [0, 1], the sum 1 within SHARE_SUM_TOL
+    (none at all is no split)."""
+    if not names and not shares:
+        return
+    if len(shares) != len(names):
+        raise ConfigError(f"{shares_key} must give one share per name of {names_key} ({len(names)}), got {list(shares)}")
+    for i, n in enumerate(names):
+        if names.index(n) != i:
+            raise ConfigError(f"{names_key}[{i}] {n!r} is named twice, got {list(names)}")
+    for i, v in enumerate(shares):
+        check_range(f"{shares_key}[{i}]", v, 0.0, 1.0)
+    total = math.fsum(shares)
+    if not abs(total - 1.0) <= SHARE_SUM_TOL:
+        raise ConfigError(f"{shares_key} must sum to 1 (within {SHARE_SUM_TOL:g}), got {list(shares)} (sum {total!r})")
 
 
 def _norm(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -177,7 +212,12 @@ class CfdParams:
         grid_margin_m: Margin of the grid around the network's bounding box (m).
         outlet_split: ``murray``: each outlet carries a share of the inflow
             proportional to r^3 (Murray's law, the 3-D flow the 2-D solve
-            stands for); ``area``: proportional to r^2 (same mean velocity).
+            stands for); ``area``: proportional to r^2 (same mean velocity);
+            ``shares``: the shares ``outlet_shares`` of the outlets ``share_outlets``
+            (set by a flow preset, :func:`with_flow_preset`).
+        share_outlets: With ``outlet_split: shares``: every outlet branch's name, once.
+        outlet_shares: ... its share of the inflow (-), summing to 1.  Both left out of
+            :func:`~vesselbot_ros.config.to_mapping` (and every hash) when empty.
         diameter_smoothing_m: Gaussian width (m) with which the sampled local
             diameter (the meshed lumen's local thickness) and viscosity are
             smoothed: they have kinks through a junction, and the pulsating wall
@@ -196,13 +236,15 @@ class CfdParams:
     mesh_size_m: float = 1.0e-4
     grid_spacing_m: float = 2.5e-5
     grid_margin_m: float = 5.0e-4
-    outlet_split: Literal["murray", "area"] = "murray"
+    outlet_split: Literal["murray", "area", "shares"] = "murray"
     diameter_smoothing_m: float = 2.5e-4
     picard_max_iterations: int = 30
     picard_tol: float = 1.0e-9
     mesh_size_3d_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: _is_zero})
     wall_elements_per_circle_3d: int = dataclasses.field(default=0, metadata={OMIT_IF: _is_zero})
     grid_spacing_3d_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: _is_zero})
+    share_outlets: tuple[str, ...] = dataclasses.field(default=(), metadata={OMIT_IF: _is_empty})
+    outlet_shares: tuple[float, ...] = dataclasses.field(default=(), metadata={OMIT_IF: _is_empty})
 
     def __post_init__(self) -> None:
         check_positive("inlet_centreline_velocity_m_per_s", self.inlet_centreline_velocity_m_per_s)
@@ -214,11 +256,95 @@ class CfdParams:
         check_positive("mesh_size_m", self.mesh_size_m)
         check_positive("grid_spacing_m", self.grid_spacing_m)
         check_range("grid_margin_m", self.grid_margin_m, 0.0, 0.1)
-        check_choice("outlet_split", self.outlet_split, ("murray", "area"))
+        check_choice("outlet_split", self.outlet_split, ("murray", "area", "shares"))
+        if (self.outlet_split == "shares") != bool(self.share_outlets):
+            raise ConfigError(f"share_outlets and outlet_shares go with outlet_split: shares and only with it, got "
+                              f"outlet_split={self.outlet_split!r}, share_outlets={list(self.share_outlets)}")
+        _check_shares("share_outlets", self.share_outlets, "outlet_shares", self.outlet_shares)
         check_range("diameter_smoothing_m", self.diameter_smoothing_m, 0.0, 0.01)
         if self.picard_max_iterations < 1:
             raise ConfigError(f"picard_max_iterations must be >= 1, got {self.picard_max_iterations!r}")
         check_positive("picard_tol", self.picard_tol)
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowPresetParams:
+    """A physiological flow of a network, from a cited source (``flow_presets`` of the file; docs/vessels.md).
+
+    Mapped onto the paper's waveform (12), ``v = V_f (1 + a_f sin(omega_f t + phi_f)) p``, whose cycle mean is
+    V_f and whose peak is V_f (1 + a_f): V_f = 2 ``mean_velocity_m_per_s`` (the Poiseuille centreline velocity of
+    that mean velocity, the inflow profile of the CFD), a_f = ``peak_centreline_velocity_m_per_s`` / V_f - 1 (or
+    ``pulsatility`` as given), omega_f = 2 pi ``heart_rate_per_min`` / 60.  One harmonic cannot hold a source's
+    mean, peak and end-diastolic velocities at once: the minimum is V_f (1 - a_f), whatever the source's.
+
+    Attributes:
+        name: The preset's name (``physics.flow.preset``): letters, digits, ``_``.
+        source: The citation (free text; the file's comments give the arithmetic).
+        mean_velocity_m_per_s: Cycle- and cross-section-averaged velocity of the inflow (m/s), > 0.
+        peak_centreline_velocity_m_per_s: Peak systolic centreline (spectral peak) velocity of the inflow
+            (m/s), >= 2 ``mean_velocity_m_per_s``; or
+        pulsatility: a_f as given (-), >= 0 (exactly one of the two).
+        heart_rate_per_min: Heart rate (1/min), in (0, 300].
+        outlets: Every outlet branch of the network, once (empty: the network's ``cfd.outlet_split`` stays).
+        outlet_shares: Each outlet's share of the inflow (-), in [0, 1], summing to 1 within 1e-9.
+    """
+
+    name: str
+    source: str
+    mean_velocity_m_per_s: float
+    heart_rate_per_min: float
+    peak_centreline_velocity_m_per_s: float | None = None
+    pulsatility: float | None = None
+    outlets: tuple[str, ...] = ()
+    outlet_shares: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c == "_" for c in self.name):
+            raise ConfigError(f"name must be non-empty letters, digits or '_', got {self.name!r}")
+        if not isinstance(self.source, str) or not self.source.strip():
+            raise ConfigError(f"source must cite where the numbers come from, got {self.source!r}")
+        check_positive("mean_velocity_m_per_s", self.mean_velocity_m_per_s)
+        check_range("heart_rate_per_min", self.heart_rate_per_min, 0.0, 300.0, lo_open=True)
+        if (self.peak_centreline_velocity_m_per_s is None) == (self.pulsatility is None):
+            raise ConfigError(f"give exactly one of peak_centreline_velocity_m_per_s and pulsatility, got "
+                              f"peak_centreline_velocity_m_per_s={self.peak_centreline_velocity_m_per_s!r}, "
+                              f"pulsatility={self.pulsatility!r}")
+        if self.peak_centreline_velocity_m_per_s is not None:
+            check_positive("peak_centreline_velocity_m_per_s", self.peak_centreline_velocity_m_per_s)
+            if self.peak_centreline_velocity_m_per_s < self.centreline_velocity_m_per_s:
+                raise ConfigError(f"peak_centreline_velocity_m_per_s must be >= the mean centreline velocity "
+                                  f"2 mean_velocity_m_per_s = {self.centreline_velocity_m_per_s!r}, got "
+                                  f"{self.peak_centreline_velocity_m_per_s!r}")
+        if self.pulsatility is not None:
+            check_nonnegative("pulsatility", self.pulsatility)
+        if bool(self.outlets) != bool(self.outlet_shares):
+            raise ConfigError(f"outlets and outlet_shares go together, got outlets={list(self.outlets)}, "
+                              f"outlet_shares={list(self.outlet_shares)}")
+        _check_shares("outlets", self.outlets, "outlet_shares", self.outlet_shares)
+
+    @property
+    def centreline_velocity_m_per_s(self) -> float:
+        """V_f (m/s): the Poiseuille centreline velocity of the mean velocity, 2 ``mean_velocity_m_per_s``."""
+        return 2.0 * self.mean_velocity_m_per_s
+
+    @property
+    def pulsatility_value(self) -> float:
+        """a_f (-): ``pulsatility``, else peak / V_f - 1."""
+        if self.pulsatility is not None:
+            return self.pulsatility
+        assert self.peak_centreline_velocity_m_per_s is not None  # one of the two (checked)
+        return self.peak_centreline_velocity_m_per_s / self.centreline_velocity_m_per_s - 1.0
+
+    @property
+    def angular_frequency_rad_per_s(self) -> float:
+        """omega_f = 2 pi HR / 60 (rad/s)."""
+        return 2.0 * math.pi * (self.heart_rate_per_min / 60.0)  # 60 /min: 2 pi itself, Table III's omega_f
+
+    def flow_values(self) -> dict[str, float]:
+        """The ``physics.flow`` keys the preset sets."""
+        return {"centreline_velocity_m_per_s": self.centreline_velocity_m_per_s,
+                "pulsatility": self.pulsatility_value,
+                "angular_frequency_rad_per_s": self.angular_frequency_rad_per_s}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -231,6 +357,8 @@ class VesselNetworkParams:
         smoothing: ``spline`` (C2 cubic through the points) or ``none``.
         sample_spacing_m: Spacing of the smoothed centreline samples (m).
         cfd: CFD settings.
+        flow_presets: Physiological flows of this tree (:class:`FlowPresetParams`), by name; never in
+            :func:`~vesselbot_ros.config.to_mapping` (nor so in a hash): see :func:`with_flow_preset`.
     """
 
     name: str
@@ -238,6 +366,7 @@ class VesselNetworkParams:
     smoothing: Literal["spline", "none"] = "spline"
     sample_spacing_m: float = 2.0e-5
     cfd: CfdParams = dataclasses.field(default_factory=CfdParams)
+    flow_presets: tuple[FlowPresetParams, ...] = dataclasses.field(default=(), metadata={OMIT_IF: _always})
 
     def __post_init__(self) -> None:
         if not self.name or not all(c.isalnum() or c in "_-." for c in self.name):
@@ -283,8 +412,34 @@ class VesselNetworkParams:
         if not float(extent.max()) <= MAX_LENGTH_M:
             raise ConfigError(f"branches: a network spans at most {MAX_LENGTH_M:g} m along x, y and z, got "
                               f"{[float(f'{e:.6g}') for e in extent]} m (is the unit metres?)")
+        outlets = [b.name for b in self.branches if not any(c.parent == b.name for c in self.branches)]
+        for key, named in [("cfd.share_outlets", self.cfd.share_outlets)] + [
+                (f"flow_presets[{i}].outlets", p.outlets) for i, p in enumerate(self.flow_presets)]:
+            for j, n in enumerate(named):
+                if n not in outlets:
+                    raise ConfigError(f"{key}[{j}] {n!r} is not an outlet of network {self.name!r}; outlets: {outlets}")
+            if named and len(named) != len(outlets):
+                missing = [n for n in outlets if n not in named]
+                raise ConfigError(f"{key} must name every outlet of network {self.name!r} ({outlets}), got "
+                                  f"{list(named)} (missing {missing})")
+        preset_names = [p.name for p in self.flow_presets]
+        for i, n in enumerate(preset_names):
+            if preset_names.index(n) != i:
+                raise ConfigError(f"flow_presets[{i}].name {n!r} is used twice (also flow_presets[{preset_names.index(n)}])")
         _check_sizes(self)
         _check_overlaps(self)
+
+    def flow_preset(self, name: str) -> FlowPresetParams:
+        """The flow preset ``name``.
+
+        Raises:
+            ConfigError: no such preset (the message lists the network's presets).
+        """
+        for p in self.flow_presets:
+            if p.name == name:
+                return p
+        raise ConfigError(f"physics.flow.preset: network {self.name!r} has no flow preset {name!r}; its presets: "
+                          f"{[p.name for p in self.flow_presets]}")
 
     @property
     def is_planar(self) -> bool:
@@ -510,6 +665,24 @@ def _load_network_cached(path: str, _mtime_ns: int, _size: int) -> VesselNetwork
         return load_dataclass(VesselNetworkParams, load_yaml(path), "")
     except ConfigError as exc:
         raise ConfigError(f"vessel network {str(path)!r}: {exc}") from None
+
+
+def with_flow_preset(net: VesselNetworkParams, name: str) -> VesselNetworkParams:
+    """``net`` as a run with ``physics.flow.preset: name`` solves it: its CFD block taking the preset's outlet
+    shares (``cfd.outlet_split: shares``, a field of its own key), or ``net`` itself for ``""`` or a preset
+    without shares (the network's own split stays).
+
+    Raises:
+        ConfigError: ``net`` has no preset ``name``.
+    """
+    if not name:
+        return net
+    preset = net.flow_preset(name)
+    if not preset.outlets:
+        return net
+    cfd = dataclasses.replace(net.cfd, outlet_split="shares", share_outlets=preset.outlets,
+                              outlet_shares=preset.outlet_shares)
+    return dataclasses.replace(net, cfd=cfd)
 
 
 def route_to_outlet(net: VesselNetworkParams, outlet: str) -> list[str]:

@@ -38,6 +38,7 @@ __all__ = [
     "section_flux",
     "cache_dir",
     "solution_key",
+    "settings_mapping",
     "solve_tree_cached",
 ]
 
@@ -54,7 +55,10 @@ class Flow3DSettings:
         wall_elements_per_circle: Elements around a circumference of the wall (gmsh curvature
             sizing): the narrow branches' resolution (the polygonal section's area is short of the
             circle's by about (2 pi / N)^2 / 6: 0.64 % at N = 32).
-        outlets: ``natural`` (every outlet traction-free), ``murray`` (r^3 shares) or ``area`` (r^2).
+        outlets: ``natural`` (every outlet traction-free), ``murray`` (r^3 shares), ``area`` (r^2) or
+            ``shares`` (``outlet_shares``).
+        outlet_shares: With ``outlets: shares``: ``(outlet branch, share)`` of every outlet, the shares summing
+            to 1 (a flow preset's); left out of the cache key when empty.
         picard_max_iterations: Cap on the Picard (Oseen) iterations.
         picard_tol: Relative change of the velocity (max norm) at which Picard stops.
         linear_tol: Relative residual of each Oseen solve (flexible GMRES).
@@ -64,15 +68,19 @@ class Flow3DSettings:
     inlet_centreline_velocity_m_per_s: float = 0.025
     mesh_size_m: float = 3.0e-4
     wall_elements_per_circle: int = 24
-    outlets: Literal["natural", "murray", "area"] = "natural"
+    outlets: Literal["natural", "murray", "area", "shares"] = "natural"
     picard_max_iterations: int = 30
     picard_tol: float = 1.0e-7
     linear_tol: float = 1.0e-10
     linear_max_iterations: int = 600
+    outlet_shares: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
-        if self.outlets not in ("natural", "murray", "area"):
-            raise ConfigError(f"outlets must be one of ['natural', 'murray', 'area'], got {self.outlets!r}")
+        if self.outlets not in ("natural", "murray", "area", "shares"):
+            raise ConfigError(f"outlets must be one of ['natural', 'murray', 'area', 'shares'], got {self.outlets!r}")
+        if (self.outlets == "shares") != bool(self.outlet_shares):
+            raise ConfigError(f"outlet_shares go with outlets: shares and only with it, got outlets={self.outlets!r}, "
+                              f"outlet_shares={list(self.outlet_shares)}")
         for f in ("inlet_centreline_velocity_m_per_s", "mesh_size_m", "picard_tol", "linear_tol"):
             v = getattr(self, f)
             if not (math.isfinite(v) and v > 0):
@@ -233,13 +241,18 @@ def solve_tree(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams, meshe
     if settings.outlets != "natural":
         power = 3.0 if settings.outlets == "murray" else 2.0
         total = sum(r ** power for r in radii.values())
+        given = dict(settings.outlet_shares)  # outlets: shares (a flow preset's)
+        if given and set(given) != {k.removeprefix("outlet:") for k in outlets}:
+            raise ConfigError(f"outlet_shares must name every outlet of the tree {sorted(k.removeprefix('outlet:') for k in outlets)}, "
+                              f"got {sorted(given)}")
         widest = max(outlets, key=lambda k: (radii[k], outlets.index(k)))
         free = [widest]
         for k in outlets:
             if k == widest:
                 continue
             dk, prof = cap_values(k)
-            scale = (radii[k] ** power / total) * q_in / discrete_flux(k, dk, prof)
+            share = given[k.removeprefix("outlet:")] if given else radii[k] ** power / total
+            scale = share * q_in / discrete_flux(k, dk, prof)
             n_k = meshed.caps[k][1]
             for c in range(3):
                 uD[c, dk] = scale * prof * n_k[c]
@@ -481,9 +494,18 @@ def cache_dir() -> Path:
     return cache_2d() / "3d"
 
 
+def settings_mapping(settings: Flow3DSettings) -> dict[str, Any]:
+    """``settings`` as a plain mapping for a cache key: ``outlet_shares`` left out when empty (the keys of the
+    solutions and fields made before it existed stay theirs)."""
+    out = dataclasses.asdict(settings)
+    if not settings.outlet_shares:
+        del out["outlet_shares"]
+    return out
+
+
 def solution_key(tree: Tree3D, settings: Flow3DSettings, blood: BloodParams) -> str:
     """Cache key: sha256 of the tree, the settings, the blood model and the cache version."""
-    text = json.dumps({"tree": dataclasses.asdict(tree), "settings": dataclasses.asdict(settings),
+    text = json.dumps({"tree": dataclasses.asdict(tree), "settings": settings_mapping(settings),
                        "blood": to_mapping(blood), "v": CACHE_VERSION}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 

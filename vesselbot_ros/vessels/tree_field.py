@@ -71,7 +71,7 @@ from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import tree_cfd, tree_mesh
 from vesselbot_ros.vessels.cfd import network_wall, packed_params
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smooth_centreline, with_flow_preset
 
 __all__ = ["packed_vessel", "vessel_geom", "TreeField", "TreeBuildEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
@@ -132,7 +132,8 @@ def flow_settings(net: VesselNetworkParams) -> tree_cfd.Flow3DSettings:
         mesh_size_m=c.mesh_size_3d_m if c.mesh_size_3d_m > 0.0 else 1.2 * c.mesh_size_m,
         wall_elements_per_circle=c.wall_elements_per_circle_3d or 32,
         outlets=c.outlet_split,
-        picard_max_iterations=c.picard_max_iterations)
+        picard_max_iterations=c.picard_max_iterations,
+        outlet_shares=tuple(zip(c.share_outlets, c.outlet_shares)))
 
 
 def grid_spacing_m(net: VesselNetworkParams) -> float:
@@ -143,7 +144,7 @@ def grid_spacing_m(net: VesselNetworkParams) -> float:
 def field_key(net: VesselNetworkParams, blood: BloodParams) -> str:
     """The samples' key: sha256 of the tree, its solve settings, the grid, the blood model and the version."""
     tree = tree_mesh.tree_from_network(net)
-    text = json.dumps({"tree": dataclasses.asdict(tree), "settings": dataclasses.asdict(flow_settings(net)),
+    text = json.dumps({"tree": dataclasses.asdict(tree), "settings": tree_cfd.settings_mapping(flow_settings(net)),
                        "h": grid_spacing_m(net), "sag": WALL_SAG_M, "blood": to_mapping(blood), "v": FIELD3D_VERSION},
                       sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
@@ -517,8 +518,12 @@ def planar_twin(params: PhysicsParams) -> PhysicsParams:
 
 
 @functools.lru_cache(maxsize=16)
-def _flow_grid(net: VesselNetworkParams, blood: BloodParams) -> tuple[npt.NDArray[np.float32], Array]:
-    fld = plant_field(net, blood)
+def _flow_grid(net: VesselNetworkParams, blood: BloodParams, flow_net: VesselNetworkParams | None = None
+               ) -> tuple[npt.NDArray[np.float32], Array]:
+    """The flow grid (velocity, viscosity) of ``flow_net`` (default ``net``: the same tree with a flow preset's
+    outlet shares, :func:`~vesselbot_ros.vessels.network.with_flow_preset`) on the wall of ``net``: the wall is
+    the geometry's alone, so a preset solves and samples the flow again but builds no wall field."""
+    fld = plant_field(flow_net if flow_net is not None else net, blood)
     wa = wall_arrays(net, blood)
     nx, ny, nz = fld.shape
     diam = np.asarray(wa.args[1], dtype=np.float64).reshape(nz, ny, nx, -1)[..., 4]
@@ -541,7 +546,8 @@ def packed_tree(params: PhysicsParams) -> PackedTree:
     if not net.is_3d:
         raise ConfigError(f"physics.vessel.network: {net.name!r} gives no y_m: the planar plant takes it")
     wa = wall_arrays(net, params.blood)
-    F, fh = _flow_grid(net, params.blood)
+    flow_net = with_flow_preset(net, params.flow.preset)  # a preset's outlet shares: the flow's own field
+    F, fh = _flow_grid(net, params.blood) if flow_net is net else _flow_grid(net, params.blood, flow_net)
     return PackedTree(pack_params(planar_twin(params)), wa.args, F, fh)
 
 
