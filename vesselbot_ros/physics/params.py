@@ -410,7 +410,7 @@ class PhysicsParams:
         Raises:
             ConfigError: unknown key or invalid value (named).
         """
-        mapping = to_mapping(self)
+        mapping = _every_field(self)  # with the keys to_mapping leaves out at their defaults (flow.inflow_fraction)
         flat = flatten(unflatten(dict(overrides)))  # nested or dotted, as model.overrides may be written
         for key in flat:
             node: Any = mapping
@@ -422,6 +422,13 @@ class PhysicsParams:
                                       f": {allowed}")
                 node = node[part]
         return load_dataclass(type(self), apply_overrides(mapping, flat), "physics")  # a plant kind's params subclass
+
+
+def _every_field(obj: Any) -> Any:
+    """:func:`~vesselbot_ros.config.to_mapping` of a params tree, keeping the fields it omits at their defaults."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _every_field(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    return to_mapping(obj)
 
 
 @dataclasses.dataclass(frozen=True)

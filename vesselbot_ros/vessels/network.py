@@ -108,7 +108,7 @@ def _check_shares(names_key: str, names: tuple[str, ...], shares_key: str, share
         check_range(f"{shares_key}[{i}]", v, 0.0, 1.0)
     total = math.fsum(shares)
     if not abs(total - 1.0) <= SHARE_SUM_TOL:
-        raise ConfigError(f"{shares_key} must sum to 1 (within {SHARE_SUM_TOL:g}), got {list(shares)} (sum {total!r})")
+        raise ConfigError(f"{shares_key} must sum to 1 (within {SHARE_SUM_TOL:g}), got {list(shares)} (sum {total:.12g})")
 
 
 def _norm(d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -306,7 +306,7 @@ class FlowPresetParams:
         check_positive("mean_velocity_m_per_s", self.mean_velocity_m_per_s)
         check_range("heart_rate_per_min", self.heart_rate_per_min, 0.0, 300.0, lo_open=True)
         if (self.peak_centreline_velocity_m_per_s is None) == (self.pulsatility is None):
-            raise ConfigError(f"give exactly one of peak_centreline_velocity_m_per_s and pulsatility, got "
+            raise ConfigError(f"peak_centreline_velocity_m_per_s or pulsatility: give exactly one, got "
                               f"peak_centreline_velocity_m_per_s={self.peak_centreline_velocity_m_per_s!r}, "
                               f"pulsatility={self.pulsatility!r}")
         if self.peak_centreline_velocity_m_per_s is not None:

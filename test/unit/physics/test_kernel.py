@@ -187,3 +187,13 @@ def test_flow_scaled_params_are_the_model_with_v_f_scaled_from_any_start(name: s
         want2 = p.copy()
         want2[kernel.I_V_F] = p[kernel.I_V_F] * 0.9
         np.testing.assert_array_equal(p_s, want2)
+
+
+def test_inflow_fraction_scales_v_f_in_the_packed_parameters_and_is_exact_at_one() -> None:
+    p = PhysicsParams()
+    assert kernel.pack_params(p)[kernel.I_V_F] == p.flow.centreline_velocity_m_per_s
+    low = p.with_overrides({"flow.inflow_fraction": 0.1})
+    head, base = kernel.pack_params(low), kernel.pack_params(p)
+    assert head[kernel.I_V_F] == 0.025 * 0.1
+    others = np.arange(kernel.N_FIXED) != kernel.I_V_F
+    assert np.array_equal(head[:kernel.N_FIXED][others], base[:kernel.N_FIXED][others])

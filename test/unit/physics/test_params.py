@@ -99,3 +99,20 @@ def test_vdw_floor_brush_limited_default_and_explicit():
         InteractionParams(vdw_min_separation="atomic")
     with pytest.raises(ConfigError, match=r"brush_compressed_fraction must be in \(0.0, 1.0\]"):
         InteractionParams(brush_compressed_fraction=0.0)
+
+
+def test_flow_preset_and_inflow_fraction_are_validated_and_left_out_of_the_mapping_at_their_defaults():
+    from vesselbot_ros.config import to_mapping
+
+    assert set(to_mapping(FlowParams())) == {"centreline_velocity_m_per_s", "pulsatility", "angular_frequency_rad_per_s",
+                                             "phase_rad", "diameter_pulsation"}
+    f = FlowParams(preset="healthy_adult_cca", inflow_fraction=0.1)
+    assert to_mapping(f)["preset"] == "healthy_adult_cca" and to_mapping(f)["inflow_fraction"] == 0.1
+    assert f.inflow_velocity_m_per_s == 0.025 * 0.1
+    assert FlowParams().inflow_velocity_m_per_s == 0.025  # exact at 1
+    for bad, msg in [(-0.1, r"flow\.inflow_fraction must be in \[0\.0, 1\.0\], got -0\.1"),
+                     (float("nan"), r"flow\.inflow_fraction must be finite, got nan")]:
+        with pytest.raises(ConfigError, match=msg):
+            load_dataclass(PhysicsParams, {"flow": {"inflow_fraction": bad}}, "")
+    with pytest.raises(ConfigError, match=r"flow\.preset must be '' or a name of letters, digits and '_', got 'a b'"):
+        load_dataclass(PhysicsParams, {"flow": {"preset": "a b"}}, "")

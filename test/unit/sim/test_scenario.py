@@ -209,3 +209,103 @@ def test_no_note_for_a_file_that_sets_every_key_where_the_defaults_differ_nor_fo
     capsys.readouterr()
     load_scenario_mapping(full)
     assert capsys.readouterr().err == ""
+
+
+# ---- physiological flow presets (docs/vessels.md "Physiological flow presets") --------------------------------------
+
+CAROTID = shipped_scenarios()["carotid_bifurcation_3d_eca"]
+UPPER = shipped_scenarios()["paper_iiic_network_upper"]
+
+
+def test_a_flow_preset_is_the_flow_and_the_model_keeps_its_relative_error() -> None:
+    sc = load_scenario(CAROTID, sets=["physics.flow.preset=healthy_adult_cca"])
+    f = sc.physics.flow
+    assert (f.centreline_velocity_m_per_s, f.preset) == (0.2752, "healthy_adult_cca")
+    assert f.pulsatility == pytest.approx(0.63 / 0.2752 - 1.0, rel=1e-15)
+    assert f.angular_frequency_rad_per_s == sc.physics.flow.angular_frequency_rad_per_s
+    # the III-C model error, 0.02625 / 0.025 = 5 %, kept on the preset's V_f
+    assert sc.model_physics().flow.centreline_velocity_m_per_s == pytest.approx(0.2752 * 1.05, rel=1e-12)
+    assert scenario_from_mapping(sc.to_mapping()) == sc  # idempotent: the stored scenario loads as itself
+    plain = load_scenario(CAROTID)
+    assert plain.physics.flow.centreline_velocity_m_per_s == 0.025 and plain.physics.flow.preset == ""
+
+
+def test_a_small_artery_preset_changes_only_v_f_and_keeps_table_iiis_omega_bit_for_bit() -> None:
+    sc, plain = load_scenario(UPPER, sets=["physics.flow.preset=brachial_levenson_1981"]), load_scenario(UPPER)
+    assert sc.physics.flow.centreline_velocity_m_per_s == 0.183
+    assert sc.physics.flow.pulsatility == plain.physics.flow.pulsatility
+    assert sc.physics.flow.angular_frequency_rad_per_s == plain.physics.flow.angular_frequency_rad_per_s
+
+
+@pytest.mark.parametrize(("sets", "message"), [
+    (["physics.flow.preset=nope"],
+     r"^physics\.flow\.preset: network 'carotid_bifurcation_3d' has no flow preset 'nope'; its presets: \['healthy_adult_cca'\]$"),
+    (["physics.flow.inflow_fraction=-0.5"], r"^physics\.flow\.inflow_fraction must be in \[0\.0, 1\.0\], got -0\.5$"),
+    (["physics.flow.inflow_fraction=.nan"], r"^physics\.flow\.inflow_fraction must be finite, got nan$"),
+])
+def test_a_bad_flow_preset_or_fraction_is_one_line_naming_the_key_and_the_value(sets: list[str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(CAROTID, sets=sets)
+
+
+def test_a_preset_needs_a_network_and_its_values() -> None:
+    with pytest.raises(ConfigError, match=r"^physics\.flow\.preset needs physics\.vessel\.network .* got preset='x'"):
+        load_scenario(SOUND, sets=["physics.flow.preset=x"])
+    sc = load_scenario(CAROTID, sets=["physics.flow.preset=healthy_adult_cca"])
+    m = sc.to_mapping()
+    m["physics"]["flow"]["centreline_velocity_m_per_s"] = 0.025
+    from vesselbot_ros.config import load_dataclass
+    from vesselbot_ros.sim.scenario import Scenario
+    with pytest.raises(ConfigError, match=r"physics\.flow\.centreline_velocity_m_per_s=0\.025 is not flow preset "
+                                          r"'healthy_adult_cca''s 0\.2752"):
+        load_dataclass(Scenario, m, "")  # built around the loader: refused, not flown with a stale V_f
+
+
+def _bad_network(tmp_path: Path, preset: str) -> Path:
+    text = (Path(__file__).parents[3] / "config" / "vessels" / "paper_iiic_artery.yaml").read_text()
+    head = text.split("flow_presets:")[0]
+    return _write(tmp_path / "bad_net.yaml", head + "flow_presets:\n" + preset)
+
+
+@pytest.mark.parametrize(("preset", "message"), [
+    ("  - {name: p, source: s, mean_velocity_m_per_s: -0.1, pulsatility: 1.0, heart_rate_per_min: 60}\n",
+     "flow_presets[0].mean_velocity_m_per_s must be > 0, got -0.1"),
+    ("  - {name: p, source: s, mean_velocity_m_per_s: .nan, pulsatility: 1.0, heart_rate_per_min: 60}\n",
+     "flow_presets[0].mean_velocity_m_per_s must be finite, got nan"),
+    ("  - {name: p, source: s, mean_velocity_m_per_s: 0.1, pulsatility: 1.0, heart_rate_per_min: 60,\n"
+     "     outlets: [upper, lower, side_down, side_up], outlet_shares: [0.5, 0.4, 0.05, 0.04]}\n",
+     "flow_presets[0].outlet_shares must sum to 1 (within 1e-09), got [0.5, 0.4, 0.05, 0.04] (sum 0.99)"),
+    ("  - {name: p, source: s, mean_velocity_m_per_s: 0.1, pulsatility: 1.0, heart_rate_per_min: 60,\n"
+     "     outlets: [upper, lower, side_down, nope], outlet_shares: [0.5, 0.4, 0.05, 0.05]}\n",
+     "flow_presets[0].outlets[3] 'nope' is not an outlet of network 'paper_iiic_artery'"),
+])
+def test_simulate_exits_2_with_one_line_on_a_bad_preset_in_a_network_file(preset: str, message: str, tmp_path: Path,
+                                                                          capsys) -> None:
+    net = _bad_network(tmp_path, preset)
+    code = cli_main(["simulate", "--config", str(UPPER), "--set", f"physics.vessel.network={net}",
+                     "--set", "physics.flow.preset=p", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("vesselbot simulate: error: physics.vessel.network: vessel network ")
+    assert message in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("sets", "message"), [
+    (["physics.flow.preset=nope"], "physics.flow.preset: network 'carotid_bifurcation_3d' has no flow preset 'nope'"),
+    (["physics.flow.inflow_fraction=-1"], "physics.flow.inflow_fraction must be in [0.0, 1.0], got -1.0"),
+])
+def test_simulate_exits_2_with_one_line_on_an_unknown_preset_or_a_bad_fraction(sets: list[str], message: str,
+                                                                               tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    args = [sys.executable, "-m", "vesselbot_ros.cli", "simulate", "--config", str(CAROTID), "--out", str(tmp_path / "o")]
+    for s in sets:
+        args += ["--set", s]
+    child = subprocess.run(args, capture_output=True, text=True, timeout=300, env=dict(os.environ),
+                           cwd=str(Path(__file__).parents[3]))
+    assert child.returncode == 2, child.stderr
+    err = child.stderr.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from vesselbot_ros.config import load_dataclass
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.vessels import cfd
-from vesselbot_ros.vessels.network import VesselNetworkParams
+from vesselbot_ros.vessels.network import FlowPresetParams, VesselNetworkParams, with_flow_preset
 
 CFD = {"inlet_centreline_velocity_m_per_s": 0.025, "mesh_size_m": 4e-4, "grid_spacing_m": 5e-5, "grid_margin_m": 1e-4}
 
@@ -206,3 +208,16 @@ def test_the_shipped_field_is_what_the_solve_gives(tmp_path, monkeypatch) -> Non
     for i, name in enumerate(cfd.FIELD_NAMES):  # velocities normalised to 1, lengths in m, viscosity in Pa s
         scale = max(1.0, float(np.abs(shipped.data[i]).max()))
         np.testing.assert_allclose(solved.data[i], shipped.data[i], rtol=0, atol=1e-9 * scale, err_msg=name)
+
+
+def test_a_flow_presets_outlet_shares_are_what_the_2d_solve_imposes() -> None:
+    """``physics.flow.preset`` with outlet shares solves the network with ``cfd.outlet_split: shares``: the fixed
+    outlet carries its share of the 2-D inflow, the traction-free (widest) one the rest, whatever Murray says."""
+    net = with_flow_preset(dataclasses.replace(_bifurcation(), flow_presets=(FlowPresetParams(
+        name="p", source="test", mean_velocity_m_per_s=0.1, heart_rate_per_min=60.0, pulsatility=1.0,
+        outlets=("b", "c"), outlet_shares=(0.45, 0.55)),)), "p")
+    assert net.cfd.outlet_split == "shares"
+    sol = cfd.solve_flow(net, BloodParams())
+    q_in = -sol.fluxes["inlet"]
+    assert sol.fluxes["outlet:c"] / q_in == pytest.approx(0.55, rel=1e-6)  # imposed (Murray: 0.30)
+    assert sol.fluxes["outlet:b"] / q_in == pytest.approx(0.45, rel=1e-6)  # the free outlet takes the rest

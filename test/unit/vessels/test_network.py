@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
+from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet, with_flow_preset
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 
@@ -385,3 +385,72 @@ def test_a_network_of_too_many_branches_for_the_overlap_check_is_refused_with_it
     with pytest.raises(ConfigError, match=r"^branches=7000 branches: the overlap check of every pair of branches would take "
                                           r"about 41 min .*more than the 30 min a set-up step may take"):
         _net(tree)
+
+
+# --- physiological flow presets (docs/vessels.md "Physiological flow presets") ---
+
+PRESET = {"name": "p", "source": "a cited source", "mean_velocity_m_per_s": 0.1, "peak_centreline_velocity_m_per_s": 0.5,
+          "heart_rate_per_min": 72.0, "outlets": ["b", "c"], "outlet_shares": [0.7, 0.3]}
+
+
+def test_a_flow_preset_maps_mean_and_peak_onto_the_papers_waveform() -> None:
+    net = _net(Y, flow_presets=[PRESET])
+    v = net.flow_preset("p").flow_values()
+    assert v["centreline_velocity_m_per_s"] == 0.2  # Poiseuille: twice the mean velocity
+    assert v["pulsatility"] == pytest.approx(0.5 / 0.2 - 1.0, rel=1e-15)  # peak = V_f (1 + a_f)
+    assert v["angular_frequency_rad_per_s"] == pytest.approx(2.0 * np.pi * 1.2, rel=1e-15)
+    assert _net(Y, flow_presets=[dict(PRESET, heart_rate_per_min=60.0)]).flow_preset("p").angular_frequency_rad_per_s \
+        == 2.0 * np.pi  # 60 /min is Table III's omega_f bit for bit
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"mean_velocity_m_per_s": -0.1}, r"flow_presets\[0\]\.mean_velocity_m_per_s must be > 0, got -0\.1"),
+    ({"mean_velocity_m_per_s": float("nan")}, r"flow_presets\[0\]\.mean_velocity_m_per_s must be finite, got nan"),
+    ({"peak_centreline_velocity_m_per_s": float("nan")},
+     r"flow_presets\[0\]\.peak_centreline_velocity_m_per_s must be finite, got nan"),
+    ({"outlet_shares": [0.7, 0.2]},
+     r"flow_presets\[0\]\.outlet_shares must sum to 1 \(within 1e-09\), got \[0\.7, 0\.2\] \(sum 0\.9\)"),
+    ({"outlet_shares": [0.7, 0.3 + 2e-9]}, r"flow_presets\[0\]\.outlet_shares must sum to 1"),
+    ({"outlet_shares": [1.2, -0.2]}, r"flow_presets\[0\]\.outlet_shares\[0\] must be in \[0\.0, 1\.0\], got 1\.2"),
+    ({"outlets": ["b", "x"]}, r"flow_presets\[0\]\.outlets\[1\] 'x' is not an outlet of network 't'; outlets: \['b', 'c'\]"),
+    ({"outlets": ["b"], "outlet_shares": [1.0]}, r"flow_presets\[0\]\.outlets must name every outlet .* \(missing \['c'\]\)"),
+    ({"pulsatility": 1.0}, r"flow_presets\[0\]\.peak_centreline_velocity_m_per_s or pulsatility: give exactly one, got "),
+    ({"peak_centreline_velocity_m_per_s": 0.1}, r"peak_centreline_velocity_m_per_s must be >= the mean centreline"),
+    ({"heart_rate_per_min": 0.0}, r"flow_presets\[0\]\.heart_rate_per_min must be in \(0\.0, 300\.0\], got 0\.0"),
+    ({"source": ""}, r"flow_presets\[0\]\.source must cite where the numbers come from, got ''"),
+])
+def test_a_bad_flow_preset_is_one_line_naming_the_key_and_the_value(change: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message) as info:
+        _net(Y, flow_presets=[dict(PRESET, **change)])
+    assert "\n" not in str(info.value)
+
+
+def test_an_unknown_preset_name_lists_the_networks_presets() -> None:
+    with pytest.raises(ConfigError, match=r"physics\.flow\.preset: network 't' has no flow preset 'q'; its presets: \['p'\]"):
+        _net(Y, flow_presets=[PRESET]).flow_preset("q")
+
+
+def test_presets_leave_the_networks_hash_and_a_preset_with_shares_takes_its_own_cfd_key() -> None:
+    plain, with_presets = _net(Y), _net(Y, flow_presets=[PRESET])
+    assert with_presets.geometry_hash() == plain.geometry_hash()
+    solved = with_flow_preset(with_presets, "p")
+    assert solved.cfd.outlet_split == "shares" and solved.cfd.share_outlets == ("b", "c")
+    assert solved.cfd.outlet_shares == (0.7, 0.3) and solved.geometry_hash() != plain.geometry_hash()
+    assert with_flow_preset(with_presets, "") is with_presets
+    no_shares = _net(Y, flow_presets=[{k: v for k, v in PRESET.items() if k not in ("outlets", "outlet_shares")}])
+    assert with_flow_preset(no_shares, "p") is no_shares  # the network's own split stays
+
+
+@pytest.mark.parametrize("name", ["paper_iiic_artery", "paper_iiic_artery_3d", "small_artery_4gen", "synthetic_tree_3d",
+                                  "carotid_bifurcation_3d"])
+def test_every_shipped_tree_has_a_cited_flow_preset(name: str) -> None:
+    net = load_network(name)
+    assert net.flow_presets and all(p.source.strip() for p in net.flow_presets)
+
+
+def test_the_carotid_preset_is_a_carotids_flow() -> None:
+    p = load_network("carotid_bifurcation_3d").flow_preset("healthy_adult_cca")
+    q_ml_per_min = p.mean_velocity_m_per_s * np.pi * 4.0e-3 ** 2 * 6.0e7  # through the 8 mm CCA
+    assert q_ml_per_min == pytest.approx(415.0, rel=1e-3)
+    assert p.peak_centreline_velocity_m_per_s == 0.63
+    assert dict(zip(p.outlets, p.outlet_shares)) == {"ica": 0.5755, "eca": 0.4245}
