@@ -474,7 +474,7 @@ def with_flow_preset_values(mapping: Any) -> Any:
     physics = mapping.get("physics") if isinstance(mapping, Mapping) else None
     flow = physics.get("flow") if isinstance(physics, Mapping) else None
     preset = flow.get("preset") if isinstance(flow, Mapping) else None
-    if not preset or not isinstance(preset, str):
+    if not preset or not isinstance(preset, str) or not isinstance(physics, Mapping) or not isinstance(flow, Mapping):
         return mapping  # no preset (or not a name: FlowParams names the key and value)
     vessel = physics.get("vessel")
     network = vessel.get("network") if isinstance(vessel, Mapping) else None
