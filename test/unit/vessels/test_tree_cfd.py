@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import RunError
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.params import BloodParams
@@ -126,6 +127,18 @@ def test_imposed_murray_shares_hold_exactly() -> None:
     assert sol.meta["free_outlets"] == ["outlet:d1"]
     np.testing.assert_allclose(_share(sol, "d2"), 0.9 ** 3 / (1.3 ** 3 + 0.9 ** 3), rtol=1e-9)
     np.testing.assert_allclose(_share(sol, "d1"), 1.3 ** 3 / (1.3 ** 3 + 0.9 ** 3), rtol=1e-7)
+
+
+def test_a_flow_presets_given_shares_hold_exactly_and_a_key_without_them_is_unchanged() -> None:
+    st = tree_cfd.Flow3DSettings(mesh_size_m=8e-4, wall_elements_per_circle=16, outlets="shares",
+                                 outlet_shares=(("d1", 0.3), ("d2", 0.7)))  # the narrow daughter takes the most
+    sol = tree_cfd.solve_tree(_y(1.3e-3, 0.9e-3), st, BloodParams())
+    np.testing.assert_allclose(_share(sol, "d2"), 0.7, rtol=1e-9)
+    np.testing.assert_allclose(_share(sol, "d1"), 0.3, rtol=1e-6)
+    plain = tree_cfd.Flow3DSettings()
+    assert "outlet_shares" not in tree_cfd.settings_mapping(plain)  # the keys made before shares existed stay
+    with pytest.raises(ConfigError, match=r"outlet_shares go with outlets: shares and only with it"):
+        tree_cfd.Flow3DSettings(outlets="murray", outlet_shares=(("d1", 1.0),))
 
 
 def test_sample_grid_is_the_solution_on_a_regular_grid(tube: tree_cfd.FlowSolution3D) -> None:
