@@ -36,6 +36,9 @@ import numpy.typing as npt
 
 from vesselbot_ros.vessels.tree_io import import_vmtk_centerlines, write_network_yaml, write_vmtk_centerlines
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from small_artery_flow_presets import FLOW_PRESETS_YAML  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 VTP = ROOT / "config" / "vessels" / "sources" / "synthetic_tree_3d.vtp"
 YAML = ROOT / "config" / "vessels" / "synthetic_tree_3d.yaml"
@@ -124,7 +127,7 @@ def main() -> int:
               "flow split 0.6 / 0.4 at every node, radii r (0.6)^(1/3) and r (0.4)^(1/3), Murray's minimum-work angles,\n"
               "bifurcation planes turning 90 deg per generation, inlet r = 1.5 mm, smallest outlet r = 0.6 mm).\n"
               "Do not edit: regenerate with .venv/bin/python tools/make_synthetic_tree_3d.py.  Format: docs/vessels.md.")
-    write_network_yaml(net, YAML, header=header)
+    write_network_yaml(net, YAML, header=header, footer=FLOW_PRESETS_YAML)
     print(f"wrote {VTP.relative_to(ROOT)} ({len(tree_paths())} paths) and {YAML.relative_to(ROOT)} "
           f"({len(net.branches)} branches, {len(net.outlets)} outlets)")
     return 0

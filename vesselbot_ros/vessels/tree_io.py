@@ -533,13 +533,14 @@ class _Dumper(yaml.SafeDumper):
 _Dumper.add_representer(_FlowList, _flow_list)
 
 
-def write_network_yaml(net: VesselNetworkParams, path: str | os.PathLike[str], header: str = "") -> None:
+def write_network_yaml(net: VesselNetworkParams, path: str | os.PathLike[str], header: str = "", footer: str = "") -> None:
     """Write ``net`` as a network YAML file (atomically: a temporary file renamed over ``path``).
 
     Args:
         net: The network.
         path: The file to write.
         header: Comment lines written first (``# `` is prefixed to each line).
+        footer: YAML text written last, as given (a commented block of more keys, such as ``flow_presets``).
     """
     m = to_mapping(net)
     for b in m["branches"]:
@@ -553,7 +554,7 @@ def write_network_yaml(net: VesselNetworkParams, path: str | os.PathLike[str], h
     m["branches"] = [{k: b[k] for k in ("name", "parent", "x_m", "y_m", "z_m", "radius_m") if k in b}
                      for b in m["branches"]]
     text = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
-    text += yaml.dump(m, Dumper=_Dumper, sort_keys=False, width=120)
+    text += yaml.dump(m, Dumper=_Dumper, sort_keys=False, width=120) + footer
     write_text(path, text)  # whole or not at all (a full disk: one line naming the file, no partial file)
 
 

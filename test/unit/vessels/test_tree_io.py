@@ -206,7 +206,8 @@ def test_shipped_synthetic_tree_is_its_vtp_imported() -> None:
     vtp = root / "config" / "vessels" / "sources" / "synthetic_tree_3d.vtp"
     shipped = load_network(str(root / "config" / "vessels" / "synthetic_tree_3d.yaml"))
     imported = import_vmtk_centerlines(vtp, name="synthetic_tree_3d")
-    assert imported == dataclasses.replace(shipped, cfd=imported.cfd)  # the tool adds the 3-D solve's mesh settings
+    assert imported == dataclasses.replace(shipped, cfd=imported.cfd, flow_presets=())  # the tool adds the 3-D solve's mesh
+    assert shipped.flow_presets  # and the small arteries' flow presets (tools/small_artery_flow_presets.py)
     assert (shipped.cfd.mesh_size_3d_m, shipped.cfd.wall_elements_per_circle_3d) == (3.0e-4, 24)
     f = read_vmtk_centerlines(vtp)
     assert len(f.lines) == 8 and not f.branch_split  # the raw form: one path per outlet
