@@ -55,6 +55,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
              "a reference the scanner can fly: re-timed, at the height the coil can hold, with its margins"),
     "plan-design": ("vesselbot_ros.analysis.plan_design_cli",
                     "which bead (radius, material) a scanner can fly along a path, and its coast floor"),
+    "tree-design": ("vesselbot_ros.analysis.tree_design_cli",
+                    "which outlets of a vessel tree a scanner can reach, with which bead and flow, and why not"),
     "vessels": ("vesselbot_ros.vessels.vessels_cli", "vessel networks: import a VMTK centreline file (.vtp) as a network YAML"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
                       "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
@@ -63,7 +65,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 #: The commands that can wait long on a step (a CFD solve, a 3-D wall field, a campaign's runs): they take
 #: ``--no-progress`` (:func:`~vesselbot_ros.progress.add_progress_argument`) and draw bars on a terminal.
-PROGRESS_COMMANDS = frozenset({"simulate", "run", "campaign", "plan", "plan-design", "scanner-study"})
+PROGRESS_COMMANDS = frozenset({"simulate", "run", "campaign", "plan", "plan-design", "tree-design", "scanner-study"})
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
