@@ -11,7 +11,10 @@ over the scenario's axes, (x, z) or (x, y, z).
 (``config/campaigns/trees_best/*.yaml``, ``vesselbot campaign``), copies their results to
 ``docs/campaigns/trees_best/`` and tabulates the share reaching the outlet and the tracking against the target.
 
-Usage: .venv/bin/python tools/network_numbers.py [--write] [--campaigns]
+``--design`` also runs ``vesselbot tree-design`` on the carotid (both outlets, two beads, Table III's flow, the
+physiological preset, and the preset at a tenth and a twentieth of its inflow) into its block.
+
+Usage: .venv/bin/python tools/network_numbers.py [--write] [--campaigns] [--design]
 """
 
 from __future__ import annotations
@@ -104,6 +107,22 @@ def campaign_block(data: Path = CAMPAIGN_DATA) -> str:
     return "\n".join(lines)
 
 
+DBEGIN, DEND = "<!-- BEGIN tree_design -->", "<!-- END tree_design -->"
+
+
+def design_block() -> str:
+    """``vesselbot tree-design`` of the carotid on the paper's coil: both outlets, two beads, Table III's flow, the
+    physiological preset and the preset with a balloon's inflow fraction."""
+    from vesselbot_ros.analysis.plan import PlanOptions
+    from vesselbot_ros.analysis.tree_design import TABLE3, tree_design
+    from vesselbot_ros.analysis.tree_design_cli import markdown
+
+    base = load_scenario(shipped_scenarios()["carotid_bifurcation_3d_eca"])
+    flows = [TABLE3, "healthy_adult_cca", "healthy_adult_cca@0.1", "healthy_adult_cca@0.05"]
+    cells = tree_design(base, ["ica", "eca"], [250e-6, 500e-6], ["paper"], flows, PlanOptions())
+    return markdown(cells).rstrip("\n")
+
+
 def _replace(doc: str, begin: str, end: str, text: str) -> str:
     new = f"{begin}\n{text}\n{end}"
     if begin in doc:
@@ -119,8 +138,13 @@ def main() -> int:
     ctext = campaign_block() if (CAMPAIGN_DATA / SCENARIOS[0] / "results.parquet").exists() else None
     if ctext:
         print(ctext)
+    dtext = design_block() if "--design" in sys.argv[1:] else None
+    if dtext:
+        print(dtext)
     if "--write" in sys.argv[1:]:
         doc = _replace(DOC.read_text(encoding="utf-8"), BEGIN, END, text)
+        if dtext:
+            doc = _replace(doc, DBEGIN, DEND, dtext)
         if ctext:
             doc = _replace(doc, CBEGIN, CEND, ctext)
         write_text(DOC, doc)
