@@ -62,7 +62,7 @@ def _many_f(n, t, y, u, free, geom, p_s, out, fbuf, sc, tc, g0):  # type: ignore
 @numba.njit(cache=False)
 def _many_cov(n, t, y, P0, P, u, free, geom, p_s, f0, f1, yp, A, Phi, T, fbuf, sc, tc, g0):  # type: ignore[no-untyped-def]
     acc = 0.0
-    for k in range(n):
+    for _ in range(n):
         P[:, :] = P0
         _predict_cov(t, 1e-3, y, P, u, 1e-4, 4e-4, free, geom, p_s, f0, f1, yp, A, Phi, T, fbuf, sc, tc, g0, False)
         acc += P[0, 0]

@@ -18,7 +18,7 @@ import yaml
 from vesselbot_ros.atomic_io import write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from small_artery_flow_presets import FLOW_PRESETS_YAML  # noqa: E402
+from small_artery_flow_presets import FLOW_PRESETS_YAML
 
 R0_M = 1.5e-3
 LENGTHS_M = (6.0e-3, 6.0e-3, 5.0e-3, 4.5e-3)

@@ -37,7 +37,7 @@ import numpy.typing as npt
 from vesselbot_ros.vessels.tree_io import import_vmtk_centerlines, write_network_yaml, write_vmtk_centerlines
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from small_artery_flow_presets import FLOW_PRESETS_YAML  # noqa: E402
+from small_artery_flow_presets import FLOW_PRESETS_YAML
 
 ROOT = Path(__file__).resolve().parents[1]
 VTP = ROOT / "config" / "vessels" / "sources" / "synthetic_tree_3d.vtp"
