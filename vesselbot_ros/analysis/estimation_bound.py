@@ -65,14 +65,14 @@ import numpy.typing as npt
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["FLOW_SCALE_SIGMA", "RunBound", "EstimationBound", "transitions", "frames_of", "bound_variance",
+__all__ = ["FLOW_SCALE_SIGMA", "jacobians", "RunBound", "EstimationBound", "transitions", "frames_of", "bound_variance",
            "run_bound", "estimation_bound", "expm_batch", "wall_mask"]
 
 #: The prior sigma of the unknown flow scale ``s``: the paper's 5 % blood-velocity error.
 FLOW_SCALE_SIGMA = BLOOD_VELOCITY_ERROR
 
 
-def _jacobians(plant: DynamicsModel, ts: npt.NDArray[np.float64], p: npt.NDArray[np.float64],
+def jacobians(plant: DynamicsModel, ts: npt.NDArray[np.float64], p: npt.NDArray[np.float64],
                v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """(n, 2d+1, 2d+1) Jacobians of ``(Xd, F, 0)`` in ``(X, Xd, s)`` at every tick (forward differences of ``F``:
     10 nm, 0.1 um/s and 1e-6 in ``s``, far below the wall's and the flow's scales)."""
@@ -99,7 +99,7 @@ def transitions(scenario: Scenario, timeseries: Mapping[str, Any]) -> npt.NDArra
     run's true trajectory (``p_true``, ``v_true``; module docstring); the last one is the identity."""
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     ts = np.asarray(timeseries["t_s"], dtype=np.float64)
-    jac = _jacobians(plant, ts, np.asarray(timeseries["p_true"]), np.asarray(timeseries["v_true"]))
+    jac = jacobians(plant, ts, np.asarray(timeseries["p_true"]), np.asarray(timeseries["v_true"]))
     dt = np.diff(ts)
     phi = np.empty_like(jac)
     phi[:-1] = expm_batch(0.5 * (jac[:-1] + jac[1:]) * dt[:, None, None])

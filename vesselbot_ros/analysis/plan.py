@@ -58,12 +58,15 @@ from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import VesselbotError
 from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.kernel import diameter_at
+from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.progress import step
 from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 from vesselbot_ros.vessels.cfd import packed_params
+from vesselbot_ros.vessels.network import network_dims
+from vesselbot_ros.vessels.tree_field import planar_twin
 
 __all__ = ["COAST_BUDGET_PLANT_S", "COAST_STARTS_PER_COAST", "check_fits_path",
            "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
@@ -171,9 +174,17 @@ class Plan:
         return max(s.coast_floor_m for s in self.segments)
 
 
+def coil_gain(physics: PhysicsParams) -> float:
+    """``|b|`` (m/s^2 per T/m): the acceleration 1 T/m gives the bead on the vertical axis, on any axes (a 3-D tree's
+    input matrix is ``b I`` with its planar twin's ``b``, as :class:`~vesselbot_ros.control.model.DynamicsModel`)."""
+    if network_dims(physics.vessel.network) == 3:
+        return abs(float(input_matrix(planar_twin(physics))[0, 0]))
+    return abs(float(input_matrix(physics)[1, 1]))
+
+
 def available_accel(scenario: Scenario) -> tuple[float, float, float]:
     """``(a_avail, a_sat, duty)``: the duty-averaged acceleration the saturated coil gives (m/s^2)."""
-    a_sat = abs(float(input_matrix(scenario.physics)[1, 1])) * scenario.coil.saturation_T_per_m
+    a_sat = coil_gain(scenario.physics) * scenario.coil.saturation_T_per_m
     duty = duty_cycle(scenario.sequence)
     return duty * a_sat, a_sat, duty
 

@@ -21,7 +21,8 @@ Pairs:
   controller built for the sequence (:mod:`vesselbot_ros.control.predictive`).
 
 Four physical bounds per cell, computed from the true plant along the
-reference, say where the loop can be feasible before any controller runs:
+reference, say where the loop can be feasible before any controller runs
+(on the vessel's axes: a straight vessel, a planar network or a 3-D tree):
 
 * ``hold_margin_m_per_s2 = duty * a_sat - max_t |Xdd_ref - F(t, X_ref, Xd_ref)|``:
   the acceleration the coil must supply to follow the reference (against the
@@ -53,11 +54,23 @@ reference, say where the loop can be feasible before any controller runs:
   unstable mode for frames ``T`` apart; where it is stable or neutral,
   averaging frames lowers it over the run.
 
-Beside them, per seed, the ``tracking_floor`` (:func:`tracking_floor`): the
-coast floor played with the best estimate's error on the seed's own frame
-noise, the worst a loop that straddles each coast with that estimate errs.
-A target below it on (nearly) every seed is infeasible as set, the number
-that makes it so (``tools/gen_targets.py``).
+``estimation_floor_m`` is the bound on the reference, before any loop flies.
+The bound of the loops as they flew is ``estimation_bound_m``
+(:func:`bound_columns`, :mod:`vesselbot_ros.analysis.estimation_bound`): the
+posterior Cramer-Rao bound of every causal estimator fed each seed's own
+frames (its schedule, latency and aberrant frames, the latter known and
+dropped), linearised along the seed's true trajectory, on the metrics window
+away from the walls, beside the pair's observer's rms on the same window.  It
+holds for every estimator, so for every loop's tracking rms too (the
+reference is one causal estimator of the bead): a target below it, or a
+negative hold margin, is what makes a cell infeasible.
+
+Beside them, per seed, a reference strategy (:func:`tracking_floor`,
+``strategy_tracking_m``), **not a floor**: the coast floor played with the
+linearised filter's error on the seed's own frame noise, the worst a loop
+that straddles each coast with that estimate errs.  Loops come in under it
+(0.52-0.96x of it in docs/reproduction.md's tables), so it never makes a
+target infeasible: a target a loop misses stays "missed", with its ratio.
 
 The runs go through the campaign engine (:mod:`vesselbot_ros.campaign`): the
 grid is a :class:`~vesselbot_ros.campaign.spec.CampaignSpec` with one variant
@@ -85,13 +98,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-import scipy.linalg
 import yaml
 
+from vesselbot_ros.analysis.estimation_bound import expm_batch, jacobians, run_bound
 from vesselbot_ros.analysis.plan import (
     Plan,
     PlanInfeasible,
     available_accel,
+    coil_gain,
     flying_changes,
     make_plan,
     need,
@@ -105,7 +119,6 @@ from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.resources import require_fits
 from vesselbot_ros.scanner.hardware import PRESETS, preset_changes
-from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
 from vesselbot_ros.sim.closed_loop import build_stage, build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_with
@@ -113,7 +126,7 @@ from vesselbot_ros.sim.scenario import Scenario, scenario_with
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
            "cell_scenario", "cell_name", "study_spec", "cell_row",
            "run_study", "hold_margin", "gradient_to_fly", "coast_floor", "estimation_floor", "tracking_floor", "floors",
-           "feasibility"]
+           "feasibility", "bound_columns"]
 
 #: The EKF pairs' filter: the wall as a constraint, and a lost track restarted once 30 ms of frames were rejected in a
 #: row (the count rule's 50 frames are 0.8 s at 62.5 frames/s; the base scenario's aberrant burst lasts 20 ms).
@@ -228,9 +241,8 @@ def gradient_to_fly(scenario: Scenario, need_m_per_s2: float | None = None) -> f
     The design answer for a cell whose hold margin is negative: the saturation the
     coil would need at the cell's duty cycle (the bead and the sequence unchanged).
     """
-    b = input_matrix(scenario.physics)
     req = required_accel(scenario) if need_m_per_s2 is None else need_m_per_s2
-    return req / (duty_cycle(scenario.sequence) * abs(float(b[1, 1])))
+    return req / (duty_cycle(scenario.sequence) * coil_gain(scenario.physics))
 
 
 def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-4) -> float:
@@ -260,7 +272,7 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
             x = x + h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
             z = z + h / 6.0 * (k1z + 2 * k2z + 2 * k3z + k4z)
             t += h
-        worst = max(worst, float(np.hypot(*(x - ref.sample(t).p))))
+        worst = max(worst, float(np.linalg.norm(x - ref.sample(t).p)))
     return 0.5 * worst
 
 
@@ -268,28 +280,13 @@ def coast_floor(scenario: Scenario, every_s: float = 0.01, step_s: float = 2.5e-
 FLOW_SCALE_SIGMA = BLOOD_VELOCITY_ERROR
 
 
-def _jacobian(plant: DynamicsModel, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """d(X', Z', s')/d(X, Z, s) of the plant at ``(t, X, Z)`` and flow scale 1 without gradient (5 x 5, forward
-    differences; ``s`` scales the centreline blood velocity and is constant)."""
-    f0 = plant.F(t, x, v)
-    jac = np.zeros((5, 5))
-    jac[0, 2] = jac[1, 3] = 1.0
-    for j in range(4):
-        y = np.concatenate([x, v])
-        d = 1e-8 if j < 2 else 1e-7  # 10 nm, 0.1 um/s: far below the wall's and the flow's scales
-        y[j] += d
-        jac[2:4, j] = (plant.F(t, y[:2], y[2:]) - f0) / d
-    jac[2:4, 4] = (plant.F(t, x, v, 1.0 + 1e-6) - f0) / 1e-6
-    return jac
-
-
 class _Linearised(NamedTuple):
     """The true plant linearised along a scenario's reference, tick by tick, and its imager's frame schedule."""
 
     ts: npt.NDArray[np.float64]  # (n,) control ticks (s)
-    p_ref: npt.NDArray[np.float64]  # (n, 2)
-    v_ref: npt.NDArray[np.float64]  # (n, 2)
-    phi: npt.NDArray[np.float64]  # (n, 5, 5) transition from tick k to k + 1 of (X, Z, s)
+    p_ref: npt.NDArray[np.float64]  # (n, d)
+    v_ref: npt.NDArray[np.float64]  # (n, d)
+    phi: npt.NDArray[np.float64]  # (n, 2d+1, 2d+1) transition from tick k to k + 1 of (X, Z, s)
     frames: list[tuple[int, int]]  # (delivery tick, acquisition tick) of every frame, in delivery order
 
 
@@ -300,16 +297,14 @@ def _linearise(scenario: Scenario) -> _Linearised:
     n = int(round(scenario.sim.duration_s / dt))
     ts = np.arange(n, dtype=np.float64) * dt
     p_ref, v_ref, _ = build_stage(scenario, "reference").sample_many(ts)
-    phi = np.array([scipy.linalg.expm(_jacobian(plant, float(t), p_ref[k], v_ref[k]) * dt) for k, t in enumerate(ts)])
+    # the transition over each tick from the Jacobian at its start, on the vessel's d axes
+    phi = expm_batch(jacobians(plant, ts, p_ref, v_ref) * dt)
     frames = []
     for k, t in enumerate(ts):
         frame = imager.frame(float(t), p_ref[k])
         if frame is not None:
             frames.append((k, int(round(frame.t_acq_s / dt))))
     return _Linearised(ts, p_ref, v_ref, phi, frames)
-
-
-_H = np.hstack([np.eye(2), np.zeros((2, 3))])
 
 
 def _filter(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float,
@@ -319,14 +314,16 @@ def _filter(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float,
     delivered by then) and, with ``noise`` (each frame's (2,) noise, None: a frame no estimator would use) and the
     start error ``e0``, (n, 5) its error ``true - estimate`` at every tick (zeros without)."""
     ts, phi = lin.ts, lin.phi
-    r = scenario.imager.noise_sigma_m ** 2 * np.eye(2)
-    h = _H
-    p_acq = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])  # before the first frame: 1 mm, 10 mm/s
-    e_acq = np.zeros(5) if e0 is None else np.array(e0, dtype=np.float64)
+    m = phi.shape[1]
+    d = (m - 1) // 2
+    r = scenario.imager.noise_sigma_m ** 2 * np.eye(d)
+    h = np.hstack([np.eye(d), np.zeros((d, d + 1))])
+    p_acq = _prior(d, flow_scale_sigma)  # before the first frame: 1 mm, 10 mm/s
+    e_acq = np.zeros(m) if e0 is None else np.array(e0, dtype=np.float64)
     k_acq = 0
     p_now, e_now = p_acq.copy(), e_acq.copy()
     trace = np.empty(len(ts))
-    err = np.zeros((len(ts), 5))
+    err = np.zeros((len(ts), m))
     fi = 0
     for k in range(len(ts)):
         while fi < len(lin.frames) and lin.frames[fi][0] == k:  # fuse at its acquisition tick, then bring it to now
@@ -339,7 +336,7 @@ def _filter(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float,
             k_acq = j
             if noise is None or v is not None:
                 gain = p_acq @ h.T @ np.linalg.inv(h @ p_acq @ h.T + r)
-                ikh = np.eye(5) - gain @ h
+                ikh = np.eye(m) - gain @ h
                 p_acq = ikh @ p_acq @ ikh.T + gain @ r @ gain.T  # Joseph form: symmetric and positive
                 if v is not None:
                     e_acq = e_acq - gain @ (h @ e_acq + v)
@@ -347,11 +344,16 @@ def _filter(scenario: Scenario, lin: _Linearised, flow_scale_sigma: float,
             for i in range(j, k):
                 p_now = phi[i] @ p_now @ phi[i].T
                 e_now = phi[i] @ e_now
-        trace[k] = p_now[0, 0] + p_now[1, 1]
+        trace[k] = float(np.trace(p_now[:d, :d]))
         err[k] = e_now
         p_now = phi[k] @ p_now @ phi[k].T  # to the next tick
         e_now = phi[k] @ e_now
     return trace, err
+
+
+def _prior(d: int, flow_scale_sigma: float) -> npt.NDArray[np.float64]:
+    """The linearised filter's prior covariance of ``(X, Z, s)`` on ``d`` axes: 1 mm, 10 mm/s, ``flow_scale_sigma``."""
+    return np.diag([1e-6] * d + [1e-4] * d + [flow_scale_sigma ** 2])
 
 
 def estimation_floor(scenario: Scenario, flow_scale_sigma: float = FLOW_SCALE_SIGMA) -> float:
@@ -383,7 +385,7 @@ def _frame_noise(scenario: Scenario, lin: _Linearised, seed: int) -> list[npt.ND
     noise); None for an aberrant frame (the floor lets the estimator know it, and drop it)."""
     imager = build_stage(scenario, "imager", seed)
     out: list[npt.NDArray[np.float64] | None] = []
-    zero = np.zeros(2)
+    zero = np.zeros(lin.p_ref.shape[1])
     for t in lin.ts:
         frame = imager.frame(float(t), zero)
         if frame is not None:
@@ -393,8 +395,9 @@ def _frame_noise(scenario: Scenario, lin: _Linearised, seed: int) -> list[npt.ND
 
 def tracking_floor(scenario: Scenario, seeds: Iterable[int],
                    flow_scale_sigma: float = FLOW_SCALE_SIGMA) -> list[float]:
-    """The least worst tracking error (m) after ``sim.metrics_after_s`` of each seed's run: the coast floor played
-    with the best estimate's error.
+    """A reference strategy's worst tracking error (m) after ``sim.metrics_after_s`` of each seed's run: the coast
+    floor played with the linearised filter's estimate error.  A strategy, **not a lower bound**: loops that do not
+    straddle the coasts this way come in under it.
 
     The linearised Kalman filter of :func:`estimation_floor` is fed the very
     noise the seed's imager draws (an aberrant frame dropped, as if known),
@@ -445,12 +448,13 @@ def _tracking_floor(scenario: Scenario, lin: _Linearised, seeds: Iterable[int],
             t0, t1 = float(lin.ts[ke]), float(lin.ts[ke + m])
             p0, v0 = reachable(scenario, t0, lin.p_ref[ke], lin.v_ref[ke])
             y = np.concatenate([p0, v0]).astype(np.float64)
-            plant.propagate(t0, t1, y, np.zeros(2), plant.new_contact_state())
+            d = len(p0)
+            plant.propagate(t0, t1, y, np.zeros(d), plant.new_contact_state())
             p1, _ = reachable(scenario, t1, lin.p_ref[ke + m], lin.v_ref[ke + m])
-            phi_c = np.eye(5)
+            phi_c = np.eye(lin.phi.shape[1])
             for i in range(ke, ke + m):
                 phi_c = lin.phi[i] @ phi_c
-            coasts.append((int(ke), y[:2] - p1, phi_c))
+            coasts.append((int(ke), y[:d] - p1, phi_c))
     if scenario.physics.vessel.network:
         half = np.full(len(lin.ts), np.inf)
     else:  # the straight vessel's walls, where the bead's centre stops
@@ -458,18 +462,22 @@ def _tracking_floor(scenario: Scenario, lin: _Linearised, seeds: Iterable[int],
         half = np.array([0.5 * diameter_at(float(t), p) for t in lin.ts]) - scenario.physics.robot.radius_m
 
     def off(k: int, dev: npt.NDArray[np.float64]) -> float:  # the bead's distance from the reference, in the lumen
+        dev = dev[:lin.p_ref.shape[1]]
+        if not math.isfinite(half[k]):  # a network or a tree: no wall stops the linearised deviation here
+            return float(np.linalg.norm(dev))
         z = min(max(float(lin.p_ref[k, 1] + dev[1]), -half[k]), half[k])
         return float(np.hypot(dev[0], z - lin.p_ref[k, 1]))
 
-    p_prior = np.diag([1e-6, 1e-6, 1e-4, 1e-4, flow_scale_sigma ** 2])
+    p_prior = _prior(lin.p_ref.shape[1], flow_scale_sigma)
     out = []
     for seed in seeds:
-        e0 = np.random.default_rng(seed).multivariate_normal(np.zeros(5), p_prior)
+        e0 = np.random.default_rng(seed).multivariate_normal(np.zeros(len(p_prior)), p_prior)
         _, err = _filter(scenario, lin, flow_scale_sigma, _frame_noise(scenario, lin, seed), e0)
         worst = max((off(int(k), err[k]) for k in np.flatnonzero(after)), default=0.0)
         for k0, drift, phi_c in coasts:
             e_end = phi_c @ err[k0]
-            worst = max(worst, off(k0, err[k0, :2] - 0.5 * drift), off(k0 + m, e_end[:2] + 0.5 * drift))
+            nd = len(drift)
+            worst = max(worst, off(k0, err[k0, :nd] - 0.5 * drift), off(k0 + m, e_end[:nd] + 0.5 * drift))
         out.append(worst)
     return out
 
@@ -477,7 +485,8 @@ def _tracking_floor(scenario: Scenario, lin: _Linearised, seeds: Iterable[int],
 def feasibility(scenario: Scenario, seeds: Iterable[int] = ()) -> dict[str, float]:
     """The cell's physical bounds: ``hold_margin_m_per_s2``, ``coast_floor_m``, ``estimation_floor_m`` (module
     docstring), the gradient that would fly it, ``gradient_to_fly_T_per_m`` (:func:`gradient_to_fly`), and with
-    ``seeds`` the worst of their tracking floors, ``tracking_floor_m`` (:func:`tracking_floor`)."""
+    ``seeds`` the estimation bound of their runs (:func:`bound_columns`) and the worst of their reference
+    strategy's tracking errors, ``strategy_tracking_m`` (:func:`tracking_floor`: a strategy, not a floor)."""
     req = required_accel(scenario)
     out = {"hold_margin_m_per_s2": hold_margin(scenario, req), "coast_floor_m": coast_floor(scenario),
            "gradient_to_fly_T_per_m": gradient_to_fly(scenario, req)}
@@ -490,9 +499,38 @@ def feasibility(scenario: Scenario, seeds: Iterable[int] = ()) -> dict[str, floa
 
 
 def _flown_floors(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
-    """A planned cell's estimation floor and worst tracking floor over ``seeds``, on the flown scenario."""
+    """A flown cell's estimation floor, worst reference-strategy tracking error and estimation bound over ``seeds``."""
     est, track = floors(scenario, seeds)
-    return {"estimation_floor_m": est, "tracking_floor_m": max(track)}
+    return {"estimation_floor_m": est, "strategy_tracking_m": max(track), **bound_columns(scenario, seeds)}
+
+
+def bound_columns(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
+    """The cell's estimation bound over ``seeds`` (:mod:`vesselbot_ros.analysis.estimation_bound`): each seed's run
+    flown again with its time series, and the posterior Cramer-Rao bound of every causal estimator fed its frames.
+
+    ``estimation_bound_m``: the bound's rms over the seeds' comparison windows (the metrics window away from the
+    walls); ``estimation_bound_observer_rms_m``: the pair's observer's rms on the same windows (it can never be
+    below the bound in expectation); ``estimation_bound_excluded``: the share of the metrics window left out for
+    the walls (1: the bead at a wall all through the window, and no bound); ``estimation_bound_seeds``: the seeds
+    whose run completed (a run that fails has no bound).
+    """
+    from vesselbot_ros.errors import ModelInputError
+    from vesselbot_ros.sim.closed_loop import run_closed_loop
+
+    b, o, ex = [], [], []
+    for seed in seeds:
+        try:
+            ts = run_closed_loop(scenario, int(seed)).timeseries
+        except (ModelInputError, ConfigError):
+            continue
+        rb = run_bound(scenario, ts)
+        ex.append(rb.excluded_fraction)
+        if math.isfinite(rb.bound_rms_m):  # not with the whole window at a wall
+            b.append(rb.bound_rms_m)
+            o.append(rb.observer_rms_m)
+    return {"estimation_bound_m": math.sqrt(float(np.mean(np.square(b)))) if b else math.nan,
+            "estimation_bound_observer_rms_m": math.sqrt(float(np.mean(np.square(o)))) if o else math.nan,
+            "estimation_bound_excluded": float(np.mean(ex)) if ex else math.nan, "estimation_bound_seeds": len(ex)}
 
 
 def cell_name(index: int, cell: StudyCell) -> str:
