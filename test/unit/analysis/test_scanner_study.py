@@ -306,11 +306,11 @@ def test_the_targets_section_is_the_stored_targets_table() -> None:
     assert len(rows) == 5 and all(float(r["estimation_floor_m"]) > 0 for r in rows)
     for r in rows:  # each verdict follows from its numbers
         assert (r["met"] == "True") == (float(r["worst_m"]) <= float(r["bound_m"]) and float(r["outside_s"]) == 0.0)
-        infeasible = float(r["floor_within"]) ** 5 < 0.05  # the floor meets the target on seeds 0-4 by chance only
+        # infeasible only from a bound of every loop (the reference strategy's share never makes it so)
+        infeasible = float(r["hold_margin_m_per_s2"]) < 0.0 or float(r["bound_m"]) < float(r["estimation_bound_m"])
         assert r["verdict"].startswith("met" if r["met"] == "True" else "infeasible" if infeasible else "missed")
-        assert ("met against the tracking floor" in r["verdict"]) == (
-            r["verdict"].startswith("infeasible") and float(r["worst_m"]) <= float(r["factor"]) * float(
-                r["floor_worst_m"]) and float(r["outside_s"]) == 0.0)
+        if r["verdict"].startswith("missed"):
+            assert f"({float(r['worst_m']) / float(r['bound_m']):.2f}x the target)" in r["verdict"]
     spec, _base = load_campaign_spec(root / "config" / "campaigns" / "targets" / "insert_paper_reference.yaml")
     assert len(spec.variants) == 6 and (spec.seeds.start, spec.seeds.count) == (0, 100)  # the 100-seed table
 
