@@ -505,7 +505,7 @@ def _flown_floors(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
     return {"estimation_floor_m": est, "strategy_tracking_m": max(track)}
 
 
-def bound_columns(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
+def bound_columns(scenario: Scenario, seeds: Sequence[int], run: Any = None) -> dict[str, float]:
     """The cell's estimation bound over ``seeds`` (:mod:`vesselbot_ros.analysis.estimation_bound`): each seed's run
     flown again with its time series, and the posterior Cramer-Rao bound of every causal estimator fed its frames.
 
@@ -518,10 +518,11 @@ def bound_columns(scenario: Scenario, seeds: Sequence[int]) -> dict[str, float]:
     from vesselbot_ros.errors import ModelInputError
     from vesselbot_ros.sim.closed_loop import run_closed_loop
 
+    run = run_closed_loop if run is None else run  # ``run``: the loop to fly each seed with (a test's stand-in)
     b, o, ex = [], [], []
     for seed in seeds:
         try:
-            ts = run_closed_loop(scenario, int(seed)).timeseries
+            ts = run(scenario, int(seed)).timeseries
         except (ModelInputError, ConfigError):
             continue
         rb = run_bound(scenario, ts)
