@@ -65,8 +65,6 @@ from vesselbot_ros.scanner.sequence import duty_cycle
 from vesselbot_ros.sim.closed_loop import build_stages
 from vesselbot_ros.sim.scenario import Scenario, scenario_from_mapping
 from vesselbot_ros.vessels.cfd import packed_params
-from vesselbot_ros.vessels.network import network_dims
-from vesselbot_ros.vessels.tree_field import planar_twin
 
 __all__ = ["COAST_BUDGET_PLANT_S", "COAST_STARTS_PER_COAST", "check_fits_path",
            "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
@@ -175,10 +173,9 @@ class Plan:
 
 
 def coil_gain(physics: PhysicsParams) -> float:
-    """``|b|`` (m/s^2 per T/m): the acceleration 1 T/m gives the bead on the vertical axis, on any axes (a 3-D tree's
-    input matrix is ``b I`` with its planar twin's ``b``, as :class:`~vesselbot_ros.control.model.DynamicsModel`)."""
-    if network_dims(physics.vessel.network) == 3:
-        return abs(float(input_matrix(planar_twin(physics))[0, 0]))
+    """``|b|`` (m/s^2 per T/m): the acceleration 1 T/m gives the bead on the vertical axis, on any axes (the input
+    matrix reads the bead only: a 3-D tree's is ``b I`` with the same ``b``, as
+    :class:`~vesselbot_ros.control.model.DynamicsModel`)."""
     return abs(float(input_matrix(physics)[1, 1]))
 
 
