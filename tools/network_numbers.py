@@ -9,7 +9,7 @@ over the scenario's axes, (x, z) or (x, y, z).
 
 ``--campaigns`` also runs (or resumes) the 100-seed campaigns of the best loops
 (``config/campaigns/trees_best/*.yaml``, ``vesselbot campaign``), copies their results to
-``docs/campaigns/trees_best/`` and tabulates the share reaching the outlet and the tracking against the target.
+``docs/trees_best/`` and tabulates the share reaching the outlet and the tracking against the target.
 
 ``--design`` also runs ``vesselbot tree-design`` on the carotid (both outlets, two beads, Table III's flow, the
 physiological preset, and the preset at a tenth and a twentieth of its inflow) into its block.
@@ -41,7 +41,7 @@ TARGET_M = 150e-6  # issue 41: the best loop's worst tracking in every tree
 BEGIN, END = "<!-- BEGIN network_numbers -->", "<!-- END network_numbers -->"
 CBEGIN, CEND = "<!-- BEGIN network_campaigns -->", "<!-- END network_campaigns -->"
 CAMPAIGNS = ROOT / "config" / "campaigns" / "trees_best"
-CAMPAIGN_DATA = ROOT / "docs" / "campaigns" / "trees_best"
+CAMPAIGN_DATA = ROOT / "docs" / "trees_best"
 
 
 def block() -> str:
@@ -79,7 +79,7 @@ def block() -> str:
 
 
 def run_campaigns() -> None:
-    """Run (or resume) the best loops' 100-seed campaigns; copy their tables to docs/campaigns/trees_best/."""
+    """Run (or resume) the best loops' 100-seed campaigns; copy their tables to docs/trees_best/."""
     for spec in sorted(CAMPAIGNS.glob("*.yaml")):
         out = ROOT / "out" / "campaigns" / "trees_best" / spec.stem
         subprocess.run([sys.executable, "-m", "vesselbot_ros.cli", "campaign", str(spec), "--out", str(out),

@@ -199,3 +199,19 @@ def test_the_best_loops_reach_the_outlet_in_a_network_and_a_tree_compiled_as_per
         assert v == b.metrics[k] or (isinstance(v, float) and np.isnan(v) and np.isnan(b.metrics[k])), k
     for k, col in a.timeseries.items():
         np.testing.assert_array_equal(col, b.timeseries[k], err_msg=k)
+
+
+def test_the_docs_tree_campaign_table_is_what_the_stored_campaigns_render() -> None:
+    """docs/reproduction.md's 100-seed table of the best loops is tools/network_numbers.py's rendering of the
+    stored campaign tables (docs/trees_best/<tree>/results.parquet): no figure in it is typed by hand."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    spec = importlib.util.spec_from_file_location("network_numbers", root / "tools" / "network_numbers.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    doc = (root / "docs" / "reproduction.md").read_text(encoding="utf-8")
+    assert f"{mod.CBEGIN}\n{mod.campaign_block()}\n{mod.CEND}" in doc
+    assert {p.stem for p in (root / "config" / "campaigns" / "trees_best").glob("*.yaml")} == set(mod.SCENARIOS)
