@@ -116,11 +116,12 @@ from vesselbot_ros.campaign.spec import campaign_spec_from_mapping
 from vesselbot_ros.campaign.store import CampaignStore
 from vesselbot_ros.config import ConfigError, check_choice, flatten, to_mapping
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
+from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.resources import require_fits
 from vesselbot_ros.scanner.hardware import PRESETS, preset_changes
 from vesselbot_ros.scanner.sequence import PHASE_CODES, SequenceParams, duty_cycle, phase_codes, sequence_vector
-from vesselbot_ros.sim.closed_loop import build_stage, build_stages
+from vesselbot_ros.sim.closed_loop import build_stage, build_stages, run_closed_loop
 from vesselbot_ros.sim.scenario import Scenario, scenario_with
 
 __all__ = ["PAIRS", "StudyCell", "study_cells", "preset_changes", "cell_changes", "planned_changes", "plan_bounds",
@@ -515,9 +516,6 @@ def bound_columns(scenario: Scenario, seeds: Sequence[int], run: Any = None) -> 
     the walls (1: the bead at a wall all through the window, and no bound); ``estimation_bound_seeds``: the seeds
     whose run completed (a run that fails has no bound).
     """
-    from vesselbot_ros.errors import ModelInputError
-    from vesselbot_ros.sim.closed_loop import run_closed_loop
-
     run = run_closed_loop if run is None else run  # ``run``: the loop to fly each seed with (a test's stand-in)
     b, o, ex = [], [], []
     for seed in seeds:

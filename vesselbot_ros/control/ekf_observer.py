@@ -376,6 +376,21 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, s
     for i in range(2 * d):
         finite = finite and math.isfinite(ys[i])
     if code != OK or not finite:
+        # the estimate sank into a wall (a frame pulled it there, or the model's contact is too stiff to cross at
+        # the least step): put it back on the lumen a brush length from the wall, with a fresh contact state, and
+        # predict again, once (counted: wall_recoveries); a run that never fails keeps its bits
+        for i in range(2 * d):
+            ys[i] = y[i]
+        if onto_lumen_at(t0, ys, gs, params_of(gs)[I_BRUSH_L0]):
+            for i in range(free.shape[0]):
+                free[i] = 0.0
+            ist[6] += 1
+            code, h = integrate(t0, t1, ys, g, uu, free, gs, prm[_IG + 5], prm[_IG:_IG + 7], stats, work, fbuf, sc)
+            scal[2] = h
+            finite = True
+            for i in range(2 * d):
+                finite = finite and math.isfinite(ys[i])
+    if code != OK or not finite:
         err[0] = t0
         err[1] = t1
         err[2] = code
@@ -654,7 +669,7 @@ def _ekf_step(prm, state, istate, geom, work, stats, t, g, has_meas, t_acq, m, o
     vec = flat_view(work, o, (8, nx))
     o += 8 * nx
     mat = flat_view(work, o, (6, nx, nx))
-    return ekf_update(prm[0:n_prm], scal, istate[0:6], y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, w, fbuf, sc,
+    return ekf_update(prm[0:n_prm], scal, istate[0:7], y, P, hist_t, hist_y, hist_P, hist_u, free, geom, p_s, w, fbuf, sc,
                       vec, mat, stats, t, g, has_meas, t_acq, m, out, err)
 
 
@@ -688,7 +703,8 @@ class EkfState:
         p = self.geom if isinstance(self.geom, np.ndarray) else self.geom[0]
         self.p_s = p.copy()  # flow_scaled_into then copies only the scalars (a network's field block is in place)
         self.scal = np.array([float(t0_s), -math.inf, float(model.integrator.max_step_s), 0.0, math.inf])
-        self.ist = np.zeros(6, dtype=np.int64)
+        # history count, head, rejections in a row, rejected, covariance resets, track resets, wall recoveries
+        self.ist = np.zeros(7, dtype=np.int64)
         self.ist[1] = -1
         self.y = np.array([*x_hat0[:d], *z_hat0[:d], params.flow_scale0])
         self.P = np.diag([params.position_sigma0_m**2 * 1e4] * d + [params.velocity_sigma0_m_per_s**2] * d
@@ -778,6 +794,12 @@ class ExtendedKalmanObserver:
     def covariance_resets(self) -> int:
         """Times the covariance became non-finite or larger than 1 m and was reset to the prior."""
         return int(self.ekf.ist[4])
+
+    @property
+    def wall_recoveries(self) -> int:
+        """Predictions that failed with the estimate in a wall and were made again from the lumen (a brush length
+        from the wall, fresh contact state)."""
+        return int(self.ekf.ist[6])
 
     @property
     def track_resets(self) -> int:

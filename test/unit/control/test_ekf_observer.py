@@ -211,3 +211,29 @@ def test_the_gate_keeps_its_probability_on_three_axes() -> None:
     assert gate_on_axes(CHI2_2DOF_999, 2) == CHI2_2DOF_999
     assert gate_on_axes(CHI2_2DOF_999, 3) == pytest.approx(16.266, abs=1e-3)
     assert gate_on_axes(0.0, 3) == 0.0  # off stays off
+
+
+def test_an_estimate_sunk_into_a_trees_wall_is_predicted_again_from_the_lumen_not_failed() -> None:
+    """A multiplexed flight in the III-C 3-D tree (the insert's plan, predictive controller, seed 2) left the filter's
+    estimate in the trunk's wall (30 um into its steady surface), where the model's Hertz contact collapsed the integrator's step and the
+    run failed ("prediction failed, step size collapsed").  The prediction is now made again from the lumen (a brush
+    length from the wall, a fresh contact state), once, and counted; the estimate is back inside the lumen."""
+    from vesselbot_ros.vessels.network import load_network
+    from vesselbot_ros.vessels.tree_field import meshed_wall
+
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"])
+    model = DynamicsModel(sc.model_physics(), sc.sim.integrator)
+    x0 = np.array([0.004093538346975535, -2.1618320522845738e-05, -0.0013658445686964636])
+    v0 = np.array([-0.009860168222125928, 0.00486886455932823, -0.0037401213394286396])
+    wall = meshed_wall(load_network(sc.physics.vessel.network))
+    assert wall.query(x0)["sdist"][0] < sc.physics.robot.radius_m - 2e-5  # the bead overlaps the wall
+    obs = ExtendedKalmanObserver(EkfParams(), model, x0, v0, t0_s=0.109)
+    est = obs.update(0.110, None, np.zeros(3))
+    assert obs.wall_recoveries == 1
+    q = wall.query(est.x_hat)
+    fl = sc.physics.flow
+    eps = fl.diameter_pulsation * math.sin(fl.angular_frequency_rad_per_s * 0.110 + fl.phase_rad)
+    clearance = q["sdist"][0] + 0.5 * q["diameter"][0] * eps  # to the pulsating wall, as the plant has it
+    # on the wall, as the model's bead presses into it (Hertz: micrometres), no longer tens of micrometres in it
+    assert clearance > sc.physics.robot.radius_m - 1e-5
+    assert np.all(np.isfinite(obs.covariance))
