@@ -215,3 +215,19 @@ def test_the_docs_tree_campaign_table_is_what_the_stored_campaigns_render() -> N
     doc = (root / "docs" / "reproduction.md").read_text(encoding="utf-8")
     assert f"{mod.CBEGIN}\n{mod.campaign_block()}\n{mod.CEND}" in doc
     assert {p.stem for p in (root / "config" / "campaigns" / "trees_best").glob("*.yaml")} == set(mod.SCENARIOS)
+
+
+def test_a_shipped_best_loop_scenario_is_what_its_generator_writes() -> None:
+    """config/<tree>_ekf.yaml is tools/gen_tree_scenarios.py's output to the byte (here the III-C lower route's; the
+    tool's --check compares all six): the planned table is regenerated, never edited."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    spec = importlib.util.spec_from_file_location("gen_tree_scenarios", root / "tools" / "gen_tree_scenarios.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert set(mod.TREES) == {p.stem.removesuffix("_ekf") for p in (root / "config").glob("*_ekf.yaml")} - {"sound_small_artery"}
+    shipped = (root / "config" / "paper_iiic_network_lower_ekf.yaml").read_text(encoding="utf-8")
+    assert mod.text("paper_iiic_network_lower") == shipped
