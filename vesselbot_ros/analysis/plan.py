@@ -419,6 +419,14 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
     steps = np.linspace(-a_t, a_t, 9) * h
     t, u, du = t0, u0, du0
     ts, us, dus = [t], [u], [du]
+
+    def needs_at(speeds: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """The path parameters one step on at each of ``speeds`` from ``(t, u, du)``, and the need there."""
+        un = np.minimum(u + 0.5 * (du + speeds) * h, U)
+        tn = np.full(speeds.shape, t + h)
+        p, v, a = traj.state(tn, un, speeds, (speeds - du) / h)
+        return un, need(model, tn, p, v, a, wall_rest(scenario, tn))
+
     for _ in range(int(options.max_duration_s / h)):
         if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
             break
@@ -429,10 +437,7 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                                                          np.zeros(1))[1][0, 0]))
         cap = min(v_cap / max(slope, v_cap / options.max_path_speed_m_per_s), stop)
         cand = np.unique(np.clip(du + steps, 0.0, max(cap, du - a_t * h)))[::-1]
-        un = np.minimum(u + 0.5 * (du + cand) * h, U)
-        tn = np.full(cand.shape, t + h)
-        p, v, a = traj.state(tn, un, cand, (cand - du) / h)
-        need_c = need(model, tn, p, v, a, wall_rest(scenario, tn))
+        un, need_c = needs_at(cand)
         ok = np.flatnonzero(need_c <= budget)
         if network and not ok.size:
             # no pace up to the cap holds the bead here (a systole against the bead in a network's trunk): ride
@@ -442,10 +447,7 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                                      min(options.max_path_speed_m_per_s, stop)))
             fast = fast[fast > cap]
             if fast.size:
-                un_f = np.minimum(u + 0.5 * (du + fast) * h, U)
-                tn_f = np.full(fast.shape, t + h)
-                pf, vf, af = traj.state(tn_f, un_f, fast, (fast - du) / h)
-                need_f = need(model, tn_f, pf, vf, af, None)
+                un_f, need_f = needs_at(fast)
                 ok_f = np.flatnonzero(need_f <= budget)
                 i_f = int(ok_f[0]) if ok_f.size else int(np.argmin(need_f))
                 if ok_f.size or need_f[i_f] < float(np.min(need_c)):

@@ -47,15 +47,20 @@ DEFAULT = "clinical_3t_small_artery"
 OUTPUT_BYTES = 4 * 2**20
 
 
-def register(parser: argparse.ArgumentParser) -> None:
-    """Arguments of ``vesselbot plan``."""
-    parser.add_argument("--config", default=str(shipped_scenarios()[DEFAULT]),
-                        help=f"the scenario whose path, bead, coil and sequence are planned for (default {DEFAULT})")
+def add_scenario_arguments(parser: argparse.ArgumentParser, default: str, what: str) -> None:
+    """``--config`` (``what`` it is, default the shipped scenario ``default``), ``--hardware`` (a preset's coil and
+    sequence instead of the scenario's) and ``--set`` (dotted overrides after it): the planners' scenario."""
+    parser.add_argument("--config", default=str(shipped_scenarios()[default]), help=f"{what} (default {default})")
     parser.add_argument("--hardware", default=None, metavar="PRESET",
                         help=f"a scanner preset's coil and sequence instead of the scenario's (one of "
                              f"{', '.join(sorted(PRESETS))})")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario value, dotted key (applied after --hardware); repeatable")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``vesselbot plan``."""
+    add_scenario_arguments(parser, DEFAULT, "the scenario whose path, bead, coil and sequence are planned for")
     parser.add_argument("--budget-fraction", type=float, default=PlanOptions.budget_fraction,
                         help="share of the duty-averaged coil acceleration the plan may use at first "
                              f"(default {PlanOptions.budget_fraction:g}; lowered by itself where the check fails)")

@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from vesselbot_ros.analysis.plan import PlanOptions
+from vesselbot_ros.analysis.plan_cli import add_scenario_arguments
 from vesselbot_ros.analysis.plan_design import MATERIALS
 from vesselbot_ros.analysis.plan_design_cli import _radii
 from vesselbot_ros.analysis.tree_design import TABLE3, TreeCell, flow_changes, tree_design, tree_rows
 from vesselbot_ros.atomic_io import atomic_open, check_output_dir, save_figure, write_text
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.scanner.hardware import PRESETS
-from vesselbot_ros.sim.scenario import load_scenario, shipped_scenarios
+from vesselbot_ros.sim.scenario import load_scenario
 from vesselbot_ros.vessels.network import load_network
 
 DEFAULT = "carotid_bifurcation_3d_eca"
@@ -31,13 +31,7 @@ DEFAULT = "carotid_bifurcation_3d_eca"
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``vesselbot tree-design``."""
-    parser.add_argument("--config", default=str(shipped_scenarios()[DEFAULT]),
-                        help=f"a network or tree scenario: its tree, start, bead and flow (default {DEFAULT})")
-    parser.add_argument("--hardware", default=None, metavar="PRESET",
-                        help=f"a scanner preset's coil and sequence instead of the scenario's (one of "
-                             f"{', '.join(sorted(PRESETS))})")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a scenario value, dotted key (applied after --hardware); repeatable")
+    add_scenario_arguments(parser, DEFAULT, "a network or tree scenario: its tree, start, bead and flow")
     parser.add_argument("--outlets", default="",
                         help="comma-separated outlets to reach (default: every outlet of the tree)")
     parser.add_argument("--radii-um", type=_radii, default=_radii("250,375,500"),

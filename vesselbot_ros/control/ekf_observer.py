@@ -340,6 +340,15 @@ def ekf_history_len(params: EkfParams, tick_s: float) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
+def _finite_head(v, n):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """Whether the first ``n`` entries of ``v`` are finite."""
+    finite = True
+    for i in range(n):
+        finite = finite and math.isfinite(v[i])
+    return finite
+
+
+@numba.njit(cache=True, nogil=True)
 def _ekf_reset_covariance(prm, P, d):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     N = 2 * d + 1
     for i in range(N):
@@ -372,25 +381,19 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, s
         uu[c] = u[c]
     code, h = integrate(t0, t1, ys, g, uu, free, gs, scal[2], prm[_IG:_IG + 7], stats, work, fbuf, sc)
     scal[2] = h
-    finite = True
-    for i in range(2 * d):
-        finite = finite and math.isfinite(ys[i])
-    if code != OK or not finite:
+    failed = code != OK or not _finite_head(ys, 2 * d)
+    if failed:
         # the estimate sank into a wall (a frame pulled it there, or the model's contact is too stiff to cross at
         # the least step): put it back on the lumen a brush length from the wall, with a fresh contact state, and
         # predict again, once (counted: wall_recoveries); a run that never fails keeps its bits
-        for i in range(2 * d):
-            ys[i] = y[i]
+        ys[:2 * d] = y[:2 * d]
         if onto_lumen_at(t0, ys, gs, params_of(gs)[I_BRUSH_L0]):
-            for i in range(free.shape[0]):
-                free[i] = 0.0
+            free[:] = 0.0
             ist[6] += 1
             code, h = integrate(t0, t1, ys, g, uu, free, gs, prm[_IG + 5], prm[_IG:_IG + 7], stats, work, fbuf, sc)
             scal[2] = h
-            finite = True
-            for i in range(2 * d):
-                finite = finite and math.isfinite(ys[i])
-    if code != OK or not finite:
+            failed = code != OK or not _finite_head(ys, 2 * d)
+    if failed:
         err[0] = t0
         err[1] = t1
         err[2] = code

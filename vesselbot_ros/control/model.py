@@ -34,7 +34,7 @@ from vesselbot_ros.physics.kernel import I_V_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.input_mapping import input_matrix
 from vesselbot_ros.vessels.network import network_dims
-from vesselbot_ros.vessels.tree_field import packed_vessel, planar_twin, vessel_geom
+from vesselbot_ros.vessels.tree_field import packed_vessel, vessel_geom
 
 __all__ = ["DynamicsModel", "BLOOD_VELOCITY_ERROR"]
 
@@ -64,7 +64,7 @@ class DynamicsModel(IntegratorHolder):
         self.dims = d
         self.p, self.packed = packed_vessel(physics, d)  # a tree in space: the 3-D kernel's packed tree
         if d == 3:  # the coil's three axes act alike on the bead: B = b I with the plane's b
-            self.input_matrix = float(input_matrix(planar_twin(physics), mapping)[0, 0]) * np.eye(3)
+            self.input_matrix = float(input_matrix(physics, mapping)[0, 0]) * np.eye(3)
         else:
             self.input_matrix = input_matrix(physics, mapping)
         self._p_scaled = self.p.copy()

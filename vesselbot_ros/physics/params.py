@@ -50,6 +50,7 @@ __all__ = [
     "DragParams",
     "PhysicsParams",
     "DesignParams",
+    "planar_twin",
     "VACUUM_PERMITTIVITY_F_PER_M",
     "BOLTZMANN_J_PER_K",
 ]
@@ -422,6 +423,12 @@ class PhysicsParams:
                                       f": {allowed}")
                 node = node[part]
         return load_dataclass(type(self), apply_overrides(mapping, flat), "physics")  # a plant kind's params subclass
+
+
+def planar_twin(params: PhysicsParams) -> PhysicsParams:
+    """``params`` without its network: the straight vessel of the same bead, blood and flow, whose packed head is
+    what the kernel's scalars and the input matrix read (a network's or a 3-D tree's, packed without its field)."""
+    return dataclasses.replace(params, vessel=dataclasses.replace(params.vessel, network=""))
 
 
 def _every_field(obj: Any) -> Any:

@@ -21,7 +21,6 @@ magnetisation is saturated along ``B_0`` and the force follows the gradient.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Literal
 
 import numpy as np
@@ -30,7 +29,7 @@ import numpy.typing as npt
 from vesselbot_ros.blas_free import mat2, mat2_apply, mat2_inverse
 from vesselbot_ros.config import check_choice
 from vesselbot_ros.physics.kernel import forces_into, pack_params
-from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.physics.params import PhysicsParams, planar_twin
 
 __all__ = ["input_matrix", "gradient_from_accel", "accel_from_gradient"]
 
@@ -48,7 +47,7 @@ def input_matrix(
     check_choice("model.input_mapping", mapping, ("with_tau_m", "paper_printed"))
     # the magnetic row reads the packed head only (the bead, not the vessel): a network's or a 3-D tree's
     # matrix is its straight twin's, packed without a CFD field
-    p = pack_params(dataclasses.replace(physics, vessel=dataclasses.replace(physics.vessel, network="")))
+    p = pack_params(planar_twin(physics))
     out = np.empty((8, 2))
     contact = np.zeros(4)
     b = np.empty((2, 2))

@@ -66,7 +66,7 @@ from vesselbot_ros.geometry.field_lookup import field_points3d, wall_field3d
 from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
 from vesselbot_ros.physics.kernel import pack_params
-from vesselbot_ros.physics.params import BloodParams, PhysicsParams
+from vesselbot_ros.physics.params import BloodParams, PhysicsParams, planar_twin
 from vesselbot_ros.progress import ProgressFn, step
 from vesselbot_ros.resources import fmt_bytes, fmt_seconds, require_fits
 from vesselbot_ros.vessels import tree_cfd, tree_mesh
@@ -510,11 +510,6 @@ class PackedTree:
     W: tuple[npt.NDArray[Any], ...]
     F: npt.NDArray[np.float32]
     fh: Array
-
-
-def planar_twin(params: PhysicsParams) -> PhysicsParams:
-    """``params`` without its network: what the kernel's packed head and the input matrix read."""
-    return dataclasses.replace(params, vessel=dataclasses.replace(params.vessel, network=""))
 
 
 @functools.lru_cache(maxsize=16)
