@@ -12,7 +12,8 @@ over the scenario's axes, (x, z) or (x, y, z).
 ``docs/trees_best/`` and tabulates the share reaching the outlet and the tracking against the target.
 
 ``--design`` also runs ``vesselbot tree-design`` on the carotid (both outlets, two beads, Table III's flow, the
-physiological preset, and the preset at a tenth and a twentieth of its inflow) into its block.
+physiological preset, and the preset at a tenth and a twentieth of its inflow) into its block, and on the clinical
+3 T presets (the 3-D III-C tree from its trunk's floor, the carotid; every outlet) into ``tree_design_3t``.
 
 Usage: .venv/bin/python tools/network_numbers.py [--write] [--campaigns] [--design]
 """
@@ -123,6 +124,35 @@ def design_block() -> str:
     return markdown(cells).rstrip("\n")
 
 
+D3BEGIN, D3END = "<!-- BEGIN tree_design_3t -->", "<!-- END tree_design_3t -->"
+#: The III-C tree's bead starts on the trunk's floor on 3 T: the coil cannot hold its weight mid-lumen, and from the
+#: paper's start (1 mm above the axis) it falls into side_down's mouth, 4.5 mm downstream.
+FLOOR_START = {"initial.p0_m": [0.0, 0.0, -1.3999e-3]}
+
+
+def design_block_3t() -> str:
+    """``vesselbot tree-design`` on the clinical 3 T presets (the preset sequence and the 77 %-duty one): the 3-D
+    III-C tree from its trunk's floor and the carotid from its start, every outlet, the paper's bead, Table III's
+    flow: which outlets a plan resting on the floor reaches, and why not."""
+    from vesselbot_ros.analysis.plan import PlanOptions
+    from vesselbot_ros.analysis.tree_design import TABLE3, tree_design
+    from vesselbot_ros.analysis.tree_design_cli import markdown
+    from vesselbot_ros.scanner.hardware import preset_changes
+    from vesselbot_ros.sim.scenario import scenario_with
+
+    out = []
+    for hardware in ("clinical_3t", "clinical_3t_mfde"):
+        for name, outlets, changes in (("paper_iiic_network_upper_3d_ekf", ["side_down", "side_up", "upper", "lower"],
+                                        FLOOR_START), ("carotid_bifurcation_3d_eca_ekf", ["ica", "eca"], {})):
+            base = scenario_with(load_scenario(shipped_scenarios()[name]), {**preset_changes(hardware), **changes})
+            cells = tree_design(base, outlets, [250e-6], ["paper"], [TABLE3], PlanOptions())
+            table = markdown(cells).rstrip("\n").splitlines()
+            if not out:
+                out += ["| tree | scanner preset " + table[0], "|---|---" + table[1]]
+            out += [f"| {name.removesuffix('_ekf')} | {hardware} " + row for row in table[2:]]
+    return "\n".join(out)
+
+
 def _replace(doc: str, begin: str, end: str, text: str) -> str:
     new = f"{begin}\n{text}\n{end}"
     if begin in doc:
@@ -139,12 +169,16 @@ def main() -> int:
     if ctext:
         print(ctext)
     dtext = design_block() if "--design" in sys.argv[1:] else None
+    d3text = design_block_3t() if "--design" in sys.argv[1:] else None
     if dtext:
         print(dtext)
+        print(d3text)
     if "--write" in sys.argv[1:]:
         doc = _replace(DOC.read_text(encoding="utf-8"), BEGIN, END, text)
         if dtext:
             doc = _replace(doc, DBEGIN, DEND, dtext)
+        if d3text:
+            doc = _replace(doc, D3BEGIN, D3END, d3text)
         if ctext:
             doc = _replace(doc, CBEGIN, CEND, ctext)
         write_text(DOC, doc)

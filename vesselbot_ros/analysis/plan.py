@@ -50,12 +50,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.analysis.meshed_wall import MeshedWall, need_on
 from vesselbot_ros.blas_free import convolve_valid
 from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
-from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, wall_shift_of
+from vesselbot_ros.control.bspline_reference import ReferenceParams, ReferenceTrajectory, WallMotion, wall_shift_of
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.control.route import planned_reference
-from vesselbot_ros.errors import VesselbotError
+from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.kernel import diameter_at
 from vesselbot_ros.physics.params import PhysicsParams
@@ -192,18 +193,27 @@ def coast_time_s(scenario: Scenario) -> float:
     return 0.0 if seq.mode == "continuous" else seq.tracking_window_s + 2.0 * seq.dead_time_s
 
 
+Rest = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | MeshedWall | None
+
+
 def need(model: DynamicsModel, t: npt.ArrayLike, p: npt.ArrayLike, v: npt.ArrayLike, a: npt.ArrayLike,
-         rest: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None) -> npt.NDArray[np.float64]:
+         rest: Rest = None, resting: npt.NDArray[np.bool_] | None = None) -> npt.NDArray[np.float64]:
     """The coil's acceleration each point needs (m/s^2): ``|a - F(t, p, v)|``, the lower wall's share removed.
 
     ``rest``: ``(z, dz/dt)`` of a bead resting on the lower wall at each
     point's time (:func:`wall_rest`).  A point at or below it is a bead on
     the wall: it is evaluated there, moving with the wall, and the contact
     supplies any upward push (the vertical component of ``a - F`` counts only
-    when it points down).
+    when it points down).  In a network or a tree ``rest`` is its
+    :class:`~vesselbot_ros.analysis.meshed_wall.MeshedWall`: a point within
+    ``r + L0`` of its wall (or beyond) rests on it, moving with it, and the
+    contact carries any push along the wall's inward normal; ``resting``:
+    the points meant to rest on it (:meth:`MeshedWall.snap`).
     """
     t = np.atleast_1d(np.asarray(t, dtype=np.float64))
     p, v, a = (np.atleast_2d(np.asarray(x, dtype=np.float64)).copy() for x in (p, v, a))
+    if isinstance(rest, MeshedWall):
+        return need_on(model.F, t, rest.snap(t, p, v, resting), a)
     wall = np.zeros(t.shape, dtype=bool)
     if rest is not None:
         z_rest, vz_rest = (np.broadcast_to(np.asarray(x, dtype=np.float64), t.shape) for x in rest)
@@ -232,6 +242,34 @@ def wall_rest(scenario: Scenario, t: npt.ArrayLike) -> tuple[npt.NDArray[np.floa
     return _resting_z(scenario) - h, -hd
 
 
+def rest_of(scenario: Scenario, wall: MeshedWall | None, t: npt.ArrayLike) -> Rest:
+    """What :func:`need` takes as ``rest`` at times ``t``: the straight vessel's lower wall (:func:`wall_rest`), or
+    a network's or a tree's meshed wall (``wall``, built once: :func:`meshed_wall`)."""
+    return wall if wall is not None else wall_rest(scenario, t)
+
+
+def meshed_wall(scenario: Scenario) -> MeshedWall | None:
+    """The meshed wall of a network or a tree the planner rests a bead on; ``None`` in the straight vessel."""
+    return MeshedWall(scenario) if scenario.physics.vessel.network else None
+
+
+def _resting(traj: ReferenceTrajectory, u: npt.NDArray[np.float64],
+             wall: MeshedWall | None) -> npt.NDArray[np.bool_] | None:
+    """Which points of a network's reference are meant to rest on its floor (wall-follow weight 1); ``None`` in the
+    straight vessel."""
+    return None if wall is None else traj.follow_weight(u)[0] >= 1.0 - 1e-9
+
+
+def on_wall_of(scenario: Scenario, wall: MeshedWall | None, t: npt.NDArray[np.float64],
+               p: npt.NDArray[np.float64], v: npt.NDArray[np.float64],
+               resting: npt.NDArray[np.bool_] | None = None) -> npt.NDArray[np.bool_]:
+    """Which points of a reference rest on the wall (the lower wall of the straight vessel, a network's floor)."""
+    if wall is not None:
+        return wall.snap(t, p, v, resting).on_wall
+    rest = wall_rest(scenario, t)
+    return np.zeros(t.shape, dtype=bool) if rest is None else p[:, 1] <= rest[0] + 1e-9
+
+
 # ---------------------------------------------------------------------------------------------- geometry
 def _resting_z(scenario: Scenario) -> float:
     """z of the bead's centre resting on the lower wall of the nominal vessel (m): one brush length of gap."""
@@ -254,7 +292,7 @@ class _Fall:
 
 
 def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: float, x_end: float,
-          options: PlanOptions) -> tuple[_Fall, int] | None:
+          options: PlanOptions, wall: MeshedWall | None = None) -> tuple[_Fall, int] | None:
     """The fall from ``p0`` at rest to the lower wall with no gradient, then sliding on it for ``slide_s``; and the
     sample where it touched.  ``None`` if it passes ``x_end`` first (1 s at most).
 
@@ -268,8 +306,13 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
     most ``0.43 v_s T`` deep): continuous in position, velocity and
     acceleration at the touch, and every upward acceleration of the landing
     inside the wall, which carries it.  The plant's bead bounces on the wall
-    after it; the reference does not.
+    after it; the reference does not.  On a network's or a tree's floor
+    (``wall``) the same, along the wall's inward normal ``n`` at each sample:
+    ``p = q + n (g0 (1 - S) - press S - v_s tau exp(-(tau / T)^2))`` with ``q``
+    the bead's point moved onto the resting surface.
     """
+    if wall is not None:
+        return _fall_meshed(scenario, t0, p0, step_s, options, wall)
     plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
     y = np.array([p0[0], p0[1], 0.0, 0.0])
     contact = plant.new_contact_state()
@@ -292,9 +335,8 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
         ts.append(t)
         if touched >= 0:
             tau = t - ts[touched]
-            s = min(tau / T, 1.0)
-            S = s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
-            z = z_rest + g0 * (1.0 - S) - options.wall_press_m * S - v_s * tau * math.exp(-((tau / T) ** 2))
+            S, dip = _landing(tau, T)
+            z = z_rest + g0 * (1.0 - S) - options.wall_press_m * S - v_s * tau * dip
             ps.append(np.array([y[0], z]))
             vs.append(np.array([y[2], vz_rest]))
             if tau >= options.slide_s - 1e-12:
@@ -302,6 +344,48 @@ def _fall(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: fl
         else:
             ps.append(y[:2].copy())
             vs.append(y[2:].copy())
+    return None
+
+
+def _landing(tau: float, T: float) -> tuple[float, float]:
+    """The landing's quintic smoothstep ``S(tau / T)`` and its dip's factor ``exp(-(tau / T)^2)`` (:func:`_fall`)."""
+    s = min(tau / T, 1.0)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s**2), math.exp(-((tau / T) ** 2))
+
+
+def _fall_meshed(scenario: Scenario, t0: float, p0: npt.NDArray[np.float64], step_s: float, options: PlanOptions,
+                 wall: MeshedWall) -> tuple[_Fall, int] | None:
+    """:func:`_fall` onto a network's or a tree's floor (1 s at most)."""
+    plant = DynamicsModel(scenario.physics, scenario.sim.integrator)
+    d = plant.dims
+    y = np.concatenate([np.asarray(p0, dtype=np.float64), np.zeros(d)])
+    contact = plant.new_contact_state()
+    t, ts, ps, vs = t0, [t0], [y[:d].copy()], [y[d:].copy()]
+    touched, v_s, g0 = -1, 0.0, 0.0
+    T = options.landing_s
+    for _ in range(int(round((1.0 + options.slide_s) / step_s))):
+        plant.propagate(t, t + step_s, y, np.zeros(d), contact)
+        t += step_s
+        s, n, d_t = wall.frames(t, y[:d])
+        n = n[0]
+        e, de = wall.eps(np.array([t]))
+        wall_speed = float(-0.5 * d_t[0] / (1.0 + e[0]) * de[0])  # the wall's velocity along n
+        v_n = float((y[d:] * n).sum())
+        gap, sink = float(s[0]) - wall.gap_m, wall_speed - v_n
+        if touched < 0 and gap <= 2e-6 + max(sink, 0.0) * step_s:
+            touched, v_s, g0 = len(ts), max(sink, 0.0), max(gap, 0.0)
+        ts.append(t)
+        if touched >= 0:
+            tau = t - ts[touched]
+            S, dip = _landing(tau, T)
+            q = y[:d] - gap * n  # the bead's point on the resting surface
+            ps.append(q + n * (g0 * (1.0 - S) - options.wall_press_m * S - v_s * tau * dip))
+            vs.append(y[d:] + (wall_speed - v_n) * n)
+            if tau >= options.slide_s - 1e-12:
+                return _Fall(np.asarray(ts), np.asarray(ps), np.asarray(vs)), touched
+        else:
+            ps.append(y[:d].copy())
+            vs.append(y[d:].copy())
     return None
 
 
@@ -356,8 +440,8 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
     """Anchors, wall-follow weights and the fall to the wall if any (module docstring: where in the lumen)."""
     ref = planned_reference(scenario)
     first = np.array([ref.anchors_x_m[0], ref.anchors_z_m[0]])
-    if scenario.physics.vessel.network:  # a route: its own anchors and heights, on the network's axes
-        return _Geometry(ref.anchor_points(), np.zeros(len(ref.anchors_x_m)), None, ())
+    if scenario.physics.vessel.network:  # a route: its own anchors, or the floor below them, on the network's axes
+        return _net_geometry(scenario, model, options, v_cap)
     x0, x1 = float(ref.anchors_x_m[0]), float(ref.anchors_x_m[-1])
     heights = _heights(scenario, options)
     _, wall_next = _best_height(scenario, model, min(x1, x0 + options.anchor_spacing_m), heights, v_cap)
@@ -367,16 +451,7 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
             got = None  # it falls (or rests) about where it starts: the path starts on the wall below it instead
         if got is not None:
             fall, touched = got
-            arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(fall.p, axis=0).T))])
-            # anchors along the fall every quarter spacing, and at every sample around the landing (its kink would
-            # ring through a sparse spline)
-            dense = int(round(0.004 / options.step_s))
-            picks = [0]
-            for k in range(1, len(arc) - 1):
-                near = touched - dense <= k <= touched or (k > touched and (k - touched) % max(1, dense // 2) == 0)
-                if near or (arc[k] - arc[picks[-1]] >= 0.25 * options.anchor_spacing_m and arc[-1] - arc[k] >= 0.1e-3):
-                    picks.append(k)
-            picks.append(len(arc) - 1)
+            picks = _fall_picks(fall, touched, options)
             x_last = float(fall.p[-1, 0])
             n = max(1, int(math.ceil((x1 - x_last) / options.anchor_spacing_m - 1e-9)))
             xs = np.linspace(x_last, x1, n + 1)[1:]
@@ -403,19 +478,227 @@ def _geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_
     return _Geometry(np.column_stack([xs, zs]), np.asarray(weights), None, ())
 
 
+def _arc(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Cumulative arc length along points (n, d) (m); the plane's through ``np.hypot`` (its bits)."""
+    d = np.diff(points, axis=0)
+    step_len = np.hypot(*d.T) if points.shape[1] == 2 else np.sqrt((d * d).sum(axis=1))
+    return np.concatenate([[0.0], np.cumsum(step_len)])
+
+
+def _net_need(scenario: Scenario, model: DynamicsModel, wall: MeshedWall, q: npt.NDArray[np.float64],
+              tangent: npt.NDArray[np.float64], v_cap: float, on_wall: bool) -> float:
+    """The worst need over a cardiac period at anchor ``q`` (on the still wall's floor if ``on_wall``, then moving
+    with the wall), at each phase the least over a few speeds along ``tangent``."""
+    phases = _phases(scenario)
+    p = np.repeat(q[None, :], phases.size, axis=0)
+    if on_wall:
+        p -= wall.eps(phases)[0][:, None] * wall.follow_offset(q[None, :])
+    resting = np.full(phases.shape, on_wall)
+    per_speed = [need(model, phases, p, np.repeat(speed * tangent[None, :], phases.size, axis=0), np.zeros_like(p),
+                      wall, resting) for speed in (0.0, 0.5 * v_cap, v_cap)]
+    return float(np.max(np.min(per_speed, axis=0)))
+
+
+def _net_geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_cap: float) -> _Geometry:
+    """A network's or a tree's route: its own anchors (``height: free``), or points along it every half
+    ``anchor_spacing_m``, each on the route or on the floor below it, whichever needs less.  A route whose first
+    anchor on the floor follows a start in the free lumen begins with the bead's own fall to the floor
+    (:func:`_fall`).  Where the floor between two anchors on it breaks off (a side branch's mouth, a junction's
+    floor falling away) the bead would cross off the wall: :class:`PlanInfeasible` if the coil cannot hold it there
+    (:func:`_check_floor`)."""
+    ref = planned_reference(scenario)
+    if options.height == "free":
+        return _Geometry(ref.anchor_points(), np.zeros(len(ref.anchors_x_m)), None, ())
+    route = ReferenceTrajectory(ref)
+    n = max(2, int(math.ceil(route.length_m / (0.5 * options.anchor_spacing_m) - 1e-9)) + 1)
+    us = np.linspace(0.0, route.length_m, n)
+    pts = np.asarray(route.path(n)) if n >= 2 else np.asarray([route.path_point(0.0)])
+    follow = np.zeros(len(pts))
+    wall = MeshedWall(scenario)
+    d1 = np.gradient(pts, axis=0)
+    tangents = d1 / np.maximum(np.sqrt((d1 * d1).sum(axis=1)), 1e-12)[:, None]
+    anchors = pts.copy()
+    floors = _regular_floors(pts, [wall.floor_below(p, options.wall_press_m) for p in pts],
+                             scenario.physics.robot.radius_m)
+    for k in range(1, len(pts)):
+        floor = floors[k]
+        if floor is None:
+            continue
+        if (_net_need(scenario, model, wall, floor, tangents[k], v_cap, True)
+                < _net_need(scenario, model, wall, pts[k], tangents[k], v_cap, False) - 1e-12):
+            anchors[k], follow[k] = floor, 1.0
+    _cross_breaks(scenario, model, wall, pts, anchors, follow, tangents, v_cap)
+    _check_floor(scenario, model, wall, route, us, anchors, follow, tangents, v_cap, options)
+    if follow[1] != 1.0:
+        return _Geometry(anchors, follow, None, ())
+    s0, _, _ = wall.frames(float(ref.start_s), pts[0])
+    if s0[0] <= wall.gap_m + 5e-6:  # it starts on the floor: the path rides it from the start, pressed into it
+        _, n0, _ = wall.frames(float(ref.start_s), pts[0])
+        e0 = float(wall.eps(np.array([float(ref.start_s)]))[0][0])
+        anchors[0] = pts[0] - options.wall_press_m * n0[0] + e0 * wall.follow_offset(pts[0])[0]
+        follow[0] = 1.0
+        return _Geometry(anchors, follow, None, ())
+    arc = _arc(pts)
+    got = _fall(scenario, float(ref.start_s), pts[0], options.step_s, math.inf, options, wall)
+    if got is None:
+        return _Geometry(anchors, follow, None, ())
+    fall, touched = got
+    # where the fall lands along the route: the point of the route's polyline nearest the landing across the
+    # vertical (the floor lies below the route: its horizontal axes are the route's)
+    land = fall.p[-1]
+    seg_d = np.diff(pts, axis=0)
+    flat = np.ones(pts.shape[1])
+    flat[-1] = 0.0
+    lam = np.clip(((land - pts[:-1]) * seg_d * flat).sum(axis=1)
+                  / np.maximum((seg_d * seg_d * flat).sum(axis=1), 1e-30), 0.0, 1.0)
+    near = pts[:-1] + lam[:, None] * seg_d
+    j = int(np.argmin((((near - land) * flat) ** 2).sum(axis=1)))
+    arc_land = float(arc[j] + lam[j] * (arc[j + 1] - arc[j]))
+    if arc_land > arc[-1] - options.anchor_spacing_m:
+        return _Geometry(anchors, follow, None, ())  # it falls nearly to the end: no room to land and fly on
+    floor_there = wall.floor_below(near[j], options.wall_press_m)
+    _, _, d_there = wall.frames(0.0, near[j], still=True)
+    if floor_there is None or float(np.sqrt(((floor_there - land) ** 2).sum())) > 0.2 * float(d_there[0]):
+        return _Geometry(anchors, follow, None, ())  # it lands off the route's floor (in a side branch's mouth)
+    picks = _fall_picks(fall, touched, options)
+    keep = np.flatnonzero(arc > arc_land + 0.5 * options.anchor_spacing_m)
+    # every fall anchor follows the floor below it (weight 1, as in the straight vessel), so the anchors are given
+    # on the still wall's frame: the reference passes each at its time in the fall, when the floor below has moved
+    # by -eps(t) D n / 2 (the anchor's own offset: found from the sample's in two passes)
+    tp = fall.t[list(picks)]
+    eps = wall.eps(tp)[0][:, None]
+    landed = fall.p[picks] + eps * wall.follow_offset(fall.p[picks])
+    landed = fall.p[picks] + eps * wall.follow_offset(landed)
+    weights = np.ones(len(picks))
+    anchors = np.vstack([landed, anchors[keep]])
+    follow = np.concatenate([weights, follow[keep]])
+    return _Geometry(anchors, follow, dataclasses.replace(fall, t=fall.t - fall.t[0]), tuple(picks))
+
+
+def _regular_floors(pts: npt.NDArray[np.float64], floors: list[npt.NDArray[np.float64] | None],
+                    radius_m: float, half_window: int = 5) -> list[npt.NDArray[np.float64] | None]:
+    """The floors below the route's points, a hole in the floor (a side branch's mouth: the floor more than half a
+    bead radius below the straight line fitted to its neighbours' heights within ``half_window`` points, holes
+    left out of the fit) made
+    ``None``: the bead would drop into it, not ride over it."""
+    height = np.array([np.nan if f is None else float(f[-1]) for f in floors])
+    hole = ~np.isfinite(height)
+    for _ in range(3):  # fit, flag what lies below the fit, fit again without it
+        flagged = hole.copy()
+        for k in range(len(pts)):
+            lo, hi = max(0, k - half_window), min(len(pts), k + half_window + 1)
+            idx = np.arange(lo, hi)
+            idx = idx[(idx != k) & ~hole[lo:hi]]
+            if idx.size < 2 or not np.isfinite(height[k]):
+                continue
+            x, y = idx.astype(np.float64), height[idx]
+            xm, ym = x.mean(), y.mean()
+            sxx = float(((x - xm) ** 2).sum())
+            slope = float(((x - xm) * (y - ym)).sum()) / sxx if sxx > 0.0 else 0.0
+            if height[k] < ym + slope * (k - xm) - 0.5 * radius_m:
+                flagged[k] = True
+        if np.array_equal(flagged, hole):
+            break
+        hole = flagged
+    return [None if hole[k] else floors[k] for k in range(len(pts))]
+
+
+def _cross_breaks(scenario: Scenario, model: DynamicsModel, wall: MeshedWall, pts: npt.NDArray[np.float64],
+                  anchors: npt.NDArray[np.float64], follow: npt.NDArray[np.float64],
+                  tangents: npt.NDArray[np.float64], v_cap: float) -> None:
+    """Anchors off the floor between two on it (a side branch's mouth, or a floor too steep to ride): the bead
+    crosses off the wall, held by the coil alone, on the route or on the chord between the two floor anchors,
+    whichever needs less (the anchors are moved in place).  :class:`PlanInfeasible` names the stretch and the
+    acceleration missing where the coil cannot hold it on either."""
+    a_avail, a_sat, duty = available_accel(scenario)
+    k = 1
+    while k < len(pts):
+        if follow[k] == 1.0 or follow[k - 1] != 1.0:
+            k += 1
+            continue
+        end = k
+        while end < len(pts) and follow[end] != 1.0:
+            end += 1
+        if end < len(pts):  # a crossing between two anchors on the floor
+            chord = [(1.0 - lam) * anchors[k - 1] + lam * anchors[end]
+                     for lam in ((j - (k - 1)) / (end - (k - 1)) for j in range(k, end))]
+            # a chord on the floor (a glitch of one point) rests on it: within reach of the resting surface
+            on_chord = max(_net_need(scenario, model, wall, c, tangents[j], v_cap, True)
+                           for j, c in zip(range(k, end), chord))
+            on_route = max(_net_need(scenario, model, wall, pts[j], tangents[j], v_cap, False) for j in range(k, end))
+            if on_chord < on_route:  # on the chord, resting where it lies on the floor
+                anchors[k:end] = chord
+                follow[k:end] = 1.0
+            worst = min(on_chord, on_route)
+            if worst > a_avail:
+                raise PlanInfeasible(
+                    f"infeasible: the floor below the route breaks off at x {pts[k, 0] * 1e3:.1f}-"
+                    f"{pts[end - 1, 0] * 1e3:.1f} mm (a side branch's mouth, or too steep to ride): crossing it off "
+                    f"the wall needs {worst:.2f} m/s^2; the coil gives {a_avail:.2f} m/s^2 ({a_sat:.2f} at "
+                    f"{duty:.0%} duty): {worst - a_avail:.2f} m/s^2 missing", missing_m_per_s2=worst - a_avail)
+        k = end + 1
+
+
+def _check_floor(scenario: Scenario, model: DynamicsModel, wall: MeshedWall, route: ReferenceTrajectory,
+                 us: npt.NDArray[np.float64], anchors: npt.NDArray[np.float64], follow: npt.NDArray[np.float64],
+                 tangents: npt.NDArray[np.float64], v_cap: float, options: PlanOptions) -> None:
+    """Between two consecutive anchors on the floor, the floor below the route every 0.1 mm must stay within a
+    bead radius of their chord; where it does not, the bead crosses off the wall, held by the coil alone.  Raises
+    :class:`PlanInfeasible` naming the stretch and the acceleration missing when the coil cannot hold it there
+    (the least need over the crossing's points, at the chord, the worst phase)."""
+    a_avail, a_sat, duty = available_accel(scenario)
+    r = scenario.physics.robot.radius_m
+    for k in range(1, len(anchors)):
+        if follow[k - 1] != 1.0 or follow[k] != 1.0:
+            continue
+        m = max(2, int(math.ceil((us[k] - us[k - 1]) / 1e-4)))
+        broken, worst = [], 0.0
+        for j in range(1, m):
+            lam = j / m
+            q = np.asarray(route.path_point(float(us[k - 1] + lam * (us[k] - us[k - 1]))))
+            chord = (1.0 - lam) * anchors[k - 1] + lam * anchors[k]
+            floor = wall.floor_below(q, options.wall_press_m)
+            if floor is None or float(np.sqrt(((floor - chord) ** 2).sum())) > r:
+                broken.append(float(q[0]))
+                worst = max(worst, _net_need(scenario, model, wall, chord, tangents[k], v_cap, False))
+        if broken and worst > a_avail:
+            raise PlanInfeasible(
+                f"infeasible: the floor below the route breaks off at x {min(broken) * 1e3:.1f}-"
+                f"{max(broken) * 1e3:.1f} mm (a side branch's mouth or a junction): crossing it off the wall needs "
+                f"{worst:.2f} m/s^2; the coil gives {a_avail:.2f} m/s^2 ({a_sat:.2f} at {duty:.0%} duty): "
+                f"{worst - a_avail:.2f} m/s^2 missing", missing_m_per_s2=worst - a_avail)
+
+
+def _fall_picks(fall: _Fall, touched: int, options: PlanOptions) -> list[int]:
+    """The fall's samples that are anchors: every quarter spacing along it, and every sample around the landing
+    (its kink would ring through a sparse spline)."""
+    arc = _arc(fall.p)
+    dense = int(round(0.004 / options.step_s))
+    picks = [0]
+    for k in range(1, len(arc) - 1):
+        near = touched - dense <= k <= touched or (k > touched and (k - touched) % max(1, dense // 2) == 0)
+        if near or (arc[k] - arc[picks[-1]] >= 0.25 * options.anchor_spacing_m and arc[-1] - arc[k] >= 0.1e-3):
+            picks.append(k)
+    picks.append(len(arc) - 1)
+    return picks
+
+
 def _fall_timing(fall: _Fall, picks: Sequence[int], anchor_u: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """The path parameter along the fall at its samples: its arc length mapped onto the anchors' chords."""
-    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(fall.p, axis=0).T))])
+    arc = _arc(fall.p)
     return np.interp(arc, arc[list(picks)], anchor_u[:len(picks)])
 
 
 # ---------------------------------------------------------------------------------------------- timing
 def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsModel, t0: float, u0: float,
-                 du0: float, budget: float, options: PlanOptions,
-                 v_cap: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Greedy forward pass from ``(t0, u0, du0)``: times, path parameters and their speeds (module docstring: when)."""
+                 du0: float, budget: float, options: PlanOptions, v_cap: float,
+                 a_avail: float = math.inf) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Greedy forward pass from ``(t0, u0, du0)``: times, path parameters and their speeds (module docstring: when).
+    A pass that cannot move on is :class:`PlanInfeasible`, with the acceleration missing against the coil's
+    ``a_avail`` where moving on needs more than that."""
     h, a_t, U = options.step_s, options.tangential_accel_m_per_s2, traj.length_m
     network = bool(scenario.physics.vessel.network)
+    wall = meshed_wall(scenario)
     steps = np.linspace(-a_t, a_t, 9) * h
     t, u, du = t0, u0, du0
     ts, us, dus = [t], [u], [du]
@@ -425,8 +708,9 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
         un = np.minimum(u + 0.5 * (du + speeds) * h, U)
         tn = np.full(speeds.shape, t + h)
         p, v, a = traj.state(tn, un, speeds, (speeds - du) / h)
-        return un, need(model, tn, p, v, a, wall_rest(scenario, tn))
+        return un, need(model, tn, p, v, a, rest_of(scenario, wall, tn), _resting(traj, un, wall))
 
+    least = math.inf  # the least need of a step that moves on, where the pass last was
     for _ in range(int(options.max_duration_s / h)):
         if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
             break
@@ -454,13 +738,21 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                     cand, un, need_c = fast[i_f:i_f + 1], un_f[i_f:i_f + 1], need_f[i_f:i_f + 1]
                     ok = np.flatnonzero(need_c <= budget)
         pick = int(ok[0]) if ok.size else int(np.argmin(need_c))
+        moving = need_c[cand > 0.0]
+        least = float(np.min(moving)) if moving.size else float(need_c[pick])
         du, u, t = float(cand[pick]), float(un[pick]), t + h
         ts.append(t)
         us.append(u)
         dus.append(du)
     else:
-        raise PlanInfeasible(f"the plan does not reach the end of the path within {options.max_duration_s:g} s "
-                             f"(stuck at {u * 1e3:.2f} of {U * 1e3:.2f} mm): the coil cannot move the bead on")
+        where = traj.path_point(u)
+        head = (f"the plan does not reach the end of the path within {options.max_duration_s:g} s (stuck at "
+                f"{u * 1e3:.2f} of {U * 1e3:.2f} mm, x = {where[0] * 1e3:.2f} mm, z = {where[-1] * 1e3:.2f} mm): the "
+                f"coil cannot move the bead on; moving on needs at least {least:.2f} m/s^2 there")
+        if least > a_avail:
+            raise PlanInfeasible(f"{head}; the coil gives {a_avail:.2f} m/s^2: {least - a_avail:.2f} m/s^2 missing",
+                                 missing_m_per_s2=least - a_avail)
+        raise PlanInfeasible(f"{head}, above the plan's budget of {budget:.2f} m/s^2")
     dus[-1] = 0.0
     return np.asarray(ts), np.asarray(us), np.asarray(dus)
 
@@ -504,9 +796,10 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
     ts = np.arange(0.0, traj.end_time_s + 0.5 * options.check_step_s, options.check_step_s)
     p, v, a = traj.sample_many(ts)
     u = traj.parameter_at(ts)
-    rest = wall_rest(scenario, ts)
-    needs = need(model, ts, p, v, a, rest)
-    on_wall = np.zeros(ts.shape, dtype=bool) if rest is None else p[:, 1] <= rest[0] + 1e-9
+    wall = meshed_wall(scenario)
+    resting = _resting(traj, u, wall)
+    needs = need(model, ts, p, v, a, rest_of(scenario, wall, ts), resting)
+    on_wall = on_wall_of(scenario, wall, ts, p, v, resting)
     n_seg = max(1, int(math.floor(traj.length_m / options.anchor_spacing_m + 0.5)))
     bounds = np.append(options.anchor_spacing_m * np.arange(n_seg), traj.length_m)
     seg = np.clip(np.searchsorted(bounds, u, side="right") - 1, 0, n_seg - 1)
@@ -528,16 +821,23 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
             continue
         k = sel[int(np.argmax(needs[sel]))]
         mode = "wall" if np.all(on_wall[sel]) else ("free" if not np.any(on_wall[sel]) else "mixed")
-        floor = _coast_floor(scenario, traj, ts[sel[0]], ts[sel[-1]], t_c, options.coast_every_s)
+        try:
+            floor = _coast_floor(scenario, traj, ts[sel[0]], ts[sel[-1]], t_c, options.coast_every_s, wall)
+        except ModelInputError:  # a coast whose contact collapsed the step (a junction's edge): no floor is promised
+            floor = math.inf
         out.append(Segment(i, float(traj.path_point(bounds[i])[0]), float(traj.path_point(bounds[i + 1])[0]), mode,
                            float(np.mean(p[sel, -1])), float(ts[sel[0]]), float(ts[sel[-1]]), float(needs[k]),
                            float(ts[k]), a_avail - float(needs[k]), floor))
     return tuple(out)
 
 
-def reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64],
-               v: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """A reference point inside the lower wall moved onto it (where the bead is), with the wall's velocity."""
+def reachable(scenario: Scenario, t: float, p: npt.NDArray[np.float64], v: npt.NDArray[np.float64],
+              wall: MeshedWall | None = None) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """A reference point inside the lower wall (a network's or a tree's: ``wall``) moved onto it (where the bead
+    is), with the wall's velocity."""
+    if wall is not None:
+        snapped = wall.snap(t, p, v)
+        return snapped.p[0], snapped.v[0]
     rest = wall_rest(scenario, t)
     if rest is None or p[1] > rest[0][0]:
         return p, v
@@ -550,7 +850,7 @@ def _coast_starts(t_from: float, t_to: float, t_c: float, every_s: float) -> npt
 
 
 def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t_to: float, t_c: float,
-                 every_s: float) -> float:
+                 every_s: float, wall: MeshedWall | None = None) -> float:
     """Half the largest drift over one coast released on the (reachable) reference within ``[t_from, t_to]`` (m)."""
     if t_c <= 0.0:
         return 0.0
@@ -559,11 +859,11 @@ def _coast_floor(scenario: Scenario, traj: ReferenceTrajectory, t_from: float, t
     worst = 0.0
     for t0 in _coast_starts(t_from, t_to, t_c, every_s):
         s0 = traj.sample(float(t0))
-        p0, v0 = reachable(scenario, float(t0), s0.p, s0.v)
+        p0, v0 = reachable(scenario, float(t0), s0.p, s0.v, wall)
         y = np.concatenate([p0, v0]).astype(np.float64)
         plant.propagate(float(t0), float(t0) + t_c, y, np.zeros(d), plant.new_contact_state())
         s1 = traj.sample(float(t0) + t_c)
-        p1, _ = reachable(scenario, float(t0) + t_c, s1.p, s1.v)
+        p1, _ = reachable(scenario, float(t0) + t_c, s1.p, s1.v, wall)
         worst = max(worst, float(np.hypot(*(y[:d] - p1)) if d == 2 else np.linalg.norm(y[:d] - p1)))  # axis count: the plane keeps its bits
     return 0.5 * worst
 
@@ -595,7 +895,10 @@ def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
 
     ``height``: ``free`` never rests on the lower wall; ``wall`` takes the
     least need at each anchor, the wall included; ``auto`` plans both and keeps
-    the feasible one with the lower coast floor (then the shorter).
+    the feasible one with the lower coast floor (then the shorter).  In a
+    network or a tree ``auto`` keeps the route where it is feasible and rests on
+    the floor below it only where it is not (a tree's floor has junctions and
+    side branches' mouths; the route keeps to its branch).
 
     Raises:
         PlanInfeasible: no budget fraction gives a non-negative margin on every
@@ -618,14 +921,23 @@ def make_plan(scenario: Scenario, options: PlanOptions | None = None) -> Plan:
         report(0, total)
         if options.height != "auto":
             return _make_plan(scenario, options, attempted)
-        plans, why = [], []
+        plans: list[Plan] = []
+        why: list[PlanInfeasible] = []
+        network = bool(scenario.physics.vessel.network)
         for height in heights:
+            if network and plans:
+                break  # a network's route where the coil holds it; its floor only where it does not
             try:
                 plans.append(_make_plan(scenario, dataclasses.replace(options, height=height), attempted))
             except PlanInfeasible as exc:
                 why.append(exc)
             done[0] = heights.index(height) * (options.retries + 1) + options.retries + 1  # this height's share
             report(done[0], total)
+        if not plans and network and len(why) == 2:  # the route, then its floor: both reasons, the lesser missing
+            first, floor = why
+            least = min(why, key=lambda e: e.missing_m_per_s2)
+            raise PlanInfeasible(f"{first}; on the floor below the route: {floor}", segment=least.segment,
+                                 missing_m_per_s2=least.missing_m_per_s2)
         if not plans:
             raise min(why, key=lambda e: e.missing_m_per_s2)
         return min(plans, key=lambda p: (round(p.coast_floor_m, 7), p.end_s))
@@ -646,7 +958,9 @@ def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[],
                                route_outlet=ref0.route_outlet if network else "",
                                route_anchors="given" if network else "planned",
                                timing="constant", planned_t_s=(), planned_u_m=())
-    traj = ReferenceTrajectory(geom, wall_shift=wall_shift_of(scenario.physics))
+    wall = meshed_wall(scenario) if np.any(g.follow) else None
+    motion = None if wall is None else WallMotion(wall.follow_offset, wall.pulsation, wall.omega, wall.phase)
+    traj = ReferenceTrajectory(geom, wall_shift=wall_shift_of(scenario.physics), wall_motion=motion)
     if g.fall is not None:  # the fall's own timing, then the pass from where it rests on the wall
         u_fall = _fall_timing(g.fall, g.fall_picks, traj.anchor_u_m)
         t_pre, u_pre = g.fall.t + t0, u_fall
@@ -656,8 +970,13 @@ def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[],
     fraction = options.budget_fraction
     worst: tuple[Segment, ...] = ()
     for _ in range(options.retries + 1):
-        ts, us, dus = _timing_pass(scenario, traj, model, float(t_pre[-1]), float(u_pre[-1]), du_end,
-                                   fraction * a_avail, options, v_cap)
+        try:
+            ts, us, dus = _timing_pass(scenario, traj, model, float(t_pre[-1]), float(u_pre[-1]), du_end,
+                                       fraction * a_avail, options, v_cap, a_avail)
+        except PlanInfeasible:
+            if not worst:
+                raise
+            break  # a smaller budget cannot move the bead on: the last check's worst segment is the reason
         sm = _smooth(dus, options)
         us = us[0] + np.concatenate([[0.0], np.cumsum(0.5 * (sm[1:] + sm[:-1]) * np.diff(ts))])
         if us[-1] > us[0]:

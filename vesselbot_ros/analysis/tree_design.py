@@ -100,7 +100,11 @@ def tree_design(base: Scenario, outlets: Sequence[str], radii_m: Iterable[float]
         for flow in flows:
             for material in materials:
                 for r in radii:
+                    # the route to this outlet, re-planned from scratch (a planned scenario's timing, anchors and
+                    # wall-follow weights are its own route's)
                     changes = {"reference.route_outlet": outlet, "reference.route_anchors": "planned",
+                               "reference.timing": "constant", "reference.planned_t_s": [],
+                               "reference.planned_u_m": [], "reference.wall_follow": [],
                                **flow_changes(flow), **_bead(material, r)}
                     try:
                         scenario = scenario_with(base, changes)

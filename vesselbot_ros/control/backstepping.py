@@ -41,7 +41,15 @@ from vesselbot_ros.config import ConfigError, check_choice, check_positive
 from vesselbot_ros.control.adaptive import AdaptiveParams, AdaptiveState, adapt_scales, adaptive_params
 from vesselbot_ros.control.compiled_stage import STEP_FLOW_SCALE_INVALID, CompiledController, lazy_step, model_f_into
 from vesselbot_ros.errors import ModelInputError
-from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of, params_of, rests_on_lower_wall, with_params
+from vesselbot_ros.physics.integrator import (
+    axes_of,
+    carried_into,
+    forces_at,
+    mass_of,
+    params_of,
+    rests_on_lower_wall,
+    with_params,
+)
 from vesselbot_ros.physics.kernel import flow_scaled_into
 
 __all__ = [
@@ -121,9 +129,12 @@ class ControllerParams:
             the nearest wall, whose inward normal points up: the straight
             vessel's lower wall, a network's or a tree's floor; the model's
             wall decides, :func:`~vesselbot_ros.physics.integrator.rests_on_lower_wall`),
-            the vertical command is dropped: the weight holds the bead on the wall and the wall
-            carries any push into it, so the whole coil goes to the axial
-            command (a plan that rides the wall, ``vesselbot plan``).  As
+            the vertical command is dropped (in a network or a tree: the
+            command's component along the wall's inward normal, which tilts
+            on a sloping or curved floor; :func:`~vesselbot_ros.physics.integrator.carried_into`):
+            the weight holds the bead on the wall and the wall carries any
+            push into it, so the whole coil goes along the wall (a plan that
+            rides the wall, ``vesselbot plan``).  As
             printed, (24) cancels the weight (and the contact force at an
             estimate inside the wall), saturates the coil vertically, and the
             saturation's scaling leaves almost nothing for the axis along the
@@ -285,7 +296,7 @@ def _law(prm, geom, gq, work, free, fbuf, sc, t, est, pr, vr, ar, out):  # type:
         for i in range(d):
             out[d + i] = ar[i] + s * vr[i] + c * pr[i] - c * est[i] - s * est[d + i] - fbuf[7, i] / m
     if prm[7] > 0.5 and rests_on_lower_wall(t, pr, geom):
-        out[2 * d - 1] = 0.0  # the reference rests on a wall below: the weight and the wall hold the bead there
+        carried_into(t, est, pr, geom, out, d)  # the reference rests on a wall below: the weight and the wall hold it
     for i in range(d):
         b = PRM_B_INV + i * d
         acc = prm[b] * out[d]

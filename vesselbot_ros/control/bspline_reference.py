@@ -28,7 +28,7 @@ which is how the paper "rescales the reference velocity along this path":
 the lower wall of the pulsating straight vessel: the point moves down by
 ``m(u) (D(t) - D) / 2`` where ``m`` blends the anchors' weights by the quintic
 smoothstep between consecutive anchors (C2, never outside the two weights).
-In a network or a tree the wall nearest the path moves by ``-eps(t) D n / 2``
+In a network or a tree the floor below the path moves by ``-eps(t) D n / 2``
 (``D`` its local diameter, ``n`` its inward normal, :class:`WallMotion`), and the
 point moves by ``m(u)`` times that: the same rule, on the meshed wall.
 With weight 1 and the anchor at ``z = -(D/2 - r - gap)`` the reference rests

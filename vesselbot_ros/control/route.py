@@ -115,7 +115,8 @@ def route_anchors(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, sp
         outlet: The target outlet branch.
         p0_m: The start (injection) point (m); the first anchor.
         spacing_m: Arc length between anchors (m).
-        end_margin_m: The last anchor lies this far before the outlet (m).
+        end_margin_m: The last anchor lies this far before the outlet (m), but inside the outlet's branch (an
+            anchor half way along it is added where the spaced ones stop short of a quarter of it).
         height_of: The wall-safe height above the centreline of a vessel of diameter ``d`` (m -> m; negative
             or zero: on the centreline), e.g. Section III-A's design map
             (:func:`~vesselbot_ros.control.reference_design.wall_safe_delta_m`).
@@ -127,13 +128,21 @@ def route_anchors(net: VesselNetworkParams, outlet: str, p0_m: npt.ArrayLike, sp
     arc = np.concatenate([[0.0], np.cumsum(_row_norms(np.diff(path, axis=0)))])
     p0 = np.asarray(p0_m, dtype=np.float64)
     s0 = float(arc[int(np.argmin(_row_norms(path - p0)))])
-    s_list = anchor_arcs(s0, arc[-1] - end_margin_m, spacing_m, end)
+    # arc lengths of the bifurcation nodes the route passes (the ends of all but its last branch)
+    lengths = [geom.length_m(b) for b in names]
+    nodes = np.cumsum(lengths)[:-1]
+    # the last anchor end_margin_m before the outlet, but inside the outlet branch: at least half way along it (a
+    # short side branch would leave the route's end in its parent, and the run's target unreachable)
+    s_end = arc[-1] - end_margin_m
+    if nodes.size:
+        s_end = max(s_end, float(nodes[-1]) + 0.5 * lengths[-1])
+    s_list = anchor_arcs(s0, s_end, spacing_m, end)
+    if nodes.size and s_list[-1] < float(nodes[-1]) + 0.25 * lengths[-1]:
+        s_list = np.append(s_list, s_end)  # the spaced anchors stop short of the outlet's branch: one more, in it
     tang = np.gradient(path, axis=0)
     tang /= _row_norms(tang)[:, None]
     up, _has_up = up_directions(tang)
     diam = geom.query(path)["diameter"]
-    # arc lengths of the bifurcation nodes the route passes (the ends of all but its last branch)
-    nodes = np.cumsum([geom.length_m(b) for b in names])[:-1]
     heights: dict[float, float] = {}
     out = [p0]
     for s in s_list:

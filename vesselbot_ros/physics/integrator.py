@@ -78,10 +78,14 @@ __all__ = [
     "onto_lumen_at",
     "jacobian_position_step",
     "rests_on_lower_wall",
+    "carried_into",
     "blood_velocity_into",
     "blood_velocity",
     "wall_offset_into",
     "wall_offsets",
+    "wall_frame_into",
+    "wall_frames",
+    "floor_offsets",
     "params_of",
     "mass_of",
     "with_params",
@@ -437,6 +441,44 @@ def _rests_on_lower_wall(t, x, geom):  # type: ignore[no-untyped-def]  # numba k
     return _planar_rests if isinstance(geom, types.Array) else _tree_rests
 
 
+def carried_into(t, x, pr, geom, out, k):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out[k:k + d]`` (an acceleration the coil is asked for, the reference ``pr`` (d,) resting on a wall below)
+    without what that wall carries: its component along the wall's inward normal (a push into the wall is the
+    wall's, a pull off it lifts the bead from where it rests).  The straight vessel's lower wall: the vertical
+    component, as printed in ``controller.wall_contact: carried`` (its bits).  A network's or a tree's floor:
+    along the normal of the wall nearest the bead's estimate ``x`` (d,) where that is within a bead radius of the
+    wall (where it touches it: a curved floor tilts it), else nearest the reference (compiled code only)."""
+    raise NotImplementedError("carried_into runs in compiled code only")
+
+
+def _planar_carried(t, x, pr, geom, out, k):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if geom[I_NET_ON] > 0.5:  # a planar network: the normal of its meshed wall nearest the bead (or the reference)
+        s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x[0], x[1], geom)
+        if not s <= 2.0 * geom[I_R]:
+            s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, pr[0], pr[1], geom)
+        un = out[k] * nx + out[k + 1] * nz
+        out[k] = out[k] - un * nx
+        out[k + 1] = out[k + 1] - un * nz
+    else:
+        out[k + 1] = 0.0
+
+
+def _tree_carried(t, x, pr, geom, out, k):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    p = geom[0]
+    s, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = tree_geometry(t, x[0], x[1], x[2], p, geom[1], geom[2], geom[3])
+    if not s <= 2.0 * p[I_R]:
+        s, n0, n1, n2, _d, _eta, _v0, _v1, _v2 = tree_geometry(t, pr[0], pr[1], pr[2], p, geom[1], geom[2], geom[3])
+    un = out[k] * n0 + out[k + 1] * n1 + out[k + 2] * n2
+    out[k] = out[k] - un * n0
+    out[k + 1] = out[k + 1] - un * n1
+    out[k + 2] = out[k + 2] - un * n2
+
+
+@overload(carried_into, jit_options={"nogil": True})
+def _carried_into(t, x, pr, geom, out, k):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_carried if isinstance(geom, types.Array) else _tree_carried
+
+
 def blood_velocity_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``out`` (d,) = the blood velocity (m/s) at the point ``x`` (d,) at ``t`` in ``geom`` (compiled code only)."""
     raise NotImplementedError("blood_velocity_into runs in compiled code only")
@@ -507,6 +549,95 @@ def wall_offsets(points, geom):  # type: ignore[no-untyped-def]  # numba kernel:
     out = np.empty_like(points)
     for i in range(points.shape[0]):
         wall_offset_into(points[i], geom, out[i])
+    return out
+
+
+def wall_frame_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out`` (d,) = the unit inward normal of the wall nearest the point ``x`` (d,) of a network or a tree at time
+    ``t``; returns ``(s_t, D_t)``: the centre's signed distance to that wall (m, > 0 inside, the pulsation's wall)
+    and the local diameter then (m).  A planar ``geom`` must be a network's (compiled code only)."""
+    raise NotImplementedError("wall_frame_into runs in compiled code only")
+
+
+def _planar_frame(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    s_t, nx, nz, d_t, _eta, _vx, _vz = network_geometry(t, x[0], x[1], geom)
+    out[0] = nx
+    out[1] = nz
+    return s_t, d_t
+
+
+def _tree_frame(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    s_t, n0, n1, n2, d_t, _eta, _v0, _v1, _v2 = tree_geometry(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    out[0] = n0
+    out[1] = n1
+    out[2] = n2
+    return s_t, d_t
+
+
+@overload(wall_frame_into, jit_options={"nogil": True})
+def _wall_frame_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_frame if isinstance(geom, types.Array) else _tree_frame
+
+
+@numba.njit(cache=True, nogil=True)
+def wall_frames(ts, points, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``(s_t (n,), normals (n, d), D_t (n,))``: :func:`wall_frame_into` at each point (n, d) and time (n,), callable
+    from Python (the planner rests a bead on a network's or a tree's floor with it)."""
+    n = points.shape[0]
+    s = np.empty(n)
+    d = np.empty(n)
+    normals = np.empty_like(points)
+    for i in range(n):
+        s[i], d[i] = wall_frame_into(ts[i], points[i], geom, normals[i])
+    return s, normals, d
+
+
+@numba.njit(cache=True, nogil=True)
+def floor_offsets(points, geom):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """(n, d) ``D n / 2`` of the floor below each point (n, d) of a network or a tree (``geom`` with its pulsation
+    zero: the wall at rest): the wall met going down (``-z``) from the point, where its inward normal points up
+    (vertical component > 0.2); where there is none within two local diameters (or the point is outside), the
+    nearest wall's (:func:`wall_offsets`).  What a reference resting on the floor below its path follows (its
+    ``wall_follow`` share of it): one smooth field over the lumen, where the nearest wall's flips mid-lumen."""
+    n, d = points.shape
+    out = np.empty_like(points)
+    normal = np.empty(d)
+    q = np.empty(d)
+    for i in range(n):
+        s0, d0 = wall_frame_into(0.0, points[i], geom, normal)
+        found = False
+        if s0 > 0.0:
+            step = max(0.05 * d0, 1e-6)
+            lo, hi = 0.0, step
+            while hi <= 2.0 * d0:
+                q[:] = points[i]
+                q[d - 1] -= hi
+                s, _d = wall_frame_into(0.0, q, geom, normal)
+                if s <= 0.0:
+                    found = True
+                    break
+                lo = hi
+                hi += step
+            if found:
+                for _ in range(50):
+                    mid = 0.5 * (lo + hi)
+                    q[:] = points[i]
+                    q[d - 1] -= mid
+                    s, _d = wall_frame_into(0.0, q, geom, normal)
+                    if s > 0.0:
+                        lo = mid
+                    else:
+                        hi = mid
+                q[:] = points[i]
+                q[d - 1] -= lo
+                s, dq = wall_frame_into(0.0, q, geom, normal)
+                if normal[d - 1] > 0.2:
+                    for j in range(d):
+                        out[i, j] = 0.5 * dq * normal[j]
+                else:
+                    found = False
+        if not found:
+            wall_offset_into(points[i], geom, out[i])
     return out
 
 

@@ -80,7 +80,7 @@ from vesselbot_ros.control.predictive import PredictiveController, PredictivePar
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
 from vesselbot_ros.numba_cache import freshen_dependent
-from vesselbot_ros.physics.integrator import blood_velocity, wall_offsets
+from vesselbot_ros.physics.integrator import blood_velocity, floor_offsets
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_OMEGA_F, I_PHI_F
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimiter, CoilLimits, CoilOutput
@@ -645,7 +645,7 @@ def _reference(ctx: BuildContext) -> ReferenceTrajectory:
         return np.asarray(blood_velocity(t, np.ascontiguousarray(p, dtype=np.float64), geom))
 
     def offset(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        return np.asarray(wall_offsets(np.ascontiguousarray(points, dtype=np.float64), still))
+        return np.asarray(floor_offsets(np.ascontiguousarray(points, dtype=np.float64), still))
 
     motion = WallMotion(offset, float(p_model[I_D_PULSE]), float(p_model[I_OMEGA_F]), float(p_model[I_PHI_F]))
     return ReferenceTrajectory(planned_reference(ctx.scenario), flow_velocity=flow, wall_shift=wall_shift_of(phys),

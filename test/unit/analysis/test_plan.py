@@ -301,3 +301,35 @@ def test_a_network_plan_keeps_its_outlet_as_the_target_and_its_route_anchors():
     assert flown.reference.route_outlet == "lower" and flown.reference.route_anchors == "given"
     np.testing.assert_array_equal(flown.reference.anchor_points(), planned_reference(scenario).anchor_points())
     assert planned_reference(flown) == flown.reference  # given: the route's planner leaves them
+
+
+_START_X = ["reference.anchors_x_m=[1.0e-3, 4.0e-3, 7.0e-3, 10.0e-3]", "initial.p0_m=[1.0e-3, 1.0e-3]"]
+
+
+def test_a_plan_on_a_networks_meshed_floor_is_the_straight_vessels_plan_on_its_lower_wall():
+    """The clinical 3 T plan in the one-branch network (Table III's vessel as a meshed wall): the bead falls to the
+    floor and rides it as on the straight vessel's analytic lower wall (the floor below the route, its pulsation
+    followed, the wall's share of the need along its normal): the same timing, margin and coast floor."""
+    straight = make_plan(load_scenario("clinical_3t_small_artery", sets=_START_X))
+    network = make_plan(load_scenario("clinical_3t_small_artery",
+                                      sets=[*_START_X, "physics.vessel.network=straight_table3"]))
+    assert [s.mode for s in network.segments] == [s.mode for s in straight.segments]
+    assert "wall" in [s.mode for s in network.segments]
+    assert network.end_s == pytest.approx(straight.end_s, rel=0.01)
+    assert network.margin_m_per_s2 == pytest.approx(straight.margin_m_per_s2, rel=0.02)
+    assert network.coast_floor_m == pytest.approx(straight.coast_floor_m, rel=0.02)
+    assert network.reference.wall_follow and max(network.reference.wall_follow) == 1.0
+
+
+def test_a_tree_floor_broken_by_a_side_branchs_mouth_is_named_with_the_acceleration_missing():
+    """On clinical 3 T the coil cannot hold the bead's weight: in the 3-D III-C tree it can only ride the trunk's
+    floor, which side_down's mouth breaks at x 3.5-4.3 mm; crossing it off the wall needs more than the weight
+    alone (8.2 m/s^2), against 5.21."""
+    scenario = load_scenario("paper_iiic_network_upper_3d_ekf", hardware="clinical_3t",
+                             sets=["reference.route_outlet=lower", "reference.route_anchors=planned",
+                                   "reference.timing=constant", "reference.planned_t_s=[]", "reference.planned_u_m=[]",
+                                   "initial.p0_m=[0.0, 0.0, -1.3999e-3]"])
+    with pytest.raises(PlanInfeasible, match=r"on the floor below the route: .*breaks off at x 3\.\d-\d\.\d mm") as exc:
+        make_plan(scenario)
+    a_avail = 5.2127
+    assert exc.value.missing_m_per_s2 > 8.2 - a_avail

@@ -143,3 +143,14 @@ def test_a_planned_anchor_spacing_whose_spline_would_not_fit_is_refused_with_the
                                           r"through 1e\+07 planned anchors needs about [0-9.]+ TiB of memory"):
         anchor_arcs(0.0, 0.1, 1e-8)
     assert len(anchor_arcs(0.0, 0.1, 2.5e-3)) == 40
+
+
+def test_a_route_to_a_short_side_branch_ends_inside_it() -> None:
+    """side_down of the 3-D III-C tree is 4 mm long: the 2 mm end margin with 2.5 mm spacing left the route's last
+    anchor in the trunk, before the junction (the run's target unreachable by any loop); it ends inside it now."""
+    from vesselbot_ros.control.route import branch_at
+
+    sc = load_scenario(shipped_scenarios()["paper_iiic_network_upper_3d"], sets=["reference.route_outlet=side_down"])
+    ref = planned_reference(sc)
+    names, sdist = branch_at(sc.physics.vessel.network, ref.anchor_points()[-1:])
+    assert names == ["side_down"] and sdist[0] > 0.0
