@@ -25,6 +25,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("physics", ("physics",)),
     ("vessels", ("vessels",)),
     ("scanner", ("scanner",)),
+    ("imaging", ("imaging",)),
     ("control", ("control",)),
     ("sim", ("sim",)),
     ("studies", ("analysis", "campaign")),
