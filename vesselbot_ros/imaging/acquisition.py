@@ -209,10 +209,10 @@ def noise_sigma(params: MrImagingParams) -> float:
 #   blood 0.9 of water (ours).  SNR 20 at 1.5 T and 30 at 3 T per 1 x 1 x 5 mm voxel (ours: SNR grows
 #   roughly linearly with B0; we take 1.5x).
 # msset_1p5t: Felfoul O., Mathieu J.-B., Beaudoin G., Martel S., "In vivo MR-tracking based on magnetic
-#   signature selective excitation", IEEE Trans. Med. Imaging 27(1):28-35, 2008 (MS-SET on a clinical 1.5 T
-#   scanner, a chrome-steel bead in a swine's carotid).  The positive off-resonance band, three orthogonal
+#   signature selective excitation", IEEE Trans. Med. Imaging 27(1):28-35, 2008 (MS-SET on a clinical
+#   scanner).  The positive off-resonance band, three orthogonal
 #   projections and no slice selection are theirs; the numbers (band 1-2 kHz, 256 samples of 0.5 mm,
-#   800 Hz/pixel, TE 2 ms, SNR 20) are ours.
+#   800 Hz/pixel, TE 2 ms, SNR 20) and B0 = 1.5 T are ours.
 PRESETS: dict[str, MrImagingParams] = {
     "gre_1p5t": MrImagingParams(acquisition="slice", b0_T=1.5, echo_time_s=4.8e-3, repetition_time_s=8.0e-3,
                                 matrix=128, pixel_m=1.0e-3, bandwidth_Hz_per_pixel=400.0, slice_thickness_m=5e-3,

@@ -4,7 +4,8 @@ Slice (:class:`SliceTracker`), a fit of the artefact model to the complex image:
 
 1. checks: a non-finite sample rejects the frame (``nan_in_data``); more than 1 % of the real and imaginary
    parts at the frame's largest value (a clipped ADC) rejects it (``saturated``); a mean power within half the
-   background's of the noise's (``2 sigma^2``) rejects it (``all_noise``);
+   background's of the noise's (``2 sigma^2``), or a background model that explains under a tenth of the power
+   (noise far above the frame's sigma), rejects it (``all_noise``);
 2. the background without the bead, ``B`` (the same model, cached per FOV centre), and its complex scale
    ``c0 = <B, d> / <B, B>``;
 3. coarse: the bead-only template ``T0 = I(centre) - B`` cross-correlated (FFT) with ``d - c0 B``; the peak
@@ -145,9 +146,12 @@ class SliceTracker:
         bg, t0, ft0 = self._background(centre)
         s2 = frame.sigma ** 2
         bb = float(np.vdot(bg, bg).real)
-        if float(np.mean(np.abs(d) ** 2)) < 2.0 * s2 + 0.5 * bb / d.size:
-            return _reject("all_noise")
+        dd_power = float(np.vdot(d, d).real)
         c0 = np.vdot(bg, d) / bb
+        # all noise: less power than half the background's above the noise's, or the background model explains
+        # under a tenth of the power (noise far above the frame's sigma)
+        if dd_power / d.size < 2.0 * s2 + 0.5 * bb / d.size or abs(c0) ** 2 * bb < 0.1 * dd_power:
+            return _reject("all_noise")
         r = d - c0 * bg
         corr = np.fft.ifft2(np.fft.fft2(r) * np.conj(ft0))
         i, j = np.unravel_index(int(np.argmax(np.abs(corr))), corr.shape)
