@@ -78,6 +78,14 @@ def _reject(reason: str, gain: float = 0.0) -> Track:
     return Track(None, reason, gain)
 
 
+def _vertex(a: float, b: float, c: float) -> float:
+    """The vertex of the parabola through (-1, a), (0, b), (1, c), clipped to [-0.5, 0.5] (0 if flat)."""
+    den = a - 2.0 * b + c
+    if not den < 0.0:
+        return 0.0
+    return float(min(0.5, max(-0.5, 0.5 * (a - c) / den)))
+
+
 def check_samples(data: CArray) -> str:
     """``""`` or the reason raw data are unusable: non-finite samples (``nan_in_data``), a clipped ADC
     (``saturated``: more than 1 % of the real and imaginary parts at the largest absolute value), all zero
@@ -162,8 +170,10 @@ class SliceTracker:
         h = self.params.pixel_m
         ro, pe = self._inplane(frame)
         p = centre.copy()
-        p[pe] += (((i + n // 2) % n) - n // 2) * h  # rows: phase axis; circular lag in -n/2..n/2-1
-        p[ro] += (((j + n // 2) % n) - n // 2) * h
+        ac = np.abs(corr)
+        # rows: phase axis; circular lag in -n/2..n/2-1, refined by a parabola through the peak and its neighbours
+        p[pe] += ((((i + n // 2) % n) - n // 2) + _vertex(ac[(i - 1) % n, j], ac[i, j], ac[(i + 1) % n, j])) * h
+        p[ro] += ((((j + n // 2) % n) - n // 2) + _vertex(ac[i, (j - 1) % n], ac[i, j], ac[i, (j + 1) % n])) * h
         half = 0.5 * n * h
         for _ in range(max(1, self.refinements)):
             dd = slice_image(self.params, self.robot, p, centre, self.vessel_diameter_m) - bg
