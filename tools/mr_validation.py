@@ -110,12 +110,12 @@ def table_field() -> str:
     rows = [
         "| check | points | max relative error |",
         "|---|---|---|",
-        f"| compiled kernel (what the acquisitions sample) vs the vector dipole | {int(far.sum())} at 0.3-100 mm, "
+        f"| compiled kernel (what the acquisitions sample) vs the vector dipole | {int(far.sum())} at `0.3-100 mm`, "
         f"all directions | {rel_k:.1e} |",
         f"| numpy `dipole_field_T` vs the vector dipole | the same | {rel_v:.1e} |",
-        f"| worked example: on the B0 axis, 1 mm (m = {m:.3e} A m^2) | 1 | {on_axis * 1e3:.2f} mT against 18.0 mT "
+        f"| worked example: on the B0 axis, `1 mm` (m = {m:.3e} A m^2) | 1 | {on_axis * 1e3:.2f} mT against 18.0 mT "
         f"({abs(on_axis - 18e-3) / 18e-3:.1e}) |",
-        f"| field from a 0.5 mm slice's phase (TE 0.5 ms), across B0, 10-30 mm from the bead | {int(sel.sum())} "
+        f"| field from a `0.5 mm` slice's phase (TE 0.5 ms), across B0, `10-30 mm` from the bead | {int(sel.sum())} "
         f"| {rel_img:.1e} |",
     ]
     return "\n".join(rows)
@@ -150,11 +150,11 @@ def table_phantom() -> str:
         img = slice_image(p, ROBOT, None, ORIGIN, VESSEL_M)
         z = (np.arange(n) - n // 2) * p.pixel_m
         far = np.abs(z) >= 6e-3
-        rows.append(f"| tissue + 3 mm vessel | {n} | pixels >= 6 mm from the axis against the tissue | "
+        rows.append(f"| tissue + `3 mm` vessel | {n} | pixels `>= 6 mm` from the axis against the tissue | "
                     f"{float(np.abs(img[far] - et).max() / et):.1e} |")
         f = _vessel_fraction(p, 0.5 * VESSEL_M)
         mean_obj = et + (eb - et) * f
-        rows.append(f"| tissue + 3 mm vessel | {n} | image mean against the object's (quadrature) | "
+        rows.append(f"| tissue + `3 mm` vessel | {n} | image mean against the object's (quadrature) | "
                     f"{abs(float(img.mean().real) - mean_obj) / mean_obj:.1e} |")
     return "\n".join(rows)
 
@@ -240,12 +240,12 @@ class Bead:
 
 
 BEADS = (
-    Bead("paper bead, r 250 um, tau_m 0.8, M 1.72e6 A/m", ROBOT, "Arcese 2012 Table III"),
-    Bead("steel sphere, d 750 um", RobotParams(radius_m=375e-6, magnetic_ratio=1.0, magnetization_A_per_m=1.6e6),
+    Bead("paper bead, `r 250 um`, tau_m 0.8, M 1.72e6 A/m", ROBOT, "Arcese 2012 Table III"),
+    Bead("steel sphere, `d 750 um`", RobotParams(radius_m=375e-6, magnetic_ratio=1.0, magnetization_A_per_m=1.6e6),
          "Folio & Ferreira T-RO 2017 (diameter inferred); M 1.6e6 A/m ours (carbon steel, B_s ~2 T)"),
-    Bead("FeCo sphere, d 500 um", RobotParams(radius_m=250e-6, magnetic_ratio=1.0, magnetization_A_per_m=1.9e6),
+    Bead("FeCo sphere, `d 500 um`", RobotParams(radius_m=250e-6, magnetic_ratio=1.0, magnetization_A_per_m=1.9e6),
          "ours; M 1.9e6 A/m (FeCo, B_s ~2.4 T)"),
-    Bead("chrome-steel sphere, d 1.5 mm", RobotParams(radius_m=750e-6, magnetic_ratio=1.0,
+    Bead("chrome-steel sphere, `d 1.5 mm`", RobotParams(radius_m=750e-6, magnetic_ratio=1.0,
                                                        magnetization_A_per_m=1.4e6),
          "Martel et al. APL 2007 (size unverified, docs/published_experiments_sources.md s. 4); M 1.4e6 A/m ours"),
 )
@@ -270,8 +270,8 @@ def _artefact(p: MrImagingParams, robot: RobotParams) -> tuple[float, float, flo
 
 
 def table_artefact() -> str:
-    rows = ["| bead | preset (B0, TE) | void along readout x (mm) | void along phase z (mm) | / bead diameter | "
-            "published size | loss centroid off the bead (mm) | published (Seppenwoolde 2003) |",
+    rows = ["| bead | preset (B0, TE) | void along readout x (mm) | void along phase z (mm) | the two / bead diameter | "
+            "published size | loss centroid off the bead (mm) | published (Seppenwoolde 2003, mm) |",
             "|---|---|---|---|---|---|---|---|"]
     for bead in BEADS:
         for name in ("gre_1p5t", "gre_3t"):
@@ -279,7 +279,7 @@ def table_artefact() -> str:
             ro, pe, off = _artefact(p, bead.robot)
             d = 2 * bead.robot.radius_m
             rows.append(f"| {bead.name} ({bead.note}) | {name} ({p.b0_T:g} T, {p.echo_time_s * 1e3:g} ms) | "
-                        f"{ro * 1e3:.0f} | {pe * 1e3:.0f} | {ro / d:.0f} x, {pe / d:.0f} x | not found | "
+                        f"{ro * 1e3:.0f} | {pe * 1e3:.0f} | {ro / d:.0f}, {pe / d:.0f} | not found | "
                         f"{off * 1e3:.2f} | < 0.5 |")
     # the signal loss against TE: Seppenwoolde et al. (2003) found it linear in a dephasing parameter ~ m TE for
     # sub-voxel objects.  Here the void is also set by the off-resonance displacement (readout and slice
