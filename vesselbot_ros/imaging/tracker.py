@@ -16,7 +16,9 @@ Slice (:class:`SliceTracker`), a fit of the artefact model to the complex image:
    ``c (B + shift(D, delta))`` is fitted to the data in least squares over ``delta`` (in-plane) and the complex
    scale ``c`` (solved in closed form at each ``delta``: variable projection; scipy.optimize.least_squares).
    The vessel moves with the shifted template, the one approximation, and the next refinement re-synthesises
-   at the new estimate, so it shrinks with the step.
+   at the new estimate, so it shrinks with the step.  The first fine fit reuses the last frame's template when
+   the coarse estimate lies within ``reuse_template_px`` pixels of where it was synthesised (a bead moving
+   less than that per frame costs one synthesis per frame).
    A fit that fails, or lands outside the field of view, rejects the frame (``fit_failed`` / ``no_bead``).
 
 The slice gives the in-plane position (x, z); y is the slice plane's (the planar scenarios' y = 0).
@@ -111,6 +113,9 @@ class SliceTracker:
         vessel_diameter_m: The vessel in the background model (0: none).
         min_chi2: Chi-square gain below which a frame holds no bead.
         refinements: Fine fits, each from a template synthesised at the previous estimate (>= 1).
+        reuse_template_px: The first fine fit starts from the template the last frame synthesised when the
+            coarse estimate lies within this many pixels of where it was synthesised (0: never), so a bead that
+            moves less than that per frame costs one synthesis per frame, not ``refinements``.
     """
 
     params: MrImagingParams
@@ -118,11 +123,17 @@ class SliceTracker:
     vessel_diameter_m: float = 0.0
     min_chi2: float = 100.0
     refinements: int = 2
+    reuse_template_px: float = 1.0
 
     def __post_init__(self) -> None:
         self._cache: dict[tuple[float, ...], tuple[CArray, CArray, CArray]] = {}
         n, h = self.params.matrix, self.params.pixel_m
         self._k = np.fft.fftfreq(n, d=h)  # cycles/m, in numpy's FFT order
+        self._last: tuple[tuple[float, ...], Array, CArray] | None = None
+
+    def reset(self) -> None:
+        """Forget the last frame's template (the next frame synthesises its own)."""
+        self._last = None
 
     def _background(self, centre: Array) -> tuple[CArray, CArray, CArray]:
         key = tuple(float(v) for v in centre)
@@ -175,9 +186,18 @@ class SliceTracker:
         p[pe] += ((((i + n // 2) % n) - n // 2) + _vertex(ac[(i - 1) % n, j], ac[i, j], ac[(i + 1) % n, j])) * h
         p[ro] += ((((j + n // 2) % n) - n // 2) + _vertex(ac[i, (j - 1) % n], ac[i, j], ac[i, (j + 1) % n])) * h
         half = 0.5 * n * h
-        for _ in range(max(1, self.refinements)):
-            dd = slice_image(self.params, self.robot, p, centre, self.vessel_diameter_m) - bg
-            fd = np.fft.fft2(dd)
+        key = tuple(float(v) for v in centre)
+        for it in range(max(1, self.refinements)):
+            last = self._last
+            if (it == 0 and last is not None and last[0] == key
+                    and float(np.abs(p - last[1]).max()) <= self.reuse_template_px * h):
+                start = np.array([(p[ro] - last[1][ro]) / h, (p[pe] - last[1][pe]) / h])
+                p = last[1].copy()
+                fd = last[2]
+            else:
+                start = np.zeros(2)
+                fd = np.fft.fft2(slice_image(self.params, self.robot, p, centre, self.vessel_diameter_m) - bg)
+                self._last = (key, p.copy(), fd)
 
             def resid(x: Array, fd: CArray = fd) -> Array:
                 m = bg + self._shifted(fd, x[0] * h, x[1] * h)
@@ -186,7 +206,7 @@ class SliceTracker:
                 return np.concatenate([e.real, e.imag]) / frame.sigma
 
             try:
-                sol = least_squares(resid, np.zeros(2), method="lm", x_scale=np.ones(2), diff_step=1e-4)
+                sol = least_squares(resid, start, method="lm", x_scale=np.ones(2), diff_step=1e-4)
             except (ValueError, np.linalg.LinAlgError):
                 return _reject("fit_failed", gain)
             if not (sol.success and bool(np.isfinite(sol.x).all())):
@@ -212,10 +232,16 @@ class ProjectionTracker:
     vessel_diameter_m: float = 0.0
     min_chi2: float = 100.0
     refinements: int = 2
+    reuse_template_px: float = 1.0
 
     def __post_init__(self) -> None:
         self._cache: dict[tuple[float, ...], CArray] = {}
         self._k = np.fft.fftfreq(self.params.matrix, d=self.params.pixel_m)
+        self._last: tuple[tuple[float, ...], Array, CArray] | None = None
+
+    def reset(self) -> None:
+        """Forget the last frame's template (the next frame synthesises its own)."""
+        self._last = None
 
     def _template(self, centre: Array) -> CArray:
         key = tuple(float(v) for v in centre)
@@ -262,12 +288,23 @@ class ProjectionTracker:
             gain += float(np.abs(corr[lag]) ** 2) / (tt * s2) if tt > 0 else 0.0
         if not gain >= self.min_chi2:
             return _reject("no_bead", gain)
-        for _ in range(max(1, self.refinements)):
-            ft = np.fft.fft(projection_data(self.params, self.robot, p, centre, self.vessel_diameter_m), axis=1)
+        key = tuple(float(v) for v in centre)
+        for it in range(max(1, self.refinements)):
+            last = self._last
+            if (it == 0 and last is not None and last[0] == key
+                    and float(np.abs(p - last[1]).max()) <= self.reuse_template_px * h):
+                start = p - last[1]
+                p = last[1].copy()
+                ft = last[2]
+            else:
+                start = np.zeros(3)
+                ft = np.fft.fft(projection_data(self.params, self.robot, p, centre, self.vessel_diameter_m),
+                                axis=1)
+                self._last = (key, p.copy(), ft)
             gain = 0.0
             step = np.zeros(3)
             for a in range(3):
-                step[a], g = self._fit_axis(ft[a], fdata[a], 0.0)
+                step[a], g = self._fit_axis(ft[a], fdata[a], float(start[a]))
                 gain += g / s2
             p = p + step
             if not bool(np.isfinite(p).all()):

@@ -131,3 +131,36 @@ def test_whatever_the_frame_the_tracker_never_returns_a_nan_position() -> None:
             res = tracker.track(_slice_frame(image))
             assert (res.position_m is None and res.reason in REJECT_REASONS) or (
                 res.reason == "" and np.isfinite(res.position_m).all())
+
+
+def test_a_moving_bead_is_tracked_frame_after_frame_with_the_last_template_reused(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bead moving 0.3 pixel per frame: after the first frame the tracker synthesises once per frame (the
+    last frame's template starts the fit) and stays near the bound; reset() forgets the template."""
+    import vesselbot_ros.imaging.tracker as tracker_module
+
+    real = tracker_module.slice_image
+    calls = 0
+
+    def counting(*args: object, **kwargs: object) -> np.ndarray:
+        nonlocal calls
+        calls += 1
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(tracker_module, "slice_image", counting)
+    tracker = SliceTracker(SLICE, ROBOT, VESSEL_M)
+    rng = np.random.default_rng(4)
+    errs = []
+    for i in range(8):
+        true = np.array([-2e-3 + 0.3e-3 * i, 0.0, 0.1e-3 * i])
+        res = tracker.track(acquire_slice(SLICE, ROBOT, true, rng, CENTRE, VESSEL_M))
+        assert res.accepted
+        errs.append(res.position_m - true)
+    # the background and the centre's template once, two syntheses for the first frame, then one per frame
+    assert calls == 2 + 2 + 7
+    tracker.reset()
+    calls = 0
+    assert tracker.track(acquire_slice(SLICE, ROBOT, (0.0, 0.0), rng, CENTRE, VESSEL_M)).accepted
+    assert calls == 2  # after reset() the first fit synthesises again (the background stays cached)
+    bound = np.sqrt(np.trace(slice_crb(SLICE, ROBOT, np.zeros(3), CENTRE, VESSEL_M)))
+    assert np.sqrt((np.array(errs)[:, [0, 2]] ** 2).sum(axis=1).mean()) < 3.0 * bound
