@@ -320,7 +320,7 @@ def _sinc(x):  # type: ignore[no-untyped-def]  # numba kernel: argument types ar
     return math.sin(x) / x
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Accumulate the slice's sub-voxel signal on ``fine`` (M, M) complex (rows: phase axis, columns: readout).
 
@@ -381,7 +381,7 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
                     fine[ip, i0 + 1] += fr * v
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Accumulate the excited spins on ``fine`` (3, M) complex: row a the projection along axis a.
 

@@ -39,6 +39,7 @@ import dataclasses
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares, minimize_scalar
@@ -53,7 +54,7 @@ from vesselbot_ros.imaging.acquisition import (
 )
 from vesselbot_ros.physics.params import RobotParams
 
-__all__ = ["Track", "REJECT_REASONS", "SliceTracker", "ProjectionTracker", "check_samples"]
+__all__ = ["Track", "REJECT_REASONS", "SliceTracker", "ProjectionTracker", "check_samples", "cdot"]
 
 Array = npt.NDArray[np.float64]
 CArray = npt.NDArray[np.complex128]
@@ -78,6 +79,20 @@ class Track(NamedTuple):
 
 def _reject(reason: str, gain: float = 0.0) -> Track:
     return Track(None, reason, gain)
+
+
+@numba.njit(cache=True, nogil=True)
+def _cdot_kernel(a, b):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    acc = 0j
+    for i in range(a.shape[0]):
+        acc += a[i].conjugate() * b[i]
+    return acc
+
+
+def cdot(a: CArray, b: CArray) -> complex:
+    """``sum(conj(a) b)`` in a fixed order, without BLAS (``np.vdot`` hands it to OpenBLAS, whose kernel and
+    threads depend on the machine: the same frame would give other last bits; vesselbot_ros/blas_free.py)."""
+    return complex(_cdot_kernel(np.ascontiguousarray(a).reshape(-1), np.ascontiguousarray(b).reshape(-1)))
 
 
 def _vertex(a: float, b: float, c: float) -> float:
@@ -164,9 +179,9 @@ class SliceTracker:
         centre = np.array(frame.centre_m, dtype=np.float64)
         bg, t0, ft0 = self._background(centre)
         s2 = frame.sigma ** 2
-        bb = float(np.vdot(bg, bg).real)
-        dd_power = float(np.vdot(d, d).real)
-        c0 = np.vdot(bg, d) / bb
+        bb = cdot(bg, bg).real
+        dd_power = cdot(d, d).real
+        c0 = cdot(bg, d) / bb
         # all noise: less power than half the background's above the noise's, or the background model explains
         # under a tenth of the power (noise far above the frame's sigma)
         if dd_power / d.size < 2.0 * s2 + 0.5 * bb / d.size or abs(c0) ** 2 * bb < 0.1 * dd_power:
@@ -174,7 +189,7 @@ class SliceTracker:
         r = d - c0 * bg
         corr = np.fft.ifft2(np.fft.fft2(r) * np.conj(ft0))
         i, j = np.unravel_index(int(np.argmax(np.abs(corr))), corr.shape)
-        tt = float(np.vdot(t0, t0).real)
+        tt = cdot(t0, t0).real
         gain = float(np.abs(corr[i, j]) ** 2 / (tt * s2)) if tt > 0 else 0.0
         if not gain >= self.min_chi2:
             return _reject("no_bead", gain)
@@ -201,7 +216,7 @@ class SliceTracker:
 
             def resid(x: Array, fd: CArray = fd) -> Array:
                 m = bg + self._shifted(fd, x[0] * h, x[1] * h)
-                c = np.vdot(m, d) / np.vdot(m, m)
+                c = cdot(m, d) / cdot(m, m).real
                 e = (d - c * m).ravel()
                 return np.concatenate([e.real, e.imag]) / frame.sigma
 

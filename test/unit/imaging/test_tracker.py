@@ -164,3 +164,14 @@ def test_a_moving_bead_is_tracked_frame_after_frame_with_the_last_template_reuse
     assert calls == 2  # after reset() the first fit synthesises again (the background stays cached)
     bound = np.sqrt(np.trace(slice_crb(SLICE, ROBOT, np.zeros(3), CENTRE, VESSEL_M)))
     assert np.sqrt((np.array(errs)[:, [0, 2]] ** 2).sum(axis=1).mean()) < 3.0 * bound
+
+
+def test_tracking_is_deterministic_and_its_dot_product_needs_no_blas() -> None:
+    from vesselbot_ros.imaging.tracker import cdot
+
+    frame = acquire_slice(SLICE, ROBOT, (0.4e-3, -0.2e-3), np.random.default_rng(8), CENTRE, VESSEL_M)
+    a = SliceTracker(SLICE, ROBOT, VESSEL_M).track(frame)
+    b = SliceTracker(SLICE, ROBOT, VESSEL_M).track(frame)
+    assert a.accepted and np.array_equal(a.position_m, b.position_m) and a.chi2_gain == b.chi2_gain
+    x = frame.image
+    assert cdot(x, x[::-1]) == pytest.approx(complex(np.vdot(x, x[::-1])), rel=1e-12)
