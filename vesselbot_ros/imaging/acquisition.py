@@ -332,12 +332,21 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
     m = fine.shape[0]
     d = pixel / o
     ds = 2.0 * thk / ns
-    et = pdt * math.exp(-te / t2t)
-    eb = pdb * math.exp(-te / t2b)
     ph = 2.0 * math.pi * GAMMA_BAR_HZ_PER_T * te  # rad per T
+    et = pdt * math.exp(-te / t2t) * (ds / thk)  # a sample's weight before the profile and dephasing
+    eb = pdb * math.exp(-te / t2b) * (ds / thk)
+    inv_rfbw = 1.0 / rfbw
+    o_bw = o / bw  # fine bins of readout shift per Hz
+    reach = 2.0 * k * GAMMA_BAR_HZ_PER_T * inv_rfbw  # |df| / rf_bw <= reach / r^3
+    h_ro = 0.5 * ph * d
     pe = 2 - ro
     for j in range(ns):
         s = (j + 0.5) * ds - thk
+        u_s = s / thk
+        beyond = abs(u_s) - 0.5 - _EDGE  # > 0: the profile reaches this sample only off resonance
+        if not has_bead and beyond >= 0.0:
+            continue
+        h_s = 0.5 * ph * ds
         y = centre[1] + s
         for ip in range(m):
             up = centre[pe] + (ip - m // 2) * d
@@ -345,34 +354,30 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
                 ur = centre[ro] + (ir - m // 2) * d
                 x = ur if ro == 0 else up
                 z = up if ro == 0 else ur
-                if y * y + z * z < rv * rv:
-                    w = eb
-                else:
-                    w = et
+                w = eb if y * y + z * z < rv * rv else et
                 df = 0.0
+                db = 0.0
                 fac = 1.0
-                if not has_bead and abs(s / thk) >= 0.5 + _EDGE:
-                    continue
                 if has_bead:
                     dx, dy, dz = x - bead[0], y - bead[1], z - bead[2]
                     r2 = dx * dx + dy * dy + dz * dz
                     if r2 < a * a:
                         continue  # the sphere: no protons
                     # |df| <= 2 k gamma_bar / r^3: a sample the slice profile cannot reach is skipped unevaluated
-                    if abs(s / thk) - 0.5 - _EDGE >= 2.0 * k * GAMMA_BAR_HZ_PER_T / (r2 * math.sqrt(r2)) / rfbw:
+                    if beyond > 0.0 and beyond * r2 * math.sqrt(r2) >= reach:
                         continue
                     db, gx, gy, gz = dipole_dbz_grad(dx, dy, dz, k, a)
                     df = GAMMA_BAR_HZ_PER_T * db
                     g_ro = gx if ro == 0 else gz
                     g_pe = gz if ro == 0 else gx
-                    fac = (_sinc(0.5 * ph * g_ro * d) * _sinc(0.5 * ph * g_pe * d) * _sinc(0.5 * ph * gy * ds))
-                wp = _profile(s / thk + df / rfbw)
+                    fac = _sinc(h_ro * g_ro) * _sinc(h_ro * g_pe) * _sinc(h_s * gy)
+                wp = _profile(u_s + df * inv_rfbw)
                 if wp == 0.0:
                     continue
-                amp = w * wp * fac * (ds / thk)
-                phi = -ph * (df / GAMMA_BAR_HZ_PER_T)
+                amp = w * wp * fac
+                phi = -ph * db
                 v = amp * complex(math.cos(phi), math.sin(phi))
-                f = ir + df / bw * o
+                f = ir + df * o_bw
                 i0 = int(math.floor(f))
                 fr = f - i0
                 if 0 <= i0 < m:
@@ -396,6 +401,9 @@ def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: i
     et = pdt * math.exp(-te / t2t)
     eb = pdb * math.exp(-te / t2b)
     ph = 2.0 * math.pi * GAMMA_BAR_HZ_PER_T * te
+    # |df| <= 2 k gamma_bar / r^3: beyond r_lim no spin reaches the band's near edge, skipped unevaluated
+    f_lo = abs(off) - (0.5 + _EDGE) * band
+    r_lim2 = (2.0 * k * GAMMA_BAR_HZ_PER_T / f_lo) ** (2.0 / 3.0) if f_lo > 0.0 else math.inf
     # sample nodes on the fine grid of each axis (so a bead on a node samples the same points)
     base = np.empty(3)
     for c in range(3):
@@ -408,7 +416,8 @@ def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: i
             for w3 in range(2 * nq + 2):
                 q[2] = base[2] + w3 * d
                 dx, dy, dz = q[0] - bead[0], q[1] - bead[1], q[2] - bead[2]
-                if dx * dx + dy * dy + dz * dz < a * a:
+                r2 = dx * dx + dy * dy + dz * dz
+                if r2 < a * a or r2 > r_lim2:
                     continue
                 db, gx, gy, gz = dipole_dbz_grad(dx, dy, dz, k, a)
                 df = GAMMA_BAR_HZ_PER_T * db

@@ -61,13 +61,13 @@ def dipole_dbz_grad(dx, dy, dz, k, a):  # type: ignore[no-untyped-def]  # numba 
     r2 = dx * dx + dy * dy + dz * dz
     if r2 < a * a:
         return 2.0 * k / (a * a * a), 0.0, 0.0, 0.0
-    r = math.sqrt(r2)
-    r5 = r2 * r2 * r
-    r7 = r5 * r2
+    inv_r2 = 1.0 / r2
+    k5 = k * inv_r2 * inv_r2 * math.sqrt(inv_r2)  # k / r^5
+    k7 = k5 * inv_r2
     dx2 = dx * dx
-    db = k * (3.0 * dx2 - r2) / r5
-    gx = k * dx * (9.0 * r2 - 15.0 * dx2) / r7
-    c = k * (3.0 * r2 - 15.0 * dx2) / r7
+    db = k5 * (3.0 * dx2 - r2)
+    gx = k7 * dx * (9.0 * r2 - 15.0 * dx2)
+    c = k7 * (3.0 * r2 - 15.0 * dx2)
     return db, gx, c * dy, c * dz
 
 
