@@ -444,6 +444,18 @@ def _crop_1d(n: int, m: int) -> slice:
     return slice(m // 2 - n // 2, m // 2 - n // 2 + n)
 
 
+def _central_kspace(fine: CArray, n: int) -> CArray:
+    """The central n x n k-space samples (k = -n/2 .. n/2-1 on each axis, centred order) of the fine grid
+    (m x m, node ``m/2`` at the origin): ``fftshift(fft2(ifftshift(fine)))`` cropped, computed as the readout
+    FFT of every row, then the phase-axis FFT of the n kept columns only, the origin's shift as ``(-1)^k``."""
+    m = fine.shape[0]
+    kk = np.arange(n) - n // 2
+    idx = kk % m
+    sign = np.where(kk % 2 == 0, 1.0, -1.0)
+    rows = np.fft.fft(fine, axis=1)[:, idx] * sign[None, :]
+    return np.fft.fft(rows, axis=0)[idx, :] * sign[:, None]
+
+
 def _readout_decay(params: MrImagingParams) -> Array:
     """exp(-tau / T2*) over the readout about the echo (tissue's T2*), per centred k-space sample."""
     n = params.matrix
@@ -468,14 +480,13 @@ def slice_image(params: MrImagingParams, robot: RobotParams, bead: npt.ArrayLike
                      params.rf_bandwidth_Hz, float(params.slice_samples), params.tissue_proton_density,
                      params.t2star_s, params.blood_proton_density, params.blood_t2star_s, 0.5 * vessel_diameter_m])
     positions = _positions(bead)
-    crop = _crop_1d(n, m)
     kspace = np.empty((n, n), dtype=np.complex128)
     lines = np.arange(n)
     which = (lines * len(positions)) // n
     for i, p in enumerate(positions):
         fine = np.zeros((m, m), dtype=np.complex128)
         _slice_fine(fine, o, n, params.pixel_m, ro, c, p is not None, p if p is not None else np.zeros(3), k, a, sprm)
-        ks = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(fine)))[crop, crop]
+        ks = _central_kspace(fine, n)
         rows = which == i
         kspace[rows] = ks[rows]
     kspace *= _readout_decay(params)[None, :]
