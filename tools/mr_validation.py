@@ -41,8 +41,8 @@ from doc_sections import replace_section  # noqa: E402
 
 from vesselbot_ros.atomic_io import write_text  # noqa: E402
 from vesselbot_ros.imaging.acquisition import (  # noqa: E402
-    _EDGE,
     PRESETS,
+    PROFILE_EDGE,
     MrImagingParams,
     ProjectionFrame,
     SliceFrame,
@@ -139,11 +139,11 @@ def _vessel_fraction(p: MrImagingParams, radius: float) -> float:
 
     def profile(u: float) -> float:
         au = abs(u)
-        if au <= 0.5 - _EDGE:
+        if au <= 0.5 - PROFILE_EDGE:
             return 1.0
-        if au >= 0.5 + _EDGE:
+        if au >= 0.5 + PROFILE_EDGE:
             return 0.0
-        return math.cos(0.5 * math.pi * (au - 0.5 + _EDGE) / (2 * _EDGE)) ** 2
+        return math.cos(0.5 * math.pi * (au - 0.5 + PROFILE_EDGE) / (2 * PROFILE_EDGE)) ** 2
 
     val, _ = quad(lambda y: profile(y / thk) / thk * 2.0 * math.sqrt(max(radius * radius - y * y, 0.0)),
                   -radius, radius, limit=200, points=[-0.4 * thk, 0.4 * thk] if 0.4 * thk < radius else None)

@@ -60,14 +60,16 @@ from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.imaging.dipole import GAMMA_BAR_HZ_PER_T, bead_moment_Am2, dipole_dbz_grad, dipole_prefactor
 from vesselbot_ros.physics.params import RobotParams
 
-__all__ = ["MrImagingParams", "PRESETS", "PRESET_SOURCES", "check_field_of_view", "noise_sigma",
+__all__ = ["MrImagingParams", "PRESETS", "PRESET_SOURCES", "PROFILE_EDGE", "check_field_of_view", "noise_sigma",
            "SliceFrame", "ProjectionFrame", "acquire_slice", "acquire_projections", "slice_image",
            "projection_data", "slice_pixel_centres", "as_position3"]
 
 Array = npt.NDArray[np.float64]
 CArray = npt.NDArray[np.complex128]
 
-_EDGE = 0.1  # cos^2 edge half-width of the slice and excitation profiles, fraction of the width (ours)
+#: Half-width of the cos^2 edges of the slice and excitation profiles, as a fraction of their width (ours).
+PROFILE_EDGE = 0.1
+_EDGE = PROFILE_EDGE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,8 +78,9 @@ class MrImagingParams:
 
     Attributes:
         acquisition: ``slice`` (2-D gradient echo) or ``projections`` (MS-SET, three 1-D projections).
-        b0_T: Main field B0 (T); sets nothing in the dipole (the bead is saturated either way) but names the
-            preset and scales nothing else: the off-resonance is ``gamma_bar dB`` whatever B0.
+        b0_T: Main field B0 (T), > 0.  It labels the preset and changes no number of the model: the bead is
+            saturated at either field, its off-resonance is ``gamma_bar dB`` whatever B0, and the SNR's growth
+            with B0 is in the presets' ``snr``.
         echo_time_s: Echo time TE (s), > 0 and at least half the readout (``0.5 / bandwidth_Hz_per_pixel``).
         repetition_time_s: Repetition time TR (s), >= TE + half the readout; a slice takes ``matrix`` TRs,
             a projection set three.
@@ -99,7 +102,8 @@ class MrImagingParams:
         blood_t2star_s: Blood T2* (s), > 0.
         tissue_proton_density: Tissue proton density relative to water, in [0, 1].
         blood_proton_density: Blood proton density relative to water, in [0, 1].
-        oversample: Sub-voxel samples per pixel and axis (an integer, 1 to 8).
+        oversample: Sub-voxel samples per pixel and axis (an integer, 1 to 8; ``matrix oversample`` at most
+            2048, the fine grid's side).
         slice_samples: Samples across the slice (over +-thickness; an integer, 1 to 32).
     """
 
@@ -151,6 +155,9 @@ class MrImagingParams:
         check_range("blood_proton_density", self.blood_proton_density, 0.0, 1.0)
         _check_int("oversample", self.oversample, 1, 8)
         _check_int("slice_samples", self.slice_samples, 1, 32)
+        if self.matrix * self.oversample > 2048:
+            raise ConfigError(f"oversample must keep matrix x oversample <= 2048 (matrix = {self.matrix!r}), "
+                              f"got {self.oversample!r}")
         half_readout = 0.5 / self.bandwidth_Hz_per_pixel
         if self.echo_time_s < half_readout:
             raise ConfigError(f"echo_time_s must be >= half the readout (0.5 / bandwidth_Hz_per_pixel = "

@@ -32,6 +32,7 @@ ROBOT = RobotParams()
     ({"matrix": 33}, "matrix must be even, got 33"),
     ({"matrix": 4}, "matrix must be in [8, 1024], got 4"),
     ({"oversample": 0}, "oversample must be in [1, 8], got 0"),
+    ({"matrix": 512, "oversample": 5}, "oversample must keep matrix x oversample <= 2048 (matrix = 512), got 5"),
     ({"snr": 0.0}, "snr must be > 0, got 0.0"),
     ({"bandwidth_Hz_per_pixel": 100.0, "echo_time_s": 3e-3}, "echo_time_s must be >= half the readout"),
     ({"readout_axis": "y"}, "readout_axis must be one of ['x', 'z'], got 'y'"),
