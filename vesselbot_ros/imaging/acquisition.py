@@ -96,6 +96,10 @@ class MrImagingParams:
         excitation_offset_Hz: MS-SET: the centre of the excited band (Hz), finite, ``|offset|`` above half
             the band (the background at 0 Hz is never excited).
         excitation_bandwidth_Hz: MS-SET: the excited band's width (Hz), > 0.
+        b0_offset_Hz: A uniform off-resonance of every spin (Hz), finite: the scanner's centre frequency off the
+            tissue's resonance (a shim or frequency-adjustment error).  It shifts the whole image along the
+            readout and the slab through the slice like the bead's field does; 0 (the default) is a perfect
+            adjustment.  MS-SET's band must stay clear of it.
         snr: SNR of a voxel of proton density 1 fully excited at TE = 0, at ``snr_bandwidth_Hz_per_pixel``.
         snr_bandwidth_Hz_per_pixel: The bandwidth the ``snr`` holds at (Hz); sigma scales as sqrt(bandwidth).
         t2star_s: Tissue T2* (s), > 0.
@@ -119,6 +123,7 @@ class MrImagingParams:
     rf_bandwidth_Hz: float = 1000.0
     excitation_offset_Hz: float = 1500.0
     excitation_bandwidth_Hz: float = 1000.0
+    b0_offset_Hz: float = 0.0
     snr: float = 20.0
     snr_bandwidth_Hz_per_pixel: float = 400.0
     t2star_s: float = 0.025
@@ -143,10 +148,11 @@ class MrImagingParams:
         check_positive("rf_bandwidth_Hz", self.rf_bandwidth_Hz)
         check_finite("excitation_offset_Hz", self.excitation_offset_Hz)
         check_positive("excitation_bandwidth_Hz", self.excitation_bandwidth_Hz)
-        if abs(self.excitation_offset_Hz) <= (0.5 + _EDGE) * self.excitation_bandwidth_Hz:
-            raise ConfigError(f"excitation_offset_Hz must exceed 0.6 excitation_bandwidth_Hz "
-                              f"({self.excitation_bandwidth_Hz!r}) in size, so the background is not excited, "
-                              f"got {self.excitation_offset_Hz!r}")
+        check_finite("b0_offset_Hz", self.b0_offset_Hz)
+        if abs(self.excitation_offset_Hz - self.b0_offset_Hz) <= (0.5 + _EDGE) * self.excitation_bandwidth_Hz:
+            raise ConfigError(f"excitation_offset_Hz must lie more than 0.6 excitation_bandwidth_Hz "
+                              f"({self.excitation_bandwidth_Hz!r}) from b0_offset_Hz ({self.b0_offset_Hz!r}), so "
+                              f"the background is not excited, got {self.excitation_offset_Hz!r}")
         check_positive("snr", self.snr)
         check_positive("snr_bandwidth_Hz_per_pixel", self.snr_bandwidth_Hz_per_pixel)
         check_positive("t2star_s", self.t2star_s)
@@ -331,11 +337,12 @@ def _sinc(x):  # type: ignore[no-untyped-def]  # numba kernel: argument types ar
 def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Accumulate the slice's sub-voxel signal on ``fine`` (M, M) complex (rows: phase axis, columns: readout).
 
-    sprm: [TE, bw_pp, thickness, rf_bw, slice samples, pd tissue, t2* tissue, pd blood, t2* blood, vessel r].
+    sprm: [TE, bw_pp, thickness, rf_bw, slice samples, pd tissue, t2* tissue, pd blood, t2* blood, vessel r,
+    uniform off-resonance (Hz)].
     """
     te, bw, thk, rfbw = sprm[0], sprm[1], sprm[2], sprm[3]
     ns = int(sprm[4])
-    pdt, t2t, pdb, t2b, rv = sprm[5], sprm[6], sprm[7], sprm[8], sprm[9]
+    pdt, t2t, pdb, t2b, rv, f_off = sprm[5], sprm[6], sprm[7], sprm[8], sprm[9], sprm[10]
     m = fine.shape[0]
     d = pixel / o
     ds = 2.0 * thk / ns
@@ -346,11 +353,12 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
     o_bw = o / bw  # fine bins of readout shift per Hz
     reach = 2.0 * k * GAMMA_BAR_HZ_PER_T * inv_rfbw  # |df| / rf_bw <= reach / r^3
     h_ro = 0.5 * ph * d
+    ph_hz = 2.0 * math.pi * te  # rad per Hz
     pe = 2 - ro
     for j in range(ns):
         s = (j + 0.5) * ds - thk
-        u_s = s / thk
-        beyond = abs(u_s) - 0.5 - _EDGE  # > 0: the profile reaches this sample only off resonance
+        u_s = s / thk + f_off * inv_rfbw  # the sample's place in the profile without the bead
+        beyond = abs(u_s) - 0.5 - _EDGE  # > 0: the profile reaches this sample only through the bead's field
         if not has_bead and beyond >= 0.0:
             continue
         h_s = 0.5 * ph * ds
@@ -362,8 +370,7 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
                 x = ur if ro == 0 else up
                 z = up if ro == 0 else ur
                 w = eb if y * y + z * z < rv * rv else et
-                df = 0.0
-                db = 0.0
+                df = 0.0  # the bead's off-resonance (Hz); the uniform one is in u_s, phi and f
                 fac = 1.0
                 if has_bead:
                     dx, dy, dz = x - bead[0], y - bead[1], z - bead[2]
@@ -382,9 +389,9 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
                 if wp == 0.0:
                     continue
                 amp = w * wp * fac
-                phi = -ph * db
+                phi = -ph_hz * (df + f_off)
                 v = amp * complex(math.cos(phi), math.sin(phi))
-                f = ir + df * o_bw
+                f = ir + (df + f_off) * o_bw
                 i0 = int(math.floor(f))
                 fr = f - i0
                 if 0 <= i0 < m:
@@ -397,11 +404,11 @@ def _slice_fine(fine, o, n, pixel, ro, centre, has_bead, bead, k, a, sprm):  # t
 def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Accumulate the excited spins on ``fine`` (3, M) complex: row a the projection along axis a.
 
-    pprm: [TE, bw_pp, offset, band, pd tissue, t2* tissue, pd blood, t2* blood, vessel r].
+    pprm: [TE, bw_pp, offset, band, pd tissue, t2* tissue, pd blood, t2* blood, vessel r, uniform off-resonance].
     The excited spins are sampled on the cube of half-width ``half`` (m) about the bead.
     """
     te, bw, off, band = pprm[0], pprm[1], pprm[2], pprm[3]
-    pdt, t2t, pdb, t2b, rv = pprm[4], pprm[5], pprm[6], pprm[7], pprm[8]
+    pdt, t2t, pdb, t2b, rv, f_off = pprm[4], pprm[5], pprm[6], pprm[7], pprm[8], pprm[9]
     m = fine.shape[1]
     d = pixel / o
     nq = int(math.ceil(half / d))
@@ -409,7 +416,7 @@ def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: i
     eb = pdb * math.exp(-te / t2b)
     ph = 2.0 * math.pi * GAMMA_BAR_HZ_PER_T * te
     # |df| <= 2 k gamma_bar / r^3: beyond r_lim no spin reaches the band's near edge, skipped unevaluated
-    f_lo = abs(off) - (0.5 + _EDGE) * band
+    f_lo = abs(off - f_off) - (0.5 + _EDGE) * band
     r_lim2 = (2.0 * k * GAMMA_BAR_HZ_PER_T / f_lo) ** (2.0 / 3.0) if f_lo > 0.0 else math.inf
     # sample nodes on the fine grid of each axis (so a bead on a node samples the same points)
     base = np.empty(3)
@@ -427,14 +434,14 @@ def _projection_fine(fine, o, pixel, centre, bead, k, a, half, pprm):  # type: i
                 if r2 < a * a or r2 > r_lim2:
                     continue
                 db, gx, gy, gz = dipole_dbz_grad(dx, dy, dz, k, a)
-                df = GAMMA_BAR_HZ_PER_T * db
+                df = GAMMA_BAR_HZ_PER_T * db + f_off
                 wp = _profile((df - off) / band)
                 if wp == 0.0:
                     continue
                 w = eb if q[1] * q[1] + q[2] * q[2] < rv * rv else et
                 amp = w * wp * _sinc(0.5 * ph * gx * d) * _sinc(0.5 * ph * gy * d) * _sinc(0.5 * ph * gz * d)
                 amp *= (d / pixel) ** 3
-                phi = -ph * db
+                phi = -2.0 * math.pi * te * df
                 v = amp * complex(math.cos(phi), math.sin(phi))
                 for c in range(3):
                     f = (q[c] - centre[c]) / d + m // 2 + df / bw * o
@@ -485,7 +492,8 @@ def slice_image(params: MrImagingParams, robot: RobotParams, bead: npt.ArrayLike
     k, a = _bead_constants(robot)
     sprm = np.array([params.echo_time_s, params.bandwidth_Hz_per_pixel, params.slice_thickness_m,
                      params.rf_bandwidth_Hz, float(params.slice_samples), params.tissue_proton_density,
-                     params.t2star_s, params.blood_proton_density, params.blood_t2star_s, 0.5 * vessel_diameter_m])
+                     params.t2star_s, params.blood_proton_density, params.blood_t2star_s, 0.5 * vessel_diameter_m,
+                     params.b0_offset_Hz])
     positions = _positions(bead)
     kspace = np.empty((n, n), dtype=np.complex128)
     lines = np.arange(n)
@@ -503,7 +511,8 @@ def slice_image(params: MrImagingParams, robot: RobotParams, bead: npt.ArrayLike
 def _excited_half_width(params: MrImagingParams, robot: RobotParams) -> float:
     """Half-width (m) of the cube holding every spin the MS-SET band can excite (dB at most 2 k / r^3)."""
     k = _bead_constants(robot)[0]
-    f_lo = max(abs(params.excitation_offset_Hz) - (0.5 + _EDGE) * params.excitation_bandwidth_Hz, 1.0)
+    f_lo = max(abs(params.excitation_offset_Hz - params.b0_offset_Hz) - (0.5 + _EDGE) * params.excitation_bandwidth_Hz,
+               1.0)
     r_max = (2.0 * k * GAMMA_BAR_HZ_PER_T / f_lo) ** (1.0 / 3.0)
     return r_max + 2.0 * params.pixel_m / params.oversample
 
@@ -517,7 +526,8 @@ def projection_data(params: MrImagingParams, robot: RobotParams, bead: npt.Array
     k, a = _bead_constants(robot)
     pprm = np.array([params.echo_time_s, params.bandwidth_Hz_per_pixel, params.excitation_offset_Hz,
                      params.excitation_bandwidth_Hz, params.tissue_proton_density, params.t2star_s,
-                     params.blood_proton_density, params.blood_t2star_s, 0.5 * vessel_diameter_m])
+                     params.blood_proton_density, params.blood_t2star_s, 0.5 * vessel_diameter_m,
+                     params.b0_offset_Hz])
     positions = _positions(bead)
     half = _excited_half_width(params, robot)
     out = np.zeros((3, n), dtype=np.complex128)

@@ -36,7 +36,10 @@ ROBOT = RobotParams()
     ({"snr": 0.0}, "snr must be > 0, got 0.0"),
     ({"bandwidth_Hz_per_pixel": 100.0, "echo_time_s": 3e-3}, "echo_time_s must be >= half the readout"),
     ({"readout_axis": "y"}, "readout_axis must be one of ['x', 'z'], got 'y'"),
-    ({"excitation_offset_Hz": 100.0}, "excitation_offset_Hz must exceed"),
+    ({"excitation_offset_Hz": 100.0}, "excitation_offset_Hz must lie more than 0.6 excitation_bandwidth_Hz (1000.0) "
+                                      "from b0_offset_Hz (0.0), so the background is not excited, got 100.0"),
+    ({"b0_offset_Hz": 1200.0}, "from b0_offset_Hz (1200.0)"),
+    ({"b0_offset_Hz": float("nan")}, "b0_offset_Hz must be finite, got nan"),
 ])
 def test_bad_parameters_name_the_key_and_the_value(changes: dict[str, object], words: str) -> None:
     with pytest.raises(ConfigError) as err:
@@ -87,6 +90,26 @@ def test_the_readout_shifts_by_df_over_the_bandwidth_per_pixel_towards_plus_read
     # along x the lobes are symmetric about the bead too: the same shift
     wx = np.abs(data[0]) ** 2
     assert float((wx * (np.arange(128) - 64)).sum() / wx.sum()) == pytest.approx(1500.0 / bandwidth, abs=0.15)
+
+
+@pytest.mark.parametrize("pixels", [2, -3])
+def test_a_slice_shifts_along_its_readout_by_df_over_the_bandwidth_per_pixel(pixels: int) -> None:
+    """A uniform off-resonance df = pixels x bandwidth moves the vessel (the image of its spins alone: the vessel
+    phantom minus the uniform one, so the FOV's edges cancel) by exactly ``pixels`` along +readout (z: the vessel
+    runs along x, so only a readout across it shows the shift; x shares the code path), with the phase
+    -2 pi df TE.  A very wide slice pulse makes the slab's own shift negligible."""
+    p = dataclasses.replace(SMALL, readout_axis="z", rf_bandwidth_Hz=1e12)
+    df = pixels * p.bandwidth_Hz_per_pixel
+    q = dataclasses.replace(p, b0_offset_Hz=df)
+
+    def vessel_only(params: MrImagingParams) -> np.ndarray:
+        return slice_image(params, ROBOT, None, (0.0, 0.0, 0.0), 3e-3) - slice_image(params, ROBOT, None,
+                                                                                      (0.0, 0.0, 0.0))
+
+    base, moved = vessel_only(p), vessel_only(q)
+    expected = np.roll(base, pixels, axis=1) * np.exp(-2j * np.pi * df * p.echo_time_s)  # columns: readout
+    assert np.abs(moved - expected).max() < 1e-12 * np.abs(base).max()
+    assert np.abs(base - expected).max() > 0.1 * np.abs(base).max()  # it did move
 
 
 def test_the_slice_artefact_follows_the_bead_and_voids_the_signal_near_it() -> None:
