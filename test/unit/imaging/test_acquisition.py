@@ -147,3 +147,11 @@ def test_a_moving_bead_fills_k_space_lines_in_order() -> None:
         return np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(im)))
 
     assert np.allclose(k(two)[:16], k(one)[:16], atol=1e-9) and np.allclose(k(two)[16:], k(other)[16:], atol=1e-9)
+
+
+def test_a_moving_bead_gives_each_projection_its_own_position() -> None:
+    p = dataclasses.replace(PRESETS["msset_1p5t"], matrix=64)
+    path = [(0.0, 0.0, 0.0), (1e-3, 0.0, 0.0), (0.0, 0.0, 1e-3)]
+    moving = projection_data(p, ROBOT, path, (0.0, 0.0, 0.0))
+    for axis, pos in enumerate(path):
+        assert np.array_equal(moving[axis], projection_data(p, ROBOT, pos, (0.0, 0.0, 0.0))[axis])
