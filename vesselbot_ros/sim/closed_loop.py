@@ -483,6 +483,12 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         metrics["rejected_command_error"] = reject_details[kinds.REJECT_RAISED]
     if kinds.REJECT_MALFORMED in reject_details:
         metrics["rejected_command_malformed"] = reject_details[kinds.REJECT_MALFORMED]
+    frames_rejected = getattr(imager, "rejected", None)  # an imager that tracks its own frames counts what it drops
+    if frames_rejected is not None:
+        metrics["imager_frames"] = int(getattr(imager, "frames", 0))
+        metrics["imager_frames_rejected"] = int(sum(frames_rejected.values()))
+        if frames_rejected:
+            metrics["imager_rejected_reasons"] = ", ".join(f"{k}: {v}" for k, v in sorted(frames_rejected.items()))
     return SimResult(series, metrics, "per_tick")
 
 

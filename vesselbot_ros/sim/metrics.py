@@ -272,7 +272,8 @@ def headline(metrics: Mapping[str, Any]) -> str:
     """The run's result in one line a person reads: the errors in um, saturation, contacts (simulate and run).
 
     ``tracking error after 0.6 s max 751.2 um rms 310.4 um; estimation error max 402.0 um; saturated 0.120 s;
-    contacts 0``, with ``; rejected commands N`` and ``; diverged at t = T s`` when they apply.  Every metric,
+    contacts 0``, with ``; rejected commands N``, ``; frames rejected N of M (reasons)`` (an imager that tracks
+    its own frames) and ``; diverged at t = T s`` when they apply.  Every metric,
     in SI units, is in ``metrics.json`` (``simulate``) or ``--metrics-json`` (``run``).
     """
     m = metrics  # a metric missing (a partial mapping) reads "-", as one that does not apply
@@ -283,6 +284,9 @@ def headline(metrics: Mapping[str, Any]) -> str:
             f"saturated {sat}; contacts {m.get('wall_contacts', '-')}")
     if int(m.get("rejected_commands", 0) or 0) > 0:
         text += f"; rejected commands {int(m['rejected_commands'])}"
+    if int(m.get("imager_frames_rejected", 0) or 0) > 0:
+        text += (f"; frames rejected {int(m['imager_frames_rejected'])} of {int(m.get('imager_frames', 0))} "
+                 f"({m.get('imager_rejected_reasons', '')})")
     if m.get("diverged_at_s") is not None:
         text += f"; diverged at t = {float(m['diverged_at_s']):.4g} s"
     return text

@@ -103,7 +103,7 @@ def test_a_kind_of_another_role_and_bad_parameters_are_refused(plugins) -> None:
         _scenario(controller={"kind": PLUGIN, "gains": {"k1": 1.0}})
     with pytest.raises(ConfigError, match=r"controller\.kp_per_s2 must be > 0, got -1"):
         _scenario(controller={"kind": PLUGIN, "kp_per_s2": -1.0})
-    with pytest.raises(ConfigError, match=r"imager\.kind: unknown imager kind 'ct'; known: \['mri'\]"):
+    with pytest.raises(ConfigError, match=r"imager\.kind: unknown imager kind 'ct'; known: \['mr_images', 'mri'\]"):
         _scenario(imager={"kind": "ct"})
 
 

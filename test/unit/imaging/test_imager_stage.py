@@ -1,0 +1,66 @@
+"""The ``mr_images`` imager: the loop's measurements from synthesised MR frames and the default tracker."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vesselbot_ros.config import ConfigError
+from vesselbot_ros.imaging.imager_stage import MrImager, MrImagerParams
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.sequence import SequenceParams
+from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.kinds import find
+from vesselbot_ros.sim.scenario import load_scenario
+
+
+def test_the_kind_is_registered_and_names_its_bad_values():
+    assert find("imager", "mr_images").params is MrImagerParams
+    with pytest.raises(ConfigError, match="imager.preset"):
+        MrImagerParams(preset="gre_7t")
+    with pytest.raises(ConfigError, match="imager.frame_rate_Hz"):
+        MrImagerParams(frame_rate_Hz=0.0)
+    with pytest.raises(ConfigError, match="fov_centre_m"):
+        MrImagerParams(fov_centre_m=(0.0, float("nan"), 0.0))
+
+
+def test_continuous_frames_track_the_bead_and_a_frame_without_it_is_rejected_not_nan():
+    imager = MrImager(MrImagerParams(frame_rate_Hz=100.0, latency_s=0.02), PhysicsParams(), SequenceParams(),
+                      np.random.default_rng(3), dims=2)
+    p = np.array([1.0e-3, 0.5e-3])
+    got = [imager.frame(k * 1e-3, p) for k in range(61)]
+    frames = [m for m in got if m is not None]
+    assert imager.frames == 7 and len(frames) == 5  # acquired at 0, 10, ..., 60 ms; delivered 20 ms later
+    assert [round(m.t_acq_s, 6) for m in frames] == [0.0, 0.01, 0.02, 0.03, 0.04]
+    err = np.array([m.p - p for m in frames])
+    assert np.all(np.isfinite(err)) and np.abs(err).max() < 50e-6  # MS-SET's bound is a few micrometres
+    far = MrImager(MrImagerParams(), PhysicsParams(), SequenceParams(), np.random.default_rng(0), dims=2)
+    assert far.frame(0.0, np.array([0.5, 0.0])) is None  # 0.5 m from the field of view: nothing excited in it
+    assert far.frames == 1 and sum(far.rejected.values()) == 1
+
+
+def test_the_clinical_plan_flies_on_tracked_ms_set_frames_in_its_tracking_windows():
+    sc = load_scenario("config/plans/clinical_3t.yaml",
+                       sets=["imager.kind=mr_images", "imager.fov_centre_m=[4.0e-3, 0.0, 0.0]", "sim.duration_s=0.4"])
+    r = run_closed_loop(sc, 0)
+    assert r.path == "per_tick" and r.metrics["status"] == "ok"
+    ts = r.timeseries
+    got = np.isfinite(ts["meas_p"][:, 0])
+    period = sc.sequence.period_s
+    assert got.sum() >= int(0.4 / period) - 1  # one frame per sequence period
+    k = np.flatnonzero(got)
+    truth = ts["p_true"][np.searchsorted(ts["t_s"], ts["meas_t_acq_s"][k])]
+    assert np.abs(ts["meas_p"][k] - truth).max() < 1e-3  # the tracked bead, moving through its window
+
+
+def test_frames_the_tracker_drops_are_counted_in_the_runs_metrics_and_its_headline():
+    from vesselbot_ros.sim.metrics import headline
+
+    # the field of view 0.2 m away from the vessel: every frame holds no bead
+    sc = load_scenario("config/plans/clinical_3t.yaml",
+                       sets=["imager.kind=mr_images", "imager.fov_centre_m=[0.2, 0.0, 0.0]", "sim.duration_s=0.2"])
+    r = run_closed_loop(sc, 0)
+    m = r.metrics
+    assert m["imager_frames"] >= 3 and m["imager_frames_rejected"] == m["imager_frames"]
+    assert not np.isfinite(r.timeseries["meas_p"][:, 0]).any()
+    assert f"frames rejected {m['imager_frames']} of {m['imager_frames']} (no_bead" in headline(m)

@@ -1,0 +1,172 @@
+"""The imager from MR data: each frame synthesised from the bead's field and tracked (the ``mr_images`` kind).
+
+The ``mri`` imager adds Gaussian jitter to the true position.  This one makes the measurement a product of
+the scanner: at each acquisition it synthesises the frame of :mod:`vesselbot_ros.imaging.acquisition` (a
+gradient-echo slice or MS-SET's three projections) at the bead's positions during the acquisition, with the
+acquisition's complex noise, and hands it to the default tracker of :mod:`vesselbot_ros.imaging.tracker`,
+whose position is the measurement.  A frame the tracker rejects (no bead, all noise, clipped, NaN, a failed
+fit, or a position outside the central :data:`FOV_USED` of the view: ``edge_of_view``) delivers nothing, and
+is counted (:attr:`MrImager.rejected`); never a NaN measurement.
+
+When:
+
+* ``sequence.mode: continuous``: one acquisition every ``1 / frame_rate_Hz`` from t = 0, of the bead where it
+  is then, delivered ``latency_s`` later;
+* ``sequence.mode: multiplexed``: one acquisition per tracking window, of the bead's positions at the
+  window's ticks (the lines of a slice, or the three projections, spread over them: the motion during the
+  window is in the data), stamped and delivered as the ``mri`` imager's (``t_acq_s``, ``t_deliver_s`` of the
+  window; the sequence's latency).
+
+Frames: the field of view is centred at ``fov_centre_m`` (x, y, z); in a planar scenario the bead is at
+y = 0 and the measurement is the tracked (x, z).  B0 runs along x (docs/imaging.md).  The loop runs this
+imager tick by tick (it has no compiled form); its numbers are reproducible from the run's seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter, deque
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.config import ConfigError, check_nonnegative, check_positive
+from vesselbot_ros.imaging.acquisition import (
+    PRESETS,
+    MrImagingParams,
+    acquire_projections,
+    acquire_slice,
+    check_field_of_view,
+)
+from vesselbot_ros.imaging.tracker import ProjectionTracker, SliceTracker, Track
+from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.scanner.imager_model import Measurement, check_frame_inputs
+from vesselbot_ros.scanner.sequence import SequenceParams, tracking_window_of
+
+__all__ = ["MrImagerParams", "MrImager", "FOV_USED"]
+
+#: The share of the field of view (centred, per encoded axis) in which a bead is imaged and a tracked position
+#: accepted: a position at the edge is where a fit of a bead outside the view, or of noise, ends.
+FOV_USED = 0.9
+
+
+@dataclasses.dataclass(frozen=True)
+class MrImagerParams:
+    """The ``imager`` section of the ``mr_images`` kind (units in the names).
+
+    Attributes:
+        kind: ``mr_images``.
+        preset: An acquisition of :data:`~vesselbot_ros.imaging.acquisition.PRESETS` (``gre_1p5t``, ``gre_3t``,
+            ``msset_1p5t``), or ``""``: ``acquisition`` as given.
+        acquisition: The acquisition's parameters when ``preset`` is ``""``.
+        frame_rate_Hz: Acquisitions per second with continuous propulsion (> 0).
+        latency_s: Reconstruction and tracking latency with continuous propulsion (s, >= 0; a multiplexed
+            sequence's own latency applies there).
+        fov_centre_m: The field of view's centre (x, y, z) (m).
+        vessel_diameter_m: The vessel in the synthesised background and the tracker's model (m; 0: tissue only).
+        min_chi2: The tracker's detection threshold (chi-square gain of the bead model; > 0).
+        noise_sigma_m: Not an input of this imager (its noise is the scanner's): the position noise the
+            observers' defaults and the estimation bound assume, 0 (the tables then read the tracker's own).
+    """
+
+    kind: Literal["mr_images"] = "mr_images"
+    preset: str = "msset_1p5t"
+    acquisition: MrImagingParams = dataclasses.field(default_factory=MrImagingParams)
+    frame_rate_Hz: float = 50.0
+    latency_s: float = 0.0
+    fov_centre_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vessel_diameter_m: float = 0.0
+    min_chi2: float = 100.0
+    noise_sigma_m: float = 0.0
+
+    #: The ``mri`` kind's burst and dropout lists, empty here (read by the nodes' fault injection).
+    outliers = ()
+    dropouts = ()
+
+    def __post_init__(self) -> None:
+        if self.preset and self.preset not in PRESETS:
+            raise ConfigError(f"imager.preset must be one of {sorted(PRESETS)} or '', got {self.preset!r}")
+        check_positive("imager.frame_rate_Hz", self.frame_rate_Hz)
+        check_nonnegative("imager.latency_s", self.latency_s)
+        check_positive("imager.min_chi2", self.min_chi2)
+        check_nonnegative("imager.vessel_diameter_m", self.vessel_diameter_m)
+        if len(self.fov_centre_m) != 3 or not all(math.isfinite(v) for v in self.fov_centre_m):
+            raise ConfigError(f"imager.fov_centre_m must be three finite numbers (m), got {self.fov_centre_m!r}")
+
+    @property
+    def imaging(self) -> MrImagingParams:
+        """The acquisition: the preset's, or ``acquisition``."""
+        return PRESETS[self.preset] if self.preset else self.acquisition
+
+
+class MrImager:
+    """The ``mr_images`` imager on ``dims`` axes (module docstring); call :meth:`frame` once per tick."""
+
+    def __init__(self, params: MrImagerParams, physics: PhysicsParams, sequence: SequenceParams,
+                 rng: np.random.Generator, dims: int = 2, tick_s: float = 1e-3) -> None:
+        self.params, self.dims, self.rng, self.sequence, self.tick_s = params, int(dims), rng, sequence, tick_s
+        self.imaging = params.imaging
+        if params.vessel_diameter_m > 0.0:
+            check_field_of_view(self.imaging, params.vessel_diameter_m)
+        self.robot = physics.robot
+        self._centre = np.asarray(params.fov_centre_m, dtype=np.float64)
+        tracker_type = SliceTracker if self.imaging.acquisition == "slice" else ProjectionTracker
+        self.tracker = tracker_type(self.imaging, self.robot, params.vessel_diameter_m, params.min_chi2)
+        self.rejected: Counter[str] = Counter()
+        self.frames = 0
+        self._queue: deque[tuple[float, Measurement]] = deque()
+        self._t_last = -math.inf
+        self._next_acq_s = 0.0
+        self._window: int = -1
+        self._window_p: list[npt.NDArray[np.float64]] = []
+        self.last_frame: object | None = None  # the last synthesised frame (SliceFrame or ProjectionFrame)
+        self.last_track: Track | None = None
+
+    def _space(self, p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        return p.copy() if self.dims == 3 else np.array([p[0], 0.0, p[1]])
+
+    def _inside(self, q: npt.NDArray[np.float64]) -> bool:
+        """Whether ``q`` (3,) lies in the central :data:`FOV_USED` of the field of view on every encoded axis."""
+        half = 0.5 * FOV_USED * self.imaging.fov_m
+        axes = (0, 2) if self.imaging.acquisition == "slice" else (0, 1, 2)
+        return all(abs(float(q[i] - self._centre[i])) <= half for i in axes)
+
+    def _acquire(self, positions: list[npt.NDArray[np.float64]], t_acq: float, t_deliver: float) -> None:
+        inside = [p for p in positions if self._inside(p)]
+        # a bead outside the field of view puts no signal in it (its aliasing is not modelled): a frame of the
+        # background and noise, which the tracker rejects
+        bead = None if not inside else (inside[0] if len(inside) == 1 else inside)
+        acquire = acquire_slice if self.imaging.acquisition == "slice" else acquire_projections
+        frame = acquire(self.imaging, self.robot, bead, self.rng, self._centre, self.params.vessel_diameter_m)
+        track = self.tracker.track(frame)  # type: ignore[arg-type]  # the tracker of this acquisition's frames
+        self.frames += 1
+        self.last_frame, self.last_track = frame, track
+        if track.position_m is None or not self._inside(track.position_m):
+            self.rejected[track.reason or "edge_of_view"] += 1
+            return
+        q = track.position_m
+        p = q.copy() if self.dims == 3 else np.array([q[0], q[2]])
+        self._queue.append((t_deliver, Measurement(float(t_acq), p, False)))
+
+    def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
+        """Acquire (if due) and deliver (if due) at tick ``t_s``: the newest frame delivered now, or None."""
+        p = check_frame_inputs(t_s, p_true, self._t_last, self.dims)
+        self._t_last = t_s
+        if self.sequence.mode == "multiplexed":
+            w = tracking_window_of(self.sequence, t_s)
+            if w is not None:
+                if w.index != self._window:
+                    self._window, self._window_p = w.index, []
+                self._window_p.append(self._space(p))
+                if t_s + self.tick_s > w.end_s - 1e-12:  # the window's last tick: its data are complete
+                    self._acquire(self._window_p, w.t_acq_s, w.t_deliver_s)
+                    self._window_p = []
+        elif t_s >= self._next_acq_s - 1e-12:
+            self._acquire([self._space(p)], t_s, t_s + self.params.latency_s)
+            self._next_acq_s += 1.0 / self.params.frame_rate_Hz
+        out = None
+        while self._queue and self._queue[0][0] <= t_s + 1e-12:
+            out = self._queue.popleft()[1]
+        return out
