@@ -79,7 +79,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.imaging.imager_stage import MrImager, MrImagerParams
+from vesselbot_ros.imaging.imager_params import MrImagerParams
 from vesselbot_ros.numba_cache import freshen_dependent
 from vesselbot_ros.physics.integrator import blood_velocity, floor_offsets
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_OMEGA_F, I_PHI_F
@@ -621,7 +621,9 @@ def _imager(ctx: BuildContext) -> ImagerModel | SequencedImager:
     return imager
 
 
-def _mr_imager(ctx: BuildContext) -> MrImager:
+def _mr_imager(ctx: BuildContext) -> Any:
+    from vesselbot_ros.imaging.imager_stage import MrImager  # deferred: the trackers' scipy.optimize, where it is built
+
     s = ctx.scenario
     return MrImager(s.imager, s.physics, s.sequence, ctx.rng(), dims=s.dims, tick_s=ctx.dt_s)
 
@@ -701,7 +703,7 @@ for _kind in (
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
-    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False, stage_types=(MrImager,),
+    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False,
               summary="MR frames synthesised from the bead's field (a slice or MS-SET projections), tracked; per tick"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
               summary="high-gain observer (25)", compile=HighGainObserver.compiled, check=_check_high_gain),
