@@ -260,14 +260,17 @@ def _resting(traj: ReferenceTrajectory, u: npt.NDArray[np.float64],
     return None if wall is None else traj.follow_weight(u)[0] >= 1.0 - 1e-9
 
 
-def on_wall_of(scenario: Scenario, wall: MeshedWall | None, t: npt.NDArray[np.float64],
-               p: npt.NDArray[np.float64], v: npt.NDArray[np.float64],
-               resting: npt.NDArray[np.bool_] | None = None) -> npt.NDArray[np.bool_]:
-    """Which points of a reference rest on the wall (the lower wall of the straight vessel, a network's floor)."""
+def needs_on_wall(scenario: Scenario, model: DynamicsModel, wall: MeshedWall | None, t: npt.NDArray[np.float64],
+                  p: npt.NDArray[np.float64], v: npt.NDArray[np.float64], a: npt.NDArray[np.float64],
+                  resting: npt.NDArray[np.bool_] | None = None) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """:func:`need` at each point of a reference, and which points rest on the wall (the straight vessel's lower
+    wall, a network's floor): the wall found once for both."""
     if wall is not None:
-        return wall.snap(t, p, v, resting).on_wall
+        snapped = wall.snap(t, p, v, resting)
+        return need_on(model.F, t, snapped, a), snapped.on_wall
     rest = wall_rest(scenario, t)
-    return np.zeros(t.shape, dtype=bool) if rest is None else p[:, 1] <= rest[0] + 1e-9
+    on_wall = np.zeros(t.shape, dtype=bool) if rest is None else p[:, 1] <= rest[0] + 1e-9
+    return need(model, t, p, v, a, rest), on_wall
 
 
 # ---------------------------------------------------------------------------------------------- geometry
@@ -797,9 +800,7 @@ def evaluate(scenario: Scenario, options: PlanOptions | None = None) -> tuple[Se
     p, v, a = traj.sample_many(ts)
     u = traj.parameter_at(ts)
     wall = meshed_wall(scenario)
-    resting = _resting(traj, u, wall)
-    needs = need(model, ts, p, v, a, rest_of(scenario, wall, ts), resting)
-    on_wall = on_wall_of(scenario, wall, ts, p, v, resting)
+    needs, on_wall = needs_on_wall(scenario, model, wall, ts, p, v, a, _resting(traj, u, wall))
     n_seg = max(1, int(math.floor(traj.length_m / options.anchor_spacing_m + 0.5)))
     bounds = np.append(options.anchor_spacing_m * np.arange(n_seg), traj.length_m)
     seg = np.clip(np.searchsorted(bounds, u, side="right") - 1, 0, n_seg - 1)

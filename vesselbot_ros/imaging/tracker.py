@@ -119,7 +119,28 @@ def check_samples(data: CArray) -> str:
 
 
 @dataclasses.dataclass
-class SliceTracker:
+class _Tracker:
+    """What both trackers hold: their model's arguments (:class:`SliceTracker`), the k-space frequencies of one
+    encoded axis and the last frame's template."""
+
+    params: MrImagingParams
+    robot: RobotParams
+    vessel_diameter_m: float = 0.0
+    min_chi2: float = 100.0
+    refinements: int = 2
+    reuse_template_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._k = np.fft.fftfreq(self.params.matrix, d=self.params.pixel_m)  # cycles/m, in numpy's FFT order
+        self._last: tuple[tuple[float, ...], Array, CArray] | None = None
+
+    def reset(self) -> None:
+        """Forget the last frame's template (the next frame synthesises its own)."""
+        self._last = None
+
+
+@dataclasses.dataclass
+class SliceTracker(_Tracker):
     """Track the bead in :class:`~vesselbot_ros.imaging.acquisition.SliceFrame` s of ``params``.
 
     Args:
@@ -133,22 +154,9 @@ class SliceTracker:
             moves less than that per frame costs one synthesis per frame, not ``refinements``.
     """
 
-    params: MrImagingParams
-    robot: RobotParams
-    vessel_diameter_m: float = 0.0
-    min_chi2: float = 100.0
-    refinements: int = 2
-    reuse_template_px: float = 1.0
-
     def __post_init__(self) -> None:
+        super().__post_init__()
         self._cache: dict[tuple[float, ...], tuple[CArray, CArray, CArray]] = {}
-        n, h = self.params.matrix, self.params.pixel_m
-        self._k = np.fft.fftfreq(n, d=h)  # cycles/m, in numpy's FFT order
-        self._last: tuple[tuple[float, ...], Array, CArray] | None = None
-
-    def reset(self) -> None:
-        """Forget the last frame's template (the next frame synthesises its own)."""
-        self._last = None
 
     def _background(self, centre: Array) -> tuple[CArray, CArray, CArray]:
         key = tuple(float(v) for v in centre)
@@ -238,25 +246,13 @@ class SliceTracker:
 
 
 @dataclasses.dataclass
-class ProjectionTracker:
+class ProjectionTracker(_Tracker):
     """Track the bead in :class:`~vesselbot_ros.imaging.acquisition.ProjectionFrame` s of ``params``
     (arguments as :class:`SliceTracker`)."""
 
-    params: MrImagingParams
-    robot: RobotParams
-    vessel_diameter_m: float = 0.0
-    min_chi2: float = 100.0
-    refinements: int = 2
-    reuse_template_px: float = 1.0
-
     def __post_init__(self) -> None:
+        super().__post_init__()
         self._cache: dict[tuple[float, ...], CArray] = {}
-        self._k = np.fft.fftfreq(self.params.matrix, d=self.params.pixel_m)
-        self._last: tuple[tuple[float, ...], Array, CArray] | None = None
-
-    def reset(self) -> None:
-        """Forget the last frame's template (the next frame synthesises its own)."""
-        self._last = None
 
     def _template(self, centre: Array) -> CArray:
         key = tuple(float(v) for v in centre)
