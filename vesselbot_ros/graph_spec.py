@@ -123,7 +123,7 @@ __all__ = [
     "LOOP_ROLES", "ALL_ROLES", "NODE_NAMES", "REPLAY_PREFIX", "topic", "service", "role", "resolve", "namespace_of",
     "remap_args", "qos_profile", "import_type", "console_scripts", "markdown_table", "architecture_table", "contract_table",
     "role_contract", "faults_table", "diagnostic_counters", "tick_time", "ns_of_time", "tick_of_ns", "REALTIME_MISSED_LIMIT",
-    "REALTIME_FACTOR_LIMIT", "NETWORK_WALL_NS",
+    "REALTIME_FACTOR_LIMIT", "NETWORK_WALL_NS", "loop_roles", "frame_topics",
 ]
 
 FRAME_ID = "vessel"
@@ -269,6 +269,10 @@ class Role:
         stage: The stage of the pure loop our implementation runs (a field of
             :class:`vesselbot_ros.sim.closed_loop.Stages`): the node builds
             and warms only that one.
+        frames_inputs / frames_outputs: Its ports when the scenario's imager
+            delivers MR frames (``None``: ``inputs`` / ``outputs``).
+        frames_only: The role exists only when the scenario's imager delivers
+            MR frames (the tracker).
     """
 
     name: str
@@ -283,6 +287,17 @@ class Role:
     safe_stop: bool = False
     summary: str = ""
     stage: str = ""
+    frames_inputs: tuple[str, ...] | None = None
+    frames_outputs: tuple[str, ...] | None = None
+    frames_only: bool = False
+
+    def inputs_for(self, frames: bool) -> tuple[str, ...]:
+        """Its inputs in a graph whose imager delivers MR frames (``frames``) or positions."""
+        return self.frames_inputs if frames and self.frames_inputs is not None else self.inputs
+
+    def outputs_for(self, frames: bool) -> tuple[str, ...]:
+        """Its outputs in a graph whose imager delivers MR frames (``frames``) or positions."""
+        return self.frames_outputs if frames and self.frames_outputs is not None else self.outputs
 
     @property
     def console_script(self) -> str:
@@ -298,11 +313,25 @@ TOPICS: tuple[TopicSpec, ...] = (
               "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True, series=("p_true", "v_true", "in_contact")),
     TopicSpec("vessel_markers", "vessel_markers", "visualization_msgs/msg/MarkerArray", "plant", ("(viewers)",),
               "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
-    TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager", ("observer",),
+    TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager (tracker with MR frames)",
+              ("observer",),
               "per tick (lockstep, ZOH) / frame rate (real time)", "reliable", "m", FRAME_ID, per_tick=True,
               note="header.stamp = acquisition time (multiplexed: the middle of its tracking window); the frame "
                    "arrives at the first tick at or after window_end + latency, so it is that much old; a newer "
                    "stamp means a fresh frame, the same stamp a repeat; stamp 0 with an empty frame_id: no frame yet"),
+    TopicSpec("mr_frame", "imager/frame", "sensor_msgs/msg/Image", "imager", ("tracker", "recorder"),
+              "per tick (lockstep; empty without a new frame) / on each frame (real time)", "reliable",
+              "complex MR signal (a.u.)", FRAME_ID,
+              note="only with an imager that delivers MR frames (imager.kind mr_images); encoding 64FC2 (complex128: "
+                   "real, imaginary; little-endian), header.stamp = acquisition time; a slice is matrix x matrix "
+                   "(rows: the phase-encode axis, columns: the readout axis, x for readout_axis x), the projections "
+                   "3 x matrix (rows: x, y, z); sample n of an axis lies at fov_centre_m + (n - matrix/2) pixel_m "
+                   "(docs/imaging.md).  Lockstep: the n-th message belongs to tick n; a tick without a new frame "
+                   "has an empty image (height and width 0) stamped t_k"),
+    TopicSpec("mr_image", "imager/image", "sensor_msgs/msg/Image", "imager", ("recorder", "(viewers: Image panel)"),
+              "on each frame", "reliable", "magnitude (a.u.)", FRAME_ID, depth=1000,
+              note="only with an imager that delivers MR frames; the magnitude of each imager/frame (32FC1, the same "
+                   "rows and columns), for viewers; header.stamp = acquisition time"),
     TopicSpec("estimate", "estimate", "nav_msgs/msg/Odometry", "observer", ("controller",),
               "per tick", "reliable", "m, m/s", FRAME_ID, per_tick=True, series=("x_hat", "z_hat"),
               note="x_hat in pose.pose.position, z_hat in twist.twist.linear; pose.covariance[35] = seconds since "
@@ -404,8 +433,12 @@ ROLES: tuple[Role, ...] = (
           stage="reference",
           summary="C2 B-spline reference: a path (latched) and one sample per tick"),
     _node("imager", "ImagerNode", inputs=("truth",), outputs=("measurement",), services=("inject_fault",),
-          counters=("outlier_frames",), safe_stop=True, stage="imager",
-          summary="MRI imager: noisy frames at a frame rate, latency, outliers, dropouts"),
+          counters=("outlier_frames",), safe_stop=True, stage="imager", frames_outputs=("mr_frame", "mr_image"),
+          summary="MRI imager: noisy frames at a frame rate, latency, outliers, dropouts; or MR frames of the bead "
+                  "(imager.kind mr_images)"),
+    _node("tracker", "TrackerNode", inputs=("mr_frame",), outputs=("measurement",), frames_only=True,
+          counters=("imager_frames", "imager_frames_rejected"), safe_stop=True, stage="tracker",
+          summary="only with MR frames: the bead's position in each frame (the scenario's tracker kind)"),
     _node("observer", "ObserverNode", inputs=("coil_applied", "measurement"), outputs=("estimate",),
           optional_inputs=("sequence_phase",),
           counters=("observer_rhs_evals", "measurements_used", "measurements_rejected"), safe_stop=True, stage="observer",
@@ -438,6 +471,18 @@ SERVICES = SERVICES + tuple(
     for r in ROLES if series_service_key(r.name) in r.services)
 
 LOOP_ROLES: tuple[str, ...] = tuple(r.name for r in ROLES)
+
+
+def loop_roles(frames: bool) -> tuple[str, ...]:
+    """The loop's roles in start order in a graph whose imager delivers MR frames (``frames``: with the tracker)
+    or positions (without it)."""
+    return tuple(r.name for r in ROLES if frames or not r.frames_only)
+
+
+def frame_topics() -> tuple[str, ...]:
+    """The topic keys only a graph whose imager delivers MR frames publishes."""
+    plain = {k for r in ROLES if not r.frames_only for k in r.outputs}
+    return tuple(k for r in ROLES for k in r.outputs_for(True) if k not in plain)
 ALL_ROLES: tuple[Role, ...] = (*ROLES, RECORDER)
 NODE_NAMES: dict[str, str] = {r.name: r.node_name for r in ALL_ROLES}
 
@@ -549,29 +594,42 @@ def _note_lines(t: TopicSpec, width: int = 100) -> list[str]:
     return textwrap.wrap(t.note, width, initial_indent="      ", subsequent_indent="      ") if t.note else []
 
 
-def role_contract(name: str, namespace: str | None = None) -> str:
-    """What a user's node in the slot of role ``name`` must do (printed by ``vesselbot run --without``)."""
+def role_contract(name: str, namespace: str | None = None, frames: bool | None = None) -> str:
+    """What a user's node in the slot of role ``name`` must do (printed by ``vesselbot run --without``).
+
+    ``frames``: in a graph whose imager delivers MR frames (True) or positions (False); None prints a role's
+    ports in a graph of positions and, where they differ, the ports it has with MR frames."""
     r = role(name)
     lines = [f"slot '{name}' is yours: your node must"]
-    for k in r.inputs:
-        t = topic(k)
-        lines.append(f"  subscribe {resolve(t.rel, namespace)} [{t.msgtype}] ({t.units}, frame {t.frame})")
-        lines += _note_lines(t)
-    for k in r.optional_inputs:
-        t = topic(k)
-        lines.append(f"  may subscribe {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
-        lines += _note_lines(t)
-    for k in r.outputs:
-        t = topic(k)
-        lines.append(f"  publish   {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
-        lines += _note_lines(t)
+    ports = r.inputs_for(bool(frames)), r.outputs_for(bool(frames))
+
+    def port_lines(inputs: tuple[str, ...], outputs: tuple[str, ...]) -> None:
+        for k in inputs:
+            t = topic(k)
+            lines.append(f"  subscribe {resolve(t.rel, namespace)} [{t.msgtype}] ({t.units}, frame {t.frame})")
+            lines.extend(_note_lines(t))
+        for k in r.optional_inputs:
+            t = topic(k)
+            lines.append(f"  may subscribe {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, "
+                         f"frame {t.frame})")
+            lines.extend(_note_lines(t))
+        for k in outputs:
+            t = topic(k)
+            lines.append(f"  publish   {resolve(t.rel, namespace)} [{t.msgtype}] {t.rate} ({t.units}, frame {t.frame})")
+            lines.extend(_note_lines(t))
+
+    port_lines(*ports)
+    with_frames = r.inputs_for(True), r.outputs_for(True)
+    if frames is None and with_frames != ports:
+        lines.append("  with an imager that delivers MR frames (imager.kind mr_images), instead:")
+        port_lines(with_frames[0], tuple(k for k in with_frames[1] if k not in ports[1]))
     for k in r.services:
         if k == series_service_key(name):  # the launcher reads a user's node's outputs itself
             continue
         s = service(k)
         what = "serve     " if not s.is_action else "action    "
         lines.append(f"  {what}{resolve(s.rel, namespace)} [{s.srvtype}] ({s.purpose})")
-    depth = {qos_text(topic(k)) for k in (*r.inputs, *r.optional_inputs, *r.outputs)
+    depth = {qos_text(topic(k)) for k in (*ports[0], *r.optional_inputs, *ports[1])
              if topic(k).qos != "reliable_latched"}
     lines.append(f"  with use_sim_time=true; QoS: {', '.join(sorted(depth))} (see docs/graph.md).")
     if name != "plant":

@@ -10,7 +10,7 @@ from typing import Literal
 from vesselbot_ros.config import ConfigError, check_nonnegative, check_positive
 from vesselbot_ros.imaging.acquisition import PRESETS, MrImagingParams
 
-__all__ = ["MrImagerParams"]
+__all__ = ["MrImagerParams", "TrackerParams"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,7 +27,6 @@ class MrImagerParams:
             sequence's own latency applies there).
         fov_centre_m: The field of view's centre (x, y, z) (m).
         vessel_diameter_m: The vessel in the synthesised background and the tracker's model (m; 0: tissue only).
-        min_chi2: The tracker's detection threshold (chi-square gain of the bead model; > 0).
         noise_sigma_m: Not an input of this imager (its noise is the scanner's): the position noise the
             observers' defaults and the estimation bound assume, 0 (the tables then read the tracker's own).
     """
@@ -39,7 +38,6 @@ class MrImagerParams:
     latency_s: float = 0.0
     fov_centre_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     vessel_diameter_m: float = 0.0
-    min_chi2: float = 100.0
     noise_sigma_m: float = 0.0
 
     #: The ``mri`` kind's burst and dropout lists, empty here (read by the nodes' fault injection).
@@ -51,7 +49,6 @@ class MrImagerParams:
             raise ConfigError(f"imager.preset must be one of {sorted(PRESETS)} or '', got {self.preset!r}")
         check_positive("imager.frame_rate_Hz", self.frame_rate_Hz)
         check_nonnegative("imager.latency_s", self.latency_s)
-        check_positive("imager.min_chi2", self.min_chi2)
         check_nonnegative("imager.vessel_diameter_m", self.vessel_diameter_m)
         if len(self.fov_centre_m) != 3 or not all(math.isfinite(v) for v in self.fov_centre_m):
             raise ConfigError(f"imager.fov_centre_m must be three finite numbers (m), got {self.fov_centre_m!r}")
@@ -60,3 +57,21 @@ class MrImagerParams:
     def imaging(self) -> MrImagingParams:
         """The acquisition: the preset's, or ``acquisition``."""
         return PRESETS[self.preset] if self.preset else self.acquisition
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerParams:
+    """The ``tracker`` section: the stage that turns each MR frame of the ``mr_images`` imager into a position.
+
+    Attributes:
+        kind: ``dipole_fit`` (the default tracker, :class:`~vesselbot_ros.imaging.imager_stage.DipoleFitTracker`),
+            or a user's ``module:Class``.  Unused with an imager that delivers positions (``mri``).
+        min_chi2: The detection threshold: the chi-square gain of the bead model over the background (> 0); a
+            frame whose best fit gains less holds no bead.
+    """
+
+    kind: str = "dipole_fit"
+    min_chi2: float = 100.0
+
+    def __post_init__(self) -> None:
+        check_positive("tracker.min_chi2", self.min_chi2)

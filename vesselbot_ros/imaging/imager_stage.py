@@ -1,12 +1,19 @@
-"""The imager from MR data: each frame synthesised from the bead's field and tracked (the ``mr_images`` kind).
+"""The imager from MR data (the ``mr_images`` kind) and its default tracker (the ``dipole_fit`` tracker kind).
 
-The ``mri`` imager adds Gaussian jitter to the true position.  This one makes the measurement a product of
-the scanner: at each acquisition it synthesises the frame of :mod:`vesselbot_ros.imaging.acquisition` (a
-gradient-echo slice or MS-SET's three projections) at the bead's positions during the acquisition, with the
-acquisition's complex noise, and hands it to the default tracker of :mod:`vesselbot_ros.imaging.tracker`,
-whose position is the measurement.  A frame the tracker rejects (no bead, all noise, clipped, NaN, a failed
-fit, or a position outside the central :data:`FOV_USED` of the view: ``edge_of_view``) delivers nothing, and
-is counted (:attr:`MrImager.rejected`); never a NaN measurement.
+The ``mri`` imager adds Gaussian jitter to the true position.  The ``mr_images`` imager makes the measurement a
+product of the scanner, in two stages, as on a real scanner:
+
+1. :class:`MrImager` (the imager role): at each acquisition it synthesises the frame of
+   :mod:`vesselbot_ros.imaging.acquisition` (a gradient-echo slice or MS-SET's three projections) at the bead's
+   positions during the acquisition, with the acquisition's complex noise, and delivers it as an
+   :class:`MrFrame` when its reconstruction latency has passed;
+2. a tracker (the tracker role, :class:`DipoleFitTracker` by default, or a user's kind): the position of the
+   bead in a delivered frame, which is the measurement.  A frame the tracker rejects (no bead, all noise,
+   clipped, NaN, a failed fit, or a position outside the central :data:`FOV_USED` of the view: ``edge_of_view``)
+   delivers nothing, and is counted (:attr:`DipoleFitTracker.rejected`); never a NaN measurement.
+
+The per-tick loop calls the tracker on each frame the imager delivers; in the node graph the imager node
+publishes the frames (``imager/frame``) and the tracker node the measurements, with the same numbers.
 
 When:
 
@@ -17,9 +24,12 @@ When:
   window is in the data), stamped and delivered as the ``mri`` imager's (``t_acq_s``, ``t_deliver_s`` of the
   window; the sequence's latency).
 
+At most one frame is delivered per tick: the newest due (an older one due at the same tick is superseded and
+counted; with at most one frame per control period, as the scenario requires, none is).
+
 Frames: the field of view is centred at ``fov_centre_m`` (x, y, z); in a planar scenario the bead is at
-y = 0 and the measurement is the tracked (x, z).  B0 runs along x (docs/imaging.md).  The loop runs this
-imager tick by tick (it has no compiled form); its numbers are reproducible from the run's seed.
+y = 0 and the measurement is the tracked (x, z).  B0 runs along x (docs/imaging.md).  The loop runs these
+stages tick by tick (they have no compiled form); their numbers are reproducible from the run's seed.
 """
 
 from __future__ import annotations
@@ -30,18 +40,39 @@ from collections import Counter, deque
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.imaging.acquisition import acquire_projections, acquire_slice, check_field_of_view
-from vesselbot_ros.imaging.imager_params import MrImagerParams
+from vesselbot_ros.imaging.acquisition import (
+    MrImagingParams,
+    ProjectionFrame,
+    SliceFrame,
+    acquire_projections,
+    acquire_slice,
+    check_field_of_view,
+)
+from vesselbot_ros.imaging.frames import MrFrame, frame_of, frame_samples_of
+from vesselbot_ros.imaging.imager_params import MrImagerParams, TrackerParams
 from vesselbot_ros.imaging.tracker import ProjectionTracker, SliceTracker, Track
-from vesselbot_ros.physics.params import PhysicsParams
+from vesselbot_ros.physics.params import PhysicsParams, RobotParams
 from vesselbot_ros.scanner.imager_model import Measurement, check_frame_inputs
 from vesselbot_ros.scanner.sequence import SequenceParams, tracking_window_of
 
-__all__ = ["MrImagerParams", "MrImager", "FOV_USED"]
+__all__ = ["MrImagerParams", "TrackerParams", "MrFrame", "MrImager", "DipoleFitTracker", "FOV_USED", "inside_view",
+           "frame_samples_of", "frame_of"]
 
 #: The share of the field of view (centred, per encoded axis) in which a bead is imaged and a tracked position
 #: accepted: a position at the edge is where a fit of a bead outside the view, or of noise, ends.
 FOV_USED = 0.9
+
+
+def inside_view(frame: SliceFrame | ProjectionFrame, q: npt.ArrayLike) -> bool:
+    """Whether ``q`` (3,) lies in the central :data:`FOV_USED` of ``frame``'s field of view on every encoded axis."""
+    q = np.asarray(q, dtype=np.float64)
+    axes: tuple[int, ...]
+    if isinstance(frame, SliceFrame):
+        n, axes = frame.image.shape[1], (0, 2)
+    else:
+        n, axes = frame.data.shape[1], (0, 1, 2)
+    half = 0.5 * FOV_USED * n * frame.pixel_m
+    return all(abs(float(q[i] - frame.centre_m[i])) <= half for i in axes)
 
 
 class MrImager:
@@ -55,23 +86,19 @@ class MrImager:
             check_field_of_view(self.imaging, params.vessel_diameter_m)
         self.robot = physics.robot
         self._centre = np.asarray(params.fov_centre_m, dtype=np.float64)
-        tracker_type = SliceTracker if self.imaging.acquisition == "slice" else ProjectionTracker
-        self.tracker = tracker_type(self.imaging, self.robot, params.vessel_diameter_m, params.min_chi2)
-        self.rejected: Counter[str] = Counter()
         self.frames = 0
-        self._queue: deque[tuple[float, Measurement]] = deque()
+        #: frames superseded by a newer one due at the same tick (never delivered)
+        self.superseded = 0
+        self._queue: deque[tuple[float, MrFrame]] = deque()
         self._t_last = -math.inf
         self._next_acq_s = 0.0
         self._window: int = -1
         self._window_p: list[npt.NDArray[np.float64]] = []
-        self.last_frame: object | None = None  # the last synthesised frame (SliceFrame or ProjectionFrame)
-        self.last_track: Track | None = None
 
     def _space(self, p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         return p.copy() if self.dims == 3 else np.array([p[0], 0.0, p[1]])
 
     def _inside(self, q: npt.NDArray[np.float64]) -> bool:
-        """Whether ``q`` (3,) lies in the central :data:`FOV_USED` of the field of view on every encoded axis."""
         half = 0.5 * FOV_USED * self.imaging.fov_m
         axes = (0, 2) if self.imaging.acquisition == "slice" else (0, 1, 2)
         return all(abs(float(q[i] - self._centre[i])) <= half for i in axes)
@@ -82,18 +109,11 @@ class MrImager:
         # background and noise, which the tracker rejects
         bead = None if not inside else (inside[0] if len(inside) == 1 else inside)
         acquire = acquire_slice if self.imaging.acquisition == "slice" else acquire_projections
-        frame = acquire(self.imaging, self.robot, bead, self.rng, self._centre, self.params.vessel_diameter_m)
-        track = self.tracker.track(frame)  # type: ignore[arg-type]  # the tracker of this acquisition's frames
+        data = acquire(self.imaging, self.robot, bead, self.rng, self._centre, self.params.vessel_diameter_m)
+        self._queue.append((t_deliver, MrFrame(float(t_acq), data, self.frames)))
         self.frames += 1
-        self.last_frame, self.last_track = frame, track
-        if track.position_m is None or not self._inside(track.position_m):
-            self.rejected[track.reason or "edge_of_view"] += 1
-            return
-        q = track.position_m
-        p = q.copy() if self.dims == 3 else np.array([q[0], q[2]])
-        self._queue.append((t_deliver, Measurement(float(t_acq), p, False)))
 
-    def frame(self, t_s: float, p_true: npt.ArrayLike) -> Measurement | None:
+    def frame(self, t_s: float, p_true: npt.ArrayLike) -> MrFrame | None:
         """Acquire (if due) and deliver (if due) at tick ``t_s``: the newest frame delivered now, or None."""
         p = check_frame_inputs(t_s, p_true, self._t_last, self.dims)
         self._t_last = t_s
@@ -111,5 +131,49 @@ class MrImager:
             self._next_acq_s += 1.0 / self.params.frame_rate_Hz
         out = None
         while self._queue and self._queue[0][0] <= t_s + 1e-12:
+            if out is not None:
+                self.superseded += 1
             out = self._queue.popleft()[1]
         return out
+
+
+class DipoleFitTracker:
+    """The default tracker (kind ``dipole_fit``): the bead's position in each :class:`MrFrame`, by a fit of the
+    dipole artefact model (:mod:`vesselbot_ros.imaging.tracker`), or None for a rejected frame (counted by reason
+    in :attr:`rejected`).
+
+    Args:
+        params: The ``tracker`` section (:class:`~vesselbot_ros.imaging.imager_params.TrackerParams`).
+        imaging: The acquisition the frames come from (the model it fits).
+        robot: The bead (radius, magnetisation).
+        vessel_diameter_m: The vessel in the model's background (m; 0: tissue only).
+        dims: The loop's axes (2: the measurement is the tracked (x, z)).
+    """
+
+    def __init__(self, params: TrackerParams, imaging: MrImagingParams, robot: RobotParams,
+                 vessel_diameter_m: float = 0.0, dims: int = 2) -> None:
+        self.params, self.dims = params, int(dims)
+        tracker_type = SliceTracker if imaging.acquisition == "slice" else ProjectionTracker
+        self.tracker = tracker_type(imaging, robot, vessel_diameter_m, params.min_chi2)
+        self.rejected: Counter[str] = Counter()
+        self.frames = 0
+        self.last_track: Track | None = None
+
+    def track(self, t_s: float, frame: MrFrame) -> Measurement | None:
+        """The measurement of ``frame`` (delivered at ``t_s``), or None when the frame is rejected."""
+        track = self.tracker.track(frame.data)  # type: ignore[arg-type]  # the tracker of this acquisition's frames
+        self.frames += 1
+        self.last_track = track
+        if track.position_m is None or not inside_view(frame.data, track.position_m):
+            self.rejected[track.reason or "edge_of_view"] += 1
+            return None
+        q = track.position_m
+        p = q.copy() if self.dims == 3 else np.array([q[0], q[2]])
+        return Measurement(float(frame.t_acq_s), p, False)
+
+    def reset(self) -> None:
+        """Back to the start of a run: no template, no counts."""
+        self.tracker.reset()
+        self.rejected.clear()
+        self.frames = 0
+        self.last_track = None

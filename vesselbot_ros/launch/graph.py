@@ -44,13 +44,13 @@ from vesselbot_ros.bag.reader import open_bag
 from vesselbot_ros.control.route import navigation_metrics
 from vesselbot_ros.errors import BagError, RunError, VesselbotError
 from vesselbot_ros.graph_spec import (
-    LOOP_ROLES,
     NODE_NAMES,
     REALTIME_FACTOR_LIMIT,
     REALTIME_MISSED_LIMIT,
     ROLES,
     TOPICS,
     diagnostic_counters,
+    loop_roles,
     remap_args,
     role,
     role_contract,
@@ -63,6 +63,7 @@ from vesselbot_ros.nodes.graph_params import GraphParams
 from vesselbot_ros.nodes.params import scenario_to_parameters, write_params_file
 from vesselbot_ros.nodes.recorder_node import recorder_command
 from vesselbot_ros.ros_env import DomainLease, allocate_domain, apply_to_process, restore_process_env, ros_environment
+from vesselbot_ros.sim.kinds import delivers_frames
 from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario
 
@@ -364,7 +365,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     # (its exceptions and options: the CLI's error handling, tests)
     import rclpy
 
-    roles = [r for r in LOOP_ROLES if r not in options.without]
+    frames = delivers_frames(scenario)  # an imager of MR frames: the tracker joins the loop
+    roles = [r for r in loop_roles(frames) if r not in options.without]
     graph = GraphParams(mode=options.mode, real_time_factor=options.real_time_factor,  # type: ignore[arg-type]  # mode: checked
                         stall_timeout_s=options.stall_timeout_s)
     lease = options.lease if options.lease is not None else allocate_domain(options.domain_id)
@@ -379,7 +381,7 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
     rclpy.init(context=context, domain_id=lease.domain_id, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     n = scenario.sim.n_ticks
     dt = scenario.sim.dt_control_s
-    mon = Monitor(context, n, dt, options.namespace, options.without, scenario.dims)
+    mon = Monitor(context, n, dt, options.namespace, options.without, scenario.dims, frames)
     sup = Supervisor(env, log_dir, lease.fds)
     finished_ok = False
     recorded: dict[str, int] = {}
@@ -403,8 +405,8 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
                         options.single_process, options.intra_process)
         for r in options.without:
             if options.on_contract is not None:
-                options.on_contract(role_contract(r, options.namespace))
-        wait_for(lambda: _wired(mon, roles, options.without), options.wait_timeout_s, mon, sup,
+                options.on_contract(role_contract(r, options.namespace, frames))
+        wait_for(lambda: _wired(mon, roles, options.without, frames), options.wait_timeout_s, mon, sup,
                  "every node to be wired (all publishers and subscriptions matched)" +
                  (f" and a node to take the slot(s) {list(options.without)}" if options.without else ""))
         wait_for(lambda: mon.run_control.service_is_ready()
@@ -501,6 +503,9 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         for key in keys:
             if key in d:
                 metrics[key] = int(d[key])
+    reasons = diagnostics.get(NODE_NAMES["tracker"], {}).get("imager_rejected_reasons")
+    if reasons:  # why the tracker rejected frames, as the pure runner's metrics say it
+        metrics["imager_rejected_reasons"] = reasons
     if metrics.get("rejected_commands"):  # counted from the coil's command_rejected flags; why, from the nodes
         metrics.update(rejection_reasons(diagnostics))
     sim_s = _run_sim_s(mon, diagnostics, n, dt)
@@ -560,7 +565,7 @@ def _bag_counts(bag_dir: Path) -> dict[str, int]:
     return {t.name: int(t.count) for t in info.topics}
 
 
-def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...]) -> bool:
+def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...], frames: bool) -> bool:
     for r in roles:
         d = mon.diag.get(NODE_NAMES[r])
         if d is None or d.get("wired") != "true":
@@ -573,7 +578,8 @@ def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...]) -> bool:
                 t = next((t for t in _topics_by_name() if t.name == name), None)
                 if t is not None and int(val) < mon.subscribers(t.key):
                     return False
-    return all(mon.publishes(k) for r in without for k in role(r).outputs if topic(k).qos != "reliable_latched")
+    return all(mon.publishes(k) for r in without for k in role(r).outputs_for(frames)
+               if topic(k).qos != "reliable_latched")
 
 
 def _topics_by_name() -> tuple[Any, ...]:

@@ -22,11 +22,11 @@ import numpy as np
 from vesselbot_ros.errors import RunError
 from vesselbot_ros.graph_spec import (
     DEFAULT_NAMESPACE,
-    LOOP_ROLES,
     NODE_NAMES,
     TOPICS,
     WIRE_STRINGS,
     import_type,
+    loop_roles,
     qos_profile,
     remap_args,
     role,
@@ -65,7 +65,7 @@ class Monitor:
     """
 
     def __init__(self, context: Any, n: int, dt: float, namespace: str | None = None,
-                 user_roles: Sequence[str] = (), dims: int = 2) -> None:
+                 user_roles: Sequence[str] = (), dims: int = 2, frames: bool = False) -> None:
         # deferred: rclpy, the message packages and nodes.process (which imports rclpy); launch.graph imports this
         # module ROS-free (its exceptions, tests)
         import rclpy
@@ -104,7 +104,7 @@ class Monitor:
         self._raw: dict[str, list[bytes]] = {}
         self._user_series_keys: list[str] = []
         for r in user_roles:
-            for key in role(r).outputs:
+            for key in role(r).outputs_for(frames):
                 t = topic(key)
                 self.user_counts[t.name] = 0
                 self._types[key] = import_type(t.msgtype)
@@ -117,7 +117,7 @@ class Monitor:
         self.set_simulation_state = self.node.create_client(import_type(spec.srvtype), spec.rel)
         self.series_clients = {
             r: self.node.create_client(GetSeries, service(series_service_key(r)).rel)
-            for r in LOOP_ROLES if r not in self.user_roles and series_service_key(r) in role(r).services}
+            for r in loop_roles(frames) if r not in self.user_roles and series_service_key(r) in role(r).services}
         self._series_futures: dict[str, Resend] = {}
 
     def _user_callback(self, key: str) -> Any:

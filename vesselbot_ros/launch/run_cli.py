@@ -51,7 +51,7 @@ from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.writer import COMPRESSION_PRESETS, check_output_dir
 from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, namespace_of, resolve, service
+from vesselbot_ros.graph_spec import LOOP_ROLES, SIMULATION_SERVICES, loop_roles, namespace_of, resolve, service
 from vesselbot_ros.graph_spec import role as graph_role
 from vesselbot_ros.ros_env import DOMAIN_MAX, allocate_domain
 
@@ -173,6 +173,17 @@ def validate_args(args: argparse.Namespace) -> None:
         check_output_file(args.metrics_json, "--metrics-json")  # a read-only place is refused now, not after the run
 
 
+def check_graph_roles(scenario: Any, without: Sequence[str] = ()) -> None:
+    """``--without ROLE`` names a role of this scenario's graph (the tracker joins it only with MR frames)."""
+    from vesselbot_ros.sim.kinds import delivers_frames  # deferred: the core's registry (see check_plugin_stages)
+
+    frames = delivers_frames(scenario)
+    for r in without:
+        if r not in loop_roles(frames):
+            raise ConfigError(f"--without {r}: this scenario's graph has no {r} (imager.kind {scenario.imager.kind!r} "
+                              "delivers positions; the tracker joins the graph with imager.kind mr_images)")
+
+
 def check_plugin_stages(scenario: Any, without: Sequence[str] = ()) -> None:
     """Build, once and in this process, every stage of a user's kind (not built in) whose node the launcher starts.
 
@@ -221,6 +232,7 @@ def run(args: argparse.Namespace) -> int:
         from vesselbot_ros.vessels.tree_field import packed_vessel  # deferred: the CFD stack, only for a network
 
         packed_vessel(scenario.physics, scenario.dims)
+    check_graph_roles(scenario, args.without)
     check_plugin_stages(scenario, args.without)  # a user's kind that cannot be built: one line, nothing started
     if record and importlib.util.find_spec("vesselbot_ros.nodes.recorder_node") is None:
         raise VesselbotError("recording needs vesselbot_ros.nodes.recorder_node, which is not installed; "

@@ -43,6 +43,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, PointStamped, PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 from vesselbot_msgs.msg import CoilState, PlantState, ReferenceSample, SequencePhase
 from visualization_msgs.msg import Marker, MarkerArray
@@ -91,6 +92,12 @@ __all__ = [
     "network_markers_3d",
     "wall_mesh_marker",
     "WALL_MESH_RGBA",
+    "FRAME_ENCODING",
+    "MAGNITUDE_ENCODING",
+    "frame_image_msg",
+    "empty_frame_msg",
+    "magnitude_image_msg",
+    "frame_samples",
 ]
 
 _time = message_builder(Time)
@@ -446,3 +453,47 @@ def network_markers_3d(geom: Any, vertices_m: npt.ArrayLike, triangles: npt.Arra
     _centreline_markers(out, ((name, pts[:, 0], pts[:, 1], pts[:, 2]) for name, (pts, _r, _s) in
                               geom.branches.items()), geom.net.sample_spacing_m, robot_radius_m, step_m)
     return out
+
+
+#: ``imager/frame``'s encoding: complex128 samples, real and imaginary parts (little-endian float64 each).
+FRAME_ENCODING = "64FC2"
+#: ``imager/image``'s encoding: the magnitude, float32 (what Foxglove's Image panel shows).
+MAGNITUDE_ENCODING = "32FC1"
+
+
+def frame_image_msg(t_acq_s: float, samples: npt.ArrayLike) -> Image:
+    """``imager/frame``: an MR frame's complex samples (2-D: rows x columns) as a 64FC2 image stamped ``t_acq_s``."""
+    a = np.ascontiguousarray(samples, dtype="<c16")
+    rows, cols = a.shape
+    return Image(header=header(t_acq_s), height=rows, width=cols, encoding=FRAME_ENCODING, is_bigendian=0,
+                 step=16 * cols, data=a.tobytes())
+
+
+def empty_frame_msg(t_s: float) -> Image:
+    """``imager/frame`` of a tick without a new frame (lockstep): an empty image stamped ``t_s``."""
+    return Image(header=header(t_s), height=0, width=0, encoding=FRAME_ENCODING, is_bigendian=0, step=0)
+
+
+def magnitude_image_msg(t_acq_s: float, samples: npt.ArrayLike) -> Image:
+    """``imager/image``: the magnitude of an MR frame's samples (32FC1), for viewers."""
+    m = np.ascontiguousarray(np.abs(np.asarray(samples)), dtype="<f4")
+    rows, cols = m.shape
+    return Image(header=header(t_acq_s), height=rows, width=cols, encoding=MAGNITUDE_ENCODING, is_bigendian=0,
+                 step=4 * cols, data=m.tobytes())
+
+
+def frame_samples(msg: Any) -> npt.NDArray[np.complex128] | None:
+    """The complex samples of an ``imager/frame`` message (rows, columns), or None if it is empty (no frame).
+
+    Raises:
+        ValueError: not a 64FC2 little-endian image, or its data do not hold height x width samples.
+    """
+    if msg.height == 0 or msg.width == 0:
+        return None
+    if msg.encoding != FRAME_ENCODING or msg.is_bigendian or msg.step != 16 * msg.width:
+        raise ValueError(f"expected a little-endian {FRAME_ENCODING} image with step 16 x width, got encoding "
+                         f"{msg.encoding!r}, big-endian {bool(msg.is_bigendian)}, step {msg.step} for width {msg.width}")
+    data = bytes(msg.data)
+    if len(data) != 16 * msg.height * msg.width:
+        raise ValueError(f"{len(data)} bytes for a {msg.height} x {msg.width} {FRAME_ENCODING} image")
+    return np.frombuffer(data, dtype="<c16").reshape(msg.height, msg.width).astype(np.complex128)

@@ -35,6 +35,11 @@ is reached (scheduled), with the KeyValues ``fault_kind`` (``outlier_burst`` /
 ``outlier_frames`` (frames delivered with an outlier) and ``dropout_frames``
 (ticks inside a dropout window).  ``vesselbot report`` shades these intervals.
 
+MR frames (``imager.kind: mr_images``): the imager publishes no measurement but its frames, for the tracker
+node: ``imager/frame`` (``sensor_msgs/Image``, 64FC2 complex samples, stamp = acquisition time; lockstep: once
+per tick, an empty image stamped t_k when no frame is delivered) and their magnitude on ``imager/image`` (32FC1,
+on each frame, for viewers).  It takes no injected faults (``inject_fault`` refuses them, saying so).
+
 Input checks: a truth message with a wrong frame_id, non-finite numbers,
 non-zero y (planar scenarios), a position outside the vessel (+ ``graph.position_margin_m``), a
 stale/future tick (lockstep) or stamp (real-time) is rejected; no frame is
@@ -47,14 +52,17 @@ import sys
 from typing import Any
 
 from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import Image
 from vesselbot_msgs.msg import PlantState
 from vesselbot_msgs.srv import InjectFault
 
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.imaging.frames import frame_samples_of
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.sim.closed_loop import build_stage
+from vesselbot_ros.sim.kinds import delivers_frames
 
 __all__ = ["ImagerNode", "main"]
 
@@ -74,7 +82,12 @@ class ImagerNode(VesselbotNode):
             [("outlier_burst", o.start_s, o.duration_s, o.magnitude_m) for o in self.scenario.imager.outliers]
             + [("dropout", d.start_s, d.duration_s, 0.0) for d in self.scenario.imager.dropouts],
             key=lambda f: f[1])
-        self.add_publisher("measurement", PointStamped)
+        self.frames_mode = delivers_frames(self.scenario)
+        if self.frames_mode:
+            self.add_publisher("mr_frame", Image)
+            self.add_publisher("mr_image", Image)
+        else:
+            self.add_publisher("measurement", PointStamped)
         self.add_subscription("truth", PlantState, self._on_truth)
         self.add_service("inject_fault", InjectFault, self._on_inject)
         self.realtime_clock()
@@ -112,6 +125,12 @@ class ImagerNode(VesselbotNode):
             self._announce(kind, start, duration, magnitude, "schedule")
         if any(a - 1e-9 <= t_k < b - 1e-9 for a, b in self._windows):
             self.dropout_frames += 1
+        if self.frames_mode:
+            self._publish_frame(t_k, self.imager.frame(t_k, cv.vector_array(x, y, z, self.dims)))
+            self.period_done(k)
+            if self.lockstep and k + 1 >= self.n_ticks:
+                self.mark_finished()
+            return
         meas = self.imager.frame(t_k, cv.vector_array(x, y, z, self.dims))
         if meas is not None:
             self.frames += 1
@@ -127,10 +146,27 @@ class ImagerNode(VesselbotNode):
         if self.lockstep and k + 1 >= self.n_ticks:
             self.mark_finished()
 
+    def _publish_frame(self, t_k: float, frame: Any) -> None:
+        """MR frames: the frame delivered at t_k (and its magnitude), else (lockstep) an empty one stamped t_k."""
+        if frame is None:
+            if self.lockstep:
+                self.publish("mr_frame", cv.empty_frame_msg(t_k))
+            return
+        self.frames += 1
+        samples = frame_samples_of(frame)
+        self.publish("mr_image", cv.magnitude_image_msg(frame.t_acq_s, samples))
+        self.publish("mr_frame", cv.frame_image_msg(frame.t_acq_s, samples))
+
     def _on_inject(self, req: Any, resp: Any) -> Any:
         start = float(req.start_time)
         if start < 0.0:
             start = self.k_next * self.dt
+        if self.frames_mode:
+            resp.accepted = False
+            resp.message = ("the mr_images imager takes no injected faults (its frames' noise and rejections "
+                            "are the scanner's)")
+            resp.effective_start_time = start
+            return resp
         try:
             if req.kind == InjectFault.Request.OUTLIER_BURST:
                 self.imager.inject_outliers(start, float(req.duration), float(req.magnitude))

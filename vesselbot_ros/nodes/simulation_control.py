@@ -38,8 +38,9 @@ from simulation_interfaces.msg import Result, SimulationState, SimulatorFeatures
 from simulation_interfaces.srv import ResetSimulation, SetSimulationState
 from std_srvs.srv import Trigger
 
-from vesselbot_ros.graph_spec import ROLES, SIMULATION_NODE, import_type, reset_service_key, service
+from vesselbot_ros.graph_spec import ROLES, SIMULATION_NODE, import_type, loop_roles, reset_service_key, service
 from vesselbot_ros.nodes.calls import Resend
+from vesselbot_ros.sim.kinds import delivers_frames
 
 __all__ = ["SimulationControl", "features", "STOPPED", "PLAYING", "PAUSED", "ALREADY"]
 
@@ -79,7 +80,8 @@ class SimulationControl:
         self._reset_clients = {r.name: self.node.create_client(import_type(service(reset_service_key(r.name)).srvtype),
                                                                service(reset_service_key(r.name)).rel,
                                                                callback_group=group)
-                               for r in ROLES if reset_service_key(r.name) in r.services}
+                               for r in ROLES if reset_service_key(r.name) in r.services
+                               and r.name in loop_roles(delivers_frames(plant.scenario))}
         self._executor = MultiThreadedExecutor(num_threads=4, context=plant.context)
         self._executor.add_node(self.node)
         self._stop = threading.Event()

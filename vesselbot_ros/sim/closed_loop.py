@@ -87,7 +87,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario, short_copy
 
 __all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES",
-           "PATHS", "REPLACEABLE"]
+           "PATHS", "REPLACEABLE", "frame_counts"]
 
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
@@ -95,7 +95,8 @@ PATHS = ("compiled", "per_tick")
 
 
 class Stages(NamedTuple):
-    """The six stages of the loop, each owning its state, built through their kinds (:mod:`vesselbot_ros.sim.kinds`).
+    """The seven stages of the loop, each owning its state, built through their kinds (:mod:`vesselbot_ros.sim.kinds`);
+    the tracker is None when the imager delivers positions.
 
     Each follows its role's protocol (:class:`~vesselbot_ros.sim.kinds.PlantStage` ...); the built-in kinds'
     classes are ``PlantSimulator``, ``ImagerModel``/``SequencedImager``, ``HighGainObserver``/
@@ -104,6 +105,7 @@ class Stages(NamedTuple):
 
     plant: kinds.PlantStage
     imager: kinds.ImagerStage
+    tracker: kinds.TrackerStage | None
     observer: kinds.ObserverStage
     reference: kinds.ReferenceStage
     controller: kinds.ControllerStage
@@ -229,10 +231,20 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
         elif name == "imager":
             for t in ts:
                 stage.frame(t, p0)
+        elif name == "tracker":
+            if stage is not None:  # an imager of MR frames: track what it delivers
+                imager = b.get("imager")
+                for t in ts:
+                    frame = imager.frame(t, p0)
+                    if frame is not None:
+                        stage.track(t, frame)
         elif name == "observer":
-            imager = b.get("imager")  # its frames feed the observer
+            imager, tracker = b.get("imager"), b.get("tracker")  # its frames feed the observer
             for t in ts:
-                stage.update(t, imager.frame(t, p0), zero)
+                meas = imager.frame(t, p0)
+                if tracker is not None and meas is not None:
+                    meas = tracker.track(t, meas)
+                stage.update(t, meas, zero)
         elif name == "reference":
             stage.sample_many(np.asarray(ts))
             stage.sample(0.0)
@@ -390,6 +402,21 @@ def _metrics(scenario: Scenario, seed: int | None, series: Mapping[str, npt.NDAr
     return metrics
 
 
+def frame_counts(imager: Any, tracker: Any) -> dict[str, Any]:
+    """The run's MR frame counts: delivered within the run (``imager_frames``), dropped (``imager_frames_rejected``:
+    superseded by a newer frame, or rejected by the tracker) and why (``imager_rejected_reasons``; a user's stages
+    may count less)."""
+    reasons: dict[str, int] = dict(getattr(tracker, "rejected", {}) or {})
+    superseded = int(getattr(imager, "superseded", 0))
+    if superseded:
+        reasons["superseded"] = superseded
+    out: dict[str, Any] = {"imager_frames": int(getattr(tracker, "frames", 0)) + superseded,
+                           "imager_frames_rejected": int(sum(reasons.values()))}
+    if reasons:
+        out["imager_rejected_reasons"] = ", ".join(f"{k}: {v}" for k, v in sorted(reasons.items()))
+    return out
+
+
 def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult:
     """The per-tick loop over the stages' methods (module docstring)."""
     n = scenario.sim.n_ticks
@@ -412,6 +439,7 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     forces = np.empty((n, 8, d)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
+    tracker = st.tracker if kinds.delivers_frames(scenario) else None
     adapted = getattr(controller, "adapted", None)  # an adaptive law's scales (flow_scale, magnetization_scale)
     g_prev = np.zeros(d)
     nan2 = np.full(d, np.nan)
@@ -419,6 +447,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         t = float(ts[k])
         truth = plant.output(rec_forces)
         meas = imager.frame(t, truth.p)
+        if tracker is not None and meas is not None:  # an MR frame: the tracker's position, or None (rejected)
+            meas = tracker.track(t, meas)
         est = observer.update(t, meas, g_prev)
         # the controller gets what the graph carries between the nodes (kinds.call_controller: the same numbers);
         # a bad command (non-finite, raised, not a command) is rejected: the coil gets NaN and ramps to zero
@@ -483,12 +513,8 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         metrics["rejected_command_error"] = reject_details[kinds.REJECT_RAISED]
     if kinds.REJECT_MALFORMED in reject_details:
         metrics["rejected_command_malformed"] = reject_details[kinds.REJECT_MALFORMED]
-    frames_rejected = getattr(imager, "rejected", None)  # an imager that tracks its own frames counts what it drops
-    if frames_rejected is not None:
-        metrics["imager_frames"] = int(getattr(imager, "frames", 0))
-        metrics["imager_frames_rejected"] = int(sum(frames_rejected.values()))
-        if frames_rejected:
-            metrics["imager_rejected_reasons"] = ", ".join(f"{k}: {v}" for k, v in sorted(frames_rejected.items()))
+    if tracker is not None:
+        metrics.update(frame_counts(imager, tracker))
     return SimResult(series, metrics, "per_tick")
 
 

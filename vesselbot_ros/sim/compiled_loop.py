@@ -149,6 +149,8 @@ def compiled_forms(stages: Any) -> tuple[dict[str, Any], list[str]]:
     bad = []
     for role in kinds.ROLES:
         stage = getattr(stages, role)
+        if role == "tracker" and stage is None:  # an imager that delivers positions: no frame to track
+            continue
         if not getattr(kinds.kind_of(role, stage), "compiled", False) or getattr(stage, "dims", d) != d:
             bad.append(role)
         else:

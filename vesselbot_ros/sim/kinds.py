@@ -1,7 +1,8 @@
 """The registry of stage kinds: every stage of the loop is built here, by role and kind, and nowhere else.
 
-The loop has six roles (:data:`ROLES`): the plant, the imager, the observer,
-the controller, the gradient coil and the reference.  A scenario names the
+The loop has seven roles (:data:`ROLES`): the plant, the imager, the tracker
+(only with an imager that delivers MR frames: it turns each into a position),
+the observer, the controller, the gradient coil and the reference.  A scenario names the
 kind of each in its section's ``kind`` key (:data:`SECTIONS`: the plant's
 section is ``physics``)::
 
@@ -79,7 +80,7 @@ from vesselbot_ros.control.model import DynamicsModel
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
-from vesselbot_ros.imaging.imager_params import MrImagerParams
+from vesselbot_ros.imaging.imager_params import MrImagerParams, TrackerParams
 from vesselbot_ros.numba_cache import freshen_dependent
 from vesselbot_ros.physics.integrator import blood_velocity, floor_offsets
 from vesselbot_ros.physics.kernel import I_D_PULSE, I_OMEGA_F, I_PHI_F
@@ -97,21 +98,21 @@ __all__ = [
     "kind_of", "kinds", "build", "compiled_stage", "STEPPED_ROLES", "params_type", "section_resolver", "switch_sections",
     "fingerprint", "controller_estimate", "call_controller", "checked_command", "rejection_warning", "REJECT_REASONS",
     "REJECT_NONE", "REJECT_NONFINITE", "REJECT_ESTIMATE", "REJECT_RAISED", "REJECT_MALFORMED", "COMMAND_STATUSES",
-    "make_observer", "PlantStage", "ImagerStage",
+    "make_observer", "delivers_frames", "PlantStage", "ImagerStage", "TrackerStage",
     "ObserverStage", "ControllerStage", "CoilStage", "ReferenceStage",
 ]
 
 #: The loop's roles, in the order the loop calls them (the fields of ``closed_loop.Stages`` but the model).
-ROLES: tuple[str, ...] = ("plant", "imager", "observer", "reference", "controller", "coil")
+ROLES: tuple[str, ...] = ("plant", "imager", "tracker", "observer", "reference", "controller", "coil")
 #: The roles whose kinds bring a compiled step the compiled loop calls through a pointer (its signature:
 #: :mod:`vesselbot_ros.control.compiled_stage`); the plant, imager, reference and coil are the loop's own.
 STEPPED_ROLES: tuple[str, ...] = ("observer", "controller")
 #: The scenario section that holds each role's parameters (and its ``kind``).
-SECTIONS: dict[str, str] = {"plant": "physics", "imager": "imager", "observer": "observer", "reference": "reference",
-                            "controller": "controller", "coil": "coil"}
+SECTIONS: dict[str, str] = {"plant": "physics", "imager": "imager", "tracker": "tracker", "observer": "observer",
+                            "reference": "reference", "controller": "controller", "coil": "coil"}
 #: The kind of each role when its section does not name one.
-DEFAULT_KINDS: dict[str, str] = {"plant": "vessel", "imager": "mri", "observer": "high_gain", "reference": "bspline",
-                                 "controller": "backstepping", "coil": "gradient_coil"}
+DEFAULT_KINDS: dict[str, str] = {"plant": "vessel", "imager": "mri", "tracker": "dipole_fit", "observer": "high_gain",
+                                 "reference": "bspline", "controller": "backstepping", "coil": "gradient_coil"}
 #: Entry point group through which installed packages register kinds (entry name = kind name).
 ENTRY_POINT_GROUP = "vesselbot_ros.stages"
 
@@ -131,6 +132,14 @@ class ImagerStage(Protocol):
     """The imager: the measurement delivered at ``t_s`` (or None) of the true position."""
 
     def frame(self, t_s: float, p_true: npt.NDArray[np.float64]) -> Measurement | None: ...
+
+
+@runtime_checkable
+class TrackerStage(Protocol):
+    """The tracker: the measurement of an MR frame the imager delivered at ``t_s``
+    (:class:`~vesselbot_ros.imaging.imager_stage.MrFrame`), or None for a frame it rejects (never a NaN)."""
+
+    def track(self, t_s: float, frame: Any) -> Measurement | None: ...
 
 
 @runtime_checkable
@@ -163,7 +172,7 @@ class CoilStage(Protocol):
     def apply(self, t_s: float, g_cmd: npt.NDArray[np.float64]) -> CoilOutput: ...
 
 
-_PROTOCOLS: dict[str, type] = {"plant": PlantStage, "imager": ImagerStage, "observer": ObserverStage,
+_PROTOCOLS: dict[str, type] = {"plant": PlantStage, "imager": ImagerStage, "tracker": TrackerStage, "observer": ObserverStage,
                                "reference": ReferenceStage, "controller": ControllerStage, "coil": CoilStage}
 
 
@@ -198,6 +207,9 @@ class StageKind:
             scenario is validated (its params class checks its own keys); raises ConfigError naming the keys.  It raises
             :class:`~vesselbot_ros.errors.ModelInputError` for a stage it cannot compile (a built-in kind
             over a user's part).
+        frames: An imager kind that delivers MR frames (:class:`~vesselbot_ros.imaging.imager_stage.MrFrame`)
+            rather than positions: the scenario's tracker turns them into measurements (and the node graph runs a
+            tracker node).
     """
 
     role: str
@@ -211,6 +223,7 @@ class StageKind:
     module_file: str = ""
     compile: Callable[[Any], CompiledObserver | CompiledController] | None = None
     check: Callable[[Any, Any], None] | None = None
+    frames: bool = False
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -329,7 +342,7 @@ def _as_kind(obj: Any, name: str, source: str, where: str) -> StageKind:
     if params is None:
         raise ConfigError(f"{where}: class {obj.__name__} needs Params, a frozen dataclass with a 'kind: str' field")
     needed = _PROTOCOLS[role]
-    missing = [m for m in ("output", "step", "frame", "update", "sample", "sample_many", "command", "apply")
+    missing = [m for m in ("output", "step", "frame", "track", "update", "sample", "sample_many", "command", "apply")
                if hasattr(needed, m) and not callable(getattr(obj, m, None))]
     if missing:
         raise ConfigError(f"{where}: class {obj.__name__} ({role}) lacks method(s) {missing} of the {role} protocol")
@@ -432,8 +445,17 @@ def section_resolver(role: str) -> Callable[[Any, str], type]:
     return resolve
 
 
+def delivers_frames(scenario: Any) -> bool:
+    """Whether ``scenario``'s imager delivers MR frames (a tracker makes its measurements; :attr:`StageKind.frames`)."""
+    return find("imager", scenario.imager.kind, "imager.kind").frames
+
+
 def build(role: str, builder: Any) -> Any:
-    """Build ``role``'s stage for the run of ``builder`` (``closed_loop``'s stage builder), through its kind."""
+    """Build ``role``'s stage for the run of ``builder`` (``closed_loop``'s stage builder), through its kind.
+
+    The tracker is None when the imager delivers positions (no frame to track)."""
+    if role == "tracker" and not delivers_frames(builder.s):
+        return None
     ctx = BuildContext(builder, role)
     kind = find(role, ctx.params.kind, f"{SECTIONS[role]}.kind")
     if kind.source == "built-in":
@@ -628,6 +650,16 @@ def _mr_imager(ctx: BuildContext) -> Any:
     return MrImager(s.imager, s.physics, s.sequence, ctx.rng(), dims=s.dims, tick_s=ctx.dt_s)
 
 
+def _dipole_fit(ctx: BuildContext) -> Any:
+    from vesselbot_ros.imaging.imager_stage import DipoleFitTracker  # deferred: scipy.optimize, where it is built
+
+    s = ctx.scenario
+    if not isinstance(s.imager, MrImagerParams):
+        raise ConfigError(f"tracker.kind: 'dipole_fit' tracks the frames of the 'mr_images' imager, not of "
+                          f"imager.kind {s.imager.kind!r}")
+    return DipoleFitTracker(ctx.params, s.imager.imaging, s.physics.robot, s.imager.vessel_diameter_m, s.dims)
+
+
 def make_observer(params: ObserverParams, model: DynamicsModel, x_hat0: npt.ArrayLike, z_hat0: npt.ArrayLike,
                   tick_s: float) -> HighGainObserver | ExtendedKalmanObserver:
     """The built-in observer ``params.kind`` selects: high-gain (25) or the extended Kalman filter, prior at t = 0."""
@@ -703,8 +735,10 @@ for _kind in (
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
-    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False,
-              summary="MR frames synthesised from the bead's field (a slice or MS-SET projections), tracked; per tick"),
+    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False, frames=True,
+              summary="MR frames synthesised from the bead's field (a slice or MS-SET projections); per tick"),
+    StageKind("tracker", "dipole_fit", TrackerParams, _dipole_fit, compiled=False,
+              summary="the bead's position in each MR frame: a fit of its dipole artefact (projection peaks for MS-SET)"),
     StageKind("observer", "high_gain", ObserverParams, _observer, compiled=True, stage_types=(HighGainObserver,),
               summary="high-gain observer (25)", compile=HighGainObserver.compiled, check=_check_high_gain),
     StageKind("observer", "ekf", ObserverParams, _observer, compiled=True, stage_types=(ExtendedKalmanObserver,),

@@ -44,6 +44,7 @@ from vesselbot_ros.control.backstepping import ControllerParams
 from vesselbot_ros.control.bspline_reference import ReferenceParams
 from vesselbot_ros.control.high_gain_observer import ObserverParams
 from vesselbot_ros.control.route import planned_reference
+from vesselbot_ros.imaging.imager_params import MrImagerParams, TrackerParams
 from vesselbot_ros.physics.axes import AXES
 from vesselbot_ros.physics.integrator import IntegratorParams
 from vesselbot_ros.physics.params import FlowParams, PhysicsParams
@@ -204,12 +205,13 @@ class Scenario:
         model: The controller's and observer's model (overrides, input mapping).
         coil: Gradient-coil limits.
         imager: Imager model.
+        tracker: The tracker of an imager that delivers MR frames (``mr_images``): unused otherwise.
         observer: High-gain observer.
         controller: Backstepping controller.
         reference: Reference trajectory.
 
-    The sections of the six stages (physics for the plant, imager, observer,
-    reference, controller, coil) each name their stage's ``kind``; the
+    The sections of the seven stages (physics for the plant, imager, tracker,
+    observer, reference, controller, coil) each name their stage's ``kind``; the
     annotated classes are the built-in kinds' parameters, and a section of
     another kind (a user's ``module:Class``) holds that kind's parameters
     (:mod:`vesselbot_ros.sim.kinds`).
@@ -227,6 +229,7 @@ class Scenario:
     model: ModelParams = dataclasses.field(default_factory=ModelParams)
     coil: CoilLimits = dataclasses.field(default_factory=CoilLimits, metadata=_stage_section("coil"))
     imager: ImagerParams = dataclasses.field(default_factory=ImagerParams, metadata=_stage_section("imager"))
+    tracker: TrackerParams = dataclasses.field(default_factory=TrackerParams, metadata=_stage_section("tracker"))
     observer: ObserverParams = dataclasses.field(default_factory=ObserverParams, metadata=_stage_section("observer"))
     controller: ControllerParams = dataclasses.field(default_factory=ControllerParams, metadata=_stage_section("controller"))
     reference: ReferenceParams = dataclasses.field(default_factory=ReferenceParams, metadata=_stage_section("reference"))
@@ -242,7 +245,8 @@ class Scenario:
             raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
         # the checks below read the built-in kinds' parameters; a user's kind checks its own in its params class
         mri = isinstance(self.imager, ImagerParams)
-        if mri and self.imager.frame_rate_Hz > self.sim.control_rate_Hz * (1.0 + 1e-9):
+        if isinstance(self.imager, (ImagerParams, MrImagerParams)) and (
+                self.imager.frame_rate_Hz > self.sim.control_rate_Hz * (1.0 + 1e-9)):
             raise ConfigError(
                 f"imager.frame_rate_Hz must be <= sim.control_rate_Hz ({self.sim.control_rate_Hz!r}), "
                 f"got {self.imager.frame_rate_Hz!r}"

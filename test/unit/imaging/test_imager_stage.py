@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from vesselbot_ros.config import ConfigError
-from vesselbot_ros.imaging.imager_stage import MrImager, MrImagerParams
+from vesselbot_ros.imaging.imager_stage import DipoleFitTracker, MrImager, MrImagerParams, TrackerParams
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.scanner.sequence import SequenceParams
-from vesselbot_ros.sim.closed_loop import run_closed_loop
+from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
 from vesselbot_ros.sim.kinds import find
 from vesselbot_ros.sim.scenario import load_scenario
 
@@ -27,16 +27,30 @@ def test_the_kind_is_registered_and_names_its_bad_values():
 def test_continuous_frames_track_the_bead_and_a_frame_without_it_is_rejected_not_nan():
     imager = MrImager(MrImagerParams(frame_rate_Hz=100.0, latency_s=0.02), PhysicsParams(), SequenceParams(),
                       np.random.default_rng(3), dims=2)
+    tracker = DipoleFitTracker(TrackerParams(), imager.imaging, PhysicsParams().robot, dims=2)
     p = np.array([1.0e-3, 0.5e-3])
     got = [imager.frame(k * 1e-3, p) for k in range(61)]
-    frames = [m for m in got if m is not None]
-    assert imager.frames == 7 and len(frames) == 5  # acquired at 0, 10, ..., 60 ms; delivered 20 ms later
+    delivered = [f for f in got if f is not None]
+    assert imager.frames == 7 and len(delivered) == 5  # acquired at 0, 10, ..., 60 ms; delivered 20 ms later
+    assert [f.index for f in delivered] == [0, 1, 2, 3, 4] and imager.superseded == 0
+    frames = [tracker.track(k * 1e-3, f) for k, f in enumerate(got) if f is not None]
+    assert all(m is not None for m in frames)
     assert [round(m.t_acq_s, 6) for m in frames] == [0.0, 0.01, 0.02, 0.03, 0.04]
     err = np.array([m.p - p for m in frames])
     assert np.all(np.isfinite(err)) and np.abs(err).max() < 50e-6  # MS-SET's bound is a few micrometres
     far = MrImager(MrImagerParams(), PhysicsParams(), SequenceParams(), np.random.default_rng(0), dims=2)
-    assert far.frame(0.0, np.array([0.5, 0.0])) is None  # 0.5 m from the field of view: nothing excited in it
-    assert far.frames == 1 and sum(far.rejected.values()) == 1
+    frame = far.frame(0.0, np.array([0.5, 0.0]))  # 0.5 m from the field of view: nothing excited in it
+    assert frame is not None and far.frames == 1
+    far_tracker = DipoleFitTracker(TrackerParams(), far.imaging, PhysicsParams().robot, dims=2)
+    assert far_tracker.track(0.0, frame) is None and sum(far_tracker.rejected.values()) == 1
+
+
+def test_the_tracker_kind_is_registered_and_needs_frames():
+    assert find("tracker", "dipole_fit").params is TrackerParams
+    with pytest.raises(ConfigError, match="tracker.min_chi2"):
+        TrackerParams(min_chi2=0.0)
+    sc = load_scenario("config/plans/clinical_3t.yaml", sets=["sim.duration_s=0.1"])
+    assert build_stages(sc).tracker is None  # the mri imager delivers positions: nothing to track
 
 
 def test_the_clinical_plan_flies_on_tracked_ms_set_frames_in_its_tracking_windows():
