@@ -190,6 +190,8 @@ class TopicSpec:
     #: keeps them and serves them once on ``<role>/series`` at the end of a run, which is how the launcher
     #: reads them without a per-tick subscription (it subscribes only when a user's node publishes the topic).
     series: tuple[str, ...] = ()
+    #: Its publishing role in a graph whose imager delivers MR frames ("": ``publisher``).
+    frames_publisher: str = ""
     #: The canonical absolute name (default namespace): what bags and diagnostics use.
     name: str = field(init=False, compare=False)
 
@@ -313,9 +315,9 @@ TOPICS: tuple[TopicSpec, ...] = (
               "per tick", "reliable", "m, m/s, N, T/m", FRAME_ID, per_tick=True, series=("p_true", "v_true", "in_contact")),
     TopicSpec("vessel_markers", "vessel_markers", "visualization_msgs/msg/MarkerArray", "plant", ("(viewers)",),
               "once (latched)", "reliable_latched", "m", FRAME_ID, depth=1),
-    TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager (tracker with MR frames)",
-              ("observer",),
+    TopicSpec("measurement", "measurement", "geometry_msgs/msg/PointStamped", "imager", ("observer",),
               "per tick (lockstep, ZOH) / frame rate (real time)", "reliable", "m", FRAME_ID, per_tick=True,
+              frames_publisher="tracker",
               note="header.stamp = acquisition time (multiplexed: the middle of its tracking window); the frame "
                    "arrives at the first tick at or after window_end + latency, so it is that much old; a newer "
                    "stamp means a fresh frame, the same stamp a repeat; stamp 0 with an empty frame_id: no frame yet"),
@@ -640,7 +642,8 @@ def role_contract(name: str, namespace: str | None = None, frames: bool | None =
 def markdown_table() -> str:
     """The README's topic and service tables."""
     head = "| topic | type | publisher | subscribers | rate | QoS | units | frame |\n|---|---|---|---|---|---|---|---|\n"
-    rows = [f"| `{t.name}` | `{t.msgtype}` | {t.publisher} | {', '.join(t.subscribers)} | {t.rate} | "
+    rows = [f"| `{t.name}` | `{t.msgtype}` | {t.publisher}"
+            f"{f' ({t.frames_publisher} with MR frames)' if t.frames_publisher else ''} | {', '.join(t.subscribers)} | {t.rate} | "
             f"{qos_text(t)} | {t.units} | {t.frame} |" for t in TOPICS]
     srv_head = "\n\n| service / action | type | server | purpose |\n|---|---|---|---|\n"
     srv_rows = [f"| `{s.name}` | `{s.srvtype}` | {s.server} | {s.purpose} |" for s in SERVICES]

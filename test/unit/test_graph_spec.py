@@ -111,16 +111,21 @@ def test_every_port_is_declared_by_its_roles():
     roles = {r.name for r in spec.ALL_ROLES} | {"all"}
     assert {t.publisher for t in spec.TOPICS} <= roles
     assert {s.server for s in spec.SERVICES} <= roles
-    for r in spec.ROLES:
-        for key in r.outputs:
-            assert spec.topic(key).publisher == r.name, (r.name, key)
-        for key in r.inputs:
-            assert r.name in spec.topic(key).subscribers, (r.name, key)
-        for key in r.services:
-            assert spec.service(key).server == r.name
-    # every topic a loop role publishes has exactly one publishing role
-    published = [k for r in spec.ROLES for k in r.outputs]
-    assert len(published) == len(set(published))
+    for frames in (False, True):  # a graph whose imager delivers positions, and one of MR frames (with a tracker)
+        roles_in = [spec.role(name) for name in spec.loop_roles(frames)]
+        for r in roles_in:
+            for key in r.outputs_for(frames):
+                t = spec.topic(key)
+                assert (t.frames_publisher if frames and t.frames_publisher else t.publisher) == r.name, (r.name, key)
+            for key in r.inputs_for(frames):
+                assert r.name in spec.topic(key).subscribers, (r.name, key)
+            for key in r.services:
+                assert spec.service(key).server == r.name
+        # every topic a loop role publishes has exactly one publishing role
+        published = [k for r in roles_in for k in r.outputs_for(frames)]
+        assert len(published) == len(set(published))
+    assert spec.loop_roles(False) == tuple(r for r in spec.LOOP_ROLES if r != "tracker")
+    assert set(spec.frame_topics()) == {"mr_frame", "mr_image"}
 
 
 def test_names_resolve_in_a_namespace():

@@ -8,6 +8,9 @@
 //    "log_times": {topic: [each message's timestamp (ns)]}, "times": [the server's time broadcasts (ns)],
 //    "views": {"errors": [view/errors messages], "marker_namespaces": [namespaces seen on view/markers]}}
 // (ns values as decimal strings, in the order received.)  JSON channels (view/errors) are parsed as JSON.
+// Every non-empty sensor_msgs/msg/Image is summarised in "images": {topic: [{stamp, height, width, encoding, step,
+//   n_bytes, sum, max}]}, sum and max over its samples as an Image panel reads them (32FC1: float32; 64FC2: the
+//   float64 magnitudes), in the order received.
 // With --scene, also "scene": the markers as a 3D panel would draw them, the last of each namespace
 //   {"view": {ns: summary} (view/markers), "vessel": {ns: summary} (vessel_markers),
 //    "robot": [[stamp_ns, x, y, z], ...] (each view update's robot), "truth": [[stamp_ns, x, y, z], ...]}
@@ -57,6 +60,23 @@ let received = 0;
 let lastMessage = Date.now();
 let done = false;
 const scene = { view: {}, vessel: {}, robot: [], truth: [] };
+const images = {};
+
+function imageSummary(m) {
+  const d = m.data;
+  const bytes = new DataView(d.buffer, d.byteOffset, d.byteLength);
+  let sum = 0;
+  let max = -Infinity;
+  if (m.encoding === "32FC1") {
+    for (let i = 0; i + 4 <= d.byteLength; i += 4) { const v = bytes.getFloat32(i, true); sum += v; max = Math.max(max, v); }
+  } else if (m.encoding === "64FC2") {
+    for (let i = 0; i + 16 <= d.byteLength; i += 16) {
+      const v = Math.hypot(bytes.getFloat64(i, true), bytes.getFloat64(i + 8, true)); sum += v; max = Math.max(max, v);
+    }
+  }
+  return { stamp: stampNs(m.header.stamp).toString(), height: m.height, width: m.width, encoding: m.encoding,
+    step: m.step, n_bytes: d.byteLength, sum, max };
+}
 let viewUpdates = 0;
 
 function stampNs(st) { return BigInt(st.sec) * 1000000000n + BigInt(st.nanosec); }
@@ -85,7 +105,7 @@ function finish(reason) {
   if (done) return;
   done = true;
   const out = { reason, subprotocol, capabilities, advertised, counts,
-    decode_errors: decodeErrors, views, times: times.map(String),
+    decode_errors: decodeErrors, views, images, times: times.map(String),
     log_times: Object.fromEntries(Object.entries(logTimes).map(([k, v]) => [k, v.map(String)])),
     positions: positions.map(([t, x, z, lt]) => [t.toString(), x, z, lt.toString()]) };
   if (flags.scene) {
@@ -121,7 +141,7 @@ function connect() {
         ? { readMessage: (bytes) => JSON.parse(new TextDecoder().decode(bytes)) }
         : new MessageReader(parse(ch.schema, { ros2: true }));
       const sub = client.subscribe(ch.id);
-      channels.set(sub, { topic: ch.topic, reader });
+      channels.set(sub, { topic: ch.topic, schemaName: ch.schemaName, reader });
       counts[ch.topic] = 0;
       logTimes[ch.topic] = [];
     }
@@ -155,6 +175,9 @@ function connect() {
     }
     if (flags.scene && ch.topic.endsWith("/vessel_markers")) {
       for (const m of msg.markers) scene.vessel[m.ns] = summary(m);
+    }
+    if (ch.schemaName === "sensor_msgs/msg/Image" && msg.height > 0) {
+      (images[ch.topic] ??= []).push(imageSummary(msg));
     }
     if (ch.topic.endsWith("/truth")) {
       const st = msg.header.stamp;

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import build_stages, run_closed_loop
 from vesselbot_ros.sim.kinds import find
 from vesselbot_ros.sim.scenario import load_scenario
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
 def test_the_kind_is_registered_and_names_its_bad_values():
@@ -78,3 +82,21 @@ def test_frames_the_tracker_drops_are_counted_in_the_runs_metrics_and_its_headli
     assert m["imager_frames"] >= 3 and m["imager_frames_rejected"] == m["imager_frames"]
     assert not np.isfinite(r.timeseries["meas_p"][:, 0]).any()
     assert f"frames rejected {m['imager_frames']} of {m['imager_frames']} (no_bead" in headline(m)
+
+
+def test_a_users_tracker_runs_by_module_and_class_with_its_own_validated_parameters(monkeypatch):
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    sets = ["imager.kind=mr_images", "imager.fov_centre_m=[4.0e-3, 0.0, 0.0]", "sim.duration_s=0.4",
+            "tracker.kind=plugin_tracker:CentroidTracker"]
+    sc = load_scenario("config/plans/clinical_3t.yaml", sets=sets)
+    assert type(sc.tracker).__name__ == "CentroidParams" and sc.tracker.threshold_sigma == 5.0
+    r = run_closed_loop(sc, 0)
+    ts = r.timeseries
+    k = np.flatnonzero(np.isfinite(ts["meas_p"][:, 0]))
+    assert len(k) >= 5 and r.metrics["imager_frames"] == len(k)  # every frame tracked, none rejected
+    truth = ts["p_true"][np.searchsorted(ts["t_s"], ts["meas_t_acq_s"][k])]
+    assert np.abs(ts["meas_p"][k] - truth).max() < 0.5e-3  # a centroid, not a fit: within half a millimetre
+    with pytest.raises(ConfigError, match="tracker.threshold_sigma"):
+        load_scenario("config/plans/clinical_3t.yaml", sets=[*sets, "tracker.threshold_sigma=0"])
+    with pytest.raises(ConfigError, match="tracker.kind: unknown tracker kind 'hough'"):
+        load_scenario("config/plans/clinical_3t.yaml", sets=[*sets[:-1], "tracker.kind=hough"])

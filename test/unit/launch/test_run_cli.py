@@ -36,6 +36,8 @@ BAD = [
     (["--live", "--live-rate", "nan"], ["--live-rate", "nan"]),
     (["--compression", "zstd_small", "--no-record"], ["--compression zstd_small", "--no-record"]),
     (["--hardware", "mri9000"], ["--hardware: unknown scanner preset 'mri9000'; known presets: clinical_3t, "]),
+    # the tracker joins the graph only with an imager of MR frames
+    (["--without", "tracker"], ["--without tracker", "no tracker", "imager.kind 'mri'", "mr_images"]),
 ]
 
 
