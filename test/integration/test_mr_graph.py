@@ -141,3 +141,14 @@ def test_foxglove_decodes_the_images_the_bag_holds(run) -> None:  # type: ignore
         assert s["sum"] == pytest.approx(float(mag.sum()), rel=1e-9)
     frames = got["images"][topic("mr_frame").name]  # the complex frames decode too (their magnitudes)
     assert len(frames) == len(rec)
+
+
+@pytest.mark.parametrize("run", ["single_process"], indirect=True)
+def test_the_report_draws_the_last_frame_and_has_the_runs_metrics(run, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from vesselbot_ros.bag.report import MR_FRAME_FIGURE, write_report
+
+    bag, m, _got, _pure = run
+    got = write_report(bag, tmp_path / "report")
+    assert (tmp_path / "report" / MR_FRAME_FIGURE).stat().st_size > 10_000
+    for key in ("tracking_error_max_m", "estimation_error_max_m", "imager_frames", "imager_frames_rejected"):
+        assert got[key] == m[key], key  # the bag alone gives the run's metrics and frame counts

@@ -58,8 +58,13 @@ def test_layout_names_only_channels_the_live_view_serves():
         named |= {p["value"].split(".", 1)[0] for p in cfg.get("paths", [])}
         if "topicPath" in cfg:
             named.add(cfg["topicPath"].split(".", 1)[0])
+        if "imageMode" in cfg:
+            named.add(cfg["imageMode"]["imageTopic"])
     assert named and named <= served, named - served
     assert {v.name for v in VIEW_CHANNELS} <= named  # every derived channel has a panel
+    # the MR frames' magnitude (imager.kind mr_images) in an Image panel
+    assert layout["configById"]["Image!mr"]["imageMode"]["imageTopic"] == topic("mr_image").name
+    assert "Image!mr" in json.dumps(layout["layout"])
 
 
 def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():

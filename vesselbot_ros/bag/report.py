@@ -58,11 +58,12 @@ from vesselbot_ros import graph_spec
 from vesselbot_ros.atomic_io import check_output_dir, save_figure, write_text
 from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.info import coverage_of_ticks
-from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, open_bag, read_timeseries
+from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, iter_messages, open_bag, read_timeseries
 from vesselbot_ros.config import ConfigError, load_dataclass
 from vesselbot_ros.control.route import draw_network, navigation_outcome
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import NODE_NAMES
+from vesselbot_ros.imaging.imager_params import MrImagerParams
 from vesselbot_ros.physics.axes import AXES, AXIS_INDEX
 from vesselbot_ros.physics.params import BloodParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
@@ -588,6 +589,84 @@ def tree_trajectory(t: npt.NDArray[np.float64], p: Mapping[str, np.ndarray], net
     return fig
 
 
+#: The report's figure of an MR frame (a run with ``imager.kind: mr_images``), besides :data:`FIGURES`.
+MR_FRAME_FIGURE = "mr_frame.png"
+
+
+def _stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def mr_frame_figure(info: BagInfo, run: Mapping[str, Any], ts: Mapping[str, np.ndarray]) -> Any | None:
+    """The run's last MR frame (``imager/image``: the magnitude) with the bead's true position at its acquisition
+    time and the tracked one (the measurement stamped with it) marked; None when the bag holds no frame.
+
+    A slice is drawn as an image in the vessel's frame (mm); MS-SET's three projections as profiles along x, y
+    and z, each with the true and tracked coordinate as lines.
+    """
+    name = graph_spec.topic("mr_image").name
+    if name not in {tp.name for tp in info.topics} or run.get("config", {}).get("imager", {}).get("kind") != "mr_images":
+        return None
+    last = None
+    for msg in iter_messages(info, topics=[name]):
+        last = msg
+    if last is None:
+        return None
+    img = last.decode()
+    stamp = _stamp_ns(img)
+    try:
+        params = load_dataclass(MrImagerParams, run["config"]["imager"], "imager")
+    except (ConfigError, KeyError, TypeError):
+        return None
+    imaging = params.imaging
+    mag = np.frombuffer(bytes(img.data), dtype="<f4").reshape(img.height, img.width)
+    centre = np.asarray(params.fov_centre_m, dtype=np.float64)
+    t_true = np.asarray(ts.get("truth.t_s", np.zeros(0)))
+    p_true = np.asarray(ts.get("truth.p_WR", np.zeros((0, 3))))
+    true_xyz = p_true[int(np.argmin(np.abs(t_true - stamp * 1e-9)))] if t_true.size else None
+    t_meas = np.asarray(ts.get("measurement.t_s", np.zeros(0)))
+    p_meas = np.asarray(ts.get("measurement.p_meas", np.zeros((0, 3))))
+    hit = np.flatnonzero(np.abs(t_meas - stamp * 1e-9) < 0.5e-9) if t_meas.size else np.zeros(0, dtype=np.intp)
+    tracked = p_meas[hit[0]] if hit.size else None
+    n = imaging.matrix
+    mm = 1e3
+    coords = (np.arange(n) - n / 2) * imaging.pixel_m
+    import matplotlib.pyplot as plt  # deferred: matplotlib (see write_report)
+
+    when = f"acquired at t = {stamp * 1e-9:.3f} s"
+    if imaging.acquisition == "slice":
+        fig, ax = plt.subplots(figsize=(6.5, 6))
+        ro = 0 if imaging.readout_axis == "x" else 2
+        pe = 2 if ro == 0 else 0
+        ext = (float(centre[ro] + coords[0]) * mm, float(centre[ro] + coords[-1]) * mm,
+               float(centre[pe] + coords[0]) * mm, float(centre[pe] + coords[-1]) * mm)
+        ax.imshow(mag, origin="lower", extent=ext, cmap="gray", aspect="equal")
+        for p, style, label in ((true_xyz, "g+", "true"), (tracked, "rx", "tracked")):
+            if p is not None:
+                ax.plot(p[ro] * mm, p[pe] * mm, style, ms=14, mew=2, label=f"{label} position")
+        ax.set_xlabel(f"{'xyz'[ro]} (mm, readout)")
+        ax.set_ylabel(f"{'xyz'[pe]} (mm, phase encode)")
+        ax.legend(loc="upper right")
+        ax.set_title(f"MR slice (magnitude), {when}")
+    else:
+        fig, axs = plt.subplots(3, 1, sharex=False, figsize=(8, 7))
+        for a, ax in enumerate(axs):
+            ax.plot((centre[a] + coords) * mm, mag[a], "k-", lw=1, label="projection (magnitude)")
+            for p, style, label in ((true_xyz, "g-", "true"), (tracked, "r--", "tracked")):
+                if p is not None:
+                    ax.axvline(p[a] * mm, color=style[0], ls=style[1:], label=f"{label} {'xyz'[a]}")
+            if true_xyz is not None:  # the artefact spans tens of millimetres; the view is wider still
+                ax.set_xlim((true_xyz[a] - 0.025) * mm, (true_xyz[a] + 0.025) * mm)
+            ax.set_xlabel(f"{'xyz'[a]} (mm)")
+            ax.set_ylabel("|signal|")
+            ax.legend(loc="upper right", fontsize=8)
+        axs[0].set_title(f"MS-SET projections, {when}")
+    if tracked is None:
+        fig.text(0.01, 0.01, "this frame's measurement is not in the bag (rejected by the tracker)", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def _run_config_value(run: Mapping[str, Any], section: str, key: str) -> float | None:
     try:
         v = float(run["config"][section][key])
@@ -712,6 +791,9 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
         FIGURES[4]: fig10c_velocity_error(t, m, spans),
         FIGURES[5]: forces_figure(t, m, spans),
     }
+    frame_fig = mr_frame_figure(info, run, ts)
+    if frame_fig is not None:
+        figures[MR_FRAME_FIGURE] = frame_fig
     # each file whole or not at all: a full disk leaves the earlier report's files, never a 0-byte one
     try:
         for name, fig in figures.items():
