@@ -44,6 +44,9 @@ Tick k holds at sim time ``t_k = k / control_rate_Hz``.  Every topic marked
    Before the first frame is ever delivered (latency, an early dropout) it
    publishes a placeholder with an empty ``frame_id`` and stamp 0, meaning
    "no frame yet".  The n-th ``measurement`` message belongs to tick n;
+   With an imager that delivers MR frames (``imager.kind: mr_images``) the imager publishes ``imager/frame``
+   instead (one per tick: the frame delivered at t_k, or an empty image stamped t_k), and the tracker, on
+   frame message k, publishes ``measurement`` k as above (the frame's position, else the last one again);
 3. reference, on ``/clock`` k, publishes ``reference`` sample k;
 4. observer, once it has ``measurement`` k and ``coil/applied`` k-1, publishes
    ``estimate`` (stamp t_k);

@@ -650,6 +650,22 @@ def _mr_imager(ctx: BuildContext) -> Any:
     return MrImager(s.imager, s.physics, s.sequence, ctx.rng(), dims=s.dims, tick_s=ctx.dt_s)
 
 
+def _check_mr_images(params: MrImagerParams, scenario: Any) -> None:
+    """An acquisition fits the time it is given: a tracking window (multiplexed), or a frame period (continuous)."""
+    imaging = params.imaging
+    what = f"imager.preset {params.preset!r}" if params.preset else "imager.acquisition"
+    takes = f"takes {imaging.frame_time_s:.4g} s per frame ({imaging.acquisition}, {imaging.matrix} x " \
+            f"{imaging.repetition_time_s:.4g} s TR)" if imaging.acquisition == "slice" else \
+            f"takes {imaging.frame_time_s:.4g} s per frame (3 x {imaging.repetition_time_s:.4g} s TR)"
+    if scenario.sequence.mode == "multiplexed":
+        if imaging.frame_time_s > scenario.sequence.tracking_window_s * (1.0 + 1e-9):
+            raise ConfigError(f"{what} {takes}: longer than sequence.tracking_window_s "
+                              f"({scenario.sequence.tracking_window_s!r} s)")
+    elif imaging.frame_time_s > (1.0 + 1e-9) / params.frame_rate_Hz:
+        raise ConfigError(f"{what} {takes}: longer than the frame period 1 / imager.frame_rate_Hz "
+                          f"({1.0 / params.frame_rate_Hz:.4g} s)")
+
+
 def _dipole_fit(ctx: BuildContext) -> Any:
     from vesselbot_ros.imaging.imager_stage import DipoleFitTracker  # deferred: scipy.optimize, where it is built
 
@@ -735,7 +751,7 @@ for _kind in (
     StageKind("imager", "mri", ImagerParams, _imager, compiled=True,
               stage_types=(ImagerModel, SequencedImager), compile=lambda stage: stage.compiled(),
               summary="MRI tracking: Gaussian noise, latency, frame rate, aberrant frames, dropouts; the sequence's windows"),
-    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False, frames=True,
+    StageKind("imager", "mr_images", MrImagerParams, _mr_imager, compiled=False, frames=True, check=_check_mr_images,
               summary="MR frames synthesised from the bead's field (a slice or MS-SET projections); per tick"),
     StageKind("tracker", "dipole_fit", TrackerParams, _dipole_fit, compiled=False,
               summary="the bead's position in each MR frame: a fit of its dipole artefact (projection peaks for MS-SET)"),

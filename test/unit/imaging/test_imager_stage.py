@@ -100,3 +100,16 @@ def test_a_users_tracker_runs_by_module_and_class_with_its_own_validated_paramet
         load_scenario("config/plans/clinical_3t.yaml", sets=[*sets, "tracker.threshold_sigma=0"])
     with pytest.raises(ConfigError, match="tracker.kind: unknown tracker kind 'hough'"):
         load_scenario("config/plans/clinical_3t.yaml", sets=[*sets[:-1], "tracker.kind=hough"])
+
+
+@pytest.mark.parametrize(("sets", "needle"), [
+    (["imager.preset=gre_3t"], "imager.preset 'gre_3t' takes 0.768 s per frame (slice, 128 x 0.006 s TR): longer than "
+                               "sequence.tracking_window_s (0.02 s)"),
+    (["sequence.mode=continuous", "imager.preset=gre_1p5t", "imager.frame_rate_Hz=2"],
+     "imager.preset 'gre_1p5t' takes 1.024 s per frame (slice, 128 x 0.008 s TR): longer than the frame period "
+     "1 / imager.frame_rate_Hz (0.5 s)"),
+])
+def test_an_acquisition_that_does_not_fit_its_time_is_one_line_naming_the_keys(sets, needle):
+    with pytest.raises(ConfigError) as exc:
+        load_scenario("config/plans/clinical_3t.yaml", sets=["imager.kind=mr_images", *sets])
+    assert needle in str(exc.value) and "\n" not in str(exc.value)
