@@ -217,7 +217,7 @@ def warm_up(scenario: Scenario, stages: Iterable[str] | None = None) -> None:
     _check_stage_names("warm_up", names)
     b = _StageBuilder(short, None)
     dt = short.sim.dt_control_s
-    ts = [k * dt for k in range(WARM_TICKS)]
+    ts = [k * dt for k in range(short.sim.n_ticks)]  # WARM_TICKS, or the copy's one MR acquisition window
     p0 = np.asarray(short.initial.p0_m, dtype=np.float64)
     v0 = np.asarray(short.initial.v0_m_per_s, dtype=np.float64)
     zero = np.zeros(short.dims)

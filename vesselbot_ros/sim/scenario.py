@@ -438,7 +438,8 @@ def short_copy(scenario: Scenario, duration_s: float) -> Scenario:
     """``scenario`` run for ``duration_s`` only: a warm-up's throwaway copy (its first calls load compiled code).
 
     A multiplexed sequence's windows shrink to one or two control ticks, with
-    no latency and no dead time, so that its first frame and its first
+    no latency and no dead time (a tracking window as long as an MR frame's
+    acquisition), so that its first frame and its first
     propulsion window fall within the copy's few ticks (the loader refuses a
     sequence that does not fit in its run, :func:`_check_fits_run`); every
     stage still runs the same code.  A continuous scenario keeps its sequence.
@@ -447,7 +448,14 @@ def short_copy(scenario: Scenario, duration_s: float) -> Scenario:
     seq = scenario.sequence
     if seq.mode == "multiplexed":
         dt = sim.dt_control_s
-        seq = dataclasses.replace(seq, start_s=0.0, tracking_window_s=2.0 * dt, dead_time_s=0.0,
+        window = 2.0 * dt
+        # an imager of MR frames needs its acquisition's time in the window (its kind refuses less): the copy
+        # runs one such window and a propulsion tick
+        frame_s = float(getattr(getattr(scenario.imager, "imaging", None), "frame_time_s", 0.0))
+        if frame_s > window:
+            window = math.ceil(frame_s / dt - 1e-9) * dt
+            sim = dataclasses.replace(sim, duration_s=max(duration_s, window + 2.0 * dt))
+        seq = dataclasses.replace(seq, start_s=0.0, tracking_window_s=window, dead_time_s=0.0,
                                   propulsion_window_s=dt, latency_s=0.0)
     return dataclasses.replace(scenario, sim=sim, sequence=seq)
 
