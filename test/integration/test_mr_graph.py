@@ -152,3 +152,38 @@ def test_the_report_draws_the_last_frame_and_has_the_runs_metrics(run, tmp_path)
     assert (tmp_path / "report" / MR_FRAME_FIGURE).stat().st_size > 10_000
     for key in ("tracking_error_max_m", "estimation_error_max_m", "imager_frames", "imager_frames_rejected"):
         assert got[key] == m[key], key  # the bag alone gives the run's metrics and frame counts
+
+
+@pytest.mark.timeout(400)
+def test_a_users_own_tracker_node_in_the_slot_gives_the_pure_runners_numbers(tmp_path, pure_runs) -> None:
+    """examples/my_tracker_node.py in the tracker's slot (``--without tracker``), running the default tracker kind."""
+    import signal
+
+    from _runs import hostile_env, run_cmd
+    from vesselbot_ros.ros_env import allocate_domain
+
+    with allocate_domain() as lease:
+        dom = lease.domain_id
+    env = hostile_env(dom, tmp_path / "ros_log")
+    params = ["-p", f"config:={CONFIG}", "-p", "set:=[" + ", ".join(f"'{kv}'" for kv in SETS) + "]"]
+    user = subprocess.Popen([sys.executable, str(EXAMPLES / "my_tracker_node.py"), "--ros-args", *params], cwd=REPO,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    metrics = tmp_path / "metrics.json"
+    try:
+        p = subprocess.run(run_cmd("--config", CONFIG, "--seed", "0", "--duration", str(DURATION_S), "--quiet",
+                                   "--without", "tracker", "--domain-id", str(dom), "--no-record",
+                                   "--metrics-json", str(metrics), "--wait-timeout", "120",
+                                   *[a for kv in SETS for a in ("--set", kv)]),
+                           cwd=REPO, capture_output=True, text=True, timeout=300)
+    finally:
+        user.send_signal(signal.SIGINT)
+        try:
+            user.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            user.kill()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "slot 'tracker' is yours" in p.stdout + p.stderr  # the contract, printed
+    m = json.loads(metrics.read_text())["metrics"]
+    _scenario, res = pure_runs[SETS[-1]]
+    for key in ("tracking_error_max_m", "tracking_error_rms_m", "estimation_error_max_m", "estimation_error_rms_m"):
+        assert m[key] == res.metrics[key], key  # the default tracker in the user's node: the same bits
