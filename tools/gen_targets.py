@@ -286,14 +286,14 @@ def render_table(rows: list[dict], camp: list[dict], insert: list[dict]) -> str:
                      f"{fmt_um(r['rms_m'])} | {fmt_um(r.get('estimation_bound_m'))} | {fmt_um(r['est_rms_m'])} | "
                      f"{r['outside_s']:g} | {r['verdict']} |")
     lines += ["", "| plan, 100 seeds | controller | runs | tracking max, mean / worst (um) | within 2x the coast "
-              "floor | the floor within it | within 2x the seed's tracking floor |", "|---|---|---|---|---|---|---|"]
+              "floor | the reference strategy within it | within 2x the seed's reference strategy |", "|---|---|---|---|---|---|---|"]
     for c in camp:
         lines.append(f"| {c['plan']} | {c['variant']} | {c['runs']} | {fmt_um(c['mean_m'])} / {fmt_um(c['worst_m'])} | "
                      f"{_pct(c['within'])} | {_pct(c['floor_within'])} | {_pct(c['within_floor'])} |")
     if insert:
         lines += ["", "| insert cell, paper's reference, 100 seeds | pair | runs (ok) | tracking max, mean / worst (um) | "
-                  "target (um) | within the target | the floor within it | within the target's factor of the seed's "
-                  "tracking floor |", "|---|---|---|---|---|---|---|---|"]
+                  "target (um) | within the target | the reference strategy within it | within the target's factor of the seed's "
+                  "reference strategy |", "|---|---|---|---|---|---|---|---|"]
         for c in insert:
             lines.append(f"| {c['cell']} | {c['pair']} | {c['runs']} ({c['ok']}) | {fmt_um(c['mean_m'])} / "
                          f"{fmt_um(c['worst_m'])} | {fmt_um(c['bound_m'])} | {_pct(c['within'])} | "
@@ -318,7 +318,7 @@ def main() -> None:
         for c in camp:
             print(f"{c['plan']:<18} {c['variant']:<12} 100 seeds: mean {fmt_um(c['mean_m'])} worst {fmt_um(c['worst_m'])} um, "
                   f"{c['within'] * 100:.0f} % within 2x the coast floor, {_pct(c['within_floor'])} within 2x the seed's "
-                  "tracking floor")
+                  "reference strategy")
         with atomic_open(DATA / "targets.csv", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
