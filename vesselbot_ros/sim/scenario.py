@@ -786,7 +786,24 @@ def estimate_resources(scenario: Scenario) -> ResourceEstimate:
     ticks = scenario.sim.duration_s * scenario.sim.control_rate_Hz
     per_tick = BYTES_PER_TICK + (FORCE_BYTES_PER_TICK if scenario.sim.record_forces else 0)
     n = int(min(ticks, 2**62))
-    return ResourceEstimate(n, int(min(ticks * per_tick, 2**62)), int(min(ticks * BAG_BYTES_PER_TICK, 2**62)))
+    bag = ticks * BAG_BYTES_PER_TICK + _frame_bag_bytes(scenario)
+    return ResourceEstimate(n, int(min(ticks * per_tick, 2**62)), int(min(bag, 2**62)))
+
+
+#: What one tick of an imager of MR frames adds to a bag besides its frames: the empty ``imager/frame`` (bytes).
+EMPTY_FRAME_BAG_BYTES = 160
+
+
+def _frame_bag_bytes(scenario: Scenario) -> float:
+    """The MR frames a run records (``imager/frame``: 16 bytes a complex sample; ``imager/image``: 4), bytes."""
+    imaging = getattr(scenario.imager, "imaging", None)
+    if imaging is None:
+        return 0.0
+    samples = imaging.matrix * (imaging.matrix if imaging.acquisition == "slice" else 3)
+    seq = scenario.sequence
+    rate = 1.0 / seq.period_s if seq.mode == "multiplexed" else float(scenario.imager.frame_rate_Hz)
+    ticks = scenario.sim.duration_s * scenario.sim.control_rate_Hz
+    return ticks * EMPTY_FRAME_BAG_BYTES + scenario.sim.duration_s * rate * (20 * samples + 2 * EMPTY_FRAME_BAG_BYTES)
 
 
 # the one budget and formatter of every resource check (vesselbot_ros.resources.require_fits reads them too)

@@ -113,3 +113,14 @@ def test_an_acquisition_that_does_not_fit_its_time_is_one_line_naming_the_keys(s
     with pytest.raises(ConfigError) as exc:
         load_scenario("config/plans/clinical_3t.yaml", sets=["imager.kind=mr_images", *sets])
     assert needle in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_a_runs_bag_estimate_counts_its_mr_frames():
+    from vesselbot_ros.sim.scenario import EMPTY_FRAME_BAG_BYTES, estimate_resources
+
+    plain = load_scenario("config/plans/clinical_3t.yaml")
+    frames = load_scenario("config/plans/clinical_3t.yaml", sets=["imager.kind=mr_images"])
+    extra = estimate_resources(frames).bag_bytes - estimate_resources(plain).bag_bytes
+    n_frames = frames.sim.duration_s / frames.sequence.period_s
+    # an empty frame per tick, and each frame's 3 x 256 complex samples (16 bytes) and magnitudes (4)
+    assert extra >= frames.sim.n_ticks * EMPTY_FRAME_BAG_BYTES + int(n_frames) * 20 * 3 * 256
