@@ -10,7 +10,7 @@ from conftest import RUN_METADATA, write_synthetic_bag
 
 from vesselbot_ros.bag.writer import RUN_METADATA_FILE, RUN_METADATA_KEY, BagWriter, check_output_dir
 from vesselbot_ros.errors import BagError
-from vesselbot_ros.graph_spec import topic
+from vesselbot_ros.graph_spec import frame_topics, topic
 
 CUSTOM = {"vesselbot_msgs/msg/PlantState", "vesselbot_msgs/msg/ReferenceSample", "vesselbot_msgs/msg/CoilState"}
 
@@ -26,9 +26,10 @@ def test_metadata_yaml_is_version_9_mcap_with_counts_qos_and_run_metadata(synthe
         expected[name] = expected.get(name, 0) + 1
     got = {t["topic_metadata"]["name"]: t["message_count"] for t in info["topics_with_message_count"]}
     # every topic sent, with its count (the synthetic run sends the continuous scanner phase once); every other
-    # topic of the graph spec is declared with no message (a run without a stall has no coil/stall)
+    # topic of the graph spec is declared with no message (a run without a stall has no coil/stall; a run whose
+    # imager delivers positions has no MR frames)
     assert {k: n for k, n in got.items() if n} == expected
-    assert {k: n for k, n in got.items() if not n} == {topic("coil_stall").name: 0}
+    assert {k: n for k, n in got.items() if not n} == {topic(k).name: 0 for k in ("coil_stall", *frame_topics())}
     assert expected[topic("sequence_phase").name] == 1
     assert info["message_count"] == len(sent) == 8 * 1000 + 10 + 3
     durab = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"][0]["durability"]
