@@ -19,6 +19,7 @@ BAD = {
     "controller": ("controller.gains.k1", "0.0", "controller.gains.k1 must be > 0, got 0.0"),
     "coil_driver": ("coil.saturation_T_per_m", "-0.08", "coil.saturation_T_per_m must be > 0, got -0.08"),
     "reference": ("graph.mode", "turbo", "graph.mode must be one of ['lockstep', 'realtime'], got 'turbo'"),
+    "tracker": ("tracker.min_chi2", "-1.0", "tracker.min_chi2 must be > 0, got -1.0"),
 }
 
 
@@ -80,3 +81,11 @@ def test_parameters_are_read_only_after_start(ros, tmp_path):
             assert "read-only" in result.reason.lower() or "read only" in result.reason.lower(), result.reason
     ex.shutdown()
     node.destroy_node()
+
+
+def test_the_tracker_node_refuses_a_scenario_without_mr_frames(ros):
+    """The default scenario's imager delivers positions: a tracker node would have nothing to track."""
+    cmd = [sys.executable, "-m", "vesselbot_ros.nodes.tracker_node"]
+    p = subprocess.run(cmd, env=ros.env, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2, p.stderr
+    assert "vesselbot_tracker: invalid parameter: " in p.stderr and "imager.kind 'mri'" in p.stderr, p.stderr

@@ -37,12 +37,14 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import Image
 
+from vesselbot_ros.config import ConfigError
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.imaging.frames import frame_of
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
 from vesselbot_ros.sim.closed_loop import build_stage
+from vesselbot_ros.sim.kinds import delivers_frames
 
 __all__ = ["TrackerNode", "main"]
 
@@ -54,6 +56,9 @@ class TrackerNode(VesselbotNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.ROLE, **kwargs)
+        if not delivers_frames(self.scenario):
+            raise ConfigError(f"imager.kind {self.scenario.imager.kind!r} delivers positions: the tracker node has no "
+                              "frames to track (it joins a graph whose imager delivers MR frames: imager.kind mr_images)")
         self.reset_state()
         self.add_publisher("measurement", PointStamped)
         self.add_subscription("mr_frame", Image, self._on_frame)
