@@ -77,6 +77,8 @@ class TrackerNode(VesselbotNode):
             self._last_msg = msg
         if msg is not None or self.lockstep:
             self.publish("measurement", self._last_msg if self._last_msg is not None else PointStamped())
+        if not self.lockstep:  # real time: it works on frames, not on every tick; the ticks between are not missed
+            self.period_tick = max(self.period_tick, k - 1)
         self.period_done(k)
         if self.lockstep and k + 1 >= self.n_ticks:
             self.mark_finished()
