@@ -266,11 +266,12 @@ def stop(procs: list[subprocess.Popen]) -> None:
 
 def topo_chain(n_ticks: int, processes: bool) -> float:
     """Wall time (s) of ``n_ticks`` ticks of our topology with no project code."""
-    from vesselbot_ros.graph_spec import LOOP_ROLES
+    from vesselbot_ros.graph_spec import loop_roles
     from vesselbot_ros.ros_env import allocate_domain, ros_environment
 
-    others = [r for r in LOOP_ROLES if r != "plant"]
-    groups = [[r] for r in others] + [["plant"]] if processes else [list(LOOP_ROLES)]
+    roles = loop_roles(False)  # the benchmarked scenario's imager delivers positions: no tracker
+    others = [r for r in roles if r != "plant"]
+    groups = [[r] for r in others] + [["plant"]] if processes else [list(roles)]
     with allocate_domain() as lease, tempfile.TemporaryDirectory() as d:
         env = ros_environment(lease.domain_id, Path(d) / "log")
 

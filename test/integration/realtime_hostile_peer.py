@@ -18,7 +18,7 @@ import rclpy
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 
-from vesselbot_ros.graph_spec import FRAME_ID, LOOP_ROLES, qos_profile, topic
+from vesselbot_ros.graph_spec import FRAME_ID, loop_roles, qos_profile, topic
 from vesselbot_ros.nodes.conversions import ns_of_stamp, stamp_of_ns
 from vesselbot_ros.testing import spin_node
 
@@ -35,7 +35,7 @@ def main() -> int:
     done = [False]
     # real time: every loop node but the plant reads /clock, and the recorder and this peer; the driver and the
     # recorder read gradient commands
-    least = {clock_pub: len(LOOP_ROLES) + 1, cmd_pub: 2}
+    least = {clock_pub: len(loop_roles(False)) + 1, cmd_pub: 2}  # a graph of positions: no tracker
 
     def matched() -> bool:
         return all(p.get_subscription_count() >= max(n, node.count_subscribers(p.topic_name)) for p, n in least.items())
