@@ -20,6 +20,43 @@ from vesselbot_ros.geometry.surface_query import brute_force3d, nearest_wall3d, 
 
 __all__ = ["ball_diameters3d", "local_diameter3d", "Wall3D"]
 
+@numba.njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # _nrt (no runtime) is an option numba's stubs omit
+def _ball_radius(fx, fy, fz, nx, ny, nz, s, r, d, pbox, pstart, grid, nodes, index, rmax, tol, grow):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The largest radius (m) of a ball through F = (fx, fy, fz) centred along the unit n that fits within ``tol``,
+    grown from ``r`` by ``grow``, then shrunk through the wall point nearest the last centre that did not fit
+    (docs/vessels.md); ``s``: a radius known to fit."""
+    lo = s  # the ball of radius s round the point fits
+    hi = np.inf  # the least radius known not to fit
+    rn = np.inf  # the largest radius W (the wall point nearest the last centre that did not fit) allows
+    for _it in range(200):
+        cx = fx + r * nx
+        cy = fy + r * ny
+        cz = fz + r * nz
+        sc, ex, ey, ez = nearest_wall3d(cx, cy, cz, d, pbox, pstart, grid, nodes, index)
+        if sc >= r - tol:  # fits
+            lo = r
+            if r >= rn or r >= rmax:
+                break  # W's limit itself fits: the largest
+        else:
+            hi = r
+            # W within r - tol of the centre: a ball through F fits W only up to the root of
+            # |F + r n - W| = r - tol
+            wx = cx - sc * ex - fx
+            wy = cy - sc * ey - fy
+            wz = cz - sc * ez - fz
+            a = wx * nx + wy * ny + wz * nz
+            rn = (wx * wx + wy * wy + wz * wz - tol * tol) / (2.0 * (a - tol)) if a > tol else np.inf
+        if hi - lo <= 0.05 * tol:
+            break
+        if hi == np.inf:
+            r = grow * r  # grow until a ball does not fit
+        elif lo < rn < hi:
+            r = rn
+        else:
+            r = 0.5 * (lo + hi)  # W says nothing (F off the wall by rounding): bisect
+    return lo
+
+
 @numba.njit(cache=True)
 def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol, r0, grow):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     out = np.zeros(pts.shape[0])
@@ -33,36 +70,18 @@ def _ball_diameters(pts, q, d, pbox, pstart, grid, nodes, index, rmax, tol, r0, 
         fx = pts[k, 0] - s * nx  # the nearest wall point (along the normal the query gives)
         fy = pts[k, 1] - s * ny
         fz = pts[k, 2] - s * nz
-        lo = s  # the ball of radius s round the point fits
-        hi = np.inf  # the least radius known not to fit
-        rn = np.inf  # the largest radius W (the wall point nearest the last centre that did not fit) allows
         r = max(r0[k] if r0.size else 2.0 * s, s + tol)
-        for _it in range(200):
-            cx = fx + r * nx
-            cy = fy + r * ny
-            cz = fz + r * nz
-            sc, ex, ey, ez = nearest_wall3d(cx, cy, cz, d, pbox, pstart, grid, nodes, index)
-            if sc >= r - tol:  # fits
-                lo = r
-                if r >= rn or r >= rmax:
-                    break  # W's limit itself fits: the largest
-            else:
-                hi = r
-                # W within r - tol of the centre: a ball through F fits W only up to the root of
-                # |F + r n - W| = r - tol
-                wx = cx - sc * ex - fx
-                wy = cy - sc * ey - fy
-                wz = cz - sc * ez - fz
-                a = wx * nx + wy * ny + wz * nz
-                rn = (wx * wx + wy * wy + wz * wz - tol * tol) / (2.0 * (a - tol)) if a > tol else np.inf
-            if hi - lo <= 0.05 * tol:
-                break
-            if hi == np.inf:
-                r = grow * r  # grow until a ball does not fit
-            elif lo < rn < hi:
-                r = rn
-            else:
-                r = 0.5 * (lo + hi)  # W says nothing (F off the wall by rounding): bisect
+        lo = _ball_radius(fx, fy, fz, nx, ny, nz, s, r, d, pbox, pstart, grid, nodes, index, rmax, tol, grow)
+        # At a convex crease (a seam's ridge, a junction's apex: the wall folding into the lumen) the point's
+        # nearest wall point is on the crease and the smooth normal is one face's: F above lies off the wall and
+        # the ball through it is held by the crease at the point's own radius s.  There the ball through the
+        # exact nearest wall point along the exact direction to it (a supporting plane of the crease) counts too.
+        sf, _ex, _ey, _ez = nearest_wall3d(fx, fy, fz, d, pbox, pstart, grid, nodes, index)
+        if abs(sf) > tol:
+            se, ex, ey, ez = nearest_wall3d(pts[k, 0], pts[k, 1], pts[k, 2], d, pbox, pstart, grid, nodes, index)
+            if se > 0.0:
+                lo = max(lo, _ball_radius(pts[k, 0] - se * ex, pts[k, 1] - se * ey, pts[k, 2] - se * ez, ex, ey, ez,
+                                          min(se, s), 2.0 * se, d, pbox, pstart, grid, nodes, index, rmax, tol, 2.0))
         out[k] = 2.0 * lo
     return out
 
@@ -81,7 +100,9 @@ def local_diameter3d(surface: WallSurface, tree: CandidateTree, origin_m: npt.Ar
     A lumen node's diameter is that of the largest ball inscribed in the lumen touching the wall at the
     node's nearest wall point F, centred on the (smooth) inward normal there: the largest r with
     s(F + r n) >= r - ``tol_m``, by doubling then shrinking through the nearest wall point (docs/vessels.md);
-    so a straight branch of radius R reads 2 R to the facets' sag.  Nodes outside the lumen take the value of the nearest lumen node.
+    so a straight branch of radius R reads 2 R to the facets' sag.  Where F lies off the wall (a convex crease:
+    the smooth normal is one face's) the ball through the exact nearest wall point along the exact direction
+    to it counts too, the larger of the two.  Nodes outside the lumen take the value of the nearest lumen node.
 
     Args:
         surface: The wall.  tree: Its candidate tree (covering the grid).
