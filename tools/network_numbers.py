@@ -13,7 +13,9 @@ over the scenario's axes, (x, z) or (x, y, z).
 
 ``--design`` also runs ``vesselbot tree-design`` on the carotid (both outlets, two beads, Table III's flow, the
 physiological preset, and the preset at a tenth and a twentieth of its inflow) into its block, and on the clinical
-3 T presets (the 3-D III-C tree from its trunk's floor, the carotid; every outlet) into ``tree_design_3t``.
+3 T presets (the 3-D III-C tree from its trunk's floor, the carotid; every outlet) into ``tree_design_3t``, and
+samples the carotid's floor across the seam where the common carotid's tube meets the external carotid's
+(``carotid_seam``: the plant's local diameter where a bead rests there).
 
 Usage: .venv/bin/python tools/network_numbers.py [--write] [--campaigns] [--design]
 """
@@ -153,6 +155,35 @@ def design_block_3t() -> str:
     return "\n".join(out)
 
 
+SBEGIN, SEND = "<!-- BEGIN carotid_seam -->", "<!-- END carotid_seam -->"
+
+
+def seam_block() -> str:
+    """The carotid's floor below the route to the external carotid, x = 1.0-3.0 mm (over the seam where the common
+    carotid's tube meets the external carotid's): the resting bead's centre, the floor's inward normal and the
+    plant's local diameter there (the ball rule, docs/vessels.md "surface_wall")."""
+    from vesselbot_ros.analysis.meshed_wall import MeshedWall
+    from vesselbot_ros.control.bspline_reference import ReferenceTrajectory
+    from vesselbot_ros.control.route import planned_reference
+    from vesselbot_ros.vessels.tree_field import meshed_wall
+
+    sc = load_scenario(shipped_scenarios()["carotid_bifurcation_3d_eca"])
+    wall = MeshedWall(sc)
+    query = meshed_wall(load_network(sc.physics.vessel.network), sc.physics.blood)
+    path = np.asarray(ReferenceTrajectory(planned_reference(sc)).path(4001))
+    rows = ["| x (mm) | bead's centre z (mm) | floor's inward normal z | local diameter |", "|---|---|---|---|"]
+    for x in np.arange(1.0, 3.0 + 1e-9, 0.2) * 1e-3:
+        k = int(np.searchsorted(path[:, 0], x))
+        lam = (x - path[k - 1, 0]) / (path[k, 0] - path[k - 1, 0])
+        f = wall.floor_below((1.0 - lam) * path[k - 1] + lam * path[k])
+        if f is None:
+            rows.append(f"| {x * 1e3:.1f} | no floor | - | - |")
+            continue
+        here = query.query(f[None, :])
+        rows.append(f"| {x * 1e3:.1f} | {f[2] * 1e3:.2f} | {here['normal'][0, 2]:.2f} | {here['diameter'][0] * 1e3:.2f} mm |")
+    return "\n".join(rows)
+
+
 def _replace(doc: str, begin: str, end: str, text: str) -> str:
     new = f"{begin}\n{text}\n{end}"
     if begin in doc:
@@ -170,15 +201,19 @@ def main() -> int:
         print(ctext)
     dtext = design_block() if "--design" in sys.argv[1:] else None
     d3text = design_block_3t() if "--design" in sys.argv[1:] else None
+    stext = seam_block() if "--design" in sys.argv[1:] else None
     if dtext:
         print(dtext)
         print(d3text)
+        print(stext)
     if "--write" in sys.argv[1:]:
         doc = _replace(DOC.read_text(encoding="utf-8"), BEGIN, END, text)
         if dtext:
             doc = _replace(doc, DBEGIN, DEND, dtext)
         if d3text:
             doc = _replace(doc, D3BEGIN, D3END, d3text)
+        if stext:
+            doc = _replace(doc, SBEGIN, SEND, stext)
         if ctext:
             doc = _replace(doc, CBEGIN, CEND, ctext)
         write_text(DOC, doc)
