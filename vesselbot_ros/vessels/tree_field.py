@@ -81,7 +81,9 @@ __all__ = ["packed_vessel", "vessel_geom", "TreeField", "TreeBuildEstimate", "bu
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
 FIELD3D_VERSION = 2
 #: Bumped when the wall field built from the samples changes (a cached ``.wall.npz`` of another is built again).
-WALL_VERSION = 9  # 9: the ball diameter at a convex crease (the ball through the exact nearest wall point counts); 8: model cells' axes by a BLAS-free eigen-solver (one sign; a cache built under AVX-512 differed)
+#: 9: the ball diameter at a convex crease (the ball through the exact nearest wall point counts); 8: model cells' axes
+#: by a BLAS-free eigen-solver (one sign; a cache built under AVX-512 differed).
+WALL_VERSION = 9
 #: The grid's margin round the wall (m), plus two spacings.
 GRID_MARGIN_M = 3.0e-4
 #: Default spacing of the plant's grid (m).
