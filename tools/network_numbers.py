@@ -135,7 +135,7 @@ FLOOR_START = {"initial.p0_m": [0.0, 0.0, -1.3999e-3]}
 def design_block_3t() -> str:
     """``vesselbot tree-design`` on the clinical 3 T presets (the preset sequence and the 77 %-duty one): the 3-D
     III-C tree from its trunk's floor and the carotid from its start, every outlet, the paper's bead, Table III's
-    flow (the carotid's also its physiological preset at a tenth of the inflow): which outlets a plan resting on
+    flow (the carotid's also its physiological preset at a tenth and a twentieth of the inflow): which outlets a plan resting on
     the floor reaches, and why not."""
     from vesselbot_ros.analysis.plan import PlanOptions
     from vesselbot_ros.analysis.tree_design import TABLE3, tree_design
@@ -148,8 +148,9 @@ def design_block_3t() -> str:
         for name, outlets, changes in (("paper_iiic_network_upper_3d_ekf", ["side_down", "side_up", "upper", "lower"],
                                         FLOOR_START), ("carotid_bifurcation_3d_eca_ekf", ["ica", "eca"], {})):
             base = scenario_with(load_scenario(shipped_scenarios()[name]), {**preset_changes(hardware), **changes})
-            # the carotid also under its physiological flow with a balloon upstream leaving a tenth of the inflow
-            flows = [TABLE3, "healthy_adult_cca@0.1"] if name.startswith("carotid") else [TABLE3]
+            # the carotid also under its physiological flow with a balloon upstream leaving a tenth, a twentieth of the
+            # inflow
+            flows = [TABLE3, "healthy_adult_cca@0.1", "healthy_adult_cca@0.05"] if name.startswith("carotid") else [TABLE3]
             cells = tree_design(base, outlets, [250e-6], ["paper"], flows, PlanOptions())
             table = markdown(cells).rstrip("\n").splitlines()
             if not out:
