@@ -6,7 +6,10 @@
   with their parameters (:class:`~vesselbot_ros.imaging.acquisition.MrImagingParams`) and presets;
 * :mod:`~vesselbot_ros.imaging.tracker`: the default tracker (the bead's position from one frame, or a
   rejection reason);
-* :mod:`~vesselbot_ros.imaging.bounds`: the Cramer-Rao bound of the position under the same image model.
+* :mod:`~vesselbot_ros.imaging.bounds`: the Cramer-Rao bound of the position under the same image model;
+* :mod:`~vesselbot_ros.imaging.imager_stage`: the loop's stages, the ``mr_images`` imager (frames timed by the
+  sequence, :mod:`~vesselbot_ros.imaging.frames`) and the ``dipole_fit`` tracker (their parameters:
+  :mod:`~vesselbot_ros.imaging.imager_params`).
 
 See docs/imaging.md.
 """
