@@ -63,16 +63,19 @@ __all__ = ["MrImagerParams", "TrackerParams", "MrFrame", "MrImager", "DipoleFitT
 FOV_USED = 0.9
 
 
+def _in_view(q: npt.ArrayLike, centre: npt.NDArray[np.float64], fov_m: float, slice_: bool) -> bool:
+    """Whether ``q`` (3,) lies in the central :data:`FOV_USED` of a view of ``fov_m`` centred at ``centre`` on every
+    encoded axis (a slice's x and z; the projections' x, y and z)."""
+    q = np.asarray(q, dtype=np.float64)
+    half = 0.5 * FOV_USED * fov_m
+    return all(abs(float(q[i] - centre[i])) <= half for i in ((0, 2) if slice_ else (0, 1, 2)))
+
+
 def inside_view(frame: SliceFrame | ProjectionFrame, q: npt.ArrayLike) -> bool:
     """Whether ``q`` (3,) lies in the central :data:`FOV_USED` of ``frame``'s field of view on every encoded axis."""
-    q = np.asarray(q, dtype=np.float64)
-    axes: tuple[int, ...]
-    if isinstance(frame, SliceFrame):
-        n, axes = frame.image.shape[1], (0, 2)
-    else:
-        n, axes = frame.data.shape[1], (0, 1, 2)
-    half = 0.5 * FOV_USED * n * frame.pixel_m
-    return all(abs(float(q[i] - frame.centre_m[i])) <= half for i in axes)
+    slice_ = isinstance(frame, SliceFrame)
+    n = (frame.image if isinstance(frame, SliceFrame) else frame.data).shape[1]
+    return _in_view(q, frame.centre_m, n * frame.pixel_m, slice_)
 
 
 class MrImager:
@@ -99,9 +102,7 @@ class MrImager:
         return p.copy() if self.dims == 3 else np.array([p[0], 0.0, p[1]])
 
     def _inside(self, q: npt.NDArray[np.float64]) -> bool:
-        half = 0.5 * FOV_USED * self.imaging.fov_m
-        axes = (0, 2) if self.imaging.acquisition == "slice" else (0, 1, 2)
-        return all(abs(float(q[i] - self._centre[i])) <= half for i in axes)
+        return _in_view(q, self._centre, self.imaging.fov_m, self.imaging.acquisition == "slice")
 
     def _acquire(self, positions: list[npt.NDArray[np.float64]], t_acq: float, t_deliver: float) -> None:
         inside = [p for p in positions if self._inside(p)]

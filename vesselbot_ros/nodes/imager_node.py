@@ -125,14 +125,10 @@ class ImagerNode(VesselbotNode):
             self._announce(kind, start, duration, magnitude, "schedule")
         if any(a - 1e-9 <= t_k < b - 1e-9 for a, b in self._windows):
             self.dropout_frames += 1
-        if self.frames_mode:
-            self._publish_frame(t_k, self.imager.frame(t_k, cv.vector_array(x, y, z, self.dims)))
-            self.period_done(k)
-            if self.lockstep and k + 1 >= self.n_ticks:
-                self.mark_finished()
-            return
         meas = self.imager.frame(t_k, cv.vector_array(x, y, z, self.dims))
-        if meas is not None:
+        if self.frames_mode:
+            self._publish_frame(t_k, meas)
+        elif meas is not None:
             self.frames += 1
             self.outlier_frames += int(meas.outlier)
             self._last_msg = cv.measurement_flat(meas.t_acq_s, meas.p, self.dims)

@@ -43,7 +43,7 @@ from vesselbot_ros.imaging.frames import frame_of
 from vesselbot_ros.nodes import conversions as cv
 from vesselbot_ros.nodes.base import VesselbotNode
 from vesselbot_ros.nodes.process import run_node
-from vesselbot_ros.sim.closed_loop import build_stage
+from vesselbot_ros.sim.closed_loop import build_stage, frame_counts
 from vesselbot_ros.sim.kinds import delivers_frames
 
 __all__ = ["TrackerNode", "main"]
@@ -120,12 +120,11 @@ class TrackerNode(VesselbotNode):
         self._answer(k, None if meas is None else cv.measurement_flat(meas.t_acq_s, meas.p, self.dims))
 
     def diagnostic_values(self) -> dict[str, str]:
-        rejected = dict(getattr(self.tracker, "rejected", {}) or {})
-        out = {"tick": str(self.k_next - 1), "imager_frames": str(int(getattr(self.tracker, "frames", self.frames_in))),
-               "imager_frames_rejected": str(int(sum(rejected.values())))}
-        if rejected:
-            out["imager_rejected_reasons"] = ", ".join(f"{k}: {v}" for k, v in sorted(rejected.items()))
-        return out
+        # the pure runner's counts (no frame is superseded here: the imager node sends the newest due)
+        counts = frame_counts(None, self.tracker)
+        if not hasattr(self.tracker, "frames"):  # a user's tracker that counts nothing: the frames it was given
+            counts["imager_frames"] = self.frames_in
+        return {"tick": str(self.k_next - 1), **{k: str(v) for k, v in counts.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:
