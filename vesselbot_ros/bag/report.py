@@ -60,12 +60,12 @@ from vesselbot_ros.bag import derived_dir
 from vesselbot_ros.bag.info import coverage_of_ticks
 from vesselbot_ros.bag.reader import BagInfo, final_diagnostics, iter_messages, open_bag, read_timeseries
 from vesselbot_ros.config import ConfigError, load_dataclass
-from vesselbot_ros.control.route import draw_network, navigation_outcome
+from vesselbot_ros.control.route import draw_network, navigation_outcome, pulsation_of
 from vesselbot_ros.errors import BagError
 from vesselbot_ros.graph_spec import NODE_NAMES
 from vesselbot_ros.imaging.imager_params import MrImagerParams
 from vesselbot_ros.physics.axes import AXES, AXIS_INDEX
-from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.physics.params import BloodParams, FlowParams
 from vesselbot_ros.scanner.actuator_limits import CoilLimits
 from vesselbot_ros.scanner.sequence import PHASE_CODES
 from vesselbot_ros.sim.metrics import compute_metrics, metrics_window_note
@@ -277,6 +277,18 @@ def _run_blood(run: Mapping[str, Any]) -> Any:
         return None
     try:
         return load_dataclass(BloodParams, blood, "physics.blood")
+    except (ConfigError, TypeError, ValueError):
+        return None
+
+
+def _run_pulsation(run: Mapping[str, Any]) -> tuple[float, float, float] | None:
+    """The wall's eq. (13) pulsation of the run's flow (:func:`~vesselbot_ros.control.route.pulsation_of`), from its
+    config; None (the wall at rest) without one."""
+    flow = ((run.get("config") or {}).get("physics") or {}).get("flow")
+    if not isinstance(flow, Mapping):
+        return None
+    try:
+        return pulsation_of(load_dataclass(FlowParams, flow, "physics.flow"))
     except (ConfigError, TypeError, ValueError):
         return None
 
@@ -777,7 +789,7 @@ def write_report(bag_dir: str | Path | BagInfo, out_dir: str | Path | None = Non
     if net is not None:
         # the meshed wall, read from the run's own field (no solve for another blood model); a 3-D tree's in 3-D
         metrics.update(navigation_outcome(net[0], net[1], t, m["p_true"] if p3 is None else p3["p_true"],
-                                          blood=_run_blood(run)))
+                                          blood=_run_blood(run), pulsation=_run_pulsation(run)))
     # the slew limit in force as the coil recorded it (the dB/dt limit may have lowered it), else the config's
     recorded = np.asarray(ts.get("coil.slew_rate", np.zeros(0)))
     slew_limit = float(np.max(recorded)) if recorded.size else _slew_limit(run)

@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.control.reference_design import wall_safe_delta_m
 from vesselbot_ros.physics.axes import AXES
-from vesselbot_ros.physics.params import BloodParams
+from vesselbot_ros.physics.params import BloodParams, FlowParams
 from vesselbot_ros.resources import require_fits, spline_setup_cost
 from vesselbot_ros.vessels.cfd import network_wall
 from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, route_to_outlet
@@ -26,7 +26,7 @@ from vesselbot_ros.vessels.tree_field import meshed_wall
 from vesselbot_ros.vessels.tube_geometry import NetworkGeometry
 
 __all__ = ["planned_reference", "route_branches", "route_anchors", "up_directions", "anchor_arcs", "VERTICAL_SINE",
-           "branch_at", "navigation_metrics", "navigation_outcome", "draw_network"]
+           "branch_at", "navigation_metrics", "navigation_outcome", "pulsation_of", "draw_network"]
 
 #: Below this sine of the angle between the centreline and the vertical, a cross-section in space has no up.
 VERTICAL_SINE = 0.05
@@ -187,29 +187,44 @@ def navigation_metrics(scenario, t_s: npt.ArrayLike, p_true: npt.ArrayLike) -> d
     ``route_outlet`` (target, ``""`` if none), ``reached_target`` (1 if the final
     position lies inside the lumen of the target branch, further into it than
     the parent's radius at the node), ``outside_lumen_time_s`` (time the robot's
-    centre spent outside the steady lumen, s) and ``outside_lumen_first_s``
+    centre spent outside the lumen, s: the pulsating lumen of eq. (13), where the plant's wall was at that
+    time) and ``outside_lumen_first_s``
     (first tick outside, s, -1 if never): leaving the lumen is an event every
     run reports.
     """
     return navigation_outcome(scenario.physics.vessel.network, scenario.reference.route_outlet, t_s, p_true,
-                              blood=scenario.physics.blood)
+                              blood=scenario.physics.blood, pulsation=pulsation_of(scenario.physics.flow))
+
+
+def pulsation_of(flow: FlowParams) -> tuple[float, float, float]:
+    """``(A, omega, phi)`` of the wall's eq. (13) pulsation ``D(t) = D (1 + A sin(omega t + phi))`` of a flow section."""
+    return (flow.diameter_pulsation, flow.angular_frequency_rad_per_s, flow.phase_rad)
 
 
 def navigation_outcome(network: str, target: str, t_s: npt.ArrayLike, p_true: npt.ArrayLike, *,
-                       blood: BloodParams | None = None) -> dict[str, object]:
+                       blood: BloodParams | None = None,
+                       pulsation: tuple[float, float, float] | None = None) -> dict[str, object]:
     """:func:`navigation_metrics` from plain values (network file, target outlet or "").
 
     "Outside the lumen" is outside the meshed wall (:func:`vesselbot_ros.vessels.tree_field.meshed_wall`, read
-    from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it);
-    the branch holding a point is its centreline tube's.
+    from the field of ``blood``, default the shipped scenarios' blood: the wall does not depend on it) as it
+    was at each tick: ``pulsation`` ``(A, omega, phi)`` (:func:`pulsation_of`) moves it as the plant does
+    (``s_t = s + D eps(t) / 2``, ``eps(t) = A sin(omega t + phi)``, ``D`` the local diameter); ``None`` judges
+    against the wall at rest.  The branch holding a point is its centreline tube's.
     """
     t = np.asarray(t_s, dtype=np.float64)
     p = np.asarray(p_true, dtype=np.float64)
     net = load_network(network)
     geom = NetworkGeometry(net)
     q = geom.query(p)
-    # the plant's meshed wall; the lumen dilates by the diameter pulsation: the steady wall is the conservative test
-    out = meshed_wall(net, blood).query(p)["sdist"] < 0.0
+    # the plant's meshed wall, where it was at each tick (the plant's s_t): a bead resting on a dilated floor is
+    # inside the lumen, one pressed past a contracted wall is not
+    wq = meshed_wall(net, blood).query(p)
+    s = wq["sdist"]
+    if pulsation is not None:
+        amp, omega, phase = pulsation
+        s = s + 0.5 * wq["diameter"] * (amp * np.sin(omega * t + phase))
+    out = s < 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     final_branch = geom.names[int(q["branch"][-1])]
     reached = False

@@ -236,7 +236,8 @@ def _write_3d_bag(path, n_ticks, network="carotid_bifurcation_3d", outlet="ica")
             msg.pose.pose.position.y = y + 6e-6
 
     meta = {"scenario": "synthetic_3d", "seed": 1, "mode": "lockstep",
-            "config": {"sim": {"control_rate_Hz": 1000.0}, "physics": {"vessel": {"network": network}},
+            "config": {"sim": {"control_rate_Hz": 1000.0},
+                       "physics": {"vessel": {"network": network}, "flow": {"diameter_pulsation": 0.05}},
                        "reference": {"route_outlet": outlet}}}
     conftest.write_synthetic_bag(path, n_ticks, run_metadata=meta, edit=with_y)
 
@@ -247,8 +248,8 @@ def _fake_navigation(monkeypatch):
 
     seen = {}
 
-    def outcome(network, outlet, t, p_true, blood=None):
-        seen.update(network=network, outlet=outlet, p_true=np.asarray(p_true))
+    def outcome(network, outlet, t, p_true, blood=None, pulsation=None):
+        seen.update(network=network, outlet=outlet, p_true=np.asarray(p_true), pulsation=pulsation)
         return {"branch_final": "cca", "reached_target": False, "route_outlet": outlet}
 
     monkeypatch.setattr(report, "navigation_outcome", outcome)
@@ -269,6 +270,8 @@ def test_a_3d_tree_run_gets_xz_and_xy_projections_of_its_tubes_and_paths(tmp_pat
     ts = read_timeseries(tmp_path / "b")
     # the branch reached and the time outside the lumen from the 3-D positions (the 3-D plant's wall)
     assert seen["network"] == "carotid_bifurcation_3d" and np.array_equal(seen["p_true"], positions_3d(ts)["p_true"])
+    # the lumen is judged against the run's own pulsating wall (its flow section, defaults for what it leaves out)
+    assert seen["pulsation"] == pytest.approx((0.05, 2.0 * np.pi, 0.5 * np.pi))
     assert metrics["branch_final"] == "cca"
     m, p = metrics_timeseries(ts, dt_s=1e-3), positions_3d(ts)
     # the same ticks; (x, z) as the metrics take them, y besides

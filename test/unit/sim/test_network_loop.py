@@ -67,6 +67,31 @@ def test_leaving_the_lumen_is_a_recorded_event() -> None:
     assert out["branch_final"] == "trunk_a" and out["reached_target"] == 0
 
 
+def test_the_lumen_is_judged_where_the_pulsating_wall_was() -> None:
+    """A centre just past the wall at rest is inside while the wall is dilated, and one just inside it is outside
+    while the wall is contracted: the plant's own wall, ``s_t = s + D eps(t) / 2`` (eq. (13))."""
+    from vesselbot_ros.control.route import pulsation_of
+    from vesselbot_ros.physics.params import FlowParams
+    from vesselbot_ros.vessels.network import load_network
+    from vesselbot_ros.vessels.tree_field import meshed_wall
+
+    wall = meshed_wall(load_network("paper_iiic_artery"))
+    base = np.array([0.0, 1.4e-3])
+    s0 = float(wall.query(base[None])["sdist"][0])
+    n = wall.query(base[None])["normal"][0]
+    d = float(wall.query(base[None])["diameter"][0])
+    flow = FlowParams(diameter_pulsation=0.1, angular_frequency_rad_per_s=2.0 * np.pi, phase_rad=0.0)
+    gap = 0.25 * 0.5 * d * 0.1  # a quarter of the pulsation's amplitude
+    past = base - (s0 + gap) * n  # outside the wall at rest
+    inside = base - (s0 - gap) * n  # inside the wall at rest
+    t = np.array([0.25, 0.75])  # eps = +0.1 (dilated), then -0.1 (contracted)
+    pulsing = navigation_outcome("paper_iiic_artery", "upper", t, np.array([past, inside]), pulsation=pulsation_of(flow))
+    steady = navigation_outcome("paper_iiic_artery", "upper", t, np.array([past, inside]))
+    assert pulsing["outside_lumen_first_s"] == pytest.approx(0.75)  # the inside point, the wall contracted onto it
+    assert steady["outside_lumen_first_s"] == pytest.approx(0.25)  # the point past the wall at rest
+    assert pulsing["outside_lumen_time_s"] == steady["outside_lumen_time_s"] == pytest.approx(0.5)
+
+
 def test_a_planar_scenario_switched_to_a_3d_tree_asks_for_its_third_axis_in_one_line() -> None:
     from vesselbot_ros.config import ConfigError
 
