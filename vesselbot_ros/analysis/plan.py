@@ -23,7 +23,11 @@ reference needs.  The planner turns that bound into a reference:
   acceleration within ``tangential_accel_m_per_s2`` and a stop at the end)
   whose need stays within ``budget_fraction * a_avail``: it advances where and
   when the flow allows (diastole, near a wall) and holds where it does not
-  (systole).  The speed is then smoothed (a Hann window of ``smooth_s``) and
+  (systole).  It never stops on a crest of the floor it rests on (:func:`_crests`: an up-slope that tops
+  out and falls away, as a side branch's mouth seen from its parent's floor), where a bead held slips onto the
+  far slope and the nearest wall flips between the two faces: short of one it looks ahead and crosses only when
+  a pass within ``crest_budget_share`` of the budget gets over it without stopping, else it waits there
+  (at most a cardiac period).  The speed is then smoothed (a Hann window of ``smooth_s``) and
   tabulated every ``table_step_s`` (``reference.timing: planned``, a C2 spline).
 * **Checked.**  The planned reference is sampled every ``step_s`` and every
   segment (between two anchors) gets its margin ``a_avail - max need`` and its
@@ -111,6 +115,7 @@ class PlanOptions:
     max_duration_s: float = 60.0
     coast_every_s: float = 0.01
     retries: int = 4
+    crest_budget_share: float = 0.85
 
     def __post_init__(self) -> None:
         check_range("budget_fraction", self.budget_fraction, 0.05, 1.0)
@@ -126,6 +131,7 @@ class PlanOptions:
             raise ConfigError(f"max_speed_m_per_s must be >= 0 (0: the scenario's own speed), "
                               f"got {self.max_speed_m_per_s!r}")
         check_range("retries", self.retries, 0, 20)
+        check_range("crest_budget_share", self.crest_budget_share, 0.05, 1.0)
         if self.table_step_s < self.step_s:
             raise ConfigError(f"table_step_s must be >= step_s ({self.step_s!r}), got {self.table_step_s!r}")
 
@@ -693,12 +699,58 @@ def _fall_timing(fall: _Fall, picks: Sequence[int], anchor_u: npt.NDArray[np.flo
 
 
 # ---------------------------------------------------------------------------------------------- timing
+#: How often a pass waiting short of a crest looks again whether it can cross (s).
+CREST_LOOK_EVERY_S = 0.005
+#: A crest of the floor: along a bead diameter of the route, the floor's normal turns forward by this much of its
+#: component along the route (about 30 deg): an up-slope that tops out and falls away.
+CREST_TURN = 0.5
+
+
+def _crests(traj: ReferenceTrajectory, wall: MeshedWall, radius_m: float,
+            step_m: float = 5e-5) -> list[tuple[float, float]]:
+    """The stretches of the path parameter ``(u_a, u_b)`` around each crest of the floor the route rests on: where,
+    over a bead diameter, the still floor's normal turns forward along the route by more than :data:`CREST_TURN`
+    (an up-slope that tops out and falls away, as a side branch's mouth seen from the floor of its parent).  A
+    bead held there sits on a ridge: any slip forward puts it on the far slope, and the nearest wall (the plant's
+    contact, the observer's and the law's model of it) flips between the two faces.  Each stretch reaches two
+    bead radii either side of the turn; overlapping ones merge."""
+    U = traj.length_m
+    u = np.arange(0.0, U + 0.5 * step_m, step_m)
+    if u.size < 3:
+        return []
+    pts = np.array([traj.path_point(float(v)) for v in u])
+    tangent = np.gradient(pts, u, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1), 1e-300)[:, None]
+    _, normals, _ = wall.frames(0.0, pts, still=True)
+    resting = traj.follow_weight(u)[0] >= 1.0 - 1e-9
+    k = max(1, int(round(radius_m / step_m)))
+    out: list[tuple[float, float]] = []
+    for i in range(k, u.size - k):
+        if not (resting[i - k] and resting[i + k]):
+            continue
+        turn = float(normals[i + k] @ tangent[i]) - float(normals[i - k] @ tangent[i])
+        if turn > CREST_TURN:
+            a, b = max(0.0, u[i] - 2.0 * radius_m), min(U, u[i] + 2.0 * radius_m)
+            if out and a <= out[-1][1]:
+                out[-1] = (out[-1][0], b)
+            else:
+                out.append((a, b))
+    return out
+
+
 def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsModel, t0: float, u0: float,
                  du0: float, budget: float, options: PlanOptions, v_cap: float,
-                 a_avail: float = math.inf) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+                 a_avail: float = math.inf, no_stop: Sequence[tuple[float, float]] = ()
+                 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Greedy forward pass from ``(t0, u0, du0)``: times, path parameters and their speeds (module docstring: when).
     A pass that cannot move on is :class:`PlanInfeasible`, with the acceleration missing against the coil's
-    ``a_avail`` where moving on needs more than that."""
+    ``a_avail`` where moving on needs more than that.
+
+    ``no_stop``: stretches of the path parameter ``(u_a, u_b)`` the reference must not stop in (a crest of the
+    floor, :func:`_crests`).  Before the pass would run into one it looks ahead (the same greedy steps, from the
+    pace it would take): if that pass would stop before ``u_b``, it brakes and waits short of ``u_a`` instead,
+    looking again every :data:`CREST_LOOK_EVERY_S`, until a pass crosses without stopping (or it cannot wait:
+    the step that waits needs more than the budget)."""
     h, a_t, U = options.step_s, options.tangential_accel_m_per_s2, traj.length_m
     network = bool(scenario.physics.vessel.network)
     wall = meshed_wall(scenario)
@@ -706,17 +758,19 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
     t, u, du = t0, u0, du0
     ts, us, dus = [t], [u], [du]
 
-    def needs_at(speeds: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    def needs_at(t: float, u: float, du: float,
+                 speeds: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """The path parameters one step on at each of ``speeds`` from ``(t, u, du)``, and the need there."""
         un = np.minimum(u + 0.5 * (du + speeds) * h, U)
         tn = np.full(speeds.shape, t + h)
         p, v, a = traj.state(tn, un, speeds, (speeds - du) / h)
         return un, need(model, tn, p, v, a, rest_of(scenario, wall, tn), _resting(traj, un, wall))
 
-    least = math.inf  # the least need of a step that moves on, where the pass last was
-    for _ in range(int(options.max_duration_s / h)):
-        if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
-            break
+    def step(t: float, u: float, du: float, budget: float = budget
+             ) -> tuple[float, float, float, float, npt.NDArray[np.float64], npt.NDArray[np.float64],
+                        npt.NDArray[np.float64], int]:
+        """One greedy step from ``(t, u, du)`` within ``budget``: ``(t', u', du', least, candidates, their u',
+        needs, the pick)``."""
         stop = math.sqrt(2.0 * a_t * max(U - u, 0.0))
         # the cap is on the axial speed: a change of height goes as fast as the need allows; along a network's
         # route, on the path speed (the route turns and climbs)
@@ -724,7 +778,7 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                                                          np.zeros(1))[1][0, 0]))
         cap = min(v_cap / max(slope, v_cap / options.max_path_speed_m_per_s), stop)
         cand = np.unique(np.clip(du + steps, 0.0, max(cap, du - a_t * h)))[::-1]
-        un, need_c = needs_at(cand)
+        un, need_c = needs_at(t, u, du, cand)
         ok = np.flatnonzero(need_c <= budget)
         if network and not ok.size:
             # no pace up to the cap holds the bead here (a systole against the bead in a network's trunk): ride
@@ -734,7 +788,7 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
                                      min(options.max_path_speed_m_per_s, stop)))
             fast = fast[fast > cap]
             if fast.size:
-                un_f, need_f = needs_at(fast)
+                un_f, need_f = needs_at(t, u, du, fast)
                 ok_f = np.flatnonzero(need_f <= budget)
                 i_f = int(ok_f[0]) if ok_f.size else int(np.argmin(need_f))
                 if ok_f.size or need_f[i_f] < float(np.min(need_c)):
@@ -743,7 +797,52 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
         pick = int(ok[0]) if ok.size else int(np.argmin(need_c))
         moving = need_c[cand > 0.0]
         least = float(np.min(moving)) if moving.size else float(need_c[pick])
-        du, u, t = float(cand[pick]), float(un[pick]), t + h
+        return t + h, float(un[pick]), float(cand[pick]), least, cand, un, need_c, pick
+
+    def crosses(t: float, u: float, du: float, u_b: float) -> bool:
+        """Whether the greedy pass from ``(t, u, du)`` within ``crest_budget_share`` of the budget passes ``u_b``
+        without stopping."""
+        slow = 0.05 * v_cap
+        low = options.crest_budget_share * budget
+        for _ in range(int(options.max_duration_s / h)):
+            if u >= u_b or U - u <= 1e-9 * max(U, 1e-3):
+                return True
+            t, u, du, _least, _cand, _un, need_c, pick = step(t, u, du, low)
+            if (du < slow or need_c[pick] > low) and u < u_b:
+                return False
+        return False
+
+    zones = sorted((float(a), float(b)) for a, b in no_stop)
+    look_every = max(1, int(round(CREST_LOOK_EVERY_S / h)))
+    period = 2.0 * math.pi / scenario.physics.flow.angular_frequency_rad_per_s
+    waited = 0  # steps waited short of a crest since the last look ahead
+    since = math.inf  # when the pass began to wait short of the crest ahead
+    least = math.inf  # the least need of a step that moves on, where the pass last was
+    for _ in range(int(options.max_duration_s / h)):
+        if U - u <= 1e-9 * max(U, 1e-3) or (du == 0.0 and U - u < 1e-7):
+            break
+        tn, un_p, du_p, least, cand, un, need_c, _pick = step(t, u, du)
+        # a crest ahead: where this pace would stop (braking at the tangential limit) lies in it
+        ahead = un_p + du_p * du_p / (2.0 * a_t)
+        zone = next(((a, b) for a, b in zones if u < a <= ahead), None)
+        if zone is not None and du_p > 0.0:
+            if waited > 0 and waited < look_every and du == 0.0:
+                go = False  # waiting: look again later
+            else:
+                go = crosses(tn, un_p, du_p, zone[1])
+                waited = 0
+            since = min(since, t)
+            if not go and t - since > period:  # no phase of a whole period crosses it within the share: cross as
+                zones.remove(zone)  # the budget allows (the check and the loop judge it)
+                go = True
+            if not go:
+                low = int(np.argmin(cand))  # brake (or stay) short of the crest, if the budget holds the bead there
+                if need_c[low] <= budget and un[low] + cand[low] ** 2 / (2.0 * a_t) < zone[0]:
+                    tn, un_p, du_p = tn, float(un[low]), float(cand[low])
+                    waited += 1
+        if zone is None:
+            since = math.inf
+        t, u, du = tn, un_p, du_p
         ts.append(t)
         us.append(u)
         dus.append(du)
@@ -968,12 +1067,13 @@ def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[],
         du_end = float(np.gradient(u_fall, g.fall.t)[-1])
     else:
         t_pre, u_pre, du_end = np.array([t0]), np.array([0.0]), 0.0
+    crests = [] if wall is None else _crests(traj, wall, scenario.physics.robot.radius_m)
     fraction = options.budget_fraction
     worst: tuple[Segment, ...] = ()
     for _ in range(options.retries + 1):
         try:
             ts, us, dus = _timing_pass(scenario, traj, model, float(t_pre[-1]), float(u_pre[-1]), du_end,
-                                       fraction * a_avail, options, v_cap, a_avail)
+                                       fraction * a_avail, options, v_cap, a_avail, crests)
         except PlanInfeasible:
             if not worst:
                 raise
