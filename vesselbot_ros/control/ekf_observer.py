@@ -38,7 +38,11 @@ rejected frames in a row the filter restarts its track on the next frame, and
 once the frames rejected in a row span ``max_rejection_s`` on the next frame
 the gate refuses too (position from the frame at its acquisition time,
 re-predicted to now like the first frame, prior covariance): it must not lock
-itself out when the robot really is elsewhere.  A covariance that became non-finite or
+itself out when the robot really is elsewhere.  With ``flung_restart_sigmas`` the track restarts on a frame too
+when its update left the estimate that many measurement sigmas further from that frame than the prior was (a
+Kalman correction brings the position nearer the frame it fuses; across a wall's crest the linearisation, the
+re-prediction through the contact or the projection out of the wall along the wrong face can fling it by
+millimetres).  Track restarts are counted in ``track_resets``.  A covariance that became non-finite or
 larger than 1 m is reset to the prior (counted in ``covariance_resets``).
 
 Delay compensation.  A frame acquired at ``t_a`` and delivered at
@@ -273,11 +277,11 @@ def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped
 
 # ---- compiled stage -------------------------------------------------------------------------------
 # On d axes (2: x, z; 3: x, y, z), the state N = 2 d + 1 long:
-# prm (22 + d^2,): [q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2 (on d degrees of freedom),
+# prm (24 + d^2,): [q_a^2, q_s^2 (0 if s is frozen), sigma^2, gate_chi2 (on d degrees of freedom),
 #   max_consecutive_rejections, delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2,
 #   flow_scale_sigma0^2 (0 if frozen), rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1),
 #   max_rejection_s (inf: off), the prediction's integrator (7, physics.integrator.integrator_vector: dopri5),
-#   B (d x d, row-major)]
+#   flung_restart_sigmas times sigma (inf: off), B (d x d, row-major)]
 # scal (5,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1),
 #   acquisition time of the first frame of the current run of rejections (s; inf: none)]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
@@ -289,7 +293,7 @@ def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped
 # err (3 + N,): [t0, t1, integrator code, the states the failing prediction started from]
 #: Indices in the parameter vector (module comment above).
 _QA2, _QS2, _R2, _GATE, _MAX_REJ, _DELAY, _POS0, _VEL0, _S0 = 0, 1, 2, 3, 4, 5, 6, 7, 8
-_LUMEN, _MAX_REJ_S, _IG, _B = 14, 15, 16, 23
+_LUMEN, _MAX_REJ_S, _IG, _FLUNG, _B = 14, 15, 16, 23, 24
 #: codes of :func:`ekf_update` besides OK: the prediction failed (see ``err``)
 PREDICTION_FAILED = 3
 
@@ -331,6 +335,7 @@ def ekf_params(params: EkfParams, b: npt.ArrayLike, ig: Any) -> npt.NDArray[np.f
                      ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s,
                      1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf,
                      0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0,
+                     q.flung_restart_sigmas * q.measurement_sigma_m if q.flung_restart_sigmas > 0.0 else math.inf,
                      *bm.ravel()])
 
 
@@ -585,6 +590,9 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
         else:
             found = False
             ok = False
+            before = 0.0  # the prior's distance from the frame (squared)
+            for c in range(d):
+                before = before + (y[c] - m[c]) * (y[c] - m[c])
             if prm[_DELAY] > 0.5 and t_acq < scal[0] - 1e-9:
                 back = _ekf_find(ist, hist_t, t_acq)
                 if back >= 0:
@@ -604,6 +612,17 @@ def ekf_update(prm, scal, ist, y, P, hist_t, hist_y, hist_P, hist_u, free, geom,
                 if ok:
                     _project(prm, scal[0], y, geom, free)
             if ok:
+                after = 0.0
+                for c in range(d):
+                    after = after + (y[c] - m[c]) * (y[c] - m[c])
+                if math.sqrt(after) > math.sqrt(before) + prm[_FLUNG]:
+                    # the update took the estimate away from the frame it fused (a linearisation across a wall's
+                    # crest, re-predicted through its contact, or a projection out of the wall along the wrong
+                    # face): a Kalman correction cannot, so the filter lost the robot; its track restarts here
+                    code = _start_track(prm, scal, ist, True, t_acq, m, y, P, hist_t, hist_y, hist_P, hist_u, free,
+                                        geom, p_s, work, fbuf, sc, vec, mat, stats, err)
+                    if code != OK:
+                        return code
                 for c in range(d):
                     innov[c] = -nu[c]  # X_hat - Y, as Estimate documents
                 scal[1] = t_acq

@@ -6,7 +6,7 @@ import dataclasses
 import math
 from typing import Literal
 
-from vesselbot_ros.config import check_choice, check_nonnegative, check_positive
+from vesselbot_ros.config import OMIT_IF, check_choice, check_nonnegative, check_positive
 
 __all__ = ["EkfParams", "CHI2_2DOF_999"]
 
@@ -39,6 +39,14 @@ class EkfParams:
             seconds of a filter that rejects every frame because it lost the
             bead (the scanner study sets 0.03 s: the paper's 20 ms burst of
             aberrant frames is shorter).
+        flung_restart_sigmas: Restart the track on a frame whose update left the
+            estimate more than this many measurement sigmas further from that
+            frame than its prior was (a Kalman correction brings the position
+            nearer the frame it fuses; across a wall's crest the linearisation,
+            the re-prediction through the contact or the projection out of the
+            wall along the wrong face can fling it by millimetres).  0 (the
+            default): off.  Left out of :func:`~vesselbot_ros.config.to_mapping`
+            at 0.
         delay_compensation: Correct at the acquisition time and re-predict.
         history_s: How far back frames can be fused at their acquisition time (s).
         estimate_flow_scale: Estimate ``s``; False freezes it at ``flow_scale0``.
@@ -68,6 +76,7 @@ class EkfParams:
     gate_chi2: float = CHI2_2DOF_999
     max_consecutive_rejections: int = 50
     max_rejection_s: float = 0.0
+    flung_restart_sigmas: float = dataclasses.field(default=0.0, metadata={OMIT_IF: lambda v: v == 0.0})
     delay_compensation: bool = True
     history_s: float = 0.25
     estimate_flow_scale: bool = True
@@ -85,4 +94,5 @@ class EkfParams:
         check_nonnegative("gate_chi2", self.gate_chi2)
         check_positive("max_consecutive_rejections", self.max_consecutive_rejections)
         check_nonnegative("max_rejection_s", self.max_rejection_s)
+        check_nonnegative("flung_restart_sigmas", self.flung_restart_sigmas)
         check_positive("history_s", self.history_s)

@@ -39,6 +39,12 @@ def test_params_are_validated() -> None:
         EkfParams(gate_chi2=-1.0)
     with pytest.raises(ConfigError, match=r"max_rejection_s must be >= 0"):
         EkfParams(max_rejection_s=-0.1)
+    with pytest.raises(ConfigError, match=r"flung_restart_sigmas must be finite, got nan"):
+        EkfParams(flung_restart_sigmas=float("nan"))
+    from vesselbot_ros.config import to_mapping
+
+    assert "flung_restart_sigmas" not in to_mapping(EkfParams())  # off: every scenario's hash as it was
+    assert to_mapping(EkfParams(flung_restart_sigmas=5.0))["flung_restart_sigmas"] == 5.0
 
 
 @pytest.mark.parametrize("seed", [0, 1])
