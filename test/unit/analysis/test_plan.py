@@ -337,10 +337,15 @@ def test_a_tree_floor_broken_by_a_side_branchs_mouth_is_named_with_the_accelerat
 
 @pytest.fixture(scope="module")
 def eca_mfde():
-    """The carotid's external branch planned on the 77 %-duty 3 T sequence: (plan, the flown scenario)."""
+    """The carotid's external branch planned on the 77 %-duty 3 T sequence: (plan, the scenario flown as
+    ``vesselbot plan`` writes it, with the loop's options for a plan on the wall)."""
+    from vesselbot_ros.analysis.plan import flying_changes
+    from vesselbot_ros.sim.scenario import scenario_with
+
     scenario = load_scenario("carotid_bifurcation_3d_eca_ekf", hardware="clinical_3t_mfde")
     plan = make_plan(scenario)
-    return plan, plan_scenario(scenario, plan.reference)
+    planned = plan_scenario(scenario, plan.reference)
+    return plan, scenario_with(planned, flying_changes(planned, plan))
 
 
 def test_a_plan_never_stops_on_the_crest_of_a_side_branchs_mouth(eca_mfde):
