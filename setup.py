@@ -40,7 +40,7 @@ setup(
         (f"share/{PACKAGE}/config/cfd", glob("config/cfd/*.npz")),
         (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk", "tqdm"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk", "tqdm", "gymnasium"],
     zip_safe=False,
     maintainer="vesselbot maintainers",
     maintainer_email="maintainers@vesselbot.example",

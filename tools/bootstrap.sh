@@ -51,7 +51,7 @@ if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/sim-interfaces" "$stamps/package"
   quiet_pip install -r requirements.txt
-  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow, foxglove" \
+  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow, foxglove, gymnasium" \
     || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
   "$venv/bin/python" -c "import skfem, gmsh" \
     || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \

@@ -418,11 +418,16 @@ class VariateBuffer:
     #: Acquisitions per block.
     BLOCK = 256
 
-    def __init__(self, rng: np.random.Generator, dims: int = 2) -> None:
+    def __init__(self, rng: np.random.Generator, dims: int = 2, buf: npt.NDArray[np.float64] | None = None) -> None:
+        """``buf``: the array to hold the variates (a row of a bank of buffers, one per copy of a loop stepped in
+        one call; float64, of ``1 + 2 dims * BLOCK``); None: its own."""
         self._rng = rng
         self._dims = int(dims)
         self._per = 2 * self._dims  # variates per acquisition
-        self.buf = np.zeros(1 + self._per * self.BLOCK)
+        self.buf = np.zeros(1 + self._per * self.BLOCK) if buf is None else buf
+        if self.buf.shape != (1 + self._per * self.BLOCK,) or self.buf.dtype != np.float64:
+            raise ModelInputError(f"VariateBuffer: buf of shape {self.buf.shape} ({self.buf.dtype}), expected "
+                             f"({1 + self._per * self.BLOCK},) float64")
         self.buf[0] = float(self.buf.shape[0] - 1)  # empty: the first use fills
         self._state_at_fill: Mapping[str, Any] | None = None
 

@@ -18,6 +18,15 @@ the kernel once per geometry type.  Each stage does the same IEEE operations in 
 (the classes call the very same functions), so the two paths are bit-identical;
 ``test/unit/sim/test_compiled_loop.py`` checks every column, metric and run statistic.
 
+One tick body, two drivers.  A tick is three compiled functions over explicit state: :func:`sense` (plant output,
+imager, observer), :func:`command` (the controller's step, or an external command through :func:`take_command`)
+and :func:`actuate` (coil, plant step).  :func:`loop_kernel` calls them for ticks ``0 .. n-1`` of one run (the
+controller commands, or ``g_ext`` replays given commands); :func:`step_copies` calls the same functions to advance N
+copies of the loop by one tick each, the command coming from outside (the Gymnasium environments of
+:mod:`vesselbot_ros.envs`: the agent's action sits where the controller's command was, between the observer's
+update and the coil).  No second copy of the tick body exists, so a copy stepped by a sequence of commands and
+``loop_kernel`` replaying them give the same bits.
+
 Random draws: the imager's ``numpy.random.Generator`` is passed into the kernel and drawn from in the documented
 order (d standard normals, then d uniforms per acquired frame), so one seed gives one stream in both paths.
 
@@ -60,8 +69,9 @@ from vesselbot_ros.scanner.stages import new_seq_imager_state, seq_coil_apply, s
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
-__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "loop_kernel", "run_kernel",
-           "raise_for_code", "columns", "COLUMNS"]
+__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "loop_kernel", "sense", "command",
+           "take_command", "actuate", "step_copies", "OP_STEP", "OP_RESET", "OP_SKIP", "run_kernel", "raise_for_code",
+           "columns", "COLUMNS"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
@@ -223,21 +233,186 @@ def try_prepare(stages: Any, n: int, dt: float, record_forces: bool) -> tuple[Lo
 
 
 @numba.njit(cache=True, nogil=True)
+def sense(r, t, plant_geom, rng, imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv,  # type: ignore[no-untyped-def]  # numba: types at compile time
+          obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, y, contact, ga, fk, sc, acq,
+          img_out, obs_out, err, record_forces, forces, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
+          meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used, meas_rejected):
+    """The first half of a tick at ``t``: the plant's output, the imager's frame and the observer's update, written to
+    row ``r`` of the columns; returns ``(code, finite estimate)`` (``code`` :data:`OBSERVER_FAILED` or OK).
+
+    ``ga`` is the gradient the coil applied over the last period (the plant's forces and the observer's input);
+    ``fk``, ``sc``, ``acq``, ``img_out`` and ``obs_out`` are scratch (``obs_out`` holds the estimate for
+    :func:`command`).  The state arrays are :func:`loop_kernel`'s.
+    """
+    d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
+    # plant output at t_k (the forces under the gradient applied over the last period)
+    delta, _wall = wall_and_forces(t, y, ga, contact, plant_geom, fk, sc, record_forces)
+    for c in range(d):
+        p_true[r, c] = y[c]
+        v_true[r, c] = y[d + c]
+    delta_m[r] = delta
+    in_contact[r] = delta > 0.0
+    contact_phase[r] = int(contact[0])
+    if record_forces:
+        for i in range(8):
+            for c in range(d):
+                forces[r, i, c] = fk[i, c]
+    # imager (the plant state is finite: the integrator checked it)
+    if seq_mode == 1:
+        seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:d], img_out)
+    else:
+        imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:d], img_out)
+    has_meas = img_out[0] > 0.5
+    if has_meas:
+        for c in range(d):
+            meas_p[r, c] = img_out[2 + c]
+        meas_t_acq_s[r] = img_out[1]
+        meas_outlier[r] = img_out[2 + d] > 0.5
+    else:
+        for c in range(d):
+            meas_p[r, c] = np.nan
+        meas_t_acq_s[r] = np.nan
+        meas_outlier[r] = False
+    # observer
+    code = obs_step(obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, t, ga, has_meas, img_out[1],
+                    img_out[2:2 + d], obs_out, err)
+    if code != OK:
+        return OBSERVER_FAILED, False
+    finite_estimate = True
+    for c in range(d):
+        x_hat[r, c] = obs_out[c]
+        z_hat[r, c] = obs_out[d + c]
+        if not (math.isfinite(obs_out[c]) and math.isfinite(obs_out[d + c])):
+            finite_estimate = False
+    meas_used[r] = obs_out[3 * d + 1] > 0.5
+    meas_rejected[r] = obs_out[3 * d + 2] > 0.5
+    return OK, finite_estimate
+
+
+@numba.njit(cache=True, nogil=True)
+def take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, u_cmd, flow_scale_hat, magnetization_scale_hat):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    """The tick's command into ``gc`` (d,) without the controller: NaN for a non-finite estimate (rejected,
+    :data:`~vesselbot_ros.sim.kinds.REJECT_ESTIMATE`), else the external command ``g_ext[ge_row]`` (T/m), rejected if
+    not finite (:data:`~vesselbot_ros.sim.kinds.REJECT_NONFINITE`); returns ``(status, rejection)``.  Row ``r`` of
+    ``u_cmd`` is NaN (a bare gradient asks for no acceleration), the scales the observer's (and 1)."""
+    d = gc.shape[0]
+    n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
+    why = REJECT_ESTIMATE if not finite_estimate else 0
+    for c in range(d):
+        gc[c] = g_ext[ge_row, c] if finite_estimate else np.nan
+        u_cmd[r, c] = np.nan
+        if why == 0 and not math.isfinite(gc[c]):
+            why = REJECT_NONFINITE
+    flow_scale_hat[r] = obs_out[n_obs]
+    magnetization_scale_hat[r] = 1.0
+    return (2 if why != 0 else 0), why
+
+
+@numba.njit(cache=True, nogil=True)
+def command(r, k, t, finite_estimate, g_ext, ge_row, p_ref, v_ref, a_ref, ctrl_step, ctrl_prm, ctrl_state, model_geom,  # type: ignore[no-untyped-def]  # numba: types at compile time
+            ctrl_work, ctrl_fbuf, ctrl_sc, obs_out, est, ctrl_out, gc, err, u_cmd, flow_scale_hat,
+            magnetization_scale_hat):
+    """The tick's command into ``gc`` (d,), from the controller's step or, when ``ge_row >= 0``, the external command
+    ``g_ext[ge_row]`` (T/m: an agent's action, a replayed one); returns ``(code, status, rejection)``.
+
+    The rules of :func:`~vesselbot_ros.sim.kinds.checked_command` for both sources: a non-finite estimate is not
+    given to the controller (nor an external command taken): the command is NaN, rejected
+    (:data:`~vesselbot_ros.sim.kinds.REJECT_ESTIMATE`); a non-finite command is rejected
+    (:data:`~vesselbot_ros.sim.kinds.REJECT_NONFINITE`); either reaches the coil as NaN, which ramps it towards zero
+    at the slew limit.  An external command is a bare gradient (``u_cmd`` NaN, status ok), as the per-tick loop
+    takes a bare array from a controller.  ``code`` is :data:`REFERENCE_NONFINITE` or :data:`FLOW_SCALE_FAILED`
+    when the controller cannot run (OK otherwise).
+    """
+    d = gc.shape[0]
+    if ge_row >= 0 or not finite_estimate:
+        status, why = take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, u_cmd, flow_scale_hat,
+                                   magnetization_scale_hat)
+        return OK, status, why
+    n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
+    for c in range(d):
+        if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
+            return REFERENCE_NONFINITE, 0, 0
+    for c in range(2 * d + 1):
+        est[c] = obs_out[c]
+    est[2 * d + 1] = obs_out[n_obs]
+    status = ctrl_step(ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc, t, est, p_ref[k],
+                       v_ref[k], a_ref[k], ctrl_out)
+    flow_scale_hat[r] = ctrl_out[2 * d]  # the scales the controller worked with (the observer's, or adapted)
+    magnetization_scale_hat[r] = ctrl_out[2 * d + 1]
+    if status == STEP_FLOW_SCALE_INVALID:
+        err[0] = ctrl_out[2 * d]
+        return FLOW_SCALE_FAILED, 0, 0
+    why = 0
+    for c in range(d):
+        gc[c] = ctrl_out[c]
+        u_cmd[r, c] = ctrl_out[d + c]
+        if not math.isfinite(gc[c]):
+            why = REJECT_NONFINITE
+    if why != 0:
+        status = 2
+    elif status < 0 or status > 2:  # not a status of a command
+        why = REJECT_MALFORMED
+        status = 2
+        for c in range(d):
+            gc[c] = np.nan
+    return OK, status, why
+
+
+@numba.njit(cache=True, nogil=True)
+def actuate(r, k, t, dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state, coil_out, ga, zd, y, contact,  # type: ignore[no-untyped-def]  # numba: types at compile time
+            plant_geom, h, ig, plant_stats, work, fbuf, sc, err, g_cmd, cmd_status, cmd_rejected, g_applied,
+            slew_limited, k_scale, saturated):
+    """The second half of tick ``k`` (at ``t``): the command ``gc`` (its ``status`` and rejection ``why``) through
+    the coil, then the plant integrated over ``[t_k, t_k+1]`` under the gradient applied (left in ``ga``), written
+    to row ``r`` of the columns; returns ``(code, h)`` (``code`` :data:`PLANT_FAILED` or OK, ``h`` the integrator's
+    step to propose next)."""
+    d = gc.shape[0]
+    for c in range(d):
+        g_cmd[r, c] = gc[c]
+    cmd_status[r] = status
+    cmd_rejected[r] = why
+    # coil
+    if seq_mode == 1:
+        seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
+    else:
+        coil_apply(coil_prm, coil_state, t, gc, coil_out)
+    for c in range(d):
+        ga[c] = coil_out[c]
+        g_applied[r, c] = coil_out[c]
+        slew_limited[r, c] = coil_out[d + 2 + c] > 0.5
+    k_scale[r] = coil_out[d]
+    saturated[r] = coil_out[d + 1] > 0.5
+    # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
+    t0 = 0.0 + k * dt
+    t1 = 0.0 + (k + 1) * dt
+    code, h = integrate(t0, t1, y, ga, zd, contact, plant_geom, h, ig, plant_stats, work, fbuf, sc)
+    if code != OK:
+        err[0] = t0
+        err[1] = t1
+        err[2] = code
+        return PLANT_FAILED, h
+    return OK, h
+
+
+@numba.njit(cache=True, nogil=True)
 def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,  # type: ignore[no-untyped-def]  # numba: types at compile time
                 imager_prm, outliers, dropouts, queue, seq_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom,
                 obs_work, ctrl_step, ctrl_prm, ctrl_state, ctrl_work, coil_prm, seq_mode, sv, hold_s, y, contact,
-                coil_state, plant_stats, model_stats, record_forces, forces,
+                coil_state, plant_stats, model_stats, record_forces, forces, g_ext,
                 p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier,
                 x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
                 saturated, slew_limited, cmd_status, cmd_rejected, err):
     """Run ticks ``0 .. n-1`` on the d = ``len(y) / 2`` axes of the vessel ``plant_geom``; returns ``(code, tick)``
     (``code`` 0 = every tick ran).
 
-    State arrays (``y``, ``contact``, ``queue``, ``seq_state``, the observer's and the controller's, ``coil_state``,
-    stats) are updated in place; ``err`` (3 + 2 d + 1,) receives the failure's details (``[t0, t1, integrator code,
-    state...]``, or the flow scale).  The observer is ``obs_step`` and the controller ``ctrl_step``, compiled steps
-    of any kind (:mod:`vesselbot_ros.control.compiled_stage`) on their parameters, state and scratch, over their
-    models ``obs_geom`` and ``model_geom``; ``seq_mode`` 1 runs the scanner's imager and coil on the sequence ``sv``.
+    Each tick is :func:`sense`, :func:`command` and :func:`actuate`, the functions the stepping form
+    (:func:`step_copies`) calls too.  State arrays (``y``, ``contact``, ``queue``, ``seq_state``, the observer's
+    and the controller's, ``coil_state``, stats) are updated in place; ``err`` (3 + 2 d + 1,) receives the
+    failure's details (``[t0, t1, integrator code, state...]``, or the flow scale).  The observer is ``obs_step``
+    and the controller ``ctrl_step``, compiled steps of any kind (:mod:`vesselbot_ros.control.compiled_stage`) on
+    their parameters, state and scratch, over their models ``obs_geom`` and ``model_geom``; ``seq_mode`` 1 runs the
+    scanner's imager and coil on the sequence ``sv``.  ``g_ext`` (n, d) replaces the controller with external
+    commands, one per tick (an agent's actions replayed); (0, d): the controller commands.
     All scratch is allocated once, before the first tick.
     """
     d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
@@ -249,8 +424,7 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,
     img_state[1] = -math.inf
     acq = np.zeros(3 + d)
     img_out = np.zeros(3 + d)
-    n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
-    obs_out = np.zeros(n_obs + 1)
+    obs_out = np.zeros(3 * d + 4)  # observer_step_out_size(d)
     est = np.zeros(2 * d + 2)
     ctrl_out = np.zeros(2 * d + 2)
     coil_out = np.zeros(2 * d + 3)  # coil_out_size(d)
@@ -258,121 +432,142 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,
     ga = np.zeros(d)  # the gradient applied over the last period: the plant's and, next tick, the models'
     zd = np.zeros(d)
     h = ig[5]
+    external = g_ext.shape[0] > 0
     for k in range(n):
         t = ts[k]
-        # plant output at t_k (the forces under the gradient applied over the last period)
-        delta, _wall = wall_and_forces(t, y, ga, contact, plant_geom, fk, sc, record_forces)
-        for c in range(d):
-            p_true[k, c] = y[c]
-            v_true[k, c] = y[d + c]
-        delta_m[k] = delta
-        in_contact[k] = delta > 0.0
-        contact_phase[k] = int(contact[0])
-        if record_forces:
-            for i in range(8):
-                for c in range(d):
-                    forces[k, i, c] = fk[i, c]
-        # imager (the plant state is finite: the integrator checked it)
-        if seq_mode == 1:
-            seq_imager_frame(sv, imager_prm, outliers, dropouts, rng, seq_state, queue, acq, t, y[:d], img_out)
-        else:
-            imager_frame(imager_prm, outliers, dropouts, img_state, queue, rng, t, y[:d], img_out)
-        has_meas = img_out[0] > 0.5
-        if has_meas:
-            for c in range(d):
-                meas_p[k, c] = img_out[2 + c]
-            meas_t_acq_s[k] = img_out[1]
-            meas_outlier[k] = img_out[2 + d] > 0.5
-        else:
-            for c in range(d):
-                meas_p[k, c] = np.nan
-            meas_t_acq_s[k] = np.nan
-        # observer
-        code = obs_step(obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, t, ga, has_meas, img_out[1],
-                        img_out[2:2 + d], obs_out, err)
+        code, finite_estimate = sense(
+            k, t, plant_geom, rng, imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv,
+            obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, y, contact, ga, fk, sc, acq,
+            img_out, obs_out, err, record_forces, forces, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
+            meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used, meas_rejected)
         if code != OK:
-            return OBSERVER_FAILED, k
-        finite_estimate = True
-        for c in range(d):
-            x_hat[k, c] = obs_out[c]
-            z_hat[k, c] = obs_out[d + c]
-            if not (math.isfinite(obs_out[c]) and math.isfinite(obs_out[d + c])):
-                finite_estimate = False
-        meas_used[k] = obs_out[3 * d + 1] > 0.5
-        meas_rejected[k] = obs_out[3 * d + 2] > 0.5
-        # controller (kinds.checked_command: a non-finite estimate is not given to it, a non-finite command is
-        # rejected; either reaches the coil as NaN, which ramps it towards zero at the slew limit)
-        if not finite_estimate:
-            status = 2
-            why = REJECT_ESTIMATE
-            for c in range(d):
-                gc[c] = np.nan
-                u_cmd[k, c] = np.nan
-            flow_scale_hat[k] = obs_out[n_obs]
-            magnetization_scale_hat[k] = 1.0
-        else:
-            for c in range(d):
-                if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
-                    return REFERENCE_NONFINITE, k
-            for c in range(2 * d + 1):
-                est[c] = obs_out[c]
-            est[2 * d + 1] = obs_out[n_obs]
-            status = ctrl_step(ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc, t, est, p_ref[k],
-                               v_ref[k], a_ref[k], ctrl_out)
-            flow_scale_hat[k] = ctrl_out[2 * d]  # the scales the controller worked with (the observer's, or adapted)
-            magnetization_scale_hat[k] = ctrl_out[2 * d + 1]
-            if status == STEP_FLOW_SCALE_INVALID:
-                err[0] = ctrl_out[2 * d]
-                return FLOW_SCALE_FAILED, k
-            why = 0
-            for c in range(d):
-                gc[c] = ctrl_out[c]
-                u_cmd[k, c] = ctrl_out[d + c]
-                if not math.isfinite(gc[c]):
-                    why = REJECT_NONFINITE
-            if why != 0:
-                status = 2
-            elif status < 0 or status > 2:  # not a status of a command
-                why = REJECT_MALFORMED
-                status = 2
-                for c in range(d):
-                    gc[c] = np.nan
-        for c in range(d):
-            g_cmd[k, c] = gc[c]
-        cmd_status[k] = status
-        cmd_rejected[k] = why
-        # coil
-        if seq_mode == 1:
-            seq_coil_apply(coil_prm, sv, hold_s, coil_state, t, gc, coil_out)
-        else:
-            coil_apply(coil_prm, coil_state, t, gc, coil_out)
-        for c in range(d):
-            ga[c] = coil_out[c]
-            g_applied[k, c] = coil_out[c]
-            slew_limited[k, c] = coil_out[d + 2 + c] > 0.5
-        k_scale[k] = coil_out[d]
-        saturated[k] = coil_out[d + 1] > 0.5
-        # plant step over [t_k, t_k+1] (tick times k * dt, as PlantSimulator)
-        t0 = 0.0 + k * dt
-        t1 = 0.0 + (k + 1) * dt
-        code, h = integrate(t0, t1, y, ga, zd, contact, plant_geom, h, ig, plant_stats, work, fbuf, sc)
+            return code, k
+        code, status, why = command(
+            k, k, t, finite_estimate, g_ext, k if external else -1, p_ref, v_ref, a_ref, ctrl_step,
+            ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc, obs_out, est, ctrl_out, gc, err, u_cmd,
+            flow_scale_hat, magnetization_scale_hat)
         if code != OK:
-            err[0] = t0
-            err[1] = t1
-            err[2] = code
-            return PLANT_FAILED, k
+            return code, k
+        code, h = actuate(
+            k, k, t, dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state, coil_out, ga, zd, y, contact,
+            plant_geom, h, ig, plant_stats, work, fbuf, sc, err, g_cmd, cmd_status, cmd_rejected, g_applied,
+            slew_limited, k_scale, saturated)
+        if code != OK:
+            return code, k
     return OK, n
 
 
+#: :func:`step_copies`' operation per copy: one tick under the copy's command, a fresh run to its tick 0, nothing.
+OP_STEP, OP_RESET, OP_SKIP = 0, 1, 2
+
+
+@numba.njit(cache=True, nogil=True)
+def step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,  # type: ignore[no-untyped-def]  # numba: types at compile time
+                seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
+                obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
+                model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
+                meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
+                meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
+                obs_out, err, codes):
+    """The stepping form of :func:`loop_kernel`: N copies of one scenario's loop, each advanced by ``ops[i]`` in one
+    call, the controller's place taken by the commands ``actions`` (N, d) (T/m).
+
+    * :data:`OP_STEP`: copy ``i`` stands after the observer's update at tick ``k = ticks[i]``: its command
+      ``actions[i]`` (:func:`take_command`), then :func:`actuate` (coil, plant over ``[t_k, t_k+1]``), then
+      :func:`sense` at tick ``k + 1`` (plant output, imager, observer); ``ticks[i]`` becomes ``k + 1``;
+    * :data:`OP_RESET`: fresh state (the prepared initial state, the stats zeroed), then :func:`sense` at tick 0;
+    * :data:`OP_SKIP`: nothing.
+
+    The same functions, in the same order, as :func:`loop_kernel`'s ticks: copy ``i`` driven by a sequence of
+    commands gives the run's bits.  Every per-copy array has the copy on its first axis: the state (``y``,
+    ``contact``, ``queue``, ``seq_state``, ``img_state``, the observer's, ``coil_state``, stats, ``h`` the
+    integrator's next step, ``ga`` the gradient applied over the last period), ``variates`` (a
+    :class:`~vesselbot_ros.scanner.imager_model.VariateBuffer` array per copy, holding at least one acquisition's
+    draws), the columns (row ``i``: copy ``i``'s latest tick), ``obs_out`` (the observer's last output) and ``err``;
+    ``codes[i]`` is OK or where the copy stopped (:func:`raise_for_code`).  ``ts`` must hold the tick times up to
+    the last ``k + 1`` asked for.
+    """
+    d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
+    work, fbuf, sc = new_workspace(d)
+    fk = np.empty((8, d))
+    acq = np.zeros(3 + d)
+    img_out = np.zeros(3 + d)
+    coil_out = np.zeros(2 * d + 3)  # coil_out_size(d)
+    gc = np.zeros(d)
+    zd = np.zeros(d)
+    forces = np.empty((0, 8, d))
+    for i in range(ops.shape[0]):
+        op = ops[i]
+        codes[i] = OK
+        if op == OP_SKIP:
+            continue
+        if op == OP_RESET:
+            k = 0
+            for c in range(2 * d):
+                y[i, c] = y0[c]
+            for c in range(contact.shape[1]):
+                contact[i, c] = 0.0
+            for c in range(coil_state.shape[1]):
+                coil_state[i, c] = coil_state0[c]
+            for c in range(obs_state.shape[1]):
+                obs_state[i, c] = obs_state0[c]
+            for c in range(obs_istate.shape[1]):
+                obs_istate[i, c] = obs_istate0[c]
+            for c in range(obs_work.shape[1]):
+                obs_work[i, c] = obs_work0[c]
+            for c in range(4):
+                plant_stats[i, c] = 0
+                model_stats[i, c] = 0
+            queue[i, :, :] = 0.0
+            seq_state[i, :] = 0.0
+            seq_state[i, 0] = -1.0  # new_seq_imager_state: no window open
+            img_state[i, :] = 0.0
+            img_state[i, 1] = -math.inf  # loop_kernel's fresh imager state
+            for c in range(d):
+                ga[i, c] = 0.0
+            h[i] = ig[5]
+        else:
+            k = ticks[i]
+            finite_estimate = True
+            for c in range(d):
+                if not (math.isfinite(x_hat[i, c]) and math.isfinite(z_hat[i, c])):
+                    finite_estimate = False
+            status, why = take_command(i, finite_estimate, actions, i, obs_out[i], gc, u_cmd, flow_scale_hat,
+                                       magnetization_scale_hat)
+            code, h[i] = actuate(
+                i, k, ts[k], dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state[i], coil_out, ga[i], zd,
+                y[i], contact[i], plant_geom, h[i], ig, plant_stats[i], work, fbuf, sc, err[i], g_cmd, cmd_status,
+                cmd_rejected, g_applied, slew_limited, k_scale, saturated)
+            if code != OK:
+                codes[i] = code
+                continue
+            k += 1
+        ticks[i] = k
+        code, _finite = sense(
+            i, ts[k], plant_geom, variates[i], imager_prm, outliers, dropouts, queue[i], seq_state[i], img_state[i],
+            seq_mode, sv, obs_step, obs_prm, obs_state[i], obs_istate[i], obs_geom, obs_work[i], model_stats[i],
+            y[i], contact[i], ga[i], fk, sc, acq, img_out, obs_out[i], err[i], False, forces, p_true, v_true,
+            delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used,
+            meas_rejected)
+        codes[i] = code
+
+
 def run_kernel(
-    inp: LoopInputs, rng: np.random.Generator
+    inp: LoopInputs, rng: np.random.Generator, commands: npt.NDArray[np.float64] | None = None
 ) -> tuple[dict[str, npt.NDArray[Any]], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """One run of :func:`loop_kernel` with fresh state; returns ``(columns, plant stats, model stats)``.
 
+    ``commands`` (n, d) (T/m), if given, are the ticks' gradient commands in the controller's place (an episode's
+    actions replayed: the coil takes them as the environment's step does, :mod:`vesselbot_ros.envs`).
+
     Raises:
-        ModelInputError: as the per-tick loop would (:func:`raise_for_code`).
+        ModelInputError: as the per-tick loop would (:func:`raise_for_code`), or ``commands`` not of shape (n, d).
     """
     n, d = inp.n, inp.dims
+    if commands is not None:
+        commands = np.ascontiguousarray(commands, dtype=np.float64)
+        if commands.shape != (n, d):
+            raise ModelInputError(f"commands: shape {commands.shape}, expected ({n}, {d}) (one gradient per tick)")
     spec = columns(d)
     cols = {name: (np.zeros if dt is np.bool_ else np.empty)((n, *shape), dtype=dt) for name, dt, shape in spec}
     forces = np.empty((n, 8, d)) if inp.record_forces else np.empty((0, 8, d))
@@ -389,7 +584,8 @@ def run_kernel(
         inp.obs_step, obs.prm, obs.state0.copy(), obs.istate0.copy(), obs.geom, obs.work0.copy(),
         inp.ctrl_step, ctrl.prm, ctrl.state0.copy(), np.zeros(ctrl.work_size), inp.coil_prm,
         inp.seq_mode, inp.sv, inp.hold_s, y, contact, coil_state, plant_stats, model_stats,
-        inp.record_forces, forces, *(cols[name] for name, _dt, _shape in spec), err,
+        inp.record_forces, forces, np.zeros((0, d)) if commands is None else commands,
+        *(cols[name] for name, _dt, _shape in spec), err,
     )
     if code != OK:
         raise_for_code(code, tick, y, err, obs.message)

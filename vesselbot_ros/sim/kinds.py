@@ -64,6 +64,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import ConfigError
+from vesselbot_ros.control.action_replay import ActionReplayController, ActionReplayParams, load_actions
 from vesselbot_ros.control.backstepping import BacksteppingController, ControlCommand, ControllerParams
 from vesselbot_ros.control.bspline_reference import (
     ReferenceParams,
@@ -720,6 +721,10 @@ def _predictive(ctx: BuildContext) -> PredictiveController:
                                 ctx.dt_s)
 
 
+def _action_replay(ctx: BuildContext) -> ActionReplayController:
+    return ActionReplayController(load_actions(ctx.params.actions_file, ctx.scenario.dims), ctx.dt_s)
+
+
 def _check_high_gain(params: ObserverParams, scenario: Any) -> None:
     """Observer (25) is stable at the rate it gets frames: the MRI imager's ``frame_rate_Hz``, or one frame per
     sequence period under multiplexing (:func:`~vesselbot_ros.control.high_gain_observer.check_frame_period`)."""
@@ -773,6 +778,9 @@ for _kind in (
     StageKind("controller", "predictive", PredictiveParams, _predictive, compiled=True,
               stage_types=(PredictiveController,), compile=PredictiveController.compiled,
               summary="plans each propulsion window for the coast after it (the model, the coil and the sequence)"),
+    StageKind("controller", "action_replay", ActionReplayParams, _action_replay, compiled=True,
+              stage_types=(ActionReplayController,), compile=ActionReplayController.compiled,
+              summary="replays recorded gradient commands, one per tick (an environment episode's actions, a .npy file)"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
               stage_types=(CoilLimiter, SequencedCoil), compile=lambda stage: stage.compiled(),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),

@@ -1,0 +1,298 @@
+"""N copies of one scenario's compiled loop, stepped in one compiled call: what both environments run.
+
+:class:`LoopCopies` holds the state of N copies of the loop of :mod:`vesselbot_ros.sim.compiled_loop` (the copy on
+the first axis of every array) and advances them with :func:`env_kernel`: one numba call that runs
+:func:`~vesselbot_ros.sim.compiled_loop.step_copies` (the loop's own tick body: observer, command, coil, plant) and
+then writes each copy's observation, reward and end flags.  The scalar environment is one copy
+(:class:`~vesselbot_ros.envs.env.VesselbotEnv`), the vector environment N
+(:class:`~vesselbot_ros.envs.vector.VesselbotVectorEnv`): the same call, so a seed gives the same bits in both.
+
+Observation of a copy (float64, :func:`observation_fields` names the slices; d = 2 axes (x, z) in the plane, 3 (x,
+y, z) in a 3-D tree), what a real controller sees after the observer's update at tick k:
+
+=====================  =========  ===========================================================
+field                  unit       meaning
+=====================  =========  ===========================================================
+x_hat_m                m (d)      the observer's position estimate
+z_hat_m_per_s          m/s (d)    the observer's velocity estimate
+measurement_age_s      s (1)      age of the estimate's last accepted measurement
+p_ref_m                m (d)      the reference at tick k
+v_ref_m_per_s          m/s (d)    its velocity
+a_ref_m_per_s2         m/s^2 (d)  its acceleration
+g_applied_T_per_m      T/m (d)    the gradient the coil applied over the last period
+sequence_phase         - (1)      the scanner's phase at tick k (0 continuous, 1 tracking, 2 dead, 3
+                                  propulsion); only under a multiplexed sequence
+p_true_m               m (d)      the true position; only with ``privileged=True``
+v_true_m_per_s         m/s (d)    the true velocity; only with ``privileged=True``
+=====================  =========  ===========================================================
+
+Reward of a step (its tick k -> k + 1), :class:`RewardParams` (defaults in brackets)::
+
+    r = - |p_true - p_ref| / error_scale_m                       tracking, at tick k + 1   [1 mm]
+        - energy_weight * |g_applied|^2 / g_max^2                the gradient's energy      [0.01]
+        - lumen_penalty   if the robot's centre left the lumen   (and the episode ends)     [100]
+        + outlet_bonus    if it reached the route's outlet       (and the episode ends)     [100]
+
+The episode ends (``terminated``) when the robot's centre leaves the lumen (its penetration of the nearest wall
+exceeds its radius: the plant's own wall, in a straight vessel, a planar network or a 3-D tree) or, on a route
+(``reference.route_outlet``), when it comes within ``goal_radius_m`` of the route's end (the reference's position
+at the scenario's last tick); it is ``truncated`` after the scenario's ``sim.n_ticks`` steps (its duration).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from vesselbot_ros.errors import ConfigError, ModelInputError
+from vesselbot_ros.physics.integrator import OK
+from vesselbot_ros.scanner.imager_model import VariateBuffer, queue_columns
+from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
+from vesselbot_ros.scanner.stages import seq_imager_state_size
+from vesselbot_ros.sim import compiled_loop
+from vesselbot_ros.sim.closed_loop import build_stages
+from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_copies
+from vesselbot_ros.sim.kinds import SECTIONS
+from vesselbot_ros.sim.scenario import Scenario
+
+__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "OP_STEP", "OP_RESET", "OP_SKIP"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RewardParams:
+    """The reward and the end of an episode (module docstring).
+
+    Attributes:
+        error_scale_m: The tracking error that costs 1 per step (m).
+        energy_weight: Weight of the applied gradient's squared norm over the coil's maximum squared.
+        lumen_penalty: Subtracted on the step the robot's centre leaves the lumen.
+        outlet_bonus: Added on the step the robot reaches the route's outlet (routes only).
+        goal_radius_m: Distance to the route's end that counts as reached (m).
+    """
+
+    error_scale_m: float = 1.0e-3
+    energy_weight: float = 0.01
+    lumen_penalty: float = 100.0
+    outlet_bonus: float = 100.0
+    goal_radius_m: float = 0.5e-3
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0.0):
+                raise ConfigError(f"reward.{f.name} must be a finite number >= 0, got {v!r}")
+        if self.error_scale_m <= 0.0 or self.goal_radius_m <= 0.0:
+            name = "error_scale_m" if self.error_scale_m <= 0.0 else "goal_radius_m"
+            raise ConfigError(f"reward.{name} must be > 0, got {getattr(self, name)!r}")
+
+    def vector(self) -> npt.NDArray[np.float64]:
+        """The (5,) array :func:`env_kernel` reads."""
+        return np.array([self.error_scale_m, self.energy_weight, self.lumen_penalty, self.outlet_bonus,
+                         self.goal_radius_m])
+
+
+def observation_fields(dims: int, sequenced: bool, privileged: bool) -> tuple[tuple[str, slice], ...]:
+    """``(name, slice)`` of each field of the observation vector (module docstring), in order."""
+    sizes = [("x_hat_m", dims), ("z_hat_m_per_s", dims), ("measurement_age_s", 1), ("p_ref_m", dims),
+             ("v_ref_m_per_s", dims), ("a_ref_m_per_s2", dims), ("g_applied_T_per_m", dims)]
+    if sequenced:
+        sizes.append(("sequence_phase", 1))
+    if privileged:
+        sizes += [("p_true_m", dims), ("v_true_m_per_s", dims)]
+    out, at = [], 0
+    for name, n in sizes:
+        out.append((name, slice(at, at + n)))
+        at += n
+    return tuple(out)
+
+
+@numba.njit(cache=True, nogil=True)
+def env_kernel(ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
+               imager_prm, outliers, dropouts, queue, seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate,
+               obs_geom, obs_work, obs_state0, obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact,
+               coil_state, plant_stats, model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact,
+               contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat,
+               magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
+               slew_limited, cmd_status, cmd_rejected, obs_out, err, codes, rw, robot_radius_m, goal, has_goal,
+               privileged, obs, reward, terminated, truncated, rejected):
+    """:func:`~vesselbot_ros.sim.compiled_loop.step_copies`, then each stepped or reset copy's observation row
+    ``obs[i]``, ``reward[i]``, ``terminated[i]``, ``truncated[i]`` and its count of rejected commands
+    ``rejected[i]`` (module docstring).  ``rw`` is :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
+    (empty: no sequence); ``goal`` the route's end (``has_goal``); ``privileged`` adds the true state."""
+    step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,
+                seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
+                obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
+                model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
+                meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
+                meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
+                obs_out, err, codes)
+    d = x_hat.shape[1]
+    g_max = coil_prm[0]
+    for i in range(ops.shape[0]):
+        if ops[i] == OP_SKIP or codes[i] != OK:
+            continue
+        k = ticks[i]
+        o = obs[i]
+        for c in range(d):
+            o[c] = x_hat[i, c]
+            o[d + c] = z_hat[i, c]
+            o[2 * d + 1 + c] = p_ref[k, c]
+            o[3 * d + 1 + c] = v_ref[k, c]
+            o[4 * d + 1 + c] = a_ref[k, c]
+            o[5 * d + 1 + c] = ga[i, c]
+        o[2 * d] = obs_out[i, 2 * d]
+        at = 6 * d + 1
+        if phase.shape[0] > 0:
+            o[at] = phase[k]
+            at += 1
+        if privileged:
+            for c in range(d):
+                o[at + c] = p_true[i, c]
+                o[at + d + c] = v_true[i, c]
+        if ops[i] == OP_RESET:
+            reward[i] = 0.0
+            terminated[i] = False
+            truncated[i] = False
+            rejected[i] = 0
+            continue
+        if cmd_rejected[i] != 0:
+            rejected[i] += 1
+        e2 = 0.0
+        g2 = 0.0
+        r2 = 0.0
+        for c in range(d):
+            e = p_true[i, c] - p_ref[k, c]
+            e2 += e * e
+            g2 += g_applied[i, c] * g_applied[i, c]
+            if has_goal:
+                q = p_true[i, c] - goal[c]
+                r2 += q * q
+        outside = delta_m[i] > robot_radius_m
+        reached = has_goal and math.sqrt(r2) <= rw[4]
+        r = -math.sqrt(e2) / rw[0] - rw[1] * g2 / (g_max * g_max)
+        if outside:
+            r -= rw[2]
+        elif reached:
+            r += rw[3]
+        reward[i] = r
+        terminated[i] = outside or reached
+        truncated[i] = k >= n_steps and not terminated[i]
+
+
+class LoopCopies:
+    """N copies of ``scenario``'s loop, the controller's command replaced by outside ones (module docstring).
+
+    Args:
+        scenario: The scenario (its imager, observer, coil, plant and reference, all of kinds the compiled loop
+            runs; its controller is not used).
+        copies: N.
+        privileged: Add the true position and velocity to the observation.
+        reward: The reward's parameters.
+
+    Raises:
+        ConfigError: a stage the compiled loop cannot run (e.g. ``imager.kind: mr_images``), named in one line.
+    """
+
+    def __init__(self, scenario: Scenario, copies: int, privileged: bool = False,
+                 reward: RewardParams | None = None) -> None:
+        if int(copies) < 1:
+            raise ConfigError(f"copies must be >= 1, got {copies!r}")
+        self.scenario = scenario
+        self.n = n = int(copies)
+        self.privileged = bool(privileged)
+        self.reward_params = reward if reward is not None else RewardParams()
+        self.n_steps = scenario.sim.n_ticks
+        stages = build_stages(scenario, None)
+        # one tick more than the run: the observation after the last step is the observer's at tick n_ticks
+        inp, bad = compiled_loop.try_prepare(stages, self.n_steps + 1, scenario.sim.dt_control_s, False)
+        if inp is None:
+            kinds_named = ", ".join(f"{_section(r)}.kind {getattr(getattr(scenario, _section(r)), 'kind', '?')!r}"
+                                    for r in bad)
+            raise ConfigError(f"scenario {scenario.name!r}: the environment steps the compiled loop, which cannot run "
+                              f"its {kinds_named}")
+        self.inp = inp
+        d = self.dims = inp.dims
+        self.sequenced = inp.seq_mode == 1
+        self.g_max_T_per_m = float(inp.coil_prm[0])
+        self.fields = observation_fields(d, self.sequenced, self.privileged)
+        self.obs_size = self.fields[-1][1].stop
+        phase = (phase_codes(sequence_vector(scenario.sequence), inp.ts).astype(np.float64) if self.sequenced
+                 else np.zeros(0))
+        route = bool(getattr(scenario.reference, "route_outlet", ""))
+        goal = np.ascontiguousarray(inp.p_ref[self.n_steps - 1]) if route else np.zeros(d)
+        obs0 = inp.obs
+        self.ops = np.full(n, OP_SKIP, dtype=np.int64)
+        self.ticks = np.zeros(n, dtype=np.int64)
+        self.actions = np.zeros((n, d))
+        self.per = 2 * d
+        self.variates = np.zeros((n, 1 + self.per * VariateBuffer.BLOCK))
+        self.buffers: list[VariateBuffer | None] = [None] * n
+        spec = compiled_loop.columns(d)
+        self.cols = {name: np.zeros((n, *shape), dtype=dt) for name, dt, shape in spec}
+        self.state = {
+            "queue": np.zeros((n, self.n_steps + 2, queue_columns(d))),
+            "seq_state": np.zeros((n, seq_imager_state_size(d))),
+            "img_state": np.zeros((n, 4)),
+            "obs_state": np.zeros((n, obs0.state0.shape[0])),
+            "obs_istate": np.zeros((n, obs0.istate0.shape[0]), dtype=np.int64),
+            "obs_work": np.zeros((n, obs0.work0.shape[0])),
+            "y": np.zeros((n, 2 * d)),
+            "contact": np.zeros((n, 4)),
+            "coil_state": np.zeros((n, inp.coil_state0.shape[0])),
+            "plant_stats": np.zeros((n, 4), dtype=np.int64),
+            "model_stats": np.zeros((n, 4), dtype=np.int64),
+            "h": np.zeros(n),
+            "ga": np.zeros((n, d)),
+        }
+        self.obs_out = np.zeros((n, 3 * d + 4))
+        self.err = np.zeros((n, 3 + 2 * d + 1))
+        self.codes = np.zeros(n, dtype=np.int64)
+        self.obs = np.zeros((n, self.obs_size))
+        self.reward = np.zeros(n)
+        self.terminated = np.zeros(n, dtype=np.bool_)
+        self.truncated = np.zeros(n, dtype=np.bool_)
+        self.rejected = np.zeros(n, dtype=np.int64)
+        st, c = self.state, self.cols
+        self._args: tuple[Any, ...] = (
+            self.ops, self.ticks, self.actions, self.n_steps, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, phase,
+            inp.plant_geom, inp.ig, self.variates, inp.imager_prm, inp.outliers, inp.dropouts, st["queue"],
+            st["seq_state"], st["img_state"], inp.obs_step, obs0.prm, st["obs_state"], st["obs_istate"], obs0.geom,
+            st["obs_work"], obs0.state0, obs0.istate0, obs0.work0, inp.coil_prm, inp.seq_mode, inp.sv, inp.hold_s,
+            st["y"], st["contact"], st["coil_state"], st["plant_stats"], st["model_stats"], st["h"], st["ga"],
+            inp.plant_y0, inp.coil_state0, *(c[name] for name, _dt, _shape in spec), self.obs_out, self.err,
+            self.codes, self.reward_params.vector(), float(scenario.physics.robot.radius_m), goal, route,
+            self.privileged, self.obs, self.reward, self.terminated, self.truncated, self.rejected,
+        )
+
+    def seed(self, i: int, rng: np.random.Generator) -> None:
+        """Copy ``i``'s imager draws from ``rng`` from now on (the Generator the run's seed makes)."""
+        self.variates[i, 0] = float(self.variates.shape[1] - 1)  # empty: the first acquisition fills it
+        self.buffers[i] = VariateBuffer(rng, self.dims, self.variates[i])
+
+    def run(self) -> None:
+        """Advance every copy by its ``ops`` entry (``actions`` set by the caller), in one compiled call.
+
+        Raises:
+            ModelInputError: a copy's loop stopped (the per-tick loop's words; :func:`raise_for_code`).
+        """
+        low = self.variates[:, 0] + self.per > self.variates.shape[1] - 1
+        if low.any():  # a block of draws per copy lasts 256 acquisitions
+            for i in np.flatnonzero(low):
+                b = self.buffers[i]
+                if b is None:
+                    raise ModelInputError(f"copy {i} has no imager generator: reset it with a seed first")
+                b.ready()
+        env_kernel(*self._args)
+        if self.codes.any():
+            i = int(np.flatnonzero(self.codes)[0])
+            compiled_loop.raise_for_code(int(self.codes[i]), int(self.ticks[i]), self.state["y"][i], self.err[i],
+                                         self.inp.obs.message)
+
+
+def _section(role: str) -> str:
+    return SECTIONS[role]
