@@ -28,6 +28,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("imaging", ("imaging",)),
     ("control", ("control",)),
     ("sim", ("sim",)),
+    ("envs", ("envs",)),
     ("studies", ("analysis", "campaign")),
     ("graph", ("graph_spec", "topics", "ros_env", "live_front", "live_view", "live")),
     ("bag", ("bag",)),

@@ -55,13 +55,14 @@ import numba
 import numpy as np
 import numpy.typing as npt
 from numba import types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from vesselbot_ros.physics.integrator import axes_of, forces_at, mass_of
 
 __all__ = ["controller_step_type", "controller_out_size", "STEP_FLOW_SCALE_INVALID", "CompiledController",
            "observer_step_type", "observer_step_out_size", "CompiledObserver", "lazy_step", "model_f_into",
-           "flat_view"]
+           "flat_view", "observer_step_at"]
 
 _F = types.float64
 _V = types.float64[::1]
@@ -191,3 +192,21 @@ def flat_view(a, offset, shape):  # type: ignore[no-untyped-def]  # numba kernel
     state or scratch).  Without a reshape's checks and reference count (about 15 ns each, a dozen per tick for the
     filter): the view lives only while the step runs, and ``a`` outlives it.  The caller keeps it in bounds."""
     return numba.carray(_float_ptr(a.ctypes.data + 8 * offset), shape)  # type: ignore[call-arg]  # the intrinsic takes the typing context itself
+
+
+@intrinsic
+def observer_step_at(typingctx, address, geom):  # type: ignore[no-untyped-def]  # numba intrinsic: typed at compile time
+    """The observer step whose ``cfunc`` is at ``address`` (its ``.address``, an int), as the first-class function a
+    ``CFunc`` argument unboxes to, for a model geometry of ``geom``'s type.
+
+    A ``cfunc`` passed as an argument costs a compiled function about 20 us per call to type and unbox (numba types
+    it in Python and unpickles its signature); an address is an integer.  The caller keeps the ``cfunc`` alive.
+    """
+    fnty = types.FunctionType(observer_step_type(geom))
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]  # llvmlite builder
+        step = cgutils.create_struct_proxy(fnty)(context, builder)  # zero-filled: no Python object, no jit address
+        step.c_addr = builder.inttoptr(args[0], context.get_value_type(types.voidptr))
+        return step._getvalue()
+
+    return fnty(types.intp, geom), codegen

@@ -15,7 +15,8 @@ field                  unit       meaning
 =====================  =========  ===========================================================
 x_hat_m                m (d)      the observer's position estimate
 z_hat_m_per_s          m/s (d)    the observer's velocity estimate
-measurement_age_s      s (1)      age of the estimate's last accepted measurement
+measurement_age_s      s (1)      age of the estimate's last accepted measurement, at most
+                                  :data:`AGE_CAP_S` (before the first measurement)
 p_ref_m                m (d)      the reference at tick k
 v_ref_m_per_s          m/s (d)    its velocity
 a_ref_m_per_s2         m/s^2 (d)  its acceleration
@@ -43,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numba
@@ -60,7 +62,12 @@ from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_cop
 from vesselbot_ros.sim.kinds import SECTIONS
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "OP_STEP", "OP_RESET", "OP_SKIP"]
+__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "AGE_CAP_S", "OP_STEP", "OP_RESET",
+           "OP_SKIP"]
+
+#: The observation's measurement age is capped here (s): inf before the first measurement, and a controller treats any
+#: age past its stale timeout alike.
+AGE_CAP_S = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,20 +119,20 @@ def observation_fields(dims: int, sequenced: bool, privileged: bool) -> tuple[tu
 
 
 @numba.njit(cache=True, nogil=True)
-def env_kernel(ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
-               imager_prm, outliers, dropouts, queue, seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate,
-               obs_geom, obs_work, obs_state0, obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact,
+def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
+               imager_prm, outliers, dropouts, queue, seq_state, img_state, obs_step_address, obs_prm, obs_state,
+               obs_istate, obs_geom, obs_work, obs_state0, obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact,
                coil_state, plant_stats, model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact,
                contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat,
                magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
                slew_limited, cmd_status, cmd_rejected, obs_out, err, codes, rw, robot_radius_m, goal, has_goal,
                privileged, obs, reward, terminated, truncated, rejected):
-    """:func:`~vesselbot_ros.sim.compiled_loop.step_copies`, then each stepped or reset copy's observation row
+    """:func:`~vesselbot_ros.sim.compiled_loop.step_copies` of copies ``lo .. hi-1``, then each stepped or reset copy's observation row
     ``obs[i]``, ``reward[i]``, ``terminated[i]``, ``truncated[i]`` and its count of rejected commands
-    ``rejected[i]`` (module docstring).  ``rw`` is :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
+    ``rejected[i]`` (module docstring); returns ``(copies that stopped, copies whose draws run low)``.  ``rw`` is :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
     (empty: no sequence); ``goal`` the route's end (``has_goal``); ``privileged`` adds the true state."""
-    step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,
-                seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
+    step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,
+                seq_state, img_state, obs_step_address, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
                 obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
                 model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
                 meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
@@ -133,8 +140,16 @@ def env_kernel(ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase,
                 obs_out, err, codes)
     d = x_hat.shape[1]
     g_max = coil_prm[0]
-    for i in range(ops.shape[0]):
-        if ops[i] == OP_SKIP or codes[i] != OK:
+    failed = 0
+    low = 0
+    for i in range(lo, hi):
+        if variates[i, 0] + 2 * d > variates.shape[1] - 1:  # after the step: fewer draws left than an acquisition's
+            low += 1
+    for i in range(lo, hi):
+        if ops[i] == OP_SKIP:
+            continue
+        if codes[i] != OK:
+            failed += 1
             continue
         k = ticks[i]
         o = obs[i]
@@ -145,7 +160,7 @@ def env_kernel(ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase,
             o[3 * d + 1 + c] = v_ref[k, c]
             o[4 * d + 1 + c] = a_ref[k, c]
             o[5 * d + 1 + c] = ga[i, c]
-        o[2 * d] = obs_out[i, 2 * d]
+        o[2 * d] = min(obs_out[i, 2 * d], AGE_CAP_S)  # inf before the first measurement
         at = 6 * d + 1
         if phase.shape[0] > 0:
             o[at] = phase[k]
@@ -182,6 +197,7 @@ def env_kernel(ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase,
         reward[i] = r
         terminated[i] = outside or reached
         truncated[i] = k >= n_steps and not terminated[i]
+    return failed, low
 
 
 class LoopCopies:
@@ -191,6 +207,7 @@ class LoopCopies:
         scenario: The scenario (its imager, observer, coil, plant and reference, all of kinds the compiled loop
             runs; its controller is not used).
         copies: N.
+        threads: Threads that step disjoint ranges of the copies at once (1: the caller's thread).
         privileged: Add the true position and velocity to the observation.
         reward: The reward's parameters.
 
@@ -199,9 +216,13 @@ class LoopCopies:
     """
 
     def __init__(self, scenario: Scenario, copies: int, privileged: bool = False,
-                 reward: RewardParams | None = None) -> None:
+                 reward: RewardParams | None = None, threads: int = 1) -> None:
         if int(copies) < 1:
             raise ConfigError(f"copies must be >= 1, got {copies!r}")
+        if int(threads) < 1:
+            raise ConfigError(f"threads must be >= 1, got {threads!r}")
+        self.threads = min(int(threads), int(copies))
+        self._pool: ThreadPoolExecutor | None = None
         self.scenario = scenario
         self.n = n = int(copies)
         self.privileged = bool(privileged)
@@ -261,7 +282,7 @@ class LoopCopies:
         self._args: tuple[Any, ...] = (
             self.ops, self.ticks, self.actions, self.n_steps, inp.dt, inp.ts, inp.p_ref, inp.v_ref, inp.a_ref, phase,
             inp.plant_geom, inp.ig, self.variates, inp.imager_prm, inp.outliers, inp.dropouts, st["queue"],
-            st["seq_state"], st["img_state"], inp.obs_step, obs0.prm, st["obs_state"], st["obs_istate"], obs0.geom,
+            st["seq_state"], st["img_state"], inp.obs_step.address, obs0.prm, st["obs_state"], st["obs_istate"], obs0.geom,
             st["obs_work"], obs0.state0, obs0.istate0, obs0.work0, inp.coil_prm, inp.seq_mode, inp.sv, inp.hold_s,
             st["y"], st["contact"], st["coil_state"], st["plant_stats"], st["model_stats"], st["h"], st["ga"],
             inp.plant_y0, inp.coil_state0, *(c[name] for name, _dt, _shape in spec), self.obs_out, self.err,
@@ -271,27 +292,40 @@ class LoopCopies:
 
     def seed(self, i: int, rng: np.random.Generator) -> None:
         """Copy ``i``'s imager draws from ``rng`` from now on (the Generator the run's seed makes)."""
-        self.variates[i, 0] = float(self.variates.shape[1] - 1)  # empty: the first acquisition fills it
-        self.buffers[i] = VariateBuffer(rng, self.dims, self.variates[i])
+        b = self.buffers[i] = VariateBuffer(rng, self.dims, self.variates[i])
+        b.ready()
 
     def run(self) -> None:
-        """Advance every copy by its ``ops`` entry (``actions`` set by the caller), in one compiled call.
+        """Advance every copy by its ``ops`` entry (``actions`` set by the caller), in one compiled call (every copy
+        stepped or reset must have been seeded: :meth:`seed`).
 
         Raises:
             ModelInputError: a copy's loop stopped (the per-tick loop's words; :func:`raise_for_code`).
         """
-        low = self.variates[:, 0] + self.per > self.variates.shape[1] - 1
-        if low.any():  # a block of draws per copy lasts 256 acquisitions
-            for i in np.flatnonzero(low):
+        if self.threads == 1:
+            failed, low = env_kernel(0, self.n, *self._args)
+        else:  # disjoint ranges of copies, one per thread (the kernel releases the GIL)
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=self.threads)
+            edges = np.linspace(0, self.n, self.threads + 1).astype(int)
+            futures = [self._pool.submit(env_kernel, int(a), int(b), *self._args) for a, b in zip(edges[:-1], edges[1:])]
+            results = [f.result() for f in futures]
+            failed, low = sum(r[0] for r in results), sum(r[1] for r in results)
+        if low:  # a block of draws per copy lasts 256 acquisitions: refill the copies that run low before the next
+            for i in np.flatnonzero(self.variates[:, 0] + self.per > self.variates.shape[1] - 1):
                 b = self.buffers[i]
-                if b is None:
-                    raise ModelInputError(f"copy {i} has no imager generator: reset it with a seed first")
-                b.ready()
-        env_kernel(*self._args)
-        if self.codes.any():
+                if b is not None:
+                    b.ready()
+        if failed:
             i = int(np.flatnonzero(self.codes)[0])
             compiled_loop.raise_for_code(int(self.codes[i]), int(self.ticks[i]), self.state["y"][i], self.err[i],
                                          self.inp.obs.message)
+
+    def close(self) -> None:
+        """Stop the threads (if any); :meth:`run` starts them again."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
 
 
 def _section(role: str) -> str:

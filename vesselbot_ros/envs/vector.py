@@ -37,7 +37,8 @@ __all__ = ["VesselbotVectorEnv"]
 
 class VesselbotVectorEnv(VectorEnv[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[Any]]):
     """``num_envs`` copies of ``scenario``'s loop (module docstring); the options of
-    :class:`~vesselbot_ros.envs.env.VesselbotEnv`.
+    :class:`~vesselbot_ros.envs.env.VesselbotEnv`, and ``threads``: threads that step disjoint ranges of the copies
+    at once (the same bits on any number).
 
     Raises:
         ConfigError: ``num_envs`` < 1, or as :class:`~vesselbot_ros.envs.env.VesselbotEnv`.
@@ -46,14 +47,15 @@ class VesselbotVectorEnv(VectorEnv[npt.NDArray[np.float64], npt.NDArray[np.float
     metadata: dict[str, Any] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, scenario: str | Path | Scenario = "sound_small_artery", *,
-                 privileged: bool = False, reward: RewardParams | dict[str, float] | None = None) -> None:
+                 privileged: bool = False, reward: RewardParams | dict[str, float] | None = None,
+                 threads: int = 1) -> None:
         if not isinstance(num_envs, (int, np.integer)) or int(num_envs) < 1:
             raise ConfigError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if isinstance(reward, dict):
             reward = RewardParams(**reward)
         self.scenario = scenario_of(scenario)
         self.num_envs = int(num_envs)
-        self.loop = LoopCopies(self.scenario, self.num_envs, privileged=privileged, reward=reward)
+        self.loop = LoopCopies(self.scenario, self.num_envs, privileged=privileged, reward=reward, threads=threads)
         lp = self.loop
         self.dims = lp.dims
         self.fields = lp.fields
@@ -109,6 +111,10 @@ class VesselbotVectorEnv(VectorEnv[npt.NDArray[np.float64], npt.NDArray[np.float
         lp.run()
         np.logical_or(lp.terminated, lp.truncated, out=self._autoreset)
         return lp.obs.copy(), lp.reward.copy(), lp.terminated.copy(), lp.truncated.copy(), self._info()
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Stop the stepping threads."""
+        self.loop.close()
 
     def _info(self) -> dict[str, Any]:
         return {"rejected_commands": self.loop.rejected.copy(),

@@ -53,6 +53,7 @@ from vesselbot_ros.control.compiled_stage import (
     STEP_FLOW_SCALE_INVALID,
     CompiledController,
     CompiledObserver,
+    observer_step_at,
 )
 from vesselbot_ros.errors import ModelInputError
 from vesselbot_ros.physics.integrator import (
@@ -462,15 +463,16 @@ OP_STEP, OP_RESET, OP_SKIP = 0, 1, 2
 
 
 @numba.njit(cache=True, nogil=True)
-def step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,  # type: ignore[no-untyped-def]  # numba: types at compile time
-                seq_state, img_state, obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
+def step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,  # type: ignore[no-untyped-def]  # numba: types at compile time
+                seq_state, img_state, obs_step_address, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
                 obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
                 model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
                 meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
                 meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
                 obs_out, err, codes):
     """The stepping form of :func:`loop_kernel`: N copies of one scenario's loop, each advanced by ``ops[i]`` in one
-    call, the controller's place taken by the commands ``actions`` (N, d) (T/m).
+    call, the controller's place taken by the commands ``actions`` (N, d) (T/m): copies ``lo .. hi-1`` (the others
+    are not touched, so threads may step disjoint ranges at once: the kernel releases the GIL).
 
     * :data:`OP_STEP`: copy ``i`` stands after the observer's update at tick ``k = ticks[i]``: its command
       ``actions[i]`` (:func:`take_command`), then :func:`actuate` (coil, plant over ``[t_k, t_k+1]``), then
@@ -485,9 +487,11 @@ def step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_pr
     :class:`~vesselbot_ros.scanner.imager_model.VariateBuffer` array per copy, holding at least one acquisition's
     draws), the columns (row ``i``: copy ``i``'s latest tick), ``obs_out`` (the observer's last output) and ``err``;
     ``codes[i]`` is OK or where the copy stopped (:func:`raise_for_code`).  ``ts`` must hold the tick times up to
-    the last ``k + 1`` asked for.
+    the last ``k + 1`` asked for.  The observer's step is given by its ``cfunc``'s address, ``obs_step_address``
+    (:func:`~vesselbot_ros.control.compiled_stage.observer_step_at`: a call per step costs no typing of a function).
     """
     d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
+    obs_step = observer_step_at(obs_step_address, obs_geom)
     work, fbuf, sc = new_workspace(d)
     fk = np.empty((8, d))
     acq = np.zeros(3 + d)
@@ -496,7 +500,7 @@ def step_copies(ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_pr
     gc = np.zeros(d)
     zd = np.zeros(d)
     forces = np.empty((0, 8, d))
-    for i in range(ops.shape[0]):
+    for i in range(lo, hi):
         op = ops[i]
         codes[i] = OK
         if op == OP_SKIP:
