@@ -32,12 +32,14 @@ Reward of a step (its tick k -> k + 1), :class:`RewardParams` (defaults in brack
     r = - |p_true - p_ref| / error_scale_m                       tracking, at tick k + 1   [1 mm]
         - energy_weight * |g_applied|^2 / g_max^2                the gradient's energy      [0.01]
         - lumen_penalty   if the robot's centre left the lumen   (and the episode ends)     [100]
+                          (or touched the wall, with contact_ends_episode)
         + outlet_bonus    if it reached the route's outlet       (and the episode ends)     [100]
 
 The episode ends (``terminated``) when the robot's centre leaves the lumen (its penetration of the nearest wall
-exceeds its radius: the plant's own wall, in a straight vessel, a planar network or a 3-D tree) or, on a route
-(``reference.route_outlet``), when it comes within ``goal_radius_m`` of the route's end (the reference's position
-at the scenario's last tick); it is ``truncated`` after the scenario's ``sim.n_ticks`` steps (its duration).
+exceeds its radius: the plant's own wall, in a straight vessel, a planar network or a 3-D tree; the wall's contact
+force makes this rare: ``contact_ends_episode`` ends it at the first touch instead) or, on a route
+(``reference.route_outlet``), when it comes within ``goal_radius_m`` of the route's end (:func:`route_end`: the
+planned reference's last anchor); it is ``truncated`` after the scenario's ``sim.n_ticks`` steps (its duration).
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ConfigError, ModelInputError
 from vesselbot_ros.physics.integrator import OK
 from vesselbot_ros.scanner.imager_model import VariateBuffer, queue_columns
@@ -62,7 +65,7 @@ from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_cop
 from vesselbot_ros.sim.kinds import SECTIONS
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "AGE_CAP_S", "OP_STEP", "OP_RESET",
+__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "route_end", "AGE_CAP_S", "OP_STEP", "OP_RESET",
            "OP_SKIP"]
 
 #: The observation's measurement age is capped here (s): inf before the first measurement, and a controller treats any
@@ -80,6 +83,8 @@ class RewardParams:
         lumen_penalty: Subtracted on the step the robot's centre leaves the lumen.
         outlet_bonus: Added on the step the robot reaches the route's outlet (routes only).
         goal_radius_m: Distance to the route's end that counts as reached (m).
+        contact_ends_episode: Wall contact (any penetration) ends the episode as leaving the lumen does, with its
+            penalty (a stricter task: fly without touching the wall).
     """
 
     error_scale_m: float = 1.0e-3
@@ -87,9 +92,14 @@ class RewardParams:
     lumen_penalty: float = 100.0
     outlet_bonus: float = 100.0
     goal_radius_m: float = 0.5e-3
+    contact_ends_episode: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.contact_ends_episode, bool):
+            raise ConfigError(f"reward.contact_ends_episode must be true or false, got {self.contact_ends_episode!r}")
         for f in dataclasses.fields(self):
+            if f.name == "contact_ends_episode":
+                continue
             v = getattr(self, f.name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"reward.{f.name} must be a finite number >= 0, got {v!r}")
@@ -98,9 +108,9 @@ class RewardParams:
             raise ConfigError(f"reward.{name} must be > 0, got {getattr(self, name)!r}")
 
     def vector(self) -> npt.NDArray[np.float64]:
-        """The (5,) array :func:`env_kernel` reads."""
+        """The (6,) array :func:`env_kernel` reads."""
         return np.array([self.error_scale_m, self.energy_weight, self.lumen_penalty, self.outlet_bonus,
-                         self.goal_radius_m])
+                         self.goal_radius_m, 1.0 if self.contact_ends_episode else 0.0])
 
 
 def observation_fields(dims: int, sequenced: bool, privileged: bool) -> tuple[tuple[str, slice], ...]:
@@ -187,7 +197,7 @@ def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref
             if has_goal:
                 q = p_true[i, c] - goal[c]
                 r2 += q * q
-        outside = delta_m[i] > robot_radius_m
+        outside = delta_m[i] > robot_radius_m or (rw[5] > 0.5 and delta_m[i] > 0.0)
         reached = has_goal and math.sqrt(r2) <= rw[4]
         r = -math.sqrt(e2) / rw[0] - rw[1] * g2 / (g_max * g_max)
         if outside:
@@ -245,7 +255,7 @@ class LoopCopies:
         phase = (phase_codes(sequence_vector(scenario.sequence), inp.ts).astype(np.float64) if self.sequenced
                  else np.zeros(0))
         route = bool(getattr(scenario.reference, "route_outlet", ""))
-        goal = np.ascontiguousarray(inp.p_ref[self.n_steps - 1]) if route else np.zeros(d)
+        goal = route_end(scenario) if route else np.zeros(d)
         obs0 = inp.obs
         self.ops = np.full(n, OP_SKIP, dtype=np.int64)
         self.ticks = np.zeros(n, dtype=np.int64)
@@ -326,6 +336,13 @@ class LoopCopies:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+def route_end(scenario: Scenario) -> npt.NDArray[np.float64]:
+    """The end of the scenario's route (its planned reference's last anchor, m, (d,)): the goal of a route's episode."""
+    ref = planned_reference(scenario)
+    axes = ("x", "y", "z") if scenario.dims == 3 else ("x", "z")
+    return np.array([float(getattr(ref, f"anchors_{a}_m")[-1]) for a in axes])
 
 
 def _section(role: str) -> str:
