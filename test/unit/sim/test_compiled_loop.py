@@ -361,3 +361,21 @@ def test_the_compiled_loop_allocates_nothing_per_tick(name: str) -> None:
     # once per run: the scratch (about 40 arrays) and the arrays numba unboxes from the arguments (a tree's wall
     # and flow field come in twice, in the plant's and in the model's geometry: 111 in all for the III-C tree)
     assert 0 < int(short.split()[0]) < 150
+
+
+def test_the_controllers_commands_given_from_outside_fly_the_same_run() -> None:
+    """loop_kernel's external commands (the stepping form's command source): a run's own g_cmd given as commands
+    gives its plant, imager and observer bits (u_cmd is NaN: a bare gradient), and a command of the wrong shape is
+    refused."""
+    from vesselbot_ros.sim import compiled_loop
+    from vesselbot_ros.sim.closed_loop import prepared
+
+    for name in ("sound_small_artery_ekf", "clinical_3t_small_artery", "paper_iiic_network_upper_3d"):
+        sc = _short(load_scenario(shipped_scenarios()[name]), 0.2)
+        ref = run_closed_loop(sc, 2).timeseries
+        cols, _ps, _ms = compiled_loop.run_kernel(prepared(sc), np.random.default_rng(2), ref["g_cmd"])
+        for k in ("p_true", "v_true", "meas_p", "x_hat", "z_hat", "g_cmd", "g_applied", "cmd_rejected"):
+            np.testing.assert_array_equal(cols[k], ref[k], err_msg=f"{name}: {k}")
+        assert np.isnan(cols["u_cmd"]).all()
+        with pytest.raises(ModelInputError, match=r"commands: shape \(3, 2\), expected"):
+            compiled_loop.run_kernel(prepared(sc), np.random.default_rng(2), np.zeros((3, 2)))
