@@ -45,6 +45,7 @@ planned reference's last anchor); it is ``truncated`` after the scenario's ``sim
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -54,7 +55,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.control.route import planned_reference
-from vesselbot_ros.errors import ConfigError, ModelInputError
+from vesselbot_ros.errors import ConfigError
 from vesselbot_ros.physics.integrator import OK
 from vesselbot_ros.scanner.imager_model import VariateBuffer, queue_columns
 from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
@@ -139,7 +140,8 @@ def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref
                privileged, obs, reward, terminated, truncated, rejected):
     """:func:`~vesselbot_ros.sim.compiled_loop.step_copies` of copies ``lo .. hi-1``, then each stepped or reset copy's observation row
     ``obs[i]``, ``reward[i]``, ``terminated[i]``, ``truncated[i]`` and its count of rejected commands
-    ``rejected[i]`` (module docstring); returns ``(copies that stopped, copies whose draws run low)``.  ``rw`` is :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
+    ``rejected[i]`` (module docstring); returns ``(copies that stopped, copies whose draws run low)``.  ``rw`` is
+    :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
     (empty: no sequence); ``goal`` the route's end (``has_goal``); ``privileged`` adds the true state."""
     step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,
                 seq_state, img_state, obs_step_address, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
@@ -318,12 +320,12 @@ class LoopCopies:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=self.threads)
             edges = np.linspace(0, self.n, self.threads + 1).astype(int)
-            futures = [self._pool.submit(env_kernel, int(a), int(b), *self._args) for a, b in zip(edges[:-1], edges[1:])]
+            futures = [self._pool.submit(env_kernel, int(a), int(b), *self._args) for a, b in itertools.pairwise(edges)]
             results = [f.result() for f in futures]
-            failed, low = sum(r[0] for r in results), sum(r[1] for r in results)
+            failed, low = sum(int(r[0]) for r in results), sum(int(r[1]) for r in results)
         if low:  # a block of draws per copy lasts 256 acquisitions: refill the copies that run low before the next
-            for i in np.flatnonzero(self.variates[:, 0] + self.per > self.variates.shape[1] - 1):
-                b = self.buffers[i]
+            for j in np.flatnonzero(self.variates[:, 0] + self.per > self.variates.shape[1] - 1):
+                b = self.buffers[j]
                 if b is not None:
                     b.ready()
         if failed:

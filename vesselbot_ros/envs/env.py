@@ -81,10 +81,10 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
             e.g. ``imager.kind: mr_images``), in one line naming it.
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 - Gymnasium's base class declares it so
 
     def __init__(self, scenario: str | Path | Scenario = "sound_small_artery", *, privileged: bool = False,
-                 reward: RewardParams | dict[str, float] | None = None) -> None:
+                 reward: RewardParams | dict[str, Any] | None = None) -> None:
         if isinstance(reward, dict):
             reward = RewardParams(**reward)
         self.scenario = scenario_of(scenario)

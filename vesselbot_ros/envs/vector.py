@@ -44,10 +44,10 @@ class VesselbotVectorEnv(VectorEnv[npt.NDArray[np.float64], npt.NDArray[np.float
         ConfigError: ``num_envs`` < 1, or as :class:`~vesselbot_ros.envs.env.VesselbotEnv`.
     """
 
-    metadata: dict[str, Any] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata: dict[str, Any] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}  # noqa: RUF012 - Gymnasium's base class declares it so
 
     def __init__(self, num_envs: int = 1, scenario: str | Path | Scenario = "sound_small_artery", *,
-                 privileged: bool = False, reward: RewardParams | dict[str, float] | None = None,
+                 privileged: bool = False, reward: RewardParams | dict[str, Any] | None = None,
                  threads: int = 1) -> None:
         if not isinstance(num_envs, (int, np.integer)) or int(num_envs) < 1:
             raise ConfigError(f"num_envs must be an integer >= 1, got {num_envs!r}")

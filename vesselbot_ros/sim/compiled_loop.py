@@ -491,7 +491,7 @@ def step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, i
     (:func:`~vesselbot_ros.control.compiled_stage.observer_step_at`: a call per step costs no typing of a function).
     """
     d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
-    obs_step = observer_step_at(obs_step_address, obs_geom)
+    obs_step = observer_step_at(obs_step_address, obs_geom)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
     work, fbuf, sc = new_workspace(d)
     fk = np.empty((8, d))
     acq = np.zeros(3 + d)

@@ -85,7 +85,7 @@ def test_the_vector_api_spaces_autoreset_mode_and_make_vec() -> None:
     assert obs in env.observation_space and info["rejected_commands"].shape == (4,)
     a = env.action_space.sample()
     a[2, 0] = np.nan
-    obs, rew, term, trunc, info = env.step(a)
+    obs, rew, _term, _trunc, info = env.step(a)
     assert np.isfinite(obs).all() and np.isfinite(rew).all() and list(info["rejected_commands"]) == [0, 0, 1, 0]
 
 
