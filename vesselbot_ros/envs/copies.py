@@ -7,8 +7,8 @@ then writes each copy's observation, reward and end flags.  The scalar environme
 (:class:`~vesselbot_ros.envs.env.VesselbotEnv`), the vector environment N
 (:class:`~vesselbot_ros.envs.vector.VesselbotVectorEnv`): the same call, so a seed gives the same bits in both.
 
-Observation of a copy (float64, :func:`observation_fields` names the slices; d = 2 axes (x, z) in the plane, 3 (x,
-y, z) in a 3-D tree), what a real controller sees after the observer's update at tick k:
+Observation of a copy (float64, :func:`~vesselbot_ros.control.policy.observation_fields` names the slices; d = 2
+axes (x, z) in the plane, 3 (x, y, z) in a 3-D tree), what a real controller sees after the observer's update at tick k:
 
 =====================  =========  ===========================================================
 field                  unit       meaning
@@ -16,7 +16,7 @@ field                  unit       meaning
 x_hat_m                m (d)      the observer's position estimate
 z_hat_m_per_s          m/s (d)    the observer's velocity estimate
 measurement_age_s      s (1)      age of the estimate's last accepted measurement, at most
-                                  :data:`AGE_CAP_S` (before the first measurement)
+                                  ``AGE_CAP_S`` = 1 s (before the first measurement)
 p_ref_m                m (d)      the reference at tick k
 v_ref_m_per_s          m/s (d)    its velocity
 a_ref_m_per_s2         m/s^2 (d)  its acceleration
@@ -54,6 +54,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.policy import AGE_CAP_S, observation_fields
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ConfigError
 from vesselbot_ros.physics.integrator import OK
@@ -62,16 +63,12 @@ from vesselbot_ros.scanner.sequence import phase_codes, sequence_vector
 from vesselbot_ros.scanner.stages import seq_imager_state_size
 from vesselbot_ros.sim import compiled_loop
 from vesselbot_ros.sim.closed_loop import build_stages
-from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_copies
+from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_copies, step_scratch
 from vesselbot_ros.sim.kinds import SECTIONS
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "route_end", "AGE_CAP_S", "OP_STEP", "OP_RESET",
-           "OP_SKIP"]
-
-#: The observation's measurement age is capped here (s): inf before the first measurement, and a controller treats any
-#: age past its stale timeout alike.
-AGE_CAP_S = 1.0
+__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "route_end", "AGE_CAP_S", "OP_STEP",
+           "OP_RESET", "OP_SKIP"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,21 +111,6 @@ class RewardParams:
                          self.goal_radius_m, 1.0 if self.contact_ends_episode else 0.0])
 
 
-def observation_fields(dims: int, sequenced: bool, privileged: bool) -> tuple[tuple[str, slice], ...]:
-    """``(name, slice)`` of each field of the observation vector (module docstring), in order."""
-    sizes = [("x_hat_m", dims), ("z_hat_m_per_s", dims), ("measurement_age_s", 1), ("p_ref_m", dims),
-             ("v_ref_m_per_s", dims), ("a_ref_m_per_s2", dims), ("g_applied_T_per_m", dims)]
-    if sequenced:
-        sizes.append(("sequence_phase", 1))
-    if privileged:
-        sizes += [("p_true_m", dims), ("v_true_m_per_s", dims)]
-    out, at = [], 0
-    for name, n in sizes:
-        out.append((name, slice(at, at + n)))
-        at += n
-    return tuple(out)
-
-
 @numba.njit(cache=True, nogil=True)
 def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
                imager_prm, outliers, dropouts, queue, seq_state, img_state, obs_step_address, obs_prm, obs_state,
@@ -149,7 +131,7 @@ def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref
                 model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
                 meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
                 meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
-                obs_out, err, codes)
+                obs_out, err, codes, step_scratch(x_hat.shape[1]))
     d = x_hat.shape[1]
     g_max = coil_prm[0]
     failed = 0

@@ -25,7 +25,10 @@ controller commands, or ``g_ext`` replays given commands); :func:`step_copies` c
 copies of the loop by one tick each, the command coming from outside (the Gymnasium environments of
 :mod:`vesselbot_ros.envs`: the agent's action sits where the controller's command was, between the observer's
 update and the coil).  No second copy of the tick body exists, so a copy stepped by a sequence of commands and
-``loop_kernel`` replaying them give the same bits.
+``loop_kernel`` replaying them give the same bits.  The three are inlined (numba ``inline="always"``) into
+:func:`tick_loop` and :func:`step_copies`, which run without numba's runtime (no reference counts on the tick's
+arrays): the loop costs what it cost as one function.  They take their arrays grouped in tuples, as a call of more
+than 30 arguments is a ``*args`` call in Python's bytecode, which numba does not inline.
 
 Random draws: the imager's ``numpy.random.Generator`` is passed into the kernel and drawn from in the documented
 order (d standard normals, then d uniforms per acquired frame), so one seed gives one stream in both paths.
@@ -70,9 +73,9 @@ from vesselbot_ros.scanner.stages import new_seq_imager_state, seq_coil_apply, s
 from vesselbot_ros.sim import kinds
 from vesselbot_ros.sim.kinds import REJECT_ESTIMATE, REJECT_MALFORMED, REJECT_NONFINITE
 
-__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "loop_kernel", "sense", "command",
-           "take_command", "actuate", "step_copies", "OP_STEP", "OP_RESET", "OP_SKIP", "run_kernel", "raise_for_code",
-           "columns", "COLUMNS"]
+__all__ = ["LoopInputs", "prepare", "try_prepare", "compiled_forms", "loop_kernel", "tick_loop", "sense", "command",
+           "take_command", "actuate", "step_copies", "step_scratch", "OP_STEP", "OP_RESET", "OP_SKIP", "run_kernel",
+           "raise_for_code", "columns", "COLUMNS"]
 
 # codes of loop_kernel (besides OK): where the loop stopped
 PLANT_FAILED = 1  # plant integration failed (non-finite state)
@@ -233,19 +236,24 @@ def try_prepare(stages: Any, n: int, dt: float, record_forces: bool) -> tuple[Lo
     ), []
 
 
-@numba.njit(cache=True, nogil=True)
-def sense(r, t, plant_geom, rng, imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv,  # type: ignore[no-untyped-def]  # numba: types at compile time
-          obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, y, contact, ga, fk, sc, acq,
-          img_out, obs_out, err, record_forces, forces, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
-          meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used, meas_rejected):
+@numba.njit(cache=True, nogil=True, inline="always")  # in the caller's body: no call per tick
+def sense(r, t, plant_geom, rng, img, obs_step, obs, y, contact, ga, scratch, err, record_forces, forces, cols):  # type: ignore[no-untyped-def]  # numba: types at compile time
     """The first half of a tick at ``t``: the plant's output, the imager's frame and the observer's update, written to
-    row ``r`` of the columns; returns ``(code, finite estimate)`` (``code`` :data:`OBSERVER_FAILED` or OK).
+    row ``r`` of the columns ``cols`` (:data:`COLUMNS`' order); returns ``(code, finite estimate)`` (``code``
+    :data:`OBSERVER_FAILED` or OK).
 
-    ``ga`` is the gradient the coil applied over the last period (the plant's forces and the observer's input);
-    ``fk``, ``sc``, ``acq``, ``img_out`` and ``obs_out`` are scratch (``obs_out`` holds the estimate for
-    :func:`command`).  The state arrays are :func:`loop_kernel`'s.
+    ``img`` is the imager's ``(prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv)``, ``obs`` the
+    observer's ``(prm, state, istate, geom, work, model stats)`` (its step ``obs_step``); ``ga`` the gradient the
+    coil applied over the last period (the plant's forces and the observer's input); ``scratch`` is ``(fk, sc, acq,
+    img_out, obs_out)`` (``obs_out`` holds the estimate for :func:`command`).  The state arrays are
+    :func:`loop_kernel`'s.  (Tuples: a call of more than 30 arguments is a ``*args`` call, which numba does not inline.)
     """
     d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
+    imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv = img
+    obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats = obs
+    fk, sc, acq, img_out, obs_out = scratch
+    p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat = cols[:10]
+    meas_used, meas_rejected = cols[12], cols[13]
     # plant output at t_k (the forces under the gradient applied over the last period)
     delta, _wall = wall_and_forces(t, y, ga, contact, plant_geom, fk, sc, record_forces)
     for c in range(d):
@@ -290,13 +298,14 @@ def sense(r, t, plant_geom, rng, imager_prm, outliers, dropouts, queue, seq_stat
     return OK, finite_estimate
 
 
-@numba.njit(cache=True, nogil=True)
-def take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, u_cmd, flow_scale_hat, magnetization_scale_hat):  # type: ignore[no-untyped-def]  # numba: types at compile time
+@numba.njit(cache=True, nogil=True, inline="always")  # in the caller's body: no call per tick
+def take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, cols):  # type: ignore[no-untyped-def]  # numba: types at compile time
     """The tick's command into ``gc`` (d,) without the controller: NaN for a non-finite estimate (rejected,
     :data:`~vesselbot_ros.sim.kinds.REJECT_ESTIMATE`), else the external command ``g_ext[ge_row]`` (T/m), rejected if
     not finite (:data:`~vesselbot_ros.sim.kinds.REJECT_NONFINITE`); returns ``(status, rejection)``.  Row ``r`` of
     ``u_cmd`` is NaN (a bare gradient asks for no acceleration), the scales the observer's (and 1)."""
     d = gc.shape[0]
+    u_cmd, flow_scale_hat, magnetization_scale_hat = cols[14], cols[10], cols[11]
     n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
     why = REJECT_ESTIMATE if not finite_estimate else 0
     for c in range(d):
@@ -309,10 +318,8 @@ def take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, u_cmd, flow_sca
     return (2 if why != 0 else 0), why
 
 
-@numba.njit(cache=True, nogil=True)
-def command(r, k, t, finite_estimate, g_ext, ge_row, p_ref, v_ref, a_ref, ctrl_step, ctrl_prm, ctrl_state, model_geom,  # type: ignore[no-untyped-def]  # numba: types at compile time
-            ctrl_work, ctrl_fbuf, ctrl_sc, obs_out, est, ctrl_out, gc, err, u_cmd, flow_scale_hat,
-            magnetization_scale_hat):
+@numba.njit(cache=True, nogil=True, inline="always")  # in the caller's body: no call per tick
+def command(r, k, t, finite_estimate, g_ext, ge_row, ref, ctrl_step, ctrl, obs_out, est, ctrl_out, gc, err, cols):  # type: ignore[no-untyped-def]  # numba: types at compile time
     """The tick's command into ``gc`` (d,), from the controller's step or, when ``ge_row >= 0``, the external command
     ``g_ext[ge_row]`` (T/m: an agent's action, a replayed one); returns ``(code, status, rejection)``.
 
@@ -322,13 +329,16 @@ def command(r, k, t, finite_estimate, g_ext, ge_row, p_ref, v_ref, a_ref, ctrl_s
     (:data:`~vesselbot_ros.sim.kinds.REJECT_NONFINITE`); either reaches the coil as NaN, which ramps it towards zero
     at the slew limit.  An external command is a bare gradient (``u_cmd`` NaN, status ok), as the per-tick loop
     takes a bare array from a controller.  ``code`` is :data:`REFERENCE_NONFINITE` or :data:`FLOW_SCALE_FAILED`
-    when the controller cannot run (OK otherwise).
+    when the controller cannot run (OK otherwise).  ``ref`` is ``(p_ref, v_ref, a_ref)`` (every tick), ``ctrl`` the
+    controller's ``(prm, state, model geometry, work, fbuf, sc)`` (its step ``ctrl_step``).
     """
     d = gc.shape[0]
     if ge_row >= 0 or not finite_estimate:
-        status, why = take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, u_cmd, flow_scale_hat,
-                                   magnetization_scale_hat)
+        status, why = take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, cols)
         return OK, status, why
+    p_ref, v_ref, a_ref = ref
+    ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc = ctrl
+    u_cmd, flow_scale_hat, magnetization_scale_hat = cols[14], cols[10], cols[11]
     n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
     for c in range(d):
         if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
@@ -359,15 +369,17 @@ def command(r, k, t, finite_estimate, g_ext, ge_row, p_ref, v_ref, a_ref, ctrl_s
     return OK, status, why
 
 
-@numba.njit(cache=True, nogil=True)
-def actuate(r, k, t, dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state, coil_out, ga, zd, y, contact,  # type: ignore[no-untyped-def]  # numba: types at compile time
-            plant_geom, h, ig, plant_stats, work, fbuf, sc, err, g_cmd, cmd_status, cmd_rejected, g_applied,
-            slew_limited, k_scale, saturated):
+@numba.njit(cache=True, nogil=True, inline="always")  # in the caller's body: no call per tick
+def actuate(r, k, t, dt, gc, status, why, coil, coil_out, ga, zd, y, contact, plant_geom, h, ig, plant_stats, work,  # type: ignore[no-untyped-def]  # numba: types at compile time
+            fbuf, sc, err, cols):
     """The second half of tick ``k`` (at ``t``): the command ``gc`` (its ``status`` and rejection ``why``) through
     the coil, then the plant integrated over ``[t_k, t_k+1]`` under the gradient applied (left in ``ga``), written
     to row ``r`` of the columns; returns ``(code, h)`` (``code`` :data:`PLANT_FAILED` or OK, ``h`` the integrator's
-    step to propose next)."""
+    step to propose next).  ``coil`` is ``(prm, seq_mode, sv, hold_s, state)``."""
     d = gc.shape[0]
+    coil_prm, seq_mode, sv, hold_s, coil_state = coil
+    g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected = (
+        cols[15], cols[16], cols[17], cols[18], cols[19], cols[20], cols[21])
     for c in range(d):
         g_cmd[r, c] = gc[c]
     cmd_status[r] = status
@@ -432,27 +444,41 @@ def loop_kernel(n, dt, ts, p_ref, v_ref, a_ref, plant_geom, model_geom, ig, rng,
     gc = np.zeros(d)  # the tick's command (NaN: rejected)
     ga = np.zeros(d)  # the gradient applied over the last period: the plant's and, next tick, the models'
     zd = np.zeros(d)
+    cols = (p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat,
+            flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
+            saturated, slew_limited, cmd_status, cmd_rejected)  # COLUMNS' order
+    img = (imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv)
+    obs = (obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats)
+    scratch = (fk, sc, acq, img_out, obs_out)
+    ref = (p_ref, v_ref, a_ref)
+    ctrl = (ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc)
+    coil = (coil_prm, seq_mode, sv, hold_s, coil_state)
+    return tick_loop(n, dt, ts, rng, g_ext, plant_geom, ig, plant_stats, y, contact, ga, gc, zd, est, ctrl_out, coil_out,
+                     (work, fbuf, sc), err, record_forces, forces, obs_step, ctrl_step, cols, img, obs, scratch, ref, ctrl,
+                     coil)
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the tick's ~50 arrays
+def tick_loop(n, dt, ts, rng, g_ext, plant_geom, ig, plant_stats, y, contact, ga, gc, zd, est, ctrl_out, coil_out, ws,  # type: ignore[no-untyped-def]  # numba: types at compile time
+              err, record_forces, forces, obs_step, ctrl_step, cols, img, obs, scratch, ref, ctrl, coil):
+    """:func:`loop_kernel`'s ticks over the state and scratch it made (the tuples of :func:`sense`, :func:`command`
+    and :func:`actuate`, ``ws`` the integrator's ``(work, fbuf, sc)``), the three inlined into one loop."""
+    work, fbuf, sc = ws
+    obs_out = scratch[4]
     h = ig[5]
     external = g_ext.shape[0] > 0
     for k in range(n):
         t = ts[k]
-        code, finite_estimate = sense(
-            k, t, plant_geom, rng, imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv,
-            obs_step, obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats, y, contact, ga, fk, sc, acq,
-            img_out, obs_out, err, record_forces, forces, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
-            meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used, meas_rejected)
+        code, finite_estimate = sense(k, t, plant_geom, rng, img, obs_step, obs, y, contact, ga, scratch, err,
+                                      record_forces, forces, cols)
         if code != OK:
             return code, k
-        code, status, why = command(
-            k, k, t, finite_estimate, g_ext, k if external else -1, p_ref, v_ref, a_ref, ctrl_step,
-            ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc, obs_out, est, ctrl_out, gc, err, u_cmd,
-            flow_scale_hat, magnetization_scale_hat)
+        code, status, why = command(k, k, t, finite_estimate, g_ext, k if external else -1, ref, ctrl_step, ctrl,
+                                    obs_out, est, ctrl_out, gc, err, cols)
         if code != OK:
             return code, k
-        code, h = actuate(
-            k, k, t, dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state, coil_out, ga, zd, y, contact,
-            plant_geom, h, ig, plant_stats, work, fbuf, sc, err, g_cmd, cmd_status, cmd_rejected, g_applied,
-            slew_limited, k_scale, saturated)
+        code, h = actuate(k, k, t, dt, gc, status, why, coil, coil_out, ga, zd, y, contact, plant_geom, h, ig,
+                          plant_stats, work, fbuf, sc, err, cols)
         if code != OK:
             return code, k
     return OK, n
@@ -463,13 +489,21 @@ OP_STEP, OP_RESET, OP_SKIP = 0, 1, 2
 
 
 @numba.njit(cache=True, nogil=True)
+def step_scratch(dims):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    """The scratch of :func:`step_copies` on ``dims`` axes (allocated once per call; shared by the copies)."""
+    work, fbuf, sc = new_workspace(dims)
+    return (work, fbuf, sc, np.empty((8, dims)), np.zeros(3 + dims), np.zeros(3 + dims), np.zeros(2 * dims + 3),
+            np.zeros(dims), np.zeros(dims), np.empty((0, 8, dims)))
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on the tick's ~50 arrays
 def step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,  # type: ignore[no-untyped-def]  # numba: types at compile time
                 seq_state, img_state, obs_step_address, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
                 obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
                 model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
                 meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
                 meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
-                obs_out, err, codes):
+                obs_out, err, codes, scratch):
     """The stepping form of :func:`loop_kernel`: N copies of one scenario's loop, each advanced by ``ops[i]`` in one
     call, the controller's place taken by the commands ``actions`` (N, d) (T/m): copies ``lo .. hi-1`` (the others
     are not touched, so threads may step disjoint ranges at once: the kernel releases the GIL).
@@ -488,18 +522,15 @@ def step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, i
     draws), the columns (row ``i``: copy ``i``'s latest tick), ``obs_out`` (the observer's last output) and ``err``;
     ``codes[i]`` is OK or where the copy stopped (:func:`raise_for_code`).  ``ts`` must hold the tick times up to
     the last ``k + 1`` asked for.  The observer's step is given by its ``cfunc``'s address, ``obs_step_address``
-    (:func:`~vesselbot_ros.control.compiled_stage.observer_step_at`: a call per step costs no typing of a function).
+    (:func:`~vesselbot_ros.control.compiled_stage.observer_step_at`: a call per step costs no typing of a function);
+    ``scratch`` is :func:`step_scratch`'s.
     """
     d = axes_of(plant_geom)  # the axes, a constant at compile time (the loops unroll)
     obs_step = observer_step_at(obs_step_address, obs_geom)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
-    work, fbuf, sc = new_workspace(d)
-    fk = np.empty((8, d))
-    acq = np.zeros(3 + d)
-    img_out = np.zeros(3 + d)
-    coil_out = np.zeros(2 * d + 3)  # coil_out_size(d)
-    gc = np.zeros(d)
-    zd = np.zeros(d)
-    forces = np.empty((0, 8, d))
+    work, fbuf, sc, fk, acq, img_out, coil_out, gc, zd, forces = scratch
+    cols = (p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat,
+            flow_scale_hat, magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale,
+            saturated, slew_limited, cmd_status, cmd_rejected)  # COLUMNS' order
     for i in range(lo, hi):
         op = ops[i]
         codes[i] = OK
@@ -536,23 +567,20 @@ def step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, i
             for c in range(d):
                 if not (math.isfinite(x_hat[i, c]) and math.isfinite(z_hat[i, c])):
                     finite_estimate = False
-            status, why = take_command(i, finite_estimate, actions, i, obs_out[i], gc, u_cmd, flow_scale_hat,
-                                       magnetization_scale_hat)
-            code, h[i] = actuate(
-                i, k, ts[k], dt, gc, status, why, coil_prm, seq_mode, sv, hold_s, coil_state[i], coil_out, ga[i], zd,
-                y[i], contact[i], plant_geom, h[i], ig, plant_stats[i], work, fbuf, sc, err[i], g_cmd, cmd_status,
-                cmd_rejected, g_applied, slew_limited, k_scale, saturated)
+            status, why = take_command(i, finite_estimate, actions, i, obs_out[i], gc, cols)
+            code, h[i] = actuate(i, k, ts[k], dt, gc, status, why, (coil_prm, seq_mode, sv, hold_s, coil_state[i]),
+                                 coil_out, ga[i], zd, y[i], contact[i], plant_geom, h[i], ig, plant_stats[i], work, fbuf,
+                                 sc, err[i], cols)
             if code != OK:
                 codes[i] = code
                 continue
             k += 1
         ticks[i] = k
         code, _finite = sense(
-            i, ts[k], plant_geom, variates[i], imager_prm, outliers, dropouts, queue[i], seq_state[i], img_state[i],
-            seq_mode, sv, obs_step, obs_prm, obs_state[i], obs_istate[i], obs_geom, obs_work[i], model_stats[i],
-            y[i], contact[i], ga[i], fk, sc, acq, img_out, obs_out[i], err[i], False, forces, p_true, v_true,
-            delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat, meas_used,
-            meas_rejected)
+            i, ts[k], plant_geom, variates[i], (imager_prm, outliers, dropouts, queue[i], seq_state[i], img_state[i],
+                                                 seq_mode, sv),
+            obs_step, (obs_prm, obs_state[i], obs_istate[i], obs_geom, obs_work[i], model_stats[i]), y[i], contact[i],
+            ga[i], (fk, sc, acq, img_out, obs_out[i]), err[i], False, forces, cols)
         codes[i] = code
 
 

@@ -78,6 +78,7 @@ from vesselbot_ros.control.ekf_observer import ExtendedKalmanObserver
 from vesselbot_ros.control.estimate import Estimate
 from vesselbot_ros.control.high_gain_observer import HighGainObserver, ObserverParams, check_frame_period
 from vesselbot_ros.control.model import DynamicsModel
+from vesselbot_ros.control.policy import PolicyController, PolicyParams, load_policy
 from vesselbot_ros.control.predictive import PredictiveController, PredictiveParams
 from vesselbot_ros.control.route import planned_reference
 from vesselbot_ros.errors import ModelInputError, VesselbotError
@@ -725,6 +726,11 @@ def _action_replay(ctx: BuildContext) -> ActionReplayController:
     return ActionReplayController(load_actions(ctx.params.actions_file, ctx.scenario.dims), ctx.dt_s)
 
 
+def _policy(ctx: BuildContext) -> PolicyController:
+    s = ctx.scenario
+    return PolicyController(load_policy(ctx.params.policy), _coil(ctx), s.sequence, s.dims)  # its own replica of the coil
+
+
 def _check_high_gain(params: ObserverParams, scenario: Any) -> None:
     """Observer (25) is stable at the rate it gets frames: the MRI imager's ``frame_rate_Hz``, or one frame per
     sequence period under multiplexing (:func:`~vesselbot_ros.control.high_gain_observer.check_frame_period`)."""
@@ -781,6 +787,8 @@ for _kind in (
     StageKind("controller", "action_replay", ActionReplayParams, _action_replay, compiled=True,
               stage_types=(ActionReplayController,), compile=ActionReplayController.compiled,
               summary="replays recorded gradient commands, one per tick (an environment episode's actions, a .npy file)"),
+    StageKind("controller", "policy", PolicyParams, _policy, compiled=False, stage_types=(PolicyController,),
+              summary="a user's policy (module:callable) from the environments' observation to the gradient"),
     StageKind("coil", "gradient_coil", CoilLimits, _coil, compiled=True,
               stage_types=(CoilLimiter, SequencedCoil), compile=lambda stage: stage.compiled(),
               summary="gradient saturation, slew and dB/dt; gated by the sequence's propulsion windows"),

@@ -91,7 +91,7 @@ def test_the_controller_gets_the_graphs_estimate_in_both_loops(plugins) -> None:
 
 @pytest.mark.parametrize("name, match", [
     ("nope", r"controller\.kind: unknown controller kind 'nope'; known: \['action_replay', 'adaptive_backstepping', "
-             r"'backstepping', 'predictive'\]"),
+             r"'backstepping', 'policy', 'predictive'\]"),
     ("no_such_module_x:Cls", r"controller\.kind: module 'no_such_module_x' of kind .* does not import: ModuleNotFoundError"),
     ("vesselbot_test_plugin:Missing", r"controller\.kind: module 'vesselbot_test_plugin' has no 'Missing'"),
     ("vesselbot_test_plugin:NotAStage", r"controller\.kind: class NotAStage needs ROLE"),
