@@ -252,8 +252,18 @@ def sense(r, t, plant_geom, rng, img, obs_step, obs, y, contact, ga, scratch, er
     imager_prm, outliers, dropouts, queue, seq_state, img_state, seq_mode, sv = img
     obs_prm, obs_state, obs_istate, obs_geom, obs_work, model_stats = obs
     fk, sc, acq, img_out, obs_out = scratch
-    p_true, v_true, delta_m, in_contact, contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat = cols[:10]
-    meas_used, meas_rejected = cols[12], cols[13]
+    p_true = cols[0]  # one name per line (actuate says why)
+    v_true = cols[1]
+    delta_m = cols[2]
+    in_contact = cols[3]
+    contact_phase = cols[4]
+    meas_p = cols[5]
+    meas_t_acq_s = cols[6]
+    meas_outlier = cols[7]
+    x_hat = cols[8]
+    z_hat = cols[9]
+    meas_used = cols[12]
+    meas_rejected = cols[13]
     # plant output at t_k (the forces under the gradient applied over the last period)
     delta, _wall = wall_and_forces(t, y, ga, contact, plant_geom, fk, sc, record_forces)
     for c in range(d):
@@ -305,7 +315,9 @@ def take_command(r, finite_estimate, g_ext, ge_row, obs_out, gc, cols):  # type:
     not finite (:data:`~vesselbot_ros.sim.kinds.REJECT_NONFINITE`); returns ``(status, rejection)``.  Row ``r`` of
     ``u_cmd`` is NaN (a bare gradient asks for no acceleration), the scales the observer's (and 1)."""
     d = gc.shape[0]
-    u_cmd, flow_scale_hat, magnetization_scale_hat = cols[14], cols[10], cols[11]
+    u_cmd = cols[14]  # one name per line (actuate says why)
+    flow_scale_hat = cols[10]
+    magnetization_scale_hat = cols[11]
     n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
     why = REJECT_ESTIMATE if not finite_estimate else 0
     for c in range(d):
@@ -338,7 +350,9 @@ def command(r, k, t, finite_estimate, g_ext, ge_row, ref, ctrl_step, ctrl, obs_o
         return OK, status, why
     p_ref, v_ref, a_ref = ref
     ctrl_prm, ctrl_state, model_geom, ctrl_work, ctrl_fbuf, ctrl_sc = ctrl
-    u_cmd, flow_scale_hat, magnetization_scale_hat = cols[14], cols[10], cols[11]
+    u_cmd = cols[14]  # one name per line (actuate says why)
+    flow_scale_hat = cols[10]
+    magnetization_scale_hat = cols[11]
     n_obs = 3 * d + 3  # observer_step_out_size(d) - 1: the blood-velocity scale's index
     for c in range(d):
         if not (math.isfinite(p_ref[k, c]) and math.isfinite(v_ref[k, c]) and math.isfinite(a_ref[k, c])):
@@ -378,8 +392,13 @@ def actuate(r, k, t, dt, gc, status, why, coil, coil_out, ga, zd, y, contact, pl
     step to propose next).  ``coil`` is ``(prm, seq_mode, sv, hold_s, state)``."""
     d = gc.shape[0]
     coil_prm, seq_mode, sv, hold_s, coil_state = coil
-    g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected = (
-        cols[15], cols[16], cols[17], cols[18], cols[19], cols[20], cols[21])
+    g_cmd = cols[15]  # one name per line: numba's inlining bound one name of a 7-tuple unpacked here to another array
+    g_applied = cols[16]
+    k_scale = cols[17]
+    saturated = cols[18]
+    slew_limited = cols[19]
+    cmd_status = cols[20]
+    cmd_rejected = cols[21]
     for c in range(d):
         g_cmd[r, c] = gc[c]
     cmd_status[r] = status
