@@ -799,12 +799,14 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
         least = float(np.min(moving)) if moving.size else float(need_c[pick])
         return t + h, float(un[pick]), float(cand[pick]), least, cand, un, need_c, pick
 
+    period = 2.0 * math.pi / scenario.physics.flow.angular_frequency_rad_per_s
+
     def crosses(t: float, u: float, du: float, u_b: float) -> bool:
         """Whether the greedy pass from ``(t, u, du)`` within ``crest_budget_share`` of the budget passes ``u_b``
         without stopping."""
         slow = 0.05 * v_cap
         low = options.crest_budget_share * budget
-        for _ in range(int(options.max_duration_s / h)):
+        for _ in range(int(period / h)):  # a crossing that takes longer than a cardiac period does not cross
             if u >= u_b or U - u <= 1e-9 * max(U, 1e-3):
                 return True
             t, u, du, _least, _cand, _un, need_c, pick = step(t, u, du, low)
@@ -814,7 +816,6 @@ def _timing_pass(scenario: Scenario, traj: ReferenceTrajectory, model: DynamicsM
 
     zones = sorted((float(a), float(b)) for a, b in no_stop)
     look_every = max(1, int(round(CREST_LOOK_EVERY_S / h)))
-    period = 2.0 * math.pi / scenario.physics.flow.angular_frequency_rad_per_s
     waited = 0  # steps waited short of a crest since the last look ahead
     since = math.inf  # when the pass began to wait short of the crest ahead
     least = math.inf  # the least need of a step that moves on, where the pass last was
