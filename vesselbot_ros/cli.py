@@ -60,6 +60,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "vessels": ("vesselbot_ros.vessels.vessels_cli", "vessel networks: import a VMTK centreline file (.vtp) as a network YAML"),
     "scanner-study": ("vesselbot_ros.analysis.scanner_study_cli",
                       "tracking under MRI imaging/propulsion multiplexing and latency, per hardware and controller"),
+    "benchmark": ("vesselbot_ros.analysis.benchmark_cli",
+                  "the environments' task tiers over fixed seeds: a controller kind or a policy (success, tracking, energy)"),
 }
 
 
