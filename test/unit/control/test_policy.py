@@ -39,26 +39,32 @@ def policy_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
     return "vb_test_policy:act"
 
 
-@pytest.mark.parametrize("name", ["sound_small_artery", "clinical_3t_small_artery", "carotid_bifurcation_3d_eca"])
+@pytest.mark.parametrize("name", ["sound_small_artery", "clinical_3t_small_artery", "paper_iiic_network_lower",
+                                  "carotid_bifurcation_3d_eca"])
 def test_a_policy_runs_as_a_controller_with_its_numbers_in_the_env(name: str, policy_module: str) -> None:
     sc = load_scenario(name, sets=["sim.duration_s=0.08"])
     act = load_policy(policy_module)
     env = VesselbotEnv(sc, privileged=True)
     n_plain = dict(env.fields)["p_true_m"].start  # the observation without the truth
     obs, _ = env.reset(seed=5)
-    seen, truth = [], []
+    seen, truth, speed, commands = [], [], [], []
     for _k in range(sc.sim.n_ticks):
         plain = obs[:n_plain]
         seen.append(plain)
         truth.append(obs[dict(env.fields)["p_true_m"]])
-        obs, *_ = env.step(act(plain))
+        speed.append(obs[dict(env.fields)["v_true_m_per_s"]])
+        commands.append(act(plain))
+        obs, *_ = env.step(commands[-1])
     as_kind = load_scenario(name, sets=["sim.duration_s=0.08", "controller.kind=policy",
                                         f"controller.policy={policy_module}"])
     run = run_closed_loop(as_kind, 5)
     assert run.path == "per_tick"
     np.testing.assert_array_equal(run.timeseries["p_true"], np.array(truth))
+    np.testing.assert_array_equal(run.timeseries["v_true"], np.array(speed))
     f = dict(env.fields)
     np.testing.assert_array_equal(run.timeseries["x_hat"], np.array(seen)[:, f["x_hat_m"]])
+    np.testing.assert_array_equal(run.timeseries["z_hat"], np.array(seen)[:, f["z_hat_m_per_s"]])
+    np.testing.assert_array_equal(run.timeseries["g_cmd"], np.array(commands))  # the commands, NaN where stale
     np.testing.assert_array_equal(run.timeseries["g_applied"][:-1], np.array(seen)[1:, f["g_applied_T_per_m"]])
 
 
