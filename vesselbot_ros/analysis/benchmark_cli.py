@@ -17,8 +17,8 @@ from pathlib import Path
 
 from vesselbot_ros.analysis.benchmark import CONTROLLERS, benchmark, format_table, parse_seeds
 from vesselbot_ros.atomic_io import atomic_open
-from vesselbot_ros.errors import ConfigError
 from vesselbot_ros.envs.registration import TIERS
+from vesselbot_ros.errors import ConfigError
 
 
 def register(parser: argparse.ArgumentParser) -> None:
