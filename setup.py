@@ -41,6 +41,8 @@ setup(
         (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),
     ],
     install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk", "tqdm", "gymnasium"],
+    # optional: a learned baseline on the environments (tools/train_ppo.py); the same pins as requirements-learn.txt
+    extras_require={"learn": ["stable-baselines3==2.9.2", "torch==2.14.1"]},
     zip_safe=False,
     maintainer="vesselbot maintainers",
     maintainer_email="maintainers@vesselbot.example",
