@@ -38,6 +38,15 @@ from .copies import OP_RESET, OP_STEP, LoopCopies, RewardParams
 __all__ = ["VesselbotEnv", "InvalidActionError", "scenario_of"]
 
 
+
+def loop_spaces(loop: LoopCopies) -> tuple[spaces.Space[npt.NDArray[np.float64]], spaces.Space[npt.NDArray[np.float64]]]:
+    """One copy's action space (the gradient command, T/m, within the coil's saturation on each axis) and
+    observation space (the layout of :attr:`LoopCopies.fields`), for the scalar and the vector environment."""
+    g = loop.g_max_T_per_m
+    action: spaces.Space[npt.NDArray[np.float64]] = spaces.Box(-g, g, (loop.dims,), dtype=np.float64)
+    observation: spaces.Space[npt.NDArray[np.float64]] = spaces.Box(-np.inf, np.inf, (loop.obs_size,), dtype=np.float64)
+    return action, observation
+
 class InvalidActionError(ModelInputError, gymnasium.error.InvalidAction):
     """An action of the wrong shape or type (Gymnasium's ``InvalidAction``; a NaN or an infinity is not one: the coil
     rejects it)."""
@@ -92,9 +101,7 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
         lp = self.loop
         self.dims = lp.dims
         self.fields = lp.fields
-        g = lp.g_max_T_per_m
-        self.action_space = spaces.Box(-g, g, (lp.dims,), dtype=np.float64)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (lp.obs_size,), dtype=np.float64)
+        self.action_space, self.observation_space = loop_spaces(lp)
         self._rng_seen: np.random.Generator | None = None
         self._done = True
 

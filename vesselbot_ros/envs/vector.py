@@ -21,7 +21,6 @@ from typing import Any
 import gymnasium
 import numpy as np
 import numpy.typing as npt
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -30,7 +29,7 @@ from vesselbot_ros.errors import ConfigError
 from vesselbot_ros.sim.scenario import Scenario
 
 from .copies import OP_RESET, OP_STEP, LoopCopies, RewardParams
-from .env import InvalidActionError, scenario_of
+from .env import InvalidActionError, loop_spaces, scenario_of
 
 __all__ = ["VesselbotVectorEnv"]
 
@@ -59,9 +58,7 @@ class VesselbotVectorEnv(VectorEnv[npt.NDArray[np.float64], npt.NDArray[np.float
         lp = self.loop
         self.dims = lp.dims
         self.fields = lp.fields
-        g = lp.g_max_T_per_m
-        self.single_action_space = spaces.Box(-g, g, (lp.dims,), dtype=np.float64)
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, (lp.obs_size,), dtype=np.float64)
+        self.single_action_space, self.single_observation_space = loop_spaces(lp)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
