@@ -17,7 +17,7 @@
 //   where a summary is {type, id, action, frame_id, stamp (ns), n_points, n_colors, position: [x, y, z], scale: [x, y, z],
 //   color: [r, g, b, a], points_head: the first 6 points [x, y, z], points_sum: [sum x, sum y, sum z] (in order),
 //   y_abs_max: max |y| of its points}; and --until-scene NS,NS,... ends it ("scene") once view/markers showed
-//   every namespace NS, vessel_markers came and 5 view updates were seen.
+//   every namespace NS, vessel_markers came, 5 view updates and an errors view with a tracking error were seen.
 // usage: node ws_live.mjs PORT [CONNECT_TIMEOUT_S=60] [IDLE_S=20] [--subprotocol NAME] [--no-retry]
 //                         [--max-messages N] [--scene] [--until-scene NS,NS,...]
 // The client offers exactly one WebSocket subprotocol, NAME: by default ws-protocol's
@@ -97,8 +97,10 @@ function summary(m) {
 }
 
 function sceneComplete() {
+  // the errors view too: on a loaded machine five marker updates could arrive before the first errors message
   return flags.untilScene !== null && viewUpdates >= 5 && Object.keys(scene.vessel).length > 0 &&
-    flags.untilScene.every((ns) => ns in scene.view);
+    flags.untilScene.every((ns) => ns in scene.view) &&
+    views.errors.some((e) => e !== null && typeof e === "object" && "tracking_error_m" in e);
 }
 
 function finish(reason) {
