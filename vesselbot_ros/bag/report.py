@@ -270,27 +270,27 @@ def _slew_limit(run: Mapping[str, Any]) -> float | None:
         return None
 
 
-def _run_blood(run: Mapping[str, Any]) -> Any:
-    """The run's blood model (``BloodParams``) from its config, or None (then the shipped scenarios' default)."""
-    blood = ((run.get("config") or {}).get("physics") or {}).get("blood")
-    if not isinstance(blood, Mapping):
+def _run_physics(run: Mapping[str, Any], section: str, cls: Any) -> Any:
+    """The run's ``physics.<section>`` loaded as ``cls`` from its config, or None (missing or not loadable)."""
+    mapping = ((run.get("config") or {}).get("physics") or {}).get(section)
+    if not isinstance(mapping, Mapping):
         return None
     try:
-        return load_dataclass(BloodParams, blood, "physics.blood")
+        return load_dataclass(cls, mapping, f"physics.{section}")
     except (ConfigError, TypeError, ValueError):
         return None
+
+
+def _run_blood(run: Mapping[str, Any]) -> Any:
+    """The run's blood model (``BloodParams``) from its config, or None (then the shipped scenarios' default)."""
+    return _run_physics(run, "blood", BloodParams)
 
 
 def _run_pulsation(run: Mapping[str, Any]) -> tuple[float, float, float] | None:
     """The wall's eq. (13) pulsation of the run's flow (:func:`~vesselbot_ros.control.route.pulsation_of`), from its
     config; None (the wall at rest) without one."""
-    flow = ((run.get("config") or {}).get("physics") or {}).get("flow")
-    if not isinstance(flow, Mapping):
-        return None
-    try:
-        return pulsation_of(load_dataclass(FlowParams, flow, "physics.flow"))
-    except (ConfigError, TypeError, ValueError):
-        return None
+    flow = _run_physics(run, "flow", FlowParams)
+    return None if flow is None else pulsation_of(flow)
 
 
 def _time_marks(t: npt.NDArray[np.float64], step_s: float = 0.25) -> npt.NDArray[np.intp]:
