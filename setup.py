@@ -42,7 +42,7 @@ setup(
     ],
     install_requires=["setuptools", "numpy", "scipy", "numba", "PyYAML", "matplotlib", "rosbags", "mcap", "mcap-ros2-support", "dask", "distributed", "pyarrow", "foxglove-sdk", "tqdm", "gymnasium"],
     # optional: a learned baseline on the environments (tools/train_ppo.py); the same pins as requirements-learn.txt
-    extras_require={"learn": ["stable-baselines3==2.9.2", "torch==2.14.1"]},
+    extras_require={"learn": ["stable-baselines3==2.9.2", "torch==2.13.0"]},
     zip_safe=False,
     maintainer="vesselbot maintainers",
     maintainer_email="maintainers@vesselbot.example",

@@ -7,6 +7,7 @@
 #      background from step 2 on (one core; the interface builds take the other)
 #   5. tools/js: Foxglove's own JavaScript readers and clients (npm ci from the committed lock file),
 #      which the integration tests run with node
+#   6. optional extras named in VESSELBOT_EXTRAS (learn: requirements-learn.txt), while the warm-up compiles
 # Each step is skipped when the sha256 of its inputs matches the stamp it left,
 # so a second call does nothing (well under 5 s).  A failing step leaves no stamp.
 # Usage: tools/bootstrap.sh [test|run]   test (default): everything make test needs;
@@ -73,7 +74,7 @@ fi
 
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
 #    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
-#    of other code on import; this only warms them).  About 2-3 min on a fresh machine: it runs in the
+#    of other code on import; this only warms them).  Minutes on a fresh machine (the 3-D trees' wall fields): it runs in the
 #    background while the interfaces build (it needs none of them), make test's two halves (planar, 3-D) in a
 #    process each, and is waited for before the bootstrap ends.
 nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
@@ -86,7 +87,9 @@ if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
   rm -f "$stamps/$numba_stamp"
   for ws in "${warm_scopes[@]}"; do
     log=$(mktemp)
-    (cd / && exec "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$ws" --no-progress) >"$log" 2>&1 &
+    # every core for numba's parallel loops (make test pins one thread per test worker; the 3-D trees' wall
+    # fields are built here, in parallel loops, minutes on one thread; their bits do not depend on the count)
+    (cd / && exec env -u NUMBA_NUM_THREADS "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$ws" --no-progress) >"$log" 2>&1 &
     numba_pids+=($!); numba_logs+=("$log")
   done
   numba_t0=$SECONDS
@@ -139,6 +142,23 @@ if [ "$scope" = test ] && { ! fresh npm "$js" || [ ! -d tools/js/node_modules ];
   mark npm "$js"
   took "npm ci"
 fi
+
+# 6. optional extras, asked for by name (VESSELBOT_EXTRAS=learn: requirements-learn.txt, the learned baseline's
+#    stable-baselines3 and torch; .ci/run asks for it so that the PPO smoke test runs; make run never needs it)
+for extra in ${VESSELBOT_EXTRAS:-}; do
+  case $extra in
+    learn) xreq=requirements-learn.txt ;;
+    *) echo "vesselbot bootstrap: unknown extra '$extra' in VESSELBOT_EXTRAS (known: learn)" >&2; exit 2 ;;
+  esac
+  xh=$(hash_files requirements.txt "$xreq")
+  if ! fresh "extra-$extra" "$xh"; then
+    step "installing the optional '$extra' extra ($xreq)"
+    rm -f "$stamps/extra-$extra"
+    quiet_pip install -r "$xreq"
+    mark "extra-$extra" "$xh"
+    took "the '$extra' extra"
+  fi
+done
 
 # make test's static checks (the Makefile's LINT, passed as VESSELBOT_BOOTSTRAP_LINT), run while the numba
 # warm-up may still be compiling: they need the package and the interfaces, not the cache; a finding fails after it

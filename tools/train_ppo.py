@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A learned baseline: PPO (stable-baselines3) trained on the environments' tiers, evaluated beside the shipped loops.
 
-Needs the ``learn`` extra, which ``make run`` and ``make test`` do not install::
+Needs the ``learn`` extra, which ``make run`` does not install (``VESSELBOT_EXTRAS=learn make test`` does)::
 
     .venv/bin/pip install -r requirements-learn.txt
 

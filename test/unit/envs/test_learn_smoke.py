@@ -1,7 +1,8 @@
 """The learned baseline end to end: PPO trains a few thousand steps, is saved, and flies as the policy kind.
 
 Needs the optional ``learn`` extra (``requirements-learn.txt``: stable-baselines3 and torch), which ``make test``
-does not install: without it the test is skipped and says why.
+installs only when asked (``VESSELBOT_EXTRAS=learn make test``, as ``.ci/run`` does): without it the test is skipped
+and says why.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import numpy as np
 import pytest
 
 pytest.importorskip("stable_baselines3", reason="the optional learn extra is not installed "
-                    "(pip install -r requirements-learn.txt): stable-baselines3 and torch")
+                    "(VESSELBOT_EXTRAS=learn make test, or pip install -r requirements-learn.txt): "
+                    "stable-baselines3 and torch")
 
 ROOT = Path(__file__).resolve().parents[3]
 
