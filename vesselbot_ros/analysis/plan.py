@@ -74,7 +74,7 @@ from vesselbot_ros.vessels.cfd import packed_params
 __all__ = ["COAST_BUDGET_PLANT_S", "COAST_STARTS_PER_COAST", "check_fits_path",
            "PlanOptions", "PlanInfeasible", "Segment", "Plan", "available_accel", "need", "wall_rest", "make_plan",
            "flying_changes", "WALL_FLOW_SCALE_SIGMA0",
-           "evaluate", "plan_scenario", "coast_time_s", "reachable"]
+           "evaluate", "plan_scenario", "coast_time_s", "reachable", "crest_times"]
 
 
 #: Coast starts per coast length at most: a longer coast (a long tracking window) starts a quarter coast apart, not
@@ -735,6 +735,27 @@ def _crests(traj: ReferenceTrajectory, wall: MeshedWall, radius_m: float,
                 out[-1] = (out[-1][0], b)
             else:
                 out.append((a, b))
+    return out
+
+
+def crest_times(scenario: Scenario, reach_m: float = 1e-3) -> list[tuple[float, float]]:
+    """The times at which a planned scenario's reference (``timing: planned``, as :func:`plan_scenario` writes it)
+    runs within ``reach_m`` of a crest of the floor it rests on (:func:`_crests`), as ``(t_a, t_b)`` stretches (s);
+    empty where the reference rests on no floor or crosses no crest."""
+    ref = planned_reference(scenario)
+    wall = meshed_wall(scenario)
+    if wall is None or not ref.wall_follow or not ref.planned_t_s:
+        return []
+    motion = WallMotion(wall.follow_offset, wall.pulsation, wall.omega, wall.phase)
+    traj = ReferenceTrajectory(dataclasses.replace(ref, timing="constant", planned_t_s=(), planned_u_m=()),
+                               wall_shift=wall_shift_of(scenario.physics), wall_motion=motion)
+    t = float(ref.start_s) + np.asarray(ref.planned_t_s, dtype=np.float64)
+    u = np.asarray(ref.planned_u_m, dtype=np.float64)
+    out = []
+    for a, b in _crests(traj, wall, scenario.physics.robot.radius_m):
+        near = np.flatnonzero((u >= a - reach_m) & (u <= b + reach_m))
+        if near.size:
+            out.append((float(t[near[0]]), float(t[near[-1]])))
     return out
 
 
