@@ -212,7 +212,7 @@ class LoopState(structref.StructRefProxy):
     """Every array :func:`env_steps` reads and writes, and a scratch per thread, in one numba object (built once per
     :class:`LoopCopies`): a call of :func:`env_kernel` unboxes one argument, not ~80 (their unboxing was ~6 us a
     step).  ``args`` is ``(env_steps' arguments after lo and hi, without scratch; the scratch arrays of
-    step_scratch, each stacked on a first axis of one slot per thread)``; the arrays are the caller's (no copy)."""
+    step_scratch, each stacked on a first axis, ``_SLOT_ROWS`` rows per thread)``; the arrays are the caller's (no copy)."""
 
 
 structref.define_proxy(LoopState, LoopStateType, ["args"])
@@ -251,8 +251,9 @@ def _env_state_steps(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # nu
 @numba.njit(cache=True, nogil=True)
 def env_kernel(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # numba: types at compile time
     """:func:`env_steps` of copies ``lo .. hi-1`` on the arrays of ``state`` (a :class:`LoopState`), with the
-    scratch of thread slot ``slot``; returns ``(copies that stopped, copies whose draws run low)``.  Compiled with
-    numba's runtime, so the one reference to ``state`` its call takes is given back; the steps run without it."""
+    scratch at row ``slot`` of the stacked scratch (a thread's slot times ``_SLOT_ROWS``); returns ``(copies that
+    stopped, copies whose draws run low)``.  Compiled with numba's runtime, so the one reference to ``state`` its
+    call takes is given back; the steps run without it."""
     return _env_state_steps(lo, hi, slot, state)
 
 
@@ -345,10 +346,11 @@ class LoopCopies:
             self.codes, self.reward_params.vector(), float(scenario.physics.robot.radius_m), goal, route,
             self.privileged, self.obs, self.reward, self.terminated, self.truncated, self.rejected,
         )
-        scratch = tuple(np.stack([a] * self.threads) for a in step_scratch(d))  # one slot per thread
+        # one slot per thread, _SLOT_ROWS rows apart: no two threads' scratch on one cache line
+        scratch = tuple(np.stack([a] * (self.threads * _SLOT_ROWS)) for a in step_scratch(d))
         #: Every array above in one numba object (:class:`LoopState`), and :func:`env_kernel`'s compiled entry
-        #: for its type: ``step(lo, hi, slot, state_ref)`` steps copies ``lo .. hi-1`` with thread slot ``slot``'s
-        #: scratch and returns ``(failed, low)`` (:meth:`settle`).
+        #: for its type: ``step(lo, hi, row, state_ref)`` steps copies ``lo .. hi-1`` with the scratch at row ``row`` (a thread's
+        #: slot times _SLOT_ROWS) and returns ``(failed, low)`` (:meth:`settle`).
         self.state_ref = new_loop_state((self._args, scratch))
         self.step = _entry_point(self.state_ref)
         edges = np.linspace(0, n, self.threads + 1).astype(int)
@@ -371,7 +373,7 @@ class LoopCopies:
         else:  # disjoint ranges of copies, one per thread, each its scratch slot (the kernel releases the GIL)
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=self.threads)
-            futures = [self._pool.submit(self.step, a, b, slot, self.state_ref)
+            futures = [self._pool.submit(self.step, a, b, slot * _SLOT_ROWS, self.state_ref)
                        for slot, (a, b) in enumerate(self._ranges)]
             results = [f.result() for f in futures]
             failed, low = sum(int(r[0]) for r in results), sum(int(r[1]) for r in results)
@@ -401,6 +403,11 @@ class LoopCopies:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+#: Rows of the stacked scratch between two threads' slots (the smallest slot, (d,) float64, 16 bytes: 8 rows, 128
+#: bytes, a cache line and its neighbour the prefetcher pulls; adjacent slots were shared between threads).
+_SLOT_ROWS = 8
 
 
 def _entry_point(state: LoopState) -> Any:
