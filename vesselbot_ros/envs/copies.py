@@ -53,6 +53,10 @@ from typing import Any
 import numba
 import numpy as np
 import numpy.typing as npt
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.experimental import structref
+from numba.extending import intrinsic
 
 from vesselbot_ros.control.policy import AGE_CAP_S, observation_fields
 from vesselbot_ros.control.route import planned_reference
@@ -67,7 +71,7 @@ from vesselbot_ros.sim.compiled_loop import OP_RESET, OP_SKIP, OP_STEP, step_cop
 from vesselbot_ros.sim.kinds import SECTIONS
 from vesselbot_ros.sim.scenario import Scenario
 
-__all__ = ["RewardParams", "LoopCopies", "env_kernel", "observation_fields", "route_end", "AGE_CAP_S", "OP_STEP",
+__all__ = ["RewardParams", "LoopCopies", "LoopState", "env_kernel", "env_steps", "observation_fields", "route_end", "AGE_CAP_S", "OP_STEP",
            "OP_RESET", "OP_SKIP"]
 
 
@@ -111,27 +115,29 @@ class RewardParams:
                          self.goal_radius_m, 1.0 if self.contact_ends_episode else 0.0])
 
 
-@numba.njit(cache=True, nogil=True)
-def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts on its ~80 arrays
+def env_steps(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref, phase, plant_geom, ig, variates,  # type: ignore[no-untyped-def]  # numba: types at compile time
                imager_prm, outliers, dropouts, queue, seq_state, img_state, obs_step_address, obs_prm, obs_state,
                obs_istate, obs_geom, obs_work, obs_state0, obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact,
                coil_state, plant_stats, model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact,
                contact_phase, meas_p, meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat,
                magnetization_scale_hat, meas_used, meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated,
                slew_limited, cmd_status, cmd_rejected, obs_out, err, codes, rw, robot_radius_m, goal, has_goal,
-               privileged, obs, reward, terminated, truncated, rejected):
+               privileged, obs, reward, terminated, truncated, rejected, scratch):
     """:func:`~vesselbot_ros.sim.compiled_loop.step_copies` of copies ``lo .. hi-1``, then each stepped or reset copy's observation row
     ``obs[i]``, ``reward[i]``, ``terminated[i]``, ``truncated[i]`` and its count of rejected commands
     ``rejected[i]`` (module docstring); returns ``(copies that stopped, copies whose draws run low)``.  ``rw`` is
     :meth:`RewardParams.vector`; ``phase`` the sequence's phase per tick
-    (empty: no sequence); ``goal`` the route's end (``has_goal``); ``privileged`` adds the true state."""
+    (empty: no sequence); ``goal`` the route's end (``has_goal``); ``privileged`` adds the true state; ``scratch``
+    :func:`~vesselbot_ros.sim.compiled_loop.step_scratch`'s (one per thread).  :func:`env_kernel` calls it with
+    the arrays of a :class:`LoopState`."""
     step_copies(lo, hi, ops, ticks, actions, dt, ts, plant_geom, ig, variates, imager_prm, outliers, dropouts, queue,
                 seq_state, img_state, obs_step_address, obs_prm, obs_state, obs_istate, obs_geom, obs_work, obs_state0,
                 obs_istate0, obs_work0, coil_prm, seq_mode, sv, hold_s, y, contact, coil_state, plant_stats,
                 model_stats, h, ga, y0, coil_state0, p_true, v_true, delta_m, in_contact, contact_phase, meas_p,
                 meas_t_acq_s, meas_outlier, x_hat, z_hat, flow_scale_hat, magnetization_scale_hat, meas_used,
                 meas_rejected, u_cmd, g_cmd, g_applied, k_scale, saturated, slew_limited, cmd_status, cmd_rejected,
-                obs_out, err, codes, step_scratch(x_hat.shape[1]))
+                obs_out, err, codes, scratch)
     d = x_hat.shape[1]
     g_max = coil_prm[0]
     failed = 0
@@ -192,6 +198,63 @@ def env_kernel(lo, hi, ops, ticks, actions, n_steps, dt, ts, p_ref, v_ref, a_ref
         terminated[i] = outside or reached
         truncated[i] = k >= n_steps and not terminated[i]
     return failed, low
+
+
+@structref.register
+class LoopStateType(types.StructRef):
+    """The numba type of a :class:`LoopState` (its field's type: the arrays' and the scenario's)."""
+
+    def preprocess_fields(self, fields):  # type: ignore[no-untyped-def]  # numba: types at compile time
+        return tuple((name, types.unliteral(typ)) for name, typ in fields)
+
+
+class LoopState(structref.StructRefProxy):
+    """Every array :func:`env_steps` reads and writes, and a scratch per thread, in one numba object (built once per
+    :class:`LoopCopies`): a call of :func:`env_kernel` unboxes one argument, not ~80 (their unboxing was ~6 us a
+    step).  ``args`` is ``(env_steps' arguments after lo and hi, without scratch; the scratch arrays of
+    step_scratch, each stacked on a first axis, ``_SLOT_ROWS`` rows per thread)``; the arrays are the caller's (no copy)."""
+
+
+structref.define_proxy(LoopState, LoopStateType, ["args"])
+
+
+@numba.njit(cache=True)
+def new_loop_state(args):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    """A :class:`LoopState` holding ``args`` (its docstring)."""
+    return LoopState(args)
+
+
+@intrinsic
+def _borrowed_args(typingctx, state):  # type: ignore[no-untyped-def]  # numba intrinsic: typed at compile time
+    """``state.args`` read without numba's runtime, for a caller compiled without it: no reference counts (the
+    state, held by the caller's argument for the whole call, holds the arrays).  The payload's pointer is read as
+    ``NRT_MemInfo_data_fast`` reads it: the 4th word of numba's ``NRT_MemInfo {refct, dtor, dtor_info, data, ...}``."""
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        ref = cgutils.create_struct_proxy(sig.args[0])(context, builder, value=args[0])
+        head = ir.LiteralStructType([cgutils.intp_t, cgutils.voidptr_t, cgutils.voidptr_t, cgutils.voidptr_t])
+        data = builder.load(cgutils.gep_inbounds(builder, builder.bitcast(ref.meminfo, head.as_pointer()), 0, 3))
+        payload_type = sig.args[0].get_data_type()
+        ptr = builder.bitcast(data, context.data_model_manager[payload_type].get_value_type().as_pointer())
+        return cgutils.create_struct_proxy(payload_type)(context, builder, ref=ptr).args
+
+    return state.field_dict["args"](state), codegen
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts
+def _env_state_steps(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    args, scratch = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
+    work, fbuf, sc, fk, acq, img_out, coil_out, gc, zd, forces = scratch
+    return env_steps(lo, hi, *args, (work[slot], fbuf[slot], sc[slot], fk[slot], acq[slot], img_out[slot],
+                                     coil_out[slot], gc[slot], zd[slot], forces[slot]))
+
+
+@numba.njit(cache=True, nogil=True)
+def env_kernel(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    """:func:`env_steps` of copies ``lo .. hi-1`` on the arrays of ``state`` (a :class:`LoopState`), with the
+    scratch at row ``slot`` of the stacked scratch (a thread's slot times ``_SLOT_ROWS``); returns ``(copies that
+    stopped, copies whose draws run low)``.  Compiled with numba's runtime, so the one reference to ``state`` its
+    call takes is given back; the steps run without it."""
+    return _env_state_steps(lo, hi, slot, state)
 
 
 class LoopCopies:
@@ -283,6 +346,15 @@ class LoopCopies:
             self.codes, self.reward_params.vector(), float(scenario.physics.robot.radius_m), goal, route,
             self.privileged, self.obs, self.reward, self.terminated, self.truncated, self.rejected,
         )
+        # one slot per thread, _SLOT_ROWS rows apart: no two threads' scratch on one cache line
+        scratch = tuple(np.stack([a] * (self.threads * _SLOT_ROWS)) for a in step_scratch(d))
+        #: Every array above in one numba object (:class:`LoopState`), and :func:`env_kernel`'s compiled entry
+        #: for its type: ``step(lo, hi, row, state_ref)`` steps copies ``lo .. hi-1`` with the scratch at row ``row`` (a thread's
+        #: slot times _SLOT_ROWS) and returns ``(failed, low)`` (:meth:`settle`).
+        self.state_ref = new_loop_state((self._args, scratch))
+        self.step = _entry_point(self.state_ref)
+        edges = np.linspace(0, n, self.threads + 1).astype(int)
+        self._ranges = [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
     def seed(self, i: int, rng: np.random.Generator) -> None:
         """Copy ``i``'s imager draws from ``rng`` from now on (the Generator the run's seed makes)."""
@@ -297,14 +369,25 @@ class LoopCopies:
             ModelInputError: a copy's loop stopped (the per-tick loop's words; :func:`raise_for_code`).
         """
         if self.threads == 1:
-            failed, low = env_kernel(0, self.n, *self._args)
-        else:  # disjoint ranges of copies, one per thread (the kernel releases the GIL)
+            failed, low = self.step(0, self.n, 0, self.state_ref)
+        else:  # disjoint ranges of copies, one per thread, each its scratch slot (the kernel releases the GIL)
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=self.threads)
-            edges = np.linspace(0, self.n, self.threads + 1).astype(int)
-            futures = [self._pool.submit(env_kernel, int(a), int(b), *self._args) for a, b in itertools.pairwise(edges)]
+            futures = [self._pool.submit(self.step, a, b, slot * _SLOT_ROWS, self.state_ref)
+                       for slot, (a, b) in enumerate(self._ranges)]
             results = [f.result() for f in futures]
             failed, low = sum(int(r[0]) for r in results), sum(int(r[1]) for r in results)
+        if failed or low:
+            self.settle(failed, low)
+
+    def settle(self, failed: int, low: int) -> None:
+        """After a call of :attr:`step` that returned ``(failed, low)`` (either nonzero): refill the copies whose draws
+        run low, then raise if a copy stopped (:meth:`run`'s words).  The scalar environment calls :attr:`step`
+        itself (one copy, no thread) and this only when needed.
+
+        Raises:
+            ModelInputError: a copy's loop stopped (the per-tick loop's words; :func:`raise_for_code`).
+        """
         if low:  # a block of draws per copy lasts 256 acquisitions: refill the copies that run low before the next
             for j in np.flatnonzero(self.variates[:, 0] + self.per > self.variates.shape[1] - 1):
                 b = self.buffers[j]
@@ -320,6 +403,19 @@ class LoopCopies:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+#: Rows of the stacked scratch between two threads' slots (the smallest slot, (d,) float64, 16 bytes: 8 rows, 128
+#: bytes, a cache line and its neighbour the prefetcher pulls; adjacent slots were shared between threads).
+_SLOT_ROWS = 8
+
+
+def _entry_point(state: LoopState) -> Any:
+    """:func:`env_kernel`'s compiled entry for ``state``'s type (compiled, or loaded from numba's cache, by a call
+    that touches no copy): called directly, it skips the dispatcher's typing of the arguments (~0.5 us a step)."""
+    env_kernel(0, 0, 0, state)
+    sig = tuple(numba.typeof(v) for v in (0, 0, 0, state))
+    return env_kernel.overloads[sig].entry_point  # type: ignore[attr-defined]  # set on every compiled overload
 
 
 def route_end(scenario: Scenario) -> npt.NDArray[np.float64]:

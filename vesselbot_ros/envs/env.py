@@ -104,6 +104,10 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
         self.action_space, self.observation_space = loop_spaces(lp)
         self._rng_seen: np.random.Generator | None = None
         self._done = True
+        # what step() touches, looked up once: copy 0's rows of the loop's arrays (views: the kernel writes them)
+        self._action_row = lp.actions[0]
+        self._obs_row = lp.obs[0]
+        self._action_shape = (lp.dims,)
 
     @property
     def tick(self) -> int:
@@ -121,19 +125,24 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
             self._rng_seen = rng
         lp.ops[0] = OP_RESET
         lp.run()
+        lp.ops[0] = OP_STEP  # what every step() of the episode asks
         self._done = False
-        return lp.obs[0].copy(), {"tick": 0, "rejected_commands": 0}
+        return self._obs_row.copy(), {"tick": 0, "rejected_commands": 0}
 
     def step(self, action: Any) -> tuple[npt.NDArray[np.float64], float, bool, bool, dict[str, Any]]:
         """One control tick under ``action`` (T/m, (d,)): coil, plant, imager, observer."""
         if self._done:
             raise gymnasium.error.ResetNeeded("step() after the episode ended: call reset() first")
         lp = self.loop
-        lp.actions[0] = _action_of(action, self.dims)
-        lp.ops[0] = OP_STEP
-        lp.run()
-        terminated = bool(lp.terminated[0])
-        truncated = bool(lp.truncated[0])
+        if type(action) is np.ndarray and action.shape == self._action_shape and action.dtype == np.float64:
+            self._action_row[:] = action  # the common case, checked as _action_of does
+        else:
+            self._action_row[:] = _action_of(action, self.dims)
+        failed, low = lp.step(0, 1, 0, lp.state_ref)  # ops[0] is OP_STEP (reset() set it): one compiled call
+        if failed or low:
+            lp.settle(failed, low)
+        terminated = lp.terminated.item(0)
+        truncated = lp.truncated.item(0)
         self._done = terminated or truncated
-        return (lp.obs[0].copy(), float(lp.reward[0]), terminated, truncated,
-                {"tick": int(lp.ticks[0]), "rejected_commands": int(lp.rejected[0])})
+        return (self._obs_row.copy(), lp.reward.item(0), terminated, truncated,
+                {"tick": lp.ticks.item(0), "rejected_commands": lp.rejected.item(0)})
