@@ -89,7 +89,9 @@ if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
     log=$(mktemp)
     # every core for numba's parallel loops (make test pins one thread per test worker; the 3-D trees' wall
     # fields are built here, in parallel loops, minutes on one thread; their bits do not depend on the count)
-    (cd / && exec env -u NUMBA_NUM_THREADS "$venv/bin/python" -m vesselbot_ros.sim.warm --scope "$ws" --no-progress) >"$log" 2>&1 &
+    # make test's halves warm the Gymnasium environments' kernel too, after their loops (vesselbot_ros.envs.warm)
+    warm_module=vesselbot_ros.sim.warm; [ "$ws" = run ] || warm_module="vesselbot_ros.envs.warm --loops"
+    (cd / && exec env -u NUMBA_NUM_THREADS "$venv/bin/python" -m $warm_module --scope "$ws" --no-progress) >"$log" 2>&1 &
     numba_pids+=($!); numba_logs+=("$log")
   done
   numba_t0=$SECONDS
