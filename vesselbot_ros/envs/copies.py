@@ -242,10 +242,32 @@ def _borrowed_args(typingctx, state):  # type: ignore[no-untyped-def]  # numba i
 
 @numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts
 def _env_state_steps(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # numba: types at compile time
-    args, scratch = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
+    args, scratch, _io = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
     work, fbuf, sc, fk, acq, img_out, coil_out, gc, zd, forces = scratch
     return env_steps(lo, hi, *args, (work[slot], fbuf[slot], sc[slot], fk[slot], acq[slot], img_out[slot],
                                      coil_out[slot], gc[slot], zd[slot], forces[slot]))
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts
+def _env_state_step_one(state, action):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    args, scratch, io = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
+    actions, reward, terminated, truncated, ticks, rejected = io
+    if action.shape[0] != actions.shape[1]:
+        return -1, 0, 0.0, False, False, 0, 0
+    for c in range(action.shape[0]):
+        actions[0, c] = action[c]
+    work, fbuf, sc, fk, acq, img_out, coil_out, gc, zd, forces = scratch
+    failed, low = env_steps(0, 1, *args, (work[0], fbuf[0], sc[0], fk[0], acq[0], img_out[0], coil_out[0], gc[0],
+                                          zd[0], forces[0]))
+    return failed, low, reward[0], terminated[0], truncated[0], ticks[0], rejected[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def env_step_one(state, action):  # type: ignore[no-untyped-def]  # numba: types at compile time
+    """The scalar environment's step: copy 0 of ``state`` (its ``ops[0]`` set) under ``action`` ((d,) float64, copied
+    into the copy's action row), in one call; returns ``(failed, low, reward, terminated, truncated, tick,
+    rejected)`` (``failed`` -1: ``action`` is not d long, nothing stepped)."""
+    return _env_state_step_one(state, action)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -351,8 +373,12 @@ class LoopCopies:
         #: Every array above in one numba object (:class:`LoopState`), and :func:`env_kernel`'s compiled entry
         #: for its type: ``step(lo, hi, row, state_ref)`` steps copies ``lo .. hi-1`` with the scratch at row ``row`` (a thread's
         #: slot times _SLOT_ROWS) and returns ``(failed, low)`` (:meth:`settle`).
-        self.state_ref = new_loop_state((self._args, scratch))
+        io = (self.actions, self.reward, self.terminated, self.truncated, self.ticks, self.rejected)
+        self.state_ref = new_loop_state((self._args, scratch, io))
         self.step = _entry_point(self.state_ref)
+        #: :func:`env_step_one`'s compiled entry (the scalar environment's step: ``step_one(state_ref, action)``); its
+        #: ``action`` must be a one-dimensional float64 ndarray (any strides): the entry checks no type.
+        self.step_one = _entry_point(self.state_ref, one=True)
         edges = np.linspace(0, n, self.threads + 1).astype(int)
         self._ranges = [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
@@ -370,12 +396,14 @@ class LoopCopies:
         """
         if self.threads == 1:
             failed, low = self.step(0, self.n, 0, self.state_ref)
-        else:  # disjoint ranges of copies, one per thread, each its scratch slot (the kernel releases the GIL)
+        else:  # disjoint ranges of copies, one per thread, each its scratch slot (the kernel releases the GIL); the
+            # calling thread takes the first range itself (one hand-off fewer per step)
             if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=self.threads)
+                self._pool = ThreadPoolExecutor(max_workers=self.threads - 1)
             futures = [self._pool.submit(self.step, a, b, slot * _SLOT_ROWS, self.state_ref)
-                       for slot, (a, b) in enumerate(self._ranges)]
-            results = [f.result() for f in futures]
+                       for slot, (a, b) in enumerate(self._ranges) if slot > 0]
+            a0, b0 = self._ranges[0]
+            results = [self.step(a0, b0, 0, self.state_ref)] + [f.result() for f in futures]
             failed, low = sum(int(r[0]) for r in results), sum(int(r[1]) for r in results)
         if failed or low:
             self.settle(failed, low)
@@ -410,9 +438,14 @@ class LoopCopies:
 _SLOT_ROWS = 8
 
 
-def _entry_point(state: LoopState) -> Any:
-    """:func:`env_kernel`'s compiled entry for ``state``'s type (compiled, or loaded from numba's cache, by a call
-    that touches no copy): called directly, it skips the dispatcher's typing of the arguments (~0.5 us a step)."""
+def _entry_point(state: LoopState, one: bool = False) -> Any:
+    """:func:`env_kernel`'s compiled entry for ``state``'s type, or :func:`env_step_one`'s (``one``) (compiled, or
+    loaded from numba's cache, by a call that steps no copy: a range of none, an action of no length): called
+    directly, it skips the dispatcher's typing of the arguments (~0.5 us a step)."""
+    if one:
+        probe: tuple[Any, ...] = (state, np.zeros(8)[::2])  # any layout (a strided action read as it is); 4 long: no step
+        env_step_one(*probe)
+        return env_step_one.overloads[tuple(numba.typeof(v) for v in probe)].entry_point  # type: ignore[attr-defined]
     env_kernel(0, 0, 0, state)
     sig = tuple(numba.typeof(v) for v in (0, 0, 0, state))
     return env_kernel.overloads[sig].entry_point  # type: ignore[attr-defined]  # set on every compiled overload

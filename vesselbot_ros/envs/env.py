@@ -37,6 +37,8 @@ from .copies import OP_RESET, OP_STEP, LoopCopies, RewardParams
 
 __all__ = ["VesselbotEnv", "InvalidActionError", "scenario_of"]
 
+_FLOAT64 = np.dtype(np.float64)
+
 
 
 def loop_spaces(loop: LoopCopies) -> tuple[spaces.Space[npt.NDArray[np.float64]], spaces.Space[npt.NDArray[np.float64]]]:
@@ -104,10 +106,8 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
         self.action_space, self.observation_space = loop_spaces(lp)
         self._rng_seen: np.random.Generator | None = None
         self._done = True
-        # what step() touches, looked up once: copy 0's rows of the loop's arrays (views: the kernel writes them)
-        self._action_row = lp.actions[0]
+        # what step() returns, looked up once: copy 0's observation row (a view: the kernel writes it)
         self._obs_row = lp.obs[0]
-        self._action_shape = (lp.dims,)
 
     @property
     def tick(self) -> int:
@@ -134,15 +134,14 @@ class VesselbotEnv(gymnasium.Env[npt.NDArray[np.float64], npt.NDArray[np.float64
         if self._done:
             raise gymnasium.error.ResetNeeded("step() after the episode ended: call reset() first")
         lp = self.loop
-        if type(action) is np.ndarray and action.shape == self._action_shape and action.dtype == np.float64:
-            self._action_row[:] = action  # the common case, checked as _action_of does
-        else:
-            self._action_row[:] = _action_of(action, self.dims)
-        failed, low = lp.step(0, 1, 0, lp.state_ref)  # ops[0] is OP_STEP (reset() set it): one compiled call
+        if not (type(action) is np.ndarray and action.dtype is _FLOAT64 and action.ndim == 1):
+            # what the compiled entry takes (it checks no type; the length it checks)
+            action = _action_of(action, self.dims)
+        # ops[0] is OP_STEP (reset() set it): one compiled call copies the action in and steps
+        failed, low, reward, terminated, truncated, tick, rejected = lp.step_one(lp.state_ref, action)
         if failed or low:
+            if failed < 0:
+                _action_of(action, self.dims)  # raises: the wrong length
             lp.settle(failed, low)
-        terminated = lp.terminated.item(0)
-        truncated = lp.truncated.item(0)
         self._done = terminated or truncated
-        return (self._obs_row.copy(), lp.reward.item(0), terminated, truncated,
-                {"tick": lp.ticks.item(0), "rejected_commands": lp.rejected.item(0)})
+        return self._obs_row.copy(), reward, terminated, truncated, {"tick": tick, "rejected_commands": rejected}

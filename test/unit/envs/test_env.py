@@ -95,6 +95,35 @@ def test_nan_and_inf_actions_are_rejected_by_the_coil_counted_and_never_make_a_n
     assert not before.any()  # 100 T/m/s: zero within a tick
 
 
+def test_an_action_is_taken_by_value_whatever_its_layout_or_type() -> None:
+    """The step's compiled entry checks no type: a strided view, a list, a tuple and a read-only array give the bits
+    of the plain float64 array (the view read with its strides, the others converted first); a float32 array is
+    converted and flies."""
+    env = VesselbotEnv(_short(), privileged=True)
+    actions = np.random.default_rng(1).uniform(-0.08, 0.08, (10, 2))
+
+    def episode(form) -> np.ndarray:  # type: ignore[no-untyped-def]
+        env.reset(seed=3)
+        return np.array([env.step(form(a))[0] for a in actions])
+
+    plain = episode(lambda a: a.copy())
+    wide = np.zeros((10, 4))
+    wide[:, ::2] = actions
+
+    def strided(a: np.ndarray) -> np.ndarray:
+        i = int(np.flatnonzero((actions == a).all(axis=1))[0])
+        return wide[i, ::2]  # a view two doubles apart
+
+    def read_only(a: np.ndarray) -> np.ndarray:
+        b = a.copy()
+        b.flags.writeable = False
+        return b
+
+    for form in (strided, lambda a: list(a), lambda a: tuple(float(v) for v in a), read_only):
+        np.testing.assert_array_equal(episode(form), plain)
+    assert not np.array_equal(episode(lambda a: a.astype(np.float32)), np.zeros_like(plain))  # converted, flies
+
+
 def test_the_same_seed_gives_the_same_bits_and_reset_without_a_seed_goes_on() -> None:
     env = VesselbotEnv(_short(), privileged=True)
     actions = np.random.default_rng(0).uniform(-0.08, 0.08, (20, 2))
