@@ -155,8 +155,10 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         return
     n = n_workers or local_worker_count()
     try:
+        # the workers' own log lines at CRITICAL only: a run's failure is its row's 'error' and the campaign's one line;
+        # at ERROR a worker whose heartbeat met the scheduler already closing printed a traceback on a loaded machine
         cluster = LocalCluster(n_workers=1, threads_per_worker=n, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)
     except (OSError, TimeoutError, RuntimeError) as exc:
         raise RunError(f"cannot start a local Dask cluster of {n} workers: {exc}") from None
     client = Client(cluster)

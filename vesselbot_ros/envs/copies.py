@@ -229,7 +229,7 @@ def _borrowed_args(typingctx, state):  # type: ignore[no-untyped-def]  # numba i
     """``state.args`` read without numba's runtime, for a caller compiled without it: no reference counts (the
     state, held by the caller's argument for the whole call, holds the arrays).  The payload's pointer is read as
     ``NRT_MemInfo_data_fast`` reads it: the 4th word of numba's ``NRT_MemInfo {refct, dtor, dtor_info, data, ...}``."""
-    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]  # numba's codegen hook: typed by numba
         ref = cgutils.create_struct_proxy(sig.args[0])(context, builder, value=args[0])
         head = ir.LiteralStructType([cgutils.intp_t, cgutils.voidptr_t, cgutils.voidptr_t, cgutils.voidptr_t])
         data = builder.load(cgutils.gep_inbounds(builder, builder.bitcast(ref.meminfo, head.as_pointer()), 0, 3))
@@ -445,7 +445,7 @@ def _entry_point(state: LoopState, one: bool = False) -> Any:
     if one:
         probe: tuple[Any, ...] = (state, np.zeros(8)[::2])  # any layout (a strided action read as it is); 4 long: no step
         env_step_one(*probe)
-        return env_step_one.overloads[tuple(numba.typeof(v) for v in probe)].entry_point  # type: ignore[attr-defined]
+        return env_step_one.overloads[tuple(numba.typeof(v) for v in probe)].entry_point  # type: ignore[attr-defined]  # set on every compiled overload
     env_kernel(0, 0, 0, state)
     sig = tuple(numba.typeof(v) for v in (0, 0, 0, state))
     return env_kernel.overloads[sig].entry_point  # type: ignore[attr-defined]  # set on every compiled overload
