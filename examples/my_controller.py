@@ -41,9 +41,11 @@ class MyController(Node):
         self.refs: dict[tuple[int, int], ReferenceSample] = {}
         self.estimates: dict[tuple[int, int], Odometry] = {}
         cmd, est, ref = topic("gradient_command"), topic("estimate"), topic("reference")
-        self.pub = self.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
+        # the subscriptions first, the publisher last: the run starts once it sees a node publish in its slot, and
+        # an input of tick 0 sent before its subscription matched would be lost (lockstep waits for its answer)
         self.create_subscription(Odometry, est.rel, self.on_estimate, qos_profile(est))
         self.create_subscription(ReferenceSample, ref.rel, self.on_reference, qos_profile(ref))
+        self.pub = self.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
 
     @staticmethod
     def key(stamp) -> tuple[int, int]:

@@ -55,10 +55,11 @@ class MyScannerController(Node):
         self.estimates: dict[tuple[int, int], Odometry] = {}
         self.windows: list[SequencePhase] = []  # phase windows received, oldest first (a few kept)
         cmd, est, ref, phase = topic("gradient_command"), topic("estimate"), topic("reference"), topic("sequence_phase")
-        self.pub = self.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
+        # the subscriptions first, the publisher last (examples/my_controller.py says why)
         self.create_subscription(Odometry, est.rel, self.on_estimate, qos_profile(est))
         self.create_subscription(ReferenceSample, ref.rel, self.on_reference, qos_profile(ref))
         self.create_subscription(SequencePhase, phase.rel, self.on_phase, qos_profile(phase))
+        self.pub = self.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
 
     @staticmethod
     def key(stamp) -> tuple[int, int]:

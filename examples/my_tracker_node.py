@@ -51,8 +51,9 @@ class MyTracker(Node):
         self.frames = 0
         self.last: PointStamped | None = None
         out, frames = topic("measurement"), topic("mr_frame")
-        self.pub = self.create_publisher(PointStamped, out.rel, qos_profile(out))
+        # the subscription first, the publisher last (examples/my_controller.py says why)
         self.create_subscription(Image, frames.rel, self.on_frame, qos_profile(frames))
+        self.pub = self.create_publisher(PointStamped, out.rel, qos_profile(out))
 
     def position(self, msg: Any) -> PointStamped | None:
         """The frame's measurement, or None (no frame, or rejected by the tracker)."""

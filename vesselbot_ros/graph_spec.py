@@ -639,6 +639,8 @@ def role_contract(name: str, namespace: str | None = None, frames: bool | None =
     lines.append(f"  with use_sim_time=true; QoS: {', '.join(sorted(depth))} (see docs/graph.md).")
     if name != "plant":
         lines.append("  Lockstep: answer tick k with header.stamp = t_k of the input that triggered it.")
+        if ports[1]:
+            lines.append("  Create the subscriptions before the publishers: the run starts once it sees yours publish.")
     return "\n".join(lines)
 
 
