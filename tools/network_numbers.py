@@ -210,7 +210,8 @@ def flight_block_3t() -> str:
     lost = []
     for share in (0.7, 0.95):
         other = make_plan(base, PlanOptions(crest_budget_share=share))
-        sc = scenario_with(plan_scenario(base, other.reference), {**flying_changes(planned, other), **FLIGHT_FILTER})
+        planned_other = plan_scenario(base, other.reference)
+        sc = scenario_with(planned_other, {**flying_changes(planned_other, other), **FLIGHT_FILTER})
         worst = [run_closed_loop(sc, seed).metrics["tracking_error_max_m"] for seed in range(5)]
         lost.append(f"{share:.2f}: {sum(w > 1e-3 for w in worst)} of 5 over 1 mm (worst {max(worst) * 1e3:.1f} mm)")
     crest_s = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in crests) or "none"

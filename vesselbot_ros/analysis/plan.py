@@ -738,6 +738,13 @@ def _crests(traj: ReferenceTrajectory, wall: MeshedWall, radius_m: float,
     return out
 
 
+def _floor_trajectory(ref: ReferenceParams, scenario: Scenario, wall: MeshedWall | None) -> ReferenceTrajectory:
+    """``ref`` as the planner sees it: shifted as the plant's wall, and following the floor of ``wall`` as it
+    pulsates (none in the straight vessel)."""
+    motion = None if wall is None else WallMotion(wall.follow_offset, wall.pulsation, wall.omega, wall.phase)
+    return ReferenceTrajectory(ref, wall_shift=wall_shift_of(scenario.physics), wall_motion=motion)
+
+
 def crest_times(scenario: Scenario, reach_m: float = 1e-3) -> list[tuple[float, float]]:
     """The times at which a planned scenario's reference (``timing: planned``, as :func:`plan_scenario` writes it)
     runs within ``reach_m`` of a crest of the floor it rests on (:func:`_crests`), as ``(t_a, t_b)`` stretches (s);
@@ -746,9 +753,7 @@ def crest_times(scenario: Scenario, reach_m: float = 1e-3) -> list[tuple[float, 
     wall = meshed_wall(scenario)
     if wall is None or not ref.wall_follow or not ref.planned_t_s:
         return []
-    motion = WallMotion(wall.follow_offset, wall.pulsation, wall.omega, wall.phase)
-    traj = ReferenceTrajectory(dataclasses.replace(ref, timing="constant", planned_t_s=(), planned_u_m=()),
-                               wall_shift=wall_shift_of(scenario.physics), wall_motion=motion)
+    traj = _floor_trajectory(ref, scenario, wall)
     t = float(ref.start_s) + np.asarray(ref.planned_t_s, dtype=np.float64)
     u = np.asarray(ref.planned_u_m, dtype=np.float64)
     out = []
@@ -1081,8 +1086,7 @@ def _make_plan(scenario: Scenario, options: PlanOptions, attempted: Callable[[],
                                route_anchors="given" if network else "planned",
                                timing="constant", planned_t_s=(), planned_u_m=())
     wall = meshed_wall(scenario) if np.any(g.follow) else None
-    motion = None if wall is None else WallMotion(wall.follow_offset, wall.pulsation, wall.omega, wall.phase)
-    traj = ReferenceTrajectory(geom, wall_shift=wall_shift_of(scenario.physics), wall_motion=motion)
+    traj = _floor_trajectory(geom, scenario, wall)
     if g.fall is not None:  # the fall's own timing, then the pass from where it rests on the wall
         u_fall = _fall_timing(g.fall, g.fall_picks, traj.anchor_u_m)
         t_pre, u_pre = g.fall.t + t0, u_fall
