@@ -250,15 +250,13 @@ def _env_state_steps(lo, hi, slot, state):  # type: ignore[no-untyped-def]  # nu
 
 @numba.njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # no runtime: no reference counts
 def _env_state_step_one(state, action):  # type: ignore[no-untyped-def]  # numba: types at compile time
-    args, scratch, io = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
+    _args, _scratch, io = _borrowed_args(state)  # type: ignore[call-arg, var-annotated]  # the intrinsic takes the typing context itself
     actions, reward, terminated, truncated, ticks, rejected = io
     if action.shape[0] != actions.shape[1]:
         return -1, 0, 0.0, False, False, 0, 0
     for c in range(action.shape[0]):
         actions[0, c] = action[c]
-    work, fbuf, sc, fk, acq, img_out, coil_out, gc, zd, forces = scratch
-    failed, low = env_steps(0, 1, *args, (work[0], fbuf[0], sc[0], fk[0], acq[0], img_out[0], coil_out[0], gc[0],
-                                          zd[0], forces[0]))
+    failed, low = _env_state_steps(0, 1, 0, state)  # copy 0, the first thread's scratch slot
     return failed, low, reward[0], terminated[0], truncated[0], ticks[0], rejected[0]
 
 
