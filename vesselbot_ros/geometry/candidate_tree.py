@@ -115,30 +115,47 @@ def _select(cx, cy, cz, w, lo, hi, pidx, d, pstart, pbox, slack, out, o):  # typ
 
 
 @numba.njit(cache=True, parallel=True)
-def _filter(d, pstart, pbox, centres, w, poff, pidx, parent, slack):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _filter_chunk(d, pstart, pbox, centres, w, poff, pidx, parent, slack, c0, c1, boff, buf, cnt, seed):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The lists of cells ``c0:c1`` into ``buf`` (cell i's at ``boff[i - c0]``, room for its parent's whole list),
+    in parallel over the cells; their counts and seeds into ``cnt`` and ``seed``."""
+    for i in numba.prange(c0, c1):
+        p = parent[i]
+        cnt[i], seed[i] = _select(centres[i, 0], centres[i, 1], centres[i, 2], w[i], poff[p], poff[p + 1], pidx, d,
+                                  pstart, pbox, slack, buf, boff[i - c0])
+
+
+#: The most list entries :func:`_filter` holds at once before compacting (int64: 32 MB).
+_FILTER_BUFFER = 1 << 22
+
+
+def _filter(d: Array, pstart: IArray, pbox: Array, centres: Array, w: Array, poff: IArray, pidx: IArray,
+            parent: IArray, slack: float) -> tuple[IArray, IArray, IArray]:
     """CSR lists of the cells (centres (k, 3), half-diagonals w): the parent's patches within d(c) + 2 w.
 
     A patch's distance is its nearest triangle's; its oriented box's distance bounds it from below, so a patch
     whose box is beyond the limit (or, while d(c) is sought, beyond the nearest so far) is never measured.
-    Two passes (count, then fill: the distances are computed twice, memory stays the lists' own), each in
-    parallel over the cells.  Each list is sorted by the patches' distance to the cell centre.
+    One pass over chunks of cells, each in parallel over its cells: a cell's list is written where its parent's
+    whole list would fit (a chunk's room is at most :data:`_FILTER_BUFFER` entries, or one cell's), then the
+    chunk is compacted.  Each list is sorted by the patches' distance to the cell centre.
     """
     n = centres.shape[0]
     cnt = np.zeros(n, dtype=np.int64)
     seed = np.zeros(n, dtype=np.int64)
-    none = np.empty(0, dtype=np.int64)
-    for i in numba.prange(n):
-        p = parent[i]
-        cnt[i], seed[i] = _select(centres[i, 0], centres[i, 1], centres[i, 2], w[i], poff[p], poff[p + 1], pidx, d,
-                                  pstart, pbox, slack, none, 0)
-    off = np.zeros(n + 1, dtype=np.int64)
-    for i in range(n):
-        off[i + 1] = off[i] + cnt[i]
-    out = np.empty(off[n], dtype=np.int64)
-    for i in numba.prange(n):
-        p = parent[i]
-        _select(centres[i, 0], centres[i, 1], centres[i, 2], w[i], poff[p], poff[p + 1], pidx, d, pstart, pbox, slack,
-                out, off[i])
+    room = (poff[1:] - poff[:-1])[parent]
+    ends = np.cumsum(room)
+    parts: list[IArray] = []
+    c0 = 0
+    while c0 < n:
+        base = ends[c0 - 1] if c0 else 0
+        c1 = max(c0 + 1, int(np.searchsorted(ends, base + _FILTER_BUFFER, side="right")))
+        boff = np.concatenate([[0], ends[c0:c1 - 1] - base]).astype(np.int64)
+        buf = np.empty(int(ends[c1 - 1] - base), dtype=np.int64)
+        _filter_chunk(d, pstart, pbox, centres, w, poff, pidx, parent, slack, c0, c1, boff, buf, cnt, seed)
+        keep = np.arange(buf.size) - np.repeat(boff, room[c0:c1]) < np.repeat(cnt[c0:c1], room[c0:c1])
+        parts.append(buf[keep])
+        c0 = c1
+    off = np.concatenate([[0], np.cumsum(cnt)]).astype(np.int64)
+    out = np.concatenate(parts) if parts else np.empty(0, dtype=np.int64)
     return off, out, seed
 
 

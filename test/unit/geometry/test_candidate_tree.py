@@ -29,3 +29,19 @@ def test_y_candidates_are_complete_and_the_sign_is_the_unions(y: Wall3D) -> None
     far = near > 5e-6
     assert far.sum() > 2000
     np.testing.assert_array_equal(s[far] > 0, inside[far])
+
+
+def test_the_lists_do_not_depend_on_the_chunks_they_are_filtered_in(y: Wall3D, monkeypatch) -> None:
+    """The filter writes a chunk of cells at a time into bounded room, then compacts it: any chunking (down to
+    one cell per chunk) gives the same tree to the bit."""
+    from vesselbot_ros.geometry import candidate_tree as ct
+
+    t = y.tree
+    args = (y.surface, 1.2e-3, 0.8e-3, 8, 2)
+    whole = ct.candidate_tree(*args)
+    for room in (1, 97, 5000):
+        monkeypatch.setattr(ct, "_FILTER_BUFFER", room)
+        small = ct.candidate_tree(*args)
+        for name in ("grid", "nodes", "index", "depth"):
+            assert np.array_equal(getattr(small, name), getattr(whole, name)), (room, name)
+    assert np.array_equal(whole.index, t.index) and np.array_equal(whole.nodes, t.nodes)
