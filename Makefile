@@ -33,7 +33,7 @@ INTEGRATION = $(PY) -m pytest test/integration -q -n 2 --dist loadfile -m "not w
 ## The live view's unit tests (a Foxglove server, native code) run in a fresh process of their own, as the
 ## live view does in use (the recorder node, `vesselbot replay --live`): after half the unit suite in one
 ## worker, that worker was seen to die at the server's first test (2 of 6 clean-clone runs; never alone).
-UNIT = $(PY) -m pytest test/unit -q -n 2 --ignore=test/unit/test_live.py $(PYTEST_ARGS) \
+UNIT = $(PY) -m pytest test/unit -q -n 2 --ignore=test/unit/test_live.py --durations=10 $(PYTEST_ARGS) \
 	&& $(PY) -m pytest test/unit/test_live.py -q $(PYTEST_ARGS)
 ## (the bootstrap runs `make lint`'s checks while numba's warm-up finishes: VESSELBOT_BOOTSTRAP_LINT).
 ## The suite's two workers fill the two cores: numba's parallel loops run on one thread in each, and OpenMP's idle

@@ -23,15 +23,37 @@ __all__ = ["warm", "main"]
 
 
 #: What :func:`warm` compiles: ``all`` (every shipped scenario: what ``make test`` needs, the 3-D trees' wall
-#: lookups included, minutes on a fresh machine), its two halves ``planar`` and ``trees`` (the 3-D scenarios), which
-#: the bootstrap warms in two processes at once, or ``run`` (the default scenario: what ``make run`` needs; the rest
-#: compiles on first use, a 3-D wall build saying so in one line).
+#: lookups included, minutes on a fresh machine), its two halves ``planar`` and ``trees`` (the 3-D scenarios, and
+#: the wall's build, :func:`warm_wall_build`), which the bootstrap warms in two processes at once, or ``run`` (the
+#: default scenario: what ``make run`` needs; the rest compiles on first use, a 3-D wall build saying so in one line).
 SCOPES = ("all", "planar", "trees", "run")
 
 
 def _in_scope(scope: str, name: str, dims: int) -> bool:
     return (scope == "all" or (scope == "planar" and dims == 2) or (scope == "trees" and dims == 3)
             or (scope == "run" and name == DEFAULT_SCENARIO))
+
+
+def warm_wall_build() -> None:
+    """Compile the 3-D wall's build (:func:`~vesselbot_ros.geometry.field_build.build_wall_field3d` at the plant's
+    settings, its candidate tree included) on a block of the reference Y (seconds once compiled): what a new tree's
+    first run and the cross-kernel build test (test_builds_fingerprint: a subprocess per kernel) would otherwise
+    each compile, minutes; the shipped trees' fields may already be in the machine's cache, so their builds may
+    not run here."""
+    import numpy as np  # deferred: as below, only this part needs them
+
+    from vesselbot_ros.geometry.field_build import build_wall_field3d  # deferred: the build and gmsh's Y are heavy
+    from vesselbot_ros.geometry.fixtures import y_wall
+    from vesselbot_ros.geometry.surface_wall import Wall3D
+    from vesselbot_ros.vessels import tree_field as pf
+
+    h = 0.25e-3
+    v, t, caps, _n = y_wall(0.2e-3)
+    wall = Wall3D(v, t, caps, margin_m=pf.GRID_MARGIN_M + 4.0 * h, root_m=3.2e-3, max_depth=4, near_m=pf.NEAR_M,
+                  deep_leaf_m=0.8e-3, far_out_m=pf.OUT_BAND_M + 3.0 * h)
+    build_wall_field3d(wall, h_m=h, band_m=pf.BAND_M, out_band_m=pf.OUT_BAND_M, refine=pf.REFINE,
+                       origin_m=np.array([-1.0e-3, -1.5e-3, -1.0e-3]), shape=(10, 10, 10),
+                       exact_max_depth=pf.EXACT_DEPTH, tube=True, list_max=pf.LIST_MAX)
 
 
 def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
@@ -56,6 +78,8 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
                                                                     dead_time_s=0.001, propulsion_window_s=0.003,
                                                                     latency_s=0.001)))
     progress(0, len(scenarios))
+    if scope in ("all", "trees"):
+        warm_wall_build()
     for done, sc in enumerate(scenarios, 1):
         sc = short_copy(sc, 0.01)  # a multiplexed sequence shrunk to fit the 10 ticks (the same compiled code)
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
