@@ -599,6 +599,12 @@ def _note_lines(t: TopicSpec, width: int = 100) -> list[str]:
     return textwrap.wrap(t.note, width, initial_indent="      ", subsequent_indent="      ") if t.note else []
 
 
+#: How long (s, wall) what the graph shows of a user's node in a slot (its name, its subscriptions) must stay the
+#: same, once it publishes, before a run starts (the launcher's wiring; DDS announces publications and
+#: subscriptions separately).
+SLOT_SETTLE_S = 0.5
+
+
 def role_contract(name: str, namespace: str | None = None, frames: bool | None = None) -> str:
     """What a user's node in the slot of role ``name`` must do (printed by ``vesselbot run --without``).
 
@@ -640,7 +646,9 @@ def role_contract(name: str, namespace: str | None = None, frames: bool | None =
     if name != "plant":
         lines.append("  Lockstep: answer tick k with header.stamp = t_k of the input that triggered it.")
         if ports[1]:
-            lines.append("  Create the subscriptions before the publishers: the run starts once it sees yours publish.")
+            lines.append(f"  The run starts once your node publishes and what the graph shows of it has not changed for "
+                         f"{SLOT_SETTLE_S:g} s: create every subscription before (or within {SLOT_SETTLE_S:g} s of) your "
+                         "publishers.")
     return "\n".join(lines)
 
 

@@ -39,6 +39,35 @@ except KeyboardInterrupt:
 """
 
 
+# a controller whose subscriptions the graph learns of after its publisher (DDS announces them on separate
+# built-in writers, so any node can look like this for a moment; here it is 0.3 s, once the rest of the graph is
+# up, so that the launcher waits for this node alone): it answers every tick
+LATE_SUBSCRIBER = """
+import sys, time, rclpy
+from geometry_msgs.msg import Vector3Stamped
+from nav_msgs.msg import Odometry
+from vesselbot_ros.graph_spec import DEFAULT_NAMESPACE, qos_profile, topic
+rclpy.init(args=sys.argv)
+node = rclpy.create_node("late_subscriber", namespace=DEFAULT_NAMESPACE)
+cmd, est = topic("gradient_command"), topic("estimate")
+while node.count_publishers(est.rel) == 0:  # the graph is up: the launcher waits for this slot's node alone
+    time.sleep(0.05)
+time.sleep(1.0)
+pub = node.create_publisher(Vector3Stamped, cmd.rel, qos_profile(cmd))
+time.sleep(0.3)
+def answer(msg):
+    out = Vector3Stamped()
+    out.header.stamp = msg.header.stamp
+    out.header.frame_id = "vessel"
+    pub.publish(out)
+node.create_subscription(Odometry, est.rel, answer, qos_profile(est))
+try:
+    rclpy.spin(node)
+except BaseException:
+    pass
+"""
+
+
 def _lease_free_domain() -> int:
     from vesselbot_ros.ros_env import allocate_domain
 
@@ -79,6 +108,33 @@ def test_users_controller_every_command_is_in_the_bag(tmp_path):
             if key.startswith("published:") and not key.endswith("/diagnostics"):
                 name = key.split(":", 1)[1]
                 assert info.topic(name).count == int(value), (node, name, value)
+
+
+@pytest.mark.timeout(300)
+def test_a_slots_node_whose_subscription_the_graph_learns_of_late_still_gets_tick_0(tmp_path):
+    """The run starts once what the graph shows of the slot's node (its publishers, then its subscriptions) has
+    stayed the same for a moment, and our publishers matched its subscriptions: tick 0's estimate is not sent
+    before the user's subscription exists (it was lost, and the coil's watchdog answered tick 0 after 2 s)."""
+    from vesselbot_ros.bag.reader import open_bag
+
+    dom = _lease_free_domain()
+    env = hostile_env(dom, tmp_path / "ros_log")
+    user = subprocess.Popen([sys.executable, "-c", LATE_SUBSCRIBER, "--ros-args", "-p", "use_sim_time:=true"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    bag = tmp_path / "bag"
+    try:
+        p = subprocess.run(run_cmd("--duration", "0.1", "--without", "controller", "--domain-id", str(dom),
+                                   "--record-dir", str(bag), "--quiet"),
+                           cwd=REPO, capture_output=True, text=True, timeout=240)
+    finally:
+        user.send_signal(signal.SIGINT)
+        try:
+            user.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            user.kill()
+    assert p.returncode == 0, p.stdout + p.stderr
+    info = open_bag(bag)
+    assert info.topic("/vesselbot/gradient_command").count == 100
 
 
 @pytest.mark.timeout(300)

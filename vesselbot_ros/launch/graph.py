@@ -48,6 +48,7 @@ from vesselbot_ros.graph_spec import (
     REALTIME_FACTOR_LIMIT,
     REALTIME_MISSED_LIMIT,
     ROLES,
+    SLOT_SETTLE_S,
     TOPICS,
     diagnostic_counters,
     loop_roles,
@@ -578,8 +579,10 @@ def _wired(mon: Monitor, roles: list[str], without: tuple[str, ...], frames: boo
                 t = next((t for t in _topics_by_name() if t.name == name), None)
                 if t is not None and int(val) < mon.subscribers(t.key):
                     return False
-    return all(mon.publishes(k) for r in without for k in role(r).outputs_for(frames)
-               if topic(k).qos != "reliable_latched")
+    # a user's node in a slot: its subscriptions known and stable for a moment after its publishers were seen
+    # (announced separately), so that the matches checked above include them
+    return all(mon.slot_settled([k for k in role(r).outputs_for(frames) if topic(k).qos != "reliable_latched"],
+                                SLOT_SETTLE_S) for r in without)
 
 
 def _topics_by_name() -> tuple[Any, ...]:

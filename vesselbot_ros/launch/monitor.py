@@ -119,6 +119,8 @@ class Monitor:
             r: self.node.create_client(GetSeries, service(series_service_key(r)).rel)
             for r in loop_roles(frames) if r not in self.user_roles and series_service_key(r) in role(r).services}
         self._series_futures: dict[str, Resend] = {}
+        #: per slot's topics: what the graph last showed of its nodes, and since when (wall; :meth:`slot_settled`)
+        self._slot_seen: dict[tuple[str, ...], tuple[Any, float]] = {}
 
     def _user_callback(self, key: str) -> Any:
         name = topic(key).name
@@ -247,6 +249,35 @@ class Monitor:
     def subscribers(self, key: str) -> int:
         """Number of subscriptions to topic ``key``."""
         return int(self.node.count_subscribers(self.resolved(key)))
+
+    def slot_settled(self, keys: Sequence[str], hold_s: float) -> bool:
+        """True once some node publishes each of topics ``keys`` (a user's node in a slot) and what the graph shows
+        of those nodes (their names and their subscriptions' topics) has not changed for ``hold_s`` (wall).
+
+        DDS announces a node's publications and subscriptions on separate built-in writers: seeing a user's node
+        publish does not mean its subscriptions are known yet.  Their publishers' matches are then checked
+        against the count that includes them (``_wired``), so no input of tick 0 is sent before they match.
+        """
+        nodes: set[tuple[str, str]] = set()
+        for k in keys:
+            infos = self.node.get_publishers_info_by_topic(self.resolved(k))
+            if not infos:
+                return False
+            nodes.update((i.node_name, i.node_namespace) for i in infos)
+        from rclpy.node import NodeNameNonExistentError  # deferred: rclpy (see __init__)
+
+        seen = []
+        for name, ns in sorted(nodes):
+            try:
+                subs = sorted(t for t, _types in self.node.get_subscriber_names_and_types_by_node(name, ns))
+            except NodeNameNonExistentError:  # its endpoints are known before the node itself
+                return False
+            seen.append((name, ns, tuple(subs)))
+        now = time.monotonic()
+        key = (tuple(keys), tuple(seen))
+        if self._slot_seen.get(tuple(keys), (None, now))[0] != key:
+            self._slot_seen[tuple(keys)] = (key, now)
+        return now - self._slot_seen[tuple(keys)][1] >= hold_s
 
     def published(self, roles: Sequence[str], require_finished: bool = False) -> dict[str, int] | None:
         """Per canonical topic: what our nodes (diagnostics) and the users' nodes (counted here) published.
