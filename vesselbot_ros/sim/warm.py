@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 import dataclasses as dc
 
+import numpy as np
+
 from vesselbot_ros.progress import ProgressFn, add_progress_argument, session, step, wanted
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
@@ -40,9 +42,8 @@ def warm_wall_build() -> None:
     first run and the cross-kernel build test (test_builds_fingerprint: a subprocess per kernel) would otherwise
     each compile, minutes; the shipped trees' fields may already be in the machine's cache, so their builds may
     not run here."""
-    import numpy as np  # deferred: as below, only this part needs them
-
-    from vesselbot_ros.geometry.field_build import build_wall_field3d  # deferred: the build and gmsh's Y are heavy
+    # deferred: the build and gmsh's Y are heavy, and only this part of the warm-up needs them
+    from vesselbot_ros.geometry.field_build import build_wall_field3d
     from vesselbot_ros.geometry.fixtures import y_wall
     from vesselbot_ros.geometry.surface_wall import Wall3D
     from vesselbot_ros.vessels import tree_field as pf
