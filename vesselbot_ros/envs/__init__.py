@@ -13,6 +13,8 @@ Importing this package registers the task tiers under the ``vesselbot/`` namespa
   the reward and the end of an episode;
 * :mod:`~vesselbot_ros.envs.env`: :class:`~vesselbot_ros.envs.env.VesselbotEnv`, one loop;
 * :mod:`~vesselbot_ros.envs.vector`: :class:`~vesselbot_ros.envs.vector.VesselbotVectorEnv`, N loops in one call;
+* :mod:`~vesselbot_ros.envs.stage_env`: :class:`~vesselbot_ros.envs.stage_env.StageEnv`, one loop of stages the
+  compiled loop cannot run (MR images of the bead and their tracker, a user's Python stage), per tick;
 * :mod:`~vesselbot_ros.envs.replay`: an episode's actions through ``run_closed_loop`` (the same bits);
 * :mod:`~vesselbot_ros.envs.registration`: the tiers.
 
@@ -21,8 +23,8 @@ The package sits above :mod:`vesselbot_ros.sim` and never imports ROS.
 
 from __future__ import annotations
 
-from vesselbot_ros.envs.registration import TIERS, register_envs
+from vesselbot_ros.envs.registration import STAGE_TIERS, TIERS, register_envs
 
-__all__ = ["TIERS", "register_envs"]
+__all__ = ["TIERS", "STAGE_TIERS", "register_envs"]
 
 register_envs()

@@ -71,7 +71,7 @@ import dataclasses
 import os
 import threading
 import weakref
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Generator, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Literal, NamedTuple
 
@@ -87,7 +87,7 @@ from vesselbot_ros.sim.metrics import compute_metrics
 from vesselbot_ros.sim.scenario import Scenario, short_copy
 
 __all__ = ["Stages", "SimResult", "build_stages", "build_stage", "warm_up", "run_closed_loop", "run_stages", "run_many", "STATUS_CODES",
-           "PATHS", "REPLACEABLE", "frame_counts"]
+           "PATHS", "REPLACEABLE", "frame_counts", "Tick", "per_tick_ticks"]
 
 STATUS_CODES = {"ok": 0, "stale": 1, "nonfinite": 2}
 #: ``SimResult.path``: ``compiled`` (one compiled call) or ``per_tick`` (Python loop over the stages' methods).
@@ -417,9 +417,27 @@ def frame_counts(imager: Any, tracker: Any) -> dict[str, Any]:
     return out
 
 
-def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult:
-    """The per-tick loop over the stages' methods (module docstring)."""
-    n = scenario.sim.n_ticks
+class Tick(NamedTuple):
+    """What :func:`per_tick_ticks` yields at tick ``k``, after the observer's update: the plant's output, the
+    estimate, the reference at ``t_k`` and the gradient the coil applied over the last period (zero at tick 0)."""
+
+    k: int
+    t_s: float
+    truth: Any
+    estimate: Any
+    p_ref: npt.NDArray[np.float64]
+    v_ref: npt.NDArray[np.float64]
+    a_ref: npt.NDArray[np.float64]
+    g_applied: npt.NDArray[np.float64]
+
+
+def per_tick_ticks(scenario: Scenario, st: Stages, n: int
+                   ) -> Generator[Tick, tuple[Any, int], tuple[dict[str, npt.NDArray[Any]], dict[str, Any]]]:
+    """The per-tick loop (module docstring) over ``n`` ticks, one at a time: yields a :class:`Tick` after the
+    observer's update at tick k and takes that tick's ``(command, rejection code)`` back (``send``; a rejected
+    command's gradient is NaN: the coil ramps to zero), then runs the coil and the plant to tick k + 1.  Returns
+    ``(series, metrics)`` after the last tick.  :func:`_run_per_tick` sends the controller's commands; the
+    image-based environment (:mod:`vesselbot_ros.envs.stage_env`) an agent's."""
     dt = scenario.sim.dt_control_s
     ts = np.asarray(np.arange(n) * dt, dtype=np.float64)  # float64 already; the dtype types it
     p_ref, v_ref, a_ref = st.reference.sample_many(ts)
@@ -435,7 +453,6 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
     seq_phase = _sequence_phase(scenario, ts)
     status = np.zeros(n, dtype=np.int8)
     rejected = np.zeros(n, dtype=np.int8)
-    reject_details: dict[int, str] = {}
     forces = np.empty((n, 8, d)) if rec_forces else None
 
     plant, imager, observer, controller, coil = st.plant, st.imager, st.observer, st.controller, st.coil
@@ -450,14 +467,9 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         if tracker is not None and meas is not None:  # an MR frame: the tracker's position, or None (rejected)
             meas = tracker.track(t, meas)
         est = observer.update(t, meas, g_prev)
-        # the controller gets what the graph carries between the nodes (kinds.call_controller: the same numbers);
-        # a bad command (non-finite, raised, not a command) is rejected: the coil gets NaN and ramps to zero
-        cmd, why, detail = kinds.checked_command(controller, t, est.x_hat, est.z_hat, est.time_since_measurement_s,
-                                                 getattr(est, "flow_scale", 1.0), p_ref[k], v_ref[k], a_ref[k], d)
+        cmd, why = yield Tick(k, t, truth, est, p_ref[k], v_ref[k], a_ref[k], g_prev)
         if why:
             rejected[k] = why
-            if why not in reject_details:
-                reject_details[why] = detail
         out = coil.apply(t, cmd.gradient_T_per_m if not why else nan2)
         plant.step(out.applied)
         g_prev = out.applied
@@ -508,13 +520,38 @@ def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult
         series["forces"] = forces
     observer_stats = getattr(getattr(observer, "model", None), "stats", np.zeros(4, dtype=np.int64))
     plant_stats = getattr(plant, "stats", np.zeros(4, dtype=np.int64))  # a user's plant may count nothing
-    metrics = _metrics(scenario, seed, series, plant_stats, observer_stats)
+    return series, {"plant_stats": plant_stats, "observer_stats": observer_stats}
+
+
+def _run_per_tick(scenario: Scenario, seed: int | None, st: Stages) -> SimResult:
+    """The per-tick loop over the stages' methods (module docstring): :func:`per_tick_ticks` driven by the
+    controller."""
+    d = scenario.dims
+    controller = st.controller
+    reject_details: dict[int, str] = {}
+    ticks = per_tick_ticks(scenario, st, scenario.sim.n_ticks)
+    try:
+        tick = next(ticks)
+        while True:
+            est = tick.estimate
+            # the controller gets what the graph carries between the nodes (kinds.call_controller: the same
+            # numbers); a bad command (non-finite, raised, not a command) is rejected: the coil ramps to zero
+            cmd, why, detail = kinds.checked_command(controller, tick.t_s, est.x_hat, est.z_hat,
+                                                     est.time_since_measurement_s, getattr(est, "flow_scale", 1.0),
+                                                     tick.p_ref, tick.v_ref, tick.a_ref, d)
+            if why and why not in reject_details:
+                reject_details[why] = detail
+            tick = ticks.send((cmd, why))
+    except StopIteration as stop:
+        series, stats = stop.value
+    metrics = _metrics(scenario, seed, series, stats["plant_stats"], stats["observer_stats"])
     if kinds.REJECT_RAISED in reject_details:  # what the controller raised first (only a Python stage can)
         metrics["rejected_command_error"] = reject_details[kinds.REJECT_RAISED]
     if kinds.REJECT_MALFORMED in reject_details:
         metrics["rejected_command_malformed"] = reject_details[kinds.REJECT_MALFORMED]
+    tracker = st.tracker if kinds.delivers_frames(scenario) else None
     if tracker is not None:
-        metrics.update(frame_counts(imager, tracker))
+        metrics.update(frame_counts(st.imager, tracker))
     return SimResult(series, metrics, "per_tick")
 
 

@@ -872,6 +872,11 @@ DEFAULT_SCENARIO = "sound_small_artery"
 
 #: Folder of the scenarios shipped with vesselbot_ros (a checkout's config/, or the installed share/ copy).
 SCENARIO_DIR = shipped_config_dir()
+#: The clinical 3 T plan with the estimate made from MR images of the bead (docs/imaging.md's example): its file and
+#: overrides.  The image-based environment's default (``vesselbot/MriImages-v0``); the warm-up compiles the image
+#: stages on it.
+MR_IMAGES_PLAN: tuple[Path, dict[str, Any]] = (SCENARIO_DIR / "plans" / "clinical_3t.yaml",
+                                               {"imager.kind": "mr_images", "imager.fov_centre_m": [4.0e-3, 0.0, 0.0]})
 
 
 def shipped_scenarios() -> dict[str, Path]:

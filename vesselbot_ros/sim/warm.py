@@ -17,7 +17,14 @@ import numpy as np
 from vesselbot_ros.progress import ProgressFn, add_progress_argument, session, step, wanted
 from vesselbot_ros.scanner.sequence import SequenceParams
 from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
-from vesselbot_ros.sim.scenario import DEFAULT_SCENARIO, load_scenario, shipped_scenarios, short_copy
+from vesselbot_ros.sim.scenario import (
+    DEFAULT_SCENARIO,
+    MR_IMAGES_PLAN,
+    load_scenario,
+    scenario_with,
+    shipped_scenarios,
+    short_copy,
+)
 from vesselbot_ros.vessels.network import load_network
 from vesselbot_ros.vessels.tree_field import meshed_wall
 
@@ -81,6 +88,9 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
     progress(0, len(scenarios))
     if scope in ("all", "trees"):
         warm_wall_build()
+    if scope in ("all", "planar"):  # the MR-image stages (no shipped scenario runs them; they run per tick)
+        path, changes = MR_IMAGES_PLAN
+        run_closed_loop(scenario_with(load_scenario(path), {**changes, "sim.duration_s": 0.06}), path="per_tick")
     for done, sc in enumerate(scenarios, 1):
         sc = short_copy(sc, 0.01)  # a multiplexed sequence shrunk to fit the 10 ticks (the same compiled code)
         run_closed_loop(sc)  # the compiled loop (every built-in stage)
