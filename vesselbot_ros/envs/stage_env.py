@@ -9,8 +9,8 @@ and the tracker stage fits it (docs/imaging.md), so the estimate the agent sees 
 tracker's own errors and rejected frames.  A user's Python stage (``tracker.kind: my_module:MyTracker``) runs in it
 the same way.
 
-It is Python per tick (a frame's synthesis takes milliseconds): for training on positions, the compiled
-:class:`~vesselbot_ros.envs.env.VesselbotEnv` is three orders of magnitude faster.
+It is Python per tick (each frame synthesised and fitted): for training on positions, the compiled
+:class:`~vesselbot_ros.envs.env.VesselbotEnv` is orders of magnitude faster.
 
 Seeding: ``reset(seed=s)`` builds the episode's stages with seed ``s``, as ``vesselbot simulate --seed s`` does, so
 the episode's actions replayed through the simulator (:func:`~vesselbot_ros.envs.replay.replay` with

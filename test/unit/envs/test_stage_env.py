@@ -32,7 +32,7 @@ def test_the_image_based_tier_passes_gymnasiums_checker_and_sees_images_through_
     ages = [obs[f["measurement_age_s"]][0]]
     done = False
     while not done:
-        obs, r, term, trunc, info = short.step(np.zeros(short.dims))
+        obs, _r, term, trunc, info = short.step(np.zeros(short.dims))
         ages.append(obs[f["measurement_age_s"]][0])
         done = term or trunc
     assert trunc and info["tick"] == short.n_steps
