@@ -14,9 +14,10 @@ OpenBLAS kernel the CPU supports and compares the lines.
 Nothing here reads or writes a cache: the wall is built by
 :func:`~vesselbot_ros.geometry.field_build.build_wall_field3d` itself, at the
 plant's settings, on a block of the shipped carotid tree's grid round its
-bifurcation (the full build takes 40-170 s a tree: the same code on every
-cell, so a block that holds model cells of one to three models, list cells
-and refined cells exercises all of it).
+bifurcation, with the candidate tree's roots round the block only (the full
+build takes 40-170 s a tree: the same code on every cell and every root, so a
+block that holds model cells of one to three models, list cells and refined
+cells exercises all of it).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ __all__ = ["PLAN_PRESETS", "WALL_BLOCK", "fingerprint_plans", "fingerprint_wall_
 PLAN_PRESETS = ("clinical_3t", "clinical_3t_mfde", "propulsion_insert")
 #: The wall block: (network, lowest node (i, j, k) of the block in the plant's grid, nodes per axis).
 WALL_BLOCK = ("carotid_bifurcation_3d", (168, 16, 36), (25, 25, 25))
+#: The exact wall's candidate tree is built over the block plus this margin (m) only (its roots there are the whole
+#: tree's; the ball rule's balls, at most the lumen's 9 mm across, stay in it): a third of the carotid's roots.
+TREE_MARGIN_M = 10e-3
 
 _ROOT = Path(__file__).resolve().parents[2]
 
@@ -71,7 +75,8 @@ def fingerprint_plans(presets: Iterable[str] = PLAN_PRESETS) -> dict[str, str]:
 
 def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, int, int]] = WALL_BLOCK) -> dict[str, str]:
     """``{"wall/<network>/<array>": sha}`` of the wall field's arrays built at the plant's settings on ``block`` of
-    the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree)."""
+    the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree over
+    the block and :data:`TREE_MARGIN_M` round it)."""
     # deferred: as above
     from vesselbot_ros.geometry.field_build import build_wall_field3d
     from vesselbot_ros.vessels import tree_field as pf
@@ -80,12 +85,14 @@ def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, in
     name, lo, shape = block
     fld = pf.plant_field(load_network(name))  # the shipped samples (config/cfd), never the machine's cache
     origin = np.asarray(fld.origin, dtype=np.float64) + fld.h * np.asarray(lo, dtype=np.float64)
-    wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=pf.BAND_M, out_band_m=pf.OUT_BAND_M, refine=pf.REFINE,
+    top = origin + fld.h * (np.asarray(shape, dtype=np.float64) - 1.0)
+    wall = fld.block_wall((origin - TREE_MARGIN_M, top + TREE_MARGIN_M))
+    wf = build_wall_field3d(wall, h_m=fld.h, band_m=pf.BAND_M, out_band_m=pf.OUT_BAND_M, refine=pf.REFINE,
                             origin_m=origin, shape=shape, exact_max_depth=pf.EXACT_DEPTH, tube=True,
                             list_max=pf.LIST_MAX)
     names = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
     out = {f"wall/{name}/{n}": _sha(np.ascontiguousarray(a).tobytes()) for n, a in zip(names, wf.args, strict=True)}
-    out[f"wall/{name}/surface"] = _sha(*(np.ascontiguousarray(a).tobytes() for a in fld.wall._args))
+    out[f"wall/{name}/surface"] = _sha(*(np.ascontiguousarray(a).tobytes() for a in wall._args))
     # what the block holds (not a fingerprint: a block without model, list or refined cells would test less)
     out[f"wall/{name}/cells"] = " ".join(f"{k}={wf.stats[k]:g}" for k in ("model_cells_1", "model_cells_2", "model_cells_3",
                                                                           "list_cells", "refined_blocks", "exact_cells"))

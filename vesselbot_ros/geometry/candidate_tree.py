@@ -173,7 +173,7 @@ def centre_distances(d, centres, seed):  # type: ignore[no-untyped-def]  # numba
 
 def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3, max_leaf: int = 8,
                    max_depth: int = 2, min_depth: int = 1, near_m: float = math.inf, deep_leaf_m: float = 0.0,
-                   far_out_m: float = math.inf) -> CandidateTree:
+                   far_out_m: float = math.inf, box_m: tuple[npt.ArrayLike, npt.ArrayLike] | None = None) -> CandidateTree:
     """The candidate octree of ``surface`` over its bounding box plus ``margin_m`` (see docs/vessels.md).
 
     Each node's centre distance s_c (signed, from its seed) bounds its points' s within +-w (w: half-diagonal):
@@ -191,6 +191,10 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
         max_depth: Deepest level (the finest cube is ``root_m / 2**max_depth``).
         min_depth: Every root within ``near_m`` is split at least this many times.
         near_m, deep_leaf_m, far_out_m: The rules above (m); the defaults split everywhere and seal nothing.
+        box_m: (lo, hi) (m): only the roots of that grid that meet this box (each root is refined on its own, from
+            the same centres: they are the whole tree's roots there); a query outside them is answered from the
+            nearest root's lists, so only for a caller whose queries stay in the box (the cross-kernel build
+            test's block, :mod:`vesselbot_ros.analysis.builds_fingerprint`).  None: the whole grid.
 
     Returns:
         The :class:`CandidateTree`.
@@ -199,10 +203,16 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
     lo = wall_v.min(axis=0) - margin_m
     hi = wall_v.max(axis=0) + margin_m
     n = np.maximum(1, np.ceil((hi - lo) / root_m).astype(np.int64))
+    first = np.zeros(3, dtype=np.int64)
+    if box_m is not None:
+        first = np.clip(np.floor((np.asarray(box_m[0], dtype=np.float64) - lo) / root_m).astype(np.int64), 0, n - 1)
+        last = np.clip(np.floor((np.asarray(box_m[1], dtype=np.float64) - lo) / root_m).astype(np.int64), first, n - 1)
+        n = last - first + 1
     d = surface.data
     m = surface.patch_start.size - 1
     kk, jj, ii = np.meshgrid(np.arange(n[2]), np.arange(n[1]), np.arange(n[0]), indexing="ij")
-    centres = np.ascontiguousarray(lo + (np.column_stack([ii.ravel(), jj.ravel(), kk.ravel()]) + 0.5) * root_m)
+    # the whole grid's centres (first = 0 without a box: the same floats as ever)
+    centres = np.ascontiguousarray(lo + (np.column_stack([ii.ravel(), jj.ravel(), kk.ravel()]) + first + 0.5) * root_m)
     half = 0.5 * root_m
     slack = 1e-9 * max(1.0, float(np.abs(hi).max() + np.abs(lo).max()))
     off, idx, seed = _filter(d, surface.patch_start, surface.patch_box, centres, np.full(len(centres), half * math.sqrt(3.0)),
@@ -257,7 +267,8 @@ def candidate_tree(surface: WallSurface, margin_m: float, root_m: float = 0.8e-3
         index_l.append(lidx)
         nodes_l.append(nd)
         depth_l.append(np.full(len(child), lev, dtype=np.int8))
-    grid = np.array([lo[0], lo[1], lo[2], root_m, n[0], n[1], n[2]], dtype=np.float64)
+    x0 = lo + first * root_m if box_m is not None else lo
+    grid = np.array([x0[0], x0[1], x0[2], root_m, n[0], n[1], n[2]], dtype=np.float64)
     return CandidateTree(grid, np.ascontiguousarray(np.concatenate(nodes_l)),
                          np.ascontiguousarray(np.concatenate(index_l)), np.concatenate(depth_l))
 

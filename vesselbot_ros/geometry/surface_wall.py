@@ -139,21 +139,22 @@ class Wall3D:
         vertices, triangles, caps, crease_deg, vertex_normals: As :func:`wall_surface`.
         margin_m: Margin (m) of the candidate tree around the wall; the extensions reach 2 (R + margin) past
             each cap (R: the largest cap radius).
-        root_m, max_leaf, max_depth, near_m, deep_leaf_m, far_out_m: As :func:`candidate_tree`.
+        root_m, max_leaf, max_depth, near_m, deep_leaf_m, far_out_m, box_m: As :func:`candidate_tree`.
         patch_m: As :func:`wall_surface`.
     """
 
     def __init__(self, vertices: npt.ArrayLike, triangles: npt.ArrayLike, caps: Sequence[Cap], margin_m: float = 1.2e-3,
                  crease_deg: float = 30.0, vertex_normals: npt.ArrayLike | None = None, root_m: float = 0.8e-3,
                  max_leaf: int = 8, max_depth: int = 2, patch_m: float = 0.25e-3, near_m: float = math.inf,
-                 deep_leaf_m: float = 0.0, far_out_m: float = math.inf) -> None:
+                 deep_leaf_m: float = 0.0, far_out_m: float = math.inf,
+                 box_m: tuple[npt.ArrayLike, npt.ArrayLike] | None = None) -> None:
         rmax = max(float(c[2]) for c in caps)
         #: The oriented wall and its extensions.
         self.surface = wall_surface(vertices, triangles, caps, 2.0 * (rmax + margin_m) + root_m, crease_deg,
                                     vertex_normals, patch_m)
         #: Its candidate tree.
         self.tree = candidate_tree(self.surface, margin_m, root_m, max_leaf, max_depth, near_m=near_m,
-                                   deep_leaf_m=deep_leaf_m, far_out_m=far_out_m)
+                                   deep_leaf_m=deep_leaf_m, far_out_m=far_out_m, box_m=box_m)
         self._args = (self.surface.data, self.surface.patch_box, self.surface.patch_start, self.tree.grid,
                       self.tree.nodes, self.tree.index)
 

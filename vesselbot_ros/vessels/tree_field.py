@@ -258,8 +258,14 @@ class TreeField:
         """The exact wall, its candidate tree covering the grid (what the build asks): leaves of 0.2 mm within
         ``NEAR_M`` of the wall (most of the build's queries), of 0.4 to 0.8 mm deeper in the lumen, sealed (no
         list) wholly outside it beyond the outer band and 3 h."""
+        return self.block_wall(None)
+
+    def block_wall(self, box_m: tuple[Array, Array] | None) -> Wall3D:
+        """:attr:`wall` with its candidate tree's roots over ``box_m`` (lo, hi) only (m; None: all of them), for a
+        build whose queries stay in the box (:mod:`vesselbot_ros.analysis.builds_fingerprint`)."""
         return Wall3D(self.vertices, self.triangles, list(self.caps.values()), margin_m=GRID_MARGIN_M + 4.0 * self.h,
-                      root_m=3.2e-3, max_depth=4, near_m=NEAR_M, deep_leaf_m=0.8e-3, far_out_m=OUT_BAND_M + 3.0 * self.h)
+                      root_m=3.2e-3, max_depth=4, near_m=NEAR_M, deep_leaf_m=0.8e-3, far_out_m=OUT_BAND_M + 3.0 * self.h,
+                      box_m=box_m)
 
     def viscosity(self, blood: BloodParams, diameter_m: Array) -> Array:
         """Pries' viscosity (Pa s) of ``blood`` at local diameters (m)."""

@@ -45,3 +45,20 @@ def test_the_lists_do_not_depend_on_the_chunks_they_are_filtered_in(y: Wall3D, m
         for name in ("grid", "nodes", "index", "depth"):
             assert np.array_equal(getattr(small, name), getattr(whole, name)), (room, name)
     assert np.array_equal(whole.index, t.index) and np.array_equal(whole.nodes, t.nodes)
+
+
+def test_a_tree_over_a_box_answers_as_the_whole_tree_inside_it(y: Wall3D) -> None:
+    """``box_m`` keeps the roots that meet the box, built from the whole grid's centres: inside the box every
+    query gives the whole tree's answer to the bit."""
+    from vesselbot_ros.geometry import candidate_tree as ct
+
+    lo, hi = np.array([-2.0e-3, -1.0e-3, -1.0e-3]), np.array([1.0e-3, 2.0e-3, 1.0e-3])
+    part = ct.candidate_tree(y.surface, 1.2e-3, 0.8e-3, 8, 2, box_m=(lo, hi))
+    assert len(part.nodes) < len(y.tree.nodes)
+    q = np.random.default_rng(5).uniform(lo, hi, size=(2000, 3))
+    from vesselbot_ros.geometry.surface_query import query_points3d
+
+    s = y.surface
+    whole = query_points3d(q, s.data, s.patch_box, s.patch_start, y.tree.grid, y.tree.nodes, y.tree.index, True)
+    boxed = query_points3d(q, s.data, s.patch_box, s.patch_start, part.grid, part.nodes, part.index, True)
+    np.testing.assert_array_equal(boxed, whole)
