@@ -75,17 +75,15 @@ def _lease_free_domain() -> int:
         return lease.domain_id
 
 
-@pytest.mark.timeout(300)
-def test_users_controller_every_command_is_in_the_bag(tmp_path):
-    from vesselbot_ros.bag.reader import final_diagnostics, open_bag
-
+def _run_with_users_controller(tmp_path, user_args: list[str], duration: str, bag) -> None:
+    """``vesselbot run --without controller`` recorded to ``bag``, the controller slot taken by ``python
+    user_args`` (started first, stopped after the run); the run must succeed."""
     dom = _lease_free_domain()
     env = hostile_env(dom, tmp_path / "ros_log")
-    user = subprocess.Popen([sys.executable, str(REPO / "examples" / "my_controller.py"), "--ros-args", "-p",
-                             "use_sim_time:=true"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    bag = tmp_path / "bag"
+    user = subprocess.Popen([sys.executable, *user_args, "--ros-args", "-p", "use_sim_time:=true"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        p = subprocess.run(run_cmd("--duration", "0.3", "--without", "controller", "--domain-id", str(dom),
+        p = subprocess.run(run_cmd("--duration", duration, "--without", "controller", "--domain-id", str(dom),
                                    "--record-dir", str(bag), "--quiet"),
                            cwd=REPO, capture_output=True, text=True, timeout=240)
     finally:
@@ -95,8 +93,16 @@ def test_users_controller_every_command_is_in_the_bag(tmp_path):
         except subprocess.TimeoutExpired:  # the user's own node, not the launcher's: stop it, say so, judge the bag
             user.kill()
             out, _ = user.communicate(timeout=20)
-            print(f"examples/my_controller.py did not exit 20 s after SIGINT; killed. Its output:\n{out[-3000:]}")
+            print(f"the user's node did not exit 20 s after SIGINT; killed. Its output:\n{out[-3000:]}")
     assert p.returncode == 0, p.stdout + p.stderr
+
+
+@pytest.mark.timeout(300)
+def test_users_controller_every_command_is_in_the_bag(tmp_path):
+    from vesselbot_ros.bag.reader import final_diagnostics, open_bag
+
+    bag = tmp_path / "bag"
+    _run_with_users_controller(tmp_path, [str(REPO / "examples" / "my_controller.py")], "0.3", bag)
     info = open_bag(bag)
     assert info.consistent, info.problems
     n = 300
@@ -117,22 +123,8 @@ def test_a_slots_node_whose_subscription_the_graph_learns_of_late_still_gets_tic
     before the user's subscription exists (it was lost, and the coil's watchdog answered tick 0 after 2 s)."""
     from vesselbot_ros.bag.reader import open_bag
 
-    dom = _lease_free_domain()
-    env = hostile_env(dom, tmp_path / "ros_log")
-    user = subprocess.Popen([sys.executable, "-c", LATE_SUBSCRIBER, "--ros-args", "-p", "use_sim_time:=true"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     bag = tmp_path / "bag"
-    try:
-        p = subprocess.run(run_cmd("--duration", "0.1", "--without", "controller", "--domain-id", str(dom),
-                                   "--record-dir", str(bag), "--quiet"),
-                           cwd=REPO, capture_output=True, text=True, timeout=240)
-    finally:
-        user.send_signal(signal.SIGINT)
-        try:
-            user.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            user.kill()
-    assert p.returncode == 0, p.stdout + p.stderr
+    _run_with_users_controller(tmp_path, ["-c", LATE_SUBSCRIBER], "0.1", bag)
     info = open_bag(bag)
     assert info.topic("/vesselbot/gradient_command").count == 100
 
