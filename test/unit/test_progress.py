@@ -129,11 +129,15 @@ def test_the_warm_up_counts_every_scenario_it_warms(monkeypatch) -> None:  # typ
     monkeypatch.setattr(warm_module, "run_closed_loop", lambda sc, path="compiled": ran.append((sc.name, path)))
     monkeypatch.setattr(warm_module, "run_many", lambda *a, **k: None)
     monkeypatch.setattr(warm_module, "meshed_wall", lambda *a: types.SimpleNamespace(clearance=lambda *point: (0.0, 0.0)))
+    walls: list[int] = []
+    monkeypatch.setattr(warm_module, "warm_wall_build", lambda: walls.append(1))
     calls: list[tuple[int, int]] = []
     warm_module.warm(lambda done, total: calls.append((done, total)))
     n = len(shipped_scenarios()) + 1  # the shipped scenarios and a multiplexed copy of a planar one
     assert calls == [(i, n) for i in range(n + 1)]
-    assert len(ran) == 2 * n  # both loops of each, the bar counting what was warmed
+    # both loops of each, the bar counting what was warmed; first the MR-image stages, per tick, on the clinical
+    # plan (no shipped scenario runs them), and the wall's build once
+    assert len(ran) == 2 * n + 1 and ran[0] == ("clinical_3t_plan", "per_tick") and walls == [1]
 
 
 def test_a_session_says_once_when_numba_compiles_our_code_and_nothing_otherwise():
