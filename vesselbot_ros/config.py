@@ -24,7 +24,9 @@ Nothing here imports rclpy: nodes flatten their ROS parameters with
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import hashlib
 import math
 import os
 import re
@@ -457,12 +459,26 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"config file {str(p)!r} is not UTF-8 text (byte {exc.start}); is it a YAML file?") from None
+    key = (str(p), hashlib.sha256(raw).digest())
+    hit = _PARSED.get(key)
+    if hit is not None:
+        return copy.deepcopy(hit)  # the caller may change its copy
     data = parse_yaml_text(text, source=f"config file {str(p)!r}")
     if data is None or data == {}:
         raise ConfigError(f"config file {str(p)!r} is empty; it must hold a mapping of configuration keys")
     if not isinstance(data, dict):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at top level, got {type(data).__name__}")
+    if len(_PARSED) >= _PARSED_MAX:
+        _PARSED.pop(next(iter(_PARSED)))
+    _PARSED[key] = copy.deepcopy(data)
     return data
+
+
+#: Mappings :func:`load_yaml` parsed, by file and content (sha256 of its bytes: a file rewritten is parsed again):
+#: the YAML parser is pure Python (a large scenario file takes tens of milliseconds), and a process reads the
+#: same shipped files many times.
+_PARSED: dict[tuple[str, bytes], dict[str, Any]] = {}
+_PARSED_MAX = 128
 
 
 def parse_set_items(items: typing.Iterable[str], option: str = "--set") -> dict[str, Any]:

@@ -205,3 +205,21 @@ def test_config_files_are_found_by_name_or_repository_path_from_any_directory(tm
     assert resolve_config_path("sound_small_artery.yaml") == Path("sound_small_artery.yaml")
     with pytest.raises(ConfigError, match="'nowhere' does not exist; shipped: .*sound_small_artery"):
         load_yaml("nowhere")
+
+
+def test_a_file_read_again_is_not_parsed_again_unless_it_changed_and_each_caller_gets_its_own_copy(tmp_path):
+    from vesselbot_ros import config as cfg
+
+    f = tmp_path / "c.yaml"
+    f.write_text("a: {b: [1, 2]}\n")
+    first = cfg.load_yaml(f)
+    first["a"]["b"].append(3)  # a caller's change stays its own
+    calls = []
+    real = cfg.parse_yaml_text
+    try:
+        cfg.parse_yaml_text = lambda *a, **k: calls.append(1) or real(*a, **k)  # type: ignore[assignment]  # counts the parses
+        assert cfg.load_yaml(f) == {"a": {"b": [1, 2]}} and calls == []
+        f.write_text("a: {b: [1, 2, 4]}\n")  # the same size is no matter: the bytes are the key
+        assert cfg.load_yaml(f) == {"a": {"b": [1, 2, 4]}} and calls == [1]
+    finally:
+        cfg.parse_yaml_text = real  # type: ignore[assignment]  # the real one back

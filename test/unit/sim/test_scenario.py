@@ -309,3 +309,26 @@ def test_simulate_exits_2_with_one_line_on_an_unknown_preset_or_a_bad_fraction(s
     assert child.returncode == 2, child.stderr
     err = child.stderr.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+def test_a_shipped_files_name_is_read_once_and_again_when_the_file_changes(tmp_path) -> None:
+    import os
+
+    from vesselbot_ros.sim import scenario as scm
+
+    f = tmp_path / "s.yaml"
+    f.write_text("name: first\nseed: 0\n")
+    assert scm._scenario_name(f) == "first"
+    calls = []
+    real = scm.load_yaml
+    try:
+        scm.load_yaml = lambda p: calls.append(p) or real(p)  # type: ignore[assignment]  # counts the parses
+        assert scm._scenario_name(f) == "first" and calls == []  # unchanged: not parsed again
+        f.write_text("seed: 0\nname: second\n")
+        os.utime(f, ns=(1, 1))  # another mtime, whatever the clock's resolution
+        assert scm._scenario_name(f) == "second" and len(calls) == 1
+        f.write_text("seed: 1\n")
+        assert scm._scenario_name(f) is None
+    finally:
+        scm.load_yaml = real  # type: ignore[assignment]  # the real one back
+    assert scm.shipped_scenarios() == scm.shipped_scenarios()
