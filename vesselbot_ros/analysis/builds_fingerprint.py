@@ -78,7 +78,6 @@ def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, in
     the shipped tree's grid, and of the exact wall's own arrays (its triangles' data, patches, candidate tree over
     the block and :data:`TREE_MARGIN_M` round it)."""
     # deferred: as above
-    from vesselbot_ros.geometry.field_build import build_wall_field3d
     from vesselbot_ros.vessels import tree_field as pf
     from vesselbot_ros.vessels.network import load_network
 
@@ -87,9 +86,7 @@ def fingerprint_wall_block(block: tuple[str, tuple[int, int, int], tuple[int, in
     origin = np.asarray(fld.origin, dtype=np.float64) + fld.h * np.asarray(lo, dtype=np.float64)
     top = origin + fld.h * (np.asarray(shape, dtype=np.float64) - 1.0)
     wall = fld.block_wall((origin - TREE_MARGIN_M, top + TREE_MARGIN_M))
-    wf = build_wall_field3d(wall, h_m=fld.h, band_m=pf.BAND_M, out_band_m=pf.OUT_BAND_M, refine=pf.REFINE,
-                            origin_m=origin, shape=shape, exact_max_depth=pf.EXACT_DEPTH, tube=True,
-                            list_max=pf.LIST_MAX)
+    wf = pf.build_plant_field(wall, fld.h, origin, shape)
     names = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
     out = {f"wall/{name}/{n}": _sha(np.ascontiguousarray(a).tobytes()) for n, a in zip(names, wf.args, strict=True)}
     out[f"wall/{name}/surface"] = _sha(*(np.ascontiguousarray(a).tobytes() for a in wall._args))

@@ -49,19 +49,13 @@ def warm_wall_build() -> None:
     first run and the cross-kernel build test (test_builds_fingerprint: a subprocess per kernel) would otherwise
     each compile, minutes; the shipped trees' fields may already be in the machine's cache, so their builds may
     not run here."""
-    # deferred: the build and gmsh's Y are heavy, and only this part of the warm-up needs them
-    from vesselbot_ros.geometry.field_build import build_wall_field3d
+    # deferred: gmsh's Y is heavy, and only this part of the warm-up needs it
     from vesselbot_ros.geometry.fixtures import y_wall
-    from vesselbot_ros.geometry.surface_wall import Wall3D
-    from vesselbot_ros.vessels import tree_field as pf
+    from vesselbot_ros.vessels.tree_field import build_plant_field, plant_wall3d
 
     h = 0.25e-3
     v, t, caps, _n = y_wall(0.2e-3)
-    wall = Wall3D(v, t, caps, margin_m=pf.GRID_MARGIN_M + 4.0 * h, root_m=3.2e-3, max_depth=4, near_m=pf.NEAR_M,
-                  deep_leaf_m=0.8e-3, far_out_m=pf.OUT_BAND_M + 3.0 * h)
-    build_wall_field3d(wall, h_m=h, band_m=pf.BAND_M, out_band_m=pf.OUT_BAND_M, refine=pf.REFINE,
-                       origin_m=np.array([-1.0e-3, -1.5e-3, -1.0e-3]), shape=(10, 10, 10),
-                       exact_max_depth=pf.EXACT_DEPTH, tube=True, list_max=pf.LIST_MAX)
+    build_plant_field(plant_wall3d(v, t, caps, h), h, np.array([-1.0e-3, -1.5e-3, -1.0e-3]), (10, 10, 10))
 
 
 def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:

@@ -61,7 +61,7 @@ import numpy.typing as npt
 
 from vesselbot_ros.atomic_io import atomic_open
 from vesselbot_ros.config import ConfigError, to_mapping
-from vesselbot_ros.geometry.field_build import build_wall_field3d, grid_box
+from vesselbot_ros.geometry.field_build import WallField3D, build_wall_field3d, grid_box
 from vesselbot_ros.geometry.field_lookup import field_points3d, wall_field3d
 from vesselbot_ros.geometry.surface_wall import Wall3D
 from vesselbot_ros.physics.blood_viscosity import viscosity_for
@@ -263,9 +263,7 @@ class TreeField:
     def block_wall(self, box_m: tuple[Array, Array] | None) -> Wall3D:
         """:attr:`wall` with its candidate tree's roots over ``box_m`` (lo, hi) only (m; None: all of them), for a
         build whose queries stay in the box (:mod:`vesselbot_ros.analysis.builds_fingerprint`)."""
-        return Wall3D(self.vertices, self.triangles, list(self.caps.values()), margin_m=GRID_MARGIN_M + 4.0 * self.h,
-                      root_m=3.2e-3, max_depth=4, near_m=NEAR_M, deep_leaf_m=0.8e-3, far_out_m=OUT_BAND_M + 3.0 * self.h,
-                      box_m=box_m)
+        return plant_wall3d(self.vertices, self.triangles, list(self.caps.values()), self.h, box_m)
 
     def viscosity(self, blood: BloodParams, diameter_m: Array) -> Array:
         """Pries' viscosity (Pa s) of ``blood`` at local diameters (m)."""
@@ -468,6 +466,25 @@ def plant_field(net: VesselNetworkParams, blood: BloodParams | None = None, *, r
     return fld
 
 
+def plant_wall3d(vertices: Array, triangles: npt.NDArray[np.int64], caps: list[Any], h_m: float,
+                 box_m: tuple[Array, Array] | None = None) -> Wall3D:
+    """The exact wall at the plant's settings for a field of spacing ``h_m``: its candidate tree covering the grid
+    (what the build asks), leaves of 0.2 mm within ``NEAR_M`` of the wall, of 0.4 to 0.8 mm deeper in the lumen,
+    sealed (no list) wholly outside it beyond the outer band and 3 h; roots over ``box_m`` only if given
+    (:func:`~vesselbot_ros.geometry.candidate_tree.candidate_tree`)."""
+    return Wall3D(vertices, triangles, caps, margin_m=GRID_MARGIN_M + 4.0 * h_m, root_m=3.2e-3, max_depth=4,
+                  near_m=NEAR_M, deep_leaf_m=0.8e-3, far_out_m=OUT_BAND_M + 3.0 * h_m, box_m=box_m)
+
+
+def build_plant_field(wall: Wall3D, h_m: float, origin_m: npt.ArrayLike, shape: tuple[int, int, int],
+                      progress: ProgressFn | None = None) -> WallField3D:
+    """``wall`` sampled at the plant's settings (the standard of the module docstring) on the grid of spacing
+    ``h_m``, origin ``origin_m`` and ``shape`` nodes: what :func:`wall_arrays` caches, the cross-kernel build
+    test fingerprints on a block and the warm-up compiles."""
+    return build_wall_field3d(wall, h_m=h_m, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE, origin_m=origin_m,
+                              shape=shape, exact_max_depth=EXACT_DEPTH, tube=True, list_max=LIST_MAX, progress=progress)
+
+
 @functools.lru_cache(maxsize=8)
 def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> WallArrays:
     """The compiled wall lookup's arrays of ``net``: read from the cache, or built (tens of seconds) and cached."""
@@ -486,9 +503,7 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
             pass  # a torn, foreign or older file: build again
     check_build(net, blood)  # tens of seconds to minutes: bounded first, and one line says so
     with step(f"3-D wall field of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
-        wf = build_wall_field3d(fld.wall, h_m=fld.h, band_m=BAND_M, out_band_m=OUT_BAND_M, refine=REFINE,
-                                origin_m=fld.origin, shape=fld.shape, exact_max_depth=EXACT_DEPTH, tube=True,
-                                list_max=LIST_MAX, progress=report)
+        wf = build_plant_field(fld.wall, fld.h, fld.origin, fld.shape, progress=report)
     stats = {**wf.stats, "v": WALL_VERSION}
     with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
         _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
