@@ -887,24 +887,7 @@ def shipped_scenarios() -> dict[str, Path]:
     """
     out: dict[str, Path] = {}
     for path in sorted(SCENARIO_DIR.glob("*.yaml")):
-        name = _scenario_name(path)
-        if name is not None:
-            out[name] = path
+        data = load_yaml(path)  # parsed once per process and content (its cache): a few ms for the list again
+        if isinstance(data.get("name"), str):
+            out[data["name"]] = path
     return out
-
-
-#: Per file: ((mtime_ns, size), its top-level ``name`` or None), so that a process parses each shipped file once
-#: (pure-Python YAML: a fingerprint run asked for the list 20 times, 22 s of its 28 s).
-_NAMES: dict[Path, tuple[tuple[int, int], str | None]] = {}
-
-
-def _scenario_name(path: Path) -> str | None:
-    st = path.stat()
-    key = (st.st_mtime_ns, st.st_size)
-    hit = _NAMES.get(path)
-    if hit is not None and hit[0] == key:
-        return hit[1]
-    data = load_yaml(path)
-    name = data["name"] if isinstance(data.get("name"), str) else None
-    _NAMES[path] = (key, name)
-    return name

@@ -311,24 +311,17 @@ def test_simulate_exits_2_with_one_line_on_an_unknown_preset_or_a_bad_fraction(s
     assert len(err) == 1 and message in err[0], err
 
 
-def test_a_shipped_files_name_is_read_once_and_again_when_the_file_changes(tmp_path) -> None:
-    import os
-
+def test_the_shipped_list_asked_again_parses_no_file_again() -> None:
+    """The list reads every shipped file; asked again in the process (a fingerprint run asked 20 times), it parses
+    none again (config.load_yaml's cache: a file that changes is parsed again, test_config)."""
+    from vesselbot_ros import config as cfg
     from vesselbot_ros.sim import scenario as scm
 
-    f = tmp_path / "s.yaml"
-    f.write_text("name: first\nseed: 0\n")
-    assert scm._scenario_name(f) == "first"
+    first = scm.shipped_scenarios()
     calls = []
-    real = scm.load_yaml
+    real = cfg.parse_yaml_text
     try:
-        scm.load_yaml = lambda p: calls.append(p) or real(p)  # type: ignore[assignment]  # counts the parses
-        assert scm._scenario_name(f) == "first" and calls == []  # unchanged: not parsed again
-        f.write_text("seed: 0\nname: second\n")
-        os.utime(f, ns=(1, 1))  # another mtime, whatever the clock's resolution
-        assert scm._scenario_name(f) == "second" and len(calls) == 1
-        f.write_text("seed: 1\n")
-        assert scm._scenario_name(f) is None
+        cfg.parse_yaml_text = lambda *a, **k: calls.append(1) or real(*a, **k)  # type: ignore[assignment]  # counts the parses
+        assert scm.shipped_scenarios() == first and calls == []
     finally:
-        scm.load_yaml = real  # type: ignore[assignment]  # the real one back
-    assert scm.shipped_scenarios() == scm.shipped_scenarios()
+        cfg.parse_yaml_text = real  # type: ignore[assignment]  # the real one back
