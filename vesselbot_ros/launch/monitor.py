@@ -274,10 +274,10 @@ class Monitor:
                 return False
             seen.append((name, ns, tuple(subs)))
         now = time.monotonic()
-        key = (tuple(keys), tuple(seen))
-        if self._slot_seen.get(tuple(keys), (None, now))[0] != key:
-            self._slot_seen[tuple(keys)] = (key, now)
-        return now - self._slot_seen[tuple(keys)][1] >= hold_s
+        slot, shown = tuple(keys), tuple(seen)
+        if slot not in self._slot_seen or self._slot_seen[slot][0] != shown:
+            self._slot_seen[slot] = (shown, now)
+        return now - self._slot_seen[slot][1] >= hold_s
 
     def published(self, roles: Sequence[str], require_finished: bool = False) -> dict[str, int] | None:
         """Per canonical topic: what our nodes (diagnostics) and the users' nodes (counted here) published.
