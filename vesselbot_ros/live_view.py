@@ -5,7 +5,12 @@ spec, each at most at the live rate.  On top of that it offers the channels of
 :data:`vesselbot_ros.graph_spec.VIEW_CHANNELS`, computed here from the latest
 messages of the topics each one names, at most :data:`VIEW_RATE_HZ` times per
 wall second (a viewer needs no more, and the run pays nothing per tick: the
-latest bytes are kept, and decoded only when a view update is due):
+latest bytes are kept, and decoded only when a view update is due).  The
+numbers of one update are of one tick: the truth, reference, estimate and coil
+state of the stamp the coil state closed (the newest tick whose truth and
+reference both came, when a subscription's queue lags another's: the recorder
+takes each topic's messages on its own subscription, so a loaded machine
+delivers them out of step), from the last :data:`TICK_RING` messages of each:
 
 * ``view/markers`` (``visualization_msgs/MarkerArray``, a standard message
   Foxglove's 3D panel draws): in the straight vessel both walls at +/- D(t)/2
@@ -30,6 +35,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +49,10 @@ VIEW_RATE_HZ = 20.0
 #: The reference path (static, hundreds of points) rides along with a view update at most this often (wall s);
 #: Foxglove keeps a marker until the same namespace and id come again, so the others need not repeat it.
 PATH_PERIOD_S = 1.0
+#: Messages kept per tick-stamped input (truth, reference, estimate, coil state) to pair them by stamp.
+TICK_RING = 64
+#: The inputs of one tick, paired by their header's stamp.
+TICK_KEYS = ("truth", "reference", "estimate", "coil_state")
 #: Length of the gradient arrow at the coil limit (m).
 ARROW_AT_LIMIT_M = 2e-3
 #: Name of the JSON schema of ``view/errors`` (what Foxglove shows as the channel's type).
@@ -100,6 +110,11 @@ def scene_numbers(t_s: float, robot: Vec, diameter_m: float, gap_upper_m: float,
     return SceneNumbers(t_s, p, radius, 0.5 * diameter_m, est_p, _xyz(gradient), gradient_limit, track, est)
 
 
+def _stamp_ns(msg: Any) -> int:
+    """A message's header stamp (ns)."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 def _vec(v: Any) -> Vec3:
     """``(x, y, z)`` of a ``geometry_msgs`` Point or Vector3."""
     return (v.x, v.y, v.z)
@@ -118,6 +133,8 @@ class DerivedView:
         self._wanted = wanted
         self.inputs = sorted({k for v in VIEW_CHANNELS for k in v.inputs})
         self._latest: dict[str, bytes] = {}
+        #: per tick-stamped input, its last TICK_RING messages as ``[bytes, decoded or None]``, oldest first
+        self._recent: dict[str, deque[list[Any]]] = {k: deque(maxlen=TICK_RING) for k in TICK_KEYS}
         self._types = {k: import_type(topic(k).msgtype) for k in self.inputs}
         self._names = {topic(k).name: k for k in self.inputs}
         self._last_wall = 0.0
@@ -135,6 +152,8 @@ class DerivedView:
         if key is None:
             return
         self._latest[key] = data
+        if key in self._recent:
+            self._recent[key].append([data, None])
         if key == "reference_path":
             self._path_points = [p.pose.position for p in self._decode(key).poses]
         elif key == "vessel_markers":
@@ -152,14 +171,53 @@ class DerivedView:
 
         return deserialize_message(self._latest[key], self._types[key])
 
+    def _messages(self, key: str) -> Any:
+        """``key``'s kept messages, newest first, decoded as they are reached (each once)."""
+        # deferred: rclpy (see _decode)
+        from rclpy.serialization import deserialize_message
+
+        for entry in reversed(self._recent[key]):
+            if entry[1] is None:
+                entry[1] = deserialize_message(entry[0], self._types[key])
+            yield entry[1]
+
+    def _at(self, key: str, stamp_ns: int, exact: bool = True) -> Any:
+        """``key``'s kept message stamped ``stamp_ns`` (``exact=False``: the newest stamped at or before it);
+        None if it has not come, or has left the ring."""
+        for m in self._messages(key):
+            s = _stamp_ns(m)
+            if s <= stamp_ns:
+                return m if s == stamp_ns or not exact else None
+        return None
+
+    def tick(self) -> tuple[Any, Any, Any, Any] | None:
+        """Truth, reference, estimate and coil state of one tick (the estimate and coil state: the newest up to it).
+
+        The tick is the coil state's newest when its truth and reference came; else the newest tick before it
+        whose truth and reference both came; else the newest truth with the newest of the others.  Messages are
+        decoded newest first, as far as the search goes (one or two of each when the queues keep step).
+        """
+        coil = next(self._messages("coil_state"), None)
+        has_ref = bool(self._recent["reference"])
+        first = None
+        for truth in self._messages("truth"):
+            first = first or truth
+            s = _stamp_ns(truth)
+            if coil is not None and s > _stamp_ns(coil):
+                continue
+            ref = self._at("reference", s) if has_ref else None
+            if ref is not None or not has_ref:
+                return truth, ref, self._at("estimate", s, exact=False), self._at("coil_state", s, exact=False) or coil
+        if first is None:
+            return None
+        return first, next(self._messages("reference"), None), next(self._messages("estimate"), None), coil
+
     def emit(self, t_ns: int) -> None:
-        """Send one update of every view channel from the latest messages (needs a truth message)."""
-        if "truth" not in self._latest:
+        """Send one update of every view channel from the messages of one tick (needs a truth message)."""
+        got = self.tick()
+        if got is None:
             return
-        truth = self._decode("truth")
-        est = self._decode("estimate") if "estimate" in self._latest else None
-        ref = self._decode("reference") if "reference" in self._latest else None
-        coil = self._decode("coil_state") if "coil_state" in self._latest else None
+        truth, ref, est, coil = got
         t = truth.header.stamp.sec + truth.header.stamp.nanosec * 1e-9
         sn = scene_numbers(
             t, _vec(truth.position), truth.vessel_diameter, truth.wall_gap_upper, truth.wall_gap_lower,

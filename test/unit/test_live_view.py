@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vesselbot_ros.graph_spec import TOPICS, VIEW_CHANNELS, topic
@@ -92,12 +93,78 @@ def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
 
     from vesselbot_ros.nodes import conversions as cv
 
-    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3,
-                                                                  1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0), [(0.0, 0.0)] * 8))
+    view._last_wall = math.inf  # offer() emits nothing by itself here
+    view.offer(topic("truth").name, serialize_message(cv.plant_state_msg(
+        5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
+        [(0.0, 0.0)] * 8)), 5)
     for _ in range(3):
         view.emit(5)
     with_path = [any(m.ns == "reference_path" for m in arr.markers) for arr in sent]
     assert with_path == [True, False, False]
+
+
+def _truth(k: int, x: float) -> bytes:
+    from rclpy.serialization import serialize_message
+
+    from vesselbot_ros.nodes import conversions as cv
+
+    return serialize_message(cv.plant_state_msg(k, k * 1e-3, (x, 0.0), (0.0, 0.0), (0.0, 0.0), 3.1e-3, 1e-3, 1e-3,
+                                                -1e-3, False, 0, (0.01 * k, 0.0), [(0.0, 0.0)] * 8))
+
+
+def test_one_update_pairs_truth_reference_estimate_and_coil_of_one_tick_when_the_queues_lag():
+    """The recorder takes each topic on its own subscription: a loaded machine hands them over out of step.  The
+    errors are of one tick (the coil's when its truth and reference came, else the newest tick that has both)."""
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import serialize_message
+
+    from vesselbot_ros.live_view import TICK_RING, DerivedView
+    from vesselbot_ros.nodes import conversions as cv
+    from vesselbot_ros.scanner.actuator_limits import CoilLimits, CoilOutput
+
+    got: list[dict[str, float]] = []
+    view = DerivedView(lambda key, data, t: got.append(json.loads(data)) if key == "view_errors" else None)
+    view._last_wall = math.inf  # emit() by hand
+
+    def ref(k: int) -> bytes:
+        return serialize_message(cv.reference_msg(k, k * 1e-3, (1e-3 * k + 1e-4, 0.0), (0.0, 0.0), (0.0, 0.0)))
+
+    def est(k: int) -> bytes:
+        return serialize_message(cv.estimate_msg(k * 1e-3, (1e-3 * k - 2e-5, 0.0), (0.0, 0.0), 0.0))
+
+    def coil(k: int) -> bytes:
+        out = CoilOutput(np.zeros(2), 1.0, False, np.zeros(2, bool), False)
+        return serialize_message(cv.coil_state_msg(k, k * 1e-3, (0.0, 0.0), out, CoilLimits(), False))
+
+    name = {k: topic(k).name for k in ("truth", "reference", "estimate", "coil_state")}
+    # the truth runs 5 ticks ahead of the reference, the estimate 2 behind the truth, the coil state 1 behind
+    for k in range(20):
+        view.offer(name["truth"], _truth(k, 1e-3 * k), k)
+        if k >= 5:
+            view.offer(name["reference"], ref(k - 5), k)
+        if k >= 2:
+            view.offer(name["estimate"], est(k - 2), k)
+        if k >= 1:
+            view.offer(name["coil_state"], coil(k - 1), k)
+    view.emit(0)
+    # tick 14: the newest with both a truth and a reference (the coil's, 18, has no reference yet)
+    e = got[-1]
+    assert e["t_s"] == pytest.approx(14e-3, abs=1e-12)
+    assert e["tracking_error_m"] == pytest.approx(1e-4, rel=1e-9)
+    assert e["estimation_error_m"] == pytest.approx(2e-5, rel=1e-6)
+    assert e["gradient_norm_T_per_m"] == pytest.approx(0.14, rel=1e-12)  # the truth's own applied gradient
+    # once the reference catches up, the update is of the coil state's tick
+    for k in range(15, 20):
+        view.offer(name["reference"], ref(k), 20)
+    view.emit(0)
+    assert got[-1]["t_s"] == pytest.approx(18e-3, abs=1e-12) and got[-1]["tracking_error_m"] == pytest.approx(1e-4)
+    # no reference at all: the truth's tick, no tracking error; the ring keeps TICK_RING messages each
+    view2 = DerivedView(lambda key, data, t: got.append(json.loads(data)) if key == "view_errors" else None)
+    for k in range(TICK_RING + 10):
+        view2.offer(name["truth"], _truth(k, 0.0), k)
+    assert len(view2._recent["truth"]) == TICK_RING
+    view2.emit(0)
+    assert got[-1]["t_s"] == pytest.approx((TICK_RING + 9) * 1e-3) and "tracking_error_m" not in got[-1]
 
 
 def test_a_network_run_gets_no_straight_walls_and_the_radius_from_both_gaps():
@@ -169,9 +236,10 @@ def test_a_3d_scene_draws_robot_estimate_arrow_and_path_where_the_messages_put_t
                        wall_gap_lower=lumen - r, applied_gradient=Vector3(x=0.03, y=-0.04, z=0.0))
     est = Odometry(header=cv.header(0.25))
     est.pose.pose.position = Point(x=p.x + 3e-6, y=p.y + 4e-6, z=p.z)
-    view._latest = {"truth": serialize_message(truth), "estimate": serialize_message(est),
-                    "coil_state": serialize_message(CoilState(header=cv.header(0.25), max_gradient=0.1)),
-                    **{k: v for k, v in view._latest.items() if k in ("vessel_markers", "reference_path")}}
+    view._last_wall = math.inf  # emit() by hand
+    for key, msg in (("truth", truth), ("estimate", est),
+                     ("coil_state", CoilState(header=cv.header(0.25), max_gradient=0.1))):
+        view.offer(topic(key).name, serialize_message(msg), 250_000_000)
     view.emit(250_000_000)
     ms = {m.ns: m for m in deserialize_message(dict(sent)["view_markers"], MarkerArray).markers}
     assert set(ms) == {"robot", "estimate", "gradient", "reference_path"}  # no straight walls
@@ -214,9 +282,9 @@ def test_straight_walls_drawn_before_the_plants_markers_show_a_network_are_delet
     sent = []
     view = DerivedView(lambda key, data, t: sent.append(deserialize_message(data, MarkerArray))
                        if key == "view_markers" else None)
-    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0),
-                                                                  3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
-                                                                  [(0.0, 0.0)] * 8))
+    view.offer(topic("truth").name, serialize_message(cv.plant_state_msg(
+        5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
+        [(0.0, 0.0)] * 8)), 5)
     view.emit(5)
     mesh = MarkerArray(markers=[cv.wall_mesh_marker([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0, 1, 2]])])
     view.offer(topic("vessel_markers").name, serialize_message(mesh), 0)
@@ -242,8 +310,10 @@ def test_an_update_before_the_path_arrived_does_not_use_up_the_paths_period():
     view = DerivedView(lambda *a: None)
     sent = []
     view._send = lambda key, data, t: sent.append(deserialize_message(data, MarkerArray)) if key == "view_markers" else None
-    view._latest["truth"] = serialize_message(cv.plant_state_msg(5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3,
-                                                                  1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0), [(0.0, 0.0)] * 8))
+    view._last_wall = math.inf  # offer() emits nothing by itself here
+    view.offer(topic("truth").name, serialize_message(cv.plant_state_msg(
+        5, 0.005, (2e-3, 1e-4), (0.0, 0.0), (0.0, 0.0), 3.1e-3, 1e-3, 1e-3, -1e-3, False, 0, (0.0, 0.0),
+        [(0.0, 0.0)] * 8)), 5)
     view.emit(5)  # no path yet
     view._path_points = [Point(x=1e-5 * i, z=0.0) for i in range(50)]
     view.emit(6)  # within the period of the first update: the path rides along now
