@@ -358,10 +358,11 @@ class SteppedOurs:
 
         from vesselbot_ros.graph_spec import import_type, resolve, service
         from vesselbot_ros.nodes.calls import prime
-        from vesselbot_ros.ros_env import allocate_domain, apply_to_process, ros_environment
+        from vesselbot_ros.ros_env import allocate_domain_for_peers, apply_to_process, ros_environment
 
-        with allocate_domain() as lease:  # the launcher leases it again for the run; our client joins it
-            dom = lease.domain_id
+        # held for our client until close(): the launcher joins it (--domain-id), no other run can take it meanwhile
+        self._lease = allocate_domain_for_peers()
+        dom = self._lease.domain_id
         self._tmp = tempfile.TemporaryDirectory()
         cmd = [sys.executable, "-m", "vesselbot_ros.cli", "run", "--config", str(CONFIG), "--no-record", "--quiet",
                "--start-paused", "--domain-id", str(dom), "--duration", repr(n_ticks * dt), *extra]
@@ -431,6 +432,7 @@ class SteppedOurs:
         except subprocess.TimeoutExpired:
             self._proc.send_signal(signal.SIGINT)
             self._proc.wait(timeout=60)
+        self._lease.release()
         self._tmp.cleanup()
 
 
@@ -540,19 +542,18 @@ def compare(processes: bool, segments: int, ticks: int, pure_tick_s: float,
 
 def realtime_latency(duration: float, rtf: float) -> np.ndarray:
     """Imager -> driver latency samples (s) in real-time mode."""
+    import os
+
     import rclpy
     from geometry_msgs.msg import PointStamped, Vector3Stamped
 
     from vesselbot_ros.graph_spec import qos_profile, topic
     from vesselbot_ros.nodes.conversions import ns_of_stamp
-    from vesselbot_ros.ros_env import allocate_domain, ros_environment
+    from vesselbot_ros.ros_env import allocate_domain_for_peers, ros_environment
 
-    lease = allocate_domain()
-    dom = lease.domain_id
-    lease.release()  # the launcher leases it again for the run; our probe joins it
-    import os
-
-    with tempfile.TemporaryDirectory() as d:
+    # held for our probe until the run ended: the launcher joins it (--domain-id), no other run can take it meanwhile
+    with allocate_domain_for_peers() as lease, tempfile.TemporaryDirectory() as d:
+        dom = lease.domain_id
         env = ros_environment(dom, Path(d) / "log")
         os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")})
         ctx = rclpy.Context()

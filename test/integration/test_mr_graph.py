@@ -160,10 +160,10 @@ def test_a_users_own_tracker_node_in_the_slot_gives_the_pure_runners_numbers(tmp
     import signal
 
     from _runs import hostile_env, run_cmd
-    from vesselbot_ros.ros_env import allocate_domain
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    lease = allocate_domain_for_peers()  # held until the run ended: no other test's run can take the id meanwhile
+    dom = lease.domain_id
     env = hostile_env(dom, tmp_path / "ros_log")
     params = ["-p", f"config:={CONFIG}", "-p", "set:=[" + ", ".join(f"'{kv}'" for kv in SETS) + "]"]
     user = subprocess.Popen([sys.executable, str(EXAMPLES / "my_tracker_node.py"), "--ros-args", *params], cwd=REPO,
@@ -181,6 +181,7 @@ def test_a_users_own_tracker_node_in_the_slot_gives_the_pure_runners_numbers(tmp
             user.wait(timeout=20)
         except subprocess.TimeoutExpired:
             user.kill()
+        lease.release()
     assert p.returncode == 0, p.stdout + p.stderr
     assert "slot 'tracker' is yours" in p.stdout + p.stderr  # the contract, printed
     m = json.loads(metrics.read_text())["metrics"]

@@ -9,10 +9,12 @@ the finalised bag with the published counts (exit 1 naming topic and counts on a
 
 from __future__ import annotations
 
+import contextlib
 import re
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 
 import pytest
 
@@ -68,32 +70,35 @@ except BaseException:
 """
 
 
-def _lease_free_domain() -> int:
-    from vesselbot_ros.ros_env import allocate_domain
+@contextlib.contextmanager
+def _peers_domain() -> Iterator[int]:
+    """A domain id for the test's own nodes and the run that joins them, held until the block ends (a lease
+    released before the run would let another test's run take the id first)."""
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
 
-    with allocate_domain() as lease:
-        return lease.domain_id
+    with allocate_domain_for_peers() as lease:
+        yield lease.domain_id
 
 
 def _run_with_users_controller(tmp_path, user_args: list[str], duration: str, bag) -> None:
     """``vesselbot run --without controller`` recorded to ``bag``, the controller slot taken by ``python
     user_args`` (started first, stopped after the run); the run must succeed."""
-    dom = _lease_free_domain()
-    env = hostile_env(dom, tmp_path / "ros_log")
-    user = subprocess.Popen([sys.executable, *user_args, "--ros-args", "-p", "use_sim_time:=true"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        p = subprocess.run(run_cmd("--duration", duration, "--without", "controller", "--domain-id", str(dom),
-                                   "--record-dir", str(bag), "--quiet"),
-                           cwd=REPO, capture_output=True, text=True, timeout=240)
-    finally:
-        user.send_signal(signal.SIGINT)
+    with _peers_domain() as dom:
+        env = hostile_env(dom, tmp_path / "ros_log")
+        user = subprocess.Popen([sys.executable, *user_args, "--ros-args", "-p", "use_sim_time:=true"], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
-            user.wait(timeout=20)
-        except subprocess.TimeoutExpired:  # the user's own node, not the launcher's: stop it, say so, judge the bag
-            user.kill()
-            out, _ = user.communicate(timeout=20)
-            print(f"the user's node did not exit 20 s after SIGINT; killed. Its output:\n{out[-3000:]}")
+            p = subprocess.run(run_cmd("--duration", duration, "--without", "controller", "--domain-id", str(dom),
+                                       "--record-dir", str(bag), "--quiet"),
+                               cwd=REPO, capture_output=True, text=True, timeout=240)
+        finally:
+            user.send_signal(signal.SIGINT)
+            try:
+                user.wait(timeout=20)
+            except subprocess.TimeoutExpired:  # the user's own node, not the launcher's: stop it, say so, judge the bag
+                user.kill()
+                out, _ = user.communicate(timeout=20)
+                print(f"the user's node did not exit 20 s after SIGINT; killed. Its output:\n{out[-3000:]}")
     assert p.returncode == 0, p.stdout + p.stderr
 
 
@@ -131,17 +136,18 @@ def test_a_slots_node_whose_subscription_the_graph_learns_of_late_still_gets_tic
 
 @pytest.mark.timeout(300)
 def test_a_message_the_publishers_did_not_count_fails_the_run_naming_topic_and_counts(tmp_path):
-    dom = _lease_free_domain()
-    env = hostile_env(dom, tmp_path / "ros_log")
-    foreign = subprocess.Popen([sys.executable, "-c", EXTRA_PUBLISHER], env=env, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT, text=True)
-    try:
-        assert foreign.stdout.readline().strip() == "ready"
-        p = subprocess.run(run_cmd("--duration", "0.3", "--domain-id", str(dom), "--record-dir", str(tmp_path / "bag"),
-                                   "--quiet"), cwd=REPO, capture_output=True, text=True, timeout=240)
-    finally:
-        foreign.send_signal(signal.SIGINT)
-        foreign.wait(timeout=20)
+    with _peers_domain() as dom:
+        env = hostile_env(dom, tmp_path / "ros_log")
+        foreign = subprocess.Popen([sys.executable, "-c", EXTRA_PUBLISHER], env=env, stdout=subprocess.PIPE,
+                                   stderr=subprocess.STDOUT, text=True)
+        try:
+            assert foreign.stdout.readline().strip() == "ready"
+            p = subprocess.run(run_cmd("--duration", "0.3", "--domain-id", str(dom), "--record-dir",
+                                       str(tmp_path / "bag"), "--quiet"), cwd=REPO, capture_output=True, text=True,
+                               timeout=240)
+        finally:
+            foreign.send_signal(signal.SIGINT)
+            foreign.wait(timeout=20)
     assert p.returncode == 1, p.stdout + p.stderr
     line = [ln for ln in p.stderr.splitlines() if "does not hold what was published" in ln]
     assert line, p.stderr

@@ -47,11 +47,11 @@ def paper_bag(tmp_path_factory):
 @pytest.fixture(scope="module")
 def hostile_bag(tmp_path_factory):
     from vesselbot_ros.bag.reader import open_bag, read_timeseries
-    from vesselbot_ros.ros_env import allocate_domain
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
 
     tmp = tmp_path_factory.mktemp("hostile")
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    lease = allocate_domain_for_peers()  # held until the run ended: no other test's run can take the id meanwhile
+    dom = lease.domain_id
     hostile = subprocess.Popen([sys.executable, str(HERE / "hostile_controller.py"), "7"],
                                env=hostile_env(dom, tmp / "hostile_log"), stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True)
@@ -63,6 +63,7 @@ def hostile_bag(tmp_path_factory):
     finally:
         hostile.send_signal(signal.SIGINT)
         hostile.wait(timeout=20)
+        lease.release()
     # the run completed, but on rejected commands: exit 1 and one warning line naming why (the driver's reasons:
     # the user's node reports nothing itself)
     assert p.returncode == 1, p.stdout + p.stderr

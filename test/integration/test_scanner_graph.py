@@ -175,10 +175,10 @@ def test_clinical_run_equals_the_pure_runner_bit_for_bit(clinical_run):
 def test_a_users_controller_reads_the_phase_through_without(tmp_path):
     """examples/my_scanner_controller.py in the controller's slot: it commands zero outside propulsion windows."""
     from vesselbot_ros.bag.reader import open_bag, read_timeseries
-    from vesselbot_ros.ros_env import allocate_domain
+    from vesselbot_ros.ros_env import allocate_domain_for_peers
 
-    with allocate_domain() as lease:
-        dom = lease.domain_id
+    lease = allocate_domain_for_peers()  # held until the run ended: no other test's run can take the id meanwhile
+    dom = lease.domain_id
     env = hostile_env(dom, tmp_path / "ros_log")
     user = subprocess.Popen([sys.executable, str(REPO / "examples" / "my_scanner_controller.py"), "--ros-args", "-p",
                              "use_sim_time:=true"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -190,6 +190,7 @@ def test_a_users_controller_reads_the_phase_through_without(tmp_path):
     finally:
         user.send_signal(signal.SIGINT)
         user.wait(timeout=20)
+        lease.release()
     assert p.returncode == 0, p.stdout + p.stderr
     info = open_bag(bag)
     assert info.consistent, info.problems

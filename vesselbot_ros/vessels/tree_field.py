@@ -37,7 +37,8 @@ Shipped, cached, or solved.  The samples (the plant's wall, the view's wall, cap
 blood model are one file, ``<network>-<key>.3d.npz`` (3.5-6 MB; the plant's wall written compactly:
 :meth:`TreeField.save`): shipped with the scenarios' networks in ``config/cfd/``, else cached in
 :func:`~vesselbot_ros.vessels.tree_cfd.cache_dir`, else solved (minutes) and cached.  The wall field built from
-them is cached beside them (``.wall.npz``, not shipped); measured (a 2-core machine, otherwise quiet): III-C 50 s, 134 MB;
+them is cached beside them (a ``.wall`` folder, not shipped, mapped by every process that reads it); measured (a
+2-core machine, otherwise quiet): III-C 50 s, 134 MB;
 carotid 38 s, 128 MB; synthetic tree 165 s, 480 MB (its 7.6 million-node grid round a sparse tree is 244 MB of
 it; most of the time goes to the list cells' sub-cube lists, which make its lookup 1.9x the planar one's
 instead of 4.1x) -- against 26 s, 127 MB; 105 s, 1.55 GB; 95 s, 1.05 GB with the flow mesh's wall and the whole candidate
@@ -51,6 +52,8 @@ import dataclasses
 import functools
 import hashlib
 import json
+import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -64,7 +67,7 @@ from vesselbot_ros.config import ConfigError, to_mapping
 from vesselbot_ros.geometry.field_build import WallField3D, build_wall_field3d, grid_box
 from vesselbot_ros.geometry.field_lookup import field_points3d, wall_field3d
 from vesselbot_ros.geometry.surface_wall import Wall3D
-from vesselbot_ros.physics.blood_viscosity import viscosity_for
+from vesselbot_ros.physics.blood_viscosity import blood_viscosity
 from vesselbot_ros.physics.kernel import pack_params
 from vesselbot_ros.physics.params import BloodParams, PhysicsParams, planar_twin
 from vesselbot_ros.progress import ProgressFn, step
@@ -76,11 +79,11 @@ from vesselbot_ros.vessels.network import VesselNetworkParams, load_network, smo
 __all__ = ["packed_vessel", "vessel_geom", "TreeField", "TreeBuildEstimate", "build_estimate", "check_build",
            "flow_settings", "grid_spacing_m", "field_key", "plant_field", "wall_mesh", "FIELD3D_VERSION",
            "WallArrays", "meshed_wall",
-           "PackedTree", "packed_tree", "planar_twin", "wall_arrays"]
+           "PackedTree", "packed_tree", "planar_twin", "wall_arrays", "wall_cache_path", "WALL_NAMES"]
 
 #: Bumped when the file's content or its meaning changes (a new key: old files are ignored).
 FIELD3D_VERSION = 2
-#: Bumped when the wall field built from the samples changes (a cached ``.wall.npz`` of another is built again).
+#: Bumped when the wall field built from the samples changes (a cached ``.wall`` of another is built again).
 #: 9: the ball diameter at a convex crease (the ball through the exact nearest wall point counts); 8: model cells' axes
 #: by a BLAS-free eigen-solver (one sign; a cache built under AVX-512 differed).
 WALL_VERSION = 9
@@ -269,7 +272,10 @@ class TreeField:
         """Pries' viscosity (Pa s) of ``blood`` at local diameters (m)."""
         d = np.asarray(diameter_m, dtype=np.float64)
         uniq, inv = np.unique(np.round(d, 7), return_inverse=True)
-        return np.array([viscosity_for(blood, float(max(v, 1e-6))) for v in uniq])[inv].reshape(d.shape)
+        # eq. (9) over the distinct diameters at once (thousands: a Python call each took seconds per tree)
+        eta = blood_viscosity(np.maximum(uniq, 1e-6), blood.hematocrit, blood.plasma_viscosity_Pa_s,
+                              blood.viscosity_model, blood.constant_viscosity_Pa_s)
+        return np.asarray(eta[inv].reshape(d.shape), dtype=np.float64)
 
 
 def _atomic_savez(path: Path, compressed: bool, **arrays: Any) -> None:
@@ -415,7 +421,7 @@ def check_build(net: VesselNetworkParams, blood: BloodParams | None = None, *, q
     blood = blood if blood is not None else BloodParams()
     key = field_key(net, blood)
     have_samples = any((d / f"{net.name}-{key}.3d.npz").is_file() for d in (shipped_dir(), tree_cfd.cache_dir()))
-    if have_samples and (tree_cfd.cache_dir() / f"{net.name}-{key}.wall.npz").is_file():
+    if have_samples and (wall_cache_path(net.name, key) / "stats.json").is_file():
         return None
     est = build_estimate(net)
     c = net.cfd
@@ -485,28 +491,71 @@ def build_plant_field(wall: Wall3D, h_m: float, origin_m: npt.ArrayLike, shape: 
                               shape=shape, exact_max_depth=EXACT_DEPTH, tube=True, list_max=LIST_MAX, progress=progress)
 
 
+#: The wall lookup's arrays, in the order the compiled lookup takes them (one file each in the cache's folder).
+WALL_NAMES = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
+
+
+def wall_cache_path(name: str, key: str) -> Path:
+    """The folder of a tree's cached wall lookup (``<network>-<key>.wall``: one ``.npy`` per array and
+    ``stats.json``)."""
+    return tree_cfd.cache_dir() / f"{name}-{key}.wall"
+
+
+def _read_wall(path: Path) -> WallArrays:
+    """The cached lookup, mapped (OSError / ValueError / KeyError if the folder is not a whole one of this version).
+
+    The arrays are the files' pages, mapped copy-on-write: a run's processes that read the same tree (the plant's,
+    the filter's, the controller's) share them, nothing is read before the lookup touches it, and the kernels,
+    which never write them, see ordinary arrays."""
+    stats = json.loads((path / "stats.json").read_text())
+    if stats.get("v") != WALL_VERSION:
+        raise ValueError(f"{path}: wall version {stats.get('v')!r}, not {WALL_VERSION}")
+    return WallArrays(tuple(np.load(path / f"{n}.npy", mmap_mode="c") for n in WALL_NAMES), stats)
+
+
+def _write_wall(path: Path, args: tuple[npt.NDArray[Any], ...], stats: dict[str, Any]) -> None:
+    """Write the lookup's folder whole or not at all: built beside it, then renamed into place (a reader sees the
+    folder complete or not there; a process that lost a race to write the same lookup drops its copy)."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        for n, a in zip(WALL_NAMES, args, strict=True):
+            np.save(tmp / f"{n}.npy", a)
+        (tmp / "stats.json").write_text(json.dumps(stats))
+        if path.is_dir():  # an older version's or a torn folder (one whole and current was read, not rebuilt)
+            shutil.rmtree(path, ignore_errors=True)
+        os.replace(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 @functools.lru_cache(maxsize=8)
 def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> WallArrays:
-    """The compiled wall lookup's arrays of ``net``: read from the cache, or built (tens of seconds) and cached."""
+    """The compiled wall lookup's arrays of ``net``: read (mapped) from the cache, or built (tens of seconds) and
+    cached."""
     fld = plant_field(net, blood)
-    path = tree_cfd.cache_dir() / f"{fld.name}-{fld.key}.wall.npz"
-    names = ("head", "field", "fine", "d", "pbox", "pstart", "grid", "nodes", "index")
-    if path.is_file():
-        try:
-            with np.load(path) as z:
-                stats = json.loads(str(z["stats"]))
-                if stats.get("v") != WALL_VERSION:
-                    raise ValueError(f"{path}: wall version {stats.get('v')!r}, not {WALL_VERSION}")
-                args = tuple(np.ascontiguousarray(z[n]) for n in names)
-            return WallArrays(args, stats)
-        except (OSError, ValueError, KeyError):
-            pass  # a torn, foreign or older file: build again
+    path = wall_cache_path(fld.name, fld.key)
+    with contextlib.suppress(OSError, ValueError, KeyError):  # none, torn, foreign or older: built again
+        return _read_wall(path)
+    old = path.with_name(path.name + ".npz")  # the single file an earlier version cached: taken over, not rebuilt
+    if old.is_file():
+        with contextlib.suppress(OSError, ValueError, KeyError), np.load(old) as z:
+            stats = json.loads(str(z["stats"]))
+            if stats.get("v") == WALL_VERSION:
+                args = tuple(np.ascontiguousarray(z[n]) for n in WALL_NAMES)
+                with contextlib.suppress(OSError):
+                    _write_wall(path, args, stats)
+                    old.unlink()
+                    return _read_wall(path)
+                return WallArrays(args, stats)
     check_build(net, blood)  # tens of seconds to minutes: bounded first, and one line says so
     with step(f"3-D wall field of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
         wf = build_plant_field(fld.wall, fld.h, fld.origin, fld.shape, progress=report)
     stats = {**wf.stats, "v": WALL_VERSION}
-    with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary file goes)
-        _atomic_savez(path, False, stats=np.array(json.dumps(stats)), **dict(zip(names, wf.args, strict=True)))
+    with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary folder goes)
+        _write_wall(path, tuple(wf.args), stats)
+        return _read_wall(path)
     return WallArrays(tuple(wf.args), stats)
 
 

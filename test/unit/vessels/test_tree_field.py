@@ -3,6 +3,8 @@ caps, the flow normalised to the inlet and zero outside, the packed inputs."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -49,6 +51,35 @@ def test_the_wall_arrays_are_the_lookup_with_the_exact_query_pruned() -> None:
     assert sum(a.nbytes for a in wa.args) < 150e6
     assert wa.stats["exact_triangles"] < 0.5 * len(pf.plant_field(net).triangles)
     assert wa.stats["v"] == pf.WALL_VERSION
+
+
+def test_the_wall_cache_is_mapped_and_an_earlier_single_file_is_taken_over(tmp_path, monkeypatch,  # type: ignore[no-untyped-def]
+                                                                           capsys) -> None:
+    """The cached lookup is a folder of arrays mapped copy-on-write (a run's processes share its pages; the
+    kernels see ordinary writable arrays); the single ``.wall.npz`` an earlier version cached is taken over
+    without a build; a folder missing a file is not read."""
+    net = load_network("config/vessels/paper_iiic_artery_3d.yaml")
+    wa = pf.wall_arrays(net)
+    assert all(isinstance(a, np.memmap) and a.flags.writeable and a.flags.c_contiguous for a in wa.args)
+    fld = pf.plant_field(net)
+    monkeypatch.setenv("VESSELBOT_CFD_CACHE", str(tmp_path))
+    path = pf.wall_cache_path(fld.name, fld.key)
+    old = path.with_name(path.name + ".npz")
+    old.parent.mkdir(parents=True)
+    np.savez(old, stats=np.array(json.dumps(wa.stats)), **dict(zip(pf.WALL_NAMES, wa.args, strict=True)))
+    pf.wall_arrays.cache_clear()
+    try:
+        moved = pf.wall_arrays(net)
+        assert capsys.readouterr().err == ""  # nothing built
+        assert not old.exists() and sorted(p.name for p in path.iterdir()) == sorted(
+            [f"{n}.npy" for n in pf.WALL_NAMES] + ["stats.json"])
+        assert moved.stats == wa.stats and all(isinstance(a, np.memmap) for a in moved.args)
+        assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(moved.args, wa.args, strict=True))
+        (path / "fine.npy").unlink()
+        with pytest.raises(OSError):
+            pf._read_wall(path)
+    finally:
+        pf.wall_arrays.cache_clear()
 
 
 def test_the_flow_is_normalised_to_the_inlet_and_zero_outside() -> None:
@@ -138,8 +169,9 @@ def test_the_build_estimate_matches_the_shipped_trees_and_says_what_it_builds(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("building the 3-D wall field of carotid_bifurcation_3d (about 1.8e+06 grid nodes, est. ")
     key = pf.field_key(carotid, BloodParams())
-    (tmp_path / "cache" / "3d").mkdir(parents=True)
-    (tmp_path / "cache" / "3d" / f"carotid_bifurcation_3d-{key}.wall.npz").write_bytes(b"")
+    wall = pf.wall_cache_path("carotid_bifurcation_3d", key)
+    wall.mkdir(parents=True)
+    (wall / "stats.json").write_text("{}")
     assert pf.check_build(carotid) is None  # nothing to build, nothing said
     assert capsys.readouterr().err == ""
     net = load_network(str(_own_tree(tmp_path, {"mesh_size_3d_m": 8e-4, "wall_elements_per_circle_3d": 24,
