@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent setup of everything `make run` and `make test` need, from nothing:
-#   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...)
+#   1. .venv with the pinned requirements (ROS 2 Jazzy wheels, numpy, scipy, ...): the numerics first, the rest
+#      (1b) while the warm-up compiles
 #   2. vesselbot_ros installed in editable mode
 #   3. msg_defs/ (vesselbot_msgs) and third_party/simulation_interfaces built with rosidl into .venv
 #   4. numba cache of the compiled stages and loop warmed (vesselbot_ros.numba_cache), in the
@@ -45,20 +46,22 @@ done
   command -v $tool >/dev/null || { echo "vesselbot bootstrap: '$tool' is required (apt-get install nodejs npm)" >&2; exit 1; }
 done
 
-# 1. virtual environment + pinned requirements
+# 1. virtual environment + pinned requirements, in two parts: first the numerics the numba warm-up needs
+#    (WARM_REQS: it starts as soon as they and the package are in), then the rest (the ROS 2 wheels, bags, tables,
+#    tests: half of pip's time), installed while the warm-up compiles (1b, below)
+WARM_REQS='^(numpy|scipy|numba|llvmlite|PyYAML|matplotlib|gmsh|scikit-fem|pyamg|gymnasium|farama-notifications|tqdm|setuptools|wheel)=='
 req=$(hash_files requirements.txt)
+need_reqs=
 if ! fresh requirements "$req" || [ ! -x "$venv/bin/python" ]; then
-  step "installing pinned requirements into .venv (pip; the longest step on a fresh machine)"
+  need_reqs=1
+  step "installing the pinned numerics into .venv (pip; the rest follows while numba compiles)"
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   rm -f "$stamps/requirements" "$stamps/interfaces" "$stamps/sim-interfaces" "$stamps/package"
-  quiet_pip install -r requirements.txt
-  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow, foxglove, gymnasium" \
-    || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
-  "$venv/bin/python" -c "import skfem, gmsh" \
-    || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \
-              "(apt-get install libglu1-mesa libxcursor1 libxft2 libxinerama1)" >&2; exit 1; }
-  mark requirements "$req"
-  took "pip install"
+  warm_reqs=$(mktemp)
+  grep -E "$WARM_REQS" requirements.txt >"$warm_reqs"
+  quiet_pip install -r "$warm_reqs"
+  rm -f "$warm_reqs"
+  took "pip install (numerics)"
 fi
 
 # 2. vesselbot_ros itself, editable (before the interfaces: it needs none of them, and the numba warm-up needs it)
@@ -111,6 +114,19 @@ numba_done() {  # wait for the background warm-ups; stamp them, or show the firs
   echo "vesselbot bootstrap:   numba warm-up took $((SECONDS - numba_t0)) s (in the background)"
 }
 trap '[ ${#numba_pids[@]} -eq 0 ] || kill "${numba_pids[@]}" 2>/dev/null; true' EXIT
+
+# 1b. the rest of the pinned requirements (the interfaces below need the ROS 2 wheels)
+if [ -n "$need_reqs" ]; then
+  step "installing the rest of the pinned requirements into .venv (pip, while numba compiles)"
+  quiet_pip install -r requirements.txt
+  "$venv/bin/python" -c "import rclpy, numpy, scipy, numba, rosbags, mcap, dask, distributed, pyarrow, foxglove, gymnasium" \
+    || { echo "vesselbot bootstrap: requirements did not install" >&2; exit 1; }
+  "$venv/bin/python" -c "import skfem, gmsh" \
+    || { echo "vesselbot bootstrap: gmsh's wheel needs the system libraries libGLU, libXcursor, libXft and libXinerama" \
+              "(apt-get install libglu1-mesa libxcursor1 libxft2 libxinerama1)" >&2; exit 1; }
+  mark requirements "$req"
+  took "pip install (the rest)"
+fi
 
 # 3. interfaces (rebuilt when any .msg/.srv/CMakeLists/package.xml changes)
 ifc=$(hash_files requirements.txt cmake/*.cmake tools/build_interfaces.sh \

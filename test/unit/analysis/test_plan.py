@@ -377,6 +377,29 @@ def test_a_plan_never_stops_on_the_crest_of_a_side_branchs_mouth(eca_mfde):
     assert crest_times(load_scenario("carotid_bifurcation_3d_eca_ekf")) == []  # 80 mT/m: not on the floor
 
 
+def test_a_plan_over_a_crest_flies_with_the_filters_restarts_and_one_without_a_crest_does_not(eca_mfde):
+    """The plan keeps the crests its route tops; its flying changes then restart a flung or lost track (the two
+    tests below are why), unless the scenario sets its own; a plan on a flat floor (the straight channel's, clinical
+    3 T) keeps the filter as it is."""
+    from vesselbot_ros.analysis.plan import CREST_RESTARTS, flying_changes
+    from vesselbot_ros.analysis.scanner_study import preset_changes
+    from vesselbot_ros.sim.scenario import scenario_with
+
+    plan, flown = eca_mfde
+    assert len(plan.crests) == 1
+    assert flown.observer.ekf.flung_restart_sigmas == 5.0 and flown.observer.ekf.max_rejection_s == 0.1
+    bare = scenario_with(flown, {k: 0.0 for k in CREST_RESTARTS})
+    assert flying_changes(bare, plan).items() >= CREST_RESTARTS.items()
+    own = flying_changes(scenario_with(bare, {"observer.ekf.max_rejection_s": 0.3}), plan)
+    assert "observer.ekf.max_rejection_s" not in own and own["observer.ekf.flung_restart_sigmas"] == 5.0
+    flat = load_scenario("clinical_3t_small_artery", sets=[f"{k}={v}" for k, v in preset_changes("clinical_3t").items()])
+    flat = scenario_with(flat, {"observer.kind": "ekf"}) if flat.observer.kind != "ekf" else flat
+    flat_plan = make_plan(flat)
+    assert flat_plan.crests == () and not all(s.mode == "free" for s in flat_plan.segments)
+    flat_bare = scenario_with(flat, {k: 0.0 for k in CREST_RESTARTS})
+    assert not set(flying_changes(flat_bare, flat_plan)) & set(CREST_RESTARTS)
+
+
 def test_the_filter_restarts_a_track_its_update_flung_away_from_the_frame(eca_mfde):
     """Seed 3 of that plan: crossing the crest, a frame's update (re-predicted through the contact, projected out of
     the wall) put the filter's estimate millimetres from the very frame it fused, and the loop chased it.  With
@@ -386,8 +409,9 @@ def test_the_filter_restarts_a_track_its_update_flung_away_from_the_frame(eca_mf
     from vesselbot_ros.sim.scenario import scenario_with
 
     _plan, flown = eca_mfde
-    off = run_closed_loop(flown, 3).metrics
-    on = run_closed_loop(scenario_with(flown, {"observer.ekf.flung_restart_sigmas": 5.0}), 3).metrics
+    none = {"observer.ekf.flung_restart_sigmas": 0.0, "observer.ekf.max_rejection_s": 0.0}
+    off = run_closed_loop(scenario_with(flown, none), 3).metrics
+    on = run_closed_loop(scenario_with(flown, {**none, "observer.ekf.flung_restart_sigmas": 5.0}), 3).metrics
     assert off["tracking_error_max_m"] > 2e-3
     assert on["tracking_error_max_m"] < 0.5e-3 and on["reached_target"] == 1 and on["outside_lumen_time_s"] == 0.0
 
@@ -402,7 +426,7 @@ def test_the_filter_restarts_a_track_that_refuses_every_frame(eca_mfde):
 
     _plan, flown = eca_mfde
     flung = {"observer.ekf.flung_restart_sigmas": 5.0}
-    off = run_closed_loop(scenario_with(flown, flung), 4).metrics
+    off = run_closed_loop(scenario_with(flown, {**flung, "observer.ekf.max_rejection_s": 0.0}), 4).metrics
     on = run_closed_loop(scenario_with(flown, {**flung, "observer.ekf.max_rejection_s": 0.1}), 4).metrics
     assert off["tracking_error_max_m"] > 3e-3
     assert on["tracking_error_max_m"] < 1.2e-3 and on["reached_target"] == 1 and on["outside_lumen_time_s"] == 0.0
