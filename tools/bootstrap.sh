@@ -78,12 +78,13 @@ fi
 # 4. numba's on-disk cache, compiled once per version of the compiled sources, so that `make run`,
 #    `make test` and every node start without compiling (vesselbot_ros.numba_cache drops caches
 #    of other code on import; this only warms them).  Minutes on a fresh machine (the 3-D trees' wall fields): it runs in the
-#    background while the interfaces build (it needs none of them), make test's two halves (planar, 3-D) in a
-#    process each, and is waited for before the bootstrap ends.
+#    background while the interfaces build (it needs none of them), make test's three parts (planar, 3-D, and the
+#    3-D wall's build, its own process when the trees' lookups are cached: the 3-D part is the longest) in a process
+#    each, and is waited for before the bootstrap ends.
 nb=$(hash_files requirements.txt $(grep -rl --include='*.py' numba vesselbot_ros | LC_ALL=C sort))
 numba_pids=()
 numba_logs=()
-warm_scopes=(planar trees); numba_stamp=numba-cache  # make test: both halves at once, one process each
+warm_scopes=(planar trees wall_build); numba_stamp=numba-cache  # make test: its three parts at once, a process each
 [ "$scope" = test ] || { warm_scopes=(run); numba_stamp=numba-run; }
 if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
   echo "vesselbot bootstrap: compiling the closed loop into numba's cache (${warm_scopes[*]}: once per version of the code, in the background)"
@@ -92,8 +93,8 @@ if ! fresh numba-cache "$nb" && ! fresh "$numba_stamp" "$nb"; then
     log=$(mktemp)
     # every core for numba's parallel loops (make test pins one thread per test worker; the 3-D trees' wall
     # fields are built here, in parallel loops, minutes on one thread; their bits do not depend on the count)
-    # make test's halves warm the Gymnasium environments' kernel too, after their loops (vesselbot_ros.envs.warm)
-    warm_module=vesselbot_ros.sim.warm; [ "$ws" = run ] || warm_module="vesselbot_ros.envs.warm --loops"
+    # make test's planar and 3-D parts warm the Gymnasium environments' kernel too, after their loops (vesselbot_ros.envs.warm)
+    warm_module=vesselbot_ros.sim.warm; case $ws in planar|trees) warm_module="vesselbot_ros.envs.warm --loops";; esac
     (cd / && exec env -u NUMBA_NUM_THREADS "$venv/bin/python" -m $warm_module --scope "$ws" --no-progress) >"$log" 2>&1 &
     numba_pids+=($!); numba_logs+=("$log")
   done

@@ -140,6 +140,32 @@ def test_the_warm_up_counts_every_scenario_it_warms(monkeypatch) -> None:  # typ
     assert len(ran) == 2 * n + 1 and ran[0] == ("clinical_3t_plan", "per_tick") and walls == [1]
 
 
+@pytest.mark.parametrize("cached", [True, False])
+def test_the_wall_build_is_compiled_by_one_part_of_the_warm_up(monkeypatch, cached: bool) -> None:  # type: ignore[no-untyped-def]
+    """The bootstrap's three parts run at once: the wall's build is compiled by its own part when every shipped
+    tree's lookup is cached (the 3-D part, the longest, then has less to do), else by the 3-D part before it
+    builds the missing lookups (one compile, not two at once); planar never, ``all`` always."""
+    monkeypatch.setattr(warm_module, "run_closed_loop", lambda *a, **k: None)
+    monkeypatch.setattr(warm_module, "run_many", lambda *a, **k: None)
+    monkeypatch.setattr(warm_module, "meshed_wall", lambda *a: types.SimpleNamespace(clearance=lambda *point: (0.0, 0.0)))
+    monkeypatch.setattr(warm_module, "walls_cached", lambda scenarios=None: cached)
+    for scope, expected in (("wall_build", cached), ("trees", not cached), ("planar", False), ("all", True)):
+        walls: list[int] = []
+        monkeypatch.setattr(warm_module, "warm_wall_build", lambda walls=walls: walls.append(1))
+        warm_module.warm(lambda done, total: None, scope=scope)
+        assert walls == ([1] if expected else []), scope
+
+
+def test_walls_cached_is_whether_no_shipped_trees_lookup_would_be_built(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    asked: list[str] = []
+    monkeypatch.setattr(warm_module, "check_build", lambda net, blood, quiet=False: asked.append(net.name))
+    assert warm_module.walls_cached()
+    assert set(asked) == {"carotid_bifurcation_3d", "paper_iiic_artery_3d", "synthetic_tree_3d"}
+    monkeypatch.setattr(warm_module, "check_build", lambda net, blood, quiet=False: None if net.name != "synthetic_tree_3d"
+                        else object())
+    assert not warm_module.walls_cached()
+
+
 def test_a_session_says_once_when_numba_compiles_our_code_and_nothing_otherwise():
     import io
 

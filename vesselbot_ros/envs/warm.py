@@ -24,7 +24,7 @@ from .vector import VesselbotVectorEnv
 __all__ = ["warm", "main"]
 
 
-#: ``all`` tiers, or the halves the bootstrap's two warm-up processes take after their loops: ``planar`` (the
+#: ``all`` tiers, or the parts the bootstrap's planar and 3-D warm-up processes take after their loops: ``planar`` (the
 #: plane's tiers) and ``trees`` (a 3-D tree's, after that process built its wall lookups).
 SCOPES = ("all", "planar", "trees")
 

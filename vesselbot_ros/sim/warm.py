@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses as dc
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -20,27 +21,39 @@ from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
 from vesselbot_ros.sim.scenario import (
     DEFAULT_SCENARIO,
     MR_IMAGES_PLAN,
+    Scenario,
     load_scenario,
     scenario_with,
     shipped_scenarios,
     short_copy,
 )
 from vesselbot_ros.vessels.network import load_network
-from vesselbot_ros.vessels.tree_field import meshed_wall
+from vesselbot_ros.vessels.tree_field import check_build, meshed_wall
 
 __all__ = ["warm", "main"]
 
 
 #: What :func:`warm` compiles: ``all`` (every shipped scenario: what ``make test`` needs, the 3-D trees' wall
-#: lookups included, minutes on a fresh machine), its two halves ``planar`` and ``trees`` (the 3-D scenarios, and
-#: the wall's build, :func:`warm_wall_build`), which the bootstrap warms in two processes at once, or ``run`` (the
-#: default scenario: what ``make run`` needs; the rest compiles on first use, a 3-D wall build saying so in one line).
-SCOPES = ("all", "planar", "trees", "run")
+#: lookups included, minutes on a fresh machine), its parts ``planar``, ``trees`` (the 3-D scenarios) and
+#: ``wall_build`` (the wall's build, :func:`warm_wall_build`), which the bootstrap warms in three processes at once,
+#: or ``run`` (the default scenario: what ``make run`` needs; the rest compiles on first use, a 3-D wall build
+#: saying so in one line).  Where a shipped tree's wall lookup is not yet in the machine's cache, ``trees`` builds
+#: it, and compiles the wall's build first itself (``wall_build`` then does nothing: one compile, not two at once).
+SCOPES = ("all", "planar", "trees", "wall_build", "run")
+
+
+def walls_cached(scenarios: Iterable[Scenario] | None = None) -> bool:
+    """Whether the wall lookup of every 3-D tree of ``scenarios`` (default: the shipped ones), for its scenarios'
+    blood, is in the machine's cache, so that no warm-up of the trees builds one."""
+    if scenarios is None:
+        scenarios = [load_scenario(path) for path in shipped_scenarios().values()]
+    pairs = {(sc.physics.vessel.network, sc.physics.blood) for sc in scenarios if sc.dims == 3}
+    return all(check_build(load_network(net), blood, quiet=True) is None for net, blood in pairs)
 
 
 def _in_scope(scope: str, name: str, dims: int) -> bool:
     return (scope == "all" or (scope == "planar" and dims == 2) or (scope == "trees" and dims == 3)
-            or (scope == "run" and name == DEFAULT_SCENARIO))
+            or (scope == "run" and name == DEFAULT_SCENARIO))  # wall_build: no scenario
 
 
 def warm_wall_build() -> None:
@@ -80,7 +93,8 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
                                                                     dead_time_s=0.001, propulsion_window_s=0.003,
                                                                     latency_s=0.001)))
     progress(0, len(scenarios))
-    if scope in ("all", "trees"):
+    if scope == "all" or (scope in ("trees", "wall_build")
+                          and (scope == "wall_build") == walls_cached(sc for _name, sc in loaded)):
         warm_wall_build()
     if scope in ("all", "planar"):  # the MR-image stages (no shipped scenario runs them; they run per tick)
         path, changes = MR_IMAGES_PLAN
@@ -100,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vesselbot_ros.sim.warm",
                                      description="fill numba's on-disk cache (every compiled path a run uses)")
     parser.add_argument("--scope", choices=SCOPES, default="all",
-                        help="all: every shipped scenario (make test), or its halves planar and trees (3-D); run: the "
-                             "default scenario (make run)")
+                        help="all: every shipped scenario (make test), or its parts planar, trees (3-D) and wall_build "
+                             "(the 3-D wall's build); run: the default scenario (make run)")
     add_progress_argument(parser)
     args = parser.parse_args(argv)
     with session(wanted(args.no_progress)):
