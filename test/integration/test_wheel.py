@@ -59,17 +59,18 @@ def test_wheel_in_a_fresh_venv_runs_the_default_scenario_from_a_temporary_direct
     module, config_dir = where.stdout.split()
     assert module.startswith(str(fresh_site)) and config_dir == str(venv / "share" / "vesselbot_ros" / "config")
 
-    # what tools/bootstrap.sh does after installing: fill numba's cache (beside the installed modules), so that
-    # the nodes start without compiling.  numba keys its cache on each source's content, which the wheel's copy
-    # shares with the checkout, so the checkout's cache (bootstrap compiled it) is copied in and warm() only
-    # loads it: compiling it again costs this test about 100 s, and bootstrap already compiles it from nothing
+    # what tools/bootstrap.sh does after installing for `make run` (scope run: the default scenario, which the run
+    # below flies): fill numba's cache (beside the installed modules), so that the nodes start without compiling.
+    # numba keys its cache on each source's content, which the wheel's copy shares with the checkout, so the
+    # checkout's cache (bootstrap compiled it) is copied in and warm() only loads it: compiling it again costs
+    # this test about 100 s, and bootstrap already compiles it from nothing
     checkout = REPO / "vesselbot_ros"
     for cached in checkout.rglob("__pycache__/*"):
         if cached.suffix in (".nbi", ".nbc") or cached.name == "numba.sources.sha256":
             dest = fresh_site / "vesselbot_ros" / cached.relative_to(checkout)
             dest.parent.mkdir(exist_ok=True)
             shutil.copy2(cached, dest)
-    warm = subprocess.run([str(py), "-c", "from vesselbot_ros.sim.warm import warm; warm()"], cwd=work, env=env,
+    warm = subprocess.run([str(py), "-c", "from vesselbot_ros.sim.warm import warm; warm(scope='run')"], cwd=work, env=env,
                           capture_output=True, text=True, timeout=600)
     assert warm.returncode == 0, warm.stderr[-3000:]
 

@@ -59,6 +59,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -151,34 +152,82 @@ def bound_variance(phi: npt.NDArray[np.float64], frames: list[tuple[int, int]], 
         sigma_m: The frames' noise per axis (m).
         prior_sd: (m,) prior standard deviations of ``(X, Xd, s)`` at tick 0.
     """
+    fr = np.asarray(frames, dtype=np.int64).reshape(-1, 2)
+    p0 = np.diag(np.asarray(prior_sd, dtype=np.float64) ** 2)
+    return np.asarray(_bound_kernel(np.ascontiguousarray(phi, dtype=np.float64), np.ascontiguousarray(fr[:, 0]),
+                                    np.ascontiguousarray(fr[:, 1]), float(sigma_m) ** 2, p0))
+
+
+@numba.njit(cache=True)
+def _propagate(phi, p, tmp):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``p <- phi p phi^T`` in place (``tmp``: (m, m) scratch)."""
+    m = p.shape[0]
+    for i in range(m):
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += phi[i, k] * p[k, j]
+            tmp[i, j] = acc
+    for i in range(m):
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += tmp[i, k] * phi[j, k]
+            p[i, j] = acc
+
+
+@numba.njit(cache=True)
+def _bound_kernel(phi, deliver, acquire, r2, p0):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """:func:`bound_variance`'s recursion (a frame fused at its acquisition tick, its information carried to the tick
+    of delivery and on): the covariance form of the information recursion, the Kalman update with ``H = [I_d 0]``
+    symmetrised, in loops over the (m, m) matrices (a Python loop of numpy products took ~30 ms a run)."""
     n, m, _ = phi.shape
     d = (m - 1) // 2
-    r = sigma_m ** 2 * np.eye(d)
-    phi_t = np.ascontiguousarray(np.transpose(phi, (0, 2, 1)))
-    p_acq = np.diag(np.asarray(prior_sd, dtype=np.float64) ** 2)
-    k_acq = 0
-    p_now = p_acq.copy()
     out = np.empty(n)
+    tmp = np.empty((m, m))
+    p_acq = p0.copy()
+    p_now = p0.copy()
+    k_acq = 0
     fi = 0
+    nf = deliver.shape[0]
     for k in range(n):
         fused = False
-        while fi < len(frames) and frames[fi][0] == k:  # fuse at its acquisition tick
-            j = min(k, max(k_acq, frames[fi][1]))
+        while fi < nf and deliver[fi] == k:  # fuse at its acquisition tick
+            j = min(k, max(k_acq, acquire[fi]))
             fi += 1
             for i in range(k_acq, j):
-                p_acq = phi[i] @ p_acq @ phi_t[i]
+                _propagate(phi[i], p_acq, tmp)
             k_acq = j
-            # H = [I_d 0]: the Kalman update P - K H P with K = P H^T (H P H^T + R)^-1, symmetrised
-            gain = p_acq[:, :d] @ np.linalg.inv(p_acq[:d, :d] + r)
-            p_acq = p_acq - gain @ p_acq[:d, :]
-            p_acq = 0.5 * (p_acq + p_acq.T)
+            s = p_acq[:d, :d].copy()
+            for a in range(d):
+                s[a, a] += r2
+            s_inv = np.linalg.inv(s)
+            gain = np.zeros((m, d))  # K = P H^T (H P H^T + R)^-1
+            for i in range(m):
+                for a in range(d):
+                    acc = 0.0
+                    for c in range(d):
+                        acc += p_acq[i, c] * s_inv[c, a]
+                    gain[i, a] = acc
+            for i in range(m):  # P - K H P
+                for jj in range(m):
+                    acc = 0.0
+                    for a in range(d):
+                        acc += gain[i, a] * p_acq[a, jj]
+                    tmp[i, jj] = p_acq[i, jj] - acc
+            for i in range(m):
+                for jj in range(m):
+                    p_acq[i, jj] = 0.5 * (tmp[i, jj] + tmp[jj, i])
             fused = True
         if fused:  # the newest frame's information brought to now
-            p_now = p_acq
+            p_now[:, :] = p_acq
             for i in range(k_acq, k):
-                p_now = phi[i] @ p_now @ phi_t[i]
-        out[k] = float(np.trace(p_now[:d, :d]))
-        p_now = phi[k] @ p_now @ phi_t[k]  # to the next tick
+                _propagate(phi[i], p_now, tmp)
+        tr = 0.0
+        for a in range(d):
+            tr += p_now[a, a]
+        out[k] = tr
+        _propagate(phi[k], p_now, tmp)  # to the next tick
     return out
 
 

@@ -107,6 +107,47 @@ def test_linear_gaussian_case_is_the_textbook_one() -> None:
     assert late[0] == pytest.approx(3.0, rel=1e-9)  # no frame delivered yet: the prior
 
 
+def _reference_variance(phi, frames, sigma_m, prior_sd):  # type: ignore[no-untyped-def]  # the test's own plain recursion
+    """bound_variance's recursion written with numpy's products, tick by tick (what the compiled one replaced)."""
+    n, m, _ = phi.shape
+    d = (m - 1) // 2
+    r = sigma_m ** 2 * np.eye(d)
+    p_acq = np.diag(np.asarray(prior_sd) ** 2)
+    p_now, k_acq, fi, out = p_acq.copy(), 0, 0, np.empty(n)
+    for k in range(n):
+        fused = False
+        while fi < len(frames) and frames[fi][0] == k:
+            j = min(k, max(k_acq, frames[fi][1]))
+            fi += 1
+            for i in range(k_acq, j):
+                p_acq = phi[i] @ p_acq @ phi[i].T
+            k_acq = j
+            gain = p_acq[:, :d] @ np.linalg.inv(p_acq[:d, :d] + r)
+            p_acq = p_acq - gain @ p_acq[:d, :]
+            p_acq = 0.5 * (p_acq + p_acq.T)
+            fused = True
+        if fused:
+            p_now = p_acq
+            for i in range(k_acq, k):
+                p_now = phi[i] @ p_now @ phi[i].T
+        out[k] = np.trace(p_now[:d, :d])
+        p_now = phi[k] @ p_now @ phi[k].T
+    return out
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_the_compiled_recursion_is_the_plain_one(d: int) -> None:
+    """Random stable transitions, frames with latency, some ticks with two frames and gaps with none."""
+    rng = np.random.default_rng(d)
+    n, m = 400, 2 * d + 1
+    phi = expm_batch(rng.normal(scale=0.02, size=(n, m, m)) - 0.01 * np.eye(m))
+    frames = sorted((k + int(rng.integers(0, 4)), k) for k in range(0, n - 4) if rng.random() < 0.6)
+    prior = np.array([1e-3] * d + [1e-2] * d + [0.05])
+    got = bound_variance(phi, frames, 1e-4, prior)
+    assert got == pytest.approx(_reference_variance(phi, frames, 1e-4, prior), rel=1e-9)
+    assert bound_variance(phi, [], 1e-4, prior) == pytest.approx(_reference_variance(phi, [], 1e-4, prior), rel=1e-12)
+
+
 def test_expm_batch_is_scipy_expm() -> None:
     rng = np.random.default_rng(1)
     a = rng.normal(size=(40, 7, 7)) * np.array([0.1, 3.0, 15.0])[rng.integers(0, 3, 40), None, None]
