@@ -5,7 +5,7 @@ spec, each at most at the live rate.  On top of that it offers the channels of
 :data:`vesselbot_ros.graph_spec.VIEW_CHANNELS`, computed here from the latest
 messages of the topics each one names, at most :data:`VIEW_RATE_HZ` times per
 wall second (a viewer needs no more, and the run pays nothing per tick: the
-latest bytes are kept, and decoded only when a view update is due).  The
+bytes are kept, and decoded only when a view update is due).  The
 numbers of one update are of one tick: the truth, reference, estimate and coil
 state of the stamp the coil state closed (the newest tick whose truth and
 reference both came, when a subscription's queue lags another's: the recorder
@@ -121,7 +121,8 @@ def _vec(v: Any) -> Vec3:
 
 
 class DerivedView:
-    """Keeps the latest bytes of the topics the view channels need; emits view updates at :data:`VIEW_RATE_HZ`.
+    """Keeps the last bytes of the tick-stamped topics the view channels need; emits view updates at
+    :data:`VIEW_RATE_HZ`.
 
     Args:
         send: ``send(view_key, payload: bytes, t_ns)``: hands one view message to the server.
@@ -132,7 +133,6 @@ class DerivedView:
         self._send = send
         self._wanted = wanted
         self.inputs = sorted({k for v in VIEW_CHANNELS for k in v.inputs})
-        self._latest: dict[str, bytes] = {}
         #: per tick-stamped input, its last TICK_RING messages as ``[bytes, decoded or None]``, oldest first
         self._recent: dict[str, deque[list[Any]]] = {k: deque(maxlen=TICK_RING) for k in TICK_KEYS}
         self._types = {k: import_type(topic(k).msgtype) for k in self.inputs}
@@ -151,34 +151,30 @@ class DerivedView:
         key = self._names.get(name)
         if key is None:
             return
-        self._latest[key] = data
         if key in self._recent:
             self._recent[key].append([data, None])
         if key == "reference_path":
-            self._path_points = [p.pose.position for p in self._decode(key).poses]
+            self._path_points = [p.pose.position for p in self._decode(key, data).poses]
         elif key == "vessel_markers":
             # a vessel network draws its meshed wall itself (the plant's latched markers): no straight walls then
-            self.network = any(m.ns == NETWORK_WALL_NS for m in self._decode(key).markers)
+            self.network = any(m.ns == NETWORK_WALL_NS for m in self._decode(key, data).markers)
         now = time.monotonic()
         # the coil state closes a tick (lockstep order): truth, reference and estimate of that tick are all in
         if key == "coil_state" and now - self._last_wall >= 1.0 / VIEW_RATE_HZ and self._wanted():
             self._last_wall = now
             self.emit(t_ns)
 
-    def _decode(self, key: str) -> Any:
+    def _decode(self, key: str, data: bytes) -> Any:
         # deferred: rclpy; the module's scene numbers are used and tested ROS-free, and live imports it for its defaults
         from rclpy.serialization import deserialize_message
 
-        return deserialize_message(self._latest[key], self._types[key])
+        return deserialize_message(data, self._types[key])
 
     def _messages(self, key: str) -> Any:
         """``key``'s kept messages, newest first, decoded as they are reached (each once)."""
-        # deferred: rclpy (see _decode)
-        from rclpy.serialization import deserialize_message
-
         for entry in reversed(self._recent[key]):
             if entry[1] is None:
-                entry[1] = deserialize_message(entry[0], self._types[key])
+                entry[1] = self._decode(key, entry[0])
             yield entry[1]
 
     def _at(self, key: str, stamp_ns: int, exact: bool = True) -> Any:
@@ -201,7 +197,8 @@ class DerivedView:
         has_ref = bool(self._recent["reference"])
         first = None
         for truth in self._messages("truth"):
-            first = first or truth
+            if first is None:
+                first = truth
             s = _stamp_ns(truth)
             if coil is not None and s > _stamp_ns(coil):
                 continue

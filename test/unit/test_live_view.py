@@ -88,7 +88,6 @@ def test_the_static_path_is_built_once_and_rides_along_at_most_once_a_second():
     sent = []
     view._send = lambda key, data, t: sent.append(deserialize_message(data, MarkerArray)) if key == "view_markers" else None
     view._path_wall = -1e9
-    view._latest = {}
     from rclpy.serialization import serialize_message
 
     from vesselbot_ros.nodes import conversions as cv

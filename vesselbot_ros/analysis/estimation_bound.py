@@ -63,6 +63,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from vesselbot_ros.control.ekf_observer import s_inverse
 from vesselbot_ros.control.model import BLOOD_VELOCITY_ERROR, DynamicsModel
 from vesselbot_ros.sim.scenario import Scenario
 
@@ -185,6 +186,7 @@ def _bound_kernel(phi, deliver, acquire, r2, p0):  # type: ignore[no-untyped-def
     d = (m - 1) // 2
     out = np.empty(n)
     tmp = np.empty((m, m))
+    s_inv = np.empty((d, d))
     p_acq = p0.copy()
     p_now = p0.copy()
     k_acq = 0
@@ -198,10 +200,7 @@ def _bound_kernel(phi, deliver, acquire, r2, p0):  # type: ignore[no-untyped-def
             for i in range(k_acq, j):
                 _propagate(phi[i], p_acq, tmp)
             k_acq = j
-            s = p_acq[:d, :d].copy()
-            for a in range(d):
-                s[a, a] += r2
-            s_inv = np.linalg.inv(s)
+            s_inverse(p_acq, r2, d, s_inv)  # the filter's (H P H^T + R)^-1, d = 2 or 3
             gain = np.zeros((m, d))  # K = P H^T (H P H^T + R)^-1
             for i in range(m):
                 for a in range(d):

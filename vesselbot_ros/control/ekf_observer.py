@@ -88,7 +88,7 @@ from vesselbot_ros.physics.integrator import (
 from vesselbot_ros.physics.kernel import I_BRUSH_L0, flow_scaled_into
 
 __all__ = ["EkfParams", "ExtendedKalmanObserver", "CHI2_2DOF_999", "EkfState", "ekf_update", "ekf_params", "ekf_failure_message",
-           "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes", "ekf_step"]
+           "EKF_OUT_SIZE", "PREDICTION_FAILED", "ekf_out_size", "ekf_prm_size", "gate_on_axes", "ekf_step", "s_inverse"]
 
 #: ``wall_projection: lumen``: how near a wall (in bead radii) an estimate pressed towards it rests on it
 #: (:func:`~vesselbot_ros.physics.integrator.wall_press`): within a radius the surface forces and the wall's
@@ -192,7 +192,7 @@ def _predict_cov(t, h, y, P, u, qa2, qs2, free, geom, p_s, f0, f1, yp, A, Phi, T
 
 
 @numba.njit(cache=True, nogil=True)
-def _s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def s_inverse(P, r2, d, Si):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``Si = (P[:d, :d] + r2 I)^-1`` (symmetric) by the adjugate, in a fixed order."""
     if d == 2:  # axis count: the plane's 2x2 adjugate (its bits), else the 3x3 one below
         s00 = P[0, 0] + r2
@@ -233,7 +233,7 @@ def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped
     N = 2 * d + 1
     for c in range(d):
         nu[c] = m[c] - y[c]
-    _s_inverse(P, r2, d, Si)
+    s_inverse(P, r2, d, Si)
     d2 = 0.0
     for a in range(d):
         acc = Si[a, 0] * nu[0]

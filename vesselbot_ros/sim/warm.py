@@ -93,9 +93,13 @@ def warm(progress: ProgressFn | None = None, *, scope: str = "all") -> None:
                                                                     dead_time_s=0.001, propulsion_window_s=0.003,
                                                                     latency_s=0.001)))
     progress(0, len(scenarios))
-    if scope == "all" or (scope in ("trees", "wall_build")
-                          and (scope == "wall_build") == walls_cached(sc for _name, sc in loaded)):
+    if scope == "all":
         warm_wall_build()
+    elif scope in ("trees", "wall_build"):
+        # the 3-D part compiles it before it builds a missing lookup, else the wall build's own part does
+        owner = "wall_build" if walls_cached(sc for _name, sc in loaded) else "trees"
+        if scope == owner:
+            warm_wall_build()
     if scope in ("all", "planar"):  # the MR-image stages (no shipped scenario runs them; they run per tick)
         path, changes = MR_IMAGES_PLAN
         run_closed_loop(scenario_with(load_scenario(path), {**changes, "sim.duration_s": 0.06}), path="per_tick")

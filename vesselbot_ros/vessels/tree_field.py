@@ -530,6 +530,16 @@ def _write_wall(path: Path, args: tuple[npt.NDArray[Any], ...], stats: dict[str,
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _cache_wall(path: Path, args: tuple[npt.NDArray[Any], ...], stats: dict[str, Any]) -> WallArrays:
+    """Cache the lookup and hand back its mapped copy; the arrays in memory if the cache cannot take it (a full or
+    read-only disk: the temporary folder goes)."""
+    try:
+        _write_wall(path, args, stats)
+        return _read_wall(path)
+    except OSError:
+        return WallArrays(args, stats)
+
+
 @functools.lru_cache(maxsize=8)
 def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> WallArrays:
     """The compiled wall lookup's arrays of ``net``: read (mapped) from the cache, or built (tens of seconds) and
@@ -543,20 +553,14 @@ def wall_arrays(net: VesselNetworkParams, blood: BloodParams | None = None) -> W
         with contextlib.suppress(OSError, ValueError, KeyError), np.load(old) as z:
             stats = json.loads(str(z["stats"]))
             if stats.get("v") == WALL_VERSION:
-                args = tuple(np.ascontiguousarray(z[n]) for n in WALL_NAMES)
-                with contextlib.suppress(OSError):
-                    _write_wall(path, args, stats)
+                wa = _cache_wall(path, tuple(np.ascontiguousarray(z[n]) for n in WALL_NAMES), stats)
+                if isinstance(wa.args[0], np.memmap):  # moved into the folder: the old file goes
                     old.unlink()
-                    return _read_wall(path)
-                return WallArrays(args, stats)
+                return wa
     check_build(net, blood)  # tens of seconds to minutes: bounded first, and one line says so
     with step(f"3-D wall field of {net.name}") as report:  # a bar when a command draws them (vesselbot_ros.progress)
         wf = build_plant_field(fld.wall, fld.h, fld.origin, fld.shape, progress=report)
-    stats = {**wf.stats, "v": WALL_VERSION}
-    with contextlib.suppress(OSError):  # a full or read-only cache: built again next time (the temporary folder goes)
-        _write_wall(path, tuple(wf.args), stats)
-        return _read_wall(path)
-    return WallArrays(tuple(wf.args), stats)
+    return _cache_wall(path, tuple(wf.args), {**wf.stats, "v": WALL_VERSION})  # not cached: built again next time
 
 
 def wall_mesh(net: VesselNetworkParams, blood: BloodParams | None = None) -> tuple[Array, npt.NDArray[np.int64]]:
