@@ -311,7 +311,8 @@ def test_failing_filter_and_unusable_flow_scale_end_with_the_per_tick_error() ->
             if breakage == "nan_model":  # the filter's model (its V_f): the first prediction is non-finite
                 bad = st.observer.ekf.geom.copy()  # a planar model's geometry: its packed parameters
                 bad[I_V_F] = np.nan
-                st.observer.ekf.geom = bad
+                bad.setflags(write=False)  # read-only as the model's own: the same compiled types (a writable one
+                st.observer.ekf.geom = bad  # compiled the whole loop again for this test, 25 s in a fresh clone)
             else:  # a flow-scale estimate the compensating law must refuse
                 st.observer.ekf.y[4] = -1.0
             with pytest.raises(ModelInputError, match=pattern) as exc:
