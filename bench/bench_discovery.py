@@ -26,9 +26,10 @@ import subprocess
 import sys
 import tempfile
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from vesselbot_ros.ros_env import FASTDDS_PROFILE, allocate_domain, ros_environment
+from vesselbot_ros.ros_env import FASTDDS_PROFILE, FASTDDS_PROFILE_KEY, allocate_domain, ros_environment
 
 PEER = """
 import sys, time, rclpy
@@ -75,15 +76,23 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         # Fast DDS's own default (a profiles file must hold a profile: ours with the period set back to 3 s)
         defaults = Path(tmp) / "defaults.xml"
-        defaults.write_text(FASTDDS_PROFILE.read_text().replace("<sec>0</sec>", "<sec>3</sec>")
-                            .replace("<nanosec>250000000</nanosec>", "<nanosec>0</nanosec>"))
+        tree = ET.parse(FASTDDS_PROFILE)
+        ns = {"d": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+        lease = tree.getroot().find("d:profiles/d:participant/d:rtps/d:builtin/d:discovery_config/d:leaseAnnouncement", ns)
+        assert lease is not None, f"{FASTDDS_PROFILE} sets no leaseAnnouncement"
+        for tag, value in (("sec", "3"), ("nanosec", "0")):
+            field = lease.find(f"d:{tag}", ns)
+            assert field is not None, f"{FASTDDS_PROFILE}: leaseAnnouncement has no {tag}"
+            field.text = value
+        ET.register_namespace("", ns["d"])
+        tree.write(defaults, xml_declaration=True, encoding="UTF-8")
         lease = allocate_domain()
         try:
-            base = {k: v for k, v in os.environ.items() if k != "FASTRTPS_DEFAULT_PROFILES_FILE"}
+            base = {k: v for k, v in os.environ.items() if k != FASTDDS_PROFILE_KEY}
             ours = ros_environment(lease.domain_id, Path(tmp) / "logs", base=base)
             settings = {"ours (250 ms announcements)": ours,
-                        "Fast DDS defaults (3 s)": dict(ours, FASTRTPS_DEFAULT_PROFILES_FILE=str(defaults))}
-            assert ours["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(FASTDDS_PROFILE)
+                        "Fast DDS defaults (3 s)": {**ours, FASTDDS_PROFILE_KEY: str(defaults)}}
+            assert ours[FASTDDS_PROFILE_KEY] == str(FASTDDS_PROFILE)
             got: dict[str, list[float]] = {k: [] for k in settings}
             for i in range(args.trials):
                 order = list(settings) if i % 2 == 0 else list(settings)[::-1]

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-__all__ = ["FASTDDS_PROFILE", "DomainLease", "allocate_domain", "allocate_domain_for_peers", "ros_environment",
+__all__ = ["FASTDDS_PROFILE", "FASTDDS_PROFILE_KEY", "DomainLease", "allocate_domain", "allocate_domain_for_peers", "ros_environment",
            "apply_to_process", "restore_process_env"]
 
 # Linux-safe domain ids are 0..101 (higher ones may collide with ephemeral
@@ -37,7 +37,9 @@ DOMAIN_MAX = 101
 #: about one in two was matched only at a peer's next announcement (measured: 2.2-2.4 s late in 4 of 8 trials, and a
 #: lockstep run waited 2-2.5 s for "every node to be wired"); with a peer announcing every 250 ms, 0 of 8 trials.
 #: The run's own processes are the peers a user's node meets, so it gains without the file.
+#: bench/bench_discovery.py measures both settings side by side.
 FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+#: The environment variable Fast DDS reads the profiles file's path from.
 FASTDDS_PROFILE_KEY = "FASTRTPS_DEFAULT_PROFILES_FILE"
 
 

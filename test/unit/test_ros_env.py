@@ -7,10 +7,10 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from vesselbot_ros import ros_env
-from vesselbot_ros.ros_env import FASTDDS_PROFILE, apply_to_process, restore_process_env, ros_environment
+from vesselbot_ros.ros_env import FASTDDS_PROFILE, FASTDDS_PROFILE_KEY, apply_to_process, restore_process_env, ros_environment
 
 REPO = Path(__file__).resolve().parents[2]
-KEY = "FASTRTPS_DEFAULT_PROFILES_FILE"
+KEY = "FASTRTPS_DEFAULT_PROFILES_FILE"  # what Fast DDS 2.x reads (restated: the test checks the constant)
 
 
 def test_a_runs_environment_isolates_it_and_loads_our_participant_defaults(tmp_path: Path) -> None:
@@ -18,7 +18,7 @@ def test_a_runs_environment_isolates_it_and_loads_our_participant_defaults(tmp_p
     assert env["ROS_DOMAIN_ID"] == "42" and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
     assert "ROS_LOCALHOST_ONLY" not in env and env["ROS_LOG_DIR"] == str(tmp_path / "logs")
     assert (tmp_path / "logs").is_dir()
-    assert env[KEY] == str(FASTDDS_PROFILE)
+    assert FASTDDS_PROFILE_KEY == KEY and env[KEY] == str(FASTDDS_PROFILE)
     # a user's own profiles file is theirs to keep; an empty variable is no file
     assert ros_environment(42, tmp_path / "l2", base={KEY: "/etc/mine.xml"})[KEY] == "/etc/mine.xml"
     assert ros_environment(42, tmp_path / "l3", base={KEY: ""})[KEY] == str(FASTDDS_PROFILE)

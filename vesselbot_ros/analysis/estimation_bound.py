@@ -222,6 +222,7 @@ def _bound_kernel(phi, deliver, acquire, r2, p0):  # type: ignore[no-untyped-def
     out = np.empty(n)
     tmp = np.empty((m, m))
     s_inv = np.empty((d, d))
+    gain = np.empty((m, d))  # K = P H^T (H P H^T + R)^-1, every entry written at each frame
     p_acq = p0.copy()
     p_now = p0.copy()
     k_acq = 0
@@ -236,8 +237,7 @@ def _bound_kernel(phi, deliver, acquire, r2, p0):  # type: ignore[no-untyped-def
                 _propagate(phi[i], p_acq, tmp)
             k_acq = j
             s_inverse(p_acq, r2, d, s_inv)  # the filter's (H P H^T + R)^-1, d = 2 or 3
-            gain = np.zeros((m, d))  # K = P H^T (H P H^T + R)^-1
-            for i in range(m):
+            for i in range(m):  # K
                 for a in range(d):
                     acc = 0.0
                     for c in range(d):
