@@ -18,9 +18,10 @@ sys.modules["docs_figures"] = df
 _spec.loader.exec_module(df)
 
 #: The ledger of figures not yet tied to a stored result only shrinks: lower this when it does.
-# was 585: five figures of the 3-D trees marked or quoted from generated blocks (issue 41); before that 560
+# was 580: eleven ledger lines' figures (5, 25, 50 um) now match the carotid's 3 T flight block (its wall constraint, press, coast
+# floor); 585: five figures of the 3-D trees marked or quoted from generated blocks (issue 41); before that 560
 # (ledger 529), +56 figures moved from the wall geometry's module docstrings to docs/vessels.md
-LEDGER_MAX = 580
+LEDGER_MAX = 560
 
 
 def test_the_docs_state_no_figure_against_the_stored_results_or_each_other():

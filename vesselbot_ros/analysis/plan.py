@@ -101,6 +101,7 @@ class PlanOptions:
     free_heights: int = 9
     height: str = "auto"
     anchor_spacing_m: float = 1.0e-3
+    floor_anchor_spacing_m: float = 0.0
     step_s: float = 1.0e-3
     check_step_s: float = 2.5e-4
     smooth_s: float = 0.02
@@ -127,6 +128,9 @@ class PlanOptions:
             check_positive(name, getattr(self, name))
         if not (math.isfinite(self.wall_press_m) and 0.0 <= self.wall_press_m <= 1e-4):
             raise ConfigError(f"wall_press_m must be in [0, 1e-4] m, got {self.wall_press_m!r}")
+        if not (math.isfinite(self.floor_anchor_spacing_m) and self.floor_anchor_spacing_m >= 0.0):
+            raise ConfigError(f"floor_anchor_spacing_m must be >= 0 m (0: half anchor_spacing_m), "
+                              f"got {self.floor_anchor_spacing_m!r}")
         if not (math.isfinite(self.max_speed_m_per_s) and self.max_speed_m_per_s >= 0.0):
             raise ConfigError(f"max_speed_m_per_s must be >= 0 (0: the scenario's own speed), "
                               f"got {self.max_speed_m_per_s!r}")
@@ -511,8 +515,11 @@ def _net_need(scenario: Scenario, model: DynamicsModel, wall: MeshedWall, q: npt
 
 
 def _net_geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions, v_cap: float) -> _Geometry:
-    """A network's or a tree's route: its own anchors (``height: free``), or points along it every half
-    ``anchor_spacing_m``, each on the route or on the floor below it, whichever needs less.  A route whose first
+    """A network's or a tree's route: its own anchors (``height: free``), or points along it every
+    ``floor_anchor_spacing_m`` (0: half ``anchor_spacing_m``), each on the route or on the floor below it, whichever
+    needs less.  The cubic through anchors on the floor cuts a crest of it between them: at half a millimetre, the
+    external carotid's ridge by up to 90 um into the wall, where no bead can be (docs/reproduction.md); every
+    0.125 mm it hugs the ridge.  A route whose first
     anchor on the floor follows a start in the free lumen begins with the bead's own fall to the floor
     (:func:`_fall`).  Where the floor between two anchors on it breaks off (a side branch's mouth, a junction's
     floor falling away) the bead would cross off the wall: :class:`PlanInfeasible` if the coil cannot hold it there
@@ -521,7 +528,8 @@ def _net_geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions
     if options.height == "free":
         return _Geometry(ref.anchor_points(), np.zeros(len(ref.anchors_x_m)), None, ())
     route = ReferenceTrajectory(ref)
-    n = max(2, int(math.ceil(route.length_m / (0.5 * options.anchor_spacing_m) - 1e-9)) + 1)
+    spacing = options.floor_anchor_spacing_m or 0.5 * options.anchor_spacing_m
+    n = max(2, int(math.ceil(route.length_m / spacing - 1e-9)) + 1)
     us = np.linspace(0.0, route.length_m, n)
     pts = np.asarray(route.path(n)) if n >= 2 else np.asarray([route.path_point(0.0)])
     follow = np.zeros(len(pts))
@@ -529,8 +537,10 @@ def _net_geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions
     d1 = np.gradient(pts, axis=0)
     tangents = d1 / np.maximum(np.sqrt((d1 * d1).sum(axis=1)), 1e-12)[:, None]
     anchors = pts.copy()
+    # a hole is judged against the floor over the same length of route whatever the spacing (2.5 mm each side)
     floors = _regular_floors(pts, [wall.floor_below(p, options.wall_press_m) for p in pts],
-                             scenario.physics.robot.radius_m)
+                             scenario.physics.robot.radius_m,
+                             max(5, int(round(FLOOR_FIT_HALF_WINDOW_M / spacing))))
     for k in range(1, len(pts)):
         floor = floors[k]
         if floor is None:
@@ -584,6 +594,10 @@ def _net_geometry(scenario: Scenario, model: DynamicsModel, options: PlanOptions
     anchors = np.vstack([landed, anchors[keep]])
     follow = np.concatenate([weights, follow[keep]])
     return _Geometry(anchors, follow, dataclasses.replace(fall, t=fall.t - fall.t[0]), tuple(picks))
+
+
+#: The length of route (m) each side of a point over which :func:`_regular_floors` fits the floor's line.
+FLOOR_FIT_HALF_WINDOW_M = 2.5e-3
 
 
 def _regular_floors(pts: npt.NDArray[np.float64], floors: list[npt.NDArray[np.float64] | None],

@@ -66,6 +66,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                              f"(default {PlanOptions.budget_fraction:g}; lowered by itself where the check fails)")
     parser.add_argument("--max-speed-m-per-s", type=float, default=0.0,
                         help="largest axial speed of the plan (m/s; default 0: the scenario's own mean speed)")
+    parser.add_argument("--floor-anchor-spacing-m", type=float, default=0.0,
+                        help="in a network or a tree, the anchors along a route that rests on the floor every this far "
+                             "(m; default 0: half a millimetre); 1.25e-4 hugs a crest of the floor, where the path "
+                             "through sparser anchors cuts into the wall")
     parser.add_argument("--height", choices=("auto", "free", "wall"), default="auto",
                         help="free: never rest on the lower wall; wall: the least need, the wall included; auto "
                              "(default): both, the lower coast floor wins")
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     """Plan, write, print; exit 0 (PlanInfeasible: the caller's one line and exit 2)."""
     scenario = load_scenario(args.config, sets=args.set, hardware=args.hardware)
     options = PlanOptions(budget_fraction=args.budget_fraction, height=args.height,
-                          max_speed_m_per_s=args.max_speed_m_per_s)
+                          max_speed_m_per_s=args.max_speed_m_per_s, floor_anchor_spacing_m=args.floor_anchor_spacing_m)
     out = Path(args.out)
     check_output_dir(out, "--out", need_bytes=OUTPUT_BYTES, need_why="plan.yaml, segments.csv and plan.png")
     label = run_label(scenario.name, args.hardware)

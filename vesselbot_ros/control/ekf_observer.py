@@ -82,6 +82,7 @@ from vesselbot_ros.physics.integrator import (
     new_workspace,
     onto_lumen_at,
     params_of,
+    wall_normal_into,
     wall_press,
     with_params,
 )
@@ -281,7 +282,7 @@ def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped
 #   max_consecutive_rejections, delay_compensation (0/1), position_sigma0^2, velocity_sigma0^2,
 #   flow_scale_sigma0^2 (0 if frozen), rtol, atol_pos, atol_vel, min_step, max_step, wall projection lumen (0/1),
 #   max_rejection_s (inf: off), the prediction's integrator (7, physics.integrator.integrator_vector: dopri5),
-#   flung_restart_sigmas times sigma (inf: off), B (d x d, row-major)]
+#   flung_restart_sigmas times sigma (inf: off), wall_constraint_sigma^2 (0: off), B (d x d, row-major)]
 # scal (5,): [t (s), t of the last accepted frame (s, -inf before), next integrator step (s), initialised (0/1),
 #   acquisition time of the first frame of the current run of rejections (s; inf: none)]
 # ist (6,) int64: [history count, history head, rejections in a row, rejected, covariance resets, track resets]
@@ -293,7 +294,7 @@ def _correct(y, P, m, r2, gate, KK, T, nu, Si, geom):  # type: ignore[no-untyped
 # err (3 + N,): [t0, t1, integrator code, the states the failing prediction started from]
 #: Indices in the parameter vector (module comment above).
 _QA2, _QS2, _R2, _GATE, _MAX_REJ, _DELAY, _POS0, _VEL0, _S0 = 0, 1, 2, 3, 4, 5, 6, 7, 8
-_LUMEN, _MAX_REJ_S, _IG, _FLUNG, _B = 14, 15, 16, 23, 24
+_LUMEN, _MAX_REJ_S, _IG, _FLUNG, _WALL_S2, _B = 14, 15, 16, 23, 24, 25
 #: codes of :func:`ekf_update` besides OK: the prediction failed (see ``err``)
 PREDICTION_FAILED = 3
 
@@ -336,7 +337,7 @@ def ekf_params(params: EkfParams, b: npt.ArrayLike, ig: Any) -> npt.NDArray[np.f
                      1.0 if q.wall_projection == "lumen" else 0.0, q.max_rejection_s if q.max_rejection_s > 0.0 else math.inf,
                      0.0, ig.rtol, ig.atol_position_m, ig.atol_velocity_m_per_s, ig.min_step_s, ig.max_step_s, 0.0,
                      q.flung_restart_sigmas * q.measurement_sigma_m if q.flung_restart_sigmas > 0.0 else math.inf,
-                     *bm.ravel()])
+                     q.wall_constraint_sigma_m**2 if q.wall_projection == "lumen" else 0.0, *bm.ravel()])
 
 
 def ekf_history_len(params: EkfParams, tick_s: float) -> int:
@@ -418,7 +419,42 @@ def _ekf_predict(prm, scal, ist, t0, t1, y, P, u, free, geom, p_s, work, fbuf, s
     if not (finite and small):  # covariance lost: start it again
         _ekf_reset_covariance(prm, P, d)
         ist[4] += 1
+    elif prm[_WALL_S2] > 0.0:
+        _constrain_on_wall(prm[_WALL_S2], t1, y, P, u, free, geom, p_s, fbuf, sc, vec[5], g0, vec[0], vec[1])
     return OK
+
+
+@numba.njit(cache=True, nogil=True)
+def _constrain_on_wall(r2, t, y, P, u, free, geom, p_s, fbuf, sc, tc, g0, h, ph):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``wall_constraint_sigma_m``: where the estimate ``y`` at ``t`` rests on a wall (:func:`wall_press`, as the
+    covariance's Jacobian tells it), ``P <- P - P h h^T P / (h^T P h + r2)`` with ``h = (n, 0, 0)``, ``n`` the wall's
+    inward normal: a pseudo-measurement of the wall-normal position with zero innovation; whether it applied.
+    ``h``, ``ph`` (2 d + 1,) scratch."""
+    d = axes_of(geom)  # the axes, a constant at compile time (the loops unroll)
+    N = 2 * d + 1
+    flow_scaled_into(params_of(geom), y[2 * d], p_s)
+    gs = with_params(geom, p_s)
+    tc[0] = np.nan  # the memo may hold another time's or another scale's terms
+    forces_memo(t, y, g0, free, gs, fbuf, sc, tc)
+    if not wall_press(t, y, u, gs, fbuf, CONSTRAINT_ZONE_RADII):
+        return False
+    for i in range(N):
+        h[i] = 0.0
+    wall_normal_into(t, y, gs, h)
+    s = r2
+    for i in range(N):
+        acc = 0.0
+        for c in range(d):
+            acc += P[i, c] * h[c]
+        ph[i] = acc
+    for c in range(d):
+        s += h[c] * ph[c]
+    for i in range(N):
+        for j in range(i, N):
+            v = P[i, j] - ph[i] * ph[j] / s
+            P[i, j] = v
+            P[j, i] = v
+    return True
 
 
 @numba.njit(cache=True, nogil=True)

@@ -64,6 +64,18 @@ class EkfParams:
             microsecond modes give the velocity a gain that throws a delayed
             frame's re-prediction off the wall); elsewhere it holds every
             force.  The mean is predicted with every force, as before.
+        wall_constraint_sigma_m: With ``wall_projection: lumen``, where the
+            predicted estimate rests on a wall (as above), the covariance is
+            conditioned on the wall-normal position being known to this
+            standard deviation (m): a pseudo-measurement ``n^T X`` of zero
+            innovation (the mean already lies on the lumen's side), the
+            constraint "the bead is on this wall" in the covariance as well
+            as in the mean.  Without it the covariance keeps the frames' own
+            uncertainty across the wall, and through the wall effect's steep
+            drag that becomes velocity, then position, uncertainty along the
+            floor: the filter then trusts only its last few frames.  0 (the
+            default): off.  Left out of
+            :func:`~vesselbot_ros.config.to_mapping` at 0.
     """
 
     measurement_sigma_m: float = 100e-6
@@ -81,6 +93,7 @@ class EkfParams:
     history_s: float = 0.25
     estimate_flow_scale: bool = True
     wall_projection: Literal["none", "lumen"] = "none"
+    wall_constraint_sigma_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: lambda v: v == 0.0})
 
     def __post_init__(self) -> None:
         check_choice("wall_projection", self.wall_projection, ("none", "lumen"))
@@ -96,3 +109,4 @@ class EkfParams:
         check_nonnegative("max_rejection_s", self.max_rejection_s)
         check_nonnegative("flung_restart_sigmas", self.flung_restart_sigmas)
         check_positive("history_s", self.history_s)
+        check_nonnegative("wall_constraint_sigma_m", self.wall_constraint_sigma_m)

@@ -84,6 +84,7 @@ __all__ = [
     "wall_offset_into",
     "wall_offsets",
     "wall_frame_into",
+    "wall_normal_into",
     "wall_frames",
     "floor_offsets",
     "params_of",
@@ -555,7 +556,8 @@ def wall_offsets(points, geom):  # type: ignore[no-untyped-def]  # numba kernel:
 def wall_frame_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """``out`` (d,) = the unit inward normal of the wall nearest the point ``x`` (d,) of a network or a tree at time
     ``t``; returns ``(s_t, D_t)``: the centre's signed distance to that wall (m, > 0 inside, the pulsation's wall)
-    and the local diameter then (m).  A planar ``geom`` must be a network's (compiled code only)."""
+    and the local diameter then (m).  A planar ``geom`` must be a network's (compiled code only); for the normal
+    alone in any vessel, :func:`wall_normal_into`."""
     raise NotImplementedError("wall_frame_into runs in compiled code only")
 
 
@@ -577,6 +579,36 @@ def _tree_frame(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kerne
 @overload(wall_frame_into, jit_options={"nogil": True})
 def _wall_frame_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     return _planar_frame if isinstance(geom, types.Array) else _tree_frame
+
+
+def wall_normal_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """``out`` (d,) = the unit inward normal of the wall nearest the point ``x`` (d,) at time ``t``, in any vessel:
+    the straight vessel's upper or lower wall, a network's or a tree's (:func:`wall_frame_into`), the normal that
+    :func:`onto_lumen_at` projects along (compiled code only)."""
+    raise NotImplementedError("wall_normal_into runs in compiled code only")
+
+
+def _planar_normal(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    if geom[I_NET_ON] > 0.5:
+        _s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x[0], x[1], geom)
+        out[0] = nx
+        out[1] = nz
+    else:
+        _delta, wall = wall_delta_xz(t, x[0], x[1], geom)
+        out[0] = 0.0
+        out[1] = -wall  # the upper wall (+1) pushes down
+
+
+def _tree_normal(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    _s_t, n0, n1, n2, _d_t, _eta, _v0, _v1, _v2 = tree_geometry(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
+    out[0] = n0
+    out[1] = n1
+    out[2] = n2
+
+
+@overload(wall_normal_into, jit_options={"nogil": True})
+def _wall_normal_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    return _planar_normal if isinstance(geom, types.Array) else _tree_normal
 
 
 @numba.njit(cache=True, nogil=True)

@@ -45,6 +45,10 @@ def test_params_are_validated() -> None:
 
     assert "flung_restart_sigmas" not in to_mapping(EkfParams())  # off: every scenario's hash as it was
     assert to_mapping(EkfParams(flung_restart_sigmas=5.0))["flung_restart_sigmas"] == 5.0
+    with pytest.raises(ConfigError, match=r"wall_constraint_sigma_m must be >= 0"):
+        EkfParams(wall_constraint_sigma_m=-1e-6)
+    assert "wall_constraint_sigma_m" not in to_mapping(EkfParams())
+    assert to_mapping(EkfParams(wall_constraint_sigma_m=5e-6))["wall_constraint_sigma_m"] == 5e-6
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -159,6 +163,47 @@ def test_wall_projection_puts_an_estimate_inside_the_wall_back_one_brush_length_
         assert e.x_hat[1] == pytest.approx(wall + l0, abs=1e-12) and e.z_hat[1] >= 0.0
     else:
         assert e.x_hat[1] < wall
+
+
+def _resting_filters(height_above_wall_m: float) -> dict[float, ExtendedKalmanObserver]:
+    """Two filters (``wall_constraint_sigma_m`` 0 and 5 um, ``wall_projection: lumen``) that fused one frame of a bead
+    ``height_above_wall_m`` above the straight vessel's lower wall and predicted one tick under no gradient."""
+    from vesselbot_ros.physics.kernel import diameter_at
+
+    ph = EKF_SCENARIO.model_physics()
+    model = DynamicsModel(ph, EKF_SCENARIO.sim.integrator)
+    wall = -(0.5 * float(diameter_at(0.0, model.p)) - ph.robot.radius_m)  # a bead touching the lower wall at t = 0
+    out = {}
+    for sigma in (0.0, 5e-6):
+        params = dataclasses.replace(EkfParams(), wall_projection="lumen", wall_constraint_sigma_m=sigma)
+        obs = ExtendedKalmanObserver(params, model, (0.0, wall + height_above_wall_m), tick_s=1e-3)
+        obs.update(0.0, _meas(0.0, (0.0, wall + height_above_wall_m)), np.zeros(2))
+        obs.update(1e-3, None, np.zeros(2))
+        out[sigma] = obs
+    return out
+
+
+def test_wall_constraint_conditions_the_covariance_on_the_wall_normal_position() -> None:
+    """Resting on the lower wall (its weight presses it there): with ``wall_constraint_sigma_m`` the prediction's
+    covariance knows the wall-normal position to that sigma, the frames' 100 um no longer; the mean is the
+    unconstrained filter's to the bit (a pseudo-measurement of zero innovation) and the covariance stays positive."""
+    from vesselbot_ros.physics.params import PhysicsParams
+
+    l0 = PhysicsParams().interactions.brush_length_m
+    f = _resting_filters(l0)
+    off, on = f[0.0].covariance, f[5e-6].covariance
+    assert off[1, 1] > (30e-6) ** 2  # the frames' uncertainty across the wall
+    assert on[1, 1] <= (5e-6) ** 2 * (1 + 1e-9)
+    assert on[0, 0] <= off[0, 0] and on[0, 0] > 0.5 * off[0, 0]  # along the wall: the frames' own
+    assert np.all(np.linalg.eigvalsh(on) > -1e-18)
+    np.testing.assert_array_equal(f[0.0].state, f[5e-6].state)
+
+
+def test_wall_constraint_leaves_a_free_estimate_alone() -> None:
+    """Mid-lumen nothing presses the estimate onto a wall: the option changes no bit."""
+    f = _resting_filters(1.5e-3)
+    np.testing.assert_array_equal(f[0.0].covariance, f[5e-6].covariance)
+    np.testing.assert_array_equal(f[0.0].state, f[5e-6].state)
 
 
 def test_wall_projection_is_validated() -> None:
