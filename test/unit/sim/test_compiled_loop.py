@@ -147,8 +147,8 @@ def _variants() -> dict[str, Scenario]:
                                      outliers=(dc.replace(sound.imager.outliers[0], start_s=0.1, duration_s=0.05),)),
             observer=dc.replace(sound.observer, delay_compensation=True, innovation_gate_m=5e-4)),
         "planned_wall_carried_projected": _wall_plan(),
-        "planned_wall_predictive_projected": dc.replace(_wall_plan(), controller=PredictiveParams()),
-        "planned_wall_constrained": dc.replace(_wall_plan(), observer=dc.replace(
+        # the predictive controller's run also holds the wall in the filter's covariance (wall_constraint_sigma_m)
+        "planned_wall_predictive_projected": dc.replace(_wall_plan(), controller=PredictiveParams(), observer=dc.replace(
             _wall_plan().observer, ekf=dc.replace(_wall_plan().observer.ekf, wall_constraint_sigma_m=5e-6))),
         "tree_ekf_latency_delay_lumen": dc.replace(
             tree_ekf, imager=dc.replace(tree.imager, frame_rate_Hz=100.0, latency_s=0.02,
