@@ -590,9 +590,7 @@ def wall_normal_into(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba 
 
 def _planar_normal(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     if geom[I_NET_ON] > 0.5:
-        _s, nx, nz, _d, _eta, _vx, _vz = network_geometry(t, x[0], x[1], geom)
-        out[0] = nx
-        out[1] = nz
+        wall_frame_into(t, x, geom, out)
     else:
         _delta, wall = wall_delta_xz(t, x[0], x[1], geom)
         out[0] = 0.0
@@ -600,10 +598,7 @@ def _planar_normal(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba ke
 
 
 def _tree_normal(t, x, geom, out):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
-    _s_t, n0, n1, n2, _d_t, _eta, _v0, _v1, _v2 = tree_geometry(t, x[0], x[1], x[2], geom[0], geom[1], geom[2], geom[3])
-    out[0] = n0
-    out[1] = n1
-    out[2] = n2
+    wall_frame_into(t, x, geom, out)
 
 
 @overload(wall_normal_into, jit_options={"nogil": True})
