@@ -1154,6 +1154,12 @@ def plan_scenario(scenario: Scenario, reference: ReferenceParams) -> Scenario:
 #: more than 5 frame sigmas from its frame, or that refused every frame for 0.1 s.  On the external carotid on 3 T
 #: they turn two seeds of five that lost the bead at the crest (9 mm) into 0.4 and 1.0 mm (docs/reproduction.md).
 CREST_RESTARTS: dict[str, float] = {"observer.ekf.flung_restart_sigmas": 5.0, "observer.ekf.max_rejection_s": 0.1}
+#: The predictive controller's spread along the route where it tops a crest of the floor (controller.spread_m, as
+#: the filter's rms error along the floor there, 18-28 um): it plans for the estimate 30 um ahead and behind, so it
+#: no longer brakes a bead the frames put just past the top while it still climbs.  On the external carotid on 3 T
+#: (0.125 mm floor anchors, the filter's wall constraint) it keeps the seed of five that the estimate alone lost at
+#: the crest (4.0 mm to 0.14 mm; docs/reproduction.md, carotid_3t_flight).
+CREST_SPREAD_M = 30e-6
 #: The filter's prior on the blood-velocity scale for a plan on the wall: the paper's 5 % blood-velocity error
 #: (the filter's default, 10 %, let the scale wander to 1.07-1.14 on the clinical plan, truth 0.95: 82 % of 100
 #: seeds within 2x the coast floor against 92 % with this prior).
@@ -1171,13 +1177,17 @@ def flying_changes(scenario: Scenario, plan: Plan) -> dict[str, str | float]:
     the scale, so a wider prior lets frame noise carry it 10-20 % off.  Where the route tops a crest of the
     floor (``plan.crests``) the filter also restarts a track that an update flung away from its frame or that
     refused every frame for a tenth of a second (:data:`CREST_RESTARTS`, unless the scenario sets its own): over
-    a crest a frame's noise can put the estimate on the far side while the bead is still on the near one.
+    a crest a frame's noise can put the estimate on the far side while the bead is still on the near one; for
+    the same reason the predictive controller plans for a spread of the estimate along the route there
+    (``controller.spread_m``, :data:`CREST_SPREAD_M`, unless the scenario sets its own).
     """
     if all(s.mode == "free" for s in plan.segments):
         return {}
     out: dict[str, str | float] = {}
     if any(f.name == "wall_contact" for f in dataclasses.fields(scenario.controller)):  # the kinds that take the option
         out["controller.wall_contact"] = "carried"
+    if plan.crests and getattr(scenario.controller, "spread_m", None) == 0.0:  # the predictive kind, unless set
+        out["controller.spread_m"] = CREST_SPREAD_M
     if scenario.observer.kind == "ekf":
         out["observer.ekf.wall_projection"] = "lumen"
         out["observer.ekf.flow_scale_sigma0"] = WALL_FLOW_SCALE_SIGMA0

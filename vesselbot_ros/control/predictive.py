@@ -54,7 +54,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from vesselbot_ros.config import ConfigError, check_choice, check_positive, check_range
+from vesselbot_ros.config import OMIT_IF, ConfigError, check_choice, check_positive, check_range
 from vesselbot_ros.control.backstepping import (
     FLOW_SCALE_INVALID,
     STATUS_NONFINITE,
@@ -112,6 +112,17 @@ class PredictiveParams:
             planned: the weight and the wall hold the bead there, and a
             vertical push only lifts it off the wall (``vesselbot plan`` sets it
             for a plan that rests there).
+        spread_m: The estimate's uncertainty along the route (m).  0: the
+            plan is for the estimate alone (certainty equivalence).  > 0: it
+            is for two hypotheses, the estimate moved ``spread_m`` forward
+            and back along the reference's velocity (two sigma points of a
+            spread of that size along the route), and minimises the sum of
+            their costs, at twice the predictions.  Where the model is not
+            smooth along the route (over a crest of the floor, where the
+            weight pulls back on the near slope and forward on the far one)
+            a plan for the estimate alone brakes a bead the frames put just
+            past the top while it is still climbing, and sends it back down
+            (``vesselbot plan`` sets it for a route over a crest).
     """
 
     kind: Literal["predictive"] = "predictive"
@@ -124,6 +135,7 @@ class PredictiveParams:
     velocity_weight_s: float = 0.005
     stale_timeout_s: float = 0.2
     wall_contact: Literal["none", "carried"] = "none"
+    spread_m: float = dataclasses.field(default=0.0, metadata={OMIT_IF: lambda v: v == 0.0})
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("predictive",))
@@ -137,15 +149,16 @@ class PredictiveParams:
         check_positive("stale_timeout_s", self.stale_timeout_s)
         if not (math.isfinite(self.velocity_weight_s) and self.velocity_weight_s >= 0.0):
             raise ConfigError(f"velocity_weight_s must be finite and >= 0, got {self.velocity_weight_s!r}")
+        check_range("spread_m", self.spread_m, 0.0, 1e-3)
 
 
 # ---- parameter and state vectors -----------------------------------------------------------------------------------
 # On d axes (2: x, z; 3: x, y, z), read from the reference sample's length:
 # prm: [pieces, iterations, horizon ticks (continuous), replan ticks (continuous), regularization, stale timeout,
 #       dt, max horizon ticks, finite-difference step (T/m), saturation (T/m), terminal velocity weight (s),
-#       coil prm (4), sequence sv (7), wall contact carried (0/1)]
-_P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV, _P_WALL = (
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 22)
+#       coil prm (4), sequence sv (7), wall contact carried (0/1), spread along the route (m)]
+_P_N, _P_IT, _P_HZ, _P_RE, _P_LAM, _P_STALE, _P_DT, _P_HMAX, _P_H, _P_SAT, _P_VW, _P_COIL, _P_SV, _P_WALL, _P_SPREAD = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 22, 23)
 
 
 # state: [coil replica (d + 2), plan start time, ticks per piece, last age, has plan (0/1),
@@ -167,10 +180,11 @@ def _layout(prm, n_model, d):  # type: ignore[no-untyped-def]  # numba kernel: a
     size)``.
 
     work: scaled model (``n_model``) | residual (``rows``) | d n columns (``rows`` each) | normal matrix
-    (d n x d n) | rhs (d n) | step (d n) | coil out (2 d + 3) | coil replica (d + 2) | rollout scratch (9 d).
+    (d n x d n) | rhs (d n) | step (d n) | coil out (2 d + 3) | coil replica (d + 2) | rollout scratch (9 d) |
+    the two hypotheses' estimates (4 d; with a spread).  A row block per hypothesis (one, or two with a spread).
     """
     m = d * int(prm[_P_N])
-    rows = d * int(prm[_P_HMAX]) + d + m
+    rows = (2 if prm[_P_SPREAD] > 0.0 else 1) * (d * int(prm[_P_HMAX]) + d + m)
     off_r = n_model
     off_cols = off_r + rows
     off_a = off_cols + rows * m
@@ -179,7 +193,7 @@ def _layout(prm, n_model, d):  # type: ignore[no-untyped-def]  # numba kernel: a
     off_cout = off_x + m
     off_rep = off_cout + 2 * d + 3
     off_scr = off_rep + d + 2
-    return rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_scr, off_scr + 9 * d
+    return rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_scr, off_scr + 9 * d + 4 * d
 
 
 def work_size(prm: npt.NDArray[np.float64], n_model: int, dims: int) -> int:
@@ -270,6 +284,45 @@ def _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc
 
 
 @numba.njit(cache=True, nogil=True)
+def _rollouts(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, hyp, pr, vr, ar, plan,  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+              n_win, n_hor, piece_len):
+    """:func:`_rollout` from the estimate ``est``, or with a spread from each of its two hypotheses (``hyp``: the
+    first's X, Z, then the second's), their residuals one block after the other from ``off_r``."""
+    if prm[_P_SPREAD] > 0.0:
+        d = axes_of(geom)
+        used = d * n_hor + d + d * int(prm[_P_N])
+        _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, hyp[:2 * d], pr, vr, ar,
+                 plan, n_win, n_hor, piece_len)
+        _rollout(prm, state, geom, work, off_r + used, off_cout, off_rep, off_scr, fbuf, sc, t, hyp[2 * d:], pr, vr,
+                 ar, plan, n_win, n_hor, piece_len)
+    else:
+        _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar, plan, n_win,
+                 n_hor, piece_len)
+
+
+@numba.njit(cache=True, nogil=True)
+def _hypotheses(prm, est, vr, hyp):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+    """The two hypotheses of a spread into ``hyp`` (4 d): the estimate moved ``spread_m`` forward and back along the
+    reference's velocity (not moved where the reference stands still), the estimated velocity kept."""
+    d = vr.shape[0]
+    big = abs(vr[0])  # the direction from the velocity over its largest component (no under- or overflow)
+    for c in range(1, d):
+        big = max(big, abs(vr[c]))
+    shift = 0.0
+    if big > 0.0:
+        sq = (vr[0] / big) * (vr[0] / big)
+        for c in range(1, d):
+            sq = sq + (vr[c] / big) * (vr[c] / big)
+        shift = prm[_P_SPREAD] / math.sqrt(sq)
+    for c in range(d):
+        u = vr[c] / big if big > 0.0 else 0.0
+        hyp[c] = est[c] + shift * u
+        hyp[d + c] = est[d + c]
+        hyp[2 * d + c] = est[c] - shift * u
+        hyp[3 * d + c] = est[d + c]
+
+
+@numba.njit(cache=True, nogil=True)
 def _solve(a, b, m, x):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """Solve ``a[:m, :m] x = b[:m]`` by Gaussian elimination with partial pivoting (in place; fixed order)."""
     for c in range(m):
@@ -309,6 +362,10 @@ def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, 
     m = d * n
     used = d * n_hor + d + m
     rows, off_r, off_cols, off_a, off_b, off_x, off_cout, off_rep, off_scr, _size = _layout(prm, n_model, d)
+    hyp = work[off_scr + 9 * d:off_scr + 13 * d]
+    if prm[_P_SPREAD] > 0.0:
+        _hypotheses(prm, est, vr, hyp)
+        used = 2 * used
     _c, s_t0, s_len, _age, s_plan, _contact, s_g = _state_offsets(d)
     piece_len = (n_win + n - 1) // n
     if piece_len < 1:
@@ -325,15 +382,15 @@ def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, 
         for j in range(n):
             plan[d * j + d - 1] = 0.0
     for _it in range(int(prm[_P_IT])):
-        _rollout(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar, plan, n_win,
-                 n_hor, piece_len)
+        _rollouts(prm, state, geom, work, off_r, off_cout, off_rep, off_scr, fbuf, sc, t, est, hyp, pr, vr, ar, plan,
+                  n_win, n_hor, piece_len)
         for j in range(m):
             if pinned and j % d == d - 1:
                 continue  # its row and column of the normal equations are the identity's (below): no step
             keep = plan[j]
             plan[j] = keep + step
-            _rollout(prm, state, geom, work, off_cols + j * rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr,
-                     ar, plan, n_win, n_hor, piece_len)
+            _rollouts(prm, state, geom, work, off_cols + j * rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, hyp,
+                      pr, vr, ar, plan, n_win, n_hor, piece_len)
             plan[j] = keep
             for i in range(used):
                 work[off_cols + j * rows + i] = (work[off_cols + j * rows + i] - work[off_r + i]) / step
@@ -376,8 +433,8 @@ def _plan(prm, state, geom, work, n_model, fbuf, sc, t, est, pr, vr, ar, n_win, 
                 if norm > sat:
                     for c in range(d):
                         trial[d * j + c] = trial[d * j + c] * (sat / norm)
-            _rollout(prm, state, geom, work, off_cols + rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, pr, vr, ar,
-                     trial, n_win, n_hor, piece_len)
+            _rollouts(prm, state, geom, work, off_cols + rows, off_cout, off_rep, off_scr, fbuf, sc, t, est, hyp, pr,
+                      vr, ar, trial, n_win, n_hor, piece_len)
             cost = 0.0
             for i in range(used):
                 cost += work[off_cols + rows + i] * work[off_cols + rows + i]
@@ -496,7 +553,7 @@ predictive_step = lazy_step(_predictive_step)
 
 def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: SequenceParams,
                       dt_s: float) -> npt.NDArray[np.float64]:
-    """The (23,) parameter vector of :func:`predictive_command`.
+    """The (24,) parameter vector of :func:`predictive_command`.
 
     Raises:
         ConfigError: a propulsion window and its coast longer than ``max_horizon_ticks``.
@@ -513,6 +570,7 @@ def predictive_params(params: PredictiveParams, coil: CoilLimits, sequence: Sequ
         float(max(1, round(params.replan_period_s / dt_s))), float(params.regularization),
         float(params.stale_timeout_s), float(dt_s), float(params.max_horizon_ticks), 1e-3 * sat, sat,
         float(params.velocity_weight_s), *coil_params(coil), *sv, 1.0 if params.wall_contact == "carried" else 0.0,
+        float(params.spread_m),
     ])
 
 

@@ -415,7 +415,7 @@ def test_a_plan_over_a_crest_flies_with_the_filters_restarts_and_one_without_a_c
     """The plan keeps the crests its route tops; its flying changes then restart a flung or lost track (the two
     tests below are why), unless the scenario sets its own; a plan on a flat floor (the straight channel's, clinical
     3 T) keeps the filter as it is."""
-    from vesselbot_ros.analysis.plan import CREST_RESTARTS, flying_changes
+    from vesselbot_ros.analysis.plan import CREST_RESTARTS, CREST_SPREAD_M, flying_changes
     from vesselbot_ros.analysis.scanner_study import preset_changes
     from vesselbot_ros.sim.scenario import scenario_with
 
@@ -426,12 +426,18 @@ def test_a_plan_over_a_crest_flies_with_the_filters_restarts_and_one_without_a_c
     assert flying_changes(bare, plan).items() >= CREST_RESTARTS.items()
     own = flying_changes(scenario_with(bare, {"observer.ekf.max_rejection_s": 0.3}), plan)
     assert "observer.ekf.max_rejection_s" not in own and own["observer.ekf.flung_restart_sigmas"] == 5.0
+    assert "controller.spread_m" not in own  # law (24): no spread to plan for
+    predictive = scenario_with(bare, {"controller.kind": "predictive"})
+    assert flying_changes(predictive, plan)["controller.spread_m"] == CREST_SPREAD_M
+    assert "controller.spread_m" not in flying_changes(scenario_with(predictive, {"controller.spread_m": 5e-5}), plan)
     flat = load_scenario("clinical_3t_small_artery", sets=[f"{k}={v}" for k, v in preset_changes("clinical_3t").items()])
     flat = scenario_with(flat, {"observer.kind": "ekf"}) if flat.observer.kind != "ekf" else flat
     flat_plan = make_plan(flat)
     assert flat_plan.crests == () and not all(s.mode == "free" for s in flat_plan.segments)
     flat_bare = scenario_with(flat, {k: 0.0 for k in CREST_RESTARTS})
     assert not set(flying_changes(flat_bare, flat_plan)) & set(CREST_RESTARTS)
+    assert "controller.spread_m" not in flying_changes(scenario_with(flat_bare, {"controller.kind": "predictive"}),
+                                                       flat_plan)
 
 
 def test_the_filter_restarts_a_track_its_update_flung_away_from_the_frame(eca_mfde):
