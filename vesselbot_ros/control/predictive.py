@@ -31,7 +31,8 @@ In continuous mode (``sequence.mode: continuous``) it plans over
 ``horizon_s`` and replans every ``replan_period_s``.
 
 Time budget and fallback.  The work per plan is bounded: at most
-``iterations`` x (1 + 2 ``pieces`` + 4) predictions of at most
+``iterations`` x (1 + 2 ``pieces`` + 4) predictions (twice that with a
+``spread_m``: one per hypothesis) of at most
 ``max_horizon_ticks`` ticks (four force evaluations each), so its time is
 bounded by construction, not by a clock (the same numbers on every machine).  A plan that comes out non-finite
 (a prediction that blew up against a wall) is dropped: the controller commands
