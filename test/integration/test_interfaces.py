@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -42,11 +43,22 @@ def test_every_custom_message_and_service_round_trips_between_processes(ros, tmp
             sent[name] = msg
         # every field must differ from its default, or the comparison proves little
         assert sent["PlantState"].forces.steric.z != 0.0 and sent["CoilState"].slew_rate != 0.0
-        # wait until the echo path is matched end to end, then publish once
+        # publish until each echo is back: this node can see the peer's echo publisher before that publisher has
+        # matched this node's subscription (discovery is not symmetric), and an echo sent before then is lost
+        # (VOLATILE: seen once in a clean-clone run on a loaded machine); the same message again changes nothing
         assert spin_until(ex, lambda: all(node.count_publishers(f"/echo_out/{n}") == 1 for n in MESSAGES), 20)
-        for name in MESSAGES:
-            pubs[name].publish(sent[name])
-        assert spin_until(ex, lambda: all(received[n] for n in MESSAGES), timeout=20), peer.output()
+        resend = {"at": 0.0, "every": 0.25}
+
+        def echoed() -> bool:
+            missing = [n for n in MESSAGES if not received[n]]
+            if missing and time.monotonic() >= resend["at"]:
+                for name in missing:
+                    pubs[name].publish(sent[name])
+                resend["at"] = time.monotonic() + resend["every"]
+                resend["every"] = min(2.0 * resend["every"], 2.0)
+            return not missing
+
+        assert spin_until(ex, echoed, timeout=20), peer.output()
         for name in MESSAGES:
             assert received[name][0] == sent[name], name
 
