@@ -176,6 +176,8 @@ WALL_CONSTRAINED = {"observer.ekf.wall_constraint_sigma_m": 5e-6, "observer.ekf.
 
 #: The floor anchors' spacing of the comparison plan (PlanOptions.floor_anchor_spacing_m; the default: 0.5 mm).
 DENSE_FLOOR_M = 0.125e-3
+#: The seeds the best loop on that plan flies for the head line's summary.
+SEEDS_100 = 100
 
 
 def _fly(sc: Any, seeds: range, crests: list[tuple[float, float]]) -> list[dict[str, Any]]:
@@ -222,7 +224,7 @@ def flight_block_3t() -> str:
         make_plan,
         plan_scenario,
     )
-    from vesselbot_ros.sim.closed_loop import run_closed_loop
+    from vesselbot_ros.sim.closed_loop import run_closed_loop, run_many
     from vesselbot_ros.sim.scenario import scenario_with
 
     base = load_scenario(shipped_scenarios()["carotid_bifurcation_3d_eca_ekf"], hardware="clinical_3t_mfde")
@@ -263,6 +265,17 @@ def flight_block_3t() -> str:
     est_max_wall = [f["m"]["estimation_error_max_m"] for f in flights[walled]]
     excluded = [f["excluded"] for v in flights.values() for f in v]
     best_max = [f["m"]["tracking_error_max_m"] for f in flights[dense_best]]
+    # the best loop over 100 seeds (the compiled loop on both cores)
+    wide = [r.metrics for r in run_many(scenario_with(dense_flown, {**best, "controller.spread_m": CREST_SPREAD_M}),
+                                        range(SEEDS_100), workers=2)]
+    wide_max = np.array([m["tracking_error_max_m"] for m in wide])
+    wide_s = (f"Over seeds 0-{SEEDS_100 - 1} that loop reaches the outlet on "
+              f"{sum(bool(m['reached_target']) for m in wide)}, with "
+              f"{max(m['outside_lumen_time_s'] for m in wide):.3f} s outside the lumen at most and "
+              f"{int(np.sum(wide_max > 1e-3))} over 1 mm; tracking max mean {wide_max.mean() * 1e6:.0f} um, worst "
+              f"{wide_max.max() * 1e6:.0f} um ({wide_max.max() / dense_target:.2f}x the target), within the target "
+              f"on {int(np.sum(wide_max <= dense_target))}, within twice it on "
+              f"{int(np.sum(wide_max <= 2.0 * dense_target))}. ")
     best_away = [f["away"] for f in flights[dense_best]]
     alone_max = [f["m"]["tracking_error_max_m"] for f in flights[dense_alone]]
     # what is left to the law: the plans flown on frames without noise (the estimate then a few um off)
@@ -312,7 +325,7 @@ def flight_block_3t() -> str:
             f"{sum(b <= 1e-3 for b in best_max)} of {len(best_max)}, tracking within "
             f"{min(best_max) / dense_target:.2f}-{max(best_max) / dense_target:.2f}x the target "
             f"({sum(b <= dense_target for b in best_max)} of {len(best_max)} within it; farther than 1 mm from "
-            f"the crest {min(best_away) / dense_target:.2f}-{max(best_away) / dense_target:.2f}x). "
+            f"the crest {min(best_away) / dense_target:.2f}-{max(best_away) / dense_target:.2f}x). " + wide_s +
             f"On frames without noise (imager.noise_sigma_m 1e-7, the plan's filter), seeds 0-4: {clean_s}. "
             f"The same loop on plans whose crossing pass takes another share of the budget "
             f"(`crest_budget_share`, default {PlanOptions().crest_budget_share:.2f}): " + "; ".join(lost) + ".", "",
