@@ -187,24 +187,25 @@ def linearised_error_matrix(
     dF_dX: npt.ArrayLike | None = None,
     dF_dZ: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.float64]:
-    """(4, 4) matrix ``A`` of the linearised error ``ed = A e``, ``e = (X_hat - X, Z_hat - Z)``.
+    """(4, 4) matrix ``A`` of the linearised error ``ed = A e``, ``e = (X_hat - X, Z_hat - Z)``; (..., 4, 4) for
+    stacked Jacobians (..., 2, 2), one matrix per pair.
 
     ``A = [[L G_x, I], [L^2 G_z + dF/dX, dF/dZ]]``.
 
     Args:
         params: Observer gains.
-        dF_dX: (2, 2) Jacobian of ``F`` w.r.t. position (1/s^2); zero if None.
-        dF_dZ: (2, 2) Jacobian of ``F`` w.r.t. velocity (1/s); zero if None.
+        dF_dX: (2, 2) or (..., 2, 2) Jacobian of ``F`` w.r.t. position (1/s^2); zero if None.
+        dF_dZ: (2, 2) or (..., 2, 2) Jacobian of ``F`` w.r.t. velocity (1/s); zero if None.
     """
     gx, gz = axis_gains(params)
     L = params.high_gain
     jx = np.zeros((2, 2)) if dF_dX is None else np.asarray(dF_dX, dtype=np.float64)
     jz = np.zeros((2, 2)) if dF_dZ is None else np.asarray(dF_dZ, dtype=np.float64)
-    a = np.zeros((4, 4))
-    a[:2, :2] = L * np.diag(gx)
-    a[:2, 2:] = np.eye(2)
-    a[2:, :2] = L**2 * np.diag(gz) + jx
-    a[2:, 2:] = jz
+    a = np.zeros((*np.broadcast_shapes(jx.shape[:-2], jz.shape[:-2]), 4, 4))
+    a[..., :2, :2] = L * np.diag(gx)
+    a[..., :2, 2:] = np.eye(2)
+    a[..., 2:, :2] = L**2 * np.diag(gz) + jx
+    a[..., 2:, 2:] = jz
     return a
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vesselbot_ros.config import check_nonnegative, check_positive
-from vesselbot_ros.control.high_gain_observer import ObserverParams, axis_gains
+from vesselbot_ros.control.high_gain_observer import ObserverParams, linearised_error_matrix
 from vesselbot_ros.physics.kernel import accel_no_motive
 from vesselbot_ros.physics.params import PhysicsParams
 from vesselbot_ros.vessels.cfd import packed_params
@@ -57,40 +57,33 @@ def observer_error_jacobian(
 
 
 @numba.njit(cache=True)
-def _jacobians(t, z, vx, p, jx, jv):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
+def _jacobians(t, z, vx, p, jac):  # type: ignore[no-untyped-def]  # numba kernel: argument types are inferred at compile time
     """The central differences of the acceleration without motive force at each centre height ``z`` (n,) (robot at
-    ``x`` = 0, moving at ``vx``) into ``jx`` (by position), ``jv`` (by velocity), (n, 2, 2)."""
+    ``x`` = 0, moving at ``vx``) into ``jac`` (n, 2, 4): by x, z (steps 1 nm), then by vx, vz (1 um/s)."""
     c = np.zeros(4)
-    hz, hv = 1e-9, 1e-6
+    sp, sm = np.empty(4), np.empty(4)
     for k in range(z.shape[0]):
-        s = (0.0, z[k], vx, 0.0)
-        for j in range(2):  # position columns: x, z
-            ap = accel_no_motive(t, s[0] + hz if j == 0 else s[0], s[1] + hz if j == 1 else s[1], s[2], s[3], c, p)
-            am = accel_no_motive(t, s[0] - hz if j == 0 else s[0], s[1] - hz if j == 1 else s[1], s[2], s[3], c, p)
-            jx[k, 0, j] = (ap[0] - am[0]) / (2 * hz)
-            jx[k, 1, j] = (ap[1] - am[1]) / (2 * hz)
-        for j in range(2):  # velocity columns: vx, vz
-            ap = accel_no_motive(t, s[0], s[1], s[2] + hv if j == 0 else s[2], s[3] + hv if j == 1 else s[3], c, p)
-            am = accel_no_motive(t, s[0], s[1], s[2] - hv if j == 0 else s[2], s[3] - hv if j == 1 else s[3], c, p)
-            jv[k, 0, j] = (ap[0] - am[0]) / (2 * hv)
-            jv[k, 1, j] = (ap[1] - am[1]) / (2 * hv)
+        for i in range(4):
+            h = 1e-9 if i < 2 else 1e-6
+            sp[0], sp[1], sp[2], sp[3] = 0.0, z[k], vx, 0.0
+            sm[:] = sp
+            sp[i] += h
+            sm[i] -= h
+            ap = accel_no_motive(t, sp[0], sp[1], sp[2], sp[3], c, p)
+            am = accel_no_motive(t, sm[0], sm[1], sm[2], sm[3], c, p)
+            jac[k, 0, i] = (ap[0] - am[0]) / (2 * h)
+            jac[k, 1, i] = (ap[1] - am[1]) / (2 * h)
 
 
 def observer_error_matrices(physics: PhysicsParams, t_s: float, z_m: npt.ArrayLike, vx_m_per_s: float,
                             observer: ObserverParams) -> npt.NDArray[np.float64]:
-    """(n, 4, 4) linearised observer error matrices ``A`` (:func:`~vesselbot_ros.control.high_gain_observer.linearised_error_matrix`'s
-    blocks) at each centre height of ``z_m`` (n,), robot moving at ``vx`` (m/s)."""
+    """(n, 4, 4) linearised observer error matrices ``A``
+    (:func:`~vesselbot_ros.control.high_gain_observer.linearised_error_matrix`) at each centre height of ``z_m``
+    (n,), robot moving at ``vx`` (m/s)."""
     z = np.ascontiguousarray(z_m, dtype=np.float64)
-    jx, jv = np.empty((z.size, 2, 2)), np.empty((z.size, 2, 2))
-    _jacobians(float(t_s), z, float(vx_m_per_s), packed_params(physics), jx, jv)
-    gx, gz = axis_gains(observer)
-    L = observer.high_gain
-    a = np.zeros((z.size, 4, 4))  # linearised_error_matrix's blocks
-    a[:, :2, :2] = L * np.diag(gx)
-    a[:, :2, 2:] = np.eye(2)
-    a[:, 2:, :2] = L**2 * np.diag(gz) + jx
-    a[:, 2:, 2:] = jv
-    return a
+    jac = np.empty((z.size, 2, 4))
+    _jacobians(float(t_s), z, float(vx_m_per_s), packed_params(physics), jac)
+    return linearised_error_matrix(observer, jac[:, :, :2], jac[:, :, 2:])
 
 
 def observer_unstable_gap_m(
@@ -119,7 +112,7 @@ def observer_unstable_gap_m(
     half = 0.5 * physics.vessel.diameter_m * (1.0 - physics.flow.diameter_pulsation)
     r = physics.robot.radius_m
     gaps = np.geomspace(1e-8, gap_max_m, n)
-    a = observer_error_matrices(physics, t, np.array([half - r - float(g) for g in gaps]), vx_m_per_s, observer)
+    a = observer_error_matrices(physics, t, half - r - gaps, vx_m_per_s, observer)
     unstable = np.max(np.linalg.eigvals(a).real, axis=1) > 0.0
     return float(gaps[unstable].max()) if unstable.any() else 0.0
 
