@@ -452,7 +452,7 @@ ROLES: tuple[Role, ...] = (
           optional_inputs=("sequence_phase",),
           safe_stop=True, stage="controller", summary="controller of the scenario's kind (law (24) by default): gradient command"),
     _node("coil_driver", "CoilDriverNode", inputs=("gradient_command",), optional_inputs=("coil_stall",),
-          outputs=("coil_applied", "coil_state", "sequence_phase"), counters=("watchdog_ticks",), stage="coil",
+          outputs=("coil_applied", "coil_state", "sequence_phase"), counters=("watchdog_ticks", "deferred_stalls"), stage="coil",
           summary="gradient coils: saturation, slew and dB/dt limits, watchdog; the scanner's sequence phase"),
     _node("plant", "PlantNode", inputs=("coil_applied",), outputs=("clock", "truth", "vessel_markers", "coil_stall"),
           services=("run_control", *SIMULATION_SERVICES),

@@ -160,3 +160,41 @@ def test_a_controller_that_raises_in_its_step_is_contained_counted_and_named(tmp
     m = json.loads(out.read_text())
     assert m["metrics"]["rejected_commands"] == 200 and m["final"]["g_applied"] == [0.0, 0.0]
     assert "died" not in p.stderr
+
+
+SLOW_TICKS = 60
+
+
+@pytest.fixture(scope="module")
+def slow_run(tmp_path_factory):
+    """A live controller that stalls once (1.3 s, 0.3 s past --stall-timeout), then answers each of 60 ticks in 40 ms:
+    twice the 20 ms the plant grants a tick once commands count as lost."""
+    from vesselbot_ros.bag.reader import open_bag, read_timeseries
+
+    tmp = tmp_path_factory.mktemp("slow_controller")
+    cfg = write_config(tmp, controller={"kind": KIND, "after_s": T_BAD_S, "mode": "slow", "pause_s": 1.3,
+                                        "slow_tick_s": 0.04, "slow_ticks": SLOW_TICKS},
+                       sim__duration_s=DURATION_S, sim__metrics_after_s=0.1)
+    bag, out = tmp / "bag", tmp / "metrics.json"
+    p = subprocess.run(run_cmd("--config", str(cfg), "--record-dir", str(bag), "--metrics-json", str(out), "--quiet",
+                               "--stall-timeout", "1.0"),
+                       cwd=tmp, capture_output=True, text=True, timeout=300, env=_env())
+    assert out.exists(), p.stdout + p.stderr
+    info = open_bag(bag)
+    assert info.consistent, info.problems
+    return {"p": p, "ts": read_timeseries(info), "json": json.loads(out.read_text())}
+
+
+def test_a_live_but_slow_controller_is_not_locked_out_by_the_watchdog(slow_run):
+    """Once the watchdog answered a tick the plant asks after 20 ms; the driver defers those requests while the
+    controller still sends commands, so the watchdog answers only while the controller was silent and every tick
+    after its slow stretch takes its command (it used to answer every tick of the slow stretch and more: a command
+    40 ms late for each)."""
+    ts, m, p = slow_run["ts"], slow_run["json"]["metrics"], slow_run["p"]
+    assert_coil_invariants(ts, U_SAT, 100.0, DT_S)
+    wd_ticks = np.flatnonzero(np.all(ts["coil.commanded"] == 0.0, axis=1) & (ts["coil.t_s"] >= T_BAD_S - 1e-9))
+    assert m["watchdog_ticks"] == len(wd_ticks) >= 1  # the pause: the first request after the full stall timeout
+    assert m["watchdog_ticks"] < SLOW_TICKS // 2, m
+    assert m["deferred_stalls"] >= 1, m
+    assert wd_ticks[-1] < K_BAD + SLOW_TICKS + 1  # from the end of the slow stretch on, every tick its command
+    assert p.returncode == 1 and "ticks got no valid controller command in time" in p.stderr, p.stderr

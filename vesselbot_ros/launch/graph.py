@@ -98,7 +98,8 @@ class GraphOptions:
         domain_id: ROS domain (None: lease a free one).
         lease: An already held lease (the CLI leases before it creates anything); overrides ``domain_id``.
         namespace: The graph's namespace (None: ``/vesselbot``).
-        wait_timeout_s: Bound on start-up waits (recorder, wiring, user nodes).
+        wait_timeout_s: Bound on each wait for the graph: at start-up (recorder, wiring, user nodes) and
+            after the run (final diagnostics, run series, the recorder catching up; a loaded machine is slow).
         run_timeout_s: Bound on the run itself (wall s; None: from the duration).
         stall_timeout_s: Lockstep coil-driver watchdog (wall s).
         progress: Called with (sim_time_s, duration_s, wall_s, status) about once a second;
@@ -438,18 +439,18 @@ def run_graph(scenario: Scenario, options: GraphOptions) -> GraphResult:
         _watch(mon, sup, roles, options, scenario, t_start)
         t_end = time.monotonic()
         # every node's final counts, then the run's series from every node that publishes some
-        wait_for(lambda: mon.published(roles, require_finished=True) is not None, 30.0, mon, sup,
+        wait_for(lambda: mon.published(roles, require_finished=True) is not None, options.wait_timeout_s, mon, sup,
                  "every node's final diagnostics")
         wall = mon.run_wall_s(t_end - t_start)
         if options.mode == "lockstep" and "plant" not in roles:
-            wait_for(lambda: mon.user_counts[topic("truth").name] >= n, 30.0, mon, sup,
+            wait_for(lambda: mon.user_counts[topic("truth").name] >= n, options.wait_timeout_s, mon, sup,
                      "the last truth of the user's plant at the launcher")
         mon.request_series()
-        wait_for(mon.series_ready, 30.0, mon, sup, "every node's run series (<role>/series)")
+        wait_for(mon.series_ready, options.wait_timeout_s, mon, sup, "every node's run series (<role>/series)")
         series = mon.series()
         if sup.recorder is not None:
             try:
-                wait_for(lambda: _recorder_caught_up(mon, roles), 30.0, mon, sup,
+                wait_for(lambda: _recorder_caught_up(mon, roles), options.wait_timeout_s, mon, sup,
                          "the recorder's received counts to match the published counts")
             except NodeDied:
                 raise

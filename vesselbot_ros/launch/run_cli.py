@@ -106,7 +106,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", action="store_true", help="write the report (figures, metrics) from the bag")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: lease a free one)")
     parser.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
-                        help="bound on start-up waits, incl. a user's node for --without (default 60 s)")
+                        help="bound on each wait for the graph: start-up (incl. a user's node for --without) and "
+                             "wind-down (final diagnostics, series, recorder) (default 60 s)")
     parser.add_argument("--run-timeout", type=float, default=None, metavar="S", help="bound on the run (wall s)")
     parser.add_argument("--stall-timeout", type=float, default=2.0, metavar="S",
                         help="lockstep: wall time before the coil driver's watchdog answers a silent tick")

@@ -59,7 +59,13 @@ Watchdog ("commands stopped"):
   ``min(graph.stall_timeout_s, LOST_GRACE_S)`` (20 ms wall) per tick, so a dead
   controller costs one stall timeout, not one per tick, and the ramp to zero
   runs at graph speed.  A command that arrives in time for its tick ends the
-  lost state.  The driver does not follow ``/clock`` in lockstep (one delivery
+  lost state.  A controller that is alive but slow (a loaded machine, a heavy
+  law) is not locked out by that grace: once the watchdog has answered a tick,
+  when a command of any tick came within the last ``graph.stall_timeout_s`` of
+  wall time (a request the plant sent early), the driver defers its answer
+  to a request by ``graph.stall_timeout_s`` and takes the tick's command if it
+  comes meanwhile (counted: ``deferred_stalls``).  A dead or hung controller
+  sends nothing, so it is answered at once, as before.  The driver does not follow ``/clock`` in lockstep (one delivery
   and one process wake-up less per tick).
 
 ``coil/stall`` input checks: a time off the tick grid, a frame other than
@@ -76,6 +82,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -117,6 +124,8 @@ class CoilDriverNode(VesselbotNode):
         self.add_subscription("gradient_command", Vector3Stamped, self._on_command)
         if self.lockstep:  # the plant says when a tick's command is late; real time follows /clock
             self.add_subscription("coil_stall", Header, self._on_stall)
+            self._defer_timer = self.create_timer(self.graph.stall_timeout_s, self._deferred_answer, clock=self._wall)
+            self._defer_timer.cancel()  # runs while a request waits for a live but slow controller
         self.realtime_clock()
 
     def reset_state(self) -> None:
@@ -138,6 +147,11 @@ class CoilDriverNode(VesselbotNode):
         self._t_last = 0.0
         self.commands_lost = False
         self._pending: tuple[int, Any] | None = None  # real time: a command for a tick not yet announced
+        self.deferred_stalls = 0
+        self._last_command_wall = -math.inf  # lockstep: monotonic time of the last command received (any tick)
+        self._deferred: int | None = None  # lockstep: the tick whose watchdog answer waits for a slow controller
+        if hasattr(self, "_defer_timer"):
+            self._defer_timer.cancel()
 
     # ------------------------------------------------------------------ inputs
     def _on_stall(self, msg: Header) -> None:
@@ -152,9 +166,27 @@ class CoilDriverNode(VesselbotNode):
         if k > self.k:
             self.reject("coil_stall", "future_tick", f"tick {k}, driver at {self.k}")
             return
-        if k < self.k or self.finished:  # answered already: the request crossed the answer
+        if k < self.k or self.finished or self._deferred == k:  # answered already: the request crossed the answer
             return
         self.count_received("coil_stall")
+        if self.watchdog_ticks and time.monotonic() - self._last_command_wall < self.graph.stall_timeout_s:
+            # the plant asks early (commands were lost), but the controller is alive, only late: give this tick a
+            # full stall timeout before answering it
+            self._deferred = k
+            self.deferred_stalls += 1
+            self._defer_timer.reset()
+            return
+        self._answer_stall(k)
+
+    def _deferred_answer(self) -> None:
+        """Lockstep: a deferred request's stall timeout passed; answer its tick if its command has not come."""
+        self._defer_timer.cancel()
+        k, self._deferred = self._deferred, None
+        if k is not None and k == self.k and not self.finished:
+            self._answer_stall(k)
+
+    def _answer_stall(self, k: int) -> None:
+        """Lockstep: answer tick ``k`` with the watchdog (hold, then ramp to zero); commands count as lost."""
         self.commands_lost = True
         t = cv.tick_time(k, self.dt)
         out, active = self._watchdog_output(t)
@@ -172,6 +204,7 @@ class CoilDriverNode(VesselbotNode):
             self.reject("gradient_command", "off_tick_stamp", f"stamp {stamp} ns")
             return
         self.note_input_tick("gradient_command", k)  # the controller's last command, if it dies (the launcher)
+        self._last_command_wall = time.monotonic()
         if self.lockstep and k != self.k:
             self.reject("gradient_command", "stale_tick" if k < self.k else "future_tick", f"tick {k}, driver at {self.k}")
             return
@@ -228,6 +261,9 @@ class CoilDriverNode(VesselbotNode):
         self.period_done(k)
         if self.lockstep:
             self.k = k + 1
+            if self._deferred is not None:  # the deferred tick's command came in time
+                self._deferred = None
+                self._defer_timer.cancel()
             if self.k >= self.n_ticks:
                 self.mark_finished()
 
@@ -255,6 +291,7 @@ class CoilDriverNode(VesselbotNode):
         return {
             "tick": str(self.k - 1),
             "watchdog_ticks": str(self.watchdog_ticks),
+            "deferred_stalls": str(self.deferred_stalls),
             "rejected_commands": str(self.rejected_commands),
             "commands_lost": "true" if self.commands_lost else "false",
         } | {f"applied_{axis}_T_per_m": repr(float(g))

@@ -52,7 +52,9 @@ t_k (latched) and the coil driver answers the tick itself (holding, then
 ramping its output to zero).  Until an answer comes for a tick it did not
 have to ask for, commands count as lost and the plant asks after
 ``min(graph.stall_timeout_s, LOST_GRACE_S)`` instead, so the ramp runs at
-graph speed.  A tick held at the gate (paused, stepping) is never asked for.
+graph speed (the driver defers a request while a live but late controller
+still sends commands, see the coil driver node).  A tick held at the gate
+(paused, stepping) is never asked for.
 
 Real-time (``graph.mode: realtime``): on START a wall-clock timer advances the
 plant by as many ticks as ``graph.real_time_factor`` asks, applying the latest

@@ -73,3 +73,38 @@ def test_a_rejected_command_ramps_the_coil_to_zero_at_the_slew_limit_and_a_valid
     np.testing.assert_allclose(g[80:90], step * np.arange(1, 11), rtol=0, atol=1e-12)  # and the valid command resumes
     assert node.diagnostic_values()["rejected_commands"] == "40"
     assert all(s.commanded_x == 0.0 for s in states[40:80])  # nothing non-finite is published
+
+
+def test_a_stall_request_waits_for_a_live_but_late_controller_and_is_answered_at_once_for_a_silent_one(driver):
+    """Lockstep: once the watchdog answered a tick the plant asks after 20 ms; a controller that is alive but slower
+    than that (a command of any tick within the last stall timeout) gets a full stall timeout for the tick asked for,
+    and its command is taken; a silent one is answered by the watchdog at once (it used to be answered at once
+    always, so a slow controller, once late, stayed locked out for the rest of the run)."""
+    import time
+
+    from vesselbot_ros.nodes import conversions as cv
+
+    node, states = driver
+    assert node.lockstep
+    for k in range(10):
+        _command(node, k, G0)
+    node._on_stall(cv.header(10 * DT_S))  # the first request (the plant waited a full stall timeout): answered at once
+    assert len(states) == 11 and states[10].watchdog_active is False and states[10].commanded_x == 0.0
+    _command(node, 10, G0)  # tick 10's command comes late: stale, rejected, but the controller is alive
+    assert len(states) == 11 and node.rejected_commands == 0
+    node._on_stall(cv.header(11 * DT_S))  # deferred: no answer yet
+    assert len(states) == 11 and node.deferred_stalls == 1 and not node._defer_timer.is_canceled()
+    node._on_stall(cv.header(11 * DT_S))  # a repeated request for the deferred tick moves nothing
+    assert len(states) == 11 and node.deferred_stalls == 1
+    _command(node, 11, G0)  # in time for the deferred tick: taken
+    assert len(states) == 12 and states[11].commanded_x == G0 and node._defer_timer.is_canceled()
+    node._deferred_answer()  # a timer firing after the answer moves nothing
+    assert len(states) == 12
+    node._on_stall(cv.header(12 * DT_S))  # deferred again (a command just came) ...
+    assert len(states) == 12 and node.deferred_stalls == 2
+    node._deferred_answer()  # ... and its stall timeout passed without a command: the watchdog answers
+    assert len(states) == 13 and states[12].commanded_x == 0.0 and node.diagnostic_values()["deferred_stalls"] == "2"
+    assert node.watchdog_ticks == 2
+    node._last_command_wall = time.monotonic() - 2 * node.graph.stall_timeout_s  # the controller went silent
+    node._on_stall(cv.header(13 * DT_S))  # answered at once, as a dead controller's ticks are
+    assert len(states) == 14 and node.watchdog_ticks == 3 and node.deferred_stalls == 2
