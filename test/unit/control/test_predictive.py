@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from pathlib import Path
 
@@ -142,6 +144,9 @@ def test_wall_contact_carried_plans_no_vertical_gradient_where_the_reference_res
     assert whole["carried"] < 0.7 * whole["lifted"]
 
 
+_INSERT_SPREAD = functools.cache(lambda: _insert(spread_m=1e-4))
+
+
 @settings(max_examples=30, deadline=None)
 @example(est=[0.0] * 4, vr=[0.0, 2.2250738585e-313], spread=0.0009952058468490873)  # the expectation's own rounding
 @given(est=st.lists(st.floats(-1e-2, 1e-2), min_size=4, max_size=4),
@@ -150,8 +155,9 @@ def test_a_spreads_hypotheses_straddle_the_estimate_along_the_reference(est: lis
                                                                         spread: float) -> None:
     """The two hypotheses: the estimate moved ``spread_m`` forward and back along the reference's velocity (their
     mean is the estimate, to rounding), the estimated velocity kept; a reference at rest moves neither."""
-    sc = _insert(spread_m=spread)
-    prm = predictive_params(sc.controller, effective_coil_limits(sc.coil, sc.dbdt), sc.sequence, sc.sim.dt_control_s)
+    sc = _INSERT_SPREAD()  # loaded once (a scenario load per example cost most of the test's time)
+    params = dataclasses.replace(sc.controller, spread_m=spread)
+    prm = predictive_params(params, effective_coil_limits(sc.coil, sc.dbdt), sc.sequence, sc.sim.dt_control_s)
     e, v, hyp = np.array(est), np.array(vr), np.empty(8)
     _hypotheses(prm, e, v, hyp)
     ahead, back = hyp[:4], hyp[4:]
