@@ -65,8 +65,9 @@ Watchdog ("commands stopped"):
   wall time (a request the plant sent early), the driver defers its answer
   to a request by ``graph.stall_timeout_s`` and takes the tick's command if it
   comes meanwhile (counted: ``deferred_stalls``).  A dead or hung controller
-  sends nothing, so it is answered at once, as before.  The driver does not follow ``/clock`` in lockstep (one delivery
-  and one process wake-up less per tick).
+  sends nothing, so it is answered at once, as before.  The driver does not
+  follow ``/clock`` in lockstep (one delivery and one process wake-up less per
+  tick).
 
 ``coil/stall`` input checks: a time off the tick grid, a frame other than
 ``vessel`` or a tick the driver has not reached (``off_tick_stamp``,
@@ -166,7 +167,9 @@ class CoilDriverNode(VesselbotNode):
         if k > self.k:
             self.reject("coil_stall", "future_tick", f"tick {k}, driver at {self.k}")
             return
-        if k < self.k or self.finished or self._deferred == k:  # answered already: the request crossed the answer
+        if k < self.k or self.finished:  # answered already: the request crossed the answer
+            return
+        if self._deferred == k:  # this tick's answer already waits for a slow controller
             return
         self.count_received("coil_stall")
         if self.watchdog_ticks and time.monotonic() - self._last_command_wall < self.graph.stall_timeout_s:
